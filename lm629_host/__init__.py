@@ -1,0 +1,51 @@
+"""lm629_host: host driver, chip simulator and bench CLI for the LM628/LM629 motion controllers.
+
+    import lm629_host
+    with lm629_host.open("sim://") as chip:
+        chip.reset()
+        chip.load_filter(kp=20); chip.update_filter()
+        chip.load_trajectory(acceleration=100, velocity=100 * 65536 // 100, position=1000)
+        chip.start()
+        chip.wait_for(lm629_host.Status.TRAJECTORY_COMPLETE)
+"""
+
+from __future__ import annotations
+
+from .errors import (
+    BusyTimeout,
+    CommandError,
+    LM629Error,
+    ProtocolViolation,
+    ResetError,
+    TransportError,
+    WaitTimeout,
+)
+from .lm629 import LM629, Snapshot
+from .opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
+from .program import BusCycle, Program, ProgramResult
+from .transports import DEFAULT_URL, open_transport, query_params, scheme_of
+
+__version__ = "0.1.0"
+
+
+def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None) -> LM629:  # noqa: A001
+    """Open the chip behind ``url`` (``sim://`` by default; see :mod:`lm629_host.transports`).
+
+    ``chip`` is "lm628" or "lm629"; on a simulator URL it defaults to the URL's ``chip=``.
+    ``trace`` is called with a :class:`BusCycle` for every bus cycle.
+    """
+    if chip is None:
+        chip = query_params(url).get("chip", "lm629") if scheme_of(url).startswith("sim") else "lm629"
+    transport = open_transport(url, trace=trace)
+    try:
+        return LM629(transport, chip=chip)
+    except Exception:
+        transport.close()
+        raise
+
+
+__all__ = [
+    "LM629", "Snapshot", "open", "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",
+    "BusCycle", "Program", "ProgramResult", "LM629Error", "BusyTimeout", "ResetError",
+    "TransportError", "CommandError", "WaitTimeout", "ProtocolViolation", "__version__",
+]

@@ -1,0 +1,80 @@
+"""Exceptions.  Every message says what failed and what to check on the bench."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+
+class LM629Error(Exception):
+    """Base class of every error this package raises on purpose (besides ValueError for
+    arguments, which is raised before any bus traffic)."""
+
+
+class BusyTimeout(LM629Error):
+    """The busy bit stayed set longer than the transport's busy timeout."""
+
+    def __init__(self, operation: str, timeout_s: float, status: int | None = None,
+                 index: int | None = None, words: Sequence[int] = ()):
+        self.operation = operation
+        self.timeout_s = timeout_s
+        self.status = status
+        self.index = index
+        self.words = tuple(words)
+        seen = f"; last status read {status:02X}" if status is not None else ""
+        super().__init__(
+            f"busy bit stayed set for {timeout_s * 1e3:.3g} ms before {operation}{seen} "
+            "(the chip never holds busy for more than 100 us). Check the chip's power and "
+            "its clock input, that /CS and /PS reach the chip, and that /RST is not held low."
+        )
+
+
+class ResetError(LM629Error):
+    """The reset check of AN-706 4.4.1 failed."""
+
+    def __init__(self, statuses: Sequence[int], expected: str, attempts: int = 1):
+        self.statuses = tuple(statuses)
+        self.attempts = attempts
+        seen = " ".join(f"{s:02X}" for s in self.statuses) or "nothing"
+        super().__init__(
+            f"reset check failed after {attempts} attempt(s): status read {seen}, expected "
+            f"{expected}. Check the chip's supply and clock (CLK pin), that /RST is wired and "
+            "released, and that the data bus and /PS are wired the right way round."
+        )
+
+
+class TransportError(LM629Error):
+    """The link to the chip failed: port missing, busy, no permission, no answer, bad frames."""
+
+    def __init__(self, message: str, port: str | None = None):
+        self.port = port
+        super().__init__(f"{port}: {message}" if port else message)
+
+
+class CommandError(LM629Error):
+    """The chip set its command-error bit (status bit 1) in answer to a command."""
+
+    def __init__(self, command: str, status: int):
+        self.command = command
+        self.status = status
+        super().__init__(
+            f"the chip rejected {command} (command-error bit set, status {status:02X}). "
+            "It refuses an acceleration change while moving with the drive on, a relative "
+            "velocity that would go negative, and a transfer in the wrong direction."
+        )
+
+
+class WaitTimeout(LM629Error):
+    """``wait_for`` did not see any of the awaited status flags in time."""
+
+    def __init__(self, flags: object, timeout_s: float, status: int):
+        self.flags = flags
+        self.timeout_s = timeout_s
+        self.status = status
+        super().__init__(
+            f"waited {timeout_s:g} s for {flags} but status stayed {status:02X}. "
+            "Check that the motor can follow (following error, stall) and that the move was started."
+        )
+
+
+class ProtocolViolation(LM629Error):
+    """Raised by ``sim://?strict=1`` the moment the host breaks the chip's bus protocol."""

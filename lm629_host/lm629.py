@@ -1,0 +1,425 @@
+"""The typed command layer: one method per LM628/LM629 user command.
+
+Each method validates its arguments against the chip's ranges first (``ValueError`` naming the
+argument, the value and the range, and no bus traffic at all), then builds one bus program and
+runs it on the transport.  The busy check before every command byte and every data word is
+part of the program (see :mod:`lm629_host.program`), so it cannot be forgotten here.
+
+Words go most significant byte first, 32-bit values as two words with the most significant
+word first, positions in two's complement (spec "Bus cycles").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from .errors import CommandError, ResetError, WaitTimeout
+from .opcodes import (
+    ACCELERATION_MAX,
+    COEFFICIENT_MAX,
+    DERIVATIVE_INTERVAL_MAX,
+    FILTER_ORDER,
+    INTERRUPTS,
+    POSITION_MAX,
+    POSITION_MIN,
+    RESET_CLEARED_STATUSES,
+    RESET_DONE_STATUSES,
+    RESET_WAIT_S,
+    VELOCITY_MAX,
+    Cmd,
+    FilterFlags,
+    Signals,
+    Status,
+    TrajectoryFlags,
+)
+from .program import Program, ProgramResult
+from .transports.base import Clock, Transport
+
+_STOPS = {
+    None: TrajectoryFlags(0),
+    "smooth": TrajectoryFlags.STOP_SMOOTH,
+    "abrupt": TrajectoryFlags.STOP_ABRUPT,
+    "off": TrajectoryFlags.MOTOR_OFF,
+}
+
+
+def _s32(words: Iterable[int]) -> int:
+    hi, lo = words
+    v = (hi << 16) | lo
+    return v - (1 << 32) if v & 0x80000000 else v
+
+
+def _s16(word: int) -> int:
+    return word - (1 << 16) if word & 0x8000 else word
+
+
+def check_int(name: str, value: object, lo: int, hi: int, *, hex_digits: int = 0) -> int:
+    """Validate an integer argument; the error names it, its value and the allowed range."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        else:
+            raise ValueError(f"{name}={value!r} must be an integer in {lo}..{hi}")
+    if not lo <= value <= hi:
+        rng = f"{lo}..{hi}"
+        if hex_digits:
+            rng += f" (0x{lo & (16 ** hex_digits - 1):0{hex_digits}X}..0x{hi:0{hex_digits}X})"
+        raise ValueError(f"{name}={value} is outside the allowed range {rng}")
+    return value
+
+
+def _check_flags(name: str, flags: object) -> Status:
+    value = check_int(name, int(flags) if isinstance(flags, Status) else flags, 0, 0xFF)
+    extra = value & ~INTERRUPTS
+    if extra:
+        raise ValueError(
+            f"{name}={value:#04x} has bits that are not interrupt conditions ({extra:#04x}); "
+            f"allowed: {INTERRUPTS!r} (status bits 1..6)")
+    return Status(value)
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """Everything the chip reports, read in one bus program (one round trip on a bridge)."""
+
+    status: Status
+    signals: Signals
+    desired_position: int
+    real_position: int
+    desired_velocity: int  #: signed 16.16
+    real_velocity: int
+    integration_sum: int
+    time: float  #: the transport clock when the snapshot was taken
+
+    @property
+    def following_error(self) -> int:
+        return self.desired_position - self.real_position
+
+
+class LM629:
+    """One LM628 or LM629 behind a transport.  Use :func:`lm629_host.open` to make one."""
+
+    def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2):
+        chip = chip.lower()
+        if chip not in ("lm628", "lm629"):
+            raise ValueError(f"chip={chip!r}: expected 'lm628' or 'lm629'")
+        self.transport = transport
+        self.variant = chip
+        self.reset_attempts = reset_attempts
+        self._ds = 0  # derivative sampling byte, re-sent with every LFIL (AN-706 4.5.1)
+        self._port12 = False  # re-issued after every reset (LM628 with a 12-bit DAC)
+
+    # ------------------------------------------------------------------ plumbing
+    @property
+    def clock(self) -> Clock:
+        """The transport's clock: simulated on ``sim://``, the wall clock on hardware."""
+        return self.transport.clock
+
+    def run(self, program: Program) -> ProgramResult:
+        """Run a bus program (for experts and for composite operations)."""
+        return self.transport.execute(program)
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def __enter__(self) -> LM629:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<LM629 {self.variant} on {self.transport.describe()}>"
+
+    def _command(self, cmd: Cmd) -> None:
+        self.run(Program().command(cmd))
+
+    def _read(self, cmd: Cmd, words: int) -> tuple[int, ...]:
+        return self.run(Program().command(cmd).read(words)).words
+
+    # ------------------------------------------------------------------ reset
+    def reset_program(self) -> Program:
+        """The AN-706 3.7 / 4.4.1 initialisation as one program: reset, status 00, wait 1.5 ms,
+        status 84/C4, MSKI 0000, RSTI 0000, status 80/C0 (and PORT12 when it was set)."""
+        p = Program()
+        if self.transport.has_reset_line:
+            p.reset().status()
+        else:
+            p.command(Cmd.RESET).status()
+        p.wait(round(RESET_WAIT_S * 1e6)).status()
+        p.command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
+        if self._port12:
+            p.command(Cmd.PORT12)
+        return p
+
+    def reset(self) -> Status:
+        """Reset the chip and check that it came back, as AN-706 4.4.1 prescribes.
+
+        Pulses /RST (or sends the RESET command when the transport has no reset line), checks
+        status 00 at once (hardware reset only), 84 or C4 after 1.5 ms, then masks and clears
+        all interrupts and checks 80 or C0.  Retries ``reset_attempts`` times in all, then
+        raises :class:`ResetError` with every status byte seen.
+        """
+        seen: list[int] = []
+        hw = self.transport.has_reset_line
+        for _ in range(self.reset_attempts):
+            result = self.run(self.reset_program())
+            first, done, cleared = result.statuses
+            seen.extend(result.statuses)
+            if (not hw or first == 0x00) and done in RESET_DONE_STATUSES \
+                    and cleared in RESET_CLEARED_STATUSES:
+                self._ds = 0
+                return Status(cleared)
+        expected = ("00 at once, 84 or C4 after 1.5 ms, 80 or C0 after MSKI/RSTI 0000" if hw
+                    else "84 or C4 after the RESET command, 80 or C0 after MSKI/RSTI 0000")
+        raise ResetError(seen, expected, self.reset_attempts)
+
+    # ------------------------------------------------------------------ status
+    def read_status(self) -> Status:
+        """RDSTAT: the status byte (no busy check; valid at any time)."""
+        return Status(self.run(Program().status()).statuses[0])
+
+    def read_signals(self) -> Signals:
+        """RDSIGS: the 16-bit signals register."""
+        return Signals(self._read(Cmd.RDSIGS, 1)[0])
+
+    def snapshot(self) -> Snapshot:
+        """Status, signals, positions, velocities and integration sum in one bus program."""
+        p = Program().status()
+        for cmd, n in ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2),
+                       (Cmd.RDRV, 1), (Cmd.RDSUM, 1)):
+            p.command(cmd).read(n)
+        r = self.run(p)
+        w = r.words
+        return Snapshot(Status(r.statuses[0]), Signals(w[0]), _s32(w[1:3]), _s32(w[3:5]),
+                        _s32(w[5:7]), _s16(w[7]), _s16(w[8]), self.clock.now())
+
+    # ------------------------------------------------------------------ interrupts
+    def mask_interrupts(self, flags: Status | int) -> None:
+        """MSKI: the interrupt conditions (status bits 1..6) that drive HI."""
+        value = _check_flags("flags", flags)
+        self.run(Program().command(Cmd.MSKI).write(int(value)))
+
+    def reset_interrupts(self, flags: Status | int = INTERRUPTS) -> None:
+        """RSTI: clear exactly ``flags`` (default: all six) and, with them, HI."""
+        value = _check_flags("flags", flags)
+        self.run(Program().command(Cmd.RSTI).write(int(INTERRUPTS & ~value)))
+
+    # ------------------------------------------------------------------ homing, index, limits
+    def define_home(self) -> None:
+        """DFH: the current position becomes 0."""
+        self._command(Cmd.DFH)
+
+    def set_index_position(self) -> None:
+        """SIP: latch the position at the next index pulse (read it with read_index_position)."""
+        self._command(Cmd.SIP)
+
+    def load_position_error(self, threshold: int, stop: bool = False) -> None:
+        """LPEI (flag only) or, with ``stop=True``, LPES (flag and motor off)."""
+        value = check_int("threshold", threshold, 0, COEFFICIENT_MAX, hex_digits=4)
+        self.run(Program().command(Cmd.LPES if stop else Cmd.LPEI).write(value))
+
+    def set_breakpoint(self, position: int, relative: bool = False) -> None:
+        """SBPA, or SBPR (relative to the current target position) with ``relative=True``."""
+        value = check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        self.run(Program().command(Cmd.SBPR if relative else Cmd.SBPA).write32(value))
+
+    # ------------------------------------------------------------------ filter
+    def filter_program(self, kp: int | None = None, ki: int | None = None, kd: int | None = None,
+                       il: int | None = None, derivative_interval: int | None = None) -> Program:
+        """Validate and build LFIL without running it (the derivative byte is not remembered
+        until the program has run)."""
+        values = {"kp": kp, "ki": ki, "kd": kd, "il": il}
+        for name, v in values.items():
+            if v is not None:
+                values[name] = check_int(name, v, 0, COEFFICIENT_MAX, hex_digits=4)
+        ds = self._ds
+        if derivative_interval is not None:
+            ds = check_int("derivative_interval", derivative_interval, 1,
+                           DERIVATIVE_INTERVAL_MAX) - 1
+        control = ds << 8
+        for flag in FILTER_ORDER:
+            if values[flag.name.lower()] is not None:
+                control |= flag
+        p = Program().command(Cmd.LFIL).write(control)
+        for flag in FILTER_ORDER:
+            v = values[flag.name.lower()]
+            if v is not None:
+                p.write(v)
+        return p
+
+    def load_filter(self, kp: int | None = None, ki: int | None = None, kd: int | None = None,
+                    il: int | None = None, derivative_interval: int | None = None) -> None:
+        """LFIL: load the given coefficients into the filter's input buffers (UDF applies them).
+
+        ``derivative_interval`` is in samples, 1..256; when omitted the last value sent is sent
+        again (the chip takes it from every LFIL control word, AN-706 4.5.1).
+        """
+        p = self.filter_program(kp, ki, kd, il, derivative_interval)
+        self.run(p)
+        self._ds = p.ops[1].arg >> 8
+
+    def update_filter(self) -> None:
+        """UDF: input buffers -> working filter registers at the next sample."""
+        self._command(Cmd.UDF)
+
+    @property
+    def derivative_interval(self) -> int:
+        """The derivative interval (samples) last sent with LFIL."""
+        return self._ds + 1
+
+    # ------------------------------------------------------------------ trajectory
+    def trajectory_program(self, acceleration: int | None = None, velocity: int | None = None,
+                           position: int | None = None, *, acceleration_relative: bool = False,
+                           velocity_relative: bool = False, position_relative: bool = False,
+                           velocity_mode: bool = False, forward: bool = True,
+                           stop: str | None = None) -> Program:
+        """Validate and build LTRJ without running it."""
+        if stop not in _STOPS:
+            raise ValueError(f"stop={stop!r} must be one of None, 'smooth', 'abrupt', 'off'")
+        acc_lo = -ACCELERATION_MAX - 1 if acceleration_relative else 0
+        vel_lo = -VELOCITY_MAX - 1 if velocity_relative else 0
+        if acceleration is not None:
+            acceleration = check_int("acceleration", acceleration, acc_lo, ACCELERATION_MAX,
+                                     hex_digits=8)
+        if velocity is not None:
+            velocity = check_int("velocity", velocity, vel_lo, VELOCITY_MAX, hex_digits=8)
+        if position is not None:
+            position = check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        if velocity_mode and position is not None:
+            raise ValueError("position cannot be given with velocity_mode=True: a velocity-mode "
+                             "move has no target position")
+        if stop is not None and (position is not None or velocity is not None
+                                 or acceleration is not None):
+            raise ValueError(
+                f"stop={stop!r} cannot be combined with new acceleration/velocity/position: the "
+                "chip would not move (spec: stop bits only stop an ongoing move). Send the stop, "
+                "then load the next move")
+        control = _STOPS[stop]
+        if velocity_mode:
+            control |= TrajectoryFlags.VELOCITY_MODE
+            if forward:
+                control |= TrajectoryFlags.FORWARD
+        p = Program().command(Cmd.LTRJ)
+        words = Program()
+        for value, flag, rel_flag, relative in (
+                (acceleration, TrajectoryFlags.ACCELERATION, TrajectoryFlags.ACCELERATION_RELATIVE,
+                 acceleration_relative),
+                (velocity, TrajectoryFlags.VELOCITY, TrajectoryFlags.VELOCITY_RELATIVE,
+                 velocity_relative),
+                (position, TrajectoryFlags.POSITION, TrajectoryFlags.POSITION_RELATIVE,
+                 position_relative)):
+            if value is not None:
+                control |= flag | (rel_flag if relative else 0)
+                words.write32(value)
+        return p.write(int(control)).extend(words)
+
+    def load_trajectory(self, acceleration: int | None = None, velocity: int | None = None,
+                        position: int | None = None, *, acceleration_relative: bool = False,
+                        velocity_relative: bool = False, position_relative: bool = False,
+                        velocity_mode: bool = False, forward: bool = True,
+                        stop: str | None = None, start: bool = False) -> None:
+        """LTRJ: load trajectory parameters (raw 16.16 words for acceleration and velocity,
+        counts for position).  Nothing moves until STT; ``start=True`` appends the STT to the
+        same bus program (one round trip on a bridge) and checks it like :meth:`start`."""
+        p = self.trajectory_program(
+            acceleration, velocity, position, acceleration_relative=acceleration_relative,
+            velocity_relative=velocity_relative, position_relative=position_relative,
+            velocity_mode=velocity_mode, forward=forward, stop=stop)
+        if start:
+            self._start(p)
+        else:
+            self.run(p)
+
+    def _start(self, program: Program) -> Status:
+        program.status().command(Cmd.STT).sync()
+        before, after = self.run(program).statuses[-2:]
+        if after & Status.COMMAND_ERROR and not before & Status.COMMAND_ERROR:
+            raise CommandError("STT", after)
+        return Status(after)
+
+    def start(self) -> Status:
+        """STT: trajectory input buffers -> working registers; the move begins.
+
+        Raises :class:`CommandError` when the chip refuses it (acceleration changed while
+        moving with the drive on, relative velocity below zero).  Do not issue STT more often
+        than every 10 ms (AN-706 4.6.2).
+        """
+        return self._start(Program())
+
+    # ------------------------------------------------------------------ output port
+    def port8(self) -> None:
+        """PORT8: 8-bit output (the reset default; required setting on the LM629)."""
+        self._command(Cmd.PORT8)
+        self._port12 = False
+
+    def port12(self) -> None:
+        """PORT12: 12-bit DAC output, LM628 only; re-issued by :meth:`reset`."""
+        if self.variant != "lm628":
+            raise ValueError(
+                f"port12() is for an LM628 with a 12-bit DAC; this chip is an {self.variant.upper()}"
+                " (open it with chip='lm628' if it really is an LM628)")
+        self._command(Cmd.PORT12)
+        self._port12 = True
+
+    # ------------------------------------------------------------------ data reporting
+    def read_desired_position(self) -> int:
+        """RDDP: desired position, counts (signed 32-bit)."""
+        return _s32(self._read(Cmd.RDDP, 2))
+
+    def read_real_position(self) -> int:
+        """RDRP: real (encoder) position, counts (signed 32-bit)."""
+        return _s32(self._read(Cmd.RDRP, 2))
+
+    def read_index_position(self) -> int:
+        """RDIP: position latched at the index pulse after SIP."""
+        return _s32(self._read(Cmd.RDIP, 2))
+
+    def read_desired_velocity(self) -> int:
+        """RDDV: desired velocity, signed 16.16 (65536 = 1 count/sample)."""
+        return _s32(self._read(Cmd.RDDV, 2))
+
+    def read_real_velocity(self) -> int:
+        """RDRV: real velocity, integer counts/sample (signed 16-bit)."""
+        return _s16(self._read(Cmd.RDRV, 1)[0])
+
+    def read_integration_sum(self) -> int:
+        """RDSUM: the integration term (signed 16-bit)."""
+        return _s16(self._read(Cmd.RDSUM, 1)[0])
+
+    # ------------------------------------------------------------------ waiting
+    def wait_for(self, flags: Status | int, timeout: float = 10.0, poll: float = 1e-3) -> Status:
+        """Poll the status byte until any of ``flags`` is set; return the status.
+
+        Waits on the transport's clock (simulated time on ``sim://``).  Raises
+        :class:`WaitTimeout` after ``timeout`` seconds.
+        """
+        value = Status(check_int("flags", int(flags), 1, 0xFF))
+        if timeout <= 0:
+            raise ValueError(f"timeout={timeout} must be positive (seconds)")
+        clock = self.clock
+        deadline = clock.now() + timeout
+        while True:
+            status = self.read_status()
+            if status & value:
+                return status
+            if clock.now() >= deadline:
+                raise WaitTimeout(value, timeout, int(status))
+            clock.sleep(min(poll, max(0.0, deadline - clock.now())) or poll)
+
+    # ------------------------------------------------------------------ experts
+    def raw(self, command: int, write: Iterable[int] = (), read: int = 0) -> tuple[int, ...]:
+        """Send any command byte with data words to write, or a count of words to read."""
+        command = check_int("command", command, 0, 0xFF, hex_digits=2)
+        words = [check_int("word", w, 0, 0xFFFF, hex_digits=4) for w in write]
+        read = check_int("read", read, 0, 16)
+        if words and read:
+            raise ValueError("a command either writes words or reads them, not both")
+        p = Program().command(command)
+        for w in words:
+            p.write(w)
+        return self.run(p.read(read)).words
+
+
+__all__ = ["LM629", "Snapshot", "FilterFlags", "check_int"]

@@ -1,0 +1,495 @@
+"""Software model of an LM628/LM629: the host interface and the command decoder.
+
+The model is driven one bus cycle at a time, as the pins would drive it:
+:meth:`ChipModel.read_status`, :meth:`write_command`, :meth:`write_data` and
+:meth:`read_data` are one /RD or /WR strobe each (one byte), :meth:`reset_pulse` is the rising
+edge of /RST.  Time is the chip's own clock count (``tick``, integer chip clocks since power-on);
+whoever drives the model (the ``sim://`` transport, the simavr harness, the emulated FT232H)
+advances it with :meth:`advance_to` before each strobe.  The model never looks at the wall
+clock.
+
+What happens at the sample tick (every 2048 clocks) is delegated to :class:`~.motion.Motion`:
+trajectory generator, PID filter, output stage, motor and encoder.  This module keeps the
+registers the host sees (status, signals, mask, buffers) and the events that are pure register
+logic (breakpoint, excessive position error).
+
+The model knows nothing of the driver: it takes bytes and answers bytes.
+
+Host-interface behaviour, from the spec, with the model's choices marked:
+
+* busy is set after a command byte and after the second byte of a data word, for
+  ``ChipParams.busy_s``; a write while busy is ignored, a read while busy returns the stale
+  byte of the I/O register; neither sets the command-error bit (as on silicon);
+* [model choice] a strobe that the chip ignores (busy) does not advance the byte phase;
+* a new command byte aborts an unfinished command;
+* a data transfer in the wrong direction sets the command-error bit; [model choice] so does a
+  data byte with no command expecting one, and an unknown opcode; the transfer is ignored;
+* after /RST the status reads 00 (busy clear) until the reset completes ``reset_s`` later, then
+  84 or C4; after the RESET command busy stays set until the reset completes [model choice,
+  see the spec's "Observed on real chips"];
+* ``strict`` raises :class:`~lm629_host.errors.ProtocolViolation` at once on anything a correct
+  host never does: a write or data read while busy, a data byte without a command, a wrong
+  direction, an aborted command, an unknown opcode, a cycle during the /RST window.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import ProtocolViolation
+from ..opcodes import (
+    COMMANDS,
+    FILTER_ORDER,
+    INTERRUPTS,
+    SAMPLE_CLOCKS,
+    Cmd,
+    Direction,
+    Signals,
+    Status,
+    TrajectoryFlags,
+    lfil_word_count,
+    ltrj_word_count,
+)
+from .motion import Motion
+from .params import ChipParams, MotorParams
+
+
+def s32(value: int) -> int:
+    """Two's complement of a 32-bit pattern."""
+    value &= 0xFFFFFFFF
+    return value - (1 << 32) if value & 0x80000000 else value
+
+
+def s16(value: int) -> int:
+    value &= 0xFFFF
+    return value - (1 << 16) if value & 0x8000 else value
+
+
+@dataclass
+class FilterRegisters:
+    """LFIL input buffer or working registers."""
+
+    kp: int = 0
+    ki: int = 0
+    kd: int = 0
+    il: int = 0
+    ds: int = 0  #: derivative sampling byte: interval = ds + 1 samples
+
+    def copy(self) -> FilterRegisters:
+        return FilterRegisters(self.kp, self.ki, self.kd, self.il, self.ds)
+
+
+@dataclass
+class TrajectoryBuffer:
+    """LTRJ input buffer: the last control word and the parameters loaded since the last STT."""
+
+    control: int = 0
+    acceleration: int = 0  #: 16.16, unsigned
+    velocity: int = 0  #: 16.16, unsigned
+    position: int = 0  #: signed counts
+    #: which parameters were loaded (and how) since the last STT
+    loaded: int = 0
+
+
+class ChipModel:
+    """One LM628 or LM629 with its motor, as seen from its pins."""
+
+    def __init__(self, params: ChipParams | None = None, motor: MotorParams | None = None):
+        self.params = params or ChipParams()
+        if self.params.variant not in ("lm628", "lm629"):
+            raise ValueError(f"chip variant {self.params.variant!r}: expected lm628 or lm629")
+        if not 1_000_000 <= self.params.clock_hz <= 8_000_000:
+            raise ValueError(f"clock {self.params.clock_hz} Hz is outside the chip's 1-8 MHz")
+        self.motor_params = motor or MotorParams()
+        self.clock_hz = self.params.clock_hz
+        self.tick = 0
+        self.busy_clocks = max(1, round(self.params.busy_s * self.clock_hz))
+        self.reset_clocks = max(8, round(self.params.reset_s * self.clock_hz))
+        self.next_sample = SAMPLE_CLOCKS
+        self.samples = 0
+        #: every command that reached the chip, with its words (when ``params.record``)
+        self.history: list[tuple[int, tuple[int, ...]]] = []
+        self.violations: list[str] = []
+        self.motion = Motion(self, self.motor_params)
+        # power-on: as if /RST had been pulsed long ago and the reset had completed
+        self._power_on_reset()
+        self._reset_done_at: int | None = None
+        self._in_hw_reset = False
+        self._complete_reset()
+        if self.params.fault == "reset":
+            self._in_hw_reset = True
+            self._reset_done_at = None
+
+    # ------------------------------------------------------------------ time
+    @property
+    def sample_clocks(self) -> int:
+        return SAMPLE_CLOCKS
+
+    def now(self) -> float:
+        """Simulated seconds since power-on."""
+        return self.tick / self.clock_hz
+
+    def advance(self, seconds: float) -> None:
+        self.advance_to(self.tick + max(0, round(seconds * self.clock_hz)))
+
+    def advance_to(self, tick: int) -> None:
+        """Run the chip up to clock ``tick``: reset completion and samples, in time order."""
+        if tick <= self.tick:
+            return
+        while True:
+            event = self.next_sample
+            done = self._reset_done_at
+            if done is not None and done <= event and done <= tick:
+                self.tick = done
+                self._complete_reset()
+                continue
+            if event > tick:
+                break
+            # run every whole sample up to the next reset event or `tick`
+            limit = tick if done is None else min(tick, done - 1)
+            n = (limit - event) // SAMPLE_CLOCKS + 1
+            if n <= 0:
+                break
+            self._run_samples(n)
+        self.tick = tick
+
+    def _run_samples(self, n: int) -> None:
+        """Run ``n`` consecutive samples, the first at ``self.next_sample``."""
+        motion = self.motion
+        for _ in range(n):
+            self.tick = self.next_sample
+            self.next_sample += SAMPLE_CLOCKS
+            self.samples += 1
+            if self._in_hw_reset or self._reset_done_at is not None:
+                continue  # the chip's microcode is busy resetting
+            self._sample(motion)
+
+    def _sample(self, motion: Motion) -> None:
+        sig = self.signals_extra
+        if self._udf_pending:
+            self.filter = self.filter_buffer.copy()
+            self._udf_pending = False
+            motion.filter_changed()
+            sig |= Signals.FILTER_UPDATED
+        else:
+            sig &= ~Signals.FILTER_UPDATED
+        self.signals_extra = sig
+        before = motion.desired_position
+        was_off = self.motor_off
+        events = motion.sample()
+        after = motion.desired_position
+        # breakpoint: [model choice] set at every sample where the desired position has reached
+        # the breakpoint (it lies between the previous and the current desired position)
+        bp = self.breakpoint
+        if (before <= bp <= after) or (after <= bp <= before):
+            events |= Status.BREAKPOINT
+        if not self.motor_off:
+            error = after - motion.real_position
+            if abs(error) > self.position_error_threshold:
+                events |= Status.POSITION_ERROR
+                if self.signals_extra & Signals.STOP_ON_ERROR:
+                    self.turn_motor_off()
+        if self.motor_off and not was_off:
+            events |= Status.TRAJECTORY_COMPLETE
+        self.flags |= events & INTERRUPTS
+
+    # ------------------------------------------------------------------ reset
+    def _power_on_reset(self) -> None:
+        self.position_error_threshold = 0x7FFF
+        self._reset_registers()
+
+    def _reset_registers(self) -> None:
+        """What any reset sets (spec: "What reset sets")."""
+        self.flags = 0  # latched interrupt bits 1..6
+        self.motor_off = True
+        self.mask = int(INTERRUPTS & ~Status.BREAKPOINT)  # 003E-equivalent
+        self.signals_extra = int(Signals.EIGHT_BIT_OUTPUT)  # bits 8..15 and 0 not derived elsewhere
+        self.breakpoint = 0
+        self.filter = FilterRegisters()
+        self.filter_buffer = FilterRegisters()
+        self.trajectory = TrajectoryBuffer()
+        self._udf_pending = False
+        self._abort_transfer()
+        self._io_word = 0
+        self._busy_until = 0
+        self.motion.reset()
+
+    def _abort_transfer(self) -> None:
+        self._cmd: int | None = None
+        self._dir = Direction.NONE
+        self._words_left = 0
+        self._words: list[int] = []
+        self._hi_byte: int | None = None
+        self._out: list[int] = []
+        self._read_phase_low = False
+
+    def _complete_reset(self) -> None:
+        self._reset_done_at = None
+        self._in_hw_reset = False
+        self._reset_registers()
+        self.flags |= Status.TRAJECTORY_COMPLETE  # 84 / C4 once reset has finished
+
+    def reset_pulse(self) -> None:
+        """/RST rising edge (after at least 8 clocks low)."""
+        self._check_cycle("/RST pulse", allow_reset=True)
+        self.position_error_threshold = 0x7FFF
+        self._abort_transfer()
+        self._in_hw_reset = True
+        self._busy_until = 0
+        self._reset_done_at = None if self.params.fault == "reset" else self.tick + self.reset_clocks
+
+    # ------------------------------------------------------------------ registers
+    @property
+    def busy(self) -> bool:
+        if self.params.fault == "busy":
+            return True
+        return self.tick < self._busy_until
+
+    @property
+    def status(self) -> int:
+        """The status byte as RDSTAT would read it now."""
+        if self._in_hw_reset:
+            return 0x01 if self.params.fault == "busy" else 0x00
+        s = self.flags | (Status.MOTOR_OFF if self.motor_off else 0)
+        if self.busy:
+            s |= Status.BUSY
+        return int(s)
+
+    @property
+    def hi(self) -> bool:
+        """The HI pin: any latched interrupt flag that the mask enables."""
+        return not self._in_hw_reset and bool(self.flags & self.mask)
+
+    @property
+    def signals(self) -> int:
+        m = self.motion
+        s = (self.signals_extra & 0xFF01) | (self.status & 0xFE)
+        if self.hi:
+            s |= Signals.HOST_INTERRUPT
+        if m.on_target:
+            s |= Signals.ON_TARGET
+        if m.velocity_mode:
+            s |= Signals.VELOCITY_MODE
+            if m.forward:
+                s |= Signals.FORWARD
+        return int(s)
+
+    def turn_motor_off(self) -> None:
+        self.motor_off = True
+        self.motion.drive_off()
+
+    # ------------------------------------------------------------------ bus cycles
+    def _violation(self, what: str) -> None:
+        self.violations.append(what)
+        if self.params.strict:
+            raise ProtocolViolation(f"host protocol violation at {self.now() * 1e6:.1f} us: {what}")
+
+    def _check_cycle(self, what: str, allow_reset: bool = False) -> bool:
+        """False (and a violation) when the chip cannot take this cycle now."""
+        if self._in_hw_reset and not allow_reset:
+            if self.params.fault == "reset":
+                return False  # a dead chip: the host cannot know, so it is no violation
+            self._violation(f"{what} during the /RST window (wait 1.5 ms after /RST)")
+            return False
+        return True
+
+    def _set_busy(self, clocks: int | None = None) -> None:
+        self._busy_until = self.tick + (self.busy_clocks if clocks is None else clocks)
+
+    def _command_error(self, why: str) -> None:
+        self.flags |= Status.COMMAND_ERROR
+        self._violation(why)
+
+    def read_status(self) -> int:
+        """/PS low, /RD strobe: the status byte.  Valid at any time."""
+        return self.status
+
+    def write_command(self, byte: int) -> None:
+        """/PS low, /WR strobe: a command byte."""
+        byte &= 0xFF
+        if not self._check_cycle(f"command {byte:02X}"):
+            return
+        if self.busy:
+            self._violation(f"command {byte:02X} written while busy (ignored)")
+            return
+        if self._dir is not Direction.NONE and (self._words_left or self._hi_byte is not None):
+            self._violation(f"command {byte:02X} aborts command {self._cmd:02X} with "
+                            f"{self._words_left} word(s) still expected")
+        self._abort_transfer()
+        if self.params.record:
+            self.history.append((byte, ()))
+        try:
+            cmd = Cmd(byte)
+        except ValueError:
+            self._set_busy()
+            self._command_error(f"unknown command {byte:02X}")
+            return
+        info = COMMANDS[cmd]
+        self._cmd = byte
+        self._dir = info.direction
+        self._words_left = info.words
+        if cmd is Cmd.RESET:
+            self._set_busy(self.reset_clocks)
+            self._reset_done_at = None if self.params.fault == "reset" else self.tick + self.reset_clocks
+            return
+        self._set_busy()
+        if info.direction is Direction.READ:
+            self._out = self._read_words(cmd)
+        elif info.direction is Direction.NONE:
+            self._execute(cmd, [])
+
+    def write_data(self, byte: int) -> None:
+        """/PS high, /WR strobe: one byte of a data word (high byte first)."""
+        byte &= 0xFF
+        if not self._check_cycle(f"data byte {byte:02X}"):
+            return
+        if self.busy:
+            self._violation(f"data byte {byte:02X} written while busy (ignored)")
+            return
+        if self._dir is not Direction.WRITE or self._words_left == 0:
+            what = ("a read command" if self._dir is Direction.READ else "no command expecting data")
+            self._command_error(f"data byte {byte:02X} written with {what}")
+            return
+        if self._hi_byte is None:
+            self._hi_byte = byte
+            return
+        word = (self._hi_byte << 8) | byte
+        self._hi_byte = None
+        self._io_word = word
+        self._set_busy()
+        self._accept_word(word)
+
+    def read_data(self) -> int:
+        """/PS high, /RD strobe: one byte of a data word (high byte first)."""
+        stale = (self._io_word & 0xFF) if self._read_phase_low else (self._io_word >> 8)
+        if not self._check_cycle("data read"):
+            return stale
+        if self.busy:
+            self._violation("data read while busy (stale byte returned)")
+            return stale
+        if self._dir is not Direction.READ or not self._out:
+            what = "a write command" if self._dir is Direction.WRITE else "no command to read"
+            self._command_error(f"data read with {what}")
+            return stale
+        word = self._out[0]
+        self._io_word = word
+        if not self._read_phase_low:
+            self._read_phase_low = True
+            return word >> 8
+        self._read_phase_low = False
+        self._out.pop(0)
+        self._words_left -= 1
+        self._set_busy()
+        if not self._out:
+            self._dir = Direction.NONE
+        return word & 0xFF
+
+    # ------------------------------------------------------------------ command execution
+    def _accept_word(self, word: int) -> None:
+        cmd = Cmd(self._cmd)  # type: ignore[arg-type]
+        self._words.append(word)
+        self._words_left -= 1
+        if len(self._words) == 1 and cmd is Cmd.LFIL:
+            self._words_left += lfil_word_count(word)
+        elif len(self._words) == 1 and cmd is Cmd.LTRJ:
+            self._words_left += ltrj_word_count(word)
+        if self._words_left == 0:
+            words, self._words = self._words, []
+            self._dir = Direction.NONE
+            if self.params.record and self.history:
+                self.history[-1] = (self.history[-1][0], tuple(words))
+            self._execute(cmd, words)
+
+    def _read_words(self, cmd: Cmd) -> list[int]:
+        m = self.motion
+        if cmd is Cmd.RDSIGS:
+            return [self.signals]
+        if cmd is Cmd.RDRV:
+            return [m.real_velocity & 0xFFFF]
+        if cmd is Cmd.RDSUM:
+            return [m.integration_sum & 0xFFFF]
+        value = {
+            Cmd.RDDV: m.desired_velocity,
+            Cmd.RDDP: m.desired_position,
+            Cmd.RDIP: m.index_position,
+            Cmd.RDRP: m.real_position,
+        }[cmd] & 0xFFFFFFFF
+        return [value >> 16, value & 0xFFFF]
+
+    def _execute(self, cmd: Cmd, words: list[int]) -> None:
+        m = self.motion
+        if cmd is Cmd.STT:
+            if not m.start(self.trajectory):
+                self._command_error_silent()
+                return
+            self.trajectory.loaded = 0
+            self.signals_extra &= ~Signals.ACCELERATION_LOADED
+            if self.trajectory.control & TrajectoryFlags.MOTOR_OFF:
+                self.turn_motor_off()
+            else:
+                self.motor_off = False
+        elif cmd is Cmd.DFH:
+            m.define_home()
+        elif cmd is Cmd.SIP:
+            self.signals_extra |= Signals.ACQUIRE_INDEX
+            m.arm_index()
+        elif cmd is Cmd.UDF:
+            self._udf_pending = True
+        elif cmd is Cmd.PORT8:
+            self.signals_extra |= Signals.EIGHT_BIT_OUTPUT
+        elif cmd is Cmd.PORT12:
+            if self.params.variant == "lm629":
+                # [model choice] the LM629 has no 12-bit port: refuse it
+                self._command_error("PORT12 sent to an LM629")
+            else:
+                self.signals_extra &= ~Signals.EIGHT_BIT_OUTPUT
+        elif cmd in (Cmd.LPES, Cmd.LPEI):
+            self.position_error_threshold = words[0]
+            if cmd is Cmd.LPES:
+                self.signals_extra |= Signals.STOP_ON_ERROR
+            else:
+                self.signals_extra &= ~Signals.STOP_ON_ERROR
+        elif cmd is Cmd.MSKI:
+            self.mask = words[0] & INTERRUPTS
+        elif cmd is Cmd.RSTI:
+            self.flags &= (words[0] & INTERRUPTS) | ~INTERRUPTS
+        elif cmd is Cmd.LFIL:
+            self._load_filter(words)
+        elif cmd is Cmd.LTRJ:
+            self._load_trajectory(words)
+        elif cmd in (Cmd.SBPA, Cmd.SBPR):
+            value = s32((words[0] << 16) | words[1])
+            if cmd is Cmd.SBPR:
+                value = s32(m.target_position + value)
+            self.breakpoint = value
+
+    def _command_error_silent(self) -> None:
+        """A command error that a correct host can provoke (not a protocol violation)."""
+        self.flags |= Status.COMMAND_ERROR
+
+    def _load_filter(self, words: list[int]) -> None:
+        control, values = words[0], iter(words[1:])
+        buf = self.filter_buffer
+        buf.ds = control >> 8
+        for flag in FILTER_ORDER:
+            if control & flag:
+                setattr(buf, flag.name.lower(), next(values))
+
+    def _load_trajectory(self, words: list[int]) -> None:
+        control, values = words[0], iter(words[1:])
+        buf = self.trajectory
+        buf.control = control
+        for flag, name in ((TrajectoryFlags.ACCELERATION, "acceleration"),
+                           (TrajectoryFlags.VELOCITY, "velocity"),
+                           (TrajectoryFlags.POSITION, "position")):
+            if control & flag:
+                value = (next(values) << 16) | next(values)
+                setattr(buf, name, s32(value) if name == "position" else value)
+                relative = TrajectoryFlags(flag >> 1)
+                buf.loaded = (buf.loaded & ~(flag | relative)) | flag | (control & relative)
+        if control & TrajectoryFlags.ACCELERATION:
+            self.signals_extra |= Signals.ACCELERATION_LOADED
+
+    # ------------------------------------------------------------------ conveniences
+    def record_clear(self) -> None:
+        self.history.clear()

@@ -1,0 +1,61 @@
+"""Parameters of the simulated chip, motor and encoder, settable from a ``sim://`` URL.
+
+Every model choice that is a number lives here, with its reason, so that it can be changed in
+one place when someone measures a real chip.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+
+@dataclass
+class ChipParams:
+    variant: str = "lm629"  #: "lm628" or "lm629"
+    clock_hz: int = 8_000_000  #: 1-8 MHz (-8 parts), 1-6 MHz (-6 parts)
+    #: [model choice] busy time after a command byte or a word: the datasheet says typically
+    #: 15-25 us, never more than 100 us; the model uses the middle of the typical range.
+    busy_s: float = 20e-6
+    #: [model choice] hardware or software reset completes this long after /RST rises (or the
+    #: RESET command is written); the datasheet only promises "within 1.5 ms".
+    reset_s: float = 1.0e-3
+    strict: bool = False  #: raise ProtocolViolation on any host protocol violation
+    fault: str | None = None  #: None, "reset" (never leaves reset) or "busy" (busy stuck high)
+    record: bool = False  #: keep a record of every command that reached the chip (fault tests)
+
+
+@dataclass
+class MotorParams:
+    """A small bench DC motor with a 500-line encoder.  Filled in by the motion model."""
+
+    lines: int = 500  #: encoder lines per revolution (4x decoding: 4 * lines counts/rev)
+    reversed: bool = False  #: motor leads swapped: positive drive turns the shaft backwards
+    index_offset: int = 0  #: counts from the zero of the revolution to the index pulse
+
+
+def _convert(kind: type | str, text: str) -> object:
+    k = kind if isinstance(kind, str) else kind.__name__
+    if "bool" in k:
+        if text.lower() in ("1", "true", "yes", "on", ""):
+            return True
+        if text.lower() in ("0", "false", "no", "off"):
+            return False
+        raise ValueError(f"expected a boolean (1/0), got {text!r}")
+    if "int" in k and "float" not in k:
+        return int(float(text)) if "e" in text.lower() else int(text, 0)
+    if "float" in k:
+        return float(text)
+    return text
+
+
+def apply_params(target: object, values: dict[str, str], *, url: str) -> set[str]:
+    """Set the dataclass fields of ``target`` named in ``values``; return the names used."""
+    used = set()
+    for f in fields(target):  # type: ignore[arg-type]
+        if f.name in values:
+            try:
+                setattr(target, f.name, _convert(f.type, values[f.name]))
+            except ValueError as exc:
+                raise ValueError(f"{url}: parameter {f.name}={values[f.name]!r}: {exc}") from None
+            used.add(f.name)
+    return used

@@ -1,0 +1,219 @@
+"""The transport interface: run a bus program on one chip, count the work, keep the clock.
+
+A transport has one job, :meth:`Transport.execute`.  Two shapes exist:
+
+* a transport whose far side can poll busy itself (the serial bridge) sends the whole program
+  and gets the results back in one round trip: it subclasses :class:`Transport` directly;
+* a transport that drives the pins cycle by cycle (the simulator, a plain GPIO adapter)
+  subclasses :class:`CycleTransport` and supplies five primitive bus cycles; the busy
+  discipline, the timeout on the transport's clock, the trace and the counters are done here,
+  once.
+
+Every transport has a ``clock`` (``now()``, ``sleep(seconds)``): the wall clock for hardware,
+the simulated clock for simulators, so that everything that waits (busy polls, the 1.5 ms reset
+wait, ``LM629.wait_for``) waits on the right time base.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+import time
+from dataclasses import asdict, dataclass
+
+from ..errors import BusyTimeout
+from ..opcodes import Status
+from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
+
+log = logging.getLogger("lm629_host.bus")
+
+
+@dataclass
+class Stats:
+    """Work counters of a transport (``chip.transport.stats``)."""
+
+    programs: int = 0  #: bus programs executed
+    round_trips: int = 0  #: request/answer exchanges with the far side (USB transfers pairs, frames)
+    bytes_out: int = 0  #: bytes sent to the far side
+    bytes_in: int = 0  #: bytes received from the far side
+    bus_cycles: int = 0  #: /RD or /WR strobes plus /RST pulses on the chip's bus
+    busy_polls: int = 0  #: status reads made only to check the busy bit
+    retries: int = 0  #: requests repeated after a link fault
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+    def reset(self) -> None:
+        for k in self.as_dict():
+            setattr(self, k, 0)
+
+    def __str__(self) -> str:
+        return " ".join(f"{k}={v}" for k, v in self.as_dict().items())
+
+
+@dataclass(frozen=True)
+class PortInfo:
+    """A candidate port found by a transport module's ``list_ports()`` (for ``lm629 list``)."""
+
+    url: str  #: what to pass to ``--port``
+    description: str  #: what it is (USB ids, product string, firmware version when probed)
+    usable: bool = True  #: False when it was found but cannot be opened (``problem`` says why)
+    problem: str = ""
+
+
+@dataclass(frozen=True)
+class Check:
+    """One line of ``lm629 doctor``: a transport module's ``doctor()`` returns a list of these."""
+
+    name: str
+    ok: bool
+    message: str
+
+
+class Clock(abc.ABC):
+    """A time base: ``now()`` in seconds and ``sleep(seconds)``."""
+
+    @abc.abstractmethod
+    def now(self) -> float: ...
+
+    @abc.abstractmethod
+    def sleep(self, seconds: float) -> None: ...
+
+
+class WallClock(Clock):
+    """Real time, for transports that reach real hardware."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            time.sleep(seconds)
+
+
+class Transport(abc.ABC):
+    """Runs bus programs on one chip.  Subclasses set ``url``, ``clock`` and ``has_reset_line``."""
+
+    #: the scheme this transport is registered under (``sim``, ``serial``...)
+    scheme: str = ""
+    #: True when the transport can pulse /RST; otherwise ``LM629.reset`` sends command RESET
+    has_reset_line: bool = True
+
+    def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
+        self.url = url
+        self.trace = trace
+        self.stats = Stats()
+        self.clock: Clock = WallClock()
+
+    @abc.abstractmethod
+    def execute(self, program: Program) -> ProgramResult:
+        """Run ``program``; return its results or raise an :class:`~lm629_host.LM629Error`
+        subclass that names the failing operation."""
+
+    def close(self) -> None:
+        """Release the port.  Idempotent."""
+
+    def describe(self) -> str:
+        """One line for the CLI and error messages: what this transport is connected to."""
+        return self.url
+
+    def _emit(self, cycle: BusCycle) -> None:
+        if self.trace is not None:
+            self.trace(cycle)
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("%s %s", self.scheme or "bus", cycle)
+
+    def __enter__(self) -> Transport:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class CycleTransport(Transport):
+    """A transport that performs bus cycles one at a time, with the busy check done here.
+
+    Subclasses implement the primitive cycles below; they return at once (the cycle's own
+    duration is accounted in the subclass's clock).
+    """
+
+    #: time between two busy polls while the chip is busy
+    poll_interval_s: float = 2e-6
+
+    @abc.abstractmethod
+    def _read_status(self) -> int: ...
+
+    @abc.abstractmethod
+    def _write_command(self, byte: int) -> None: ...
+
+    @abc.abstractmethod
+    def _write_word(self, word: int) -> None: ...
+
+    @abc.abstractmethod
+    def _read_word(self) -> int: ...
+
+    @abc.abstractmethod
+    def _pulse_reset(self) -> None: ...
+
+    def _hi(self) -> bool | None:
+        return None
+
+    def _wait_not_busy(self, program: Program, index: int, words: list[int]) -> int:
+        clock = self.clock
+        deadline = clock.now() + program.busy_timeout_s
+        stats = self.stats
+        while True:
+            status = self._read_status()
+            stats.bus_cycles += 1
+            stats.busy_polls += 1
+            self._emit(BusCycle("status", status))
+            if not status & Status.BUSY:
+                return status
+            if clock.now() >= deadline:
+                raise BusyTimeout(program.ops[index].describe(), program.busy_timeout_s,
+                                  status, index, words)
+            clock.sleep(self.poll_interval_s)
+
+    def execute(self, program: Program) -> ProgramResult:
+        stats = self.stats
+        stats.programs += 1
+        stats.round_trips += 1
+        words: list[int] = []
+        statuses: list[int] = []
+        status: int | None = None
+        for index, o in enumerate(program.ops):
+            op = o.op
+            if op is Op.COMMAND or op is Op.WRITE or op is Op.READ:
+                status = self._wait_not_busy(program, index, words)
+                stats.bus_cycles += 1 if op is Op.COMMAND else 2
+                if op is Op.COMMAND:
+                    self._write_command(o.arg)
+                    self._emit(BusCycle("command", o.arg))
+                elif op is Op.WRITE:
+                    self._write_word(o.arg)
+                    self._emit(BusCycle("write", o.arg))
+                else:
+                    w = self._read_word()
+                    words.append(w)
+                    self._emit(BusCycle("read", w))
+            elif op is Op.STATUS:
+                status = self._read_status()
+                stats.bus_cycles += 1
+                statuses.append(status)
+                self._emit(BusCycle("status", status))
+            elif op is Op.SYNC:
+                status = self._wait_not_busy(program, index, words)
+                statuses.append(status)
+            elif op is Op.RESET:
+                self._pulse_reset()
+                stats.bus_cycles += 1
+                self._emit(BusCycle("reset", 0))
+            elif op is Op.WAIT:
+                self.clock.sleep(o.arg * 1e-6)
+            else:  # pragma: no cover - Op is closed
+                raise AssertionError(op)
+        return ProgramResult(tuple(words), tuple(statuses), status, self._hi())
+
+
+def describe_ops(ops: list[BusOp]) -> str:
+    return ", ".join(o.describe() for o in ops)

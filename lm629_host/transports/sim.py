@@ -1,0 +1,106 @@
+"""``sim://``: the bundled chip model, in-process.
+
+URL parameters (all optional)::
+
+    sim://?chip=lm628&clock=6000000&strict=1&fault=reset|busy&record=1
+          &lines=500&reversed=1&...      (motor and encoder: see model.params.MotorParams)
+
+Each bus strobe costs ``CYCLE_S`` of simulated time (a fast host's bus cycle); while the chip
+is busy, the busy check polls every ``poll_interval_s``.  ``chip.clock`` is the model's clock:
+``sleep()`` runs the chip (and its motor) forward, it never sleeps on the wall clock.
+"""
+
+from __future__ import annotations
+
+from ..model import ChipModel, ChipParams, MotorParams
+from ..model.params import apply_params
+from ..program import TraceCallback
+from . import query_params
+from .base import Clock, CycleTransport
+
+#: simulated duration of one /RD or /WR strobe cycle, recovery included
+CYCLE_S = 0.5e-6
+
+
+class SimClock(Clock):
+    """The model's simulated time.  ``sleep`` advances the model."""
+
+    def __init__(self, model: ChipModel) -> None:
+        self.model = model
+
+    def now(self) -> float:
+        return self.model.tick / self.model.clock_hz
+
+    def sleep(self, seconds: float) -> None:
+        self.model.advance(seconds)
+
+
+_ALIASES = {"chip": "variant", "clock": "clock_hz"}
+
+
+def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel:
+    """A :class:`ChipModel` configured from a simulator URL's query string.
+
+    Used by every simulated transport (``sim://``, ``sim+avr://``, ``sim+ftdi://``), so that
+    the same parameters mean the same thing everywhere.  Parameters in ``allowed`` belong to
+    the calling transport and are skipped here; any other unknown name is an error.
+    """
+    values = {_ALIASES.get(k, k): v for k, v in query_params(url).items()}
+    chip, motor = ChipParams(), MotorParams()
+    used = apply_params(chip, values, url=url) | apply_params(motor, values, url=url)
+    unknown = set(values) - used - set(allowed)
+    if unknown:
+        raise ValueError(f"{url}: unknown simulator parameter(s) {', '.join(sorted(unknown))}")
+    chip.variant = chip.variant.lower()
+    if chip.fault not in (None, "reset", "busy"):
+        raise ValueError(f"{url}: fault={chip.fault!r}: expected 'reset' or 'busy'")
+    return ChipModel(chip, motor)
+
+
+class SimTransport(CycleTransport):
+    """Bus cycles straight into an in-process :class:`ChipModel`."""
+
+    scheme = "sim"
+    has_reset_line = True
+
+    def __init__(self, model: ChipModel, url: str = "sim://", *,
+                 trace: TraceCallback | None = None) -> None:
+        super().__init__(url, trace=trace)
+        self.model = model
+        self.clock = SimClock(model)
+        self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
+
+    @classmethod
+    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
+        return cls(build_model(url), url, trace=trace)
+
+    def describe(self) -> str:
+        p = self.model.params
+        return f"{self.url} (simulated {p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)"
+
+    def _strobe(self) -> ChipModel:
+        m = self.model
+        m.advance_to(m.tick + self._cycle_clocks)
+        return m
+
+    def _read_status(self) -> int:
+        return self._strobe().read_status()
+
+    def _write_command(self, byte: int) -> None:
+        self._strobe().write_command(byte)
+
+    def _write_word(self, word: int) -> None:
+        self._strobe().write_data(word >> 8)
+        self._strobe().write_data(word & 0xFF)
+
+    def _read_word(self) -> int:
+        hi = self._strobe().read_data()
+        return (hi << 8) | self._strobe().read_data()
+
+    def _pulse_reset(self) -> None:
+        m = self.model
+        m.advance_to(m.tick + 8)  # /RST held low for 8 clocks, the datasheet minimum
+        m.reset_pulse()
+
+    def _hi(self) -> bool:
+        return self.model.hi
