@@ -1,0 +1,305 @@
+"""The bridge's far side in Python, over a :class:`~lm629_host.model.ChipModel`.
+
+An independent implementation of what ``firmware_bridge/`` does, written from PROTOCOL.md:
+it reads frames, answers HELLO and PING, runs RUN programs with the busy discipline against the
+model's clock, keeps the last RUN's ``seq``/CRC/reply and answers a repeat from that cache.
+It serves two benches that need no AVR toolchain:
+
+* :class:`EmuPipe`, an in-process :class:`~lm629_host.link.Pipe` whose clock is the model's
+  clock, with the serial wire's byte time at a chosen baud rate: the link tests and the fault
+  tests run on it without ever sleeping on the wall clock;
+* ``lm629 sim serve --pty PATH`` (:mod:`lm629_host.simserve`), where it answers a real
+  pseudo-terminal in real time.
+
+The chip model knows nothing of this module; this module only strobes the model's pins.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+from .link import (
+    MAX_FRAME,
+    MAX_PING,
+    RUN_OVERHEAD,
+    RUN_REPLY_OVERHEAD,
+    BadProgram,
+    Frame,
+    FrameError,
+    FrameReader,
+    FrameType,
+    HelloInfo,
+    Result,
+    RunReply,
+    decode_program,
+    encode_frame,
+)
+from .model import ChipModel
+from .opcodes import Status
+from .program import BusOp, Op
+from .transports.base import Clock
+
+_BUSY = int(Status.BUSY)
+
+#: the emulator's firmware version (HELLO_REPLY); 0.x marks "not the AVR firmware"
+EMU_FIRMWARE = (0, 9, 0)
+#: one /RD or /WR strobe of the emulated bridge, recovery included (an AVR at 16 MHz needs
+#: about 16 instructions per strobe with the data bus split over two ports)
+BUS_CYCLE_S = 1e-6
+#: /RST held low by the emulated bridge (the datasheet asks for 8 chip clocks)
+RESET_PULSE_S = 4e-6
+
+
+@dataclass
+class EmuStats:
+    """What happened on the far side (for the fault tests: nothing runs twice)."""
+
+    frames: int = 0  #: good frames received
+    bad_frames: int = 0  #: frames dropped for COBS, length or CRC errors
+    runs: int = 0  #: RUN programs executed
+    cache_hits: int = 0  #: RUN repeats answered from the cache
+    replies: int = 0  #: frames sent
+    busy_polls: int = 0  #: status reads made only for the busy check
+    bus_cycles: int = 0  #: strobes and /RST pulses
+
+
+@dataclass
+class BridgeEmulator:
+    """The far end of the link: frames in, frames out, programs run on ``model``."""
+
+    model: ChipModel
+    info: HelloInfo = field(default_factory=lambda: HelloInfo(firmware=EMU_FIRMWARE))
+    stats: EmuStats = field(default_factory=EmuStats)
+
+    def __post_init__(self) -> None:
+        self._reader = FrameReader()
+        self._cache: tuple[int, int, bytes] | None = None  # seq, crc, encoded reply
+        self._cycle_ticks = max(1, round(BUS_CYCLE_S * self.model.clock_hz))
+        if self.info.max_program > MAX_FRAME - RUN_OVERHEAD:
+            raise ValueError(f"max_program={self.info.max_program} does not fit MAX_FRAME")
+
+    # ------------------------------------------------------------------ frames
+    def receive(self, data: bytes) -> list[bytes]:
+        """Bytes from the host; returns the encoded reply frames, in order.  Programs run on
+        the model at its current time (the caller advances it to the arrival of the bytes)."""
+        out: list[bytes] = []
+        for item in self._reader.feed(data):
+            if isinstance(item, FrameError):
+                self.stats.bad_frames += 1  # never answered: the host's retry covers it
+                continue
+            self.stats.frames += 1
+            reply = self._handle(item)
+            if reply is not None:
+                self.stats.replies += 1
+                out.append(reply)
+        return out
+
+    def _handle(self, frame: Frame) -> bytes | None:
+        t = frame.type
+        if t == FrameType.HELLO:
+            self._cache = None
+            return encode_frame(FrameType.HELLO_REPLY, frame.seq, self.info.encode())
+        if t == FrameType.PING:
+            if len(frame.payload) > MAX_PING:
+                return self._error(frame.seq, Result.BAD_REQUEST)
+            return encode_frame(FrameType.PONG, frame.seq, frame.payload)
+        if t == FrameType.RUN:
+            if len(frame.payload) < 3:
+                return self._error(frame.seq, Result.BAD_REQUEST)
+            cache = self._cache
+            if cache is not None and cache[0] == frame.seq and cache[1] == frame.crc:
+                self.stats.cache_hits += 1
+                return cache[2]
+            reply = encode_frame(FrameType.RUN_REPLY, frame.seq, self._run(frame.payload).encode())
+            self._cache = (frame.seq, frame.crc, reply)
+            return reply
+        if t & 0x80:
+            return None  # a reply type from the host: not a request, ignore it
+        return self._error(frame.seq, Result.BAD_REQUEST)
+
+    def _error(self, seq: int, code: Result) -> bytes:
+        return encode_frame(FrameType.ERROR_REPLY, seq, bytes((code,)))
+
+    # ------------------------------------------------------------------ programs
+    def _run(self, payload: bytes) -> RunReply:
+        cs = payload[0]
+        timeout_us = int.from_bytes(payload[1:3], "big") or 5000
+        body = payload[3:]
+        if cs >= self.info.chip_selects:
+            return RunReply(Result.BAD_CHIP_SELECT)
+        if len(body) > self.info.max_program:
+            return RunReply(Result.PROGRAM_TOO_LONG)
+        try:
+            ops = decode_program(body)
+        except BadProgram as exc:
+            return RunReply(Result.BAD_PROGRAM, exc.index)
+        reads = sum(1 for o in ops if o.op is Op.READ)
+        n_status = sum(1 for o in ops if o.op is Op.STATUS or o.op is Op.SYNC)
+        if reads > self.info.max_reads or n_status > 255 \
+                or RUN_REPLY_OVERHEAD + n_status + 2 * reads > MAX_FRAME:
+            return RunReply(Result.PROGRAM_TOO_LONG)
+        self.stats.runs += 1
+        return self.run_ops(ops, timeout_us * 1e-6)
+
+    def _strobe(self) -> ChipModel:
+        m = self.model
+        m.advance_to(m.tick + self._cycle_ticks)
+        self.stats.bus_cycles += 1
+        return m
+
+    def _wait_not_busy(self, timeout_s: float) -> tuple[bool, int]:
+        m = self.model
+        deadline = m.tick + math.ceil(timeout_s * m.clock_hz)
+        while True:
+            status = self._strobe().read_status()
+            self.stats.busy_polls += 1
+            if not status & _BUSY:
+                return True, status
+            if m.tick >= deadline:
+                return False, status
+
+    def run_ops(self, ops: list[BusOp], timeout_s: float) -> RunReply:
+        """Run decoded operations with the busy discipline; stop at a busy timeout."""
+        m = self.model
+        words: list[int] = []
+        statuses: list[int] = []
+        last = 0xFF
+        for index, o in enumerate(ops):
+            op = o.op
+            if op is Op.COMMAND or op is Op.WRITE or op is Op.READ or op is Op.SYNC:
+                ok, last = self._wait_not_busy(timeout_s)
+                if not ok:
+                    return RunReply(Result.BUSY_TIMEOUT, index, last, int(m.hi),
+                                    tuple(statuses), tuple(words))
+                if op is Op.COMMAND:
+                    self._strobe().write_command(o.arg)
+                elif op is Op.WRITE:
+                    self._strobe().write_data(o.arg >> 8)
+                    self._strobe().write_data(o.arg & 0xFF)
+                elif op is Op.READ:
+                    hi = self._strobe().read_data()
+                    words.append((hi << 8) | self._strobe().read_data())
+                else:
+                    statuses.append(last)
+            elif op is Op.STATUS:
+                last = self._strobe().read_status()
+                statuses.append(last)
+            elif op is Op.RESET:
+                m.advance(RESET_PULSE_S)
+                m.reset_pulse()
+                self.stats.bus_cycles += 1
+            elif op is Op.WAIT:
+                m.advance(o.arg * 1e-6)
+        return RunReply(Result.OK, 0xFF, last, int(m.hi), tuple(statuses), tuple(words))
+
+
+class ModelClock(Clock):
+    """The model's simulated time; ``sleep`` runs the chip forward (never the wall clock)."""
+
+    def __init__(self, model: ChipModel) -> None:
+        self.model = model
+
+    def now(self) -> float:
+        return self.model.tick / self.model.clock_hz
+
+    def sleep(self, seconds: float) -> None:
+        self.model.advance(seconds)
+
+    def advance_to(self, t: float) -> None:
+        m = self.model
+        m.advance_to(math.ceil(t * m.clock_hz - 1e-6))
+
+
+class EmuPipe:
+    """An in-process serial line to a :class:`BridgeEmulator`, in the model's simulated time.
+
+    Each byte takes ``10 / baud`` seconds on the wire in each direction (``baud=None``: no
+    wire time); the far end sees a frame when its last byte has arrived, runs it (advancing the
+    model) and its reply is on the wire from then on.  ``read`` advances the simulated clock up
+    to the next byte or the timeout.
+    """
+
+    def __init__(self, emulator: BridgeEmulator, *, baud: int | None = 115200) -> None:
+        self.emulator = emulator
+        self.clock = ModelClock(emulator.model)
+        self.byte_s = 10.0 / baud if baud else 0.0
+        self._to_far: deque[tuple[float, bytes]] = deque()  # (arrival time, byte)
+        self._to_host: deque[tuple[float, int]] = deque()
+        self._tx_free = 0.0  # when the host->bridge wire is free again
+        self._rx_free = 0.0  # when the bridge->host wire is free again
+        self.closed = False
+
+    def write(self, data: bytes) -> None:
+        t = max(self.clock.now(), self._tx_free)
+        bs = self.byte_s
+        if bs == 0.0:
+            self._to_far.append((t, bytes(data)))
+        else:
+            for b in data:
+                t += bs
+                self._to_far.append((t, bytes((b,))))
+        self._tx_free = t
+
+    def _deliver_far(self, until: float) -> None:
+        """Hand the far end every byte that has arrived by ``until`` and queue its replies."""
+        chunk = bytearray()
+        q = self._to_far
+        while q and q[0][0] <= until:
+            chunk += q.popleft()[1]
+        if not chunk:
+            return
+        for reply in self.emulator.receive(bytes(chunk)):
+            t = max(self.clock.now(), self._rx_free)
+            bs = self.byte_s
+            for b in reply:
+                t += bs
+                self._to_host.append((t, b))
+            self._rx_free = t
+
+    def read(self, timeout_s: float) -> bytes:
+        clock = self.clock
+        deadline = clock.now() + max(0.0, timeout_s)
+        while True:
+            now = clock.now()
+            h = self._to_host
+            if h and h[0][0] <= deadline:
+                # the reply is on its way: wait for the burst that is on the wire (up to the
+                # deadline), as a serial read with a short inter-byte timeout would
+                last = h[0][0]
+                for t, _ in h:
+                    if t > deadline:
+                        break
+                    last = t
+                if last > now:
+                    clock.advance_to(last)
+                out = bytearray()
+                while h and h[0][0] <= last:
+                    out.append(h.popleft()[1])
+                self._deliver_far(clock.now())
+                return bytes(out)
+            q = self._to_far
+            if q and q[0][0] <= deadline:
+                t = q[0][0]
+                for ti, _ in q:
+                    if ti > deadline:
+                        break
+                    t = ti
+                if t > now:
+                    clock.advance_to(t)
+                self._deliver_far(clock.now())
+                continue
+            if deadline > now:
+                clock.advance_to(deadline)
+            return b""
+
+    def in_flight(self) -> int:
+        """Bytes still on the wire in either direction."""
+        return len(self._to_far) + len(self._to_host)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+__all__ = ["BridgeEmulator", "EmuPipe", "EmuStats", "ModelClock", "EMU_FIRMWARE", "BUS_CYCLE_S"]

@@ -1,0 +1,85 @@
+"""Golden frame vectors (``firmware_bridge/golden_frames.txt``), shared with the firmware's C
+tests: the Python codec must encode and decode every line exactly, and the file must be what
+``tools/gen_golden_frames.py`` makes (so the two never drift apart)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lm629_host.link import (
+    MAX_FRAME, FrameType, HelloInfo, Result, RunReply, cobs_decode, cobs_encode, crc16,
+    decode_frame, decode_program, encode_frame,
+)
+from lm629_host.opcodes import Cmd
+from lm629_host.program import BusOp, Op
+
+ROOT = Path(__file__).resolve().parent.parent
+GOLDEN = ROOT / "firmware_bridge" / "golden_frames.txt"
+
+
+def golden() -> dict[str, tuple[bytes, bytes]]:
+    out = {}
+    for line in GOLDEN.read_text().splitlines():
+        if line.startswith("#") or not line.strip():
+            continue
+        name, dec, enc = line.split("\t")
+        out[name] = (bytes.fromhex(dec), bytes.fromhex(enc))
+    return out
+
+
+def test_file_is_what_the_generator_makes():
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_golden_frames.py"), "--check"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize("name", sorted(golden()))
+def test_codec_round_trip(name):
+    dec, enc = golden()[name]
+    assert enc[-1] == 0 and 0 not in enc[:-1]
+    assert cobs_encode(dec) + b"\x00" == enc
+    assert cobs_decode(enc[:-1]) == dec
+    f = decode_frame(enc)
+    assert encode_frame(f.type, f.seq, f.payload) == enc
+    assert crc16(dec[:-2]) == int.from_bytes(dec[-2:], "big") == f.crc
+
+
+def test_crc_check_value():
+    # the catalogue check value of CRC-16/CCITT-FALSE
+    assert crc16(b"123456789") == 0x29B1
+
+
+def test_an693_filter_module_bytes():
+    """AN-693 table 4: LFIL, 0008 (kp only), 000A (kp = 10), UDF, busy-checked each, as a RUN
+    with seq 0x2A, cs 0 and a 5000 us busy timeout, byte for byte."""
+    dec, _ = golden()["run_an693_filter"]
+    assert dec[:2] == bytes((FrameType.RUN, 0x2A))
+    assert dec[2:5] == bytes((0, 0x13, 0x88))  # cs 0, 5000 us big-endian
+    assert dec[5:-2] == bytes((Op.COMMAND, Cmd.LFIL, Op.WRITE, 0x00, 0x08, Op.WRITE, 0x00, 0x0A,
+                               Op.COMMAND, Cmd.UDF))
+    assert decode_program(dec[5:-2]) == [BusOp(Op.COMMAND, 0x1E), BusOp(Op.WRITE, 8),
+                                         BusOp(Op.WRITE, 10), BusOp(Op.COMMAND, 0x04)]
+
+
+def test_replies_decode_to_their_fields():
+    g = golden()
+    info = HelloInfo.decode(decode_frame(g["hello_reply"][1]).payload)
+    assert (info.protocol, info.firmware, info.capabilities, info.max_program, info.max_reads,
+            info.chip_selects, info.cpu_hz) == (1, (1, 0, 0), 7, 243, 120, 1, 16_000_000)
+    r = RunReply.decode(decode_frame(g["run_reply_busy_timeout"][1]).payload)
+    assert (r.result, r.index, r.last_status, r.hi, r.statuses, r.words) == \
+        (Result.BUSY_TIMEOUT, 3, 0x81, 0, (0xC4,), (0x1234,))
+    e = decode_frame(g["error_reply"][1])
+    assert (e.type, e.payload) == (FrameType.ERROR_REPLY, bytes((Result.BAD_REQUEST,)))
+
+
+def test_max_frame_is_max():
+    dec, enc = golden()["run_max_frame"]
+    assert len(dec) == MAX_FRAME
+    assert len(enc) == MAX_FRAME + 2  # one COBS code byte per block here, plus the delimiter
+    with pytest.raises(ValueError, match="MAX_FRAME"):
+        encode_frame(FrameType.RUN, 0, dec[2:-2] + b"\x01")

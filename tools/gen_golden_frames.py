@@ -1,0 +1,81 @@
+#!/usr/bin/env python3
+"""Write ``firmware_bridge/golden_frames.txt``: link frames both codecs must agree on.
+
+One line per frame: ``name<TAB>decoded-hex<TAB>encoded-hex`` (decoded = type, seq, payload,
+CRC; encoded = COBS of it plus the 0x00 delimiter).  The Python tests
+(``tests/test_link_golden.py``) and the firmware's C tests read the same file; this script
+makes it from the Python codec, and the Python test fails when file and codec drift apart.
+
+    python3 tools/gen_golden_frames.py          # rewrite the file
+    python3 tools/gen_golden_frames.py --check  # exit 1 when the file is stale
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from lm629_host.link import (  # noqa: E402
+    FrameType, HelloInfo, Result, RunReply, cobs_encode, frame_body, run_payload,
+)
+from lm629_host.opcodes import Cmd  # noqa: E402
+from lm629_host.program import Program  # noqa: E402
+
+OUT = Path(__file__).resolve().parent.parent / "firmware_bridge" / "golden_frames.txt"
+
+
+def frames() -> list[tuple[str, bytes]]:
+    """(name, decoded frame) pairs."""
+    # AN-693 table 4, the filter programming module: LFIL, 0008 (kp only), 000A (kp=10), UDF
+    an693 = Program().command(Cmd.LFIL).write(0x0008).write(0x000A).command(Cmd.UDF)
+    # words with zero bytes inside, and a WAIT of 0x0100 us: COBS must stuff them all
+    zeros = Program().command(Cmd.LPEI).write(0x0000).wait(0x0100).command(Cmd.RDSIGS).read(1)
+    # the largest RUN: 81 WRITEs of 3 bytes = 243 program bytes -> 250-byte frame
+    biggest = Program()
+    for i in range(81):
+        biggest.write((i * 0x0101) & 0xFF00)  # 0000, 0100, 0200...: zeros in every op
+    info = HelloInfo(firmware=(1, 0, 0), capabilities=0x0007, max_program=243, max_reads=120,
+                     chip_selects=1, cpu_hz=16_000_000)
+    return [
+        ("hello", frame_body(FrameType.HELLO, 0x01)),
+        ("hello_reply", frame_body(FrameType.HELLO_REPLY, 0x01, info.encode())),
+        ("ping", frame_body(FrameType.PING, 0x02, b"\x00\x01\xfe\xff")),
+        ("pong", frame_body(FrameType.PONG, 0x02, b"\x00\x01\xfe\xff")),
+        ("run_an693_filter", frame_body(FrameType.RUN, 0x2A, run_payload(an693.ops, 5000))),
+        ("run_reply_an693_filter", frame_body(
+            FrameType.RUN_REPLY, 0x2A, RunReply(Result.OK, 0xFF, 0x80, 0, (), ()).encode())),
+        ("run_zero_bytes", frame_body(FrameType.RUN, 0x00, run_payload(zeros.ops, 0))),
+        ("run_reply_zero_bytes", frame_body(
+            FrameType.RUN_REPLY, 0x00, RunReply(Result.OK, 0xFF, 0x00, 1, (), (0x0000,)).encode())),
+        ("run_reply_busy_timeout", frame_body(
+            FrameType.RUN_REPLY, 0x7F,
+            RunReply(Result.BUSY_TIMEOUT, 3, 0x81, 0, (0xC4,), (0x1234,)).encode())),
+        ("run_max_frame", frame_body(FrameType.RUN, 0xFE, run_payload(biggest.ops, 65535))),
+        ("error_reply", frame_body(FrameType.ERROR_REPLY, 0x33, bytes((Result.BAD_REQUEST,)))),
+    ]
+
+
+def render() -> str:
+    lines = ["# name<TAB>decoded-hex<TAB>encoded-hex  (made by tools/gen_golden_frames.py; "
+             "read by tests/test_link_golden.py and the firmware's C tests)"]
+    for name, body in frames():
+        lines.append(f"{name}\t{body.hex()}\t{(cobs_encode(body) + bytes(1)).hex()}")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> int:
+    text = render()
+    if "--check" in sys.argv[1:]:
+        if not OUT.exists() or OUT.read_text() != text:
+            print(f"{OUT} is stale: run python3 tools/gen_golden_frames.py", file=sys.stderr)
+            return 1
+        return 0
+    OUT.write_text(text)
+    print(f"wrote {OUT} ({len(text.splitlines()) - 1} frames)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
