@@ -1,0 +1,62 @@
+"""THE pin map of the FT232H adapter: which FT232H line drives which LM628/LM629 pin.
+
+This is the one definition.  The transport (:mod:`lm629_host.transports.ftdi`) compiles bus
+programs with these masks, the emulated FT232H (:mod:`lm629_host.ftdi_emu`) wires its pins to the
+chip model with them, and the README's wiring table is checked against :data:`WIRING` by a test.
+
+Why this layout:
+
+* the data bus D0-D7 sits on one whole byte, ACBUS0-7 (labelled C0-C7 on the Adafruit FT232H
+  breakout), so one MPSSE "set high byte" (0x82) or "read high byte" (0x83) command moves a
+  byte, and the direction of the whole bus is switched in the same command;
+* the strobes sit on the other byte, ADBUS (D0-D7 on the breakout), set with "set low byte"
+  (0x80).  ADBUS0 is the MPSSE clock output TCK: the stream's delays are idle clocks
+  (0x8E/0x8F), which toggle TCK, so ADBUS0 is left unconnected (it is a handy scope trigger);
+* HI is on ADBUS5, which the FT232H calls GPIOL1: the one line the MPSSE wait-on-I/O
+  commands (0x88/0x89) can watch, should a future version wait for the host interrupt in the
+  adapter itself;
+* /RST is on ADBUS6 and not on a line with a special function, so that nothing but an explicit
+  set-low-byte command can ever pulse it.
+
+Put 10 kOhm pull-ups on /CS, /RD, /WR and /RST: until the transport has configured the FT232H
+(and after it closes it) its lines are inputs, and the pull-ups keep the chip deselected and
+out of reset.
+"""
+
+from __future__ import annotations
+
+# --- ADBUS (low byte, MPSSE commands 0x80 set / 0x81 read): control lines -------------------
+TCK = 1 << 0  #: ADBUS0: MPSSE clock, toggled by the idle-clock delays; leave unconnected
+CS = 1 << 1  #: ADBUS1 -> /CS  (active low)
+RD = 1 << 2  #: ADBUS2 -> /RD  (active low)
+WR = 1 << 3  #: ADBUS3 -> /WR  (active low; the chip latches on the rising edge)
+PS = 1 << 4  #: ADBUS4 -> /PS  (low: command/status, high: data)
+HI = 1 << 5  #: ADBUS5 (GPIOL1) <- HI (input, active high)
+RST = 1 << 6  #: ADBUS6 -> /RST (active low)
+
+#: ADBUS lines driven by the adapter (HI and the spare ADBUS7 are inputs)
+CTRL_DIRECTION = TCK | CS | RD | WR | PS | RST
+#: the idle state of the control lines: chip deselected, strobes and /RST high, TCK low
+CTRL_IDLE = CS | RD | WR | PS | RST
+
+# --- ACBUS (high byte, MPSSE commands 0x82 set / 0x83 read): the data bus ---------------------
+DATA_OUT = 0xFF  #: ACBUS direction while the adapter drives D0-D7 (writes)
+DATA_IN = 0x00  #: ACBUS direction while the chip may drive D0-D7 (reads, idle)
+
+#: (FT232H line, breakout label, LM629 pin, direction seen from the adapter, note), for the
+#: README's wiring table.  The LM629 pin numbers are those of the 28-pin DIP package (AN-706
+#: names HI pin 17 and /RST pin 27; check the others against your package's datasheet).
+WIRING: tuple[tuple[str, str, str, str, str], ...] = (
+    ("ACBUS0-7", "C0-C7", "D0-D7 (pins 4-11)", "in/out", "data bus, C0 = D0"),
+    ("ADBUS1", "D1", "/CS (pin 12)", "out", "10k pull-up"),
+    ("ADBUS2", "D2", "/RD (pin 13)", "out", "10k pull-up"),
+    ("ADBUS3", "D3", "/WR (pin 15)", "out", "10k pull-up"),
+    ("ADBUS4", "D4", "/PS (pin 16)", "out", ""),
+    ("ADBUS5", "D5", "HI (pin 17)", "in", "GPIOL1"),
+    ("ADBUS6", "D6", "/RST (pin 27)", "out", "10k pull-up"),
+    ("ADBUS0", "D0", "-", "out", "TCK: toggled by delays, leave unconnected"),
+    ("GND", "GND", "GND (pin 14)", "", "common ground"),
+)
+
+__all__ = ["TCK", "CS", "RD", "WR", "PS", "HI", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
+           "DATA_IN", "WIRING"]

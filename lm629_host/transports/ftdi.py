@@ -1,0 +1,642 @@
+"""``ftdi://``: an FT232H in MPSSE mode, through pyftdi on pyusb, wired as in :mod:`..ftdi_pins`.
+
+URL: pyftdi's own, ``ftdi://ftdi:232h[:SERIAL]/1``, plus options after ``?``:
+``latency`` (USB latency timer, ms, default 1), ``busy_us`` (the wait after each transfer,
+default 100), ``frequency`` (MPSSE clock TCK in Hz, default 6 MHz).
+
+How a bus program becomes USB traffic
+=====================================
+
+Each bus program is compiled into one MPSSE command stream: "set low byte" (0x80) drives the
+control lines /CS, /RD, /WR, /PS, /RST; "set high byte" (0x82) drives D0-D7 or releases them;
+"read high byte" (0x83) samples D0-D7; idle clocks (0x8E n: n+1 TCK periods, 0x8F n: 8(n+1)
+periods) are the delays; a final "read low byte" (0x81) samples HI; "send immediate" (0x87)
+ends the stream so that the FT232H returns every byte the stream read in one bulk IN, without
+waiting for its latency timer.  So a typed command is one USB write and one USB read.
+
+Timing minimums (spec "Bus cycles") are met by idle clocks alone, never by assuming how fast
+the MPSSE engine executes a command: at the default TCK of 6 MHz one idle bit is 167 ns, so
+/WR is low for one bit (>= 100 ns pulse, >= 50 ns data setup), data and /PS are held for one
+bit after each strobe (>= 120 ns hold and recovery, >= 30 ns /PS hold), /PS and /CS settle one
+bit before a strobe (>= 30 ns setup), and a read samples D0-D7 two bits (333 ns) after /RD
+falls (<= 180 ns access).  /RST is held low 10.7 us: 8 clocks of the slowest (1 MHz) chip.
+
+The busy discipline, without looking at the answer in between
+-------------------------------------------------------------
+
+The busy bit can only be seen by a status read, and an MPSSE stream cannot branch on what it
+reads.  So the stream does what a polling host would do, but open-loop, and checks afterwards:
+
+1. Before every transfer (command byte, data word written or read) the stream reads the status
+   byte, then makes the transfer.  After every transfer it waits ``busy_us`` (default 100 us,
+   the chip's documented worst case for busy; the datasheet says 15-25 us typically) before
+   the next status read.  On a chip within its data sheet, every one of these status reads
+   therefore shows busy clear, and every transfer lands.  Between programs the same wait is
+   kept: a stream starts with whatever is left of it since the previous stream ended.  After
+   a RESET command byte the wait is 1.5 ms (busy stays set until the reset is done).
+2. When the answer comes back, every status byte read before a transfer is checked.  If one
+   shows busy, the chip ignored that transfer (a write while busy is ignored; a read while
+   busy returns stale bytes) and nothing else tells.  The transport then polls the status in
+   short exchanges until busy clears (at most ``program.busy_timeout_s``, then
+   :class:`~lm629_host.errors.BusyTimeout`), and repeats the whole command from its command
+   byte, and everything after it in that stream, in a new stream.  Each repeat is counted in
+   ``stats.retries`` and logged as a warning: never silent.
+
+What is safe to repeat, and why the stream is cut before some commands:
+
+* a command with data written (LFIL, LTRJ, MSKI, RSTI, LPEI, LPES, SBPA, SBPR): repeated from
+  its command byte.  Its partial or shifted words may have been taken; a new command byte
+  aborts an unfinished command, and the repeat loads every word again.  Loads only fill input
+  buffers and registers, so loading them again is harmless;
+* a read command (RDxx): repeated from its command byte.  The words it read may be stale or
+  shifted; reading again has no side effect; the words reported are the repeat's;
+* a command that acts (STT, DFH, SIP, UDF, RESET): never repeated once taken.  It has no data
+  words, so its only check is the status read before its command byte, and a busy there means
+  the byte was ignored: repeating it is then what makes it happen once.  But an action must
+  not act on loads that a later check will find corrupted (STT after a damaged LTRJ would start
+  a wrong move; the repeated LTRJ would come too late).  So the stream is cut before an action
+  that follows a transfer in the same program: e.g. ``load_trajectory(..., start=True)`` is two
+  exchanges, load and check first, then STT.  Every stream therefore holds at most one action,
+  first, and only repeatable commands after it: repeating "from the first busy to the end of
+  the stream" never doubles an action.
+
+Rejected alternatives: waiting in the adapter with MPSSE "wait on I/O" (0x88/0x89) needs busy
+on a pin, but the chip shows busy only on D0 during a status read, and the data sheet does not
+say that D0 follows busy while /RD stays low; the wait has no timeout either, so a stuck chip
+would hang the MPSSE engine.  Polling each status read in its own USB exchange costs a round
+trip per transfer (the problem this transport exists to avoid).
+
+The chip's documented worst case makes the repeat path a fault detector: it runs only on a
+chip out of its data sheet, a noisy bus, or the emulator's ``stretch_busy`` hook.
+"""
+
+from __future__ import annotations
+
+import errno as _errno
+import logging
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from urllib.parse import urlsplit, urlunsplit
+
+from .. import ftdi_pins as pins
+from ..errors import BusyTimeout, TransportError
+from ..opcodes import RESET_WAIT_S, Cmd, Status
+from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
+from . import query_params
+from .base import Check, Clock, PortInfo, Transport, WallClock
+
+log = logging.getLogger("lm629_host.ftdi")
+
+_BUSY = int(Status.BUSY)
+
+# MPSSE opcodes (FTDI AN_108); the ones this transport emits
+SET_LOW = 0x80
+GET_LOW = 0x81
+SET_HIGH = 0x82
+GET_HIGH = 0x83
+SEND_IMMEDIATE = 0x87
+CLK_BITS = 0x8E
+CLK_BYTES = 0x8F
+
+FTDI_VID = 0x0403
+FT232H_PID = 0x6014
+
+DEFAULT_LATENCY_MS = 1  #: the FTDI default is 16 ms, the floor of every short read
+DEFAULT_BUSY_US = 100  #: the chip's documented worst-case busy time
+DEFAULT_TCK_HZ = 6e6
+RST_LOW_S = 10.7e-6  #: >= 8 clocks of a 1 MHz chip
+#: commands that act on the chip (not repeatable once taken): the stream is cut before them
+ACTIONS = frozenset({Cmd.RESET, Cmd.STT, Cmd.DFH, Cmd.SIP, Cmd.UDF})
+
+UDEV_RULE = "/etc/udev/rules.d/99-lm629-ft232h.rules"
+
+
+# ---------------------------------------------------------------------------- compilation
+@dataclass(frozen=True)
+class Slot:
+    """One byte the stream reads: ``kind`` is "check" (status before a transfer), "status"
+    (a STATUS op), "sync" (a SYNC op), "hi"/"lo" (bytes of a data word) or "pins" (HI)."""
+
+    kind: str
+    op: int  #: index of the program operation it belongs to (-1 for "pins")
+
+
+@dataclass
+class Stream:
+    """A compiled MPSSE stream: the bytes to send, what each answer byte is, the bus events in
+    order (for the trace) and how long its delays last."""
+
+    data: bytearray = field(default_factory=bytearray)
+    slots: list[Slot] = field(default_factory=list)
+    #: ("status", slot), ("command", byte), ("write", word), ("read", slot of high byte),
+    #: ("reset", 0), in bus order
+    events: list[tuple[str, int]] = field(default_factory=list)
+    delay_s: float = 0.0
+    strobes: int = 0
+
+
+class StreamCompiler:
+    """Bus operations -> MPSSE bytes, with the pin map of :mod:`lm629_host.ftdi_pins`."""
+
+    def __init__(self, tck_hz: float = DEFAULT_TCK_HZ, busy_s: float = DEFAULT_BUSY_US * 1e-6):
+        self.tck_hz = tck_hz
+        self.busy_s = busy_s
+
+    # primitives
+    def _low(self, s: Stream, value: int) -> None:
+        s.data += bytes((SET_LOW, value, pins.CTRL_DIRECTION))
+        self._ctrl = value
+
+    def _high(self, s: Stream, value: int, direction: int) -> None:
+        s.data += bytes((SET_HIGH, value, direction))
+        self._dir = direction
+
+    def _bits(self, s: Stream, n: int) -> None:
+        s.data += bytes((CLK_BITS, n - 1))
+        s.delay_s += n / self.tck_hz
+
+    def delay(self, s: Stream, seconds: float) -> None:
+        """Idle clocks lasting at least ``seconds``."""
+        clocks = math.ceil(seconds * self.tck_hz - 1e-9)
+        if clocks <= 0:
+            return
+        if clocks <= 8:
+            self._bits(s, clocks)
+            return
+        units = math.ceil(clocks / 8)
+        while units:
+            n = min(units, 0x10000)
+            s.data += bytes((CLK_BYTES, (n - 1) & 0xFF, (n - 1) >> 8))
+            s.delay_s += n * 8 / self.tck_hz
+            units -= n
+
+    def _select(self, s: Stream, data_port: bool) -> None:
+        want = (pins.CTRL_IDLE & ~pins.CS & ~pins.PS) | (pins.PS if data_port else 0)
+        if self._ctrl != want:
+            self._low(s, want)
+            self._bits(s, 1)  # /CS and /PS setup before the strobe
+
+    def _read_byte(self, s: Stream, slot: Slot, data_port: bool) -> None:
+        if self._dir != pins.DATA_IN:
+            self._high(s, 0, pins.DATA_IN)
+        self._select(s, data_port)
+        self._low(s, self._ctrl & ~pins.RD)
+        self._bits(s, 2)  # read access time
+        s.data.append(GET_HIGH)
+        s.slots.append(slot)
+        self._low(s, self._ctrl | pins.RD)
+        self._bits(s, 1)  # recovery, /PS hold
+        s.strobes += 1
+
+    def _write_byte(self, s: Stream, byte: int, data_port: bool) -> None:
+        self._select(s, data_port)
+        self._high(s, byte, pins.DATA_OUT)
+        self._low(s, self._ctrl & ~pins.WR)
+        self._bits(s, 1)  # /WR pulse width, data setup
+        self._low(s, self._ctrl | pins.WR)
+        self._bits(s, 1)  # data hold, recovery
+        s.strobes += 1
+
+    def _status(self, s: Stream, kind: str, op: int) -> None:
+        s.events.append(("status", len(s.slots)))
+        self._read_byte(s, Slot(kind, op), data_port=False)
+
+    def compile(self, ops: Sequence[BusOp], first: int = 0, lead_s: float = 0.0) -> Stream:
+        """Compile ``ops`` (program operations ``first``, ``first + 1``...).  ``lead_s``: busy
+        wait still owed to the previous stream's last transfer."""
+        s = Stream()
+        self._ctrl = pins.CTRL_IDLE
+        self._dir = pins.DATA_IN
+        owed = lead_s  # the wait owed before the next busy check
+        for i, o in enumerate(ops, first):
+            op = o.op
+            if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
+                self.delay(s, owed)
+                owed = 0.0
+                self._status(s, "sync" if op is Op.SYNC else "check", i)
+                if op is Op.COMMAND:
+                    self._write_byte(s, o.arg, data_port=False)
+                    s.events.append(("command", o.arg))
+                    owed = RESET_WAIT_S if o.arg == Cmd.RESET else self.busy_s
+                elif op is Op.WRITE:
+                    self._write_byte(s, o.arg >> 8, data_port=True)
+                    self._write_byte(s, o.arg & 0xFF, data_port=True)
+                    s.events.append(("write", o.arg))
+                    owed = self.busy_s
+                elif op is Op.READ:
+                    s.events.append(("read", len(s.slots)))
+                    self._read_byte(s, Slot("hi", i), data_port=True)
+                    self._read_byte(s, Slot("lo", i), data_port=True)
+                    owed = self.busy_s
+            elif op is Op.STATUS:
+                self._status(s, "status", i)
+            elif op is Op.RESET:
+                self._low(s, pins.CTRL_IDLE & ~pins.RST)
+                self.delay(s, RST_LOW_S)
+                self._low(s, pins.CTRL_IDLE)
+                s.events.append(("reset", 0))
+                s.strobes += 1
+                owed = 0.0
+            elif op is Op.WAIT:
+                self.delay(s, o.arg * 1e-6)
+                owed = max(0.0, owed - o.arg * 1e-6)
+            else:  # pragma: no cover - Op is closed
+                raise AssertionError(op)
+        if self._ctrl != pins.CTRL_IDLE:
+            self._low(s, pins.CTRL_IDLE)
+        if self._dir != pins.DATA_IN:
+            self._high(s, 0, pins.DATA_IN)
+        s.data.append(GET_LOW)
+        s.slots.append(Slot("pins", -1))
+        s.data.append(SEND_IMMEDIATE)
+        self.owed_after = owed
+        return s
+
+
+def units_of(ops: Sequence[BusOp]) -> list[tuple[int, int]]:
+    """Split a program into units ``(start, end)``: a command with its data words, or one other
+    operation.  A unit is what gets repeated."""
+    units: list[tuple[int, int]] = []
+    i = 0
+    while i < len(ops):
+        j = i + 1
+        if ops[i].op is Op.COMMAND:
+            while j < len(ops) and ops[j].op in (Op.WRITE, Op.READ):
+                j += 1
+        units.append((i, j))
+        i = j
+    return units
+
+
+def _is_action(o: BusOp) -> bool:
+    return o.op is Op.RESET or (o.op is Op.COMMAND and (o.arg in ACTIONS or o.arg not in
+                                                       Cmd._value2member_map_))
+
+
+def streams_of(ops: Sequence[BusOp]) -> list[list[tuple[int, int]]]:
+    """Group units into streams: a new stream before an action that follows a transfer."""
+    streams: list[list[tuple[int, int]]] = [[]]
+    transfers = False
+    for u in units_of(ops):
+        o = ops[u[0]]
+        if _is_action(o) and o.op is Op.COMMAND and transfers:
+            streams.append([])
+            transfers = False
+        streams[-1].append(u)
+        if o.op in (Op.COMMAND, Op.WRITE, Op.READ):
+            transfers = True
+    return [s for s in streams if s]
+
+
+# ---------------------------------------------------------------------------- transport
+class FtdiTransport(Transport):
+    """Bus programs as MPSSE streams on an opened pyftdi ``Ftdi`` (see the module docstring)."""
+
+    scheme = "ftdi"
+    has_reset_line = True
+
+    def __init__(self, ftdi: object, url: str, *, trace: TraceCallback | None = None,
+                 clock: Clock | None = None, busy_s: float = DEFAULT_BUSY_US * 1e-6,
+                 tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS) -> None:
+        super().__init__(url, trace=trace)
+        self.ftdi = ftdi
+        self.clock = clock or WallClock()
+        self.compiler = StreamCompiler(tck_hz, busy_s)
+        self.busy_s = busy_s
+        self.latency_ms = latency_ms
+        self._last_end = -1.0  # clock time at which the last stream's answer came back
+        self._owed = 0.0  # busy wait owed after the last stream's last transfer
+        self.busy_hits = 0  #: status reads before a transfer that showed busy (all time)
+
+    # ------------------------------------------------------------------ opening
+    @classmethod
+    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> FtdiTransport:
+        opts = options_of(url)
+        ftdi = open_mpsse(pyftdi_url(url), opts["latency"], opts["frequency"])
+        return cls(ftdi, url, trace=trace, busy_s=opts["busy_us"] * 1e-6,
+                   tck_hz=opts["frequency"], latency_ms=opts["latency"])
+
+    def close(self) -> None:
+        ftdi, self.ftdi = self.ftdi, None
+        if ftdi is not None:
+            try:
+                ftdi.close()  # type: ignore[attr-defined]
+            except Exception as exc:  # noqa: BLE001 - closing a vanished device must not raise
+                log.warning("closing %s: %s", self.url, exc)
+
+    def describe(self) -> str:
+        return f"{self.url} (FT232H, MPSSE, TCK {self.compiler.tck_hz / 1e6:g} MHz)"
+
+    # ------------------------------------------------------------------ one exchange
+    def _exchange(self, stream: Stream) -> bytes:
+        ftdi = self.ftdi
+        if ftdi is None:
+            raise TransportError("the port is closed", port=self.url)
+        need = len(stream.slots)
+        # on hardware the answer can only come once the stream's delays have run: let pyftdi
+        # wait that many latency periods for it, and a few more
+        attempts = 3 + int(stream.delay_s * 1000 / max(1, self.latency_ms))
+        try:
+            ftdi.write_data(stream.data)  # type: ignore[attr-defined]
+            answer = bytes(ftdi.read_data_bytes(need, attempts))  # type: ignore[attr-defined]
+        except TransportError:
+            raise
+        except Exception as exc:
+            raise TransportError(
+                f"USB transfer to the FT232H failed ({exc}). Check the USB cable and that the "
+                "adapter is still plugged in; a command may or may not have reached the chip: "
+                "read back what matters before going on", port=self.url) from exc
+        st = self.stats
+        st.round_trips += 1
+        st.bytes_out += len(stream.data)
+        st.bytes_in += len(answer)
+        st.bus_cycles += stream.strobes
+        if len(answer) != need:
+            raise TransportError(
+                f"the FT232H returned {len(answer)} of the {need} bytes the stream reads "
+                f"(stream of {len(stream.data)} bytes). Check the USB cable and that no other "
+                "program uses the adapter; the commands of this program may or may not have "
+                "reached the chip", port=self.url)
+        self._last_end = self.clock.now()
+        return answer
+
+    def _lead(self) -> float:
+        """The busy wait still owed to the last transfer of the previous stream."""
+        if self._owed <= 0 or self._last_end < 0:
+            return 0.0
+        return max(0.0, self._owed - (self.clock.now() - self._last_end))
+
+    def _emit_stream(self, stream: Stream, answer: bytes) -> None:
+        if self.trace is None and not log.isEnabledFor(logging.DEBUG):
+            return
+        for kind, value in stream.events:
+            if kind == "status":
+                self._emit(BusCycle("status", answer[value]))
+            elif kind == "read":
+                self._emit(BusCycle("read", answer[value] << 8 | answer[value + 1]))
+            else:
+                self._emit(BusCycle(kind, value))
+
+    def _poll_until_clear(self, program: Program, index: int, deadline: float,
+                          words: list[int]) -> int:
+        """Status reads, one short exchange each, until busy is clear; BusyTimeout at
+        ``deadline``."""
+        poll = Stream()
+        c = self.compiler
+        c._ctrl, c._dir = pins.CTRL_IDLE, pins.DATA_IN
+        c._status(poll, "status", index)
+        c._low(poll, pins.CTRL_IDLE)
+        poll.data.append(SEND_IMMEDIATE)
+        while True:
+            status = self._exchange(poll)[0]
+            self.stats.busy_polls += 1
+            self._emit(BusCycle("status", status))
+            if not status & _BUSY:
+                self._owed = 0.0
+                return status
+            if self.clock.now() >= deadline:
+                raise BusyTimeout(program.ops[index].describe(), program.busy_timeout_s, status,
+                                  index, words)
+
+    # ------------------------------------------------------------------ programs
+    def execute(self, program: Program) -> ProgramResult:
+        self.stats.programs += 1
+        ops = program.ops
+        statuses: dict[int, int] = {}
+        reads: dict[int, int] = {}
+        last_status: int | None = None
+        hi: bool | None = None
+        for units in streams_of(ops):
+            first_try: dict[int, float] = {}
+            while units:
+                start = units[0][0]
+                stream = self.compiler.compile(ops[start:units[-1][1]], start, self._lead())
+                owed_after = self.compiler.owed_after
+                t0 = self.clock.now()
+                answer = self._exchange(stream)
+                self._owed = owed_after
+                self._emit_stream(stream, answer)
+                hi = bool(answer[-1] & pins.HI)
+                self.stats.busy_polls += sum(1 for sl in stream.slots if sl.kind in ("check", "sync"))
+                # the first unit whose busy check showed busy, and the first busy op in it
+                failed: tuple[int, int] | None = None
+                for slot, byte in zip(stream.slots, answer):
+                    if slot.kind == "check" and byte & _BUSY:
+                        failed = (next(k for k, u in enumerate(units) if u[0] <= slot.op < u[1]),
+                                  slot.op)
+                        break
+                ok_end = units[failed[0]][0] if failed else len(ops)
+                for slot, byte in zip(stream.slots, answer):
+                    if slot.op < 0 or slot.op >= ok_end:
+                        continue
+                    if slot.kind in ("status", "sync"):
+                        statuses[slot.op] = byte
+                        last_status = byte
+                    elif slot.kind == "check":
+                        last_status = byte
+                    elif slot.kind == "hi":
+                        reads[slot.op] = byte << 8
+                    elif slot.kind == "lo":
+                        reads[slot.op] |= byte
+                # a SYNC that saw busy waits here (not a failure: it is asked to wait)
+                for slot, byte in zip(stream.slots, answer):
+                    if slot.kind == "sync" and slot.op < ok_end and byte & _BUSY:
+                        words = [reads[k] for k in sorted(reads)]
+                        statuses[slot.op] = last_status = self._poll_until_clear(
+                            program, slot.op, t0 + program.busy_timeout_s, words)
+                if failed is None:
+                    break
+                k, op_index = failed
+                unit_start = units[k][0]
+                self.busy_hits += 1
+                self.stats.retries += 1
+                first = first_try.setdefault(unit_start, t0)
+                log.warning("%s: busy was still set before %s (the chip held busy past the "
+                            "stream's %g us wait); repeating from %s", self.url,
+                            ops[op_index].describe(), self.busy_s * 1e6,
+                            ops[unit_start].describe())
+                words = [reads[j] for j in sorted(reads) if j < unit_start]
+                last_status = self._poll_until_clear(program, op_index,
+                                                     first + program.busy_timeout_s, words)
+                units = units[k:]
+        words = tuple(reads[k] for k in sorted(reads))
+        return ProgramResult(words, tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
+
+
+# ---------------------------------------------------------------------------- URLs, opening
+def options_of(url: str) -> dict[str, int | float]:
+    q = query_params(url)
+    unknown = set(q) - {"latency", "busy_us", "frequency"}
+    if unknown:
+        raise ValueError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; "
+                         "known: latency (ms), busy_us, frequency (Hz)")
+    opts: dict[str, int | float] = {"latency": DEFAULT_LATENCY_MS, "busy_us": DEFAULT_BUSY_US,
+                                    "frequency": DEFAULT_TCK_HZ}
+    limits = {"latency": (1, 255), "busy_us": (0, 65535), "frequency": (1e5, 30e6)}
+    for name, text in q.items():
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"{url}: {name}={text!r} is not a number") from None
+        lo, hi_ = limits[name]
+        if not lo <= value <= hi_:
+            raise ValueError(f"{url}: {name}={text} is outside {lo:g}..{hi_:g}")
+        opts[name] = int(value) if name == "latency" else value
+    return opts
+
+
+def pyftdi_url(url: str) -> str:
+    """Our URL without its options: what pyftdi parses."""
+    parts = urlsplit(url)
+    return urlunsplit((parts.scheme, parts.netloc, parts.path, "", ""))
+
+
+ADVICE_NO_BACKEND = (
+    "no USB backend: pyusb found no libusb library. Install it (Debian/Ubuntu: "
+    "sudo apt-get install libusb-1.0-0; Fedora: sudo dnf install libusb1; macOS: "
+    "brew install libusb), then try again")
+ADVICE_ACCESS = (
+    "access denied to the FT232H's USB device. Install the udev rule shipped with this project "
+    "and replug the adapter:\n"
+    f"    sudo cp udev/99-lm629-ft232h.rules {UDEV_RULE}\n"
+    "    sudo udevadm control --reload-rules && sudo udevadm trigger\n"
+    "    sudo usermod -aG plugdev $USER   (then log out and in again)")
+ADVICE_BUSY = (
+    "device busy: another program, or the ftdi_sio kernel driver, holds the FT232H. Close other "
+    "programs using it (another lm629, a serial terminal); to free it from ftdi_sio either "
+    "unload the driver (sudo rmmod ftdi_sio; it blocks every FTDI serial port) or unbind this "
+    "adapter only: ls /sys/bus/usb/drivers/ftdi_sio/ shows names like 1-1.2:1.0, then\n"
+    "    echo -n 1-1.2:1.0 | sudo tee /sys/bus/usb/drivers/ftdi_sio/unbind")
+
+
+def _usb_errno(exc: BaseException) -> int | None:
+    while exc is not None:
+        code = getattr(exc, "backend_error_code", None) or getattr(exc, "errno", None)
+        if code in (_errno.EACCES, _errno.EBUSY, -3, -6):
+            return {-3: _errno.EACCES, -6: _errno.EBUSY}.get(code, code)
+        text = str(exc).lower()
+        if "access denied" in text or "permission" in text or "errno 13" in text:
+            return _errno.EACCES
+        if "resource busy" in text or "errno 16" in text:
+            return _errno.EBUSY
+        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]
+    return None
+
+
+def translate_open_error(url: str, exc: BaseException) -> TransportError:
+    """The exceptions pyftdi and pyusb raise when opening, as errors that say what to do."""
+    text = str(exc)
+    if isinstance(exc, ValueError) and "backend" in text.lower():
+        return TransportError(ADVICE_NO_BACKEND, port=url)
+    code = _usb_errno(exc)
+    if code == _errno.EACCES:
+        return TransportError(ADVICE_ACCESS, port=url)
+    if code == _errno.EBUSY:
+        return TransportError(ADVICE_BUSY, port=url)
+    low = text.lower()
+    if "no such device" in low or "not found" in low or "no usb device" in low \
+            or "unknown" in low or isinstance(exc, OSError):
+        found = [p.url for p in list_ports()]
+        seen = ", ".join(found) if found else "no FT232H at all (check the cable; `lsusb` " \
+                                               "should list 0403:6014)"
+        return TransportError(f"no FT232H matches {url} ({text}). Found: {seen}", port=url)
+    return TransportError(f"cannot open the FT232H ({type(exc).__name__}: {text})", port=url)
+
+
+def open_mpsse(url: str, latency_ms: int = DEFAULT_LATENCY_MS,
+               frequency: float = DEFAULT_TCK_HZ, device: object | None = None) -> object:
+    """Open the FT232H at pyftdi ``url`` (or the pyusb ``device``) in MPSSE mode, lines idle
+    (chip deselected, strobes and /RST high, D0-D7 released), latency timer ``latency_ms``."""
+    try:
+        from pyftdi.ftdi import Ftdi
+    except ImportError as exc:
+        raise TransportError("pyftdi is not installed: pip install 'lm629-host[ftdi]'",
+                             port=url) from exc
+    ftdi = Ftdi()
+    direction = pins.CTRL_DIRECTION | pins.DATA_IN << 8
+    initial = pins.CTRL_IDLE
+    try:
+        if device is None:
+            ftdi.open_mpsse_from_url(url, direction=direction, initial=initial,
+                                     frequency=frequency, latency=latency_ms)
+        else:
+            ftdi.open_mpsse_from_device(device, 1, direction=direction, initial=initial,
+                                        frequency=frequency, latency=latency_ms)
+    except TransportError:
+        raise
+    except Exception as exc:  # pyftdi raises ValueError, IOError, UsbToolsError, FtdiError...
+        raise translate_open_error(url, exc) from exc
+    if ftdi.device_version != 0x0900:
+        ic = ftdi.ic_name
+        ftdi.close()
+        raise TransportError(f"the device at {url} is an {ic}, not an FT232H: this transport "
+                             "needs the FT232H's 16 MPSSE lines", port=url)
+    return ftdi
+
+
+# ---------------------------------------------------------------------------- list, doctor
+def list_ports() -> list[PortInfo]:
+    """FT232H adapters on the USB bus (for ``lm629 list``); [] when pyftdi or libusb is
+    missing (``doctor()`` says which)."""
+    try:
+        from pyftdi.ftdi import Ftdi
+        found = Ftdi.find_all([(FTDI_VID, FT232H_PID)], nocache=True)
+    except ImportError:
+        return []
+    except ValueError:  # no backend
+        return []
+    except Exception as exc:  # noqa: BLE001 - enumeration can fail on access rights
+        code = _usb_errno(exc)
+        problem = ADVICE_ACCESS if code == _errno.EACCES else str(exc)
+        return [PortInfo("ftdi://ftdi:232h/1", "FTDI FT232H (0403:6014)", False, problem)]
+    ports = []
+    for desc, _ifcount in sorted(found, key=lambda d: (d[0].bus or 0, d[0].address or 0)):
+        where = f"bus {desc.bus} address {desc.address}"
+        if desc.sn:
+            url = f"ftdi://ftdi:232h:{desc.sn}/1"
+        else:
+            url = f"ftdi://ftdi:232h:{desc.bus:x}:{desc.address:x}/1"
+        ports.append(PortInfo(url, f"FTDI FT232H {desc.description or ''} ({where}, "
+                                   f"serial {desc.sn or 'none'})".replace("  ", " ")))
+    return ports
+
+
+def doctor() -> list[Check]:
+    """What ``lm629 doctor`` reports about FT232H support on this machine."""
+    checks: list[Check] = []
+    try:
+        import pyftdi
+        checks.append(Check("pyftdi", True, f"pyftdi {pyftdi.__version__}"))
+    except ImportError:
+        return [Check("pyftdi", False, "pyftdi is not installed: pip install 'lm629-host[ftdi]'")]
+    try:
+        from pyftdi.usbtools import UsbTools
+        UsbTools.find_backend()
+        checks.append(Check("libusb", True, "pyusb found a libusb backend"))
+    except ValueError:
+        checks.append(Check("libusb", False, ADVICE_NO_BACKEND))
+        return checks
+    ports = list_ports()
+    usable = [p for p in ports if p.usable]
+    if usable:
+        checks.append(Check("FT232H", True, ", ".join(p.url for p in usable)))
+    elif ports:
+        checks.append(Check("FT232H", False, ports[0].problem))
+    else:
+        checks.append(Check("FT232H", False, "no FT232H (0403:6014) on the USB bus"))
+    rule = os.path.exists(UDEV_RULE)
+    checks.append(Check("udev rule", rule or os.geteuid() == 0,
+                        f"{UDEV_RULE} installed" if rule else
+                        ("not installed (not needed as root)" if os.geteuid() == 0 else
+                         "not installed: " + ADVICE_ACCESS.split("\n", 1)[1].strip())))
+    if os.path.isdir("/sys/module/ftdi_sio"):
+        checks.append(Check("ftdi_sio", True, "the ftdi_sio driver is loaded: pyftdi detaches it "
+                                              "from the adapter when it opens it; if that fails, "
+                                              "see the 'device busy' advice"))
+    return checks
+
+
+__all__ = ["FtdiTransport", "StreamCompiler", "Stream", "Slot", "units_of", "streams_of",
+           "open_mpsse", "list_ports", "doctor", "options_of", "pyftdi_url"]
