@@ -16,8 +16,10 @@ Two ways in:
   and device listing on emulated devices.  ``SHARED.libusb_present = False`` makes
   ``get_backend()`` answer None, as pyusb's libusb1 module does when the library is missing.
 
-Faults for the error-message tests: ``device.open_error`` set to an errno (13 access denied,
-16 busy) makes opening the device fail the way libusb does.
+Faults for the error-message tests, where libusb reports them: ``device.open_error = 13``
+(EACCES: no permission to open the device node; pyusb then cannot even read the serial
+number), ``device.claim_error = 16`` (EBUSY: another program or a kernel driver holds the
+interface; the first bulk transfer fails).
 """
 
 from __future__ import annotations
@@ -124,7 +126,9 @@ class EmulatedBackend(usb.backend.IBackend):
         pass
 
     def claim_interface(self, dev_handle, intf):  # type: ignore[no-untyped-def]
-        pass
+        code = getattr(dev_handle.dev, "claim_error", None)
+        if code:
+            raise USBError(f"[Errno {code}] {errno.errorcode.get(code, code)}", code, code)
 
     def release_interface(self, dev_handle, intf):  # type: ignore[no-untyped-def]
         pass

@@ -120,6 +120,7 @@ class EmulatedFT232H:
         self._edge_ns: dict[str, int] = {}  #: time of the last edge of each line
         self._data_changed_ns = 0
         self._stretch_left = 0
+        self._stretch_skip = 0
         self._stretch_clocks = 0
         self.busy_stretched = 0  #: transfers whose busy the hook stretched
 
@@ -149,9 +150,11 @@ class EmulatedFT232H:
         return round(clocks * 1e9 / self.tck_hz)
 
     # ------------------------------------------------------------------ test hook
-    def stretch_busy(self, transfers: int, seconds: float) -> None:
-        """Hold busy for ``seconds`` (instead of the model's ``busy_s``) after each of the next
-        ``transfers`` transfers the chip accepts: a chip out of its documented 100 us."""
+    def stretch_busy(self, transfers: int, seconds: float, skip: int = 0) -> None:
+        """Hold busy for ``seconds`` (instead of the model's ``busy_s``) after each of the
+        ``transfers`` transfers the chip accepts after the next ``skip`` ones: a chip out of
+        its documented 100 us."""
+        self._stretch_skip = skip
         self._stretch_left = transfers
         self._stretch_clocks = max(1, round(seconds * self.model.clock_hz))
 
@@ -159,15 +162,20 @@ class EmulatedFT232H:
         m = self.model
         if not self._stretch_left:
             return fn(*args)
+        skipping = self._stretch_skip > 0
         saved, was_busy = m.busy_clocks, m.busy
-        m.busy_clocks = self._stretch_clocks
+        if not skipping:
+            m.busy_clocks = self._stretch_clocks
         try:
             return fn(*args)
         finally:
             m.busy_clocks = saved
-            if not was_busy and m.busy:
-                self._stretch_left -= 1
-                self.busy_stretched += 1
+            if not was_busy and m.busy:  # the chip accepted a transfer
+                if skipping:
+                    self._stretch_skip -= 1
+                else:
+                    self._stretch_left -= 1
+                    self.busy_stretched += 1
 
     # ------------------------------------------------------------------ USB: control
     def control_out(self, request: int, value: int, index: int, data: bytes) -> int:

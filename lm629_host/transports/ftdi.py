@@ -19,7 +19,8 @@ the MPSSE engine executes a command: at the default TCK of 6 MHz one idle bit is
 /WR is low for one bit (>= 100 ns pulse, >= 50 ns data setup), data and /PS are held for one
 bit after each strobe (>= 120 ns hold and recovery, >= 30 ns /PS hold), /PS and /CS settle one
 bit before a strobe (>= 30 ns setup), and a read samples D0-D7 two bits (333 ns) after /RD
-falls (<= 180 ns access).  /RST is held low 10.7 us: 8 clocks of the slowest (1 MHz) chip.
+falls (<= 180 ns access).  /RST is held low at least 10 us: 8 clocks of the slowest (1 MHz)
+chip, with margin (10.7 us at 6 MHz, rounded up to whole idle bytes).
 
 The busy discipline, without looking at the answer in between
 -------------------------------------------------------------
@@ -106,7 +107,7 @@ FT232H_PID = 0x6014
 DEFAULT_LATENCY_MS = 1  #: the FTDI default is 16 ms, the floor of every short read
 DEFAULT_BUSY_US = 100  #: the chip's documented worst-case busy time
 DEFAULT_TCK_HZ = 6e6
-RST_LOW_S = 10.7e-6  #: >= 8 clocks of a 1 MHz chip
+RST_LOW_S = 10e-6  #: >= 8 clocks of the slowest (1 MHz) chip, with margin
 #: commands that act on the chip (not repeatable once taken): the stream is cut before them
 ACTIONS = frozenset({Cmd.RESET, Cmd.STT, Cmd.DFH, Cmd.SIP, Cmd.UDF})
 

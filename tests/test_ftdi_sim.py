@@ -1,0 +1,183 @@
+"""The FT232H transport through the real pyftdi on the emulated FT232H (``sim+ftdi://``).
+
+Figures: the emulator charges ``usb_us`` (125 us) per bulk transfer; the stream waits 100 us
+(the chip's documented worst-case busy) after each transfer before the next busy check.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import pytest
+
+import lm629_host
+from lm629_host import BusyTimeout, Cmd, Status
+
+LTRJ_WORDS = (0x002A, 0x0000, 0x1234, 0x0005, 0x6789, 0xFFFF, 0xFC18)  # acc, vel, pos -1000
+
+
+def load_ltrj(chip, start=False):
+    chip.load_trajectory(acceleration=0x1234, velocity=0x56789, position=-1000, start=start)
+
+
+@pytest.fixture
+def chip(open_chip):
+    c = open_chip("sim+ftdi://?record=1")
+    c.reset()
+    return c
+
+
+def usb(chip):
+    d = chip.transport.device.counters
+    return d.bulk_out, d.bulk_in
+
+
+@pytest.mark.parametrize("name, call", [
+    ("RDRP", lambda c: c.read_real_position()),
+    ("LTRJ six words", load_ltrj),
+    ("STT", lambda c: c.start()),
+    ("LFIL four coefficients", lambda c: c.load_filter(kp=1, ki=2, kd=3, il=4)),
+    ("MSKI", lambda c: c.mask_interrupts(Status.BREAKPOINT)),
+    ("snapshot", lambda c: c.snapshot()),
+])
+def test_one_usb_write_and_one_usb_read_per_typed_command(chip, name, call):
+    if name == "STT":
+        load_ltrj(chip)
+    t = chip.transport
+    t.stats.reset()
+    out0, in0 = usb(chip)
+    call(chip)
+    # counted by the transport and, independently, by the emulated device's endpoints
+    assert t.stats.round_trips == 1
+    assert usb(chip) == (out0 + 1, in0 + 1)
+    assert t.stats.retries == 0
+
+
+def test_ltrj_counts(chip):
+    t = chip.transport
+    t.stats.reset()
+    load_ltrj(chip)
+    s = t.stats
+    # 8 transfers (command + 7 words), each after a status read: 8 busy polls, 1 + 7 x 2 write
+    # strobes + 8 status strobes = 23 bus cycles; bytes in: 8 status bytes + the HI sample
+    assert (s.busy_polls, s.bus_cycles, s.bytes_in) == (8, 23, 9)
+    assert chip.transport.model.history[-1] == (Cmd.LTRJ, LTRJ_WORDS)
+
+
+def test_rdrp_emulated_time_holds_the_two_busy_waits(chip):
+    """RDRP: command, word, word.  Two 100 us waits inside the stream (after the command and
+    the first word), two 125 us USB transfers, plus a few microseconds of strobes."""
+    t0 = chip.clock.now()
+    chip.read_real_position()
+    dt = chip.clock.now() - t0
+    assert 2 * 125e-6 + 2 * 100e-6 <= dt < 2 * 125e-6 + 2 * 100e-6 + 60e-6
+
+
+def test_no_wall_clock_sleep(open_chip, monkeypatch):
+    def forbidden(seconds):
+        raise AssertionError(f"time.sleep({seconds}) on sim+ftdi://")
+
+    monkeypatch.setattr(time, "sleep", forbidden)
+    chip = open_chip("sim+ftdi://")
+    chip.reset()
+    t0 = chip.clock.now()
+    with pytest.raises(lm629_host.WaitTimeout):
+        chip.wait_for(Status.INDEX_PULSE, timeout=0.01)
+    assert chip.clock.now() - t0 >= 0.01
+
+
+# ---------------------------------------------------------------------- injected long busy
+def _long_busy_chip(open_chip):
+    chip = open_chip("sim+ftdi://?record=1&strict=0")
+    chip.reset()
+    chip.transport.model.record_clear()
+    chip.transport.stats.reset()
+    return chip
+
+
+@pytest.mark.parametrize("skip", range(8))
+def test_long_busy_on_any_ltrj_transfer_never_loses_or_doubles_a_write(open_chip, caplog, skip):
+    """The chip holds busy 300 us (3x its documented worst case) after LTRJ's transfer number
+    ``skip`` (0 = the command byte, 1 = the control word...).  The transport must see it in the
+    status bytes, repeat LTRJ from its command byte, and run STT exactly once, after the good
+    LTRJ."""
+    chip = _long_busy_chip(open_chip)
+    model, device = chip.transport.model, chip.transport.device
+    device.stretch_busy(1, 300e-6, skip=skip)
+    with caplog.at_level(logging.WARNING, logger="lm629_host.ftdi"):
+        load_ltrj(chip, start=True)
+    assert device.busy_stretched == 1
+    history = model.history
+    # exactly one complete, correct LTRJ, then exactly one STT, and nothing after it
+    assert history.count((Cmd.LTRJ, LTRJ_WORDS)) == 1
+    assert history[-2:] == [(Cmd.LTRJ, LTRJ_WORDS), (Cmd.STT, ())]
+    assert [c for c, _ in history].count(Cmd.STT) == 1
+    # what came before the good LTRJ is the damaged attempt, which the repeat replaced
+    damaged = history[:-2]
+    assert all(c == Cmd.LTRJ and w != LTRJ_WORDS for c, w in damaged)
+    if skip < 7:  # a stretch after the last word only delays STT's check, which waits
+        assert len(damaged) == 1
+        assert chip.transport.stats.retries == 1
+        assert "repeating from command 1F (LTRJ)" in caplog.text
+        assert any("while busy" in v for v in model.violations)  # it did write into busy
+    # the chip's trajectory buffer holds what was meant when STT took it
+    buf = model.trajectory
+    assert (buf.control, buf.acceleration, buf.velocity, buf.position) == \
+        (0x2A, 0x1234, 0x56789, -1000)
+
+
+def test_long_busy_for_several_transfers_still_lands_everything(open_chip):
+    chip = _long_busy_chip(open_chip)
+    model, device = chip.transport.model, chip.transport.device
+    device.stretch_busy(4, 400e-6, skip=2)
+    chip.load_filter(kp=10, ki=20, kd=30, il=40)
+    chip.mask_interrupts(Status.BREAKPOINT)
+    lfil = (Cmd.LFIL, (0x000F, 10, 20, 30, 40))
+    assert model.history.count(lfil) == 1
+    assert model.history[-1] == (Cmd.MSKI, (int(Status.BREAKPOINT),))
+    assert [c for c, _ in model.history].count(Cmd.MSKI) == 1
+    assert (model.filter_buffer.kp, model.filter_buffer.ki, model.filter_buffer.kd,
+            model.filter_buffer.il) == (10, 20, 30, 40)
+    assert model.mask == int(Status.BREAKPOINT)
+    assert chip.transport.stats.retries >= 2
+
+
+def test_long_busy_on_a_read_gives_the_fresh_word_not_the_stale_one(open_chip):
+    chip = _long_busy_chip(open_chip)
+    load_ltrj(chip)  # leaves FC18 in the chip's I/O register: what a stale read returns
+    model, device = chip.transport.model, chip.transport.device
+    device.stretch_busy(1, 300e-6)  # the RDSIGS command byte
+    signals = chip.read_signals()
+    assert int(signals) == model.signals
+    assert int(signals) != 0xFC18
+    assert chip.transport.stats.retries == 1
+
+
+def test_trace_shows_the_busy_status_and_the_repeat(open_chip, recorder):
+    chip = _long_busy_chip(open_chip)
+    chip.transport.device.stretch_busy(1, 300e-6)  # the MSKI command byte
+    recorder.clear()
+    chip.mask_interrupts(Status.BREAKPOINT)
+    kinds = [(c.kind, c.value) for c in recorder.cycles]
+    busy_at = next(i for i, (k, v) in enumerate(kinds) if k == "status" and v & Status.BUSY)
+    # the word strobed into busy, then polls until clear, then the whole command again
+    assert kinds[busy_at + 1] == ("write", 0x0040)
+    assert recorder.data() == [("command", 0x1C), ("write", 0x0040), ("command", 0x1C),
+                               ("write", 0x0040)]
+
+
+def test_stuck_busy_is_a_busy_timeout_on_the_emulated_clock(open_chip):
+    chip = open_chip("sim+ftdi://?fault=busy")
+    t0 = chip.clock.now()
+    with pytest.raises(BusyTimeout, match="0A \\(RDRP\\)"):
+        chip.read_real_position()
+    elapsed = chip.clock.now() - t0
+    # the default 5 ms busy timeout, polled in short exchanges of 2 x 125 us
+    assert 5e-3 <= elapsed < 5e-3 + 1e-3
+
+
+def test_strict_sim_ftdi_still_flags_a_violation_the_transport_did_not_see(open_chip):
+    chip = open_chip("sim+ftdi://")
+    with pytest.raises(lm629_host.ProtocolViolation, match="data byte"):
+        chip.raw(Cmd.STT, write=[1])  # a data word after a command that takes none
