@@ -181,3 +181,29 @@ def test_strict_sim_ftdi_still_flags_a_violation_the_transport_did_not_see(open_
     chip = open_chip("sim+ftdi://")
     with pytest.raises(lm629_host.ProtocolViolation, match="data byte"):
         chip.raw(Cmd.STT, write=[1])  # a data word after a command that takes none
+
+
+def test_the_busy_wait_is_kept_across_streams_even_with_instant_usb(open_chip):
+    """usb_us=0: the next stream would start right after the last transfer of the previous
+    one; it must begin with what is left of the 100 us wait (the model's busy is 20 us), so no
+    status read before a transfer ever shows busy and nothing is repeated (strict model)."""
+    chip = open_chip("sim+ftdi://?usb_us=0&command_ns=0")
+    chip.reset()
+    for _ in range(3):
+        load_ltrj(chip)
+        chip.read_real_position()
+        chip.mask_interrupts(0)
+    assert chip.transport.stats.retries == 0
+    assert chip.transport.busy_hits == 0
+
+
+def test_program_result_reports_the_hi_line(open_chip):
+    from lm629_host import Program
+
+    chip = open_chip("sim+ftdi://")
+    chip.reset()
+    assert chip.run(Program().status()).hi is False
+    chip.mask_interrupts(Status.BREAKPOINT)  # after reset the breakpoint flag sets at once
+    chip.wait_for(Status.BREAKPOINT, timeout=0.01)
+    assert chip.run(Program().status()).hi is True
+    assert chip.transport.model.hi

@@ -271,9 +271,13 @@ def units_of(ops: Sequence[BusOp]) -> list[tuple[int, int]]:
     return units
 
 
+_KNOWN = frozenset(int(c) for c in Cmd)
+
+
 def _is_action(o: BusOp) -> bool:
-    return o.op is Op.RESET or (o.op is Op.COMMAND and (o.arg in ACTIONS or o.arg not in
-                                                       Cmd._value2member_map_))
+    """An operation that acts on the chip: /RST, or a command that is not a plain load or read
+    (an unknown opcode sent with ``LM629.raw`` counts as one: nothing says it is harmless)."""
+    return o.op is Op.RESET or (o.op is Op.COMMAND and (o.arg in ACTIONS or o.arg not in _KNOWN))
 
 
 def streams_of(ops: Sequence[BusOp]) -> list[list[tuple[int, int]]]:
@@ -282,7 +286,7 @@ def streams_of(ops: Sequence[BusOp]) -> list[list[tuple[int, int]]]:
     transfers = False
     for u in units_of(ops):
         o = ops[u[0]]
-        if _is_action(o) and o.op is Op.COMMAND and transfers:
+        if _is_action(o) and transfers:
             streams.append([])
             transfers = False
         streams[-1].append(u)
