@@ -34,7 +34,6 @@ documented 100 us after the next N transfers, to prove that the transport detect
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 from ..model import ChipModel
