@@ -277,7 +277,7 @@ class EmuPipe:
                 out = bytearray()
                 while h and h[0][0] <= last:
                     out.append(h.popleft()[1])
-                self._deliver_far(clock.now())
+                self._deliver_far(max(last, clock.now()))
                 return bytes(out)
             q = self._to_far
             if q and q[0][0] <= deadline:
@@ -288,7 +288,7 @@ class EmuPipe:
                     t = ti
                 if t > now:
                     clock.advance_to(t)
-                self._deliver_far(clock.now())
+                self._deliver_far(max(t, clock.now()))
                 continue
             if deadline > now:
                 clock.advance_to(deadline)
@@ -302,4 +302,32 @@ class EmuPipe:
         self.closed = True
 
 
-__all__ = ["BridgeEmulator", "EmuPipe", "EmuStats", "ModelClock", "EMU_FIRMWARE", "BUS_CYCLE_S"]
+__all__ = ["BridgeEmulator", "EmuPipe", "EmuStats", "ModelClock", "EMU_FIRMWARE", "BUS_CYCLE_S",
+           "open_emulated"]
+
+
+def open_emulated(url: str = "sim://", *, baud: int | None = 115200, retries: int = 3,
+                  wrap=None, trace=None, margin_s: float = 1e-3):
+    """A :class:`~lm629_host.link.LinkTransport` to an emulated bridge over a model built from
+    the simulator ``url`` (``sim://?record=1`` ...), all in simulated time.
+
+    ``wrap(pipe) -> pipe`` inserts a wrapper between host and bridge (e.g. a
+    :class:`~lm629_host.faultlink.FaultPipe`).  The model is ``transport.pipe...emulator.model``;
+    it is also returned as ``transport.model`` for convenience.
+    """
+    from .link import LinkTransport
+    from .transports.sim import build_model
+
+    model = build_model(url)
+    emu = BridgeEmulator(model)
+    pipe = EmuPipe(emu, baud=baud)
+    outer = wrap(pipe) if wrap is not None else pipe
+
+    class _EmuLink(LinkTransport):
+        scheme = "emu"
+
+    _EmuLink.margin_s = margin_s
+    t = _EmuLink(outer, url, trace=trace, retries=retries, baud=baud)
+    t.model = model  # type: ignore[attr-defined]
+    t.emulator = emu  # type: ignore[attr-defined]
+    return t
