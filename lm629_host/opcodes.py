@@ -1,7 +1,7 @@
 """The LM628/LM629 facts that every layer shares: command opcodes, word counts and bit masks.
 
 This module is the one place where these numbers are written down.  The typed command layer,
-the chip model, the bridge firmware (through the generated ``firmware_bridge/tables.h``, see
+the chip model, the bridge firmware (through the generated ``firmware_bridge/lm629_tables.h``, see
 ``tools/gen_tables.py``) and the tests all take them from here.  Sources: the datasheet command
 table and AN-706 section 3 (condensed in ``shared/spec/lm628-lm629-reference.md``).
 """

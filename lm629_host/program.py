@@ -7,7 +7,7 @@ and only then strobes the byte(s).  The typed layer therefore cannot forget a bu
 transport that can poll on its far side runs a whole program in one round trip.
 
 The operation codes below are shared with the bridge firmware through the generated
-``firmware_bridge/tables.h`` (``tools/gen_tables.py``); this is their one definition.
+``firmware_bridge/lm629_tables.h`` (``tools/gen_tables.py``); this is their one definition.
 """
 
 from __future__ import annotations
