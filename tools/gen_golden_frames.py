@@ -45,7 +45,7 @@ def frames() -> list[tuple[str, bytes]]:
         ("pong", frame_body(FrameType.PONG, 0x02, b"\x00\x01\xfe\xff")),
         ("run_an693_filter", frame_body(FrameType.RUN, 0x2A, run_payload(an693.ops, 5000))),
         ("run_reply_an693_filter", frame_body(
-            FrameType.RUN_REPLY, 0x2A, RunReply(Result.OK, 0xFF, 0x80, 0, (), ()).encode())),
+            FrameType.RUN_REPLY, 0x2A, RunReply(Result.OK, 0xFF, 0xC0, 0, (), ()).encode())),
         ("run_zero_bytes", frame_body(FrameType.RUN, 0x00, run_payload(zeros.ops, 0))),
         ("run_reply_zero_bytes", frame_body(
             FrameType.RUN_REPLY, 0x00, RunReply(Result.OK, 0xFF, 0x00, 1, (), (0x0000,)).encode())),

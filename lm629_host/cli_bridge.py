@@ -1,0 +1,172 @@
+"""CLI groups of the serial bridge: ``lm629 bridge list|flash`` and ``lm629 sim serve``.
+
+``lm629_host.cli`` adds them with ``add_command(bridge)`` and ``add_command(sim)``; they also
+run alone (``python -m lm629_host.cli_bridge bridge list``).
+"""
+
+from __future__ import annotations
+
+import shutil
+import signal
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import click
+
+#: where ``make -C firmware_bridge`` puts the image
+DEFAULT_HEX = Path(__file__).resolve().parent.parent / "firmware_bridge" / "build" / "lm629_bridge.hex"
+
+
+@dataclass(frozen=True)
+class Board:
+    """avrdude settings of one board's bootloader."""
+
+    name: str
+    part: str
+    programmer: str
+    baud: int
+    note: str
+
+
+BOARDS = {
+    "uno": Board("Arduino Uno (optiboot)", "atmega328p", "arduino", 115200,
+                 "the Uno's USB chip resets the board when avrdude opens the port"),
+    "nano": Board("Arduino Nano (new bootloader, optiboot)", "atmega328p", "arduino", 115200,
+                  "Nanos sold since 2018 (and most clones flashed recently)"),
+    "nano-old": Board("Arduino Nano (old bootloader)", "atmega328p", "arduino", 57600,
+                      "older Nanos and many CH340 clones: try this when 'nano' says "
+                      "'not in sync'"),
+}
+
+
+def avrdude_command(port: str, hex_file: Path, board: str = "uno", avrdude: str = "avrdude",
+                    verbose: bool = False) -> list[str]:
+    """The avrdude command line that writes ``hex_file`` through the board's bootloader."""
+    b = BOARDS[board]
+    cmd = [avrdude, "-p", b.part, "-c", b.programmer, "-P", port, "-b", str(b.baud), "-D",
+           "-U", f"flash:w:{hex_file}:i"]
+    if verbose:
+        cmd.insert(1, "-v")
+    return cmd
+
+
+@click.group(help="The serial bridge (an Arduino Uno/Nano running firmware_bridge).")
+def bridge() -> None:
+    pass
+
+
+@bridge.command("list")
+@click.option("--no-probe", is_flag=True, help="Only list the ports, do not send HELLO.")
+@click.option("--boot", type=click.FloatRange(0, 30), default=2.5, show_default=True,
+              help="Seconds to wait for a board that resets on open.")
+def list_cmd(no_probe: bool, boot: float) -> None:
+    """Find serial ports of usual bridge boards (Arduino Uno/Nano, CH340, FTDI) and probe
+    each with the bridge handshake."""
+    from .transports.serial import KNOWN_USB_IDS, list_ports
+
+    ports = list_ports(probe=not no_probe, boot_s=boot)
+    if not ports:
+        ids = ", ".join(f"{v:04X}:{p:04X}" for v, p in KNOWN_USB_IDS)
+        click.echo(f"no bridge candidates found (USB ids looked for: {ids}).\n"
+                   "Is the board plugged in? `lsusb` shows it; a simulated bridge is "
+                   "`lm629 sim serve --pty /tmp/lm629`.")
+        return
+    for p in ports:
+        mark = "ok " if p.usable else "-- "
+        click.echo(f"{mark}{p.url}  {p.description}")
+        if p.problem:
+            click.echo(f"     {p.problem}")
+
+
+@bridge.command("flash")
+@click.option("--port", "-p", required=True, help="Serial port of the board (/dev/ttyACM0).")
+@click.option("--board", type=click.Choice(sorted(BOARDS)), default="uno", show_default=True,
+              help="Which bootloader: uno, nano, or nano-old (57600 baud).")
+@click.option("--hex", "hex_file", type=click.Path(dir_okay=False, path_type=Path),
+              default=DEFAULT_HEX, show_default=True, help="Firmware image (Intel hex).")
+@click.option("--avrdude", default="avrdude", show_default=True, help="avrdude executable.")
+@click.option("--dry-run", is_flag=True, help="Print the avrdude command, do not run it.")
+@click.option("--verbose", "-v", is_flag=True, help="Let avrdude say what it does.")
+def flash_cmd(port: str, board: str, hex_file: Path, avrdude: str, dry_run: bool,
+              verbose: bool) -> None:
+    """Write the bridge firmware to an Uno or Nano through its USB bootloader (avrdude).
+
+    No programmer hardware is needed: the board's bootloader takes the image over the same
+    USB cable.  Close every program that holds the port first (serial monitor, Arduino IDE).
+    """
+    from .transports.serial import device_of
+
+    dev = device_of(port)
+    cmd = avrdude_command(dev, hex_file, board, avrdude, verbose)
+    if dry_run:
+        click.echo(" ".join(cmd))
+        return
+    if not hex_file.is_file():
+        raise click.ClickException(
+            f"no firmware image at {hex_file}: build it with `make -C firmware_bridge` "
+            "(needs: sudo apt-get install gcc-avr avr-libc binutils-avr), or give --hex FILE.")
+    exe = shutil.which(avrdude)
+    if exe is None:
+        raise click.ClickException(
+            f"{avrdude!r} not found: avrdude is the program that writes firmware to AVR chips. "
+            "Install it with: sudo apt-get install avrdude  (then run this command again).")
+    b = BOARDS[board]
+    click.echo(f"flashing {hex_file.name} to {b.name} on {dev} at {b.baud} baud ({b.note})")
+    r = subprocess.run(cmd)
+    if r.returncode != 0:
+        hint = ("'not in sync' or 'programmer is not responding' usually means the wrong "
+                "bootloader speed: try --board nano-old (57600) for an older Nano, --board "
+                "nano/uno (115200) otherwise; also check that no other program holds the port "
+                "and that --port is the board (lm629 bridge list).")
+        raise click.ClickException(f"avrdude failed (exit {r.returncode}). {hint}")
+    click.echo(f"done. Check it with: lm629 bridge list   (or lm629 --port {dev} status)")
+
+
+@click.group(help="The simulated bench.")
+def sim() -> None:
+    pass
+
+
+@sim.command("serve")
+@click.option("--pty", "pty_path", required=True, type=click.Path(path_type=Path),
+              help="Where to link the pseudo-terminal (e.g. /tmp/lm629).")
+@click.option("--firmware", is_flag=True,
+              help="Run the real bridge firmware in simavr instead of the Python emulator.")
+@click.option("--url", default="sim://", show_default=True,
+              help="The simulated chip: sim:// parameters (chip=, clock=, record=...).")
+def serve_cmd(pty_path: Path, firmware: bool, url: str) -> None:
+    """Serve a simulated bridge and chip on a pseudo-terminal until Ctrl-C.
+
+    Then, from other shells: lm629 --port serial://PATH ...   (or pyserial, a terminal)
+    """
+    from .simserve import SimServer
+
+    try:
+        server = SimServer(pty_path, url, firmware=firmware)
+        server.open()
+    except (RuntimeError, ValueError, FileExistsError) as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(f"serving {server.describe()}")
+    click.echo(f"connect with: lm629 --port serial://{pty_path} ...   (Ctrl-C stops)")
+    signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.close()
+        click.echo(f"stopped ({server.bytes_in} bytes in, {server.bytes_out} bytes out)")
+
+
+@click.group()
+def _main() -> None:
+    """Bridge and simulated-bench commands (normally reached through `lm629`)."""
+
+
+_main.add_command(bridge)
+_main.add_command(sim)
+
+if __name__ == "__main__":
+    sys.exit(_main())

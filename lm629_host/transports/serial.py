@@ -1,0 +1,368 @@
+"""``serial://PATH?baud=115200``: the bridge firmware on a USB serial port, through pyserial.
+
+A bare device path (``/dev/ttyACM0``, ``/dev/ttyUSB0``, ``COM3``) means the same.  URL
+parameters (all optional)::
+
+    serial:///dev/ttyACM0?baud=115200&retries=3&boot=2.5&low_latency=1&cs=0
+
+* ``baud``: must match the firmware's (115200 unless it was built otherwise);
+* ``boot``: seconds to keep asking HELLO after the port opens.  An Uno or a Nano resets when
+  the port opens (DTR) and its bootloader needs 1-2 s before the firmware answers;
+* ``low_latency``: ask the USB serial driver for low latency (on Linux, FTDI adapters hold
+  short replies back for up to 16 ms otherwise: the "latency timer trap").
+
+The link itself (frames, retries, exactly-once) is :class:`~lm629_host.link.LinkTransport`;
+this module adds the port: opening it with errors that say what to do, the pipe over pyserial,
+the round-trip time measured after the handshake, ``list_ports()`` and ``doctor()``.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import select
+import statistics
+import sys
+from dataclasses import dataclass
+
+from ..errors import TransportError
+from ..link import LinkTransport
+from ..program import TraceCallback
+from . import query_params
+from .base import Check, Clock, PortInfo, WallClock
+
+log = logging.getLogger("lm629_host.serial")
+
+DEFAULT_BAUD = 115200
+#: seconds to keep asking HELLO after opening (boot time of an Uno after its DTR reset)
+DEFAULT_BOOT_S = 2.5
+#: PINGs timed after the handshake; the median is the reported round-trip time
+RTT_PINGS = 5
+
+#: USB ids of the boards and adapters a bridge is usually built on: (vid, pid) -> name
+KNOWN_USB_IDS: dict[tuple[int, int], str] = {
+    (0x2341, 0x0043): "Arduino Uno R3",
+    (0x2341, 0x0001): "Arduino Uno",
+    (0x2341, 0x0243): "Arduino Uno R3 (16U2)",
+    (0x2A03, 0x0043): "Arduino Uno R3 (arduino.org)",
+    (0x1A86, 0x7523): "CH340 USB serial (Nano clone)",
+    (0x1A86, 0x5523): "CH341 USB serial",
+    (0x0403, 0x6001): "FTDI FT232R (Nano, Duemilanove)",
+    (0x0403, 0x6015): "FTDI FT231X",
+    (0x10C4, 0xEA60): "Silicon Labs CP210x",
+}
+
+_PARAMS = {"baud", "retries", "boot", "low_latency", "cs"}
+
+
+def _ask_group(path: str) -> str:
+    """The group that owns ``path`` (dialout on Debian/Ubuntu, uucp on Arch)."""
+    try:
+        import grp
+        return grp.getgrgid(os.stat(path).st_gid).gr_name
+    except (ImportError, KeyError, OSError):
+        return "dialout"
+
+
+def advice_permission(path: str) -> str:
+    group = _ask_group(path)
+    return (f"permission denied on {path}: your user is not in the group {group!r} that owns "
+            f"it. Run: sudo usermod -aG {group} $USER  then log out and in again "
+            f"(check with: id -nG).")
+
+
+def advice_busy(path: str) -> str:
+    return (f"{path} is in use by another program (a serial monitor, the Arduino IDE, "
+            "ModemManager, another lm629 or `lm629 sim serve` client): close it and retry; "
+            f"`fuser -v {path}` shows who holds it.")
+
+
+def advice_missing(path: str) -> str:
+    return (f"no serial port {path}: is the board plugged in? `lm629 bridge list` shows the "
+            "candidate ports (a Uno is usually /dev/ttyACM0, a Nano clone /dev/ttyUSB0).")
+
+
+def device_of(url: str) -> str:
+    """The device path of a ``serial://`` URL or a bare path."""
+    if "://" not in url:
+        return url.split("?", 1)[0]
+    rest = url.split("://", 1)[1]
+    return rest.split("?", 1)[0]
+
+
+@dataclass(frozen=True)
+class SerialOptions:
+    device: str
+    baud: int = DEFAULT_BAUD
+    retries: int = 3
+    boot_s: float = DEFAULT_BOOT_S
+    low_latency: bool = True
+    cs: int = 0
+
+
+def options_of(url: str) -> SerialOptions:
+    """Parse and check a ``serial://`` URL (ValueError naming the parameter)."""
+    q = query_params(url)
+    unknown = set(q) - _PARAMS
+    if unknown:
+        raise ValueError(f"{url}: unknown serial parameter(s) {', '.join(sorted(unknown))}; "
+                         f"known: {', '.join(sorted(_PARAMS))}")
+    device = device_of(url)
+    if not device:
+        raise ValueError(f"{url}: no device path (e.g. serial:///dev/ttyACM0)")
+
+    def num(name: str, default, conv, lo, hi):
+        if name not in q:
+            return default
+        try:
+            v = conv(q[name])
+        except ValueError:
+            raise ValueError(f"{url}: {name}={q[name]!r} is not a number") from None
+        if not lo <= v <= hi:
+            raise ValueError(f"{url}: {name}={v} is outside {lo}..{hi}")
+        return v
+
+    return SerialOptions(
+        device=device,
+        baud=num("baud", DEFAULT_BAUD, int, 300, 4_000_000),
+        retries=num("retries", 3, int, 0, 20),
+        boot_s=num("boot", DEFAULT_BOOT_S, float, 0.0, 30.0),
+        low_latency=q.get("low_latency", "1") not in ("0", "false", "no"),
+        cs=num("cs", 0, int, 0, 255),
+    )
+
+
+class SerialPipe:
+    """A :class:`~lm629_host.link.Pipe` over an open pyserial port, in real time."""
+
+    def __init__(self, port, clock: Clock | None = None) -> None:  # port: serial.Serial
+        self.port = port
+        self.clock = clock or WallClock()
+        try:
+            self._fd: int | None = port.fileno()
+        except Exception:  # noqa: BLE001 - Windows ports and URL handlers have no fd
+            self._fd = None
+        if self._fd is not None:
+            port.timeout = 0  # non-blocking reads; waiting is done with select below
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.port.write(data)
+        except Exception as exc:  # noqa: BLE001 - SerialException, OSError
+            raise TransportError(f"write failed ({exc}): was the board unplugged?",
+                                 port=self.port.port) from exc
+
+    def read(self, timeout_s: float) -> bytes:
+        port = self.port
+        try:
+            if self._fd is not None:
+                ready, _, _ = select.select([self._fd], [], [], max(0.0, timeout_s))
+                if not ready:
+                    return b""
+                data = port.read(max(1, port.in_waiting))
+                return bytes(data)
+            if port.timeout != timeout_s:
+                port.timeout = max(0.0, timeout_s)
+            data = port.read(1)
+            if data:
+                data += port.read(port.in_waiting)
+            return bytes(data)
+        except Exception as exc:  # noqa: BLE001
+            raise TransportError(f"read failed ({exc}): was the board unplugged?",
+                                 port=port.port) from exc
+
+    def reset_input(self) -> None:
+        try:
+            self.port.reset_input_buffer()
+        except Exception:  # noqa: BLE001 - a pty or a vanished port: nothing to drop
+            pass
+
+    def close(self) -> None:
+        try:
+            self.port.close()
+        except Exception:  # noqa: BLE001
+            pass
+
+
+def open_port(device: str, baud: int):
+    """Open ``device`` with pyserial (8N1, exclusive) or raise a :class:`TransportError` that
+    says what to do."""
+    import serial
+
+    try:
+        return serial.Serial(device, baud, timeout=0, write_timeout=2.0, exclusive=True)
+    except serial.SerialException as exc:
+        code = getattr(exc, "errno", None)
+        text = str(exc)
+        if code == errno.ENOENT or "No such file" in text or "FileNotFoundError" in text:
+            raise TransportError(advice_missing(device), port=device) from None
+        if code == errno.EACCES or "Permission denied" in text or "PermissionError" in text:
+            raise TransportError(advice_permission(device), port=device) from None
+        if code in (errno.EBUSY, errno.EAGAIN) or "exclusively lock" in text or "busy" in text:
+            raise TransportError(advice_busy(device), port=device) from None
+        raise TransportError(f"cannot open {device}: {text}", port=device) from None
+
+
+def set_low_latency(port) -> tuple[bool, str]:
+    """pyserial's low-latency mode (Linux: ASYNC_LOW_LATENCY, which makes the FTDI driver use a
+    1 ms latency timer).  Returns (done, what happened)."""
+    fn = getattr(port, "set_low_latency_mode", None)
+    if fn is None:
+        return False, f"not available on {sys.platform}"
+    try:
+        fn(True)
+    except (OSError, ValueError, NotImplementedError) as exc:
+        return False, f"not supported by this port's driver ({exc})"
+    return True, "on"
+
+
+def latency_timer_ms(device: str) -> int | None:
+    """The FTDI latency timer of a ``/dev/ttyUSBn`` (sysfs), or None when there is none."""
+    name = os.path.basename(os.path.realpath(device))
+    try:
+        with open(f"/sys/bus/usb-serial/devices/{name}/latency_timer") as f:
+            return int(f.read().strip())
+    except (OSError, ValueError):
+        return None
+
+
+class SerialTransport(LinkTransport):
+    """The bridge over a serial port.  ``rtt_s`` is the measured PING round trip."""
+
+    scheme = "serial"
+    hello_interval_s = 0.25
+
+    def __init__(self, pipe: SerialPipe, url: str, *, trace: TraceCallback | None = None,
+                 retries: int = 3, baud: int | None = DEFAULT_BAUD, cs: int = 0,
+                 boot_s: float = DEFAULT_BOOT_S, low_latency: str = "",
+                 measure_rtt: bool = True) -> None:
+        self.boot_s = boot_s
+        self.hello_total_s = max(boot_s, self.hello_interval_s)
+        self.low_latency = low_latency
+        self.rtt_s: float | None = None
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs)
+        if measure_rtt:
+            try:
+                self.rtt_s = self.measure_rtt()
+            except BaseException:
+                self.close()
+                raise
+            log.info("%s: round trip %.2f ms, low latency %s", url, self.rtt_s * 1e3,
+                     low_latency or "n/a")
+
+    @classmethod
+    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SerialTransport:
+        opts = options_of(url)
+        port = open_port(opts.device, opts.baud)
+        low = "off (low_latency=0)"
+        if opts.low_latency:
+            done, low = set_low_latency(port)
+        pipe = SerialPipe(port)
+        pipe.reset_input()
+        return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
+                   boot_s=opts.boot_s, low_latency=low)
+
+    def _no_answer(self, what: str, attempts: int) -> TransportError:
+        dev = device_of(self.url)
+        return TransportError(
+            f"no answer to {what} within {self.hello_total_s:g} s ({attempts} attempts) at "
+            f"{self.baud} baud. Check: is the bridge firmware flashed (lm629 bridge flash "
+            f"--port {dev})? An Uno/Nano resets when the port opens and needs ~2 s to boot "
+            f"(raise ?boot=5 if it is slower); does ?baud= match the firmware's? Is it the "
+            "right port (lm629 bridge list)?", port=self.url)
+
+    def measure_rtt(self, n: int = RTT_PINGS) -> float:
+        """Median round trip of ``n`` empty PINGs, seconds."""
+        return statistics.median(self.ping() for _ in range(n))
+
+    def describe(self) -> str:
+        rtt = f", round trip {self.rtt_s * 1e3:.2f} ms" if self.rtt_s is not None else ""
+        return super().describe() + rtt
+
+
+def _candidates() -> list:
+    try:
+        from serial.tools import list_ports as lp
+    except ImportError:
+        return []
+    return list(lp.comports())
+
+
+def list_ports(probe: bool = True, boot_s: float = DEFAULT_BOOT_S) -> list[PortInfo]:
+    """Serial ports whose USB id is a usual bridge board, each probed with HELLO (``probe``).
+    A port that answers says its firmware version; one that does not says why."""
+    out: list[PortInfo] = []
+    for p in _candidates():
+        if p.vid is None:
+            continue
+        name = KNOWN_USB_IDS.get((p.vid, p.pid))
+        if name is None:
+            continue
+        desc = f"{name} [{p.vid:04X}:{p.pid:04X}]" + (f" s/n {p.serial_number}"
+                                                        if p.serial_number else "")
+        if not probe:
+            out.append(PortInfo(p.device, desc))
+            continue
+        try:
+            t = SerialTransport.from_url(f"serial://{p.device}?boot={boot_s}")
+        except TransportError as exc:
+            out.append(PortInfo(p.device, desc, usable=False, problem=str(exc)))
+            continue
+        try:
+            info = t.info
+            rtt = f", round trip {t.rtt_s * 1e3:.2f} ms" if t.rtt_s is not None else ""
+            out.append(PortInfo(p.device, f"{desc}: {info.describe() if info else '?'}{rtt}"))
+        finally:
+            t.close()
+    return out
+
+
+def doctor(port: str | None = None) -> list[Check]:
+    """What ``lm629 doctor`` reports about serial bridges: pyserial, group membership, the
+    ports found, and for ``port`` (or each bridge found) the handshake, the low-latency mode
+    and the measured round-trip time."""
+    checks: list[Check] = []
+    try:
+        import serial
+        checks.append(Check("pyserial", True, f"pyserial {serial.__version__}"))
+    except ImportError:
+        return [Check("pyserial", False, "pyserial is missing: pip install pyserial")]
+    if sys.platform.startswith("linux"):
+        try:
+            import grp
+            members = grp.getgrnam("dialout")
+            in_group = os.getgid() == members.gr_gid or os.getuid() == 0 or \
+                members.gr_gid in os.getgroups()
+            checks.append(Check("dialout", in_group,
+                                "user may open serial ports" if in_group else
+                                "user is not in 'dialout': sudo usermod -aG dialout $USER, "
+                                "then log out and in"))
+        except KeyError:
+            pass
+    ports = [port] if port else [p.url for p in list_ports(probe=False)]
+    if not ports:
+        checks.append(Check("bridge ports", True, "no Uno/Nano/CH340/FTDI serial port found"))
+    for dev in ports:
+        try:
+            t = SerialTransport.from_url(dev if "://" in dev else f"serial://{dev}")
+        except (TransportError, ValueError) as exc:
+            checks.append(Check(f"bridge {dev}", False, str(exc)))
+            continue
+        try:
+            msg = f"{t.describe()}; low latency {t.low_latency or 'n/a'}"
+            timer = latency_timer_ms(device_of(dev))
+            if timer is not None:
+                msg += f"; FTDI latency timer {timer} ms"
+            ok = t.rtt_s is not None and t.rtt_s < 0.01
+            if not ok:
+                msg += (" -- slow round trip: on an FTDI adapter set its latency timer to 1 ms "
+                        "(echo 1 > /sys/bus/usb-serial/devices/ttyUSBn/latency_timer)")
+            checks.append(Check(f"bridge {dev}", ok, msg))
+        finally:
+            t.close()
+    return checks
+
+
+__all__ = ["SerialPipe", "SerialTransport", "doctor", "list_ports", "options_of", "open_port",
+           "KNOWN_USB_IDS", "DEFAULT_BAUD"]
