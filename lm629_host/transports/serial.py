@@ -26,6 +26,11 @@ import statistics
 import sys
 from dataclasses import dataclass
 
+try:  # POSIX only; imported early so that the advice works even where modules can't load
+    import grp
+except ImportError:  # pragma: no cover - Windows
+    grp = None  # type: ignore[assignment]
+
 from ..errors import TransportError
 from ..link import LinkTransport
 from ..program import TraceCallback
@@ -59,9 +64,8 @@ _PARAMS = {"baud", "retries", "boot", "low_latency", "cs"}
 def _ask_group(path: str) -> str:
     """The group that owns ``path`` (dialout on Debian/Ubuntu, uucp on Arch)."""
     try:
-        import grp
-        return grp.getgrgid(os.stat(path).st_gid).gr_name
-    except (ImportError, KeyError, OSError):
+        return grp.getgrgid(os.stat(path).st_gid).gr_name  # type: ignore[union-attr]
+    except (AttributeError, KeyError, OSError):
         return "dialout"
 
 
@@ -328,9 +332,8 @@ def doctor(port: str | None = None) -> list[Check]:
         checks.append(Check("pyserial", True, f"pyserial {serial.__version__}"))
     except ImportError:
         return [Check("pyserial", False, "pyserial is missing: pip install pyserial")]
-    if sys.platform.startswith("linux"):
+    if sys.platform.startswith("linux") and grp is not None:
         try:
-            import grp
             members = grp.getgrnam("dialout")
             in_group = os.getgid() == members.gr_gid or os.getuid() == 0 or \
                 members.gr_gid in os.getgroups()

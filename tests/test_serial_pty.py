@@ -1,0 +1,195 @@
+"""``serial://`` through pyserial on a real pseudo-terminal, served by ``lm629 sim serve``'s
+server with the Python far end.  These are the only link tests in real time (a few seconds).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+import lm629_host
+from lm629_host import Status, TransportError
+from lm629_host.cli_bridge import _main as cli
+from lm629_host.opcodes import Cmd
+from lm629_host.simserve import SimServer
+from lm629_host.transports import serial as serial_mod
+from lm629_host.transports.serial import SerialTransport, options_of
+
+
+@pytest.fixture
+def server(tmp_path):
+    srv = SimServer(tmp_path / "lm629", "sim://?record=1").start()
+    yield srv
+    srv.close()
+
+
+def test_handshake_and_typed_commands_over_the_pty(server):
+    url = f"serial://{server.link}?baud=115200"
+    with lm629_host.open(url) as chip:
+        t = chip.transport
+        assert isinstance(t, SerialTransport)
+        assert t.info is not None and t.info.protocol == 1
+        assert "round trip" in t.describe() and 0 < t.rtt_s < 0.5
+        # a pty has no ASYNC_LOW_LATENCY: the transport says so instead of failing
+        assert "not supported" in t.low_latency
+        assert chip.reset() in (Status(0x80), Status(0xC0))
+        server.model.record_clear()
+        t.stats.reset()
+        chip.load_filter(kp=10)
+        chip.update_filter()
+        assert chip.read_real_position() == 0
+        assert t.stats.round_trips == 3 and t.stats.retries == 0
+    assert server.model.history == [(0x1E, (0x0008, 0x000A)), (0x04, ()), (int(Cmd.RDRP), ())]
+
+
+def test_several_clients_share_one_chip(server):
+    """Like several CLI invocations on one bench: what one client loads, the next one sees."""
+    with lm629_host.open(str(server.link)) as a:  # a bare device path means serial://
+        a.reset()
+        a.set_breakpoint(0x00012345)
+    with lm629_host.open(f"serial://{server.link}") as b:
+        b.define_home()
+        assert b.read_desired_position() == 0
+    hist = server.model.history
+    assert (int(Cmd.SBPA), (0x0001, 0x2345)) in hist and hist[-2:] == [(int(Cmd.DFH), ()),
+                                                                        (int(Cmd.RDDP), ())]
+
+
+def test_second_client_at_once_is_told_the_port_is_busy(server):
+    with lm629_host.open(f"serial://{server.link}"):
+        with pytest.raises(TransportError) as e:
+            lm629_host.open(f"serial://{server.link}")
+    assert "in use by another program" in str(e.value) and "fuser" in str(e.value)
+
+
+def test_missing_port_says_where_to_look(tmp_path):
+    with pytest.raises(TransportError) as e:
+        lm629_host.open(f"serial://{tmp_path}/ttyNOPE")
+    assert "no serial port" in str(e.value) and "lm629 bridge list" in str(e.value)
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to become 'nobody'")
+def test_permission_denied_names_the_group_and_the_command(server):
+    """A user outside the port's group opens it: a forked child drops to 'nobody' (the
+    interpreter and pyserial are already loaded, so it needs no file of root's)."""
+    import serial  # noqa: F401 - loaded before the child loses access to site-packages
+
+    rd, wr = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # child
+        code = 1
+        try:
+            os.close(rd)
+            os.setgroups([])
+            os.setgid(65534)
+            os.setuid(65534)
+            try:
+                lm629_host.open(f"serial://{server.device}")
+            except TransportError as e:
+                os.write(wr, str(e).encode())
+                code = 0
+        finally:
+            os._exit(code)
+    os.close(wr)
+    with os.fdopen(rd) as f:
+        msg = f.read()
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0, msg
+    group = serial_mod._ask_group(server.device)
+    assert "permission denied" in msg
+    assert f"usermod -aG {group} $USER" in msg
+
+
+def test_no_answer_says_is_the_firmware_flashed(tmp_path):
+    """A port where nothing answers (an unflashed board): HELLO for ``boot`` seconds, then a
+    message that names the firmware, the boot delay and the baud rate."""
+    master, slave = os.openpty()
+    link = tmp_path / "silent"
+    link.symlink_to(os.ttyname(slave))
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(TransportError) as e:
+            lm629_host.open(f"serial://{link}?boot=0.5")
+        assert 0.45 < time.monotonic() - t0 < 3
+    finally:
+        os.close(master)
+        os.close(slave)
+    msg = str(e.value)
+    assert "lm629 bridge flash" in msg and "~2 s to boot" in msg and "baud" in msg
+
+
+def test_url_parameters_are_checked():
+    assert options_of("/dev/ttyUSB0?baud=57600").baud == 57600
+    assert options_of("serial:///dev/ttyACM0").device == "/dev/ttyACM0"
+    with pytest.raises(ValueError, match="baud='fast'"):
+        options_of("serial:///dev/ttyACM0?baud=fast")
+    with pytest.raises(ValueError, match="baud=100 is outside 300..4000000"):
+        options_of("serial:///dev/ttyACM0?baud=100")
+    with pytest.raises(ValueError, match="unknown serial parameter"):
+        options_of("serial:///dev/ttyACM0?speed=9600")
+
+
+def test_bridge_list_probes_candidates_with_hello(server, monkeypatch):
+    """No USB here: the port enumeration is replaced by one entry with an Uno's USB id whose
+    device is the pty; the probe itself is the real handshake."""
+
+    class Entry:
+        device = server.device
+        vid, pid, serial_number = 0x2341, 0x0043, "95530343"
+
+    class Other:  # a port with an unknown id is not a candidate
+        device, vid, pid, serial_number = "/dev/ttyS0", 0x1234, 0x5678, None
+
+    monkeypatch.setattr(serial_mod, "_candidates", lambda: [Other(), Entry()])
+    r = CliRunner().invoke(cli, ["bridge", "list"])
+    assert r.exit_code == 0, r.output
+    assert f"ok {server.device}  Arduino Uno R3 [2341:0043] s/n 95530343: bridge firmware 0.9.0" \
+        in r.output
+    assert "ttyS0" not in r.output
+
+
+def test_bridge_flash_command_lines(tmp_path):
+    hexf = tmp_path / "fw.hex"
+    hexf.write_text(":00000001FF\n")
+    r = CliRunner().invoke(cli, ["bridge", "flash", "-p", "/dev/ttyUSB0", "--board", "nano-old",
+                                 "--hex", str(hexf), "--dry-run"])
+    assert r.output.strip() == (f"avrdude -p atmega328p -c arduino -P /dev/ttyUSB0 -b 57600 -D "
+                                f"-U flash:w:{hexf}:i")
+    r = CliRunner().invoke(cli, ["bridge", "flash", "-p", "/dev/ttyACM0", "--hex", str(hexf),
+                                 "--dry-run"])
+    assert "-c arduino -P /dev/ttyACM0 -b 115200" in r.output
+    r = CliRunner().invoke(cli, ["bridge", "flash", "-p", "/dev/ttyACM0", "--hex", str(hexf),
+                                 "--avrdude", "avrdude-not-here"])
+    assert r.exit_code != 0 and "apt-get install avrdude" in r.output
+    r = CliRunner().invoke(cli, ["bridge", "flash", "-p", "/dev/ttyACM0", "--hex",
+                                 str(tmp_path / "missing.hex")])
+    assert r.exit_code != 0 and "make -C firmware_bridge" in r.output
+
+
+def test_sim_serve_cli_serves_until_sigterm(tmp_path):
+    link = tmp_path / "bench"
+    env = dict(os.environ, PYTHONPATH=str(Path(lm629_host.__file__).parent.parent))
+    proc = subprocess.Popen([sys.executable, "-m", "lm629_host.cli_bridge", "sim", "serve",
+                             "--pty", str(link), "--url", "sim://?chip=lm628"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        deadline = time.monotonic() + 20
+        while not link.exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "server did not start"
+            time.sleep(0.05)
+        with lm629_host.open(f"serial://{link}") as chip:
+            assert chip.reset() in (Status(0x80), Status(0xC0))
+            assert chip.read_real_position() == 0
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=10)
+    assert proc.returncode == 0, out
+    assert "simulated LM628" in out and "stopped (" in out
+    assert not link.exists()  # the link is removed on exit
