@@ -17,66 +17,292 @@ Contract with :class:`~.chip.ChipModel` (the host interface), which owns this ob
 and reads the registers ``desired_position``, ``real_position``, ``index_position`` (signed
 counts), ``desired_velocity`` (signed 16.16), ``real_velocity`` (counts/sample),
 ``integration_sum``, ``target_position`` (for SBPR), and the flags ``on_target``,
-``velocity_mode``, ``forward``.
+``velocity_mode``, ``forward``.  Beyond the contract: ``output`` (the signed output word),
+``dac_code``/``pwm`` (the pins), ``quiescent()`` and ``skip(n)`` (the chip's skip-ahead), and
+``motor`` (:class:`~.motor.Motor`, the shaft).
 
-This first version holds the motor still: it keeps the registers and the on-target flag, so
-that the host interface can be exercised; the motion issue replaces it with the real dynamics.
+Order within one sample: the motor runs for the sample period with the output word computed
+at the previous sample (the output is held for the whole sample); the encoder is read; the
+trajectory generator steps; the filter computes the new output from e = desired - real.
+
+Model choices
+=============
+Every place where the datasheet and the notes are silent, in one list (numbers in
+:mod:`.params`; the host-interface choices are in :mod:`.chip`):
+
+1. [model choice] Deceleration point: at each sample the generator picks the largest velocity
+   (within +/- one acceleration step of the last one, and not above the programmed maximum)
+   from which a ramp down at the acceleration still stops on or before the target; when none
+   does, it takes the velocity whose ramp ends *exactly* on the target (see
+   :func:`.trajectory.landing_velocity`).  The profile is therefore symmetric to within one
+   sample, never undershoots and ends exactly on the target; the spec's v^2/(2a) is the
+   continuous limit of the same rule.
+2. [model choice] The desired position's 16-bit fraction is kept; only the whole counts
+   (floor) reach the summing junction and RDDP.
+3. [model choice] Positions live modulo 2^31 counts in C0000000..3FFFFFFF; a position-mode
+   move goes the short way round that circle, so a relative move across the wraparound
+   boundary works; WRAPAROUND (status bit 4) is raised when the *desired* position crosses it,
+   either way.  The real position register wraps the same way (without a flag).
+4. [model choice] A target moved on the fly to a point the ramp can no longer stop before is
+   overshot at the programmed deceleration and approached again from the other side.
+5. [model choice] Acceleration 0: the velocity cannot change, so a move never starts and the
+   generator never reports on-target.
+6. [model choice] Stop abruptly: velocity 0 at once, the desired position held where it is;
+   stop smoothly: ramp down at the acceleration.  Both report on-target (trajectory complete)
+   when stopped; the original target is kept, so a plain STT resumes the move (AN-706 6.3.1).
+7. [model choice] Motor off (LTRJ bit 8 or LPES): output 0 (LM628 DAC code 80/800, LM629 PWM
+   magnitude 0: the amplifier applies 0 V, which brakes through the back EMF); the desired
+   position follows the real one each sample (AN-706 6.3.2) and the filter's memory (error
+   sum, derivative) is cleared.  The next STT starts from the real position with velocity 0
+   and resumes the interrupted move (AN-706 6.3.3).
+8. [model choice] STT refused (command error, nothing changes): acceleration loaded since the
+   last STT while the generator is moving and the drive is on; a relative velocity or
+   acceleration that makes the working value negative.  Relative position is relative to the
+   current target; relative velocity and acceleration to the working values.
+9. [model choice] A stop bit with other parameters in the same LTRJ: the stop wins and the
+   parameters are loaded into the working registers for the next STT (no movement now).
+10. [model choice] DFH: the desired position's whole counts and the real position both become
+    0 at once; the target moves by the desired position's counts, so the move still ends at
+    the same place relative to the desired position (AN-706 6.4.1).
+11. [model choice] PID arithmetic as listed in :mod:`.pid` (products saturate on overflow; the
+    24-bit sum saturates and stops summing once the ki term is at il); RDSUM reads the limited
+    ki term; UDF keeps the error sum and the derivative memory.
+12. [model choice] RDRV is the change of the real position over the last sample (whole counts).
+13. [model choice] Index: seen at one count per revolution (``index_offset``); see
+    :meth:`.motor.Motor.index_between`.  SIP arms it; the latched value is the real position
+    register at that count, INDEX_PULSE is raised and signals bit 0 cleared at that sample.
+14. [model choice] The encoder's 1 M counts/s limit is not modelled; the motor cannot get near
+    it with the default parameters.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..opcodes import TrajectoryFlags
+from ..opcodes import Signals, Status, TrajectoryFlags
+from .motor import Motor
+from .pid import SUM_MAX, SUM_MIN, PIDState, lm628_dac_code, lm629_pwm, output_code, pid_step, sat16
+from .trajectory import Trajectory, wrap_counts
 
 if TYPE_CHECKING:
     from .chip import ChipModel, TrajectoryBuffer
     from .params import MotorParams
+
+_ACC = TrajectoryFlags.ACCELERATION
+_ACC_REL = TrajectoryFlags.ACCELERATION_RELATIVE
+_VEL = TrajectoryFlags.VELOCITY
+_VEL_REL = TrajectoryFlags.VELOCITY_RELATIVE
+_POS = TrajectoryFlags.POSITION
+_POS_REL = TrajectoryFlags.POSITION_RELATIVE
+
+
+def _s32(value: int) -> int:
+    value &= 0xFFFFFFFF
+    return value - (1 << 32) if value & 0x80000000 else value
 
 
 class Motion:
     def __init__(self, chip: ChipModel, params: MotorParams) -> None:
         self.chip = chip
         self.params = params
+        self.motor = Motor(params, chip.sample_clocks / chip.clock_hz)
+        self.traj = Trajectory()
+        self.pid = PIDState()
         self.reset()
 
+    # ------------------------------------------------------------------ registers
     def reset(self) -> None:
-        self.desired_position = 0
+        """Any reset: registers 0, drive off.  The shaft stays where it is."""
+        self.traj.reset()
+        self.pid = PIDState()
+        self._home = self.motor.count  # real position 0 here
+        self._count = self.motor.count  # encoder count at the last sample
         self.real_position = 0
-        self.index_position = 0
-        self.desired_velocity = 0
         self.real_velocity = 0
-        self.integration_sum = 0
-        self.target_position = 0
-        self.on_target = False
-        self.velocity_mode = False
-        self.forward = False
+        self.index_position = 0
+        self.output = 0
+        self._resume = False  # a move was interrupted by motor off
+        self.traj.position = 0
 
+    @property
+    def desired_position(self) -> int:
+        return self.traj.position >> 16
+
+    @property
+    def desired_velocity(self) -> int:
+        return self.traj.velocity
+
+    @property
+    def target_position(self) -> int:
+        return self.traj.target
+
+    @property
+    def integration_sum(self) -> int:
+        return self.pid.integral
+
+    @property
+    def on_target(self) -> bool:
+        return self.traj.done and not self._resume
+
+    @property
+    def velocity_mode(self) -> bool:
+        return self.traj.velocity_mode
+
+    @property
+    def forward(self) -> bool:
+        return self.traj.forward
+
+    @property
+    def twelve_bit(self) -> bool:
+        return not self.chip.signals_extra & Signals.EIGHT_BIT_OUTPUT
+
+    @property
+    def dac_code(self) -> int:
+        """LM628 output pins: offset binary (80 / 800 = zero drive)."""
+        return lm628_dac_code(self.output, self.twelve_bit)
+
+    @property
+    def pwm(self) -> tuple[int, int]:
+        """LM629 output pins: (sign, magnitude 0..128)."""
+        return lm629_pwm(self.output)
+
+    # ------------------------------------------------------------------ commands
     def start(self, trajectory: TrajectoryBuffer) -> bool:
-        control = trajectory.control
-        self.velocity_mode = bool(control & TrajectoryFlags.VELOCITY_MODE)
-        self.forward = bool(control & TrajectoryFlags.FORWARD)
-        if trajectory.loaded & TrajectoryFlags.POSITION:
-            if trajectory.loaded & TrajectoryFlags.POSITION_RELATIVE:
-                self.target_position += trajectory.position
-            else:
-                self.target_position = trajectory.position
-        self.on_target = False
+        t = self.traj
+        loaded, control = trajectory.loaded, trajectory.control
+        moving = not t.done or t.velocity != 0
+        drive_on = not self.chip.motor_off
+        if loaded & _ACC and moving and drive_on:
+            return False
+        acceleration, velocity = t.acceleration, t.max_velocity
+        if loaded & _ACC:
+            acceleration = (acceleration + _s32(trajectory.acceleration) if loaded & _ACC_REL
+                            else trajectory.acceleration)
+        if loaded & _VEL:
+            velocity = (velocity + _s32(trajectory.velocity) if loaded & _VEL_REL
+                        else trajectory.velocity)
+        if acceleration < 0 or velocity < 0:
+            return False
+        t.acceleration = min(acceleration, 0x3FFFFFFF)
+        t.max_velocity = min(velocity, 0x3FFFFFFF)
+        if loaded & _POS:
+            t.target = wrap_counts(t.target + trajectory.position if loaded & _POS_REL
+                                   else trajectory.position)
+        if control & TrajectoryFlags.MOTOR_OFF:
+            self._resume = self._resume or not t.done
+            return True  # the chip turns the drive off
+        if control & TrajectoryFlags.STOP_ABRUPT:
+            t.stop_abruptly()
+            return True
+        if control & TrajectoryFlags.STOP_SMOOTH:
+            t.stop_smoothly()
+            return True
+        if self.chip.motor_off:
+            # closing the loop: start from where the shaft is, at rest
+            t.position = self.real_position << 16
+            t.velocity = 0
+        t.velocity_mode = bool(control & TrajectoryFlags.VELOCITY_MODE)
+        t.forward = bool(control & TrajectoryFlags.FORWARD)
+        t.stopping = False
+        t.done = False
+        self._resume = False
         return True
 
     def define_home(self) -> None:
-        self.target_position -= self.desired_position
-        self.desired_position = 0
+        self.traj.define_home()
+        self._home = self._count
         self.real_position = 0
 
     def arm_index(self) -> None:
-        pass
+        pass  # the chip has set signals bit 0; sample() watches for the index while it is set
 
     def filter_changed(self) -> None:
-        pass
+        pass  # the coefficients are read from chip.filter at every sample
 
     def drive_off(self) -> None:
-        pass
+        t = self.traj
+        if not t.done:
+            self._resume = True
+        t.velocity = 0
+        self.output = 0
+        self.pid = PIDState()
 
+    # ------------------------------------------------------------------ the sample
     def sample(self) -> int:
-        return 0
+        chip = self.chip
+        events = 0
+        motor = self.motor
+        # 1. the motor runs for one sample with the output held since the last one
+        full_scale = 2048 if self.twelve_bit else 128
+        motor.run(self.output * motor.params.amp_volts / full_scale)
+        # 2. the encoder
+        c0, c1 = self._count, motor.count
+        self._count = c1
+        self.real_velocity = c1 - c0
+        self.real_position = wrap_counts(c1 - self._home)
+        if chip.signals_extra & Signals.ACQUIRE_INDEX:
+            k = motor.index_between(c0, c1)
+            if k is not None:
+                self.index_position = wrap_counts(k - self._home)
+                chip.signals_extra &= ~Signals.ACQUIRE_INDEX
+                events |= Status.INDEX_PULSE
+        t = self.traj
+        if chip.motor_off:
+            # 7. the desired position follows the shaft; no drive
+            t.position = self.real_position << 16
+            t.velocity = 0
+            self.output = 0
+            return events
+        # 3. the trajectory generator
+        finished, wrapped = t.step()
+        if finished:
+            events |= Status.TRAJECTORY_COMPLETE
+        if wrapped:
+            events |= Status.WRAPAROUND
+        # 4. the filter
+        f = chip.filter
+        e = wrap_counts((t.position >> 16) - self.real_position)
+        u = pid_step(self.pid, e, f.kp, f.ki, f.kd, f.il, f.ds)
+        self.output = output_code(u, self.twelve_bit)
+        return events
+
+    def position_error(self) -> int:
+        """desired - real, as the chip compares it with the LPEI/LPES threshold."""
+        return wrap_counts(self.desired_position - self.real_position)
+
+    # ------------------------------------------------------------------ skip-ahead
+    def quiescent(self) -> bool:
+        """True when every further sample would leave every register as it is now.
+
+        Then the chip may skip samples (:meth:`skip`) until the host next acts: the trajectory
+        generator is idle, the shaft is stuck still, and the filter's output cannot change.
+        """
+        m = self.motor
+        if m.speed != 0.0:
+            return False
+        volts = self.output * m.params.amp_volts / (2048 if self.twelve_bit else 128)
+        if not m.params.stall and abs(volts * m.accel_per_volt - m.load_accel) > m.coulomb_accel:
+            return False  # the shaft is about to break away
+        if self.real_velocity:
+            return False
+        if self.chip.motor_off:
+            return True
+        t = self.traj
+        if not t.done or t.velocity:
+            return False
+        p = self.pid
+        e = sat16(wrap_counts((t.position >> 16) - self.real_position))
+        if p.derivative != 0 or p.last_error != e:
+            return False
+        return e == 0 or self.chip.filter.ki == 0
+
+    def skip(self, n: int) -> None:
+        """Advance ``n`` quiescent samples at once (only what still changes: the error sum)."""
+        if self.chip.motor_off:
+            return
+        p = self.pid
+        e = sat16(wrap_counts(self.desired_position - self.real_position))
+        if e:
+            p.error_sum = max(SUM_MIN, min(SUM_MAX, p.error_sum + n * e))
+        ds1 = self.chip.filter.ds + 1
+        p.countdown = (p.countdown - n) % ds1

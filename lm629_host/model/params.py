@@ -26,11 +26,42 @@ class ChipParams:
 
 @dataclass
 class MotorParams:
-    """A small bench DC motor with a 500-line encoder.  Filled in by the motion model."""
+    """A small bench DC motor (12 V, ~4500 rpm no-load) with a 500-line encoder.
+
+    SI units throughout.  The numbers are a plausible small brushed motor with a light load,
+    chosen so that the AN-706 2.12 bring-up (kp = 20, acceleration and velocity about 100, a
+    1000-count move) settles within a few counts of the target, and so that reversed leads
+    at kp = 1 run away within a fraction of a second (see :mod:`.motion` for how they are used).
+    """
 
     lines: int = 500  #: encoder lines per revolution (4x decoding: 4 * lines counts/rev)
     reversed: bool = False  #: motor leads swapped: positive drive turns the shaft backwards
     index_offset: int = 0  #: counts from the zero of the revolution to the index pulse
+    #: amplifier gain: volts across the motor at full-scale output (PWM duty 128/128 or the
+    #: DAC's full scale); [model choice] linear, no dead band, no current limit
+    amp_volts: float = 12.0
+    resistance: float = 4.0  #: armature resistance, ohm (inductance neglected: tau_e << T)
+    torque_constant: float = 0.025  #: N m / A; the back-EMF constant is the same in SI units
+    inertia: float = 4e-6  #: rotor + load, kg m^2
+    friction: float = 2e-6  #: viscous friction, N m s / rad
+    coulomb: float = 2e-4  #: Coulomb (dry) friction, N m; also the breakaway torque
+    load_torque: float = 0.0  #: constant external torque (gravity on an arm...), N m
+    stall: bool = False  #: rotor locked: the shaft never turns whatever the drive
+    #: physical shaft angle at power-on, in counts (fractional counts allowed)
+    start_position: float = 0.0
+
+    def check(self) -> None:
+        """ValueError naming any parameter outside its physical range."""
+        if self.lines < 1:
+            raise ValueError(f"lines={self.lines}: an encoder has at least 1 line per revolution")
+        for name in ("amp_volts", "resistance", "torque_constant", "inertia"):
+            value = getattr(self, name)
+            if not value > 0:
+                raise ValueError(f"{name}={value}: must be > 0")
+        for name in ("friction", "coulomb"):
+            value = getattr(self, name)
+            if value < 0:
+                raise ValueError(f"{name}={value}: must be >= 0")
 
 
 def _convert(kind: type | str, text: str) -> object:
