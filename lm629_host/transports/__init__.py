@@ -9,6 +9,7 @@ scheme             what                                                        m
 ``ftdi://...``     an FT232H in MPSSE mode through pyftdi                      ``ftdi``
 ``sim+avr://``     the real bridge firmware in simavr, against the chip model  ``simavr``
 ``sim+ftdi://``    the FT232H transport through pyftdi on an emulated FT232H   ``simftdi``
+``sim+emu://``     the bridge link protocol to the Python bridge emulator      ``bridge_emu``
 =================  ==========================================================  ===============
 
 A new transport is one module holding a :class:`~.base.Transport` subclass with a
@@ -31,6 +32,7 @@ SCHEMES: dict[str, str] = {
     "ftdi": "lm629_host.transports.ftdi:FtdiTransport",
     "sim+avr": "lm629_host.transports.simavr:SimAvrTransport",
     "sim+ftdi": "lm629_host.transports.simftdi:SimFtdiTransport",
+    "sim+emu": "lm629_host.bridge_emu:EmuLinkTransport",
 }
 
 DEFAULT_URL = "sim://"
