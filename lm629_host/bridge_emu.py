@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 from .link import (
     MAX_FRAME,
+    LinkTransport,
     MAX_PING,
     RUN_OVERHEAD,
     RUN_REPLY_OVERHEAD,
@@ -303,31 +304,51 @@ class EmuPipe:
 
 
 __all__ = ["BridgeEmulator", "EmuPipe", "EmuStats", "ModelClock", "EMU_FIRMWARE", "BUS_CYCLE_S",
-           "open_emulated"]
+           "EmuLinkTransport", "open_emulated"]
 
 
-def open_emulated(url: str = "sim://", *, baud: int | None = 115200, retries: int = 3,
-                  wrap=None, trace=None, margin_s: float = 1e-3):
-    """A :class:`~lm629_host.link.LinkTransport` to an emulated bridge over a model built from
-    the simulator ``url`` (``sim://?record=1`` ...), all in simulated time.
+class EmuLinkTransport(LinkTransport):
+    """``sim+emu://?baud=115200&...``: the link protocol to the Python bridge emulator, in
+    process and in simulated time (the other parameters are the ``sim://`` ones).  The whole
+    serial path without a pseudo-terminal or the AVR toolchain."""
 
+    scheme = "sim+emu"
+    #: the emulated bridge answers at once: the margin only covers rounding
+    margin_s = 1e-3
+
+    @classmethod
+    def from_url(cls, url: str, *, trace=None) -> EmuLinkTransport:
+        return open_emulated(url, trace=trace)
+
+
+def open_emulated(url: str = "sim://", *, baud: int | None = None, retries: int = 3,
+                  wrap=None, trace=None, margin_s: float = 1e-3) -> EmuLinkTransport:
+    """A :class:`EmuLinkTransport` to an emulated bridge over a model built from the simulator
+    ``url`` (``sim://?record=1`` ...), all in simulated time.
+
+    ``baud``: the simulated line (``None``: the URL's ``baud=``, else 115200; 0: no wire time).
     ``wrap(pipe) -> pipe`` inserts a wrapper between host and bridge (e.g. a
-    :class:`~lm629_host.faultlink.FaultPipe`).  The model is ``transport.pipe...emulator.model``;
-    it is also returned as ``transport.model`` for convenience.
+    :class:`~lm629_host.faultlink.FaultPipe`).  The model is ``transport.model``, the far end
+    ``transport.emulator``.
     """
-    from .link import LinkTransport
+    from .transports import query_params
     from .transports.sim import build_model
 
-    model = build_model(url)
+    if baud is None:
+        raw = query_params(url).get("baud", "115200")
+        try:
+            baud = int(raw)
+        except ValueError:
+            raise ValueError(f"{url}: baud={raw!r} is not a number") from None
+        if baud < 0:
+            raise ValueError(f"{url}: baud={baud} must be >= 0 (0: no wire time)")
+    model = build_model(url, allowed=frozenset({"baud"}))
     emu = BridgeEmulator(model)
-    pipe = EmuPipe(emu, baud=baud)
+    pipe = EmuPipe(emu, baud=baud or None)
     outer = wrap(pipe) if wrap is not None else pipe
-
-    class _EmuLink(LinkTransport):
-        scheme = "emu"
-
-    _EmuLink.margin_s = margin_s
-    t = _EmuLink(outer, url, trace=trace, retries=retries, baud=baud)
+    t = EmuLinkTransport.__new__(EmuLinkTransport)
+    t.margin_s = margin_s
     t.model = model  # type: ignore[attr-defined]
     t.emulator = emu  # type: ignore[attr-defined]
+    LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
     return t

@@ -141,7 +141,7 @@ def test_reply_timeout_per_request():
 
 
 def test_long_program_is_split_and_words_come_back_in_order():
-    t, _ = tapped(baud=None)
+    t, _ = tapped(baud=0)
     chip = LM629(t)
     chip.reset()
     chip.set_breakpoint(0x12345678)
