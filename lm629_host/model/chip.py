@@ -50,6 +50,7 @@ from ..opcodes import (
     lfil_word_count,
     ltrj_word_count,
 )
+from .fastloop import run_fast
 from .motion import Motion
 from .params import ChipParams, MotorParams
 
@@ -110,6 +111,9 @@ class ChipModel:
         #: every command that reached the chip, with its words (when ``params.record``)
         self.history: list[tuple[int, tuple[int, ...]]] = []
         self.violations: list[str] = []
+        #: run steady-state samples through :func:`.fastloop.run_fast` (False: only the readable
+        #: per-sample code; the two are cross-checked by tests/test_model_fastloop.py)
+        self.fast = self.params.fast
         self.motion = Motion(self, self.motor_params)
         # power-on: as if /RST had been pulsed long ago and the reset had completed
         self._power_on_reset()
@@ -157,6 +161,21 @@ class ChipModel:
         """Run ``n`` consecutive samples, the first at ``self.next_sample``."""
         motion = self.motion
         while n > 0:
+            if self.fast and not (self._in_hw_reset or self._reset_done_at is not None
+                                  or self._udf_pending
+                                  or self.signals_extra & Signals.FILTER_UPDATED):
+                ran = run_fast(self, n)
+                n -= ran
+                self.samples += ran
+                self.next_sample += ran * SAMPLE_CLOCKS
+                self.tick = self.next_sample - SAMPLE_CLOCKS
+                if n and motion.quiescent():
+                    motion.skip(n)
+                    self.samples += n
+                    self.next_sample += n * SAMPLE_CLOCKS
+                    self.tick = self.next_sample - SAMPLE_CLOCKS
+                    return
+                continue
             n -= 1
             self.tick = self.next_sample
             self.next_sample += SAMPLE_CLOCKS

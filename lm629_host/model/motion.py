@@ -294,7 +294,10 @@ class Motion:
         e = sat16(wrap_counts((t.position >> 16) - self.real_position))
         if p.derivative != 0 or p.last_error != e:
             return False
-        return e == 0 or self.chip.filter.ki == 0
+        f = self.chip.filter
+        if e and f.il == 0 and p.error_sum and (p.error_sum > 0) != (e > 0):
+            return False  # the sum is unwinding towards 0 (the only change allowed at il = 0)
+        return e == 0 or f.ki == 0
 
     def skip(self, n: int) -> None:
         """Advance ``n`` quiescent samples at once (only what still changes: the error sum)."""
@@ -302,7 +305,7 @@ class Motion:
             return
         p = self.pid
         e = sat16(wrap_counts(self.desired_position - self.real_position))
-        if e:
+        if e and self.chip.filter.il > 0:  # quiescent with e != 0 means ki == 0: never held
             p.error_sum = max(SUM_MIN, min(SUM_MAX, p.error_sum + n * e))
         ds1 = self.chip.filter.ds + 1
         p.countdown = (p.countdown - n) % ds1

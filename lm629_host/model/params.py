@@ -22,6 +22,8 @@ class ChipParams:
     strict: bool = False  #: raise ProtocolViolation on any host protocol violation
     fault: str | None = None  #: None, "reset" (never leaves reset) or "busy" (busy stuck high)
     record: bool = False  #: keep a record of every command that reached the chip (fault tests)
+    #: use the flattened sample loop (model/fastloop.py); 0 = the readable per-sample code only
+    fast: bool = True
 
 
 @dataclass
@@ -47,8 +49,9 @@ class MotorParams:
     coulomb: float = 2e-4  #: Coulomb (dry) friction, N m; also the breakaway torque
     load_torque: float = 0.0  #: constant external torque (gravity on an arm...), N m
     stall: bool = False  #: rotor locked: the shaft never turns whatever the drive
-    #: physical shaft angle at power-on, in counts (fractional counts allowed)
-    start_position: float = 0.0
+    #: physical shaft angle at power-on, in counts: mid-count, so that the encoder does not
+    #: sit on an edge
+    start_position: float = 0.5
 
     def check(self) -> None:
         """ValueError naming any parameter outside its physical range."""

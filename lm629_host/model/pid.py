@@ -7,7 +7,8 @@ u(n) = kp e(n) + ki sum(e) + kd [e(n') - e(n'-1)], computed as the chip computes
   (7FFF / 8000) [model choice: AN-706 5.2.5 "all the lower bits are set ... a predictable
   saturated output", read as signed saturation];
 * the error sum is kept to 24 bits (saturating), its top 16 bits multiply ki, and the term is
-  limited to +/- il; once at the limit, errors that would push it further are not summed;
+  limited to +/- il; once the term has reached the limit, an error that would push the sum
+  further is not summed (AN-706 4.5.2) [model choice: "reached" includes il = 0];
 * the derivative difference is taken every ds + 1 samples; kd x difference is held and added
   at every sample;
 * the three 16-bit terms add into a 16-bit result, saturated on overflow.
@@ -47,10 +48,10 @@ def pid_step(s: PIDState, e: int, kp: int, ki: int, kd: int, il: int, ds: int) -
     # integral: 24-bit sum, top 16 bits x ki, limited to il; no wind-up past the limit
     total = s.error_sum + e
     total = SUM_MAX if total > SUM_MAX else (SUM_MIN if total < SUM_MIN else total)
+    held = ki * (s.error_sum >> 8)
+    if (held >= il or held <= -il) and abs(total) > abs(s.error_sum):
+        total = s.error_sum  # already at the limit: an error pushing further is not summed
     term = ki * (total >> 8)
-    if (term > il or term < -il) and abs(total) > abs(s.error_sum):
-        total = s.error_sum
-        term = ki * (total >> 8)
     s.error_sum = total
     term = il if term > il else (-il if term < -il else term)
     s.integral = term
