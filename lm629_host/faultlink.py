@@ -178,4 +178,71 @@ class FaultPipe:
         return f"to bridge: {self.out.counts}; to host: {self.into.counts}"
 
 
-__all__ = ["FaultCounts", "FaultPipe", "FaultRates"]
+# ---------------------------------------------------------------------------------- soak
+@dataclass
+class SoakResult:
+    """Outcome of :func:`soak`: per call, the command record it should leave and whether it
+    returned normally (certain) or raised a typed error (it may or may not have run)."""
+
+    calls: int = 0
+    ok: int = 0
+    typed_errors: int = 0
+    expected: list[tuple[tuple[int, tuple[int, ...]], bool]] = field(default_factory=list)
+
+
+def soak(chip, n: int) -> SoakResult:
+    """``n`` typed commands on ``chip`` (an :class:`~lm629_host.LM629`), alternately a unique
+    SBPA breakpoint (its two words identify the call) and a real-position read that must read
+    0 (the motor is at rest).  Typed errors are counted; any other exception propagates."""
+    from .errors import LM629Error, TransportError
+    from .opcodes import Cmd
+
+    r = SoakResult()
+    for i in range(n):
+        r.calls += 1
+        if i % 2:
+            pos = 1000 + i
+            entry = (int(Cmd.SBPA), ((pos >> 16) & 0xFFFF, pos & 0xFFFF))
+            call = lambda: chip.set_breakpoint(pos)  # noqa: E731
+        else:
+            entry = (int(Cmd.RDRP), ())
+            call = chip.read_real_position
+        try:
+            value = call()
+        except LM629Error as exc:
+            if not isinstance(exc, TransportError) or "may or may not have run" not in str(exc):
+                raise
+            r.typed_errors += 1
+            r.expected.append((entry, False))
+        else:
+            if entry[0] == Cmd.RDRP and value != 0:
+                raise AssertionError(f"call {i}: read_real_position() returned {value}, not 0: "
+                                     "a corrupted reply got through")
+            r.ok += 1
+            r.expected.append((entry, True))
+    return r
+
+
+def check_record(history: list[tuple[int, tuple[int, ...]]],
+                 expected: list[tuple[tuple[int, tuple[int, ...]], bool]]) -> tuple[int, int]:
+    """Match the chip's record (``ChipModel.history``) against the calls, in order: a call
+    that returned normally must be there exactly once; a call that raised may be there once or
+    not at all; nothing else may be.  Returns (failed calls that ran, failed calls that did
+    not); raises AssertionError on a lost or repeated command."""
+    j = ran = lost = 0
+    for entry, certain in expected:
+        if j < len(history) and history[j] == entry:
+            j += 1
+            ran += not certain
+        elif certain:
+            raise AssertionError(f"call {entry} returned normally but never reached the chip "
+                                 f"(record position {j}: {history[j:j + 3]})")
+        else:
+            lost += 1
+    if j != len(history):
+        raise AssertionError(f"the chip saw {len(history) - j} command(s) nobody sent (or one "
+                             f"twice): {history[j:j + 5]}")
+    return ran, lost
+
+
+__all__ = ["FaultCounts", "FaultPipe", "FaultRates", "SoakResult", "check_record", "soak"]

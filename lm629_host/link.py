@@ -4,7 +4,7 @@ Everything a transport needs to talk to a bridge that runs whole bus programs on
 
 * the protocol's constants (frame types, result codes, capability bits, ``MAX_FRAME``), defined
   here once and checked against the firmware's generated tables by the tests;
-* COBS framing and CRC-16/CCITT-FALSE, a frame codec and a resynchronising :class:`FrameReader`;
+* COBS framing and CRC-16/GENIBUS, a frame codec and a resynchronising :class:`FrameReader`;
 * the payload codecs of HELLO_REPLY, RUN and RUN_REPLY, shared by the host and by the Python far
   end (:mod:`lm629_host.bridge_emu`) so that both speak exactly the same bytes;
 * :class:`Pipe`, the byte stream to a bridge with its own clock (a pyserial port, a simulated
@@ -96,13 +96,15 @@ def _crc_table() -> tuple[int, ...]:
 _CRC_TABLE = _crc_table()
 
 
-def crc16(data: bytes, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF, no reflection, no final xor
-    (check value: ``crc16(b"123456789") == 0x29B1``)."""
+def crc16(data: bytes) -> int:
+    """CRC-16/GENIBUS: poly 0x1021, init 0xFFFF, no reflection, final xor 0xFFFF (check
+    value: ``crc16(b"123456789") == 0xD64E``).  The final xor matters: without it a frame
+    that gains trailing zero bytes (a delimiter corrupted into 0x01) would still pass."""
     table = _CRC_TABLE
+    crc = 0xFFFF
     for b in data:
         crc = ((crc << 8) & 0xFFFF) ^ table[(crc >> 8) ^ b]
-    return crc
+    return crc ^ 0xFFFF
 
 
 class FrameError(ValueError):

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from lm629_host.link import (
-    MAX_FRAME, FrameType, HelloInfo, Result, RunReply, cobs_decode, cobs_encode, crc16,
+    MAX_FRAME, FrameError, FrameType, HelloInfo, Result, RunReply, cobs_decode, cobs_encode, crc16,
     decode_frame, decode_program, encode_frame,
 )
 from lm629_host.opcodes import Cmd
@@ -49,8 +49,20 @@ def test_codec_round_trip(name):
 
 
 def test_crc_check_value():
-    # the catalogue check value of CRC-16/CCITT-FALSE
-    assert crc16(b"123456789") == 0x29B1
+    # the catalogue check value of CRC-16/GENIBUS
+    assert crc16(b"123456789") == 0xD64E
+
+
+def test_a_delimiter_turned_into_01_fails_the_crc():
+    """COBS decodes "frame, 0x01, 0x00" as the frame plus one 0x00 byte; with no final xor
+    the CRC would accept it (the CRC of a message followed by its CRC is constant)."""
+    wire = encode_frame(FrameType.RUN, 0x2A, b"\x00\x13\x88\x02\x0a\x04\x04")
+    damaged = wire[:-1] + b"\x01\x00"
+    assert cobs_decode(damaged[:-1]) == cobs_decode(wire[:-1]) + b"\x00"
+    with pytest.raises(FrameError, match="CRC"):
+        decode_frame(damaged)
+    with pytest.raises(FrameError, match="CRC"):
+        decode_frame(wire[:-1] + b"\x01\x01\x00")
 
 
 def test_an693_filter_module_bytes():
