@@ -42,6 +42,7 @@ from ..opcodes import (
     FILTER_ORDER,
     INTERRUPTS,
     SAMPLE_CLOCKS,
+    STOP_FLAGS,
     Cmd,
     Direction,
     Signals,
@@ -303,6 +304,9 @@ class ChipModel:
         return int(s)
 
     def turn_motor_off(self) -> None:
+        """Drive off (LTRJ bit 8 or LPES); trajectory complete is motor off OR on target."""
+        if not self.motor_off:
+            self.flags |= Status.TRAJECTORY_COMPLETE
         self.motor_off = True
         self.motion.drive_off()
 
@@ -448,7 +452,12 @@ class ChipModel:
         m = self.motion
         if cmd is Cmd.STT:
             if not m.start(self.trajectory):
+                # [model choice] the refused STT is ignored and the parameters loaded since
+                # the last STT are dropped, so that the next STT (a stop, say) is not refused too
                 self._command_error_silent()
+                self.trajectory.loaded = 0
+                self.trajectory.control &= ~STOP_FLAGS
+                self.signals_extra &= ~Signals.ACCELERATION_LOADED
                 return
             self.trajectory.loaded = 0
             self.signals_extra &= ~Signals.ACCELERATION_LOADED
@@ -456,6 +465,9 @@ class ChipModel:
                 self.turn_motor_off()
             else:
                 self.motor_off = False
+            # [model choice] a stop bit acts once: the next plain STT resumes the move
+            # (AN-706 6.3.1, 6.3.3)
+            self.trajectory.control &= ~STOP_FLAGS
         elif cmd is Cmd.DFH:
             m.define_home()
         elif cmd is Cmd.SIP:

@@ -57,8 +57,11 @@ Every place where the datasheet and the notes are silent, in one list (numbers i
    and resumes the interrupted move (AN-706 6.3.3).
 8. [model choice] STT refused (command error, nothing changes): acceleration loaded since the
    last STT while the generator is moving and the drive is on; a relative velocity or
-   acceleration that makes the working value negative.  Relative position is relative to the
-   current target; relative velocity and acceleration to the working values.
+   acceleration that makes the working value negative.  The refused STT is ignored and the
+   parameters loaded since the last STT are dropped (signals bit 14 cleared): otherwise every
+   later STT, even a stop, would be refused until the move ends.  Relative position is
+   relative to the current target; relative velocity and acceleration to the working values.
+   A stop bit acts once: the next plain STT resumes the move.
 9. [model choice] A stop bit with other parameters in the same LTRJ: the stop wins and the
    parameters are loaded into the working registers for the next STT (no movement now).
 10. [model choice] DFH: the desired position's whole counts and the real position both become
