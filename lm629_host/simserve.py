@@ -5,14 +5,14 @@ bridge on a USB serial port, so that several CLI invocations, a lab script and a
 terminal can all talk to one simulated chip through the unchanged ``serial://PATH`` transport.
 
 The far end is the Python bridge (:class:`~lm629_host.bridge_emu.BridgeEmulator`) by default;
-with ``firmware=True`` it is the real compiled firmware running in simavr, when the firmware
-colleague's harness (:mod:`lm629_host.avrsim`) provides a far end (see :func:`firmware_far_end`).
+with ``firmware=True`` it is the real compiled firmware running in simavr, taken from the
+``sim+avr://`` transport (:func:`firmware_far_end`).
 
-Time: this is a real-time service, so its clock follows the wall clock.  The chip model keeps
-its own simulated clock; before handling bytes the server advances the model to the wall time
-elapsed since start, and when a program took the model past the wall time (a WAIT, a long
-busy) the server sleeps until the wall clock catches up before it answers, as the real bridge
-would answer that late.
+Time: this is a real-time service, so its clock follows the wall clock.  The far end keeps its
+own simulated clock; the server advances it to the wall time elapsed since start (the motor
+keeps moving between clients), and when a request took the simulation past the wall time (a
+WAIT, a long busy) the server sleeps until the wall clock catches up before it answers, as the
+real bridge would answer that late.
 """
 
 from __future__ import annotations
@@ -28,26 +28,40 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .bridge_emu import BridgeEmulator
+from .link import MAX_WIRE_FRAME, BadProgram, Frame, FrameReader, FrameType, decode_program
 from .model import ChipModel
+from .program import Op
 from .transports.sim import build_model
 
 log = logging.getLogger("lm629_host.simserve")
 
-#: how often the idle server moves the model forward (the motor keeps moving in real time)
+#: how often the idle server moves the simulation forward
 IDLE_TICK_S = 0.02
 
 
 class FarEnd:
-    """What the server needs from a far end: bytes in, reply bytes out, a model to advance."""
+    """What the server needs from a far end: bytes in, reply bytes out, a simulated clock that
+    the server keeps level with the wall clock, and the chip model."""
 
     model: ChipModel
 
     def receive(self, data: bytes) -> list[bytes]: ...  # pragma: no cover - interface
 
+    def now(self) -> float: ...  # pragma: no cover - interface
+
+    def advance_to(self, t: float) -> bytes:
+        """Run the far end up to simulated time ``t``; returns bytes it sent meanwhile."""
+        ...  # pragma: no cover - interface
+
     def describe(self) -> str: ...  # pragma: no cover - interface
+
+    def close(self) -> None:
+        pass
 
 
 class EmuFarEnd(FarEnd):
+    """The Python bridge over the model, driven straight."""
+
     def __init__(self, model: ChipModel) -> None:
         self.model = model
         self.emulator = BridgeEmulator(model)
@@ -55,29 +69,116 @@ class EmuFarEnd(FarEnd):
     def receive(self, data: bytes) -> list[bytes]:
         return self.emulator.receive(data)
 
+    def now(self) -> float:
+        return self.model.now()
+
+    def advance_to(self, t: float) -> bytes:
+        self.model.advance_to(int(t * self.model.clock_hz))
+        return b""
+
     def describe(self) -> str:
         return f"Python bridge emulator (firmware {self.emulator.info.firmware_version})"
 
 
-def firmware_far_end(url: str) -> FarEnd:
-    """The compiled firmware in simavr as a far end, from :mod:`lm629_host.avrsim`.
+class PipeFarEnd(FarEnd):
+    """Any bridge behind a simulated :class:`~lm629_host.link.Pipe` (the compiled firmware in
+    simavr).  Bytes go in through the pipe; for each good request the server waits, on the
+    pipe's simulated clock, for the reply frame (up to the per-request timeout the host would
+    compute), so that a pty client gets whole replies."""
 
-    That module belongs to the firmware harness; it must offer ``far_end(url) -> obj`` with
-    ``model``, ``receive(bytes) -> list[bytes]`` and ``describe()``.  Raises RuntimeError with
-    what is missing otherwise.
+    #: added to each per-request wait, simulated seconds
+    MARGIN_S = 0.05
+
+    def __init__(self, pipe, model: ChipModel, name: str, *, baud: int | None = None) -> None:
+        self.pipe = pipe
+        self.model = model
+        self.name = name
+        self.baud = baud
+        self._requests = FrameReader()
+        self._replies = FrameReader()
+
+    def _timeout(self, frame: Frame) -> float:
+        t = self.MARGIN_S + (2 * MAX_WIRE_FRAME * 10 / self.baud if self.baud else 0.0)
+        if frame.type == FrameType.RUN and len(frame.payload) >= 3:
+            busy = (int.from_bytes(frame.payload[1:3], "big") or 5000) * 1e-6
+            try:
+                ops = decode_program(frame.payload[3:])
+            except BadProgram:
+                return t
+            for o in ops:
+                if o.op is Op.WAIT:
+                    t += o.arg * 1e-6
+                elif o.op is not Op.STATUS and o.op is not Op.RESET:
+                    t += busy
+        return t
+
+    def receive(self, data: bytes) -> list[bytes]:
+        self.pipe.write(data)
+        waits = [self._timeout(f) for f in self._requests.feed(data)
+                 if isinstance(f, Frame) and not f.type & 0x80]
+        out = bytearray()
+        for timeout in waits:
+            deadline = self.pipe.clock.now() + timeout
+            while True:
+                left = deadline - self.pipe.clock.now()
+                if left <= 0:
+                    break
+                chunk = self.pipe.read(left)
+                if not chunk:
+                    break
+                out += chunk
+                if any(isinstance(f, Frame) for f in self._replies.feed(chunk)):
+                    break
+        return [bytes(out)] if out else []
+
+    def now(self) -> float:
+        return self.pipe.clock.now()
+
+    def advance_to(self, t: float) -> bytes:
+        left = t - self.pipe.clock.now()
+        if left <= 0:
+            return b""
+        data = self.pipe.read(left)
+        if data:
+            for _ in self._replies.feed(data):
+                pass
+        return data
+
+    def describe(self) -> str:
+        return self.name
+
+    def close(self) -> None:
+        self.pipe.close()
+
+
+def firmware_far_end(url: str) -> FarEnd:
+    """The compiled bridge firmware in simavr as a far end.
+
+    Opens ``sim+avr://`` with the simulator parameters of ``url`` (the firmware transport, a
+    LinkTransport over a simulated AVR UART) and takes over its pipe.  Raises RuntimeError
+    saying what is missing when that transport is not available.
     """
+    from .errors import LM629Error
+    from .transports import open_transport
+
+    query = url.split("?", 1)[1] if "?" in url else ""
+    avr_url = "sim+avr://" + (f"?{query}" if query else "")
     try:
-        from . import avrsim  # type: ignore[attr-defined]
-    except ImportError as exc:
-        raise RuntimeError(f"--firmware needs the simavr harness (lm629_host.avrsim): {exc}. "
-                           "Build it with `make -C firmware_bridge` (needs gcc-avr, simavr, "
-                           "libsimavr-dev), or serve the Python emulator without --firmware."
-                           ) from None
-    factory = getattr(avrsim, "far_end", None)
-    if factory is None:
-        raise RuntimeError("lm629_host.avrsim has no far_end(url) yet: serve the Python "
-                           "emulator without --firmware")
-    return factory(url)
+        t = open_transport(avr_url)
+    except (LM629Error, ImportError, OSError) as exc:
+        raise RuntimeError(f"--firmware needs the sim+avr:// transport (the compiled firmware "
+                           f"in simavr): {exc}. Build it with `make -C firmware_bridge` "
+                           "(needs gcc-avr, avr-libc, simavr, libsimavr-dev), or serve the "
+                           "Python bridge without --firmware.") from None
+    pipe = getattr(t, "pipe", None)
+    model = getattr(t, "model", None) or getattr(pipe, "model", None)
+    if pipe is None or model is None:
+        t.close()
+        raise RuntimeError("the sim+avr:// transport exposes no .pipe and .model to serve: "
+                           "serve the Python bridge without --firmware")
+    info = getattr(t, "info", None)
+    name = f"bridge firmware {info.firmware_version} in simavr" if info else "firmware in simavr"
+    return PipeFarEnd(pipe, model, name, baud=getattr(t, "baud", None))
 
 
 class SimServer:
@@ -117,6 +218,7 @@ class SimServer:
 
     def close(self) -> None:
         self.stop()
+        self.far.close()
         for fd in (self.master, self.slave):
             if fd is not None:
                 with contextlib.suppress(OSError):
@@ -140,27 +242,26 @@ class SimServer:
         if self.master is None:
             self.open()
         master = self.master
-        model = self.model
-        hz = model.clock_hz
+        far = self.far
         wall0 = time.monotonic()
-        tick0 = model.tick
+        sim0 = far.now()
         if on_ready is not None:
             on_ready()
         while not self._stop.is_set():
             ready, _, _ = select.select([master], [], [], IDLE_TICK_S)
-            wall = time.monotonic() - wall0
-            model.advance_to(tick0 + int(wall * hz))
-            if not ready:
-                continue
-            try:
-                data = os.read(master, 4096)
-            except OSError:
-                continue  # EIO while no client has the slave open (the slave is ours too)
-            self.bytes_in += len(data)
-            replies = self.far.receive(data)
+            stray = far.advance_to(sim0 + time.monotonic() - wall0)
+            replies = [stray] if stray else []
+            if ready:
+                try:
+                    data = os.read(master, 4096)
+                except OSError:
+                    data = b""  # EIO while no client has the slave open (ours stays open)
+                if data:
+                    self.bytes_in += len(data)
+                    replies += far.receive(data)
             if not replies:
                 continue
-            ahead = (model.tick - tick0) / hz - (time.monotonic() - wall0)
+            ahead = (far.now() - sim0) - (time.monotonic() - wall0)
             if ahead > 0:
                 time.sleep(ahead)  # real-time service: answer no earlier than a bridge would
             for r in replies:
@@ -190,4 +291,4 @@ class SimServer:
                 f"{p.clock_hz / 1e6:g} MHz, on {self.device} (linked at {self.link})")
 
 
-__all__ = ["EmuFarEnd", "FarEnd", "SimServer", "firmware_far_end"]
+__all__ = ["EmuFarEnd", "FarEnd", "PipeFarEnd", "SimServer", "firmware_far_end"]

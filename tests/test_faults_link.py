@@ -17,39 +17,37 @@ from __future__ import annotations
 
 import pytest
 
-from lm629_host import LM629, TransportError
+from lm629_host import LM629, LM629Error, TransportError
 from lm629_host.bridge_emu import open_emulated
 from lm629_host.faultlink import FaultPipe, check_record, soak
 from lm629_host.opcodes import Cmd
 
 
 def open_faulty(far: str, rates: dict, seed: int, baud: int):
-    pipes = []
-
-    def wrap(pipe):
-        fp = FaultPipe(pipe, seed=seed, **rates)
-        fp.enabled = False  # a clean handshake; the faults start with the first command
-        pipes.append(fp)
-        return fp
-
+    """A chip behind a LinkTransport whose pipe, after a clean handshake and reset, is wrapped
+    in a FaultPipe.  ``far``: "emu" (the Python bridge) or "avr" (the compiled firmware in
+    simavr, through the firmware colleague's sim+avr:// transport)."""
     if far == "emu":
-        t = open_emulated("sim://?record=1", baud=baud, wrap=wrap)
+        t = open_emulated("sim://?record=1", baud=baud)
         model, far_stats = t.model, t.emulator.stats
     else:
-        avr = pytest.importorskip("lm629_host.transports.simavr")
-        opener = getattr(avr, "open_with_pipe_wrapper", None)
-        if opener is None:
-            pytest.skip("sim+avr:// has no pipe-wrapper hook yet")
-        t = opener("sim+avr://?record=1", wrap=wrap)
-        model, far_stats = t.model, None
+        pytest.importorskip("lm629_host.transports.simavr")
+        from lm629_host.transports import open_transport
+        try:
+            t = open_transport(f"sim+avr://?record=1&baud={baud}")
+        except (LM629Error, OSError, ValueError) as exc:
+            pytest.skip(f"sim+avr:// does not open here: {exc}")
+        model = getattr(t, "model", None) or getattr(t.pipe, "model", None)
+        far_stats = None
     chip = LM629(t)
     chip.reset()
     t._seq = seed & 0xFF  # the first seq is random at open: fix it, so a run is reproducible
     model.record_clear()
     if far_stats is not None:
         far_stats.runs = far_stats.cache_hits = 0
-    pipes[0].enabled = True
-    return chip, model, pipes[0], far_stats
+    fp = FaultPipe(t.pipe, seed=seed, **rates)
+    t.pipe = fp
+    return chip, model, fp, far_stats
 
 
 RATES = {

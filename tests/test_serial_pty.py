@@ -193,3 +193,37 @@ def test_sim_serve_cli_serves_until_sigterm(tmp_path):
     assert proc.returncode == 0, out
     assert "simulated LM628" in out and "stopped (" in out
     assert not link.exists()  # the link is removed on exit
+
+
+def test_pipe_far_end_serves_any_simulated_pipe(tmp_path):
+    """The adapter that serves the firmware (``--firmware``) works on any simulated pipe: here
+    the Python bridge behind an EmuPipe at 115200 baud stands in for the simavr UART."""
+    from lm629_host.bridge_emu import BridgeEmulator, EmuPipe
+    from lm629_host.simserve import PipeFarEnd
+    from lm629_host.transports.sim import build_model
+
+    model = build_model("sim://?record=1")
+    far = PipeFarEnd(EmuPipe(BridgeEmulator(model), baud=115200), model, "emu behind a pipe",
+                     baud=115200)
+    with SimServer(tmp_path / "p", far_end=far).start() as srv:
+        with lm629_host.open(f"serial://{srv.link}") as chip:
+            chip.reset()
+            chip.set_breakpoint(-2)
+            assert chip.read_real_position() == 0
+    assert model.history[-2:] == [(int(Cmd.SBPA), (0xFFFF, 0xFFFE)), (int(Cmd.RDRP), ())]
+
+
+def test_sim_serve_firmware(tmp_path):
+    """--firmware serves the compiled firmware; without sim+avr:// it says what to build."""
+    try:
+        srv = SimServer(tmp_path / "fw", "sim://?record=1", firmware=True)
+    except RuntimeError as exc:
+        assert "make -C firmware_bridge" in str(exc)
+        pytest.skip(f"sim+avr:// not available: {exc}")
+    with srv.start():
+        with lm629_host.open(f"serial://{srv.link}") as chip:
+            assert "simavr" in srv.describe()
+            chip.reset()
+            chip.load_filter(kp=10)
+            chip.update_filter()
+    assert srv.model.history[-2:] == [(0x1E, (0x0008, 0x000A)), (0x04, ())]

@@ -22,13 +22,13 @@ from lm629_host.bridge_emu import open_emulated  # noqa: E402
 from lm629_host.faultlink import FaultPipe, check_record, soak  # noqa: E402
 
 
-def open_far(far: str, wrap, baud: int):
+def open_far(far: str, baud: int):
     if far == "emu":
-        t = open_emulated("sim://?record=1", baud=baud, wrap=wrap)
+        t = open_emulated("sim://?record=1", baud=baud)
         return t, t.model, t.emulator.stats
-    from lm629_host.transports import simavr  # the firmware colleague's sim+avr://
-    t = simavr.open_with_pipe_wrapper(f"sim+avr://?record=1&baud={baud}", wrap=wrap)
-    return t, t.model, None
+    from lm629_host.transports import open_transport  # sim+avr://: the compiled firmware
+    t = open_transport(f"sim+avr://?record=1&baud={baud}")
+    return t, getattr(t, "model", None) or t.pipe.model, None
 
 
 def main() -> int:
@@ -44,29 +44,21 @@ def main() -> int:
     total = dict(calls=0, ok=0, errors=0, ran=0, lost=0, retries=0, cache_hits=0, faults=0)
     t0 = time.perf_counter()
     for run in range(args.runs):
-        pipes = []
-
-        def wrap(p, seed=run):
-            fp = FaultPipe(p, drop=args.rate, corrupt=args.rate, duplicate=args.rate,
-                           delay=args.rate, delay_s=args.delay_s, seed=seed)
-            fp.enabled = False
-            pipes.append(fp)
-            return fp
-
-        t, model, far_stats = open_far(args.far, wrap, args.baud)
+        t, model, far_stats = open_far(args.far, args.baud)
         chip = LM629(t)
         chip.reset()
         t._seq = run & 0xFF
         model.record_clear()
         hits0 = far_stats.cache_hits if far_stats else 0
-        pipes[0].enabled = True
+        fp = FaultPipe(t.pipe, drop=args.rate, corrupt=args.rate, duplicate=args.rate,
+                       delay=args.rate, delay_s=args.delay_s, seed=run)
+        t.pipe = fp
         try:
             r = soak(chip, args.n)
             ran, lost = check_record(model.history, r.expected)
         except AssertionError as exc:
             print(f"run {run}: VIOLATION: {exc}")
             return 1
-        fp = pipes[0]
         faults = sum(c.dropped + c.corrupted + c.duplicated + c.delayed
                      for c in (fp.out.counts, fp.into.counts))
         hits = (far_stats.cache_hits - hits0) if far_stats else 0
