@@ -448,6 +448,8 @@ class LinkTransport(Transport):
             except BaseException:
                 self.close()
                 raise
+            # the counters start with the first program, as on every other transport
+            self.stats.reset()
 
     # ------------------------------------------------------------------ helpers
     def _next_seq(self) -> int:
@@ -595,18 +597,18 @@ class LinkTransport(Transport):
 
     # ------------------------------------------------------------------ programs
     def _chunks(self, program: Program) -> Iterator[list[BusOp]]:
-        """Split ``program`` into runs that fit the bridge's limits (usually one)."""
+        """Split ``program`` at operation boundaries into runs that fit the bridge's limits
+        (HELLO_REPLY's largest program and reads, and MAX_FRAME for the reply): usually one."""
         info = self.info or HelloInfo()
-        limit_reply = min(MAX_FRAME, RUN_REPLY_OVERHEAD + 2 * info.max_reads + 255)
+        max_program = min(info.max_program, MAX_FRAME - RUN_OVERHEAD)
         chunk: list[BusOp] = []
         size = reads = n_status = 0
         for o in program.ops:
             n = 1 + OP_ARG_BYTES[o.op]
             r = 1 if o.op is Op.READ else 0
-            s = 1 if o.op in (Op.STATUS, Op.SYNC) else 0
-            if chunk and (size + n > info.max_program or reads + r > info.max_reads
-                          or n_status + s > 255
-                          or RUN_REPLY_OVERHEAD + n_status + s + 2 * (reads + r) > limit_reply):
+            s = 1 if o.op is Op.STATUS or o.op is Op.SYNC else 0
+            if chunk and (size + n > max_program or reads + r > info.max_reads
+                          or RUN_REPLY_OVERHEAD + n_status + s + 2 * (reads + r) > MAX_FRAME):
                 yield chunk
                 chunk, size, reads, n_status = [], 0, 0, 0
             chunk.append(o)

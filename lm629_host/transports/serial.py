@@ -252,6 +252,7 @@ class SerialTransport(LinkTransport):
             except BaseException:
                 self.close()
                 raise
+            self.stats.reset()
             log.info("%s: round trip %.2f ms, low latency %s", url, self.rtt_s * 1e3,
                      low_latency or "n/a")
 
