@@ -227,3 +227,24 @@ def test_sim_serve_firmware(tmp_path):
             chip.load_filter(kp=10)
             chip.update_filter()
     assert srv.model.history[-2:] == [(0x1E, (0x0008, 0x000A)), (0x04, ())]
+
+
+def test_doctor_reports_handshake_and_round_trip(server):
+    checks = {c.name: c for c in serial_mod.doctor(port=str(server.link))}
+    assert checks["pyserial"].ok
+    c = checks[f"bridge {server.link}"]
+    assert c.ok, c.message
+    assert "round trip" in c.message and "bridge firmware 0.9.0" in c.message
+    assert "low latency not supported" in c.message
+
+
+def test_every_pipe_is_a_pipe(server):
+    from lm629_host.bridge_emu import BridgeEmulator, EmuPipe
+    from lm629_host.faultlink import FaultPipe
+    from lm629_host.link import Pipe
+    from lm629_host.transports.sim import build_model
+
+    emu = EmuPipe(BridgeEmulator(build_model("sim://")))
+    with lm629_host.open(f"serial://{server.link}") as chip:
+        for p in (emu, FaultPipe(emu), chip.transport.pipe):
+            assert isinstance(p, Pipe)
