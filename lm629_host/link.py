@@ -82,6 +82,29 @@ class Capability(enum.IntFlag):
 NONE_BYTE = 0xFF
 
 
+def c_defines() -> list[tuple[str, int, str]]:
+    """The protocol's constants as (C name, value, comment), for ``tools/gen_tables.py`` to
+    write into ``firmware_bridge/lm629_tables.h``: the firmware never keeps its own copy."""
+    out: list[tuple[str, int, str]] = [
+        ("LINK_PROTOCOL_VERSION", PROTOCOL_VERSION, "HELLO_REPLY protocol version"),
+        ("LINK_MAX_FRAME", MAX_FRAME, "largest decoded frame, each way"),
+        ("LINK_MAX_WIRE_FRAME", MAX_WIRE_FRAME, "largest encoded frame with its delimiter"),
+        ("LINK_RUN_OVERHEAD", RUN_OVERHEAD, "RUN bytes around the program"),
+        ("LINK_RUN_REPLY_OVERHEAD", RUN_REPLY_OVERHEAD, "RUN_REPLY bytes around statuses+words"),
+        ("LINK_MAX_PING", MAX_PING, "largest PING payload"),
+        ("LINK_DEFAULT_BUSY_TIMEOUT_US", FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
+         "busy_timeout_us = 0 means this"),
+        ("LINK_NONE_BYTE", NONE_BYTE, "no failing op / no status read yet"),
+        ("LINK_CRC_POLY", 0x1021, "CRC-16/GENIBUS polynomial"),
+        ("LINK_CRC_INIT", 0xFFFF, "CRC-16/GENIBUS initial value"),
+        ("LINK_CRC_XOROUT", 0xFFFF, "CRC-16/GENIBUS final xor"),
+    ]
+    out += [(f"FRAME_{t.name}", int(t), "frame type") for t in FrameType]
+    out += [(f"RESULT_{r.name}", int(r), "result code") for r in Result]
+    out += [(f"CAP_{c.name}", int(c), "HELLO_REPLY capability bit") for c in Capability]
+    return out
+
+
 # ---------------------------------------------------------------------------------- CRC, COBS
 def _crc_table() -> tuple[int, ...]:
     table = []
@@ -718,7 +741,7 @@ class LinkTransport(Transport):
 __all__ = [
     "BadProgram", "Capability", "Frame", "FrameError", "FrameReader", "FrameType", "HelloInfo",
     "LinkTransport", "MAX_FRAME", "MAX_WIRE_FRAME", "PROTOCOL_VERSION", "Pipe", "Result",
-    "RunReply", "busy_timeout_us", "cobs_decode", "cobs_encode", "crc16", "decode_body",
+    "RunReply", "busy_timeout_us", "c_defines", "cobs_decode", "cobs_encode", "crc16", "decode_body",
     "decode_frame", "decode_program", "encode_frame", "encode_program", "frame_body",
     "reply_size", "run_payload", "wire_size",
 ]
