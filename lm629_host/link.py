@@ -651,11 +651,13 @@ class LinkTransport(Transport):
         for ops in self._chunks(program):
             reply = self._run(ops, timeout_us, program.busy_timeout_s)
             ok = reply.result == Result.OK
-            # operations that touched the bus: all, or those before the failing one (and its
-            # busy check when that timed out)
-            ran = ops if ok else ops[:reply.index + (reply.result == Result.BUSY_TIMEOUT)]
+            busy = reply.result == Result.BUSY_TIMEOUT
+            # operations that touched the bus: all, those before the failing one and its busy
+            # check after a busy timeout, none when the bridge refused the program
+            ran = ops if ok else ops[:reply.index + 1] if busy else []
             self._account(ran, reply)
-            self._emit_cycles(ops if ok else ops[:reply.index], reply.words, reply.statuses)
+            self._emit_cycles(ops if ok else ops[:reply.index] if busy else [], reply.words,
+                              reply.statuses)
             words += reply.words
             statuses += reply.statuses
             if reply.last_status != NONE_BYTE or any(o.op not in (Op.WAIT, Op.RESET) for o in ran):
@@ -679,6 +681,8 @@ class LinkTransport(Transport):
             raise TransportError(f"malformed RUN_REPLY ({exc}): the program may or may not "
                                  "have run; reflash the bridge firmware (lm629 bridge flash)",
                                  port=self.url) from None
+        if reply.result not in (Result.OK, Result.BUSY_TIMEOUT):
+            return reply  # refused: raised by the caller, whatever the reply carries
         done = len(ops) if reply.result == Result.OK else min(reply.index, len(ops))
         want_words = sum(1 for o in ops[:done] if o.op is Op.READ)
         want_status = sum(1 for o in ops[:done] if o.op in (Op.STATUS, Op.SYNC))
@@ -714,6 +718,7 @@ class LinkTransport(Transport):
                       words: list[int]) -> None:
         index = reply.index
         op = ops[index].describe() if index < len(ops) else f"operation {index}"
+        where = f" at operation {base + index} ({op})" if index < len(ops) else ""
         if reply.result == Result.BUSY_TIMEOUT:
             status = None if reply.last_status == NONE_BYTE else reply.last_status
             raise BusyTimeout(op, program.busy_timeout_s, status, base + index, words)
@@ -722,7 +727,7 @@ class LinkTransport(Transport):
         except ValueError:
             name = f"unknown result {reply.result}"
         raise TransportError(
-            f"the bridge refused the program at operation {base + index} ({op}): {name}. "
+            f"the bridge refused the program{where}: {name}; nothing of it ran. "
             "Host and firmware disagree on the program format or limits; reflash the firmware "
             "that matches this host (lm629 bridge flash).", port=self.url)
 

@@ -248,3 +248,18 @@ def test_hi_and_reset_line_follow_the_capabilities():
     assert t2.execute(Program().status()).hi is None
     chip = LM629(t2)
     assert chip.reset_program().ops[0].op is Op.COMMAND  # RESET command instead of /RST
+
+
+def test_refused_programs_are_typed_errors_and_nothing_ran():
+    """A bridge with fewer limits than the host assumed (or a multi-axis cs it lacks): the
+    refusal comes back as a TransportError naming the result code; nothing ran."""
+    t = open_emulated("sim://?record=1", baud=0)
+    t.model.record_clear()
+    t.cs = 1  # the emulated bridge has one chip select
+    with pytest.raises(TransportError, match="BAD_CHIP_SELECT; nothing of it ran"):
+        t.execute(Program().command(Cmd.DFH))
+    t.cs = 0
+    t.emulator.info = HelloInfo(max_program=4)  # the host still splits by its own HELLO
+    with pytest.raises(TransportError, match="PROGRAM_TOO_LONG; nothing of it ran"):
+        t.execute(Program().command(Cmd.SBPA).write(0).write(1))
+    assert t.model.history == [] and t.stats.bus_cycles == 0
