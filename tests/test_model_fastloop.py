@@ -1,7 +1,7 @@
-"""The flattened sample loop (model/fastloop.py) against the readable per-sample code.
+"""The flattened sample loops (model/fastloop.py, model/_fastloop.c) against the readable code.
 
-Two chips, one with ``fast=0`` (Motion.sample + ChipModel._sample only), take exactly the
-same host traffic; every register, the shaft state and the filter memory must agree after
+Three chips, ``fast=0`` (Motion.sample + ChipModel._sample only), ``fast=py`` and ``fast=c``,
+take exactly the same host traffic; every register, the shaft state and the filter memory must agree after
 every step, stepped one sample at a time and in long batches (with skip-ahead).
 """
 
@@ -24,9 +24,18 @@ def state(chip) -> tuple:
             p.error_sum, p.last_error, p.derivative, p.countdown, p.integral, p.output)
 
 
+try:
+    import lm629_host.model._fastloop  # noqa: F401
+    LOOPS = ("0", "py", "c")
+except ImportError:  # no C compiler when the package was installed
+    LOOPS = ("0", "py")
+
+
 class Pair:
+    """The same chip under every sample loop: readable (0), flattened Python (py), C (c)."""
+
     def __init__(self, params: str) -> None:
-        self.chips = [lm629_host.open(f"sim://?strict=1&fast={f}&{params}") for f in (0, 1)]
+        self.chips = [lm629_host.open(f"sim://?strict=1&fast={f}&{params}") for f in LOOPS]
 
     def __getattr__(self, name):
         def call(*args, **kw):
@@ -36,8 +45,9 @@ class Pair:
         return call
 
     def check(self, what: str) -> None:
-        a, b = (state(c) for c in self.chips)
-        assert a == b, f"after {what}: readable {a} != fast {b}"
+        first, *others = (state(c) for c in self.chips)
+        for loop, other in zip(LOOPS[1:], others):
+            assert first == other, f"after {what}: readable {first} != fast={loop} {other}"
 
     def run(self, seconds: float, step: float | None = None) -> None:
         t = 0.0
@@ -108,3 +118,18 @@ def test_stops_wraparound_and_12_bit_output(pair):
     p.run(0.1, step=T)
     p.load_trajectory(stop="off", start=True)
     p.run(0.2)
+
+
+def test_the_c_loop_is_built_and_chosen_by_default():
+    """CI installs with a C compiler: the default must be the C loop, not the fallback."""
+    from lm629_host.model.fastloop import py_loop
+    chip = lm629_host.open("sim://")
+    loop = chip.transport.model.fast
+    chip.close()
+    assert "c" in LOOPS, "lm629_host/model/_fastloop.c was not built (pip install -e .)"
+    assert loop is not py_loop and loop.__module__ == "lm629_host.model._fastloop"
+
+
+def test_unknown_loop_name_is_refused():
+    with pytest.raises(ValueError, match="fast='turbo'"):
+        lm629_host.open("sim://?fast=turbo")

@@ -8,8 +8,9 @@ Scenarios (8 MHz: 3906 samples per simulated second):
   move      a 10 s move with the PID active, the shaft turning all the time
   idle      motor off, shaft at rest (skip-ahead)
 
-Each runs twice in this process: with the flattened sample loop (the default) and with only
-the readable per-sample code (``fast=0``), the baseline.  The host polls the status every
+Each runs three times in this process: with the C sample loop (``fast=c``, the default when
+it was built), the same loop in Python (``fast=py``, the fallback) and only the readable
+per-sample code (``fast=0``), the baseline for the ratios.  The host polls the status every
 ``--poll`` simulated seconds, as a waiting test does.
 
     python3 tools/bench_model.py [--poll 0.1] [--seconds 10]
@@ -26,7 +27,7 @@ from lm629_host import Status
 ONE = 65536
 
 
-def _setup(scenario: str, fast: int):
+def _setup(scenario: str, fast: str):
     params = {"hold": "", "hold-load": "load_torque=0.003", "move": "", "idle": ""}[scenario]
     chip = lm629_host.open(f"sim://?fast={fast}&{params}")
     chip.reset()
@@ -46,7 +47,7 @@ def _setup(scenario: str, fast: int):
     return chip
 
 
-def measure(scenario: str, fast: int, seconds: float, poll: float) -> tuple[float, int]:
+def measure(scenario: str, fast: str, seconds: float, poll: float) -> tuple[float, int]:
     """(simulated seconds per wall second, samples run)."""
     chip = _setup(scenario, fast)
     model = chip.transport.model
@@ -73,13 +74,21 @@ def main() -> None:
     args = ap.parse_args()
     print(f"chip model speed, {args.seconds:g} simulated s per scenario, host polls every "
           f"{args.poll:g} s (8 MHz: 3906 samples per simulated s)")
-    print(f"{'scenario':<10} {'fast loop':>14} {'readable (fast=0)':>20} {'speed-up':>9}  samples/wall s")
+    loops = ["c", "py", "0"]
+    try:
+        import lm629_host.model._fastloop  # noqa: F401
+    except ImportError:
+        loops.remove("c")
+        print("(the C loop is not built: pip install -e . with a C compiler)")
+    print(f"{'scenario':<10}" + "".join(f"{'fast=' + f:>12}" for f in loops)
+          + f"{'c / 0':>9}{'py / 0':>9}  samples per wall s (first column)")
     for scenario in ("hold", "hold-load", "move", "idle"):
-        fast, samples = measure(scenario, 1, args.seconds, args.poll)
-        slow, _ = measure(scenario, 0, args.seconds, args.poll)
-        print(f"{scenario:<10} {fast:>12.0f}x {slow:>18.0f}x {fast / slow:>8.1f}x  "
-              f"{fast * 3906:>12,.0f}")
-
+        ratios = {f: measure(scenario, f, args.seconds, args.poll)[0] for f in loops}
+        line = f"{scenario:<10}" + "".join(f"{ratios[f]:>11.0f}x" for f in loops)
+        if "c" in ratios:
+            line += f"{ratios['c'] / ratios['0']:>8.1f}x"
+        line += f"{ratios['py'] / ratios['0']:>8.1f}x  {ratios[loops[0]] * 3906:>12,.0f}"
+        print(line)
 
 if __name__ == "__main__":
     main()

@@ -35,6 +35,7 @@ Host-interface behaviour, from the spec, with the model's choices marked:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 from ..errors import ProtocolViolation
 from ..opcodes import (
@@ -51,7 +52,7 @@ from ..opcodes import (
     lfil_word_count,
     ltrj_word_count,
 )
-from .fastloop import run_fast
+from .fastloop import py_loop, run_fast
 from .motion import Motion
 from .params import ChipParams, MotorParams
 
@@ -93,6 +94,26 @@ class TrajectoryBuffer:
     loaded: int = 0
 
 
+def _sample_loop(choice: str) -> Callable[[tuple, tuple], tuple] | None:
+    """The steady-state sample loop named by ``ChipParams.fast``."""
+    choice = str(choice).lower()
+    if choice in ("0", "false", "off", "no"):
+        return None
+    if choice in ("py", "python"):
+        return py_loop
+    if choice not in ("auto", "1", "true", "c"):
+        raise ValueError(f"fast={choice!r}: expected auto, c, py or 0")
+    try:
+        from ._fastloop import run
+    except ImportError:
+        if choice == "c":
+            raise ValueError("fast=c: the C sample loop lm629_host/model/_fastloop.c is not built "
+                             "(pip install -e . builds it; it needs a C compiler and the Python "
+                             "headers)") from None
+        return py_loop
+    return run
+
+
 class ChipModel:
     """One LM628 or LM629 with its motor, as seen from its pins."""
 
@@ -114,7 +135,7 @@ class ChipModel:
         self.violations: list[str] = []
         #: run steady-state samples through :func:`.fastloop.run_fast` (False: only the readable
         #: per-sample code; the two are cross-checked by tests/test_model_fastloop.py)
-        self.fast = self.params.fast
+        self.fast = _sample_loop(self.params.fast)
         self.motion = Motion(self, self.motor_params)
         # power-on: as if /RST had been pulsed long ago and the reset had completed
         self._power_on_reset()
@@ -165,7 +186,7 @@ class ChipModel:
             if self.fast and not (self._in_hw_reset or self._reset_done_at is not None
                                   or self._udf_pending
                                   or self.signals_extra & Signals.FILTER_UPDATED):
-                ran = run_fast(self, n)
+                ran = run_fast(self, n, self.fast)
                 n -= ran
                 self.samples += ran
                 self.next_sample += ran * SAMPLE_CLOCKS

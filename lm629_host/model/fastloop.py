@@ -15,7 +15,7 @@ may have become quiescent (so that the caller can skip ahead).
 from __future__ import annotations
 
 from math import floor, log
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 from .pid import SUM_MAX, SUM_MIN
 from .trajectory import HALF, SPAN, landing_velocity, stop_distance
@@ -27,36 +27,56 @@ _COMPLETE, _INDEX, _WRAP, _PERR, _BP = 0x04, 0x08, 0x10, 0x20, 0x40
 _ACQUIRE_INDEX, _EIGHT_BIT, _STOP_ON_ERROR = 0x0001, 0x0100, 0x0200
 
 
-def run_fast(chip: ChipModel, n: int) -> int:
-    """Run up to ``n`` samples; return how many ran (at least 1)."""
+INT_ARGS = ("n kp ki kd il ds shift stall cpr index_k count home out p v a vmax target done "
+            "vmode fwd stopping esum elast dterm countdown iterm u motor_off bp threshold "
+            "stop_on_error flags armed rp rv").split()
+FLOAT_ARGS = "volts_per_code apv load coul rate decay gain ts angle speed".split()
+RESULTS = ("ran lpes_trip index_hit index_pos count out p v done esum elast dterm countdown "
+           "iterm u flags rp rv angle speed").split()
+
+
+def run_fast(chip: ChipModel, n: int, loop: Callable[..., tuple] | None = None) -> int:
+    """Run up to ``n`` samples with ``loop`` (:func:`py_loop` or the C one); return how many ran."""
     m = chip.motion
-    motor, t, pid = m.motor, m.traj, chip.motion.pid
+    motor, t, pid = m.motor, m.traj, m.pid
     mp = motor.params
     f = chip.filter
-    kp, ki, kd, il, ds = f.kp, f.ki, f.kd, f.il, f.ds
-    twelve = not int(chip.signals_extra) & _EIGHT_BIT
-    shift = 4 if twelve else 8
-    volts_per_code = mp.amp_volts / (2048 if twelve else 128)
-    stall = mp.stall
-    apv, load, coul = motor.accel_per_volt, motor.load_accel, motor.coulomb_accel
-    rate, decay, gain, ts = motor.rate, motor.decay, motor.gain, motor.sample_s
-    cpr, index_k = motor.counts_per_rev, mp.index_offset % motor.counts_per_rev
-    angle, speed = motor.angle, motor.speed
-    count, home = m._count, m._home
-    out = m.output
-    p, v, a, vmax, target = t.position, t.velocity, t.acceleration, t.max_velocity, t.target
-    done, vmode, fwd, stopping = t.done, t.velocity_mode, t.forward, t.stopping
-    esum, elast, dterm, countdown, iterm, u = (pid.error_sum, pid.last_error, pid.derivative,
-                                               pid.countdown, pid.integral, pid.output)
-    motor_off = chip.motor_off
-    bp, threshold = chip.breakpoint, chip.position_error_threshold
-    stop_on_error = int(chip.signals_extra) & _STOP_ON_ERROR
-    flags = int(chip.flags)
-    armed = int(chip.signals_extra) & _ACQUIRE_INDEX
-    rp = m.real_position
-    rv = m.real_velocity
+    signals = int(chip.signals_extra)
+    twelve = not signals & _EIGHT_BIT
+    cpr = motor.counts_per_rev
+    ints = (n, f.kp, f.ki, f.kd, f.il, f.ds, 4 if twelve else 8, int(mp.stall), cpr,
+            mp.index_offset % cpr, m._count, m._home, m.output,
+            t.position, t.velocity, t.acceleration, t.max_velocity, t.target, int(t.done),
+            int(t.velocity_mode), int(t.forward), int(t.stopping),
+            pid.error_sum, pid.last_error, pid.derivative, pid.countdown, pid.integral, pid.output,
+            int(chip.motor_off), chip.breakpoint, chip.position_error_threshold,
+            signals & _STOP_ON_ERROR, int(chip.flags), signals & _ACQUIRE_INDEX,
+            m.real_position, m.real_velocity)
+    floats = (mp.amp_volts / (2048 if twelve else 128), motor.accel_per_volt, motor.load_accel,
+              motor.coulomb_accel, motor.rate, motor.decay, motor.gain, motor.sample_s,
+              motor.angle, motor.speed)
+    (ran, lpes_trip, index_hit, index_pos, m._count, m.output, t.position, t.velocity, done,
+     pid.error_sum, pid.last_error, pid.derivative, pid.countdown, pid.integral, pid.output,
+     flags, m.real_position, m.real_velocity, motor.angle, motor.speed) = (loop or py_loop)(ints, floats)
+    t.done = bool(done)
+    chip.flags = flags
+    if index_hit:
+        m.index_position = index_pos
+        chip.signals_extra = int(chip.signals_extra) & ~_ACQUIRE_INDEX
+    if lpes_trip:
+        chip.turn_motor_off()  # raises trajectory complete (as ChipModel._sample)
+    return ran
+
+
+def py_loop(ints: tuple, floats: tuple) -> tuple:
+    """The loop itself: plain ints and floats in, plain ints and floats out."""
+    (n, kp, ki, kd, il, ds, shift, stall, cpr, index_k, count, home, out, p, v, a, vmax, target,
+     done, vmode, fwd, stopping, esum, elast, dterm, countdown, iterm, u, motor_off, bp,
+     threshold, stop_on_error, flags, armed, rp, rv) = ints
+    volts_per_code, apv, load, coul, rate, decay, gain, ts, angle, speed = floats
     ran = 0
-    lpes_trip = False
+    lpes_trip = 0
+    index_hit = index_pos = 0
     while ran < n:
         ran += 1
         events = 0
@@ -95,8 +115,8 @@ def run_fast(chip: ChipModel, n: int) -> int:
                 k = count - (count - index_k) % cpr
                 hit = k >= c1
             if hit:
-                m.index_position = ((k - home + 0x40000000) & 0x7FFFFFFF) - 0x40000000
-                chip.signals_extra = int(chip.signals_extra) & ~_ACQUIRE_INDEX
+                index_pos = ((k - home + 0x40000000) & 0x7FFFFFFF) - 0x40000000
+                index_hit = 1
                 armed = 0
                 events |= _INDEX
         count = c1
@@ -116,12 +136,12 @@ def run_fast(chip: ChipModel, n: int) -> int:
                         v = v - a if v - a > goal else goal
                     p += v
                     if stopping and v == 0:
-                        done = True
+                        done = 1
                         events |= _COMPLETE
                 else:
                     r = (((target << 16) - p + HALF) % SPAN) - HALF
                     if v == 0 and r == 0:
-                        done = True
+                        done = 1
                         events |= _COMPLETE
                     else:
                         sign = (1 if v > 0 else -1) if v else (1 if r > 0 else -1)
@@ -144,7 +164,7 @@ def run_fast(chip: ChipModel, n: int) -> int:
                             if up >= ahead and spd - a <= ahead:
                                 v = 0
                                 p += ahead * sign
-                                done = True
+                                done = 1
                                 events |= _COMPLETE
                             else:
                                 v = up * sign
@@ -186,7 +206,7 @@ def run_fast(chip: ChipModel, n: int) -> int:
             if err > threshold or -err > threshold:
                 events |= _PERR
                 if stop_on_error:
-                    lpes_trip = True
+                    lpes_trip = 1
         flags |= events
         if lpes_trip:
             break
@@ -195,14 +215,5 @@ def run_fast(chip: ChipModel, n: int) -> int:
             # perhaps quiescent (Motion.quiescent decides): let the caller skip ahead
             if stall or -coul <= out * volts_per_code * apv - load <= coul:
                 break
-    # write everything back
-    motor.angle, motor.speed = angle, speed
-    m._count, m.real_position, m.real_velocity, m.output = count, rp, rv, out
-    t.position, t.velocity, t.done = p, v, done
-    pid.error_sum, pid.last_error, pid.derivative = esum, elast, dterm
-    pid.countdown, pid.integral, pid.output = countdown, iterm, u
-    chip.flags = flags
-    if lpes_trip:
-        chip.turn_motor_off()
-        chip.flags |= _COMPLETE  # the motor went off at this sample (as ChipModel._sample)
-    return ran
+    return (ran, lpes_trip, index_hit, index_pos, count, out, p, v, done, esum, elast, dterm,
+            countdown, iterm, u, flags, rp, rv, angle, speed)

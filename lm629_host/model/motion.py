@@ -237,7 +237,7 @@ class Motion:
         motor = self.motor
         # 1. the motor runs for one sample with the output held since the last one
         full_scale = 2048 if self.twelve_bit else 128
-        motor.run(self.output * motor.params.amp_volts / full_scale)
+        motor.run(self.output * (motor.params.amp_volts / full_scale))
         # 2. the encoder
         c0, c1 = self._count, motor.count
         self._count = c1
@@ -283,7 +283,7 @@ class Motion:
         m = self.motor
         if m.speed != 0.0:
             return False
-        volts = self.output * m.params.amp_volts / (2048 if self.twelve_bit else 128)
+        volts = self.output * (m.params.amp_volts / (2048 if self.twelve_bit else 128))
         if not m.params.stall and abs(volts * m.accel_per_volt - m.load_accel) > m.coulomb_accel:
             return False  # the shaft is about to break away
         if self.real_velocity:

@@ -22,8 +22,9 @@ class ChipParams:
     strict: bool = False  #: raise ProtocolViolation on any host protocol violation
     fault: str | None = None  #: None, "reset" (never leaves reset) or "busy" (busy stuck high)
     record: bool = False  #: keep a record of every command that reached the chip (fault tests)
-    #: use the flattened sample loop (model/fastloop.py); 0 = the readable per-sample code only
-    fast: bool = True
+    #: the sample loop: "auto" (the C loop if it was built, else "py"), "c", "py" (the
+    #: flattened loop of model/fastloop.py) or "0" (only the readable per-sample code)
+    fast: str = "auto"
 
 
 @dataclass
