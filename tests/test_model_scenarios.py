@@ -281,3 +281,22 @@ def test_lm628_12_bit_output_moves_the_motor(open_chip):
     chip.clock.sleep(0.5)
     assert chip.read_desired_position() == 2000
     assert abs(chip.read_real_position() - 2000) <= 1  # dead band 16/20 < 1 count
+
+
+def test_published_register_values_around_a_move(open_chip):
+    """The spec's "Observed on real chips": signals 01C0 after reset (no on-target bit),
+    status 40 / signals 0140 while moving, status 44 / signals 8544 when the move has ended
+    (HI set: reset leaves every interrupt but the breakpoint enabled)."""
+    chip = open_chip("sim://?strict=1")
+    chip.reset()
+    chip.mask_interrupts(Status.COMMAND_ERROR | Status.TRAJECTORY_COMPLETE | Status.INDEX_PULSE
+                         | Status.WRAPAROUND | Status.POSITION_ERROR)  # the reset mask, 003E
+    chip.clock.sleep(2 * T)
+    assert chip.read_status() == 0xC0 and chip.read_signals() == 0x01C0
+    chip.load_filter(kp=20)
+    chip.update_filter()
+    chip.load_trajectory(acceleration=ONE, velocity=ONE, position=200, start=True)
+    chip.clock.sleep(2 * T)
+    assert chip.read_status() == 0x40 and chip.read_signals() == 0x0140
+    chip.clock.sleep(0.5)
+    assert chip.read_status() == 0x44 and chip.read_signals() == 0x8544

@@ -74,7 +74,10 @@ Every place where the datasheet and the notes are silent, in one list (numbers i
 13. [model choice] Index: seen at one count per revolution (``index_offset``); see
     :meth:`.motor.Motor.index_between`.  SIP arms it; the latched value is the real position
     register at that count, INDEX_PULSE is raised and signals bit 0 cleared at that sample.
-14. [model choice] The encoder's 1 M counts/s limit is not modelled; the motor cannot get near
+14. [model choice] After a reset the generator is idle but not "on target" (signals bit 10
+    clear: the published run reads 01C0 after reset, and 8544 once a move has ended); the
+    status's trajectory-complete bit after reset comes from the motor being off.
+15. [model choice] The encoder's 1 M counts/s limit is not modelled; the motor cannot get near
     it with the default parameters.
 """
 
@@ -125,6 +128,7 @@ class Motion:
         self.index_position = 0
         self.output = 0
         self._resume = False  # a move was interrupted by motor off
+        self._started = False  # no STT since reset: not "on target" (signals 01C0 after reset)
         self.traj.position = 0
 
     @property
@@ -145,7 +149,7 @@ class Motion:
 
     @property
     def on_target(self) -> bool:
-        return self.traj.done and not self._resume
+        return self.traj.done and self._started and not self._resume
 
     @property
     def velocity_mode(self) -> bool:
@@ -186,6 +190,7 @@ class Motion:
                         else trajectory.velocity)
         if acceleration < 0 or velocity < 0:
             return False
+        self._started = True
         t.acceleration = min(acceleration, 0x3FFFFFFF)
         t.max_velocity = min(velocity, 0x3FFFFFFF)
         if loaded & _POS:
