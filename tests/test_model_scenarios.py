@@ -186,13 +186,18 @@ def test_wraparound_both_ways(open_chip):
     """Maximum velocity 3FFFFFFF (16384 - 1/65536 counts/sample) from 0: the desired position
     passes 3FFFFFFF at sample ceil(2^46 / 3FFFFFFF) = 65537 (16.777 s), RDDP then negative."""
     chip = open_move(open_chip, "stall=1")
+    chip.set_breakpoint(100)
     chip.load_trajectory(acceleration=0x3FFFFFFF, velocity=0x3FFFFFFF, velocity_mode=True,
                          start=True)
     chip.clock.sleep(65530 * T)
+    assert chip.read_status() & Status.BREAKPOINT  # passed 100 at the first sample
+    chip.reset_interrupts()
     assert not chip.read_status() & Status.WRAPAROUND
     assert chip.read_desired_position() > 0x3FF00000
     chip.clock.sleep(10 * T)
-    assert chip.read_status() & Status.WRAPAROUND
+    status = chip.read_status()
+    assert status & Status.WRAPAROUND
+    assert not status & Status.BREAKPOINT  # the jump from 3FFFFFFF to C0000000 is one count
     assert chip.read_desired_position() < -0x3FF00000
     chip.reset_interrupts()
     chip.load_trajectory(velocity_mode=True, forward=False, start=True)  # back across

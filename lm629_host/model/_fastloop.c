@@ -151,7 +151,8 @@ static PyObject *run(PyObject *self, PyObject *args) {
             out = u >> shift;
         }
         i64 after = p >> 16;
-        if ((before <= bp && bp <= after) || (after <= bp && bp <= before)) events |= 0x40;
+        i64 step = wrap31(after - before), to_bp = wrap31(bp - before);
+        if ((0 <= to_bp && to_bp <= step) || (step <= to_bp && to_bp <= 0)) events |= 0x40;
         if (!motor_off) {
             i64 err = wrap31(after - rp);
             if (err > threshold || -err > threshold) {

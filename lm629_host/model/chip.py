@@ -54,6 +54,7 @@ from ..opcodes import (
 )
 from .fastloop import py_loop, run_fast
 from .motion import Motion
+from .trajectory import wrap_counts
 from .params import ChipParams, MotorParams
 
 
@@ -229,9 +230,11 @@ class ChipModel:
         events = motion.sample()
         after = motion.desired_position
         # breakpoint: [model choice] set at every sample where the desired position has reached
-        # the breakpoint (it lies between the previous and the current desired position)
-        bp = self.breakpoint
-        if (before <= bp <= after) or (after <= bp <= before):
+        # the breakpoint (it lies between the previous and the current desired position, going
+        # the short way round the wraparound circle, so that a wrap does not sweep everything)
+        step = wrap_counts(after - before)
+        to_bp = wrap_counts(self.breakpoint - before)
+        if 0 <= to_bp <= step or step <= to_bp <= 0:
             events |= Status.BREAKPOINT
         if not self.motor_off:
             error = motion.position_error()

@@ -199,7 +199,9 @@ def py_loop(ints: tuple, floats: tuple) -> tuple:
             out = u >> shift
         # ---- the chip's own events (ChipModel._sample)
         after = p >> 16
-        if (before <= bp <= after) or (after <= bp <= before):
+        step = ((after - before + 0x40000000) & 0x7FFFFFFF) - 0x40000000
+        to_bp = ((bp - before + 0x40000000) & 0x7FFFFFFF) - 0x40000000
+        if 0 <= to_bp <= step or step <= to_bp <= 0:
             events |= _BP
         if not motor_off:
             err = ((after - rp + 0x40000000) & 0x7FFFFFFF) - 0x40000000
