@@ -67,9 +67,13 @@ Every place where the datasheet and the notes are silent, in one list (numbers i
 10. [model choice] DFH: the desired position's whole counts and the real position both become
     0 at once; the target moves by the desired position's counts, so the move still ends at
     the same place relative to the desired position (AN-706 6.4.1).
-11. [model choice] PID arithmetic as listed in :mod:`.pid` (products saturate on overflow; the
-    24-bit sum saturates and stops summing once the ki term is at il); RDSUM reads the limited
-    ki term; UDF keeps the error sum and the derivative memory.
+11. [model choice] PID arithmetic (:mod:`.pid`): a 16 x 16 product that overflows 16 bits
+    saturates to 7FFF / 8000 (AN-706 5.2.5's "all the lower bits set", read as signed
+    saturation: a wrapped product would reverse the drive), as does the sum of the three
+    terms; the derivative difference is saturated to 16 bits before kd; the 24-bit error sum
+    saturates, and once the ki term has reached il (il = 0 included) an error that would push
+    the sum further is not summed (AN-706 4.5.2); RDSUM reads the limited ki term; UDF keeps
+    the error sum and the derivative memory.
 12. [model choice] RDRV is the change of the real position over the last sample (whole counts).
 13. [model choice] Index: seen at one count per revolution (``index_offset``); see
     :meth:`.motor.Motor.index_between`.  SIP arms it; the latched value is the real position
@@ -79,6 +83,15 @@ Every place where the datasheet and the notes are silent, in one list (numbers i
     status's trajectory-complete bit after reset comes from the motor being off.
 15. [model choice] The encoder's 1 M counts/s limit is not modelled; the motor cannot get near
     it with the default parameters.
+16. [model choice] Breakpoint (in ``ChipModel._sample``): set at every sample where the desired
+    position has reached the breakpoint, i.e. the breakpoint lies between the previous and the
+    current desired position (the short way round the wraparound circle), so after reset
+    (breakpoint 0, position 0) bit 6 reads 1 (C4 / C0).
+17. [model choice] Turning the motor off (LTRJ bit 8, LPES) raises trajectory complete at once
+    (status bit 2 = motor off OR on target).
+18. [model choice] The 8-bit output is the top byte of u by arithmetic shift (floor): e = -1 at
+    kp = 20 gives -1, e = +1..12 gives 0, so a P-only loop rests 0..12 counts short of its
+    target, never past it.
 """
 
 from __future__ import annotations
