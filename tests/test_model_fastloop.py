@@ -133,3 +133,60 @@ def test_the_c_loop_is_built_and_chosen_by_default():
 def test_unknown_loop_name_is_refused():
     with pytest.raises(ValueError, match="fast='turbo'"):
         lm629_host.open("sim://?fast=turbo")
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_random_command_sequences_agree(seed):
+    """Random moves, stops, filters, homes, breakpoints, SIPs and LPEI/LPES, random waits."""
+    import random
+
+    from lm629_host import LM629Error
+
+    rnd = random.Random(seed)
+    params = rnd.choice(["", "reversed=1", "stall=1", "lines=50&index_offset=7", "coulomb=0",
+                         "chip=lm628", "load_torque=0.001"])
+    p = Pair(f"{params}")
+    chips = p.chips
+    try:
+        def each(name, *args, **kw):
+            outcomes = []
+            for c in chips:
+                try:
+                    getattr(c, name)(*args, **kw)
+                    outcomes.append(None)
+                except LM629Error as exc:
+                    outcomes.append(type(exc))
+            assert len(set(outcomes)) == 1, f"{name}: {outcomes}"
+            p.check(name)
+
+        each("reset")
+        for _ in range(25):
+            op = rnd.randrange(9)
+            if op == 0:
+                each("load_filter", kp=rnd.choice([0, 1, 20, 400, 0x7FFF]),
+                     ki=rnd.choice([0, 5, 300]), kd=rnd.choice([0, 2000, 0x7FFF]),
+                     il=rnd.choice([0, 100, 0x7FFF]), derivative_interval=rnd.choice([1, 2, 7]))
+                each("update_filter")
+            elif op in (1, 2):
+                vm = rnd.random() < 0.3
+                each("load_trajectory",
+                     acceleration=rnd.choice([None, 100, ONE // 50, ONE, 0x3FFFFFFF]),
+                     velocity=rnd.choice([None, 1000, ONE // 3, 4 * ONE]),
+                     position=None if vm else rnd.choice([None, 0, 500, -3000, 123456]),
+                     position_relative=rnd.random() < 0.3, velocity_mode=vm,
+                     forward=rnd.random() < 0.5, start=True)
+            elif op == 3:
+                each("load_trajectory", stop=rnd.choice(["smooth", "abrupt", "off"]), start=True)
+            elif op == 4:
+                each("define_home")
+            elif op == 5:
+                each("set_breakpoint", rnd.randrange(-2000, 2000), relative=rnd.random() < 0.5)
+            elif op == 6:
+                each("set_index_position")
+            elif op == 7:
+                each("load_position_error", rnd.choice([50, 2000, 0x7FFF]), stop=rnd.random() < 0.5)
+            else:
+                each("reset_interrupts")
+            p.run(rnd.choice([T, 7 * T, 0.01, 0.05, 0.2]))
+    finally:
+        p.close()
