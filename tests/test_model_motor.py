@@ -85,3 +85,32 @@ def test_bad_motor_parameters_are_refused_naming_the_value():
         lm629_host.open("sim://?inertia=-1")
     with pytest.raises(ValueError, match="coulomb"):
         lm629_host.open("sim://?coulomb=-0.1")
+
+
+def test_motor_parameters_change_mid_run_from_python():
+    """A weight hung on a held shaft: 0.01 N m against kp = 400 -> the shaft gives way a few
+    counts, the loop pushes back; locking the rotor stops it where it is."""
+    chip = lm629_host.open("sim://?strict=1")
+    try:
+        chip.reset()
+        chip.load_filter(kp=400, kd=2000)
+        chip.update_filter()
+        chip.start()
+        chip.clock.sleep(0.1)
+        assert chip.read_real_position() == 0
+        model = chip.transport.model
+        model.set_motor_params(load_torque=0.01)
+        chip.clock.sleep(0.5)
+        sag = chip.read_real_position()
+        # 0.01 N m needs 0.01 * 4 / 0.025 = 1.6 V = 17 output steps of 12/128 V -> e ~ 17 * 256 / 400
+        assert -14 <= sag <= -8
+        model.set_motor_params(stall=True)
+        chip.clock.sleep(0.1)
+        assert chip.read_real_position() == sag
+        with pytest.raises(ValueError, match="inertia=0"):
+            model.set_motor_params(inertia=0)
+        with pytest.raises(ValueError, match="'weight'"):
+            model.set_motor_params(weight=1)
+        assert model.motor_params.inertia == 4e-6
+    finally:
+        chip.close()

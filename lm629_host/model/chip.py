@@ -555,5 +555,28 @@ class ChipModel:
             self.signals_extra |= Signals.ACCELERATION_LOADED
 
     # ------------------------------------------------------------------ conveniences
+    def set_motor_params(self, **values: object) -> None:
+        """Change motor/encoder parameters (``MotorParams`` fields) from Python, mid-run.
+
+        The shaft keeps its angle and speed; e.g. ``chip.set_motor_params(stall=True)`` locks
+        the rotor from the next sample, ``load_torque=0.01`` hangs a weight on it.
+        """
+        p = self.motor_params
+        for name in values:
+            if not hasattr(p, name):
+                raise ValueError(f"set_motor_params: no motor parameter {name!r} (see MotorParams)")
+        old = {name: getattr(p, name) for name in values}
+        for name, value in values.items():
+            setattr(p, name, value)
+        motor = self.motion.motor
+        try:
+            fresh = type(motor)(p, motor.sample_s)
+        except ValueError:
+            for name, value in old.items():
+                setattr(p, name, value)
+            raise
+        fresh.angle, fresh.speed = motor.angle, motor.speed
+        self.motion.motor = fresh
+
     def record_clear(self) -> None:
         self.history.clear()
