@@ -109,6 +109,10 @@ class LM629:
         self.reset_attempts = reset_attempts
         self._ds = 0  # derivative sampling byte, re-sent with every LFIL (AN-706 4.5.1)
         self._port12 = False  # re-issued after every reset (LM628 with a 12-bit DAC)
+        # True while the command-error flag is known to be clear (after reset(), after a good
+        # STT); otherwise start() clears it first, so that it can tell whether its own STT was
+        # refused instead of missing it behind a stale flag.
+        self._ce_clear = False
 
     # ------------------------------------------------------------------ plumbing
     @property
@@ -170,6 +174,7 @@ class LM629:
             if (not hw or first == 0x00) and done in RESET_DONE_STATUSES \
                     and cleared in RESET_CLEARED_STATUSES:
                 self._ds = 0
+                self._ce_clear = True
                 return Status(cleared)
         expected = ("00 at once, 84 or C4 after 1.5 ms, 80 or C0 after MSKI/RSTI 0000" if hw
                     else "84 or C4 after the RESET command, 80 or C0 after MSKI/RSTI 0000")
@@ -205,6 +210,8 @@ class LM629:
         """RSTI: clear exactly ``flags`` (default: all six) and, with them, HI."""
         value = _check_flags("flags", flags)
         self.run(Program().command(Cmd.RSTI).write(int(INTERRUPTS & ~value)))
+        if value & Status.COMMAND_ERROR:
+            self._ce_clear = True
 
     # ------------------------------------------------------------------ homing, index, limits
     def define_home(self) -> None:
@@ -333,17 +340,25 @@ class LM629:
             self.run(p)
 
     def _start(self, program: Program) -> Status:
-        program.status().command(Cmd.STT).sync()
-        before, after = self.run(program).statuses[-2:]
-        if after & Status.COMMAND_ERROR and not before & Status.COMMAND_ERROR:
+        if not self._ce_clear:  # RSTI clearing only the command-error flag (0 clears)
+            program = Program().command(Cmd.RSTI).write(int(INTERRUPTS & ~Status.COMMAND_ERROR)) \
+                .extend(program)
+        program.command(Cmd.STT).sync()
+        after = self.run(program).statuses[-1]
+        if after & Status.COMMAND_ERROR:
+            self._ce_clear = False
             raise CommandError("STT", after)
+        self._ce_clear = True
         return Status(after)
 
     def start(self) -> Status:
         """STT: trajectory input buffers -> working registers; the move begins.
 
         Raises :class:`CommandError` when the chip refuses it (acceleration changed while
-        moving with the drive on, relative velocity below zero).  Do not issue STT more often
+        moving with the drive on, relative velocity below zero): the status after the STT is
+        checked in the same bus program.  When the command-error flag may already be set (after
+        an earlier refusal, a ``raw`` command, or on a chip not reset by this object) an RSTI
+        that clears only that flag goes first, so that a refusal is never hidden by a stale flag.  Do not issue STT more often
         than every 10 ms (AN-706 4.6.2).
         """
         return self._start(Program())
@@ -419,6 +434,7 @@ class LM629:
         p = Program().command(command)
         for w in words:
             p.write(w)
+        self._ce_clear = False  # any byte may provoke a command error
         return self.run(p.read(read)).words
 
 
