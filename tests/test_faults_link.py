@@ -119,3 +119,28 @@ def test_garbage_between_frames_is_survived():
     fp.inner.write(bytes(range(1, 200)))  # no 0x00 inside: one long bad "frame"
     chip.define_home()
     assert model.history == [(int(Cmd.DFH), ())]
+
+
+def test_exactly_once_through_pyserial_on_a_pty(tmp_path):
+    """The same check in real time through the real serial stack: pyserial on a pseudo-
+    terminal served by ``lm629 sim serve``'s server, with the lossy wrapper around the
+    SerialPipe (a few hundred commands: real timeouts cost real time)."""
+    from lm629_host.simserve import SimServer
+    import lm629_host
+
+    with SimServer(tmp_path / "lossy", "sim://?record=1").start() as srv:
+        with lm629_host.open(f"serial://{srv.link}") as chip:
+            t = chip.transport
+            t.margin_s = 0.01  # the pty answers in well under a millisecond
+            chip.reset()
+            t._seq = 7
+            fp = FaultPipe(t.pipe, drop=0.002, corrupt=0.002, duplicate=0.002, delay=0.002,
+                           delay_s=0.005, seed=7)
+            t.pipe = fp
+            srv.model.record_clear()
+            r = soak(chip, 300)
+        far = srv.far.emulator.stats
+        ran, lost = check_record(srv.model.history, r.expected)
+    print(f"\n[pty] {r.calls} commands: {r.ok} ok, {r.typed_errors} typed errors; retries "
+          f"{t.stats.retries}, bridge cache hits {far.cache_hits}; faults {fp.describe()}")
+    assert t.stats.retries > 0 and far.cache_hits > 0
