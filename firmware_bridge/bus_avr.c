@@ -1,0 +1,103 @@
+/* The LM629 bus on the ATmega328P's ports (pin map: lm629_tables.h, from bridge_pins.py).
+ *
+ * Timing at 16 MHz (one cycle 62.5 ns) against the chip's minimums (6 MHz table):
+ *   /CS and /PS change one port write before the strobe falls: >= 62.5 ns setup (30 ns);
+ *   /WR low for 3 cycles: 187 ns (100 ns); data set before /WR falls, so setup >= 250 ns (50 ns);
+ *   data held >= 3 cycles after /WR rises: 187 ns (120 ns);
+ *   /RD sampled 7 cycles after it falls: 437 ns, against a 180 ns access time plus the
+ *   ~1.5-cycle input synchroniser of PINx;
+ *   strobes are >= 4 cycles apart: 250 ns recovery (120 ns);
+ *   /RST low for 10 us: 8 clocks of a chip clocked as slowly as 1 MHz, with margin.
+ * The data bus idles as an input without pull-ups and is driven only for a write. */
+#include <avr/io.h>
+#include <util/delay.h>
+#include "bus.h"
+#include "lm629_tables.h"
+
+#define NOP() __asm__ __volatile__("nop")
+
+static uint16_t timer_start;
+
+void bus_init(void)
+{
+    CTRL_PORT = PIN_CS | PIN_PS | PIN_RD | PIN_WR | PIN_RST; /* all high, HI without pull-up */
+    CTRL_DDR = PIN_CS | PIN_PS | PIN_RD | PIN_WR | PIN_RST;
+    DATA_LO_DDR &= (uint8_t)~DATA_LO_MASK;
+    DATA_LO_PORT &= (uint8_t)~DATA_LO_MASK;
+    DATA_HI_DDR &= (uint8_t)~DATA_HI_MASK;
+    DATA_HI_PORT &= (uint8_t)~DATA_HI_MASK;
+    TCCR1A = 0;
+    TCCR1B = (1 << CS11) | (1 << CS10); /* clk/64: 4 us per tick, 262 ms per wrap */
+}
+
+static inline void drive(uint8_t b)
+{
+    DATA_LO_PORT = (uint8_t)((DATA_LO_PORT & ~DATA_LO_MASK) | ((uint8_t)(b << DATA_LO_SHIFT) & DATA_LO_MASK));
+    DATA_HI_PORT = (uint8_t)((DATA_HI_PORT & ~DATA_HI_MASK) | ((uint8_t)(b >> DATA_HI_SHIFT) & DATA_HI_MASK));
+    DATA_LO_DDR |= DATA_LO_MASK;
+    DATA_HI_DDR |= DATA_HI_MASK;
+}
+
+static inline void release(void)
+{
+    DATA_LO_DDR &= (uint8_t)~DATA_LO_MASK;
+    DATA_HI_DDR &= (uint8_t)~DATA_HI_MASK;
+    DATA_LO_PORT &= (uint8_t)~DATA_LO_MASK;
+    DATA_HI_PORT &= (uint8_t)~DATA_HI_MASK;
+}
+
+static inline void write_cycle(uint8_t select, uint8_t b)
+{
+    drive(b);
+    CTRL_PORT &= (uint8_t)~select;
+    CTRL_PORT &= (uint8_t)~PIN_WR;
+    NOP();
+    NOP();
+    CTRL_PORT |= PIN_WR;
+    NOP();
+    CTRL_PORT |= PIN_CS | PIN_PS;
+    release();
+}
+
+static inline uint8_t read_cycle(uint8_t select)
+{
+    CTRL_PORT &= (uint8_t)~select;
+    CTRL_PORT &= (uint8_t)~PIN_RD;
+    NOP(); NOP(); NOP(); NOP(); NOP(); NOP();
+    uint8_t lo = DATA_LO_PIN, hi = DATA_HI_PIN;
+    CTRL_PORT |= PIN_RD;
+    NOP();
+    CTRL_PORT |= PIN_CS | PIN_PS;
+    return (uint8_t)(((lo & DATA_LO_MASK) >> DATA_LO_SHIFT) | ((hi & DATA_HI_MASK) << DATA_HI_SHIFT));
+}
+
+uint8_t bus_read_status(void) { return read_cycle(PIN_CS | PIN_PS); }
+void bus_write_command(uint8_t cmd) { write_cycle(PIN_CS | PIN_PS, cmd); }
+void bus_write_data(uint8_t byte) { write_cycle(PIN_CS, byte); }
+uint8_t bus_read_data(void) { return read_cycle(PIN_CS); }
+
+void bus_reset_pulse(void)
+{
+    CTRL_PORT &= (uint8_t)~PIN_RST;
+    _delay_us(10);
+    CTRL_PORT |= PIN_RST;
+}
+
+uint8_t bus_hi(void) { return (CTRL_PIN & PIN_HI) ? 1 : 0; }
+
+void bus_timer_start(void) { timer_start = TCNT1; }
+
+uint8_t bus_timer_elapsed(uint16_t us)
+{
+    /* ticks of 4 us; one more than us/4 so that a start late in a tick still waits `us` */
+    return (uint16_t)(TCNT1 - timer_start) > (uint16_t)(us >> 2);
+}
+
+void bus_wait_us(uint16_t us)
+{
+    if (!us)
+        return;
+    bus_timer_start();
+    while (!bus_timer_elapsed(us))
+        ;
+}

@@ -1,0 +1,381 @@
+/* Firmware in the loop: the compiled bridge firmware in libsimavr, its LM629 bus wired to a
+ * chip model in Python (lm629_host/avrsim.py, through ctypes).
+ *
+ * The port hooks decode /CS /PS /RD /WR /RST edges here in C and call Python once per bus
+ * cycle (a status read, a command, a data byte written or read, a /RST pulse).  A read strobe
+ * is answered with the byte the model returns, driven onto the data pins only after the chip's
+ * read access time (before that the pins carry the complement, so firmware that samples too
+ * early reads garbage).  Timing minimums of the chip are checked against the AVR's cycle count
+ * and collected as violations.  The UART is fed in-process: host bytes wait in a queue and are
+ * raised only while the simulated UART says XON. */
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <simavr/sim_avr.h>
+#include <simavr/sim_elf.h>
+#include <simavr/sim_irq.h>
+#include <simavr/sim_cycle_timers.h>
+#include <simavr/avr_ioport.h>
+#include <simavr/avr_uart.h>
+#include <simavr/avr_extint.h>
+#include "../lm629_tables.h"
+
+/* bus cycle kinds passed to the Python callback */
+enum { FITL_STATUS = 0, FITL_COMMAND = 1, FITL_WRITE = 2, FITL_READ = 3, FITL_RESET = 4 };
+/* callback: (kind, value, cycle) -> byte read | HI << 8, or < 0 to stop (Python raised) */
+typedef int (*fitl_bus_cb)(int kind, int value, uint64_t cycle);
+
+#define CPU_HZ 16000000ul
+/* the chip's timing minimums in AVR cycles of 62.5 ns, rounded up (6 MHz table) */
+#define T_STROBE 2   /* /WR pulse >= 100 ns; /RD held at least the access time */
+#define T_SETUP_DATA 1 /* write data setup >= 50 ns */
+#define T_HOLD 2     /* write data hold >= 120 ns */
+#define T_RECOVERY 2 /* between strobes >= 120 ns */
+#define T_PS_SETUP 1 /* /PS and /CS before the strobe >= 30 ns */
+#define QSIZE 8192u
+
+typedef struct {
+    avr_t *avr;
+    fitl_bus_cb cb;
+    avr_irq_t *uart_in;
+    avr_irq_t *data_lo_pin[8], *data_hi_pin[8], *hi_pin;
+    uint8_t ctrl;                       /* last control port value */
+    uint8_t lo_port, hi_port;           /* last data port values */
+    uint8_t lo_ddr, hi_ddr;
+    uint64_t rd_fall, wr_fall, strobe_rise, rst_fall, sel_change, data_change, wr_rise;
+    int access_cycles;                  /* read access time + input synchroniser, AVR cycles */
+    uint8_t pending;                    /* byte to drive when the access time is over */
+    uint8_t in_q[QSIZE];
+    uint32_t in_head, in_tail;
+    int xon;
+    uint8_t out[QSIZE];
+    uint32_t out_len;
+    uint32_t out_frames;                /* 0x00 delimiters sent since the last read */
+    int stop, failed;
+    uint32_t violations;
+    char first_violation[256];
+    uint64_t bus_cycles;
+} fitl_t;
+
+static char last_error[256];
+const char *fitl_error(void) { return last_error; }
+
+static void no_sleep(avr_t *avr, avr_cycle_count_t how_long) { (void)avr; (void)how_long; }
+
+static void violation(fitl_t *h, const char *what)
+{
+    if (!h->violations++)
+        snprintf(h->first_violation, sizeof h->first_violation, "%s at AVR cycle %llu", what,
+                 (unsigned long long)h->avr->cycle);
+}
+
+static void drive_data(fitl_t *h, uint8_t b)
+{
+    for (int i = 0; i < 8; i++) {
+        avr_irq_t *irq = i < 6 ? h->data_lo_pin[i] : h->data_hi_pin[i - 6];
+        avr_raise_irq(irq, (b >> i) & 1);
+    }
+}
+
+static avr_cycle_count_t access_done(avr_t *avr, avr_cycle_count_t when, void *param)
+{
+    (void)avr; (void)when;
+    fitl_t *h = param;
+    drive_data(h, h->pending);
+    return 0;
+}
+
+static int call(fitl_t *h, int kind, int value)
+{
+    h->bus_cycles++;
+    int r = h->cb(kind, value, h->avr->cycle);
+    if (r < 0) {
+        h->stop = h->failed = 1;
+        return 0;
+    }
+    avr_raise_irq(h->hi_pin, (r >> 8) & 1);
+    return r & 0xFF;
+}
+
+static uint8_t data_byte(fitl_t *h)
+{
+    return (uint8_t)(((h->lo_port & DATA_LO_MASK) >> DATA_LO_SHIFT)
+                     | ((h->hi_port & DATA_HI_MASK) << DATA_HI_SHIFT));
+}
+
+static void ctrl_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    fitl_t *h = param;
+    uint64_t now = h->avr->cycle;
+    uint8_t v = (uint8_t)value, old = h->ctrl, fell = old & ~v, rose = ~old & v;
+    h->ctrl = v;
+    if (!((fell | rose) & 0xFF))
+        return;
+    if ((fell | rose) & (PIN_CS | PIN_PS)) {
+        if (!(old & PIN_RD) || !(old & PIN_WR))
+            violation(h, "/CS or /PS changed during a strobe");
+        h->sel_change = now;
+    }
+    if (fell & PIN_RST)
+        h->rst_fall = now;
+    if (rose & PIN_RST)
+        call(h, FITL_RESET, (int)(now - h->rst_fall));
+    int selected = !(v & PIN_CS);
+    if ((fell & (PIN_RD | PIN_WR)) && selected) {
+        if (!(v & PIN_RD) && !(v & PIN_WR))
+            violation(h, "/RD and /WR low together");
+        if (now - h->strobe_rise < T_RECOVERY)
+            violation(h, "strobe recovery shorter than 120 ns");
+        if (now - h->sel_change < T_PS_SETUP)
+            violation(h, "/CS or /PS setup before the strobe shorter than 30 ns");
+    }
+    if ((fell & PIN_RD) && selected) {
+        h->rd_fall = now;
+        if ((h->lo_ddr & DATA_LO_MASK) || (h->hi_ddr & DATA_HI_MASK))
+            violation(h, "read strobe while the AVR drives the data bus");
+        int b = call(h, (v & PIN_PS) ? FITL_READ : FITL_STATUS, 0);
+        h->pending = (uint8_t)b;
+        drive_data(h, (uint8_t)~b);
+        avr_cycle_timer_register(h->avr, h->access_cycles, access_done, h);
+    }
+    if ((fell & PIN_WR) && selected)
+        h->wr_fall = now;
+    if ((rose & PIN_RD) && selected) {
+        if (now - h->rd_fall < (uint64_t)h->access_cycles)
+            violation(h, "/RD released before the read access time");
+        h->strobe_rise = now;
+    }
+    if ((rose & PIN_WR) && selected) {
+        if (now - h->wr_fall < T_STROBE)
+            violation(h, "/WR pulse shorter than 100 ns");
+        if (now - h->data_change < T_SETUP_DATA)
+            violation(h, "write data setup shorter than 50 ns");
+        if ((h->lo_ddr & DATA_LO_MASK) != DATA_LO_MASK || (h->hi_ddr & DATA_HI_MASK) != DATA_HI_MASK)
+            violation(h, "write strobe with the data bus not driven");
+        h->strobe_rise = h->wr_rise = now;
+        call(h, (v & PIN_PS) ? FITL_WRITE : FITL_COMMAND, data_byte(h));
+    }
+}
+
+static void data_changed(fitl_t *h)
+{
+    uint64_t now = h->avr->cycle;
+    h->data_change = now;
+    if (!(h->ctrl & PIN_WR) && !(h->ctrl & PIN_CS))
+        violation(h, "data bus changed while /WR is low");
+    else if (now - h->wr_rise < T_HOLD)
+        violation(h, "write data hold shorter than 120 ns");
+}
+
+static void lo_port_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    fitl_t *h = param;
+    uint8_t v = (uint8_t)value;
+    if ((v ^ h->lo_port) & DATA_LO_MASK & h->lo_ddr) {
+        h->lo_port = v;
+        data_changed(h);
+    }
+    h->lo_port = v;
+}
+
+static void hi_port_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    fitl_t *h = param;
+    uint8_t v = (uint8_t)value;
+    if ((v ^ h->hi_port) & DATA_HI_MASK & h->hi_ddr) {
+        h->hi_port = v;
+        data_changed(h);
+    }
+    h->hi_port = v;
+}
+
+static void lo_ddr_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    fitl_t *h = param;
+    if (((uint8_t)value ^ h->lo_ddr) & DATA_LO_MASK) {
+        h->lo_ddr = (uint8_t)value;
+        data_changed(h);
+    }
+    h->lo_ddr = (uint8_t)value;
+}
+
+static void hi_ddr_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    fitl_t *h = param;
+    if (((uint8_t)value ^ h->hi_ddr) & DATA_HI_MASK) {
+        h->hi_ddr = (uint8_t)value;
+        data_changed(h);
+    }
+    h->hi_ddr = (uint8_t)value;
+}
+
+static void pump(fitl_t *h)
+{
+    while (h->xon && h->in_tail != h->in_head) {
+        uint8_t b = h->in_q[h->in_tail];
+        h->in_tail = (h->in_tail + 1) % QSIZE;
+        avr_raise_irq(h->uart_in, b); /* may call the XOFF hook */
+    }
+}
+
+static void xon_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)value;
+    fitl_t *h = param;
+    h->xon = 1;
+    pump(h);
+}
+
+static void xoff_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)value;
+    ((fitl_t *)param)->xon = 0;
+}
+
+static void out_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    fitl_t *h = param;
+    if (h->out_len < QSIZE)
+        h->out[h->out_len++] = (uint8_t)value;
+    if ((uint8_t)value == 0)
+        h->out_frames++;
+}
+
+fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
+{
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(elf_path, &fw) != 0) {
+        snprintf(last_error, sizeof last_error, "cannot read firmware ELF %s", elf_path);
+        return NULL;
+    }
+    avr_t *avr = avr_make_mcu_by_name("atmega328p");
+    if (!avr) {
+        snprintf(last_error, sizeof last_error, "simavr has no atmega328p core");
+        return NULL;
+    }
+    avr_init(avr);
+    avr->frequency = CPU_HZ;
+    avr->log = 0;
+    avr_load_firmware(avr, &fw);
+    avr->frequency = CPU_HZ;
+    avr->sleep = no_sleep;
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+    avr_extint_set_strict_lvl_trig(avr, 0, 0);
+    avr_extint_set_strict_lvl_trig(avr, 1, 0);
+
+    fitl_t *h = calloc(1, sizeof *h);
+    h->avr = avr;
+    h->cb = cb;
+    h->access_cycles = 4; /* 180 ns = 2.9 cycles, rounded up, + 1 for the PINx synchroniser */
+    h->ctrl = 0xFF;
+    h->xon = 1;
+    h->strobe_rise = h->wr_rise = 0;
+    avr_irq_t *c = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(CTRL_PORT_LETTER), IOPORT_IRQ_REG_PORT);
+    avr_irq_register_notify(c, ctrl_hook, h);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(DATA_LO_PORT_LETTER), IOPORT_IRQ_REG_PORT), lo_port_hook, h);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(DATA_HI_PORT_LETTER), IOPORT_IRQ_REG_PORT), hi_port_hook, h);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(DATA_LO_PORT_LETTER), IOPORT_IRQ_DIRECTION_ALL), lo_ddr_hook, h);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(DATA_HI_PORT_LETTER), IOPORT_IRQ_DIRECTION_ALL), hi_ddr_hook, h);
+    for (int i = 0; i < 8; i++) {
+        h->data_lo_pin[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(DATA_LO_PORT_LETTER), i + DATA_LO_SHIFT < 8 ? i + DATA_LO_SHIFT : 0);
+        h->data_hi_pin[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(DATA_HI_PORT_LETTER), i < 2 ? i : 0);
+    }
+    int hi_bit = 0;
+    while (hi_bit < 8 && (1u << hi_bit) != PIN_HI)
+        hi_bit++;
+    h->hi_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(CTRL_PORT_LETTER), hi_bit);
+    avr_raise_irq(h->hi_pin, 0);
+    h->uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), out_hook, h);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), xon_hook, h);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), xoff_hook, h);
+    /* boot until the receiver is on: bytes raised before that are dropped by simavr */
+    while (avr->cycle < 1000000 && !(avr->data[0xC1] & (1 << 4)))
+        avr_run(avr);
+    if (!(avr->data[0xC1] & (1 << 4))) {
+        snprintf(last_error, sizeof last_error, "the firmware in %s never enabled its UART receiver", elf_path);
+        avr_terminate(avr);
+        free(avr);
+        free(h);
+        return NULL;
+    }
+    return h;
+}
+
+void fitl_free(fitl_t *h)
+{
+    if (!h)
+        return;
+    avr_terminate(h->avr);
+    free(h->avr);
+    free(h);
+}
+
+int fitl_write(fitl_t *h, const uint8_t *data, uint32_t n)
+{
+    for (uint32_t i = 0; i < n; i++) {
+        uint32_t next = (h->in_head + 1) % QSIZE;
+        if (next == h->in_tail)
+            return (int)i;
+        h->in_q[h->in_head] = data[i];
+        h->in_head = next;
+    }
+    pump(h);
+    return (int)n;
+}
+
+/* Run until `until` cycles, or (frames != 0) until the firmware has sent a 0x00 delimiter.
+ * Returns 0 at `until`, 1 on a delimiter, -1 when the Python callback failed, -2 on a crash. */
+int fitl_run(fitl_t *h, uint64_t until, int frames)
+{
+    avr_t *avr = h->avr;
+    h->stop = 0;
+    while (avr->cycle < until) {
+        if (frames && h->out_frames)
+            return 1;
+        int st = avr_run(avr);
+        if (h->stop)
+            return -1;
+        if (st == cpu_Done || st == cpu_Crashed)
+            return -2;
+        if (h->xon && h->in_tail != h->in_head)
+            pump(h);
+    }
+    return (frames && h->out_frames) ? 1 : 0;
+}
+
+uint32_t fitl_read(fitl_t *h, uint8_t *buf, uint32_t max)
+{
+    uint32_t n = h->out_len < max ? h->out_len : max;
+    memcpy(buf, h->out, n);
+    memmove(h->out, h->out + n, h->out_len - n);
+    h->out_len -= n;
+    h->out_frames = 0;
+    for (uint32_t i = 0; i < h->out_len; i++)
+        if (!h->out[i])
+            h->out_frames++;
+    return n;
+}
+
+uint64_t fitl_cycle(fitl_t *h) { return h->avr->cycle; }
+uint32_t fitl_pending_input(fitl_t *h) { return (h->in_head - h->in_tail + QSIZE) % QSIZE; }
+uint64_t fitl_bus_cycles(fitl_t *h) { return h->bus_cycles; }
+void fitl_set_access_cycles(fitl_t *h, int cycles) { h->access_cycles = cycles; }
+uint32_t fitl_violations(fitl_t *h, char *buf, uint32_t size)
+{
+    if (size) {
+        strncpy(buf, h->first_violation, size - 1);
+        buf[size - 1] = 0;
+    }
+    return h->violations;
+}
+void fitl_set_hi(fitl_t *h, int level) { avr_raise_irq(h->hi_pin, level ? 1 : 0); }

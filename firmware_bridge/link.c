@@ -1,0 +1,262 @@
+/* Link protocol (PROTOCOL.md), shared by the firmware and the host-side tests. */
+#include "link.h"
+#include "bus.h"
+
+#if LINK_CRC_POLY != 0x1021u
+#error "link_crc16 is written for the polynomial 0x1021"
+#endif
+uint16_t link_crc16(const uint8_t *data, uint16_t len)
+{
+    /* CRC-16/GENIBUS a byte at a time without a table (the shift-xor form of polynomial
+     * 0x1021): ~25 AVR cycles a byte, no flash or RAM for a table, so checking a frame costs
+     * far less than its wire time even at 1,000,000 baud */
+    uint16_t crc = LINK_CRC_INIT;
+    while (len--) {
+        uint8_t x = (uint8_t)((crc >> 8) ^ *data++);
+        x ^= (uint8_t)(x >> 4);
+        crc = (uint16_t)((crc << 8) ^ ((uint16_t)x << 12) ^ ((uint16_t)x << 5) ^ x);
+    }
+    return crc ^ LINK_CRC_XOROUT;
+}
+
+uint16_t link_cobs_encode(const uint8_t *in, uint16_t len, uint8_t *out)
+{
+    uint16_t code_at = 0, o = 1;
+    uint8_t code = 1;
+    for (uint16_t i = 0; i < len; i++) {
+        if (in[i] == 0) {
+            out[code_at] = code;
+            code_at = o++;
+            code = 1;
+        } else {
+            out[o++] = in[i];
+            if (++code == 0xFF) {
+                out[code_at] = code;
+                code_at = o++;
+                code = 1;
+            }
+        }
+    }
+    out[code_at] = code;
+    return o;
+}
+
+int16_t link_cobs_decode(uint8_t *buf, uint16_t len)
+{
+    uint16_t i = 0, o = 0;
+    while (i < len) {
+        uint8_t code = buf[i++];
+        if (code == 0 || (uint16_t)(i + code - 1) > len)
+            return -1;
+        for (uint8_t k = 1; k < code; k++)
+            buf[o++] = buf[i++];
+        if (code != 0xFF && i < len)
+            buf[o++] = 0;
+    }
+    return (int16_t)o;
+}
+
+void link_init(link_t *l)
+{
+    l->rx_len = 0;
+    l->rx_overflow = 0;
+    l->cache_len = 0;
+    l->frames = l->bad_frames = l->runs = l->cache_hits = 0;
+}
+
+/* ---------------------------------------------------------------- programs */
+static const uint8_t op_args[] = OP_ARG_BYTES_INIT;
+
+static uint8_t wait_not_busy(uint16_t timeout_us, uint8_t *status)
+{
+    bus_timer_start();
+    for (;;) {
+        uint8_t s = bus_read_status();
+        *status = s;
+        if (!(s & STATUS_BUSY))
+            return 1;
+        if (bus_timer_elapsed(timeout_us))
+            return 0;
+    }
+}
+
+static uint16_t run_header(uint8_t *reply, uint8_t result, uint8_t index, uint8_t last, uint8_t hi)
+{
+    reply[0] = result;
+    reply[1] = index;
+    reply[2] = last;
+    reply[3] = hi;
+    reply[4] = 0;
+    return 5;
+}
+
+uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
+{
+    uint8_t cs = payload[0];
+    uint16_t timeout_us = (uint16_t)((payload[1] << 8) | payload[2]);
+    const uint8_t *prog = payload + 3;
+    uint16_t plen = len - 3;
+    if (!timeout_us)
+        timeout_us = LINK_DEFAULT_BUSY_TIMEOUT_US;
+    if (cs >= LINK_CHIP_SELECTS)
+        return run_header(reply, RESULT_BAD_CHIP_SELECT, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
+    if (plen > LINK_MAX_PROGRAM)
+        return run_header(reply, RESULT_PROGRAM_TOO_LONG, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
+
+    /* check the whole program before touching the bus: a bad program runs nothing */
+    uint16_t reads = 0, n_status = 0, nops = 0;
+    for (uint16_t i = 0; i < plen; nops++) {
+        uint8_t op = prog[i];
+        if (op > OP_MAX || op_args[op] == 0xFF || i + 1u + op_args[op] > plen)
+            return run_header(reply, RESULT_BAD_PROGRAM, (uint8_t)nops, LINK_NONE_BYTE, 0);
+        if (op == OP_READ)
+            reads++;
+        else if (op == OP_STATUS || op == OP_SYNC)
+            n_status++;
+        i += 1u + op_args[op];
+    }
+    if (reads > LINK_MAX_READS || n_status > 255
+        || LINK_RUN_REPLY_OVERHEAD + n_status + 2u * reads > LINK_MAX_FRAME)
+        return run_header(reply, RESULT_PROGRAM_TOO_LONG, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
+
+    /* statuses go right after the header, words after all the statuses */
+    uint8_t *st = reply + 5;
+    uint8_t *wd = reply + 5 + n_status;
+    uint8_t ns = 0, last = LINK_NONE_BYTE, result = RESULT_OK, index = LINK_NONE_BYTE;
+    uint16_t nw = 0;
+    nops = 0;
+    for (uint16_t i = 0; i < plen; nops++) {
+        uint8_t op = prog[i];
+        uint16_t arg = 0;
+        if (op_args[op] == 1)
+            arg = prog[i + 1];
+        else if (op_args[op] == 2)
+            arg = (uint16_t)((prog[i + 1] << 8) | prog[i + 2]);
+        i += 1u + op_args[op];
+        if (op == OP_COMMAND || op == OP_WRITE || op == OP_READ || op == OP_SYNC) {
+            if (!wait_not_busy(timeout_us, &last)) {
+                result = RESULT_BUSY_TIMEOUT;
+                index = (uint8_t)nops;
+                break;
+            }
+            if (op == OP_COMMAND) {
+                bus_write_command((uint8_t)arg);
+            } else if (op == OP_WRITE) {
+                bus_write_data((uint8_t)(arg >> 8));
+                bus_write_data((uint8_t)arg);
+            } else if (op == OP_READ) {
+                wd[nw++] = bus_read_data();
+                wd[nw++] = bus_read_data();
+            } else {
+                st[ns++] = last;
+            }
+        } else if (op == OP_STATUS) {
+            last = bus_read_status();
+            st[ns++] = last;
+        } else if (op == OP_RESET) {
+            bus_reset_pulse();
+        } else { /* OP_WAIT */
+            bus_wait_us(arg);
+        }
+    }
+    reply[0] = result;
+    reply[1] = index;
+    reply[2] = last;
+    reply[3] = bus_hi();
+    reply[4] = ns;
+    /* on a failure the unused status slots close up, so the words follow the statuses read */
+    if (ns != n_status)
+        for (uint16_t k = 0; k < nw; k++)
+            st[ns + k] = wd[k];
+    return (uint16_t)(5u + ns + nw);
+}
+
+/* ---------------------------------------------------------------- frames */
+static uint16_t finish(uint8_t *reply, uint16_t len, uint8_t *out)
+{
+    uint16_t crc = link_crc16(reply, len);
+    reply[len++] = (uint8_t)(crc >> 8);
+    reply[len++] = (uint8_t)crc;
+    uint16_t n = link_cobs_encode(reply, len, out);
+    out[n++] = 0;
+    return n;
+}
+
+static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
+{
+    uint8_t *f = l->rx, *r = l->reply;
+    uint8_t type = f[0], seq = f[1];
+    uint16_t crc = (uint16_t)((f[n - 2] << 8) | f[n - 1]);
+    uint16_t plen = n - 4, len = 2;
+    const uint8_t *payload = f + 2;
+    r[1] = seq;
+    if (type == FRAME_HELLO) {
+        l->cache_len = 0;
+        r[0] = FRAME_HELLO_REPLY;
+        r[len++] = LINK_PROTOCOL_VERSION;
+        r[len++] = FIRMWARE_MAJOR;
+        r[len++] = FIRMWARE_MINOR;
+        r[len++] = FIRMWARE_PATCH;
+        r[len++] = 0;
+        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE;
+        r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
+        r[len++] = (uint8_t)LINK_MAX_PROGRAM;
+        r[len++] = LINK_MAX_READS;
+        r[len++] = LINK_CHIP_SELECTS;
+        r[len++] = (uint8_t)(LINK_CPU_HZ >> 24);
+        r[len++] = (uint8_t)(LINK_CPU_HZ >> 16);
+        r[len++] = (uint8_t)(LINK_CPU_HZ >> 8);
+        r[len++] = (uint8_t)LINK_CPU_HZ;
+    } else if (type == FRAME_PING && plen <= LINK_MAX_PING) {
+        r[0] = FRAME_PONG;
+        for (uint16_t k = 0; k < plen; k++)
+            r[len++] = payload[k];
+    } else if (type == FRAME_RUN && plen >= 3) {
+        if (l->cache_len && l->cache_seq == seq && l->cache_crc == crc) {
+            l->cache_hits++;
+            *out = l->cache;
+            return l->cache_len;
+        }
+        l->runs++;
+        r[0] = FRAME_RUN_REPLY;
+        len += link_run(payload, plen, r + 2);
+        l->cache_len = finish(r, len, l->cache);
+        l->cache_seq = seq;
+        l->cache_crc = crc;
+        *out = l->cache;
+        return l->cache_len;
+    } else if (type & 0x80) {
+        return 0; /* a reply type: not a request, no answer */
+    } else {
+        r[0] = FRAME_ERROR_REPLY;
+        r[len++] = RESULT_BAD_REQUEST;
+    }
+    /* the request has been used up: its buffer takes the encoded reply */
+    *out = l->rx;
+    return finish(r, len, l->rx);
+}
+
+uint16_t link_feed(link_t *l, uint8_t byte, const uint8_t **out)
+{
+    if (byte != 0) {
+        if (l->rx_len < sizeof l->rx - 1)
+            l->rx[l->rx_len++] = byte;
+        else
+            l->rx_overflow = 1;
+        return 0;
+    }
+    uint16_t len = l->rx_len;
+    uint8_t overflow = l->rx_overflow;
+    l->rx_len = 0;
+    l->rx_overflow = 0;
+    if (len == 0)
+        return 0; /* back-to-back delimiters: nothing to count */
+    int16_t n = overflow ? -1 : link_cobs_decode(l->rx, len);
+    if (n < 4 || n > (int16_t)LINK_MAX_FRAME
+        || link_crc16(l->rx, (uint16_t)(n - 2)) != (uint16_t)((l->rx[n - 2] << 8) | l->rx[n - 1])) {
+        l->bad_frames++;
+        return 0; /* never answered: the host's retry covers it */
+    }
+    l->frames++;
+    return handle(l, (uint16_t)n, out);
+}

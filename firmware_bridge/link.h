@@ -1,0 +1,53 @@
+/* The link protocol of PROTOCOL.md: COBS framing, CRC-16/GENIBUS, request dispatch with the
+ * exactly-once reply cache, and the bus-program interpreter.  Plain C99 without AVR headers:
+ * the same file is compiled for the ATmega328P and for the host's unit tests and fuzz run. */
+#ifndef LINK_H
+#define LINK_H
+#include <stdint.h>
+#include "lm629_tables.h"
+
+#define FIRMWARE_MAJOR 1
+#define FIRMWARE_MINOR 0
+#define FIRMWARE_PATCH 0
+#define LINK_CHIP_SELECTS 1
+#define LINK_MAX_PROGRAM (LINK_MAX_FRAME - LINK_RUN_OVERHEAD)
+#define LINK_MAX_READS ((LINK_MAX_FRAME - LINK_RUN_REPLY_OVERHEAD) / 2)
+#ifndef LINK_CPU_HZ
+#define LINK_CPU_HZ 16000000UL
+#endif
+
+#ifdef __AVR__
+typedef uint16_t link_count_t; /* RAM is short on the AVR: the counters wrap */
+#else
+typedef uint32_t link_count_t;
+#endif
+
+typedef struct {
+    uint8_t rx[LINK_MAX_WIRE_FRAME];    /* encoded bytes of the frame being received; decoded
+                                           in place; non-RUN replies are encoded here too */
+    uint16_t rx_len;
+    uint8_t rx_overflow;                /* frame too long: drop bytes up to the next 0x00 */
+    uint8_t reply[LINK_MAX_FRAME];      /* decoded reply being built */
+    uint8_t cache[LINK_MAX_WIRE_FRAME]; /* encoded reply to the last RUN (exactly once) */
+    uint16_t cache_len;                 /* 0: no cached reply */
+    uint8_t cache_seq;
+    uint16_t cache_crc;
+    /* counters (for tests; wrap silently) */
+    link_count_t frames, bad_frames, runs, cache_hits;
+} link_t;
+
+uint16_t link_crc16(const uint8_t *data, uint16_t len);
+/* COBS-encode `len` bytes into `out` (room for len + len/254 + 1), no delimiter; returns size */
+uint16_t link_cobs_encode(const uint8_t *in, uint16_t len, uint8_t *out);
+/* decode in place (safe: output never overtakes input); returns decoded size, or -1 */
+int16_t link_cobs_decode(uint8_t *buf, uint16_t len);
+
+void link_init(link_t *l);
+/* Feed one received byte.  Returns the number of bytes of a complete encoded reply frame
+ * (delimiter included) to send, pointed to by *out, or 0. */
+uint16_t link_feed(link_t *l, uint8_t byte, const uint8_t **out);
+/* Run a RUN payload (cs, timeout, program) and build RUN_REPLY's payload in `reply`;
+ * returns its size. */
+uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply);
+
+#endif

@@ -1,0 +1,47 @@
+#include <string.h>
+#include "../bus.h"
+#include "fake_bus.h"
+
+fake_bus_t fake;
+
+void fake_reset(void) { memset(&fake, 0, sizeof fake); }
+
+static void note(uint8_t a, uint8_t b)
+{
+    if (fake.log_len + 2u <= sizeof fake.log) {
+        fake.log[fake.log_len++] = a;
+        fake.log[fake.log_len++] = b;
+    }
+}
+
+uint8_t bus_read_status(void)
+{
+    fake.total_polls++;
+    fake.elapsed_us++;
+    if (fake.n_script) {
+        uint16_t i = fake.script_at < fake.n_script ? fake.script_at++ : fake.n_script - 1;
+        return fake.script[i];
+    }
+    if (fake.busy_polls) {
+        fake.busy_polls--;
+        return (uint8_t)(fake.status | 1u);
+    }
+    return fake.status;
+}
+void bus_write_command(uint8_t cmd) { note('C', cmd); }
+void bus_write_data(uint8_t byte) { note('W', byte); }
+uint8_t bus_read_data(void)
+{
+    uint16_t w = fake.data_at < fake.n_data ? fake.data[fake.data_at] : 0;
+    uint8_t b = fake.byte_phase ? (uint8_t)w : (uint8_t)(w >> 8);
+    if (fake.byte_phase)
+        fake.data_at++;
+    fake.byte_phase ^= 1;
+    note('R', b);
+    return b;
+}
+void bus_reset_pulse(void) { fake.resets++; note('X', 0); }
+uint8_t bus_hi(void) { return fake.hi; }
+void bus_wait_us(uint16_t us) { fake.waited_us += us; note('T', (uint8_t)(us >> 8)); }
+void bus_timer_start(void) { fake.elapsed_us = 0; }
+uint8_t bus_timer_elapsed(uint16_t us) { return fake.elapsed_us > us; }

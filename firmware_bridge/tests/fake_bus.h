@@ -1,0 +1,20 @@
+/* A scripted chip behind bus.h, for the host-side tests and the fuzz run of link.c. */
+#ifndef FAKE_BUS_H
+#define FAKE_BUS_H
+#include <stdint.h>
+typedef struct {
+    uint8_t status;       /* status byte returned when not busy */
+    uint8_t hi;           /* HI line */
+    uint8_t script[16];   /* if n_script: status reads return these in turn, the last repeats */
+    uint16_t n_script, script_at;
+    uint16_t busy_polls;  /* the next this-many status reads show busy (bit 0 set) */
+    uint16_t data[64];    /* words the chip hands out, high byte first */
+    uint16_t n_data, data_at, byte_phase;
+    uint8_t log[1024];    /* 'C' cmd, 'W' byte, 'R', 'S', 'X' reset, 'T' wait(hi,lo) ... */
+    uint16_t log_len;
+    uint32_t elapsed_us;  /* simulated time since bus_timer_start; a status read costs 1 us */
+    uint32_t total_polls, resets, waited_us;
+} fake_bus_t;
+extern fake_bus_t fake;
+void fake_reset(void);
+#endif

@@ -1,0 +1,254 @@
+/* Host-side unit tests of link.c against the golden frame vectors shared with the Python
+ * codec (golden_frames.txt) and a scripted fake chip (fake_bus.c).  Prints one line per check
+ * group; exits 1 on the first failure. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "../link.h"
+#include "fake_bus.h"
+
+#define MAXV 32
+typedef struct { char name[64]; uint8_t dec[300], enc[320]; int ndec, nenc; } vec_t;
+static vec_t V[MAXV];
+static int nv, checks;
+static link_t L;
+
+#define CHECK(c, ...) do { checks++; if (!(c)) { printf("FAIL %s:%d: ", __FILE__, __LINE__); \
+    printf(__VA_ARGS__); printf("\n"); exit(1); } } while (0)
+
+static int unhex(const char *s, uint8_t *out)
+{
+    int n = 0;
+    while (s[0] && s[1] && s[0] != '\t' && s[0] != '\n') {
+        unsigned v;
+        sscanf(s, "%2x", &v);
+        out[n++] = (uint8_t)v;
+        s += 2;
+    }
+    return n;
+}
+
+static void load(const char *path)
+{
+    FILE *f = fopen(path, "r");
+    CHECK(f, "cannot open %s", path);
+    char line[2048];
+    while (fgets(line, sizeof line, f)) {
+        if (line[0] == '#' || line[0] == '\n')
+            continue;
+        char *t1 = strchr(line, '\t'), *t2 = t1 ? strchr(t1 + 1, '\t') : NULL;
+        CHECK(t1 && t2 && nv < MAXV, "bad golden line: %s", line);
+        vec_t *v = &V[nv++];
+        snprintf(v->name, sizeof v->name, "%.*s", (int)(t1 - line), line);
+        v->ndec = unhex(t1 + 1, v->dec);
+        v->nenc = unhex(t2 + 1, v->enc);
+    }
+    fclose(f);
+}
+
+static vec_t *get(const char *name)
+{
+    for (int i = 0; i < nv; i++)
+        if (!strcmp(V[i].name, name))
+            return &V[i];
+    CHECK(0, "golden vector %s missing", name);
+    return NULL;
+}
+
+/* feed bytes; returns the reply (copied to out) length, 0 for none; at most one reply */
+static int feed(const uint8_t *p, int n, uint8_t *out)
+{
+    int got = 0;
+    for (int i = 0; i < n; i++) {
+        const uint8_t *r;
+        uint16_t k = link_feed(&L, p[i], &r);
+        if (k) {
+            CHECK(!got, "two replies to one frame");
+            memcpy(out, r, k);
+            got = k;
+        }
+    }
+    return got;
+}
+
+static int frame(uint8_t type, uint8_t seq, const uint8_t *payload, int n, uint8_t *wire)
+{
+    uint8_t d[300];
+    d[0] = type;
+    d[1] = seq;
+    memcpy(d + 2, payload, (size_t)n);
+    uint16_t crc = link_crc16(d, (uint16_t)(n + 2));
+    d[n + 2] = (uint8_t)(crc >> 8);
+    d[n + 3] = (uint8_t)crc;
+    int k = link_cobs_encode(d, (uint16_t)(n + 4), wire);
+    wire[k++] = 0;
+    return k;
+}
+
+/* decode a reply frame to its payload; checks COBS, CRC, type and seq */
+static int reply_payload(uint8_t *wire, int n, uint8_t type, uint8_t seq, uint8_t **payload)
+{
+    CHECK(n >= 1 && wire[n - 1] == 0, "reply without delimiter");
+    int d = link_cobs_decode(wire, (uint16_t)(n - 1));
+    CHECK(d >= 4, "reply does not decode");
+    CHECK(link_crc16(wire, (uint16_t)(d - 2)) == ((wire[d - 2] << 8) | wire[d - 1]), "reply CRC");
+    CHECK(wire[0] == type && wire[1] == seq, "reply type %02X seq %02X, expected %02X %02X",
+          wire[0], wire[1], type, seq);
+    *payload = wire + 2;
+    return d - 4;
+}
+
+static void test_codec(void)
+{
+    CHECK(link_crc16((const uint8_t *)"123456789", 9) == 0xD64E, "CRC check value");
+    for (int i = 0; i < nv; i++) {
+        vec_t *v = &V[i];
+        uint8_t buf[320];
+        int k = link_cobs_encode(v->dec, (uint16_t)v->ndec, buf);
+        buf[k++] = 0;
+        CHECK(k == v->nenc && !memcmp(buf, v->enc, (size_t)k), "%s: COBS encoding differs", v->name);
+        memcpy(buf, v->enc, (size_t)v->nenc);
+        CHECK(link_cobs_decode(buf, (uint16_t)(v->nenc - 1)) == v->ndec
+              && !memcmp(buf, v->dec, (size_t)v->ndec), "%s: COBS decoding differs", v->name);
+        uint16_t crc = link_crc16(v->dec, (uint16_t)(v->ndec - 2));
+        CHECK(crc == ((v->dec[v->ndec - 2] << 8) | v->dec[v->ndec - 1]), "%s: CRC", v->name);
+    }
+    uint8_t bad[] = {0x05, 0x01, 0x02};
+    CHECK(link_cobs_decode(bad, 3) < 0, "COBS code past the end accepted");
+    printf("codec: %d golden vectors, COBS both ways and CRC agree\n", nv);
+}
+
+static void expect_reply(const char *req, const char *rep)
+{
+    uint8_t out[320];
+    vec_t *q = get(req), *r = get(rep);
+    int n = feed(q->enc, q->nenc, out);
+    CHECK(n == r->nenc && !memcmp(out, r->enc, (size_t)n), "%s: reply differs from %s", req, rep);
+}
+
+static void test_golden_requests(void)
+{
+    uint8_t out[320], wire[320];
+    link_init(&L);
+    fake_reset();
+    expect_reply("hello", "hello_reply");
+    expect_reply("ping", "pong");
+    fake_reset();
+    fake.status = 0xC0;
+    expect_reply("run_an693_filter", "run_reply_an693_filter");
+    static const uint8_t an693[] = {'C', 0x1E, 'W', 0x00, 'W', 0x08, 'W', 0x00, 'W', 0x0A, 'C', 0x04};
+    CHECK(fake.log_len == sizeof an693 && !memcmp(fake.log, an693, sizeof an693),
+          "AN-693 filter program reached the bus differently");
+    fake_reset();
+    fake.hi = 1;
+    fake.n_data = 1;
+    fake.data[0] = 0;
+    expect_reply("run_zero_bytes", "run_reply_zero_bytes");
+    CHECK(fake.waited_us == 0x100, "WAIT 0x0100 waited %u us", fake.waited_us);
+    /* the busy-timeout golden reply: STATUS (C4), COMMAND, READ 1234, COMMAND stuck busy (81) */
+    fake_reset();
+    fake.n_script = 4;
+    memcpy(fake.script, "\xC4\xC4\xC4\x81", 4);
+    fake.n_data = 1;
+    fake.data[0] = 0x1234;
+    uint8_t prog[] = {0x00, 0x00, 0x64, 0x01, 0x02, 0x0A, 0x04, 0x02, 0x01};
+    int n = feed(wire, frame(0x02, 0x7F, prog, sizeof prog, wire), out);
+    vec_t *bt = get("run_reply_busy_timeout");
+    CHECK(n == bt->nenc && !memcmp(out, bt->enc, (size_t)n), "busy timeout reply differs");
+    CHECK(fake.total_polls >= 100, "busy timeout of 100 us gave up after %u polls", fake.total_polls);
+    /* the largest RUN: 81 words written */
+    fake_reset();
+    vec_t *mx = get("run_max_frame");
+    uint8_t *p;
+    n = feed(mx->enc, mx->nenc, out);
+    CHECK(n > 0 && reply_payload(out, n, 0x82, 0xFE, &p) == 5 && p[0] == 0, "max frame run");
+    CHECK(fake.log_len == 81 * 4, "max frame wrote %d log entries", fake.log_len / 2);
+    /* unknown request type -> ERROR_REPLY BAD_REQUEST */
+    n = feed(wire, frame(0x04, 0x33, NULL, 0, wire), out);
+    vec_t *er = get("error_reply");
+    CHECK(n == er->nenc && !memcmp(out, er->enc, (size_t)n), "error reply differs");
+    printf("requests: HELLO, PING, RUN (AN-693 filter, zero bytes, busy timeout, largest), "
+           "unknown type answered as the golden replies\n");
+}
+
+static void test_exactly_once(void)
+{
+    uint8_t out1[320], out2[320];
+    link_init(&L);
+    fake_reset();
+    fake.status = 0xC0;
+    vec_t *q = get("run_an693_filter");
+    int n1 = feed(q->enc, q->nenc, out1);
+    uint16_t log1 = fake.log_len;
+    int n2 = feed(q->enc, q->nenc, out2);
+    CHECK(n1 && n1 == n2 && !memcmp(out1, out2, (size_t)n1), "repeat answered differently");
+    CHECK(fake.log_len == log1 && L.runs == 1 && L.cache_hits == 1, "repeat ran the program again");
+    /* same seq, other bytes: a new request */
+    uint8_t wire[320], out[320], prog[] = {0x00, 0x13, 0x88, 0x02, 0x01};
+    CHECK(feed(wire, frame(0x02, 0x2A, prog, sizeof prog, wire), out) && L.runs == 2,
+          "same seq, other CRC not run");
+    /* HELLO forgets the cache */
+    vec_t *h = get("hello");
+    feed(h->enc, h->nenc, out);
+    feed(q->enc, q->nenc, out);
+    CHECK(L.runs == 3, "HELLO did not forget the cached reply");
+    printf("exactly once: a repeated RUN is answered from the cache, other CRC or HELLO runs anew\n");
+}
+
+static void test_errors(void)
+{
+    uint8_t wire[320], out[320], *p;
+    int n;
+    link_init(&L);
+    fake_reset();
+    /* corrupt one byte: no answer, counted bad; the next good frame is answered */
+    vec_t *q = get("ping");
+    memcpy(wire, q->enc, (size_t)q->nenc);
+    wire[3] ^= 0x40;
+    CHECK(feed(wire, q->nenc, out) == 0 && L.bad_frames == 1, "corrupt frame answered");
+    static const uint8_t junk[] = {0x12, 0x00, 0xFF, 0xFF, 0x03, 0x00, 0x00, 0x00};
+    CHECK(feed(junk, sizeof junk, out) == 0, "junk answered");
+    CHECK(feed(q->enc, q->nenc, out) > 0, "no resync after junk");
+    /* too long: 300 non-zero bytes then a delimiter; then resync */
+    memset(wire, 0x11, 300);
+    wire[300] = 0;
+    CHECK(feed(wire, 301, out) == 0, "overlong frame answered");
+    CHECK(feed(q->enc, q->nenc, out) > 0, "no resync after overlong frame");
+    /* bad chip select, bad op, truncated arg, too many reads, truncated RUN */
+    uint8_t cs1[] = {0x01, 0x00, 0x00, 0x01};
+    n = feed(wire, frame(0x02, 1, cs1, sizeof cs1, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 1, &p) == 5 && p[0] == RESULT_BAD_CHIP_SELECT, "bad cs");
+    uint8_t badop[] = {0x00, 0x00, 0x00, 0x01, 0x02, 0x01, 0x09};
+    n = feed(wire, frame(0x02, 2, badop, sizeof badop, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 2, &p) == 5 && p[0] == RESULT_BAD_PROGRAM && p[1] == 2,
+          "bad op index %d", p[1]);
+    uint8_t trunc[] = {0x00, 0x00, 0x00, 0x01, 0x03, 0x12};
+    n = feed(wire, frame(0x02, 3, trunc, sizeof trunc, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 3, &p) == 5 && p[0] == RESULT_BAD_PROGRAM && p[1] == 1,
+          "truncated arg");
+    CHECK(fake.log_len == 0, "a bad program touched the bus");
+    uint8_t reads[3 + 121] = {0};
+    memset(reads + 3, 0x04, 121);
+    n = feed(wire, frame(0x02, 4, reads, sizeof reads, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 4, &p) == 5 && p[0] == RESULT_PROGRAM_TOO_LONG, "121 reads");
+    uint8_t shortrun[] = {0x00, 0x00};
+    n = feed(wire, frame(0x02, 5, shortrun, sizeof shortrun, wire), out);
+    CHECK(reply_payload(out, n, 0xFF, 5, &p) == 1 && p[0] == RESULT_BAD_REQUEST, "short RUN");
+    uint8_t big[40] = {0};
+    n = feed(wire, frame(0x03, 6, big, sizeof big, wire), out);
+    CHECK(reply_payload(out, n, 0xFF, 6, &p) == 1 && p[0] == RESULT_BAD_REQUEST, "long PING");
+    CHECK(feed(wire, frame(0x82, 7, NULL, 0, wire), out) == 0, "a reply type was answered");
+    printf("errors: corrupt, junk and overlong frames dropped with resync; bad cs, op, argument, "
+           "reads, RUN and PING sizes answered with their codes\n");
+}
+
+int main(int argc, char **argv)
+{
+    load(argc > 1 ? argv[1] : "golden_frames.txt");
+    test_codec();
+    test_golden_requests();
+    test_exactly_once();
+    test_errors();
+    printf("test_link: %d checks passed\n", checks);
+    return 0;
+}

@@ -1,0 +1,100 @@
+"""THE pin map of the serial bridge: Arduino Uno/Nano pin -> ATmega328P port bit -> LM629 pin.
+
+This is the one definition.  ``tools/gen_tables.py`` writes it into
+``firmware_bridge/lm629_tables.h`` for the firmware, the simavr harness
+(:mod:`lm629_host.avrsim`) wires the simulated chip to the same port bits, and the README's
+wiring table is checked against :data:`WIRING` by a test.
+
+Why this layout:
+
+* PD0/PD1 are the UART (the USB serial link) and PB6/PB7 hold the crystal, so no 8-bit port is
+  free: the data bus D0-D5 sits on PD2-PD7 (Uno D2-D7) and D6-D7 on PB0-PB1 (Uno D8-D9).  A byte
+  goes out as ``PORTD = byte << 2`` plus ``PORTB = byte >> 6`` (two masked writes) and comes in
+  as ``PIND >> 2 | PINB << 6``;
+* every control line sits on port C (Uno A0-A5), so each strobe edge is one port write that
+  touches nothing else; /CS and /PS change before the strobe falls (their setup time);
+* HI is an input on PC5 (A5), read once after each program.
+
+Put 10 kOhm pull-ups on /CS, /RD, /WR and /RST: while the AVR is in reset (the Uno resets when
+the port opens) its pins float, and the pull-ups keep the chip deselected and out of reset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class PinWire:
+    """One wire between the Arduino and the LM629."""
+
+    board_pin: str  #: label on the Uno / Nano header
+    port: str  #: ATmega328P port letter
+    bit: int  #: bit in that port
+    chip_pin: str  #: LM628/LM629 pin name
+    direction: str  #: "out" (driven by the AVR), "in" (read by the AVR), "io" (data bus)
+
+
+#: D0-D7 of the chip, in bit order
+DATA: tuple[PinWire, ...] = (
+    PinWire("D2", "D", 2, "D0", "io"),
+    PinWire("D3", "D", 3, "D1", "io"),
+    PinWire("D4", "D", 4, "D2", "io"),
+    PinWire("D5", "D", 5, "D3", "io"),
+    PinWire("D6", "D", 6, "D4", "io"),
+    PinWire("D7", "D", 7, "D5", "io"),
+    PinWire("D8", "B", 0, "D6", "io"),
+    PinWire("D9", "B", 1, "D7", "io"),
+)
+CS = PinWire("A0", "C", 0, "/CS", "out")
+PS = PinWire("A1", "C", 1, "/PS", "out")
+RD = PinWire("A2", "C", 2, "/RD", "out")
+WR = PinWire("A3", "C", 3, "/WR", "out")
+RST = PinWire("A4", "C", 4, "/RST", "out")
+HI = PinWire("A5", "C", 5, "HI", "in")
+
+CONTROL: tuple[PinWire, ...] = (CS, PS, RD, WR, RST, HI)
+#: every wire, data bus first (the README's wiring table lists these, plus GND)
+WIRING: tuple[PinWire, ...] = DATA + CONTROL
+
+#: data bus bits 0..5 sit on port D from bit DATA_LOW_SHIFT up; bits 6..7 on port B bits 0..1
+DATA_LOW_PORT, DATA_LOW_SHIFT, DATA_LOW_MASK = "D", 2, 0xFC
+DATA_HIGH_PORT, DATA_HIGH_SHIFT, DATA_HIGH_MASK = "B", 6, 0x03
+CONTROL_PORT = "C"
+
+
+def _check() -> None:
+    """The shifts above must describe :data:`DATA` (one fact, two spellings, checked here)."""
+    for i, w in enumerate(DATA):
+        if i < 6:
+            assert w.port == DATA_LOW_PORT and w.bit == i + DATA_LOW_SHIFT, w
+        else:
+            assert w.port == DATA_HIGH_PORT and w.bit == i - DATA_HIGH_SHIFT, w
+    for w in CONTROL:
+        assert w.port == CONTROL_PORT, w
+    used = {(w.port, w.bit) for w in WIRING}
+    assert len(used) == len(WIRING), "two wires on one port bit"
+    assert not used & {("D", 0), ("D", 1), ("B", 6), ("B", 7)}, "UART or crystal pin used"
+
+
+_check()
+
+
+def mask(*wires: PinWire) -> int:
+    """Port bit mask of ``wires`` (all on one port)."""
+    return sum(1 << w.bit for w in wires)
+
+
+def split_byte(value: int) -> tuple[int, int]:
+    """A data byte as (port D bits, port B bits), as the firmware writes it."""
+    return ((value << DATA_LOW_SHIFT) & DATA_LOW_MASK, (value >> DATA_HIGH_SHIFT) & DATA_HIGH_MASK)
+
+
+def join_byte(port_low: int, port_high: int) -> int:
+    """The data byte seen on (port D, port B)."""
+    return (((port_low & DATA_LOW_MASK) >> DATA_LOW_SHIFT)
+            | ((port_high & DATA_HIGH_MASK) << DATA_HIGH_SHIFT))
+
+
+__all__ = ["PinWire", "DATA", "CONTROL", "WIRING", "CS", "PS", "RD", "WR", "RST", "HI", "mask",
+           "split_byte", "join_byte"]
