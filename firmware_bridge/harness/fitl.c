@@ -8,6 +8,7 @@
  * early reads garbage).  Timing minimums of the chip are checked against the AVR's cycle count
  * and collected as violations.  The UART is fed in-process: host bytes wait in a queue and are
  * raised only while the simulated UART says XON. */
+#include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -60,6 +61,14 @@ typedef struct {
 
 static char last_error[256];
 const char *fitl_error(void) { return last_error; }
+
+/* simavr's messages: errors are kept for fitl_error(), the loader's chatter is dropped */
+static void quiet_logger(avr_t *avr, const int level, const char *format, va_list ap)
+{
+    (void)avr;
+    if (level <= LOG_ERROR)
+        vsnprintf(last_error, sizeof last_error, format, ap);
+}
 
 static void no_sleep(avr_t *avr, avr_cycle_count_t how_long) { (void)avr; (void)how_long; }
 
@@ -250,6 +259,7 @@ static void out_hook(avr_irq_t *irq, uint32_t value, void *param)
 
 fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
 {
+    avr_global_logger_set(quiet_logger);
     elf_firmware_t fw;
     memset(&fw, 0, sizeof fw);
     if (elf_read_firmware(elf_path, &fw) != 0) {
@@ -335,21 +345,34 @@ int fitl_write(fitl_t *h, const uint8_t *data, uint32_t n)
 
 /* Run until `until` cycles, or (frames != 0) until the firmware has sent a 0x00 delimiter.
  * Returns 0 at `until`, 1 on a delimiter, -1 when the Python callback failed, -2 on a crash. */
+static avr_cycle_count_t wake(avr_t *avr, avr_cycle_count_t when, void *param)
+{
+    (void)avr; (void)when; (void)param;
+    return 0;
+}
+
 int fitl_run(fitl_t *h, uint64_t until, int frames)
 {
     avr_t *avr = h->avr;
     h->stop = 0;
+    /* a sleeping AVR jumps to its next cycle timer (a Timer1 wrap is 262 ms away): a timer at
+     * `until` keeps the jump from overshooting */
+    if (until > avr->cycle)
+        avr_cycle_timer_register(avr, until - avr->cycle, wake, h);
     while (avr->cycle < until) {
-        if (frames && h->out_frames)
+        if (frames && h->out_frames) {
+            avr_cycle_timer_cancel(avr, wake, h);
             return 1;
+        }
         int st = avr_run(avr);
-        if (h->stop)
-            return -1;
-        if (st == cpu_Done || st == cpu_Crashed)
-            return -2;
+        if (h->stop || st == cpu_Done || st == cpu_Crashed) {
+            avr_cycle_timer_cancel(avr, wake, h);
+            return h->stop ? -1 : -2;
+        }
         if (h->xon && h->in_tail != h->in_head)
             pump(h);
     }
+    avr_cycle_timer_cancel(avr, wake, h);
     return (frames && h->out_frames) ? 1 : 0;
 }
 

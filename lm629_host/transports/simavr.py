@@ -1,0 +1,67 @@
+"""``sim+avr://``: the real bridge firmware, compiled for the ATmega328P, running in simavr
+against the chip model; the host side is the unchanged link protocol (:class:`LinkTransport`).
+
+URL parameters::
+
+    sim+avr://?baud=115200&firmware=path/to/lm629_bridge.elf&<any sim:// parameter>
+
+``baud``: the simulated serial line (115200 or 1000000 with the images ``make -C
+firmware_bridge`` builds; another rate needs ``firmware=`` built with ``make BAUD=...``).
+Every bus cycle the chip model sees was made by the compiled AVR code; the transport's clock is
+the AVR's simulated time.  ``transport.model`` is the chip, ``transport.sim`` the AVR.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..avrsim import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
+from ..link import LinkTransport
+from ..program import TraceCallback
+from . import query_params
+from .sim import build_model
+
+
+class SimAvrTransport(LinkTransport):
+    """The link protocol to the compiled firmware in simavr, in simulated time."""
+
+    scheme = "sim+avr"
+    #: the wire time estimate counts 10 bits a byte, simavr's UART takes 11: the margin covers
+    #: that (10% of two 253-byte frames at 115200 baud is 4.8 ms) and the firmware's own time
+    margin_s = 0.02
+
+    def __init__(self, sim: AvrSim, url: str, *, trace: TraceCallback | None = None,
+                 retries: int = 3, baud: int = DEFAULT_BAUD) -> None:
+        self.sim = sim
+        self.model = sim.model
+        super().__init__(AvrPipe(sim), url, trace=trace, retries=retries, baud=baud)
+
+    @classmethod
+    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimAvrTransport:
+        params = query_params(url)
+        raw = params.get("baud", str(DEFAULT_BAUD))
+        try:
+            baud = int(raw)
+        except ValueError:
+            raise ValueError(f"{url}: baud={raw!r} is not a number (115200 or 1000000)") from None
+        fw = params.get("firmware")
+        if fw:
+            firmware = Path(fw)
+        elif baud in BUILT_BAUDS:
+            firmware = firmware_path(baud)
+        else:
+            raise ValueError(f"{url}: baud={baud}: the built firmware images run at "
+                             f"{' or '.join(map(str, BUILT_BAUDS))} baud; for another rate build "
+                             f"one with `make -C firmware_bridge BAUD={baud}` and pass "
+                             "firmware=firmware_bridge/build/lm629_bridge.elf")
+        model = build_model(url, allowed=frozenset({"firmware", "baud"}))
+        return cls(AvrSim(model, firmware), url, trace=trace, baud=baud)
+
+    def describe(self) -> str:
+        p = self.model.params
+        fw = self.info.firmware_version if self.info else "?"
+        return (f"{self.url} (bridge firmware {fw} in simavr at {self.baud} baud, simulated "
+                f"{p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)")
+
+
+__all__ = ["SimAvrTransport"]
