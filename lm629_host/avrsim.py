@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import ctypes
 import math
+import shutil
+import subprocess
 from pathlib import Path
 
 from .errors import ProtocolViolation, TransportError
@@ -54,6 +56,40 @@ def firmware_path(baud: int = DEFAULT_BAUD) -> Path:
 
 
 _lib: ctypes.CDLL | None = None
+_built = False
+
+#: Debian packages the firmware and the harness need (``.ci/run`` installs them)
+PACKAGES = "gcc-avr avr-libc binutils-avr simavr libsimavr-dev libelf-dev"
+
+
+def toolchain_missing() -> list[str]:
+    """The build tools not found on PATH or in /usr/include (empty when all are there)."""
+    missing = [t for t in ("make", "avr-gcc", "avr-objcopy", "avr-size", "cc") if not shutil.which(t)]
+    if not Path("/usr/include/simavr/sim_avr.h").exists():
+        missing.append("libsimavr-dev")
+    return missing
+
+
+def ensure_built() -> None:
+    """Run ``make -C firmware_bridge firmware harness`` once per process (incremental: a few
+    milliseconds when nothing changed), so that ``sim+avr://`` runs the firmware of this source
+    tree from a fresh clone too.  Without the toolchain, images built earlier are used."""
+    global _built
+    if _built:
+        return
+    if toolchain_missing():
+        if LIBRARY.exists() and firmware_path().exists():
+            _built = True
+            return
+        raise HarnessError(f"the simavr harness and firmware are not built and the toolchain is "
+                           f"missing ({', '.join(toolchain_missing())}): apt-get install {PACKAGES}, "
+                           "then `make -C firmware_bridge`")
+    r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), "firmware", "harness"],
+                       capture_output=True, text=True)
+    if r.returncode:
+        raise HarnessError(f"`make -C {FIRMWARE_DIR} firmware harness` failed:\n"
+                           f"{(r.stdout + r.stderr)[-2000:]}")
+    _built = True
 
 
 def load_library(path: Path = LIBRARY) -> ctypes.CDLL:
@@ -61,6 +97,8 @@ def load_library(path: Path = LIBRARY) -> ctypes.CDLL:
     global _lib
     if _lib is not None:
         return _lib
+    if path == LIBRARY:
+        ensure_built()
     if not path.exists():
         raise HarnessError(f"the simavr harness {path} is not built: run `make -C firmware_bridge` "
                            "(needs gcc-avr, avr-libc, binutils-avr, simavr, libsimavr-dev, "
@@ -92,12 +130,12 @@ class AvrSim:
     def __init__(self, model: ChipModel, firmware: Path | str | None = None, *,
                  strict: bool | None = None) -> None:
         self.model = model
+        self._lib = load_library()
         self.firmware = Path(firmware) if firmware else firmware_path()
         if not self.firmware.exists():
             raise HarnessError(f"firmware image {self.firmware} not found: run "
                                "`make -C firmware_bridge`")
         self.strict = model.params.strict if strict is None else strict
-        self._lib = load_library()
         self._error: BaseException | None = None
         self._cb = _CALLBACK(self._on_bus)  # referenced for as long as the simulation lives
         self._h = self._lib.fitl_new(str(self.firmware).encode(), self._cb)
@@ -107,10 +145,14 @@ class AvrSim:
         self._ratio = model.clock_hz / CPU_HZ
         self._buf = (ctypes.c_uint8 * 8192)()
         self.reset_low_clocks: list[int] = []
+        #: set to a list to record every bus cycle as (kind, value, AVR cycle)
+        self.bus_log: list[tuple[int, int, int]] | None = None
 
     # ------------------------------------------------------------------ bus (from C)
     def _on_bus(self, kind: int, value: int, cycle: int) -> int:
         try:
+            if self.bus_log is not None:
+                self.bus_log.append((kind, value, cycle))
             m = self.model
             tick = cycle * m.clock_hz // CPU_HZ
             if tick > m.tick:
@@ -259,4 +301,4 @@ class AvrPipe:
 
 
 __all__ = ["AvrSim", "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
-           "CPU_HZ", "BUILT_BAUDS"]
+           "CPU_HZ", "BUILT_BAUDS", "ensure_built", "toolchain_missing", "PACKAGES"]
