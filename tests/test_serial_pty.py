@@ -76,11 +76,14 @@ def test_missing_port_says_where_to_look(tmp_path):
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="needs root to become 'nobody'")
-def test_permission_denied_names_the_group_and_the_command(server):
+def test_permission_denied_names_the_group_and_the_command(tmp_path):
     """A user outside the port's group opens it: a forked child drops to 'nobody' (the
-    interpreter and pyserial are already loaded, so it needs no file of root's)."""
+    interpreter and pyserial are already loaded, so it needs no file of root's).  The pty is
+    not served (no thread runs while forking): the open fails before any byte is sent."""
     import serial  # noqa: F401 - loaded before the child loses access to site-packages
 
+    server = SimServer(tmp_path / "denied", "sim://")
+    server.open()
     rd, wr = os.pipe()
     pid = os.fork()
     if pid == 0:  # child
@@ -101,8 +104,9 @@ def test_permission_denied_names_the_group_and_the_command(server):
     with os.fdopen(rd) as f:
         msg = f.read()
     _, status = os.waitpid(pid, 0)
-    assert os.waitstatus_to_exitcode(status) == 0, msg
     group = serial_mod._ask_group(server.device)
+    server.close()
+    assert os.waitstatus_to_exitcode(status) == 0, msg
     assert "permission denied" in msg
     assert f"usermod -aG {group} $USER" in msg
 
