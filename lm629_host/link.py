@@ -438,6 +438,9 @@ class LinkTransport(Transport):
     #: added to every reply timeout: the far end's own processing time and the latency of a
     #: USB serial adapter (a simulated pipe may lower it: its latency is known)
     margin_s: float = 0.05
+    #: bits on the wire per byte for the timeout estimate: start + 8 data + stop (a simulated
+    #: UART with two stop bits sets 11)
+    wire_bits: int = 10
     #: how long :meth:`hello` keeps asking before "no answer" (an Uno boots in ~1-2 s after the
     #: port opens; subclasses for real ports raise it)
     hello_total_s: float = 0.5
@@ -480,7 +483,7 @@ class LinkTransport(Transport):
         return self._seq
 
     def _byte_s(self) -> float:
-        return 10.0 / self.baud if self.baud else 0.0
+        return self.wire_bits / self.baud if self.baud else 0.0
 
     def reply_timeout(self, request_wire: int, reply_wire: int, ops: Sequence[BusOp] = (),
                       timeout_s: float = 0.0) -> float:
