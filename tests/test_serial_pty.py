@@ -252,3 +252,17 @@ def test_every_pipe_is_a_pipe(server):
     with lm629_host.open(f"serial://{server.link}") as chip:
         for p in (emu, FaultPipe(emu), chip.transport.pipe):
             assert isinstance(p, Pipe)
+
+
+def test_server_keeps_the_chip_level_with_the_wall_clock(server):
+    """The served chip lives in real time: between clients its clock moves with the wall clock
+    (the motor keeps moving), and a client's WAIT is answered no earlier than it would be."""
+    t0_model, t0_wall = server.model.now(), time.monotonic()
+    time.sleep(0.3)
+    moved = server.model.now() - t0_model
+    assert 0.25 <= moved <= time.monotonic() - t0_wall + 0.05
+    from lm629_host.program import Program
+    with lm629_host.open(f"serial://{server.link}") as chip:
+        w0 = time.monotonic()
+        chip.run(Program().wait(60000).wait(60000).status())  # 120 ms on the chip
+        assert time.monotonic() - w0 >= 0.12
