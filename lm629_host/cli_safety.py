@@ -1,0 +1,69 @@
+"""Stopping the motor when something goes wrong while it moves.
+
+A bench program that dies with the drive on leaves a motor running at full speed, or a
+following-error loop pushing against a hard stop.  Everything in the CLI that starts a move runs
+inside :func:`stop_on_error`: Ctrl-C or any exception first stops the motor the hard way (LTRJ
+abrupt stop + STT, then LTRJ motor off + STT), then the exception goes on to the CLI's error
+handler, which prints what happened and how the motor was left.
+
+No click here: :mod:`lm629_host.bringup` and :mod:`lm629_host.capture` use it as a library.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from .lm629 import LM629
+
+log = logging.getLogger("lm629_host.cli")
+
+#: the attribute set on an exception that went through :func:`stop_on_error`
+STOP_NOTE = "lm629_stop_note"
+
+
+def emergency_stop(chip: LM629) -> tuple[bool, str]:
+    """Abrupt stop, then motor off; each tried even when the other fails.
+
+    Returns (stopped, one line saying how the motor was left).  A second Ctrl-C during the
+    stop is swallowed: the stop is two short bus programs and must not be cut in half.
+    """
+    problems = []
+    for stop in ("abrupt", "off"):
+        for _attempt in range(2):  # a Ctrl-C hammered during the stop costs one retry
+            try:
+                chip.load_trajectory(stop=stop, start=True)
+                break
+            except KeyboardInterrupt:
+                continue
+            except Exception as exc:  # noqa: BLE001 - the link may be the thing that failed
+                problems.append(f"{stop} stop failed: {exc}")
+                break
+        else:
+            problems.append(f"{stop} stop interrupted")
+    if problems:
+        msg = ("COULD NOT STOP THE MOTOR (" + "; ".join(problems) + "): switch off the motor "
+               "supply, then check the link")
+        log.error(msg)
+        return False, msg
+    return True, "motor stopped (abrupt stop, then motor off)"
+
+
+@contextmanager
+def stop_on_error(chip: LM629) -> Iterator[None]:
+    """Run a block that may leave the motor moving; on any exception (Ctrl-C included) stop
+    the motor first, note how on the exception (attribute ``lm629_stop_note``), re-raise."""
+    try:
+        yield
+    except BaseException as exc:
+        if getattr(exc, STOP_NOTE, None) is None:
+            _ok, note = emergency_stop(chip)
+            try:
+                setattr(exc, STOP_NOTE, note)
+            except AttributeError:  # pragma: no cover - exceptions with __slots__
+                pass
+        raise
+
+
+__all__ = ["emergency_stop", "stop_on_error", "STOP_NOTE"]
