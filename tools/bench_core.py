@@ -42,8 +42,11 @@ def main() -> None:
     position = [1000]
 
     def typed() -> None:
+        # validate, build and run the whole LTRJ + STT program (the chip refuses the repeated
+        # acceleration while moving: that is its business, not the host's cost)
         position[0] = -position[0]
-        chip.load_trajectory(acceleration=100, velocity=65536, position=position[0], start=True)
+        program = chip.trajectory_program(acceleration=100, velocity=65536, position=position[0])
+        chip.run(program.command(Cmd.STT))
 
     def build() -> None:
         chip.trajectory_program(acceleration=100, velocity=65536, position=1000)

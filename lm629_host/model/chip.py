@@ -58,6 +58,15 @@ from .trajectory import wrap_counts
 from .params import ChipParams, MotorParams
 
 
+# Plain ints of the status bits: IntFlag arithmetic costs microseconds per operation and the
+# status byte is computed for every busy poll, so ``flags`` is always kept as a plain int.
+_BUSY = int(Status.BUSY)
+_MOTOR_OFF = int(Status.MOTOR_OFF)
+_CMD_ERROR = int(Status.COMMAND_ERROR)
+_TRAJ_DONE = int(Status.TRAJECTORY_COMPLETE)
+_INTERRUPTS = int(INTERRUPTS)
+
+
 def s32(value: int) -> int:
     """Two's complement of a 32-bit pattern."""
     value &= 0xFFFFFFFF
@@ -244,7 +253,7 @@ class ChipModel:
                     self.turn_motor_off()
         if self.motor_off and not was_off:
             events |= Status.TRAJECTORY_COMPLETE
-        self.flags |= events & INTERRUPTS
+        self.flags |= int(events) & _INTERRUPTS
 
     # ------------------------------------------------------------------ reset
     def _power_on_reset(self) -> None:
@@ -280,7 +289,7 @@ class ChipModel:
         self._reset_done_at = None
         self._in_hw_reset = False
         self._reset_registers()
-        self.flags |= Status.TRAJECTORY_COMPLETE  # 84 / C4 once reset has finished
+        self.flags |= _TRAJ_DONE  # 84 / C4 once reset has finished
 
     def reset_pulse(self) -> None:
         """/RST rising edge (after at least 8 clocks low)."""
@@ -303,10 +312,10 @@ class ChipModel:
         """The status byte as RDSTAT would read it now."""
         if self._in_hw_reset:
             return 0x01 if self.params.fault == "busy" else 0x00
-        s = self.flags | (Status.MOTOR_OFF if self.motor_off else 0)
-        if self.busy:
-            s |= Status.BUSY
-        return int(s)
+        s = self.flags | (_MOTOR_OFF if self.motor_off else 0)
+        if self.tick < self._busy_until or self.params.fault == "busy":
+            s |= _BUSY
+        return s
 
     @property
     def hi(self) -> bool:
@@ -330,7 +339,7 @@ class ChipModel:
     def turn_motor_off(self) -> None:
         """Drive off (LTRJ bit 8 or LPES); trajectory complete is motor off OR on target."""
         if not self.motor_off:
-            self.flags |= Status.TRAJECTORY_COMPLETE
+            self.flags |= _TRAJ_DONE
         self.motor_off = True
         self.motion.drive_off()
 
@@ -353,7 +362,7 @@ class ChipModel:
         self._busy_until = self.tick + (self.busy_clocks if clocks is None else clocks)
 
     def _command_error(self, why: str) -> None:
-        self.flags |= Status.COMMAND_ERROR
+        self.flags |= _CMD_ERROR
         self._violation(why)
 
     def read_status(self) -> int:
@@ -514,9 +523,9 @@ class ChipModel:
             else:
                 self.signals_extra &= ~Signals.STOP_ON_ERROR
         elif cmd is Cmd.MSKI:
-            self.mask = words[0] & INTERRUPTS
+            self.mask = words[0] & _INTERRUPTS
         elif cmd is Cmd.RSTI:
-            self.flags &= (words[0] & INTERRUPTS) | ~INTERRUPTS
+            self.flags &= (words[0] & _INTERRUPTS) | ~_INTERRUPTS
         elif cmd is Cmd.LFIL:
             self._load_filter(words)
         elif cmd is Cmd.LTRJ:
@@ -529,7 +538,7 @@ class ChipModel:
 
     def _command_error_silent(self) -> None:
         """A command error that a correct host can provoke (not a protocol violation)."""
-        self.flags |= Status.COMMAND_ERROR
+        self.flags |= _CMD_ERROR
 
     def _load_filter(self, words: list[int]) -> None:
         control, values = words[0], iter(words[1:])
