@@ -1,0 +1,176 @@
+"""Step and move responses for tuning: desired and actual position over time, CSV and PNG.
+
+The picture of AN-706 figure 11 from the user's own motor: load a filter, start a move (a
+"step" is a move with acceleration and velocity so large that the desired position jumps), and
+take a :meth:`LM629.snapshot` every ``interval_s`` of the chip's clock for ``duration_s``.
+Times in the capture are the transport clock's (simulated time on ``sim://``), relative to the
+STT.  matplotlib is optional (``pip install 'lm629-host[plot]'``); without it the CSV is still
+written and :class:`PlotUnavailable` says how to get the picture.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .cli_safety import stop_on_error
+from .lm629 import LM629, Snapshot, check_int
+from .opcodes import ACCELERATION_MAX, VELOCITY_MAX
+from .units import FIXED_ONE
+
+#: a "step": the largest words the chip takes, so the desired position jumps within samples
+STEP_VELOCITY = VELOCITY_MAX
+STEP_ACCELERATION = ACCELERATION_MAX
+
+CSV_COLUMNS = ("t_s", "desired_position", "real_position", "following_error",
+               "desired_velocity", "real_velocity", "integration_sum", "status")
+
+
+class PlotUnavailable(RuntimeError):
+    """matplotlib is not installed: the CSV was written, the PNG was not."""
+
+
+@dataclass
+class Capture:
+    """A recorded response: snapshots with times relative to the STT."""
+
+    target: int
+    filter: dict[str, int]
+    velocity: int
+    acceleration: int
+    rows: list[Snapshot] = field(default_factory=list)
+    t0: float = 0.0
+
+    def times(self) -> list[float]:
+        return [s.time - self.t0 for s in self.rows]
+
+    @property
+    def max_following_error(self) -> int:
+        return max((s.following_error for s in self.rows), key=abs, default=0)
+
+    @property
+    def overshoot(self) -> int:
+        """Counts the shaft went past the target (in the direction of the move), >= 0."""
+        if not self.rows:
+            return 0
+        start = self.rows[0].real_position
+        sign = 1 if self.target >= start else -1
+        return max(0, max(sign * (s.real_position - self.target) for s in self.rows))
+
+    @property
+    def final_error(self) -> int:
+        return self.target - self.rows[-1].real_position if self.rows else 0
+
+
+def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
+                 interval_s: float = 0.001, velocity: int = STEP_VELOCITY,
+                 acceleration: int = STEP_ACCELERATION, filter: dict[str, int] | None = None,
+                 progress: Callable[[Snapshot], None] | None = None) -> Capture:
+    """Load ``filter`` (kp/ki/kd/il/derivative_interval; UDF), move ``distance`` counts from
+    the current desired position, and record snapshots every ``interval_s`` for
+    ``duration_s`` seconds of the chip's clock.  Any exception stops the motor first."""
+    if not duration_s > 0:
+        raise ValueError(f"duration_s={duration_s} must be > 0 seconds")
+    if not 0 < interval_s <= duration_s:
+        raise ValueError(f"interval_s={interval_s} must be > 0 and at most duration_s={duration_s}")
+    check_int("distance", distance, -(1 << 30), (1 << 30) - 1)
+    filt = dict(filter or {})
+    program = chip.filter_program(**filt) if filt else None  # validate before any traffic
+    chip.trajectory_program(acceleration=acceleration, velocity=velocity, position=0)
+    with stop_on_error(chip):
+        if program is not None:
+            chip.load_filter(**filt)
+            chip.update_filter()
+        first = chip.snapshot()
+        target = first.desired_position + distance
+        chip.trajectory_program(position=target)
+        cap = Capture(target, filt, velocity, acceleration)
+        chip.load_trajectory(acceleration=acceleration, velocity=velocity, position=target,
+                             start=True)
+        cap.t0 = chip.clock.now()
+        cap.rows.append(first)
+        end = cap.t0 + duration_s
+        clock = chip.clock
+        next_t = cap.t0
+        while True:
+            next_t += interval_s
+            wait = next_t - clock.now()
+            if wait > 0:
+                clock.sleep(wait)
+            s = chip.snapshot()
+            cap.rows.append(s)
+            if progress is not None:
+                progress(s)
+            if s.time >= end:
+                break
+    return cap
+
+
+def write_csv(cap: Capture, path: str | Path) -> Path:
+    """One row per snapshot; velocities in counts/sample (desired: 16.16 converted)."""
+    path = Path(path)
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(CSV_COLUMNS)
+        for t, s in zip(cap.times(), cap.rows):
+            w.writerow([f"{t:.6f}", s.desired_position, s.real_position, s.following_error,
+                        f"{s.desired_velocity / FIXED_ONE:.5f}", s.real_velocity,
+                        s.integration_sum, f"{int(s.status):02X}"])
+    return path
+
+
+def read_csv(path: str | Path) -> list[dict[str, str]]:
+    with Path(path).open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def write_png(cap: Capture, path: str | Path, *, title: str = "") -> Path:
+    """Desired and actual position against time (ms), following error below.  Raises
+    :class:`PlotUnavailable` when matplotlib is missing."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise PlotUnavailable(
+            "matplotlib is not installed, so no PNG was drawn (the CSV has the data): "
+            "pip install 'lm629-host[plot]'") from exc
+    path = Path(path)
+    t_ms = [t * 1e3 for t in cap.times()]
+    fig, (ax, ax_err) = plt.subplots(2, 1, sharex=True, figsize=(8, 6),
+                                     gridspec_kw={"height_ratios": [3, 1]})
+    try:
+        ax.plot(t_ms, [s.desired_position for s in cap.rows], label="desired position",
+                color="tab:blue", drawstyle="steps-post")
+        ax.plot(t_ms, [s.real_position for s in cap.rows], label="actual position",
+                color="tab:red")
+        ax.axhline(cap.target, color="grey", linewidth=0.6, linestyle=":")
+        ax.set_ylabel("position (counts)")
+        ax.legend(loc="lower right")
+        ax.grid(True, alpha=0.3)
+        f = cap.filter
+        gains = ", ".join(f"{k}={v}" for k, v in f.items()) or "filter as loaded"
+        ax.set_title(title or f"LM629 response: {gains}; overshoot {cap.overshoot} counts")
+        ax_err.plot(t_ms, [s.following_error for s in cap.rows], color="tab:purple")
+        ax_err.set_ylabel("following error")
+        ax_err.set_xlabel("time after STT (ms)")
+        ax_err.grid(True, alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(path, dpi=100)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def summary(cap: Capture) -> Sequence[str]:
+    """The figures a tuner looks at, one per line."""
+    return [f"target {cap.target} counts, {len(cap.rows)} samples over "
+            f"{cap.times()[-1] * 1e3:.1f} ms",
+            f"largest following error {cap.max_following_error:+d} counts, overshoot "
+            f"{cap.overshoot} counts, final error {cap.final_error:+d} counts"]
+
+
+__all__ = ["Capture", "capture_move", "write_csv", "read_csv", "write_png", "summary",
+           "PlotUnavailable", "CSV_COLUMNS", "STEP_VELOCITY", "STEP_ACCELERATION"]
