@@ -42,7 +42,7 @@ from .errors import (
 )
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import Signals, Status
-from .program import BusCycle
+from .program import BusCycle, Program
 from .transports import query_params, scheme_of
 from .units import FIXED_ONE, Scale
 
@@ -168,6 +168,7 @@ class Session:
                 self._chip.reset()
                 self._chip.load_filter(kp=20)
                 self._chip.update_filter()
+                self._chip.run(Program().sync())  # UDF's busy over before the command's reads
                 log.info("fresh simulated chip: reset, kp = 20 loaded")
         return self._chip
 
@@ -243,13 +244,30 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
                                  param_hint="--clock")
     if lines is not None and lines < 1:
         raise click.BadParameter(f"{lines} must be at least 1", param_hint="--lines")
-    level = {0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG)
-    logging.basicConfig(level=level, stream=sys.stderr, format="%(name)s: %(message)s")
-    logging.getLogger("lm629_host").setLevel(level)
+    _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
     session = Session(port or lm629_host.DEFAULT_URL, port is not None, chip_name, clock_hz,
                       lines, verbose, trace, stats)
     ctx.obj = session
     ctx.call_on_close(session.close)
+
+
+class _ClickHandler(logging.Handler):
+    """Log lines to click's stderr (whatever stream that is at the time: tests swap it)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            click.echo(self.format(record), err=True)
+        except Exception:  # noqa: BLE001 - logging must never raise
+            self.handleError(record)
+
+
+def _log_to_stderr(level: int) -> None:
+    logger = logging.getLogger("lm629_host")
+    if not any(isinstance(h, _ClickHandler) for h in logger.handlers):
+        handler = _ClickHandler()
+        handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+        logger.addHandler(handler)
+    logger.setLevel(level)
 
 
 def _session() -> Session:

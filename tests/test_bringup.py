@@ -1,0 +1,96 @@
+"""The bring-up sequence (lm629_host.bringup) on the chip model, without click.
+
+Numbers: 8 MHz -> T = 256 us.  The default small move is 1000 counts at 0.5 counts/sample
+with acceleration word 65536 // 400 = 163: ramps of 32768 / 163 = 201.03 samples, a whole move
+of 201.03 + 1000 / 0.5 = 2201.03 samples = 0.56346 s.  At kp = 20 the P-only dead band is 256 / 20 = 12.8 counts (AN-706 5.2.4),
+so the settle band is ceil(12.8) + 1 = 14 counts.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from lm629_host import Cmd, Status, TrajectoryFlags
+from lm629_host.bringup import BringupOptions, run_bringup
+
+T = 2048 / 8e6
+
+
+def test_default_simulator_passes_every_step(open_chip):
+    chip = open_chip("sim://?record=1")
+    seen = []
+    report = run_bringup(chip, report=seen.append)
+    assert [s.name for s in seen] == ["reset", "phasing", "hold", "move", "settle", "next"]
+    assert report.passed and report.exit_code == 0
+    reset = report.step("reset")
+    first, done, cleared = reset.data["statuses"]
+    assert first == 0x00 and done in (0x84, 0xC4) and cleared in (0x80, 0xC0)
+    assert "00 " in reset.summary
+    phasing = report.step("phasing").data
+    assert 0 < phasing["real_moved"] < phasing["desired_moved"]
+    assert report.step("hold").data["dead_band"] == 14
+    assert abs(report.step("hold").data["following_error"]) <= 14
+    move = report.step("move").data
+    profile = (32768 / 163 + 2000) * T
+    assert move["profile_s"] == pytest.approx(profile, abs=1e-4)
+    # completion seen by a 2 ms poll: not before the profile ends, at most a poll or two later
+    assert profile - T <= move["seconds"] <= profile + 0.005
+    settle = report.step("settle").data
+    assert abs(settle["final_error"]) <= 14
+    assert 0 <= settle["settle_s"] < 2.0
+    assert 0 < abs(settle["max_following_error"]) < 200
+    # the motor is left holding (drive on, not stopped by the safety net)
+    assert not chip.read_status() & Status.MOTOR_OFF
+
+
+def test_reversed_leads_fail_phasing_and_stop_the_motor(open_chip):
+    chip = open_chip("sim://?reversed=1&record=1")
+    report = run_bringup(chip)
+    assert [s.name for s in report.steps] == ["reset", "phasing"]
+    step = report.step("phasing")
+    assert step.ok is False and "swap the motor leads" in step.summary.lower()
+    assert step.data["real_moved"] < -50 < 0 < step.data["desired_moved"]
+    assert report.exit_code == 1
+    model = chip.transport.model
+    assert model.motor_off
+    # the last four commands: LTRJ abrupt stop, STT, LTRJ motor off, STT
+    tail = [(c, w) for c, w in model.history if c != Cmd.RSTI][-4:]
+    assert tail == [(Cmd.LTRJ, (int(TrajectoryFlags.STOP_ABRUPT),)), (Cmd.STT, ()),
+                    (Cmd.LTRJ, (int(TrajectoryFlags.MOTOR_OFF),)), (Cmd.STT, ())]
+
+
+def test_stalled_rotor_says_the_shaft_did_not_turn(open_chip):
+    report = run_bringup(open_chip("sim://?stall=1"))
+    step = report.step("phasing")
+    assert step.ok is False and "did not turn" in step.summary
+    assert step.data["real_moved"] == 0
+
+
+def test_chip_that_never_leaves_reset(open_chip):
+    report = run_bringup(open_chip("sim://?fault=reset"))
+    assert len(report.steps) == 1 and report.steps[0].ok is False
+    assert report.exit_code == 5
+    assert report.steps[0].summary.startswith("status bytes seen: 00 00")
+
+
+def test_declining_the_question_moves_nothing(open_chip):
+    chip = open_chip("sim://?record=1")
+    questions = []
+    report = run_bringup(chip, confirm=lambda q: questions.append(q) or False)
+    assert len(questions) == 1 and "turn" in questions[0]
+    assert report.step("phasing").ok is None and not report.passed and report.exit_code == 1
+    assert Cmd.STT not in [c for c, _ in chip.transport.model.history]
+
+
+def test_a_weak_hold_gain_fails_settle_or_hold(open_chip):
+    """kp = 2 leaves a dead band of 128 + 1 counts: the shaft holds but the small move at
+    0.5 counts/sample outruns such a soft loop; whatever fails, the motor ends up off."""
+    chip = open_chip("sim://")
+    report = run_bringup(chip, BringupOptions(hold_kp=2, settle_timeout_s=0.3))
+    assert report.step("hold").data["dead_band"] == 129
+    failed = [s for s in report.steps if s.ok is False]
+    if failed:
+        assert chip.read_status() & Status.MOTOR_OFF
+        assert "motor stopped" in failed[0].details[0]
+    else:
+        assert report.passed
