@@ -107,7 +107,7 @@ def reset_with_statuses(chip: LM629) -> tuple[Status, list[int]]:
     try:
         return chip.reset(), seen
     finally:
-        del chip.run
+        del chip.run  # the instance attribute only: LM629.run again
 
 
 def _hex(statuses: list[int] | tuple[int, ...]) -> str:
@@ -173,7 +173,8 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
             done(StepResult(
                 "phasing", False,
                 f"RUNAWAY: desired went {wanted:+d} counts, the shaft went {moved:+d}: the loop "
-                "pushes the wrong way. Swap the motor leads (or the encoder's A and B channels)",
+                "pushes the wrong way. Swap the motor leads (or the encoder's A and B channels); "
+                "if a load pulls the shaft back (gravity on an arm), support it and run this again",
                 [note], data))
             return out
         if moved < 2:
@@ -202,11 +203,15 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
                 "dead_band": o.dead_band}
         if abs(err) > o.dead_band or b.real_position != a.real_position:
             _ok, note = emergency_stop(chip)
+            if b.real_position != a.real_position:
+                hint = "the shaft is still moving: an oscillation (lower kp or add kd)"
+            else:
+                hint = ("a steady error beyond the dead band: a load torque or friction holds "
+                        "the shaft off (add ki with a small il)")
             done(StepResult(
                 "hold", False,
-                f"does not hold: error {err:+d} counts (dead band +/-{o.dead_band}), drifted "
-                f"{b.real_position - a.real_position:+d} counts in 0.1 s. An oscillation: lower kp "
-                "or add kd; a steady drift: a load torque (add ki)", [note], data))
+                f"does not hold: error {err:+d} counts (dead band +/-{o.dead_band}), moved "
+                f"{b.real_position - a.real_position:+d} counts in 0.1 s: {hint}", [note], data))
             return out
         done(StepResult("hold", True, f"holds {err:+d} counts from the desired position "
                                       f"(dead band +/-{o.dead_band})", data=data))

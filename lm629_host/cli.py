@@ -17,11 +17,13 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import click
@@ -119,7 +121,7 @@ class Session:
     trace: bool
     stats: bool
     _chip: LM629 | None = None
-    extra_trace: list[Callable[[BusCycle], None]] = field(default_factory=list)
+    _old_sigint: Any = None
 
     @property
     def is_sim(self) -> bool:
@@ -148,11 +150,39 @@ class Session:
         sep = "&" if "?" in self.port else ("?" if "://" in self.port else "?")
         return self.port + sep + extra
 
+    def _guard_programs(self, chip: LM629) -> None:
+        """Ctrl-C never cuts a bus program in half: SIGINT during a program is held until
+        the program has finished, then raised as KeyboardInterrupt (so that the safety stop
+        that follows starts on a clean bus)."""
+        if threading.current_thread() is not threading.main_thread():
+            return
+        state = {"depth": 0, "pending": False}
+
+        def on_sigint(signum: int, frame: Any) -> None:
+            if state["depth"]:
+                state["pending"] = True
+            else:
+                raise KeyboardInterrupt
+
+        execute = chip.transport.execute
+
+        def guarded(program: Program):  # type: ignore[no-untyped-def]
+            state["depth"] += 1
+            try:
+                result = execute(program)
+            finally:
+                state["depth"] -= 1
+            if state["pending"] and not state["depth"]:
+                state["pending"] = False
+                raise KeyboardInterrupt
+            return result
+
+        chip.transport.execute = guarded  # type: ignore[method-assign]
+        self._old_sigint = signal.signal(signal.SIGINT, on_sigint)
+
     def _trace(self, cycle: BusCycle) -> None:
         if self.trace:
             click.echo(f"bus {cycle}", err=True)
-        for f in self.extra_trace:
-            f(cycle)
 
     def open(self, *, prepare: bool = True) -> LM629:
         """The chip.  On an in-process simulator: reset it and load kp = 20 (``prepare``)."""
@@ -163,6 +193,7 @@ class Session:
                            "run `lm629 sim serve --pty /tmp/lm629` and pass --port /tmp/lm629)",
                            err=True)
             self._chip = _open(self.url(), self.chip_name, self._trace)
+            self._guard_programs(self._chip)
             log.info("opened %s", self._chip.transport.describe())
             if self.is_sim and prepare:
                 self._chip.reset()
@@ -178,6 +209,9 @@ class Session:
                 click.echo(f"stats: {self._chip.transport.stats}", err=True)
             self._chip.close()
             self._chip = None
+        if self._old_sigint is not None:
+            signal.signal(signal.SIGINT, self._old_sigint)
+            self._old_sigint = None
 
 
 def _help_epilog() -> str:
@@ -483,10 +517,24 @@ def move(target: float, relative: bool, vel: float | None, acc: float | None, ra
         if no_wait:
             return
         snap = _wait_move(chip, goal, timeout, poll=0.05)
-        chip.clock.sleep(0.05)
-        snap = chip.snapshot()
+        done_at = snap.time
+        snap = _wait_still(chip, 1.0)
     click.echo(f"done: desired {snap.desired_position}, actual {snap.real_position} "
-               f"(error {snap.following_error:+d}) at t={snap.time:.3f} s")
+               f"(error {snap.following_error:+d}); trajectory complete at t={done_at:.3f} s, "
+               f"shaft at rest at t={snap.time:.3f} s")
+
+
+def _wait_still(chip: LM629, limit_s: float, poll: float = 0.01) -> Snapshot:
+    """Wait (at most ``limit_s``) until the shaft has not moved for 5 polls."""
+    snap = chip.snapshot()
+    end = snap.time + limit_s
+    still = 0
+    while still < 5 and snap.time < end:
+        chip.clock.sleep(poll)
+        last, snap = snap, chip.snapshot()
+        still = still + 1 if (snap.real_position == last.real_position
+                              and snap.real_velocity == 0) else 0
+    return snap
 
 
 @main.command()
@@ -617,6 +665,7 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
     click.echo(f"{'t_s':>9} {'desired':>10} {'actual':>10} {'error':>7} {'dv':>10} {'rv':>6} "
                f"{'st':>3} flags")
     n = 0
+    start = chip.clock.now()
     try:
         while count is None or n < count:
             snap = chip.snapshot()
@@ -628,8 +677,8 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
             if writer:
                 writer.writerow(row)
             n += 1
-            if count is None or n < count:
-                chip.clock.sleep(1.0 / rate)
+            if count is None or n < count:  # a fixed cadence: the rows do not drift
+                chip.clock.sleep(max(0.0, start + n / rate - chip.clock.now()))
     except KeyboardInterrupt:
         click.echo(f"({n} rows)", err=True)  # watching does not move anything: a clean end
     finally:
