@@ -45,7 +45,7 @@ def emergency_stop(chip: LM629) -> tuple[bool, str]:
     if problems:
         msg = ("COULD NOT STOP THE MOTOR (" + "; ".join(problems) + "): switch off the motor "
                "supply, then check the link")
-        log.error(msg)
+        log.info(msg)  # the caller reports it (the CLI: on its one error line)
         return False, msg
     return True, "motor stopped (abrupt stop, then motor off)"
 

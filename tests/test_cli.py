@@ -55,8 +55,8 @@ def test_help_documents_every_exit_code(run):
     r = run("--help")
     assert r.exit_code == 0
     for code, meaning in cli.EXIT_CODES.items():
-        assert f"{code}  {meaning}" in r.output.replace("\n  ", " ") or str(code) in r.output
-    assert "130  interrupted" in r.output and "5  reset failure" in r.output
+        assert f"{code:>3}  {meaning}" in r.output
+    assert "130  interrupted" in r.output and "  5  reset failure" in r.output
 
 
 def test_default_port_is_the_simulator_with_a_notice(run):
@@ -355,3 +355,33 @@ def test_installed_console_script_runs_bringup():
                         "status"], capture_output=True, text=True, timeout=60)
     assert p.returncode == 5 and p.stderr.count("\n") == 1
     assert lm629_host.__version__
+
+
+def test_chip_dying_mid_move_exits_4_and_says_the_motor_may_still_run(run, monkeypatch):
+    """The busy bit sticks (sim fault=busy switched on mid-move): the move's next program times
+    out (exit 4), the safety stop cannot reach the chip either, and the one error line says to
+    switch off the motor supply."""
+    chips = []
+    real = cli._open
+
+    def _open(url, chip, trace):
+        n = {"cycles": 0, "started": False}
+
+        def dying(cycle):
+            trace(cycle)
+            history = chips[0].transport.model.history if chips else []
+            n["started"] = n["started"] or bool(history and history[-1][0] == Cmd.STT)
+            if n["started"]:
+                n["cycles"] += 1
+                if n["cycles"] == 100:
+                    chips[0].transport.model.params.fault = "busy"
+        c = real(url, chip, dying)
+        chips.append(c)
+        return c
+    monkeypatch.setattr(cli, "_open", _open)
+    r = run("--port", "sim://?record=1", "move", "20000")
+    assert r.exit_code == 4
+    lines = err_lines(r)
+    assert len(lines) == 1 and lines[0].startswith("lm629: error: busy bit stayed set")
+    assert "COULD NOT STOP THE MOTOR" in lines[0] and "switch off the motor supply" in lines[0]
+    assert not chips[0].transport.model.motor_off  # indeed still driving
