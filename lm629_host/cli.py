@@ -147,7 +147,7 @@ class Session:
         extra = "&".join(f"{k}={v}" for k, v in add.items() if k not in have)
         if not extra:
             return self.port
-        sep = "&" if "?" in self.port else ("?" if "://" in self.port else "?")
+        sep = "&" if "?" in self.port else "?"
         return self.port + sep + extra
 
     def _guard_programs(self, chip: LM629) -> None:

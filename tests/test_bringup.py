@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 
 from lm629_host import Cmd, Status, TrajectoryFlags
-from lm629_host.bringup import BringupOptions, run_bringup
+from lm629_host.bringup import run_bringup
 
 T = 2048 / 8e6
 

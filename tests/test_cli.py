@@ -18,7 +18,7 @@ import pytest
 from click.testing import CliRunner
 
 import lm629_host
-from lm629_host import Cmd, Status, TrajectoryFlags, cli
+from lm629_host import Cmd, TrajectoryFlags, cli
 
 T = 2048 / 8e6
 
