@@ -43,9 +43,23 @@ uint16_t link_cobs_encode(const uint8_t *in, uint16_t len, uint8_t *out);
 int16_t link_cobs_decode(uint8_t *buf, uint16_t len);
 
 void link_init(link_t *l);
+/* A delimiter ended the frame in l->rx: decode, check and answer it (see link_feed). */
+uint16_t link_frame_end(link_t *l, const uint8_t **out);
+
 /* Feed one received byte.  Returns the number of bytes of a complete encoded reply frame
- * (delimiter included) to send, pointed to by *out, or 0. */
-uint16_t link_feed(link_t *l, uint8_t byte, const uint8_t **out);
+ * (delimiter included) to send, pointed to by *out, or 0.  Inline: the common case (a byte
+ * inside a frame) is a store, without the register saves of the frame handler's call. */
+static inline uint16_t link_feed(link_t *l, uint8_t byte, const uint8_t **out)
+{
+    if (byte != 0) {
+        if (l->rx_len < sizeof l->rx - 1)
+            l->rx[l->rx_len++] = byte;
+        else
+            l->rx_overflow = 1;
+        return 0;
+    }
+    return link_frame_end(l, out);
+}
 /* Run a RUN payload (cs, timeout, program) and build RUN_REPLY's payload in `reply`;
  * returns its size. */
 uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply);

@@ -62,6 +62,11 @@ int main(void)
     for (;;) {
         cli();
         if (rx_head == rx_tail) {
+#ifdef BRIDGE_NO_SLEEP
+            sei(); /* one instruction runs before a pending interrupt is taken: */
+            __asm__ __volatile__("nop"); /* the nop lets the receive interrupt in */
+            continue;
+#endif
             sleep_enable();
             sei();
             sleep_cpu(); /* the receive interrupt wakes us */

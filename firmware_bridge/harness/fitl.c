@@ -57,6 +57,7 @@ typedef struct {
     uint32_t violations;
     char first_violation[256];
     uint64_t bus_cycles;
+    uint64_t xon_events, xoff_events, bytes_in;
 } fitl_t;
 
 static char last_error[256];
@@ -229,6 +230,7 @@ static void pump(fitl_t *h)
     while (h->xon && h->in_tail != h->in_head) {
         uint8_t b = h->in_q[h->in_tail];
         h->in_tail = (h->in_tail + 1) % QSIZE;
+        h->bytes_in++;
         avr_raise_irq(h->uart_in, b); /* may call the XOFF hook */
     }
 }
@@ -237,14 +239,18 @@ static void xon_hook(avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)value;
     fitl_t *h = param;
+    h->xon_events++;
     h->xon = 1;
     pump(h);
 }
 
 static void xoff_hook(avr_irq_t *irq, uint32_t value, void *param)
 {
-    (void)irq; (void)value;
-    ((fitl_t *)param)->xon = 0;
+    (void)irq;
+    if (value) {
+        ((fitl_t *)param)->xon = 0;
+        ((fitl_t *)param)->xoff_events++;
+    }
 }
 
 static void out_hook(avr_irq_t *irq, uint32_t value, void *param)
@@ -402,3 +408,13 @@ uint32_t fitl_violations(fitl_t *h, char *buf, uint32_t size)
     return h->violations;
 }
 void fitl_set_hi(fitl_t *h, int level) { avr_raise_irq(h->hi_pin, level ? 1 : 0); }
+void fitl_uart_counts(fitl_t *h, uint64_t *out)
+{
+    out[0] = h->bytes_in;
+    out[1] = h->xon_events;
+    out[2] = h->xoff_events;
+}
+/* a byte of the AVR's data space (registers, I/O, RAM), for tests and profiling */
+uint8_t fitl_peek(fitl_t *h, uint16_t addr) { return h->avr->data[addr]; }
+/* the AVR's program counter (byte address), for profiling */
+uint32_t fitl_pc(fitl_t *h) { return h->avr->pc; }
