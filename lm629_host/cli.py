@@ -734,7 +734,7 @@ def step(distance: int, kp: int | None, ki: int | None, kd: int | None, il: int 
 @click.argument("words", type=INT, nargs=-1)
 @click.option("--read", "read_n", type=int, default=0, help="Words to read after the command.")
 def raw(command: int, words: tuple[int, ...], read_n: int) -> None:
-    """Send COMMAND (a byte, e.g. 0x1F) with WORDS to write, or --read N words (experts)."""
+    """Send a COMMAND byte (0x1F, 1Fh) with WORDS to write, or --read N words: for experts."""
     chip = _session().open()
     got = chip.raw(command, words, read_n)
     st = chip.read_status()
