@@ -159,16 +159,23 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
                              position=o.phasing_distance, position_relative=True, start=True)
         t_end = start.time + o.phasing_time_s
         snap = start
+        trail = [start]  # the last 50 ms: where is the shaft heading now?
         while chip.clock.now() < t_end:
             chip.clock.sleep(o.poll_s)
             snap = chip.snapshot()
+            trail.append(snap)
+            while trail[0].time < snap.time - 0.05:
+                trail.pop(0)
             if snap.real_position - start.real_position < -10 * o.runaway_counts:
                 break  # running away: no need to watch any longer
         moved = snap.real_position - start.real_position
         wanted = snap.desired_position - start.desired_position
-        data = {"desired_moved": wanted, "real_moved": moved,
+        heading = snap.real_position - trail[0].real_position
+        data = {"desired_moved": wanted, "real_moved": moved, "last_50ms": heading,
                 "seconds": round(snap.time - start.time, 4)}
-        if moved < -o.runaway_counts:
+        # Reversed leads: the shaft goes backwards ever faster.  A load (gravity) also pulls it
+        # back at first, but as the error grows the loop wins and the shaft turns forwards.
+        if moved < -o.runaway_counts and heading < 0:
             _ok, note = emergency_stop(chip)
             done(StepResult(
                 "phasing", False,
@@ -177,7 +184,7 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
                 "if a load pulls the shaft back (gravity on an arm), support it and run this again",
                 [note], data))
             return out
-        if moved < 2:
+        if moved < 2 and heading <= 0:
             _ok, note = emergency_stop(chip)
             done(StepResult(
                 "phasing", False,
@@ -185,9 +192,10 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
                 "Check the amplifier's supply, the PWM/sign (or DAC) wiring to it, the motor and "
                 "the encoder connection", [note], data))
             return out
+        sagged = " (a load pulled it back first; the loop is winning)" if moved < 2 else ""
         done(StepResult("phasing", True,
                         f"the shaft follows: desired {wanted:+d}, shaft {moved:+d} counts in "
-                        f"{snap.time - start.time:.2f} s", data=data))
+                        f"{snap.time - start.time:.2f} s{sagged}", data=data))
 
         # 3 ---------------------------------------------------------------------- hold
         announce(f"hold at kp = {o.hold_kp}")

@@ -95,3 +95,15 @@ def test_a_load_torque_fails_the_hold_with_advice_and_stops_the_motor(open_chip)
     assert "add ki" in hold.summary
     assert report.exit_code == 1
     assert chip.read_status() & Status.MOTOR_OFF
+
+
+def test_a_heavy_load_sags_at_kp1_but_is_not_called_a_runaway(open_chip):
+    """3 mN m of load (gravity on an arm) pulls the shaft back at kp = 1 until the error is
+    large enough -- 3e-3 / 0.025 x 4 ohm = 0.48 V = 5.1 output steps = 1300 counts at kp = 1 --
+    then the loop drives it forwards.  Reversed leads would keep it going backwards ever
+    faster; this must not be reported as "swap the motor leads"."""
+    report = run_bringup(open_chip("sim://?load_torque=0.003"))
+    step = report.step("phasing")
+    assert step.ok is True and "load pulled it back" in step.summary
+    assert step.data["real_moved"] < 0 < step.data["last_50ms"]
+    assert report.step("hold").ok is False  # and kp = 20 cannot hold such a load in its band
