@@ -350,7 +350,7 @@ def _live(enabled: bool) -> Iterator[Callable[[str], None]]:
     def show(text: str) -> None:
         nonlocal shown
         if enabled:
-            click.echo("\r" + text + "\x1b[K", nl=False, err=True)
+            click.echo("\r" + text + "\x1b[K", nl=False, err=True, color=True)
             shown = True
 
     try:

@@ -385,3 +385,35 @@ def test_chip_dying_mid_move_exits_4_and_says_the_motor_may_still_run(run, monke
     assert len(lines) == 1 and lines[0].startswith("lm629: error: busy bit stayed set")
     assert "COULD NOT STOP THE MOTOR" in lines[0] and "switch off the motor supply" in lines[0]
     assert not chips[0].transport.model.motor_off  # indeed still driving
+
+
+def test_move_progress_line_on_a_terminal(run, monkeypatch):
+    """On a terminal the wait rewrites one progress line (carriage return, erase to the end);
+    at 1 count/sample with 50 ms polls a 2000-count move shows ~11 updates."""
+    monkeypatch.setattr(cli, "_isatty", lambda: True)
+    r = run("--port", "sim://", "move", "2000")
+    assert r.exit_code == 0
+    updates = r.stderr.count("\r")
+    assert 8 <= updates <= 14
+    assert "-> 2000" in r.stderr and "\x1b[K" in r.stderr
+
+
+def test_ctrl_c_ends_watch_cleanly(run, monkeypatch):
+    """watch moves nothing: Ctrl-C (a real SIGINT, during the 3rd row's bus program) ends it
+    with exit 0 once that program is over; the interrupted row is not printed."""
+    real = cli._open
+
+    def _open(url, chip, trace):
+        n = {"rdsigs": 0}
+
+        def interrupting(cycle):
+            trace(cycle)
+            if cycle.kind == "command" and cycle.value == Cmd.RDSIGS:
+                n["rdsigs"] += 1
+                if n["rdsigs"] == 3:
+                    os.kill(os.getpid(), signal.SIGINT)
+        return real(url, chip, interrupting)
+    monkeypatch.setattr(cli, "_open", _open)
+    r = run("--port", "sim://", "watch", "--rate", "50")
+    assert r.exit_code == 0
+    assert len(r.stdout.splitlines()) == 1 + 2 and r.stderr == "(2 rows)\n"
