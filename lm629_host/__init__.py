@@ -22,23 +22,25 @@ from .errors import (
 )
 from .lm629 import LM629, Snapshot
 from .opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
-from .program import BusCycle, Program, ProgramResult
+from .program import DEFAULT_BUSY_TIMEOUT_S, BusCycle, Program, ProgramResult
 from .transports import DEFAULT_URL, open_transport, query_params, scheme_of
 
 __version__ = "0.1.0"
 
 
-def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None) -> LM629:  # noqa: A001
+def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa: A001
+         busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> LM629:
     """Open the chip behind ``url`` (``sim://`` by default; see :mod:`lm629_host.transports`).
 
     ``chip`` is "lm628" or "lm629"; on a simulator URL it defaults to the URL's ``chip=``.
-    ``trace`` is called with a :class:`BusCycle` for every bus cycle.
+    ``trace`` is called with a :class:`BusCycle` for every bus cycle.  ``busy_timeout`` (s)
+    bounds every busy check (0.2 to 65.5 ms; default 5 ms).
     """
     if chip is None:
         chip = query_params(url).get("chip", "lm629") if scheme_of(url).startswith("sim") else "lm629"
     transport = open_transport(url, trace=trace)
     try:
-        return LM629(transport, chip=chip)
+        return LM629(transport, chip=chip, busy_timeout=busy_timeout)
     except Exception:
         transport.close()
         raise

@@ -34,10 +34,15 @@ from .opcodes import (
     Status,
     TrajectoryFlags,
 )
-from .program import Program, ProgramResult
+from .program import DEFAULT_BUSY_TIMEOUT_S, Program, ProgramResult
 from .transports.base import Clock, Transport
 
 log = logging.getLogger("lm629_host")
+
+#: busy timeout bounds: "well above" the chip's 100 us worst case; 65.535 ms is the largest a
+#: bridge RUN request carries (PROTOCOL.md, busy_timeout_us)
+BUSY_TIMEOUT_MIN_S = 200e-6
+BUSY_TIMEOUT_MAX_S = 65.535e-3
 
 _STOPS = {
     None: TrajectoryFlags(0),
@@ -103,10 +108,12 @@ class Snapshot:
 class LM629:
     """One LM628 or LM629 behind a transport.  Use :func:`lm629_host.open` to make one."""
 
-    def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2):
+    def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
+                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S):
         chip = chip.lower()
         if chip not in ("lm628", "lm629"):
             raise ValueError(f"chip={chip!r}: expected 'lm628' or 'lm629'")
+        self.busy_timeout = busy_timeout
         self.transport = transport
         self.variant = chip
         self.reset_attempts = reset_attempts
@@ -118,6 +125,25 @@ class LM629:
         self._ce_clear = False
 
     # ------------------------------------------------------------------ plumbing
+    @property
+    def busy_timeout(self) -> float:
+        """Seconds a busy check may wait before :class:`BusyTimeout` (default 5 ms)."""
+        return self._busy_timeout
+
+    @busy_timeout.setter
+    def busy_timeout(self, seconds: float) -> None:
+        if not isinstance(seconds, (int, float)) or not BUSY_TIMEOUT_MIN_S <= seconds <= \
+                BUSY_TIMEOUT_MAX_S:
+            raise ValueError(
+                f"busy_timeout={seconds!r} s is outside {BUSY_TIMEOUT_MIN_S * 1e3:g}.."
+                f"{BUSY_TIMEOUT_MAX_S * 1e3:g} ms (well above the chip's 100 us worst case, "
+                "within what the bridge protocol carries)")
+        self._busy_timeout = float(seconds)
+
+    def program(self) -> Program:
+        """A new, empty bus program with this chip's busy timeout."""
+        return Program(busy_timeout_s=self._busy_timeout)
+
     @property
     def clock(self) -> Clock:
         """The transport's clock: simulated on ``sim://``, the wall clock on hardware."""
@@ -140,42 +166,51 @@ class LM629:
         return f"<LM629 {self.variant} on {self.transport.describe()}>"
 
     def _command(self, cmd: Cmd) -> None:
-        self.run(Program().command(cmd))
+        self.run(self.program().command(cmd))
 
     def _read(self, cmd: Cmd, words: int) -> tuple[int, ...]:
-        return self.run(Program().command(cmd).read(words)).words
+        return self.run(self.program().command(cmd).read(words)).words
 
     # ------------------------------------------------------------------ reset
-    def reset_program(self) -> Program:
-        """The AN-706 3.7 / 4.4.1 initialisation as one program: reset, status 00, wait 1.5 ms,
-        status 84/C4, MSKI 0000, RSTI 0000, status 80/C0 (and PORT12 when it was set)."""
-        p = Program()
+    def reset_programs(self) -> tuple[Program, Program]:
+        """The AN-706 3.7 / 4.4.1 initialisation as two programs.
+
+        First: /RST (or the RESET command), status (00 expected at once), wait 1.5 ms, status
+        (84 or C4 expected).  Second, only once the first checked out, so that nothing is ever
+        written into a chip still in reset: MSKI 0000, RSTI 0000, status once busy is clear
+        (80 or C0 expected), and PORT12 when it was set before.
+        """
+        p = self.program()
         if self.transport.has_reset_line:
             p.reset().status()
         else:
             p.command(Cmd.RESET).status()
         p.wait(round(RESET_WAIT_S * 1e6)).status()
-        p.command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
+        q = self.program().command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
         if self._port12:
-            p.command(Cmd.PORT12)
-        return p
+            q.command(Cmd.PORT12)
+        return p, q
 
     def reset(self) -> Status:
         """Reset the chip and check that it came back, as AN-706 4.4.1 prescribes.
 
         Pulses /RST (or sends the RESET command when the transport has no reset line), checks
-        status 00 at once (hardware reset only), 84 or C4 after 1.5 ms, then masks and clears
-        all interrupts and checks 80 or C0.  Retries ``reset_attempts`` times in all, then
-        raises :class:`ResetError` with every status byte seen.
+        status 00 at once (hardware reset only: a chip that does not read 00 did not see /RST),
+        84 or C4 after 1.5 ms, then masks and clears all interrupts and checks 80 or C0.
+        Retries ``reset_attempts`` times in all, then raises :class:`ResetError` with every
+        status byte seen.
         """
         seen: list[int] = []
         hw = self.transport.has_reset_line
         for _ in range(self.reset_attempts):
-            result = self.run(self.reset_program())
-            first, done, cleared = result.statuses
-            seen.extend(result.statuses)
-            if (not hw or first == 0x00) and done in RESET_DONE_STATUSES \
-                    and cleared in RESET_CLEARED_STATUSES:
+            first_program, init_program = self.reset_programs()
+            first, done = self.run(first_program).statuses
+            seen += (first, done)
+            if (hw and first != 0x00) or done not in RESET_DONE_STATUSES:
+                continue
+            cleared = self.run(init_program).statuses[0]
+            seen.append(cleared)
+            if cleared in RESET_CLEARED_STATUSES:
                 self._ds = 0
                 self._ce_clear = True
                 return Status(cleared)
@@ -186,7 +221,7 @@ class LM629:
     # ------------------------------------------------------------------ status
     def read_status(self) -> Status:
         """RDSTAT: the status byte (no busy check; valid at any time)."""
-        return Status(self.run(Program().status()).statuses[0])
+        return Status(self.run(self.program().status()).statuses[0])
 
     def read_signals(self) -> Signals:
         """RDSIGS: the 16-bit signals register."""
@@ -194,7 +229,7 @@ class LM629:
 
     def snapshot(self) -> Snapshot:
         """Status, signals, positions, velocities and integration sum in one bus program."""
-        p = Program().status()
+        p = self.program().status()
         for cmd, n in ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2),
                        (Cmd.RDRV, 1), (Cmd.RDSUM, 1)):
             p.command(cmd).read(n)
@@ -207,12 +242,13 @@ class LM629:
     def mask_interrupts(self, flags: Status | int) -> None:
         """MSKI: the interrupt conditions (status bits 1..6) that drive HI."""
         value = _check_flags("flags", flags)
-        self.run(Program().command(Cmd.MSKI).write(int(value)))
+        self.run(self.program().command(Cmd.MSKI).write(int(value)))
 
     def reset_interrupts(self, flags: Status | int = INTERRUPTS) -> None:
-        """RSTI: clear exactly ``flags`` (default: all six) and, with them, HI."""
+        """RSTI: clear exactly ``flags`` (default: all six) and, with them, HI (RSTI resets the
+        HI line; it rises again at once if another enabled flag is still set)."""
         value = _check_flags("flags", flags)
-        self.run(Program().command(Cmd.RSTI).write(int(INTERRUPTS & ~value)))
+        self.run(self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~value)))
         if value & Status.COMMAND_ERROR:
             self._ce_clear = True
 
@@ -228,12 +264,12 @@ class LM629:
     def load_position_error(self, threshold: int, stop: bool = False) -> None:
         """LPEI (flag only) or, with ``stop=True``, LPES (flag and motor off)."""
         value = check_int("threshold", threshold, 0, COEFFICIENT_MAX, hex_digits=4)
-        self.run(Program().command(Cmd.LPES if stop else Cmd.LPEI).write(value))
+        self.run(self.program().command(Cmd.LPES if stop else Cmd.LPEI).write(value))
 
     def set_breakpoint(self, position: int, relative: bool = False) -> None:
         """SBPA, or SBPR (relative to the current target position) with ``relative=True``."""
         value = check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
-        self.run(Program().command(Cmd.SBPR if relative else Cmd.SBPA).write32(value))
+        self.run(self.program().command(Cmd.SBPR if relative else Cmd.SBPA).write32(value))
 
     # ------------------------------------------------------------------ filter
     def filter_program(self, kp: int | None = None, ki: int | None = None, kd: int | None = None,
@@ -252,7 +288,7 @@ class LM629:
         for flag in FILTER_ORDER:
             if values[flag.name.lower()] is not None:
                 control |= flag
-        p = Program().command(Cmd.LFIL).write(control)
+        p = self.program().command(Cmd.LFIL).write(control)
         for flag in FILTER_ORDER:
             v = values[flag.name.lower()]
             if v is not None:
@@ -311,8 +347,8 @@ class LM629:
             control |= TrajectoryFlags.VELOCITY_MODE
             if forward:
                 control |= TrajectoryFlags.FORWARD
-        p = Program().command(Cmd.LTRJ)
-        words = Program()
+        p = self.program().command(Cmd.LTRJ)
+        words = self.program()
         for value, flag, rel_flag, relative in (
                 (acceleration, TrajectoryFlags.ACCELERATION, TrajectoryFlags.ACCELERATION_RELATIVE,
                  acceleration_relative),
@@ -344,7 +380,7 @@ class LM629:
 
     def _start(self, program: Program) -> Status:
         if not self._ce_clear:  # RSTI clearing only the command-error flag (0 clears)
-            program = Program().command(Cmd.RSTI).write(int(INTERRUPTS & ~Status.COMMAND_ERROR)) \
+            program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~Status.COMMAND_ERROR)) \
                 .extend(program)
         program.sync().command(Cmd.STT).sync()
         before, after = self.run(program).statuses[-2:]
@@ -371,7 +407,7 @@ class LM629:
         that clears only that flag goes first, so that a refusal is never hidden by a stale flag.  Do not issue STT more often
         than every 10 ms (AN-706 4.6.2).
         """
-        return self._start(Program())
+        return self._start(self.program())
 
     # ------------------------------------------------------------------ output port
     def port8(self) -> None:
@@ -421,8 +457,10 @@ class LM629:
         :class:`WaitTimeout` after ``timeout`` seconds.
         """
         value = Status(check_int("flags", int(flags), 1, 0xFF))
-        if timeout <= 0:
+        if not timeout > 0:
             raise ValueError(f"timeout={timeout} must be positive (seconds)")
+        if not poll > 0:
+            raise ValueError(f"poll={poll} must be positive (seconds)")
         clock = self.clock
         deadline = clock.now() + timeout
         while True:
@@ -441,7 +479,7 @@ class LM629:
         read = check_int("read", read, 0, 16)
         if words and read:
             raise ValueError("a command either writes words or reads them, not both")
-        p = Program().command(command)
+        p = self.program().command(command)
         for w in words:
             p.write(w)
         self._ce_clear = False  # any byte may provoke a command error

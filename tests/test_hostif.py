@@ -235,7 +235,7 @@ def test_retried_reset_is_reported_with_every_status(open_chip):
     chip.reset_attempts = 3
     with pytest.raises(lm629_host.ResetError) as info:
         chip.reset()
-    assert info.value.statuses == (0,) * 9 and info.value.attempts == 3
+    assert info.value.statuses == (0,) * 6 and info.value.attempts == 3  # 00 at once, 00 at 1.5 ms
 
 
 def test_nothing_sleeps_on_the_wall_clock(monkeypatch, open_chip):
@@ -249,3 +249,31 @@ def test_nothing_sleeps_on_the_wall_clock(monkeypatch, open_chip):
     with pytest.raises(lm629_host.WaitTimeout):
         chip.wait_for(Status.INDEX_PULSE, timeout=0.1)
     assert chip.clock.now() >= 0.6
+
+
+def test_reset_error_when_rst_is_not_connected(open_chip):
+    """A chip that does not read 00 right after /RST never saw the pulse (AN-706 4.4.1)."""
+    chip = open_chip("sim://?fault=rst")
+    with pytest.raises(lm629_host.ResetError) as info:
+        chip.reset()
+    assert info.value.statuses[0] != 0x00
+    assert info.value.statuses[1] in (0x84, 0xC4, 0x80, 0xC0)
+
+
+def test_reset_writes_nothing_into_a_chip_still_in_reset(open_chip, recorder):
+    """A reset slower than the promised 1.5 ms: the check fails and MSKI/RSTI are never sent
+    into the /RST window (the strict model would raise if they were)."""
+    chip = open_chip("sim://?reset_s=0.0016")
+    with pytest.raises(lm629_host.ResetError):
+        chip.reset()
+    assert ("command", 0x1C) not in recorder.data()
+
+
+def test_busy_timeout_is_configurable(open_chip):
+    chip = lm629_host.open("sim://?fault=busy", busy_timeout=0.02)
+    t0 = chip.clock.now()
+    with pytest.raises(lm629_host.BusyTimeout, match="20 ms"):
+        chip.read_status() and chip.read_signals()
+    assert chip.clock.now() - t0 >= 0.02
+    with pytest.raises(ValueError, match="busy_timeout=5e-05"):
+        chip.busy_timeout = 50e-6

@@ -247,7 +247,7 @@ def test_hi_and_reset_line_follow_the_capabilities():
     assert t2.has_reset_line is False
     assert t2.execute(Program().status()).hi is None
     chip = LM629(t2)
-    assert chip.reset_program().ops[0].op is Op.COMMAND  # RESET command instead of /RST
+    assert chip.reset_programs()[0].ops[0].op is Op.COMMAND  # RESET command instead of /RST
 
 
 def test_refused_programs_are_typed_errors_and_nothing_ran():

@@ -293,6 +293,8 @@ class ChipModel:
 
     def reset_pulse(self) -> None:
         """/RST rising edge (after at least 8 clocks low)."""
+        if self.params.fault == "rst":
+            return  # the /RST line is not connected: the chip never sees the pulse
         self._check_cycle("/RST pulse", allow_reset=True)
         self.position_error_threshold = 0x7FFF
         self._abort_transfer()

@@ -20,7 +20,8 @@ class ChipParams:
     #: RESET command is written); the datasheet only promises "within 1.5 ms".
     reset_s: float = 1.0e-3
     strict: bool = False  #: raise ProtocolViolation on any host protocol violation
-    fault: str | None = None  #: None, "reset" (never leaves reset) or "busy" (busy stuck high)
+    #: None, "reset" (never leaves reset), "busy" (busy stuck high) or "rst" (/RST not connected)
+    fault: str | None = None
     record: bool = False  #: keep a record of every command that reached the chip (fault tests)
     #: the sample loop: "auto" (the C loop if it was built, else "py"), "c", "py" (the
     #: flattened loop of model/fastloop.py) or "0" (only the readable per-sample code)

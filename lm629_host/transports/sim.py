@@ -2,7 +2,7 @@
 
 URL parameters (all optional)::
 
-    sim://?chip=lm628&clock=6000000&strict=1&fault=reset|busy&record=1
+    sim://?chip=lm628&clock=6000000&strict=1&fault=reset|busy|rst&record=1
           &lines=500&reversed=1&...      (motor and encoder: see model.params.MotorParams)
 
 Each bus strobe costs ``CYCLE_S`` of simulated time (a fast host's bus cycle); while the chip
@@ -39,6 +39,10 @@ class SimClock(Clock):
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
 
+#: the bench failures the simulators rehearse: the chip never leaves reset, busy stuck high,
+#: the /RST line not connected
+FAULTS = (None, "reset", "busy", "rst")
+
 
 def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel:
     """A :class:`ChipModel` configured from a simulator URL's query string.
@@ -57,8 +61,9 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
     if unknown:
         raise ValueError(f"{url}: unknown simulator parameter(s) {', '.join(sorted(unknown))}")
     chip.variant = chip.variant.lower()
-    if chip.fault not in (None, "reset", "busy"):
-        raise ValueError(f"{url}: fault={chip.fault!r}: expected 'reset' or 'busy'")
+    if chip.fault not in FAULTS:
+        raise ValueError(f"{url}: fault={chip.fault!r}: expected one of "
+                         f"{', '.join(f for f in FAULTS if f)}")
     return ChipModel(chip, motor)
 
 
