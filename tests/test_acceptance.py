@@ -156,17 +156,24 @@ def test_bad_arguments_touch_nothing(base_url, open_chip, recorder):
     assert chip.transport.stats.as_dict() == before
 
 
-def test_signed_reads_after_define_home_and_a_breakpoint(base_url, open_chip, recorder):
-    """Reads come back as signed numbers: RDDP/RDRP 32-bit, RDRV/RDSUM 16-bit."""
+def test_signed_reads_of_a_move_below_minus_65536(base_url, open_chip):
+    """Reads come back signed: RDDP/RDRP/RDDV as 32-bit two's complement (high word FFFE
+    for -70000), RDRV 16-bit.  A fast move far below zero: the desired position ends exactly on
+    -70000 (0xFFFEEE90), the motor lags behind but runs backwards."""
     chip = open_chip(base_url)
     chip.reset()
     chip.define_home()
-    assert chip.read_desired_position() == 0
-    assert chip.read_real_position() == 0
+    chip.load_filter(kp=20)
+    chip.update_filter()
+    chip.load_trajectory(acceleration=10 << 16, velocity=1000 << 16, position=-70000, start=True)
+    chip.clock.sleep(0.02)  # 78 samples: still accelerating at 10 counts/sample^2
+    assert chip.read_desired_velocity() < -(100 << 16)
+    assert chip.read_real_velocity() < 0
+    chip.wait_for(Status.TRAJECTORY_COMPLETE, timeout=1)
+    assert chip.read_desired_position() == -70000
     assert chip.read_desired_velocity() == 0
-    assert chip.read_real_velocity() == 0
-    assert chip.read_integration_sum() == 0
-    assert chip.read_index_position() == 0
+    assert chip.read_real_position() < 0
+    assert chip.read_integration_sum() == 0  # ki = 0
 
 
 def test_lm628_port12_and_port8_switch_the_output_mode(base_url, open_chip):
