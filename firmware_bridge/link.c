@@ -24,11 +24,16 @@ static const uint16_t crc_table[256] CRC_TABLE_ATTR = {
     CRC_T64(0), CRC_T64(64), CRC_T64(128), CRC_T64(192)
 };
 
+static inline uint16_t crc_step(uint16_t crc, uint8_t b)
+{
+    return (uint16_t)(crc << 8) ^ CRC_ENTRY((uint8_t)(crc >> 8) ^ b);
+}
+
 uint16_t link_crc16(const uint8_t *data, uint16_t len)
 {
     uint16_t crc = LINK_CRC_INIT;
     while (len--)
-        crc = (uint16_t)(crc << 8) ^ CRC_ENTRY((uint8_t)(crc >> 8) ^ *data++);
+        crc = crc_step(crc, *data++);
     return crc ^ LINK_CRC_XOROUT;
 }
 
@@ -69,10 +74,18 @@ int16_t link_cobs_decode(uint8_t *buf, uint16_t len)
     return (int16_t)o;
 }
 
-void link_init(link_t *l)
+static void rx_restart(link_t *l)
 {
     l->rx_len = 0;
-    l->rx_overflow = 0;
+    l->rx_bad = 0;
+    l->code_left = 0;
+    l->started = 0;
+    l->crc = LINK_CRC_INIT;
+}
+
+void link_init(link_t *l)
+{
+    rx_restart(l);
     l->cache_len = 0;
     l->frames = l->bad_frames = l->runs = l->cache_hits = 0;
 }
@@ -249,20 +262,50 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
     return finish(r, len, l->rx);
 }
 
+static inline void put(link_t *l, uint8_t b)
+{
+    uint16_t n = l->rx_len;
+    if (n >= LINK_MAX_FRAME) {
+        l->rx_bad = 1;
+        return;
+    }
+    if (n >= 2) /* the last two bytes are the CRC itself: sum two bytes behind */
+        l->crc = crc_step(l->crc, l->rx[n - 2]);
+    l->rx[n] = b;
+    l->rx_len = (uint16_t)(n + 1);
+}
+
+void link_byte(link_t *l, uint8_t byte)
+{
+    if (l->rx_bad)
+        return;
+    if (l->code_left) {
+        l->code_left--;
+        put(l, byte);
+        return;
+    }
+    /* a code byte: the block before it ends in an implied zero unless it was a full block */
+    if (l->started && l->code != 0xFF)
+        put(l, 0);
+    l->started = 1;
+    l->code = byte;
+    l->code_left = (uint8_t)(byte - 1);
+}
+
 uint16_t link_frame_end(link_t *l, const uint8_t **out)
 {
-    uint16_t len = l->rx_len;
-    uint8_t overflow = l->rx_overflow;
-    l->rx_len = 0;
-    l->rx_overflow = 0;
-    if (len == 0)
+    uint16_t n = l->rx_len;
+    uint16_t crc = l->crc ^ LINK_CRC_XOROUT;
+    uint8_t ok = l->started && !l->rx_bad && !l->code_left && n >= 4
+        && (uint8_t)(crc >> 8) == l->rx[n - 2] && (uint8_t)crc == l->rx[n - 1];
+    uint8_t empty = !l->started;
+    rx_restart(l);
+    if (empty)
         return 0; /* back-to-back delimiters: nothing to count */
-    int16_t n = overflow ? -1 : link_cobs_decode(l->rx, len);
-    if (n < 4 || n > (int16_t)LINK_MAX_FRAME
-        || link_crc16(l->rx, (uint16_t)(n - 2)) != (uint16_t)((l->rx[n - 2] << 8) | l->rx[n - 1])) {
+    if (!ok) {
         l->bad_frames++;
         return 0; /* never answered: the host's retry covers it */
     }
     l->frames++;
-    return handle(l, (uint16_t)n, out);
+    return handle(l, n, out);
 }

@@ -23,10 +23,12 @@ typedef uint32_t link_count_t;
 #endif
 
 typedef struct {
-    uint8_t rx[LINK_MAX_WIRE_FRAME];    /* encoded bytes of the frame being received; decoded
-                                           in place; non-RUN replies are encoded here too */
-    uint16_t rx_len;
-    uint8_t rx_overflow;                /* frame too long: drop bytes up to the next 0x00 */
+    uint8_t rx[LINK_MAX_WIRE_FRAME];    /* the frame being received, COBS-decoded as its bytes
+                                           arrive; non-RUN replies are encoded here too */
+    uint16_t rx_len;                    /* decoded bytes so far */
+    uint8_t rx_bad;                     /* too long or bad COBS: drop up to the next 0x00 */
+    uint8_t code, code_left, started;   /* COBS decoder: current block code, bytes left in it */
+    uint16_t crc;                       /* CRC register over rx[0 .. rx_len - 2) */
     uint8_t reply[LINK_MAX_FRAME];      /* decoded reply being built */
     uint8_t cache[LINK_MAX_WIRE_FRAME]; /* encoded reply to the last RUN (exactly once) */
     uint16_t cache_len;                 /* 0: no cached reply */
@@ -43,19 +45,19 @@ uint16_t link_cobs_encode(const uint8_t *in, uint16_t len, uint8_t *out);
 int16_t link_cobs_decode(uint8_t *buf, uint16_t len);
 
 void link_init(link_t *l);
-/* A delimiter ended the frame in l->rx: decode, check and answer it (see link_feed). */
+/* A delimiter ended the frame in l->rx: check and answer it (see link_feed). */
 uint16_t link_frame_end(link_t *l, const uint8_t **out);
+/* One non-zero byte of a frame: COBS-decoded and CRC-summed at once, so that the work of a
+ * frame is spread over its wire time instead of waiting for its delimiter. */
+void link_byte(link_t *l, uint8_t byte);
 
 /* Feed one received byte.  Returns the number of bytes of a complete encoded reply frame
- * (delimiter included) to send, pointed to by *out, or 0.  Inline: the common case (a byte
- * inside a frame) is a store, without the register saves of the frame handler's call. */
+ * (delimiter included) to send, pointed to by *out, or 0.  Inline: a byte inside a frame
+ * costs a call of the small link_byte, not the register saves of the frame handler. */
 static inline uint16_t link_feed(link_t *l, uint8_t byte, const uint8_t **out)
 {
     if (byte != 0) {
-        if (l->rx_len < sizeof l->rx - 1)
-            l->rx[l->rx_len++] = byte;
-        else
-            l->rx_overflow = 1;
+        link_byte(l, byte);
         return 0;
     }
     return link_frame_end(l, out);
