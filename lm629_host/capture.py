@@ -79,6 +79,9 @@ def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
     filt = dict(filter or {})
     program = chip.filter_program(**filt) if filt else None  # validate before any traffic
     chip.trajectory_program(acceleration=acceleration, velocity=velocity, position=0)
+    if chip.is_moving():
+        raise ValueError("the motor is moving: a step response starts from rest (and the chip "
+                         "refuses a new acceleration during a move); `lm629 stop --smooth` first")
     with stop_on_error(chip):
         if program is not None:
             chip.load_filter(**filt)

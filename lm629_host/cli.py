@@ -199,7 +199,7 @@ class Session:
                 self._chip.reset()
                 self._chip.load_filter(kp=20)
                 self._chip.update_filter()
-                self._chip.run(Program().sync())  # UDF's busy over before the command's reads
+                self._chip.sync()  # UDF's busy over before the command's reads
                 log.info("fresh simulated chip: reset, kp = 20 loaded")
         return self._chip
 
@@ -230,6 +230,11 @@ class LM629Group(click.Group):
             raise
         except KeyboardInterrupt as exc:
             _fail(ctx, "interrupted", exc, 130)
+        except BrokenPipeError:
+            # stdout closed early (`lm629 calc ... | head`): not an error; keep Python from
+            # complaining again when it flushes stdout at exit
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            ctx.exit(0)
         except Exception as exc:  # noqa: BLE001 - mapped to exit codes below
             code = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), None)
             if code is None:
@@ -445,6 +450,11 @@ def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, d
     s = _session()
     chip = s.open()
     chip.filter_program(kp, ki, kd, il, ds)  # validate before any traffic
+    if ds is None and not s.is_sim:
+        # the chip cannot report its derivative interval and every LFIL carries it (AN-706
+        # 4.5.1): a new process does not know the last one, so say what is sent
+        click.echo("lm629: no --ds: the derivative interval is set to 1 sample (pass --ds N "
+                   "to keep another one)", err=True)
     chip.load_filter(kp, ki, kd, il, ds)
     if not no_update:
         chip.update_filter()
@@ -467,6 +477,19 @@ def _motion_words(s: Session, velocity: float | None, acceleration: float | None
     v = scale.velocity(60.0 if velocity is None else velocity)
     a = scale.acceleration(10.0 if acceleration is None else acceleration)
     return v, a
+
+
+def _acceleration_unless_moving(chip: LM629, acceleration: int, given: bool) -> int | None:
+    """The acceleration word to load, or None while the motor moves: the chip refuses an STT
+    that changes the acceleration during a move with the drive on (AN-706 4.6.1), so velocity
+    and target change on the fly with the acceleration already loaded."""
+    if not chip.is_moving():
+        return acceleration
+    if given:
+        raise ValueError("--acc: the motor is moving, and the chip refuses a new acceleration "
+                         "until the move has ended or the motor is off (AN-706 4.6.1); leave "
+                         "--acc out to change velocity or target on the fly, or `lm629 stop` first")
+    return None
 
 
 def _wait_move(chip: LM629, target: int | None, timeout: float, poll: float) -> Snapshot:
@@ -507,12 +530,14 @@ def move(target: float, relative: bool, vel: float | None, acc: float | None, ra
     if timeout <= 0:
         raise ValueError(f"--timeout={timeout} must be positive (seconds)")
     chip = s.open()
-    chip.trajectory_program(acceleration=a, velocity=v, position=0)  # validate words first
+    # every check before anything moves: the words, the goal, and whether the chip would
+    # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)
+    chip.trajectory_program(acceleration=a, velocity=v, position=0)
+    goal = chip.read_desired_position() + counts if relative else counts
+    chip.trajectory_program(position=goal)
+    acceleration = _acceleration_unless_moving(chip, a, acc is not None)
     with stop_on_error(chip):
-        here = chip.read_desired_position()
-        goal = here + counts if relative else counts
-        chip.trajectory_program(position=goal)
-        chip.load_trajectory(acceleration=a, velocity=v, position=goal, start=True)
+        chip.load_trajectory(acceleration=acceleration, velocity=v, position=goal, start=True)
         click.echo(f"moving to {goal} counts (velocity word {v}, acceleration word {a})")
         if no_wait:
             return
@@ -555,8 +580,9 @@ def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
         raise ValueError(f"--time={run_s} must be positive (seconds)")
     chip = s.open()
     chip.trajectory_program(acceleration=a, velocity=v, velocity_mode=True)
+    acceleration = _acceleration_unless_moving(chip, a, acc is not None)
     with stop_on_error(chip):
-        chip.load_trajectory(acceleration=a, velocity=v, velocity_mode=True,
+        chip.load_trajectory(acceleration=acceleration, velocity=v, velocity_mode=True,
                              forward=not reverse, start=True)
         click.echo(f"velocity mode {'backward' if reverse else 'forward'}: velocity word {v}, "
                    f"acceleration word {a}")

@@ -223,6 +223,15 @@ class LM629:
         """RDSTAT: the status byte (no busy check; valid at any time)."""
         return Status(self.run(self.program().status()).statuses[0])
 
+    def sync(self) -> Status:
+        """Wait until the busy bit is clear (bounded by ``busy_timeout``); return the status."""
+        return Status(self.run(self.program().sync()).statuses[0])
+
+    def is_moving(self) -> bool:
+        """True while the trajectory generator runs with the drive on (RDSIGS: neither on
+        target nor motor off).  The chip refuses a new acceleration then (AN-706 4.6.1)."""
+        return not self.read_signals() & (Signals.ON_TARGET | Signals.MOTOR_OFF)
+
     def read_signals(self) -> Signals:
         """RDSIGS: the 16-bit signals register."""
         return Signals(self._read(Cmd.RDSIGS, 1)[0])

@@ -417,3 +417,51 @@ def test_ctrl_c_ends_watch_cleanly(run, monkeypatch):
     r = run("--port", "sim://", "watch", "--rate", "50")
     assert r.exit_code == 0
     assert len(r.stdout.splitlines()) == 1 + 2 and r.stderr == "(2 rows)\n"
+
+
+def test_out_of_range_move_sends_no_trajectory(run):
+    """Exit 2 promises nothing was sent: the goal is checked before any LTRJ (the trace shows
+    the simulator's preparation, MSKI included, and no LTRJ)."""
+    r = run("--trace", "move", str(1 << 30))
+    assert r.exit_code == 2 and "position=1073741824" in r.stderr
+    assert "command 1C" in r.stderr and "command 1F" not in r.stderr
+
+
+def test_acceleration_is_left_out_while_the_motor_moves():
+    """AN-706 4.6.1: the chip refuses an STT that changes the acceleration during a move, so
+    move/velocity change the target on the fly with the loaded acceleration, and --acc while
+    moving is refused before the bus."""
+    chip = lm629_host.open("sim://")
+    chip.reset()
+    chip.load_filter(kp=20)
+    chip.update_filter()
+    assert cli._acceleration_unless_moving(chip, 500, given=True) == 500  # at rest
+    chip.load_trajectory(acceleration=500, velocity=65536, velocity_mode=True, start=True)
+    chip.clock.sleep(0.05)
+    assert chip.is_moving()
+    assert cli._acceleration_unless_moving(chip, 500, given=False) is None
+    with pytest.raises(ValueError, match="the motor is moving"):
+        cli._acceleration_unless_moving(chip, 500, given=True)
+    chip.load_trajectory(velocity=65536, position=chip.read_desired_position() + 300, start=True)
+    chip.wait_for(lm629_host.Status.TRAJECTORY_COMPLETE, timeout=2)
+    assert not chip.is_moving()
+
+
+def test_step_refuses_a_moving_motor():
+    from lm629_host.capture import capture_move
+
+    chip = lm629_host.open("sim://")
+    chip.reset()
+    chip.load_filter(kp=20)
+    chip.update_filter()
+    chip.load_trajectory(acceleration=500, velocity=65536, velocity_mode=True, start=True)
+    with pytest.raises(ValueError, match="the motor is moving"):
+        capture_move(chip, 200, duration_s=0.1, interval_s=0.01, velocity=65536,
+                     acceleration=500)
+
+
+@pytest.mark.skipif(shutil.which("lm629") is None, reason="lm629 script not on PATH")
+def test_closed_stdout_is_not_an_error():
+    p = subprocess.run("lm629 --lines 500 calc --rev 2 --rpm 100 | head -1", shell=True,
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0 and "Traceback" not in p.stderr and "internal error" not in p.stderr
