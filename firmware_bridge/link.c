@@ -262,7 +262,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
     return finish(r, len, l->rx);
 }
 
-static inline void put(link_t *l, uint8_t b)
+static inline __attribute__((always_inline)) void put(link_t *l, uint8_t b)
 {
     uint16_t n = l->rx_len;
     if (n >= LINK_MAX_FRAME) {
