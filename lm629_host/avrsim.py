@@ -115,6 +115,10 @@ def load_library(path: Path = LIBRARY) -> ctypes.CDLL:
     lib.fitl_pending_input.argtypes, lib.fitl_pending_input.restype = [p], ctypes.c_uint32
     lib.fitl_bus_cycles.argtypes, lib.fitl_bus_cycles.restype = [p], ctypes.c_uint64
     lib.fitl_set_access_cycles.argtypes, lib.fitl_set_access_cycles.restype = [p, ctypes.c_int], None
+    lib.fitl_peek.argtypes, lib.fitl_peek.restype = [p, ctypes.c_uint16], ctypes.c_uint8
+    lib.fitl_pc.argtypes, lib.fitl_pc.restype = [p], ctypes.c_uint32
+    lib.fitl_uart_counts.argtypes = [p, ctypes.POINTER(ctypes.c_uint64)]
+    lib.fitl_uart_counts.restype = None
     lib.fitl_violations.argtypes = [p, ctypes.c_char_p, ctypes.c_uint32]
     lib.fitl_violations.restype = ctypes.c_uint32
     _lib = lib
@@ -242,6 +246,21 @@ class AvrSim:
     @property
     def bus_cycles(self) -> int:
         return int(self._lib.fitl_bus_cycles(self._h))
+
+    def peek(self, address: int) -> int:
+        """A byte of the AVR's data space (registers, I/O, RAM): for tests and profiling."""
+        return int(self._lib.fitl_peek(self._h, address))
+
+    @property
+    def pc(self) -> int:
+        """The AVR's program counter (byte address), for sampling profiles."""
+        return int(self._lib.fitl_pc(self._h))
+
+    def uart_counts(self) -> tuple[int, int, int]:
+        """(bytes raised into the simulated UART, XON events, XOFF events)."""
+        out = (ctypes.c_uint64 * 3)()
+        self._lib.fitl_uart_counts(self._h, out)
+        return int(out[0]), int(out[1]), int(out[2])
 
     def set_access_cycles(self, cycles: int) -> None:
         """The chip's read access time (plus the AVR's input synchroniser) in AVR cycles; the
