@@ -40,7 +40,7 @@ from .link import (
 from .model import ChipModel
 from .opcodes import Status
 from .program import BusOp, Op
-from .transports.base import Clock
+from .transports.sim import SimClock
 
 _BUSY = int(Status.BUSY)
 
@@ -196,21 +196,8 @@ class BridgeEmulator:
         return RunReply(Result.OK, 0xFF, last, int(m.hi), tuple(statuses), tuple(words))
 
 
-class ModelClock(Clock):
-    """The model's simulated time; ``sleep`` runs the chip forward (never the wall clock)."""
-
-    def __init__(self, model: ChipModel) -> None:
-        self.model = model
-
-    def now(self) -> float:
-        return self.model.tick / self.model.clock_hz
-
-    def sleep(self, seconds: float) -> None:
-        self.model.advance(seconds)
-
-    def advance_to(self, t: float) -> None:
-        m = self.model
-        m.advance_to(math.ceil(t * m.clock_hz - 1e-6))
+#: the far end runs on the chip model's simulated clock (the one ``sim://`` uses)
+ModelClock = SimClock
 
 
 class EmuPipe:

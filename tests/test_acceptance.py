@@ -12,7 +12,6 @@ import importlib
 
 import pytest
 
-import lm629_host
 from lm629_host import BusyTimeout, ResetError, Signals, Status, WaitTimeout
 from lm629_host.transports import SCHEMES
 

@@ -12,6 +12,7 @@ is busy, the busy check polls every ``poll_interval_s``.  ``chip.clock`` is the 
 
 from __future__ import annotations
 
+import math
 import os
 
 from ..model import ChipModel, ChipParams, MotorParams
@@ -35,6 +36,11 @@ class SimClock(Clock):
 
     def sleep(self, seconds: float) -> None:
         self.model.advance(seconds)
+
+    def advance_to(self, t: float) -> None:
+        """Run the model up to simulated time ``t`` (seconds), rounded up to a whole clock."""
+        m = self.model
+        m.advance_to(math.ceil(t * m.clock_hz - 1e-6))
 
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
