@@ -23,19 +23,20 @@ typedef uint32_t link_count_t;
 #endif
 
 typedef struct {
-    uint8_t rx[LINK_MAX_WIRE_FRAME];    /* the frame being received, COBS-decoded as its bytes
-                                           arrive; non-RUN replies are encoded here too */
+    /* small fields first: the AVR reaches them with a one-word displacement (0..63) */
     uint16_t rx_len;                    /* decoded bytes so far */
     uint8_t rx_bad;                     /* too long or bad COBS: drop up to the next 0x00 */
     uint8_t code, code_left, started;   /* COBS decoder: current block code, bytes left in it */
     uint16_t crc;                       /* CRC register over rx[0 .. rx_len - 2) */
-    uint8_t reply[LINK_MAX_FRAME];      /* decoded reply being built */
-    uint8_t cache[LINK_MAX_WIRE_FRAME]; /* encoded reply to the last RUN (exactly once) */
     uint16_t cache_len;                 /* 0: no cached reply */
     uint8_t cache_seq;
     uint16_t cache_crc;
-    /* counters (for tests; wrap silently) */
+    /* counters (for tests) */
     link_count_t frames, bad_frames, runs, cache_hits;
+    uint8_t rx[LINK_MAX_WIRE_FRAME];    /* the frame being received, COBS-decoded as its bytes
+                                           arrive; non-RUN replies are encoded here too */
+    uint8_t reply[LINK_MAX_FRAME];      /* decoded reply being built */
+    uint8_t cache[LINK_MAX_WIRE_FRAME]; /* encoded reply to the last RUN (exactly once) */
 } link_t;
 
 uint16_t link_crc16(const uint8_t *data, uint16_t len);
