@@ -19,11 +19,17 @@ URLS = ["sim://", "sim+avr://", "sim+ftdi://"]
 
 
 def _available(url: str) -> bool:
+    """The transport's module imports, and for sim+avr:// the AVR toolchain is there to build
+    the firmware (``.ci/run`` installs it, so CI never skips)."""
     module = SCHEMES[url.split("://")[0]].split(":")[0]
     try:
         importlib.import_module(module)
     except ImportError:
         return False
+    if url.startswith("sim+avr"):
+        from lm629_host.avrsim import toolchain_missing
+
+        return not toolchain_missing()
     return True
 
 
