@@ -190,3 +190,23 @@ def test_random_command_sequences_agree(seed):
             p.run(rnd.choice([T, 7 * T, 0.01, 0.05, 0.2]))
     finally:
         p.close()
+
+
+def test_the_loops_take_their_status_bits_from_opcodes():
+    """fastloop.py and _fastloop.c hold no hand copy of the opcodes.py bits (one place per fact):
+    the Python loop converts the enums, the C loop reads them from lm629_host.opcodes at import."""
+    import re
+    from pathlib import Path
+
+    from lm629_host.model import fastloop
+    from lm629_host.opcodes import Signals, Status
+
+    assert (fastloop._COMPLETE, fastloop._INDEX, fastloop._WRAP, fastloop._PERR, fastloop._BP) == (
+        Status.TRAJECTORY_COMPLETE, Status.INDEX_PULSE, Status.WRAPAROUND, Status.POSITION_ERROR,
+        Status.BREAKPOINT)
+    assert (fastloop._ACQUIRE_INDEX, fastloop._EIGHT_BIT, fastloop._STOP_ON_ERROR) == (
+        Signals.ACQUIRE_INDEX, Signals.EIGHT_BIT_OUTPUT, Signals.STOP_ON_ERROR)
+    model = Path(fastloop.__file__).parent
+    for name in ("fastloop.py", "_fastloop.c"):
+        text = (model / name).read_text()
+        assert not re.search(r"(events|flags)\s*\|=\s*(0x|\d)", text), f"{name}: a literal status bit"

@@ -17,6 +17,10 @@ typedef int64_t i64;
 #define SUM_MAX (((i64)1 << 23) - 1)
 #define SUM_MIN (-((i64)1 << 23))
 
+/* The status bits the loop raises.  Their one definition is lm629_host/opcodes.py (Status);
+ * PyInit__fastloop reads them from there, so this file holds no copy of them. */
+static i64 B_COMPLETE, B_INDEX, B_WRAP, B_PERR, B_BP;
+
 static i64 pymod(i64 a, i64 m) { i64 r = a % m; return r < 0 ? r + m : r; }
 static i64 wrap31(i64 x) { return ((x + 0x40000000) & 0x7FFFFFFF) - 0x40000000; }
 static i64 sat16(i64 x) { return x > 32767 ? 32767 : (x < -32768 ? -32768 : x); }
@@ -85,7 +89,7 @@ static PyObject *run(PyObject *self, PyObject *args) {
             i64 k; int hit;
             if (c1 >= count) { k = count + pymod(index_k - count, cpr); hit = k <= c1; }
             else { k = count - pymod(count - index_k, cpr); hit = k >= c1; }
-            if (hit) { index_pos = wrap31(k - home); index_hit = 1; armed = 0; events |= 0x08; }
+            if (hit) { index_pos = wrap31(k - home); index_hit = 1; armed = 0; events |= B_INDEX; }
         }
         count = c1;
         i64 before = p >> 16;
@@ -100,11 +104,11 @@ static PyObject *run(PyObject *self, PyObject *args) {
                     if (v < goal) v = v + a < goal ? v + a : goal;
                     else v = v - a > goal ? v - a : goal;
                     p += v;
-                    if (stopping && v == 0) { done = 1; events |= 0x04; }
+                    if (stopping && v == 0) { done = 1; events |= B_COMPLETE; }
                 } else {
                     i64 r = pymod(target * 65536 - p + HALF, SPAN) - HALF;
                     if (v == 0 && r == 0) {
-                        done = 1; events |= 0x04;
+                        done = 1; events |= B_COMPLETE;
                     } else {
                         i64 sign = v ? (v > 0 ? 1 : -1) : (r > 0 ? 1 : -1);
                         i64 ahead = r * sign, spd = v * sign, up;
@@ -122,14 +126,14 @@ static PyObject *run(PyObject *self, PyObject *args) {
                                 if (up < spd - a) up = spd - a;
                             }
                             if (up >= ahead && spd - a <= ahead) {
-                                v = 0; p += ahead * sign; done = 1; events |= 0x04;
+                                v = 0; p += ahead * sign; done = 1; events |= B_COMPLETE;
                             } else {
                                 v = up * sign; p += v;
                             }
                         }
                     }
                 }
-                if (!(-HALF <= p && p < HALF)) { p = pymod(p + HALF, SPAN) - HALF; events |= 0x10; }
+                if (!(-HALF <= p && p < HALF)) { p = pymod(p + HALF, SPAN) - HALF; events |= B_WRAP; }
             }
             /* PID */
             e = sat16(wrap31((p >> 16) - rp));
@@ -152,11 +156,11 @@ static PyObject *run(PyObject *self, PyObject *args) {
         }
         i64 after = p >> 16;
         i64 step = wrap31(after - before), to_bp = wrap31(bp - before);
-        if ((0 <= to_bp && to_bp <= step) || (step <= to_bp && to_bp <= 0)) events |= 0x40;
+        if ((0 <= to_bp && to_bp <= step) || (step <= to_bp && to_bp <= 0)) events |= B_BP;
         if (!motor_off) {
             i64 err = wrap31(after - rp);
             if (err > threshold || -err > threshold) {
-                events |= 0x20;
+                events |= B_PERR;
                 if (stop_on_error) lpes_trip = 1;
             }
         }
@@ -182,4 +186,29 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastloop",
                                     "The chip model's sample loop in C (see fastloop.py).", -1,
                                     methods};
 
-PyMODINIT_FUNC PyInit__fastloop(void) { return PyModule_Create(&module); }
+/* *out = int(lm629_host.opcodes.Status.<name>); -1 with an exception set on failure */
+static int status_bit(PyObject *status, const char *name, i64 *out) {
+    PyObject *bit = PyObject_GetAttrString(status, name);
+    if (!bit) return -1;
+    long long value = PyLong_AsLongLong(bit);
+    Py_DECREF(bit);
+    if (value == -1 && PyErr_Occurred()) return -1;
+    *out = value;
+    return 0;
+}
+
+PyMODINIT_FUNC PyInit__fastloop(void) {
+    PyObject *opcodes = PyImport_ImportModule("lm629_host.opcodes");
+    if (!opcodes) return NULL;
+    PyObject *status = PyObject_GetAttrString(opcodes, "Status");
+    Py_DECREF(opcodes);
+    if (!status) return NULL;
+    int failed = status_bit(status, "TRAJECTORY_COMPLETE", &B_COMPLETE) ||
+                 status_bit(status, "INDEX_PULSE", &B_INDEX) ||
+                 status_bit(status, "WRAPAROUND", &B_WRAP) ||
+                 status_bit(status, "POSITION_ERROR", &B_PERR) ||
+                 status_bit(status, "BREAKPOINT", &B_BP);
+    Py_DECREF(status);
+    if (failed) return NULL;
+    return PyModule_Create(&module);
+}

@@ -39,6 +39,7 @@ from typing import Callable
 
 from ..errors import ProtocolViolation
 from ..opcodes import (
+    COEFFICIENT_MAX,
     COMMANDS,
     FILTER_ORDER,
     INTERRUPTS,
@@ -65,6 +66,8 @@ _MOTOR_OFF = int(Status.MOTOR_OFF)
 _CMD_ERROR = int(Status.COMMAND_ERROR)
 _TRAJ_DONE = int(Status.TRAJECTORY_COMPLETE)
 _INTERRUPTS = int(INTERRUPTS)
+#: signals bits 7..1 repeat the status byte (the rest of the signals word is kept apart)
+_STATUS_IN_SIGNALS = int(INTERRUPTS | Status.MOTOR_OFF)
 
 
 def s32(value: int) -> int:
@@ -257,7 +260,7 @@ class ChipModel:
 
     # ------------------------------------------------------------------ reset
     def _power_on_reset(self) -> None:
-        self.position_error_threshold = 0x7FFF
+        self.position_error_threshold = COEFFICIENT_MAX
         self._reset_registers()
 
     def _reset_registers(self) -> None:
@@ -296,7 +299,7 @@ class ChipModel:
         if self.params.fault == "rst":
             return  # the /RST line is not connected: the chip never sees the pulse
         self._check_cycle("/RST pulse", allow_reset=True)
-        self.position_error_threshold = 0x7FFF
+        self.position_error_threshold = COEFFICIENT_MAX
         self._abort_transfer()
         self._in_hw_reset = True
         self._busy_until = 0
@@ -313,7 +316,7 @@ class ChipModel:
     def status(self) -> int:
         """The status byte as RDSTAT would read it now."""
         if self._in_hw_reset:
-            return 0x01 if self.params.fault == "busy" else 0x00
+            return _BUSY if self.params.fault == "busy" else 0
         s = self.flags | (_MOTOR_OFF if self.motor_off else 0)
         if self.tick < self._busy_until or self.params.fault == "busy":
             s |= _BUSY
@@ -327,7 +330,7 @@ class ChipModel:
     @property
     def signals(self) -> int:
         m = self.motion
-        s = (self.signals_extra & 0xFF01) | (self.status & 0xFE)
+        s = (self.signals_extra & ~_STATUS_IN_SIGNALS) | (self.status & _STATUS_IN_SIGNALS)
         if self.hi:
             s |= Signals.HOST_INTERRUPT
         if m.on_target:

@@ -17,14 +17,23 @@ from __future__ import annotations
 from math import floor, log
 from typing import TYPE_CHECKING, Callable
 
+from ..opcodes import Signals, Status
 from .pid import SUM_MAX, SUM_MIN
 from .trajectory import HALF, SPAN, landing_velocity, stop_distance
 
 if TYPE_CHECKING:
     from .chip import ChipModel
 
-_COMPLETE, _INDEX, _WRAP, _PERR, _BP = 0x04, 0x08, 0x10, 0x20, 0x40
-_ACQUIRE_INDEX, _EIGHT_BIT, _STOP_ON_ERROR = 0x0001, 0x0100, 0x0200
+# plain ints of the opcodes.py bits (IntFlag arithmetic is slow); _fastloop.c reads the same
+# Status bits from lm629_host.opcodes when it is imported
+_COMPLETE = int(Status.TRAJECTORY_COMPLETE)
+_INDEX = int(Status.INDEX_PULSE)
+_WRAP = int(Status.WRAPAROUND)
+_PERR = int(Status.POSITION_ERROR)
+_BP = int(Status.BREAKPOINT)
+_ACQUIRE_INDEX = int(Signals.ACQUIRE_INDEX)
+_EIGHT_BIT = int(Signals.EIGHT_BIT_OUTPUT)
+_STOP_ON_ERROR = int(Signals.STOP_ON_ERROR)
 
 
 INT_ARGS = ("n kp ki kd il ds shift stall cpr index_k count home out p v a vmax target done "

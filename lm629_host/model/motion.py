@@ -98,7 +98,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..opcodes import Signals, Status, TrajectoryFlags
+from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags
 from .motor import Motor
 from .pid import SUM_MAX, SUM_MIN, PIDState, lm628_dac_code, lm629_pwm, output_code, pid_step, sat16
 from .trajectory import Trajectory, wrap_counts
@@ -204,8 +204,8 @@ class Motion:
         if acceleration < 0 or velocity < 0:
             return False
         self._started = True
-        t.acceleration = min(acceleration, 0x3FFFFFFF)
-        t.max_velocity = min(velocity, 0x3FFFFFFF)
+        t.acceleration = min(acceleration, ACCELERATION_MAX)
+        t.max_velocity = min(velocity, VELOCITY_MAX)
         if loaded & _POS:
             t.target = wrap_counts(t.target + trajectory.position if loaded & _POS_REL
                                    else trajectory.position)
