@@ -209,4 +209,5 @@ def test_the_loops_take_their_status_bits_from_opcodes():
     model = Path(fastloop.__file__).parent
     for name in ("fastloop.py", "_fastloop.c"):
         text = (model / name).read_text()
-        assert not re.search(r"(events|flags)\s*\|=\s*(0x|\d)", text), f"{name}: a literal status bit"
+        literal = re.search(r"(events|flags)\s*\|=\s*(0x|\d)", text)
+        assert not literal, f"{name}: a literal status bit"

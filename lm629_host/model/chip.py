@@ -15,18 +15,19 @@ logic (breakpoint, excessive position error).
 
 The model knows nothing of the driver: it takes bytes and answers bytes.
 
-Host-interface behaviour, from the spec, with the model's choices marked:
+Host-interface behaviour, from the spec (where the spec is silent, the model choices 1-6 of
+:mod:`lm629_host.model` apply: ignored strobes and the byte phase, stray data bytes and unknown
+opcodes, busy after RESET, PORT12 on an LM629, the busy and reset times):
 
 * busy is set after a command byte and after the second byte of a data word, for
   ``ChipParams.busy_s``; a write while busy is ignored, a read while busy returns the stale
   byte of the I/O register; neither sets the command-error bit (as on silicon);
-* [model choice] a strobe that the chip ignores (busy) does not advance the byte phase;
+  [model choice 1] for the byte phase;
 * a new command byte aborts an unfinished command;
-* a data transfer in the wrong direction sets the command-error bit; [model choice] so does a
-  data byte with no command expecting one, and an unknown opcode; the transfer is ignored;
+* a data transfer in the wrong direction sets the command-error bit and is ignored
+  ([model choice 2] for the other transfers that do);
 * after /RST the status reads 00 (busy clear) until the reset completes ``reset_s`` later, then
-  84 or C4; after the RESET command busy stays set until the reset completes [model choice,
-  see the spec's "Observed on real chips"];
+  84 or C4; [model choice 3] for busy after the RESET command;
 * ``strict`` raises :class:`~lm629_host.errors.ProtocolViolation` at once on anything a correct
   host never does: a write or data read while busy, a data byte without a command, a wrong
   direction, an aborted command, an unknown opcode, a cycle during the /RST window.
@@ -241,9 +242,7 @@ class ChipModel:
         was_off = self.motor_off
         events = motion.sample()
         after = motion.desired_position
-        # breakpoint: [model choice] set at every sample where the desired position has reached
-        # the breakpoint (it lies between the previous and the current desired position, going
-        # the short way round the wraparound circle, so that a wrap does not sweep everything)
+        # breakpoint [model choice 19]: the desired position reached it during this sample
         step = wrap_counts(after - before)
         to_bp = wrap_counts(self.breakpoint - before)
         if 0 <= to_bp <= step or step <= to_bp <= 0:
@@ -490,8 +489,7 @@ class ChipModel:
         m = self.motion
         if cmd is Cmd.STT:
             if not m.start(self.trajectory):
-                # [model choice] the refused STT is ignored and the parameters loaded since
-                # the last STT are dropped, so that the next STT (a stop, say) is not refused too
+                # [model choice 13] refused: drop the parameters loaded since the last STT
                 self._command_error_silent()
                 self.trajectory.loaded = 0
                 self.trajectory.control &= ~STOP_FLAGS
@@ -503,8 +501,7 @@ class ChipModel:
                 self.turn_motor_off()
             else:
                 self.motor_off = False
-            # [model choice] a stop bit acts once: the next plain STT resumes the move
-            # (AN-706 6.3.1, 6.3.3)
+            # [model choice 13] a stop bit acts once
             self.trajectory.control &= ~STOP_FLAGS
         elif cmd is Cmd.DFH:
             m.define_home()
@@ -517,7 +514,7 @@ class ChipModel:
             self.signals_extra |= Signals.EIGHT_BIT_OUTPUT
         elif cmd is Cmd.PORT12:
             if self.params.variant == "lm629":
-                # [model choice] the LM629 has no 12-bit port: refuse it
+                # [model choice 4] the LM629 has no 12-bit port
                 self._command_error("PORT12 sent to an LM629")
             else:
                 self.signals_extra &= ~Signals.EIGHT_BIT_OUTPUT

@@ -25,73 +25,9 @@ Order within one sample: the motor runs for the sample period with the output wo
 at the previous sample (the output is held for the whole sample); the encoder is read; the
 trajectory generator steps; the filter computes the new output from e = desired - real.
 
-Model choices
-=============
-Every place where the datasheet and the notes are silent, in one list (numbers in
-:mod:`.params`; the host-interface choices are in :mod:`.chip`):
-
-1. [model choice] Deceleration point: at each sample the generator picks the largest velocity
-   (within +/- one acceleration step of the last one, and not above the programmed maximum)
-   from which a ramp down at the acceleration still stops on or before the target; when none
-   does, it takes the velocity whose ramp ends *exactly* on the target (see
-   :func:`.trajectory.landing_velocity`).  The profile is therefore symmetric to within one
-   sample, never undershoots and ends exactly on the target; the spec's v^2/(2a) is the
-   continuous limit of the same rule.
-2. [model choice] The desired position's 16-bit fraction is kept; only the whole counts
-   (floor) reach the summing junction and RDDP.
-3. [model choice] Positions live modulo 2^31 counts in C0000000..3FFFFFFF; a position-mode
-   move goes the short way round that circle, so a relative move across the wraparound
-   boundary works; WRAPAROUND (status bit 4) is raised when the *desired* position crosses it,
-   either way.  The real position register wraps the same way (without a flag).
-4. [model choice] A target moved on the fly to a point the ramp can no longer stop before is
-   overshot at the programmed deceleration and approached again from the other side.
-5. [model choice] Acceleration 0: the velocity cannot change, so a move never starts and the
-   generator never reports on-target.
-6. [model choice] Stop abruptly: velocity 0 at once, the desired position held where it is;
-   stop smoothly: ramp down at the acceleration.  Both report on-target (trajectory complete)
-   when stopped; the original target is kept, so a plain STT resumes the move (AN-706 6.3.1).
-7. [model choice] Motor off (LTRJ bit 8 or LPES): output 0 (LM628 DAC code 80/800, LM629 PWM
-   magnitude 0: the amplifier applies 0 V, which brakes through the back EMF); the desired
-   position follows the real one each sample (AN-706 6.3.2) and the filter's memory (error
-   sum, derivative) is cleared.  The next STT starts from the real position with velocity 0
-   and resumes the interrupted move (AN-706 6.3.3).
-8. [model choice] STT refused (command error, nothing changes): acceleration loaded since the
-   last STT while the generator is moving and the drive is on; a relative velocity or
-   acceleration that makes the working value negative.  The refused STT is ignored and the
-   parameters loaded since the last STT are dropped (signals bit 14 cleared): otherwise every
-   later STT, even a stop, would be refused until the move ends.  Relative position is
-   relative to the current target; relative velocity and acceleration to the working values.
-   A stop bit acts once: the next plain STT resumes the move.
-9. [model choice] A stop bit with other parameters in the same LTRJ: the stop wins and the
-   parameters are loaded into the working registers for the next STT (no movement now).
-10. [model choice] DFH: the desired position's whole counts and the real position both become
-    0 at once; the target moves by the desired position's counts, so the move still ends at
-    the same place relative to the desired position (AN-706 6.4.1).
-11. [model choice] PID arithmetic (:mod:`.pid`): a 16 x 16 product that overflows 16 bits
-    saturates to 7FFF / 8000 (AN-706 5.2.5's "all the lower bits set", read as signed
-    saturation: a wrapped product would reverse the drive), as does the sum of the three
-    terms; the derivative difference is saturated to 16 bits before kd; the 24-bit error sum
-    saturates, and once the ki term has reached il (il = 0 included) an error that would push
-    the sum further is not summed (AN-706 4.5.2); RDSUM reads the limited ki term; UDF keeps
-    the error sum and the derivative memory.
-12. [model choice] RDRV is the change of the real position over the last sample (whole counts).
-13. [model choice] Index: seen at one count per revolution (``index_offset``); see
-    :meth:`.motor.Motor.index_between`.  SIP arms it; the latched value is the real position
-    register at that count, INDEX_PULSE is raised and signals bit 0 cleared at that sample.
-14. [model choice] After a reset the generator is idle but not "on target" (signals bit 10
-    clear: the published run reads 01C0 after reset, and 8544 once a move has ended); the
-    status's trajectory-complete bit after reset comes from the motor being off.
-15. [model choice] The encoder's 1 M counts/s limit is not modelled; the motor cannot get near
-    it with the default parameters.
-16. [model choice] Breakpoint (in ``ChipModel._sample``): set at every sample where the desired
-    position has reached the breakpoint, i.e. the breakpoint lies between the previous and the
-    current desired position (the short way round the wraparound circle), so after reset
-    (breakpoint 0, position 0) bit 6 reads 1 (C4 / C0).
-17. [model choice] Turning the motor off (LTRJ bit 8, LPES) raises trajectory complete at once
-    (status bit 2 = motor off OR on target).
-18. [model choice] The 8-bit output is the top byte of u by arithmetic shift (floor): e = -1 at
-    kp = 20 gives -1, e = +1..12 gives 0, so a P-only loop rests 0..12 counts short of its
-    target, never past it.
+Where the datasheet and the notes are silent this module follows the model choices listed in
+one place, the docstring of :mod:`lm629_host.model` (``model/__init__.py``): 7-23 concern the
+sample loop here, 26 the encoder.
 """
 
 from __future__ import annotations

@@ -77,9 +77,8 @@ class Motor:
     def index_between(self, c0: int, c1: int) -> int | None:
         """The first count at which the index fired moving from count ``c0`` to ``c1``.
 
-        [model choice] A, B and IN are all low together at exactly one count per revolution,
-        ``index_offset`` counts past a multiple of 4 x lines; the index is seen if the
-        encoder stood on that count at either sample or passed it in between.
+        [model choice 20] The index count is ``index_offset`` counts past a multiple of
+        4 x lines; it is seen if the encoder stood on it at either sample or passed it.
         """
         n = self.counts_per_rev
         k = self.params.index_offset % n

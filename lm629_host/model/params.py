@@ -1,7 +1,8 @@
 """Parameters of the simulated chip, motor and encoder, settable from a ``sim://`` URL.
 
-Every model choice that is a number lives here, with its reason, so that it can be changed in
-one place when someone measures a real chip.
+Every model choice that is a number lives here, so that it can be changed in one place when
+someone measures a real chip; the choices themselves, with their reasons, are listed in one
+place, the docstring of :mod:`lm629_host.model` (``[model choice N]`` below is item N there).
 """
 
 from __future__ import annotations
@@ -13,11 +14,9 @@ from dataclasses import dataclass, fields
 class ChipParams:
     variant: str = "lm629"  #: "lm628" or "lm629"
     clock_hz: int = 8_000_000  #: 1-8 MHz (-8 parts), 1-6 MHz (-6 parts)
-    #: [model choice] busy time after a command byte or a word: the datasheet says typically
-    #: 15-25 us, never more than 100 us; the model uses the middle of the typical range.
+    #: [model choice 5] busy time after a command byte or a word
     busy_s: float = 20e-6
-    #: [model choice] hardware or software reset completes this long after /RST rises (or the
-    #: RESET command is written); the datasheet only promises "within 1.5 ms".
+    #: [model choice 6] a reset completes this long after /RST rises or RESET is written
     reset_s: float = 1.0e-3
     strict: bool = False  #: raise ProtocolViolation on any host protocol violation
     #: None, "reset" (never leaves reset), "busy" (busy stuck high) or "rst" (/RST not connected)
@@ -32,17 +31,14 @@ class ChipParams:
 class MotorParams:
     """A small bench DC motor (12 V, ~4500 rpm no-load) with a 500-line encoder.
 
-    SI units throughout.  The numbers are a plausible small brushed motor with a light load,
-    chosen so that the AN-706 2.12 bring-up (kp = 20, acceleration and velocity about 100, a
-    1000-count move) settles within a few counts of the target, and so that reversed leads
-    at kp = 1 run away within a fraction of a second (see :mod:`.motion` for how they are used).
+    SI units throughout; :mod:`.motor` uses them.  Why these numbers: [model choice 25].
     """
 
     lines: int = 500  #: encoder lines per revolution (4x decoding: 4 * lines counts/rev)
     reversed: bool = False  #: motor leads swapped: positive drive turns the shaft backwards
     index_offset: int = 0  #: counts from the zero of the revolution to the index pulse
     #: amplifier gain: volts across the motor at full-scale output (PWM duty 128/128 or the
-    #: DAC's full scale); [model choice] linear, no dead band, no current limit
+    #: DAC's full scale); [model choice 24] linear
     amp_volts: float = 12.0
     resistance: float = 4.0  #: armature resistance, ohm (inductance neglected: tau_e << T)
     torque_constant: float = 0.025  #: N m / A; the back-EMF constant is the same in SI units
@@ -51,8 +47,7 @@ class MotorParams:
     coulomb: float = 2e-4  #: Coulomb (dry) friction, N m; also the breakaway torque
     load_torque: float = 0.0  #: constant external torque (gravity on an arm...), N m
     stall: bool = False  #: rotor locked: the shaft never turns whatever the drive
-    #: physical shaft angle at power-on, in counts: mid-count, so that the encoder does not
-    #: sit on an edge
+    #: physical shaft angle at power-on, in counts: mid-count [model choice 25]
     start_position: float = 0.5
 
     def check(self) -> None:

@@ -4,17 +4,17 @@ u(n) = kp e(n) + ki sum(e) + kd [e(n') - e(n'-1)], computed as the chip computes
 
 * e(n) saturated to 16 bits;
 * each 16 x 16 product keeps its low 16 bits; a product that overflows them saturates
-  (7FFF / 8000) [model choice: AN-706 5.2.5 "all the lower bits are set ... a predictable
-  saturated output", read as signed saturation];
+  (7FFF / 8000) [model choice 21];
 * the error sum is kept to 24 bits (saturating), its top 16 bits multiply ki, and the term is
   limited to +/- il; once the term has reached the limit, an error that would push the sum
-  further is not summed (AN-706 4.5.2) [model choice: "reached" includes il = 0];
+  further is not summed (AN-706 4.5.2) [model choice 21: "reached" includes il = 0];
 * the derivative difference is taken every ds + 1 samples; kd x difference is held and added
   at every sample;
 * the three 16-bit terms add into a 16-bit result, saturated on overflow.
 
 The output stage takes the top 8 bits (8-bit mode, the LM629's PWM) or the top 12 bits
-(LM628 12-bit mode) of that result.
+(LM628 12-bit mode) of that result [model choice 22].  The model choices are listed in one
+place, the docstring of :mod:`lm629_host.model`.
 """
 
 from __future__ import annotations
