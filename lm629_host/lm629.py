@@ -411,7 +411,10 @@ class LM629:
 
         Raises :class:`CommandError` when the chip refuses it (acceleration changed while
         moving with the drive on, relative velocity below zero): the status after the STT is
-        checked in the same bus program.  When the command-error flag may already be set (after
+        checked in the same bus program, once busy has cleared after the STT (the documents do
+        not say when the chip raises the flag; the model raises it while it processes the STT,
+        i.e. before busy clears: see the model's choice list).  When the command-error flag may
+        already be set (after
         an earlier refusal, a ``raw`` command, or on a chip not reset by this object) an RSTI
         that clears only that flag goes first, so that a refusal is never hidden by a stale flag.  Do not issue STT more often
         than every 10 ms (AN-706 4.6.2).
