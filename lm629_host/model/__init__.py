@@ -58,7 +58,9 @@ Trajectory generator (:mod:`.motion`, :mod:`.trajectory`)
     last STT are dropped (signals bit 14 cleared): otherwise every later STT, even a stop, would
     be refused until the move ends.  Relative position is relative to the current target;
     relative velocity and acceleration to the working values.  A stop bit acts once: the next
-    plain STT resumes the move (AN-706 6.3.1, 6.3.3).
+    plain STT resumes the move (AN-706 6.3.1, 6.3.3).  The refusal (command-error bit) is
+    raised while the chip processes the STT byte, so it is visible once busy clears
+    (``LM629.start`` reads it there).
 14. A stop bit with other parameters in the same LTRJ: the stop wins and the parameters are
     loaded into the working registers for the next STT (no movement now).
 15. DFH: the desired position's whole counts and the real position both become 0 at once; the
