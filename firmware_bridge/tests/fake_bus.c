@@ -1,5 +1,6 @@
 #include <string.h>
 #include "../bus.h"
+#include "../link.h"
 #include "fake_bus.h"
 
 fake_bus_t fake;
@@ -45,3 +46,22 @@ uint8_t bus_hi(void) { return fake.hi; }
 void bus_wait_us(uint16_t us) { fake.waited_us += us; note('T', (uint8_t)(us >> 8)); }
 void bus_timer_start(void) { fake.elapsed_us = 0; }
 uint8_t bus_timer_elapsed(uint16_t us) { return fake.elapsed_us > us; }
+
+/* the transmitter: link.c sends every reply byte through link_tx_byte; fake_tx_verify checks
+ * that exactly the frame link_feed returned went out, in order */
+static uint8_t tx_sent[1024];
+static uint16_t tx_n;
+
+void link_tx_byte(uint8_t b)
+{
+    if (tx_n < sizeof tx_sent)
+        tx_sent[tx_n] = b;
+    tx_n++;
+}
+
+int fake_tx_verify(const uint8_t *out, uint16_t n)
+{
+    int ok = tx_n == n && !memcmp(out, tx_sent, n);
+    tx_n = 0;
+    return ok;
+}

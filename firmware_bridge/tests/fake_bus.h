@@ -17,4 +17,6 @@ typedef struct {
 } fake_bus_t;
 extern fake_bus_t fake;
 void fake_reset(void);
+/* after each reply: 1 if exactly its bytes went through link_tx_byte, in order (then forgets them) */
+int fake_tx_verify(const uint8_t *out, uint16_t n);
 #endif

@@ -49,8 +49,13 @@ static void feed(const uint8_t *p, int n)
     for (int i = 0; i < n; i++) {
         const uint8_t *r;
         uint16_t k = link_feed(&L, p[i], &r);
-        if (k)
+        if (k) {
+            if (!fake_tx_verify(r, k)) {
+                printf("FAIL: the bytes sent through link_tx_byte are not the reply returned\n");
+                exit(1);
+            }
             check_reply(r, k);
+        }
     }
 }
 

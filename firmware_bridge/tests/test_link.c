@@ -64,6 +64,7 @@ static int feed(const uint8_t *p, int n, uint8_t *out)
         uint16_t k = link_feed(&L, p[i], &r);
         if (k) {
             CHECK(!got, "two replies to one frame");
+            CHECK(fake_tx_verify(r, k), "the bytes sent through link_tx_byte are not the reply returned");
             memcpy(out, r, k);
             got = k;
         }
