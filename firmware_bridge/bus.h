@@ -16,5 +16,8 @@ uint8_t bus_hi(void);                   /* the HI line, 0 or 1 */
 void bus_wait_us(uint16_t us);          /* at least `us` microseconds */
 void bus_timer_start(void);             /* start the busy-timeout stopwatch */
 uint8_t bus_timer_elapsed(uint16_t us); /* 1 once `us` microseconds have passed since start */
+/* poll the status byte back to back until busy is clear (1) or `timeout_us` has passed (0);
+ * *status: the last status read */
+uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t *status);
 
 #endif

@@ -46,7 +46,7 @@ static inline void release(void)
     DATA_HI_PORT &= (uint8_t)~DATA_HI_MASK;
 }
 
-static inline void write_cycle(uint8_t select, uint8_t b)
+static inline __attribute__((always_inline)) void write_cycle(uint8_t select, uint8_t b)
 {
     drive(b);
     CTRL_PORT &= (uint8_t)~select;
@@ -59,16 +59,33 @@ static inline void write_cycle(uint8_t select, uint8_t b)
     release();
 }
 
-static inline uint8_t read_cycle(uint8_t select)
+/* a read strobe; the data pins as sampled (two ports) */
+typedef struct {
+    uint8_t lo, hi;
+} pins_t;
+
+static inline __attribute__((always_inline)) pins_t read_pins(uint8_t select)
 {
+    pins_t p;
     CTRL_PORT &= (uint8_t)~select;
     CTRL_PORT &= (uint8_t)~PIN_RD;
     NOP(); NOP(); NOP(); NOP(); NOP(); NOP();
-    uint8_t lo = DATA_LO_PIN, hi = DATA_HI_PIN;
+    p.lo = DATA_LO_PIN;
+    p.hi = DATA_HI_PIN;
     CTRL_PORT |= PIN_RD;
     NOP();
     CTRL_PORT |= PIN_CS | PIN_PS;
-    return (uint8_t)(((lo & DATA_LO_MASK) >> DATA_LO_SHIFT) | ((hi & DATA_HI_MASK) << DATA_HI_SHIFT));
+    return p;
+}
+
+static inline __attribute__((always_inline)) uint8_t pins_byte(pins_t p)
+{
+    return (uint8_t)(((p.lo & DATA_LO_MASK) >> DATA_LO_SHIFT) | ((p.hi & DATA_HI_MASK) << DATA_HI_SHIFT));
+}
+
+static inline __attribute__((always_inline)) uint8_t read_cycle(uint8_t select)
+{
+    return pins_byte(read_pins(select));
 }
 
 uint8_t bus_read_status(void) { return read_cycle(PIN_CS | PIN_PS); }
@@ -91,6 +108,30 @@ uint8_t bus_timer_elapsed(uint16_t us)
 {
     /* ticks of 4 us; one more than us/4 so that a start late in a tick still waits `us` */
     return (uint16_t)(TCNT1 - timer_start) > (uint16_t)(us >> 2);
+}
+
+/* The busy bit is D0, on the low data port: each poll tests that pin alone, and the status
+ * byte is put together once, at the end.  Not inlined, so that the loop keeps its state in
+ * registers: a poll every 27 cycles, busy is seen clear within 2 us of clearing. */
+#if (STATUS_BUSY << DATA_LO_SHIFT) & ~DATA_LO_MASK
+#error "the busy bit is expected on the low data port"
+#endif
+__attribute__((noinline)) uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t *status)
+{
+    uint16_t start = TCNT1, ticks = timeout_us >> 2;
+    uint8_t ok = 1;
+    pins_t p;
+    for (;;) {
+        p = read_pins(PIN_CS | PIN_PS);
+        if (!(p.lo & (uint8_t)(STATUS_BUSY << DATA_LO_SHIFT)))
+            break;
+        if ((uint16_t)(TCNT1 - start) > ticks) { /* as bus_timer_elapsed */
+            ok = 0;
+            break;
+        }
+    }
+    *status = pins_byte(p);
+    return ok;
 }
 
 void bus_wait_us(uint16_t us)

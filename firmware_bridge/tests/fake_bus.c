@@ -47,6 +47,19 @@ void bus_wait_us(uint16_t us) { fake.waited_us += us; note('T', (uint8_t)(us >> 
 void bus_timer_start(void) { fake.elapsed_us = 0; }
 uint8_t bus_timer_elapsed(uint16_t us) { return fake.elapsed_us > us; }
 
+uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t *status)
+{
+    bus_timer_start();
+    for (;;) {
+        uint8_t s = bus_read_status();
+        *status = s;
+        if (!(s & 0x01u))
+            return 1;
+        if (bus_timer_elapsed(timeout_us))
+            return 0;
+    }
+}
+
 /* the transmitter: link.c sends every reply byte through link_tx_byte; fake_tx_verify checks
  * that exactly the frame link_feed returned went out, in order */
 static uint8_t tx_sent[1024];
