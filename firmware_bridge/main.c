@@ -2,8 +2,9 @@
  *
  * Bytes from the USB serial link are collected by the receive interrupt into a ring buffer;
  * the main loop feeds them to the link layer (link.c), which answers each good request with
- * one reply frame, sent here with the transmitter polled.  The CPU sleeps (idle mode) while
- * no byte is waiting: the receive interrupt wakes it. */
+ * one reply frame, sent byte by byte through link_tx_byte (transmitter polled) while it is
+ * still being encoded.  The CPU sleeps (idle mode) while no byte is waiting: the receive
+ * interrupt wakes it. */
 #include <avr/interrupt.h>
 #include <avr/io.h>
 #include <avr/sleep.h>
