@@ -200,6 +200,17 @@ class BridgeEmulator:
 ModelClock = SimClock
 
 
+def _last_due(queue: deque[tuple[float, int]], deadline: float) -> float:
+    """Arrival time of the last byte of ``queue`` (time-ordered) due by ``deadline``; the first
+    byte must be due."""
+    last = queue[0][0]
+    for t, _ in queue:
+        if t > deadline:
+            break
+        last = t
+    return last
+
+
 class EmuPipe:
     """An in-process serial line to a :class:`BridgeEmulator`, in the model's simulated time.
 
@@ -255,11 +266,7 @@ class EmuPipe:
             if h and h[0][0] <= deadline:
                 # the reply is on its way: wait for the burst that is on the wire (up to the
                 # deadline), as a serial read with a short inter-byte timeout would
-                last = h[0][0]
-                for t, _ in h:
-                    if t > deadline:
-                        break
-                    last = t
+                last = _last_due(h, deadline)
                 if last > now:
                     clock.advance_to(last)
                 out = bytearray()
@@ -269,11 +276,7 @@ class EmuPipe:
                 return bytes(out)
             q = self._to_far
             if q and q[0][0] <= deadline:
-                t = q[0][0]
-                for ti, _ in q:
-                    if ti > deadline:
-                        break
-                    t = ti
+                t = _last_due(q, deadline)
                 if t > now:
                     clock.advance_to(t)
                 self._deliver_far(max(t, clock.now()))
