@@ -9,6 +9,7 @@ the datasheet's command table.
 from __future__ import annotations
 
 import importlib
+import time
 
 import pytest
 
@@ -190,3 +191,19 @@ def test_lm628_port12_and_port8_switch_the_output_mode(base_url, open_chip):
     assert Signals.EIGHT_BIT_OUTPUT not in chip.read_signals()
     chip.port8()
     assert Signals.EIGHT_BIT_OUTPUT in chip.read_signals()
+
+
+def test_nothing_sleeps_on_the_wall_clock(base_url, open_chip, monkeypatch):
+    """Every simulated transport waits on its own clock: a reset (1.5 ms), 0.2 s of sleep and
+    a 0.05 s wait_for timeout run with time.sleep forbidden."""
+    def forbidden(seconds):
+        raise AssertionError(f"time.sleep({seconds}) on {base_url}")
+
+    monkeypatch.setattr(time, "sleep", forbidden)
+    chip = open_chip(base_url)
+    chip.reset()
+    t0 = chip.clock.now()
+    chip.clock.sleep(0.2)
+    with pytest.raises(WaitTimeout):
+        chip.wait_for(Status.INDEX_PULSE, timeout=0.05)
+    assert chip.clock.now() - t0 >= 0.25

@@ -7,7 +7,6 @@ Figures: the emulator charges ``usb_us`` (125 us) per bulk transfer; the stream 
 from __future__ import annotations
 
 import logging
-import time
 
 import pytest
 
@@ -72,19 +71,6 @@ def test_rdrp_emulated_time_holds_the_two_busy_waits(chip):
     chip.read_real_position()
     dt = chip.clock.now() - t0
     assert 2 * 125e-6 + 2 * 100e-6 <= dt < 2 * 125e-6 + 2 * 100e-6 + 60e-6
-
-
-def test_no_wall_clock_sleep(open_chip, monkeypatch):
-    def forbidden(seconds):
-        raise AssertionError(f"time.sleep({seconds}) on sim+ftdi://")
-
-    monkeypatch.setattr(time, "sleep", forbidden)
-    chip = open_chip("sim+ftdi://")
-    chip.reset()
-    t0 = chip.clock.now()
-    with pytest.raises(lm629_host.WaitTimeout):
-        chip.wait_for(Status.INDEX_PULSE, timeout=0.01)
-    assert chip.clock.now() - t0 >= 0.01
 
 
 # ---------------------------------------------------------------------- injected long busy
