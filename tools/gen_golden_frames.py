@@ -22,6 +22,7 @@ from lm629_host.link import (  # noqa: E402
 )
 from lm629_host.opcodes import Cmd  # noqa: E402
 from lm629_host.program import Program  # noqa: E402
+from generated import write_or_check  # noqa: E402
 
 OUT = Path(__file__).resolve().parent.parent / "firmware_bridge" / "golden_frames.txt"
 
@@ -66,15 +67,7 @@ def render() -> str:
 
 
 def main() -> int:
-    text = render()
-    if "--check" in sys.argv[1:]:
-        if not OUT.exists() or OUT.read_text() != text:
-            print(f"{OUT} is stale: run python3 tools/gen_golden_frames.py", file=sys.stderr)
-            return 1
-        return 0
-    OUT.write_text(text)
-    print(f"wrote {OUT} ({len(text.splitlines()) - 1} frames)")
-    return 0
+    return write_or_check(OUT, render(), sys.argv[1:], "tools/gen_golden_frames.py")
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ from lm629_host import bridge_pins as pins  # noqa: E402
 from lm629_host.link import c_defines  # noqa: E402
 from lm629_host.opcodes import Cmd, Status  # noqa: E402
 from lm629_host.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, Op  # noqa: E402
+from generated import write_or_check  # noqa: E402
 
 OUT = ROOT / "firmware_bridge" / "lm629_tables.h"
 
@@ -81,15 +82,7 @@ def render() -> str:
 
 
 def main(argv: list[str]) -> int:
-    text = render()
-    if "--check" in argv:
-        if not OUT.exists() or OUT.read_text() != text:
-            print(f"{OUT} is stale: run python3 tools/gen_tables.py", file=sys.stderr)
-            return 1
-        return 0
-    OUT.write_text(text)
-    print(f"wrote {OUT}")
-    return 0
+    return write_or_check(OUT, render(), argv, "tools/gen_tables.py")
 
 
 if __name__ == "__main__":
