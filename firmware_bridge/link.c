@@ -2,8 +2,9 @@
 #include "link.h"
 #include "bus.h"
 
-/* CRC-16/GENIBUS by table: 256 entries made at build time by the preprocessor from
- * LINK_CRC_POLY (the generated header), in flash on the AVR, as two byte tables (high and low
+/* CRC-16/GENIBUS by table: 256 entries written out as literal bytes by tools/gen_tables.py
+ * (LINK_CRC_TABLE_INIT in the generated header; made by preprocessor macros instead, one
+ * compile of this file took 18 s and 3 GB), in flash on the AVR, as two byte tables (high and low
  * halves) aligned to 256 bytes, so that a step is two `lpm` at base + index and two xors: about
  * 14 AVR cycles a byte (the word table cost 26 with its index doubling; the bit-by-bit or
  * shift-xor forms 100+ with avr-gcc's 16-bit shifts). */
@@ -15,17 +16,8 @@
 #define CRC_TABLE_ATTR
 #define CRC_BYTE(t, i) ((t)[i])
 #endif
-#define CRC_B1(c) ((uint16_t)(((c) & 0x8000u) ? (((c) << 1) ^ LINK_CRC_POLY) : ((c) << 1)))
-#define CRC_B8(c) CRC_B1(CRC_B1(CRC_B1(CRC_B1(CRC_B1(CRC_B1(CRC_B1(CRC_B1(c))))))))
-#define CRC_T(i) CRC_B8((uint16_t)((i) << 8))
-#define CRC_H(i) (uint8_t)(CRC_T(i) >> 8)
-#define CRC_L(i) (uint8_t)CRC_T(i)
-#define CRC_4(f, i) f(i), f(i + 1), f(i + 2), f(i + 3)
-#define CRC_16(f, i) CRC_4(f, i), CRC_4(f, i + 4), CRC_4(f, i + 8), CRC_4(f, i + 12)
-#define CRC_64(f, i) CRC_16(f, i), CRC_16(f, i + 16), CRC_16(f, i + 32), CRC_16(f, i + 48)
-#define CRC_256(f) CRC_64(f, 0), CRC_64(f, 64), CRC_64(f, 128), CRC_64(f, 192)
 /* high halves, then low halves */
-static const uint8_t crc_tab[512] CRC_TABLE_ATTR = {CRC_256(CRC_H), CRC_256(CRC_L)};
+static const uint8_t crc_tab[512] CRC_TABLE_ATTR = LINK_CRC_TABLE_INIT;
 
 static inline __attribute__((always_inline)) uint16_t crc_step(uint16_t crc, uint8_t b)
 {
