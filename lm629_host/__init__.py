@@ -15,6 +15,7 @@ from .errors import (
     BusyTimeout,
     CommandError,
     LM629Error,
+    MotionError,
     ProtocolViolation,
     ResetError,
     TransportError,
@@ -49,5 +50,6 @@ def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa
 __all__ = [
     "LM629", "Snapshot", "open", "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",
     "BusCycle", "Program", "ProgramResult", "LM629Error", "BusyTimeout", "ResetError",
-    "TransportError", "CommandError", "WaitTimeout", "ProtocolViolation", "__version__",
+    "TransportError", "CommandError", "WaitTimeout", "MotionError", "ProtocolViolation",
+    "__version__",
 ]

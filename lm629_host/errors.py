@@ -78,3 +78,30 @@ class WaitTimeout(LM629Error):
 
 class ProtocolViolation(LM629Error):
     """Raised by ``sim://?strict=1`` the moment the host breaks the chip's bus protocol."""
+
+
+class MotionError(LM629Error):
+    """A move did not end where it was sent.  ``reason`` is one of the ``MotionError.*``
+    constants below; ``axis`` names the axis on a multi-axis board (None on a single chip);
+    ``position`` and ``error`` are the last real position and following error read (counts),
+    when known.  Whoever raises it has already stopped the motor, or says in the message that
+    it could not."""
+
+    POSITION_ERROR = "position error"   #: the chip's position-error flag (LPEI / LPES)
+    MOTOR_OFF = "motor off"             #: the drive was found off (LPES, or someone else)
+    STALL = "stall"                     #: the desired position moves, the shaft does not
+    RUNAWAY = "runaway"                 #: the shaft heads away from the desired position
+    FOLLOWING_ERROR = "following error"  #: settled, but further from target than the tolerance
+    TIMEOUT = "timeout"                 #: the move did not complete in the time allowed
+    REASONS = (POSITION_ERROR, MOTOR_OFF, STALL, RUNAWAY, FOLLOWING_ERROR, TIMEOUT)
+
+    def __init__(self, reason: str, message: str, *, axis: object = None,
+                 position: int | None = None, error: int | None = None):
+        if reason not in self.REASONS:
+            raise ValueError(f"MotionError reason {reason!r} is not one of {self.REASONS}")
+        self.reason = reason
+        self.axis = axis
+        self.position = position
+        self.error = error
+        prefix = f"axis {axis}: " if axis is not None else ""
+        super().__init__(f"{prefix}motion fault ({reason}): {message}")
