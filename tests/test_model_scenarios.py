@@ -235,13 +235,24 @@ def test_command_errors_acceleration_while_moving_and_negative_relative_velocity
     assert chip.read_signals() & Signals.ACCELERATION_LOADED
     with pytest.raises(CommandError):
         chip.start()
-    assert not chip.read_signals() & Signals.ACCELERATION_LOADED  # dropped with the STT
+    # AN-706 3.3: ignored, and the acceleration stays loaded for later [model choice 13]
+    assert chip.read_signals() & Signals.ACCELERATION_LOADED
     assert chip.read_desired_velocity() == ONE  # the move goes on unchanged
     chip.reset_interrupts()
+    chip.load_trajectory(stop="off", start=True)  # executes it with the drive off [choice 28]
+    assert not chip.read_signals() & Signals.ACCELERATION_LOADED
+    chip.load_trajectory(acceleration=ONE // 100, velocity=ONE, position=5000, start=True)
+    chip.clock.sleep(0.1)
     with pytest.raises(CommandError):
         chip.load_trajectory(velocity=-2 * ONE, velocity_relative=True, start=True)
     chip.reset_interrupts()
-    # a relative velocity that stays positive is fine
+    # the refused relative word stays loaded [model choice 13] and the next relative one is
+    # relative to it [model choice 29]: 1 - 2 - 1/2 < 0, refused again
+    with pytest.raises(CommandError):
+        chip.load_trajectory(velocity=-ONE // 2, velocity_relative=True, start=True)
+    chip.reset_interrupts()
+    # an absolute velocity replaces the loaded one; relative to it, staying positive, is fine
+    chip.load_trajectory(velocity=ONE)
     chip.load_trajectory(velocity=-ONE // 2, velocity_relative=True, start=True)
     chip.clock.sleep(0.1)
     assert chip.read_desired_velocity() == ONE // 2

@@ -13,7 +13,8 @@ Every place where the datasheet and the notes (``shared/spec/lm628-lm629-referen
 silent and the model had to choose, in this one list; ``[model choice N]`` in the code and in
 the other modules' docstrings refers to item N here.  A choice that is a number keeps its
 number in :mod:`.params` (the field is named here), so that it can be changed in one place
-when someone measures a real chip.
+when someone measures a real chip.  Items marked *(changed, #15)* were revised by issue 15
+("Chip model, round 2"); 27-31 are new there.
 
 Host interface (:mod:`.chip`)
 
@@ -23,12 +24,15 @@ Host interface (:mod:`.chip`)
 2. A data byte with no command expecting one, and an unknown opcode, set the command-error
    bit, as a data transfer in the wrong direction does; the transfer is ignored.
 3. After the RESET command busy stays set until the reset completes (see the spec's
-   "Observed on real chips").
+   "Observed on real chips").  Its duration is ``ChipParams.reset_s`` (choice 6), so a host's
+   busy poll after RESET must last 1.5 ms: a poll bounded by 5000 reads at 250 ns (1.25 ms)
+   outlasts the model's default 1 ms but not the documented worst case.
 4. The LM629 has no 12-bit port: PORT12 sent to an LM629 is refused with a command error.
 5. Busy time after a command byte or a word (``ChipParams.busy_s``): the datasheet says
    typically 15-25 us, never more than 100 us; the model uses the middle of the typical range.
-6. Reset time (``ChipParams.reset_s``): a hardware or software reset completes this long after
-   /RST rises (or the RESET command is written); the datasheet only promises "within 1.5 ms".
+6. Reset time (``ChipParams.reset_s``, default 1 ms; ``sim://?reset_s=0.0015`` is the
+   documented worst case): a hardware or software reset completes this long after /RST rises
+   (or the RESET command is written); the datasheet only promises "within 1.5 ms".
 
 Trajectory generator (:mod:`.motion`, :mod:`.trajectory`)
 
@@ -51,14 +55,18 @@ Trajectory generator (:mod:`.motion`, :mod:`.trajectory`)
     reports on-target.
 12. Stop abruptly: velocity 0 at once, the desired position held where it is; stop smoothly:
     ramp down at the acceleration.  Both report on-target (trajectory complete) when stopped;
-    the original target is kept, so a plain STT resumes the move (AN-706 6.3.1).
-13. STT refused (command error, nothing changes): acceleration loaded since the last STT while
-    the generator is moving and the drive is on; a relative velocity or acceleration that makes
-    the working value negative.  The refused STT is ignored and the parameters loaded since the
-    last STT are dropped (signals bit 14 cleared): otherwise every later STT, even a stop, would
-    be refused until the move ends.  Relative position is relative to the current target;
-    relative velocity and acceleration to the working values.  A stop bit acts once: the next
-    plain STT resumes the move (AN-706 6.3.1, 6.3.3).  The refusal (command-error bit) is
+    the original target, mode, direction and parameters are kept, so a plain STT resumes the
+    move, in velocity mode too (AN-706 6.3.1; see 27).  *(changed, #15)*
+13. STT refused (command error, nothing changes): acceleration loaded since the last accepted
+    STT while the generator is moving and the drive is on (see 28); a velocity or acceleration
+    that would come out negative or above 3FFFFFFF (see 30).  The refused STT is ignored
+    entirely: the input buffer keeps everything loaded since the last accepted STT (signals
+    bit 14 stays set) for the next STT that can execute it (AN-706 3.3: "can be loaded ... but
+    cannot be executed by the STT command until the trajectory has completed or the drive to
+    the motor is turned off"; the double-buffered input registers, and "the command ignored",
+    leave nothing to drop).  *(changed, #15: the loaded values used to be dropped.)*  So while
+    an acceleration change is pending during a move, every STT but a motor-off one is refused
+    until the move completes.  A stop bit acts once.  The refusal (command-error bit) is
     raised while the chip processes the STT byte, so it is visible once busy clears
     (``LM629.start`` reads it there).
 14. A stop bit with other parameters in the same LTRJ: the stop wins and the parameters are
@@ -75,19 +83,28 @@ Motor off and the chip's events (:mod:`.motion`, ``ChipModel._sample``)
 17. Motor off (LTRJ bit 8 or LPES): output 0 (LM628 DAC code 80/800, LM629 PWM magnitude 0:
     the amplifier applies 0 V, which brakes through the back EMF); the desired position follows
     the real one each sample (AN-706 6.3.2) and the filter's memory (error sum, derivative) is
-    cleared.  The next STT starts from the real position with velocity 0 and resumes the
-    interrupted move (AN-706 6.3.3).
+    cleared.  The next STT starts from the real position with velocity 0; a plain STT resumes
+    an interrupted trajectory or holds the shaft where it is (AN-706 6.3.3; see 27).
+    *(changed, #15)*
 18. Turning the motor off (LTRJ bit 8, LPES) raises trajectory complete at once (status bit 2 =
     motor off OR on target).
 19. Breakpoint: set at every sample where the desired position has reached the breakpoint,
     i.e. the breakpoint lies between the previous and the current desired position (the short
     way round the wraparound circle, so that a wrap does not sweep everything), so after reset
-    (breakpoint 0, position 0) bit 6 reads 1 (C4 / C0).
+    (breakpoint 0, position 0) bit 6 reads 1 (C4 / C0).  The condition is level-held: an RSTI
+    that clears bit 6 while the desired position sits on the breakpoint leaves it reading 1 at
+    once (a real LM629 read C0, three reads of three, ~78 us after RSTI 0000 following a reset;
+    with the bit back only at the next sample that would read 80 about 70 % of the time).
+    *(changed, #15)*
 20. Index: A, B and IN are all low together at exactly one count per revolution,
     ``MotorParams.index_offset`` counts past a multiple of 4 x lines; the index is seen if the
     encoder stood on that count at either sample or passed it in between
     (:meth:`.motor.Motor.index_between`).  SIP arms it; the latched value is the real position
     register at that count, INDEX_PULSE is raised and signals bit 0 cleared at that sample.
+    By default (``index_offset`` unset) the index is half a revolution (2 x lines counts) from
+    where the shaft powers up: reachable within half a turn either way, never under the shaft
+    at start, so a SIP without motion latches nothing.  *(changed, #15: it was at count 0,
+    under the shaft, and SIP latched at the first sample.)*
 
 Filter, output and registers (:mod:`.pid`, :mod:`.motion`)
 
@@ -99,8 +116,12 @@ Filter, output and registers (:mod:`.pid`, :mod:`.motion`)
     the sum further is not summed (AN-706 4.5.2); RDSUM reads the limited ki term; UDF keeps
     the error sum and the derivative memory.
 22. The 8-bit output is the top byte of u by arithmetic shift (floor): e = -1 at kp = 20 gives
-    -1, e = +1..12 gives 0, so a P-only loop rests 0..12 counts short of its target, never past
-    it.
+    -1, e = +1..12 gives 0.  The dead band is one-sided: any negative error (real above the
+    target) still drives down at 1/128, a positive one below 256/kp does not drive at all.  So
+    a P-only loop at kp = 20 rests with the real position 0..12 counts *below* its target
+    whichever way it came: short of it after a move up, up to 12 counts past it after a move
+    down (a move from 1000 down to 0 rests at -11, e = +11).  *(changed, #15: it said "never
+    past it".)*
 23. RDRV is the change of the real position over the last sample (whole counts).
 
 Motor, amplifier and encoder (:mod:`.motor`, ``MotorParams``)
@@ -112,9 +133,44 @@ Motor, amplifier and encoder (:mod:`.motor`, ``MotorParams``)
     about 100, a 1000-count move) settles within a few counts of the target and reversed leads
     at kp = 1 run away within a fraction of a second; the armature inductance is neglected
     (tau_e << T) and the shaft starts mid-count (``start_position``) so that the encoder does
-    not sit on an edge.
+    not sit on an edge (and half a revolution from the index: 20).
 26. The encoder's 1 M counts/s limit is not modelled; the motor cannot get near it with the
     default parameters.
+
+Restarts, buffered parameters, ranges, reset (new in issue 15)
+
+27. Mode of a restart.  An LTRJ with a stop bit only stops: its bits 11/12 do not replace the
+    running trajectory's mode; any LTRJ without a stop bit sets the mode (and cancels a stop
+    loaded but not yet started).  A plain STT therefore restarts with the mode, direction and
+    parameters of the trajectory that was running: after a smooth or abrupt stop (AN-706
+    6.3.1: "restart the trajectory toward the original target") and after motor off in the
+    middle of a trajectory or of a stop (6.3.3: "restart and move to the target position in
+    position mode, or resume movement in velocity mode").  After motor off once the last
+    trajectory had *completed* (or after a reset, before any move), STT makes the current
+    position the target (6.3.3: "the motor will be held in the current position"); a position
+    loaded with that STT still counts (relative ones from there).  "Completed" is the
+    generator finishing a move by itself; a stop leaves the trajectory resumable.
+28. An STT whose own stop bit is 8 (motor off) is executed even with an acceleration change
+    pending during a move: it turns the drive off, the condition AN-706 3.3 names for
+    executing the acceleration, and without it a velocity-mode move with a pending change
+    could never be stopped.  Smooth and abrupt stops are refused like any STT then (drive on).
+29. Relative values are relative to "those previously loaded" (AN-706 3.3): to the value
+    loaded by an earlier LTRJ not yet started, else to the working value (relative position:
+    to the current target).  Two relative LTRJs before one STT therefore add up (velocity
+    V + X1 + X2, where the model used to apply only X2); absolute then relative gives the
+    absolute plus the relative.  The reading "loaded" = written by LTRJ (not yet executed)
+    follows 3.3's own use of the word ("can be loaded with LTRJ ... but cannot be executed").
+30. Velocity and acceleration words are 30-bit unsigned (AN-706 2.7: bit 31 would be the sign,
+    bit 30 detects overflow): an absolute word above 3FFFFFFF makes the STT that would execute
+    it refused with a command error and ignored, as for a relative value that would make the
+    velocity negative (6.5.1: "a negative absolute velocity which is not allowed";
+    FDF0A3D8, what AN-868's program sends when its clock scalar overflows, is negative as a
+    32-bit word).  The same for a relative sum outside 0..3FFFFFFF.  The word itself is a host
+    protocol violation (``strict`` raises at the LTRJ).  The model used to clamp it silently.
+31. Through /RST and the RESET command the motor and encoder go on: the output is zero drive
+    from the moment the reset begins and the shaft coasts (or is driven by its load); only the
+    chip's registers, trajectory and filter wait.  When the reset completes, wherever the
+    shaft then is becomes real position 0.
 """
 
 from .chip import ChipModel

@@ -46,6 +46,7 @@ from ..opcodes import (
     INTERRUPTS,
     SAMPLE_CLOCKS,
     STOP_FLAGS,
+    VELOCITY_MAX,
     Cmd,
     Direction,
     Signals,
@@ -67,6 +68,8 @@ _MOTOR_OFF = int(Status.MOTOR_OFF)
 _CMD_ERROR = int(Status.COMMAND_ERROR)
 _TRAJ_DONE = int(Status.TRAJECTORY_COMPLETE)
 _INTERRUPTS = int(INTERRUPTS)
+_BREAKPOINT = int(Status.BREAKPOINT)
+_MODE_BITS = int(TrajectoryFlags.VELOCITY_MODE | TrajectoryFlags.FORWARD)
 #: signals bits 7..1 repeat the status byte (the rest of the signals word is kept apart)
 _STATUS_IN_SIGNALS = int(INTERRUPTS | Status.MOTOR_OFF)
 
@@ -98,14 +101,38 @@ class FilterRegisters:
 
 @dataclass
 class TrajectoryBuffer:
-    """LTRJ input buffer: the last control word and the parameters loaded since the last STT."""
+    """LTRJ input buffer: mode, pending stop, and the parameters loaded since the last STT."""
 
-    control: int = 0
-    acceleration: int = 0  #: 16.16, unsigned
-    velocity: int = 0  #: 16.16, unsigned
-    position: int = 0  #: signed counts
-    #: which parameters were loaded (and how) since the last STT
+    #: bits 11/12 (velocity mode, forward) of the last LTRJ that carried no stop bit: the
+    #: running trajectory's mode, which a plain STT after a stop resumes [model choice 27]
+    mode: int = 0
+    #: the stop bit (8, 9 or 10) of the last LTRJ, executed once by the next accepted STT
+    stop: int = 0
+    #: 16.16 unsigned word as loaded (absolute), or the signed sum of the relative words loaded
+    #: since the last STT [model choice 29]
+    acceleration: int = 0
+    velocity: int = 0
+    position: int = 0  #: signed counts (absolute, or the sum of relative words)
+    #: which parameters were loaded (and how) since the last accepted STT
     loaded: int = 0
+
+
+class Violation(str):
+    """One recorded host protocol violation: the message, with the simulated time it happened.
+
+    A ``str`` (so that logs and ``"; ".join`` keep working) carrying ``tick`` (chip clocks since
+    power-on) and ``time`` (simulated seconds), for a harness that drives the model from
+    outside and must line the violation up with its own trace.
+    """
+
+    tick: int
+    time: float
+
+    def __new__(cls, what: str, tick: int, clock_hz: int) -> Violation:
+        v = super().__new__(cls, what)
+        v.tick = tick
+        v.time = tick / clock_hz
+        return v
 
 
 def _sample_loop(choice: str) -> Callable[[tuple, tuple], tuple] | None:
@@ -146,7 +173,8 @@ class ChipModel:
         self.samples = 0
         #: every command that reached the chip, with its words (when ``params.record``)
         self.history: list[tuple[int, tuple[int, ...]]] = []
-        self.violations: list[str] = []
+        #: every host protocol violation, in order, each with its simulated time (``.time``)
+        self.violations: list[Violation] = []
         #: run steady-state samples through :func:`.fastloop.run_fast` (False: only the readable
         #: per-sample code; the two are cross-checked by tests/test_model_fastloop.py)
         self.fast = _sample_loop(self.params.fast)
@@ -217,7 +245,15 @@ class ChipModel:
             self.next_sample += SAMPLE_CLOCKS
             self.samples += 1
             if self._in_hw_reset or self._reset_done_at is not None:
-                continue  # the chip's microcode is busy resetting
+                # the chip's microcode is busy resetting: its registers, trajectory and filter
+                # wait, the shaft and the encoder go on with zero drive [model choice 31]
+                motion.run_plant_only()
+                if n and motion.plant_at_rest():
+                    self.samples += n
+                    self.next_sample += n * SAMPLE_CLOCKS
+                    self.tick = self.next_sample - SAMPLE_CLOCKS
+                    return
+                continue
             flags, sig = self.flags, self.signals_extra
             self._sample(motion)
             if n and flags == self.flags and sig == self.signals_extra and motion.quiescent():
@@ -301,6 +337,7 @@ class ChipModel:
         self.position_error_threshold = COEFFICIENT_MAX
         self._abort_transfer()
         self._in_hw_reset = True
+        self.motion.output = 0  # [model choice 31] zero drive from /RST on
         self._busy_until = 0
         self._reset_done_at = None if self.params.fault == "reset" else self.tick + self.reset_clocks
 
@@ -349,7 +386,7 @@ class ChipModel:
 
     # ------------------------------------------------------------------ bus cycles
     def _violation(self, what: str) -> None:
-        self.violations.append(what)
+        self.violations.append(Violation(what, self.tick, self.clock_hz))
         if self.params.strict:
             raise ProtocolViolation(f"host protocol violation at {self.now() * 1e6:.1f} us: {what}")
 
@@ -398,6 +435,7 @@ class ChipModel:
         self._dir = info.direction
         self._words_left = info.words
         if cmd is Cmd.RESET:
+            self.motion.output = 0  # [model choice 31] zero drive while the chip resets
             self._set_busy(self.reset_clocks)
             self._reset_done_at = None if self.params.fault == "reset" else self.tick + self.reset_clocks
             return
@@ -488,21 +526,20 @@ class ChipModel:
     def _execute(self, cmd: Cmd, words: list[int]) -> None:
         m = self.motion
         if cmd is Cmd.STT:
-            if not m.start(self.trajectory):
-                # [model choice 13] refused: drop the parameters loaded since the last STT
+            buf = self.trajectory
+            if not m.start(buf):
+                # [model choice 13] refused and ignored: the input buffer keeps what was
+                # loaded (signals bit 14 included) for an STT that can execute it
                 self._command_error_silent()
-                self.trajectory.loaded = 0
-                self.trajectory.control &= ~STOP_FLAGS
-                self.signals_extra &= ~Signals.ACCELERATION_LOADED
                 return
-            self.trajectory.loaded = 0
+            stop = buf.stop
+            buf.loaded = 0
+            buf.stop = 0  # [model choice 13] a stop bit acts once
             self.signals_extra &= ~Signals.ACCELERATION_LOADED
-            if self.trajectory.control & TrajectoryFlags.MOTOR_OFF:
+            if stop & TrajectoryFlags.MOTOR_OFF:
                 self.turn_motor_off()
             else:
                 self.motor_off = False
-            # [model choice 13] a stop bit acts once
-            self.trajectory.control &= ~STOP_FLAGS
         elif cmd is Cmd.DFH:
             m.define_home()
         elif cmd is Cmd.SIP:
@@ -528,6 +565,10 @@ class ChipModel:
             self.mask = words[0] & _INTERRUPTS
         elif cmd is Cmd.RSTI:
             self.flags &= (words[0] & _INTERRUPTS) | ~_INTERRUPTS
+            # [model choice 19] the breakpoint condition is level-held: cleared while the
+            # desired position sits on the breakpoint, bit 6 reads 1 again at once
+            if m.desired_position == self.breakpoint:
+                self.flags |= _BREAKPOINT
         elif cmd is Cmd.LFIL:
             self._load_filter(words)
         elif cmd is Cmd.LTRJ:
@@ -553,17 +594,40 @@ class ChipModel:
     def _load_trajectory(self, words: list[int]) -> None:
         control, values = words[0], iter(words[1:])
         buf = self.trajectory
-        buf.control = control
+        out_of_range: list[str] = []
+        # [model choice 27] an LTRJ with a stop bit only stops: its mode bits do not replace
+        # the running trajectory's; any other LTRJ sets the mode and cancels a pending stop
+        buf.stop = control & STOP_FLAGS
+        if not buf.stop:
+            buf.mode = control & _MODE_BITS
         for flag, name in ((TrajectoryFlags.ACCELERATION, "acceleration"),
                            (TrajectoryFlags.VELOCITY, "velocity"),
                            (TrajectoryFlags.POSITION, "position")):
-            if control & flag:
-                value = (next(values) << 16) | next(values)
-                setattr(buf, name, s32(value) if name == "position" else value)
-                relative = TrajectoryFlags(flag >> 1)
-                buf.loaded = (buf.loaded & ~(flag | relative)) | flag | (control & relative)
+            if not control & flag:
+                continue
+            word = (next(values) << 16) | next(values)
+            relative = TrajectoryFlags(flag >> 1)
+            if name == "position" or control & relative:
+                value = s32(word)
+            else:
+                value = word
+                if word > VELOCITY_MAX:  # == ACCELERATION_MAX
+                    # [model choice 30] outside the 30-bit range (AN-706 2.7): the STT that
+                    # would execute it is refused; a correct host never sends it
+                    out_of_range.append(f"LTRJ {name} word {word:08X} is above 3FFFFFFF "
+                                        "(AN-706 2.7: 30-bit unsigned range)")
+            if control & relative and buf.loaded & flag:
+                # [model choice 29] relative to the value previously loaded (not yet started)
+                value += getattr(buf, name)
+                keep = buf.loaded & relative  # absolute + relative stays absolute
+            else:
+                keep = control & relative
+            setattr(buf, name, value)
+            buf.loaded = (buf.loaded & ~(flag | relative)) | flag | keep
         if control & TrajectoryFlags.ACCELERATION:
             self.signals_extra |= Signals.ACCELERATION_LOADED
+        for what in out_of_range:
+            self._violation(what)
 
     # ------------------------------------------------------------------ conveniences
     def set_motor_params(self, **values: object) -> None:

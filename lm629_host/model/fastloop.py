@@ -54,7 +54,7 @@ def run_fast(chip: ChipModel, n: int, loop: Callable[..., tuple] | None = None) 
     twelve = not signals & _EIGHT_BIT
     cpr = motor.counts_per_rev
     ints = (n, f.kp, f.ki, f.kd, f.il, f.ds, 4 if twelve else 8, int(mp.stall), cpr,
-            mp.index_offset % cpr, m._count, m._home, m.output,
+            motor.index_k, m._count, m._home, m.output,
             t.position, t.velocity, t.acceleration, t.max_velocity, t.target, int(t.done),
             int(t.velocity_mode), int(t.forward), int(t.stopping),
             pid.error_sum, pid.last_error, pid.derivative, pid.countdown, pid.integral, pid.output,

@@ -51,11 +51,6 @@ _POS = TrajectoryFlags.POSITION
 _POS_REL = TrajectoryFlags.POSITION_RELATIVE
 
 
-def _s32(value: int) -> int:
-    value &= 0xFFFFFFFF
-    return value - (1 << 32) if value & 0x80000000 else value
-
-
 class Motion:
     def __init__(self, chip: ChipModel, params: MotorParams) -> None:
         self.chip = chip
@@ -124,42 +119,51 @@ class Motion:
 
     # ------------------------------------------------------------------ commands
     def start(self, trajectory: TrajectoryBuffer) -> bool:
+        """STT.  False: refused (command error) and ignored, nothing changes [model choice 13]."""
         t = self.traj
-        loaded, control = trajectory.loaded, trajectory.control
+        loaded, stop, mode = trajectory.loaded, trajectory.stop, trajectory.mode
         moving = not t.done or t.velocity != 0
         drive_on = not self.chip.motor_off
-        if loaded & _ACC and moving and drive_on:
-            return False
+        if loaded & _ACC and moving and drive_on and not stop & TrajectoryFlags.MOTOR_OFF:
+            return False  # AN-706 3.3: not until completed or the drive is off [model choice 28]
         acceleration, velocity = t.acceleration, t.max_velocity
         if loaded & _ACC:
-            acceleration = (acceleration + _s32(trajectory.acceleration) if loaded & _ACC_REL
+            acceleration = (acceleration + trajectory.acceleration if loaded & _ACC_REL
                             else trajectory.acceleration)
         if loaded & _VEL:
-            velocity = (velocity + _s32(trajectory.velocity) if loaded & _VEL_REL
+            velocity = (velocity + trajectory.velocity if loaded & _VEL_REL
                         else trajectory.velocity)
-        if acceleration < 0 or velocity < 0:
+        # AN-706 6.5.1 (negative), 2.7 (30-bit range) [model choice 30]
+        if not 0 <= acceleration <= ACCELERATION_MAX or not 0 <= velocity <= VELOCITY_MAX:
             return False
         self._started = True
-        t.acceleration = min(acceleration, ACCELERATION_MAX)
-        t.max_velocity = min(velocity, VELOCITY_MAX)
+        t.acceleration = acceleration
+        t.max_velocity = velocity
+        if self.chip.motor_off and t.done and not t.stopping:
+            # AN-706 6.3.3: the last trajectory had completed (or none since reset) and the
+            # motor is off: the target is where the shaft is now, so a plain STT holds it
+            # there [model choice 27]
+            t.target = self.real_position
         if loaded & _POS:
             t.target = wrap_counts(t.target + trajectory.position if loaded & _POS_REL
                                    else trajectory.position)
-        if control & TrajectoryFlags.MOTOR_OFF:
+        if stop & TrajectoryFlags.MOTOR_OFF:
             self._resume = self._resume or not t.done
             return True  # the chip turns the drive off
-        if control & TrajectoryFlags.STOP_ABRUPT:
+        if stop & TrajectoryFlags.STOP_ABRUPT:
             t.stop_abruptly()
             return True
-        if control & TrajectoryFlags.STOP_SMOOTH:
+        if stop & TrajectoryFlags.STOP_SMOOTH:
             t.stop_smoothly()
             return True
         if self.chip.motor_off:
             # closing the loop: start from where the shaft is, at rest
             t.position = self.real_position << 16
             t.velocity = 0
-        t.velocity_mode = bool(control & TrajectoryFlags.VELOCITY_MODE)
-        t.forward = bool(control & TrajectoryFlags.FORWARD)
+        # the mode of the last LTRJ without a stop bit: after a stop, the interrupted
+        # trajectory's mode and direction (AN-706 6.3.1, 6.3.3) [model choice 27]
+        t.velocity_mode = bool(mode & TrajectoryFlags.VELOCITY_MODE)
+        t.forward = bool(mode & TrajectoryFlags.FORWARD)
         t.stopping = False
         t.done = False
         self._resume = False
@@ -222,6 +226,20 @@ class Motion:
         u = pid_step(self.pid, e, f.kp, f.ki, f.kd, f.il, f.ds)
         self.output = output_code(u, self.twelve_bit)
         return events
+
+    def run_plant_only(self) -> None:
+        """One sample during a reset: the shaft turns with the drive at zero, nothing else.
+
+        The encoder's counts are kept (``_count`` is not touched): the reset that follows
+        makes wherever the shaft then is position 0.
+        """
+        self.output = 0
+        self.motor.run(0.0)
+
+    def plant_at_rest(self) -> bool:
+        """The shaft is still and zero drive leaves it still (the reset window may skip)."""
+        m = self.motor
+        return m.speed == 0.0 and (m.params.stall or abs(m.load_accel) <= m.coulomb_accel)
 
     def position_error(self) -> int:
         """desired - real, as the chip compares it with the LPEI/LPES threshold."""

@@ -28,6 +28,8 @@ class Motor:
         p = params
         counts_per_rad = 4 * p.lines / (2 * pi)
         self.counts_per_rev = 4 * p.lines
+        #: the index count within a revolution [model choice 20]
+        self.index_k = (2 * p.lines if p.index_offset is None else p.index_offset) % self.counts_per_rev
         #: decay rate of the speed, 1/s: back-EMF braking through R plus viscous friction
         self.rate = (p.torque_constant ** 2 / p.resistance + p.friction) / p.inertia
         #: acceleration (counts/s^2) per volt across the armature with the shaft still
@@ -81,7 +83,7 @@ class Motor:
         4 x lines; it is seen if the encoder stood on it at either sample or passed it.
         """
         n = self.counts_per_rev
-        k = self.params.index_offset % n
+        k = self.index_k
         if c1 >= c0:
             first = c0 + (k - c0) % n
             return first if first <= c1 else None

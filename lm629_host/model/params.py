@@ -36,7 +36,9 @@ class MotorParams:
 
     lines: int = 500  #: encoder lines per revolution (4x decoding: 4 * lines counts/rev)
     reversed: bool = False  #: motor leads swapped: positive drive turns the shaft backwards
-    index_offset: int = 0  #: counts from the zero of the revolution to the index pulse
+    #: counts from the zero of the revolution to the index pulse; None: half a revolution
+    #: (2 x lines), away from the shaft at power-on but within reach [model choice 20]
+    index_offset: int | None = None
     #: amplifier gain: volts across the motor at full-scale output (PWM duty 128/128 or the
     #: DAC's full scale); [model choice 24] linear
     amp_volts: float = 12.0
