@@ -211,3 +211,111 @@ def test_the_loops_take_their_status_bits_from_opcodes():
         text = (model / name).read_text()
         literal = re.search(r"(events|flags)\s*\|=\s*(0x|\d)", text)
         assert not literal, f"{name}: a literal status bit"
+
+
+# ---------------------------------------------------------------- issue 15 scenarios
+# The round-2 behaviours (tests/test_model_round2.py) under all three loops, register by
+# register: restarts after stops and motor off, the hold after a completed move, the plant
+# through /RST and RESET, RSTI after reset, the default index, buffered and relative values,
+# an out-of-range word.
+
+def _motor(p: Pair, **values) -> None:
+    for c in p.chips:
+        c.transport.model.set_motor_params(**values)
+    p.check(f"set_motor_params {values}")
+
+
+@pytest.mark.parametrize("stop", ["off", "smooth", "abrupt"])
+def test_round2_velocity_restart_after_each_stop(pair, stop):
+    p = pair()
+    p.load_filter(kp=400, kd=2000)
+    p.update_filter()
+    p.load_trajectory(acceleration=ONE // 100, velocity=2 * ONE, velocity_mode=True,
+                      forward=False, start=True)
+    p.run(0.2, step=0.011)
+    p.load_trajectory(stop=stop, start=True)
+    p.run(0.15, step=7 * T)
+    p.reset_interrupts()
+    p.start()  # resumes backwards at 2 counts/sample
+    p.run(0.05, step=T)
+    p.run(0.2)
+    assert p.read_desired_velocity() == -2 * ONE
+
+
+def test_round2_hold_after_completion_and_drift(pair):
+    p = pair()
+    p.load_filter(kp=400, kd=2000)
+    p.update_filter()
+    p.load_trajectory(acceleration=ONE // 100, velocity=ONE, position=1000, start=True)
+    p.run(1.0, step=0.05)
+    p.load_trajectory(stop="off", start=True)
+    _motor(p, load_torque=0.001)
+    p.run(0.15, step=0.01)
+    _motor(p, load_torque=0.0)
+    p.run(0.3)
+    held = p.read_real_position()
+    p.start()
+    p.run(0.05, step=T)
+    p.run(0.3)
+    assert p.read_desired_position() == held
+
+
+@pytest.mark.parametrize("how", ["rst", "command"])
+def test_round2_plant_through_reset_and_rsti(pair, how):
+    from lm629_host.opcodes import Cmd
+
+    p = pair()
+    p.load_filter(kp=400, kd=2000)
+    p.update_filter()
+    p.load_trajectory(acceleration=ONE // 4, velocity=10 * ONE, velocity_mode=True, start=True)
+    p.run(0.4, step=0.05)
+    if how == "rst":
+        p.reset()
+    else:
+        p.raw(Cmd.RESET)
+        p.run(1.6e-3, step=T / 3)
+    p.run(0.01, step=T)  # coasting after the reset, from real position 0
+    for _ in range(8):
+        p.reset_interrupts()
+        p.run(T / 8)
+    p.run(0.5)
+
+
+def test_round2_default_index_buffered_acceleration_relative_sums(pair):
+    from lm629_host import CommandError
+
+    p = pair()
+    p.load_filter(kp=400, kd=2000)
+    p.update_filter()
+    p.set_index_position()
+    p.run(0.1)
+    p.load_trajectory(acceleration=ONE // 100, velocity=2 * ONE, position=1500, start=True)
+    p.run(0.1, step=3 * T)
+    p.load_trajectory(acceleration=ONE // 10)
+    for c in p.chips:
+        with pytest.raises(CommandError):
+            c.start()
+    p.check("refused STT")
+    p.reset_interrupts()
+    p.run(1.5, step=0.02)  # index at 1000, completion at 1500
+    p.load_trajectory(velocity=ONE // 2, velocity_relative=True)
+    p.load_trajectory(velocity=ONE // 4, velocity_relative=True, position=0, start=True)
+    p.run(0.05, step=T)
+    p.run(1.0)
+
+
+def test_round2_out_of_range_velocity_word_lenient(pair):
+    from lm629_host import CommandError
+    from lm629_host.opcodes import Cmd
+
+    p = pair("strict=0")
+    p.load_filter(kp=400, kd=2000)
+    p.update_filter()
+    p.load_trajectory(acceleration=ONE // 100, velocity=ONE, velocity_mode=True, start=True)
+    p.run(0.1, step=0.01)
+    p.raw(Cmd.LTRJ, [0x1808, 0xFDF0, 0xA3D8])
+    for c in p.chips:
+        with pytest.raises(CommandError):
+            c.start()
+    p.check("refused STT")
+    p.run(0.1, step=T)
