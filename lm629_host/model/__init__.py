@@ -59,14 +59,17 @@ Trajectory generator (:mod:`.motion`, :mod:`.trajectory`)
     move, in velocity mode too (AN-706 6.3.1; see 27).  *(changed, #15)*
 13. STT refused (command error, nothing changes): acceleration loaded since the last accepted
     STT while the generator is moving and the drive is on (see 28); a velocity or acceleration
-    that would come out negative or above 3FFFFFFF (see 30).  The refused STT is ignored
-    entirely: the input buffer keeps everything loaded since the last accepted STT (signals
-    bit 14 stays set) for the next STT that can execute it (AN-706 3.3: "can be loaded ... but
-    cannot be executed by the STT command until the trajectory has completed or the drive to
-    the motor is turned off"; the double-buffered input registers, and "the command ignored",
-    leave nothing to drop).  *(changed, #15: the loaded values used to be dropped.)*  So while
-    an acceleration change is pending during a move, every STT but a motor-off one is refused
-    until the move completes.  A stop bit acts once.  The refusal (command-error bit) is
+    that would come out negative or above 3FFFFFFF (see 30).  The refused STT is ignored: the
+    input buffer keeps everything loaded since the last accepted STT (signals bit 14 stays
+    set) for the next STT that can execute it (AN-706 3.3: "can be loaded ... but cannot be
+    executed by the STT command until the trajectory has completed or the drive to the motor
+    is turned off"; the double-buffered input registers, and "the command ignored", leave
+    nothing to drop).  The one exception is the value that came out of range: AN-706 6.6.6
+    puts that error "when loading" the value, so it counts as never loaded (otherwise one bad
+    relative velocity would get every later STT, even a stop, refused).  *(changed, #15: all
+    the loaded values used to be dropped.)*  So while an acceleration change is pending during
+    a move, every STT but a motor-off one is refused until the move completes.  A stop bit
+    acts once.  The refusal (command-error bit) is
     raised while the chip processes the STT byte, so it is visible once busy clears
     (``LM629.start`` reads it there).
 14. A stop bit with other parameters in the same LTRJ: the stop wins and the parameters are
@@ -173,7 +176,7 @@ Restarts, buffered parameters, ranges, reset (new in issue 15)
     shaft then is becomes real position 0.
 """
 
-from .chip import ChipModel
+from .chip import ChipModel, Violation
 from .params import ChipParams, MotorParams
 
-__all__ = ["ChipModel", "ChipParams", "MotorParams"]
+__all__ = ["ChipModel", "ChipParams", "MotorParams", "Violation"]

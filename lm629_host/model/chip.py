@@ -30,7 +30,9 @@ opcodes, busy after RESET, PORT12 on an LM629, the busy and reset times):
   84 or C4; [model choice 3] for busy after the RESET command;
 * ``strict`` raises :class:`~lm629_host.errors.ProtocolViolation` at once on anything a correct
   host never does: a write or data read while busy, a data byte without a command, a wrong
-  direction, an aborted command, an unknown opcode, a cycle during the /RST window.
+  direction, an aborted command, an unknown opcode, a cycle during the /RST window, a
+  velocity or acceleration word above 3FFFFFFF; without ``strict`` each is recorded in
+  ``violations`` as a :class:`Violation` (the message, with its simulated ``time``).
 """
 
 from __future__ import annotations
@@ -103,6 +105,8 @@ class FilterRegisters:
 class TrajectoryBuffer:
     """LTRJ input buffer: mode, pending stop, and the parameters loaded since the last STT."""
 
+    #: the last LTRJ control word as written (for inspection; the chip acts on the two below)
+    control: int = 0
     #: bits 11/12 (velocity mode, forward) of the last LTRJ that carried no stop bit: the
     #: running trajectory's mode, which a plain STT after a stop resumes [model choice 27]
     mode: int = 0
@@ -529,8 +533,11 @@ class ChipModel:
             buf = self.trajectory
             if not m.start(buf):
                 # [model choice 13] refused and ignored: the input buffer keeps what was
-                # loaded (signals bit 14 included) for an STT that can execute it
+                # loaded (signals bit 14 included) for an STT that can execute it, except a
+                # value out of range, which start() dropped
                 self._command_error_silent()
+                if not buf.loaded & TrajectoryFlags.ACCELERATION:
+                    self.signals_extra &= ~Signals.ACCELERATION_LOADED
                 return
             stop = buf.stop
             buf.loaded = 0
@@ -595,6 +602,7 @@ class ChipModel:
         control, values = words[0], iter(words[1:])
         buf = self.trajectory
         out_of_range: list[str] = []
+        buf.control = control
         # [model choice 27] an LTRJ with a stop bit only stops: its mode bits do not replace
         # the running trajectory's; any other LTRJ sets the mode and cancels a pending stop
         buf.stop = control & STOP_FLAGS

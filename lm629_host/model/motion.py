@@ -6,8 +6,9 @@ Contract with :class:`~.chip.ChipModel` (the host interface), which owns this ob
 * ``reset()`` on any reset: every register 0, drive off;
 * ``start(trajectory) -> bool`` on STT with the LTRJ input buffer (:class:`~.chip.TrajectoryBuffer`,
   its ``loaded`` bits say which parameters were loaded since the last STT, and how); return
-  False to refuse it with a command error (acceleration changed while moving with the drive on,
-  negative relative velocity).  The chip then clears or sets its motor-off bit;
+  False to refuse it with a command error (acceleration changed while moving with the drive on;
+  a velocity or acceleration out of 0..3FFFFFFF, which ``start`` then removes from
+  ``loaded``).  The chip then clears or sets its motor-off bit;
 * ``define_home()`` (DFH), ``arm_index()`` (SIP), ``filter_changed()`` (after UDF, the new
   coefficients are in ``chip.filter``), ``drive_off()`` (motor off by LTRJ bit 8 or LPES);
 * ``sample() -> int`` once per sample: advance everything by one sample and return the status
@@ -119,7 +120,8 @@ class Motion:
 
     # ------------------------------------------------------------------ commands
     def start(self, trajectory: TrajectoryBuffer) -> bool:
-        """STT.  False: refused (command error) and ignored, nothing changes [model choice 13]."""
+        """STT.  False: refused (command error) and ignored [model choice 13]; a velocity or
+        acceleration out of range is then dropped from ``trajectory.loaded``."""
         t = self.traj
         loaded, stop, mode = trajectory.loaded, trajectory.stop, trajectory.mode
         moving = not t.done or t.velocity != 0
@@ -133,8 +135,16 @@ class Motion:
         if loaded & _VEL:
             velocity = (velocity + trajectory.velocity if loaded & _VEL_REL
                         else trajectory.velocity)
-        # AN-706 6.5.1 (negative), 2.7 (30-bit range) [model choice 30]
-        if not 0 <= acceleration <= ACCELERATION_MAX or not 0 <= velocity <= VELOCITY_MAX:
+        # AN-706 6.5.1 (negative), 2.7 (30-bit range) [model choice 30]: refused, and the
+        # value that came out of range counts as never loaded (6.6.6: the error is "when
+        # loading" it), so that a later STT (a stop) is not refused for it [model choice 13]
+        bad = 0
+        if not 0 <= acceleration <= ACCELERATION_MAX:
+            bad |= _ACC | _ACC_REL
+        if not 0 <= velocity <= VELOCITY_MAX:
+            bad |= _VEL | _VEL_REL
+        if bad:
+            trajectory.loaded &= ~bad
             return False
         self._started = True
         t.acceleration = acceleration
