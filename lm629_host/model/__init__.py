@@ -57,7 +57,7 @@ Trajectory generator (:mod:`.motion`, :mod:`.trajectory`)
     ramp down at the acceleration.  Both report on-target (trajectory complete) when stopped;
     the original target, mode, direction and parameters are kept, so a plain STT resumes the
     move, in velocity mode too (AN-706 6.3.1; see 27).  *(changed, #15)*
-13. STT refused (command error, nothing changes): acceleration loaded since the last accepted
+13. STT refused (command error): acceleration loaded since the last accepted
     STT while the generator is moving and the drive is on (see 28); a velocity or acceleration
     that would come out negative or above 3FFFFFFF (see 30).  The refused STT is ignored: the
     input buffer keeps everything loaded since the last accepted STT (signals bit 14 stays
@@ -69,9 +69,8 @@ Trajectory generator (:mod:`.motion`, :mod:`.trajectory`)
     relative velocity would get every later STT, even a stop, refused).  *(changed, #15: all
     the loaded values used to be dropped.)*  So while an acceleration change is pending during
     a move, every STT but a motor-off one is refused until the move completes.  A stop bit
-    acts once.  The refusal (command-error bit) is
-    raised while the chip processes the STT byte, so it is visible once busy clears
-    (``LM629.start`` reads it there).
+    acts once.  The refusal (command-error bit) is raised while the chip processes the STT
+    byte, so it is visible once busy clears (``LM629.start`` reads it there).
 14. A stop bit with other parameters in the same LTRJ: the stop wins and the parameters are
     loaded into the working registers for the next STT (no movement now).
 15. DFH: the desired position's whole counts and the real position both become 0 at once; the
@@ -160,15 +159,15 @@ Restarts, buffered parameters, ranges, reset (new in issue 15)
 29. Relative values are relative to "those previously loaded" (AN-706 3.3): to the value
     loaded by an earlier LTRJ not yet started, else to the working value (relative position:
     to the current target).  Two relative LTRJs before one STT therefore add up (velocity
-    V + X1 + X2, where the model used to apply only X2); absolute then relative gives the
-    absolute plus the relative.  The reading "loaded" = written by LTRJ (not yet executed)
+    V + X1 + X2, where the model used to apply only X2; positions likewise); absolute then
+    relative gives the absolute plus the relative.  The reading "loaded" = written by LTRJ (not yet executed)
     follows 3.3's own use of the word ("can be loaded with LTRJ ... but cannot be executed").
 30. Velocity and acceleration words are 30-bit unsigned (AN-706 2.7: bit 31 would be the sign,
     bit 30 detects overflow): an absolute word above 3FFFFFFF makes the STT that would execute
-    it refused with a command error and ignored, as for a relative value that would make the
-    velocity negative (6.5.1: "a negative absolute velocity which is not allowed";
-    FDF0A3D8, what AN-868's program sends when its clock scalar overflows, is negative as a
-    32-bit word).  The same for a relative sum outside 0..3FFFFFFF.  The word itself is a host
+    it refused with a command error and ignored (the word dropped: 13), as for a relative
+    value that would make the velocity negative (6.5.1: "a negative absolute velocity which is
+    not allowed"; FDF0A3D8, what AN-868's program sends when its clock scalar overflows, is
+    negative as a 32-bit word).  The same for a relative sum outside 0..3FFFFFFF.  The word itself is a host
     protocol violation (``strict`` raises at the LTRJ).  The model used to clamp it silently.
 31. Through /RST and the RESET command the motor and encoder go on: the output is zero drive
     from the moment the reset begins and the shaft coasts (or is driven by its load); only the
