@@ -296,7 +296,7 @@ def test_refused_acceleration_stays_buffered_for_the_next_stt(base, open_chip):
 def test_two_relative_velocities_before_one_stt_add_up(base, open_chip):
     """AN-706 3.3: values "relative to those previously loaded": the second relative LTRJ is
     relative to the first one's (loaded, not yet started) value [model choice 29]:
-    1 + 1/2 + 1/4 = 1.75 counts/sample (the model used to give 1.25)."""
+    1 + 1/2 + 1/4 = 1.75 counts/sample (the model used to give 1.25); positions likewise."""
     chip = ready(open_chip, base, kp=400, kd=2000)
     chip.load_trajectory(acceleration=ONE // 50, velocity=ONE, velocity_mode=True, start=True)
     chip.clock.sleep(0.05)
@@ -310,6 +310,16 @@ def test_two_relative_velocities_before_one_stt_add_up(base, open_chip):
     chip.load_trajectory(velocity=-ONE, velocity_relative=True, velocity_mode=True, start=True)
     chip.clock.sleep(0.1)
     assert chip.read_desired_velocity() == 2 * ONE
+    # positions the same way: absolute, then two relatives, one STT
+    chip.load_trajectory(stop="abrupt", start=True)
+    chip.clock.sleep(2 * T)
+    chip.reset_interrupts()
+    here = chip.read_desired_position()
+    chip.load_trajectory(position=here)
+    chip.load_trajectory(position=300, position_relative=True)
+    chip.load_trajectory(position=-100, position_relative=True, start=True)
+    chip.wait_for(Status.TRAJECTORY_COMPLETE, timeout=3, poll=0.01)
+    assert chip.read_desired_position() == here + 200
 
 
 # ---------------------------------------------------------------- 8. RESET command duration
