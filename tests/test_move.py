@@ -14,7 +14,15 @@ from lm629_host import Cmd, MotionError, MoveRules, Status
 from lm629_host.move import MOVE_FLAGS
 from lm629_host.opcodes import INTERRUPTS
 
-from test_acceptance import base_url, with_params  # noqa: F401 - the transport fixture
+from test_acceptance import _available, with_params
+
+
+@pytest.fixture(params=["sim://", "sim+emu://", "sim+avr://", "sim+ftdi://"])
+def base_url(request) -> str:
+    """Every simulated transport (the acceptance set plus the Python bridge)."""
+    if not _available(request.param):
+        pytest.skip(f"{request.param} not available here")
+    return request.param
 
 T = 2048 / 8e6
 PROFILE_1000 = 1100 * T
@@ -27,7 +35,7 @@ def _ready(chip, kp: int = 20):
     return chip
 
 
-def test_move_to_twice_then_relative(base_url, open_chip, recorder):  # noqa: F811
+def test_move_to_twice_then_relative(base_url, open_chip, recorder):
     chip = _ready(open_chip(base_url))
     first = chip.move_to(1000, velocity=65536, acceleration=655).wait()
     assert first.target == 1000 and abs(first.error) <= 13
@@ -46,7 +54,7 @@ def test_move_to_twice_then_relative(base_url, open_chip, recorder):  # noqa: F8
     assert abs(2000 - chip.read_real_position()) <= 13
 
 
-def test_flags_are_cleared_in_the_program_that_starts_the_move(base_url, open_chip,  # noqa: F811
+def test_flags_are_cleared_in_the_program_that_starts_the_move(base_url, open_chip,
                                                                recorder):
     chip = _ready(open_chip(base_url))
     chip.move_to(300, velocity=65536, acceleration=655).wait()
@@ -64,7 +72,7 @@ def test_flags_are_cleared_in_the_program_that_starts_the_move(base_url, open_ch
     move.wait()
 
 
-def test_stalled_motor_is_a_motion_fault_with_the_motor_stopped(base_url, open_chip):  # noqa: F811
+def test_stalled_motor_is_a_motion_fault_with_the_motor_stopped(base_url, open_chip):
     chip = _ready(open_chip(with_params(base_url, "stall=1")))
     with pytest.raises(MotionError) as e:
         chip.move_to(5000, velocity=65536, acceleration=655).wait()
