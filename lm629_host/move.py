@@ -201,10 +201,12 @@ class Move:
             clock.sleep(r.poll)
 
     def _fault(self, reason: str, s: Snapshot, message: str) -> None:
-        from .cli_safety import emergency_stop
+        from .cli_safety import STOP_NOTE, emergency_stop
         _ok, note = emergency_stop(self.chip)
-        raise MotionError(reason, f"{message}; {note}", position=s.real_position,
+        exc = MotionError(reason, f"{message}; {note}", position=s.real_position,
                           error=self.target - s.real_position)
+        setattr(exc, STOP_NOTE, note)  # stopped already: an outer stop_on_error does not repeat it
+        raise exc
 
 
 __all__ = ["MOVE_FLAGS", "Move", "MoveResult", "MoveRules"]
