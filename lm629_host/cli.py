@@ -1090,11 +1090,10 @@ def doctor() -> None:
                 st = chip.read_status()
                 busy += bool(st & Status.BUSY)
             dt = (time.perf_counter() - t0) / n
-            line("status read", True, f"{int(st):02X} ({_flags(st)}), {dt * 1e3:.3f} ms per "
-                                      "round trip (wall clock)")
-            if busy == n:
-                line("busy bit", False, f"set in all {n} status reads: the chip is stuck busy "
-                                        "(check its clock input, its supply and /RST)")
+            stuck = (f"; the busy bit was set in all {n} reads: the chip is stuck busy (check "
+                     "its clock input, its supply and /RST)") if busy == n else ""
+            line("status read", busy < n, f"{int(st):02X} ({_flags(st)}), {dt * 1e3:.3f} ms "
+                                          f"per round trip (wall clock){stuck}")
         except LM629Error as exc:
             line("open", False, str(exc))
     click.echo("no problems found" if not problems else f"{problems} problem(s) above")

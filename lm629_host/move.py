@@ -185,6 +185,11 @@ class Move:
                     if abs(err) <= r.tolerance:
                         self.result = MoveResult(target, s.real_position, err, s.time - self.t0)
                         return self.result
+                    if abs(s.real_position - self.start.real_position) < r.stall_counts:
+                        self._fault(MotionError.STALL, s,
+                                    f"the desired position went to the target, the shaft did "
+                                    f"not move ({err:+d} counts from the target): check the "
+                                    "amplifier, its supply, the motor and the encoder")
                     self._fault(MotionError.FOLLOWING_ERROR, s,
                                 f"the shaft came to rest {err:+d} counts from the target "
                                 f"(tolerance {r.tolerance}): add ki, raise kp, or check the load")
