@@ -46,7 +46,7 @@ from .errors import (
     WaitTimeout,
 )
 from .lm629 import LM629, Snapshot, check_int
-from .move import MOVE_FLAGS, MoveRules
+from .move import MoveRules
 from .opcodes import ACCELERATION_MAX, POSITION_MAX, POSITION_MIN, VELOCITY_MAX, Signals, Status
 from .program import BusCycle, Program
 from .transports import query_params, scheme_of
@@ -356,8 +356,8 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
     session = Session(url, port is not None, chip_name, clock_hz,
                       lines, verbose, trace, stats)
     ctx.obj = session
-    session.install_signals()
     ctx.call_on_close(session.close)
+    session.install_signals()
 
 
 class _ClickHandler(logging.Handler):
@@ -486,13 +486,15 @@ def _isatty() -> bool:
 # ---------------------------------------------------------------------------------- commands
 @main.command()
 @click.option("--yes", "-y", is_flag=True, help="Do not ask before the motor turns (scripts).")
-@click.option("--move", "move_distance", type=INT, default=1000, show_default=True,
-              help="Counts of the small move.")
+@click.option("--move", "move_distance", type=FINITE, default=None,
+              help="The small move: counts (default 1000), revolutions with --lines.")
 @click.option("--hold-kp", type=int, default=20, show_default=True, help="kp of the hold step.")
-def bringup(yes: bool, move_distance: int, hold_kp: int) -> None:
+def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
     """The AN-706 2.12 bring-up: reset, phasing at kp = 1, kp = 20 hold, a small move,
-    following error and settle time, next steps."""
+    following error and settle time, next steps.  A prompt ended by Ctrl-C or end of input
+    exits 130 with nothing moved."""
     s = _session()
+    move_distance = 1000 if move_distance is None else _position(s, move_distance, "--move")
     check_int("--move", move_distance, -100_000, 100_000)
     check_int("--hold-kp", hold_kp, 1, 0x7FFF)
     options = BringupOptions(hold_kp=hold_kp, move_distance=move_distance)
@@ -966,6 +968,12 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
                        velocity=v, acceleration=a, filter=filt, tolerance=tol)
     for line in summary(cap):
         click.echo(line)
+    if s.scale is not None and not raw:
+        sc = s.scale
+        click.echo(f"in revolutions: target {sc.revolutions(cap.target):.4f}, largest following "
+                   f"error {sc.revolutions(cap.max_following_error):+.4f}, overshoot "
+                   f"{sc.revolutions(cap.overshoot):.4f}, final error "
+                   f"{sc.revolutions(cap.final_error):+.4f}")
     click.echo(f"wrote {write_csv(cap, csv_path)}")
     if png:
         try:
