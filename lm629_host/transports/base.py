@@ -103,6 +103,7 @@ class LockedClock(Clock):
     def __init__(self, clock: Clock, lock: threading.RLock) -> None:
         self._clock = clock
         self._lock = lock
+        self.now = clock.now  # type: ignore[method-assign]  # no wrapper on the hot path
 
     def now(self) -> float:
         return self._clock.now()
@@ -164,9 +165,12 @@ class Transport(abc.ABC):
 
     @clock.setter
     def clock(self, clock: Clock) -> None:
+        inner = clock._clock if isinstance(clock, LockedClock) else clock
         if not isinstance(clock, (WallClock, LockedClock)):
             clock = LockedClock(clock, self.lock)
         self._clock = clock
+        #: the clock itself, for code that already holds the lock (inside ``execute``)
+        self._inner_clock = inner
 
     @abc.abstractmethod
     def execute(self, program: Program) -> ProgramResult:
@@ -222,7 +226,7 @@ class CycleTransport(Transport):
         return None
 
     def _wait_not_busy(self, program: Program, index: int, words: list[int]) -> int:
-        clock = self.clock
+        clock = self._inner_clock  # execute holds the lock
         deadline = clock.now() + program.busy_timeout_s
         stats = self.stats
         while True:
@@ -272,7 +276,7 @@ class CycleTransport(Transport):
                 stats.bus_cycles += 1
                 self._emit(BusCycle("reset", 0))
             elif op is Op.WAIT:
-                self.clock.sleep(o.arg * 1e-6)
+                self._inner_clock.sleep(o.arg * 1e-6)
             else:  # pragma: no cover - Op is closed
                 raise AssertionError(op)
         return ProgramResult(tuple(words), tuple(statuses), status, self._hi())
