@@ -168,3 +168,38 @@ def test_closed_stdout_exit_status_is_lm629s_own():
     err = p.stderr.read()
     assert p.wait(timeout=60) == 0, err
     assert "Traceback" not in err and "internal error" not in err
+
+
+@pytest.mark.parametrize("fault, reason", [("stall=1", "stall"), ("reversed=1", "runaway")])
+def test_velocity_checks_the_shaft_turns(run, opened, fault, reason):
+    r = run("--port", f"sim://?{fault}&record=1", "velocity", "65536", "--time", "0.3")
+    assert r.exit_code == 9, r.output
+    assert f"motion fault ({reason})" in r.stderr and len(err_lines(r)) == 1
+    assert opened[-1].transport.model.motor_off
+
+
+def test_sigterm_during_watch_exits_143_and_stops_nothing(run, monkeypatch):
+    import os
+    import signal
+    real = cli._open
+    chips = []
+
+    def _open(url, chip, trace):
+        n = {"rdsigs": 0}
+
+        def killing(cycle):
+            trace(cycle)
+            if cycle.kind == "command" and cycle.value == Cmd.RDSIGS:
+                n["rdsigs"] += 1
+                if n["rdsigs"] == 3:
+                    os.kill(os.getpid(), signal.SIGTERM)
+        c = real(url, chip, killing)
+        chips.append(c)
+        return c
+    monkeypatch.setattr(cli, "_open", _open)
+    before = signal.getsignal(signal.SIGTERM)
+    r = run("--port", "sim://?record=1", "watch", "--rate", "50")
+    assert signal.getsignal(signal.SIGTERM) is before  # restored
+    assert r.exit_code == 143
+    assert r.stderr == "(2 rows)\nlm629: terminated (SIGTERM)\n"
+    assert not _moved(chips)  # the simulator's preparation has no LTRJ/STT; nothing stopped
