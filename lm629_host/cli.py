@@ -725,13 +725,14 @@ def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
             return
         chip.clock.sleep(run_s)
         snap = chip.snapshot()
-        want = -v if reverse else v
+        want = snap.desired_velocity  # where the ramp is now (the target speed or on the way)
         got = snap.real_velocity * FIXED_ONE
         click.echo(f"after {run_s:g} s: actual {speed_text(got)} (desired "
                    f"{speed_text(snap.desired_velocity)}), position "
                    f"{_show_position(s, snap.real_position)}")
-        if snap.desired_velocity == want and v >= FIXED_ONE:
-            # at speed, the shaft must turn the same way at least at half the speed
+        if abs(want) >= FIXED_ONE:
+            # from 1 count/sample up the shaft must turn the desired way at least at half the
+            # desired speed (the real velocity is whole counts/sample)
             if got * want < 0:
                 raise _motion_fault(chip, MotionError.RUNAWAY, snap,
                                     "the shaft turns the wrong way: swap the motor leads or "
