@@ -118,10 +118,21 @@ class Move:
              progress: Callable[[Snapshot], None] | None = None) -> MoveResult:
         """Watch the move until the shaft is at rest within ``tolerance`` counts of the target
         (default ``chip.move_rules``); return a :class:`MoveResult`.  On a fault stop the motor
-        (abrupt stop, then off) and raise :class:`MotionError` naming the reason.
+        (abrupt stop, then off) and raise :class:`MotionError` naming the reason.  Ctrl-C
+        (KeyboardInterrupt) while waiting stops the motor the same way before it goes on.
         ``progress`` is called with every snapshot read."""
         if self.result is not None:
             return self.result
+        try:
+            return self._wait(timeout, tolerance, rules, progress)
+        except KeyboardInterrupt as exc:
+            from .cli_safety import STOP_NOTE, emergency_stop
+            if getattr(exc, STOP_NOTE, None) is None:
+                setattr(exc, STOP_NOTE, emergency_stop(self.chip)[1])
+            raise
+
+    def _wait(self, timeout: float | None, tolerance: int | None, rules: MoveRules | None,
+              progress: Callable[[Snapshot], None] | None) -> MoveResult:
         r = rules or self.chip.move_rules
         if tolerance is not None:
             r = replace(r, tolerance=tolerance)

@@ -140,3 +140,19 @@ def test_move_rules_are_checked():
         MoveRules(settle_time=float("nan"))
     with pytest.raises(ValueError, match="tolerance"):
         MoveRules(tolerance=-1)
+
+
+def test_ctrl_c_while_waiting_stops_the_motor(open_chip):
+    chip = _ready(open_chip("sim://"))
+    move = chip.move_to(20000, velocity=65536, acceleration=655)
+    seen = []
+
+    def progress(snap):
+        seen.append(snap)
+        if len(seen) == 20:  # 0.1 s into the move: the motor is running
+            assert snap.desired_velocity > 0
+            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt) as e:
+        move.wait(progress=progress)
+    assert e.value.lm629_stop_note == "motor stopped (abrupt stop, then motor off)"
+    assert chip.read_status() & Status.MOTOR_OFF and chip.read_desired_velocity() == 0
