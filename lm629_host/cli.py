@@ -1,10 +1,14 @@
 """``lm629``: the bench command line, from first power-on to a tuned move.
 
 Each command opens the port (``--port``, else ``$LM629_PORT``, else the simulator), does one
-job through :class:`lm629_host.LM629` and closes it.  Commands that start a move run inside
-:func:`lm629_host.cli_safety.stop_on_error`: Ctrl-C or any error stops the motor (abrupt stop,
-then motor off) before the program exits.  Errors are one line on stderr (a traceback with
-``-v``) and an exit code per error class (see ``EXIT_CODES``, printed by ``lm629 --help``).
+job through :class:`lm629_host.LM629` and closes it.  Every number is checked before anything
+moves (:mod:`lm629_host.cli_types`).  Moves go through :meth:`LM629.move_to`: done means the
+shaft rests on the target, anything else is a motion fault (exit 9).  Commands that start a
+move run inside :func:`lm629_host.cli_safety.stop_on_error`: Ctrl-C, SIGTERM, SIGHUP (all
+raised as KeyboardInterrupt, after the bus program under way), a closed pipe or any error
+stops the motor (abrupt stop, then motor off) before the program exits; commands that only
+read or wait never stop anything.  Errors are one line on stderr (a traceback with ``-v``) and
+an exit code per way of ending (see ``EXIT_CODES``, printed by ``lm629 --help``).
 
 An in-process simulator (``sim://``, ``sim+avr://``, ``sim+ftdi://``, ``sim+emu://``) is a fresh
 chip for each command: the CLI resets it and loads kp = 20 first, so that ``move`` and friends
@@ -57,8 +61,8 @@ log = logging.getLogger("lm629_host.cli")
 #: exit code -> meaning (one place: the handler and ``--help`` both read it)
 EXIT_CODES: dict[int, str] = {
     0: "success",
-    1: "a check failed (bringup verdict)",
-    2: "bad usage or bad value (nothing was sent to the chip)",
+    1: "a check failed (bringup verdict, doctor found problems)",
+    2: "bad usage or bad value (nothing was sent that moves the motor)",
     3: "transport error (port missing, busy, no permission, no answer)",
     4: "busy timeout (the chip held its busy bit)",
     5: "reset failure (the chip did not come out of reset)",
