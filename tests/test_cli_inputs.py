@@ -133,7 +133,9 @@ def test_prompt_aborted_exits_130_and_nothing_moves(run, opened):
 def test_raw_that_sets_command_error_exits_6(run):
     r = run("--port", "sim://?strict=0", "raw", "0x99")  # an unknown command on purpose
     assert r.exit_code == 6
-    assert "status 82" in r.output and "rejected command 99h" in r.stderr
+    # after the CLI's reset the status reads C0 (motor off, breakpoint level-held: model
+    # choice 19); the unknown command adds the command-error bit (01h << 1)
+    assert "status C2" in r.output and "rejected command 99h" in r.stderr
     assert run("--port", "sim://", "raw", "0x1F", "0").exit_code == 0  # LTRJ, control word 0
 
 
