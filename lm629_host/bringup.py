@@ -13,7 +13,7 @@
 :func:`run_bringup` returns a :class:`BringupReport`; the CLI (``lm629 bringup``) only renders
 it, so that the sequence is tested without click.  All waiting is on the chip's clock
 (simulated time on ``sim://``).  Any exception while the motor may move stops it first
-(:func:`lm629_host.cli_safety.stop_on_error`).
+(:func:`lm629_host.safety.stop_on_error`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from .cli_safety import emergency_stop, stop_on_error
+from .safety import emergency_stop, stop_on_error
 from .errors import ResetError
 from .lm629 import LM629
 from .opcodes import Status

@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .cli_safety import stop_on_error
+from .safety import stop_on_error
 from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
 from .move import MoveResult

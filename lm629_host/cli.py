@@ -4,7 +4,7 @@ Each command opens the port (``--port``, else ``$LM629_PORT``, else the simulato
 job through :class:`lm629_host.LM629` and closes it.  Every number is checked before anything
 moves (:mod:`lm629_host.cli_types`).  Moves go through :meth:`LM629.move_to`: done means the
 shaft rests on the target, anything else is a motion fault (exit 9).  Commands that start a
-move run inside :func:`lm629_host.cli_safety.stop_on_error`: Ctrl-C, SIGTERM, SIGHUP (all
+move run inside :func:`lm629_host.safety.stop_on_error`: Ctrl-C, SIGTERM, SIGHUP (all
 raised as KeyboardInterrupt, after the bus program under way), a closed pipe or any error
 stops the motor (abrupt stop, then motor off) before the program exits; commands that only
 read or wait never stop anything.  Errors are one line on stderr (a traceback with ``-v``) and
@@ -38,7 +38,7 @@ import lm629_host
 from .bringup import BringupOptions, StepResult, run_bringup
 from .capture import PlotUnavailable, capture_move, summary, write_csv, write_png
 from .cli_calc import calc
-from .cli_safety import STOP_NOTE, emergency_stop, stop_on_error
+from .safety import STOP_NOTE, emergency_stop, stop_on_error
 from .cli_types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
 from .errors import (
     BusyTimeout,

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING
 
 from .errors import MotionError
 from .opcodes import Signals, Status
+from .safety import STOP_NOTE, emergency_stop
 
 if TYPE_CHECKING:  # pragma: no cover
     from .lm629 import LM629, Snapshot
@@ -126,7 +127,6 @@ class Move:
         try:
             return self._wait(timeout, tolerance, rules, progress)
         except KeyboardInterrupt as exc:
-            from .cli_safety import STOP_NOTE, emergency_stop
             if getattr(exc, STOP_NOTE, None) is None:
                 setattr(exc, STOP_NOTE, emergency_stop(self.chip)[1])
             raise
@@ -217,7 +217,7 @@ class Move:
             clock.sleep(r.poll)
 
     def _fault(self, reason: str, s: Snapshot, message: str) -> None:
-        from .cli_safety import STOP_NOTE, emergency_stop
+        from .safety import STOP_NOTE, emergency_stop
         _ok, note = emergency_stop(self.chip)
         exc = MotionError(reason, f"{message}; {note}", position=s.real_position,
                           error=self.target - s.real_position)
