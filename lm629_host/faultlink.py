@@ -187,6 +187,7 @@ class SoakResult:
     calls: int = 0
     ok: int = 0
     typed_errors: int = 0
+    not_sent: int = 0  #: typed errors that say nothing was sent (certainly did not run)
     expected: list[tuple[tuple[int, tuple[int, ...]], bool]] = field(default_factory=list)
 
 
@@ -195,6 +196,7 @@ def soak(chip, n: int) -> SoakResult:
     SBPA breakpoint (its two words identify the call) and a real-position read that must read
     0 (the motor is at rest).  Typed errors are counted; any other exception propagates."""
     from .errors import LM629Error, TransportError
+    from .link import LinkError
     from .opcodes import Cmd
 
     r = SoakResult()
@@ -209,6 +211,12 @@ def soak(chip, n: int) -> SoakResult:
             call = chip.read_real_position
         try:
             value = call()
+        except LinkError as exc:
+            r.typed_errors += 1
+            if exc.may_have_run:
+                r.expected.append((entry, False))
+            else:  # nothing was sent: it must not be in the record (leave it out)
+                r.not_sent += 1
         except LM629Error as exc:
             if not isinstance(exc, TransportError) or "may or may not have run" not in str(exc):
                 raise
