@@ -56,6 +56,9 @@ DEFAULT_RETRIES = 7
 ERROR_WINDOW = 200
 #: an error rate above this makes a give-up message call the link too bad to use
 BAD_LINK_RATE = 0.2
+#: above this error rate (over a full window) the link logs one warning per window, even while
+#: the retries still hide every failure: 5 % of exchanges failing is a cable to look at
+WARN_LINK_RATE = 0.05
 
 
 class FrameType(enum.IntEnum):
@@ -494,6 +497,7 @@ class LinkTransport(Transport):
         #: a request was given up: the bridge's cache may still hold its seq, so the next
         #: request is preceded by a HELLO (which empties that cache) -- see :meth:`_resync`
         self._need_resync = False
+        self._since_warning = 0  #: attempts since the last link-quality warning
         if handshake:
             try:
                 self.hello()
@@ -537,6 +541,16 @@ class LinkTransport(Transport):
         a = self._attempts
         return sum(a) / len(a) if a else 0.0
 
+    def _attempt(self, failed: bool) -> None:
+        """Count one attempt; warn (once per window) when the line is bad, before it costs a
+        command."""
+        self._attempts.append(failed)
+        self._since_warning += 1
+        if (self._since_warning >= ERROR_WINDOW and len(self._attempts) == ERROR_WINDOW
+                and self.error_rate >= WARN_LINK_RATE):
+            self._since_warning = 0
+            log.warning("%s: %s", self.url, self._quality())
+
     def _quality(self) -> str:
         """One sentence on the measured link quality and what to check."""
         a = self._attempts
@@ -578,7 +592,7 @@ class LinkTransport(Transport):
             deadline = clock.now() + timeout_s
             frame = self._await(seq, deadline)
             if frame is None:
-                self._attempts.append(True)
+                self._attempt(True)
                 continue
             if frame.type == FrameType.ERROR_REPLY:
                 code = frame.payload[0] if frame.payload else -1
@@ -596,11 +610,11 @@ class LinkTransport(Transport):
                     check(frame)
                 except FrameError as exc:
                     self.bad_frames += 1
-                    self._attempts.append(True)
+                    self._attempt(True)
                     log.debug("%s: reply to %s passed its CRC but is malformed: %s", self.url,
                               what, exc)
                     continue
-            self._attempts.append(False)
+            self._attempt(False)
             return frame
         if ftype is FrameType.HELLO:
             raise self._no_answer(what, attempts)

@@ -212,3 +212,17 @@ def test_too_noisy_link_says_so_in_one_line():
     assert "cable" in msg and "ground" in msg and "baud" in msg
     rate = chip.transport.error_rate
     assert f"({100 * rate:.0f} %" in msg and rate > 0.2
+
+
+def test_a_bad_link_warns_before_it_costs_a_command(caplog):
+    """1 % of bytes faulty: every command still succeeds (the retries hide it), but the link
+    logs its measured error rate and what to check, once per 200 attempts."""
+    import logging
+
+    rates = dict(drop=0.0025, corrupt=0.0025, duplicate=0.0025, delay=0.0025, delay_s=0.01)
+    chip, model, fp, far_stats = open_faulty("emu", rates, 4, baud=1_000_000)
+    with caplog.at_level(logging.WARNING, logger="lm629_host.link"):
+        r = soak(chip, 1000)
+    assert r.typed_errors == 0
+    warnings = [rec.getMessage() for rec in caplog.records if "exchanges failed" in rec.getMessage()]
+    assert warnings and all("cable" in w and "ground" in w and "baud" in w for w in warnings)
