@@ -71,7 +71,8 @@ def main() -> int:
         hits = (far_stats.cache_hits - hits0) if far_stats else 0
         print(f"run {run}: {r.calls} commands, {r.ok} ok ({100 * r.ok / r.calls:.2f} %), "
               f"{r.typed_errors} typed errors ({ran} ran, {lost} did not, {r.not_sent} not "
-              f"sent), {t.stats.retries} retries, {hits} cache hits, {faults} byte faults, "
+              f"sent), {t.stats.retries} retries, {hits if far_stats else 'n/a'} cache hits, "
+              f"{faults} byte faults, "
               f"link error rate {100 * t.error_rate:.1f} %", flush=True)
         for k, v in dict(calls=r.calls, ok=r.ok, errors=r.typed_errors, ran=ran, lost=lost,
                          not_sent=r.not_sent, retries=t.stats.retries, cache_hits=hits,
@@ -82,7 +83,8 @@ def main() -> int:
           f"({100 * total['ok'] / max(1, total['calls']):.3f} %), {total['errors']} typed errors "
           f"({total['ran']} had run, {total['lost']} had not, {total['not_sent']} not sent), "
           f"{total['retries']} retries, "
-          f"{total['cache_hits']} answered from the bridge's cache, {total['faults']} byte "
+          f"{total['cache_hits'] if args.far == 'emu' else '(not counted)'} answered from "
+          f"the bridge's cache, {total['faults']} byte "
           f"faults; no command lost or run twice ({time.perf_counter() - t0:.1f} s wall)")
     return 0
 
