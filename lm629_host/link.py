@@ -504,8 +504,10 @@ class LinkTransport(Transport):
             except BaseException:
                 self.close()
                 raise
-            # the counters start with the first program, as on every other transport
+            # the counters start with the first program, as on every other transport (the
+            # HELLOs a booting bridge left unanswered are not the line's error rate either)
             self.stats.reset()
+            self._attempts.clear()
 
     # ------------------------------------------------------------------ helpers
     def _next_seq(self) -> int:
@@ -618,12 +620,14 @@ class LinkTransport(Transport):
             return frame
         if ftype is FrameType.HELLO:
             raise self._no_answer(what, attempts)
-        self._need_resync = True
+        self._need_resync = True  # the bridge may hold this seq in its cache
+        if ftype is not FrameType.RUN:
+            raise self._no_answer(what, attempts)
         raise LinkError(
             f"no valid answer to {what} after {attempts} attempt(s) "
             f"({self.bad_frames - bad_before} bad frame(s)): the program may or may not "
             f"have run on the chip; {self._quality()}; then reset the chip (LM629.reset) "
-            "before going on.", port=self.url, may_have_run=ftype is FrameType.RUN)
+            "before going on.", port=self.url, may_have_run=True)
 
     def _await(self, seq: int, deadline: float) -> Frame | None:
         """The reply with ``seq``, or None on timeout or on a bad frame (which calls for a
