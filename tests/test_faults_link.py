@@ -226,3 +226,35 @@ def test_a_bad_link_warns_before_it_costs_a_command(caplog):
     assert r.typed_errors == 0
     warnings = [rec.getMessage() for rec in caplog.records if "exchanges failed" in rec.getMessage()]
     assert warnings and all("cable" in w and "ground" in w and "baud" in w for w in warnings)
+
+
+def test_request_arriving_after_the_host_gave_up_runs_once_and_in_order():
+    """A request (and its retries) held up on the line for longer than all the host's attempts:
+    the host gives up ("may or may not have run"), then the line clears.  The late request
+    reaches the bridge before anything sent after it (a serial line keeps order), runs once
+    (its retries are answered from the cache), its late replies are ignored as stale, and the
+    next command runs after it and returns its own answer."""
+    from lm629_host.link import LinkError
+
+    chip, model, fp, far_stats = open_faulty("emu", {}, 0, baud=115200)
+    fp.out.rates.delay, fp.out.rates.delay_s = 1.0, 0.05  # every byte stalls the line 50 ms
+    with pytest.raises(LinkError) as e:
+        chip.set_breakpoint(0x12345)
+    assert e.value.may_have_run and model.history == []  # nothing has arrived yet
+    fp.out.rates.delay = 0.0
+    # while the backlog drains, the resynchronising HELLO waits behind it: such calls send
+    # nothing and say so; then the next command goes through
+    not_sent = 0
+    while True:
+        try:
+            chip.set_breakpoint(0x54321)
+            break
+        except LinkError as exc:
+            assert not exc.may_have_run
+            not_sent += 1
+            assert not_sent < 20
+    assert chip.read_real_position() == 0
+    sbpa = int(Cmd.SBPA)
+    assert model.history == [(sbpa, (1, 0x2345)), (sbpa, (5, 0x4321)), (int(Cmd.RDRP), ())]
+    assert far_stats.runs == 3 and far_stats.cache_hits == chip.transport.retries
+    assert chip.transport.stale_replies > 0

@@ -69,6 +69,18 @@ trip per transfer (the problem this transport exists to avoid).
 
 The chip's documented worst case makes the repeat path a fault detector: it runs only on a
 chip out of its data sheet, a noisy bus, or the emulator's ``stretch_busy`` hook.
+
+What the FT232H itself asks for
+-------------------------------
+
+* Opening must not glitch the bus: see :func:`open_mpsse` (bit-mode mask 0, clock modes off,
+  levels and directions in one 0x80).
+* Its buffers hold 1 KiB each way (:data:`~lm629_host.ftdi_pins.FIFO_BYTES`).  A stream is
+  written whole before its answer is read; if its answers fill the chip->host buffer while
+  more than 1 KiB of it is still unwritten, the MPSSE engine stops and the write times out.
+  So a program is cut into streams of at most 1 KiB (``StreamCompiler.compile(max_bytes=)``),
+  between operations; a command with many words may span streams, and a busy repeat still
+  starts at its command byte.
 """
 
 from __future__ import annotations
