@@ -36,13 +36,15 @@ def open_faulty(far: str, rates: dict, seed: int, baud: int):
         require_firmware()  # skips only without the toolchain; a broken build fails
         t = open_transport(f"sim+avr://?record=1&baud={baud}")
         model = getattr(t, "model", None) or getattr(t.pipe, "model", None)
-        far_stats = None
+        far_stats = t.sim.link_counters()  # the firmware's own counters (None without avr-nm)
     chip = LM629(t)
     chip.reset()
     t._seq = seed & 0xFF  # the first seq is random at open: fix it, so a run is reproducible
     model.record_clear()
-    if far_stats is not None:
+    if far_stats is not None and far == "emu":
         far_stats.runs = far_stats.cache_hits = 0
+    elif far_stats is not None:
+        far_stats.reset()
     fp = FaultPipe(t.pipe, seed=seed, **rates)
     t.pipe = fp
     return chip, model, fp, far_stats
@@ -102,6 +104,8 @@ def test_soak_at_issue16_rates(far, rate, n, min_ok):
           f"{r.typed_errors} typed errors ({ran} ran, {lost} did not, {r.not_sent} not sent); "
           f"retries {t.stats.retries}, link error rate {100 * t.error_rate:.0f} %")
     assert r.ok + r.typed_errors == n
+    if far_stats is not None:  # every program the far end ran is one command in the record
+        assert far_stats.runs == len(model.history) and far_stats.cache_hits > 0
     if min_ok is not None:
         assert r.ok >= min_ok * n
     else:
