@@ -12,12 +12,13 @@ is busy, the busy check polls every ``poll_interval_s``.  ``chip.clock`` is the 
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 
 from ..model import ChipModel, ChipParams, MotorParams
 from ..model.params import apply_params
-from ..program import TraceCallback
+from ..program import WAIT_STATUS_POLL_US, TraceCallback
 from . import query_params
 from .base import Clock, CycleTransport
 
@@ -41,6 +42,70 @@ class SimClock(Clock):
         """Run the model up to simulated time ``t`` (seconds), rounded up to a whole clock."""
         m = self.model
         m.advance_to(math.ceil(t * m.clock_hz - 1e-6))
+
+    def advance_until_status(self, mask: int, t: float) -> None:
+        """Run the model to the first tick at which its status has a bit of ``mask`` set, or to
+        simulated time ``t`` (seconds), whichever comes first.
+
+        This is what lets a wait cost about what the model costs: instead of a status read
+        every poll period, the clock goes straight to the status change, and the caller then
+        reads the status for real.  With no host strobe in between, the status bits other
+        than busy only ever rise (the interrupt bits are latched until RSTI, motor off is
+        cleared only by STT, no sample runs while a reset completes) and they change only at a
+        sample or at the end of a reset; so the first such tick is found by running copies of
+        the model ahead (growing steps, then halving), and the model itself is run once, to
+        that tick.  A mask with the busy bit (which falls) is not searched: the clock advances
+        one poll period of the bridge."""
+        m = self.model
+        limit = math.ceil(t * m.clock_hz - 1e-6)
+        if limit <= m.tick:
+            return
+        if mask & 1:
+            m.advance_to(min(limit, m.tick + round(WAIT_STATUS_POLL_US * 1e-6 * m.clock_hz)))
+            return
+        if m.status & mask:
+            return
+        # candidates: the sample ticks base + k * S (interrupt bits rise at samples); the end
+        # of a reset is the one change off that grid, found at the next grid point or `limit`
+        S = m.sample_clocks
+        base = m.next_sample
+        probe = _clone(m)
+        k_lo, k, step = -1, 0, 1  # k_lo: the last grid point known clear (-1: now)
+        while True:  # growing steps on one copy
+            at = base + k * S
+            if at >= limit:
+                probe.advance_to(limit)
+                if not probe.status & mask:
+                    m.advance_to(limit)
+                    return
+                k_hi = (limit - base) // S + 1  # the grid point past the limit stands for it
+                break
+            probe.advance_to(at)
+            if probe.status & mask:
+                k_hi = k
+                break
+            k_lo, k = k, k + step
+            step += step // 4 + 1
+        # halving: the copy at k_lo goes on while it finds the status clear; when it finds it
+        # set, the model itself goes to k_lo and a fresh copy starts from there
+        probe = None
+        while k_hi - k_lo > 1:
+            mid = (k_lo + k_hi) // 2
+            if probe is None:
+                if k_lo >= 0:
+                    m.advance_to(base + k_lo * S)
+                probe = _clone(m)
+            probe.advance_to(base + mid * S)
+            if probe.status & mask:
+                k_hi, probe = mid, None
+            else:
+                k_lo = mid
+        m.advance_to(min(limit, base + k_hi * S))
+
+
+def _clone(m: ChipModel) -> ChipModel:
+    """A copy of the model to run ahead (its command record and violations left out)."""
+    return copy.deepcopy(m, {id(m.history): [], id(m.violations): []})
 
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
@@ -85,6 +150,33 @@ class SimTransport(CycleTransport):
         self.model = model
         self.clock = SimClock(model)
         self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
+        #: False: make every busy poll (the reference the skip is tested against)
+        self.skip_known_busy = True
+
+    def _skip_busy_polls(self, deadline: float) -> int:
+        """Skip the busy polls the model's busy deadline already answers.
+
+        The poll loop reads the status one strobe (``c`` clocks) after the last cycle, then
+        sleeps ``poll_interval_s`` (``s`` clocks) while busy: read ``j`` happens at
+        ``t0 + (j + 1) c + j s``.  Every read before the model's busy deadline answers busy, so
+        the clock jumps over them to where the first read at or after the deadline happens;
+        that read is made for real by the caller.  The model runs the same samples either way
+        (it is advanced to the same ticks, only in fewer steps), so counters, simulated time
+        and the chip's state are those of the full loop (tests/test_sim_fastpath.py)."""
+        m = self.model
+        if not self.skip_known_busy:
+            return 0
+        until = m.busy_deadline()
+        c = self._cycle_clocks
+        t0 = m.tick
+        if until is None or until <= t0 + c:
+            return 0  # busy has no known end (fault=busy), or the first read finds it clear
+        s = max(0, round(self.poll_interval_s * m.clock_hz))
+        k = -(-(until - t0 - c) // (c + s))  # reads before the deadline
+        if (t0 + k * c + (k - 1) * s) / m.clock_hz >= deadline:
+            return 0  # the full loop would time out: let it, with its own message
+        m.advance_to(t0 + k * (c + s))
+        return k
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
@@ -117,6 +209,10 @@ class SimTransport(CycleTransport):
         m = self.model
         m.advance_to(m.tick + 8)  # /RST held low for 8 clocks, the datasheet minimum
         m.reset_pulse()
+
+    def _sleep_until_status(self, mask: int, deadline: float) -> None:
+        """Straight to the next status change (see :meth:`SimClock.advance_until_status`)."""
+        self.clock.advance_until_status(mask, deadline)
 
     def _hi(self) -> bool:
         return self.model.hi
