@@ -521,7 +521,7 @@ class LM629:
 #: the longest far-side wait per exchange on a wall clock (Ctrl-C is held while a program runs)
 WAIT_STATUS_WALL_CHUNK_MS = 250
 #: host polling of a wait: from 1 ms, then this fraction of the time waited so far, at most
-#: POLL_MAX_S: a change is seen at most ~5 % late, and a 10 s wait costs ~90 reads, not 10,000
+#: POLL_MAX_S: a change is seen at most ~5 % late, and a 10 s wait costs ~280 reads, not 10,000
 POLL_MIN_S, POLL_FRACTION, POLL_MAX_S = 1e-3, 0.05, 0.05
 
 
