@@ -22,12 +22,14 @@ from lm629_host.bridge_emu import open_emulated  # noqa: E402
 from lm629_host.faultlink import FaultPipe, check_record, soak  # noqa: E402
 
 
-def open_far(far: str, baud: int):
+def open_far(far: str, baud: int, n: int = 5000):
+    # the record is a bounded window: room for every command of a run, with a wide margin
+    rec = f"record=1&record_window={max(10_000, 16 * n)}"
     if far == "emu":
-        t = open_emulated("sim://?record=1", baud=baud)
+        t = open_emulated(f"sim://?{rec}", baud=baud)
         return t, t.model, t.emulator.stats
     from lm629_host.transports import open_transport  # sim+avr://: the compiled firmware
-    t = open_transport(f"sim+avr://?record=1&baud={baud}")
+    t = open_transport(f"sim+avr://?{rec}&baud={baud}")
     return t, getattr(t, "model", None) or t.pipe.model, None
 
 
@@ -44,7 +46,7 @@ def main() -> int:
     total = dict(calls=0, ok=0, errors=0, ran=0, lost=0, retries=0, cache_hits=0, faults=0)
     t0 = time.perf_counter()
     for run in range(args.runs):
-        t, model, far_stats = open_far(args.far, args.baud)
+        t, model, far_stats = open_far(args.far, args.baud, args.n)
         chip = LM629(t)
         chip.reset()
         t._seq = run & 0xFF
