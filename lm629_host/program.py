@@ -83,6 +83,13 @@ class BusOp:
         return f"wait {self.arg} us"
 
 
+# The operations without a varying argument exist once (a BusOp is immutable): building a
+# program is part of every command's host cost.
+_READ_OP = BusOp(Op.READ)
+_STATUS_OP = BusOp(Op.STATUS)
+_COMMAND_OPS: dict[int, BusOp] = {}
+
+
 @dataclass
 class Program:
     """An ordered bus program.  Build it with the chaining helpers::
@@ -94,7 +101,11 @@ class Program:
     busy_timeout_s: float = DEFAULT_BUSY_TIMEOUT_S
 
     def command(self, cmd: int) -> Program:
-        self.ops.append(BusOp(Op.COMMAND, int(cmd) & 0xFF))
+        byte = int(cmd) & 0xFF
+        op = _COMMAND_OPS.get(byte)
+        if op is None:
+            op = _COMMAND_OPS[byte] = BusOp(Op.COMMAND, byte)
+        self.ops.append(op)
         return self
 
     def write(self, word: int) -> Program:
@@ -109,12 +120,11 @@ class Program:
         return self.write(value >> 16).write(value & 0xFFFF)
 
     def read(self, count: int = 1) -> Program:
-        for _ in range(count):
-            self.ops.append(BusOp(Op.READ))
+        self.ops.extend([_READ_OP] * count)
         return self
 
     def status(self) -> Program:
-        self.ops.append(BusOp(Op.STATUS))
+        self.ops.append(_STATUS_OP)
         return self
 
     def sync(self) -> Program:

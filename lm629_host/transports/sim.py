@@ -18,12 +18,16 @@ import os
 
 from ..model import ChipModel, ChipParams, MotorParams
 from ..model.params import apply_params
-from ..program import WAIT_STATUS_POLL_US, TraceCallback
+from ..errors import BusyTimeout
+from ..program import WAIT_STATUS_POLL_US, BusOp, Op, Program, ProgramResult, TraceCallback
 from . import query_params
 from .base import Clock, CycleTransport
 
 #: simulated duration of one /RD or /WR strobe cycle, recovery included
 CYCLE_S = 0.5e-6
+
+_STATUS, _COMMAND, _WRITE, _READ = Op.STATUS, Op.COMMAND, Op.WRITE, Op.READ
+_RESET, _WAIT, _SYNC, _WAIT_STATUS = Op.RESET, Op.WAIT, Op.SYNC, Op.WAIT_STATUS
 
 
 class SimClock(Clock):
@@ -152,6 +156,127 @@ class SimTransport(CycleTransport):
         self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
         #: False: make every busy poll (the reference the skip is tested against)
         self.skip_known_busy = True
+
+    def execute(self, program: Program) -> ProgramResult:
+        """:meth:`CycleTransport.execute` fused with this transport's strobes and busy skip.
+
+        The same strobes at the same ticks, the same counters, the same errors: only the
+        layers of calls between them are gone (most of a command's host cost; the chip model
+        is the rest).  With a trace (every poll shown), with ``skip_known_busy`` off, or when
+        busy has no known end (``fault=busy``), the general loop runs instead; the tests
+        compare the two (tests/test_wait_and_busy_paths.py)."""
+        m = self.model
+        if (not self.skip_known_busy or self._tracing() or m.busy_deadline() is None):
+            return super().execute(program)
+        stats = self.stats
+        stats.programs += 1
+        stats.round_trips += 1
+        c = self._cycle_clocks
+        s = max(0, round(self.poll_interval_s * m.clock_hz))
+        hz = m.clock_hz
+        timeout = program.busy_timeout_s
+        advance_to = m.advance_to
+        words: list[int] = []
+        statuses: list[int] = []
+        status: int | None = None
+        cycles = polls = 0
+        try:
+            for index, o in enumerate(program.ops):
+                op = o.op
+                if op is _COMMAND or op is _WRITE or op is _READ or op is _SYNC:
+                    # the busy check: the polls the busy deadline answers are counted, the
+                    # one that finds busy clear is made (as _skip_busy_polls + the poll loop)
+                    t0 = m.tick
+                    until = m.busy_deadline()
+                    if until is not None and until > t0 + c:
+                        k = -(-(until - t0 - c) // (c + s))
+                        if (t0 + k * c + (k - 1) * s) / hz >= t0 / hz + timeout:
+                            stats.bus_cycles += cycles
+                            stats.busy_polls += polls
+                            cycles = polls = 0
+                            status = self._wait_not_busy(program, index, words, False)
+                            k = -1
+                        else:
+                            advance_to(t0 + k * (c + s))
+                            cycles += k
+                            polls += k
+                    else:
+                        k = 0
+                    if k >= 0:
+                        advance_to(m.tick + c)
+                        status = m.read_status()
+                        cycles += 1
+                        polls += 1
+                        if status & 1:  # busy after all (a reset ended it otherwise): poll on
+                            stats.bus_cycles += cycles
+                            stats.busy_polls += polls
+                            cycles = polls = 0
+                            status = self._poll_on(program, index, words, t0 / hz + timeout,
+                                                   status)
+                    if op is _COMMAND:
+                        advance_to(m.tick + c)
+                        m.write_command(o.arg)
+                        cycles += 1
+                    elif op is _WRITE:
+                        advance_to(m.tick + c)
+                        m.write_data(o.arg >> 8)
+                        advance_to(m.tick + c)
+                        m.write_data(o.arg & 0xFF)
+                        cycles += 2
+                    elif op is _READ:
+                        advance_to(m.tick + c)
+                        hi = m.read_data()
+                        advance_to(m.tick + c)
+                        words.append((hi << 8) | m.read_data())
+                        cycles += 2
+                    else:
+                        statuses.append(status)
+                elif op is _STATUS:
+                    advance_to(m.tick + c)
+                    status = m.read_status()
+                    cycles += 1
+                    statuses.append(status)
+                else:  # RESET, WAIT, WAIT_STATUS: rare, not on the hot path
+                    stats.bus_cycles += cycles
+                    stats.busy_polls += polls
+                    cycles = polls = 0
+                    st = self._run_rare(o)
+                    if st is not None:
+                        status = st
+                        statuses.append(st)
+        finally:
+            stats.bus_cycles += cycles
+            stats.busy_polls += polls
+        return ProgramResult(tuple(words), tuple(statuses), status, m.hi)
+
+    def _poll_on(self, program: Program, index: int, words: list[int], deadline: float,
+                 status: int) -> int:
+        """The rest of the poll loop after a busy ``status``, with its deadline (as
+        CycleTransport._wait_not_busy)."""
+        clock, stats = self.clock, self.stats
+        while True:
+            if clock.now() >= deadline:
+                raise BusyTimeout(program.ops[index].describe(), program.busy_timeout_s,
+                                  status, index, words)
+            clock.sleep(self.poll_interval_s)
+            status = self._read_status()
+            stats.bus_cycles += 1
+            stats.busy_polls += 1
+            if not status & 1:
+                return status
+
+    def _run_rare(self, o: BusOp) -> int | None:
+        """RESET, WAIT and WAIT_STATUS as CycleTransport.execute runs them."""
+        if o.op is _RESET:
+            self._pulse_reset()
+            self.stats.bus_cycles += 1
+        elif o.op is _WAIT:
+            self.clock.sleep(o.arg * 1e-6)
+        elif o.op is _WAIT_STATUS:
+            return self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3, False)
+        else:  # pragma: no cover - Op is closed
+            raise AssertionError(o.op)
+        return None
 
     def _skip_busy_polls(self, deadline: float) -> int:
         """Skip the busy polls the model's busy deadline already answers.
