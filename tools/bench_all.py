@@ -192,6 +192,20 @@ def probe_after() -> dict:
                 acceleration=100, velocity=65536, position=pos[0], start=True)),
         }
 
+    # exchanges per typed command: bridge round trips (sim+emu://), FT232H USB transfer pairs
+    for url in ("sim+emu://", "sim+ftdi://"):
+        chip = _chip(url)
+        trips = {}
+        for name, fn in (("rdrp", chip.read_real_position),
+                         ("ltrj_stt", lambda: chip.load_trajectory(
+                             acceleration=100, velocity=65536, position=500, start=True)),
+                         ("reset", chip.reset)):
+            chip.load_trajectory(stop="off", start=True)
+            r0 = chip.transport.stats.round_trips
+            fn()
+            trips[name] = chip.transport.stats.round_trips - r0
+        out["trips " + url] = trips
+
     # the chip model alone (tools/bench_model.py's measure), bring-up end to end
     sys.path.insert(0, str(ROOT / "tools"))
     import bench_model
@@ -269,14 +283,24 @@ OTHERS = [
 ]
 
 
-def run_others() -> list[str]:
-    bad = []
+def run_others() -> tuple[list[str], dict[str, str]]:
+    """Run each; the failures, and the last line each printed."""
+    bad, last = [], {}
     for args in OTHERS:
         r = subprocess.run([sys.executable, str(ROOT / "tools" / args[0]), *args[1:]],
                            capture_output=True, text=True, cwd=ROOT)
         if r.returncode:
             bad.append(f"{' '.join(args)}: exit {r.returncode}: {r.stderr.strip()[-300:]}")
-    return bad
+        lines = r.stdout.strip().splitlines()
+        last[args[0]] = lines[-1] if lines else ""
+    return bad, last
+
+
+def firmware_size() -> str:
+    r = subprocess.run(["make", "-s", "-C", str(ROOT / "firmware_bridge"), "size"],
+                       capture_output=True, text=True)
+    m = re.search(r"flash (\d+) of (\d+) bytes.*RAM (\d+) of (\d+)", r.stdout)
+    return f"flash {m[1]} of {m[2]} bytes, static RAM {m[3]} of {m[4]}" if m else "?"
 
 
 # ------------------------------------------------------------------ the table
@@ -322,7 +346,15 @@ def rows(before: dict, after: dict, extra: dict, builds: dict) -> list[tuple[str
         e = extra[url]
         r.append((f"{name}: RDRP / LTRJ(6)+STT, simulated", "-",
                   f"{e['rdrp']:.0f} us / {e['ltrj_stt']:.0f} us", "next round"))
+    te, tf = extra["trips sim+emu://"], extra["trips sim+ftdi://"]
     r += [
+        ("exchanges per typed command, RDRP / LTRJ(6)+STT / `reset()`: serial bridge round "
+         "trips; FT232H USB write+read pairs", "-",
+         f"bridge {te['rdrp']} / {te['ltrj_stt']} / {te['reset']}; FT232H {tf['rdrp']} / "
+         f"{tf['ltrj_stt']} / {tf['reset']}", ""),
+        ("bridge firmware size", "-", builds["size"], ""),
+        ("exactly-once over a lossy link (`tools/fault_soak.py --runs 1 --n 200`, 0.2 % byte "
+         "faults)", "-", builds["soak"].replace("total: ", "").replace("|", "/"), ""),
         ("chip model alone, 10 s move with the PID active, x real time", "-",
          f"{extra['model_move_x']:.0f}x", ""),
         ("`lm629 bringup` sequence on `sim://`, wall", "-", f"{extra['bringup_s']:.2f} s", ""),
@@ -403,7 +435,9 @@ def main() -> int:
             d[name] = statistics.median(r[name] for r in runs[key])
     extra = run_probe("after", ROOT)
     print("the other benchmarks ...", file=sys.stderr)
-    bad = run_others()
+    bad, last = run_others()
+    builds["size"] = firmware_size()
+    builds["soak"] = last.get("fault_soak.py", "?")
     block = render(rows(before, after, extra, builds), date, args.baseline, bad)
     print(block)
     if args.write_readme:
