@@ -227,3 +227,24 @@ def test_firmware_waits_on_the_bridge_in_one_round_trip():
     with pytest.raises(WaitTimeout):  # never set: the bridge gives up after the timeout
         chip.wait_for(Status.INDEX_PULSE, timeout=0.02)
     assert chip.clock.now() - t0 >= 0.02
+
+
+@pytest.mark.usefixtures("firmware_built")
+def test_first_sim_avr_use_says_what_it_builds(tmp_path, monkeypatch, capsys):
+    """A cold build takes seconds: the first use says so in one line on stderr; a warm one is
+    silent."""
+    import shutil
+
+    from lm629_host import avrsim
+
+    fw = tmp_path / "firmware_bridge"
+    shutil.copytree(avrsim.FIRMWARE_DIR, fw, ignore=shutil.ignore_patterns("build"))
+    monkeypatch.setattr(avrsim, "FIRMWARE_DIR", fw)
+    monkeypatch.setattr(avrsim, "_built", False)
+    avrsim.ensure_built()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "building the bridge firmware" in err[0] and str(fw) in err[0]
+    assert (fw / "build" / "lm629_bridge.hex").exists() and (fw / "build" / "libfitl.so").exists()
+    monkeypatch.setattr(avrsim, "_built", False)
+    avrsim.ensure_built()
+    assert capsys.readouterr().err == ""
