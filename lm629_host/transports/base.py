@@ -226,8 +226,8 @@ class CycleTransport(Transport):
         words: list[int] = []
         statuses: list[int] = []
         status: int | None = None
-        # plain ints on the hot path (Op members compared by value cost more than ints), and no
-        # BusCycle objects made unless someone looks at them
+        # plain ints on the hot path, and no BusCycle objects made unless someone looks at them
+        # (SimTransport runs its own fused copy of this loop: keep the two in step)
         tracing = self._tracing()
         emit = self._emit
         for index, o in enumerate(program.ops):
