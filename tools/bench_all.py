@@ -4,6 +4,7 @@
     python3 tools/bench_all.py                  # measure and print the table
     python3 tools/bench_all.py --write-readme   # ... and write it into README.md ("Performance")
     python3 tools/bench_all.py --baseline REF   # "before" = another commit (default below)
+    python3 tools/bench_all.py --write-readme --fresh-clone   # also a fresh clone's test run
 
 "Before" is measured, not remembered: the baseline commit's ``lm629_host`` is unpacked from git
 into a temporary directory (its C sample loop built there) and the same probes run against it
@@ -252,6 +253,24 @@ def whole_build() -> tuple[float, float]:
         return _timed_run(["make", "-s", "-B", "firmware", "harness"], dst)
 
 
+def fresh_clone_tests(ref: str) -> tuple[float, float, str]:
+    """A fresh clone of ``ref``: venv, ``pip install -e '.[test]'``, then the test run timed
+    (wall, peak MB of pytest and what it builds, its summary line)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp) / "clone"
+        subprocess.run(["git", "clone", "-q", str(ROOT), str(d)], check=True)
+        subprocess.run(["git", "-C", str(d), "checkout", "-q", ref], check=True)
+        subprocess.run([sys.executable, "-m", "venv", ".venv"], cwd=d, check=True)
+        py = str(d / ".venv" / "bin" / "python3")
+        subprocess.run([py, "-m", "pip", "install", "-q", "-e", ".[test]"], cwd=d,
+                       check=True, capture_output=True)
+        r = subprocess.run(["/usr/bin/time", "-f", "%e %M", py, "-m", "pytest", "-q",
+                            "-p", "no:cacheprovider"], cwd=d, capture_output=True, text=True)
+        wall, kb = r.stderr.strip().splitlines()[-1].split()
+        summary = r.stdout.strip().splitlines()[-1] if r.stdout.strip() else "?"
+        return float(wall), int(kb) / 1024, summary
+
+
 # ------------------------------------------------------------------ the baseline tree
 def unpack(ref: str, dest: Path) -> None:
     """The baseline commit's sources into ``dest``, with its C sample loop built in place."""
@@ -346,6 +365,12 @@ def rows(before: dict, after: dict, extra: dict, builds: dict) -> list[tuple[str
         e = extra[url]
         r.append((f"{name}: RDRP / LTRJ(6)+STT, simulated", "-",
                   f"{e['rdrp']:.0f} us / {e['ltrj_stt']:.0f} us", "next round"))
+    if "fresh" in builds:
+        (bw, bm, bs), (aw, am, as_) = builds["fresh"]
+        r.append((f"test run of a fresh clone (`pytest -q` after `pip install -e '.[test]'`, "
+                  f"firmware builds included; measured {builds['fresh_date']} with "
+                  "`--fresh-clone`)", f"{bw:.0f} s, {bm:.0f} MB ({bs})",
+                  f"{aw:.0f} s, {am:.0f} MB ({as_})", "faster"))
     te, tf = extra["trips sim+emu://"], extra["trips sim+ftdi://"]
     r += [
         ("exchanges per typed command, RDRP / LTRJ(6)+STT / `reset()`: serial bridge round "
@@ -379,11 +404,23 @@ def render(table: list[tuple[str, str, str, str]], date: str, ref: str, bad: lis
         "|---|---|---|---|",
     ]
     lines += [f"| {a} | {b} | {c} | {d} |" for a, b, c, d in table]
+    if not any(a.startswith("test run of a fresh clone") for a, *_ in table):
+        kept = previous_fresh_row()
+        if kept:
+            lines.append(kept)
     lines.append("")
     lines.append("Every benchmark in `tools/` ran clean in the same run." if not bad else
                  "Benchmarks that failed: " + "; ".join(bad))
     lines.append(END)
     return "\n".join(lines)
+
+
+def previous_fresh_row() -> str | None:
+    """The fresh-clone row of the README's table, kept when this run does not remeasure it
+    (it takes minutes: ``--fresh-clone``); it carries its own date."""
+    m = re.search(r"^\| test run of a fresh clone .*$", (ROOT / "README.md").read_text(),
+                  flags=re.M)
+    return m[0] if m else None
 
 
 def write_readme(block: str) -> None:
@@ -407,6 +444,8 @@ def main() -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--write-readme", action="store_true")
     ap.add_argument("--baseline", default=BASELINE)
+    ap.add_argument("--fresh-clone", action="store_true",
+                    help="also time the test run of a fresh clone, before and after (minutes)")
     ap.add_argument("--probe", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.probe:
@@ -434,6 +473,11 @@ def main() -> int:
         for name in runs[key][0]:
             d[name] = statistics.median(r[name] for r in runs[key])
     extra = run_probe("after", ROOT)
+    if args.fresh_clone:
+        print("fresh clones: pip install and the test run, before and after ...",
+              file=sys.stderr)
+        builds["fresh"] = (fresh_clone_tests(args.baseline), fresh_clone_tests("HEAD"))
+        builds["fresh_date"] = date[:10]
     print("the other benchmarks ...", file=sys.stderr)
     bad, last = run_others()
     builds["size"] = firmware_size()
