@@ -171,6 +171,7 @@ def probe_after() -> dict:
     t.model, t.emulator = model, emu
     LinkTransport.__init__(t, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
     out["wait_emu_old_bridge"] = _link_wait("", transport=t)
+    out["wait_ftdi"] = _link_wait("sim+ftdi://")  # no far-side wait: the host polls
 
     # simulated microseconds per command through the firmware and the FT232H
     for url in ("sim+avr://?baud=115200", "sim+avr://?baud=1000000", "sim+ftdi://"):
@@ -354,7 +355,9 @@ def rows(before: dict, after: dict, extra: dict, builds: dict) -> list[tuple[str
          f"prompt) {extra['wait_emu_wall']['bps']:.0f} B/s, the compiled firmware (`sim+avr://`) "
          f"{extra['wait_avr_wall']['bps']:.0f} B/s; a bridge without WAIT_STATUS (host polls "
          f"at the wait's rate) {extra['wait_emu_old_bridge']['bps']:.0f} B/s "
-         f"({extra['wait_emu_old_bridge']['round_trips']} reads)", ""),
+         f"({extra['wait_emu_old_bridge']['round_trips']} reads); FT232H (`sim+ftdi://`, host "
+         f"polls) {extra['wait_ftdi']['bps']:.0f} B/s over USB "
+         f"({extra['wait_ftdi']['round_trips']} reads)", ""),
         ("`sim://?record=1`, memory after 100k commands (SBPA + 2 words)",
          f"{before['record_mb']:.1f} MB (unbounded)", f"{after['record_mb']:.1f} MB "
          "(a window of 10,000: `record_window=`)", "bounded"),
