@@ -93,6 +93,7 @@ static void rx_restart(link_t *l)
     l->code_left = 0;
     l->started = 0;
     l->crc = LINK_CRC_INIT;
+    l->chk_args = l->chk_ops = l->chk_reads = l->chk_status = l->chk_bad = 0;
 }
 
 void link_init(link_t *l)
@@ -105,6 +106,141 @@ void link_init(link_t *l)
 /* ---------------------------------------------------------------- programs */
 static const uint8_t op_args[] = OP_ARG_BYTES_INIT;
 
+/* The result of checking a program before it runs. */
+typedef struct {
+    uint8_t result, index; /* RESULT_OK, or why it is refused (and at which operation) */
+    uint8_t reads, n_status;
+} check_t;
+
+/* Check a whole program before touching the bus: a bad program runs nothing.  Every count
+ * fits a byte (a program is at most LINK_MAX_PROGRAM = 243 bytes), and the AVR's 8-bit loops
+ * are much shorter.  An op code past OP_MAX, or one without arguments table entry (0xFF), is
+ * refused by the same compare as a truncated argument: `end - p` is at most 243. */
+static inline __attribute__((always_inline)) check_t check_program(const uint8_t *prog, uint8_t left)
+{
+    check_t c = {RESULT_OK, LINK_NONE_BYTE, 0, 0};
+    uint8_t nops = 0;
+    for (const uint8_t *p = prog; left; nops++) {
+        uint8_t op = *p;
+        uint8_t a = op <= OP_MAX ? op_args[op] : 0xFF;
+        if (a >= left) {
+            c.result = RESULT_BAD_PROGRAM;
+            c.index = nops;
+            return c;
+        }
+        if (op == OP_READ)
+            c.reads++;
+        else if (op == OP_STATUS || op == OP_SYNC || op == OP_WAIT_STATUS)
+            c.n_status++;
+        a++;
+        p += a;
+        left -= a;
+    }
+    if (c.reads > LINK_MAX_READS || LINK_RUN_REPLY_OVERHEAD + c.n_status + 2u * c.reads > LINK_MAX_FRAME)
+        c.result = RESULT_PROGRAM_TOO_LONG;
+    return c;
+}
+
+/* How a program ended: result, failing operation (LINK_NONE_BYTE when OK), last status byte
+ * seen (LINK_NONE_BYTE before any), statuses and words reported. */
+typedef struct {
+    uint8_t result, index, last, ns, nw;
+} ran_t;
+
+/* Run a checked program.  `order`: the bytes it reads go to `st` in program order (the
+ * compact RUN_SHORT_REPLY), each summed into *crc as soon as it is read, while the chip is
+ * busy anyway; otherwise status bytes go to `st` and word bytes to `wd` (RUN_REPLY). */
+static inline __attribute__((always_inline)) ran_t exec_program(const uint8_t *prog,
+    const uint8_t *end, uint16_t timeout_us, uint8_t *st, uint8_t *wd, const uint8_t order,
+    uint16_t *crc)
+{
+    ran_t r = {RESULT_OK, LINK_NONE_BYTE, LINK_NONE_BYTE, 0, 0};
+    uint8_t last = LINK_NONE_BYTE, nops = 0;
+    /* order: *crc holds the reply's seq; the CRC of type and seq is made after the first
+     * transfer, while the chip is busy with it, or before the first byte read */
+    uint16_t c = order ? *crc : 0;
+    uint8_t head = order;
+#define HEAD_CRC() do { if (order && head) { \
+        c = crc_step(crc_step(LINK_CRC_INIT, FRAME_RUN_SHORT_REPLY), (uint8_t)c); head = 0; } } while (0)
+    for (const uint8_t *p = prog; p != end; nops++) {
+        uint8_t op = *p++;
+        if (op == OP_COMMAND || op == OP_WRITE || op == OP_READ || op == OP_SYNC) {
+            if (!bus_wait_not_busy(timeout_us, &last)) {
+                r.result = RESULT_BUSY_TIMEOUT;
+                r.index = nops;
+                break;
+            }
+            if (op == OP_COMMAND) {
+                bus_write_command(*p++);
+                HEAD_CRC();
+            } else if (op == OP_WRITE) {
+                bus_write_data(p[0]);
+                bus_write_data(p[1]);
+                p += 2;
+                HEAD_CRC();
+            } else if (op == OP_READ) {
+                uint8_t h = bus_read_data();
+                uint8_t l = bus_read_data();
+                HEAD_CRC();
+                if (order) {
+                    st[0] = h;
+                    st[1] = l;
+                    st += 2;
+                    c = crc_step(crc_step(c, h), l);
+                } else {
+                    wd[0] = h;
+                    wd[1] = l;
+                    wd += 2;
+                }
+                r.nw += 2;
+            } else {
+                *st++ = last;
+                HEAD_CRC();
+                if (order)
+                    c = crc_step(c, last);
+                r.ns++;
+            }
+        } else if (op == OP_STATUS) {
+            last = bus_read_status();
+            *st++ = last;
+            HEAD_CRC();
+            if (order)
+                c = crc_step(c, last);
+            r.ns++;
+        } else if (op == OP_RESET) {
+            bus_reset_pulse();
+        } else if (op == OP_WAIT_STATUS) {
+            /* a status read every WAIT_STATUS_POLL_US until a bit of the mask is set or `ms`
+             * milliseconds have passed (each period is a little longer than its nominal time,
+             * so the wait never ends early); the host judges which from the status */
+            uint8_t mask = p[0];
+            uint16_t ms = (uint16_t)((p[1] << 8) | p[2]);
+            p += 3;
+            uint32_t polls = (uint32_t)ms * (1000u / WAIT_STATUS_POLL_US);
+            for (;;) {
+                last = bus_read_status();
+                if ((last & mask) || !polls--)
+                    break;
+                bus_wait_us(WAIT_STATUS_POLL_US);
+            }
+            *st++ = last;
+            HEAD_CRC();
+            if (order)
+                c = crc_step(c, last);
+            r.ns++;
+        } else { /* OP_WAIT */
+            bus_wait_us((uint16_t)((p[0] << 8) | p[1]));
+            p += 2;
+        }
+    }
+    HEAD_CRC();
+#undef HEAD_CRC
+    r.last = last;
+    if (order)
+        *crc = c;
+    return r;
+}
+
 static uint16_t run_header(uint8_t *reply, uint8_t result, uint8_t index, uint8_t last, uint8_t hi)
 {
     reply[0] = result;
@@ -113,6 +249,32 @@ static uint16_t run_header(uint8_t *reply, uint8_t result, uint8_t index, uint8_
     reply[3] = hi;
     reply[4] = 0;
     return 5;
+}
+
+/* RUN_REPLY's payload for a program that ran (all of it, or up to a busy timeout): header,
+ * the statuses at reply + 5, the words after them (already there). */
+static uint16_t run_reply(uint8_t *reply, ran_t r)
+{
+    reply[0] = r.result;
+    reply[1] = r.index;
+    reply[2] = r.last;
+    reply[3] = bus_hi();
+    reply[4] = r.ns;
+    return (uint16_t)(5u + r.ns + r.nw);
+}
+
+/* Run a checked program for RUN_REPLY: statuses right after the header, words after all the
+ * statuses; on a failure the unused status slots close up, so the words follow the statuses
+ * read. */
+static uint16_t run_long(const uint8_t *prog, const uint8_t *end, uint16_t timeout_us,
+                         check_t c, uint8_t *reply)
+{
+    uint8_t *st = reply + 5, *wd = reply + 5 + c.n_status;
+    ran_t r = exec_program(prog, end, timeout_us, st, wd, 0, 0);
+    if (r.ns != c.n_status)
+        for (uint8_t k = 0; k < r.nw; k++)
+            st[r.ns + k] = wd[k];
+    return run_reply(reply, r);
 }
 
 uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
@@ -127,91 +289,76 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
         return run_header(reply, RESULT_BAD_CHIP_SELECT, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
     if (plen > LINK_MAX_PROGRAM)
         return run_header(reply, RESULT_PROGRAM_TOO_LONG, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
+    check_t c = check_program(prog, (uint8_t)plen);
+    if (c.result != RESULT_OK)
+        return run_header(reply, c.result, c.index, LINK_NONE_BYTE, 0);
+    return run_long(prog, prog + plen, timeout_us, c, reply);
+}
 
-    /* check the whole program before touching the bus: a bad program runs nothing.  From here
-     * on every count fits a byte (the program is at most LINK_MAX_PROGRAM = 243 bytes), and
-     * the AVR's 8-bit loops are much shorter. */
+/* RUN_SHORT: the program alone (chip select 0, the default busy timeout).  `frame` is the
+ * decoded reply frame being built: type and seq are in frame[0..1].  When the program runs to
+ * its end the answer is RUN_SHORT_REPLY: the bytes read in program order, then one byte, the
+ * last status seen with its busy bit (0 after a passed busy check) replaced by HI, then the
+ * CRC, made as the bytes were read (so the reply starts as soon as the last strobe is over).
+ * Otherwise it is a RUN_REPLY, as for RUN.  Returns the decoded size; *crc_done tells whether
+ * the CRC is already stored after it. */
+static uint16_t run_short(const link_t *l, const uint8_t *prog, uint16_t plen, uint8_t *frame,
+                          uint8_t *crc_done)
+{
+    *crc_done = 0;
+    if (plen > LINK_MAX_PROGRAM) {
+        frame[0] = FRAME_RUN_REPLY;
+        return 2u + run_header(frame + 2, RESULT_PROGRAM_TOO_LONG, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
+    }
     const uint8_t *end = prog + plen;
-    uint8_t reads = 0, n_status = 0, nops = 0;
-    for (const uint8_t *p = prog; p != end; nops++) {
+    /* the check made while the frame came in (put()): as check_program's */
+    check_t c = {RESULT_OK, LINK_NONE_BYTE, l->chk_reads, l->chk_status};
+    if (l->chk_bad || l->chk_args) {
+        c.result = RESULT_BAD_PROGRAM;
+        c.index = l->chk_bad ? (uint8_t)(l->chk_bad - 1) : (uint8_t)(l->chk_ops - 1);
+    } else if (c.reads > LINK_MAX_READS
+               || LINK_RUN_REPLY_OVERHEAD + c.n_status + 2u * c.reads > LINK_MAX_FRAME) {
+        c.result = RESULT_PROGRAM_TOO_LONG;
+    }
+    if (c.result != RESULT_OK) {
+        frame[0] = FRAME_RUN_REPLY;
+        return 2u + run_header(frame + 2, c.result, c.index, LINK_NONE_BYTE, 0);
+    }
+    frame[0] = FRAME_RUN_SHORT_REPLY;
+    uint16_t crc = frame[1];
+    uint8_t *out = frame + 2;
+    ran_t r = exec_program(prog, end, LINK_DEFAULT_BUSY_TIMEOUT_US, out, 0, 1, &crc);
+    uint8_t n = (uint8_t)(r.ns + r.nw);
+    if (r.result == RESULT_OK) {
+        uint8_t hdr = (uint8_t)((r.last & (uint8_t)~STATUS_BUSY) | bus_hi());
+        out[n] = hdr;
+        crc = crc_step(crc, hdr) ^ LINK_CRC_XOROUT;
+        out[n + 1] = (uint8_t)(crc >> 8);
+        out[n + 2] = (uint8_t)crc;
+        *crc_done = 1;
+        return (uint16_t)(3u + n);
+    }
+    /* a busy timeout part-way: RUN_REPLY, statuses first, then words, from the program-order
+     * bytes (walk the operations that ran) */
+    frame[0] = FRAME_RUN_REPLY;
+    uint8_t *st = frame + 7, tmp[LINK_MAX_FRAME];
+    uint8_t ns = 0, nw = 0;
+    for (uint8_t k = 0; k < n; k++)
+        tmp[k] = out[k];
+    const uint8_t *p = prog, *src = tmp;
+    for (uint8_t i = 0; i < r.index; i++) {
         uint8_t op = *p;
-        if (op > OP_MAX || op_args[op] == 0xFF || op_args[op] >= (uint8_t)(end - p))
-            return run_header(reply, RESULT_BAD_PROGRAM, nops, LINK_NONE_BYTE, 0);
-        if (op == OP_READ)
-            reads++;
-        else if (op == OP_STATUS || op == OP_SYNC || op == OP_WAIT_STATUS)
-            n_status++;
         p += 1u + op_args[op];
-    }
-    if (reads > LINK_MAX_READS || LINK_RUN_REPLY_OVERHEAD + n_status + 2u * reads > LINK_MAX_FRAME)
-        return run_header(reply, RESULT_PROGRAM_TOO_LONG, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
-
-    /* statuses go right after the header, words after all the statuses */
-    uint8_t *st = reply + 5;
-    uint8_t *wd = reply + 5 + n_status;
-    uint8_t ns = 0, last = LINK_NONE_BYTE, result = RESULT_OK, index = LINK_NONE_BYTE;
-    uint8_t nw = 0;
-    nops = 0;
-    for (const uint8_t *p = prog; p != end; nops++) {
-        uint8_t op = *p++;
-        uint16_t arg = 0;
-        uint8_t mask = 0;
-        if (op_args[op] == 1) {
-            arg = *p++;
-        } else if (op_args[op] >= 2) {
-            if (op_args[op] == 3) /* OP_WAIT_STATUS: the mask, then the timeout */
-                mask = *p++;
-            arg = (uint16_t)((p[0] << 8) | p[1]);
-            p += 2;
-        }
-        if (op == OP_COMMAND || op == OP_WRITE || op == OP_READ || op == OP_SYNC) {
-            if (!bus_wait_not_busy(timeout_us, &last)) {
-                result = RESULT_BUSY_TIMEOUT;
-                index = nops;
-                break;
-            }
-            if (op == OP_COMMAND) {
-                bus_write_command((uint8_t)arg);
-            } else if (op == OP_WRITE) {
-                bus_write_data((uint8_t)(arg >> 8));
-                bus_write_data((uint8_t)arg);
-            } else if (op == OP_READ) {
-                wd[nw++] = bus_read_data();
-                wd[nw++] = bus_read_data();
-            } else {
-                st[ns++] = last;
-            }
-        } else if (op == OP_STATUS) {
-            last = bus_read_status();
-            st[ns++] = last;
-        } else if (op == OP_RESET) {
-            bus_reset_pulse();
-        } else if (op == OP_WAIT_STATUS) {
-            /* a status read every WAIT_STATUS_POLL_US until a bit of the mask is set or `arg`
-             * ms have passed (each period is a little longer than its nominal time, so the
-             * wait never ends early); the host judges which from the status */
-            uint32_t polls = (uint32_t)arg * (1000u / WAIT_STATUS_POLL_US);
-            for (;;) {
-                last = bus_read_status();
-                if ((last & mask) || !polls--)
-                    break;
-                bus_wait_us(WAIT_STATUS_POLL_US);
-            }
-            st[ns++] = last;
-        } else { /* OP_WAIT */
-            bus_wait_us(arg);
+        if (op == OP_READ) {
+            st[r.ns + nw] = src[0];
+            st[r.ns + nw + 1] = src[1];
+            nw += 2;
+            src += 2;
+        } else if (op == OP_STATUS || op == OP_SYNC || op == OP_WAIT_STATUS) {
+            st[ns++] = *src++;
         }
     }
-    reply[0] = result;
-    reply[1] = index;
-    reply[2] = last;
-    reply[3] = bus_hi();
-    reply[4] = ns;
-    /* on a failure the unused status slots close up, so the words follow the statuses read */
-    if (ns != n_status)
-        for (uint8_t k = 0; k < nw; k++)
-            st[ns + k] = wd[k];
-    return (uint16_t)(5u + ns + nw);
+    return 2u + run_reply(frame + 2, r);
 }
 
 /* ---------------------------------------------------------------- frames */
@@ -243,15 +390,16 @@ static __attribute__((noinline)) uint8_t *crc_some(uint8_t *at, uint8_t *end, ui
 }
 
 /* Send a reply: CRC, COBS and delimiter, each byte sent as soon as it is known, and the encoded
- * frame left in `out`; returns its size.  `reply` has room for the CRC after its `len` bytes.
+ * frame left in `out`; returns its size.  `reply` has room for the CRC after its `len` bytes
+ * (already there when `crc_done`).
  * A COBS code byte needs its block's end, so the scan stops at the first zero: the first
  * block's code byte (type, seq, then a result of 0) goes out before any CRC work; the CRC is
  * then made three bytes after each byte sent, while that byte is on the wire (176 cycles at
  * 1 Mbaud), and a block that runs into the CRC waits for the rest of it. */
-static uint16_t finish(uint8_t *reply, uint16_t len, uint8_t *out)
+static uint16_t finish(uint8_t *reply, uint16_t len, uint8_t *out, uint8_t crc_done)
 {
     uint8_t *p = reply, *data_end = reply + len, *end = data_end + 2, *o = out;
-    uint8_t *crc_at = reply; /* == data_end: the CRC is made and stored */
+    uint8_t *crc_at = crc_done ? data_end : reply; /* == data_end: the CRC is made and stored */
     uint16_t crc = LINK_CRC_INIT;
     for (;;) {
         uint8_t *start = p, *lim = end - p > 254 ? p + 254 : end;
@@ -280,6 +428,35 @@ static uint16_t finish(uint8_t *reply, uint16_t len, uint8_t *out)
     return (uint16_t)(o - out);
 }
 
+/* Send a decoded frame whose CRC is already stored after its `len` bytes: COBS and the
+ * delimiter, each byte sent as soon as it is known (the scan for a block's end stops at a 0
+ * put after the CRC), and the encoded frame left in `out`; returns its size.  For frames
+ * shorter than 254 bytes (a RUN_SHORT_REPLY), whose blocks are never full. */
+static uint16_t send_ready(uint8_t *frame, uint8_t len, uint8_t *out)
+{
+    uint8_t *p = frame, *end = frame + len + 2, *o = out;
+    *end = 0;
+    for (;;) {
+        uint8_t *q = p;
+        while (*q)
+            q++;
+        uint8_t code = (uint8_t)(q - p + 1);
+        *o++ = code;
+        link_tx_byte(code);
+        while (p != q) {
+            uint8_t b = *p++;
+            *o++ = b;
+            link_tx_byte(b);
+        }
+        if (q == end)
+            break;
+        p = q + 1;
+    }
+    *o++ = 0;
+    link_tx_byte(0);
+    return (uint16_t)(o - out);
+}
+
 static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
 {
     uint8_t *f = l->rx, *r = l->reply;
@@ -296,7 +473,8 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_MINOR;
         r[len++] = FIRMWARE_PATCH;
         r[len++] = 0;
-        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS;
+        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS
+            | CAP_COMPACT_RUN;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
         r[len++] = (uint8_t)LINK_MAX_PROGRAM;
         r[len++] = LINK_MAX_READS;
@@ -309,7 +487,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[0] = FRAME_PONG;
         for (uint16_t k = 0; k < plen; k++)
             r[len++] = payload[k];
-    } else if (type == FRAME_RUN && plen >= 3) {
+    } else if ((type == FRAME_RUN && plen >= 3) || type == FRAME_RUN_SHORT) {
         if (l->cache_len && l->cache_seq == seq && l->cache_crc == crc) {
             l->cache_hits++;
             for (uint16_t k = 0; k < l->cache_len; k++)
@@ -318,9 +496,15 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
             return l->cache_len;
         }
         l->runs++;
-        r[0] = FRAME_RUN_REPLY;
-        len += link_run(payload, plen, r + 2);
-        l->cache_len = finish(r, len, l->cache);
+        uint8_t crc_done = 0;
+        if (type == FRAME_RUN) {
+            r[0] = FRAME_RUN_REPLY;
+            len += link_run(payload, plen, r + 2);
+        } else {
+            len = run_short(l, payload, plen, r, &crc_done);
+        }
+        l->cache_len = crc_done ? send_ready(r, (uint8_t)len, l->cache)
+                                : finish(r, len, l->cache, crc_done);
         l->cache_seq = seq;
         l->cache_crc = crc;
         *out = l->cache;
@@ -333,7 +517,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
     }
     /* the request has been used up: its buffer takes the encoded reply */
     *out = l->rx;
-    return finish(r, len, l->rx);
+    return finish(r, len, l->rx, 0);
 }
 
 static inline __attribute__((always_inline)) void put(link_t *l, uint8_t b)
@@ -343,8 +527,28 @@ static inline __attribute__((always_inline)) void put(link_t *l, uint8_t b)
         l->rx_bad = 1;
         return;
     }
-    if (n >= 2) /* the last two bytes are the CRC itself: sum two bytes behind */
-        l->crc = crc_step(l->crc, l->rx[n - 2]);
+    if (n >= 2) { /* the last two bytes are the CRC itself: sum two bytes behind */
+        uint8_t c = l->rx[n - 2];
+        l->crc = crc_step(l->crc, c);
+        if (n >= 4 && l->rx[0] == FRAME_RUN_SHORT) { /* c is a program byte: check it now */
+            if (l->chk_args) {
+                l->chk_args--;
+            } else {
+                uint8_t a = c <= OP_MAX ? op_args[c] : 0xFF;
+                if (a == 0xFF) {
+                    if (!l->chk_bad)
+                        l->chk_bad = (uint8_t)(l->chk_ops + 1);
+                } else {
+                    l->chk_args = a;
+                    if (c == OP_READ)
+                        l->chk_reads++;
+                    else if (c == OP_STATUS || c == OP_SYNC || c == OP_WAIT_STATUS)
+                        l->chk_status++;
+                }
+                l->chk_ops++;
+            }
+        }
+    }
     l->rx[n] = b;
     l->rx_len = (uint16_t)(n + 1);
 }
@@ -373,13 +577,14 @@ uint16_t link_frame_end(link_t *l, const uint8_t **out)
     uint8_t ok = l->started && !l->rx_bad && !l->code_left && n >= 4
         && (uint8_t)(crc >> 8) == l->rx[n - 2] && (uint8_t)crc == l->rx[n - 1];
     uint8_t empty = !l->started;
-    rx_restart(l);
-    if (empty)
+    if (empty || !ok) {
+        rx_restart(l);
+        if (!empty)
+            l->bad_frames++; /* never answered: the host's retry covers it */
         return 0; /* back-to-back delimiters: nothing to count */
-    if (!ok) {
-        l->bad_frames++;
-        return 0; /* never answered: the host's retry covers it */
     }
     l->frames++;
-    return handle(l, n, out);
+    uint16_t size = handle(l, n, out); /* uses the checks made while the frame came in */
+    rx_restart(l);
+    return size;
 }

@@ -7,7 +7,7 @@
 #include "lm629_tables.h"
 
 #define FIRMWARE_MAJOR 1
-#define FIRMWARE_MINOR 0
+#define FIRMWARE_MINOR 1
 #define FIRMWARE_PATCH 0
 #define LINK_CHIP_SELECTS 1
 #define LINK_MAX_PROGRAM (LINK_MAX_FRAME - LINK_RUN_OVERHEAD)
@@ -33,6 +33,10 @@ typedef struct {
     uint16_t cache_crc;
     /* counters (for tests) */
     link_count_t frames, bad_frames, runs, cache_hits;
+    /* a RUN_SHORT's program, checked as its bytes arrive (two behind, as the CRC): the
+     * argument bytes still due of the current operation, operations, reads and statuses so
+     * far, and 1 + the index of the first bad operation (0: none) */
+    uint8_t chk_args, chk_ops, chk_reads, chk_status, chk_bad;
     uint8_t rx[LINK_MAX_WIRE_FRAME];    /* the frame being received, COBS-decoded as its bytes
                                            arrive; non-RUN replies are encoded here too */
     uint8_t reply[LINK_MAX_FRAME];      /* decoded reply being built */

@@ -58,6 +58,8 @@
 #define LINK_MAX_WIRE_FRAME 252u  /* largest encoded frame with its delimiter */
 #define LINK_RUN_OVERHEAD 7u  /* RUN bytes around the program */
 #define LINK_RUN_REPLY_OVERHEAD 9u  /* RUN_REPLY bytes around statuses+words */
+#define LINK_RUN_SHORT_OVERHEAD 4u  /* RUN_SHORT bytes around the program */
+#define LINK_RUN_SHORT_REPLY_OVERHEAD 5u  /* RUN_SHORT_REPLY bytes around the bytes read */
 #define LINK_MAX_PING 32u  /* largest PING payload */
 #define LINK_DEFAULT_BUSY_TIMEOUT_US 5000u  /* busy_timeout_us = 0 means this */
 #define LINK_NONE_BYTE 255u  /* no failing op / no status read yet */
@@ -67,9 +69,11 @@
 #define FRAME_HELLO 1u  /* frame type */
 #define FRAME_RUN 2u  /* frame type */
 #define FRAME_PING 3u  /* frame type */
+#define FRAME_RUN_SHORT 4u  /* frame type */
 #define FRAME_HELLO_REPLY 129u  /* frame type */
 #define FRAME_RUN_REPLY 130u  /* frame type */
 #define FRAME_PONG 131u  /* frame type */
+#define FRAME_RUN_SHORT_REPLY 132u  /* frame type */
 #define FRAME_ERROR_REPLY 255u  /* frame type */
 #define RESULT_OK 0u  /* result code */
 #define RESULT_BUSY_TIMEOUT 1u  /* result code */
@@ -81,6 +85,7 @@
 #define CAP_HI_LINE 2u  /* HELLO_REPLY capability bit */
 #define CAP_BUSY_ON_BRIDGE 4u  /* HELLO_REPLY capability bit */
 #define CAP_WAIT_STATUS 8u  /* HELLO_REPLY capability bit */
+#define CAP_COMPACT_RUN 16u  /* HELLO_REPLY capability bit */
 
 /* CRC-16/GENIBUS table (lm629_host.link._CRC_TABLE): 256 high bytes, then 256 low bytes */
 #define LINK_CRC_TABLE_INIT { \

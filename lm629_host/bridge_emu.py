@@ -38,6 +38,7 @@ from .link import (
     RunReply,
     decode_program,
     encode_frame,
+    short_reply_payload,
 )
 from .model import ChipModel
 from .opcodes import Status
@@ -74,7 +75,8 @@ class BridgeEmulator:
 
     model: ChipModel
     info: HelloInfo = field(default_factory=lambda: HelloInfo(
-        firmware=EMU_FIRMWARE, capabilities=int(HelloInfo.capabilities | Capability.WAIT_STATUS)))
+        firmware=EMU_FIRMWARE,
+        capabilities=int(HelloInfo.capabilities | Capability.WAIT_STATUS | Capability.COMPACT_RUN)))
     stats: EmuStats = field(default_factory=EmuStats)
 
     def __post_init__(self) -> None:
@@ -117,6 +119,22 @@ class BridgeEmulator:
                 self.stats.cache_hits += 1
                 return cache[2]
             reply = encode_frame(FrameType.RUN_REPLY, frame.seq, self._run(frame.payload).encode())
+            self._cache = (frame.seq, frame.crc, reply)
+            return reply
+        if t == FrameType.RUN_SHORT and self.info.capabilities & Capability.COMPACT_RUN:
+            cache = self._cache
+            if cache is not None and cache[0] == frame.seq and cache[1] == frame.crc:
+                self.stats.cache_hits += 1
+                return cache[2]
+            # cs 0 and the default busy timeout, then as RUN; a program that ran to its end is
+            # answered in the compact form, anything else as a RUN
+            result = self._run(bytes((0, 0, 0)) + frame.payload)
+            if result.result == Result.OK:
+                ops = decode_program(frame.payload)
+                reply = encode_frame(FrameType.RUN_SHORT_REPLY, frame.seq,
+                                     short_reply_payload(ops, result))
+            else:
+                reply = encode_frame(FrameType.RUN_REPLY, frame.seq, result.encode())
             self._cache = (frame.seq, frame.crc, reply)
             return reply
         if t & 0x80:

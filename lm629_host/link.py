@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 from .errors import BusyTimeout, TransportError
+from .opcodes import Status
 from .program import (OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program,
                       ProgramResult, TraceCallback, cycles_of)
 from .transports.base import Clock, Transport
@@ -46,6 +47,10 @@ FIRMWARE_DEFAULT_BUSY_TIMEOUT_US = 5000
 RUN_OVERHEAD = 7
 #: bytes of a RUN_REPLY around its status bytes and words: type, seq, 5 header bytes, CRC (2)
 RUN_REPLY_OVERHEAD = 9
+#: bytes of a RUN_SHORT around the program: type, seq, CRC (2)
+RUN_SHORT_OVERHEAD = 4
+#: bytes of a RUN_SHORT_REPLY around the bytes read: type, seq, the last-status/HI byte, CRC (2)
+RUN_SHORT_REPLY_OVERHEAD = 5
 #: largest PING payload
 MAX_PING = 32
 #: retries of one request (same ``seq``, same bytes) before the host gives up.  Seven: at 1 % of
@@ -66,15 +71,19 @@ class FrameType(enum.IntEnum):
     HELLO = 0x01
     RUN = 0x02
     PING = 0x03
+    RUN_SHORT = 0x04  #: RUN without cs and busy timeout (0 and the default); COMPACT_RUN only
     HELLO_REPLY = 0x81
     RUN_REPLY = 0x82
     PONG = 0x83
+    RUN_SHORT_REPLY = 0x84  #: a RUN_SHORT that ran to its end (otherwise: RUN_REPLY)
     ERROR_REPLY = 0xFF
 
 
 #: request type -> the reply type it expects
 REPLY_TO = {FrameType.HELLO: FrameType.HELLO_REPLY, FrameType.RUN: FrameType.RUN_REPLY,
-            FrameType.PING: FrameType.PONG}
+            FrameType.PING: FrameType.PONG, FrameType.RUN_SHORT: FrameType.RUN_SHORT_REPLY}
+#: other reply types a request may get: a RUN_SHORT that failed is answered as a RUN
+ALSO_REPLY_TO = {FrameType.RUN_SHORT: FrameType.RUN_REPLY}
 
 
 class Result(enum.IntEnum):
@@ -91,6 +100,8 @@ class Capability(enum.IntFlag):
     HI_LINE = 0x02  #: the bridge reads HI
     BUSY_ON_BRIDGE = 0x04  #: busy is polled on the bridge (always, in protocol 1)
     WAIT_STATUS = 0x08  #: the bridge runs Op.WAIT_STATUS (older bridges: the host polls)
+    #: the bridge takes RUN_SHORT (older bridges: every program is a RUN)
+    COMPACT_RUN = 0x10
 
 
 #: "index of the failing operation" and "last status byte" when there is none
@@ -106,6 +117,9 @@ def c_defines() -> list[tuple[str, int, str]]:
         ("LINK_MAX_WIRE_FRAME", MAX_WIRE_FRAME, "largest encoded frame with its delimiter"),
         ("LINK_RUN_OVERHEAD", RUN_OVERHEAD, "RUN bytes around the program"),
         ("LINK_RUN_REPLY_OVERHEAD", RUN_REPLY_OVERHEAD, "RUN_REPLY bytes around statuses+words"),
+        ("LINK_RUN_SHORT_OVERHEAD", RUN_SHORT_OVERHEAD, "RUN_SHORT bytes around the program"),
+        ("LINK_RUN_SHORT_REPLY_OVERHEAD", RUN_SHORT_REPLY_OVERHEAD,
+         "RUN_SHORT_REPLY bytes around the bytes read"),
         ("LINK_MAX_PING", MAX_PING, "largest PING payload"),
         ("LINK_DEFAULT_BUSY_TIMEOUT_US", FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
          "busy_timeout_us = 0 means this"),
@@ -414,6 +428,53 @@ class RunReply:
         return cls(payload[0], payload[1], payload[2], payload[3], tuple(payload[5:5 + n]), words)
 
 
+def short_reply_payload(ops: Sequence[BusOp], reply: RunReply) -> bytes:
+    """RUN_SHORT_REPLY's payload for ``ops`` that ran to their end with ``reply``'s results:
+    the bytes read in program order (a status byte for each STATUS, SYNC and WAIT_STATUS, two
+    for each READ), then the last status seen with its busy bit replaced by HI.
+
+    The busy bit is free because the last status the host cannot find among the bytes read is
+    that of a passed busy check (busy clear); :func:`decode_short_reply` says which it is."""
+    statuses, words = iter(reply.statuses), iter(reply.words)
+    out = bytearray()
+    for o in ops:
+        if o.op is Op.READ:
+            out += next(words).to_bytes(2, "big")
+        elif o.op in STATUS_OPS:
+            out.append(next(statuses))
+    last = reply.last_status if reply.last_status != NONE_BYTE else NONE_BYTE
+    out.append((last & ~int(_STATUS_BUSY) & 0xFF) | (1 if reply.hi else 0))
+    return bytes(out)
+
+
+def decode_short_reply(payload: bytes, ops: Sequence[BusOp]) -> RunReply:
+    """Inverse of :func:`short_reply_payload`; :class:`FrameError` when the payload does not
+    hold exactly what ``ops`` read (line damage the CRC missed)."""
+    n_status = sum(1 for o in ops if o.op in STATUS_OPS)
+    n_words = sum(1 for o in ops if o.op is Op.READ)
+    if len(payload) != n_status + 2 * n_words + 1:
+        raise FrameError(f"RUN_SHORT_REPLY of {len(payload)} bytes, expected "
+                         f"{n_status + 2 * n_words + 1} for {n_status} status byte(s) and "
+                         f"{n_words} word(s)")
+    statuses: list[int] = []
+    words: list[int] = []
+    i = 0
+    last = NONE_BYTE
+    hdr = payload[-1]
+    for o in ops:
+        if o.op is Op.READ:
+            words.append(int.from_bytes(payload[i:i + 2], "big"))
+            i += 2
+            last = hdr & ~int(_STATUS_BUSY) & 0xFF
+        elif o.op in STATUS_OPS:
+            statuses.append(payload[i])
+            last = payload[i]
+            i += 1
+        elif o.op in _BUSY_CHECKED:
+            last = hdr & ~int(_STATUS_BUSY) & 0xFF
+    return RunReply(Result.OK, NONE_BYTE, last, hdr & 1, tuple(statuses), tuple(words))
+
+
 def reply_size(ops: Sequence[BusOp]) -> int:
     """Decoded size of the RUN_REPLY to ``ops`` when it succeeds."""
     n_status = sum(1 for o in ops if o.op in STATUS_OPS)
@@ -428,6 +489,7 @@ def wire_size(decoded: int) -> int:
 
 
 _BUSY_CHECKED = (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC)
+_STATUS_BUSY = int(Status.BUSY)
 
 
 # ---------------------------------------------------------------------------------- the pipe
@@ -474,7 +536,7 @@ class LinkTransport(Transport):
 
     def __init__(self, pipe: Pipe, url: str, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = None, cs: int = 0,
-                 handshake: bool = True) -> None:
+                 handshake: bool = True, compact: bool = True) -> None:
         super().__init__(url, trace=trace)
         if retries < 0:
             raise ValueError(f"retries={retries} must be >= 0")
@@ -482,6 +544,9 @@ class LinkTransport(Transport):
             raise ValueError(f"baud={baud} must be a positive number of bits per second")
         self.pipe = pipe
         self.clock = pipe.clock
+        #: use RUN_SHORT where the bridge offers it (False: always RUN, as protocol 1 began)
+        self.compact = compact
+        self.has_compact_run = False
         self.retries = retries
         self.baud = baud
         self.cs = cs
@@ -606,7 +671,7 @@ class LinkTransport(Transport):
                     f"the bridge refused {what} (ERROR_REPLY, code {code}): the host and the "
                     "firmware disagree on the protocol. Reflash the firmware that matches this "
                     "host (lm629 bridge flash).", port=self.url)
-            if frame.type != want:
+            if frame.type != want and frame.type != ALSO_REPLY_TO.get(ftype):
                 raise TransportError(
                     f"the bridge answered {what} with frame type {frame.type:02X}, expected "
                     f"{int(want):02X}: reflash the firmware that matches this host "
@@ -625,7 +690,7 @@ class LinkTransport(Transport):
         if ftype is FrameType.HELLO:
             raise self._no_answer(what, attempts)
         self._need_resync = True  # the bridge may hold this seq in its cache
-        if ftype is not FrameType.RUN:
+        if ftype is not FrameType.RUN and ftype is not FrameType.RUN_SHORT:
             raise self._no_answer(what, attempts)
         raise LinkError(
             f"no valid answer to {what} after {attempts} attempt(s) "
@@ -717,6 +782,7 @@ class LinkTransport(Transport):
         self.has_reset_line = bool(info.capabilities & Capability.RESET_LINE)
         self._has_hi = bool(info.capabilities & Capability.HI_LINE)
         self.has_wait_status = bool(info.capabilities & Capability.WAIT_STATUS)
+        self.has_compact_run = bool(info.capabilities & Capability.COMPACT_RUN) and self.compact
         return info
 
     def ping(self, data: bytes = b"") -> float:
@@ -786,13 +852,23 @@ class LinkTransport(Transport):
         return ProgramResult(tuple(words), tuple(statuses), status, hi)
 
     def _run(self, ops: list[BusOp], timeout_us: int, timeout_s: float) -> RunReply:
-        payload = run_payload(ops, timeout_us, self.cs)
+        # the compact form where the bridge takes it and the fields it leaves out are the
+        # defaults (chip select 0, the firmware's busy timeout): 5 fewer bytes a round trip
+        short = (self.has_compact_run and self.cs == 0
+                 and timeout_us == FIRMWARE_DEFAULT_BUSY_TIMEOUT_US)
+        if short:
+            ftype, payload = FrameType.RUN_SHORT, encode_program(ops)
+        else:
+            ftype, payload = FrameType.RUN, run_payload(ops, timeout_us, self.cs)
         req = wire_size(len(payload) + 4)
-        rep = wire_size(reply_size(ops))
+        rep = wire_size(reply_size(ops))  # a RUN_REPLY (a failure) is the longer answer
         timeout = self.reply_timeout(req, rep, ops, timeout_s)
         decoded: list[RunReply] = []
 
         def check(frame: Frame) -> None:
+            if frame.type == FrameType.RUN_SHORT_REPLY:
+                decoded.append(decode_short_reply(frame.payload, ops))  # FrameError: retried
+                return
             reply = RunReply.decode(frame.payload)  # FrameError: retried
             if reply.result in (Result.OK, Result.BUSY_TIMEOUT):
                 done = len(ops) if reply.result == Result.OK else min(reply.index, len(ops))
@@ -804,7 +880,7 @@ class LinkTransport(Transport):
                         f"{len(reply.words)} word(s), expected {want_status} and {want_words}")
             decoded.append(reply)
 
-        self._exchange(FrameType.RUN, payload, timeout, f"RUN of {len(ops)} operation(s)",
+        self._exchange(ftype, payload, timeout, f"RUN of {len(ops)} operation(s)",
                        self.retries, check)
         # a refused program (BAD_PROGRAM...) is raised by the caller, whatever it carries
         return decoded[-1]
@@ -863,6 +939,7 @@ __all__ = [
     "BadProgram", "Capability", "DEFAULT_RETRIES", "Frame", "FrameError", "FrameReader",
     "FrameType", "HelloInfo", "LinkError", "LinkTransport", "MAX_FRAME", "MAX_WIRE_FRAME", "PROTOCOL_VERSION", "Pipe", "Result",
     "RunReply", "busy_timeout_us", "c_defines", "cobs_decode", "cobs_encode", "crc16", "decode_body",
-    "decode_frame", "decode_program", "encode_frame", "encode_program", "frame_body",
+    "decode_frame", "decode_program", "decode_short_reply", "encode_frame", "encode_program",
+    "frame_body", "short_reply_payload",
     "reply_size", "run_payload", "wire_size",
 ]

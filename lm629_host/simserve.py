@@ -99,10 +99,11 @@ class PipeFarEnd(FarEnd):
 
     def _timeout(self, frame: Frame) -> float:
         t = self.MARGIN_S + (2 * MAX_WIRE_FRAME * 10 / self.baud if self.baud else 0.0)
-        if frame.type == FrameType.RUN and len(frame.payload) >= 3:
-            busy = (int.from_bytes(frame.payload[1:3], "big") or 5000) * 1e-6
+        short = frame.type == FrameType.RUN_SHORT  # the program alone, the default timeout
+        if short or (frame.type == FrameType.RUN and len(frame.payload) >= 3):
+            busy = 5000e-6 if short else (int.from_bytes(frame.payload[1:3], "big") or 5000) * 1e-6
             try:
-                ops = decode_program(frame.payload[3:])
+                ops = decode_program(frame.payload if short else frame.payload[3:])
             except BadProgram:
                 return t
             for o in ops:

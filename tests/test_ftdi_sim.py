@@ -64,13 +64,59 @@ def test_ltrj_counts(chip):
     assert chip.transport.model.history[-1] == (Cmd.LTRJ, LTRJ_WORDS)
 
 
-def test_rdrp_emulated_time_holds_the_two_busy_waits(chip):
-    """RDRP: command, word, word.  Two 100 us waits inside the stream (after the command and
-    the first word), two 125 us USB transfers, plus a few microseconds of strobes."""
+def test_rdrp_emulated_time_holds_the_two_busy_waits(open_chip):
+    """RDRP with ``busy_us=100`` (the documented worst case, fixed): command, word, word.  Two
+    100 us waits inside the stream (after the command and the first word), two 125 us USB
+    transfers, plus a few microseconds of strobes."""
+    chip = open_chip("sim+ftdi://?busy_us=100")
+    chip.reset()
     t0 = chip.clock.now()
     chip.read_real_position()
     dt = chip.clock.now() - t0
     assert 2 * 125e-6 + 2 * 100e-6 <= dt < 2 * 125e-6 + 2 * 100e-6 + 60e-6
+
+
+@pytest.mark.parametrize("busy_us", [20, 45])
+def test_the_busy_wait_is_the_chips_own_measured_before_the_first_program(open_chip, busy_us):
+    """By default the wait after a transfer is the chip's busy time, measured before the first
+    program: never shorter than the chip's (the model's ``busy_s``), at most one status read
+    (3 us) longer.  RDRP's two waits then hold just that: two 125 us USB transfers + two busy
+    times + about 27 us of MPSSE commands, within 1.3 x the limit of two microframes + chip."""
+    chip = open_chip(f"sim+ftdi://?busy_s={busy_us}e-6")
+    t = chip.transport
+    assert t.calibrated_busy_s is None  # opening touched nothing
+    chip.reset()
+    assert busy_us * 1e-6 <= t.calibrated_busy_s <= busy_us * 1e-6 + 3.5e-6
+    assert t.busy_s == pytest.approx(t.calibrated_busy_s)
+    t.stats.reset()
+    chip.load_trajectory(stop="off", start=True)
+    t0 = chip.clock.now()
+    chip.read_real_position()
+    dt = chip.clock.now() - t0
+    assert 2 * 125e-6 + 2 * busy_us * 1e-6 <= dt <= 2 * 125e-6 + 2 * t.busy_s + 30e-6
+    if busy_us == 20:
+        assert dt <= 1.3 * 253e-6
+    assert t.stats.retries == 0 and t.busy_hits == 0
+
+
+def test_a_chip_slower_than_measured_is_repeated_and_the_wait_learns(open_chip, caplog):
+    """A chip that holds busy 35 us after one transfer (measured: 20): the check sees busy, the
+    command is repeated (never lost, never doubled), and the wait grows so that it is not
+    seen again."""
+    chip = _long_busy_chip(open_chip)
+    model, device, t = chip.transport.model, chip.transport.device, chip.transport
+    assert t.busy_s < 25e-6
+    device.stretch_busy(1, 35e-6, skip=2)
+    with caplog.at_level(logging.WARNING, logger="lm629_host.ftdi"):
+        load_ltrj(chip)
+    assert model.history.count((Cmd.LTRJ, LTRJ_WORDS)) == 1 and model.history[-1] == \
+        (Cmd.LTRJ, LTRJ_WORDS)
+    assert t.stats.retries == 1 and "longer than measured" in caplog.text
+    assert t.busy_s >= 35e-6
+    hits = t.busy_hits
+    for _ in range(3):
+        load_ltrj(chip)
+    assert t.busy_hits == hits and t.stats.retries == 1
 
 
 # ---------------------------------------------------------------------- injected long busy

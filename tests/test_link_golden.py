@@ -12,10 +12,10 @@ import pytest
 
 from lm629_host.link import (
     MAX_FRAME, FrameError, FrameType, HelloInfo, Result, RunReply, cobs_decode, cobs_encode, crc16,
-    decode_frame, decode_program, encode_frame,
+    decode_frame, decode_program, decode_short_reply, encode_frame,
 )
 from lm629_host.opcodes import Cmd
-from lm629_host.program import BusOp, Op
+from lm629_host.program import BusOp, Op, Program
 
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = ROOT / "firmware_bridge" / "golden_frames.txt"
@@ -81,10 +81,23 @@ def test_replies_decode_to_their_fields():
     g = golden()
     info = HelloInfo.decode(decode_frame(g["hello_reply"][1]).payload)
     assert (info.protocol, info.firmware, info.capabilities, info.max_program, info.max_reads,
-            info.chip_selects, info.cpu_hz) == (1, (1, 0, 0), 15, 243, 120, 1, 16_000_000)
+            info.chip_selects, info.cpu_hz) == (1, (1, 1, 0), 31, 243, 120, 1, 16_000_000)
     r = RunReply.decode(decode_frame(g["run_reply_busy_timeout"][1]).payload)
     assert (r.result, r.index, r.last_status, r.hi, r.statuses, r.words) == \
         (Result.BUSY_TIMEOUT, 3, 0x81, 0, (0xC4,), (0x1234,))
+    rdrp = Program().command(Cmd.RDRP).read(2).ops
+    f = decode_frame(g["run_short_reply_rdrp"][1])
+    assert f.type == FrameType.RUN_SHORT_REPLY
+    assert f.payload == bytes((0xFF, 0xFF, 0xFC, 0x18, 0xC1))  # words in order, C0 | HI
+    r = decode_short_reply(f.payload, rdrp)
+    assert (r.result, r.last_status, r.hi, r.statuses, r.words) == \
+        (Result.OK, 0xC0, 1, (), (0xFFFF, 0xFC18))
+    with pytest.raises(FrameError, match="expected 5"):
+        decode_short_reply(f.payload[1:], rdrp)
+    # the last status is the last STATUS read when the program ends with one, busy included
+    st = Program().command(Cmd.RDRP).read(2).status().ops
+    r = decode_short_reply(bytes((0, 1, 0, 2, 0x81, 0xC0)), st)
+    assert (r.last_status, r.hi, r.statuses, r.words) == (0x81, 0, (0x81,), (1, 2))
     e = decode_frame(g["error_reply"][1])
     assert (e.type, e.payload) == (FrameType.ERROR_REPLY, bytes((Result.BAD_REQUEST,)))
 

@@ -68,8 +68,12 @@ def golden(name: str) -> bytes:
     raise KeyError(name)
 
 
-def test_an693_filter_module_is_one_exact_frame_each_way(recorder):
+@pytest.mark.parametrize("compact", [True, False])
+def test_an693_filter_module_is_one_exact_frame_each_way(recorder, compact):
+    """Byte for byte as the golden vectors: RUN_SHORT to a bridge that offers COMPACT_RUN
+    (the default), RUN (cs and busy timeout spelled out) when the host is told not to."""
     t, tap = tapped()
+    t.compact = t.has_compact_run = compact
     t.trace = recorder
     chip = LM629(t)
     chip.reset()
@@ -84,8 +88,10 @@ def test_an693_filter_module_is_one_exact_frame_each_way(recorder):
     t._seq = 0x29
     tap.clear()
     t.execute(Program().command(Cmd.LFIL).write(0x0008).write(0x000A).command(Cmd.UDF))
-    assert bytes(tap.sent) == golden("run_an693_filter")
-    assert bytes(tap.received) == golden("run_reply_an693_filter")
+    name = "run_short_an693_filter" if compact else "run_an693_filter"
+    assert bytes(tap.sent) == golden(name)
+    assert bytes(tap.received) == golden(name.replace("run_", "run_reply_", 1) if not compact
+                                         else "run_short_reply_an693_filter")
     assert t.model.history[-4:] == [(0x1E, (0x0008, 0x000A)), (0x04, ()),
                                      (0x1E, (0x0008, 0x000A)), (0x04, ())]
     # the trace shows the data cycles the bridge made, reconstructed from the reply
@@ -103,19 +109,29 @@ def test_one_round_trip_per_typed_command_and_exact_byte_counts():
     assert t.stats.round_trips == 1 and t.stats.programs == 1
     t.stats.reset()
     tap.clear()
-    chip.read_real_position()
+    position = chip.read_real_position()
+    # RUN_SHORT: type seq COMMAND RDRP READ READ crc(2) = 8 bytes -> 9 COBS + 0x00
+    # RUN_SHORT_REPLY: type seq, 2 words, last status / HI, crc(2) = 9 -> 10 COBS + 0x00
+    assert (t.stats.round_trips, t.stats.bytes_out, t.stats.bytes_in) == (1, 10, 11)
+    assert len(tap.sent) == 10 and len(tap.received) == 11
+    # command + 2 reads (2 strobes each), each preceded by at least one busy poll
+    assert (t.stats.bus_cycles, t.stats.busy_polls) == (1 + 4 + 3, 3)
+    # the same as a RUN (a bridge without COMPACT_RUN, or told not to use it)
+    t.has_compact_run = False
+    t.stats.reset()
+    tap.clear()
+    assert chip.read_real_position() == position
     # RUN: type seq cs timeout(2) COMMAND RDRP READ READ crc(2) = 11 bytes -> 12 COBS + 0x00
     # RUN_REPLY: type seq 5-byte header, 2 words, crc(2) = 13 -> 14 COBS + 0x00
     assert (t.stats.round_trips, t.stats.bytes_out, t.stats.bytes_in) == (1, 13, 15)
     assert len(tap.sent) == 13 and len(tap.received) == 15
-    # command + 2 reads (2 strobes each), each preceded by at least one busy poll
     assert (t.stats.bus_cycles, t.stats.busy_polls) == (1 + 4 + 3, 3)
 
 
 def test_position_poll_reaches_the_wire_limit_in_simulated_time():
-    """At 115200 baud a poll costs 28 bytes x 10 bits: 2.43 ms.  The emulated bridge adds
-    only its bus cycles, so a poll must take at most 1/0.7 of the wire time (the issue's 70%
-    target) and at least the wire time itself."""
+    """At 115200 baud a poll costs 21 bytes (compact RUN) x 10 bits: 1.82 ms.  The emulated
+    bridge adds only its bus cycles, so a poll must take at most 1/0.7 of the wire time (the
+    issue's 70% target) and at least the wire time itself."""
     t, _ = tapped(baud=115200)
     chip = LM629(t)
     chip.reset()
@@ -123,7 +139,7 @@ def test_position_poll_reaches_the_wire_limit_in_simulated_time():
     for _ in range(50):
         chip.read_real_position()
     per = (t.clock.now() - t0) / 50
-    wire = 28 * 10 / 115200
+    wire = 21 * 10 / 115200
     assert wire <= per <= wire / 0.7
 
 
@@ -259,7 +275,8 @@ def test_refused_programs_are_typed_errors_and_nothing_ran():
     with pytest.raises(TransportError, match="BAD_CHIP_SELECT; nothing of it ran"):
         t.execute(Program().command(Cmd.DFH))
     t.cs = 0
-    t.emulator.info = HelloInfo(max_program=4)  # the host still splits by its own HELLO
+    # the host still splits by its own HELLO; the compact RUN too is checked on the bridge
+    t.emulator.info = HelloInfo(max_program=4, capabilities=t.emulator.info.capabilities)
     with pytest.raises(TransportError, match="PROGRAM_TOO_LONG; nothing of it ran"):
         t.execute(Program().command(Cmd.SBPA).write(0).write(1))
     assert t.model.history == [] and t.stats.bus_cycles == 0

@@ -18,7 +18,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from lm629_host.link import (  # noqa: E402
-    FrameType, HelloInfo, Result, RunReply, cobs_encode, frame_body, run_payload,
+    FrameType, HelloInfo, Result, RunReply, cobs_encode, encode_program, frame_body, run_payload,
+    short_reply_payload,
 )
 from lm629_host.opcodes import Cmd  # noqa: E402
 from lm629_host.program import Program  # noqa: E402
@@ -33,11 +34,12 @@ def frames() -> list[tuple[str, bytes]]:
     an693 = Program().command(Cmd.LFIL).write(0x0008).write(0x000A).command(Cmd.UDF)
     # words with zero bytes inside, and a WAIT of 0x0100 us: COBS must stuff them all
     zeros = Program().command(Cmd.LPEI).write(0x0000).wait(0x0100).command(Cmd.RDSIGS).read(1)
+    rdrp = Program().command(Cmd.RDRP).read(2)  # read_real_position(): -1000
     # the largest RUN: 81 WRITEs of 3 bytes = 243 program bytes -> 250-byte frame
     biggest = Program()
     for i in range(81):
         biggest.write((i * 0x0101) & 0xFF00)  # 0000, 0100, 0200...: zeros in every op
-    info = HelloInfo(firmware=(1, 0, 0), capabilities=0x000F, max_program=243, max_reads=120,
+    info = HelloInfo(firmware=(1, 1, 0), capabilities=0x001F, max_program=243, max_reads=120,
                      chip_selects=1, cpu_hz=16_000_000)
     return [
         ("hello", frame_body(FrameType.HELLO, 0x01)),
@@ -55,6 +57,16 @@ def frames() -> list[tuple[str, bytes]]:
             RunReply(Result.BUSY_TIMEOUT, 3, 0x81, 0, (0xC4,), (0x1234,)).encode())),
         ("run_max_frame", frame_body(FrameType.RUN, 0xFE, run_payload(biggest.ops, 65535))),
         ("error_reply", frame_body(FrameType.ERROR_REPLY, 0x33, bytes((Result.BAD_REQUEST,)))),
+        # the compact form (capability COMPACT_RUN): the same AN-693 module; RDRP polling, its
+        # reply in program order with the last status / HI byte (C0 with busy clear, HI 1 -> C1)
+        ("run_short_an693_filter", frame_body(FrameType.RUN_SHORT, 0x2A, encode_program(an693.ops))),
+        ("run_short_reply_an693_filter", frame_body(
+            FrameType.RUN_SHORT_REPLY, 0x2A,
+            short_reply_payload(an693.ops, RunReply(Result.OK, 0xFF, 0xC0, 0, (), ())))),
+        ("run_short_rdrp", frame_body(FrameType.RUN_SHORT, 0x10, encode_program(rdrp.ops))),
+        ("run_short_reply_rdrp", frame_body(
+            FrameType.RUN_SHORT_REPLY, 0x10,
+            short_reply_payload(rdrp.ops, RunReply(Result.OK, 0xFF, 0xC0, 1, (), (0xFFFF, 0xFC18))))),
     ]
 
 

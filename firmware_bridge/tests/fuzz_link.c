@@ -1,6 +1,6 @@
 /* Fuzz run of the firmware's frame parser and request dispatcher on the host (built with
  * AddressSanitizer and UBSan): random bytes, mutated valid frames and random valid RUN
- * programs, fed back to back.  Every reply must be a well-formed frame with a good CRC and the
+ * and RUN_SHORT programs, fed back to back.  Every reply must be a well-formed frame with a good CRC and the
  * seq of a request; after the run a clean HELLO must still be answered.
  *   fuzz_link ITERATIONS SEED */
 #include <stdio.h>
@@ -63,12 +63,14 @@ static int make_frame(uint8_t *wire)
 {
     uint8_t d[300];
     int n = 2;
-    d[0] = (uint8_t)(rnd() % 5 ? (rnd() % 3) + 1 : rnd());
+    d[0] = (uint8_t)(rnd() % 5 ? (rnd() % 4) + 1 : rnd());
     d[1] = (uint8_t)rnd();
-    if (d[0] == 2) {
-        d[n++] = (uint8_t)(rnd() % 8 ? 0 : rnd());
-        d[n++] = 0;
-        d[n++] = (uint8_t)(rnd() % 200);
+    if (d[0] == 2 || d[0] == 4) { /* RUN, or RUN_SHORT (the program alone) */
+        if (d[0] == 2) {
+            d[n++] = (uint8_t)(rnd() % 8 ? 0 : rnd());
+            d[n++] = 0;
+            d[n++] = (uint8_t)(rnd() % 200);
+        }
         int ops = (int)(rnd() % 60);
         for (int i = 0; i < ops && n < 240; i++) {
             uint8_t op = (uint8_t)(rnd() % 20 ? (rnd() % 7) + 1 : rnd());

@@ -164,12 +164,46 @@ static void test_golden_requests(void)
     n = feed(mx->enc, mx->nenc, out);
     CHECK(n > 0 && reply_payload(out, n, 0x82, 0xFE, &p) == 5 && p[0] == 0, "max frame run");
     CHECK(fake.log_len == 81 * 4, "max frame wrote %d log entries", fake.log_len / 2);
+    /* the compact RUN: the same module, and RDRP read in program order */
+    fake_reset();
+    fake.status = 0xC0;
+    expect_reply("run_short_an693_filter", "run_short_reply_an693_filter");
+    CHECK(fake.log_len == sizeof an693 && !memcmp(fake.log, an693, sizeof an693),
+          "AN-693 filter program (RUN_SHORT) reached the bus differently");
+    fake_reset();
+    fake.status = 0xC0;
+    fake.hi = 1;
+    fake.n_data = 2;
+    fake.data[0] = 0xFFFF;
+    fake.data[1] = 0xFC18;
+    expect_reply("run_short_rdrp", "run_short_reply_rdrp");
+    /* a compact RUN that times out part-way is answered as a RUN: the golden busy timeout */
+    fake_reset();
+    fake.n_script = 4;
+    memcpy(fake.script, "\xC4\xC4\xC4\x81", 4);
+    fake.n_data = 1;
+    fake.data[0] = 0x1234;
+    uint8_t sprog[] = {0x01, 0x02, 0x0A, 0x04, 0x02, 0x01};
+    n = feed(wire, frame(0x04, 0x7F, sprog, sizeof sprog, wire), out);
+    CHECK(n == bt->nenc && !memcmp(out, bt->enc, (size_t)n), "compact busy timeout reply differs");
+    CHECK(fake.total_polls >= 5000, "default busy timeout gave up after %u polls", fake.total_polls);
+    /* a bad op code in a compact RUN: nothing runs, BAD_PROGRAM at its index */
+    fake_reset();
+    uint8_t bprog[] = {0x01, 0x02, 0x0A, 0x7E, 0x04};
+    n = feed(wire, frame(0x04, 0x11, bprog, sizeof bprog, wire), out);
+    CHECK(n > 0 && reply_payload(out, n, 0x82, 0x11, &p) == 5 && p[0] == RESULT_BAD_PROGRAM
+          && p[1] == 2 && fake.log_len == 0, "compact RUN with a bad op");
+    uint8_t tprog[] = {0x01, 0x03, 0x12};
+    n = feed(wire, frame(0x04, 0x12, tprog, sizeof tprog, wire), out);
+    CHECK(n > 0 && reply_payload(out, n, 0x82, 0x12, &p) == 5 && p[0] == RESULT_BAD_PROGRAM
+          && p[1] == 1 && fake.log_len == 0, "compact RUN with a truncated argument");
     /* unknown request type -> ERROR_REPLY BAD_REQUEST */
-    n = feed(wire, frame(0x04, 0x33, NULL, 0, wire), out);
+    n = feed(wire, frame(0x05, 0x33, NULL, 0, wire), out);
     vec_t *er = get("error_reply");
     CHECK(n == er->nenc && !memcmp(out, er->enc, (size_t)n), "error reply differs");
     printf("requests: HELLO, PING, RUN (AN-693 filter, zero bytes, busy timeout, largest), "
-           "unknown type answered as the golden replies\n");
+           "RUN_SHORT (AN-693, RDRP, busy timeout, bad op, truncated), unknown type answered "
+           "as the golden replies\n");
 }
 
 static void test_exactly_once(void)

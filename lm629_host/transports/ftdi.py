@@ -123,6 +123,16 @@ FT232H_PID = 0x6014
 
 DEFAULT_LATENCY_MS = 1  #: the FTDI default is 16 ms, the floor of every short read
 DEFAULT_BUSY_US = 100  #: the chip's documented worst-case busy time
+#: the cost of one MPSSE command in the busy-wait estimate: pyftdi's figure for two SET_BITS
+#: in a row (``Ftdi.mpsse_bit_delay``, measured on an FT2232H), the emulator's default
+COMMAND_S = 500e-9
+#: status reads after the calibration's command (about 3 us each: 120 us, past the worst case)
+CALIBRATION_POLLS = 40
+#: the wait is the busy time measured times this.  The measure is already an upper bound (the
+#: first status read that saw busy clear, up to one read period late); a chip whose busy time
+#: differs between commands (the datasheet gives 15-25 us typical) shows it at a check, which
+#: repeats the command and lengthens the wait (:meth:`FtdiTransport._learn_busy`)
+CALIBRATION_MARGIN = 1.0
 DEFAULT_TCK_HZ = 6e6
 RST_LOW_S = 10e-6  #: >= 8 clocks of the slowest (1 MHz) chip, with margin
 #: commands that act on the chip (not repeatable once taken): the stream is cut before them
@@ -158,22 +168,32 @@ class Stream:
 class StreamCompiler:
     """Bus operations -> MPSSE bytes, with the pin map of :mod:`lm629_host.ftdi_pins`."""
 
-    def __init__(self, tck_hz: float = DEFAULT_TCK_HZ, busy_s: float = DEFAULT_BUSY_US * 1e-6):
+    def __init__(self, tck_hz: float = DEFAULT_TCK_HZ, busy_s: float = DEFAULT_BUSY_US * 1e-6,
+                 command_s: float = 0.0):
         self.tck_hz = tck_hz
         self.busy_s = busy_s
+        #: what one MPSSE command is taken to cost when a busy wait is shortened by the
+        #: commands run between the transfer and its check (0: not counted, the wait is idle
+        #: clocks alone).  Only a busy wait uses it, never a timing minimum: a wrong figure
+        #: makes a check see busy, which the transport repeats and learns from.
+        self.command_s = command_s
+        self._t = 0.0  #: estimated stream time of what was compiled so far
 
     # primitives
     def _low(self, s: Stream, value: int) -> None:
         s.data += bytes((SET_LOW, value, pins.CTRL_DIRECTION))
         self._ctrl = value
+        self._t += self.command_s
 
     def _high(self, s: Stream, value: int, direction: int) -> None:
         s.data += bytes((SET_HIGH, value, direction))
         self._dir = direction
+        self._t += self.command_s
 
     def _bits(self, s: Stream, n: int) -> None:
         s.data += bytes((CLK_BITS, n - 1))
         s.delay_s += n / self.tck_hz
+        self._t += self.command_s + n / self.tck_hz
 
     def delay(self, s: Stream, seconds: float) -> None:
         """Idle clocks lasting at least ``seconds``."""
@@ -188,6 +208,7 @@ class StreamCompiler:
             n = min(units, 0x10000)
             s.data += bytes((CLK_BYTES, (n - 1) & 0xFF, (n - 1) >> 8))
             s.delay_s += n * 8 / self.tck_hz
+            self._t += self.command_s + n * 8 / self.tck_hz
             units -= n
 
     def _select(self, s: Stream, data_port: bool) -> None:
@@ -196,13 +217,22 @@ class StreamCompiler:
             self._low(s, want)
             self._bits(s, 1)  # /CS and /PS setup before the strobe
 
+    def _check_lead(self, data_port: bool) -> int:
+        """Commands a read of the status (``data_port`` False) or of data will run before
+        /RD falls: a release of D0-D7, a change of /CS and /PS (with its setup bit), /RD."""
+        n = 1 if self._dir != pins.DATA_IN else 0
+        want = (pins.CTRL_IDLE & ~pins.CS & ~pins.PS) | (pins.PS if data_port else 0)
+        return n + (2 if self._ctrl != want else 0) + 1
+
     def _read_byte(self, s: Stream, slot: Slot, data_port: bool) -> None:
         if self._dir != pins.DATA_IN:
             self._high(s, 0, pins.DATA_IN)
         self._select(s, data_port)
         self._low(s, self._ctrl & ~pins.RD)
+        self.rd_fell_at = self._t  # when the byte is driven: what a status read reports
         self._bits(s, 2)  # read access time
         s.data.append(GET_HIGH)
+        self._t += self.command_s
         s.slots.append(slot)
         self._low(s, self._ctrl | pins.RD)
         self._bits(s, 1)  # recovery, /PS hold
@@ -230,14 +260,21 @@ class StreamCompiler:
         s = Stream()
         self._ctrl = pins.CTRL_IDLE
         self._dir = pins.DATA_IN
+        self._t = 0.0
         owed = lead_s  # the wait owed before the next busy check
+        owed_from = 0.0  # ... counted from this stream time (the transfer that set it)
         self.end = first + len(ops)
         for i, o in enumerate(ops, first):
             mark = (len(s.data), len(s.slots), len(s.events), s.delay_s, s.strobes, owed,
-                    self._ctrl, self._dir)
+                    self._ctrl, self._dir, self._t, owed_from)
             op = o.op
             if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
-                self.delay(s, owed)
+                if self.command_s:
+                    # what the stream runs between the transfer and the check's /RD counts
+                    ran = self._t - owed_from + self._check_lead(False) * self.command_s
+                    self.delay(s, owed - ran)
+                else:
+                    self.delay(s, owed)
                 owed = 0.0
                 self._status(s, "sync" if op is Op.SYNC else "check", i)
                 if op is Op.COMMAND:
@@ -254,6 +291,7 @@ class StreamCompiler:
                     self._read_byte(s, Slot("hi", i), data_port=True)
                     self._read_byte(s, Slot("lo", i), data_port=True)
                     owed = self.busy_s
+                owed_from = self._t
             elif op is Op.STATUS:
                 self._status(s, "status", i)
             elif op is Op.RESET:
@@ -265,7 +303,8 @@ class StreamCompiler:
                 owed = 0.0
             elif op is Op.WAIT:
                 self.delay(s, o.arg * 1e-6)
-                owed = max(0.0, owed - o.arg * 1e-6)
+                if not self.command_s:
+                    owed = max(0.0, owed - o.arg * 1e-6)
             else:  # pragma: no cover - Op is closed
                 raise AssertionError(op)
             if max_bytes is not None and (len(s.data) + STREAM_TAIL > max_bytes
@@ -274,7 +313,7 @@ class StreamCompiler:
                     raise ValueError(f"{o.describe()} alone does not fit a stream of "
                                      f"{max_bytes} bytes")
                 n_data, n_slots, n_events, s.delay_s, s.strobes, owed, self._ctrl, \
-                    self._dir = mark
+                    self._dir, self._t, owed_from = mark
                 del s.data[n_data:], s.slots[n_slots:], s.events[n_events:]
                 self.end = i
                 break
@@ -285,7 +324,9 @@ class StreamCompiler:
         s.data.append(GET_LOW)
         s.slots.append(Slot("pins", -1))
         s.data.append(SEND_IMMEDIATE)
-        self.owed_after = owed
+        self._t += 2 * self.command_s
+        # what is still owed when the stream ends (the commands after the last transfer ran)
+        self.owed_after = max(0.0, owed - (self._t - owed_from)) if self.command_s else owed
         return s
 
 
@@ -336,24 +377,32 @@ class FtdiTransport(Transport):
     has_reset_line = True
 
     def __init__(self, ftdi: object, url: str, *, trace: TraceCallback | None = None,
-                 clock: Clock | None = None, busy_s: float = DEFAULT_BUSY_US * 1e-6,
+                 clock: Clock | None = None, busy_s: float | None = DEFAULT_BUSY_US * 1e-6,
                  tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS) -> None:
+        """``busy_s``: the wait after each transfer; None: measured on the chip before the first
+        program (:meth:`calibrate_busy`; opening itself never touches the bus), the documented
+        100 us when it cannot be."""
         super().__init__(url, trace=trace)
         self.ftdi = ftdi
         self.clock = clock or WallClock()
-        self.compiler = StreamCompiler(tck_hz, busy_s)
-        self.busy_s = busy_s
+        self.compiler = StreamCompiler(tck_hz, DEFAULT_BUSY_US * 1e-6 if busy_s is None else busy_s)
+        self.busy_s = self.compiler.busy_s
         self.latency_ms = latency_ms
         self._last_end = -1.0  # clock time at which the last stream's answer came back
         self._owed = 0.0  # busy wait owed after the last stream's last transfer
         self.busy_hits = 0  #: status reads before a transfer that showed busy (all time)
+        #: the chip's busy time measured at open (None: not measured, the fixed wait is used)
+        self.calibrated_busy_s: float | None = None
+        self.calibration_exchanges = 0  #: USB write+read pairs the calibration took
+        self._calibrate = busy_s is None  # before the first program
 
     # ------------------------------------------------------------------ opening
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> FtdiTransport:
         opts = options_of(url)
         ftdi = open_mpsse(pyftdi_url(url), opts["latency"], opts["frequency"])
-        return cls(ftdi, url, trace=trace, busy_s=opts["busy_us"] * 1e-6,
+        busy = opts["busy_us"]
+        return cls(ftdi, url, trace=trace, busy_s=None if busy is None else busy * 1e-6,
                    tck_hz=opts["frequency"], latency_ms=opts["latency"])
 
     def close(self) -> None:
@@ -366,6 +415,81 @@ class FtdiTransport(Transport):
 
     def describe(self) -> str:
         return f"{self.url} (FT232H, MPSSE, TCK {self.compiler.tck_hz / 1e6:g} MHz)"
+
+    # ------------------------------------------------------------------ calibration
+    def calibrate_busy(self) -> float | None:
+        """Measure how long the chip holds busy after a transfer, and wait that long (not the
+        documented worst case of 100 us) after each one from now on.  Run before the first
+        program when the adapter was opened without ``busy_us`` (or ``busy_us=auto``).
+
+        One status read first: a chip that is busy (or in reset, or not answering: D0 high) is
+        left alone and the documented 100 us kept.  Then one stream: the status check, RDSIGS
+        (a read command: it changes nothing on the chip), status reads back to back, a wait of
+        the documented worst case, and RDSIGS's word (so that no command is left half done).
+        The first status read with busy clear bounds the busy time from above, in the stream
+        time the compiler counts (idle clocks, and :data:`COMMAND_S` per MPSSE command): the
+        same count shortens each later wait by the commands run before its check.  Nothing of
+        the busy discipline changes: every transfer still has its check, and a check that sees
+        busy still repeats the command (and lengthens the wait, :meth:`_learn_busy`).
+        Returns the busy time measured, or None (the fixed wait kept)."""
+        c = StreamCompiler(self.compiler.tck_hz, self.busy_s, COMMAND_S)
+        first = Stream()
+        c._ctrl, c._dir, c._t = pins.CTRL_IDLE, pins.DATA_IN, 0.0
+        c._status(first, "status", 0)
+        c._low(first, pins.CTRL_IDLE)
+        first.data.append(SEND_IMMEDIATE)
+        self.calibration_exchanges = 1
+        if self._exchange(first)[0] & _BUSY:
+            log.info("%s: the chip is busy at open: keeping the documented %g us busy wait",
+                     self.url, self.busy_s * 1e6)
+            return None
+        s = Stream()
+        c._ctrl, c._dir, c._t = pins.CTRL_IDLE, pins.DATA_IN, 0.0
+        c._status(s, "check", 0)
+        c._write_byte(s, int(Cmd.RDSIGS), data_port=False)
+        t0 = c._t - 1 / c.tck_hz  # /WR rose one bit before (the hold bit after it)
+        times = []
+        for _ in range(CALIBRATION_POLLS):
+            c._status(s, "status", 0)
+            times.append(c.rd_fell_at - t0)
+        c.delay(s, DEFAULT_BUSY_US * 1e-6)
+        c._read_byte(s, Slot("hi", 0), data_port=True)
+        c._read_byte(s, Slot("lo", 0), data_port=True)
+        c._low(s, pins.CTRL_IDLE)
+        s.data.append(GET_LOW)
+        s.slots.append(Slot("pins", -1))
+        s.data.append(SEND_IMMEDIATE)
+        answer = self._exchange(s)
+        self.calibration_exchanges = 2
+        polls = answer[1:1 + CALIBRATION_POLLS]
+        clear = next((j for j, b in enumerate(polls) if not b & _BUSY), None)
+        self._owed = self.busy_s  # after RDSIGS's word
+        if answer[0] & _BUSY or clear is None:
+            log.info("%s: no busy time measured at open: keeping the documented %g us wait",
+                     self.url, self.busy_s * 1e6)
+            return None
+        busy = min(times[clear] * CALIBRATION_MARGIN, DEFAULT_BUSY_US * 1e-6)
+        self.calibrated_busy_s = times[clear]
+        self._set_busy(busy)
+        self._owed = busy
+        log.info("%s: the chip holds busy <= %.1f us: waiting %.1f us after each transfer",
+                 self.url, times[clear] * 1e6, busy * 1e6)
+        return times[clear]
+
+    def _set_busy(self, busy_s: float) -> None:
+        self.busy_s = busy_s
+        self.compiler = StreamCompiler(self.compiler.tck_hz, busy_s, COMMAND_S)
+
+    def _learn_busy(self, seen_s: float) -> None:
+        """A check saw busy after a calibrated wait: wait longer from now on (twice as long, or
+        what was seen, at most the documented worst case)."""
+        if self.calibrated_busy_s is None or self.busy_s >= DEFAULT_BUSY_US * 1e-6:
+            return
+        busy = min(DEFAULT_BUSY_US * 1e-6, max(2 * self.busy_s, seen_s))
+        log.warning("%s: the chip held busy longer than measured at open: waiting %.1f us "
+                    "after each transfer from now on (was %.1f us)", self.url, busy * 1e6,
+                    self.busy_s * 1e6)
+        self._set_busy(busy)
 
     # ------------------------------------------------------------------ one exchange
     def _exchange(self, stream: Stream) -> bytes:
@@ -440,6 +564,14 @@ class FtdiTransport(Transport):
 
     # ------------------------------------------------------------------ programs
     def execute(self, program: Program) -> ProgramResult:
+        if self._calibrate:
+            self._calibrate = False
+            saved = self.stats.as_dict()
+            try:
+                self.calibrate_busy()
+            finally:  # its exchanges are not the program's: counted apart
+                for k, v in saved.items():
+                    setattr(self.stats, k, v)
         self.stats.programs += 1
         ops = program.ops
         statuses: dict[int, int] = {}
@@ -506,6 +638,7 @@ class FtdiTransport(Transport):
                 words = [reads[j] for j in sorted(reads) if j < unit_start]
                 last_status = self._poll_until_clear(program, op_index,
                                                      first + program.busy_timeout_s, words)
+                self._learn_busy(self.clock.now() - t0)
                 pos = unit_start
         words = tuple(reads[k] for k in sorted(reads))
         return ProgramResult(words, tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
@@ -518,10 +651,12 @@ def options_of(url: str) -> dict[str, int | float]:
     if unknown:
         raise ValueError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; "
                          "known: latency (ms), busy_us, frequency (Hz)")
-    opts: dict[str, int | float] = {"latency": DEFAULT_LATENCY_MS, "busy_us": DEFAULT_BUSY_US,
-                                    "frequency": DEFAULT_TCK_HZ}
+    opts: dict[str, int | float | None] = {"latency": DEFAULT_LATENCY_MS, "busy_us": None,
+                                           "frequency": DEFAULT_TCK_HZ}
     limits = {"latency": (1, 255), "busy_us": (0, 65535), "frequency": (1e5, 30e6)}
     for name, text in q.items():
+        if name == "busy_us" and text == "auto":
+            continue
         try:
             value = float(text)
         except ValueError:

@@ -26,7 +26,7 @@ from ..ftdi_emu import EmulatedBackend, EmulatedFT232H
 from ..program import Program, ProgramResult, TraceCallback
 from . import query_params
 from .base import Clock
-from .ftdi import (DEFAULT_BUSY_US, DEFAULT_LATENCY_MS, DEFAULT_TCK_HZ, FT232H_PID, FTDI_VID,
+from .ftdi import (DEFAULT_LATENCY_MS, DEFAULT_TCK_HZ, FT232H_PID, FTDI_VID,
                    FtdiTransport, open_mpsse)
 from .sim import build_model
 
@@ -68,7 +68,7 @@ class SimFtdiTransport(FtdiTransport):
             return value
 
         latency = int(num("latency", DEFAULT_LATENCY_MS, 1, 255))
-        busy_us = num("busy_us", DEFAULT_BUSY_US, 0, 65535)
+        busy_us = None if q.get("busy_us", "auto") == "auto" else num("busy_us", 0, 0, 65535)
         frequency = num("frequency", DEFAULT_TCK_HZ, 1e5, 30e6)
         usb_us = num("usb_us", 125, 0, 1e6)
         command_ns = num("command_ns", 500, 0, 1e6)
@@ -78,8 +78,10 @@ class SimFtdiTransport(FtdiTransport):
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
         ftdi = open_mpsse(url, latency, frequency, device=usb_dev)
-        t = cls(ftdi, url, trace=trace, clock=EmulatedClock(device), busy_s=busy_us * 1e-6,
-                tck_hz=frequency, latency_ms=latency)
+        # busy_us None: measured at open on the chip model, through the emulated adapter
+        t = cls(ftdi, url, trace=trace, clock=EmulatedClock(device),
+                busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
+                latency_ms=latency)
         t.model, t.device, t.strict = model, device, strict
         return t
 
