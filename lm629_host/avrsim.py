@@ -334,9 +334,10 @@ class AvrPipe:
 
 
 #: ``link_t`` of firmware_bridge/link.h on the AVR: 13 bytes of state, then four 16-bit
-#: counters (frames, bad_frames, runs, cache_hits, little-endian), then the three buffers
+#: counters (frames, bad_frames, runs, cache_hits, little-endian), 5 bytes of the RUN_SHORT
+#: check, then the three buffers
 _LINK_COUNTERS_AT = 13
-_LINK_T_SIZE = 13 + 4 * 2 + 252 + 250 + 252
+_LINK_T_SIZE = 13 + 4 * 2 + 5 + 252 + 250 + 252
 _link_addresses: dict[Path, int | None] = {}
 
 
