@@ -101,6 +101,8 @@ void link_init(link_t *l)
     rx_restart(l);
     l->cache_len = 0;
     l->frames = l->bad_frames = l->runs = l->cache_hits = 0;
+    for (uint8_t k = 0; k < LINK_CODE_SLOTS; k++)
+        l->code_len[k] = 0;
 }
 
 /* ---------------------------------------------------------------- programs */
@@ -295,6 +297,32 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
     return run_long(prog, prog + plen, timeout_us, c, reply);
 }
 
+/* A compact RUN that timed out part-way is answered as a RUN_REPLY: the bytes read, in
+ * program order at frame + 2, regrouped (statuses first, then words: walk the operations
+ * that ran).  Apart from run_short, so that its large buffer stays off the fast path. */
+static __attribute__((noinline)) uint16_t regroup(const uint8_t *prog, uint8_t *frame, ran_t r)
+{
+    frame[0] = FRAME_RUN_REPLY;
+    uint8_t *st = frame + 7, *out = frame + 2, tmp[LINK_MAX_FRAME];
+    uint8_t n = (uint8_t)(r.ns + r.nw), ns = 0, nw = 0;
+    for (uint8_t k = 0; k < n; k++)
+        tmp[k] = out[k];
+    const uint8_t *p = prog, *src = tmp;
+    for (uint8_t i = 0; i < r.index; i++) {
+        uint8_t op = *p;
+        p += 1u + op_args[op];
+        if (op == OP_READ) {
+            st[r.ns + nw] = src[0];
+            st[r.ns + nw + 1] = src[1];
+            nw += 2;
+            src += 2;
+        } else if (op == OP_STATUS || op == OP_SYNC || op == OP_WAIT_STATUS) {
+            st[ns++] = *src++;
+        }
+    }
+    return 2u + run_reply(frame + 2, r);
+}
+
 /* RUN_SHORT: the program alone (chip select 0, the default busy timeout).  `frame` is the
  * decoded reply frame being built: type and seq are in frame[0..1].  When the program runs to
  * its end the answer is RUN_SHORT_REPLY: the bytes read in program order, then one byte, the
@@ -302,24 +330,12 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
  * CRC, made as the bytes were read (so the reply starts as soon as the last strobe is over).
  * Otherwise it is a RUN_REPLY, as for RUN.  Returns the decoded size; *crc_done tells whether
  * the CRC is already stored after it. */
-static uint16_t run_short(const link_t *l, const uint8_t *prog, uint16_t plen, uint8_t *frame,
-                          uint8_t *crc_done)
+static inline __attribute__((always_inline)) uint16_t run_short(check_t c, const uint8_t *prog,
+                                                                 uint16_t plen, uint8_t *frame,
+                                                                 uint8_t *crc_done)
 {
     *crc_done = 0;
-    if (plen > LINK_MAX_PROGRAM) {
-        frame[0] = FRAME_RUN_REPLY;
-        return 2u + run_header(frame + 2, RESULT_PROGRAM_TOO_LONG, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
-    }
     const uint8_t *end = prog + plen;
-    /* the check made while the frame came in (put()): as check_program's */
-    check_t c = {RESULT_OK, LINK_NONE_BYTE, l->chk_reads, l->chk_status};
-    if (l->chk_bad || l->chk_args) {
-        c.result = RESULT_BAD_PROGRAM;
-        c.index = l->chk_bad ? (uint8_t)(l->chk_bad - 1) : (uint8_t)(l->chk_ops - 1);
-    } else if (c.reads > LINK_MAX_READS
-               || LINK_RUN_REPLY_OVERHEAD + c.n_status + 2u * c.reads > LINK_MAX_FRAME) {
-        c.result = RESULT_PROGRAM_TOO_LONG;
-    }
     if (c.result != RESULT_OK) {
         frame[0] = FRAME_RUN_REPLY;
         return 2u + run_header(frame + 2, c.result, c.index, LINK_NONE_BYTE, 0);
@@ -338,27 +354,24 @@ static uint16_t run_short(const link_t *l, const uint8_t *prog, uint16_t plen, u
         *crc_done = 1;
         return (uint16_t)(3u + n);
     }
-    /* a busy timeout part-way: RUN_REPLY, statuses first, then words, from the program-order
-     * bytes (walk the operations that ran) */
-    frame[0] = FRAME_RUN_REPLY;
-    uint8_t *st = frame + 7, tmp[LINK_MAX_FRAME];
-    uint8_t ns = 0, nw = 0;
-    for (uint8_t k = 0; k < n; k++)
-        tmp[k] = out[k];
-    const uint8_t *p = prog, *src = tmp;
-    for (uint8_t i = 0; i < r.index; i++) {
-        uint8_t op = *p;
-        p += 1u + op_args[op];
-        if (op == OP_READ) {
-            st[r.ns + nw] = src[0];
-            st[r.ns + nw + 1] = src[1];
-            nw += 2;
-            src += 2;
-        } else if (op == OP_STATUS || op == OP_SYNC || op == OP_WAIT_STATUS) {
-            st[ns++] = *src++;
-        }
+    return regroup(prog, frame, r);
+}
+
+/* The check put() made of a compact request's program while its bytes came in: as
+ * check_program's. */
+static check_t arrived_check(const link_t *l, uint16_t plen)
+{
+    check_t c = {RESULT_OK, LINK_NONE_BYTE, l->chk_reads, l->chk_status};
+    if (plen > LINK_MAX_PROGRAM) {
+        c.result = RESULT_PROGRAM_TOO_LONG;
+    } else if (l->chk_bad || l->chk_args) {
+        c.result = RESULT_BAD_PROGRAM;
+        c.index = l->chk_bad ? (uint8_t)(l->chk_bad - 1) : (uint8_t)(l->chk_ops - 1);
+    } else if (c.reads > LINK_MAX_READS
+               || LINK_RUN_REPLY_OVERHEAD + c.n_status + 2u * c.reads > LINK_MAX_FRAME) {
+        c.result = RESULT_PROGRAM_TOO_LONG;
     }
-    return 2u + run_reply(frame + 2, r);
+    return c;
 }
 
 /* ---------------------------------------------------------------- frames */
@@ -467,6 +480,8 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
     r[1] = seq;
     if (type == FRAME_HELLO) {
         l->cache_len = 0;
+        for (uint8_t k = 0; k < LINK_CODE_SLOTS; k++)
+            l->code_len[k] = 0; /* the host forgets its codes with HELLO too */
         r[0] = FRAME_HELLO_REPLY;
         r[len++] = LINK_PROTOCOL_VERSION;
         r[len++] = FIRMWARE_MAJOR;
@@ -474,7 +489,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_PATCH;
         r[len++] = 0;
         r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS
-            | CAP_COMPACT_RUN;
+            | CAP_COMPACT_RUN | CAP_PROGRAM_CODES;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
         r[len++] = (uint8_t)LINK_MAX_PROGRAM;
         r[len++] = LINK_MAX_READS;
@@ -487,7 +502,8 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[0] = FRAME_PONG;
         for (uint16_t k = 0; k < plen; k++)
             r[len++] = payload[k];
-    } else if ((type == FRAME_RUN && plen >= 3) || type == FRAME_RUN_SHORT) {
+    } else if ((type == FRAME_RUN && plen >= 3) || type == FRAME_RUN_SHORT
+               || (type == FRAME_RUN_STORE && plen >= 1) || (type == FRAME_RUN_CODE && plen == 1)) {
         if (l->cache_len && l->cache_seq == seq && l->cache_crc == crc) {
             l->cache_hits++;
             for (uint16_t k = 0; k < l->cache_len; k++)
@@ -500,8 +516,36 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         if (type == FRAME_RUN) {
             r[0] = FRAME_RUN_REPLY;
             len += link_run(payload, plen, r + 2);
+        } else if (type == FRAME_RUN_SHORT) {
+            len = run_short(arrived_check(l, plen), payload, plen, r, &crc_done);
         } else {
-            len = run_short(l, payload, plen, r, &crc_done);
+            /* RUN_STORE keeps a good program under its code, then runs it as RUN_SHORT;
+             * RUN_CODE runs the program kept (checked when it was stored) */
+            uint8_t slot = payload[0];
+            check_t c = {RESULT_UNKNOWN_CODE, LINK_NONE_BYTE, 0, 0};
+            const uint8_t *prog = payload + 1;
+            uint8_t n = 0;
+            if (slot < LINK_CODE_SLOTS) {
+                if (type == FRAME_RUN_STORE) {
+                    c = plen - 1 > LINK_CODE_BYTES ? (check_t){RESULT_PROGRAM_TOO_LONG,
+                        LINK_NONE_BYTE, 0, 0} : arrived_check(l, plen - 1);
+                    n = (uint8_t)(plen - 1);
+                    l->code_len[slot] = 0;
+                    if (c.result == RESULT_OK) {
+                        for (uint8_t k = 0; k < n; k++)
+                            l->codes[slot][k] = prog[k];
+                        l->code_len[slot] = (uint8_t)(n + 1); /* 1 + size: 0 is "none" */
+                        l->code_reads[slot] = c.reads;
+                        l->code_status[slot] = c.n_status;
+                    }
+                } else if (l->code_len[slot]) {
+                    n = (uint8_t)(l->code_len[slot] - 1);
+                    prog = l->codes[slot];
+                    c = (check_t){RESULT_OK, LINK_NONE_BYTE, l->code_reads[slot],
+                                  l->code_status[slot]};
+                }
+            }
+            len = run_short(c, prog, n, r, &crc_done);
         }
         l->cache_len = crc_done ? send_ready(r, (uint8_t)len, l->cache)
                                 : finish(r, len, l->cache, crc_done);
@@ -530,7 +574,9 @@ static inline __attribute__((always_inline)) void put(link_t *l, uint8_t b)
     if (n >= 2) { /* the last two bytes are the CRC itself: sum two bytes behind */
         uint8_t c = l->rx[n - 2];
         l->crc = crc_step(l->crc, c);
-        if (n >= 4 && l->rx[0] == FRAME_RUN_SHORT) { /* c is a program byte: check it now */
+        uint8_t t = l->rx[0];
+        if ((t == FRAME_RUN_SHORT && n >= 4) || (t == FRAME_RUN_STORE && n >= 5)) {
+            /* c is a program byte: check it now */
             if (l->chk_args) {
                 l->chk_args--;
             } else {

@@ -37,6 +37,9 @@ typedef struct {
      * argument bytes still due of the current operation, operations, reads and statuses so
      * far, and 1 + the index of the first bad operation (0: none) */
     uint8_t chk_args, chk_ops, chk_reads, chk_status, chk_bad;
+    /* programs kept for RUN_CODE: size (0: none), reads and statuses (checked when stored) */
+    uint8_t code_len[LINK_CODE_SLOTS], code_reads[LINK_CODE_SLOTS], code_status[LINK_CODE_SLOTS];
+    uint8_t codes[LINK_CODE_SLOTS][LINK_CODE_BYTES];
     uint8_t rx[LINK_MAX_WIRE_FRAME];    /* the frame being received, COBS-decoded as its bytes
                                            arrive; non-RUN replies are encoded here too */
     uint8_t reply[LINK_MAX_FRAME];      /* decoded reply being built */

@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 from .errors import ProtocolViolation, TransportError
+from .link import CODE_BYTES, CODE_SLOTS
 from .model import ChipModel
 from .transports.base import Clock
 
@@ -335,9 +336,9 @@ class AvrPipe:
 
 #: ``link_t`` of firmware_bridge/link.h on the AVR: 13 bytes of state, then four 16-bit
 #: counters (frames, bad_frames, runs, cache_hits, little-endian), 5 bytes of the RUN_SHORT
-#: check, then the three buffers
+#: check, the programs kept for RUN_CODE (3 bytes and CODE_BYTES each), then the three buffers
 _LINK_COUNTERS_AT = 13
-_LINK_T_SIZE = 13 + 4 * 2 + 5 + 252 + 250 + 252
+_LINK_T_SIZE = 13 + 4 * 2 + 5 + CODE_SLOTS * (3 + CODE_BYTES) + 252 + 250 + 252
 _link_addresses: dict[Path, int | None] = {}
 
 

@@ -21,6 +21,8 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from .link import (
+    CODE_BYTES,
+    CODE_SLOTS,
     DEFAULT_RETRIES,
     MAX_FRAME,
     LinkTransport,
@@ -76,12 +78,14 @@ class BridgeEmulator:
     model: ChipModel
     info: HelloInfo = field(default_factory=lambda: HelloInfo(
         firmware=EMU_FIRMWARE,
-        capabilities=int(HelloInfo.capabilities | Capability.WAIT_STATUS | Capability.COMPACT_RUN)))
+        capabilities=int(HelloInfo.capabilities | Capability.WAIT_STATUS | Capability.COMPACT_RUN
+                         | Capability.PROGRAM_CODES)))
     stats: EmuStats = field(default_factory=EmuStats)
 
     def __post_init__(self) -> None:
         self._reader = FrameReader()
         self._cache: tuple[int, int, bytes] | None = None  # seq, crc, encoded reply
+        self._codes: dict[int, bytes] = {}  # programs kept for RUN_CODE
         self._cycle_ticks = max(1, round(BUS_CYCLE_S * self.model.clock_hz))
         if self.info.max_program > MAX_FRAME - RUN_OVERHEAD:
             raise ValueError(f"max_program={self.info.max_program} does not fit MAX_FRAME")
@@ -106,6 +110,7 @@ class BridgeEmulator:
         t = frame.type
         if t == FrameType.HELLO:
             self._cache = None
+            self._codes.clear()
             return encode_frame(FrameType.HELLO_REPLY, frame.seq, self.info.encode())
         if t == FrameType.PING:
             if len(frame.payload) > MAX_PING:
@@ -121,18 +126,43 @@ class BridgeEmulator:
             reply = encode_frame(FrameType.RUN_REPLY, frame.seq, self._run(frame.payload).encode())
             self._cache = (frame.seq, frame.crc, reply)
             return reply
-        if t == FrameType.RUN_SHORT and self.info.capabilities & Capability.COMPACT_RUN:
+        caps = self.info.capabilities
+        if (t == FrameType.RUN_SHORT and caps & Capability.COMPACT_RUN) or (
+                caps & Capability.PROGRAM_CODES and (
+                    (t == FrameType.RUN_STORE and len(frame.payload) >= 1)
+                    or (t == FrameType.RUN_CODE and len(frame.payload) == 1))):
             cache = self._cache
             if cache is not None and cache[0] == frame.seq and cache[1] == frame.crc:
                 self.stats.cache_hits += 1
                 return cache[2]
-            # cs 0 and the default busy timeout, then as RUN; a program that ran to its end is
-            # answered in the compact form, anything else as a RUN
-            result = self._run(bytes((0, 0, 0)) + frame.payload)
-            if result.result == Result.OK:
-                ops = decode_program(frame.payload)
+            program: bytes | None = frame.payload
+            if t != FrameType.RUN_SHORT:
+                code = frame.payload[0]
+                if t == FrameType.RUN_STORE:
+                    program = frame.payload[1:]
+                    if code < CODE_SLOTS:
+                        self._codes.pop(code, None)
+                        try:  # a program that checks out is kept, whatever its run does
+                            if len(program) <= CODE_BYTES and self._check(program) == Result.OK:
+                                self._codes[code] = program
+                        except BadProgram:
+                            pass
+                    else:
+                        program = None
+                else:
+                    program = self._codes.get(code)
+            if program is None:
+                result = RunReply(Result.UNKNOWN_CODE)
+            else:
+                if t == FrameType.RUN_STORE and len(program) > CODE_BYTES:
+                    result = RunReply(Result.PROGRAM_TOO_LONG)
+                else:
+                    # cs 0 and the default busy timeout, then as RUN
+                    result = self._run(bytes((0, 0, 0)) + program)
+            # a program that ran to its end is answered in the compact form, else as a RUN
+            if result.result == Result.OK and program is not None:
                 reply = encode_frame(FrameType.RUN_SHORT_REPLY, frame.seq,
-                                     short_reply_payload(ops, result))
+                                     short_reply_payload(decode_program(program), result))
             else:
                 reply = encode_frame(FrameType.RUN_REPLY, frame.seq, result.encode())
             self._cache = (frame.seq, frame.crc, reply)
@@ -157,13 +187,20 @@ class BridgeEmulator:
             ops = decode_program(body)
         except BadProgram as exc:
             return RunReply(Result.BAD_PROGRAM, exc.index)
+        if self._check(body) != Result.OK:
+            return RunReply(Result.PROGRAM_TOO_LONG)
+        self.stats.runs += 1
+        return self.run_ops(ops, timeout_us * 1e-6)
+
+    def _check(self, body: bytes) -> Result:
+        """The limits of a program that decodes (BadProgram otherwise)."""
+        ops = decode_program(body)
         reads = sum(1 for o in ops if o.op is Op.READ)
         n_status = sum(1 for o in ops if o.op in STATUS_OPS)
         if reads > self.info.max_reads or n_status > 255 \
                 or RUN_REPLY_OVERHEAD + n_status + 2 * reads > MAX_FRAME:
-            return RunReply(Result.PROGRAM_TOO_LONG)
-        self.stats.runs += 1
-        return self.run_ops(ops, timeout_us * 1e-6)
+            return Result.PROGRAM_TOO_LONG
+        return Result.OK
 
     def _strobe(self) -> ChipModel:
         m = self.model

@@ -21,7 +21,7 @@ from __future__ import annotations
 import enum
 import logging
 import random
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -53,6 +53,10 @@ RUN_SHORT_OVERHEAD = 4
 RUN_SHORT_REPLY_OVERHEAD = 5
 #: largest PING payload
 MAX_PING = 32
+#: programs a bridge with PROGRAM_CODES keeps (codes 0..CODE_SLOTS-1), and their largest size:
+#: a poll (RDRP: 4 bytes, a snapshot: 12) is sent again as a 1-byte code
+CODE_SLOTS = 8
+CODE_BYTES = 12
 #: retries of one request (same ``seq``, same bytes) before the host gives up.  Seven: at 1 % of
 #: bytes faulty (each of drop, corrupt, duplicate, delay at 0.25 %) one attempt of a small RUN
 #: fails about one time in five, so 3 retries leave ~0.15 % of commands failed, 7 leave none
@@ -72,6 +76,8 @@ class FrameType(enum.IntEnum):
     RUN = 0x02
     PING = 0x03
     RUN_SHORT = 0x04  #: RUN without cs and busy timeout (0 and the default); COMPACT_RUN only
+    RUN_STORE = 0x05  #: slot, program: a RUN_SHORT whose program is kept under that code
+    RUN_CODE = 0x06  #: slot: run the program kept under that code (PROGRAM_CODES only)
     HELLO_REPLY = 0x81
     RUN_REPLY = 0x82
     PONG = 0x83
@@ -81,9 +87,14 @@ class FrameType(enum.IntEnum):
 
 #: request type -> the reply type it expects
 REPLY_TO = {FrameType.HELLO: FrameType.HELLO_REPLY, FrameType.RUN: FrameType.RUN_REPLY,
-            FrameType.PING: FrameType.PONG, FrameType.RUN_SHORT: FrameType.RUN_SHORT_REPLY}
-#: other reply types a request may get: a RUN_SHORT that failed is answered as a RUN
-ALSO_REPLY_TO = {FrameType.RUN_SHORT: FrameType.RUN_REPLY}
+            FrameType.PING: FrameType.PONG, FrameType.RUN_SHORT: FrameType.RUN_SHORT_REPLY,
+            FrameType.RUN_STORE: FrameType.RUN_SHORT_REPLY,
+            FrameType.RUN_CODE: FrameType.RUN_SHORT_REPLY}
+#: other reply types a request may get: a compact RUN that failed is answered as a RUN
+ALSO_REPLY_TO = {FrameType.RUN_SHORT: FrameType.RUN_REPLY, FrameType.RUN_STORE: FrameType.RUN_REPLY,
+                 FrameType.RUN_CODE: FrameType.RUN_REPLY}
+#: the compact requests that run a program (a give-up says it may or may not have run)
+RUN_TYPES = frozenset({FrameType.RUN, FrameType.RUN_SHORT, FrameType.RUN_STORE, FrameType.RUN_CODE})
 
 
 class Result(enum.IntEnum):
@@ -93,6 +104,7 @@ class Result(enum.IntEnum):
     PROGRAM_TOO_LONG = 3
     BAD_CHIP_SELECT = 4
     BAD_REQUEST = 5
+    UNKNOWN_CODE = 6  #: RUN_CODE for a code the bridge keeps no program under (nothing ran)
 
 
 class Capability(enum.IntFlag):
@@ -102,6 +114,8 @@ class Capability(enum.IntFlag):
     WAIT_STATUS = 0x08  #: the bridge runs Op.WAIT_STATUS (older bridges: the host polls)
     #: the bridge takes RUN_SHORT (older bridges: every program is a RUN)
     COMPACT_RUN = 0x10
+    #: the bridge keeps CODE_SLOTS programs of up to CODE_BYTES bytes (RUN_STORE, RUN_CODE)
+    PROGRAM_CODES = 0x20
 
 
 #: "index of the failing operation" and "last status byte" when there is none
@@ -121,6 +135,8 @@ def c_defines() -> list[tuple[str, int, str]]:
         ("LINK_RUN_SHORT_REPLY_OVERHEAD", RUN_SHORT_REPLY_OVERHEAD,
          "RUN_SHORT_REPLY bytes around the bytes read"),
         ("LINK_MAX_PING", MAX_PING, "largest PING payload"),
+        ("LINK_CODE_SLOTS", CODE_SLOTS, "programs kept for RUN_CODE"),
+        ("LINK_CODE_BYTES", CODE_BYTES, "largest program kept for RUN_CODE"),
         ("LINK_DEFAULT_BUSY_TIMEOUT_US", FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
          "busy_timeout_us = 0 means this"),
         ("LINK_NONE_BYTE", NONE_BYTE, "no failing op / no status read yet"),
@@ -547,6 +563,11 @@ class LinkTransport(Transport):
         #: use RUN_SHORT where the bridge offers it (False: always RUN, as protocol 1 began)
         self.compact = compact
         self.has_compact_run = False
+        self.has_program_codes = False
+        #: short programs the bridge keeps, by code (RUN_CODE), least recently used first
+        self._codes: OrderedDict[bytes, int] = OrderedDict()
+        #: short programs sent lately (the second time, one gets a code)
+        self._recent: OrderedDict[bytes, None] = OrderedDict()
         self.retries = retries
         self.baud = baud
         self.cs = cs
@@ -690,7 +711,7 @@ class LinkTransport(Transport):
         if ftype is FrameType.HELLO:
             raise self._no_answer(what, attempts)
         self._need_resync = True  # the bridge may hold this seq in its cache
-        if ftype is not FrameType.RUN and ftype is not FrameType.RUN_SHORT:
+        if ftype not in RUN_TYPES:
             raise self._no_answer(what, attempts)
         raise LinkError(
             f"no valid answer to {what} after {attempts} attempt(s) "
@@ -752,6 +773,7 @@ class LinkTransport(Transport):
                 f"{self.retries + 1} times): nothing was sent to the chip; {self._quality()}.",
                 port=self.url, may_have_run=False) from None
         self._need_resync = False
+        self._forget_codes()  # HELLO emptied the bridge's codes
 
     # ------------------------------------------------------------------ protocol requests
     def hello(self) -> HelloInfo:
@@ -783,6 +805,9 @@ class LinkTransport(Transport):
         self._has_hi = bool(info.capabilities & Capability.HI_LINE)
         self.has_wait_status = bool(info.capabilities & Capability.WAIT_STATUS)
         self.has_compact_run = bool(info.capabilities & Capability.COMPACT_RUN) and self.compact
+        self.has_program_codes = (self.has_compact_run
+                                  and bool(info.capabilities & Capability.PROGRAM_CODES))
+        self._forget_codes()  # HELLO empties the bridge's codes
         return info
 
     def ping(self, data: bytes = b"") -> float:
@@ -856,8 +881,11 @@ class LinkTransport(Transport):
         # defaults (chip select 0, the firmware's busy timeout): 5 fewer bytes a round trip
         short = (self.has_compact_run and self.cs == 0
                  and timeout_us == FIRMWARE_DEFAULT_BUSY_TIMEOUT_US)
+        store: tuple[bytes, int] | None = None
         if short:
             ftype, payload = FrameType.RUN_SHORT, encode_program(ops)
+            if self.has_program_codes and len(payload) <= CODE_BYTES:
+                ftype, payload, store = self._by_code(payload)
         else:
             ftype, payload = FrameType.RUN, run_payload(ops, timeout_us, self.cs)
         req = wire_size(len(payload) + 4)
@@ -882,8 +910,50 @@ class LinkTransport(Transport):
 
         self._exchange(ftype, payload, timeout, f"RUN of {len(ops)} operation(s)",
                        self.retries, check)
+        reply = decoded[-1]
+        if ftype is FrameType.RUN_CODE and reply.result == Result.UNKNOWN_CODE:
+            # the bridge lost its codes (it restarted without the host seeing a HELLO):
+            # nothing ran; forget them all and send the program itself
+            log.info("%s: the bridge keeps no program under code %d: sending it again",
+                     self.url, payload[0])
+            self._forget_codes()
+            return self._run(ops, timeout_us, timeout_s)
+        if store is not None and reply.result == Result.OK:
+            self._codes[store[0]] = store[1]
         # a refused program (BAD_PROGRAM...) is raised by the caller, whatever it carries
-        return decoded[-1]
+        return reply
+
+    def _by_code(self, program: bytes) -> tuple[FrameType, bytes, tuple[bytes, int] | None]:
+        """How to send a short program to a bridge that keeps programs under codes: by its
+        code (RUN_CODE, 1 byte) when the bridge keeps it; the second time it is seen, with a
+        code for it (RUN_STORE: the least recently used code is reused); the first time, as
+        it is (RUN_SHORT: programs that carry changing data are not worth a code).  Returns
+        the frame type, its payload, and (program, code) to remember once it ran."""
+        codes = self._codes
+        code = codes.get(program)
+        if code is not None:
+            codes.move_to_end(program)
+            return FrameType.RUN_CODE, bytes((code,)), None
+        if program not in self._recent:
+            self._recent[program] = None
+            if len(self._recent) > 2 * CODE_SLOTS:
+                self._recent.popitem(last=False)
+            return FrameType.RUN_SHORT, program, None
+        used = set(codes.values())
+        free = [c for c in range(CODE_SLOTS) if c not in used]
+        if free:
+            code = free[0]
+        else:
+            _, code = codes.popitem(last=False)  # the least recently used
+        # until it ran, the bridge may hold either program under this code: forget both
+        for p, c in list(codes.items()):
+            if c == code:
+                del codes[p]
+        return FrameType.RUN_STORE, bytes((code,)) + program, (program, code)
+
+    def _forget_codes(self) -> None:
+        """The bridge forgot its programs (HELLO) or may hold others than we think."""
+        self._codes.clear()
 
     def _account(self, ops: Sequence[BusOp], reply: RunReply) -> None:
         """Bus cycles and busy polls as far as the reply lets us reconstruct them: each busy
@@ -936,7 +1006,7 @@ class LinkTransport(Transport):
 
 
 __all__ = [
-    "BadProgram", "Capability", "DEFAULT_RETRIES", "Frame", "FrameError", "FrameReader",
+    "BadProgram", "CODE_BYTES", "CODE_SLOTS", "Capability", "DEFAULT_RETRIES", "Frame", "FrameError", "FrameReader",
     "FrameType", "HelloInfo", "LinkError", "LinkTransport", "MAX_FRAME", "MAX_WIRE_FRAME", "PROTOCOL_VERSION", "Pipe", "Result",
     "RunReply", "busy_timeout_us", "c_defines", "cobs_decode", "cobs_encode", "crc16", "decode_body",
     "decode_frame", "decode_program", "decode_short_reply", "encode_frame", "encode_program",

@@ -39,7 +39,7 @@ def frames() -> list[tuple[str, bytes]]:
     biggest = Program()
     for i in range(81):
         biggest.write((i * 0x0101) & 0xFF00)  # 0000, 0100, 0200...: zeros in every op
-    info = HelloInfo(firmware=(1, 1, 0), capabilities=0x001F, max_program=243, max_reads=120,
+    info = HelloInfo(firmware=(1, 1, 0), capabilities=0x003F, max_program=243, max_reads=120,
                      chip_selects=1, cpu_hz=16_000_000)
     return [
         ("hello", frame_body(FrameType.HELLO, 0x01)),
@@ -67,6 +67,16 @@ def frames() -> list[tuple[str, bytes]]:
         ("run_short_reply_rdrp", frame_body(
             FrameType.RUN_SHORT_REPLY, 0x10,
             short_reply_payload(rdrp.ops, RunReply(Result.OK, 0xFF, 0xC0, 1, (), (0xFFFF, 0xFC18))))),
+        # programs kept under a code (capability PROGRAM_CODES): RDRP stored as code 3, then
+        # run by its code; both answered as run_short_reply_rdrp (with their own seq)
+        ("run_store_rdrp", frame_body(FrameType.RUN_STORE, 0x11,
+                                      bytes((3,)) + encode_program(rdrp.ops))),
+        ("run_code_rdrp", frame_body(FrameType.RUN_CODE, 0x12, bytes((3,)))),
+        ("run_code_reply_rdrp", frame_body(
+            FrameType.RUN_SHORT_REPLY, 0x12,
+            short_reply_payload(rdrp.ops, RunReply(Result.OK, 0xFF, 0xC0, 1, (), (0xFFFF, 0xFC18))))),
+        ("run_reply_unknown_code", frame_body(
+            FrameType.RUN_REPLY, 0x12, RunReply(Result.UNKNOWN_CODE, 0xFF, 0xFF, 0, (), ()).encode())),
     ]
 
 

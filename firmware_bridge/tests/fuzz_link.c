@@ -63,15 +63,19 @@ static int make_frame(uint8_t *wire)
 {
     uint8_t d[300];
     int n = 2;
-    d[0] = (uint8_t)(rnd() % 5 ? (rnd() % 4) + 1 : rnd());
+    d[0] = (uint8_t)(rnd() % 5 ? (rnd() % 6) + 1 : rnd());
     d[1] = (uint8_t)rnd();
-    if (d[0] == 2 || d[0] == 4) { /* RUN, or RUN_SHORT (the program alone) */
+    if (d[0] == 6) { /* RUN_CODE: a code, now and then out of range */
+        d[n++] = (uint8_t)(rnd() % 10);
+    } else if (d[0] == 2 || d[0] == 4 || d[0] == 5) { /* RUN, RUN_SHORT, RUN_STORE */
+        if (d[0] == 5)
+            d[n++] = (uint8_t)(rnd() % 10);
         if (d[0] == 2) {
             d[n++] = (uint8_t)(rnd() % 8 ? 0 : rnd());
             d[n++] = 0;
             d[n++] = (uint8_t)(rnd() % 200);
         }
-        int ops = (int)(rnd() % 60);
+        int ops = (int)(rnd() % (d[0] == 5 ? 6 : 60)); /* RUN_STORE: mostly short enough to keep */
         for (int i = 0; i < ops && n < 240; i++) {
             uint8_t op = (uint8_t)(rnd() % 20 ? (rnd() % 7) + 1 : rnd());
             d[n++] = op;

@@ -197,12 +197,48 @@ static void test_golden_requests(void)
     n = feed(wire, frame(0x04, 0x12, tprog, sizeof tprog, wire), out);
     CHECK(n > 0 && reply_payload(out, n, 0x82, 0x12, &p) == 5 && p[0] == RESULT_BAD_PROGRAM
           && p[1] == 1 && fake.log_len == 0, "compact RUN with a truncated argument");
+    /* RUN_STORE keeps RDRP under code 3 (and runs it); RUN_CODE 3 runs it again; a HELLO
+     * forgets it: RUN_CODE 3 is then UNKNOWN_CODE, and nothing runs */
+    fake_reset();
+    fake.status = 0xC0;
+    fake.hi = 1;
+    fake.n_data = 4;
+    fake.data[0] = fake.data[2] = 0xFFFF;
+    fake.data[1] = fake.data[3] = 0xFC18;
+    vec_t *st3 = get("run_store_rdrp");
+    n = feed(st3->enc, st3->nenc, out);
+    CHECK(n > 0 && reply_payload(out, n, 0x84, 0x11, &p) == 5 && !memcmp(p, "\xFF\xFF\xFC\x18\xC1", 5),
+          "RUN_STORE of RDRP");
+    uint16_t log_store = fake.log_len;
+    expect_reply("run_code_rdrp", "run_code_reply_rdrp");
+    CHECK(fake.log_len == 2 * log_store, "RUN_CODE did not run the program kept");
+    vec_t *hh = get("hello");
+    feed(hh->enc, hh->nenc, out);
+    uint16_t log_before = fake.log_len;
+    expect_reply("run_code_rdrp", "run_reply_unknown_code");
+    CHECK(fake.log_len == log_before, "an unknown code ran something");
+    /* a code out of range, a program too long to keep: refused, nothing stored or run */
+    uint8_t bad_code[] = {LINK_CODE_SLOTS, 0x01};
+    n = feed(wire, frame(0x05, 0x13, bad_code, sizeof bad_code, wire), out);
+    CHECK(n > 0 && reply_payload(out, n, 0x82, 0x13, &p) == 5 && p[0] == RESULT_UNKNOWN_CODE,
+          "RUN_STORE to a code out of range");
+    uint8_t big[1 + LINK_CODE_BYTES + 1];
+    big[0] = 1;
+    memset(big + 1, 0x01, LINK_CODE_BYTES + 1);
+    n = feed(wire, frame(0x05, 0x14, big, sizeof big, wire), out);
+    CHECK(n > 0 && reply_payload(out, n, 0x82, 0x14, &p) == 5 && p[0] == RESULT_PROGRAM_TOO_LONG
+          && fake.log_len == log_before, "RUN_STORE of a program too long to keep");
+    uint8_t code1[] = {1};
+    n = feed(wire, frame(0x06, 0x15, code1, sizeof code1, wire), out);
+    CHECK(n > 0 && reply_payload(out, n, 0x82, 0x15, &p) == 5 && p[0] == RESULT_UNKNOWN_CODE,
+          "RUN_CODE after a refused RUN_STORE");
     /* unknown request type -> ERROR_REPLY BAD_REQUEST */
-    n = feed(wire, frame(0x05, 0x33, NULL, 0, wire), out);
+    n = feed(wire, frame(0x70, 0x33, NULL, 0, wire), out);
     vec_t *er = get("error_reply");
     CHECK(n == er->nenc && !memcmp(out, er->enc, (size_t)n), "error reply differs");
     printf("requests: HELLO, PING, RUN (AN-693 filter, zero bytes, busy timeout, largest), "
-           "RUN_SHORT (AN-693, RDRP, busy timeout, bad op, truncated), unknown type answered "
+           "RUN_SHORT (AN-693, RDRP, busy timeout, bad op, truncated), RUN_STORE / RUN_CODE "
+           "(kept, run again, forgotten by HELLO, bad code, too long), unknown type answered "
            "as the golden replies\n");
 }
 
