@@ -33,6 +33,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 #: main before issue 12's second round (the CRC table still made by preprocessor macros)
 BASELINE = "26fd81f"
+#: main before issue 12's items 4 and 5 (the serial link, the FT232H): "before" of their rows
+LINK_BASELINE = "7b12192"
+#: the FT232H's limits (issue 12): two 125 us USB microframes + the chip's own time
+FTDI_LIMIT_US = {"rdrp": 253.0, "ltrj_stt": 478.0}
 COMMAND = "python3 tools/bench_all.py --write-readme"
 BEGIN, END = "<!-- bench_all.py: begin -->", "<!-- bench_all.py: end -->"
 
@@ -148,6 +152,47 @@ def _link_wait(url: str, transport=None, seconds: float = 10.0) -> dict:
     return {"bps": (s.bytes_in + s.bytes_out - b0) / t, "round_trips": s.round_trips - r0, "s": t}
 
 
+TRANSPORTS = ("sim+avr://?baud=115200", "sim+avr://?baud=1000000", "sim+ftdi://")
+
+
+def probe_transports() -> dict:
+    """Simulated microseconds per command through the firmware (``sim+avr://``) and the FT232H
+    (``sim+ftdi://``), exact; run on this tree and on the link baseline.  Each command follows
+    a motor-off stop (no STT refused), as a command in a script would; the first 3 of each
+    kind are not counted (a bridge with PROGRAM_CODES keeps a program it has seen twice; an
+    FT232H measures the chip's busy time before its first program); ``first`` is RDRP sent
+    for the first time (its program not kept yet)."""
+    out: dict = {}
+    for url in TRANSPORTS:
+        chip = _chip(url)
+        pos = [1000]
+
+        def timed(fn, n: int = 20, warm: int = 3) -> float:
+            total = 0.0
+            for i in range(warm + n):
+                chip.load_trajectory(stop="off", start=True)  # no refused STT
+                pos[0] = -pos[0]
+                t0 = chip.clock.now()
+                fn()
+                if i >= warm:
+                    total += chip.clock.now() - t0
+            return total / n * 1e6
+
+        first = timed(chip.read_real_position, 1, 0)
+        out[url] = {
+            "first": first,
+            "rdrp": timed(chip.read_real_position),
+            "ltrj_stt": timed(lambda: chip.load_trajectory(
+                acceleration=100, velocity=65536, position=pos[0], start=True)),
+        }
+        s = chip.transport.stats
+        s.reset()
+        chip.read_real_position()
+        out[url]["bytes"] = s.bytes_out + s.bytes_in
+        chip.close()
+    return out
+
+
 def probe_after() -> dict:
     """The figures only measured now: the other transports, the variants of waiting."""
     import lm629_host
@@ -172,27 +217,6 @@ def probe_after() -> dict:
     LinkTransport.__init__(t, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
     out["wait_emu_old_bridge"] = _link_wait("", transport=t)
     out["wait_ftdi"] = _link_wait("sim+ftdi://")  # no far-side wait: the host polls
-
-    # simulated microseconds per command through the firmware and the FT232H
-    for url in ("sim+avr://?baud=115200", "sim+avr://?baud=1000000", "sim+ftdi://"):
-        chip = _chip(url)
-        pos = [1000]
-
-        def timed(fn, n: int = 20) -> float:
-            total = 0.0
-            for _ in range(n):
-                chip.load_trajectory(stop="off", start=True)  # no refused STT
-                pos[0] = -pos[0]
-                t0 = chip.clock.now()
-                fn()
-                total += chip.clock.now() - t0
-            return total / n * 1e6
-
-        out[url] = {
-            "rdrp": timed(chip.read_real_position),
-            "ltrj_stt": timed(lambda: chip.load_trajectory(
-                acceleration=100, velocity=65536, position=pos[0], start=True)),
-        }
 
     # exchanges per typed command: bridge round trips (sim+emu://), FT232H USB transfer pairs
     for url in ("sim+emu://", "sim+ftdi://"):
@@ -362,12 +386,23 @@ def rows(before: dict, after: dict, extra: dict, builds: dict) -> list[tuple[str
          f"{before['record_mb']:.1f} MB (unbounded)", f"{after['record_mb']:.1f} MB "
          "(a window of 10,000: `record_window=`)", "bounded"),
     ]
-    for url, name in (("sim+avr://?baud=115200", "`sim+avr://` 115200 baud"),
-                      ("sim+avr://?baud=1000000", "`sim+avr://` 1,000,000 baud"),
-                      ("sim+ftdi://", "`sim+ftdi://` (emulated FT232H)")):
-        e = extra[url]
-        r.append((f"{name}: RDRP / LTRJ(6)+STT, simulated", "-",
-                  f"{e['rdrp']:.0f} us / {e['ltrj_stt']:.0f} us", "next round"))
+    tb, ta = builds["transports_before"], builds["transports_after"]
+    for url, name, target in (
+            ("sim+avr://?baud=115200", "`sim+avr://` 115200 baud", ""),
+            ("sim+avr://?baud=1000000", "`sim+avr://` 1,000,000 baud", "RDRP <= 300 us"),
+            ("sim+ftdi://", "`sim+ftdi://` (emulated FT232H)",
+             "<= 1.3x / 1.5x of 253 / 478 us (329 / 717)")):
+        b, a = tb[url], ta[url]
+        ratio = ""
+        if url == "sim+ftdi://":
+            ratio = (f" ({a['rdrp'] / FTDI_LIMIT_US['rdrp']:.2f}x / "
+                     f"{a['ltrj_stt'] / FTDI_LIMIT_US['ltrj_stt']:.2f}x of the limits)")
+        first = f"; RDRP whose program is new to the bridge {a['first']:.0f} us" \
+            if url.startswith("sim+avr") else ""
+        r.append((f"{name}: RDRP / LTRJ(6)+STT, simulated (bytes of one RDRP round trip)",
+                  f"{b['rdrp']:.0f} us / {b['ltrj_stt']:.0f} us ({b['bytes']} B)",
+                  f"{a['rdrp']:.0f} us / {a['ltrj_stt']:.0f} us ({a['bytes']} B){ratio}{first}",
+                  target))
     if "fresh" in builds:
         (bw, bm, bs), (aw, am, as_) = builds["fresh"]
         r.append((f"test run of a fresh clone (`pytest -q` after `pip install -e '.[test]'`, "
@@ -396,12 +431,14 @@ def _counts(d: dict) -> str:
             f"{b['bus_cycles']:.0f}, {b['busy_polls']:.0f}, {b['sim_us']:.2f}")
 
 
-def render(table: list[tuple[str, str, str, str]], date: str, ref: str, bad: list[str]) -> str:
+def render(table: list[tuple[str, str, str, str]], date: str, ref: str, bad: list[str],
+           link_ref: str = LINK_BASELINE) -> str:
     lines = [
         BEGIN,
         f"Measured {date} by `{COMMAND}` (this table is its output: run it again to refresh);",
-        f"\"before\" is commit {ref} measured in the same run. Wall-clock figures are medians of",
-        "3 on a shared 2-core machine (+/- 30 %); simulated figures are exact.",
+        f"\"before\" is commit {ref} measured in the same run ({link_ref} for the `sim+avr://` and",
+        "`sim+ftdi://` rows). Wall-clock figures are medians of 3 on a shared 2-core machine",
+        "(+/- 30 %); simulated figures are exact.",
         "",
         "| figure | before | after | target |",
         "|---|---|---|---|",
@@ -447,13 +484,15 @@ def main() -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--write-readme", action="store_true")
     ap.add_argument("--baseline", default=BASELINE)
+    ap.add_argument("--link-baseline", default=LINK_BASELINE,
+                    help="'before' of the sim+avr:// and sim+ftdi:// rows (default %(default)s)")
     ap.add_argument("--fresh-clone", action="store_true",
                     help="also time the test run of a fresh clone, before and after (minutes)")
     ap.add_argument("--probe", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.probe:
-        print(json.dumps({"core": probe_core, "cost": probe_cost,
-                          "after": probe_after}[args.probe]()))
+        print(json.dumps({"core": probe_core, "cost": probe_cost, "after": probe_after,
+                          "transports": probe_transports}[args.probe]()))
         return 0
 
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -468,6 +507,12 @@ def main() -> int:
         print("probes, before and after ...", file=sys.stderr)
         before = run_probe("core", old)
         after = run_probe("core", ROOT)
+        with tempfile.TemporaryDirectory() as tmp2:
+            link_old = Path(tmp2)
+            print(f"unpacking the link baseline {args.link_baseline} ...", file=sys.stderr)
+            unpack(args.link_baseline, link_old)
+            builds["transports_before"] = run_probe("transports", link_old)
+        builds["transports_after"] = run_probe("transports", ROOT)
         runs: dict[str, list[dict]] = {"before": [], "after": []}
         for _ in range(3):  # in turn, so that both see the same load
             runs["before"].append(run_probe("cost", old))
@@ -485,7 +530,8 @@ def main() -> int:
     bad, last = run_others()
     builds["size"] = firmware_size()
     builds["soak"] = last.get("fault_soak.py", "?")
-    block = render(rows(before, after, extra, builds), date, args.baseline, bad)
+    block = render(rows(before, after, extra, builds), date, args.baseline, bad,
+                   args.link_baseline)
     print(block)
     if args.write_readme:
         write_readme(block)
