@@ -33,6 +33,7 @@ import lm629_host
 from .bringup import BringupOptions, StepResult, run_bringup
 from .capture import PlotUnavailable, capture_move, summary, write_csv, write_png
 from .cli_calc import calc
+from .cli_tune import tune as _tune
 from .cli_safety import STOP_NOTE, stop_on_error
 from .errors import (
     BusyTimeout,
@@ -736,6 +737,7 @@ def step(distance: int, kp: int | None, ki: int | None, kd: int | None, il: int 
     """Record a step (or, with --vel/--acc, a move) of DISTANCE counts: CSV and PNG of desired
     and actual position over time, for tuning (AN-706 figure 11)."""
     from .capture import STEP_ACCELERATION, STEP_VELOCITY
+    from .plot import plot_capture
     filt = {k: v for k, v in dict(kp=kp, ki=ki, kd=kd, il=il,
                                   derivative_interval=ds).items() if v is not None}
     s = _session()
@@ -750,7 +752,7 @@ def step(distance: int, kp: int | None, ki: int | None, kd: int | None, il: int 
         return
     png = png_path or os.path.splitext(csv_path)[0] + ".png"
     try:
-        click.echo(f"wrote {write_png(cap, png)}")
+        click.echo(f"wrote {plot_capture(cap, png, lines=s.lines)}")
     except PlotUnavailable as exc:
         click.echo(f"lm629: {exc}", err=True)
 
@@ -864,6 +866,7 @@ def doctor() -> None:
 
 
 main.add_command(calc)
+main.add_command(_tune)  # lm629 tune (lm629_host/cli_tune.py)
 
 try:  # the serial-bridge groups: `lm629 bridge list|flash`, `lm629 sim serve`
     from .cli_bridge import bridge as _bridge

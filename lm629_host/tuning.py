@@ -343,7 +343,8 @@ class TuneResult:
 class _Session:
     """The experiments on the chip, each position read checked against the travel band."""
 
-    def __init__(self, chip: LM629, travel: int, poll_s: float, progress: Progress):
+    def __init__(self, chip: LM629, travel: int, poll_s: float, progress: Progress,
+                 clock_hz: float | None = None):
         self.chip = chip
         self.travel = travel
         self.poll_s = poll_s
@@ -352,7 +353,7 @@ class _Session:
         self.positions: list[int] = []
         first = chip.snapshot()
         self.origin = first.desired_position
-        self.sample_s = SAMPLE_CLOCKS / _clock_hz(chip)
+        self.sample_s = SAMPLE_CLOCKS / (clock_hz or _clock_hz(chip))
         self.records: list[Record] = []
         self.driving = False  #: an STT of ours turned the drive on (reset leaves it off)
         self.check(first)
@@ -385,7 +386,11 @@ class _Session:
             raise self.fault(MotionError.MOTOR_OFF, "the drive was found off during tuning", s)
 
     def snap(self) -> Snapshot:
+        """A snapshot timed at the middle of its bus program (on a bridge the reads happen
+        during the round trip, not at its end), checked."""
+        t0 = self.chip.clock.now()
         s = self.chip.snapshot()
+        s = replace(s, time=(t0 + s.time) / 2)
         self.check(s)
         return s
 
@@ -443,6 +448,7 @@ class _Session:
 
 
 def _clock_hz(chip: LM629) -> float:
+    """The simulated chip's clock, else the usual 8 MHz."""
     model = getattr(chip.transport, "model", None)
     return float(getattr(model, "clock_hz", 8_000_000))
 
@@ -740,7 +746,7 @@ def measure_move(chip: LM629, gains: Gains | None, *, distance: int, travel: int
 # ---------------------------------------------------------------------------------- autotune
 def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance: int = 2,
              before: Gains | None = None, duration_s: float = 0.4, poll_s: float = 1e-3,
-             progress: Progress | None = None) -> TuneResult:
+             clock_hz: float | None = None, progress: Progress | None = None) -> TuneResult:
     """Find, check and apply PID gains for the axis, inside ``+/- travel`` counts of where the
     shaft is now.
 
@@ -749,7 +755,8 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
     move with first, for comparison (``TuneResult.before``; the chip cannot report the gains it
     has, so they are named); ``duration_s``: seconds recorded after each
     step of the test move; ``poll_s``: seconds between snapshots (on a bridge at least a round
-    trip).  Raises :class:`MotionError` (motor stopped: abrupt stop, then motor off) on a
+    trip); ``clock_hz``: the chip's clock (default: the simulator's, else 8 MHz); ``progress``
+    gets a line per stage.  Raises :class:`MotionError` (motor stopped: abrupt stop, then motor off) on a
     phasing fault (RUNAWAY, with the swap-the-leads advice), a shaft that would leave the band
     (RUNAWAY), a position error, a stall; ``ValueError`` for bad arguments before any bus cycle.
     """
@@ -765,7 +772,7 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
     say = progress or (lambda text: None)
     if chip.is_moving():
         raise ValueError("the motor is moving: tuning starts from rest (`lm629 stop` first)")
-    ses = _Session(chip, travel, poll_s, say)
+    ses = _Session(chip, travel, poll_s, say, clock_hz)
     try:
         chip.load_position_error(min(COEFFICIENT_MAX, travel), stop=True)
         # 1 phasing, gentle
