@@ -352,7 +352,10 @@ class _Session:
         self.model: AxisModel | None = None
         self.positions: list[int] = []
         first = chip.snapshot()
-        self.origin = first.desired_position
+        # the band is around where the shaft is: the desired position while the loop holds
+        # it, the real one while the drive is off (after a reset, or a stop with motor off)
+        self.drive_off = bool(first.signals & Signals.MOTOR_OFF)
+        self.origin = first.real_position if self.drive_off else first.desired_position
         self.sample_s = SAMPLE_CLOCKS / (clock_hz or _clock_hz(chip))
         self.records: list[Record] = []
         self.driving = False  #: an STT of ours turned the drive on (reset leaves it off)
@@ -420,8 +423,11 @@ class _Session:
         return s
 
     def rest(self, limit_s: float) -> Snapshot:
-        """Wait (at most ``limit_s``) until the shaft has stood still for 10 polls."""
+        """Wait (at most ``limit_s``) until the shaft has stood still for 10 polls; first turn
+        the drive on, holding the origin, if it is off (a load would pull the shaft away)."""
         rec = Record("rest", None)
+        if not self.driving and self.drive_off:
+            self.step_to(rec, self.origin)
         rec.rows.append(self.snap())
         return self.settle(rec, limit_s)
 
