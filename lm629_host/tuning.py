@@ -35,7 +35,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from .cli_safety import emergency_stop
+from .cli_safety import STOP_NOTE, emergency_stop, stop_on_error
 from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
@@ -366,7 +366,7 @@ class _Session:
         err = MotionError(reason, f"{message} -- {note}",
                           position=None if snap is None else snap.real_position,
                           error=None if snap is None else snap.following_error)
-        err.lm629_stop_note = note  # type: ignore[attr-defined]  (the CLI prints it once)
+        setattr(err, STOP_NOTE, note)  # stop_on_error and the CLI: stopped once, said once
         return err
 
     def check(self, s: Snapshot) -> None:
@@ -740,13 +740,8 @@ def measure_move(chip: LM629, gains: Gains | None, *, distance: int, travel: int
     """The tuner's test move (a step of ``distance`` counts out and back) with ``gains``
     (None: as loaded), guarded like the tuning experiments; the worse of the two moves."""
     ses = _Session(chip, travel, poll_s, lambda text: None)
-    try:
+    with stop_on_error(chip):
         return _test_move(ses, "test", gains, distance, duration_s, tolerance)
-    except MotionError:
-        raise
-    except BaseException:
-        emergency_stop(chip)
-        raise
 
 
 # ---------------------------------------------------------------------------------- autotune
@@ -779,7 +774,7 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
     if chip.is_moving():
         raise ValueError("the motor is moving: tuning starts from rest (`lm629 stop` first)")
     ses = _Session(chip, travel, poll_s, say, clock_hz)
-    try:
+    with stop_on_error(chip):  # Ctrl-C, link faults: motor stopped first
         chip.load_position_error(min(COEFFICIENT_MAX, travel), stop=True)
         # 1 phasing, gentle
         _phasing(ses, max(8, travel // 8), 0.3)
@@ -803,13 +798,6 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
         # 5 check
         measured, _rec = _test_move(ses, "after", gains, distance, duration_s, tolerance)
         say(f"measured: {measured.line()}")
-    except MotionError:
-        raise
-    except BaseException:
-        emergency_stop(chip)
-        raise
-    finally:
-        pass
     chip.load_position_error(COEFFICIENT_MAX)  # the tuning limit off again (reset's value)
     return TuneResult(gains.kp, gains.ki, gains.kd, gains.il, gains.ds, model, ses.sample_s,
                       ses.origin, travel, distance, tolerance, predicted, measured, measured_before,

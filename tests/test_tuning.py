@@ -254,3 +254,21 @@ def test_step_command_draws_with_the_new_plot(run, tmp_path):
     r = run("--lines", "500", "step", "300", "--kp", "100", "--kd", "1000", "--csv", str(csv))
     assert r.exit_code == 0, r.stderr
     assert (tmp_path / "step.png").stat().st_size > 10_000
+
+
+def test_ctrl_c_while_tuning_stops_the_motor():
+    """A KeyboardInterrupt in the middle of the identification (the 150th position read)
+    goes on to the caller after the motor was stopped (abrupt stop, then motor off)."""
+    w = Watched("sim://")
+    real = w.chip.snapshot
+
+    def snapshot():
+        if len(w.positions) == 150:
+            raise KeyboardInterrupt
+        return real()
+    w.chip.snapshot = snapshot  # type: ignore[method-assign]
+    with pytest.raises(KeyboardInterrupt) as err:
+        autotune(w.chip, travel=TRAVEL)
+    assert "motor stopped" in getattr(err.value, "lm629_stop_note")
+    assert w.chip.read_signals() & Signals.MOTOR_OFF
+    w.chip.close()
