@@ -131,7 +131,8 @@ class PidState:
 
 
 def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: float,
-             w0: float = 0.0, state: PidState | None = None) -> tuple[list[int], list[int]]:
+             w0: float = 0.0, state: PidState | None = None,
+             skip_ahead: bool = True) -> tuple[list[int], list[int]]:
     """Predict ``len(desired)`` samples: (encoder counts, output codes) at each sample.
 
     Each sample in the chip's order: the motor runs one sample on the output held since the
@@ -139,7 +140,8 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
     ``desired[n] - count`` (AN-706 5.2.3-5.2.5: 16-bit error, 16-bit products saturating,
     24-bit sum whose top 16 bits multiply ki, limited to il, derivative every ds + 1 samples
     and held, 16-bit sum, top 8 or 12 bits out).  ``tests/test_tuning.py`` checks this
-    arithmetic against the chip model's filter.
+    arithmetic against the chip model's filter.  ``skip_ahead``: while the shaft is stuck and
+    nothing in the filter can change, jump to the next change of the desired position.
     """
     st = state or PidState()
     kp, ki, kd, il, ds = gains.kp, gains.ki, gains.kd, gains.il, gains.ds
@@ -155,8 +157,15 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
     outs: list[int] = []
     floor = math.floor
     total_n = len(desired)
-    last_change = next((k for k in range(total_n - 1, 0, -1) if desired[k - 1] != desired[k]), 0)
-    for i, target in enumerate(desired):  # noqa: B007 (i: the skip-ahead)
+    # where the desired position changes next, for each run of equal values (skip-ahead)
+    changes = [k for k in range(1, total_n) if desired[k - 1] != desired[k]] + [total_n]
+    next_change = 0
+    i = -1
+    while i + 1 < total_n:
+        i += 1
+        target = desired[i]
+        while changes[next_change] <= i:
+            next_change += 1
         # motor, one sample (as a DC motor with dry friction: exact between sticking points)
         drive = out * g - d
         stuck = False
@@ -206,12 +215,15 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
         held_out = out
         out = u >> shift
         outs.append(out)
-        if stuck and out == held_out and e == elast and dterm == 0 and (ki == 0 or e == 0) \
-                and last_change <= i < total_n - 1:
-            # nothing can change any more (the chip model's skip-ahead, for the same reason)
-            counts.extend([n] * (total_n - i - 1))
-            outs.extend([out] * (total_n - i - 1))
-            break
+        if skip_ahead and stuck and out == held_out and e == elast and dterm == 0 \
+                and (ki == 0 or e == 0):
+            # nothing changes until the desired position does (the chip model's skip-ahead,
+            # for the same reason)
+            skip = changes[next_change] - i - 1
+            counts.extend([n] * skip)
+            outs.extend([out] * skip)
+            countdown = (countdown - skip) % (ds + 1)  # the derivative keeps its phase
+            i += skip
     st.esum, st.elast, st.dterm, st.countdown, st.out = esum, elast, dterm, countdown, out
     return counts, outs
 

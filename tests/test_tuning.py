@@ -272,3 +272,16 @@ def test_ctrl_c_while_tuning_stops_the_motor():
     assert "motor stopped" in getattr(err.value, "lm629_stop_note")
     assert w.chip.read_signals() & Signals.MOTOR_OFF
     w.chip.close()
+
+
+def test_predictor_skip_ahead_changes_nothing():
+    """The predictor skips samples while nothing can change (shaft stuck by dry friction,
+    output steady, desired position standing); sample by sample gives the same counts and
+    outputs, including the derivative's phase after the skip (interval 4)."""
+    m = AxisModel(accel=0.09, rate=0.0101, coulomb=0.002, load=0.0005)
+    plan = [0] * 50 + [300] * 1500 + [-200] * 1500 + [-190] * 300
+    for g in (Gains(kp=60, kd=900, ds=3), Gains(kp=150, ki=30, kd=2000, il=3000, ds=1)):
+        fast = simulate(m, g, plan, x0=0.5, state=PidState())
+        slow = simulate(m, g, plan, x0=0.5, state=PidState(), skip_ahead=False)
+        assert fast == slow
+        assert fast[0][1549] > 250 and fast[0][-1] < -150  # it did move (and then stuck)
