@@ -590,7 +590,7 @@ def _nelder_mead(f: Callable[[list[float]], float], x0: list[float], steps: list
 
 
 def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
-              iters: int = 120) -> tuple[AxisModel, float]:
+              iters: int = 60) -> tuple[AxisModel, float]:
     """Fit an :class:`AxisModel` to an identification record; returns (model, rms counts)."""
     t_last = rec.rows[-1].time - rec.t0
     n = int(t_last / sample_s) + 2
