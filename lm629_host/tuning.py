@@ -435,13 +435,21 @@ class _Session:
         return s
 
     def rest(self, limit_s: float) -> Snapshot:
-        """Wait (at most ``limit_s``) until the shaft has stood still for 10 polls; first turn
-        the drive on, holding the origin, if it is off (a load would pull the shaft away)."""
+        """Wait until the shaft has stood still for 10 polls, or raise TIMEOUT after
+        ``limit_s``; first turn the drive on, holding the origin, if it is off (a load would
+        pull the shaft away)."""
         rec = Record("rest", None)
         if not self.driving and self.drive_off:
             self.step_to(rec, self.origin)
         rec.rows.append(self.snap())
-        return self.settle(rec, limit_s)
+        s, still = self.settle(rec, limit_s)
+        if not still:
+            raise self.fault(MotionError.TIMEOUT,
+                             f"the shaft did not come to rest within {limit_s:g} s (it is "
+                             f"{s.real_position - self.origin:+d} counts from the start, moving "
+                             f"{s.real_velocity:+d} counts/sample): an oscillation or a load "
+                             "that keeps moving it: check the mechanics and the gains loaded", s)
+        return s
 
     def begin(self, name: str, gains: Gains | None) -> Record:
         rec = Record(name, gains)
@@ -451,18 +459,22 @@ class _Session:
         self.records.append(rec)
         return rec
 
-    def settle(self, rec: Record, limit_s: float, quiet: int = 10) -> Snapshot:
-        """Record until the shaft has not moved for ``quiet`` polls (at most ``limit_s``)."""
+    def settle(self, rec: Record, limit_s: float, quiet: int = 10) -> tuple[Snapshot, bool]:
+        """Record until the shaft has stayed within a count of one place for ``quiet`` polls
+        (an encoder edge may flicker), at most ``limit_s``; (last snapshot, came to rest)."""
         still = 0
-        last = rec.rows[-1]
+        anchor = rec.rows[-1].real_position
 
         def watch(s: Snapshot) -> bool:
-            nonlocal still, last
-            still = still + 1 if s.real_position == last.real_position else 0
-            last = s
+            nonlocal still, anchor
+            if abs(s.real_position - anchor) <= 1:
+                still += 1
+            else:
+                still, anchor = 0, s.real_position
             return still >= quiet
 
-        return self.record(rec, limit_s, watch)
+        last = self.record(rec, limit_s, watch)
+        return last, still >= quiet
 
 
 def _clock_hz(chip: LM629) -> float:
@@ -519,7 +531,7 @@ def _identify_run(ses: _Session, step: int, hold_s: float) -> Record:
     g = Gains(kp)
     ses.progress(f"identify: P-only steps of {step:+d} counts out and back at kp={kp}")
     ses.load(g)
-    ses.rest(2.0)  # the fit starts from a shaft at rest
+    ses.rest(3.0)  # the fit starts from a shaft at rest
     rec = ses.begin("identify", g)
     rec.state0 = PidState(elast=rec.rows[0].following_error,
                           out=(kp * rec.rows[0].following_error) >> 8)
@@ -733,7 +745,7 @@ def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, dur
                tolerance: int) -> tuple[MoveMetrics, Record]:
     if gains is not None:
         ses.load(gains)
-    ses.rest(2.0)  # both test moves start from rest at the origin
+    ses.rest(3.0)  # both test moves start from rest at the origin
     rec = ses.begin(name, gains)
     worst = None
     for target in (ses.origin + distance, ses.origin):
@@ -769,9 +781,13 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
     has, so they are named); ``duration_s``: seconds recorded after each
     step of the test move; ``poll_s``: seconds between snapshots (on a bridge at least a round
     trip); ``clock_hz``: the chip's clock (default: the simulator's, else 8 MHz); ``progress``
-    gets a line per stage.  Raises :class:`MotionError` (motor stopped: abrupt stop, then motor off) on a
-    phasing fault (RUNAWAY, with the swap-the-leads advice), a shaft that would leave the band
-    (RUNAWAY), a position error, a stall; ``ValueError`` for bad arguments before any bus cycle.
+    gets a line per stage.
+
+    On success the gains are loaded and applied (LFIL + UDF) and the following-error limit
+    armed for tuning is put back to the reset value (7FFF, flag only: LPEI).  Raises
+    :class:`MotionError` (motor stopped: abrupt stop, then motor off) on a phasing fault (RUNAWAY, with the swap-the-leads advice), a shaft that would leave the band
+    (RUNAWAY), a position error, a stall, a shaft that does not come to rest (TIMEOUT);
+    ``ValueError`` for bad arguments before any bus cycle.
     """
     travel = check_int("travel", travel, 100, 1 << 28)
     if distance is None:

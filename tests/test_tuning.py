@@ -285,3 +285,17 @@ def test_predictor_skip_ahead_changes_nothing():
         slow = simulate(m, g, plan, x0=0.5, state=PidState(), skip_ahead=False)
         assert fast == slow
         assert fast[0][1549] > 250 and fast[0][-1] < -150  # it did move (and then stuck)
+
+
+def test_a_shaft_that_never_rests_is_a_timeout():
+    """kp = 30000 P-only against a load with no friction to damp it: the loop limit-cycles
+    around the hold position and never stands still for 10 polls; the test move waits at
+    most 3 s for rest before it starts, then stops the motor and says so."""
+    from lm629_host.tuning import measure_move
+    w = Watched("sim://?coulomb=0&friction=0&load_torque=0.001")
+    with pytest.raises(MotionError) as err:
+        measure_move(w.chip, Gains(kp=30000), distance=1000, travel=2000)
+    assert err.value.reason == MotionError.TIMEOUT and "did not come to rest" in str(err.value)
+    assert w.chip.read_signals() & Signals.MOTOR_OFF
+    assert w.in_band(2000)
+    w.chip.close()
