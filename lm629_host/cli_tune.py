@@ -48,7 +48,7 @@ def _plot(result: TuneResult, path: str, lines: int | None) -> str:
         rec = result.record(name)
         if rec is None or not rec.steps:
             continue
-        t, _real, _des, start, target = rec.segment(0)
+        _t, _real, _des, start, target = rec.segment(0)
         t_k = rec.steps[0][0]
         rows = [s for s in rec.rows if s.time <= (rec.steps[1][0] if len(rec.steps) > 1
                                                    else float("inf"))]
@@ -112,8 +112,8 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
     click.echo(f"gains: {result.gains} (loaded and applied: LFIL + UDF)")
     click.echo(f"set them again with:  {result.gains.cli()}")
     if scale is not None:
-        click.echo(f"({scale.counts_per_rev} counts/rev: travel {travel / scale.counts_per_rev:.3f} "
-                   "rev)")
+        click.echo(f"({scale.counts_per_rev} counts/rev: travel "
+                   f"{travel / scale.counts_per_rev:.3f} rev)")
     if plot_path:
         try:
             click.echo(f"wrote {_plot(result, plot_path, s.lines)}")

@@ -114,8 +114,8 @@ class AxisModel:
         return (f"acceleration at full output {a:,.0f} counts/s^2, time constant "
                 f"{sample_s / max(self.rate, 1e-12) * 1e3:.1f} ms, top speed "
                 f"{self.accel / max(self.rate, 1e-12) / sample_s:,.0f} counts/s, dry friction "
-                f"{self.coulomb / self.accel * 100:.1f} % and load {self.load / self.accel * 100:+.1f} "
-                "% of full output")
+                f"{self.coulomb / self.accel * 100:.1f} % and load "
+                f"{self.load / self.accel * 100:+.1f} % of full output")
 
 
 @dataclass
@@ -785,9 +785,10 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
 
     On success the gains are loaded and applied (LFIL + UDF) and the following-error limit
     armed for tuning is put back to the reset value (7FFF, flag only: LPEI).  Raises
-    :class:`MotionError` (motor stopped: abrupt stop, then motor off) on a phasing fault (RUNAWAY, with the swap-the-leads advice), a shaft that would leave the band
-    (RUNAWAY), a position error, a stall, a shaft that does not come to rest (TIMEOUT);
-    ``ValueError`` for bad arguments before any bus cycle.
+    :class:`MotionError` (motor stopped: abrupt stop, then motor off) on a phasing fault
+    (RUNAWAY, with the swap-the-leads advice), a shaft that would leave the band (RUNAWAY), a
+    position error, a stall, a shaft that does not come to rest (TIMEOUT); ``ValueError`` for
+    bad arguments before any bus cycle.
     """
     travel = check_int("travel", travel, 100, 1 << 28)
     if distance is None:

@@ -199,7 +199,8 @@ def test_cli_tune_prints_gains_and_the_filter_line_and_plots(run, tmp_path):
     assert r.exit_code == 0, r.output + r.stderr
     line = next(ln for ln in r.output.splitlines() if ln.startswith("set them again with:"))
     words = line.split()
-    gains = {words[i][2:]: int(words[i + 1]) for i in range(len(words)) if words[i].startswith("--")}
+    gains = {words[i][2:]: int(words[i + 1]) for i in range(len(words))
+             if words[i].startswith("--")}
     assert set(gains) == {"kp", "ki", "kd", "il", "ds"}
     assert "before (kp=20" in r.output and "tuned, measured:" in r.output
     assert "phasing" in r.stderr  # progress while it works
