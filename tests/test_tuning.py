@@ -110,6 +110,8 @@ MOTORS = {
     "default": "",
     "10x inertia": "inertia=4e-5",
     "holding load": "load_torque=0.004",
+    "low friction": "friction=2e-7&coulomb=2e-5",
+    "slow amplifier": "amp_volts=3",
 }
 
 
