@@ -281,11 +281,13 @@ def step_metrics(times: Sequence[float], positions: Sequence[int], desired: Sequ
 
 def score(m: MoveMetrics, horizon_s: float, tolerance: int) -> float:
     """Smaller is better: settle time, plus overshoot (a settle-time-equivalent penalty),
-    plus a large penalty for a final error outside the tolerance."""
+    plus a large penalty for a final error outside the tolerance and a small one for each
+    count beyond half of it (a margin for what the model does not know)."""
     settle = horizon_s * 2 if m.settle_s is None else m.settle_s
     over = max(0, m.overshoot - tolerance) / max(abs(m.distance), 1)
     miss = max(0, abs(m.final_error) - tolerance)
-    return settle * (1 + 8 * over) + horizon_s * (over + miss)
+    margin = max(0, abs(m.final_error) - tolerance // 2)  # prefer ending well inside
+    return settle * (1 + 8 * over) + horizon_s * (over + miss + 0.05 * margin)
 
 
 # ---------------------------------------------------------------------------------- records
@@ -705,20 +707,17 @@ def test_duration(model: AxisModel, distance: int, sample_s: float, at_least: fl
 
 def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
            sample_s: float) -> tuple[Gains, MoveMetrics]:
-    """Gains for the test move: PD candidates by pole placement screened on the model (one
-    way, two thirds of the horizon), integral variants of the best six, then the six best
-    overall judged by their worst score on the model and three variants of it."""
+    """Gains for the test move: PD candidates by pole placement screened on the model (out
+    and back, two thirds of the horizon); the ten best and integral variants of the best
+    four are then judged by their worst score on the model and three variants of it."""
     horizon = int(horizon_s / sample_s)
     quick = max(200, horizon * 2 // 3)
 
-    def one_way(g: Gains) -> float:
-        counts, _ = simulate(model, g, [distance] * quick, x0=0.5, state=PidState())
-        m = step_metrics(range(1, quick + 1), counts, [distance] * quick, 0, distance,
-                         tolerance)
-        return score(m, quick, tolerance)
+    def screen(g: Gains) -> float:
+        return score(predict_move(model, g, distance, quick, tolerance), quick, tolerance)
 
-    pd = sorted(_pd_candidates(model), key=one_way)
-    ranked = pd[:8] + [g for p in pd[:4] for g in _with_integral(model, p)]
+    pd = sorted(_pd_candidates(model), key=screen)
+    ranked = pd[:10] + [g for p in pd[:4] for g in _with_integral(model, p)]
     # robustness: 30 % lighter and 40 % heavier, and a fifth of the dry friction (a fit
     # rarely pins friction down; less of it lets the shaft creep to the dead band's edge)
     variants = (model.scaled(0.7), model.scaled(1.4), replace(model, coulomb=model.coulomb / 5))
