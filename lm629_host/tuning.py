@@ -239,6 +239,7 @@ class MoveMetrics:
     settle_s: float | None  #: first time after which the shaft stays within the tolerance
     rise_s: float | None  #: 10 % -> 90 % of the distance
     peak_following_error: int  #: largest |desired - real| (a step: about the distance)
+    hunt: int = 0  #: counts peak to peak over the last quarter of the record (hunting at rest)
 
     def worst(self, other: MoveMetrics) -> MoveMetrics:
         settle = None if self.settle_s is None or other.settle_s is None else \
@@ -247,13 +248,15 @@ class MoveMetrics:
                                                                              other.rise_s)
         return MoveMetrics(self.distance, max(self.final_error, other.final_error, key=abs),
                            max(self.overshoot, other.overshoot), settle, rise,
-                           max(self.peak_following_error, other.peak_following_error, key=abs))
+                           max(self.peak_following_error, other.peak_following_error, key=abs),
+                           max(self.hunt, other.hunt))
 
     def line(self) -> str:
         settle = "never" if self.settle_s is None else f"{self.settle_s * 1e3:.1f} ms"
         rise = "-" if self.rise_s is None else f"{self.rise_s * 1e3:.1f} ms"
+        hunt = f", hunting {self.hunt} counts peak to peak at rest" if self.hunt else ""
         return (f"final error {self.final_error:+d}, overshoot {self.overshoot}, settle {settle}, "
-                f"rise {rise}, peak following error {self.peak_following_error:+d} counts")
+                f"rise {rise}, peak following error {self.peak_following_error:+d} counts{hunt}")
 
 
 def step_metrics(times: Sequence[float], positions: Sequence[int], desired: Sequence[int],
@@ -275,19 +278,22 @@ def step_metrics(times: Sequence[float], positions: Sequence[int], desired: Sequ
     if t10 is not None and t90 is not None:
         rise = t90 - t10
     pfe = max((dsr - p for dsr, p in zip(desired, positions)), key=abs, default=0)
+    tail = [p for t, p in zip(times, positions) if t >= 0.75 * times[-1]] if times else []
+    hunt = max(tail) - min(tail) if tail else 0
     return MoveMetrics(dist, target - positions[-1] if positions else dist, overshoot, settle,
-                       rise, pfe)
+                       rise, pfe, hunt)
 
 
 def score(m: MoveMetrics, horizon_s: float, tolerance: int) -> float:
     """Smaller is better: settle time, plus overshoot (a settle-time-equivalent penalty),
     plus a large penalty for a final error outside the tolerance and a small one for each
-    count beyond half of it (a margin for what the model does not know)."""
+    count beyond half of it (a margin for what the model does not know) and for each count
+    of hunting at rest."""
     settle = horizon_s * 2 if m.settle_s is None else m.settle_s
     over = max(0, m.overshoot - tolerance) / max(abs(m.distance), 1)
     miss = max(0, abs(m.final_error) - tolerance)
     margin = max(0, abs(m.final_error) - tolerance // 2)  # prefer ending well inside
-    return settle * (1 + 8 * over) + horizon_s * (over + miss + 0.05 * margin)
+    return settle * (1 + 8 * over) + horizon_s * (over + miss + 0.05 * (margin + m.hunt))
 
 
 # ---------------------------------------------------------------------------------- records
@@ -462,21 +468,18 @@ class _Session:
         return rec
 
     def settle(self, rec: Record, limit_s: float, quiet: int = 10) -> tuple[Snapshot, bool]:
-        """Record until the shaft has stayed within a count of one place for ``quiet`` polls
-        (an encoder edge may flicker), at most ``limit_s``; (last snapshot, came to rest)."""
-        still = 0
-        anchor = rec.rows[-1].real_position
+        """Record until the shaft has stayed within 2 counts peak to peak for ``quiet`` polls
+        (an encoder edge may flicker, a loop may hunt a count either way), at most
+        ``limit_s``; (last snapshot, came to rest)."""
+        window: list[int] = [rec.rows[-1].real_position]
 
         def watch(s: Snapshot) -> bool:
-            nonlocal still, anchor
-            if abs(s.real_position - anchor) <= 1:
-                still += 1
-            else:
-                still, anchor = 0, s.real_position
-            return still >= quiet
+            window.append(s.real_position)
+            del window[:-quiet - 1]
+            return len(window) > quiet and max(window) - min(window) <= 2
 
         last = self.record(rec, limit_s, watch)
-        return last, still >= quiet
+        return last, len(window) > quiet and max(window) - min(window) <= 2
 
 
 def _clock_hz(chip: LM629) -> float:

@@ -103,6 +103,7 @@ def test_step_metrics_from_a_known_response():
     assert m.settle_s == pytest.approx(0.006)  # from 998 on, within +/-2 to the end
     assert m.rise_s == pytest.approx(0.003 - 0.001)  # 10 % (100) at 1 ms, 90 % (950) at 3 ms
     assert m.peak_following_error == 1000
+    assert m.hunt == 1  # the last quarter (t >= 6.75 ms): 1001, 1000, 1000
 
 
 # ---------------------------------------------------------------------------------- autotune
