@@ -71,10 +71,10 @@ def cost(m: MoveMetrics | None) -> float:
 
 def row(name: str, what: str, g: Gains, m: MoveMetrics | None) -> str:
     if m is None:
-        return f"| {name} | {what} | {g} | fault | | | |"
+        return f"| {name} | {what} | {g} | fault | | | | |"
     settle = "-" if m.settle_s is None else f"{m.settle_s * 1e3:.0f}"
     return (f"| {name} | {what} | {g} | {m.final_error:+d} | {m.overshoot} | {settle} | "
-            f"{abs(m.peak_following_error)} |")
+            f"{abs(m.peak_following_error)} | {m.hunt} |")
 
 
 def main() -> None:
@@ -91,8 +91,8 @@ def main() -> None:
     print(f"grid: {len(grid)} points (kp x ki x kd, il 4000, ds 1); test move "
           f"{DISTANCE:+d} counts out and back, tolerance {TOLERANCE}, {DURATION:g} s per step")
     print("| motor | gains from | gains | final error | overshoot | settle ms | "
-          "peak following error |")
-    print("|---|---|---|---|---|---|---|")
+          "peak following error | hunting at rest |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, params in MOTORS:
         if args.motor and name not in args.motor:
             continue
