@@ -16,9 +16,10 @@ decide whether a move ends within 2 counts or 50.  So the tuner:
    all per sample -- fitted by simulating the chip's filter arithmetic sample by sample against
    every position read (Nelder-Mead, a few hundred simulations);
 3. **designs** gains by pole placement on that model (natural frequency x damping x derivative
-   interval x integral time), predicting each candidate's test move on the model, with the
-   output quantisation and saturation, and keeping the one that settles fastest inside the
-   tolerance with little overshoot, also on models 30 % lighter and heavier (robustness);
+   interval, then integral variants of the best), predicting each candidate's test move on the
+   model with the output quantisation and saturation, and keeping the one whose worst score
+   (settle time inside the tolerance, overshoot, end error, hunting) over the model and three
+   variants of it (30 % lighter, 40 % heavier, a fifth of the dry friction) is best;
 4. **checks** them with the test move (a step of ``distance`` counts out and back) and leaves
    them loaded and applied (LFIL + UDF).
 
