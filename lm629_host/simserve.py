@@ -96,14 +96,30 @@ class PipeFarEnd(FarEnd):
         self.baud = baud
         self._requests = FrameReader()
         self._replies = FrameReader()
+        #: programs the far end keeps by code (RUN_STORE), to time a RUN_CODE's reply
+        self._codes: dict[int, bytes] = {}
 
     def _timeout(self, frame: Frame) -> float:
         t = self.MARGIN_S + (2 * MAX_WIRE_FRAME * 10 / self.baud if self.baud else 0.0)
-        short = frame.type == FrameType.RUN_SHORT  # the program alone, the default timeout
-        if short or (frame.type == FrameType.RUN and len(frame.payload) >= 3):
-            busy = 5000e-6 if short else (int.from_bytes(frame.payload[1:3], "big") or 5000) * 1e-6
+        ftype, payload = frame.type, frame.payload
+        program: bytes | None = None
+        if ftype == FrameType.HELLO:
+            self._codes.clear()  # the far end forgets its codes too
+        elif ftype == FrameType.RUN_SHORT:
+            program = payload
+        elif ftype == FrameType.RUN_STORE and payload:
+            program = payload[1:]
+            self._codes[payload[0]] = program
+        elif ftype == FrameType.RUN_CODE and len(payload) == 1:
+            program = self._codes.get(payload[0], b"")
+        elif ftype == FrameType.RUN and len(payload) >= 3:
+            program = payload[3:]
+        if program is not None:
+            # the compact forms run with the default busy timeout
+            busy = (int.from_bytes(payload[1:3], "big") if ftype == FrameType.RUN else 0) or 5000
+            busy *= 1e-6
             try:
-                ops = decode_program(frame.payload if short else frame.payload[3:])
+                ops = decode_program(program)
             except BadProgram:
                 return t
             for o in ops:

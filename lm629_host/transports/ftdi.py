@@ -1,8 +1,9 @@
 """``ftdi://``: an FT232H in MPSSE mode, through pyftdi on pyusb, wired as in :mod:`..ftdi_pins`.
 
 URL: pyftdi's own, ``ftdi://ftdi:232h[:SERIAL]/1``, plus options after ``?``:
-``latency`` (USB latency timer, ms, default 1), ``busy_us`` (the wait after each transfer,
-default 100), ``frequency`` (MPSSE clock TCK in Hz, default 6 MHz).
+``latency`` (USB latency timer, ms, default 1), ``busy_us`` (the wait after each transfer:
+``auto``, the default, measures the chip's busy time before the first program; a number fixes
+it, 100 being the documented worst case), ``frequency`` (MPSSE clock TCK in Hz, default 6 MHz).
 
 How a bus program becomes USB traffic
 =====================================
@@ -29,12 +30,19 @@ The busy bit can only be seen by a status read, and an MPSSE stream cannot branc
 reads.  So the stream does what a polling host would do, but open-loop, and checks afterwards:
 
 1. Before every transfer (command byte, data word written or read) the stream reads the status
-   byte, then makes the transfer.  After every transfer it waits ``busy_us`` (default 100 us,
-   the chip's documented worst case for busy; the datasheet says 15-25 us typically) before
-   the next status read.  On a chip within its data sheet, every one of these status reads
-   therefore shows busy clear, and every transfer lands.  Between programs the same wait is
-   kept: a stream starts with whatever is left of it since the previous stream ended.  After
-   a RESET command byte the wait is 1.5 ms (busy stays set until the reset is done).
+   byte, then makes the transfer.  After every transfer it waits before the next status read:
+   by default as long as this chip holds busy, measured before the first program
+   (:meth:`FtdiTransport.calibrate_busy`: a read command, then status reads back to back; the
+   datasheet says 15-25 us typically, 100 us at worst), the wait shortened by the MPSSE
+   commands the stream runs before its check (counted at 0.5 us each, ``COMMAND_S``); with
+   ``busy_us=N`` a fixed N us of idle clocks (100: the documented worst case, the wait before
+   this measure existed).  So every one of these status reads normally shows busy clear, and
+   every transfer lands.  Between programs the same wait is kept: a stream starts with
+   whatever is left of it since the previous stream ended.  After a RESET command byte the
+   wait is 1.5 ms (busy stays set until the reset is done).  Only speed rests on the measure:
+   a check that sees busy is the repeat below, which also lengthens the wait (twice, or what
+   was seen, at most 100 us), so a chip slower than measured costs one repeat, not a lost
+   command.
 2. When the answer comes back, every status byte read before a transfer is checked.  If one
    shows busy, the chip ignored that transfer (a write while busy is ignored; a read while
    busy returns stale bytes) and nothing else tells.  The transport then polls the status in
@@ -67,8 +75,15 @@ say that D0 follows busy while /RD stays low; the wait has no timeout either, so
 would hang the MPSSE engine.  Polling each status read in its own USB exchange costs a round
 trip per transfer (the problem this transport exists to avoid).
 
-The chip's documented worst case makes the repeat path a fault detector: it runs only on a
-chip out of its data sheet, a noisy bus, or the emulator's ``stretch_busy`` hook.
+With the fixed wait of the documented worst case the repeat path is a fault detector: it runs
+only on a chip out of its data sheet, a noisy bus, or the emulator's ``stretch_busy`` hook;
+with the measured wait also on a chip slower for some command than for the one measured.
+
+Why LTRJ + STT stays two exchanges: a single stream cannot make STT depend on the checks of
+the loads before it.  A chip holding busy 300 us after one transfer makes every later transfer
+of the stream (STT included) land in busy and be ignored, which a repeat would mend; but one
+holding it a little longer than the wait (35 us) drops one word and lets the next words and
+STT land: STT would start a move from shifted words, and the repeat would start it twice.
 
 What the FT232H itself asks for
 -------------------------------
