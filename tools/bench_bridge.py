@@ -3,7 +3,8 @@
 printed, nothing asserted.
 
 1. Position polling in SIMULATED time (AVR cycles / 16 MHz) at 115200 and 1,000,000 baud:
-   microseconds per ``read_real_position()`` back to back, bytes on the wire per poll, the
+   microseconds per ``read_real_position()`` back to back (its program sent by its code once
+   the bridge keeps it: PROTOCOL.md, "The compact RUN"), bytes on the wire per poll, the
    wire limit (bytes x 10 / baud) and its ratio to the measured time (target >= 70 %).  Also
    the limit of the simulated line itself (simavr sends 11 bit times a byte, and 115200 on a
    16 MHz AVR is really 117647 baud) and what is left for the firmware per poll.
