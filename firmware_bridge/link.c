@@ -100,6 +100,7 @@ void link_init(link_t *l)
 {
     rx_restart(l);
     l->cache_len = 0;
+    l->baud_div = 0;
     l->frames = l->bad_frames = l->runs = l->cache_hits = 0;
     for (uint8_t k = 0; k < LINK_CODE_SLOTS; k++)
         l->code_len[k] = 0;
@@ -489,7 +490,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_PATCH;
         r[len++] = 0;
         r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS
-            | CAP_COMPACT_RUN | CAP_PROGRAM_CODES;
+            | CAP_COMPACT_RUN | CAP_PROGRAM_CODES | CAP_BAUD_SWITCH;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
         r[len++] = (uint8_t)LINK_MAX_PROGRAM;
         r[len++] = LINK_MAX_READS;
@@ -498,6 +499,23 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = (uint8_t)(LINK_CPU_HZ >> 16);
         r[len++] = (uint8_t)(LINK_CPU_HZ >> 8);
         r[len++] = (uint8_t)LINK_CPU_HZ;
+    } else if (type == FRAME_SET_BAUD && plen == 4) {
+        /* the U2X divisor for the rate asked (F_CPU / 8 / baud, rounded); refused when the rate
+         * made is more than 2 % off.  The switch itself is the firmware's (main.c), once this
+         * reply has left at the old rate. */
+        uint32_t baud = ((uint32_t)payload[0] << 24) | ((uint32_t)payload[1] << 16)
+            | ((uint16_t)payload[2] << 8) | payload[3];
+        uint32_t div = baud ? (LINK_CPU_HZ / 8 + baud / 2) / baud : 0;
+        uint32_t made = div ? LINK_CPU_HZ / 8 / div : 0;
+        uint32_t off = made > baud ? made - baud : baud - made;
+        uint8_t ok = div >= 1 && div <= 4096 && off * 50 <= baud;
+        r[0] = FRAME_BAUD_REPLY;
+        r[len++] = ok ? RESULT_OK : RESULT_BAD_BAUD;
+        r[len++] = (uint8_t)(made >> 24);
+        r[len++] = (uint8_t)(made >> 16);
+        r[len++] = (uint8_t)(made >> 8);
+        r[len++] = (uint8_t)made;
+        l->baud_div = ok ? (uint16_t)div : 0;
     } else if (type == FRAME_PING && plen <= LINK_MAX_PING) {
         r[0] = FRAME_PONG;
         for (uint16_t k = 0; k < plen; k++)

@@ -31,6 +31,7 @@ typedef struct {
     uint16_t cache_len;                 /* 0: no cached reply */
     uint8_t cache_seq;
     uint16_t cache_crc;
+    uint16_t baud_div;                  /* SET_BAUD answered: the new U2X divisor (0: none) */
     /* counters (for tests) */
     link_count_t frames, bad_frames, runs, cache_hits;
     /* a RUN_SHORT's program, checked as its bytes arrive (two behind, as the CRC): the

@@ -63,6 +63,7 @@
 #define LINK_MAX_PING 32u  /* largest PING payload */
 #define LINK_CODE_SLOTS 8u  /* programs kept for RUN_CODE */
 #define LINK_CODE_BYTES 12u  /* largest program kept for RUN_CODE */
+#define LINK_BAUD_WINDOW_MS 250u  /* SET_BAUD: a good frame at the new rate within */
 #define LINK_DEFAULT_BUSY_TIMEOUT_US 5000u  /* busy_timeout_us = 0 means this */
 #define LINK_NONE_BYTE 255u  /* no failing op / no status read yet */
 #define LINK_CRC_POLY 4129u  /* CRC-16/GENIBUS polynomial */
@@ -74,10 +75,12 @@
 #define FRAME_RUN_SHORT 4u  /* frame type */
 #define FRAME_RUN_STORE 5u  /* frame type */
 #define FRAME_RUN_CODE 6u  /* frame type */
+#define FRAME_SET_BAUD 7u  /* frame type */
 #define FRAME_HELLO_REPLY 129u  /* frame type */
 #define FRAME_RUN_REPLY 130u  /* frame type */
 #define FRAME_PONG 131u  /* frame type */
 #define FRAME_RUN_SHORT_REPLY 132u  /* frame type */
+#define FRAME_BAUD_REPLY 135u  /* frame type */
 #define FRAME_ERROR_REPLY 255u  /* frame type */
 #define RESULT_OK 0u  /* result code */
 #define RESULT_BUSY_TIMEOUT 1u  /* result code */
@@ -86,12 +89,14 @@
 #define RESULT_BAD_CHIP_SELECT 4u  /* result code */
 #define RESULT_BAD_REQUEST 5u  /* result code */
 #define RESULT_UNKNOWN_CODE 6u  /* result code */
+#define RESULT_BAD_BAUD 7u  /* result code */
 #define CAP_RESET_LINE 1u  /* HELLO_REPLY capability bit */
 #define CAP_HI_LINE 2u  /* HELLO_REPLY capability bit */
 #define CAP_BUSY_ON_BRIDGE 4u  /* HELLO_REPLY capability bit */
 #define CAP_WAIT_STATUS 8u  /* HELLO_REPLY capability bit */
 #define CAP_COMPACT_RUN 16u  /* HELLO_REPLY capability bit */
 #define CAP_PROGRAM_CODES 32u  /* HELLO_REPLY capability bit */
+#define CAP_BAUD_SWITCH 64u  /* HELLO_REPLY capability bit */
 
 /* CRC-16/GENIBUS table (lm629_host.link._CRC_TABLE): 256 high bytes, then 256 low bytes */
 #define LINK_CRC_TABLE_INIT { \

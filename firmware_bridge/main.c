@@ -53,6 +53,51 @@ void link_tx_byte(uint8_t b)
     UDR0 = b;
 }
 
+/* SET_BAUD (link.c answered it, at the old rate): switch once the reply has left (the
+ * transmitter's buffer empty, then a byte time for its shift register), and go back when no
+ * good frame comes at the new rate within LINK_BAUD_WINDOW_MS (a USB serial chip that cannot
+ * do it): the host goes back too, and finds the bridge where it left it. */
+static uint16_t ubrr_before;      /* the rate to go back to */
+static uint8_t on_probation;      /* switched, no good frame at the new rate yet */
+static link_count_t frames_before;
+static uint32_t probation_ticks;  /* Timer1 ticks (4 us) since the switch */
+static uint16_t last_tick;
+
+static void set_ubrr(uint16_t ubrr)
+{
+    UBRR0H = (uint8_t)(ubrr >> 8);
+    UBRR0L = (uint8_t)ubrr; /* simavr recomputes the rate on this write */
+}
+
+static void switch_baud(uint16_t div)
+{
+    while (!(UCSR0A & (1 << UDRE0)))
+        ;
+    uint16_t ubrr = (uint16_t)((UBRR0H << 8) | UBRR0L);
+    bus_wait_us((uint16_t)(5u * (ubrr + 1u) + 4u)); /* a byte of 10 bits: 8 x (UBRR+1) / 16 MHz each */
+    ubrr_before = ubrr;
+    set_ubrr((uint16_t)(div - 1u));
+    on_probation = 1;
+    frames_before = link.frames;
+    probation_ticks = 0;
+    last_tick = TCNT1;
+}
+
+static void probation(void)
+{
+    if (link.frames != frames_before) {
+        on_probation = 0; /* a good frame at the new rate: it works */
+        return;
+    }
+    uint16_t now = TCNT1;
+    probation_ticks += (uint16_t)(now - last_tick);
+    last_tick = now;
+    if (probation_ticks >= LINK_BAUD_WINDOW_MS * 250UL) {
+        set_ubrr(ubrr_before);
+        on_probation = 0;
+    }
+}
+
 int main(void)
 {
     bus_init();
@@ -61,8 +106,14 @@ int main(void)
     set_sleep_mode(SLEEP_MODE_IDLE);
     sei();
     for (;;) {
+        if (on_probation)
+            probation();
         cli();
         if (rx_head == rx_tail) {
+            if (on_probation) { /* the window is timed by polling Timer1: no sleep */
+                sei();
+                continue;
+            }
 #ifdef BRIDGE_NO_SLEEP
             sei(); /* one instruction runs before a pending interrupt is taken: */
             __asm__ __volatile__("nop"); /* the nop lets the receive interrupt in */
@@ -79,5 +130,10 @@ int main(void)
         rx_tail = (uint8_t)((rx_tail + 1u) & (RX_SIZE - 1u));
         const uint8_t *out;
         link_feed(&link, b, &out); /* a reply goes out from inside, byte by byte */
+        if (link.baud_div) {
+            uint16_t div = link.baud_div;
+            link.baud_div = 0;
+            switch_baud(div);
+        }
     }
 }

@@ -319,6 +319,10 @@ class AvrPipe:
     def write(self, data: bytes) -> None:
         self.sim.write(bytes(data))
 
+    def set_baud(self, baud: int) -> None:
+        """Nothing to do: simavr's UART runs at the rate the firmware sets in UBRR, for the
+        bytes the host raises into it too (a failed switch cannot be simulated here)."""
+
     def read(self, timeout_s: float) -> bytes:
         sim = self.sim
         out = sim.take_output()
@@ -334,11 +338,11 @@ class AvrPipe:
             self.sim.close()
 
 
-#: ``link_t`` of firmware_bridge/link.h on the AVR: 13 bytes of state, then four 16-bit
+#: ``link_t`` of firmware_bridge/link.h on the AVR: 15 bytes of state, then four 16-bit
 #: counters (frames, bad_frames, runs, cache_hits, little-endian), 5 bytes of the RUN_SHORT
 #: check, the programs kept for RUN_CODE (3 bytes and CODE_BYTES each), then the three buffers
-_LINK_COUNTERS_AT = 13
-_LINK_T_SIZE = 13 + 4 * 2 + 5 + CODE_SLOTS * (3 + CODE_BYTES) + 252 + 250 + 252
+_LINK_COUNTERS_AT = 15
+_LINK_T_SIZE = 15 + 4 * 2 + 5 + CODE_SLOTS * (3 + CODE_BYTES) + 252 + 250 + 252
 _link_addresses: dict[Path, int | None] = {}
 
 

@@ -21,6 +21,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from .link import (
+    BAUD_WINDOW_MS,
     CODE_BYTES,
     CODE_SLOTS,
     DEFAULT_RETRIES,
@@ -79,7 +80,7 @@ class BridgeEmulator:
     info: HelloInfo = field(default_factory=lambda: HelloInfo(
         firmware=EMU_FIRMWARE,
         capabilities=int(HelloInfo.capabilities | Capability.WAIT_STATUS | Capability.COMPACT_RUN
-                         | Capability.PROGRAM_CODES)))
+                         | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH)))
     stats: EmuStats = field(default_factory=EmuStats)
 
     def __post_init__(self) -> None:
@@ -106,8 +107,35 @@ class BridgeEmulator:
                 out.append(reply)
         return out
 
+    #: the line's rate at the far end (EmuPipe sets it), the rate it goes back to and until
+    #: when (after SET_BAUD, until a good frame comes at the new rate), a switch answered
+    rate: int = 0
+    _back: tuple[int, float] | None = None
+    _pending: int = 0
+
+    def expire(self, t: float) -> None:
+        """At time ``t``: no good frame came at the new rate within BAUD_WINDOW_MS: back."""
+        if self._back is not None and t > self._back[1]:
+            self.rate, self._back = self._back[0], None
+
+    def switch_after_reply(self, t: float) -> None:
+        """The reply to SET_BAUD has left at ``t`` (at the old rate): switch now."""
+        if self._pending:
+            self._back = (self.rate, t + BAUD_WINDOW_MS * 1e-3)
+            self.rate, self._pending = self._pending, 0
+
     def _handle(self, frame: Frame) -> bytes | None:
         t = frame.type
+        self._back = None  # a good frame: the rate works
+        if t == FrameType.SET_BAUD and self.info.capabilities & Capability.BAUD_SWITCH \
+                and len(frame.payload) == 4:
+            baud = int.from_bytes(frame.payload, "big")
+            div = (self.info.cpu_hz // 8 + baud // 2) // baud if baud else 0
+            made = self.info.cpu_hz // 8 // div if div else 0
+            ok = 1 <= div <= 4096 and abs(made - baud) * 50 <= baud
+            self._pending = made if ok else 0
+            return encode_frame(FrameType.BAUD_REPLY, frame.seq,
+                                bytes((Result.OK if ok else Result.BAD_BAUD,)) + made.to_bytes(4, "big"))
         if t == FrameType.HELLO:
             self._cache = None
             self._codes.clear()
@@ -279,11 +307,12 @@ class BridgeEmulator:
 ModelClock = SimClock
 
 
-def _last_due(queue: deque[tuple[float, int]], deadline: float) -> float:
+def _last_due(queue: deque, deadline: float) -> float:
     """Arrival time of the last byte of ``queue`` (time-ordered) due by ``deadline``; the first
     byte must be due."""
     last = queue[0][0]
-    for t, _ in queue:
+    for item in queue:
+        t = item[0]
         if t > deadline:
             break
         last = t
@@ -299,42 +328,64 @@ class EmuPipe:
     to the next byte or the timeout.
     """
 
-    def __init__(self, emulator: BridgeEmulator, *, baud: int | None = 115200) -> None:
+    def __init__(self, emulator: BridgeEmulator, *, baud: int | None = 115200,
+                 max_baud: int | None = None) -> None:
         self.emulator = emulator
         self.clock = ModelClock(emulator.model)
         self.byte_s = 10.0 / baud if baud else 0.0
-        self._to_far: deque[tuple[float, bytes]] = deque()  # (arrival time, byte)
-        self._to_host: deque[tuple[float, int]] = deque()
+        self._timed = bool(baud)
+        #: the host side's rate; a byte sent at another rate than the receiver's is lost (as
+        #: garbage would be), and so is one above ``max_baud`` (a line or USB serial adapter
+        #: that cannot carry it)
+        self.rate = baud or 0
+        self.max_baud = max_baud
+        emulator.rate = self.rate
+        self._to_far: deque[tuple[float, bytes, int]] = deque()  # (arrival time, byte, rate)
+        self._to_host: deque[tuple[float, int, int]] = deque()
         self._tx_free = 0.0  # when the host->bridge wire is free again
         self._rx_free = 0.0  # when the bridge->host wire is free again
         self.closed = False
+
+    def set_baud(self, baud: int) -> None:
+        """The host side's rate (the far end's changes on SET_BAUD)."""
+        self.rate = baud
+        if self._timed:
+            self.byte_s = 10.0 / baud
+
+    def _carried(self, rate: int, receiver: int) -> bool:
+        return rate == receiver and (self.max_baud is None or rate <= self.max_baud)
 
     def write(self, data: bytes) -> None:
         t = max(self.clock.now(), self._tx_free)
         bs = self.byte_s
         if bs == 0.0:
-            self._to_far.append((t, bytes(data)))
+            self._to_far.append((t, bytes(data), self.rate))
         else:
             for b in data:
                 t += bs
-                self._to_far.append((t, bytes((b,))))
+                self._to_far.append((t, bytes((b,)), self.rate))
         self._tx_free = t
 
     def _deliver_far(self, until: float) -> None:
         """Hand the far end every byte that has arrived by ``until`` and queue its replies."""
         chunk = bytearray()
         q = self._to_far
+        emu = self.emulator
         while q and q[0][0] <= until:
-            chunk += q.popleft()[1]
+            t, b, rate = q.popleft()
+            emu.expire(t)
+            if self._carried(rate, emu.rate):
+                chunk += b
         if not chunk:
             return
-        for reply in self.emulator.receive(bytes(chunk)):
+        for reply in emu.receive(bytes(chunk)):
             t = max(self.clock.now(), self._rx_free)
             bs = self.byte_s
             for b in reply:
                 t += bs
-                self._to_host.append((t, b))
+                self._to_host.append((t, b, emu.rate))
             self._rx_free = t
+            emu.switch_after_reply(t)
 
     def read(self, timeout_s: float) -> bytes:
         clock = self.clock
@@ -350,7 +401,9 @@ class EmuPipe:
                     clock.advance_to(last)
                 out = bytearray()
                 while h and h[0][0] <= last:
-                    out.append(h.popleft()[1])
+                    _, b, rate = h.popleft()
+                    if self._carried(rate, self.rate):
+                        out.append(b)
                 self._deliver_far(max(last, clock.now()))
                 return bytes(out)
             q = self._to_far
@@ -396,6 +449,9 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     ``url`` (``sim://?record=1`` ...), all in simulated time.
 
     ``baud``: the simulated line (``None``: the URL's ``baud=``, else 115200; 0: no wire time).
+    URL ``fast_baud=N``: switch the line to N baud after the handshake (SET_BAUD); ``max_baud=N``:
+    the line carries nothing faster (a USB serial adapter that cannot), so such a switch falls
+    back.
     ``wrap(pipe) -> pipe`` inserts a wrapper between host and bridge (e.g. a
     :class:`~lm629_host.faultlink.FaultPipe`).  The model is ``transport.model``, the far end
     ``transport.emulator``.
@@ -411,13 +467,25 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
             raise ValueError(f"{url}: baud={raw!r} is not a number") from None
         if baud < 0:
             raise ValueError(f"{url}: baud={baud} must be >= 0 (0: no wire time)")
-    model = build_model(url, allowed=frozenset({"baud"}))
+    q = query_params(url)
+
+    def num(name: str) -> int:
+        try:
+            return int(q.get(name, "0"))
+        except ValueError:
+            raise ValueError(f"{url}: {name}={q[name]!r} is not a number") from None
+
+    fast, max_baud = num("fast_baud"), num("max_baud")
+    model = build_model(url, allowed=frozenset({"baud", "fast_baud", "max_baud"}))
     emu = BridgeEmulator(model)
-    pipe = EmuPipe(emu, baud=baud or None)
+    pipe = EmuPipe(emu, baud=baud or None, max_baud=max_baud or None)
     outer = wrap(pipe) if wrap is not None else pipe
     t = EmuLinkTransport.__new__(EmuLinkTransport)
     t.margin_s = margin_s
     t.model = model  # type: ignore[attr-defined]
     t.emulator = emu  # type: ignore[attr-defined]
     LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
+    if fast and fast != baud:
+        t.switch_baud(fast)  # a line that cannot carry it (max_baud): a notice, and it stays
+        t.stats.reset()
     return t

@@ -57,6 +57,11 @@ MAX_PING = 32
 #: a poll (RDRP: 4 bytes, a snapshot: 12) is sent again as a 1-byte code
 CODE_SLOTS = 8
 CODE_BYTES = 12
+#: after SET_BAUD the bridge waits this long for a good frame at the new rate, then goes back
+BAUD_WINDOW_MS = 250
+#: the rate a host asks a bridge with BAUD_SWITCH for: an Uno's or Nano's USB serial chip
+#: (16U2, CH340, FT232R) and the ATmega328P at 16 MHz make it exactly (divisor 2 with U2X)
+FAST_BAUD = 1_000_000
 #: retries of one request (same ``seq``, same bytes) before the host gives up.  Seven: at 1 % of
 #: bytes faulty (each of drop, corrupt, duplicate, delay at 0.25 %) one attempt of a small RUN
 #: fails about one time in five, so 3 retries leave ~0.15 % of commands failed, 7 leave none
@@ -78,10 +83,12 @@ class FrameType(enum.IntEnum):
     RUN_SHORT = 0x04  #: RUN without cs and busy timeout (0 and the default); COMPACT_RUN only
     RUN_STORE = 0x05  #: slot, program: a RUN_SHORT whose program is kept under that code
     RUN_CODE = 0x06  #: slot: run the program kept under that code (PROGRAM_CODES only)
+    SET_BAUD = 0x07  #: baud (4): switch the line's rate after the reply (BAUD_SWITCH only)
     HELLO_REPLY = 0x81
     RUN_REPLY = 0x82
     PONG = 0x83
     RUN_SHORT_REPLY = 0x84  #: a RUN_SHORT that ran to its end (otherwise: RUN_REPLY)
+    BAUD_REPLY = 0x87  #: result (1), the rate the bridge switches to (4)
     ERROR_REPLY = 0xFF
 
 
@@ -89,7 +96,7 @@ class FrameType(enum.IntEnum):
 REPLY_TO = {FrameType.HELLO: FrameType.HELLO_REPLY, FrameType.RUN: FrameType.RUN_REPLY,
             FrameType.PING: FrameType.PONG, FrameType.RUN_SHORT: FrameType.RUN_SHORT_REPLY,
             FrameType.RUN_STORE: FrameType.RUN_SHORT_REPLY,
-            FrameType.RUN_CODE: FrameType.RUN_SHORT_REPLY}
+            FrameType.RUN_CODE: FrameType.RUN_SHORT_REPLY, FrameType.SET_BAUD: FrameType.BAUD_REPLY}
 #: other reply types a request may get: a compact RUN that failed is answered as a RUN
 ALSO_REPLY_TO = {FrameType.RUN_SHORT: FrameType.RUN_REPLY, FrameType.RUN_STORE: FrameType.RUN_REPLY,
                  FrameType.RUN_CODE: FrameType.RUN_REPLY}
@@ -105,6 +112,7 @@ class Result(enum.IntEnum):
     BAD_CHIP_SELECT = 4
     BAD_REQUEST = 5
     UNKNOWN_CODE = 6  #: RUN_CODE for a code the bridge keeps no program under (nothing ran)
+    BAD_BAUD = 7  #: SET_BAUD to a rate the bridge cannot make within 2 % (it stays as it is)
 
 
 class Capability(enum.IntFlag):
@@ -116,6 +124,9 @@ class Capability(enum.IntFlag):
     COMPACT_RUN = 0x10
     #: the bridge keeps CODE_SLOTS programs of up to CODE_BYTES bytes (RUN_STORE, RUN_CODE)
     PROGRAM_CODES = 0x20
+    #: the bridge switches its line's rate on SET_BAUD, and goes back to the rate it had when
+    #: no good frame comes at the new rate within BAUD_WINDOW_MS
+    BAUD_SWITCH = 0x40
 
 
 #: "index of the failing operation" and "last status byte" when there is none
@@ -137,6 +148,7 @@ def c_defines() -> list[tuple[str, int, str]]:
         ("LINK_MAX_PING", MAX_PING, "largest PING payload"),
         ("LINK_CODE_SLOTS", CODE_SLOTS, "programs kept for RUN_CODE"),
         ("LINK_CODE_BYTES", CODE_BYTES, "largest program kept for RUN_CODE"),
+        ("LINK_BAUD_WINDOW_MS", BAUD_WINDOW_MS, "SET_BAUD: a good frame at the new rate within"),
         ("LINK_DEFAULT_BUSY_TIMEOUT_US", FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
          "busy_timeout_us = 0 means this"),
         ("LINK_NONE_BYTE", NONE_BYTE, "no failing op / no status read yet"),
@@ -824,6 +836,70 @@ class LinkTransport(Transport):
             raise TransportError("PONG does not echo the PING payload: the link corrupts data "
                                  "that passes its CRC; check the baud rate", port=self.url)
         return self.clock.now() - t0
+
+    def switch_baud(self, baud: int) -> bool:
+        """Ask the bridge to run the line at ``baud`` (SET_BAUD; the pipe must have
+        ``set_baud``).  True when the link runs at it now.  False when it stays at the rate it
+        had, with a warning that says why: a bridge without BAUD_SWITCH (then nothing is
+        sent), a rate the bridge cannot make, or no answer at the new rate (a USB serial
+        adapter that cannot do it): then the bridge goes back by itself after
+        BAUD_WINDOW_MS, and so does the host.  A failure to talk at either rate afterwards is
+        a :class:`TransportError`."""
+        set_baud = getattr(self.pipe, "set_baud", None)
+        info = self.info
+        if (set_baud is None or info is None or not info.capabilities & Capability.BAUD_SWITCH
+                or baud == self.baud):
+            return False
+        old = self.baud
+        self._resync()
+        try:
+            frame = self._exchange(
+                FrameType.SET_BAUD, baud.to_bytes(4, "big"),
+                self.reply_timeout(wire_size(8), wire_size(9)), f"SET_BAUD {baud}", self.retries)
+            result = frame.payload[0] if frame.payload else -1
+        except TransportError:
+            result = None  # the bridge may or may not have switched: wait its window out
+        if result == Result.OK:
+            set_baud(baud)
+            self.baud = baud
+            # three HELLOs at the new rate, all within the bridge's window
+            tries = 3
+            hello_s = max(self.reply_timeout(wire_size(4), wire_size(4 + HelloInfo.SIZE)),
+                          BAUD_WINDOW_MS * 1e-3 * 0.6 / tries)
+            try:
+                self._exchange(FrameType.HELLO, b"", hello_s, f"HELLO at {baud} baud",
+                               tries - 1)
+            except TransportError:
+                pass
+            else:
+                self._forget_codes()
+                log.info("%s: the link runs at %d baud", self.url, baud)
+                return True
+            why = f"no answer at {baud} baud (can the USB serial adapter do it?)"
+        elif result is None:
+            why = "no answer to SET_BAUD"
+        else:
+            why = f"the bridge cannot make {baud} baud (result {result})"
+        # back to the old rate; the bridge goes back too once its window has passed
+        set_baud(old)
+        self.baud = old
+        if result is None or result == Result.OK:  # else the bridge never left the old rate
+            self.clock.sleep(BAUD_WINDOW_MS * 1e-3 * 1.2)
+        self._need_resync = True  # HELLO at the old rate before anything else
+        try:
+            self._resync()
+        except TransportError:
+            if result != Result.OK:
+                raise
+            # its answer to our HELLO at the new rate may have been lost, so that it stayed
+            set_baud(baud)
+            self.baud = baud
+            self._need_resync = True
+            self._resync()
+            log.info("%s: the link runs at %d baud", self.url, baud)
+            return True
+        log.warning("%s: staying at %d baud: %s", self.url, old, why)
+        return False
 
     # ------------------------------------------------------------------ programs
     def _chunks(self, program: Program) -> Iterator[list[BusOp]]:

@@ -7,6 +7,8 @@ handshake checks.
 
 from __future__ import annotations
 
+import logging
+
 from pathlib import Path
 
 import pytest
@@ -197,6 +199,47 @@ def test_hello_forgets_the_codes_on_both_sides():
     assert len(tap.sent) == 11  # seen before: stored again under a code, not sent by one
 
 
+def test_the_link_switches_to_the_fast_rate_agreed_in_hello():
+    """A bridge with BAUD_SWITCH: SET_BAUD at the rate of the handshake, then HELLO at the new
+    rate; polls take the 1 Mbaud time from then on, and every program still runs once."""
+    t = open_emulated("sim://?record=1&fast_baud=1000000", baud=115200)
+    assert t.baud == 1_000_000 and t.emulator.rate == t.pipe.rate == 1_000_000
+    chip = LM629(t)
+    chip.reset()
+    for _ in range(3):
+        chip.read_real_position()
+    t0 = t.clock.now()
+    chip.read_real_position()
+    assert (t.clock.now() - t0) <= 18 * 10 / 1_000_000 / 0.7  # 18 bytes at 1 Mbaud
+    assert [c for c, _ in t.model.history][-4:] == [Cmd.RDRP] * 4
+
+
+def test_a_rate_the_line_cannot_carry_falls_back_with_a_notice(caplog):
+    """The bridge switches, but nothing gets through at 1 Mbaud (an adapter that cannot): the
+    host goes back, the bridge goes back by itself after its window, and the link works at
+    115200, with a warning that says so."""
+    with caplog.at_level(logging.WARNING, logger="lm629_host.link"):
+        t = open_emulated("sim://?record=1&fast_baud=1000000&max_baud=115200", baud=115200)
+    assert t.baud == 115200 and t.emulator.rate == 115200
+    assert "staying at 115200 baud: no answer at 1000000 baud" in caplog.text
+    chip = LM629(t)
+    chip.reset()
+    t.model.record_clear()
+    chip.read_real_position()
+    assert [c for c, _ in t.model.history] == [Cmd.RDRP]
+
+
+def test_a_rate_the_bridge_cannot_make_is_refused_and_nothing_changes(caplog):
+    with caplog.at_level(logging.WARNING, logger="lm629_host.link"):
+        t = open_emulated("sim://?fast_baud=230400", baud=115200)  # 222222 with U2X: 3.5 % off
+    assert t.baud == 115200 and "cannot make 230400 baud" in caplog.text
+    # a bridge without BAUD_SWITCH is not asked at all
+    t.emulator.info = HelloInfo(capabilities=0x07)
+    t.hello()
+    t.stats.reset()
+    assert t.switch_baud(1_000_000) is False and t.stats.round_trips == 0
+
+
 def test_reply_timeout_per_request():
     t = open_emulated("sim://", baud=115200, margin_s=0.05)
     p = Program().command(Cmd.LFIL).write(8).write(10).command(Cmd.UDF).wait(1500)
@@ -293,7 +336,7 @@ def test_stale_replies_are_ignored():
     pipe = t.pipe.inner
     now = t.clock.now()
     for b in stale:
-        pipe._to_host.append((now, b))
+        pipe._to_host.append((now, b, pipe.rate))
     assert chip.read_real_position() == 0
     assert t.stale_replies == 1 and t.stats.retries == 0
 

@@ -231,3 +231,34 @@ def test_bad_url_values():
     with pytest.raises(Exception, match="not found"):
         open_transport("sim+avr://?firmware=/nonexistent.elf")
     assert CPU_HZ == 16_000_000
+
+
+def test_firmware_switches_its_uart_on_set_baud_and_goes_back_when_nothing_comes():
+    """SET_BAUD 1000000 to the 115200 image: UBRR0 goes from 16 to 1 once the reply has left;
+    with no good frame at the new rate within the window (250 ms) it goes back to 16.  With
+    one, it stays (sim+avr://?fast_baud=1000000: the host switches, then polls at 1 Mbaud)."""
+    from lm629_host.link import FrameType
+    from lm629_host.transports import open_transport
+
+    t = open_transport("sim+avr://?baud=115200")
+    UBRR0L = 0xC4
+    assert t.sim.peek(UBRR0L) == 16
+    frame = t._exchange(FrameType.SET_BAUD, (1_000_000).to_bytes(4, "big"), 0.05, "SET_BAUD", 0)
+    assert frame.type == FrameType.BAUD_REPLY and frame.payload == b"\x00" + (1_000_000).to_bytes(4, "big")
+    t.clock.sleep(0.01)
+    assert t.sim.peek(UBRR0L) == 1
+    t.clock.sleep(0.3)
+    assert t.sim.peek(UBRR0L) == 16  # nothing came: back to 115200
+    frame = t._exchange(FrameType.SET_BAUD, (230400).to_bytes(4, "big"), 0.05, "SET_BAUD", 0)
+    assert frame.payload[0] == 7 and t.sim.peek(UBRR0L) == 16  # BAD_BAUD: 3.5 % off
+    t.close()
+    t = open_transport("sim+avr://?baud=115200&fast_baud=1000000&record=1")
+    assert t.baud == 1_000_000 and t.sim.peek(UBRR0L) == 1
+    t.clock.sleep(0.3)
+    assert t.sim.peek(UBRR0L) == 1  # a good frame came at the new rate: it stays
+    chip = LM629(t)
+    chip.reset()
+    t0 = t.clock.now()
+    chip.read_real_position()
+    assert t.clock.now() - t0 < 400e-6  # a 1 Mbaud round trip, not 115200's 2 ms
+    t.close()

@@ -39,7 +39,7 @@ def frames() -> list[tuple[str, bytes]]:
     biggest = Program()
     for i in range(81):
         biggest.write((i * 0x0101) & 0xFF00)  # 0000, 0100, 0200...: zeros in every op
-    info = HelloInfo(firmware=(1, 1, 0), capabilities=0x003F, max_program=243, max_reads=120,
+    info = HelloInfo(firmware=(1, 1, 0), capabilities=0x007F, max_program=243, max_reads=120,
                      chip_selects=1, cpu_hz=16_000_000)
     return [
         ("hello", frame_body(FrameType.HELLO, 0x01)),
@@ -75,6 +75,10 @@ def frames() -> list[tuple[str, bytes]]:
         ("run_code_reply_rdrp", frame_body(
             FrameType.RUN_SHORT_REPLY, 0x12,
             short_reply_payload(rdrp.ops, RunReply(Result.OK, 0xFF, 0xC0, 1, (), (0xFFFF, 0xFC18))))),
+        # SET_BAUD 1000000 (capability BAUD_SWITCH): made exactly, with divisor 2 and U2X
+        ("set_baud_1m", frame_body(FrameType.SET_BAUD, 0x20, (1_000_000).to_bytes(4, "big"))),
+        ("baud_reply_1m", frame_body(FrameType.BAUD_REPLY, 0x20,
+                                     bytes((Result.OK,)) + (1_000_000).to_bytes(4, "big"))),
         ("run_reply_unknown_code", frame_body(
             FrameType.RUN_REPLY, 0x12, RunReply(Result.UNKNOWN_CODE, 0xFF, 0xFF, 0, (), ()).encode())),
     ]

@@ -232,6 +232,15 @@ static void test_golden_requests(void)
     n = feed(wire, frame(0x06, 0x15, code1, sizeof code1, wire), out);
     CHECK(n > 0 && reply_payload(out, n, 0x82, 0x15, &p) == 5 && p[0] == RESULT_UNKNOWN_CODE,
           "RUN_CODE after a refused RUN_STORE");
+    /* SET_BAUD: 1 Mbaud made exactly (divisor 2, for main.c to switch to); 230400 refused */
+    L.baud_div = 0;
+    expect_reply("set_baud_1m", "baud_reply_1m");
+    CHECK(L.baud_div == 2, "SET_BAUD 1000000 left divisor %u", L.baud_div);
+    L.baud_div = 0;
+    uint8_t b230[] = {0x00, 0x03, 0x84, 0x00};
+    n = feed(wire, frame(0x07, 0x21, b230, sizeof b230, wire), out);
+    CHECK(n > 0 && reply_payload(out, n, 0x87, 0x21, &p) == 5 && p[0] == RESULT_BAD_BAUD
+          && L.baud_div == 0, "SET_BAUD 230400 (222222 made: 3.5 %% off) not refused");
     /* unknown request type -> ERROR_REPLY BAD_REQUEST */
     n = feed(wire, frame(0x70, 0x33, NULL, 0, wire), out);
     vec_t *er = get("error_reply");

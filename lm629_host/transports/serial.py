@@ -3,9 +3,12 @@
 A bare device path (``/dev/ttyACM0``, ``/dev/ttyUSB0``, ``COM3``) means the same.  URL
 parameters (all optional)::
 
-    serial:///dev/ttyACM0?baud=115200&retries=7&boot=2.5&low_latency=1&cs=0
+    serial:///dev/ttyACM0?baud=115200&fast_baud=1000000&retries=7&boot=2.5&low_latency=1&cs=0
 
 * ``baud``: must match the firmware's (115200 unless it was built otherwise);
+* ``fast_baud``: the rate to switch to after the handshake when the bridge can (HELLO capability
+  BAUD_SWITCH), default 1000000; ``fast_baud=0`` keeps ``baud``.  A bridge or adapter that cannot
+  do it leaves the link at ``baud``, with a warning;
 * ``boot``: seconds to keep asking HELLO after the port opens.  An Uno or a Nano resets when
   the port opens (DTR) and its bootloader needs 1-2 s before the firmware answers;
 * ``low_latency``: ask the USB serial driver for low latency (on Linux, FTDI adapters hold
@@ -32,7 +35,7 @@ except ImportError:  # pragma: no cover - Windows
     grp = None  # type: ignore[assignment]
 
 from ..errors import TransportError
-from ..link import DEFAULT_RETRIES, LinkTransport
+from ..link import DEFAULT_RETRIES, FAST_BAUD, LinkTransport
 from ..program import TraceCallback
 from . import query_params
 from .base import Check, Clock, PortInfo, WallClock
@@ -58,7 +61,7 @@ KNOWN_USB_IDS: dict[tuple[int, int], str] = {
     (0x10C4, 0xEA60): "Silicon Labs CP210x",
 }
 
-_PARAMS = {"baud", "retries", "boot", "low_latency", "cs"}
+_PARAMS = {"baud", "retries", "boot", "low_latency", "cs", "fast_baud"}
 
 
 def _ask_group(path: str) -> str:
@@ -103,6 +106,7 @@ class SerialOptions:
     boot_s: float = DEFAULT_BOOT_S
     low_latency: bool = True
     cs: int = 0
+    fast: int = FAST_BAUD
 
 
 def options_of(url: str) -> SerialOptions:
@@ -134,6 +138,7 @@ def options_of(url: str) -> SerialOptions:
         boot_s=num("boot", DEFAULT_BOOT_S, float, 0.0, 30.0),
         low_latency=q.get("low_latency", "1") not in ("0", "false", "no"),
         cs=num("cs", 0, int, 0, 255),
+        fast=num("fast_baud", FAST_BAUD, int, 0, 4_000_000),
     )
 
 
@@ -175,6 +180,14 @@ class SerialPipe:
         except Exception as exc:  # noqa: BLE001
             raise TransportError(f"read failed ({exc}): was the board unplugged?",
                                  port=port.port) from exc
+
+    def set_baud(self, baud: int) -> None:
+        """Run the port at ``baud`` (what was written is sent first)."""
+        try:
+            self.port.flush()
+            self.port.baudrate = baud
+        except Exception as exc:  # noqa: BLE001 - SerialException, ValueError
+            raise TransportError(f"cannot set {baud} baud ({exc})", port=self.port.port) from exc
 
     def reset_input(self) -> None:
         try:
@@ -240,12 +253,19 @@ class SerialTransport(LinkTransport):
     def __init__(self, pipe: SerialPipe, url: str, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = DEFAULT_BAUD, cs: int = 0,
                  boot_s: float = DEFAULT_BOOT_S, low_latency: str = "",
-                 measure_rtt: bool = True) -> None:
+                 measure_rtt: bool = True, fast: int = 0) -> None:
         self.boot_s = boot_s
         self.hello_total_s = max(boot_s, self.hello_interval_s)
         self.low_latency = low_latency
         self.rtt_s: float | None = None
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs)
+        if fast and fast != baud:
+            try:
+                self.switch_baud(fast)  # a bridge that cannot: a notice, and the link stays
+            except BaseException:
+                self.close()
+                raise
+            self.stats.reset()
         if measure_rtt:
             try:
                 self.rtt_s = self.measure_rtt()
@@ -266,7 +286,7 @@ class SerialTransport(LinkTransport):
         pipe = SerialPipe(port)
         pipe.reset_input()
         return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
-                   boot_s=opts.boot_s, low_latency=low)
+                   boot_s=opts.boot_s, low_latency=low, fast=opts.fast)
 
     def _no_answer(self, what: str, attempts: int) -> TransportError:
         dev = device_of(self.url)

@@ -3,11 +3,12 @@ against the chip model; the host side is the unchanged link protocol (:class:`Li
 
 URL parameters::
 
-    sim+avr://?baud=115200&firmware=path/to/lm629_bridge.elf&<any sim:// parameter>
+    sim+avr://?baud=115200&fast_baud=1000000&firmware=path/to/lm629_bridge.elf&<any sim:// parameter>
 
 ``baud``: the simulated serial line (115200 or 1000000 with the images ``make -C
 firmware_bridge`` builds; another rate needs ``firmware=`` built with ``make BAUD=...``).
-Every bus cycle the chip model sees was made by the compiled AVR code; the transport's clock is
+``fast_baud``: after the handshake, switch the line to this rate (SET_BAUD; default: stay at
+``baud``, so that the URL's rate is the one measured).  Every bus cycle the chip model sees was made by the compiled AVR code; the transport's clock is
 the AVR's simulated time.  ``transport.model`` is the chip, ``transport.sim`` the AVR.
 """
 
@@ -54,8 +55,17 @@ class SimAvrTransport(LinkTransport):
                              f"{' or '.join(map(str, BUILT_BAUDS))} baud; for another rate build "
                              f"one with `make -C firmware_bridge BAUD={baud}` and pass "
                              "firmware=firmware_bridge/build/lm629_bridge.elf")
-        model = build_model(url, allowed=frozenset({"firmware", "baud"}))
-        return cls(AvrSim(model, firmware), url, trace=trace, baud=baud)
+        fast = params.get("fast_baud", "0")
+        try:
+            fast_baud = int(fast)
+        except ValueError:
+            raise ValueError(f"{url}: fast_baud={fast!r} is not a number") from None
+        model = build_model(url, allowed=frozenset({"firmware", "baud", "fast_baud"}))
+        t = cls(AvrSim(model, firmware), url, trace=trace, baud=baud)
+        if fast_baud and fast_baud != baud:
+            t.switch_baud(fast_baud)  # SET_BAUD: the firmware switches its UART
+            t.stats.reset()
+        return t
 
     def describe(self) -> str:
         p = self.model.params
