@@ -63,10 +63,13 @@ static int make_frame(uint8_t *wire)
 {
     uint8_t d[300];
     int n = 2;
-    d[0] = (uint8_t)(rnd() % 5 ? (rnd() % 6) + 1 : rnd());
+    d[0] = (uint8_t)(rnd() % 5 ? (rnd() % 7) + 1 : rnd());
     d[1] = (uint8_t)rnd();
     if (d[0] == 6) { /* RUN_CODE: a code, now and then out of range */
         d[n++] = (uint8_t)(rnd() % 10);
+    } else if (d[0] == 7) { /* SET_BAUD: any rate, 0 included */
+        for (int k = 0; k < 4; k++)
+            d[n++] = (uint8_t)(rnd() % 3 ? rnd() : 0);
     } else if (d[0] == 2 || d[0] == 4 || d[0] == 5) { /* RUN, RUN_SHORT, RUN_STORE */
         if (d[0] == 5)
             d[n++] = (uint8_t)(rnd() % 10);
