@@ -15,7 +15,7 @@ import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from .errors import CommandError, ResetError, WaitTimeout
+from .errors import AxisError, CommandError, ResetError, WaitTimeout
 from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
@@ -109,10 +109,16 @@ class LM629:
     """One LM628 or LM629 behind a transport.  Use :func:`lm629_host.open` to make one."""
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
-                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S):
+                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None):
         chip = chip.lower()
         if chip not in ("lm628", "lm629"):
             raise ValueError(f"chip={chip!r}: expected 'lm628' or 'lm629'")
+        if axis is not None and (isinstance(axis, bool) or not isinstance(axis, int)
+                                 or not 0 <= axis < transport.chip_selects):
+            raise AxisError(axis, transport.chip_selects, transport.describe())
+        #: the chip select this object addresses on a multi-axis board (None: the only chip);
+        #: every program it builds starts with ``select(axis)`` (a program starts on chip 0)
+        self.axis = axis
         self.busy_timeout = busy_timeout
         self.transport = transport
         self.variant = chip
@@ -141,8 +147,11 @@ class LM629:
         self._busy_timeout = float(seconds)
 
     def program(self) -> Program:
-        """A new, empty bus program with this chip's busy timeout."""
-        return Program(busy_timeout_s=self._busy_timeout)
+        """A new, empty bus program with this chip's busy timeout (and its chip select)."""
+        p = Program(busy_timeout_s=self._busy_timeout)
+        if self.axis:
+            p.select(self.axis)
+        return p
 
     @property
     def clock(self) -> Clock:
@@ -163,7 +172,8 @@ class LM629:
         self.close()
 
     def __repr__(self) -> str:
-        return f"<LM629 {self.variant} on {self.transport.describe()}>"
+        where = f" axis {self.axis}" if self.axis is not None else ""
+        return f"<LM629 {self.variant}{where} on {self.transport.describe()}>"
 
     def _command(self, cmd: Cmd) -> None:
         self.run(self.program().command(cmd))

@@ -34,11 +34,15 @@ class Op(enum.IntEnum):
     RESET = 0x05  #: pulse /RST low for at least 8 chip clocks
     WAIT = 0x06  #: wait ``arg`` microseconds (0..65535)
     SYNC = 0x07  #: busy check only: read status until busy is clear; reported in ``statuses``
+    #: switch chip select: the operations after it go to chip ``arg`` (0..chip selects - 1) on
+    #: a multi-axis board.  A program starts on chip 0 (on a bridge: the RUN's ``cs``); /RST
+    #: and WAIT concern every chip.  So a synchronized start on several axes is one program.
+    SELECT = 0x09
 
 
 #: How many argument bytes each operation carries on the wire.
 OP_ARG_BYTES = {Op.STATUS: 0, Op.COMMAND: 1, Op.WRITE: 2, Op.READ: 0, Op.RESET: 0, Op.WAIT: 2,
-                Op.SYNC: 0}
+                Op.SYNC: 0, Op.SELECT: 1}
 
 
 @dataclass(frozen=True)
@@ -64,6 +68,8 @@ class BusOp:
             return "/RST pulse"
         if self.op is Op.SYNC:
             return "wait for busy clear"
+        if self.op is Op.SELECT:
+            return f"select chip {self.arg}"
         return f"wait {self.arg} us"
 
 
@@ -105,6 +111,13 @@ class Program:
         """Wait until busy is clear and record that status byte (e.g. to see the command-error
         bit that the chip sets while it processes a command)."""
         self.ops.append(BusOp(Op.SYNC))
+        return self
+
+    def select(self, chip: int) -> Program:
+        """The operations after this one go to chip ``chip`` (its /CS), on a multi-axis bus."""
+        if not 0 <= chip <= 0xFF:
+            raise ValueError(f"chip select {chip} is outside 0..255")
+        self.ops.append(BusOp(Op.SELECT, chip))
         return self
 
     def reset(self) -> Program:
@@ -152,8 +165,9 @@ class ProgramResult:
 class BusCycle:
     """One bus cycle, as passed to a trace callback.
 
-    ``kind`` is one of "reset", "status", "command", "write", "read"; ``value`` is the byte for
-    status and command cycles, the 16-bit word for write and read, and 0 for reset.
+    ``kind`` is one of "reset", "status", "command", "write", "read", "select"; ``value`` is the
+    byte for status and command cycles, the 16-bit word for write and read, 0 for reset and
+    the chip for select (a /CS change on a multi-axis bus, no strobe).
     """
 
     kind: str
@@ -193,3 +207,5 @@ def cycles_of(program: Iterable[BusOp], result: ProgramResult) -> Iterator[BusCy
             yield BusCycle("status", s)
         elif o.op is Op.RESET:
             yield BusCycle("reset", 0)
+        elif o.op is Op.SELECT:
+            yield BusCycle("select", o.arg)

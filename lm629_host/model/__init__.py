@@ -175,7 +175,8 @@ Restarts, buffered parameters, ranges, reset (new in issue 15)
     shaft then is becomes real position 0.
 """
 
+from .bus import ChipBus, chips_of
 from .chip import ChipModel, Violation
 from .params import ChipParams, MotorParams
 
-__all__ = ["ChipModel", "ChipParams", "MotorParams", "Violation"]
+__all__ = ["ChipBus", "chips_of", "ChipModel", "ChipParams", "MotorParams", "Violation"]

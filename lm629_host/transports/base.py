@@ -100,6 +100,8 @@ class Transport(abc.ABC):
     scheme: str = ""
     #: True when the transport can pulse /RST; otherwise ``LM629.reset`` sends command RESET
     has_reset_line: bool = True
+    #: how many chips (/CS lines) a program can address with ``Op.SELECT`` (a multi-axis board)
+    chip_selects: int = 1
 
     def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
         self.url = url
@@ -160,6 +162,11 @@ class CycleTransport(Transport):
     def _hi(self) -> bool | None:
         return None
 
+    def _select_chip(self, chip: int) -> None:
+        """/CS of ``chip`` for the following cycles (a program starts on chip 0)."""
+        if chip != 0:
+            raise ValueError(f"chip select {chip}: {self.url} drives one chip (0)")
+
     def _wait_not_busy(self, program: Program, index: int, words: list[int]) -> int:
         clock = self.clock
         deadline = clock.now() + program.busy_timeout_s
@@ -183,6 +190,8 @@ class CycleTransport(Transport):
         words: list[int] = []
         statuses: list[int] = []
         status: int | None = None
+        if self.chip_selects > 1:
+            self._select_chip(0)
         for index, o in enumerate(program.ops):
             op = o.op
             if op is Op.COMMAND or op is Op.WRITE or op is Op.READ:
@@ -212,6 +221,9 @@ class CycleTransport(Transport):
                 self._emit(BusCycle("reset", 0))
             elif op is Op.WAIT:
                 self.clock.sleep(o.arg * 1e-6)
+            elif op is Op.SELECT:
+                self._select_chip(o.arg)
+                self._emit(BusCycle("select", o.arg))
             else:  # pragma: no cover - Op is closed
                 raise AssertionError(op)
         return ProgramResult(tuple(words), tuple(statuses), status, self._hi())

@@ -4,6 +4,7 @@ URL parameters (all optional)::
 
     sim://?chip=lm628&clock=6000000&strict=1&fault=reset|busy|rst&record=1
           &lines=500&reversed=1&...      (motor and encoder: see model.params.MotorParams)
+          &axes=2                        (N chips, each with its own motor, on one bus and clock)
 
 Each bus strobe costs ``CYCLE_S`` of simulated time (a fast host's bus cycle); while the chip
 is busy, the busy check polls every ``poll_interval_s``.  ``chip.clock`` is the model's clock:
@@ -15,7 +16,7 @@ from __future__ import annotations
 import math
 import os
 
-from ..model import ChipModel, ChipParams, MotorParams
+from ..model import ChipBus, ChipModel, ChipParams, MotorParams, chips_of
 from ..model.params import apply_params
 from ..program import TraceCallback
 from . import query_params
@@ -73,26 +74,64 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
     return ChipModel(chip, motor)
 
 
+#: the most chips a simulated bus takes (``axes=``)
+MAX_AXES = 8
+
+
+def axes_of(url: str, limit: int = MAX_AXES) -> int:
+    """The URL's ``axes=`` (default 1), checked against ``limit`` chip selects."""
+    raw = query_params(url).get("axes", "1")
+    try:
+        n = int(raw)
+    except ValueError:
+        raise ValueError(f"{url}: axes={raw!r} is not a whole number of chips") from None
+    if not 1 <= n <= limit:
+        raise ValueError(f"{url}: axes={n} is outside 1..{limit} (the chip selects this "
+                         "simulated adapter has)")
+    return n
+
+
+def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
+              limit: int = MAX_AXES) -> ChipModel | ChipBus:
+    """The chip (``axes=1``, the default) or the :class:`ChipBus` of ``axes=N`` chips, each
+    with its own motor, all configured from the same URL parameters."""
+    n = axes_of(url, limit)
+    allowed = allowed | {"axes"}
+    if n == 1:
+        return build_model(url, allowed=allowed)
+    return ChipBus([build_model(url, allowed=allowed) for _ in range(n)])
+
+
 class SimTransport(CycleTransport):
     """Bus cycles straight into an in-process :class:`ChipModel`."""
 
     scheme = "sim"
     has_reset_line = True
 
-    def __init__(self, model: ChipModel, url: str = "sim://", *,
+    def __init__(self, model: ChipModel | ChipBus, url: str = "sim://", *,
                  trace: TraceCallback | None = None) -> None:
         super().__init__(url, trace=trace)
         self.model = model
+        #: the chips on the bus, chip select 0 first (one chip: ``[model]``)
+        self.models = chips_of(model)
+        self.chip_selects = len(self.models)
         self.clock = SimClock(model)
         self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
-        return cls(build_model(url), url, trace=trace)
+        return cls(build_bus(url), url, trace=trace)
 
     def describe(self) -> str:
         p = self.model.params
-        return f"{self.url} (simulated {p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)"
+        n = f"{len(self.models)} x " if len(self.models) > 1 else ""
+        return f"{self.url} (simulated {n}{p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)"
+
+    def _select_chip(self, chip: int) -> None:
+        if isinstance(self.model, ChipBus):
+            self.model.select(chip)
+        else:
+            super()._select_chip(chip)
 
     def _strobe(self) -> ChipModel:
         m = self.model

@@ -1,0 +1,171 @@
+"""Several axes on one bus (issue 11): chip selects, one reset, synchronized start, straight
+lines.  Each behaviour runs on the transports named in TRANSPORTS with two chips; the numbers
+checked are the chip's own (every desired position at every sample, the sample a trajectory
+completes), read from the chip models behind the transport."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+import lm629_host
+from lm629_host import AxisError, ResetError
+from lm629_host.board import plan_linear, trapezoid_samples
+from lm629_host.model import chips_of
+from lm629_host.model.chip import SAMPLE_CLOCKS
+from lm629_host.opcodes import Status
+
+#: the transports of the Done-when list; sim+avr:// and sim+ftdi:// join as they gain axes=
+TRANSPORTS = ["sim://", "sim+emu://?baud=1000000"]
+
+
+def open2(url: str, **kw) -> lm629_host.Board:
+    sep = "&" if "?" in url else "?"
+    return lm629_host.open_board(url + sep + "axes=2", **kw)
+
+
+def chips(board):
+    return chips_of(board.transport.model)
+
+
+def sample_s(board) -> float:
+    return SAMPLE_CLOCKS / chips(board)[0].clock_hz
+
+
+def tune(board, kp: int = 20) -> None:
+    for a in board.axes:
+        a.load_filter(kp=kp)
+        a.update_filter()
+
+
+def run_samples(board, limit: int):
+    """Step the board's clock one sample at a time until every chip's trajectory is done;
+    returns (per-sample desired positions in 1/65536 count, the sample each finished)."""
+    models = chips(board)
+    done = [None] * len(models)
+    path = []
+    dt = sample_s(board)
+    for n in range(1, limit + 1):
+        board.clock.sleep(dt)
+        path.append(tuple(m.motion.traj.position for m in models))
+        for k, m in enumerate(models):
+            if done[k] is None and m.motion.traj.done:
+                done[k] = m.samples
+        if all(d is not None for d in done):
+            return path, done
+    raise AssertionError(f"not done after {limit} samples: {done}")
+
+
+# ------------------------------------------------------------------------------ planning
+def test_plan_shares_the_words_by_distance():
+    plan = plan_linear({0: (0, 12000), 1: (0, 6000)}, velocity=65536, acceleration=1000)
+    x, y = plan.axes
+    # the path is sqrt(12000^2 + 6000^2) = 13416.4 counts: x has 0.894 of it, y 0.447
+    assert abs(x.velocity - 65536 * 12000 / 13416.4) < 65536 * 0.005
+    assert abs(x.acceleration - 894) <= 2 and y.acceleration * 2 == x.acceleration
+    # the duration each pair of words gives, exactly, is the same within a tenth of a sample
+    assert plan.spread < 0.1
+    assert abs(trapezoid_samples(12000, x.velocity, x.acceleration) / plan.samples - 1) < 0.005
+
+
+def test_plan_rejects_what_the_chip_cannot_do():
+    with pytest.raises(ValueError, match="velocity"):
+        plan_linear({0: (0, 100)}, velocity=0, acceleration=10)
+    with pytest.raises(ValueError, match="axis 1.*resolution"):
+        plan_linear({0: (0, 100000), 1: (0, 1)}, velocity=65536, acceleration=10)
+
+
+# ------------------------------------------------------------------------------ the board
+@pytest.mark.parametrize("url", TRANSPORTS)
+def test_one_reset_checks_every_chip(url):
+    with open2(url) as board:
+        assert [int(s) for s in board.reset()] == [0xC0, 0xC0]
+        assert board.transport.stats.programs == 2  # /RST + checks, then MSKI/RSTI on each
+        # a chip that never leaves reset on axis 1: the error names it and its bytes
+        chips(board)[1].params.fault = "reset"
+        with pytest.raises(ResetError, match=r"^axis 1: .*status read 00 00 00 00") as info:
+            board.reset()
+        assert info.value.axis == 1
+
+
+@pytest.mark.parametrize("url", TRANSPORTS)
+def test_independent_moves_end_each_on_its_own_target(url):
+    with open2(url) as board:
+        board.reset()
+        tune(board)
+        x, y = board.axes
+        x.load_trajectory(acceleration=2000, velocity=3 * 65536, position=3000)
+        y.load_trajectory(acceleration=500, velocity=65536, position=-1200)
+        x.start()
+        y.start()
+        path, done = run_samples(board, 5000)
+        assert path[-1] == (3000 << 16, -1200 << 16)
+        assert x.read_desired_position() == 3000 and y.read_desired_position() == -1200
+        # x: 1.5 counts/sample ramp of 98 samples; y slower: their ends differ
+        assert done[0] != done[1]
+        assert abs(x.read_real_position() - 3000) <= 13 and abs(y.read_real_position() + 1200) <= 13
+
+
+@pytest.mark.parametrize("url", TRANSPORTS)
+def test_synchronized_start_is_one_program_and_identical_profiles_end_together(url):
+    with open2(url) as board:
+        board.reset()
+        tune(board)
+        for a in board.axes:
+            a.load_trajectory(acceleration=1500, velocity=2 * 65536, position=2500)
+        before = board.transport.stats.programs, board.transport.stats.round_trips
+        board.start()
+        assert board.transport.stats.programs - before[0] == 1
+        assert board.transport.stats.round_trips - before[1] == 1
+        path, done = run_samples(board, 5000)
+        assert done[0] == done[1]
+        assert all(p[0] == p[1] for p in path)
+
+
+@pytest.mark.parametrize("url", TRANSPORTS)
+def test_move_linear_keeps_to_the_line_and_lands_both(url):
+    with open2(url) as board:
+        board.reset()
+        tune(board)
+        x, y = board.axes
+        m = board.move_linear({x: 3000, y: -1700}, velocity=3 * 65536, acceleration=2000)
+        path, done = run_samples(board, 5000)
+        assert abs(done[0] - done[1]) <= 1
+        assert path[-1] == (3000 << 16, -1700 << 16)
+        # every sample: the desired point (whole counts, as RDDP reads) within 1.5 counts of
+        # the line from (0, 0) to (3000, -1700)
+        length = math.hypot(3000, -1700)
+        worst = max(abs((px >> 16) * -1700 - (py >> 16) * 3000) / length for px, py in path)
+        assert worst <= 1.5, worst
+        r = m.wait(timeout=2, tolerance=13)
+        assert [a.desired_position for a in r.axes] == [3000, -1700]
+
+
+def test_move_linear_the_issue_example_on_sim():
+    with open2("sim://") as board:
+        board.reset()
+        tune(board)
+        x, y = board.axes
+        board.move_linear({x: 12000, y: 6000}, velocity=65536, acceleration=1000)
+        path, done = run_samples(board, 20000)
+        assert abs(done[0] - done[1]) <= 1
+        worst = max(abs((px >> 16) * 6000 - (py >> 16) * 12000) / math.hypot(12000, 6000)
+                    for px, py in path)
+        assert worst <= 1.5, worst
+        assert path[-1] == (12000 << 16, 6000 << 16)
+
+
+# ------------------------------------------------------------------------------ axis errors
+def test_axis_beyond_the_board_is_one_clear_error():
+    with pytest.raises(AxisError, match="axis 2 does not exist.*1 chip select"):
+        lm629_host.open("sim://?cs=2")
+    with pytest.raises(AxisError, match="axis 2 does not exist.*2 chip select"):
+        lm629_host.open("sim://?axes=2&cs=2")
+    with pytest.raises(AxisError):
+        lm629_host.open_board("sim://?axes=1", axes=3)
+    with lm629_host.open("sim://?axes=2&cs=1") as chip:
+        chip.reset()
+        assert chip.axis == 1 and chip.read_desired_position() == 0
+    with open2("sim://") as board, pytest.raises(AxisError):
+        board.start(2)
