@@ -4,9 +4,7 @@
     with lm629_host.open("sim://") as chip:
         chip.reset()
         chip.load_filter(kp=20); chip.update_filter()
-        chip.load_trajectory(acceleration=100, velocity=100 * 65536 // 100, position=1000)
-        chip.start()
-        chip.wait_for(lm629_host.Status.TRAJECTORY_COMPLETE)
+        chip.move_to(1000, velocity=65536, acceleration=655).wait()   # or MotionError
 """
 
 from __future__ import annotations
@@ -23,6 +21,7 @@ from .errors import (
     WaitTimeout,
 )
 from .lm629 import LM629, Snapshot
+from .move import Move, MoveResult, MoveRules
 from .opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
 from .program import DEFAULT_BUSY_TIMEOUT_S, BusCycle, Program, ProgramResult
 from .transports import DEFAULT_URL, open_transport, query_params, scheme_of, split_params
@@ -59,7 +58,8 @@ def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa
 
 
 __all__ = [
-    "LM629", "Snapshot", "open", "open_board", "Board", "BoardMove", "AxisError", "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",
+    "LM629", "Snapshot", "Move", "MoveResult", "MoveRules", "open", "open_board", "Board",
+    "BoardMove", "AxisError", "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",
     "BusCycle", "Program", "ProgramResult", "LM629Error", "BusyTimeout", "ResetError",
     "TransportError", "CommandError", "WaitTimeout", "MotionError", "ProtocolViolation",
     "__version__",

@@ -251,6 +251,12 @@ class AvrSim:
         """A byte of the AVR's data space (registers, I/O, RAM): for tests and profiling."""
         return int(self._lib.fitl_peek(self._h, address))
 
+    def link_counters(self) -> LinkCounters | None:
+        """The firmware's own link counters (frames, bad frames, programs run, cache hits), read
+        from its RAM; None when ``avr-nm`` is missing or ``link_t`` changed its layout."""
+        address = _link_address(self.firmware)
+        return None if address is None else LinkCounters(self, address)
+
     @property
     def pc(self) -> int:
         """The AVR's program counter (byte address), for sampling profiles."""
@@ -319,5 +325,54 @@ class AvrPipe:
             self.sim.close()
 
 
-__all__ = ["AvrSim", "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
+#: ``link_t`` of firmware_bridge/link.h on the AVR: 13 bytes of state, then four 16-bit
+#: counters (frames, bad_frames, runs, cache_hits, little-endian), then the three buffers
+_LINK_COUNTERS_AT = 13
+_LINK_T_SIZE = 13 + 4 * 2 + 252 + 250 + 252
+_link_addresses: dict[Path, int | None] = {}
+
+
+def _link_address(firmware: Path) -> int | None:
+    """RAM address of the firmware's ``link`` (from ``avr-nm -S``), None if it cannot be
+    trusted (no avr-nm, no symbol, or a size that is not the layout above)."""
+    if firmware not in _link_addresses:
+        found = None
+        try:
+            out = subprocess.run(["avr-nm", "-S", str(firmware)], capture_output=True,
+                                 text=True, check=True).stdout
+        except (OSError, subprocess.CalledProcessError):
+            out = ""
+        for line in out.splitlines():
+            parts = line.split()
+            if len(parts) == 4 and parts[3] == "link" and int(parts[1], 16) == _LINK_T_SIZE:
+                found = int(parts[0], 16) & 0xFFFF  # data space: 0x800000 + RAM address
+        _link_addresses[firmware] = found
+    return _link_addresses[firmware]
+
+
+class LinkCounters:
+    """A live view of the firmware's link counters, counted from the last :meth:`reset` (the
+    AVR's 16-bit counters wrap; fine between two reads less than 65536 apart)."""
+
+    NAMES = ("frames", "bad_frames", "runs", "cache_hits")
+
+    def __init__(self, sim: AvrSim, address: int) -> None:
+        self._sim, self._address = sim, address
+        self._base = self._raw()
+
+    def _raw(self) -> tuple[int, ...]:
+        peek, a = self._sim.peek, self._address + _LINK_COUNTERS_AT
+        return tuple(peek(a + 2 * i) | peek(a + 2 * i + 1) << 8 for i in range(4))
+
+    def reset(self) -> None:
+        self._base = self._raw()
+
+    def __getattr__(self, name: str) -> int:
+        if name not in LinkCounters.NAMES:
+            raise AttributeError(name)
+        i = LinkCounters.NAMES.index(name)
+        return (self._raw()[i] - self._base[i]) & 0xFFFF
+
+
+__all__ = ["AvrSim", "LinkCounters", "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
            "CPU_HZ", "BUILT_BAUDS", "ensure_built", "toolchain_missing", "PACKAGES"]

@@ -28,7 +28,9 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from .errors import AxisError, CommandError, MotionError, ResetError
-from .lm629 import LM629, check_int
+from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, snapshot_of
+from .move import MOVE_FLAGS, Move, MoveResult
+from .safety import emergency_stop
 from .opcodes import (
     ACCELERATION_MAX,
     INTERRUPTS,
@@ -198,43 +200,38 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
 
 
 # ---------------------------------------------------------------------------- the board
-@dataclass(frozen=True)
-class AxisResult:
-    axis: int
-    target: int
-    desired_position: int
-    real_position: int
-    completed_at: float  #: transport clock when the poll first saw trajectory complete
-
-
-@dataclass(frozen=True)
-class BoardMoveResult:
-    axes: tuple[AxisResult, ...]
-
-    @property
-    def skew(self) -> float:
-        """Seconds between the first and the last axis seen complete (poll resolution)."""
-        t = [a.completed_at for a in self.axes]
-        return max(t) - min(t) if t else 0.0
-
-
 class BoardMove:
-    """A move started on several axes; :meth:`wait` waits for all of them."""
+    """Moves started together on several axes (one :class:`~lm629_host.Move` per axis, all
+    with the same start time); :meth:`wait` waits for all of them."""
 
-    def __init__(self, board: Board, targets: Mapping[int, int],
-                 plan: LinearPlan | None = None) -> None:
+    def __init__(self, board: Board, moves: Sequence[Move], plan: LinearPlan | None = None) -> None:
         self.board = board
-        self.targets = dict(targets)
+        self.moves = tuple(moves)
         self.plan = plan
 
-    def wait(self, timeout: float = 10.0, tolerance: int | None = None,
-             poll: float = 1e-3) -> BoardMoveResult:
-        """Poll every axis (one program per poll) until each reports trajectory complete, then
-        check each desired position is its target and, with ``tolerance``, wait for each real
-        position to settle within it.  Any fault stops every axis and raises
-        :class:`MotionError` naming the axis (position error, motor off, timeout, following
-        error)."""
-        return self.board._wait(self.targets, timeout, tolerance, poll)
+    @property
+    def targets(self) -> dict[int, int]:
+        return {m.chip.axis: m.target for m in self.moves}
+
+    def wait(self, timeout: float | None = None, tolerance: int | None = None,
+             **kw: object) -> list[MoveResult]:
+        """Like :meth:`Move.wait <lm629_host.Move.wait>` for every axis (same ``timeout``
+        from the common start, same ``tolerance``); returns their results, axis order.  A
+        motion fault on one axis stops every axis and raises :class:`MotionError` naming the
+        axis (``exc.axis``)."""
+        results = []
+        for m in self.moves:
+            try:
+                results.append(m.wait(timeout, tolerance, **kw))  # type: ignore[arg-type]
+            except MotionError as exc:
+                self.board._stop_others(m.chip)
+                text = str(exc).split(": ", 1)[-1] if str(exc).startswith("motion fault") else str(exc)
+                raise MotionError(exc.reason, text, axis=m.chip.axis, position=exc.position,
+                                  error=exc.error) from exc
+            except BaseException:
+                self.board._stop_others(m.chip)
+                raise
+        return results
 
 
 class Board:
@@ -349,19 +346,20 @@ class Board:
         raise ResetError(seen[failed], expected, self.reset_attempts, axis=failed)
 
     # ------------------------------------------------------------------ synchronized start
-    def start_program(self, axes: Sequence[LM629 | int] = (),
-                      prefix: Program | None = None) -> tuple[_BoardProgram, list[LM629]]:
+    def start_program(self, axes: Sequence[LM629 | int] = (), prefix: Program | None = None,
+                      clear: Status | int = 0) -> tuple[_BoardProgram, list[LM629]]:
         """The program of :meth:`start` (after ``prefix``, e.g. the loads), without running it:
-        command-error flags cleared where needed, a busy-clear status of each axis, then the
-        STTs back to back (each a status read and the command byte on its chip), then each
-        axis's status once busy is clear."""
+        RSTI of ``clear`` (and of the command-error flag where it may be set), a busy-clear
+        status of each axis, then the STTs back to back (each a status read and the command
+        byte on its chip), then each axis's status once busy is clear."""
         chosen = self._pick(axes)
         p = self.program()
         if prefix is not None:
             p.extend(prefix)
         for a in chosen:
-            if not a._ce_clear:
-                p.on(a.axis).command(Cmd.RSTI).write(int(INTERRUPTS & ~Status.COMMAND_ERROR))
+            flags = Status(clear) | (Status(0) if a._ce_clear else Status.COMMAND_ERROR)
+            if flags:
+                p.on(a.axis).command(Cmd.RSTI).write(int(INTERRUPTS & ~flags))
         for a in chosen:
             p.on(a.axis).sync()
         for a in chosen:
@@ -370,10 +368,11 @@ class Board:
             p.on(a.axis).sync()
         return p, chosen
 
-    def start(self, *axes: LM629 | int, prefix: Program | None = None) -> list[Status]:
+    def start(self, *axes: LM629 | int, prefix: Program | None = None,
+              clear: Status | int = 0) -> list[Status]:
         """STT on every axis (or on ``axes``) in one bus program; raises
         :class:`CommandError` naming the axis whose chip refused its STT."""
-        p, chosen = self.start_program(axes, prefix)
+        p, chosen = self.start_program(axes, prefix, clear)
         statuses = self.transport.execute(p).statuses
         n = len(chosen)
         before, after = statuses[-2 * n:-n], statuses[-n:]
@@ -390,45 +389,53 @@ class Board:
         return [Status(s) for s in after]
 
     # ------------------------------------------------------------------ moves
-    def read_desired_positions(self, axes: Sequence[LM629 | int] = ()) -> list[int]:
-        """RDDP of each axis, one program."""
-        chosen = self._pick(axes)
-        p = self.program()
-        for a in chosen:
-            p.on(a.axis).command(Cmd.RDDP).read(2)
-        w = self.transport.execute(p).words
-        return [_s32(w[2 * k], w[2 * k + 1]) for k in range(len(chosen))]
+    def _launch(self, words: Mapping[LM629, tuple[int, int, int]],
+                plan: LinearPlan | None, starts: Mapping[LM629, Snapshot]) -> BoardMove:
+        """Load (acceleration, velocity, target) on each axis and start them together, flags
+        a move reports cleared in the same program (as :meth:`LM629.move_to` does)."""
+        loads = self.program()
+        for a, (acc, vel, target) in words.items():
+            loads.on(a.axis).extend(a.trajectory_program(acc, vel, target))
+        self.start(*words, prefix=loads, clear=MOVE_FLAGS)
+        t0 = self.clock.now()
+        return BoardMove(self, [Move(a, target, vel, acc, starts[a], t0)
+                                for a, (acc, vel, target) in words.items()], plan)
 
-    def move(self, targets: Mapping[LM629 | int, int], *, velocity: int | Mapping[LM629 | int, int],
+    def move(self, targets: Mapping[LM629 | int, int], *,
+             velocity: int | Mapping[LM629 | int, int],
              acceleration: int | Mapping[LM629 | int, int]) -> BoardMove:
         """Absolute moves on several axes, each with its own (or a common) velocity and
         acceleration word, loaded and started in one program (all STTs together)."""
         resolved = {self.axis(k): v for k, v in targets.items()}
 
-        def per(value, a):  # type: ignore[no-untyped-def]
+        def per(value: int | Mapping[LM629 | int, int], a: LM629, name: str) -> int:
             if isinstance(value, Mapping):
                 m = {self.axis(k): v for k, v in value.items()}
                 if a not in m:
-                    raise ValueError(f"no value for axis {a.axis}")
-                return m[a]
-            return value
+                    raise ValueError(f"{name}: no value for axis {a.axis}")
+                value = m[a]
+            hi = VELOCITY_MAX if name == "velocity" else ACCELERATION_MAX
+            return check_int(f"{name} of axis {a.axis}", value, 1, hi, hex_digits=8)
 
-        loads = self.program()
-        for a, target in resolved.items():
-            loads.on(a.axis).extend(a.trajectory_program(per(acceleration, a), per(velocity, a),
-                                                         target))
-        self.start(*resolved, prefix=loads)
-        return BoardMove(self, {a.axis: t for a, t in resolved.items()})
+        words = {a: (per(acceleration, a, "acceleration"), per(velocity, a, "velocity"),
+                     check_int(f"target of axis {a.axis}", t, POSITION_MIN, POSITION_MAX,
+                               hex_digits=8))
+                 for a, t in resolved.items()}
+        starts = {a: a.snapshot() for a in words}
+        return self._launch(words, None, starts)
 
     def plan_linear(self, targets: Mapping[LM629 | int, int], *, velocity: int,
-                    acceleration: int) -> LinearPlan:
+                    acceleration: int, starts: Mapping[LM629, Snapshot] | None = None
+                    ) -> LinearPlan:
+        """:func:`plan_linear` from where the axes are now (their desired positions)."""
         resolved = {self.axis(k): v for k, v in targets.items()}
         for a, t in resolved.items():
             check_int(f"target of axis {a.axis}", t, POSITION_MIN, POSITION_MAX, hex_digits=8)
         check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
         check_int("acceleration", acceleration, 1, ACCELERATION_MAX, hex_digits=8)
-        starts = self.read_desired_positions(list(resolved))
-        return plan_linear({a.axis: (s, t) for (a, t), s in zip(resolved.items(), starts)},
+        if starts is None:
+            starts = {a: a.snapshot() for a in resolved}
+        return plan_linear({a.axis: (starts[a].desired_position, t) for a, t in resolved.items()},
                            velocity, acceleration)
 
     def move_linear(self, targets: Mapping[LM629 | int, int], *, velocity: int,
@@ -436,27 +443,25 @@ class Board:
         """A straight line in count space from where the axes are (their desired positions)
         to ``targets``: each axis's words scaled by its share of the path
         (:func:`plan_linear`), loaded and started in one program."""
-        plan = self.plan_linear(targets, velocity=velocity, acceleration=acceleration)
-        loads = self.program()
-        moving = []
-        for ap in plan.axes:
-            if ap.distance == 0:
-                continue
-            a = self.axes[ap.axis]
-            loads.on(ap.axis).extend(a.trajectory_program(ap.acceleration, ap.velocity,
-                                                          ap.target))
-            moving.append(a)
-        if moving:
-            self.start(*moving, prefix=loads)
-        return BoardMove(self, {ap.axis: ap.target for ap in plan.axes}, plan)
+        resolved = [self.axis(k) for k in targets]
+        starts = {a: a.snapshot() for a in resolved}
+        plan = self.plan_linear(targets, velocity=velocity, acceleration=acceleration,
+                                starts=starts)
+        words = {self.axes[ap.axis]: (ap.acceleration, ap.velocity, ap.target)
+                 for ap in plan.axes if ap.distance}
+        if not words:
+            return BoardMove(self, [], plan)
+        return self._launch(words, plan, starts)
 
-    def stop(self, axes: Sequence[LM629 | int] = (), how: str = "abrupt") -> None:
-        """Stop every axis (or ``axes``) in one program: LTRJ stop + STT on each."""
-        p = self.program()
-        chosen = self._pick(axes)
-        for a in chosen:
-            p.on(a.axis).extend(a.trajectory_program(stop=how)).command(Cmd.STT)
-        self.transport.execute(p)
+    def stop(self, axes: Sequence[LM629 | int] = ()) -> list[str]:
+        """Abrupt stop, then motor off, on every axis (or ``axes``); each axis's line of how
+        its motor was left (see :func:`~lm629_host.safety.emergency_stop`)."""
+        return [emergency_stop(a)[1] for a in self._pick(axes)]
+
+    def _stop_others(self, failed: LM629) -> None:
+        for a in self.axes:
+            if a is not failed:
+                emergency_stop(a)
 
     def statuses(self, axes: Sequence[LM629 | int] = ()) -> list[Status]:
         """The status byte of every axis, one program."""
@@ -466,74 +471,19 @@ class Board:
             p.on(a.axis).status()
         return [Status(s) for s in self.transport.execute(p).statuses]
 
-    def _wait(self, targets: Mapping[int, int], timeout: float, tolerance: int | None,
-              poll: float) -> BoardMoveResult:
-        if not timeout > 0:
-            raise ValueError(f"timeout={timeout} must be positive (seconds)")
-        if not poll > 0:
-            raise ValueError(f"poll={poll} must be positive (seconds)")
-        axes = [self.axes[k] for k in targets]
-        clock = self.clock
-        deadline = clock.now() + timeout
-        done: dict[int, float] = {}
-        try:
-            while True:
-                now = clock.now()
-                for a, s in zip(axes, self.statuses(axes)):
-                    if s & Status.POSITION_ERROR:
-                        raise MotionError(MotionError.POSITION_ERROR,
-                                          f"the position-error flag is set (status {s:02X}); "
-                                          "check the load and the filter gains", axis=a.axis)
-                    if s & Status.TRAJECTORY_COMPLETE and a.axis not in done:
-                        if s & Status.MOTOR_OFF:
-                            raise MotionError(MotionError.MOTOR_OFF,
-                                              f"the drive is off (status {s:02X}) before the "
-                                              "move ended", axis=a.axis)
-                        done[a.axis] = now
-                if len(done) == len(axes):
-                    break
-                if clock.now() >= deadline:
-                    late = next(a.axis for a in axes if a.axis not in done)
-                    raise MotionError(MotionError.TIMEOUT,
-                                      f"the move did not complete within {timeout:g} s",
-                                      axis=late)
-                clock.sleep(poll)
-            results = self._positions(axes)
-            for a, (dp, rp) in zip(axes, results):
-                if dp != targets[a.axis]:
-                    raise MotionError(MotionError.FOLLOWING_ERROR,
-                                      f"trajectory ended at desired position {dp}, not at the "
-                                      f"target {targets[a.axis]}", axis=a.axis, position=rp)
-            if tolerance is not None:
-                while True:
-                    off = [(a, rp - targets[a.axis]) for a, (_, rp) in zip(axes, results)
-                           if abs(rp - targets[a.axis]) > tolerance]
-                    if not off:
-                        break
-                    if clock.now() >= deadline:
-                        a, e = off[0]
-                        raise MotionError(MotionError.FOLLOWING_ERROR,
-                                          f"settled {e:+d} counts from the target "
-                                          f"{targets[a.axis]} (tolerance {tolerance})",
-                                          axis=a.axis, position=targets[a.axis] + e, error=-e)
-                    clock.sleep(poll)
-                    results = self._positions(axes)
-        except BaseException:
-            try:
-                self.stop([a.axis for a in axes])
-            finally:
-                pass
-            raise
-        return BoardMoveResult(tuple(AxisResult(a.axis, targets[a.axis], dp, rp, done[a.axis])
-                                     for a, (dp, rp) in zip(axes, results)))
-
-    def _positions(self, axes: Sequence[LM629]) -> list[tuple[int, int]]:
+    def snapshots(self, axes: Sequence[LM629 | int] = ()) -> list[Snapshot]:
+        """:meth:`LM629.snapshot` of every axis (or ``axes``), in one bus program."""
+        chosen = self._pick(axes)
         p = self.program()
-        for a in axes:
-            p.on(a.axis).command(Cmd.RDDP).read(2).command(Cmd.RDRP).read(2)
-        w = self.transport.execute(p).words
-        return [(_s32(w[4 * k], w[4 * k + 1]), _s32(w[4 * k + 2], w[4 * k + 3]))
-                for k in range(len(axes))]
+        for a in chosen:
+            p.on(a.axis).status()
+            for cmd, n in SNAPSHOT_READS:
+                p.command(cmd).read(n)
+        r = self.transport.execute(p)
+        now = self.clock.now()
+        per = sum(n for _, n in SNAPSHOT_READS)
+        return [snapshot_of(r.statuses[k], r.words[k * per:(k + 1) * per], now)
+                for k in range(len(chosen))]
 
 
 class _BoardProgram(Program):
@@ -600,5 +550,5 @@ def open_board(url: str = DEFAULT_URL, *, axes: int | None = None, chip: str | N
         raise
 
 
-__all__ = ["Board", "BoardMove", "BoardMoveResult", "AxisResult", "AxisPlan", "LinearPlan",
+__all__ = ["Board", "BoardMove", "AxisPlan", "LinearPlan",
            "open_board", "plan_linear", "trapezoid_samples"]

@@ -21,6 +21,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from .link import (
+    DEFAULT_RETRIES,
     MAX_FRAME,
     LinkTransport,
     MAX_PING,
@@ -311,8 +312,8 @@ class EmuLinkTransport(LinkTransport):
         return open_emulated(url, trace=trace)
 
 
-def open_emulated(url: str = "sim://", *, baud: int | None = None, retries: int = 3,
-                  wrap=None, trace=None, margin_s: float = 1e-3) -> EmuLinkTransport:
+def open_emulated(url: str = "sim://", *, baud: int | None = None,
+                  retries: int = DEFAULT_RETRIES, wrap=None, trace=None, margin_s: float = 1e-3) -> EmuLinkTransport:
     """A :class:`EmuLinkTransport` to an emulated bridge over a model built from the simulator
     ``url`` (``sim://?record=1`` ...), all in simulated time.
 

@@ -13,7 +13,7 @@
 :func:`run_bringup` returns a :class:`BringupReport`; the CLI (``lm629 bringup``) only renders
 it, so that the sequence is tested without click.  All waiting is on the chip's clock
 (simulated time on ``sim://``).  Any exception while the motor may move stops it first
-(:func:`lm629_host.cli_safety.stop_on_error`).
+(:func:`lm629_host.safety.stop_on_error`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from .cli_safety import emergency_stop, stop_on_error
+from .safety import emergency_stop, stop_on_error
 from .errors import ResetError
 from .lm629 import LM629
 from .opcodes import Status
@@ -230,11 +230,11 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
         target = origin + o.move_distance
         ramp_s, move_s = Scale(1, clock_hz).profile_times(abs(o.move_distance), o.move_velocity,
                                                           o.move_acceleration)
-        chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
-        t0 = chip.clock.now()
-        chip.load_trajectory(acceleration=o.move_acceleration, velocity=o.move_velocity,
-                             position=target, start=True)  # absolute: a relative position
-        # counts from the last target (the phasing move's), not from where the abrupt stop left it
+        # absolute: a relative position counts from the last target (the phasing move's), not
+        # from where the abrupt stop left it.  move_to clears trajectory complete in the program
+        # that starts the move, so only this move's completion ends the wait below
+        move = chip.move_to(target, velocity=o.move_velocity, acceleration=o.move_acceleration)
+        t0 = move.t0
         worst = 0
         deadline = t0 + move_s + o.settle_timeout_s
         while True:

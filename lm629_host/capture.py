@@ -15,8 +15,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .cli_safety import stop_on_error
+from .safety import stop_on_error
+from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
+from .move import MoveResult
 from .opcodes import ACCELERATION_MAX, VELOCITY_MAX
 from .units import FIXED_ONE
 
@@ -42,6 +44,9 @@ class Capture:
     acceleration: int
     rows: list[Snapshot] = field(default_factory=list)
     t0: float = 0.0
+    #: after the recording: where the shaft came to rest (``check=True``), or the fault
+    result: MoveResult | None = None
+    fault: MotionError | None = None
 
     def times(self) -> list[float]:
         return [s.time - self.t0 for s in self.rows]
@@ -67,15 +72,22 @@ class Capture:
 def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
                  interval_s: float = 0.001, velocity: int = STEP_VELOCITY,
                  acceleration: int = STEP_ACCELERATION, filter: dict[str, int] | None = None,
-                 progress: Callable[[Snapshot], None] | None = None) -> Capture:
+                 progress: Callable[[Snapshot], None] | None = None, check: bool = True,
+                 tolerance: int | None = None) -> Capture:
     """Load ``filter`` (kp/ki/kd/il/derivative_interval; UDF), move ``distance`` counts from
-    the current desired position, and record snapshots every ``interval_s`` for
-    ``duration_s`` seconds of the chip's clock.  Any exception stops the motor first."""
-    if not duration_s > 0:
+    the current desired position (:meth:`LM629.move_to`: the move's flags cleared as it
+    starts), and record snapshots every ``interval_s`` for ``duration_s`` seconds of the
+    chip's clock.  With ``check`` (default) then wait until the shaft rests within
+    ``tolerance`` of the target (``Move.wait``): ``cap.result``, or ``cap.fault`` (a
+    :class:`MotionError`, motor stopped) so that the caller can still save the recording.
+    Any other exception stops the motor first."""
+    if not (isinstance(duration_s, (int, float)) and duration_s > 0 and duration_s < 1e6):
         raise ValueError(f"duration_s={duration_s} must be > 0 seconds")
-    if not 0 < interval_s <= duration_s:
+    if not (isinstance(interval_s, (int, float)) and 0 < interval_s <= duration_s):
         raise ValueError(f"interval_s={interval_s} must be > 0 and at most duration_s={duration_s}")
     check_int("distance", distance, -(1 << 30), (1 << 30) - 1)
+    check_int("velocity", velocity, 1, STEP_VELOCITY)
+    check_int("acceleration", acceleration, 1, STEP_ACCELERATION)
     filt = dict(filter or {})
     program = chip.filter_program(**filt) if filt else None  # validate before any traffic
     chip.trajectory_program(acceleration=acceleration, velocity=velocity, position=0)
@@ -90,9 +102,8 @@ def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
         target = first.desired_position + distance
         chip.trajectory_program(position=target)
         cap = Capture(target, filt, velocity, acceleration)
-        chip.load_trajectory(acceleration=acceleration, velocity=velocity, position=target,
-                             start=True)
-        cap.t0 = chip.clock.now()
+        move = chip.move_to(target, velocity=velocity, acceleration=acceleration)
+        cap.t0 = move.t0
         cap.rows.append(first)
         end = cap.t0 + duration_s
         clock = chip.clock
@@ -108,6 +119,14 @@ def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
                 progress(s)
             if s.time >= end:
                 break
+        if check:
+            profile = move.profile_s(move._clock_hz(chip.move_rules)) or 0.0
+            try:
+                cap.result = move.wait(timeout=duration_s + 1.5 * profile
+                                       + chip.move_rules.settle_timeout + 1.0,
+                                       tolerance=tolerance)
+            except MotionError as exc:
+                cap.fault = exc
     return cap
 
 
@@ -169,10 +188,14 @@ def write_png(cap: Capture, path: str | Path, *, title: str = "") -> Path:
 
 def summary(cap: Capture) -> Sequence[str]:
     """The figures a tuner looks at, one per line."""
-    return [f"target {cap.target} counts, {len(cap.rows)} samples over "
-            f"{cap.times()[-1] * 1e3:.1f} ms",
-            f"largest following error {cap.max_following_error:+d} counts, overshoot "
-            f"{cap.overshoot} counts, final error {cap.final_error:+d} counts"]
+    lines = [f"target {cap.target} counts, {len(cap.rows)} samples over "
+             f"{cap.times()[-1] * 1e3:.1f} ms",
+             f"largest following error {cap.max_following_error:+d} counts, overshoot "
+             f"{cap.overshoot} counts, final error {cap.final_error:+d} counts"]
+    if cap.result is not None:
+        lines.append(f"at rest {cap.result.error:+d} counts from the target, "
+                     f"{cap.result.duration:.3f} s after the start")
+    return lines
 
 
 __all__ = ["Capture", "capture_move", "write_csv", "read_csv", "write_png", "summary",

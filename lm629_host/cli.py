@@ -1,10 +1,14 @@
 """``lm629``: the bench command line, from first power-on to a tuned move.
 
 Each command opens the port (``--port``, else ``$LM629_PORT``, else the simulator), does one
-job through :class:`lm629_host.LM629` and closes it.  Commands that start a move run inside
-:func:`lm629_host.cli_safety.stop_on_error`: Ctrl-C or any error stops the motor (abrupt stop,
-then motor off) before the program exits.  Errors are one line on stderr (a traceback with
-``-v``) and an exit code per error class (see ``EXIT_CODES``, printed by ``lm629 --help``).
+job through :class:`lm629_host.LM629` and closes it.  Every number is checked before anything
+moves (:mod:`lm629_host.cli_types`).  Moves go through :meth:`LM629.move_to`: done means the
+shaft rests on the target, anything else is a motion fault (exit 9).  Commands that start a
+move run inside :func:`lm629_host.safety.stop_on_error`: Ctrl-C, SIGTERM, SIGHUP (all
+raised as KeyboardInterrupt, after the bus program under way), a closed pipe or any error
+stops the motor (abrupt stop, then motor off) before the program exits; commands that only
+read or wait never stop anything.  Errors are one line on stderr (a traceback with ``-v``) and
+an exit code per way of ending (see ``EXIT_CODES``, printed by ``lm629 --help``).
 
 An in-process simulator (``sim://``, ``sim+avr://``, ``sim+ftdi://``, ``sim+emu://``) is a fresh
 chip for each command: the CLI resets it and loads kp = 20 first, so that ``move`` and friends
@@ -14,6 +18,7 @@ commands run ``lm629 sim serve --pty /tmp/lm629`` and use ``--port /tmp/lm629``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -33,17 +38,20 @@ import lm629_host
 from .bringup import BringupOptions, StepResult, run_bringup
 from .capture import PlotUnavailable, capture_move, summary, write_csv, write_png
 from .cli_calc import calc
-from .cli_safety import STOP_NOTE, stop_on_error
+from .safety import STOP_NOTE, emergency_stop, stop_on_error
+from .cli_types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
 from .errors import (
     BusyTimeout,
     CommandError,
     LM629Error,
+    MotionError,
     ResetError,
     TransportError,
     WaitTimeout,
 )
 from .lm629 import LM629, Snapshot, check_int
-from .opcodes import Signals, Status
+from .move import MoveRules
+from .opcodes import ACCELERATION_MAX, POSITION_MAX, POSITION_MIN, VELOCITY_MAX, Signals, Status
 from .program import BusCycle, Program
 from .transports import query_params, scheme_of
 from .units import FIXED_ONE, Scale
@@ -53,21 +61,39 @@ log = logging.getLogger("lm629_host.cli")
 #: exit code -> meaning (one place: the handler and ``--help`` both read it)
 EXIT_CODES: dict[int, str] = {
     0: "success",
-    1: "a check failed (bringup verdict)",
-    2: "bad usage or bad value (nothing was sent to the chip)",
+    1: "a check failed (bringup verdict, doctor found problems)",
+    2: "bad usage or bad value (nothing was sent that moves the motor)",
     3: "transport error (port missing, busy, no permission, no answer)",
     4: "busy timeout (the chip held its busy bit)",
     5: "reset failure (the chip did not come out of reset)",
     6: "command error (the chip rejected a command)",
-    7: "wait timeout (a move or flag did not come in time)",
+    7: "wait timeout (a flag or the index did not come in time)",
     8: "other driver error",
-    130: "interrupted (Ctrl-C); a moving motor was stopped first",
+    9: "motion fault: the shaft did not end where it was sent (stall, runaway, position "
+       "error, following error, motor off, move timeout); the motor was stopped",
+    129: "hang-up (SIGHUP); a moving motor was stopped first",
+    130: "interrupted (Ctrl-C, or the prompt aborted); a moving motor was stopped first",
+    141: "output closed (broken pipe) while the motor moved; it was stopped first",
+    143: "terminated (SIGTERM); a moving motor was stopped first",
 }
 
 _ERROR_EXITS: tuple[tuple[type[BaseException], int], ...] = (
     (ValueError, 2), (TransportError, 3), (BusyTimeout, 4), (ResetError, 5),
-    (CommandError, 6), (WaitTimeout, 7), (LM629Error, 8),
+    (CommandError, 6), (WaitTimeout, 7), (MotionError, 9), (LM629Error, 8),
 )
+
+#: the signals that end a command like Ctrl-C does: the motor is stopped, then exit 128 + N
+_STOP_SIGNALS = {signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)",
+                 signal.SIGHUP: "hang-up (SIGHUP)"}
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised like Ctrl-C's KeyboardInterrupt so that every ``except
+    KeyboardInterrupt`` that stops the motor handles it too; ``signum`` picks the exit code."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
 
 SIM_PREFIX = "sim"
 
@@ -77,35 +103,34 @@ def _open(url: str, chip: str, trace: Callable[[BusCycle], None] | None) -> LM62
     return lm629_host.open(url, chip=chip, trace=trace)
 
 
-def parse_int(text: str) -> int:
-    """Decimal, 0x hex, 0b binary; a trailing 'h' also means hex (datasheet style)."""
-    t = text.strip().replace("_", "")
-    try:
-        if t.lower().endswith("h") and not t.lower().startswith("0x"):
-            return int(t[:-1], 16)
-        return int(t, 0)
-    except ValueError:
-        raise click.BadParameter(f"{text!r} is not an integer (decimal, 0x.. hex, or ..h)") from None
-
-
-class IntWord(click.ParamType):
-    name = "INT"
-
-    def convert(self, value: Any, param: Any, ctx: Any) -> int:
-        return value if isinstance(value, int) else parse_int(str(value))
-
-
-INT = IntWord()
-
-
 def _hz(text: str) -> float:
-    t = str(text).strip().lower().replace("hz", "")
+    """8MHz, 8 MHz, 8e6, 8000k -> Hz (ValueError for anything else, inf and nan included)."""
+    t = str(text).strip().lower().replace("hz", "").strip()
     mult = 1.0
     if t.endswith("m"):
         mult, t = 1e6, t[:-1]
     elif t.endswith("k"):
         mult, t = 1e3, t[:-1]
-    return float(t) * mult
+    v = float(t) * mult
+    if v != v or v in (float("inf"), float("-inf")):
+        raise ValueError(text)
+    return v
+
+
+def _check_clock(hz: float, where: str) -> float:
+    if not 1e6 <= hz <= 8e6:
+        raise click.BadParameter(f"{hz:g} Hz is outside the chip's 1-8 MHz", param_hint=where)
+    return hz
+
+
+def _with_query(url: str, values: dict[str, str]) -> str:
+    """``url`` with its query parameters replaced or added (order kept)."""
+    from urllib.parse import parse_qsl, urlencode
+    base, _, query = url.partition("?")
+    pairs = [(k, values.pop(k) if k in values else v)
+             for k, v in parse_qsl(query, keep_blank_values=True)]
+    pairs += list(values.items())
+    return base + ("?" + urlencode(pairs, safe=":/") if pairs else "")
 
 
 @dataclass
@@ -121,7 +146,9 @@ class Session:
     trace: bool
     stats: bool
     _chip: LM629 | None = None
-    _old_sigint: Any = None
+    _old_handlers: dict[int, Any] | None = None
+    _bus_depth: int = 0
+    _pending: int | None = None
 
     @property
     def is_sim(self) -> bool:
@@ -137,48 +164,55 @@ class Session:
 
     def url(self) -> str:
         """The port URL; a simulator URL gets the global --chip/--clock/--lines unless it
-        names them itself, so that the simulated chip matches the options."""
+        names them itself, so that the simulated chip matches the options (the conflict
+        rule is applied by :func:`main`), and ``clock=8MHz`` is written in Hz."""
         if not self.is_sim:
             return self.port
         have = query_params(self.port)
         add = {"chip": self.chip_name, "clock": str(int(self.clock_hz))}
         if self.lines:
             add["lines"] = str(self.lines)
-        extra = "&".join(f"{k}={v}" for k, v in add.items() if k not in have)
-        if not extra:
-            return self.port
-        sep = "&" if "?" in self.port else "?"
-        return self.port + sep + extra
+        values = {k: v for k, v in add.items() if k not in have}
+        if "clock" in have:
+            values["clock"] = str(int(self.clock_hz))
+        return _with_query(self.port, values) if values else self.port
+
+    @staticmethod
+    def _raise_signal(signum: int) -> None:
+        raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
+
+    def install_signals(self) -> None:
+        """Ctrl-C, SIGTERM and SIGHUP end a command the same way: raised as
+        KeyboardInterrupt (Terminated for the last two) so that a moving motor is stopped,
+        then the exit code says which.  A signal during a bus program is held until the
+        program has finished, so that the safety stop starts on a clean bus."""
+        if threading.current_thread() is not threading.main_thread() or self._old_handlers:
+            return
+
+        def on_signal(signum: int, frame: Any) -> None:
+            if self._bus_depth:
+                self._pending = signum
+            else:
+                self._raise_signal(signum)
+
+        self._old_handlers = {sig: signal.signal(sig, on_signal) for sig in _STOP_SIGNALS}
 
     def _guard_programs(self, chip: LM629) -> None:
-        """Ctrl-C never cuts a bus program in half: SIGINT during a program is held until
-        the program has finished, then raised as KeyboardInterrupt (so that the safety stop
-        that follows starts on a clean bus)."""
-        if threading.current_thread() is not threading.main_thread():
-            return
-        state = {"depth": 0, "pending": False}
-
-        def on_sigint(signum: int, frame: Any) -> None:
-            if state["depth"]:
-                state["pending"] = True
-            else:
-                raise KeyboardInterrupt
-
+        """Run every bus program of ``chip`` whole: a stop signal waits for its end."""
         execute = chip.transport.execute
 
         def guarded(program: Program):  # type: ignore[no-untyped-def]
-            state["depth"] += 1
+            self._bus_depth += 1
             try:
                 result = execute(program)
             finally:
-                state["depth"] -= 1
-            if state["pending"] and not state["depth"]:
-                state["pending"] = False
-                raise KeyboardInterrupt
+                self._bus_depth -= 1
+            if self._pending is not None and not self._bus_depth:
+                signum, self._pending = self._pending, None
+                self._raise_signal(signum)
             return result
 
         chip.transport.execute = guarded  # type: ignore[method-assign]
-        self._old_sigint = signal.signal(signal.SIGINT, on_sigint)
 
     def _trace(self, cycle: BusCycle) -> None:
         if self.trace:
@@ -194,6 +228,7 @@ class Session:
                            err=True)
             self._chip = _open(self.url(), self.chip_name, self._trace)
             self._guard_programs(self._chip)
+            self._chip.move_rules = MoveRules(clock_hz=self.clock_hz)
             log.info("opened %s", self._chip.transport.describe())
             if self.is_sim and prepare:
                 self._chip.reset()
@@ -209,9 +244,10 @@ class Session:
                 click.echo(f"stats: {self._chip.transport.stats}", err=True)
             self._chip.close()
             self._chip = None
-        if self._old_sigint is not None:
-            signal.signal(signal.SIGINT, self._old_sigint)
-            self._old_sigint = None
+        if self._old_handlers:
+            for sig, handler in self._old_handlers.items():
+                signal.signal(sig, handler)
+            self._old_handlers = None
 
 
 def _help_epilog() -> str:
@@ -226,14 +262,21 @@ class LM629Group(click.Group):
     def invoke(self, ctx: click.Context) -> Any:
         try:
             return super().invoke(ctx)
+        except click.UsageError as exc:  # bad usage or value: one line, exit 2
+            sub = exc.ctx.command_path if exc.ctx is not None else "lm629"
+            _fail(ctx, f"{exc.format_message()} (see `{sub} --help`)", exc, 2)
         except (click.exceptions.Exit, click.ClickException, click.exceptions.Abort):
             raise
         except KeyboardInterrupt as exc:
-            _fail(ctx, "interrupted", exc, 130)
-        except BrokenPipeError:
-            # stdout closed early (`lm629 calc ... | head`): not an error; keep Python from
-            # complaining again when it flushes stdout at exit
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            signum = getattr(exc, "signum", signal.SIGINT)
+            _fail(ctx, _STOP_SIGNALS.get(signum, f"signal {signum}"), exc, 128 + signum)
+        except BrokenPipeError as exc:
+            # stdout closed early (`lm629 calc ... | head`): not an error while nothing moved;
+            # keep Python from complaining again when it flushes stdout at exit
+            with contextlib.suppress(OSError):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            if getattr(exc, STOP_NOTE, None) is not None:  # it ended a move: not a success
+                _fail(ctx, "output closed (broken pipe) during a move", exc, 141)
             ctx.exit(0)
         except Exception as exc:  # noqa: BLE001 - mapped to exit codes below
             code = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), None)
@@ -249,7 +292,11 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
     if always_tb or (session is not None and session.verbose):
         traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
     note = getattr(exc, STOP_NOTE, None)
-    click.echo(f"lm629: {message}" + (f" -- {note}" if note else ""), err=True)
+    try:  # stderr may be closed too (a dropped ssh session): the exit code still tells
+        click.echo(f"lm629: {message}" + (f" -- {note}" if note and note not in message
+                                          else ""), err=True)
+    except (OSError, ValueError):
+        pass
     ctx.exit(code)
 
 
@@ -259,9 +306,11 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
               help="sim://, serial://PATH or a device path, ftdi://..., sim+avr:// "
                    "(env LM629_PORT; default sim://).")
 @click.option("--chip", "chip_name", type=click.Choice(["lm628", "lm629"]), default="lm629",
-              show_default=True, help="Which chip is on the board.")
+              show_default=True, help="Which chip is on the board (a simulator URL's chip= "
+                                      "is used when --chip is not given; both must agree).")
 @click.option("--clock", default="8MHz", show_default=True, metavar="HZ",
-              help="The chip's clock (8MHz, 6e6...): sample period 2048/clock.")
+              help="The chip's clock (8MHz, 6e6...): sample period 2048/clock (a simulator "
+                   "URL's clock= is used when --clock is not given; both must agree).")
 @click.option("--lines", type=int, default=None, metavar="N",
               help="Encoder lines per revolution: positions in revolutions, velocities in rpm, "
                    "accelerations in rev/s^2.")
@@ -274,20 +323,45 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
          verbose: int, trace: bool, stats: bool) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
     try:
-        clock_hz = _hz(clock)
+        clock_hz = _check_clock(_hz(clock), "--clock")
     except ValueError:
         raise click.BadParameter(f"{clock!r} is not a frequency (8MHz, 6e6)",
                                  param_hint="--clock") from None
-    if not 1e6 <= clock_hz <= 8e6:
-        raise click.BadParameter(f"{clock_hz:g} Hz is outside the chip's 1-8 MHz",
-                                 param_hint="--clock")
     if lines is not None and lines < 1:
         raise click.BadParameter(f"{lines} must be at least 1", param_hint="--lines")
+    if port is not None and not port.strip():
+        raise click.BadParameter("is empty (an unset variable in `--port \"$BOARD\"`?); "
+                                 "leave --port out to use the simulator", param_hint="--port")
+    url = port or lm629_host.DEFAULT_URL
+    if scheme_of(url).startswith(SIM_PREFIX):
+        # the rule: a simulator URL's chip= / clock= describe the simulated chip; --chip and
+        # --clock given on the command line must agree with them, and when not given, the
+        # URL's values are used
+        q = query_params(url)
+        given = {name: ctx.get_parameter_source(name) not in (
+            click.core.ParameterSource.DEFAULT, None) for name in ("chip_name", "clock")}
+        if "chip" in q:
+            url_chip = q["chip"].lower()
+            if given["chip_name"] and url_chip != chip_name:
+                raise click.BadParameter(f"{chip_name} conflicts with chip={q['chip']} in "
+                                         f"{url}: give one of them", param_hint="--chip")
+            chip_name = url_chip
+        if "clock" in q:
+            try:
+                url_hz = _check_clock(_hz(q["clock"]), "--port clock=")
+            except ValueError:
+                raise click.BadParameter(f"clock={q['clock']!r} in {url} is not a frequency",
+                                         param_hint="--port") from None
+            if given["clock"] and url_hz != clock_hz:
+                raise click.BadParameter(f"{clock} conflicts with clock={q['clock']} in {url}: "
+                                         "give one of them", param_hint="--clock")
+            clock_hz = url_hz
     _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
-    session = Session(port or lm629_host.DEFAULT_URL, port is not None, chip_name, clock_hz,
+    session = Session(url, port is not None, chip_name, clock_hz,
                       lines, verbose, trace, stats)
     ctx.obj = session
     ctx.call_on_close(session.close)
+    session.install_signals()
 
 
 class _ClickHandler(logging.Handler):
@@ -341,10 +415,51 @@ def snapshot_dict(s: Snapshot, scale: Scale | None = None) -> dict[str, Any]:
     return d
 
 
-def _progress_line(s: Snapshot, target: int | None = None) -> str:
+def _progress_line(s: Snapshot, target: int | None = None, scale: Scale | None = None) -> str:
+    if scale is not None:
+        tgt = f" -> {scale.revolutions(target):.4f}" if target is not None else ""
+        return (f"t={s.time:8.3f}s  desired {scale.revolutions(s.desired_position):>10.4f}{tgt} "
+                f"rev  actual {scale.revolutions(s.real_position):>10.4f} rev  error "
+                f"{s.following_error:>+6d} counts  v {scale.rpm(s.real_velocity * FIXED_ONE):+.1f} rpm")
     tgt = f" -> {target}" if target is not None else ""
     return (f"t={s.time:8.3f}s  desired {s.desired_position:>10d}{tgt}  actual "
             f"{s.real_position:>10d}  error {s.following_error:>+6d}  v {s.real_velocity:+d}")
+
+
+def _position(s: Session, value: float, name: str, raw: bool = False) -> int:
+    """A position or distance as typed: revolutions with --lines (unless raw), else counts."""
+    if s.scale is not None and not raw:
+        counts = round(value * s.scale.counts_per_rev)
+    else:
+        if float(value) != int(value):
+            raise click.BadParameter(f"{value:g} must be whole counts without --lines",
+                                     param_hint=name)
+        counts = int(value)
+    if not POSITION_MIN <= counts <= POSITION_MAX:
+        raise click.BadParameter(f"{value:g} is {counts} counts, outside "
+                                 f"{POSITION_MIN}..{POSITION_MAX}", param_hint=name)
+    return counts
+
+
+def _show_position(s: Session, counts: int) -> str:
+    return (f"{counts} counts ({s.scale.revolutions(counts):.4f} rev)" if s.scale is not None
+            else f"{counts} counts")
+
+
+def _wait_flag(chip: LM629, flag: Status, words: str, timeout: float) -> Status:
+    """``wait_for`` whose timeout says in words what it waited for."""
+    try:
+        return chip.wait_for(flag, timeout=timeout, poll=0.001)
+    except WaitTimeout as exc:
+        raise WaitTimeout(words, timeout, exc.status) from None
+
+
+def _abort_is_interrupt(ask: Callable[[], bool]) -> bool:
+    """A prompt ended by Ctrl-C or end of input ends the command like Ctrl-C (exit 130)."""
+    try:
+        return ask()
+    except (click.exceptions.Abort, EOFError):
+        raise KeyboardInterrupt from None
 
 
 @contextmanager
@@ -375,13 +490,15 @@ def _isatty() -> bool:
 # ---------------------------------------------------------------------------------- commands
 @main.command()
 @click.option("--yes", "-y", is_flag=True, help="Do not ask before the motor turns (scripts).")
-@click.option("--move", "move_distance", type=INT, default=1000, show_default=True,
-              help="Counts of the small move.")
+@click.option("--move", "move_distance", type=FINITE, default=None,
+              help="The small move: counts (default 1000), revolutions with --lines.")
 @click.option("--hold-kp", type=int, default=20, show_default=True, help="kp of the hold step.")
-def bringup(yes: bool, move_distance: int, hold_kp: int) -> None:
+def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
     """The AN-706 2.12 bring-up: reset, phasing at kp = 1, kp = 20 hold, a small move,
-    following error and settle time, next steps."""
+    following error and settle time, next steps.  A prompt ended by Ctrl-C or end of input
+    exits 130 with nothing moved."""
     s = _session()
+    move_distance = 1000 if move_distance is None else _position(s, move_distance, "--move")
     check_int("--move", move_distance, -100_000, 100_000)
     check_int("--hold-kp", hold_kp, 1, 0x7FFF)
     options = BringupOptions(hold_kp=hold_kp, move_distance=move_distance)
@@ -395,7 +512,7 @@ def bringup(yes: bool, move_distance: int, hold_kp: int) -> None:
             click.echo(f"             {d}")
 
     def confirm(question: str) -> bool:
-        return yes or click.confirm(question, default=False)
+        return yes or _abort_is_interrupt(lambda: click.confirm(question, default=False))
 
     result = run_bringup(chip, options, confirm=confirm, report=report, clock_hz=s.clock_hz,
                          announce=lambda text: log.info("step: %s", text))
@@ -472,10 +589,23 @@ def _motion_words(s: Session, velocity: float | None, acceleration: float | None
         a = 655 if acceleration is None else acceleration
         for name, x in (("--vel", v), ("--acc", a)):
             if float(x) != int(x):
-                raise ValueError(f"{name}={x} must be a whole raw word without --lines")
-        return int(v), int(a)
-    v = scale.velocity(60.0 if velocity is None else velocity)
-    a = scale.acceleration(10.0 if acceleration is None else acceleration)
+                raise click.BadParameter(f"{x:g} must be a whole raw word without --lines",
+                                         param_hint=name)
+        v, a = int(v), int(a)
+    else:
+        try:
+            v = scale.velocity(60.0 if velocity is None else velocity)
+            a = scale.acceleration(10.0 if acceleration is None else acceleration)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--vel/--acc") from None
+    for name, word, hi, what in (("--vel", v, VELOCITY_MAX, "the motor would never move"),
+                                 ("--acc", a, ACCELERATION_MAX, "the move would never start")):
+        if word < 1:
+            raise click.BadParameter(f"gives the word {word}: {what} (the word must be "
+                                     f"1..{hi})", param_hint=name)
+        if word > hi:
+            raise click.BadParameter(f"gives the word {word}, above the chip's {hi}",
+                                     param_hint=name)
     return v, a
 
 
@@ -492,63 +622,6 @@ def _acceleration_unless_moving(chip: LM629, acceleration: int, given: bool) -> 
     return None
 
 
-def _wait_move(chip: LM629, target: int | None, timeout: float, poll: float) -> Snapshot:
-    clock = chip.clock
-    deadline = clock.now() + timeout
-    with _live(_isatty()) as show:
-        while True:
-            snap = chip.snapshot()
-            show(_progress_line(snap, target))
-            if snap.status & Status.TRAJECTORY_COMPLETE:
-                return snap
-            if clock.now() >= deadline:
-                raise WaitTimeout(Status.TRAJECTORY_COMPLETE, timeout, int(snap.status))
-            clock.sleep(poll)
-
-
-@main.command()
-@click.argument("target", type=float)
-@click.option("--relative", "-r", is_flag=True, help="TARGET is a distance from where it is.")
-@click.option("--vel", type=float, help="Velocity: rpm with --lines (default 60), else raw "
-                                         "16.16 counts/sample (default 65536).")
-@click.option("--acc", type=float, help="Acceleration: rev/s^2 with --lines (default 10), else "
-                                         "raw 16.16 counts/sample^2 (default 655).")
-@click.option("--raw", is_flag=True, help="Counts and raw words even with --lines.")
-@click.option("--no-wait", is_flag=True, help="Start the move and return.")
-@click.option("--timeout", type=float, default=60.0, show_default=True, help="Seconds to wait.")
-def move(target: float, relative: bool, vel: float | None, acc: float | None, raw: bool,
-         no_wait: bool, timeout: float) -> None:
-    """Move to TARGET (counts; revolutions with --lines) and wait with a progress line."""
-    s = _session()
-    v, a = _motion_words(s, vel, acc, raw)
-    if s.scale is not None and not raw:
-        counts = s.scale.position(target)
-    else:
-        if float(target) != int(target):
-            raise ValueError(f"TARGET={target} must be whole counts without --lines")
-        counts = int(target)
-    if timeout <= 0:
-        raise ValueError(f"--timeout={timeout} must be positive (seconds)")
-    chip = s.open()
-    # every check before anything moves: the words, the goal, and whether the chip would
-    # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)
-    chip.trajectory_program(acceleration=a, velocity=v, position=0)
-    goal = chip.read_desired_position() + counts if relative else counts
-    chip.trajectory_program(position=goal)
-    acceleration = _acceleration_unless_moving(chip, a, acc is not None)
-    with stop_on_error(chip):
-        chip.load_trajectory(acceleration=acceleration, velocity=v, position=goal, start=True)
-        click.echo(f"moving to {goal} counts (velocity word {v}, acceleration word {a})")
-        if no_wait:
-            return
-        snap = _wait_move(chip, goal, timeout, poll=0.05)
-        done_at = snap.time
-        snap = _wait_still(chip, 1.0)
-    click.echo(f"done: desired {snap.desired_position}, actual {snap.real_position} "
-               f"(error {snap.following_error:+d}); trajectory complete at t={done_at:.3f} s, "
-               f"shaft at rest at t={snap.time:.3f} s")
-
-
 def _wait_still(chip: LM629, limit_s: float, poll: float = 0.01) -> Snapshot:
     """Wait (at most ``limit_s``) until the shaft has not moved for 5 polls."""
     snap = chip.snapshot()
@@ -562,38 +635,136 @@ def _wait_still(chip: LM629, limit_s: float, poll: float = 0.01) -> Snapshot:
     return snap
 
 
-@main.command()
-@click.argument("speed", type=float)
-@click.option("--acc", type=float, help="rev/s^2 with --lines, else raw (default 655).")
+def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
+    if tolerance is None:
+        return None
+    if tolerance < 0:
+        raise click.BadParameter(f"{tolerance:g} must be >= 0", param_hint="--tolerance")
+    return _position(s, tolerance, "--tolerance", raw)
+
+
+@main.command(context_settings=SIGNED_ARGS)
+@click.argument("target", type=FINITE)
+@click.option("--relative", "-r", is_flag=True, help="TARGET is a distance from where it is.")
+@click.option("--vel", type=FINITE, help="Velocity: rpm with --lines (default 60), else raw "
+                                          "16.16 counts/sample (default 65536).")
+@click.option("--acc", type=FINITE, help="Acceleration: rev/s^2 with --lines (default 10), else "
+                                          "raw 16.16 counts/sample^2 (default 655).")
+@click.option("--raw", is_flag=True, help="Counts and raw words even with --lines.")
+@click.option("--tolerance", type=FINITE, default=None,
+              help=f"Done when the shaft rests this close to the target (counts; revolutions "
+                   f"with --lines; default {MoveRules().tolerance} counts).")
+@click.option("--no-wait", is_flag=True, help="Start the move and return (it keeps running).")
+@click.option("--timeout", type=FINITE, default=None,
+              help="Seconds to wait (default: 1.5 x the profile + 2 s).")
+def move(target: float, relative: bool, vel: float | None, acc: float | None, raw: bool,
+         tolerance: float | None, no_wait: bool, timeout: float | None) -> None:
+    """Move to TARGET (counts; revolutions with --lines; negative as typed: move -5000) and
+    wait until the shaft rests on it.  A move that does not end on target is a motion fault:
+    the motor is stopped and the exit code is 9."""
+    s = _session()
+    v, a = _motion_words(s, vel, acc, raw)
+    counts = _position(s, target, "TARGET", raw)
+    tol = _tolerance(s, tolerance, raw)
+    positive("--timeout", timeout)
+    chip = s.open()
+    # every check before anything moves: the words, the goal, and whether the chip would
+    # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)
+    chip.trajectory_program(acceleration=a, velocity=v, position=0)
+    if relative:
+        chip.trajectory_program(position=chip.read_desired_position() + counts)
+    acceleration = _acceleration_unless_moving(chip, a, acc is not None)
+    scale = None if raw else s.scale
+    with stop_on_error(chip):
+        m = chip.move_to(counts, velocity=v, acceleration=acceleration, relative=relative)
+        click.echo(f"moving to {_show_position(s, m.target)} (velocity word {v}, acceleration "
+                   f"word {a if acceleration is not None else 'as loaded (moving)'})")
+        if no_wait:
+            return
+        with _live(_isatty()) as show:
+            shown = [-1.0]
+
+            def progress(snap: Snapshot) -> None:
+                if snap.time - shown[0] >= 0.05:  # 20 updates a second of the chip's clock
+                    shown[0] = snap.time
+                    show(_progress_line(snap, m.target, scale))
+            r = m.wait(timeout=timeout, tolerance=tol, progress=progress)
+    click.echo(f"done: at {_show_position(s, r.position)}, {r.error:+d} counts from the target "
+               f"{m.target} (tolerance {tol if tol is not None else chip.move_rules.tolerance}), "
+               f"at rest {r.duration:.3f} s after the start")
+
+
+@main.command(context_settings=SIGNED_ARGS)
+@click.argument("speed", type=FINITE)
+@click.option("--acc", type=FINITE, help="rev/s^2 with --lines, else raw (default 655).")
 @click.option("--reverse", is_flag=True, help="Turn backwards.")
 @click.option("--raw", is_flag=True, help="Raw words even with --lines.")
-@click.option("--time", "run_s", type=float, default=None,
-              help="Run this many seconds, then stop smoothly (else leave it running).")
+@click.option("--time", "run_s", type=FINITE, default=None,
+              help="Run this many seconds, check the shaft turns at the speed, then stop "
+                   "smoothly and wait until it rests (else leave it running).")
 def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
              run_s: float | None) -> None:
     """Velocity mode at SPEED (rpm with --lines, else raw 16.16 counts/sample)."""
     s = _session()
     if speed < 0:
-        raise ValueError(f"SPEED={speed} must be >= 0; use --reverse to turn backwards")
+        raise click.BadParameter(f"{speed:g} must be >= 0; use --reverse to turn backwards",
+                                 param_hint="SPEED")
     v, a = _motion_words(s, speed, acc, raw)
-    if run_s is not None and run_s <= 0:
-        raise ValueError(f"--time={run_s} must be positive (seconds)")
+    positive("--time", run_s)
+    scale = None if raw else s.scale
+
+    def speed_text(word: int) -> str:
+        return (f"{scale.rpm(word):.1f} rpm" if scale is not None
+                else f"{word / FIXED_ONE:.4f} counts/sample")
+
     chip = s.open()
     chip.trajectory_program(acceleration=a, velocity=v, velocity_mode=True)
     acceleration = _acceleration_unless_moving(chip, a, acc is not None)
     with stop_on_error(chip):
         chip.load_trajectory(acceleration=acceleration, velocity=v, velocity_mode=True,
                              forward=not reverse, start=True)
-        click.echo(f"velocity mode {'backward' if reverse else 'forward'}: velocity word {v}, "
-                   f"acceleration word {a}")
+        click.echo(f"velocity mode {'backward' if reverse else 'forward'}: {speed_text(v)} "
+                   f"(velocity word {v}, acceleration word {a})")
         if run_s is None:
             return
         chip.clock.sleep(run_s)
         snap = chip.snapshot()
-        click.echo(f"after {run_s:g} s: actual velocity {snap.real_velocity} counts/sample, "
-                   f"position {snap.real_position}")
+        want = snap.desired_velocity  # where the ramp is now (the target speed or on the way)
+        got = snap.real_velocity * FIXED_ONE
+        click.echo(f"after {run_s:g} s: actual {speed_text(got)} (desired "
+                   f"{speed_text(snap.desired_velocity)}), position "
+                   f"{_show_position(s, snap.real_position)}")
+        if abs(want) >= FIXED_ONE:
+            # from 1 count/sample up the shaft must turn the desired way at least at half the
+            # desired speed (the real velocity is whole counts/sample)
+            if got * want < 0:
+                raise _motion_fault(chip, MotionError.RUNAWAY, snap,
+                                    "the shaft turns the wrong way: swap the motor leads or "
+                                    "the encoder's A and B channels")
+            if abs(got) < abs(want) // 2:
+                raise _motion_fault(chip, MotionError.STALL, snap,
+                                    f"the shaft turns at {speed_text(got)}, not "
+                                    f"{speed_text(want)}: check the amplifier, the motor "
+                                    "and the encoder, or lower the speed")
+        chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)  # the stop's own completion, below
         chip.load_trajectory(stop="smooth", start=True)
-        click.echo("smooth stop")
+        decel_s = abs(snap.desired_velocity) / max(a, 1) * s.sample_s
+        _wait_flag(chip, Status.TRAJECTORY_COMPLETE, "the smooth stop to complete",
+                   decel_s * 1.5 + 1.0)
+        rest = _wait_still(chip, 1.0)
+        if rest.real_velocity != 0:
+            raise _motion_fault(chip, MotionError.FOLLOWING_ERROR, rest,
+                                "the shaft did not come to rest after the smooth stop")
+    click.echo(f"smooth stop: at rest at {_show_position(s, rest.real_position)}")
+
+
+def _motion_fault(chip: LM629, reason: str, snap: Snapshot, message: str) -> MotionError:
+    """Stop the motor (abrupt, then off) and make the MotionError that says so."""
+    _ok, note = emergency_stop(chip)
+    exc = MotionError(reason, f"{message}; {note}", position=snap.real_position,
+                      error=snap.following_error)
+    setattr(exc, STOP_NOTE, note)
+    return exc
 
 
 @main.command()
@@ -617,13 +788,19 @@ def home() -> None:
 
 
 @main.command()
-@click.option("--wait", "wait_s", type=float, default=None,
+@click.option("--wait", "wait_s", type=FINITE, default=None,
               help="Wait up to this many seconds for the index pulse and print where it was.")
 @click.option("--search", type=INT, default=None, metavar="WORD",
               help="Turn slowly (velocity mode, raw word) until the index is seen, then stop.")
 def index(wait_s: float | None, search: int | None) -> None:
-    """Latch the position at the next index pulse (SIP)."""
-    chip = _session().open()
+    """Latch the position at the next index pulse (SIP).  Without --search nothing moves, and
+    a wait that times out leaves the motor as it was."""
+    positive("--wait", wait_s)
+    if search is not None and not 1 <= search <= VELOCITY_MAX:
+        raise click.BadParameter(f"{search} must be a velocity word 1..{VELOCITY_MAX}",
+                                 param_hint="--search")
+    s = _session()
+    chip = s.open()
     if search is not None:
         chip.trajectory_program(acceleration=655, velocity=search, velocity_mode=True)
     chip.reset_interrupts(Status.INDEX_PULSE)
@@ -631,36 +808,47 @@ def index(wait_s: float | None, search: int | None) -> None:
     if search is None and wait_s is None:
         click.echo("index armed (SIP): read it later with `lm629 status` / RDIP")
         return
-    with stop_on_error(chip):
-        if search is not None:
-            chip.load_trajectory(acceleration=655, velocity=search, velocity_mode=True, start=True)
-        chip.wait_for(Status.INDEX_PULSE, timeout=wait_s or 10.0, poll=0.001)
-        if search is not None:
+    words = "the index pulse (status bit 3)"
+    if search is None:  # only waiting: a timeout must not touch a servo holding position
+        _wait_flag(chip, Status.INDEX_PULSE, words, wait_s or 10.0)
+    else:
+        with stop_on_error(chip):
+            chip.load_trajectory(acceleration=655, velocity=search, velocity_mode=True,
+                                 start=True)
+            _wait_flag(chip, Status.INDEX_PULSE, words + " while turning", wait_s or 10.0)
+            chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
             chip.load_trajectory(stop="abrupt", start=True)
-    click.echo(f"index at position {chip.read_index_position()}")
+            _wait_still(chip, 1.0)
+    click.echo(f"index at position {_show_position(s, chip.read_index_position())}")
 
 
-@main.command()
-@click.argument("position", type=INT)
+@main.command(context_settings=SIGNED_ARGS)
+@click.argument("position", type=FINITE)
 @click.option("--relative", "-r", is_flag=True, help="Relative to the current target (SBPR).")
-@click.option("--wait", "wait_s", type=float, default=None, help="Wait for it (seconds).")
-def breakpoint(position: int, relative: bool, wait_s: float | None) -> None:  # noqa: A001
-    """Set a breakpoint (SBPA/SBPR); status bit 6 when the position passes it."""
-    chip = _session().open()
-    chip.set_breakpoint(position, relative=relative)
+@click.option("--raw", is_flag=True, help="Counts even with --lines.")
+@click.option("--wait", "wait_s", type=FINITE, default=None, help="Wait for it (seconds).")
+def breakpoint(position: float, relative: bool, raw: bool, wait_s: float | None) -> None:  # noqa: A001
+    """Set a breakpoint (SBPA/SBPR) at POSITION (counts; revolutions with --lines); status
+    bit 6 when the position passes it."""
+    s = _session()
+    counts = _position(s, position, "POSITION", raw)
+    positive("--wait", wait_s)
+    chip = s.open()
+    chip.set_breakpoint(counts, relative=relative)
     chip.reset_interrupts(Status.BREAKPOINT)
-    click.echo(f"breakpoint {'relative ' if relative else ''}{position} set")
+    click.echo(f"breakpoint {'relative ' if relative else ''}{_show_position(s, counts)} set")
     if wait_s is not None:
-        chip.wait_for(Status.BREAKPOINT, timeout=wait_s)
-        click.echo(f"breakpoint reached at {chip.read_real_position()}")
+        _wait_flag(chip, Status.BREAKPOINT, "the breakpoint (status bit 6)", wait_s)
+        click.echo(f"breakpoint reached at {_show_position(s, chip.read_real_position())}")
 
 
-@main.command()
+@main.command(context_settings=SIGNED_ARGS)
 @click.argument("threshold", type=INT)
 @click.option("--stop", "stop_motor", is_flag=True,
               help="Also turn the motor off when exceeded (LPES); default flag only (LPEI).")
 def limit(threshold: int, stop_motor: bool) -> None:
     """Following-error limit in counts (LPEI, or LPES with --stop)."""
+    check_int("THRESHOLD", threshold, 0, 0x7FFF)
     chip = _session().open()
     chip.load_position_error(threshold, stop=stop_motor)
     click.echo(f"{'LPES' if stop_motor else 'LPEI'} {threshold} counts: status bit 5"
@@ -668,7 +856,7 @@ def limit(threshold: int, stop_motor: bool) -> None:
 
 
 @main.command()
-@click.option("--rate", type=float, default=10.0, show_default=True, help="Rows per second.")
+@click.option("--rate", type=FINITE, default=10.0, show_default=True, help="Rows per second.")
 @click.option("--count", type=int, default=None, help="Stop after this many rows.")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default=None,
               help="Also log every row to this CSV file.")
@@ -678,81 +866,127 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
     The rows are timed on the chip's clock: simulated time on sim://."""
     import csv as csvmod
     if not 0 < rate <= 1000:
-        raise ValueError(f"--rate={rate} must be in 0..1000 rows per second")
+        raise click.BadParameter(f"{rate:g} must be in 0..1000 rows per second",
+                                 param_hint="--rate")
     if count is not None and count < 1:
-        raise ValueError(f"--count={count} must be at least 1")
-    chip = _session().open()
+        raise click.BadParameter(f"{count} must be at least 1", param_hint="--count")
+    if csv_path:
+        check_writable(csv_path, "--csv")
+    s = _session()
+    scale = s.scale
+    chip = s.open()
     f = open(csv_path, "w", newline="") if csv_path else None  # noqa: SIM115
     writer = csvmod.writer(f) if f else None
     header = ("t_s", "desired_position", "real_position", "following_error",
               "desired_velocity", "real_velocity", "status", "flags")
+    if scale is not None:
+        header = header[:6] + ("real_position_rev", "real_velocity_rpm") + header[6:]
     if writer:
         writer.writerow(header)
     click.echo(f"{'t_s':>9} {'desired':>10} {'actual':>10} {'error':>7} {'dv':>10} {'rv':>6} "
-               f"{'st':>3} flags")
+               + (f"{'rev':>10} {'rpm':>8} " if scale is not None else "") + f"{'st':>3} flags")
     n = 0
     start = chip.clock.now()
     try:
         while count is None or n < count:
             snap = chip.snapshot()
-            row = (f"{snap.time:.4f}", snap.desired_position, snap.real_position,
-                   snap.following_error, f"{snap.desired_velocity / FIXED_ONE:.4f}",
-                   snap.real_velocity, f"{int(snap.status):02X}", _flags(snap.status))
+            row: tuple[Any, ...] = (
+                f"{snap.time:.4f}", snap.desired_position, snap.real_position,
+                snap.following_error, f"{snap.desired_velocity / FIXED_ONE:.4f}",
+                snap.real_velocity)
+            units = ""
+            if scale is not None:
+                extra = (f"{scale.revolutions(snap.real_position):.4f}",
+                         f"{scale.rpm(snap.real_velocity * FIXED_ONE):.1f}")
+                row += extra
+                units = f"{extra[0]:>10} {extra[1]:>8} "
+            row += (f"{int(snap.status):02X}", _flags(snap.status))
             click.echo(f"{row[0]:>9} {row[1]:>10} {row[2]:>10} {row[3]:>+7} {row[4]:>10} "
-                       f"{row[5]:>+6} {row[6]:>3} {row[7]}")
+                       f"{row[5]:>+6} {units}{row[-2]:>3} {row[-1]}")
             if writer:
                 writer.writerow(row)
             n += 1
             if count is None or n < count:  # a fixed cadence: the rows do not drift
                 chip.clock.sleep(max(0.0, start + n / rate - chip.clock.now()))
     except KeyboardInterrupt:
-        click.echo(f"({n} rows)", err=True)  # watching does not move anything: a clean end
+        # watching moves nothing, so nothing is stopped; the exit code says how it ended
+        with contextlib.suppress(OSError, ValueError):
+            click.echo(f"({n} rows)", err=True)
+        raise
     finally:
         if f:
             f.close()
 
 
-@main.command()
-@click.argument("distance", type=INT, default=200)
+@main.command(context_settings=SIGNED_ARGS)
+@click.argument("distance", type=FINITE, default=200)
 @click.option("--kp", type=INT)
 @click.option("--ki", type=INT)
 @click.option("--kd", type=INT)
 @click.option("--il", type=INT)
 @click.option("--ds", type=int, help="Derivative sampling interval, samples.")
-@click.option("--vel", type=INT, default=None, help="Raw velocity word (default: a step).")
-@click.option("--acc", type=INT, default=None, help="Raw acceleration word (default: a step).")
-@click.option("--time", "duration", type=float, default=0.5, show_default=True,
+@click.option("--vel", type=FINITE, default=None,
+              help="Velocity: rpm with --lines, else a raw word (default: a step).")
+@click.option("--acc", type=FINITE, default=None,
+              help="Acceleration: rev/s^2 with --lines, else a raw word (default: a step).")
+@click.option("--raw", is_flag=True, help="Counts and raw words even with --lines.")
+@click.option("--tolerance", type=FINITE, default=None,
+              help="Done when the shaft rests this close to the target (counts; revolutions "
+                   "with --lines).")
+@click.option("--time", "duration", type=FINITE, default=0.5, show_default=True,
               help="Seconds to record.")
-@click.option("--interval", type=float, default=0.001, show_default=True,
+@click.option("--interval", type=FINITE, default=0.001, show_default=True,
               help="Seconds between snapshots (on a bridge, at least one round trip).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default="step.csv",
               show_default=True)
 @click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
               help="Plot file (default: the CSV name with .png).")
 @click.option("--no-png", is_flag=True, help="CSV only.")
-def step(distance: int, kp: int | None, ki: int | None, kd: int | None, il: int | None,
-         ds: int | None, vel: int | None, acc: int | None, duration: float, interval: float,
-         csv_path: str, png_path: str | None, no_png: bool) -> None:
-    """Record a step (or, with --vel/--acc, a move) of DISTANCE counts: CSV and PNG of desired
-    and actual position over time, for tuning (AN-706 figure 11)."""
+def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: int | None,
+         ds: int | None, vel: float | None, acc: float | None, raw: bool,
+         tolerance: float | None, duration: float, interval: float, csv_path: str,
+         png_path: str | None, no_png: bool) -> None:
+    """Record a step (or, with --vel/--acc, a move) of DISTANCE (counts; revolutions with
+    --lines): CSV and PNG of desired and actual position over time, for tuning (AN-706
+    figure 11).  Then wait until the shaft rests on the target (else a motion fault, exit 9;
+    the files are written either way)."""
     from .capture import STEP_ACCELERATION, STEP_VELOCITY
+    s = _session()
+    counts = _position(s, distance, "DISTANCE", raw)
+    v, a = _motion_words(s, vel, acc, raw)
+    v = STEP_VELOCITY if vel is None else v
+    a = STEP_ACCELERATION if acc is None else a
+    tol = _tolerance(s, tolerance, raw)
+    positive("--time", duration)
+    positive("--interval", interval)
+    if interval > duration:
+        raise click.BadParameter(f"{interval:g} is longer than --time {duration:g}",
+                                 param_hint="--interval")
+    check_writable(csv_path, "--csv")
+    png = None if no_png else png_path or os.path.splitext(csv_path)[0] + ".png"
+    if png:
+        check_writable(png, "--png")
     filt = {k: v for k, v in dict(kp=kp, ki=ki, kd=kd, il=il,
                                   derivative_interval=ds).items() if v is not None}
-    s = _session()
     chip = s.open()
-    cap = capture_move(chip, distance, duration_s=duration, interval_s=interval,
-                       velocity=STEP_VELOCITY if vel is None else vel,
-                       acceleration=STEP_ACCELERATION if acc is None else acc, filter=filt)
+    cap = capture_move(chip, counts, duration_s=duration, interval_s=interval,
+                       velocity=v, acceleration=a, filter=filt, tolerance=tol)
     for line in summary(cap):
         click.echo(line)
+    if s.scale is not None and not raw:
+        sc = s.scale
+        click.echo(f"in revolutions: target {sc.revolutions(cap.target):.4f}, largest following "
+                   f"error {sc.revolutions(cap.max_following_error):+.4f}, overshoot "
+                   f"{sc.revolutions(cap.overshoot):.4f}, final error "
+                   f"{sc.revolutions(cap.final_error):+.4f}")
     click.echo(f"wrote {write_csv(cap, csv_path)}")
-    if no_png:
-        return
-    png = png_path or os.path.splitext(csv_path)[0] + ".png"
-    try:
-        click.echo(f"wrote {write_png(cap, png)}")
-    except PlotUnavailable as exc:
-        click.echo(f"lm629: {exc}", err=True)
+    if png:
+        try:
+            click.echo(f"wrote {write_png(cap, png)}")
+        except PlotUnavailable as exc:
+            click.echo(f"lm629: {exc}", err=True)
+    if cap.fault is not None:
+        raise cap.fault
 
 
 @main.command()
@@ -760,12 +994,23 @@ def step(distance: int, kp: int | None, ki: int | None, kd: int | None, il: int 
 @click.argument("words", type=INT, nargs=-1)
 @click.option("--read", "read_n", type=int, default=0, help="Words to read after the command.")
 def raw(command: int, words: tuple[int, ...], read_n: int) -> None:
-    """Send a COMMAND byte (0x1F, 1Fh) with WORDS to write, or --read N words: for experts."""
+    """Send a COMMAND byte (0x1F, 1Fh) with WORDS to write, or --read N words: for experts.
+    Exit 6 when the chip sets its command-error bit in answer."""
+    check_int("command", command, 0, 0xFF, hex_digits=2)
+    for w in words:
+        check_int("word", w, 0, 0xFFFF, hex_digits=4)
+    check_int("--read", read_n, 0, 16)
+    if words and read_n:
+        raise click.BadParameter("a command either writes words or reads them, not both",
+                                 param_hint="--read")
     chip = _session().open()
+    chip.reset_interrupts(Status.COMMAND_ERROR)  # so that the flag after it is its own
     got = chip.raw(command, words, read_n)
-    st = chip.read_status()
+    st = chip.sync()
     out = " ".join(f"{w:04X}" for w in got)
     click.echo((f"read {out}  " if got else "") + f"status {int(st):02X} ({_flags(st)})")
+    if st & Status.COMMAND_ERROR:
+        raise CommandError(f"command {command:02X}h", int(st))
 
 
 def _transport_modules() -> Iterator[tuple[str, Any, str | None]]:
@@ -853,14 +1098,20 @@ def doctor() -> None:
             line("open", True, chip.transport.describe())
             t0 = time.perf_counter()
             n = 20
+            busy = 0
             for _ in range(n):
                 st = chip.read_status()
+                busy += bool(st & Status.BUSY)
             dt = (time.perf_counter() - t0) / n
-            line("status read", True, f"{int(st):02X} ({_flags(st)}), {dt * 1e3:.3f} ms per "
-                                      "round trip (wall clock)")
+            stuck = (f"; the busy bit was set in all {n} reads: the chip is stuck busy (check "
+                     "its clock input, its supply and /RST)") if busy == n else ""
+            line("status read", busy < n, f"{int(st):02X} ({_flags(st)}), {dt * 1e3:.3f} ms "
+                                          f"per round trip (wall clock){stuck}")
         except LM629Error as exc:
             line("open", False, str(exc))
     click.echo("no problems found" if not problems else f"{problems} problem(s) above")
+    if problems:
+        click.get_current_context().exit(1)
 
 
 main.add_command(calc)
@@ -874,4 +1125,4 @@ except ImportError:  # pragma: no cover - before the bridge work landed
     pass
 
 
-__all__ = ["main", "EXIT_CODES", "Session", "parse_int", "snapshot_dict"]
+__all__ = ["main", "EXIT_CODES", "Session", "Terminated", "parse_int", "snapshot_dict"]

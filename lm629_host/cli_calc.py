@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import click
 
+from .cli_types import FINITE
 from .units import Scale
 
 
@@ -17,17 +18,17 @@ def _word(value: int, digits: int = 8) -> str:
     return f"{value} (0x{value & (16 ** digits - 1):0{digits}X})"
 
 
-@click.command()
+@click.command(context_settings={"ignore_unknown_options": True})
 @click.option("--lines", type=int, default=None, help="Encoder lines (else the global --lines).")
-@click.option("--clock", "clock_hz", type=float, default=None,
+@click.option("--clock", "clock_hz", type=FINITE, default=None,
               help="Chip clock in Hz (else the global --clock).")
-@click.option("--rpm", type=float, multiple=True, help="Velocity in rpm -> raw word.")
-@click.option("--rev", type=float, multiple=True, help="Revolutions -> counts.")
-@click.option("--accel", type=float, multiple=True, help="rev/s^2 -> raw word.")
+@click.option("--rpm", type=FINITE, multiple=True, help="Velocity in rpm -> raw word.")
+@click.option("--rev", type=FINITE, multiple=True, help="Revolutions -> counts.")
+@click.option("--accel", type=FINITE, multiple=True, help="rev/s^2 -> raw word.")
 @click.option("--velocity-word", type=str, multiple=True, help="Raw velocity word -> rpm.")
 @click.option("--acceleration-word", type=str, multiple=True, help="Raw acceleration -> rev/s^2.")
 @click.option("--counts", type=str, multiple=True, help="Counts -> revolutions.")
-@click.option("--trapezoid", nargs=3, type=float, default=None,
+@click.option("--trapezoid", nargs=3, type=FINITE, default=None,
               metavar="REV SECONDS RAMP_S",
               help="A move of REV revolutions in SECONDS with RAMP_S of acceleration (AN-706 5.3).")
 @click.pass_context

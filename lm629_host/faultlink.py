@@ -187,6 +187,7 @@ class SoakResult:
     calls: int = 0
     ok: int = 0
     typed_errors: int = 0
+    not_sent: int = 0  #: typed errors that say nothing was sent (certainly did not run)
     expected: list[tuple[tuple[int, tuple[int, ...]], bool]] = field(default_factory=list)
 
 
@@ -195,6 +196,7 @@ def soak(chip, n: int) -> SoakResult:
     SBPA breakpoint (its two words identify the call) and a real-position read that must read
     0 (the motor is at rest).  Typed errors are counted; any other exception propagates."""
     from .errors import LM629Error, TransportError
+    from .link import LinkError
     from .opcodes import Cmd
 
     r = SoakResult()
@@ -209,6 +211,12 @@ def soak(chip, n: int) -> SoakResult:
             call = chip.read_real_position
         try:
             value = call()
+        except LinkError as exc:
+            r.typed_errors += 1
+            if exc.may_have_run:
+                r.expected.append((entry, False))
+            else:  # nothing was sent: it must not be in the record (leave it out)
+                r.not_sent += 1
         except LM629Error as exc:
             if not isinstance(exc, TransportError) or "may or may not have run" not in str(exc):
                 raise
@@ -223,25 +231,54 @@ def soak(chip, n: int) -> SoakResult:
     return r
 
 
-def check_record(history: list[tuple[int, tuple[int, ...]]],
-                 expected: list[tuple[tuple[int, tuple[int, ...]], bool]]) -> tuple[int, int]:
-    """Match the chip's record (``ChipModel.history``) against the calls, in order: a call
-    that returned normally must be there exactly once; a call that raised may be there once or
-    not at all; nothing else may be.  Returns (failed calls that ran, failed calls that did
-    not); raises AssertionError on a lost or repeated command."""
-    j = ran = lost = 0
-    for entry, certain in expected:
-        if j < len(history) and history[j] == entry:
-            j += 1
-            ran += not certain
-        elif certain:
-            raise AssertionError(f"call {entry} returned normally but never reached the chip "
-                                 f"(record position {j}: {history[j:j + 3]})")
-        else:
-            lost += 1
-    if j != len(history):
-        raise AssertionError(f"the chip saw {len(history) - j} command(s) nobody sent (or one "
-                             f"twice): {history[j:j + 5]}")
+Entry = tuple[int, tuple[int, ...]]
+
+
+def check_record(history: list[Entry], expected: list[tuple[Entry, bool]]) -> tuple[int, int]:
+    """Decide exactly whether the chip's record (``ChipModel.history``) is what the calls may
+    have left: every call that returned normally there exactly once, every call that raised
+    there once or not at all, nothing else, all in call order.
+
+    The record cannot say *which* call a command came from when two calls send the same bytes
+    (two RDRP), so a greedy left-to-right match is wrong: it may give the one RDRP in the record
+    to an earlier call that failed and then call the later, successful one lost.  This is the
+    exact test: "can ``history`` be made from the calls by leaving out only calls that raised?",
+    solved by following every record position the calls so far can have reached (a set that
+    stays small: a unique command, such as an SBPA with its own position, collapses it).
+
+    Returns (failed calls that ran, failed calls that did not) for one consistent assignment;
+    raises AssertionError naming the first call no assignment can explain.
+    """
+    n_hist = len(history)
+    # reach: record position -> (previous position, this call ran) for the calls so far
+    reach: dict[int, None] = {0: None}
+    back: list[dict[int, tuple[int, bool]]] = []
+    for i, (entry, certain) in enumerate(expected):
+        step: dict[int, tuple[int, bool]] = {}
+        for j in reach:
+            if j < n_hist and history[j] == entry:
+                step.setdefault(j + 1, (j, True))
+            if not certain:
+                step.setdefault(j, (j, False))
+        if not step:
+            lo, hi = min(reach), max(reach)
+            raise AssertionError(
+                f"call {i} {entry} returned normally but no way of running the calls before it "
+                f"puts it in the chip's record (record positions {lo}..{hi} reachable: "
+                f"{history[lo:hi + 3]}): a command was lost, repeated or run out of order")
+        back.append(step)
+        reach = dict.fromkeys(step)
+    if n_hist not in reach:
+        j = max(reach)
+        raise AssertionError(f"the chip saw {n_hist - j} command(s) nobody sent, or one twice, "
+                             f"or out of order: {history[j:j + 5]} (record position {j})")
+    ran = lost = 0
+    j = n_hist
+    for (entry, certain), step in zip(reversed(expected), reversed(back)):
+        j, took = step[j]
+        if not certain:
+            ran += took
+            lost += not took
     return ran, lost
 
 

@@ -43,6 +43,12 @@ CTRL_IDLE = CS | RD | WR | PS | RST
 DATA_OUT = 0xFF  #: ACBUS direction while the adapter drives D0-D7 (writes)
 DATA_IN = 0x00  #: ACBUS direction while the chip may drive D0-D7 (reads, idle)
 
+# --- the FT232H itself -------------------------------------------------------------------------
+#: the FT232H's buffers, each way (datasheet: 1 KiB TX and 1 KiB RX): an MPSSE stream longer
+#: than this cannot be written while the engine waits for the host to read its answers, so the
+#: transport never sends a stream, or asks for a reply, longer than this
+FIFO_BYTES = 1024
+
 #: (FT232H line, breakout label, LM629 pin, direction seen from the adapter, note), for the
 #: README's wiring table.  The LM629 pin numbers are those of the 28-pin DIP package (AN-706
 #: names HI pin 17 and /RST pin 27; check the others against your package's datasheet).
@@ -59,4 +65,4 @@ WIRING: tuple[tuple[str, str, str, str, str], ...] = (
 )
 
 __all__ = ["TCK", "CS", "RD", "WR", "PS", "HI", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
-           "DATA_IN", "WIRING"]
+           "DATA_IN", "FIFO_BYTES", "WIRING"]

@@ -16,6 +16,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from .errors import AxisError, CommandError, ResetError, WaitTimeout
+from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
@@ -105,8 +106,29 @@ class Snapshot:
         return self.desired_position - self.real_position
 
 
+#: the reads of a snapshot after its status byte: (command, words)
+SNAPSHOT_READS = ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2), (Cmd.RDRV, 1),
+                  (Cmd.RDSUM, 1))
+
+
+def snapshot_of(status: int, w: tuple[int, ...], time: float) -> Snapshot:
+    """A :class:`Snapshot` from its status byte and the words of :data:`SNAPSHOT_READS`."""
+    return Snapshot(Status(status), Signals(w[0]), _s32(w[1:3]), _s32(w[3:5]), _s32(w[5:7]),
+                    _s16(w[7]), _s16(w[8]), time)
+
+
 class LM629:
-    """One LM628 or LM629 behind a transport.  Use :func:`lm629_host.open` to make one."""
+    """One LM628 or LM629 behind a transport.  Use :func:`lm629_host.open` to make one.
+
+    Threads may share one object: every bus program runs whole under the transport's lock
+    (:attr:`Transport.lock <lm629_host.transports.base.Transport.lock>`), so calls from
+    several threads never interleave on the bus.  A sequence of calls (load, then start) is
+    not atomic: hold ``chip.transport.lock`` around it when another thread might move the
+    motor in between.
+    """
+
+    #: when :meth:`move_to`'s moves are done or a motion fault (settable per object)
+    move_rules: MoveRules = MoveRules()
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
                  busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None):
@@ -249,13 +271,10 @@ class LM629:
     def snapshot(self) -> Snapshot:
         """Status, signals, positions, velocities and integration sum in one bus program."""
         p = self.program().status()
-        for cmd, n in ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2),
-                       (Cmd.RDRV, 1), (Cmd.RDSUM, 1)):
+        for cmd, n in SNAPSHOT_READS:
             p.command(cmd).read(n)
         r = self.run(p)
-        w = r.words
-        return Snapshot(Status(r.statuses[0]), Signals(w[0]), _s32(w[1:3]), _s32(w[3:5]),
-                        _s32(w[5:7]), _s16(w[7]), _s16(w[8]), self.clock.now())
+        return snapshot_of(r.statuses[0], r.words, self.clock.now())
 
     # ------------------------------------------------------------------ interrupts
     def mask_interrupts(self, flags: Status | int) -> None:
@@ -397,9 +416,12 @@ class LM629:
         else:
             self.run(p)
 
-    def _start(self, program: Program) -> Status:
-        if not self._ce_clear:  # RSTI clearing only the command-error flag (0 clears)
-            program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~Status.COMMAND_ERROR)) \
+    def _start(self, program: Program, clear: Status | int = 0) -> Status:
+        clear = Status(clear)
+        if not self._ce_clear:  # also clear the command-error flag (RSTI: 0 clears)
+            clear |= Status.COMMAND_ERROR
+        if clear:
+            program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~clear)) \
                 .extend(program)
         program.sync().command(Cmd.STT).sync()
         before, after = self.run(program).statuses[-2:]
@@ -430,6 +452,40 @@ class LM629:
         than every 10 ms (AN-706 4.6.2).
         """
         return self._start(self.program())
+
+    def move_to(self, position: int, *, velocity: int, acceleration: int | None = None,
+                relative: bool = False) -> Move:
+        """Start a move to ``position`` (counts) and return a :class:`Move`; ``move.wait()``
+        returns when the shaft is at rest on the target or raises :class:`MotionError`.
+
+        ``velocity`` and ``acceleration`` are raw 16.16 words (1..); ``acceleration=None``
+        keeps the one loaded (the chip refuses a new acceleration while the motor moves with
+        the drive on: leave it out to change a running move).  ``relative=True``: ``position``
+        counts from the desired position now (one more round trip, RDDP).  One bus program
+        (one round trip on a bridge) clears the flags a move reports (trajectory complete,
+        breakpoint, position error, command error), loads the trajectory and starts it, so a
+        flag left by an earlier move can never end this one's wait.  Arguments are checked
+        before any bus traffic (``ValueError``).
+        """
+        check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
+        if acceleration is not None:
+            acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX,
+                                     hex_digits=8)
+        start = self.snapshot()
+        target = start.desired_position + position if relative else position
+        program = self.trajectory_program(acceleration, velocity,
+                                          check_int("target position", target, POSITION_MIN,
+                                                    POSITION_MAX, hex_digits=8))
+        self._start(program, clear=MOVE_FLAGS)
+        if acceleration is not None:
+            self._move_acceleration = acceleration
+        return Move(self, target, velocity,
+                    acceleration if acceleration is not None else self._move_acceleration,
+                    start, self.clock.now())
+
+    #: the last acceleration word move_to loaded (for the default timeout)
+    _move_acceleration: int | None = None
 
     # ------------------------------------------------------------------ output port
     def port8(self) -> None:
@@ -477,6 +533,13 @@ class LM629:
 
         Waits on the transport's clock (simulated time on ``sim://``).  Raises
         :class:`WaitTimeout` after ``timeout`` seconds.
+
+        A flag raised *earlier* satisfies it at once: the chip keeps its flags until RSTI
+        clears them.  After a first move, ``load_trajectory(..., start=True)`` then
+        ``wait_for(Status.TRAJECTORY_COMPLETE)`` returns immediately while the second move
+        runs.  Clear the flag first (:meth:`reset_interrupts`), or better, move with
+        :meth:`move_to` and ``Move.wait()``, which clear the move's flags in the program that
+        starts it and wait until the shaft is at rest on the target.
         """
         value = Status(check_int("flags", int(flags), 1, 0xFF))
         if not timeout > 0:
@@ -508,4 +571,4 @@ class LM629:
         return self.run(p.read(read)).words
 
 
-__all__ = ["LM629", "Snapshot", "FilterFlags", "check_int"]
+__all__ = ["LM629", "Snapshot", "FilterFlags", "check_int", "Move", "MoveResult", "MoveRules"]

@@ -202,17 +202,40 @@ class SimServer:
 
     # ------------------------------------------------------------------ set-up
     def open(self) -> str:
-        """Create the pseudo-terminal and the link; returns the pty's device path."""
-        if self.link.exists() and not self.link.is_symlink():
-            raise FileExistsError(f"{self.link} exists and is not a symlink: choose another "
-                                  "--pty path")
+        """Create the pseudo-terminal and the link; returns the pty's device path.
+
+        The link is only ever created here, never taken over: a path that exists (a file, a
+        directory, a link to a live pseudo-terminal that another server holds) is refused
+        with FileExistsError.  Only a dangling link to a pseudo-terminal (left by a server
+        that was killed) is replaced.  :meth:`close` removes the link only while it is still
+        the one this server made."""
+        parent = self.link.parent
+        if not parent.is_dir():
+            raise ValueError(f"--pty {self.link}: the directory {parent} does not exist")
+        if self.link.is_symlink():
+            target = os.readlink(self.link)
+            if os.path.exists(self.link):
+                raise FileExistsError(
+                    f"{self.link} -> {target} is in use (another `lm629 sim serve`, or "
+                    "another program, holds it): stop that server or choose another --pty path")
+            if not target.startswith("/dev/pts/"):
+                raise FileExistsError(f"{self.link} is a link to {target}, not a pseudo-"
+                                      "terminal this tool made: choose another --pty path")
+            os.unlink(self.link)  # stale: its server is gone
+        elif os.path.lexists(self.link):
+            raise FileExistsError(f"{self.link} exists and is not a link this tool made: "
+                                  "choose another --pty path")
         master, slave = os.openpty()
         tty.setraw(slave)  # no echo, no line editing: a byte pipe like a USB serial port
-        self.master, self.slave = master, slave
         self.device = os.ttyname(slave)
-        with contextlib.suppress(FileNotFoundError):
-            self.link.unlink()
-        self.link.symlink_to(self.device)
+        try:
+            os.symlink(self.device, self.link)  # fails if another server won the race
+        except OSError:
+            os.close(master)
+            os.close(slave)
+            self.device = ""
+            raise
+        self.master, self.slave = master, slave
         # the server keeps the slave open, so the pty survives clients that come and go
         return self.device
 
@@ -225,7 +248,7 @@ class SimServer:
                     os.close(fd)
         self.master = self.slave = None
         with contextlib.suppress(OSError):
-            if self.link.is_symlink() and os.readlink(self.link) == self.device:
+            if self.device and self.link.is_symlink() and os.readlink(self.link) == self.device:
                 self.link.unlink()
 
     def __enter__(self) -> SimServer:

@@ -3,6 +3,10 @@
 Every simulated chip in the suite is strict by default (``LM629_SIM_STRICT=1``): any host
 protocol violation (a write while busy, a word without a command...) raises at once.  Tests
 that provoke violations on purpose say ``strict=0`` in their URL.
+
+The firmware-in-the-loop tests (a third of the suite) need the AVR toolchain.  Without it they
+skip, and the run says so in a red line at its end (and at its start); with
+``LM629_REQUIRE_AVR=1`` (``.ci/run`` sets it) the run stops at once with a failure instead.
 """
 
 from __future__ import annotations
@@ -14,7 +18,42 @@ os.environ.setdefault("LM629_SIM_STRICT", "1")
 import pytest  # noqa: E402
 
 import lm629_host  # noqa: E402
+from lm629_host import avrsim  # noqa: E402
 from lm629_host.program import BusCycle  # noqa: E402
+
+_REQUIRE_AVR = "LM629_REQUIRE_AVR"
+
+
+def _avr_missing() -> list[str]:
+    return avrsim.toolchain_missing()
+
+
+def pytest_sessionstart(session) -> None:  # type: ignore[no-untyped-def]
+    missing = _avr_missing()
+    if missing and os.environ.get(_REQUIRE_AVR) == "1":
+        pytest.exit(f"{_REQUIRE_AVR}=1 but the AVR toolchain is missing ({', '.join(missing)}):"
+                    f" apt-get install {avrsim.PACKAGES}", returncode=1)
+
+
+def pytest_report_header(config) -> str | None:  # type: ignore[no-untyped-def]
+    missing = _avr_missing()
+    if missing:
+        return (f"!!! AVR toolchain missing ({', '.join(missing)}): the firmware-in-the-loop "
+                f"tests will be SKIPPED (apt-get install {avrsim.PACKAGES})")
+    return None
+
+
+def pytest_terminal_summary(terminalreporter) -> None:  # type: ignore[no-untyped-def]
+    missing = _avr_missing()
+    if not missing:
+        return
+    skipped = terminalreporter.stats.get("skipped", [])
+    n = sum(1 for r in skipped if "toolchain" in str(getattr(r, "longrepr", "")).lower()
+            or "sim+avr" in str(getattr(r, "longrepr", "")))
+    terminalreporter.write_sep(
+        "!", f"AVR toolchain missing ({', '.join(missing)}): {n} firmware-in-the-loop tests "
+        f"SKIPPED, the firmware is UNTESTED. apt-get install {avrsim.PACKAGES}, or run "
+        f".ci/run as root (it installs them and sets {_REQUIRE_AVR}=1)", red=True, bold=True)
 
 
 class Recorder:

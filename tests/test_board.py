@@ -138,8 +138,9 @@ def test_move_linear_keeps_to_the_line_and_lands_both(url):
         length = math.hypot(3000, -1700)
         worst = max(abs((px >> 16) * -1700 - (py >> 16) * 3000) / length for px, py in path)
         assert worst <= 1.5, worst
-        r = m.wait(timeout=2, tolerance=13)
-        assert [a.desired_position for a in r.axes] == [3000, -1700]
+        results = m.wait(timeout=3, tolerance=13)
+        assert [r.target for r in results] == [3000, -1700]
+        assert all(abs(r.error) <= 13 for r in results)
 
 
 def test_move_linear_the_issue_example_on_sim():
@@ -154,6 +155,21 @@ def test_move_linear_the_issue_example_on_sim():
                     for px, py in path)
         assert worst <= 1.5, worst
         assert path[-1] == (12000 << 16, 6000 << 16)
+
+
+@pytest.mark.parametrize("url", TRANSPORTS)
+def test_a_fault_on_one_axis_names_it_and_stops_both(url):
+    with open2(url) as board:
+        board.reset()
+        tune(board)
+        x, y = board.axes
+        chips(board)[1].set_motor_params(stall=True)
+        m = board.move({x: 2000, y: 2000}, velocity=2 * 65536, acceleration=1500)
+        with pytest.raises(lm629_host.MotionError, match=r"^axis 1: motion fault \(stall\)") as e:
+            m.wait(timeout=5)
+        assert e.value.axis == 1
+        # both drives off afterwards
+        assert all(s & Status.MOTOR_OFF for s in board.statuses())
 
 
 # ------------------------------------------------------------------------------ axis errors

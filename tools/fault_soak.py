@@ -5,7 +5,10 @@ model's own record: no command twice, none lost, every unhidden failure a typed 
 Prints the counts; exits 1 on the first violation.  In simulated time (no wall-clock waits).
 
 Run:  python3 tools/fault_soak.py [--runs 10] [--n 5000] [--rate 0.002] [--baud 1000000]
-      [--far emu|avr]
+      [--far emu|avr] [--retries N]
+
+``--rate`` is the per-byte rate of EACH fault kind (drop, corrupt, duplicate, delay), both
+directions: ``--rate 0.0025`` makes 1 % of bytes faulty, ``--rate 0.01`` 4 %.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ def open_far(far: str, baud: int):
         return t, t.model, t.emulator.stats
     from lm629_host.transports import open_transport  # sim+avr://: the compiled firmware
     t = open_transport(f"sim+avr://?record=1&baud={baud}")
-    return t, getattr(t, "model", None) or t.pipe.model, None
+    return t, t.model, t.sim.link_counters()  # the firmware's own counters (None: no avr-nm)
 
 
 def main() -> int:
@@ -40,16 +43,21 @@ def main() -> int:
     ap.add_argument("--delay-s", type=float, default=0.01)
     ap.add_argument("--baud", type=int, default=1_000_000)
     ap.add_argument("--far", choices=["emu", "avr"], default="emu")
+    ap.add_argument("--retries", type=int, default=None, help="the transport's default if unset")
     args = ap.parse_args()
-    total = dict(calls=0, ok=0, errors=0, ran=0, lost=0, retries=0, cache_hits=0, faults=0)
+    total = dict(calls=0, ok=0, errors=0, ran=0, lost=0, not_sent=0, retries=0, cache_hits=0,
+                 faults=0)
     t0 = time.perf_counter()
     for run in range(args.runs):
         t, model, far_stats = open_far(args.far, args.baud)
         chip = LM629(t)
+        if args.retries is not None:
+            t.retries = args.retries
         chip.reset()
         t._seq = run & 0xFF
         model.record_clear()
         hits0 = far_stats.cache_hits if far_stats else 0
+        runs0 = far_stats.runs if far_stats else 0
         fp = FaultPipe(t.pipe, drop=args.rate, corrupt=args.rate, duplicate=args.rate,
                        delay=args.rate, delay_s=args.delay_s, seed=run)
         t.pipe = fp
@@ -59,19 +67,29 @@ def main() -> int:
         except AssertionError as exc:
             print(f"run {run}: VIOLATION: {exc}")
             return 1
+        if far_stats is not None and far_stats.runs - runs0 != len(model.history):
+            print(f"run {run}: VIOLATION: the far end ran {far_stats.runs - runs0} programs, "
+                  f"the chip's record holds {len(model.history)} commands")
+            return 1
         faults = sum(c.dropped + c.corrupted + c.duplicated + c.delayed
                      for c in (fp.out.counts, fp.into.counts))
         hits = (far_stats.cache_hits - hits0) if far_stats else 0
-        print(f"run {run}: {r.calls} commands, {r.ok} ok, {r.typed_errors} typed errors "
-              f"({ran} ran, {lost} did not), {t.stats.retries} retries, {hits} cache hits, "
-              f"{faults} byte faults")
+        print(f"run {run}: {r.calls} commands, {r.ok} ok ({100 * r.ok / r.calls:.2f} %), "
+              f"{r.typed_errors} typed errors ({ran} ran, {lost} did not, {r.not_sent} not "
+              f"sent), {t.stats.retries} retries, {hits if far_stats else 'n/a'} cache hits, "
+              f"{faults} byte faults, "
+              f"link error rate {100 * t.error_rate:.1f} %", flush=True)
         for k, v in dict(calls=r.calls, ok=r.ok, errors=r.typed_errors, ran=ran, lost=lost,
-                         retries=t.stats.retries, cache_hits=hits, faults=faults).items():
+                         not_sent=r.not_sent, retries=t.stats.retries, cache_hits=hits,
+                         faults=faults).items():
             total[k] += v
         t.close()
-    print(f"total: {total['calls']} commands, {total['ok']} ok, {total['errors']} typed errors "
-          f"({total['ran']} had run, {total['lost']} had not), {total['retries']} retries, "
-          f"{total['cache_hits']} answered from the bridge's cache, {total['faults']} byte "
+    print(f"total: {total['calls']} commands, {total['ok']} ok "
+          f"({100 * total['ok'] / max(1, total['calls']):.3f} %), {total['errors']} typed errors "
+          f"({total['ran']} had run, {total['lost']} had not, {total['not_sent']} not sent), "
+          f"{total['retries']} retries, "
+          f"{total['cache_hits']} answered from "
+          f"the bridge's cache, {total['faults']} byte "
           f"faults; no command lost or run twice ({time.perf_counter() - t0:.1f} s wall)")
     return 0
 

@@ -29,9 +29,10 @@ import errno
 from types import SimpleNamespace
 
 import usb.backend
+import usb.core
 from usb.core import USBError
 
-from .device import EmulatedFT232H
+from .device import BufferFull, EmulatedFT232H
 
 #: endpoint addresses of the FT232H's one interface
 EP_IN = 0x81
@@ -152,7 +153,11 @@ class EmulatedBackend(usb.backend.IBackend):
     def bulk_write(self, dev_handle, ep, intf, data, timeout):  # type: ignore[no-untyped-def]
         if ep != EP_OUT:
             raise USBError(f"bulk write to endpoint {ep:#x}", errno.EINVAL, errno.EINVAL)
-        return dev_handle.dev.bulk_out(bytes(data))
+        try:
+            return dev_handle.dev.bulk_out(bytes(data))
+        except BufferFull as exc:  # libusb: the device NAKed the transfer until the timeout
+            raise usb.core.USBTimeoutError(f"[Errno 110] Operation timed out ({exc})",
+                                           errno.ETIMEDOUT, -7) from None
 
     def bulk_read(self, dev_handle, ep, intf, buff, timeout):  # type: ignore[no-untyped-def]
         if ep != EP_IN:

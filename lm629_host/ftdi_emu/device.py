@@ -28,6 +28,22 @@ it (``model.advance_to``) before every edge.  What things cost (emulation choice
   timer, and so does a bulk IN with nothing to send (the chip answers the two modem-status
   bytes alone when the timer expires).
 
+What the silicon does that a careless host gets wrong, modelled so that tests can see it:
+
+* the bit-mode mask: SET_BITMODE to MPSSE with a non-zero mask makes those ADBUS lines outputs
+  at once, driving the MPSSE low-byte latch, which entering MPSSE leaves at 0: a host that
+  passes its direction there (pyftdi's ``open_mpsse`` does) pulls /CS, /RD, /WR and /RST low
+  until its first 0x80 (``ctrl_log`` records every level of the control lines, with its time);
+* the 1 KiB buffers each way (:data:`~lm629_host.ftdi_pins.FIFO_BYTES`): the engine stops at a
+  read command while its answer buffer is full and takes no more command bytes once its
+  command buffer is full; a bulk OUT that then cannot be taken times out (USB NAKs it);
+* clock modes that survive a change of bit mode: adaptive clocking (0x96) makes idle clocks
+  wait for RTCK on GPIOL3, which nothing drives here, so a stream stalls; 3-phase clocking
+  (0x8C) makes each clock 1.5 periods.  A device "left so by another tool" starts with them on
+  (``adaptive=True``, ``three_phase=True``);
+* purge: request 0 value 1 empties the host->chip buffer, value 2 the chip->host buffer (FTDI's
+  "purge RX/TX" from the chip's side, libftdi's and pyftdi's ``SIO_RESET_PURGE_RX/TX``).
+
 A test hook, :meth:`EmulatedFT232H.stretch_busy`, makes the chip hold busy far longer than its
 documented 100 us after the next N transfers, to prove that the transport detects it.
 """
@@ -57,6 +73,14 @@ REQ_READ_EEPROM = 0x90
 BITMODE_RESET = 0x00
 BITMODE_MPSSE = 0x02
 
+PURGE_HOST_TO_CHIP = 1  #: SIO_RESET_PURGE_RX: commands not yet executed
+PURGE_CHIP_TO_HOST = 2  #: SIO_RESET_PURGE_TX: answers not yet read
+
+
+class BufferFull(Exception):
+    """A bulk OUT the device cannot take: its command buffer is full while the engine waits
+    for the host to read answers (libusb reports a timeout)."""
+
 #: the two status bytes at the head of every bulk IN packet: modem status (CTS, DSR, and the
 #: reserved bit 0 the chip always sets), then line status with the transmitter-empty bits set
 MODEM_STATUS = bytes((0x31, 0x60))
@@ -80,6 +104,7 @@ class Counters:
     bytes_out: int = 0
     bytes_in: int = 0  #: payload bytes sent in bulk IN packets, modem-status bytes excluded
     control: int = 0  #: vendor control requests
+    most_unread: int = 0  #: the most answer bytes ever waiting for the host (limit: 1 KiB)
 
 
 class EmulatedFT232H:
@@ -90,7 +115,8 @@ class EmulatedFT232H:
     bcd_device = 0x0900  #: FT232H (pyftdi recognises the part by this)
 
     def __init__(self, model: ChipModel, *, serial: str = "LM629EMU", usb_ns: int = 125_000,
-                 command_ns: int = 500, bus: int = 1, address: int = 7) -> None:
+                 command_ns: int = 500, bus: int = 1, address: int = 7,
+                 adaptive: bool = False, three_phase: bool = False) -> None:
         self.model = model
         self.serial = serial
         self.manufacturer = "FTDI"
@@ -106,6 +132,11 @@ class EmulatedFT232H:
         self.bitmode = BITMODE_RESET
         self.tck_divisor = 0
         self.div5 = True
+        self.adaptive = adaptive  #: adaptive clocking on (0x96): idle clocks wait for RTCK
+        self.three_phase = three_phase  #: 3-phase clocking on (0x8C): 1.5 periods a clock
+        self.stalled = False  #: the engine waits (answer buffer full, or RTCK never comes)
+        #: (ns, level of the ADBUS control lines) at every change, from power-on
+        self.ctrl_log: list[tuple[int, int]] = [(0, 0xFF)]
         self.timing_violations: list[str] = []
         self.unknown_commands: list[int] = []
         self._rx = bytearray()  #: bytes waiting for the host (bulk IN)
@@ -146,7 +177,7 @@ class EmulatedFT232H:
         return base / ((1 + self.tck_divisor) * 2)
 
     def _clocks_ns(self, clocks: int) -> int:
-        return round(clocks * 1e9 / self.tck_hz)
+        return round(clocks * (1.5 if self.three_phase else 1.0) * 1e9 / self.tck_hz)
 
     # ------------------------------------------------------------------ test hook
     def stretch_busy(self, transfers: int, seconds: float, skip: int = 0) -> None:
@@ -180,19 +211,20 @@ class EmulatedFT232H:
     def control_out(self, request: int, value: int, index: int, data: bytes) -> int:
         self.counters.control += 1
         if request == REQ_RESET:
-            if value == 1:  # purge RX: what the host would read
+            if value == PURGE_HOST_TO_CHIP:
+                self._pending.clear()
+            elif value == PURGE_CHIP_TO_HOST:
                 self._rx.clear()
                 self._flushed = 0
-            elif value == 2:  # purge TX: commands not yet executed
-                self._pending.clear()
-            else:
+            else:  # reset: both
                 self._rx.clear()
                 self._flushed = 0
                 self._pending.clear()
+            self.stalled = False
         elif request == REQ_SET_LATENCY_TIMER:
             self.latency_ms = value & 0xFF
         elif request == REQ_SET_BITMODE:
-            self._set_bitmode(value >> 8)
+            self._set_bitmode(value >> 8, value & 0xFF)
         # baud rate, data format, flow control, modem lines, event/error characters: no
         # effect on the MPSSE engine
         return len(data)
@@ -209,20 +241,36 @@ class EmulatedFT232H:
             return b"\xff\xff"[:length]  # a blank EEPROM
         return bytes(length)
 
-    def _set_bitmode(self, mode: int) -> None:
+    def _set_bitmode(self, mode: int, mask: int) -> None:
         self.bitmode = mode
         if mode != BITMODE_MPSSE:
             # leaving MPSSE releases every line: all inputs, pulled up
             self._set_low(0xFF, 0x00)
             self._set_high(0xFF, 0x00)
+        else:
+            # entering MPSSE: the mask's lines become outputs at once, driving the low-byte
+            # latch, which starts at 0; the high byte stays input until a 0x82
+            self._set_low(0x00, mask)
+            self._set_high(0x00, 0x00)
 
     # ------------------------------------------------------------------ USB: bulk
     def bulk_out(self, data: bytes) -> int:
+        """One bulk OUT transfer; :class:`BufferFull` when the command buffer cannot take all
+        of it (the engine waits for answers the host has not read)."""
         self.counters.bulk_out += 1
         self.counters.bytes_out += len(data)
         self.advance_ns(self.usb_ns)
-        if self.bitmode == BITMODE_MPSSE:
-            self._pending += data
+        if self.bitmode != BITMODE_MPSSE:
+            return len(data)
+        taken = 0
+        while taken < len(data):
+            room = pins.FIFO_BYTES - len(self._pending)
+            if room <= 0:
+                raise BufferFull(f"FT232H command buffer full ({pins.FIFO_BYTES} bytes) with "
+                                 f"{len(self._rx)} answer bytes unread: took {taken} of "
+                                 f"{len(data)} bytes")
+            self._pending += data[taken:taken + room]
+            taken += min(room, len(data) - taken)
             self._run_mpsse()
         return len(data)
 
@@ -244,17 +292,29 @@ class EmulatedFT232H:
         del self._rx[:n]
         self._flushed -= n
         self.counters.bytes_in += n
+        if self._pending and not self.adaptive:
+            self._run_mpsse()  # room in the answer buffer again: a stalled engine goes on
         return MODEM_STATUS + payload
 
     # ------------------------------------------------------------------ MPSSE engine
     def _run_mpsse(self) -> None:
         buf = self._pending
         i = 0
+        self.stalled = False
         while i < len(buf):
             op = buf[i]
             need = 3 if op in (0x80, 0x82, 0x86, 0x8F) else 2 if op == 0x8E else 1
             if i + need > len(buf):
                 break  # the rest of this command comes with the next bulk OUT
+            if op in (0x81, 0x83) and len(self._rx) >= pins.FIFO_BYTES:
+                # the answer buffer is full: wait for the host to read (full packets go out
+                # without waiting for the latency timer)
+                self._flushed = len(self._rx)
+                self.stalled = True
+                break
+            if op in (0x8E, 0x8F) and self.adaptive:
+                self.stalled = True  # idle clocks wait for RTCK (GPIOL3), which never comes
+                break
             arg = buf[i + 1:i + need]
             i += need
             self.advance_ns(self.command_ns)
@@ -262,10 +322,9 @@ class EmulatedFT232H:
                 self._set_low(arg[0], arg[1])
             elif op == 0x82:
                 self._set_high(arg[0], arg[1])
-            elif op == 0x81:
-                self._rx.append(self._read_low())
-            elif op == 0x83:
-                self._rx.append(self._read_high())
+            elif op == 0x81 or op == 0x83:
+                self._rx.append(self._read_low() if op == 0x81 else self._read_high())
+                self.counters.most_unread = max(self.counters.most_unread, len(self._rx))
             elif op == 0x87:
                 self._flushed = len(self._rx)
             elif op == 0x8E:
@@ -278,8 +337,16 @@ class EmulatedFT232H:
                 self.div5 = False
             elif op == 0x8B:
                 self.div5 = True
-            elif op in (0x84, 0x85, 0x8C, 0x8D, 0x96, 0x97):
-                pass  # loopback, 3-phase and adaptive clocking: nothing on our pins
+            elif op == 0x8C:
+                self.three_phase = True
+            elif op == 0x8D:
+                self.three_phase = False
+            elif op == 0x96:
+                self.adaptive = True
+            elif op == 0x97:
+                self.adaptive = False
+            elif op in (0x84, 0x85):
+                pass  # loopback on / off: nothing on our pins
             else:
                 # the real engine answers an unknown opcode with 0xFA and the opcode
                 self.unknown_commands.append(op)
@@ -324,6 +391,8 @@ class EmulatedFT232H:
         level = (self._low_val & self._low_dir) | (~self._low_dir & 0xFF)  # inputs pulled up
         old, self._ctrl = self._ctrl, level
         changed = old ^ level
+        if changed:
+            self.ctrl_log.append((self.ns, level))
         if not changed & (pins.CS | pins.RD | pins.WR | pins.PS | pins.RST):
             return
         self._run_model()

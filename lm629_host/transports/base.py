@@ -17,7 +17,9 @@ wait, ``LM629.wait_for``) waits on the right time base.
 from __future__ import annotations
 
 import abc
+import functools
 import logging
+import threading
 import time
 from dataclasses import asdict, dataclass
 
@@ -93,8 +95,35 @@ class WallClock(Clock):
             time.sleep(seconds)
 
 
+class LockedClock(Clock):
+    """A simulated clock whose ``sleep`` runs the simulation forward under the transport's
+    lock, so that a thread waiting on it never advances the chip model in the middle of
+    another thread's bus program.  Everything else is the wrapped clock's."""
+
+    def __init__(self, clock: Clock, lock: threading.RLock) -> None:
+        self._clock = clock
+        self._lock = lock
+        self.now = clock.now  # type: ignore[method-assign]  # no wrapper on the hot path
+
+    def now(self) -> float:
+        return self._clock.now()
+
+    def sleep(self, seconds: float) -> None:
+        with self._lock:
+            self._clock.sleep(seconds)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._clock, name)
+
+
 class Transport(abc.ABC):
-    """Runs bus programs on one chip.  Subclasses set ``url``, ``clock`` and ``has_reset_line``."""
+    """Runs bus programs on one chip.  Subclasses set ``url``, ``clock`` and ``has_reset_line``.
+
+    Threads: every ``execute`` runs whole under ``self.lock`` (one re-entrant lock per
+    transport, so shared by every :class:`~lm629_host.LM629` on it): threads sharing a chip
+    never interleave bus cycles.  A simulated clock (anything but :class:`WallClock`) is
+    wrapped so that its ``sleep``, which runs the simulation, takes the same lock.
+    """
 
     #: the scheme this transport is registered under (``sim``, ``serial``...)
     scheme: str = ""
@@ -107,7 +136,43 @@ class Transport(abc.ABC):
         self.url = url
         self.trace = trace
         self.stats = Stats()
-        self.clock: Clock = WallClock()
+        self.clock = WallClock()
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        super().__init_subclass__(**kwargs)
+        fn = cls.__dict__.get("execute")
+        if fn is None or getattr(fn, "_runs_locked", False) or getattr(
+                fn, "__isabstractmethod__", False):
+            return
+
+        @functools.wraps(fn)
+        def execute(self: Transport, program: Program) -> ProgramResult:
+            with self.lock:
+                return fn(self, program)
+        execute._runs_locked = True  # type: ignore[attr-defined]
+        cls.execute = execute  # type: ignore[method-assign]
+
+    @property
+    def lock(self) -> threading.RLock:
+        """The lock every bus program of this transport runs under (see the class doc)."""
+        lock = self.__dict__.get("_lock")
+        if lock is None:
+            lock = self.__dict__.setdefault("_lock", threading.RLock())
+        return lock
+
+    @property
+    def clock(self) -> Clock:
+        """``now()`` and ``sleep()``: the wall clock on hardware, simulated on simulators."""
+        return self._clock
+
+    @clock.setter
+    def clock(self, clock: Clock) -> None:
+        inner = clock._clock if isinstance(clock, LockedClock) else clock
+        if not isinstance(clock, (WallClock, LockedClock)):
+            clock = LockedClock(clock, self.lock)
+        self._clock = clock
+        #: the clock itself, for code that already holds the lock (inside ``execute``)
+        self._inner_clock = inner
 
     @abc.abstractmethod
     def execute(self, program: Program) -> ProgramResult:
@@ -168,7 +233,7 @@ class CycleTransport(Transport):
             raise ValueError(f"chip select {chip}: {self.url} drives one chip (0)")
 
     def _wait_not_busy(self, program: Program, index: int, words: list[int]) -> int:
-        clock = self.clock
+        clock = self._inner_clock  # execute holds the lock
         deadline = clock.now() + program.busy_timeout_s
         stats = self.stats
         while True:
@@ -220,7 +285,7 @@ class CycleTransport(Transport):
                 stats.bus_cycles += 1
                 self._emit(BusCycle("reset", 0))
             elif op is Op.WAIT:
-                self.clock.sleep(o.arg * 1e-6)
+                self._inner_clock.sleep(o.arg * 1e-6)
             elif op is Op.SELECT:
                 self._select_chip(o.arg)
                 self._emit(BusCycle("select", o.arg))

@@ -69,6 +69,18 @@ trip per transfer (the problem this transport exists to avoid).
 
 The chip's documented worst case makes the repeat path a fault detector: it runs only on a
 chip out of its data sheet, a noisy bus, or the emulator's ``stretch_busy`` hook.
+
+What the FT232H itself asks for
+-------------------------------
+
+* Opening must not glitch the bus: see :func:`open_mpsse` (bit-mode mask 0, clock modes off,
+  levels and directions in one 0x80).
+* Its buffers hold 1 KiB each way (:data:`~lm629_host.ftdi_pins.FIFO_BYTES`).  A stream is
+  written whole before its answer is read; if its answers fill the chip->host buffer while
+  more than 1 KiB of it is still unwritten, the MPSSE engine stops and the write times out.
+  So a program is cut into streams of at most 1 KiB (``StreamCompiler.compile(max_bytes=)``),
+  between operations; a command with many words may span streams, and a busy repeat still
+  starts at its command byte.
 """
 
 from __future__ import annotations
@@ -100,6 +112,11 @@ GET_HIGH = 0x83
 SEND_IMMEDIATE = 0x87
 CLK_BITS = 0x8E
 CLK_BYTES = 0x8F
+DISABLE_CLK_3PHASE = 0x8D
+DISABLE_CLK_ADAPTIVE = 0x97
+#: bytes a stream may still need after its last operation: control lines idle (3), D0-D7
+#: released (3), read HI (1), send immediate (1)
+STREAM_TAIL = 8
 
 FTDI_VID = 0x0403
 FT232H_PID = 0x6014
@@ -204,14 +221,20 @@ class StreamCompiler:
         s.events.append(("status", len(s.slots)))
         self._read_byte(s, Slot(kind, op), data_port=False)
 
-    def compile(self, ops: Sequence[BusOp], first: int = 0, lead_s: float = 0.0) -> Stream:
+    def compile(self, ops: Sequence[BusOp], first: int = 0, lead_s: float = 0.0,
+                max_bytes: int | None = None) -> Stream:
         """Compile ``ops`` (program operations ``first``, ``first + 1``...).  ``lead_s``: busy
-        wait still owed to the previous stream's last transfer."""
+        wait still owed to the previous stream's last transfer.  ``max_bytes``: stop before the
+        first operation that would make the stream longer (the FT232H's 1 KiB buffer); the
+        index after the last operation compiled is :attr:`end`."""
         s = Stream()
         self._ctrl = pins.CTRL_IDLE
         self._dir = pins.DATA_IN
         owed = lead_s  # the wait owed before the next busy check
+        self.end = first + len(ops)
         for i, o in enumerate(ops, first):
+            mark = (len(s.data), len(s.slots), len(s.events), s.delay_s, s.strobes, owed,
+                    self._ctrl, self._dir)
             op = o.op
             if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
                 self.delay(s, owed)
@@ -245,6 +268,16 @@ class StreamCompiler:
                 owed = max(0.0, owed - o.arg * 1e-6)
             else:  # pragma: no cover - Op is closed
                 raise AssertionError(op)
+            if max_bytes is not None and (len(s.data) + STREAM_TAIL > max_bytes
+                                          or len(s.slots) + 1 > max_bytes):
+                if i == first:
+                    raise ValueError(f"{o.describe()} alone does not fit a stream of "
+                                     f"{max_bytes} bytes")
+                n_data, n_slots, n_events, s.delay_s, s.strobes, owed, self._ctrl, \
+                    self._dir = mark
+                del s.data[n_data:], s.slots[n_slots:], s.events[n_events:]
+                self.end = i
+                break
         if self._ctrl != pins.CTRL_IDLE:
             self._low(s, pins.CTRL_IDLE)
         if self._dir != pins.DATA_IN:
@@ -414,10 +447,16 @@ class FtdiTransport(Transport):
         last_status: int | None = None
         hi: bool | None = None
         for units in streams_of(ops):
+            unit_of = {k: a for a, b in units for k in range(a, b)}
+            end = units[-1][1]
             first_try: dict[int, float] = {}
-            while units:
-                start = units[0][0]
-                stream = self.compiler.compile(ops[start:units[-1][1]], start, self._lead())
+            pos = units[0][0]
+            while pos < end:
+                # as much as fits the FT232H's buffers; a long unit (a command reading many
+                # words) may span streams: a repeat still starts at its command byte
+                stream = self.compiler.compile(ops[pos:end], pos, self._lead(),
+                                               max_bytes=pins.FIFO_BYTES)
+                stop = self.compiler.end
                 owed_after = self.compiler.owed_after
                 t0 = self.clock.now()
                 answer = self._exchange(stream)
@@ -425,14 +464,13 @@ class FtdiTransport(Transport):
                 self._emit_stream(stream, answer)
                 hi = bool(answer[-1] & pins.HI)
                 self.stats.busy_polls += sum(1 for sl in stream.slots if sl.kind in ("check", "sync"))
-                # the first unit whose busy check showed busy, and the first busy op in it
+                # the first transfer whose busy check showed busy, and the start of its unit
                 failed: tuple[int, int] | None = None
                 for slot, byte in zip(stream.slots, answer):
                     if slot.kind == "check" and byte & _BUSY:
-                        failed = (next(k for k, u in enumerate(units) if u[0] <= slot.op < u[1]),
-                                  slot.op)
+                        failed = (unit_of[slot.op], slot.op)
                         break
-                ok_end = units[failed[0]][0] if failed else len(ops)
+                ok_end = failed[0] if failed else stop
                 for slot, byte in zip(stream.slots, answer):
                     if slot.op < 0 or slot.op >= ok_end:
                         continue
@@ -452,9 +490,12 @@ class FtdiTransport(Transport):
                         statuses[slot.op] = last_status = self._poll_until_clear(
                             program, slot.op, t0 + program.busy_timeout_s, words)
                 if failed is None:
-                    break
-                k, op_index = failed
-                unit_start = units[k][0]
+                    pos = stop
+                    continue
+                unit_start, op_index = failed
+                # what earlier streams read for this unit is read again
+                for k in [k for k in reads if k >= unit_start]:
+                    del reads[k]
                 self.busy_hits += 1
                 self.stats.retries += 1
                 first = first_try.setdefault(unit_start, t0)
@@ -465,7 +506,7 @@ class FtdiTransport(Transport):
                 words = [reads[j] for j in sorted(reads) if j < unit_start]
                 last_status = self._poll_until_clear(program, op_index,
                                                      first + program.busy_timeout_s, words)
-                units = units[k:]
+                pos = unit_start
         words = tuple(reads[k] for k in sorted(reads))
         return ProgramResult(words, tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
 
@@ -553,22 +594,39 @@ def translate_open_error(url: str, exc: BaseException) -> TransportError:
 def open_mpsse(url: str, latency_ms: int = DEFAULT_LATENCY_MS,
                frequency: float = DEFAULT_TCK_HZ, device: object | None = None) -> object:
     """Open the FT232H at pyftdi ``url`` (or the pyusb ``device``) in MPSSE mode, lines idle
-    (chip deselected, strobes and /RST high, D0-D7 released), latency timer ``latency_ms``."""
+    (chip deselected, strobes and /RST high, D0-D7 released), latency timer ``latency_ms``,
+    without ever driving a bus line low.
+
+    pyftdi's ``open_mpsse(direction=...)`` passes the direction as the SET_BITMODE mask: the
+    FT232H makes those lines outputs at once and drives its MPSSE low-byte latch, 0 after the
+    mode change, until the first 0x80 sets them high.  /RST and /CS would fall for the
+    milliseconds in between (every open would reset the chip: motor off, registers lost).  So
+    the mask is 0 (all lines stay inputs, held high by the pull-ups); pyftdi's own 0x80/0x82
+    then only preload the latches with the idle levels (direction 0); and one 0x80 sets the
+    idle levels and the directions together (AN_108: a set-bits command takes value and
+    direction at once).  Before that, the clock modes another tool may have left on are
+    switched off explicitly: adaptive clocking (0x97; on, idle clocks would wait for an RTCK
+    nothing drives) and 3-phase clocking (0x8D; on, every delay would be 1.5 x longer).  The
+    divide-by-5 and the divisor are pyftdi's (0x8A/0x8B, 0x86, set for ``frequency``).
+    Purge: pyftdi's ``purge_buffers`` empties both directions (values 1 and 2, libftdi's
+    meaning) before MPSSE is entered."""
     try:
         from pyftdi.ftdi import Ftdi
     except ImportError as exc:
         raise TransportError("pyftdi is not installed: pip install 'lm629-host[ftdi]'",
                              port=url) from exc
     ftdi = Ftdi()
-    direction = pins.CTRL_DIRECTION | pins.DATA_IN << 8
-    initial = pins.CTRL_IDLE
+    initial = pins.CTRL_IDLE  # preloaded into the latch while every line is still an input
     try:
         if device is None:
-            ftdi.open_mpsse_from_url(url, direction=direction, initial=initial,
+            ftdi.open_mpsse_from_url(url, direction=0, initial=initial,
                                      frequency=frequency, latency=latency_ms)
         else:
-            ftdi.open_mpsse_from_device(device, 1, direction=direction, initial=initial,
+            ftdi.open_mpsse_from_device(device, 1, direction=0, initial=initial,
                                         frequency=frequency, latency=latency_ms)
+        ftdi.write_data(bytes((DISABLE_CLK_ADAPTIVE, DISABLE_CLK_3PHASE,
+                               SET_LOW, pins.CTRL_IDLE, pins.CTRL_DIRECTION,
+                               SET_HIGH, 0, pins.DATA_IN)))
     except TransportError:
         raise
     except Exception as exc:  # pyftdi raises ValueError, IOError, UsbToolsError, FtdiError...

@@ -3,7 +3,7 @@
 A bare device path (``/dev/ttyACM0``, ``/dev/ttyUSB0``, ``COM3``) means the same.  URL
 parameters (all optional)::
 
-    serial:///dev/ttyACM0?baud=115200&retries=3&boot=2.5&low_latency=1&cs=0
+    serial:///dev/ttyACM0?baud=115200&retries=7&boot=2.5&low_latency=1&cs=0
 
 * ``baud``: must match the firmware's (115200 unless it was built otherwise);
 * ``boot``: seconds to keep asking HELLO after the port opens.  An Uno or a Nano resets when
@@ -32,7 +32,7 @@ except ImportError:  # pragma: no cover - Windows
     grp = None  # type: ignore[assignment]
 
 from ..errors import TransportError
-from ..link import LinkTransport
+from ..link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
 from . import query_params
 from .base import Check, Clock, PortInfo, WallClock
@@ -99,7 +99,7 @@ def device_of(url: str) -> str:
 class SerialOptions:
     device: str
     baud: int = DEFAULT_BAUD
-    retries: int = 3
+    retries: int = DEFAULT_RETRIES
     boot_s: float = DEFAULT_BOOT_S
     low_latency: bool = True
     cs: int = 0
@@ -130,7 +130,7 @@ def options_of(url: str) -> SerialOptions:
     return SerialOptions(
         device=device,
         baud=num("baud", DEFAULT_BAUD, int, 300, 4_000_000),
-        retries=num("retries", 3, int, 0, 20),
+        retries=num("retries", DEFAULT_RETRIES, int, 0, 20),
         boot_s=num("boot", DEFAULT_BOOT_S, float, 0.0, 30.0),
         low_latency=q.get("low_latency", "1") not in ("0", "false", "no"),
         cs=num("cs", 0, int, 0, 255),
@@ -238,7 +238,7 @@ class SerialTransport(LinkTransport):
     hello_interval_s = 0.25
 
     def __init__(self, pipe: SerialPipe, url: str, *, trace: TraceCallback | None = None,
-                 retries: int = 3, baud: int | None = DEFAULT_BAUD, cs: int = 0,
+                 retries: int = DEFAULT_RETRIES, baud: int | None = DEFAULT_BAUD, cs: int = 0,
                  boot_s: float = DEFAULT_BOOT_S, low_latency: str = "",
                  measure_rtt: bool = True) -> None:
         self.boot_s = boot_s

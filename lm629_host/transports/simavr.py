@@ -16,7 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..avrsim import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
-from ..link import LinkTransport
+from ..link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
 from . import query_params
 from .sim import build_model
@@ -31,7 +31,7 @@ class SimAvrTransport(LinkTransport):
     margin_s = 0.02
 
     def __init__(self, sim: AvrSim, url: str, *, trace: TraceCallback | None = None,
-                 retries: int = 3, baud: int = DEFAULT_BAUD) -> None:
+                 retries: int = DEFAULT_RETRIES, baud: int = DEFAULT_BAUD) -> None:
         self.sim = sim
         self.model = sim.model
         super().__init__(AvrPipe(sim), url, trace=trace, retries=retries, baud=baud)

@@ -1,0 +1,228 @@
+"""Moves that wait for their own completion: :meth:`LM629.move_to` -> :class:`Move`.
+
+Why this exists: the chip's status flags stay set until RSTI clears them.  A second
+``load_trajectory(..., start=True)`` followed by ``wait_for(TRAJECTORY_COMPLETE)`` returns at
+once, satisfied by the flag the *first* move raised, while the motor is still moving.
+:meth:`LM629.move_to` clears the flags a move reports (trajectory complete, breakpoint,
+position error, and the command error that STT is checked by) in the same bus program as its
+LTRJ and STT (one round trip on the bridge), and :meth:`Move.wait` watches the move until the
+shaft is at rest on the target, or raises :class:`~lm629_host.MotionError` with the motor
+stopped (abrupt stop, then motor off).
+
+The rules (:class:`MoveRules`, ``chip.move_rules``; every field settable):
+
+* **done** = the trajectory generator reported trajectory complete with the desired position on
+  the target, then the shaft stayed within ``tolerance`` counts of the target with zero
+  velocity for ``settle_time`` seconds (the *settle rule*).  Default tolerance: 20 counts,
+  above the P-only dead band of kp >= 20 on the 8-bit output (256 / kp + 1 = 13.8 counts at
+  kp = 20, AN-706 5.2.4).  A loop with a wider dead band (kp < 14) needs a larger tolerance.
+* **stall**: the following error is above the tolerance and the shaft has not moved
+  ``stall_counts`` for ``stall_time`` seconds while the trajectory is still running.
+* **runaway**: the shaft moves away from the desired position (the error grows) for
+  ``runaway_counts`` counts while speeding up: positive feedback (motor leads or encoder
+  channels swapped).  An overshoot slows down as it goes, so it is not a runaway.
+* **position error** / **motor off**: the chip's own flag (LPEI / LPES), or the drive found off.
+* **following error**: the trajectory completed but the shaft came to rest outside the
+  tolerance, or did not come to rest within ``settle_timeout`` seconds.
+* **timeout**: not done within ``timeout`` (default: the profile's duration at ``clock_hz``
+  times 1.5, plus ``settle_timeout``, plus one second).
+
+All waiting is on the transport's clock (simulated time on a simulator) and every check is a
+public status read (:meth:`LM629.snapshot`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+from .errors import MotionError
+from .opcodes import Signals, Status
+from .safety import STOP_NOTE, emergency_stop
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .lm629 import LM629, Snapshot
+
+#: the flags a move reports, cleared in the program that starts it
+MOVE_FLAGS = Status.TRAJECTORY_COMPLETE | Status.BREAKPOINT | Status.POSITION_ERROR
+
+
+@dataclass(frozen=True)
+class MoveRules:
+    """When a move is done, and when it is a motion fault (see the module docstring)."""
+
+    tolerance: int = 20  #: counts from the target at rest
+    settle_time: float = 0.02  #: seconds at rest inside the tolerance
+    settle_timeout: float = 1.0  #: seconds after trajectory complete to settle
+    stall_time: float = 0.25  #: seconds without shaft progress while the error is large
+    stall_counts: int = 4  #: shaft motion that counts as progress
+    runaway_counts: int = 200  #: shaft motion away from the desired position
+    poll: float = 0.005  #: seconds between status reads
+    clock_hz: float | None = None  #: the chip's clock for the default timeout (None: 8 MHz
+    #: or the simulator's own)
+
+    def __post_init__(self) -> None:
+        for name in ("settle_time", "settle_timeout", "stall_time", "poll"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}={v!r} must be a positive number of seconds")
+        for name in ("tolerance", "stall_counts", "runaway_counts"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"{name}={v!r} must be a whole number of counts >= 0")
+
+
+@dataclass(frozen=True)
+class MoveResult:
+    """A move that ended on target."""
+
+    target: int  #: counts
+    position: int  #: real position at rest, counts
+    error: int  #: target - position, counts
+    duration: float  #: seconds from the STT to settled, on the transport's clock
+
+
+class Move:
+    """A started move (from :meth:`LM629.move_to`).  :meth:`wait` until it is done."""
+
+    def __init__(self, chip: LM629, target: int, velocity: int, acceleration: int | None,
+                 start: Snapshot, t0: float) -> None:
+        self.chip = chip
+        self.target = target
+        self.velocity = velocity
+        self.acceleration = acceleration
+        self.start = start  #: the snapshot read just before the move was started
+        self.t0 = t0  #: transport clock at the STT
+        self.result: MoveResult | None = None
+
+    def __repr__(self) -> str:
+        return f"<Move to {self.target} counts, {'done' if self.result else 'started'}>"
+
+    def profile_s(self, clock_hz: float) -> float | None:
+        """The trajectory's duration, or None when the acceleration is not known here."""
+        from .units import Scale
+        if not self.acceleration:
+            return None
+        distance = abs(self.target - self.start.desired_position)
+        return Scale(1, clock_hz).profile_times(distance, self.velocity, self.acceleration)[1]
+
+    def _clock_hz(self, rules: MoveRules) -> float:
+        if rules.clock_hz:
+            return rules.clock_hz
+        model = getattr(self.chip.transport, "model", None)
+        return float(getattr(model, "clock_hz", 8e6))
+
+    def wait(self, timeout: float | None = None, tolerance: int | None = None, *,
+             rules: MoveRules | None = None,
+             progress: Callable[[Snapshot], None] | None = None) -> MoveResult:
+        """Watch the move until the shaft is at rest within ``tolerance`` counts of the target
+        (default ``chip.move_rules``); return a :class:`MoveResult`.  On a fault stop the motor
+        (abrupt stop, then off) and raise :class:`MotionError` naming the reason.  Ctrl-C
+        (KeyboardInterrupt) while waiting stops the motor the same way before it goes on.
+        ``progress`` is called with every snapshot read."""
+        if self.result is not None:
+            return self.result
+        try:
+            return self._wait(timeout, tolerance, rules, progress)
+        except KeyboardInterrupt as exc:
+            if getattr(exc, STOP_NOTE, None) is None:
+                setattr(exc, STOP_NOTE, emergency_stop(self.chip)[1])
+            raise
+
+    def _wait(self, timeout: float | None, tolerance: int | None, rules: MoveRules | None,
+              progress: Callable[[Snapshot], None] | None) -> MoveResult:
+        r = rules or self.chip.move_rules
+        if tolerance is not None:
+            r = replace(r, tolerance=tolerance)
+        if timeout is None:
+            profile = self.profile_s(self._clock_hz(r))
+            timeout = (1.5 * profile if profile is not None else 60.0) + r.settle_timeout + 1.0
+        if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
+            raise ValueError(f"timeout={timeout!r} must be a positive number of seconds")
+        chip, target, clock = self.chip, self.target, self.chip.clock
+        deadline = self.t0 + timeout
+        prev = self.start
+        progress_at, progress_pos = prev.time, prev.real_position
+        away, away_v0 = 0, 0
+        complete_at: float | None = None
+        quiet_since: float | None = None
+        while True:
+            s = chip.snapshot()
+            if progress is not None:
+                progress(s)
+            err = target - s.real_position
+            if s.status & Status.POSITION_ERROR:
+                self._fault(MotionError.POSITION_ERROR, s,
+                            "the chip raised its position-error flag (following error above "
+                            "the LPEI/LPES limit)")
+            if s.status & Status.MOTOR_OFF or s.signals & Signals.MOTOR_OFF:
+                self._fault(MotionError.MOTOR_OFF, s, "the drive was found off during the move")
+            # shaft progress (stall) and motion away from the desired position (runaway)
+            if abs(s.real_position - progress_pos) >= r.stall_counts:
+                progress_at, progress_pos = s.time, s.real_position
+            fe = s.following_error
+            moved = s.real_position - prev.real_position
+            if moved and fe and (moved > 0) != (fe > 0) and abs(fe) > abs(prev.following_error):
+                if not away:
+                    away_v0 = abs(prev.real_velocity)
+                away += abs(moved)
+            elif moved:
+                away = 0
+            if (away >= r.runaway_counts and abs(fe) > r.tolerance
+                    and abs(s.real_velocity) >= away_v0):
+                self._fault(MotionError.RUNAWAY, s,
+                            f"the shaft ran {away} counts away from the desired position "
+                            f"(following error {fe:+d}): swap the motor leads or the encoder's "
+                            "A and B channels")
+            if complete_at is None and s.status & Status.TRAJECTORY_COMPLETE \
+                    and s.desired_position == target:
+                complete_at = s.time
+            if complete_at is None and abs(fe) > r.tolerance \
+                    and s.time - progress_at >= r.stall_time:
+                self._fault(MotionError.STALL, s,
+                            f"the desired position moved {s.desired_position - self.start.desired_position:+d} "
+                            f"counts, the shaft {s.real_position - self.start.real_position:+d} "
+                            f"(no progress for {s.time - progress_at:.2f} s): check the "
+                            "amplifier, its supply, the motor and the encoder")
+            if complete_at is not None:
+                at_rest = s.real_velocity == 0 and s.real_position == prev.real_position
+                if at_rest:
+                    quiet_since = prev.time if quiet_since is None else quiet_since
+                else:
+                    quiet_since = None
+                if quiet_since is not None and s.time - quiet_since >= r.settle_time:
+                    if abs(err) <= r.tolerance:
+                        self.result = MoveResult(target, s.real_position, err, s.time - self.t0)
+                        return self.result
+                    if abs(s.real_position - self.start.real_position) < r.stall_counts:
+                        self._fault(MotionError.STALL, s,
+                                    f"the desired position went to the target, the shaft did "
+                                    f"not move ({err:+d} counts from the target): check the "
+                                    "amplifier, its supply, the motor and the encoder")
+                    self._fault(MotionError.FOLLOWING_ERROR, s,
+                                f"the shaft came to rest {err:+d} counts from the target "
+                                f"(tolerance {r.tolerance}): add ki, raise kp, or check the load")
+                if s.time - complete_at >= r.settle_timeout:
+                    self._fault(MotionError.FOLLOWING_ERROR, s,
+                                f"the shaft did not settle within {r.tolerance} counts in "
+                                f"{r.settle_timeout:g} s after the trajectory ended (error "
+                                f"{err:+d}): add kd for damping, or lower kp")
+            if s.time >= deadline:
+                self._fault(MotionError.TIMEOUT, s,
+                            f"not on target after {timeout:g} s (desired {s.desired_position}, "
+                            f"target {target}, shaft {s.real_position})")
+            prev = s
+            clock.sleep(r.poll)
+
+    def _fault(self, reason: str, s: Snapshot, message: str) -> None:
+        from .safety import STOP_NOTE, emergency_stop
+        _ok, note = emergency_stop(self.chip)
+        exc = MotionError(reason, f"{message}; {note}", position=s.real_position,
+                          error=self.target - s.real_position)
+        setattr(exc, STOP_NOTE, note)  # stopped already: an outer stop_on_error does not repeat it
+        raise exc
+
+
+__all__ = ["MOVE_FLAGS", "Move", "MoveResult", "MoveRules"]

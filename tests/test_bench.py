@@ -1,0 +1,182 @@
+"""The persistent bench: one ``lm629 sim serve`` and the CLI as separate processes against it.
+
+A real board keeps its flags, positions and trajectory between commands and processes; every
+other CLI test opens a fresh chip.  Here a server process serves one simulated chip on a
+pseudo-terminal (the Python bridge, and the compiled firmware in simavr where the AVR
+toolchain is present) and each ``lm629 --port serial://LINK ...`` is its own process, as at a
+shell on the bench.  The server runs in real time, so the moves are kept short.
+
+Numbers: kp = 20 leaves a P-only dead band of 256 / 20 = 12.8 counts (AN-706 5.2.4), inside
+the default tolerance of 20 counts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from lm629_host.avrsim import toolchain_missing
+from test_cli import _console_script
+
+FAR_ENDS = ["python", "firmware"]
+FAST = ["--vel", "655360", "--acc", "65536"]  # 10 counts/sample after a 10-sample ramp
+
+
+def _env() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k != "LM629_PORT"}
+    env["LM629_SIM_STRICT"] = "1"
+    return env
+
+
+class Bench:
+    def __init__(self, link: Path, proc: subprocess.Popen) -> None:
+        self.link = link
+        self.server = proc
+        self.exe = _console_script()
+
+    def argv(self, *args: str) -> list[str]:
+        return [self.exe, "--port", f"serial://{self.link}", *args]
+
+    def run(self, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+        return subprocess.run(self.argv(*args), capture_output=True, text=True,
+                              timeout=timeout, env=_env())
+
+    def status(self) -> dict:
+        p = self.run("status", "--json")
+        assert p.returncode == 0, p.stderr
+        return json.loads(p.stdout)
+
+    def ready(self, kp: int = 20) -> None:
+        for args in (("reset",), ("filter", "--kp", str(kp), "--ds", "1")):
+            p = self.run(*args)
+            assert p.returncode == 0, p.stderr
+
+
+@contextmanager
+def serve(tmp: Path, far_end: str, url: str = "sim://"):
+    """``lm629 sim serve --pty tmp/bench`` as a process; ready once it printed its banner."""
+    if far_end == "firmware":
+        missing = toolchain_missing()
+        if missing:
+            pytest.skip(f"AVR toolchain missing ({', '.join(missing)})")
+    link = tmp / "bench"
+    argv = [_console_script(), "sim", "serve", "--pty", str(link), "--url", url]
+    if far_end == "firmware":
+        argv.append("--firmware")
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=_env())
+    try:
+        banner = proc.stdout.readline()  # blocks until the server is serving (or died)
+        assert banner.startswith("serving "), banner + proc.stderr.read()
+        assert link.is_symlink()
+        yield Bench(link, proc)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=20)
+    assert not os.path.lexists(link)  # it removed the link it made
+
+
+@pytest.fixture(params=FAR_ENDS)
+def far_end(request) -> str:
+    return request.param
+
+
+def test_moves_on_a_board_that_keeps_its_state(tmp_path, far_end):
+    with serve(tmp_path, far_end) as b:
+        b.ready()
+        p = b.run("move", "1000")
+        assert p.returncode == 0, p.stderr
+        # the second move starts with TRAJECTORY_COMPLETE still set by the first: it must wait
+        # for its own completion and the shaft, not return at once
+        assert "TRAJECTORY_COMPLETE" in b.status()["status_flags"]
+        p = b.run("move", "20000", *FAST)
+        assert p.returncode == 0, p.stderr
+        s = b.status()
+        assert s["desired_position"] == 20000
+        assert abs(20000 - s["real_position"]) <= 20
+        done = p.stdout.strip().splitlines()[-1]
+        assert done.startswith("done: at ") and "from the target 20000" in done
+        # negative positions as typed, on the same chip
+        p = b.run("move", "-3000", *FAST)
+        assert p.returncode == 0, p.stderr
+        s = b.status()
+        assert s["desired_position"] == -3000 and abs(-3000 - s["real_position"]) <= 20
+        assert "MOTOR_OFF" not in s["status_flags"]  # holding position
+
+
+@pytest.mark.parametrize("fault, reason", [("stall=1", "stall"), ("reversed=1", "runaway")])
+def test_stalled_or_reversed_motor_is_a_motion_fault(tmp_path, far_end, fault, reason):
+    with serve(tmp_path, far_end, f"sim://?{fault}") as b:
+        b.ready()
+        p = b.run("move", "5000")
+        assert p.returncode == 9, p.stdout + p.stderr
+        lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and f"motion fault ({reason})" in lines[0]
+        assert "motor stopped (abrupt stop, then motor off)" in lines[0]
+        s = b.status()
+        assert "MOTOR_OFF" in s["status_flags"] and s["desired_velocity"] == 0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_during_a_move_stops_the_motor(tmp_path, far_end, sig):
+    with serve(tmp_path, far_end) as b:
+        b.ready()
+        # 200000 counts at 1 count/sample: 51 s, far longer than the test
+        proc = subprocess.Popen(b.argv("move", "200000"), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=_env())
+        line = proc.stdout.readline()  # printed right after the STT: the motor is moving
+        assert line.startswith("moving to 200000"), line + proc.stderr.read()
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=30)
+        assert proc.returncode == 128 + sig
+        name = "terminated (SIGTERM)" if sig == signal.SIGTERM else "hang-up (SIGHUP)"
+        assert err.strip() == f"lm629: {name} -- motor stopped (abrupt stop, then motor off)"
+        s = b.status()
+        assert "MOTOR_OFF" in s["status_flags"] and s["desired_velocity"] == 0
+
+
+def test_closed_stdout_during_a_move_stops_the_motor(tmp_path):
+    with serve(tmp_path, "python") as b:
+        b.ready()
+        proc = subprocess.Popen(b.argv("move", "200000"), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=_env())
+        proc.stdout.close()  # the reader went away: the first line after the STT fails
+        err = proc.stderr.read()
+        assert proc.wait(timeout=30) == 141
+        assert err.strip() == ("lm629: output closed (broken pipe) during a move -- motor "
+                               "stopped (abrupt stop, then motor off)")
+        s = b.status()
+        assert "MOTOR_OFF" in s["status_flags"] and s["desired_velocity"] == 0
+
+
+def test_index_wait_timeout_leaves_a_holding_servo_on(tmp_path):
+    with serve(tmp_path, "python", "sim://?index_offset=500") as b:
+        b.ready()
+        assert b.run("move", "100").returncode == 0
+        p = b.run("index", "--wait", "0.2")
+        assert p.returncode == 7
+        assert "waited 0.2 s for the index pulse (status bit 3)" in p.stderr
+        assert "MOTOR_OFF" not in b.status()["status_flags"]  # still holding
+
+
+def test_sim_serve_refuses_a_path_in_use_and_keeps_files_it_did_not_make(tmp_path):
+    exe = _console_script()
+    with serve(tmp_path, "python") as b:
+        p = subprocess.run([exe, "sim", "serve", "--pty", str(b.link)], capture_output=True,
+                           text=True, timeout=30, env=_env())
+        assert p.returncode == 2 and "in use" in p.stderr
+        assert b.link.is_symlink() and b.status()["status"]  # the first server still answers
+    mine = tmp_path / "notes.txt"
+    mine.write_text("keep me")
+    p = subprocess.run([exe, "sim", "serve", "--pty", str(mine)], capture_output=True,
+                       text=True, timeout=30, env=_env())
+    assert p.returncode == 2 and "exists" in p.stderr and mine.read_text() == "keep me"
+    p = subprocess.run([exe, "sim", "serve", "--pty", str(tmp_path / "missing" / "p")],
+                       capture_output=True, text=True, timeout=30, env=_env())
+    assert p.returncode == 2 and "does not exist" in p.stderr and "Traceback" not in p.stderr
