@@ -28,6 +28,7 @@ from .link import (
     RUN_OVERHEAD,
     RUN_REPLY_OVERHEAD,
     BadProgram,
+    Capability,
     Frame,
     FrameError,
     FrameReader,
@@ -38,7 +39,8 @@ from .link import (
     decode_program,
     encode_frame,
 )
-from .model import ChipModel
+from . import bridge_pins
+from .model import ChipBus, ChipModel, chips_of
 from .opcodes import Status
 from .program import BusOp, Op
 from .transports.sim import SimClock
@@ -67,15 +69,46 @@ class EmuStats:
     bus_cycles: int = 0  #: strobes and /RST pulses
 
 
+#: what this emulator is by default: the multi-axis firmware's chip selects, SELECT runs
+MULTI_AXIS_INFO = HelloInfo(
+    firmware=EMU_FIRMWARE, chip_selects=len(bridge_pins.CHIP_SELECTS),
+    capabilities=int(Capability.RESET_LINE | Capability.HI_LINE | Capability.BUSY_ON_BRIDGE
+                     | Capability.SELECT))
+#: a bridge of before issue 11 (``sim+emu://?bridge=1``): one chip select, no SELECT op
+ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
+
+
+class _NoChip:
+    """An unwired chip select: writes reach nothing, reads find the bus floating (FF)."""
+
+    hi = False
+
+    def read_status(self) -> int:
+        return 0xFF
+
+    read_data = read_status
+
+    def write_command(self, byte: int) -> None:
+        pass
+
+    write_data = write_command
+
+
+_NO_CHIP = _NoChip()
+
+
 @dataclass
 class BridgeEmulator:
-    """The far end of the link: frames in, frames out, programs run on ``model``."""
+    """The far end of the link: frames in, frames out, programs run on ``model`` (one chip,
+    or a :class:`~lm629_host.model.ChipBus` whose chips sit on chip selects 0, 1, ...)."""
 
-    model: ChipModel
-    info: HelloInfo = field(default_factory=lambda: HelloInfo(firmware=EMU_FIRMWARE))
+    model: ChipModel | ChipBus
+    info: HelloInfo = field(default_factory=lambda: MULTI_AXIS_INFO)
     stats: EmuStats = field(default_factory=EmuStats)
 
     def __post_init__(self) -> None:
+        self._chips = chips_of(self.model)
+        self._cs = 0
         self._reader = FrameReader()
         self._cache: tuple[int, int, bytes] | None = None  # seq, crc, encoded reply
         self._cycle_ticks = max(1, round(BUS_CYCLE_S * self.model.clock_hz))
@@ -137,6 +170,13 @@ class BridgeEmulator:
             ops = decode_program(body)
         except BadProgram as exc:
             return RunReply(Result.BAD_PROGRAM, exc.index)
+        for i, o in enumerate(ops):
+            if o.op is Op.SELECT:
+                if not self.info.capabilities & Capability.SELECT:
+                    return RunReply(Result.BAD_PROGRAM, i)  # an older bridge knows no SELECT
+                if o.arg >= self.info.chip_selects:
+                    return RunReply(Result.BAD_CHIP_SELECT, i)
+        self._cs = cs
         reads = sum(1 for o in ops if o.op is Op.READ)
         n_status = sum(1 for o in ops if o.op is Op.STATUS or o.op is Op.SYNC)
         if reads > self.info.max_reads or n_status > 255 \
@@ -149,7 +189,11 @@ class BridgeEmulator:
         m = self.model
         m.advance_to(m.tick + self._cycle_ticks)
         self.stats.bus_cycles += 1
-        return m
+        return self._chip()
+
+    def _chip(self) -> ChipModel:
+        k = self._cs
+        return self._chips[k] if k < len(self._chips) else _NO_CHIP  # type: ignore[return-value]
 
     def _wait_not_busy(self, timeout_s: float) -> tuple[bool, int]:
         m = self.model
@@ -173,7 +217,7 @@ class BridgeEmulator:
             if op is Op.COMMAND or op is Op.WRITE or op is Op.READ or op is Op.SYNC:
                 ok, last = self._wait_not_busy(timeout_s)
                 if not ok:
-                    return RunReply(Result.BUSY_TIMEOUT, index, last, int(m.hi),
+                    return RunReply(Result.BUSY_TIMEOUT, index, last, int(self._chip().hi),
                                     tuple(statuses), tuple(words))
                 if op is Op.COMMAND:
                     self._strobe().write_command(o.arg)
@@ -194,7 +238,10 @@ class BridgeEmulator:
                 self.stats.bus_cycles += 1
             elif op is Op.WAIT:
                 m.advance(o.arg * 1e-6)
-        return RunReply(Result.OK, 0xFF, last, int(m.hi), tuple(statuses), tuple(words))
+            elif op is Op.SELECT:
+                self._cs = o.arg
+        return RunReply(Result.OK, 0xFF, last, int(self._chip().hi), tuple(statuses),
+                        tuple(words))
 
 
 #: the far end runs on the chip model's simulated clock (the one ``sim://`` uses)
@@ -323,7 +370,7 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     ``transport.emulator``.
     """
     from .transports import query_params
-    from .transports.sim import build_model
+    from .transports.sim import build_bus
 
     if baud is None:
         raw = query_params(url).get("baud", "115200")
@@ -333,13 +380,19 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
             raise ValueError(f"{url}: baud={raw!r} is not a number") from None
         if baud < 0:
             raise ValueError(f"{url}: baud={baud} must be >= 0 (0: no wire time)")
-    model = build_model(url, allowed=frozenset({"baud"}))
-    emu = BridgeEmulator(model)
+    bridge = query_params(url).get("bridge", "")
+    if bridge not in ("", "1", str(len(bridge_pins.CHIP_SELECTS))):
+        raise ValueError(f"{url}: bridge={bridge!r}: 1 (a one-chip bridge of before issue 11) "
+                         f"or {len(bridge_pins.CHIP_SELECTS)} (the multi-axis firmware)")
+    info = ONE_CHIP_INFO if bridge == "1" else MULTI_AXIS_INFO
+    model = build_bus(url, allowed=frozenset({"baud", "bridge"}), limit=info.chip_selects)
+    emu = BridgeEmulator(model, info)
     pipe = EmuPipe(emu, baud=baud or None)
     outer = wrap(pipe) if wrap is not None else pipe
     t = EmuLinkTransport.__new__(EmuLinkTransport)
     t.margin_s = margin_s
     t.model = model  # type: ignore[attr-defined]
+    t.models = chips_of(model)  # type: ignore[attr-defined]
     t.emulator = emu  # type: ignore[attr-defined]
     LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
     return t

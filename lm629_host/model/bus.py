@@ -11,6 +11,10 @@ and since one /RST resets them together, they also sample at the same ticks.
 /RST and time to all of them, so that the simulated transports (``sim://``, the Python bridge,
 the simavr harness, the emulated FT232H) drive N chips with the code that drives one.
 Like the chip model, it knows nothing of the driver.
+
+A bus may have more /CS lines than chips (``lines``: a four-select bridge with two chips on
+it): a strobe on an unwired select reaches nothing, a read finds the data bus floating and
+reads FF (busy set, so a host's busy check times out there, as on a bench).
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from .params import ChipParams
 class ChipBus:
     """N :class:`ChipModel` on one bus: strobes go to the selected chip, time and /RST to all."""
 
-    def __init__(self, chips: Sequence[ChipModel]) -> None:
+    def __init__(self, chips: Sequence[ChipModel], lines: int | None = None) -> None:
         if not chips:
             raise ValueError("a chip bus needs at least one chip")
         hz = {c.clock_hz for c in chips}
@@ -38,6 +42,11 @@ class ChipBus:
             c.advance_to(tick)
             c.violations = self.violations
         self.selected = 0
+        #: /CS lines on the bus (chips on the first ``len(chips)`` of them)
+        self.lines = len(self.chips) if lines is None else lines
+        if self.lines < len(self.chips):
+            raise ValueError(f"{len(self.chips)} chips need {len(self.chips)} /CS lines, "
+                             f"not {self.lines}")
 
     # ------------------------------------------------------------------ wiring
     def __len__(self) -> int:
@@ -45,11 +54,11 @@ class ChipBus:
 
     def select(self, index: int) -> ChipModel:
         """/CS of chip ``index`` low (the others high) for the strobes that follow."""
-        if not 0 <= index < len(self.chips):
-            raise ValueError(f"chip select {index} is outside 0..{len(self.chips) - 1} "
-                             f"(this bus has {len(self.chips)} chip(s))")
+        if not 0 <= index < self.lines:
+            raise ValueError(f"chip select {index} is outside 0..{self.lines - 1} "
+                             f"(this bus has {self.lines} /CS line(s))")
         self.selected = index
-        return self.chips[index]
+        return self.chips[index] if index < len(self.chips) else None  # type: ignore[return-value]
 
     @property
     def chip(self) -> ChipModel:
@@ -81,20 +90,25 @@ class ChipBus:
 
     # ------------------------------------------------------------------ strobes: one chip
     def read_status(self) -> int:
-        return self.chips[self.selected].read_status()
+        k = self.selected
+        return self.chips[k].read_status() if k < len(self.chips) else 0xFF
 
     def write_command(self, byte: int) -> None:
-        self.chips[self.selected].write_command(byte)
+        if self.selected < len(self.chips):
+            self.chips[self.selected].write_command(byte)
 
     def write_data(self, byte: int) -> None:
-        self.chips[self.selected].write_data(byte)
+        if self.selected < len(self.chips):
+            self.chips[self.selected].write_data(byte)
 
     def read_data(self) -> int:
-        return self.chips[self.selected].read_data()
+        k = self.selected
+        return self.chips[k].read_data() if k < len(self.chips) else 0xFF
 
     @property
     def busy(self) -> bool:
-        return self.chips[self.selected].busy
+        k = self.selected
+        return self.chips[k].busy if k < len(self.chips) else True
 
     @property
     def busy_clocks(self) -> int:
@@ -107,7 +121,8 @@ class ChipBus:
     @property
     def hi(self) -> bool:
         """HI of the selected chip (each chip drives its own HI line)."""
-        return self.chips[self.selected].hi
+        k = self.selected
+        return self.chips[k].hi if k < len(self.chips) else False
 
     @property
     def his(self) -> tuple[bool, ...]:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import os
 
+from ..errors import AxisError
 from ..model import ChipBus, ChipModel, ChipParams, MotorParams, chips_of
 from ..model.params import apply_params
 from ..program import TraceCallback
@@ -85,9 +86,10 @@ def axes_of(url: str, limit: int = MAX_AXES) -> int:
         n = int(raw)
     except ValueError:
         raise ValueError(f"{url}: axes={raw!r} is not a whole number of chips") from None
-    if not 1 <= n <= limit:
-        raise ValueError(f"{url}: axes={n} is outside 1..{limit} (the chip selects this "
-                         "simulated adapter has)")
+    if n < 1:
+        raise ValueError(f"{url}: axes={n}: a bus needs at least one chip")
+    if n > limit:
+        raise AxisError(n - 1, limit, f"the simulated adapter of {url}")
     return n
 
 
