@@ -8,7 +8,12 @@
  *   ~1.5-cycle input synchroniser of PINx;
  *   strobes are >= 4 cycles apart: 250 ns recovery (120 ns);
  *   /RST low for 10 us: 8 clocks of a chip clocked as slowly as 1 MHz, with margin.
- * The data bus idles as an input without pull-ups and is driven only for a write. */
+ * The data bus idles as an input without pull-ups and is driven only for a write.
+ *
+ * Several chips: each has its own /CS (CS_*_MASKS_INIT: chip 0 on the control port, chips 1-3
+ * on the data-high port beside D6-D7).  bus_select() picks the masks the strobes use; a /CS on
+ * the data-high port falls with its own port write before the control port's (setup as above)
+ * and rises after the strobe's /CS, so no two chips are ever selected together. */
 #include <avr/io.h>
 #include <util/delay.h>
 #include "bus.h"
@@ -17,6 +22,18 @@
 #define NOP() __asm__ __volatile__("nop")
 
 static uint16_t timer_start;
+static const uint8_t cs_ctrl[CHIP_SELECTS] = CS_CTRL_MASKS_INIT;
+static const uint8_t cs_dhi[CHIP_SELECTS] = CS_DHI_MASKS_INIT;
+static const uint8_t hi_ctrl[CHIP_SELECTS] = HI_CTRL_MASKS_INIT;
+static const uint8_t hi_dhi[CHIP_SELECTS] = HI_DHI_MASKS_INIT;
+static uint8_t sel_ctrl = PIN_CS, sel_dhi, sel; /* chip 0 until bus_select */
+
+void bus_select(uint8_t chip)
+{
+    sel = chip;
+    sel_ctrl = cs_ctrl[chip];
+    sel_dhi = cs_dhi[chip];
+}
 
 void bus_init(void)
 {
@@ -26,6 +43,8 @@ void bus_init(void)
     DATA_LO_PORT &= (uint8_t)~DATA_LO_MASK;
     DATA_HI_DDR &= (uint8_t)~DATA_HI_MASK;
     DATA_HI_PORT &= (uint8_t)~DATA_HI_MASK;
+    DATA_HI_PORT = (uint8_t)((DATA_HI_PORT | CS_DHI_ALL) & ~HI_DHI_ALL); /* /CS1.. high */
+    DATA_HI_DDR = (uint8_t)((DATA_HI_DDR | CS_DHI_ALL) & ~HI_DHI_ALL);
     TCCR1A = 0;
     TCCR1B = (1 << CS11) | (1 << CS10); /* clk/64: 4 us per tick, 262 ms per wrap */
 }
@@ -46,16 +65,31 @@ static inline void release(void)
     DATA_HI_PORT &= (uint8_t)~DATA_HI_MASK;
 }
 
-static inline __attribute__((always_inline)) void write_cycle(uint8_t select, uint8_t b)
+/* /CS of the selected chip (and /PS low when `ps`) before a strobe; all high after it */
+static inline __attribute__((always_inline)) void assert_select(uint8_t ps)
+{
+    if (sel_dhi)
+        DATA_HI_PORT &= (uint8_t)~sel_dhi;
+    CTRL_PORT &= (uint8_t)~(sel_ctrl | ps);
+}
+
+static inline __attribute__((always_inline)) void release_select(void)
+{
+    CTRL_PORT |= PIN_CS | PIN_PS;
+    if (sel_dhi)
+        DATA_HI_PORT |= sel_dhi;
+}
+
+static inline __attribute__((always_inline)) void write_cycle(uint8_t ps, uint8_t b)
 {
     drive(b);
-    CTRL_PORT &= (uint8_t)~select;
+    assert_select(ps);
     CTRL_PORT &= (uint8_t)~PIN_WR;
     NOP();
     NOP();
     CTRL_PORT |= PIN_WR;
     NOP();
-    CTRL_PORT |= PIN_CS | PIN_PS;
+    release_select();
     release();
 }
 
@@ -64,17 +98,17 @@ typedef struct {
     uint8_t lo, hi;
 } pins_t;
 
-static inline __attribute__((always_inline)) pins_t read_pins(uint8_t select)
+static inline __attribute__((always_inline)) pins_t read_pins(uint8_t ps)
 {
     pins_t p;
-    CTRL_PORT &= (uint8_t)~select;
+    assert_select(ps);
     CTRL_PORT &= (uint8_t)~PIN_RD;
     NOP(); NOP(); NOP(); NOP(); NOP(); NOP();
     p.lo = DATA_LO_PIN;
     p.hi = DATA_HI_PIN;
     CTRL_PORT |= PIN_RD;
     NOP();
-    CTRL_PORT |= PIN_CS | PIN_PS;
+    release_select();
     return p;
 }
 
@@ -83,15 +117,15 @@ static inline __attribute__((always_inline)) uint8_t pins_byte(pins_t p)
     return (uint8_t)(((p.lo & DATA_LO_MASK) >> DATA_LO_SHIFT) | ((p.hi & DATA_HI_MASK) << DATA_HI_SHIFT));
 }
 
-static inline __attribute__((always_inline)) uint8_t read_cycle(uint8_t select)
+static inline __attribute__((always_inline)) uint8_t read_cycle(uint8_t ps)
 {
-    return pins_byte(read_pins(select));
+    return pins_byte(read_pins(ps));
 }
 
-uint8_t bus_read_status(void) { return read_cycle(PIN_CS | PIN_PS); }
-void bus_write_command(uint8_t cmd) { write_cycle(PIN_CS | PIN_PS, cmd); }
-void bus_write_data(uint8_t byte) { write_cycle(PIN_CS, byte); }
-uint8_t bus_read_data(void) { return read_cycle(PIN_CS); }
+uint8_t bus_read_status(void) { return read_cycle(PIN_PS); }
+void bus_write_command(uint8_t cmd) { write_cycle(PIN_PS, cmd); }
+void bus_write_data(uint8_t byte) { write_cycle(0, byte); }
+uint8_t bus_read_data(void) { return read_cycle(0); }
 
 void bus_reset_pulse(void)
 {
@@ -100,7 +134,8 @@ void bus_reset_pulse(void)
     CTRL_PORT |= PIN_RST;
 }
 
-uint8_t bus_hi(void) { return (CTRL_PIN & PIN_HI) ? 1 : 0; }
+/* HI of the selected chip, where it has a line (chips 2 and 3 have none: 0) */
+uint8_t bus_hi(void) { return ((CTRL_PIN & hi_ctrl[sel]) | (DATA_HI_PIN & hi_dhi[sel])) ? 1 : 0; }
 
 void bus_timer_start(void) { timer_start = TCNT1; }
 
@@ -122,7 +157,7 @@ __attribute__((noinline)) uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t
     uint8_t ok = 1;
     pins_t p;
     for (;;) {
-        p = read_pins(PIN_CS | PIN_PS);
+        p = read_pins(PIN_PS);
         if (!(p.lo & (uint8_t)(STATUS_BUSY << DATA_LO_SHIFT)))
             break;
         if ((uint16_t)(TCNT1 - start) > ticks) { /* as bus_timer_elapsed */

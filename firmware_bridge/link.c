@@ -141,6 +141,8 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
             reads++;
         else if (op == OP_STATUS || op == OP_SYNC)
             n_status++;
+        else if (op == OP_SELECT && p[1] >= LINK_CHIP_SELECTS)
+            return run_header(reply, RESULT_BAD_CHIP_SELECT, nops, LINK_NONE_BYTE, 0);
         p += 1u + op_args[op];
     }
     if (reads > LINK_MAX_READS || LINK_RUN_REPLY_OVERHEAD + n_status + 2u * reads > LINK_MAX_FRAME)
@@ -152,6 +154,7 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
     uint8_t ns = 0, last = LINK_NONE_BYTE, result = RESULT_OK, index = LINK_NONE_BYTE;
     uint8_t nw = 0;
     nops = 0;
+    bus_select(cs);
     for (const uint8_t *p = prog; p != end; nops++) {
         uint8_t op = *p++;
         uint16_t arg = 0;
@@ -183,6 +186,8 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
             st[ns++] = last;
         } else if (op == OP_RESET) {
             bus_reset_pulse();
+        } else if (op == OP_SELECT) {
+            bus_select((uint8_t)arg);
         } else { /* OP_WAIT */
             bus_wait_us(arg);
         }
@@ -281,7 +286,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_MINOR;
         r[len++] = FIRMWARE_PATCH;
         r[len++] = 0;
-        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE;
+        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_SELECT;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
         r[len++] = (uint8_t)LINK_MAX_PROGRAM;
         r[len++] = LINK_MAX_READS;

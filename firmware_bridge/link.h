@@ -7,9 +7,9 @@
 #include "lm629_tables.h"
 
 #define FIRMWARE_MAJOR 1
-#define FIRMWARE_MINOR 0
+#define FIRMWARE_MINOR 1 /* 1.1: several chips (Op.SELECT, four chip selects) */
 #define FIRMWARE_PATCH 0
-#define LINK_CHIP_SELECTS 1
+#define LINK_CHIP_SELECTS CHIP_SELECTS /* lm629_tables.h, from bridge_pins.CHIP_SELECTS */
 #define LINK_MAX_PROGRAM (LINK_MAX_FRAME - LINK_RUN_OVERHEAD)
 #define LINK_MAX_READS ((LINK_MAX_FRAME - LINK_RUN_REPLY_OVERHEAD) / 2)
 #ifndef LINK_CPU_HZ

@@ -17,7 +17,7 @@ from lm629_host.model.chip import SAMPLE_CLOCKS
 from lm629_host.opcodes import Status
 
 #: the transports of the Done-when list; sim+avr:// and sim+ftdi:// join as they gain axes=
-TRANSPORTS = ["sim://", "sim+emu://?baud=1000000"]
+TRANSPORTS = ["sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000"]
 
 
 def open2(url: str, **kw) -> lm629_host.Board:

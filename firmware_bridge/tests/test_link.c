@@ -216,10 +216,15 @@ static void test_errors(void)
     CHECK(feed(wire, 301, out) == 0, "overlong frame answered");
     CHECK(feed(q->enc, q->nenc, out) > 0, "no resync after overlong frame");
     /* bad chip select, bad op, truncated arg, too many reads, truncated RUN */
-    uint8_t cs1[] = {0x01, 0x00, 0x00, 0x01};
+    uint8_t cs1[] = {LINK_CHIP_SELECTS, 0x00, 0x00, 0x01};
     n = feed(wire, frame(0x02, 1, cs1, sizeof cs1, wire), out);
     CHECK(reply_payload(out, n, 0x82, 1, &p) == 5 && p[0] == RESULT_BAD_CHIP_SELECT, "bad cs");
-    uint8_t badop[] = {0x00, 0x00, 0x00, 0x01, 0x02, 0x01, 0x09};
+    /* a SELECT beyond the chip selects: refused before the bus, naming the operation */
+    uint8_t badsel[] = {0x00, 0x00, 0x00, OP_STATUS, OP_SELECT, LINK_CHIP_SELECTS};
+    n = feed(wire, frame(0x02, 1, badsel, sizeof badsel, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 1, &p) == 5 && p[0] == RESULT_BAD_CHIP_SELECT && p[1] == 1,
+          "bad SELECT");
+    uint8_t badop[] = {0x00, 0x00, 0x00, 0x01, 0x02, 0x01, OP_MAX + 2};
     n = feed(wire, frame(0x02, 2, badop, sizeof badop, wire), out);
     CHECK(reply_payload(out, n, 0x82, 2, &p) == 5 && p[0] == RESULT_BAD_PROGRAM && p[1] == 2,
           "bad op index %d", p[1]);
@@ -243,10 +248,26 @@ static void test_errors(void)
            "reads, RUN and PING sizes answered with their codes\n");
 }
 
+/* RUN's cs selects the first chip, OP_SELECT the next: both reach the bus in program order */
+static void test_select(void)
+{
+    uint8_t wire[320], out[320], *p;
+    link_init(&L);
+    fake_reset();
+    uint8_t prog[] = {0x01, 0x00, 0x00, OP_STATUS, OP_SELECT, 0x03, OP_STATUS, OP_SELECT, 0x00};
+    int n = feed(wire, frame(0x02, 9, prog, sizeof prog, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 9, &p) == 7 && p[0] == RESULT_OK && p[4] == 2, "select run");
+    CHECK(fake.n_selects == 3 && fake.selects[0] == 1 && fake.selects[1] == 3
+          && fake.selects[2] == 0, "selects %d: %d %d %d", fake.n_selects, fake.selects[0],
+          fake.selects[1], fake.selects[2]);
+    printf("select: the RUN's cs, then each SELECT, reach the bus in order\n");
+}
+
 int main(int argc, char **argv)
 {
     load(argc > 1 ? argv[1] : "golden_frames.txt");
     test_codec();
+    test_select();
     test_golden_requests();
     test_exactly_once();
     test_errors();

@@ -3,7 +3,7 @@ against the chip model; the host side is the unchanged link protocol (:class:`Li
 
 URL parameters::
 
-    sim+avr://?baud=115200&firmware=path/to/lm629_bridge.elf&<any sim:// parameter>
+    sim+avr://?baud=115200&firmware=path/to/lm629_bridge.elf&axes=2&<any sim:// parameter>
 
 ``baud``: the simulated serial line (115200 or 1000000 with the images ``make -C
 firmware_bridge`` builds; another rate needs ``firmware=`` built with ``make BAUD=...``).
@@ -19,7 +19,9 @@ from ..avrsim import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
 from ..link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
 from . import query_params
-from .sim import build_model
+from ..bridge_pins import CHIP_SELECTS
+from ..model import chips_of
+from .sim import build_bus
 
 
 class SimAvrTransport(LinkTransport):
@@ -34,6 +36,8 @@ class SimAvrTransport(LinkTransport):
                  retries: int = DEFAULT_RETRIES, baud: int = DEFAULT_BAUD) -> None:
         self.sim = sim
         self.model = sim.model
+        #: the chips on the bridge's chip selects 0, 1, ... (``sim+avr://?axes=N``)
+        self.models = chips_of(sim.model)
         super().__init__(AvrPipe(sim), url, trace=trace, retries=retries, baud=baud)
 
     @classmethod
@@ -54,7 +58,9 @@ class SimAvrTransport(LinkTransport):
                              f"{' or '.join(map(str, BUILT_BAUDS))} baud; for another rate build "
                              f"one with `make -C firmware_bridge BAUD={baud}` and pass "
                              "firmware=firmware_bridge/build/lm629_bridge.elf")
-        model = build_model(url, allowed=frozenset({"firmware", "baud"}))
+        model = build_bus(url, allowed=frozenset({"firmware", "baud"}), limit=len(CHIP_SELECTS))
+        if hasattr(model, "lines"):
+            model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
         return cls(AvrSim(model, firmware), url, trace=trace, baud=baud)
 
     def describe(self) -> str:
