@@ -105,6 +105,11 @@ class ChipBus:
         k = self.selected
         return self.chips[k].read_data() if k < len(self.chips) else 0xFF
 
+    def busy_deadline(self) -> int | None:
+        """The selected chip's :meth:`~.chip.ChipModel.busy_deadline` (None: no chip there)."""
+        k = self.selected
+        return self.chips[k].busy_deadline() if k < len(self.chips) else None
+
     @property
     def busy(self) -> bool:
         k = self.selected
