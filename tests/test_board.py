@@ -17,7 +17,7 @@ from lm629_host.model.chip import SAMPLE_CLOCKS
 from lm629_host.opcodes import Status
 
 #: the transports of the Done-when list; sim+avr:// and sim+ftdi:// join as they gain axes=
-TRANSPORTS = ["sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000"]
+TRANSPORTS = ["sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://"]
 
 
 def open2(url: str, **kw) -> lm629_host.Board:
@@ -231,3 +231,40 @@ def test_a_bridge_without_select_gets_one_run_per_chip():
     assert t.stats.programs == 1 and t.stats.round_trips == 6
     path, done = run_samples(board, 3000)
     assert path[-1] == (800 << 16, 800 << 16)
+
+
+# ------------------------------------------------------------------------------ FT232H
+def test_ftdi_streams_cut_per_chip():
+    """An STT after a load on the same chip starts a new stream (its loads must be checked
+    first); an STT on another chip does not: a synchronized start is one USB exchange."""
+    from lm629_host.opcodes import Cmd
+    from lm629_host.program import Program
+    from lm629_host.transports.ftdi import streams_of
+    p = Program().command(Cmd.LTRJ).write(0).command(Cmd.STT)
+    assert len(streams_of(p.ops)) == 2
+    q = Program().sync().command(Cmd.STT).select(1).sync().command(Cmd.STT)
+    assert len(streams_of(q.ops)) == 1
+    r = Program().command(Cmd.STT).select(1).command(Cmd.LTRJ).write(0).command(Cmd.STT)
+    assert len(streams_of(r.ops)) == 2
+
+
+def test_ftdi_repeat_after_busy_never_runs_another_chips_stt_twice():
+    """Chip 0 holds busy 3x its worst case after its RSTI: the check before the next transfer
+    on chip 0 fails; the units chip 1 took in that stream (its RSTI, its STT) are left out of
+    the repeat, so each chip sees exactly one STT."""
+    with lm629_host.open_board("sim+ftdi://?axes=2&record=1") as board:
+        board.reset()
+        for a in board.axes:
+            a.load_trajectory(acceleration=1500, velocity=2 * 65536, position=800)
+        for c in chips(board):
+            c.record_clear()
+        board.transport.device.stretch_busy(1, 300e-6)
+        board.start(clear=Status.TRAJECTORY_COMPLETE)
+        assert board.transport.stats.retries >= 1
+        for c in chips(board):
+            stts = [cmd for cmd, _ in c.history if cmd == 0x01]
+            rstis = [w for cmd, w in c.history if cmd == 0x1D]
+            assert len(stts) == 1, c.history
+            assert rstis and rstis[-1] == (0x7E & ~0x04,)  # RSTI clears bit 2 only
+        path, done = run_samples(board, 3000)
+        assert path[-1] == (800 << 16, 800 << 16)
