@@ -1,0 +1,62 @@
+"""The command line on a multi-axis board (issue 11): --axis N, a list, status/watch of every
+axis, move with one target per axis (--linear), bringup per axis, clear errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from lm629_host import cli
+
+
+@pytest.fixture
+def run():
+    def _run(*args: str):
+        return CliRunner().invoke(cli.main, list(args), env={"LM629_PORT": ""})
+    return _run
+
+
+def test_status_shows_every_axis_of_the_url(run):
+    r = run("--port", "sim://?axes=2", "status", "--json")
+    assert r.exit_code == 0, r.output
+    rows = json.loads(r.output)["axes"]
+    assert [row["axis"] for row in rows] == [0, 1]
+    assert all(row["status"] == "C0" for row in rows)  # reset, masked: 80 + breakpoint
+    r = run("--axis", "0,1", "status")
+    assert r.exit_code == 0 and "axis 0:" in r.output and "axis 1:" in r.output
+
+
+def test_move_one_target_per_axis_in_a_straight_line(run):
+    r = run("--axis", "0,1", "move", "3000", "-1700", "--linear", "--vel", "196608",
+            "--acc", "2000")
+    assert r.exit_code == 0, r.output
+    assert "straight line to [3000, -1700]" in r.output
+    assert "done: axis 0" in r.output and "done: axis 1" in r.output
+    # the words: the path's, scaled by each axis's share (3000 and 1700 of 3448.2)
+    line = r.output.splitlines()[0]
+    assert "axis 0: v 1710" in line and "axis 1: v 969" in line
+
+
+def test_one_axis_of_a_board(run):
+    r = run("--axis", "1", "move", "500")
+    assert r.exit_code == 0, r.output
+    assert "from the target 500" in r.output
+
+
+def test_bringup_per_axis(run):
+    r = run("--axis", "0,1", "bringup", "--yes")
+    assert r.exit_code == 0, r.output
+    assert r.output.count("verdict: PASS") == 2
+
+
+def test_axis_errors_are_one_line(run):
+    r = run("--port", "sim+emu://?bridge=1", "--axis", "1", "status")
+    assert r.exit_code == 2 and "axis 1 does not exist" in r.output
+    r = run("--axis", "0,1", "filter", "--kp", "3")
+    assert r.exit_code == 2 and "drives one" in r.output
+    r = run("--axis", "0,1", "move", "100")
+    assert r.exit_code == 2 and "1 target(s) for 2 axis" in r.output
+    r = run("--axis", "x", "status")
+    assert r.exit_code == 2 and "--axis" in r.output
