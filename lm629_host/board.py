@@ -114,12 +114,17 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
     """Plan a straight line in count space: ``moves`` maps an axis to (start, target) counts;
     ``velocity`` and ``acceleration`` are the path's 16.16 words (along the Euclidean path).
 
-    Every axis gets its share of both words; the axis with the longest distance sets the
-    duration, and its word (the velocity of a trapezoid, the acceleration of a triangle) is
-    searched within 0.5 % of its share for the value that lets every other axis's rounded
-    words last the same time (each other axis's word solved from the duration).  What is left
-    is reported as :attr:`LinearPlan.spread`: the 16.16 resolution of a slow cruise velocity
-    (a word of ``v`` changes a cruise of ``T`` samples by ``T / v`` samples) bounds it.
+    Every axis gets its share of both words; the axis with the longest distance leads.  Its
+    acceleration word is lowered (by at most 20 %) to the nearest one whose shares round to
+    the same ratios within 0.1 % (the ramps then keep to the line), and its word that sets
+    the duration (the velocity of a trapezoid, the acceleration of a triangle) is lowered (by
+    at most 10 %) to the nearest value that lets every other axis's rounded words last the
+    same time, within a twentieth of a sample in exact arithmetic (each other axis's word
+    solved from the duration).  Never faster than asked.  What is left is
+    :attr:`LinearPlan.spread`; the 16.16 resolution bounds it: a word of ``v`` changes a
+    cruise of ``T`` samples by ``T / v`` samples, and a small acceleration word (tens) cannot
+    keep the ratio of two long ramps better than a few per mille
+    (``python3 tools/bench_linear.py`` measures both).
 
     Raises ValueError (before any bus traffic) for words out of range, targets out of range,
     or an axis whose share of the acceleration is below the chip's resolution of one word.
@@ -148,23 +153,29 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
     acc0 = {k: max(1, round(acceleration * share[k])) for k in moving}
     if trapezoid and len(moving) > 1:
         # the ramps keep to the line when the acceleration words keep the shares' ratios:
-        # search the lead's word (within 2 %) for the best common ratio
+        # search the lead's word downwards (at most 20 %: never above the acceleration asked
+        # for) for the nearest whose rounded ratios are within 0.1 %, else the best found
         a_lead = acc0[lead]
 
         def ratio_error(cand: int) -> float:
             return max(abs(max(1, round(cand * dist[k] / dist[lead])) * dist[lead]
                            / (cand * dist[k]) - 1) for k in moving)
 
-        span = max(2, a_lead // 50)
-        pick = min(range(max(1, a_lead - span), min(ACCELERATION_MAX, a_lead + span) + 1),
-                   key=lambda c: (round(ratio_error(c), 6), abs(c - a_lead)))
-        acc0 = {k: max(1, round(pick * dist[k] / dist[lead])) for k in moving}
+        span = max(2, a_lead // 5)
+        best_a = a_lead
+        for cand in range(a_lead, max(1, a_lead - span) - 1, -1):
+            if ratio_error(cand) <= 1e-3:
+                best_a = cand
+                break
+            if ratio_error(cand) < ratio_error(best_a):
+                best_a = cand
+        acc0 = {k: max(1, round(best_a * dist[k] / dist[lead])) for k in moving}
     vel0 = {k: max(1, round(velocity * share[k])) for k in moving}
     ideal = vel0[lead] if trapezoid else acc0[lead]
-    width = max(8, min(4096, ideal // 200))
+    # downwards only (never faster than asked for), at most 10 %
+    width = max(16, min(65536, ideal // 10))
     best: tuple[float, int, dict[int, tuple[int, int]]] | None = None
-    lo, hi = max(1, ideal - width), min(VELOCITY_MAX, ideal + width)
-    for cand in sorted(range(lo, hi + 1), key=lambda c: abs(c - ideal)):
+    for cand in range(ideal, max(1, ideal - width) - 1, -1):
         words = {lead: (cand, acc0[lead]) if trapezoid
                  else (max(vel0[lead], math.isqrt(dist[lead] * cand * ONE) + 2), cand)}
         t_lead = trapezoid_samples(dist[lead], *words[lead])
