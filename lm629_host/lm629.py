@@ -205,6 +205,13 @@ class LM629:
         return self.run(self.program().command(cmd).read(words)).words
 
     # ------------------------------------------------------------------ reset
+    @property
+    def uses_reset_line(self) -> bool:
+        """True when :meth:`reset` pulses /RST.  An axis of a multi-axis board sends the
+        RESET command instead: /RST is shared and would reset every chip on the bus
+        (:meth:`Board.reset <lm629_host.board.Board.reset>` pulses it for all of them)."""
+        return self.transport.has_reset_line and self.axis is None
+
     def reset_programs(self) -> tuple[Program, Program]:
         """The AN-706 3.7 / 4.4.1 initialisation as two programs.
 
@@ -214,7 +221,7 @@ class LM629:
         (80 or C0 expected), and PORT12 when it was set before.
         """
         p = self.program()
-        if self.transport.has_reset_line:
+        if self.uses_reset_line:
             p.reset().status()
         else:
             p.command(Cmd.RESET).status()
@@ -234,7 +241,7 @@ class LM629:
         status byte seen.
         """
         seen: list[int] = []
-        hw = self.transport.has_reset_line
+        hw = self.uses_reset_line
         for _ in range(self.reset_attempts):
             first_program, init_program = self.reset_programs()
             first, done = self.run(first_program).statuses

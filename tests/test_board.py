@@ -268,3 +268,17 @@ def test_ftdi_repeat_after_busy_never_runs_another_chips_stt_twice():
             assert rstis and rstis[-1] == (0x7E & ~0x04,)  # RSTI clears bit 2 only
         path, done = run_samples(board, 3000)
         assert path[-1] == (800 << 16, 800 << 16)
+
+
+def test_resetting_one_axis_leaves_the_other_alone():
+    """/RST is shared: LM629.reset() of one board axis sends the RESET command to its chip
+    only, so the other axis keeps its filter and its position."""
+    with open2("sim://") as board:
+        board.reset()
+        tune(board)
+        x, y = board.axes
+        y.move_to(300, velocity=2 * 65536, acceleration=3000).wait(timeout=3)
+        assert not x.uses_reset_line and not y.uses_reset_line
+        assert x.reset() in (Status(0x80), Status(0xC0))
+        assert y.read_desired_position() == 300 and chips(board)[1].filter.kp == 20
+        assert chips(board)[0].filter.kp == 0

@@ -60,3 +60,31 @@ def test_axis_errors_are_one_line(run):
     assert r.exit_code == 2 and "1 target(s) for 2 axis" in r.output
     r = run("--axis", "x", "status")
     assert r.exit_code == 2 and "--axis" in r.output
+
+
+def test_a_two_chip_bench_keeps_its_state_between_processes(tmp_path):
+    """`lm629 sim serve --url 'sim://?axes=2'` is a two-chip bridge on a pty: separate lm629
+    processes reset it, tune both axes, move both together, then read both back."""
+    import subprocess
+    import sys
+
+    from lm629_host.simserve import SimServer
+
+    with SimServer(tmp_path / "lm629", "sim://?axes=2").start() as srv:
+        port = f"serial://{srv.link}?axes=2"
+
+        def lm629(*args: str) -> subprocess.CompletedProcess:
+            return subprocess.run([sys.executable, "-m", "lm629_host", "--port", port, *args],
+                                  capture_output=True, text=True, timeout=60)
+
+        assert lm629("--axis", "0", "reset").returncode == 0
+        for k in ("0", "1"):
+            r = lm629("--axis", k, "filter", "--kp", "20")
+            assert r.returncode == 0, r.stderr
+        r = lm629("move", "400", "-300", "--vel", "131072", "--acc", "3000")
+        assert r.returncode == 0, r.stdout + r.stderr
+        r = lm629("status", "--json")
+        rows = json.loads(r.stdout)["axes"]
+        assert [row["desired_position"] for row in rows] == [400, -300]
+        chips = srv.model.chips
+        assert [c.motion.desired_position for c in chips] == [400, -300]
