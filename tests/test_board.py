@@ -282,3 +282,48 @@ def test_resetting_one_axis_leaves_the_other_alone():
         assert x.reset() in (Status(0x80), Status(0xC0))
         assert y.read_desired_position() == 300 and chips(board)[1].filter.kp == 20
         assert chips(board)[0].filter.kp == 0
+
+
+@pytest.mark.parametrize("url", TRANSPORTS)
+def test_stt_skew_of_a_synchronized_start_is_below_one_sample(url):
+    """The STT strobes as the chips see them (their own clock ticks), in one program: the
+    skew must be below one sample (2048 chip clocks, 256 us at 8 MHz); the bench prints it
+    (tools/bench_multiaxis.py): 1 us on sim://, 2 us on the Python bridge, 17 us through the
+    firmware, 7.5 us on the FT232H."""
+    with open2(url) as board:
+        board.reset()
+        seen = []
+        for k, m in enumerate(chips(board)):
+            def note(byte, _k=k, _m=m, _w=m.write_command):
+                if byte == 0x01:
+                    seen.append((_k, _m.tick))
+                _w(byte)
+            m.write_command = note
+        for a in board.axes:
+            a.load_trajectory(acceleration=4000, velocity=4 * 65536, position=0)
+        board.start()
+        assert sorted(k for k, _ in seen) == [0, 1]
+        skew = max(t for _, t in seen) - min(t for _, t in seen)
+        assert 0 < skew < SAMPLE_CLOCKS // 8  # well inside a sample: 32 us at 8 MHz
+
+
+def test_the_firmware_built_for_one_chip_under_this_host():
+    """The compiled firmware reporting one chip select (build/lm629_bridge_1chip.elf) in
+    simavr: HELLO says 1, the host drives its chip, axis 1 is one clear error before any
+    traffic, and a board of two is refused at open."""
+    from lm629_host.avrsim import BUILD_DIR, ensure_built
+    ensure_built()
+    fw = BUILD_DIR / "lm629_bridge_1chip.elf"
+    url = f"sim+avr://?baud=1000000&firmware={fw}"
+    with lm629_host.open(url) as chip:
+        assert chip.transport.info.chip_selects == 1 and chip.transport.chip_selects == 1
+        chip.reset()
+        chip.load_filter(kp=20)
+        chip.update_filter()
+        assert abs(chip.move_to(400, velocity=2 * 65536, acceleration=3000).wait(3).error) <= 13
+    with pytest.raises(AxisError, match="axis 1 does not exist.*1 chip select"):
+        lm629_host.open(url + "&cs=1")
+    with pytest.raises(AxisError, match="axis 1 does not exist.*1 chip select"):
+        lm629_host.open_board(url + "&axes=2")
+    with lm629_host.open_board("sim+avr://?baud=1000000&axes=2") as board:
+        assert board.transport.info.chip_selects == 4 and len(board.axes) == 2
