@@ -227,20 +227,33 @@ class BoardMove:
     def wait(self, timeout: float | None = None, tolerance: int | None = None,
              **kw: object) -> list[MoveResult]:
         """Like :meth:`Move.wait <lm629_host.Move.wait>` for every axis (same ``timeout``
-        from the common start, same ``tolerance``); returns their results, axis order.  A
-        motion fault on one axis stops every axis and raises :class:`MotionError` naming the
-        axis (``exc.axis``)."""
+        from the common start, same ``tolerance``); returns their results, axis order.
+
+        The axes are waited for one after the other; while one is watched, the others' status
+        bytes are read with every poll (one program), so that a position-error flag or a drive
+        found off on any axis ends the wait at once.  A motion fault on one axis stops every
+        axis and raises :class:`MotionError` naming the axis (``exc.axis``)."""
         results = []
+        user_progress = kw.pop("progress", None)
         for m in self.moves:
+            others = [o.chip for o in self.moves if o is not m and o.result is None]
+
+            def watch(snap: Snapshot, _others: list[LM629] = others) -> None:
+                if user_progress is not None:
+                    user_progress(snap)  # type: ignore[operator]
+                if _others:
+                    self.board._check_others(_others)
             try:
-                results.append(m.wait(timeout, tolerance, **kw))  # type: ignore[arg-type]
+                results.append(m.wait(timeout, tolerance, progress=watch, **kw))  # type: ignore[arg-type]
             except MotionError as exc:
-                self.board._stop_others(m.chip)
-                text = str(exc).split(": ", 1)[-1] if str(exc).startswith("motion fault") else str(exc)
+                self.board._stop_all()
+                if exc.axis is not None:  # another axis's flag, seen while this one was watched
+                    raise
+                text = str(exc).split("): ", 1)[-1]  # "motion fault (reason): message"
                 raise MotionError(exc.reason, text, axis=m.chip.axis, position=exc.position,
                                   error=exc.error) from exc
             except BaseException:
-                self.board._stop_others(m.chip)
+                self.board._stop_all()
                 raise
         return results
 
@@ -469,10 +482,22 @@ class Board:
         its motor was left (see :func:`~lm629_host.safety.emergency_stop`)."""
         return [emergency_stop(a)[1] for a in self._pick(axes)]
 
-    def _stop_others(self, failed: LM629) -> None:
+    def _stop_all(self) -> None:
+        """Every axis: abrupt stop, then motor off (each tried even when another fails)."""
         for a in self.axes:
-            if a is not failed:
-                emergency_stop(a)
+            emergency_stop(a)
+
+    def _check_others(self, axes: Sequence[LM629]) -> None:
+        """The chip's own fault flags on ``axes`` (one program): MotionError naming the axis."""
+        for a, s in zip(axes, self.statuses([x.axis for x in axes])):
+            if s & Status.POSITION_ERROR:
+                raise MotionError(MotionError.POSITION_ERROR,
+                                  f"the chip raised its position-error flag (status {s:02X}) "
+                                  "while another axis was watched", axis=a.axis)
+            if s & Status.MOTOR_OFF:
+                raise MotionError(MotionError.MOTOR_OFF,
+                                  f"the drive was found off (status {s:02X}) while another "
+                                  "axis was watched", axis=a.axis)
 
     def statuses(self, axes: Sequence[LM629 | int] = ()) -> list[Status]:
         """The status byte of every axis, one program."""

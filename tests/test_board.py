@@ -327,3 +327,22 @@ def test_the_firmware_built_for_one_chip_under_this_host():
         lm629_host.open_board(url + "&axes=2")
     with lm629_host.open_board("sim+avr://?baud=1000000&axes=2") as board:
         assert board.transport.info.chip_selects == 4 and len(board.axes) == 2
+
+
+def test_a_flag_on_another_axis_ends_the_wait_at_once():
+    """Axis 1 trips its LPES limit (stalled rotor) while the wait still watches axis 0's long
+    move: the wait ends at the next poll with MotionError naming axis 1, both motors off."""
+    with open2("sim://") as board:
+        board.reset()
+        tune(board)
+        x, y = board.axes
+        y.load_position_error(50, stop=True)
+        chips(board)[1].set_motor_params(stall=True)
+        m = board.move({x: 20000, y: 20000}, velocity=65536, acceleration=500)
+        t0 = board.clock.now()
+        with pytest.raises(lm629_host.MotionError, match=r"^axis 1: motion fault") as e:
+            m.wait()
+        assert e.value.axis == 1 and e.value.reason in ("position error", "motor off")
+        # axis 0's profile lasts 20000/1 + 65536/500 = 20131 samples = 5.2 s: ended long before
+        assert board.clock.now() - t0 < 0.5
+        assert all(s & Status.MOTOR_OFF for s in board.statuses())
