@@ -346,3 +346,29 @@ def test_a_flag_on_another_axis_ends_the_wait_at_once():
         # axis 0's profile lasts 20000/1 + 65536/500 = 20131 samples = 5.2 s: ended long before
         assert board.clock.now() - t0 < 0.5
         assert all(s & Status.MOTOR_OFF for s in board.statuses())
+
+
+def test_threads_move_their_own_axes_on_one_board():
+    """One thread per axis, each with move_to on its own LM629: the transport's lock keeps
+    every program whole (each carries its chip select), both moves end on their targets."""
+    import threading
+    with open2("sim://") as board:
+        board.reset()
+        tune(board)
+        results, errors = {}, []
+
+        def run(axis, target):
+            try:
+                a = board.axes[axis]
+                results[axis] = a.move_to(target, velocity=65536 * (axis + 1),
+                                          acceleration=2000).wait(timeout=5)
+            except BaseException as exc:  # noqa: BLE001 - reported below
+                errors.append(exc)
+        threads = [threading.Thread(target=run, args=(k, t)) for k, t in ((0, 1500), (1, -900))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=60)
+        assert not errors, errors
+        assert results[0].target == 1500 and results[1].target == -900
+        assert [c.motion.desired_position for c in chips(board)] == [1500, -900]
