@@ -791,7 +791,12 @@ class LinkTransport(Transport):
         statuses: list[int] = []
         status: int | None = None
         hi: bool | None = None
+        chip = self.cs
         for base, cs, ops in self._chunks(program):
+            if cs != chip:  # a chip select carried in the RUN's cs field: traced as a select
+                chip = cs
+                self._emit_cycles([BusOp(Op.SELECT, cs)], (), ())
+            chip = next((o.arg for o in reversed(ops) if o.op is Op.SELECT), chip)
             reply = self._run(ops, timeout_us, program.busy_timeout_s, cs)
             ok = reply.result == Result.OK
             busy = reply.result == Result.BUSY_TIMEOUT

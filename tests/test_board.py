@@ -372,3 +372,23 @@ def test_threads_move_their_own_axes_on_one_board():
         assert not errors, errors
         assert results[0].target == 1500 and results[1].target == -900
         assert [c.motion.desired_position for c in chips(board)] == [1500, -900]
+
+
+@pytest.mark.parametrize("url", ["sim://", "sim+emu://?baud=0", "sim+ftdi://"])
+def test_the_trace_names_the_chip_of_every_cycle(url):
+    """A trace shows each chip select change as a "select" cycle, wherever the transport
+    carries it (a program's SELECT, a bridge's RUN cs field, an FT232H stream)."""
+    from conftest import Recorder
+    rec = Recorder()
+    with open2(url, trace=rec) as board:
+        board.reset()
+        rec.clear()
+        x, y = board.axes
+        y.define_home()
+        x.define_home()
+        board.start()
+    data = rec.data()
+    assert data[:2] == [("select", 1), ("command", 0x02)]  # y's DFH
+    assert ("command", 0x02) in data[2:]  # x's: a program starts on chip 0
+    i = data.index(("command", 0x01))  # the synchronized start: STT, select 1, STT
+    assert data[i:i + 3] == [("command", 0x01), ("select", 1), ("command", 0x01)]
