@@ -154,7 +154,9 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
     uint8_t ns = 0, last = LINK_NONE_BYTE, result = RESULT_OK, index = LINK_NONE_BYTE;
     uint8_t nw = 0;
     nops = 0;
-    bus_select(cs);
+    uint8_t chip = cs; /* the chip selected now: chip 0 between programs */
+    if (chip)
+        bus_select(chip);
     for (const uint8_t *p = prog; p != end; nops++) {
         uint8_t op = *p++;
         uint16_t arg = 0;
@@ -190,7 +192,8 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
         } else if (op == OP_RESET) {
             bus_reset_pulse();
         } else if (op == OP_SELECT) {
-            bus_select((uint8_t)arg);
+            chip = (uint8_t)arg;
+            bus_select(chip);
         } else if (op == OP_WAIT_STATUS) {
             /* a status read every WAIT_STATUS_POLL_US until a bit of the mask is set or `arg`
              * ms have passed (each period is a little longer than its nominal time, so the
@@ -211,6 +214,8 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
     reply[1] = index;
     reply[2] = last;
     reply[3] = bus_hi();
+    if (chip)
+        bus_select(0); /* every /CS released between programs */
     reply[4] = ns;
     /* on a failure the unused status slots close up, so the words follow the statuses read */
     if (ns != n_status)

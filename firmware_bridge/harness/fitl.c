@@ -110,6 +110,13 @@ static const uint8_t cs_dhi[CHIP_SELECTS] = CS_DHI_MASKS_INIT;
 static const uint8_t hi_ctrl[CHIP_SELECTS] = HI_CTRL_MASKS_INIT;
 static const uint8_t hi_dhi[CHIP_SELECTS] = HI_DHI_MASKS_INIT;
 
+/* the level of the data-high port's /CS lines: a line the firmware does not drive is pulled
+ * up (the README's 10k pull-ups), so a firmware that leaves them inputs (1.0) selects no chip */
+static uint8_t dhi_level(fitl_t *h, uint8_t port)
+{
+    return (uint8_t)((port & h->hi_ddr) | ~h->hi_ddr);
+}
+
 /* the chip whose /CS is low on (control port, data-high port): -1 none, -2 more than one */
 static int chip_of(uint8_t ctrl, uint8_t dhi)
 {
@@ -150,7 +157,7 @@ static void ctrl_hook(avr_irq_t *irq, uint32_t value, void *param)
     h->ctrl = v;
     if (!((fell | rose) & 0xFF))
         return;
-    h->chip = chip_of(v, h->hi_port);
+    h->chip = chip_of(v, dhi_level(h, h->hi_port));
     if ((fell | rose) & (PIN_CS | PIN_PS)) {
         if (!(old & PIN_RD) || !(old & PIN_WR))
             violation(h, "/CS or /PS changed during a strobe");
@@ -226,11 +233,11 @@ static void hi_port_hook(avr_irq_t *irq, uint32_t value, void *param)
     (void)irq;
     fitl_t *h = param;
     uint8_t v = (uint8_t)value;
-    if ((v ^ h->hi_port) & CS_DHI_ALL) { /* a /CS of chips 1-3 changed */
+    if ((dhi_level(h, v) ^ dhi_level(h, h->hi_port)) & CS_DHI_ALL) { /* a /CS of chips 1-3 */
         if (!(h->ctrl & PIN_RD) || !(h->ctrl & PIN_WR))
             violation(h, "/CS changed during a strobe");
         h->sel_change = h->avr->cycle;
-        h->chip = chip_of(h->ctrl, v);
+        h->chip = chip_of(h->ctrl, dhi_level(h, v));
     }
     if ((v ^ h->hi_port) & DATA_HI_MASK & h->hi_ddr) {
         h->hi_port = v;
@@ -254,6 +261,15 @@ static void hi_ddr_hook(avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq;
     fitl_t *h = param;
+    if (((uint8_t)value ^ h->hi_ddr) & CS_DHI_ALL) { /* /CS lines of chips 1-3 made outputs */
+        uint8_t old = dhi_level(h, h->hi_port);
+        uint8_t ddr = h->hi_ddr;
+        h->hi_ddr = (uint8_t)value;
+        if ((dhi_level(h, h->hi_port) ^ old) & CS_DHI_ALL)
+            h->sel_change = h->avr->cycle;
+        h->chip = chip_of(h->ctrl, dhi_level(h, h->hi_port));
+        h->hi_ddr = ddr; /* the data-bus bookkeeping below compares against the old value */
+    }
     if (((uint8_t)value ^ h->hi_ddr) & DATA_HI_MASK) {
         h->hi_ddr = (uint8_t)value;
         data_changed(h);
@@ -347,7 +363,8 @@ fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
     h->hi_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(CTRL_PORT_LETTER), hi_bit);
     avr_raise_irq(h->hi_pin, 0);
     h->chip = -1;
-    h->hi_port = 0xFF; /* until the firmware writes it: every /CS reads high */
+    h->hi_port = 0; /* reset values: port and direction 0, the /CS lines pulled up */
+    h->hi_ddr = 0;
     for (int k = 0; k < (int)CHIP_SELECTS; k++) {
         uint8_t m = hi_ctrl[k] ? hi_ctrl[k] : hi_dhi[k];
         int bit = 0;

@@ -286,9 +286,16 @@ static void test_select(void)
     uint8_t prog[] = {0x01, 0x00, 0x00, OP_STATUS, OP_SELECT, 0x03, OP_STATUS, OP_SELECT, 0x00};
     int n = feed(wire, frame(0x02, 9, prog, sizeof prog, wire), out);
     CHECK(reply_payload(out, n, 0x82, 9, &p) == 7 && p[0] == RESULT_OK && p[4] == 2, "select run");
+    /* cs 1, SELECT 3, SELECT 0 (chip 0 at the end: nothing to release) */
     CHECK(fake.n_selects == 3 && fake.selects[0] == 1 && fake.selects[1] == 3
           && fake.selects[2] == 0, "selects %d: %d %d %d", fake.n_selects, fake.selects[0],
           fake.selects[1], fake.selects[2]);
+    /* a program that ends on chip 2 releases it: chip 0 selected again */
+    fake_reset();
+    uint8_t prog2[] = {0x00, 0x00, 0x00, OP_SELECT, 0x02, OP_STATUS};
+    n = feed(wire, frame(0x02, 10, prog2, sizeof prog2, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 10, &p) == 6 && p[0] == RESULT_OK && fake.n_selects == 2
+          && fake.selects[0] == 2 && fake.selects[1] == 0, "release after chip 2");
     printf("select: the RUN's cs, then each SELECT, reach the bus in order\n");
 }
 
