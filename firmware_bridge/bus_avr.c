@@ -11,9 +11,10 @@
  * The data bus idles as an input without pull-ups and is driven only for a write.
  *
  * Several chips: each has its own /CS (CS_*_MASKS_INIT: chip 0 on the control port, chips 1-3
- * on the data-high port beside D6-D7).  bus_select() picks the masks the strobes use; a /CS on
- * the data-high port falls with its own port write before the control port's (setup as above)
- * and rises after the strobe's /CS, so no two chips are ever selected together. */
+ * on the data-high port beside D6-D7).  bus_select() works out the control port's values for
+ * the strobes of the chip it selects, and holds a data-high-port /CS low until the next
+ * bus_select (the chip ignores /CS without a strobe): never two chips selected together, and a
+ * strobe costs what it cost on a one-chip bridge. */
 #include <avr/io.h>
 #include <util/delay.h>
 #include "bus.h"

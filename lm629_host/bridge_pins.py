@@ -24,8 +24,9 @@ ISP header's MOSI/MISO/SCK: disconnect the chips (or hold them in reset) while f
 ISP; the USB bootloader does not use them.  On a Nano D13 carries the LED and its resistor to
 ground, a load on HI1 that a TTL output drives without trouble.
 
-A chip select on port B is asserted with its own port write before the strobe (the data bus's
-D6-D7 share port B; the firmware writes port B masked), so its setup time is met the same way.
+A chip select on port B is held low by the firmware for the stretch of a program that
+addresses that chip (the chip ignores /CS without a strobe; D6-D7 share port B, written masked),
+so its setup time before every strobe is long met.
 
 Put 10 kOhm pull-ups on /CS, /RD, /WR and /RST: while the AVR is in reset (the Uno resets when
 the port opens) its pins float, and the pull-ups keep the chip deselected and out of reset.
