@@ -14,7 +14,7 @@ Like the chip model, it knows nothing of the driver.
 
 A bus may have more /CS lines than chips (``lines``: a four-select bridge with two chips on
 it): a strobe on an unwired select reaches nothing, a read finds the data bus floating and
-reads FF (busy set, so a host's busy check times out there, as on a bench).
+reads FF [model choice 32].
 """
 
 from __future__ import annotations
