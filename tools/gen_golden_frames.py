@@ -55,6 +55,11 @@ def frames() -> list[tuple[str, bytes]]:
             RunReply(Result.BUSY_TIMEOUT, 3, 0x81, 0, (0xC4,), (0x1234,)).encode())),
         ("run_max_frame", frame_body(FrameType.RUN, 0xFE, run_payload(biggest.ops, 65535))),
         ("error_reply", frame_body(FrameType.ERROR_REPLY, 0x33, bytes((Result.BAD_REQUEST,)))),
+        # a synchronized start on chips 1 and 2: the RUN starts on chip 1 (cs), SELECT 2
+        ("run_sync_start", frame_body(FrameType.RUN, 0x11, run_payload(
+            Program().command(Cmd.STT).select(2).command(Cmd.STT).ops, 5000, cs=1))),
+        ("run_reply_sync_start", frame_body(
+            FrameType.RUN_REPLY, 0x11, RunReply(Result.OK, 0xFF, 0xC4, 1, (), ()).encode())),
     ]
 
 

@@ -164,6 +164,15 @@ static void test_golden_requests(void)
     n = feed(mx->enc, mx->nenc, out);
     CHECK(n > 0 && reply_payload(out, n, 0x82, 0xFE, &p) == 5 && p[0] == 0, "max frame run");
     CHECK(fake.log_len == 81 * 4, "max frame wrote %d log entries", fake.log_len / 2);
+    /* a synchronized start on chips 1 and 2: cs 1, STT, SELECT 2, STT */
+    fake_reset();
+    fake.status = 0xC4;
+    fake.hi = 1; /* chip 2's HI: its trajectory-complete flag, enabled after reset */
+    expect_reply("run_sync_start", "run_reply_sync_start");
+    static const uint8_t stts[] = {'C', 0x01, 'C', 0x01};
+    CHECK(fake.log_len == sizeof stts && !memcmp(fake.log, stts, sizeof stts)
+          && fake.n_selects == 3 && fake.selects[0] == 1 && fake.selects[1] == 2
+          && fake.selects[2] == 0, "sync start reached the bus differently");
     /* unknown request type -> ERROR_REPLY BAD_REQUEST */
     n = feed(wire, frame(0x04, 0x33, NULL, 0, wire), out);
     vec_t *er = get("error_reply");
