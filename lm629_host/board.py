@@ -24,7 +24,7 @@ quantisation of each ramp.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from .errors import AxisError, CommandError, MotionError, ResetError
@@ -42,9 +42,8 @@ from .opcodes import (
     VELOCITY_MAX,
     Cmd,
     Status,
-    TrajectoryFlags,
 )
-from .program import DEFAULT_BUSY_TIMEOUT_S, Program
+from .program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
 from .transports import DEFAULT_URL, open_transport, query_params, scheme_of, split_params
 from .transports.base import Clock, Transport
 
@@ -544,17 +543,12 @@ class _BoardProgram(Program):
     def extend(self, other: Program) -> _BoardProgram:
         # an axis's own program starts with its select (axis > 0): keep track of it
         for o in other.ops:
-            if o.op.name == "SELECT":
+            if o.op is Op.SELECT:
                 if o.arg == self._chip:
                     continue
                 self._chip = o.arg
             self.ops.append(o)
         return self
-
-
-def _s32(hi: int, lo: int) -> int:
-    v = (hi << 16) | lo
-    return v - (1 << 32) if v & 0x80000000 else v
 
 
 def open_board(url: str = DEFAULT_URL, *, axes: int | None = None, chip: str | None = None,

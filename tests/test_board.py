@@ -392,3 +392,20 @@ def test_the_trace_names_the_chip_of_every_cycle(url):
     assert ("command", 0x02) in data[2:]  # x's: a program starts on chip 0
     i = data.index(("command", 0x01))  # the synchronized start: STT, select 1, STT
     assert data[i:i + 3] == [("command", 0x01), ("select", 1), ("command", 0x01)]
+
+
+def test_a_refused_stt_names_its_axis():
+    """The chip refuses an acceleration change while it moves with the drive on (model choice
+    13): board.start() reads every axis's status after its STT in the same program and names
+    the axis that refused; the other axis's STT was taken."""
+    with open2("sim://") as board:
+        board.reset()
+        tune(board)
+        x, y = board.axes
+        y.load_trajectory(acceleration=100, velocity=65536, position=100000)
+        y.start()
+        x.load_trajectory(acceleration=1000, velocity=65536, position=500)
+        y.load_trajectory(acceleration=200)  # a new acceleration while y moves
+        with pytest.raises(lm629_host.CommandError, match="STT on axis 1"):
+            board.start()
+        assert chips(board)[0].motion.traj.target == 500
