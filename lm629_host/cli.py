@@ -924,12 +924,7 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
     scale = s.scale
     from . import cli_axes
     if cli_axes.several(s):
-        if csv_path:
-            raise click.UsageError("--csv logs one axis: give --axis N")
-        try:
-            return cli_axes.watch_rows(s, count, rate, _flags)
-        except KeyboardInterrupt:
-            raise
+        return cli_axes.watch_rows(s, count, rate, _flags, csv_path)
     chip = s.open()
     f = open(csv_path, "w", newline="") if csv_path else None  # noqa: SIM115
     writer = csvmod.writer(f) if f else None

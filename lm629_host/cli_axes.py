@@ -120,21 +120,41 @@ def status(s: Session, as_json: bool, snapshot_dict: Any) -> None:
                    f"{snap.desired_velocity / 65536:.5f}/{snap.real_velocity}")
 
 
-def watch_rows(s: Session, count: int | None, rate: float, flags: Any) -> None:
+def watch_rows(s: Session, count: int | None, rate: float, flags: Any,
+               csv_path: str | None = None) -> None:
+    """One row per axis at each tick, every axis read in one program; ``csv_path``: the same
+    rows, with their axis, in a CSV file."""
+    import csv
+
     b = board(s)
     axes = list(axes_of(s))
+    f = open(csv_path, "w", newline="") if csv_path else None  # noqa: SIM115
+    writer = csv.writer(f) if f else None
+    if writer:
+        writer.writerow(("t_s", "axis", "desired_position", "real_position", "following_error",
+                         "desired_velocity", "real_velocity", "status", "flags"))
     click.echo(f"{'t_s':>9} {'axis':>4} {'desired':>10} {'actual':>10} {'error':>7} "
                f"{'rv':>6} {'st':>3} flags")
     n = 0
     start = b.clock.now()
-    while count is None or n < count:
-        for k, snap in zip(axes, b.snapshots(axes)):  # every axis read in one program
-            click.echo(f"{snap.time:9.4f} {k:>4} {snap.desired_position:>10} "
-                       f"{snap.real_position:>10} {snap.following_error:>+7} "
-                       f"{snap.real_velocity:>+6} {int(snap.status):02X} {flags(snap.status)}")
-        n += 1
-        if count is None or n < count:
-            b.clock.sleep(max(0.0, start + n / rate - b.clock.now()))
+    try:
+        while count is None or n < count:
+            for k, snap in zip(axes, b.snapshots(axes)):
+                click.echo(f"{snap.time:9.4f} {k:>4} {snap.desired_position:>10} "
+                           f"{snap.real_position:>10} {snap.following_error:>+7} "
+                           f"{snap.real_velocity:>+6} {int(snap.status):02X} "
+                           f"{flags(snap.status)}")
+                if writer:
+                    writer.writerow((f"{snap.time:.4f}", k, snap.desired_position,
+                                     snap.real_position, snap.following_error,
+                                     f"{snap.desired_velocity / 65536:.4f}", snap.real_velocity,
+                                     f"{int(snap.status):02X}", flags(snap.status)))
+            n += 1
+            if count is None or n < count:
+                b.clock.sleep(max(0.0, start + n / rate - b.clock.now()))
+    finally:
+        if f:
+            f.close()
 
 
 def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, linear: bool,

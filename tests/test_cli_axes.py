@@ -39,6 +39,17 @@ def test_move_one_target_per_axis_in_a_straight_line(run):
     assert "axis 0: v 1710" in line and "axis 1: v 969" in line
 
 
+def test_watch_every_axis_with_a_csv(run, tmp_path):
+    out = tmp_path / "w.csv"
+    r = run("--axis", "0,1", "watch", "--count", "3", "--rate", "100", "--csv", str(out))
+    assert r.exit_code == 0, r.output
+    rows = out.read_text().splitlines()
+    assert rows[0].startswith("t_s,axis,") and len(rows) == 1 + 3 * 2
+    assert [row.split(",")[1] for row in rows[1:]] == ["0", "1"] * 3
+    # the two axes of a tick are read in one program: the same time stamp
+    assert rows[1].split(",")[0] == rows[2].split(",")[0]
+
+
 def test_one_axis_of_a_board(run):
     r = run("--axis", "1", "move", "500")
     assert r.exit_code == 0, r.output
