@@ -93,7 +93,7 @@ static void rx_restart(link_t *l)
     l->code_left = 0;
     l->started = 0;
     l->crc = LINK_CRC_INIT;
-    l->chk_args = l->chk_ops = l->chk_reads = l->chk_status = l->chk_bad = 0;
+    l->chk_args = l->chk_ops = l->chk_reads = l->chk_status = l->chk_bad = l->chk_select = 0;
 }
 
 void link_init(link_t *l)
@@ -131,10 +131,15 @@ static inline __attribute__((always_inline)) check_t check_program(const uint8_t
             c.index = nops;
             return c;
         }
-        if (op == OP_READ)
+        if (op == OP_READ) {
             c.reads++;
-        else if (op == OP_STATUS || op == OP_SYNC || op == OP_WAIT_STATUS)
+        } else if (op == OP_STATUS || op == OP_SYNC || op == OP_WAIT_STATUS) {
             c.n_status++;
+        } else if (op == OP_SELECT && p[1] >= LINK_CHIP_SELECTS) {
+            c.result = RESULT_BAD_CHIP_SELECT;
+            c.index = nops;
+            return c;
+        }
         a++;
         p += a;
         left -= a;
@@ -147,17 +152,20 @@ static inline __attribute__((always_inline)) check_t check_program(const uint8_t
 /* How a program ended: result, failing operation (LINK_NONE_BYTE when OK), last status byte
  * seen (LINK_NONE_BYTE before any), statuses and words reported. */
 typedef struct {
-    uint8_t result, index, last, ns, nw;
+    uint8_t result, index, last, ns, nw, hi;
 } ran_t;
 
 /* Run a checked program.  `order`: the bytes it reads go to `st` in program order (the
  * compact RUN_SHORT_REPLY), each summed into *crc as soon as it is read, while the chip is
  * busy anyway; otherwise status bytes go to `st` and word bytes to `wd` (RUN_REPLY). */
 static inline __attribute__((always_inline)) ran_t exec_program(const uint8_t *prog,
-    const uint8_t *end, uint16_t timeout_us, uint8_t *st, uint8_t *wd, const uint8_t order,
-    uint16_t *crc)
+    const uint8_t *end, uint8_t cs, uint16_t timeout_us, uint8_t *st, uint8_t *wd,
+    const uint8_t order, uint16_t *crc)
 {
-    ran_t r = {RESULT_OK, LINK_NONE_BYTE, LINK_NONE_BYTE, 0, 0};
+    uint8_t chip = cs; /* the chip selected now: chip 0 between programs */
+    if (chip)
+        bus_select(chip);
+    ran_t r = {RESULT_OK, LINK_NONE_BYTE, LINK_NONE_BYTE, 0, 0, 0};
     uint8_t last = LINK_NONE_BYTE, nops = 0;
     /* order: *crc holds the reply's seq; the CRC of type and seq is made after the first
      * transfer, while the chip is busy with it, or before the first byte read */
@@ -212,6 +220,9 @@ static inline __attribute__((always_inline)) ran_t exec_program(const uint8_t *p
             r.ns++;
         } else if (op == OP_RESET) {
             bus_reset_pulse();
+        } else if (op == OP_SELECT) {
+            chip = *p++;
+            bus_select(chip);
         } else if (op == OP_WAIT_STATUS) {
             /* a status read every WAIT_STATUS_POLL_US until a bit of the mask is set or `ms`
              * milliseconds have passed (each period is a little longer than its nominal time,
@@ -239,6 +250,9 @@ static inline __attribute__((always_inline)) ran_t exec_program(const uint8_t *p
     HEAD_CRC();
 #undef HEAD_CRC
     r.last = last;
+    r.hi = bus_hi(); /* the HI line of the chip selected last */
+    if (chip)
+        bus_select(0); /* every /CS released between programs */
     if (order)
         *crc = c;
     return r;
@@ -261,7 +275,7 @@ static uint16_t run_reply(uint8_t *reply, ran_t r)
     reply[0] = r.result;
     reply[1] = r.index;
     reply[2] = r.last;
-    reply[3] = bus_hi();
+    reply[3] = r.hi;
     reply[4] = r.ns;
     return (uint16_t)(5u + r.ns + r.nw);
 }
@@ -269,11 +283,11 @@ static uint16_t run_reply(uint8_t *reply, ran_t r)
 /* Run a checked program for RUN_REPLY: statuses right after the header, words after all the
  * statuses; on a failure the unused status slots close up, so the words follow the statuses
  * read. */
-static uint16_t run_long(const uint8_t *prog, const uint8_t *end, uint16_t timeout_us,
-                         check_t c, uint8_t *reply)
+static uint16_t run_long(const uint8_t *prog, const uint8_t *end, uint8_t cs,
+                         uint16_t timeout_us, check_t c, uint8_t *reply)
 {
     uint8_t *st = reply + 5, *wd = reply + 5 + c.n_status;
-    ran_t r = exec_program(prog, end, timeout_us, st, wd, 0, 0);
+    ran_t r = exec_program(prog, end, cs, timeout_us, st, wd, 0, 0);
     if (r.ns != c.n_status)
         for (uint8_t k = 0; k < r.nw; k++)
             st[r.ns + k] = wd[k];
@@ -295,7 +309,7 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
     check_t c = check_program(prog, (uint8_t)plen);
     if (c.result != RESULT_OK)
         return run_header(reply, c.result, c.index, LINK_NONE_BYTE, 0);
-    return run_long(prog, prog + plen, timeout_us, c, reply);
+    return run_long(prog, prog + plen, cs, timeout_us, c, reply);
 }
 
 /* A compact RUN that timed out part-way is answered as a RUN_REPLY: the bytes read, in
@@ -344,10 +358,10 @@ static inline __attribute__((always_inline)) uint16_t run_short(check_t c, const
     frame[0] = FRAME_RUN_SHORT_REPLY;
     uint16_t crc = frame[1];
     uint8_t *out = frame + 2;
-    ran_t r = exec_program(prog, end, LINK_DEFAULT_BUSY_TIMEOUT_US, out, 0, 1, &crc);
+    ran_t r = exec_program(prog, end, 0, LINK_DEFAULT_BUSY_TIMEOUT_US, out, 0, 1, &crc);
     uint8_t n = (uint8_t)(r.ns + r.nw);
     if (r.result == RESULT_OK) {
-        uint8_t hdr = (uint8_t)((r.last & (uint8_t)~STATUS_BUSY) | bus_hi());
+        uint8_t hdr = (uint8_t)((r.last & (uint8_t)~STATUS_BUSY) | r.hi);
         out[n] = hdr;
         crc = crc_step(crc, hdr) ^ LINK_CRC_XOROUT;
         out[n + 1] = (uint8_t)(crc >> 8);
@@ -366,7 +380,9 @@ static check_t arrived_check(const link_t *l, uint16_t plen)
     if (plen > LINK_MAX_PROGRAM) {
         c.result = RESULT_PROGRAM_TOO_LONG;
     } else if (l->chk_bad || l->chk_args) {
-        c.result = RESULT_BAD_PROGRAM;
+        /* chk_bad: 1 + the index of the first bad op code or SELECT of a chip the bridge
+         * lacks (then chk_select's bit 7) */
+        c.result = l->chk_select & 0x80 ? RESULT_BAD_CHIP_SELECT : RESULT_BAD_PROGRAM;
         c.index = l->chk_bad ? (uint8_t)(l->chk_bad - 1) : (uint8_t)(l->chk_ops - 1);
     } else if (c.reads > LINK_MAX_READS
                || LINK_RUN_REPLY_OVERHEAD + c.n_status + 2u * c.reads > LINK_MAX_FRAME) {
@@ -489,7 +505,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_MINOR;
         r[len++] = FIRMWARE_PATCH;
         r[len++] = 0;
-        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS
+        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS | CAP_SELECT
             | CAP_COMPACT_RUN | CAP_PROGRAM_CODES | CAP_BAUD_SWITCH;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
         r[len++] = (uint8_t)LINK_MAX_PROGRAM;
@@ -597,7 +613,12 @@ static inline __attribute__((always_inline)) void put(link_t *l, uint8_t b)
             /* c is a program byte: check it now */
             if (l->chk_args) {
                 l->chk_args--;
+                if ((l->chk_select & 1) && c >= LINK_CHIP_SELECTS && !l->chk_bad) {
+                    l->chk_bad = l->chk_ops; /* 1 + the SELECT's index: a chip it lacks */
+                    l->chk_select |= 0x80;
+                }
             } else {
+                l->chk_select = (uint8_t)((l->chk_select & 0x80) | (c == OP_SELECT));
                 uint8_t a = c <= OP_MAX ? op_args[c] : 0xFF;
                 if (a == 0xFF) {
                     if (!l->chk_bad)

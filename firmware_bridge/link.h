@@ -7,9 +7,14 @@
 #include "lm629_tables.h"
 
 #define FIRMWARE_MAJOR 1
-#define FIRMWARE_MINOR 1
+#define FIRMWARE_MINOR 2 /* 1.1: several chips (Op.SELECT, four chip selects); 1.2: the compact RUN,
+                          * programs kept by code, SET_BAUD */
 #define FIRMWARE_PATCH 0
+#ifdef LINK_ONE_CHIP /* build/lm629_bridge_1chip: a bridge that reports one chip select */
 #define LINK_CHIP_SELECTS 1
+#else
+#define LINK_CHIP_SELECTS CHIP_SELECTS /* lm629_tables.h, from bridge_pins.CHIP_SELECTS */
+#endif
 #define LINK_MAX_PROGRAM (LINK_MAX_FRAME - LINK_RUN_OVERHEAD)
 #define LINK_MAX_READS ((LINK_MAX_FRAME - LINK_RUN_REPLY_OVERHEAD) / 2)
 #ifndef LINK_CPU_HZ
@@ -37,7 +42,7 @@ typedef struct {
     /* a RUN_SHORT's program, checked as its bytes arrive (two behind, as the CRC): the
      * argument bytes still due of the current operation, operations, reads and statuses so
      * far, and 1 + the index of the first bad operation (0: none) */
-    uint8_t chk_args, chk_ops, chk_reads, chk_status, chk_bad;
+    uint8_t chk_args, chk_ops, chk_reads, chk_status, chk_bad, chk_select;
     /* programs kept for RUN_CODE: size (0: none), reads and statuses (checked when stored) */
     uint8_t code_len[LINK_CODE_SLOTS], code_reads[LINK_CODE_SLOTS], code_status[LINK_CODE_SLOTS];
     uint8_t codes[LINK_CODE_SLOTS][LINK_CODE_BYTES];

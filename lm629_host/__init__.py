@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 from .errors import (
+    AxisError,
     BusyTimeout,
     CommandError,
     LM629Error,
@@ -23,9 +24,11 @@ from .lm629 import LM629, Snapshot
 from .move import Move, MoveResult, MoveRules
 from .opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
 from .program import DEFAULT_BUSY_TIMEOUT_S, BusCycle, Program, ProgramResult
-from .transports import DEFAULT_URL, open_transport, query_params, scheme_of
+from .transports import DEFAULT_URL, open_transport, query_params, scheme_of, split_params
 
 __version__ = "0.1.0"
+
+from .board import Board, BoardMove, open_board  # noqa: E402  (board needs open's pieces)
 
 
 def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa: A001
@@ -34,20 +37,29 @@ def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa
 
     ``chip`` is "lm628" or "lm629"; on a simulator URL it defaults to the URL's ``chip=``.
     ``trace`` is called with a :class:`BusCycle` for every bus cycle.  ``busy_timeout`` (s)
-    bounds every busy check (0.2 to 65.5 ms; default 5 ms).
+    bounds every busy check (0.2 to 65.5 ms; default 5 ms).  On a multi-axis board ``?cs=k``
+    opens the chip on chip select ``k`` (default 0); :func:`open_board` opens them all.
     """
     if chip is None:
         chip = query_params(url).get("chip", "lm629") if scheme_of(url).startswith("sim") else "lm629"
+    url, taken = split_params(url, {"cs"})
+    axis = None
+    if "cs" in taken:
+        try:
+            axis = int(taken["cs"])
+        except ValueError:
+            raise ValueError(f"cs={taken['cs']!r} is not a chip select number (0, 1, ...)") from None
     transport = open_transport(url, trace=trace)
     try:
-        return LM629(transport, chip=chip, busy_timeout=busy_timeout)
+        return LM629(transport, chip=chip, busy_timeout=busy_timeout, axis=axis)
     except Exception:
         transport.close()
         raise
 
 
 __all__ = [
-    "LM629", "Snapshot", "Move", "MoveResult", "MoveRules", "open", "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",
+    "LM629", "Snapshot", "Move", "MoveResult", "MoveRules", "open", "open_board", "Board",
+    "BoardMove", "AxisError", "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",
     "BusCycle", "Program", "ProgramResult", "LM629Error", "BusyTimeout", "ResetError",
     "TransportError", "CommandError", "WaitTimeout", "MotionError", "ProtocolViolation",
     "__version__",

@@ -14,6 +14,10 @@ here sleeps on the wall clock.
 The model's time follows the AVR's: before each strobe it is advanced to
 ``avr_cycle * clock_hz // 16 MHz``.  The HI line the firmware reads is the model's HI as of the
 last bus cycle (the firmware reads HI right after its program's last strobe).
+
+Several chips: ``model`` may be a :class:`~lm629_host.model.ChipBus`; the harness names the
+chip whose /CS was low with each cycle (the firmware's chip-select pins, from the pin map) and
+the bus routes the strobe to it; /RST reaches all of them; every chip's HI goes back to its pin.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from pathlib import Path
 
 from .errors import ProtocolViolation, TransportError
 from .link import CODE_BYTES, CODE_SLOTS
-from .model import ChipModel
+from .model import ChipBus, ChipModel
 from .transports.base import Clock
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -170,6 +174,13 @@ class AvrSim:
             tick = cycle * m.clock_hz // CPU_HZ
             if tick > m.tick:
                 m.advance_to(tick)
+            chip, kind = kind >> 4, kind & 0x0F
+            if isinstance(m, ChipBus):
+                if kind != RESET:
+                    m.select(chip)
+            elif chip:
+                raise ProtocolViolation(f"the firmware strobed chip select {chip}; this "
+                                        "simulation wires one chip (sim+avr://?axes=N)")
             if kind == STATUS:
                 r = m.read_status()
             elif kind == READ:
@@ -188,6 +199,12 @@ class AvrSim:
                                             "needs at least 8")
                 m.reset_pulse()
                 r = 0
+            if isinstance(m, ChipBus):
+                his = 0
+                for k, c in enumerate(m.chips):
+                    if c.hi:
+                        his |= 0x100 << k
+                return (r & 0xFF) | his
             return (r & 0xFF) | (0x100 if m.hi else 0)
         except BaseException as exc:  # ctypes would swallow it: keep it, stop the run
             self._error = exc

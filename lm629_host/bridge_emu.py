@@ -43,7 +43,8 @@ from .link import (
     encode_frame,
     short_reply_payload,
 )
-from .model import ChipModel
+from . import bridge_pins
+from .model import ChipBus, ChipModel, chips_of
 from .opcodes import Status
 from .program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
 from .transports.sim import SimClock
@@ -72,18 +73,48 @@ class EmuStats:
     bus_cycles: int = 0  #: strobes and /RST pulses
 
 
+#: what this emulator is by default: the multi-axis firmware's chip selects, SELECT runs
+MULTI_AXIS_INFO = HelloInfo(
+    firmware=EMU_FIRMWARE, chip_selects=len(bridge_pins.CHIP_SELECTS),
+    capabilities=int(Capability.RESET_LINE | Capability.HI_LINE | Capability.BUSY_ON_BRIDGE
+                     | Capability.WAIT_STATUS | Capability.SELECT | Capability.COMPACT_RUN
+                     | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH))
+#: a bridge of before issue 11 (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
+#: WAIT_STATUS: firmware 1.0's capabilities)
+ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
+
+
+class _NoChip:
+    """An unwired chip select: writes reach nothing, reads find the bus floating (FF)."""
+
+    hi = False
+
+    def read_status(self) -> int:
+        return 0xFF
+
+    read_data = read_status
+
+    def write_command(self, byte: int) -> None:
+        pass
+
+    write_data = write_command
+
+
+_NO_CHIP = _NoChip()
+
+
 @dataclass
 class BridgeEmulator:
-    """The far end of the link: frames in, frames out, programs run on ``model``."""
+    """The far end of the link: frames in, frames out, programs run on ``model`` (one chip,
+    or a :class:`~lm629_host.model.ChipBus` whose chips sit on chip selects 0, 1, ...)."""
 
-    model: ChipModel
-    info: HelloInfo = field(default_factory=lambda: HelloInfo(
-        firmware=EMU_FIRMWARE,
-        capabilities=int(HelloInfo.capabilities | Capability.WAIT_STATUS | Capability.COMPACT_RUN
-                         | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH)))
+    model: ChipModel | ChipBus
+    info: HelloInfo = field(default_factory=lambda: MULTI_AXIS_INFO)
     stats: EmuStats = field(default_factory=EmuStats)
 
     def __post_init__(self) -> None:
+        self._chips = chips_of(self.model)
+        self._cs = 0
         self._reader = FrameReader()
         self._cache: tuple[int, int, bytes] | None = None  # seq, crc, encoded reply
         self._codes: dict[int, bytes] = {}  # programs kept for RUN_CODE
@@ -171,7 +202,8 @@ class BridgeEmulator:
                     if code < CODE_SLOTS:
                         self._codes.pop(code, None)
                         try:  # a program that checks out is kept, whatever its run does
-                            if len(program) <= CODE_BYTES and self._check(program) == Result.OK:
+                            if len(program) <= CODE_BYTES and \
+                                    self._check(decode_program(program)) is None:
                                 self._codes[code] = program
                         except BadProgram:
                             pass
@@ -215,26 +247,37 @@ class BridgeEmulator:
             ops = decode_program(body)
         except BadProgram as exc:
             return RunReply(Result.BAD_PROGRAM, exc.index)
-        if self._check(body) != Result.OK:
-            return RunReply(Result.PROGRAM_TOO_LONG)
+        refused = self._check(ops)
+        if refused is not None:
+            return refused
+        self._cs = cs
         self.stats.runs += 1
         return self.run_ops(ops, timeout_us * 1e-6)
 
-    def _check(self, body: bytes) -> Result:
-        """The limits of a program that decodes (BadProgram otherwise)."""
-        ops = decode_program(body)
+    def _check(self, ops: list[BusOp]) -> RunReply | None:
+        """Why the bridge refuses decoded ``ops`` (a SELECT it cannot make, limits), or None."""
+        for i, o in enumerate(ops):
+            if o.op is Op.SELECT:
+                if not self.info.capabilities & Capability.SELECT:
+                    return RunReply(Result.BAD_PROGRAM, i)  # an older bridge knows no SELECT
+                if o.arg >= self.info.chip_selects:
+                    return RunReply(Result.BAD_CHIP_SELECT, i)
         reads = sum(1 for o in ops if o.op is Op.READ)
         n_status = sum(1 for o in ops if o.op in STATUS_OPS)
         if reads > self.info.max_reads or n_status > 255 \
                 or RUN_REPLY_OVERHEAD + n_status + 2 * reads > MAX_FRAME:
-            return Result.PROGRAM_TOO_LONG
-        return Result.OK
+            return RunReply(Result.PROGRAM_TOO_LONG)
+        return None
 
     def _strobe(self) -> ChipModel:
         m = self.model
         m.advance_to(m.tick + self._cycle_ticks)
         self.stats.bus_cycles += 1
-        return m
+        return self._chip()
+
+    def _chip(self) -> ChipModel:
+        k = self._cs
+        return self._chips[k] if k < len(self._chips) else _NO_CHIP  # type: ignore[return-value]
 
     def _wait_not_busy(self, timeout_s: float) -> tuple[bool, int]:
         m = self.model
@@ -276,7 +319,7 @@ class BridgeEmulator:
             if op is Op.COMMAND or op is Op.WRITE or op is Op.READ or op is Op.SYNC:
                 ok, last = self._wait_not_busy(timeout_s)
                 if not ok:
-                    return RunReply(Result.BUSY_TIMEOUT, index, last, int(m.hi),
+                    return RunReply(Result.BUSY_TIMEOUT, index, last, int(self._chip().hi),
                                     tuple(statuses), tuple(words))
                 if op is Op.COMMAND:
                     self._strobe().write_command(o.arg)
@@ -297,10 +340,13 @@ class BridgeEmulator:
                 self.stats.bus_cycles += 1
             elif op is Op.WAIT:
                 m.advance(o.arg * 1e-6)
+            elif op is Op.SELECT:
+                self._cs = o.arg
             elif op is Op.WAIT_STATUS:
                 last = self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3)
                 statuses.append(last)
-        return RunReply(Result.OK, 0xFF, last, int(m.hi), tuple(statuses), tuple(words))
+        return RunReply(Result.OK, 0xFF, last, int(self._chip().hi), tuple(statuses),
+                        tuple(words))
 
 
 #: the far end runs on the chip model's simulated clock (the one ``sim://`` uses)
@@ -457,7 +503,7 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     ``transport.emulator``.
     """
     from .transports import query_params
-    from .transports.sim import build_model
+    from .transports.sim import build_bus
 
     if baud is None:
         raw = query_params(url).get("baud", "115200")
@@ -476,13 +522,20 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
             raise ValueError(f"{url}: {name}={q[name]!r} is not a number") from None
 
     fast, max_baud = num("fast_baud"), num("max_baud")
-    model = build_model(url, allowed=frozenset({"baud", "fast_baud", "max_baud"}))
-    emu = BridgeEmulator(model)
+    bridge = q.get("bridge", "")
+    if bridge not in ("", "1", str(len(bridge_pins.CHIP_SELECTS))):
+        raise ValueError(f"{url}: bridge={bridge!r}: 1 (a one-chip bridge of before issue 11) "
+                         f"or {len(bridge_pins.CHIP_SELECTS)} (the multi-axis firmware)")
+    info = ONE_CHIP_INFO if bridge == "1" else MULTI_AXIS_INFO
+    model = build_bus(url, allowed=frozenset({"baud", "bridge", "fast_baud", "max_baud"}),
+                      limit=info.chip_selects)
+    emu = BridgeEmulator(model, info)
     pipe = EmuPipe(emu, baud=baud or None, max_baud=max_baud or None)
     outer = wrap(pipe) if wrap is not None else pipe
     t = EmuLinkTransport.__new__(EmuLinkTransport)
     t.margin_s = margin_s
     t.model = model  # type: ignore[attr-defined]
+    t.models = chips_of(model)  # type: ignore[attr-defined]
     t.emulator = emu  # type: ignore[attr-defined]
     LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
     if fast and fast != baud:

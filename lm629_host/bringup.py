@@ -141,7 +141,7 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
         done(StepResult("reset", False, f"status bytes seen: {_hex(exc.statuses)}",
                         [str(exc)], {"statuses": list(exc.statuses)}))
         return out
-    expected = "00, 84/C4, 80/C0" if chip.transport.has_reset_line else "84/C4, 80/C0"
+    expected = "00, 84/C4, 80/C0" if chip.uses_reset_line else "84/C4, 80/C0"
     done(StepResult("reset", True, f"status bytes seen: {_hex(seen)} (expected {expected})",
                     data={"statuses": seen, "status": int(status)}))
 

@@ -147,6 +147,9 @@ class Session:
     trace: bool
     stats: bool
     _chip: LM629 | None = None
+    axis_spec: tuple[int, ...] | str | None = None  #: --axis (see cli_axes)
+    _board: Any = None
+    _prepare: bool = True
     _old_handlers: dict[int, Any] | None = None
     _bus_depth: int = 0
     _pending: int | None = None
@@ -221,6 +224,10 @@ class Session:
 
     def open(self, *, prepare: bool = True) -> LM629:
         """The chip.  On an in-process simulator: reset it and load kp = 20 (``prepare``)."""
+        if self._chip is None and (self.axis_spec is not None or "axes=" in self.port):
+            from . import cli_axes
+            self._chip = cli_axes.open_axis(self, prepare)
+            return self._chip
         if self._chip is None:
             if not self.port_given:
                 click.echo("lm629: no --port or LM629_PORT: using the simulator sim:// (a fresh "
@@ -240,6 +247,11 @@ class Session:
         return self._chip
 
     def close(self) -> None:
+        if self._board is not None:
+            if self.stats:
+                click.echo(f"stats: {self._board.transport.stats}", err=True)
+            self._board.close()
+            self._board = self._chip = None
         if self._chip is not None:
             if self.stats:
                 click.echo(f"stats: {self._chip.transport.stats}", err=True)
@@ -318,10 +330,14 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
 @click.option("-v", "--verbose", count=True, help="-v: info, -vv: debug with the bus hex trace.")
 @click.option("--trace", is_flag=True, help="Print every bus cycle on stderr.")
 @click.option("--stats", is_flag=True, help="Print the transport's counters at exit.")
+@click.option("--axis", "axis_text", default=None, metavar="N|N,M|all",
+              help="Which chip on a multi-axis board (its chip select; default 0, or every "
+                   "chip of the URL's axes=); a list or 'all' for status, watch, move with one "
+                   "target per axis, bringup.")
 @click.version_option(lm629_host.__version__, prog_name="lm629")
 @click.pass_context
 def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines: int | None,
-         verbose: int, trace: bool, stats: bool) -> None:
+         verbose: int, trace: bool, stats: bool, axis_text: str | None) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
     try:
         clock_hz = _check_clock(_hz(clock), "--clock")
@@ -360,6 +376,9 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
     _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
     session = Session(url, port is not None, chip_name, clock_hz,
                       lines, verbose, trace, stats)
+    if axis_text is not None:
+        from .cli_axes import parse_axes
+        session.axis_spec = parse_axes(axis_text)
     ctx.obj = session
     ctx.call_on_close(session.close)
     session.install_signals()
@@ -503,7 +522,20 @@ def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
     check_int("--move", move_distance, -100_000, 100_000)
     check_int("--hold-kp", hold_kp, 1, 0x7FFF)
     options = BringupOptions(hold_kp=hold_kp, move_distance=move_distance)
+    from . import cli_axes
+    if cli_axes.several(s):  # one axis after the other; the exit code is the worst
+        codes = []
+        for k in cli_axes.axes_of(s):
+            s._prepare = False
+            chip = cli_axes.board(s).axis(k)
+            click.echo(f"bring-up of axis {k}")
+            codes.append(_bringup_one(s, chip, options, yes))
+        click.get_current_context().exit(max(codes))
     chip = s.open(prepare=False)
+    click.get_current_context().exit(_bringup_one(s, chip, options, yes))
+
+
+def _bringup_one(s: Session, chip: LM629, options: BringupOptions, yes: bool) -> int:
     click.echo(f"bring-up of {chip.variant.upper()} on {chip.transport.describe()}")
 
     def report(step: StepResult) -> None:
@@ -519,7 +551,7 @@ def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
                          announce=lambda text: log.info("step: %s", text))
     click.echo("verdict: " + ("PASS, every step" if result.passed else "FAIL" if any(
         st.ok is False for st in result.steps) else "INCOMPLETE"))
-    click.get_current_context().exit(result.exit_code)
+    return result.exit_code
 
 
 @main.command()
@@ -527,6 +559,9 @@ def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
 def status(as_json: bool) -> None:
     """Status byte and signals register decoded, positions, velocities, integration sum."""
     s = _session()
+    from . import cli_axes
+    if cli_axes.several(s):
+        return cli_axes.status(s, as_json, snapshot_dict)
     snap = s.open().snapshot()
     d = snapshot_dict(snap, s.scale)
     if as_json:
@@ -645,7 +680,9 @@ def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
 
 
 @main.command(context_settings=SIGNED_ARGS)
-@click.argument("target", type=FINITE)
+@click.argument("targets", type=FINITE, nargs=-1, required=True, metavar="TARGET...")
+@click.option("--linear", is_flag=True, help="With one target per --axis: a straight line, "
+                                             "the words scaled by each axis's share.")
 @click.option("--relative", "-r", is_flag=True, help="TARGET is a distance from where it is.")
 @click.option("--vel", type=FINITE, help="Velocity: rpm with --lines (default 60), else raw "
                                           "16.16 counts/sample (default 65536).")
@@ -658,16 +695,26 @@ def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
 @click.option("--no-wait", is_flag=True, help="Start the move and return (it keeps running).")
 @click.option("--timeout", type=FINITE, default=None,
               help="Seconds to wait (default: 1.5 x the profile + 2 s).")
-def move(target: float, relative: bool, vel: float | None, acc: float | None, raw: bool,
-         tolerance: float | None, no_wait: bool, timeout: float | None) -> None:
+def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | None,
+         acc: float | None, raw: bool, tolerance: float | None, no_wait: bool,
+         timeout: float | None) -> None:
     """Move to TARGET (counts; revolutions with --lines; negative as typed: move -5000) and
     wait until the shaft rests on it.  A move that does not end on target is a motion fault:
     the motor is stopped and the exit code is 9."""
     s = _session()
     v, a = _motion_words(s, vel, acc, raw)
-    counts = _position(s, target, "TARGET", raw)
     tol = _tolerance(s, tolerance, raw)
     positive("--timeout", timeout)
+    from . import cli_axes
+    if len(targets) > 1 or linear or cli_axes.several(s):
+        if relative:
+            raise click.UsageError("--relative moves one axis")
+        goals = [_position(s, t, "TARGET", raw) for t in targets]
+        with stop_on_error(cli_axes.board(s).axes[0]):
+            cli_axes.move_many(s, goals, v, a, linear, tol, timeout, no_wait)
+        return
+    target = targets[0]
+    counts = _position(s, target, "TARGET", raw)
     chip = s.open()
     # every check before anything moves: the words, the goal, and whether the chip would
     # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)
@@ -875,6 +922,9 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
         check_writable(csv_path, "--csv")
     s = _session()
     scale = s.scale
+    from . import cli_axes
+    if cli_axes.several(s):
+        return cli_axes.watch_rows(s, count, rate, _flags, csv_path)
     chip = s.open()
     f = open(csv_path, "w", newline="") if csv_path else None  # noqa: SIM115
     writer = csvmod.writer(f) if f else None

@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-from .errors import BusyTimeout, TransportError
+from .errors import AxisError, BusyTimeout, TransportError
 from .opcodes import Status
 from .program import (OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program,
                       ProgramResult, TraceCallback, cycles_of)
@@ -120,13 +120,16 @@ class Capability(enum.IntFlag):
     HI_LINE = 0x02  #: the bridge reads HI
     BUSY_ON_BRIDGE = 0x04  #: busy is polled on the bridge (always, in protocol 1)
     WAIT_STATUS = 0x08  #: the bridge runs Op.WAIT_STATUS (older bridges: the host polls)
+    #: the bridge runs Op.SELECT: a program may switch chip select (a multi-axis bridge; an
+    #: older bridge gets one RUN per chip, its ``cs`` field naming the chip)
+    SELECT = 0x10
     #: the bridge takes RUN_SHORT (older bridges: every program is a RUN)
-    COMPACT_RUN = 0x10
+    COMPACT_RUN = 0x20
     #: the bridge keeps CODE_SLOTS programs of up to CODE_BYTES bytes (RUN_STORE, RUN_CODE)
-    PROGRAM_CODES = 0x20
+    PROGRAM_CODES = 0x40
     #: the bridge switches its line's rate on SET_BAUD, and goes back to the rate it had when
     #: no good frame comes at the new rate within BAUD_WINDOW_MS
-    BAUD_SWITCH = 0x40
+    BAUD_SWITCH = 0x80
 
 
 #: "index of the failing operation" and "last status byte" when there is none
@@ -810,9 +813,9 @@ class LinkTransport(Transport):
                                  "requires: reflash the firmware (lm629 bridge flash)",
                                  port=self.url)
         if self.cs >= info.chip_selects:
-            raise ValueError(f"cs={self.cs} is outside the bridge's chip selects "
-                             f"0..{info.chip_selects - 1}")
+            raise AxisError(self.cs, info.chip_selects, f"the bridge at {self.url}")
         self.info = info
+        self.chip_selects = info.chip_selects
         self.has_reset_line = bool(info.capabilities & Capability.RESET_LINE)
         self._has_hi = bool(info.capabilities & Capability.HI_LINE)
         self.has_wait_status = bool(info.capabilities & Capability.WAIT_STATUS)
@@ -902,38 +905,66 @@ class LinkTransport(Transport):
         return False
 
     # ------------------------------------------------------------------ programs
-    def _chunks(self, program: Program) -> Iterator[list[BusOp]]:
+    def _chunks(self, program: Program) -> Iterator[tuple[int, int, list[BusOp]]]:
         """Split ``program`` at operation boundaries into runs that fit the bridge's limits
-        (HELLO_REPLY's largest program and reads, and MAX_FRAME for the reply): usually one."""
+        (HELLO_REPLY's largest program and reads, and MAX_FRAME for the reply): usually one.
+        Yields (index of the run's first operation in ``program``, chip select, operations).
+
+        Chip selects: the SELECTs at the head of a run become the RUN's ``cs`` field; a SELECT
+        inside a run stays in it on a bridge that runs them (Capability.SELECT), and cuts the
+        run on an older one (one RUN per chip: correct, one round trip more each)."""
         info = self.info or HelloInfo()
         max_program = min(info.max_program, MAX_FRAME - RUN_OVERHEAD)
+        inline = bool(info.capabilities & Capability.SELECT)
         chunk: list[BusOp] = []
         size = reads = n_status = 0
-        for o in program.ops:
+        cs, first = self.cs, 0
+        for i, o in enumerate(program.ops):
+            if o.op is Op.SELECT:
+                if not chunk:
+                    cs, first = o.arg, i + 1
+                    continue
+                if not inline:
+                    yield first, cs, chunk
+                    chunk, size, reads, n_status = [], 0, 0, 0
+                    cs, first = o.arg, i + 1
+                    continue
             n = 1 + OP_ARG_BYTES[o.op]
             r = 1 if o.op is Op.READ else 0
             s = 1 if o.op in STATUS_OPS else 0
             if chunk and (size + n > max_program or reads + r > info.max_reads
                           or RUN_REPLY_OVERHEAD + n_status + s + 2 * (reads + r) > MAX_FRAME):
-                yield chunk
+                yield first, cs, chunk
+                # the next run starts on the chip the last SELECT of this one chose
+                cs = next((p.arg for p in reversed(chunk) if p.op is Op.SELECT), cs)
                 chunk, size, reads, n_status = [], 0, 0, 0
+                first = i
             chunk.append(o)
             size, reads, n_status = size + n, reads + r, n_status + s
-        yield chunk
+        if chunk or first == 0:
+            yield first, cs, chunk
 
     def execute(self, program: Program) -> ProgramResult:
         if self._closed:
             raise TransportError("the port is closed", port=self.url)
         timeout_us = busy_timeout_us(program)
+        n_cs = self.chip_selects
+        for o in program.ops:
+            if o.op is Op.SELECT and o.arg >= n_cs:
+                raise AxisError(o.arg, n_cs, f"the bridge at {self.url}")
         self._resync()
         self.stats.programs += 1
         words: list[int] = []
         statuses: list[int] = []
         status: int | None = None
         hi: bool | None = None
-        base = 0
-        for ops in self._chunks(program):
-            reply = self._run(ops, timeout_us, program.busy_timeout_s)
+        chip = self.cs
+        for base, cs, ops in self._chunks(program):
+            if cs != chip:  # a chip select carried in the RUN's cs field: traced as a select
+                chip = cs
+                self._emit_cycles([BusOp(Op.SELECT, cs)], (), ())
+            chip = next((o.arg for o in reversed(ops) if o.op is Op.SELECT), chip)
+            reply = self._run(ops, timeout_us, program.busy_timeout_s, cs)
             ok = reply.result == Result.OK
             busy = reply.result == Result.BUSY_TIMEOUT
             # operations that touched the bus: all, those before the failing one and its busy
@@ -949,13 +980,15 @@ class LinkTransport(Transport):
             hi = bool(reply.hi) if self._has_hi else None
             if not ok:
                 self._raise_result(reply, ops, base, program, words)
-            base += len(ops)
         return ProgramResult(tuple(words), tuple(statuses), status, hi)
 
-    def _run(self, ops: list[BusOp], timeout_us: int, timeout_s: float) -> RunReply:
+    def _run(self, ops: list[BusOp], timeout_us: int, timeout_s: float,
+             cs: int | None = None) -> RunReply:
+        chip = self.cs if cs is None else cs
         # the compact form where the bridge takes it and the fields it leaves out are the
-        # defaults (chip select 0, the firmware's busy timeout): 5 fewer bytes a round trip
-        short = (self.has_compact_run and self.cs == 0
+        # defaults (starting on chip select 0, the firmware's busy timeout): 5 fewer bytes a
+        # round trip
+        short = (self.has_compact_run and chip == 0
                  and timeout_us == FIRMWARE_DEFAULT_BUSY_TIMEOUT_US)
         store: tuple[bytes, int] | None = None
         if short:
@@ -963,7 +996,7 @@ class LinkTransport(Transport):
             if self.has_program_codes and len(payload) <= CODE_BYTES:
                 ftype, payload, store = self._by_code(payload)
         else:
-            ftype, payload = FrameType.RUN, run_payload(ops, timeout_us, self.cs)
+            ftype, payload = FrameType.RUN, run_payload(ops, timeout_us, chip)
         req = wire_size(len(payload) + 4)
         rep = wire_size(reply_size(ops))  # a RUN_REPLY (a failure) is the longer answer
         timeout = self.reply_timeout(req, rep, ops, timeout_s)
@@ -993,7 +1026,7 @@ class LinkTransport(Transport):
             log.info("%s: the bridge keeps no program under code %d: sending it again",
                      self.url, payload[0])
             self._forget_codes()
-            return self._run(ops, timeout_us, timeout_s)
+            return self._run(ops, timeout_us, timeout_s, cs)
         if store is not None and reply.result == Result.OK:
             self._codes[store[0]] = store[1]
         # a refused program (BAD_PROGRAM...) is raised by the caller, whatever it carries

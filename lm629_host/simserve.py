@@ -31,7 +31,7 @@ from .bridge_emu import BridgeEmulator
 from .link import MAX_WIRE_FRAME, BadProgram, Frame, FrameReader, FrameType, decode_program
 from .model import ChipModel
 from .program import Op
-from .transports.sim import build_model
+from .transports.sim import build_bus
 
 log = logging.getLogger("lm629_host.simserve")
 
@@ -63,7 +63,7 @@ class EmuFarEnd(FarEnd):
     """The Python bridge over the model, driven straight."""
 
     def __init__(self, model: ChipModel) -> None:
-        self.model = model
+        self.model = model  # one chip, or a ChipBus (``--url 'sim://?axes=2'``)
         self.emulator = BridgeEmulator(model)
 
     def receive(self, data: bytes) -> list[bytes]:
@@ -208,7 +208,7 @@ class SimServer:
         self.link = Path(link)
         self.url = url
         if far_end is None:
-            far_end = firmware_far_end(url) if firmware else EmuFarEnd(build_model(url))
+            far_end = firmware_far_end(url) if firmware else EmuFarEnd(build_bus(url))
         self.far = far_end
         self.model = far_end.model
         self.master: int | None = None

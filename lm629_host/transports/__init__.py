@@ -19,7 +19,7 @@ A new transport is one module holding a :class:`~.base.Transport` subclass with 
 from __future__ import annotations
 
 import importlib
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs, parse_qsl, urlencode, urlsplit
 
 from ..errors import TransportError
 from ..program import TraceCallback
@@ -51,6 +51,20 @@ def query_params(url: str) -> dict[str, str]:
     return {k: v[-1] for k, v in parse_qs(q, keep_blank_values=True).items()}
 
 
+def split_params(url: str, names: frozenset[str] | set[str]) -> tuple[str, dict[str, str]]:
+    """``url`` without the query parameters ``names``, and their values (e.g. ``cs`` and
+    ``axes``, which the board layer reads and a hardware transport does not know)."""
+    if "?" not in url:
+        return url, {}
+    base, query = url.split("?", 1)
+    pairs = parse_qsl(query, keep_blank_values=True)
+    taken = {k: v for k, v in pairs if k in names}
+    if not taken:
+        return url, {}
+    rest = urlencode([(k, v) for k, v in pairs if k not in names], safe=":/")
+    return (base + "?" + rest if rest else base), taken
+
+
 def transport_class(url: str) -> type[Transport]:
     scheme = scheme_of(url)
     target = SCHEMES.get(scheme)
@@ -74,5 +88,5 @@ def open_transport(url: str = DEFAULT_URL, *, trace: TraceCallback | None = None
 
 __all__ = [
     "Check", "Clock", "CycleTransport", "PortInfo", "Stats", "Transport", "WallClock", "SCHEMES", "DEFAULT_URL",
-    "open_transport", "query_params", "scheme_of", "transport_class",
+    "open_transport", "query_params", "scheme_of", "split_params", "transport_class",
 ]

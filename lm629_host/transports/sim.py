@@ -4,6 +4,7 @@ URL parameters (all optional)::
 
     sim://?chip=lm628&clock=6000000&strict=1&fault=reset|busy|rst&record=1
           &lines=500&reversed=1&...      (motor and encoder: see model.params.MotorParams)
+          &axes=2                        (N chips, each with its own motor, on one bus and clock)
 
 Each bus strobe costs ``CYCLE_S`` of simulated time (a fast host's bus cycle); while the chip
 is busy, the busy check polls every ``poll_interval_s``.  ``chip.clock`` is the model's clock:
@@ -16,7 +17,8 @@ import copy
 import math
 import os
 
-from ..model import ChipModel, ChipParams, MotorParams
+from ..errors import AxisError
+from ..model import ChipBus, ChipModel, ChipParams, MotorParams, chips_of
 from ..model.params import apply_params
 from ..errors import BusyTimeout
 from ..program import WAIT_STATUS_POLL_US, BusOp, Op, Program, ProgramResult, TraceCallback
@@ -28,6 +30,7 @@ CYCLE_S = 0.5e-6
 
 _STATUS, _COMMAND, _WRITE, _READ = Op.STATUS, Op.COMMAND, Op.WRITE, Op.READ
 _RESET, _WAIT, _SYNC, _WAIT_STATUS = Op.RESET, Op.WAIT, Op.SYNC, Op.WAIT_STATUS
+_SELECT = Op.SELECT
 
 
 class SimClock(Clock):
@@ -64,7 +67,7 @@ class SimClock(Clock):
         limit = math.ceil(t * m.clock_hz - 1e-6)
         if limit <= m.tick:
             return
-        if mask & 1:
+        if mask & 1 or isinstance(m, ChipBus):  # (a bus: one poll period, as a bridge)
             m.advance_to(min(limit, m.tick + round(WAIT_STATUS_POLL_US * 1e-6 * m.clock_hz)))
             return
         if m.status & mask:
@@ -142,16 +145,48 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
     return ChipModel(chip, motor)
 
 
+#: the most chips a simulated bus takes (``axes=``)
+MAX_AXES = 8
+
+
+def axes_of(url: str, limit: int = MAX_AXES) -> int:
+    """The URL's ``axes=`` (default 1), checked against ``limit`` chip selects."""
+    raw = query_params(url).get("axes", "1")
+    try:
+        n = int(raw)
+    except ValueError:
+        raise ValueError(f"{url}: axes={raw!r} is not a whole number of chips") from None
+    if n < 1:
+        raise ValueError(f"{url}: axes={n}: a bus needs at least one chip")
+    if n > limit:
+        raise AxisError(n - 1, limit, f"the simulated adapter of {url}")
+    return n
+
+
+def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
+              limit: int = MAX_AXES) -> ChipModel | ChipBus:
+    """The chip (``axes=1``, the default) or the :class:`ChipBus` of ``axes=N`` chips, each
+    with its own motor, all configured from the same URL parameters."""
+    n = axes_of(url, limit)
+    allowed = allowed | {"axes"}
+    if n == 1:
+        return build_model(url, allowed=allowed)
+    return ChipBus([build_model(url, allowed=allowed) for _ in range(n)])
+
+
 class SimTransport(CycleTransport):
     """Bus cycles straight into an in-process :class:`ChipModel`."""
 
     scheme = "sim"
     has_reset_line = True
 
-    def __init__(self, model: ChipModel, url: str = "sim://", *,
+    def __init__(self, model: ChipModel | ChipBus, url: str = "sim://", *,
                  trace: TraceCallback | None = None) -> None:
         super().__init__(url, trace=trace)
         self.model = model
+        #: the chips on the bus, chip select 0 first (one chip: ``[model]``)
+        self.models = chips_of(model)
+        self.chip_selects = len(self.models)
         self.clock = SimClock(model)
         self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
         #: False: make every busy poll (the reference the skip is tested against)
@@ -171,6 +206,8 @@ class SimTransport(CycleTransport):
         stats = self.stats
         stats.programs += 1
         stats.round_trips += 1
+        if self.chip_selects > 1:
+            m.select(0)  # a program starts on chip 0
         c = self._cycle_clocks
         s = max(0, round(self.poll_interval_s * m.clock_hz))
         hz = m.clock_hz
@@ -236,6 +273,8 @@ class SimTransport(CycleTransport):
                     status = m.read_status()
                     cycles += 1
                     statuses.append(status)
+                elif op is _SELECT:
+                    m.select(o.arg)
                 else:  # RESET, WAIT, WAIT_STATUS: rare, not on the hot path
                     stats.bus_cycles += cycles
                     stats.busy_polls += polls
@@ -305,11 +344,18 @@ class SimTransport(CycleTransport):
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
-        return cls(build_model(url), url, trace=trace)
+        return cls(build_bus(url), url, trace=trace)
 
     def describe(self) -> str:
         p = self.model.params
-        return f"{self.url} (simulated {p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)"
+        n = f"{len(self.models)} x " if len(self.models) > 1 else ""
+        return f"{self.url} (simulated {n}{p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)"
+
+    def _select_chip(self, chip: int) -> None:
+        if isinstance(self.model, ChipBus):
+            self.model.select(chip)
+        else:
+            super()._select_chip(chip)
 
     def _strobe(self) -> ChipModel:
         m = self.model

@@ -3,7 +3,7 @@ against the chip model; the host side is the unchanged link protocol (:class:`Li
 
 URL parameters::
 
-    sim+avr://?baud=115200&fast_baud=1000000&firmware=path/to/lm629_bridge.elf&<any sim:// parameter>
+    sim+avr://?baud=115200&fast_baud=1000000&firmware=path/to/lm629_bridge.elf&axes=2&<any sim:// parameter>
 
 ``baud``: the simulated serial line (115200 or 1000000 with the images ``make -C
 firmware_bridge`` builds; another rate needs ``firmware=`` built with ``make BAUD=...``).
@@ -20,7 +20,9 @@ from ..avrsim import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
 from ..link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
 from . import query_params
-from .sim import build_model
+from ..bridge_pins import CHIP_SELECTS
+from ..model import chips_of
+from .sim import build_bus
 
 
 class SimAvrTransport(LinkTransport):
@@ -35,6 +37,8 @@ class SimAvrTransport(LinkTransport):
                  retries: int = DEFAULT_RETRIES, baud: int = DEFAULT_BAUD) -> None:
         self.sim = sim
         self.model = sim.model
+        #: the chips on the bridge's chip selects 0, 1, ... (``sim+avr://?axes=N``)
+        self.models = chips_of(sim.model)
         super().__init__(AvrPipe(sim), url, trace=trace, retries=retries, baud=baud)
 
     @classmethod
@@ -60,7 +64,10 @@ class SimAvrTransport(LinkTransport):
             fast_baud = int(fast)
         except ValueError:
             raise ValueError(f"{url}: fast_baud={fast!r} is not a number") from None
-        model = build_model(url, allowed=frozenset({"firmware", "baud", "fast_baud"}))
+        model = build_bus(url, allowed=frozenset({"firmware", "baud", "fast_baud"}),
+                          limit=len(CHIP_SELECTS))
+        if hasattr(model, "lines"):
+            model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
         t = cls(AvrSim(model, firmware), url, trace=trace, baud=baud)
         if fast_baud and fast_baud != baud:
             t.switch_baud(fast_baud)  # SET_BAUD: the firmware switches its UART

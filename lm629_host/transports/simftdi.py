@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import usb.core
 
+from .. import ftdi_pins
 from ..errors import ProtocolViolation
 from ..ftdi_emu import EmulatedBackend, EmulatedFT232H
 from ..program import Program, ProgramResult, TraceCallback
@@ -28,7 +29,8 @@ from . import query_params
 from .base import Clock
 from .ftdi import (DEFAULT_LATENCY_MS, DEFAULT_TCK_HZ, FT232H_PID, FTDI_VID,
                    FtdiTransport, open_mpsse)
-from .sim import build_model
+from ..model import chips_of
+from .sim import build_bus
 
 #: URL parameters that belong to this transport rather than to the chip model
 OWN_PARAMS = frozenset({"latency", "busy_us", "frequency", "usb_us", "command_ns"})
@@ -52,7 +54,7 @@ class SimFtdiTransport(FtdiTransport):
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimFtdiTransport:
-        model = build_model(url, allowed=OWN_PARAMS)
+        model = build_bus(url, allowed=OWN_PARAMS, limit=len(ftdi_pins.CHIP_SELECTS))
         q = query_params(url)
 
         def num(name: str, default: float, lo: float, hi: float) -> float:
@@ -73,7 +75,8 @@ class SimFtdiTransport(FtdiTransport):
         usb_us = num("usb_us", 125, 0, 1e6)
         command_ns = num("command_ns", 500, 0, 1e6)
         strict = model.params.strict
-        model.params.strict = False
+        for chip in chips_of(model):
+            chip.params.strict = False
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns))
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
@@ -83,6 +86,7 @@ class SimFtdiTransport(FtdiTransport):
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
                 latency_ms=latency)
         t.model, t.device, t.strict = model, device, strict
+        t.models = chips_of(model)  # type: ignore[attr-defined]
         return t
 
     model: object
