@@ -356,10 +356,10 @@ class AvrPipe:
 
 
 #: ``link_t`` of firmware_bridge/link.h on the AVR: 15 bytes of state, then four 16-bit
-#: counters (frames, bad_frames, runs, cache_hits, little-endian), 5 bytes of the RUN_SHORT
+#: counters (frames, bad_frames, runs, cache_hits, little-endian), 6 bytes of the RUN_SHORT
 #: check, the programs kept for RUN_CODE (3 bytes and CODE_BYTES each), then the three buffers
 _LINK_COUNTERS_AT = 15
-_LINK_T_SIZE = 15 + 4 * 2 + 5 + CODE_SLOTS * (3 + CODE_BYTES) + 252 + 250 + 252
+_LINK_T_SIZE = 15 + 4 * 2 + 6 + CODE_SLOTS * (3 + CODE_BYTES) + 252 + 250 + 252
 _link_addresses: dict[Path, int | None] = {}
 
 
@@ -375,7 +375,9 @@ def _link_address(firmware: Path) -> int | None:
             out = ""
         for line in out.splitlines():
             parts = line.split()
-            if len(parts) == 4 and parts[3] == "link" and int(parts[1], 16) == _LINK_T_SIZE:
+            # a static of main.c: link-time optimisation may rename it link.lto_priv.N
+            name = parts[3].split(".", 1)[0] if len(parts) == 4 else ""
+            if name == "link" and int(parts[1], 16) == _LINK_T_SIZE:
                 found = int(parts[0], 16) & 0xFFFF  # data space: 0x800000 + RAM address
         _link_addresses[firmware] = found
     return _link_addresses[firmware]

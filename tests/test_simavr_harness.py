@@ -262,3 +262,23 @@ def test_firmware_switches_its_uart_on_set_baud_and_goes_back_when_nothing_comes
     chip.read_real_position()
     assert t.clock.now() - t0 < 400e-6  # a 1 Mbaud round trip, not 115200's 2 ms
     t.close()
+
+
+def test_the_firmwares_own_counters_can_be_read():
+    """The fault tests check the far end's counters only when they can be read (avr-nm finds
+    ``link`` with the layout avrsim.py expects): a layout change must not skip those checks
+    silently."""
+    import shutil
+
+    if shutil.which("avr-nm") is None:
+        pytest.skip("no avr-nm")
+    t = open_transport("sim+avr://?baud=1000000")
+    counters = t.sim.link_counters()
+    assert counters is not None, "link_t's layout differs from avrsim._LINK_T_SIZE"
+    chip = LM629(t)
+    chip.reset()
+    counters.reset()
+    chip.read_real_position()
+    chip.read_real_position()
+    assert (counters.frames, counters.runs, counters.bad_frames) == (2, 2, 0)
+    t.close()
