@@ -23,7 +23,8 @@ from .lm629 import LM629, Snapshot
 from .move import Move, MoveResult, MoveRules
 from .opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
 from .program import DEFAULT_BUSY_TIMEOUT_S, BusCycle, Program, ProgramResult
-from .transports import DEFAULT_URL, open_transport, query_params, scheme_of
+from .transports import DEFAULT_URL, transport_class
+from .urls import query_params
 
 __version__ = "0.1.0"
 
@@ -36,9 +37,10 @@ def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa
     ``trace`` is called with a :class:`BusCycle` for every bus cycle.  ``busy_timeout`` (s)
     bounds every busy check (0.2 to 65.5 ms; default 5 ms).
     """
+    cls = transport_class(url)
     if chip is None:
-        chip = query_params(url).get("chip", "lm629") if scheme_of(url).startswith("sim") else "lm629"
-    transport = open_transport(url, trace=trace)
+        chip = query_params(url).get("chip", "lm629") if cls.simulated else "lm629"
+    transport = cls.from_url(url, trace=trace)
     try:
         return LM629(transport, chip=chip, busy_timeout=busy_timeout)
     except Exception:

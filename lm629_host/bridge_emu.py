@@ -304,6 +304,7 @@ class EmuLinkTransport(LinkTransport):
     serial path without a pseudo-terminal or the AVR toolchain."""
 
     scheme = "sim+emu"
+    simulated = True
     #: the emulated bridge answers at once: the margin only covers rounding
     margin_s = 1e-3
 
@@ -322,18 +323,13 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     :class:`~lm629_host.faultlink.FaultPipe`).  The model is ``transport.model``, the far end
     ``transport.emulator``.
     """
-    from .transports import query_params
     from .transports.sim import build_model
+    from .urls import Option, parse_options, query_params
 
-    if baud is None:
-        raw = query_params(url).get("baud", "115200")
-        try:
-            baud = int(raw)
-        except ValueError:
-            raise ValueError(f"{url}: baud={raw!r} is not a number") from None
-        if baud < 0:
-            raise ValueError(f"{url}: baud={baud} must be >= 0 (0: no wire time)")
+    own = (Option("baud", "int", 115200, 0, 4_000_000, "baud (0: no wire time)"),)
     model = build_model(url, allowed=frozenset({"baud"}))
+    if baud is None:
+        baud = parse_options(url, own, ignore=set(query_params(url)) - {"baud"})["baud"]
     emu = BridgeEmulator(model)
     pipe = EmuPipe(emu, baud=baud or None)
     outer = wrap(pipe) if wrap is not None else pipe

@@ -53,7 +53,8 @@ from .lm629 import LM629, Snapshot, check_int
 from .move import MoveRules
 from .opcodes import ACCELERATION_MAX, POSITION_MAX, POSITION_MIN, VELOCITY_MAX, Signals, Status
 from .program import BusCycle, Program
-from .transports import query_params, scheme_of
+from .transports import is_simulated
+from .urls import parse_hz, query_params, with_query
 from .units import FIXED_ONE, Scale
 
 log = logging.getLogger("lm629_host.cli")
@@ -95,7 +96,14 @@ class Terminated(KeyboardInterrupt):
         super().__init__(signum)
         self.signum = signum
 
-SIM_PREFIX = "sim"
+
+
+def _simulated(url: str) -> bool:
+    """Whether ``url`` names a simulator (False for an unknown scheme: opening it says why)."""
+    try:
+        return is_simulated(url)
+    except TransportError:
+        return False
 
 
 def _open(url: str, chip: str, trace: Callable[[BusCycle], None] | None) -> LM629:
@@ -103,34 +111,10 @@ def _open(url: str, chip: str, trace: Callable[[BusCycle], None] | None) -> LM62
     return lm629_host.open(url, chip=chip, trace=trace)
 
 
-def _hz(text: str) -> float:
-    """8MHz, 8 MHz, 8e6, 8000k -> Hz (ValueError for anything else, inf and nan included)."""
-    t = str(text).strip().lower().replace("hz", "").strip()
-    mult = 1.0
-    if t.endswith("m"):
-        mult, t = 1e6, t[:-1]
-    elif t.endswith("k"):
-        mult, t = 1e3, t[:-1]
-    v = float(t) * mult
-    if v != v or v in (float("inf"), float("-inf")):
-        raise ValueError(text)
-    return v
-
-
 def _check_clock(hz: float, where: str) -> float:
     if not 1e6 <= hz <= 8e6:
         raise click.BadParameter(f"{hz:g} Hz is outside the chip's 1-8 MHz", param_hint=where)
     return hz
-
-
-def _with_query(url: str, values: dict[str, str]) -> str:
-    """``url`` with its query parameters replaced or added (order kept)."""
-    from urllib.parse import parse_qsl, urlencode
-    base, _, query = url.partition("?")
-    pairs = [(k, values.pop(k) if k in values else v)
-             for k, v in parse_qsl(query, keep_blank_values=True)]
-    pairs += list(values.items())
-    return base + ("?" + urlencode(pairs, safe=":/") if pairs else "")
 
 
 @dataclass
@@ -152,7 +136,7 @@ class Session:
 
     @property
     def is_sim(self) -> bool:
-        return scheme_of(self.port).startswith(SIM_PREFIX)
+        return _simulated(self.port)
 
     @property
     def scale(self) -> Scale | None:
@@ -175,7 +159,7 @@ class Session:
         values = {k: v for k, v in add.items() if k not in have}
         if "clock" in have:
             values["clock"] = str(int(self.clock_hz))
-        return _with_query(self.port, values) if values else self.port
+        return with_query(self.port, values) if values else self.port
 
     @staticmethod
     def _raise_signal(signum: int) -> None:
@@ -323,7 +307,7 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
          verbose: int, trace: bool, stats: bool) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
     try:
-        clock_hz = _check_clock(_hz(clock), "--clock")
+        clock_hz = _check_clock(parse_hz(clock), "--clock")
     except ValueError:
         raise click.BadParameter(f"{clock!r} is not a frequency (8MHz, 6e6)",
                                  param_hint="--clock") from None
@@ -333,7 +317,7 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
         raise click.BadParameter("is empty (an unset variable in `--port \"$BOARD\"`?); "
                                  "leave --port out to use the simulator", param_hint="--port")
     url = port or lm629_host.DEFAULT_URL
-    if scheme_of(url).startswith(SIM_PREFIX):
+    if _simulated(url):
         # the rule: a simulator URL's chip= / clock= describe the simulated chip; --chip and
         # --clock given on the command line must agree with them, and when not given, the
         # URL's values are used
@@ -348,7 +332,7 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
             chip_name = url_chip
         if "clock" in q:
             try:
-                url_hz = _check_clock(_hz(q["clock"]), "--port clock=")
+                url_hz = _check_clock(parse_hz(q["clock"]), "--port clock=")
             except ValueError:
                 raise click.BadParameter(f"clock={q['clock']!r} in {url} is not a frequency",
                                          param_hint="--port") from None
@@ -1013,37 +997,17 @@ def raw(command: int, words: tuple[int, ...], read_n: int) -> None:
         raise CommandError(f"command {command:02X}h", int(st))
 
 
-def _transport_modules() -> Iterator[tuple[str, Any, str | None]]:
-    """(scheme, module or None, import problem) for every registered transport."""
-    import importlib
-
-    from .transports import SCHEMES
-    seen: set[str] = set()
-    for scheme, target in SCHEMES.items():
-        name = target.split(":")[0]
-        if name in seen:
-            continue
-        seen.add(name)
-        try:
-            yield scheme, importlib.import_module(name), None
-        except Exception as exc:  # noqa: BLE001 - a missing optional backend is a doctor line
-            yield scheme, None, f"{type(exc).__name__}: {exc}"
-
-
 @main.command("list")
 def list_cmd() -> None:
     """Ports that can be found: simulators, serial bridges, FT232H adapters."""
-    click.echo("sim://                      the bundled chip simulator (always there)")
-    for scheme, mod, problem in _transport_modules():
-        if mod is None:
+    from .transports import transport_classes
+    for scheme, cls, problem in transport_classes():
+        if cls is None:
             click.echo(f"{scheme}://  not available: {problem}")
             continue
-        lister = getattr(mod, "list_ports", None)
-        if lister is None:
-            continue
         try:
-            ports = lister()
-        except Exception as exc:  # noqa: BLE001
+            ports = cls.list_ports()
+        except Exception as exc:  # noqa: BLE001 - one backend's failure is one line
             click.echo(f"{scheme}://  listing failed: {exc}")
             continue
         for p in ports:
@@ -1075,20 +1039,20 @@ def doctor() -> None:
     except ImportError:
         line("matplotlib", False, "missing: lm629 step writes CSV only; "
                                   "pip install 'lm629-host[plot]'")
-    for scheme, mod, problem in _transport_modules():
-        if mod is None:
+    from .transports import transport_classes
+    for scheme, cls, problem in transport_classes():
+        if cls is None:
             click.echo(f"{scheme}://")
             line(scheme, False, f"transport not available: {problem}")
             continue
-        checker = getattr(mod, "doctor", None)
-        if checker is None:
-            continue
-        click.echo(f"{scheme}://")
         try:
-            checks = checker()
-        except Exception as exc:  # noqa: BLE001
+            checks = cls.doctor()
+        except Exception as exc:  # noqa: BLE001 - one backend's failure is one line
+            click.echo(f"{scheme}://")
             line(scheme, False, f"doctor failed: {exc}")
             continue
+        if checks:
+            click.echo(f"{scheme}://")
         for c in checks:
             line(c.name, c.ok, c.message)
     if s.port_given:

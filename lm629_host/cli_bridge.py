@@ -143,14 +143,6 @@ def serve_cmd(pty_path: Path, firmware: bool, url: str) -> None:
     """
     from .simserve import SimServer
 
-    from .cli import _hz, _with_query
-    from .transports import query_params
-    if "clock" in query_params(url):  # clock=8MHz as --clock takes it
-        try:
-            url = _with_query(url, {"clock": str(int(_hz(query_params(url)["clock"])))})
-        except ValueError:
-            raise click.BadParameter(f"clock= in {url} is not a frequency (8MHz, 6e6)",
-                                     param_hint="--url") from None
     parent = pty_path.parent
     if not parent.is_dir():
         raise click.BadParameter(f"{str(pty_path)!r}: the directory {str(parent)!r} does not "

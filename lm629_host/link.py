@@ -19,6 +19,8 @@ and says so.
 from __future__ import annotations
 
 import enum
+import struct
+from binascii import crc_hqx
 import logging
 import random
 from collections import deque
@@ -119,28 +121,14 @@ def c_defines() -> list[tuple[str, int, str]]:
 
 
 # ---------------------------------------------------------------------------------- CRC, COBS
-def _crc_table() -> tuple[int, ...]:
-    table = []
-    for byte in range(256):
-        crc = byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return tuple(table)
-
-
-_CRC_TABLE = _crc_table()
-
-
 def crc16(data: bytes) -> int:
     """CRC-16/GENIBUS: poly 0x1021, init 0xFFFF, no reflection, final xor 0xFFFF (check
     value: ``crc16(b"123456789") == 0xD64E``).  The final xor matters: without it a frame
-    that gains trailing zero bytes (a delimiter corrupted into 0x01) would still pass."""
-    table = _CRC_TABLE
-    crc = 0xFFFF
-    for b in data:
-        crc = ((crc << 8) & 0xFFFF) ^ table[(crc >> 8) ^ b]
-    return crc ^ 0xFFFF
+    that gains trailing zero bytes (a delimiter corrupted into 0x01) would still pass.
+
+    It is the stdlib's CRC-CCITT (``binascii.crc_hqx``, poly 0x1021, no reflection) started at
+    0xFFFF, then inverted; a test holds it against a bitwise reference and the golden frames."""
+    return crc_hqx(data, 0xFFFF) ^ 0xFFFF
 
 
 class FrameError(ValueError):
@@ -299,12 +287,14 @@ class HelloInfo:
     chip_selects: int = 1
     cpu_hz: int = 16_000_000
 
-    SIZE = 14
+    #: protocol, firmware major.minor.patch, capabilities, max_program, max_reads,
+    #: chip_selects, cpu_hz (PROTOCOL.md, HELLO_REPLY)
+    LAYOUT = struct.Struct(">BBBBHHBBI")
+    SIZE = LAYOUT.size
 
     def encode(self) -> bytes:
-        return (bytes((self.protocol, *self.firmware)) + self.capabilities.to_bytes(2, "big")
-                + self.max_program.to_bytes(2, "big") + bytes((self.max_reads, self.chip_selects))
-                + self.cpu_hz.to_bytes(4, "big"))
+        return self.LAYOUT.pack(self.protocol, *self.firmware, self.capabilities,
+                                self.max_program, self.max_reads, self.chip_selects, self.cpu_hz)
 
     @classmethod
     def decode(cls, payload: bytes) -> HelloInfo:
@@ -315,9 +305,8 @@ class HelloInfo:
             return cls(protocol=payload[0])
         if len(payload) != cls.SIZE:
             raise FrameError(f"HELLO_REPLY of {len(payload)} bytes, expected {cls.SIZE}")
-        return cls(payload[0], (payload[1], payload[2], payload[3]),
-                   int.from_bytes(payload[4:6], "big"), int.from_bytes(payload[6:8], "big"),
-                   payload[8], payload[9], int.from_bytes(payload[10:14], "big"))
+        version, major, minor, patch, *rest = cls.LAYOUT.unpack(payload)
+        return cls(version, (major, minor, patch), *rest)
 
     @property
     def firmware_version(self) -> str:
@@ -377,8 +366,12 @@ def busy_timeout_us(program: Program) -> int:
     return us
 
 
+#: the RUN payload's header: chip select, busy_timeout_us
+RUN_HEADER = struct.Struct(">BH")
+
+
 def run_payload(ops: Sequence[BusOp], timeout_us: int, cs: int = 0) -> bytes:
-    return bytes((cs,)) + timeout_us.to_bytes(2, "big") + encode_program(ops)
+    return RUN_HEADER.pack(cs, timeout_us) + encode_program(ops)
 
 
 @dataclass(frozen=True)
@@ -392,12 +385,14 @@ class RunReply:
     statuses: tuple[int, ...] = ()
     words: tuple[int, ...] = ()
 
+    #: result, index, last_status, hi, number of status bytes; then the status bytes and the
+    #: words (big-endian)
+    HEADER = struct.Struct(">5B")
+
     def encode(self) -> bytes:
-        out = bytearray((self.result, self.index, self.last_status, self.hi, len(self.statuses)))
-        out += bytes(self.statuses)
-        for w in self.words:
-            out += w.to_bytes(2, "big")
-        return bytes(out)
+        return (self.HEADER.pack(self.result, self.index, self.last_status, self.hi,
+                                 len(self.statuses))
+                + bytes(self.statuses) + struct.pack(f">{len(self.words)}H", *self.words))
 
     @classmethod
     def decode(cls, payload: bytes) -> RunReply:
@@ -408,8 +403,8 @@ class RunReply:
         if len(payload) < 5 + n or len(rest) % 2:
             raise FrameError(f"RUN_REPLY of {len(payload)} bytes does not hold {n} status bytes "
                              "and whole words")
-        words = tuple(int.from_bytes(rest[i:i + 2], "big") for i in range(0, len(rest), 2))
-        return cls(payload[0], payload[1], payload[2], payload[3], tuple(payload[5:5 + n]), words)
+        words = struct.unpack(f">{len(rest) // 2}H", rest)
+        return cls(*payload[:4], tuple(payload[5:5 + n]), words)
 
 
 def reply_size(ops: Sequence[BusOp]) -> int:

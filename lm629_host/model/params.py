@@ -7,7 +7,7 @@ place, the docstring of :mod:`lm629_host.model` (``[model choice N]`` below is i
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 
 @dataclass
@@ -64,31 +64,3 @@ class MotorParams:
             value = getattr(self, name)
             if value < 0:
                 raise ValueError(f"{name}={value}: must be >= 0")
-
-
-def _convert(kind: type | str, text: str) -> object:
-    k = kind if isinstance(kind, str) else kind.__name__
-    if "bool" in k:
-        if text.lower() in ("1", "true", "yes", "on", ""):
-            return True
-        if text.lower() in ("0", "false", "no", "off"):
-            return False
-        raise ValueError(f"expected a boolean (1/0), got {text!r}")
-    if "int" in k and "float" not in k:
-        return int(float(text)) if "e" in text.lower() else int(text, 0)
-    if "float" in k:
-        return float(text)
-    return text
-
-
-def apply_params(target: object, values: dict[str, str], *, url: str) -> set[str]:
-    """Set the dataclass fields of ``target`` named in ``values``; return the names used."""
-    used = set()
-    for f in fields(target):  # type: ignore[arg-type]
-        if f.name in values:
-            try:
-                setattr(target, f.name, _convert(f.type, values[f.name]))
-            except ValueError as exc:
-                raise ValueError(f"{url}: parameter {f.name}={values[f.name]!r}: {exc}") from None
-            used.add(f.name)
-    return used

@@ -23,7 +23,7 @@ import threading
 import time
 from dataclasses import asdict, dataclass
 
-from ..errors import BusyTimeout
+from ..errors import BusyTimeout, TransportError
 from ..opcodes import Status
 from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
 
@@ -119,6 +119,16 @@ class LockedClock(Clock):
 class Transport(abc.ABC):
     """Runs bus programs on one chip.  Subclasses set ``url``, ``clock`` and ``has_reset_line``.
 
+    The contract of a transport class, all that the registry (:mod:`lm629_host.transports`),
+    :func:`lm629_host.open`, ``lm629 list`` and ``lm629 doctor`` use:
+
+    * ``scheme``: the URL scheme it is registered under;
+    * ``simulated``: True when no hardware is behind it (the CLI prepares a fresh chip);
+    * :meth:`from_url` opens one; :meth:`execute` runs a bus program; :meth:`close`;
+    * :meth:`list_ports` and :meth:`doctor` (class methods, empty by default) say what this
+      machine has for this kind of port and what is wrong with it;
+    * :meth:`describe` and ``repr()`` say what an open one is connected to.
+
     Threads: every ``execute`` runs whole under ``self.lock`` (one re-entrant lock per
     transport, so shared by every :class:`~lm629_host.LM629` on it): threads sharing a chip
     never interleave bus cycles.  A simulated clock (anything but :class:`WallClock`) is
@@ -127,6 +137,8 @@ class Transport(abc.ABC):
 
     #: the scheme this transport is registered under (``sim``, ``serial``...)
     scheme: str = ""
+    #: True when the far side is simulated: no hardware, a fresh chip at every open
+    simulated: bool = False
     #: True when the transport can pulse /RST; otherwise ``LM629.reset`` sends command RESET
     has_reset_line: bool = True
 
@@ -172,6 +184,22 @@ class Transport(abc.ABC):
         #: the clock itself, for code that already holds the lock (inside ``execute``)
         self._inner_clock = inner
 
+    @classmethod
+    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> Transport:
+        """Open the port named by ``url`` (its options after ``?``: see the subclass)."""
+        raise TransportError(f"{cls.__name__} cannot be opened from a URL", port=url)
+
+    @classmethod
+    def list_ports(cls) -> list[PortInfo]:
+        """The ports of this kind found on this machine (``lm629 list``)."""
+        return []
+
+    @classmethod
+    def doctor(cls, port: str | None = None) -> list[Check]:
+        """What ``lm629 doctor`` says about this kind of port on this machine (libraries,
+        permissions, adapters found); ``port``: one port to examine closely."""
+        return []
+
     @abc.abstractmethod
     def execute(self, program: Program) -> ProgramResult:
         """Run ``program``; return its results or raise an :class:`~lm629_host.LM629Error`
@@ -183,6 +211,9 @@ class Transport(abc.ABC):
     def describe(self) -> str:
         """One line for the CLI and error messages: what this transport is connected to."""
         return self.url
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.url!r}>"
 
     def _emit(self, cycle: BusCycle) -> None:
         if self.trace is not None:

@@ -91,13 +91,14 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from .. import ftdi_pins as pins
 from ..errors import BusyTimeout, TransportError
 from ..opcodes import RESET_WAIT_S, Cmd, Status
 from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
-from . import query_params
+from ..urls import Option, parse_options
 from .base import Check, Clock, PortInfo, Transport, WallClock
 
 log = logging.getLogger("lm629_host.ftdi")
@@ -356,6 +357,67 @@ class FtdiTransport(Transport):
         return cls(ftdi, url, trace=trace, busy_s=opts["busy_us"] * 1e-6,
                    tck_hz=opts["frequency"], latency_ms=opts["latency"])
 
+    @classmethod
+    def list_ports(cls) -> list[PortInfo]:
+        """FT232H adapters on the USB bus (for ``lm629 list``); [] when pyftdi or libusb is
+        missing (``doctor()`` says which)."""
+        try:
+            from pyftdi.ftdi import Ftdi
+            found = Ftdi.find_all([(FTDI_VID, FT232H_PID)], nocache=True)
+        except ImportError:
+            return []
+        except ValueError:  # no backend
+            return []
+        except Exception as exc:  # noqa: BLE001 - enumeration can fail on access rights
+            code = _usb_errno(exc)
+            problem = ADVICE_ACCESS if code == _errno.EACCES else str(exc)
+            return [PortInfo("ftdi://ftdi:232h/1", "FTDI FT232H (0403:6014)", False, problem)]
+        ports = []
+        for desc, _ifcount in sorted(found, key=lambda d: (d[0].bus or 0, d[0].address or 0)):
+            where = f"bus {desc.bus} address {desc.address}"
+            if desc.sn:
+                url = f"ftdi://ftdi:232h:{desc.sn}/1"
+            else:
+                url = f"ftdi://ftdi:232h:{desc.bus:x}:{desc.address:x}/1"
+            ports.append(PortInfo(url, f"FTDI FT232H {desc.description or ''} ({where}, "
+                                       f"serial {desc.sn or 'none'})".replace("  ", " ")))
+        return ports
+
+    @classmethod
+    def doctor(cls, port: str | None = None) -> list[Check]:
+        """What ``lm629 doctor`` reports about FT232H support on this machine."""
+        checks: list[Check] = []
+        try:
+            import pyftdi
+            checks.append(Check("pyftdi", True, f"pyftdi {pyftdi.__version__}"))
+        except ImportError:
+            return [Check("pyftdi", False, "pyftdi is not installed: pip install 'lm629-host[ftdi]'")]
+        try:
+            from pyftdi.usbtools import UsbTools
+            UsbTools.find_backend()
+            checks.append(Check("libusb", True, "pyusb found a libusb backend"))
+        except ValueError:
+            checks.append(Check("libusb", False, ADVICE_NO_BACKEND))
+            return checks
+        ports = cls.list_ports()
+        usable = [p for p in ports if p.usable]
+        if usable:
+            checks.append(Check("FT232H", True, ", ".join(p.url for p in usable)))
+        elif ports:
+            checks.append(Check("FT232H", False, ports[0].problem))
+        else:
+            checks.append(Check("FT232H", False, "no FT232H (0403:6014) on the USB bus"))
+        rule = os.path.exists(UDEV_RULE)
+        checks.append(Check("udev rule", rule or os.geteuid() == 0,
+                            f"{UDEV_RULE} installed" if rule else
+                            ("not installed (not needed as root)" if os.geteuid() == 0 else
+                             "not installed: " + ADVICE_ACCESS.split("\n", 1)[1].strip())))
+        if os.path.isdir("/sys/module/ftdi_sio"):
+            checks.append(Check("ftdi_sio", True, "the ftdi_sio driver is loaded: pyftdi detaches it "
+                                                  "from the adapter when it opens it; if that fails, "
+                                                  "see the 'device busy' advice"))
+        return checks
+
     def close(self) -> None:
         ftdi, self.ftdi = self.ftdi, None
         if ftdi is not None:
@@ -512,25 +574,16 @@ class FtdiTransport(Transport):
 
 
 # ---------------------------------------------------------------------------- URLs, opening
-def options_of(url: str) -> dict[str, int | float]:
-    q = query_params(url)
-    unknown = set(q) - {"latency", "busy_us", "frequency"}
-    if unknown:
-        raise ValueError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; "
-                         "known: latency (ms), busy_us, frequency (Hz)")
-    opts: dict[str, int | float] = {"latency": DEFAULT_LATENCY_MS, "busy_us": DEFAULT_BUSY_US,
-                                    "frequency": DEFAULT_TCK_HZ}
-    limits = {"latency": (1, 255), "busy_us": (0, 65535), "frequency": (1e5, 30e6)}
-    for name, text in q.items():
-        try:
-            value = float(text)
-        except ValueError:
-            raise ValueError(f"{url}: {name}={text!r} is not a number") from None
-        lo, hi_ = limits[name]
-        if not lo <= value <= hi_:
-            raise ValueError(f"{url}: {name}={text} is outside {lo:g}..{hi_:g}")
-        opts[name] = int(value) if name == "latency" else value
-    return opts
+#: the URL options of the FT232H transport
+OPTIONS = (
+    Option("latency", "int", DEFAULT_LATENCY_MS, 1, 255, "ms"),
+    Option("busy_us", "float", DEFAULT_BUSY_US, 0, 65535, "us"),
+    Option("frequency", "hz", DEFAULT_TCK_HZ, 1e5, 30e6, "Hz"),
+)
+
+
+def options_of(url: str) -> dict[str, Any]:
+    return parse_options(url, OPTIONS, what="FT232H")
 
 
 def pyftdi_url(url: str) -> str:
@@ -640,65 +693,9 @@ def open_mpsse(url: str, latency_ms: int = DEFAULT_LATENCY_MS,
 
 
 # ---------------------------------------------------------------------------- list, doctor
-def list_ports() -> list[PortInfo]:
-    """FT232H adapters on the USB bus (for ``lm629 list``); [] when pyftdi or libusb is
-    missing (``doctor()`` says which)."""
-    try:
-        from pyftdi.ftdi import Ftdi
-        found = Ftdi.find_all([(FTDI_VID, FT232H_PID)], nocache=True)
-    except ImportError:
-        return []
-    except ValueError:  # no backend
-        return []
-    except Exception as exc:  # noqa: BLE001 - enumeration can fail on access rights
-        code = _usb_errno(exc)
-        problem = ADVICE_ACCESS if code == _errno.EACCES else str(exc)
-        return [PortInfo("ftdi://ftdi:232h/1", "FTDI FT232H (0403:6014)", False, problem)]
-    ports = []
-    for desc, _ifcount in sorted(found, key=lambda d: (d[0].bus or 0, d[0].address or 0)):
-        where = f"bus {desc.bus} address {desc.address}"
-        if desc.sn:
-            url = f"ftdi://ftdi:232h:{desc.sn}/1"
-        else:
-            url = f"ftdi://ftdi:232h:{desc.bus:x}:{desc.address:x}/1"
-        ports.append(PortInfo(url, f"FTDI FT232H {desc.description or ''} ({where}, "
-                                   f"serial {desc.sn or 'none'})".replace("  ", " ")))
-    return ports
-
-
-def doctor() -> list[Check]:
-    """What ``lm629 doctor`` reports about FT232H support on this machine."""
-    checks: list[Check] = []
-    try:
-        import pyftdi
-        checks.append(Check("pyftdi", True, f"pyftdi {pyftdi.__version__}"))
-    except ImportError:
-        return [Check("pyftdi", False, "pyftdi is not installed: pip install 'lm629-host[ftdi]'")]
-    try:
-        from pyftdi.usbtools import UsbTools
-        UsbTools.find_backend()
-        checks.append(Check("libusb", True, "pyusb found a libusb backend"))
-    except ValueError:
-        checks.append(Check("libusb", False, ADVICE_NO_BACKEND))
-        return checks
-    ports = list_ports()
-    usable = [p for p in ports if p.usable]
-    if usable:
-        checks.append(Check("FT232H", True, ", ".join(p.url for p in usable)))
-    elif ports:
-        checks.append(Check("FT232H", False, ports[0].problem))
-    else:
-        checks.append(Check("FT232H", False, "no FT232H (0403:6014) on the USB bus"))
-    rule = os.path.exists(UDEV_RULE)
-    checks.append(Check("udev rule", rule or os.geteuid() == 0,
-                        f"{UDEV_RULE} installed" if rule else
-                        ("not installed (not needed as root)" if os.geteuid() == 0 else
-                         "not installed: " + ADVICE_ACCESS.split("\n", 1)[1].strip())))
-    if os.path.isdir("/sys/module/ftdi_sio"):
-        checks.append(Check("ftdi_sio", True, "the ftdi_sio driver is loaded: pyftdi detaches it "
-                                              "from the adapter when it opens it; if that fails, "
-                                              "see the 'device busy' advice"))
-    return checks
+#: module-level names of the class methods (``ftdi.list_ports()``)
+list_ports = FtdiTransport.list_ports
+doctor = FtdiTransport.doctor
 
 
 __all__ = ["FtdiTransport", "StreamCompiler", "Stream", "Slot", "units_of", "streams_of",

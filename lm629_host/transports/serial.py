@@ -34,7 +34,7 @@ except ImportError:  # pragma: no cover - Windows
 from ..errors import TransportError
 from ..link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
-from . import query_params
+from ..urls import Option, parse_options
 from .base import Check, Clock, PortInfo, WallClock
 
 log = logging.getLogger("lm629_host.serial")
@@ -58,7 +58,14 @@ KNOWN_USB_IDS: dict[tuple[int, int], str] = {
     (0x10C4, 0xEA60): "Silicon Labs CP210x",
 }
 
-_PARAMS = {"baud", "retries", "boot", "low_latency", "cs"}
+#: the URL options of a serial bridge
+OPTIONS = (
+    Option("baud", "int", DEFAULT_BAUD, 300, 4_000_000, "baud"),
+    Option("retries", "int", DEFAULT_RETRIES, 0, 20),
+    Option("boot", "float", DEFAULT_BOOT_S, 0.0, 30.0, "s"),
+    Option("low_latency", "bool", True),
+    Option("cs", "int", 0, 0, 255),
+)
 
 
 def _ask_group(path: str) -> str:
@@ -107,34 +114,12 @@ class SerialOptions:
 
 def options_of(url: str) -> SerialOptions:
     """Parse and check a ``serial://`` URL (ValueError naming the parameter)."""
-    q = query_params(url)
-    unknown = set(q) - _PARAMS
-    if unknown:
-        raise ValueError(f"{url}: unknown serial parameter(s) {', '.join(sorted(unknown))}; "
-                         f"known: {', '.join(sorted(_PARAMS))}")
+    opts = parse_options(url, OPTIONS, what="serial")
     device = device_of(url)
     if not device:
         raise ValueError(f"{url}: no device path (e.g. serial:///dev/ttyACM0)")
-
-    def num(name: str, default, conv, lo, hi):
-        if name not in q:
-            return default
-        try:
-            v = conv(q[name])
-        except ValueError:
-            raise ValueError(f"{url}: {name}={q[name]!r} is not a number") from None
-        if not lo <= v <= hi:
-            raise ValueError(f"{url}: {name}={v} is outside {lo}..{hi}")
-        return v
-
-    return SerialOptions(
-        device=device,
-        baud=num("baud", DEFAULT_BAUD, int, 300, 4_000_000),
-        retries=num("retries", DEFAULT_RETRIES, int, 0, 20),
-        boot_s=num("boot", DEFAULT_BOOT_S, float, 0.0, 30.0),
-        low_latency=q.get("low_latency", "1") not in ("0", "false", "no"),
-        cs=num("cs", 0, int, 0, 255),
-    )
+    return SerialOptions(device=device, baud=opts["baud"], retries=opts["retries"],
+                         boot_s=opts["boot"], low_latency=opts["low_latency"], cs=opts["cs"])
 
 
 class SerialPipe:
@@ -285,6 +270,80 @@ class SerialTransport(LinkTransport):
         rtt = f", round trip {self.rtt_s * 1e3:.2f} ms" if self.rtt_s is not None else ""
         return super().describe() + rtt
 
+    @classmethod
+    def list_ports(cls, probe: bool = True, boot_s: float = DEFAULT_BOOT_S) -> list[PortInfo]:
+        """Serial ports whose USB id is a usual bridge board, each probed with HELLO (``probe``).
+        A port that answers says its firmware version; one that does not says why."""
+        out: list[PortInfo] = []
+        for p in _candidates():
+            if p.vid is None:
+                continue
+            name = KNOWN_USB_IDS.get((p.vid, p.pid))
+            if name is None:
+                continue
+            desc = f"{name} [{p.vid:04X}:{p.pid:04X}]" + (f" s/n {p.serial_number}"
+                                                            if p.serial_number else "")
+            if not probe:
+                out.append(PortInfo(p.device, desc))
+                continue
+            try:
+                t = cls.from_url(f"serial://{p.device}?boot={boot_s}")
+            except TransportError as exc:
+                out.append(PortInfo(p.device, desc, usable=False, problem=str(exc)))
+                continue
+            try:
+                info = t.info
+                rtt = f", round trip {t.rtt_s * 1e3:.2f} ms" if t.rtt_s is not None else ""
+                out.append(PortInfo(p.device, f"{desc}: {info.describe() if info else '?'}{rtt}"))
+            finally:
+                t.close()
+        return out
+
+    @classmethod
+    def doctor(cls, port: str | None = None) -> list[Check]:
+        """What ``lm629 doctor`` reports about serial bridges: pyserial, group membership, the
+        ports found, and for ``port`` (or each bridge found) the handshake, the low-latency mode
+        and the measured round-trip time."""
+        checks: list[Check] = []
+        try:
+            import serial
+            checks.append(Check("pyserial", True, f"pyserial {serial.__version__}"))
+        except ImportError:
+            return [Check("pyserial", False, "pyserial is missing: pip install pyserial")]
+        if sys.platform.startswith("linux") and grp is not None:
+            try:
+                members = grp.getgrnam("dialout")
+                in_group = os.getgid() == members.gr_gid or os.getuid() == 0 or \
+                    members.gr_gid in os.getgroups()
+                checks.append(Check("dialout", in_group,
+                                    "user may open serial ports" if in_group else
+                                    "user is not in 'dialout': sudo usermod -aG dialout $USER, "
+                                    "then log out and in"))
+            except KeyError:
+                pass
+        ports = [port] if port else [p.url for p in cls.list_ports(probe=False)]
+        if not ports:
+            checks.append(Check("bridge ports", True, "no Uno/Nano/CH340/FTDI serial port found"))
+        for dev in ports:
+            try:
+                t = cls.from_url(dev if "://" in dev else f"serial://{dev}")
+            except (TransportError, ValueError) as exc:
+                checks.append(Check(f"bridge {dev}", False, str(exc)))
+                continue
+            try:
+                msg = f"{t.describe()}; low latency {t.low_latency or 'n/a'}"
+                timer = latency_timer_ms(device_of(dev))
+                if timer is not None:
+                    msg += f"; FTDI latency timer {timer} ms"
+                ok = t.rtt_s is not None and t.rtt_s < 0.01
+                if not ok:
+                    msg += (" -- slow round trip: on an FTDI adapter set its latency timer to 1 ms "
+                            "(echo 1 > /sys/bus/usb-serial/devices/ttyUSBn/latency_timer)")
+                checks.append(Check(f"bridge {dev}", ok, msg))
+            finally:
+                t.close()
+        return checks
+
 
 def _candidates() -> list:
     try:
@@ -294,78 +353,9 @@ def _candidates() -> list:
     return list(lp.comports())
 
 
-def list_ports(probe: bool = True, boot_s: float = DEFAULT_BOOT_S) -> list[PortInfo]:
-    """Serial ports whose USB id is a usual bridge board, each probed with HELLO (``probe``).
-    A port that answers says its firmware version; one that does not says why."""
-    out: list[PortInfo] = []
-    for p in _candidates():
-        if p.vid is None:
-            continue
-        name = KNOWN_USB_IDS.get((p.vid, p.pid))
-        if name is None:
-            continue
-        desc = f"{name} [{p.vid:04X}:{p.pid:04X}]" + (f" s/n {p.serial_number}"
-                                                        if p.serial_number else "")
-        if not probe:
-            out.append(PortInfo(p.device, desc))
-            continue
-        try:
-            t = SerialTransport.from_url(f"serial://{p.device}?boot={boot_s}")
-        except TransportError as exc:
-            out.append(PortInfo(p.device, desc, usable=False, problem=str(exc)))
-            continue
-        try:
-            info = t.info
-            rtt = f", round trip {t.rtt_s * 1e3:.2f} ms" if t.rtt_s is not None else ""
-            out.append(PortInfo(p.device, f"{desc}: {info.describe() if info else '?'}{rtt}"))
-        finally:
-            t.close()
-    return out
-
-
-def doctor(port: str | None = None) -> list[Check]:
-    """What ``lm629 doctor`` reports about serial bridges: pyserial, group membership, the
-    ports found, and for ``port`` (or each bridge found) the handshake, the low-latency mode
-    and the measured round-trip time."""
-    checks: list[Check] = []
-    try:
-        import serial
-        checks.append(Check("pyserial", True, f"pyserial {serial.__version__}"))
-    except ImportError:
-        return [Check("pyserial", False, "pyserial is missing: pip install pyserial")]
-    if sys.platform.startswith("linux") and grp is not None:
-        try:
-            members = grp.getgrnam("dialout")
-            in_group = os.getgid() == members.gr_gid or os.getuid() == 0 or \
-                members.gr_gid in os.getgroups()
-            checks.append(Check("dialout", in_group,
-                                "user may open serial ports" if in_group else
-                                "user is not in 'dialout': sudo usermod -aG dialout $USER, "
-                                "then log out and in"))
-        except KeyError:
-            pass
-    ports = [port] if port else [p.url for p in list_ports(probe=False)]
-    if not ports:
-        checks.append(Check("bridge ports", True, "no Uno/Nano/CH340/FTDI serial port found"))
-    for dev in ports:
-        try:
-            t = SerialTransport.from_url(dev if "://" in dev else f"serial://{dev}")
-        except (TransportError, ValueError) as exc:
-            checks.append(Check(f"bridge {dev}", False, str(exc)))
-            continue
-        try:
-            msg = f"{t.describe()}; low latency {t.low_latency or 'n/a'}"
-            timer = latency_timer_ms(device_of(dev))
-            if timer is not None:
-                msg += f"; FTDI latency timer {timer} ms"
-            ok = t.rtt_s is not None and t.rtt_s < 0.01
-            if not ok:
-                msg += (" -- slow round trip: on an FTDI adapter set its latency timer to 1 ms "
-                        "(echo 1 > /sys/bus/usb-serial/devices/ttyUSBn/latency_timer)")
-            checks.append(Check(f"bridge {dev}", ok, msg))
-        finally:
-            t.close()
-    return checks
+#: module-level names of the class methods (``serial.list_ports()``)
+list_ports = SerialTransport.list_ports
+doctor = SerialTransport.doctor
 
 
 __all__ = ["SerialPipe", "SerialTransport", "doctor", "list_ports", "options_of", "open_port",

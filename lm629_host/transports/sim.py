@@ -16,10 +16,9 @@ import math
 import os
 
 from ..model import ChipModel, ChipParams, MotorParams
-from ..model.params import apply_params
 from ..program import TraceCallback
-from . import query_params
-from .base import Clock, CycleTransport
+from ..urls import Option, dataclass_options, parse_options
+from .base import Clock, CycleTransport, PortInfo
 
 #: simulated duration of one /RD or /WR strobe cycle, recovery included
 CYCLE_S = 0.5e-6
@@ -49,6 +48,12 @@ _ALIASES = {"chip": "variant", "clock": "clock_hz"}
 #: the /RST line not connected
 FAULTS = (None, "reset", "busy", "rst")
 
+#: the URL options of the simulated chip: every field of ChipParams and MotorParams
+_CHIP_OPTIONS = dataclass_options(ChipParams, [
+    Option("clock_hz", "hz", unit="Hz"),  # the model checks the range
+    Option("fault", "str", choices=tuple(f for f in FAULTS if f), optional=True)])
+_MOTOR_OPTIONS = dataclass_options(MotorParams)
+
 
 def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel:
     """A :class:`ChipModel` configured from a simulator URL's query string.
@@ -57,19 +62,18 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
     the same parameters mean the same thing everywhere.  Parameters in ``allowed`` belong to
     the calling transport and are skipped here; any other unknown name is an error.
     """
-    values = {_ALIASES.get(k, k): v for k, v in query_params(url).items()}
     chip, motor = ChipParams(), MotorParams()
     # LM629_SIM_STRICT=1 makes strict the default (the test suite runs that way); a URL's own
     # strict=0 still wins, for tests that provoke violations on purpose.
     chip.strict = os.environ.get("LM629_SIM_STRICT", "") not in ("", "0")
-    used = apply_params(chip, values, url=url) | apply_params(motor, values, url=url)
-    unknown = set(values) - used - set(allowed)
-    if unknown:
-        raise ValueError(f"{url}: unknown simulator parameter(s) {', '.join(sorted(unknown))}")
-    chip.variant = chip.variant.lower()
-    if chip.fault not in FAULTS:
-        raise ValueError(f"{url}: fault={chip.fault!r}: expected one of "
-                         f"{', '.join(f for f in FAULTS if f)}")
+    values = parse_options(url, _CHIP_OPTIONS + _MOTOR_OPTIONS, what="simulator",
+                           ignore=allowed, aliases=_ALIASES, given_only=True)
+    for name, value in values.items():
+        if name == "clock_hz":
+            value = round(value)
+        elif name == "variant":
+            value = value.lower()
+        setattr(chip if hasattr(chip, name) else motor, name, value)
     return ChipModel(chip, motor)
 
 
@@ -77,6 +81,7 @@ class SimTransport(CycleTransport):
     """Bus cycles straight into an in-process :class:`ChipModel`."""
 
     scheme = "sim"
+    simulated = True
     has_reset_line = True
 
     def __init__(self, model: ChipModel, url: str = "sim://", *,
@@ -89,6 +94,10 @@ class SimTransport(CycleTransport):
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
         return cls(build_model(url), url, trace=trace)
+
+    @classmethod
+    def list_ports(cls) -> list[PortInfo]:
+        return [PortInfo("sim://", "the bundled chip simulator (always there)")]
 
     def describe(self) -> str:
         p = self.model.params

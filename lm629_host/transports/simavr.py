@@ -18,14 +18,21 @@ from pathlib import Path
 from ..avrsim import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
 from ..link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
-from . import query_params
+from ..urls import Option, parse_options, query_params
 from .sim import build_model
+
+
+#: URL options of this transport (the others are the chip model's)
+OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
+           Option("firmware", "str", ""))
+OWN_PARAMS = frozenset(o.name for o in OPTIONS)
 
 
 class SimAvrTransport(LinkTransport):
     """The link protocol to the compiled firmware in simavr, in simulated time."""
 
     scheme = "sim+avr"
+    simulated = True
     #: the wire time estimate counts 10 bits a byte, simavr's UART takes 11: the margin covers
     #: that (10% of two 253-byte frames at 115200 baud is 4.8 ms) and the firmware's own time
     margin_s = 0.02
@@ -38,15 +45,10 @@ class SimAvrTransport(LinkTransport):
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimAvrTransport:
-        params = query_params(url)
-        raw = params.get("baud", str(DEFAULT_BAUD))
-        try:
-            baud = int(raw)
-        except ValueError:
-            raise ValueError(f"{url}: baud={raw!r} is not a number (115200 or 1000000)") from None
-        fw = params.get("firmware")
-        if fw:
-            firmware = Path(fw)
+        opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - OWN_PARAMS)
+        baud = opts["baud"]
+        if opts["firmware"]:
+            firmware = Path(opts["firmware"])
         elif baud in BUILT_BAUDS:
             firmware = firmware_path(baud)
         else:
@@ -54,7 +56,7 @@ class SimAvrTransport(LinkTransport):
                              f"{' or '.join(map(str, BUILT_BAUDS))} baud; for another rate build "
                              f"one with `make -C firmware_bridge BAUD={baud}` and pass "
                              "firmware=firmware_bridge/build/lm629_bridge.elf")
-        model = build_model(url, allowed=frozenset({"firmware", "baud"}))
+        model = build_model(url, allowed=OWN_PARAMS)
         return cls(AvrSim(model, firmware), url, trace=trace, baud=baud)
 
     def describe(self) -> str:

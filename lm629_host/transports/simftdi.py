@@ -24,14 +24,18 @@ import usb.core
 from ..errors import ProtocolViolation
 from ..ftdi_emu import EmulatedBackend, EmulatedFT232H
 from ..program import Program, ProgramResult, TraceCallback
-from . import query_params
-from .base import Clock
-from .ftdi import (DEFAULT_BUSY_US, DEFAULT_LATENCY_MS, DEFAULT_TCK_HZ, FT232H_PID, FTDI_VID,
-                   FtdiTransport, open_mpsse)
+from ..urls import Option, parse_options, query_params
+from .base import Check, Clock, PortInfo
+from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, open_mpsse
+from .ftdi import OPTIONS as FTDI_OPTIONS
 from .sim import build_model
 
-#: URL parameters that belong to this transport rather than to the chip model
-OWN_PARAMS = frozenset({"latency", "busy_us", "frequency", "usb_us", "command_ns"})
+#: URL options that belong to this transport rather than to the chip model: the FT232H
+#: transport's and the emulation's costs
+OPTIONS = (*FTDI_OPTIONS,
+           Option("usb_us", "float", 125, 0, 1e6, "us"),
+           Option("command_ns", "float", 500, 0, 1e6, "ns"))
+OWN_PARAMS = frozenset(o.name for o in OPTIONS)
 
 
 class EmulatedClock(Clock):
@@ -49,29 +53,15 @@ class EmulatedClock(Clock):
 
 class SimFtdiTransport(FtdiTransport):
     scheme = "sim+ftdi"
+    simulated = True
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimFtdiTransport:
         model = build_model(url, allowed=OWN_PARAMS)
-        q = query_params(url)
-
-        def num(name: str, default: float, lo: float, hi: float) -> float:
-            text = q.get(name)
-            if text is None:
-                return default
-            try:
-                value = float(text)
-            except ValueError:
-                raise ValueError(f"{url}: {name}={text!r} is not a number") from None
-            if not lo <= value <= hi:
-                raise ValueError(f"{url}: {name}={text} is outside {lo:g}..{hi:g}")
-            return value
-
-        latency = int(num("latency", DEFAULT_LATENCY_MS, 1, 255))
-        busy_us = num("busy_us", DEFAULT_BUSY_US, 0, 65535)
-        frequency = num("frequency", DEFAULT_TCK_HZ, 1e5, 30e6)
-        usb_us = num("usb_us", 125, 0, 1e6)
-        command_ns = num("command_ns", 500, 0, 1e6)
+        # build_model checked every other option: they are the chip model's
+        opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - OWN_PARAMS)
+        latency, busy_us, frequency = opts["latency"], opts["busy_us"], opts["frequency"]
+        usb_us, command_ns = opts["usb_us"], opts["command_ns"]
         strict = model.params.strict
         model.params.strict = False
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns))
@@ -86,6 +76,14 @@ class SimFtdiTransport(FtdiTransport):
     model: object
     device: EmulatedFT232H
     strict: bool
+
+    @classmethod
+    def list_ports(cls) -> list[PortInfo]:
+        return []  # the FT232H's adapters are not this simulator's
+
+    @classmethod
+    def doctor(cls, port: str | None = None) -> list[Check]:
+        return []
 
     def describe(self) -> str:
         p = self.model.params  # type: ignore[attr-defined]
