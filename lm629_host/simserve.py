@@ -21,6 +21,7 @@ import contextlib
 import logging
 import os
 import select
+import socket
 import threading
 import time
 import tty
@@ -182,11 +183,18 @@ def firmware_far_end(url: str) -> FarEnd:
 
 
 class SimServer:
-    """A far end served on a pseudo-terminal linked at ``link``."""
+    """A far end served on a pseudo-terminal linked at ``link``, or on a TCP port (``tcp=(host,
+    port)``, port 0: any free one) for ``serial://socket://host:port`` clients, as a bridge
+    behind ser2net would be.  On TCP one client is served at a time; a new connection takes
+    over from the previous one (the chip keeps its state, as a board does between programs)."""
 
-    def __init__(self, link: str | os.PathLike, url: str = "sim://", *,
-                 firmware: bool = False, far_end: FarEnd | None = None) -> None:
-        self.link = Path(link)
+    def __init__(self, link: str | os.PathLike | None = None, url: str = "sim://", *,
+                 firmware: bool = False, far_end: FarEnd | None = None,
+                 tcp: tuple[str, int] | None = None) -> None:
+        if (link is None) == (tcp is None):
+            raise ValueError("serve on a pty link or on a TCP port: give one of them")
+        self.link = Path(link) if link is not None else None
+        self.tcp = tcp
         self.url = url
         if far_end is None:
             far_end = firmware_far_end(url) if firmware else EmuFarEnd(build_model(url))
@@ -195,13 +203,46 @@ class SimServer:
         self.master: int | None = None
         self.slave: int | None = None
         self.device = ""
+        self._listener: socket.socket | None = None
+        self._client: socket.socket | None = None
+        #: (host, port) the TCP server listens on, once open
+        self.address: tuple[str, int] | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.bytes_in = 0
         self.bytes_out = 0
 
+    @property
+    def client_url(self) -> str:
+        """What a client passes to ``--port``."""
+        if self.tcp is not None:
+            host, port = self.address or self.tcp
+            return f"serial://socket://{host}:{port}"
+        return f"serial://{self.link}"
+
+    @property
+    def _opened(self) -> bool:
+        return self.master is not None or self._listener is not None
+
     # ------------------------------------------------------------------ set-up
     def open(self) -> str:
+        """Open where clients connect: the TCP port, or the pseudo-terminal and its link.
+        Returns the pty's device path, or ``host:port``."""
+        if self.tcp is not None:
+            return self._open_tcp()
+        return self._open_pty()
+
+    def _open_tcp(self) -> str:
+        assert self.tcp is not None
+        listener = socket.create_server(self.tcp)
+        listener.setblocking(False)
+        self._listener = listener
+        host, port = listener.getsockname()[:2]
+        self.address = (self.tcp[0] or host, port)
+        self.device = f"{self.address[0]}:{port}"
+        return self.device
+
+    def _open_pty(self) -> str:
         """Create the pseudo-terminal and the link; returns the pty's device path.
 
         The link is only ever created here, never taken over: a path that exists (a file, a
@@ -209,6 +250,7 @@ class SimServer:
         with FileExistsError.  Only a dangling link to a pseudo-terminal (left by a server
         that was killed) is replaced.  :meth:`close` removes the link only while it is still
         the one this server made."""
+        assert self.link is not None
         parent = self.link.parent
         if not parent.is_dir():
             raise ValueError(f"--pty {self.link}: the directory {parent} does not exist")
@@ -247,12 +289,17 @@ class SimServer:
                 with contextlib.suppress(OSError):
                     os.close(fd)
         self.master = self.slave = None
+        for sock in (self._client, self._listener):
+            if sock is not None:
+                sock.close()
+        self._client = self._listener = None
         with contextlib.suppress(OSError):
-            if self.device and self.link.is_symlink() and os.readlink(self.link) == self.device:
+            if self.device and self.link is not None and self.link.is_symlink() \
+                    and os.readlink(self.link) == self.device:
                 self.link.unlink()
 
     def __enter__(self) -> SimServer:
-        if self.master is None:
+        if not self._opened:
             self.open()
         return self
 
@@ -260,25 +307,64 @@ class SimServer:
         self.close()
 
     # ------------------------------------------------------------------ serving
+    def _fds(self) -> list[int | socket.socket]:
+        if self._listener is None:
+            assert self.master is not None
+            return [self.master]
+        return [self._listener] + ([self._client] if self._client is not None else [])
+
+    def _read(self, ready: list[int | socket.socket]) -> bytes:
+        """Bytes from the client; on TCP also takes a new connection (which replaces the last)."""
+        if self._listener is None:
+            assert self.master is not None
+            try:
+                return os.read(self.master, 4096)
+            except OSError:
+                return b""  # EIO while no client has the slave open (ours stays open)
+        if self._listener in ready:
+            with contextlib.suppress(BlockingIOError):
+                client, peer = self._listener.accept()
+                if self._client is not None:
+                    self._client.close()
+                client.setblocking(True)
+                client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                self._client = client
+                log.info("client %s:%s connected", *peer[:2])
+                return b""
+        if self._client is not None and self._client in ready:
+            try:
+                data = self._client.recv(4096)
+            except OSError:
+                data = b""
+            if not data:  # the client went away: wait for the next one
+                self._client.close()
+                self._client = None
+            return data
+        return b""
+
+    def _write(self, data: bytes) -> None:
+        if self._listener is None:
+            assert self.master is not None
+            os.write(self.master, data)
+        elif self._client is not None:
+            with contextlib.suppress(OSError):  # a client gone while we answered
+                self._client.sendall(data)
+
     def serve_forever(self, on_ready: Callable[[], None] | None = None) -> None:
         """Answer until :meth:`stop` (or KeyboardInterrupt)."""
-        if self.master is None:
+        if not self._opened:
             self.open()
-        master = self.master
         far = self.far
         wall0 = time.monotonic()
         sim0 = far.now()
         if on_ready is not None:
             on_ready()
         while not self._stop.is_set():
-            ready, _, _ = select.select([master], [], [], IDLE_TICK_S)
+            ready, _, _ = select.select(self._fds(), [], [], IDLE_TICK_S)
             stray = far.advance_to(sim0 + time.monotonic() - wall0)
             replies = [stray] if stray else []
             if ready:
-                try:
-                    data = os.read(master, 4096)
-                except OSError:
-                    data = b""  # EIO while no client has the slave open (ours stays open)
+                data = self._read(ready)
                 if data:
                     self.bytes_in += len(data)
                     replies += far.receive(data)
@@ -288,16 +374,16 @@ class SimServer:
             if ahead > 0:
                 time.sleep(ahead)  # real-time service: answer no earlier than a bridge would
             for r in replies:
-                os.write(master, r)
+                self._write(r)
                 self.bytes_out += len(r)
 
     def start(self) -> SimServer:
         """Serve in a background thread (tests, scripts)."""
-        if self.master is None:
+        if not self._opened:
             self.open()
         ready = threading.Event()
         self._thread = threading.Thread(target=self.serve_forever, args=(ready.set,),
-                                        name=f"lm629-sim-serve {self.link}", daemon=True)
+                                        name=f"lm629-sim-serve {self.link or self.device}", daemon=True)
         self._thread.start()
         ready.wait(5)
         return self
@@ -310,8 +396,10 @@ class SimServer:
 
     def describe(self) -> str:
         p = self.model.params
+        where = (f"TCP port {self.device}" if self.tcp is not None
+                 else f"{self.device} (linked at {self.link})")
         return (f"{self.far.describe()} with a simulated {p.variant.upper()} at "
-                f"{p.clock_hz / 1e6:g} MHz, on {self.device} (linked at {self.link})")
+                f"{p.clock_hz / 1e6:g} MHz, on {where}")
 
 
 __all__ = ["EmuFarEnd", "FarEnd", "PipeFarEnd", "SimServer", "firmware_far_end"]

@@ -34,7 +34,7 @@ except ImportError:  # pragma: no cover - Windows
 from ..errors import TransportError
 from ..link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
-from ..urls import Option, parse_options
+from ..urls import Option, parse_options, query_params, with_query
 from .base import Check, Clock, PortInfo, WallClock
 
 log = logging.getLogger("lm629_host.serial")
@@ -66,6 +66,13 @@ OPTIONS = (
     Option("low_latency", "bool", True),
     Option("cs", "int", 0, 0, 255),
 )
+_OPTION_NAMES = frozenset(o.name for o in OPTIONS)
+
+
+def is_handler_url(device: str) -> bool:
+    """True for a pyserial URL (``socket://host:port``, ``rfc2217://host:port``,
+    ``spy:///dev/ttyUSB0``...) rather than a device path."""
+    return "://" in device
 
 
 def _ask_group(path: str) -> str:
@@ -114,10 +121,14 @@ class SerialOptions:
 
 def options_of(url: str) -> SerialOptions:
     """Parse and check a ``serial://`` URL (ValueError naming the parameter)."""
-    opts = parse_options(url, OPTIONS, what="serial")
     device = device_of(url)
     if not device:
         raise ValueError(f"{url}: no device path (e.g. serial:///dev/ttyACM0)")
+    handler = {}
+    if is_handler_url(device):  # socket://, rfc2217://, spy://: the other options are its own
+        handler = {k: v for k, v in query_params(url).items() if k not in _OPTION_NAMES}
+        device = with_query(device, handler)
+    opts = parse_options(url, OPTIONS, what="serial", ignore=handler)
     return SerialOptions(device=device, baud=opts["baud"], retries=opts["retries"],
                          boot_s=opts["boot"], low_latency=opts["low_latency"], cs=opts["cs"])
 
@@ -176,14 +187,22 @@ class SerialPipe:
 
 def open_port(device: str, baud: int):
     """Open ``device`` with pyserial (8N1, exclusive) or raise a :class:`TransportError` that
-    says what to do."""
+    says what to do.  ``device`` may be any pyserial URL (``serial_for_url``): a bridge on
+    another machine (``socket://host:port`` behind ser2net, ``rfc2217://host:port``), or
+    ``spy://PORT?file=...`` to hex-dump the traffic."""
     import serial
 
     try:
-        return serial.Serial(device, baud, timeout=0, write_timeout=2.0, exclusive=True)
+        # exclusive: a lock on a local port (spy:// included); network handlers ignore it
+        return serial.serial_for_url(device, baud, timeout=0, write_timeout=2.0, exclusive=True)
     except serial.SerialException as exc:
         code = getattr(exc, "errno", None)
         text = str(exc)
+        if is_handler_url(device):
+            raise TransportError(
+                f"cannot open {device}: {text}. For socket:// and rfc2217://: is the bridge's "
+                "server (ser2net, `lm629 sim serve --tcp PORT`) running on that host and port, "
+                "and does a firewall let it through?", port=device) from None
         if code == errno.ENOENT or "No such file" in text or "FileNotFoundError" in text:
             raise TransportError(advice_missing(device), port=device) from None
         if code == errno.EACCES or "Permission denied" in text or "PermissionError" in text:
@@ -254,7 +273,7 @@ class SerialTransport(LinkTransport):
                    boot_s=opts.boot_s, low_latency=low)
 
     def _no_answer(self, what: str, attempts: int) -> TransportError:
-        dev = device_of(self.url)
+        dev = device_of(self.url)  # with a socket:// URL the advice is the remote board's
         return TransportError(
             f"no answer to {what} within {self.hello_total_s:g} s ({attempts} attempts) at "
             f"{self.baud} baud. Check: is the bridge firmware flashed (lm629 bridge flash "
