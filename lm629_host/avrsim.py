@@ -77,6 +77,11 @@ def ensure_built() -> None:
     global _built
     if _built:
         return
+    if not FIRMWARE_DIR.is_dir():
+        raise HarnessError(f"sim+avr:// builds the bridge firmware from its sources, "
+                           f"{FIRMWARE_DIR}, which only a checkout of lm629-host has (an "
+                           "installed package carries the image, not the sources): run it from "
+                           "a checkout, or use sim+emu:// (the Python bridge)")
     if toolchain_missing():
         if LIBRARY.exists() and firmware_path().exists():
             _built = True

@@ -1016,6 +1016,21 @@ def list_cmd() -> None:
 
 
 @main.command()
+@click.option("--path", "path_only", is_flag=True, help="Print only the rule file's path.")
+def udev(path_only: bool) -> None:
+    """The udev rule that lets your user open FT232H adapters (ftdi://) without root: where
+    this installation keeps it, and the commands that install it."""
+    from . import data
+    if path_only:
+        click.echo(str(data.udev_rule()))
+        return
+    click.echo(f"rule file: {data.udev_rule()}")
+    click.echo("install it (once per machine), then replug the adapter:")
+    for command in data.udev_install_commands():
+        click.echo(f"    {command}")
+
+
+@main.command()
 def doctor() -> None:
     """What is installed, what can be found and what is wrong (backends, permissions, latency,
     firmware version, round-trip time)."""

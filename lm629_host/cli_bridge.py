@@ -15,8 +15,10 @@ from pathlib import Path
 
 import click
 
-#: where ``make -C firmware_bridge`` puts the image
-DEFAULT_HEX = Path(__file__).resolve().parent.parent / "firmware_bridge" / "build" / "lm629_bridge.hex"
+from .data import firmware_image
+
+#: the image shipped inside the package (``make -C firmware_bridge bundle`` made it)
+DEFAULT_HEX = firmware_image()
 
 
 @dataclass(frozen=True)
@@ -105,8 +107,9 @@ def flash_cmd(port: str, board: str, hex_file: Path, avrdude: str, dry_run: bool
         return
     if not hex_file.is_file():
         raise click.ClickException(
-            f"no firmware image at {hex_file}: build it with `make -C firmware_bridge` "
-            "(needs: sudo apt-get install gcc-avr avr-libc binutils-avr), or give --hex FILE.")
+            f"no firmware image at {hex_file}: leave --hex out to flash the image shipped "
+            "with this package, or build one in a checkout with `make -C firmware_bridge` "
+            "(needs: sudo apt-get install gcc-avr avr-libc binutils-avr).")
     exe = shutil.which(avrdude)
     if exe is None:
         raise click.ClickException(

@@ -15,6 +15,10 @@ import pytest
 from pyftdi.usbtools import UsbTools
 
 import lm629_host
+from click.testing import CliRunner
+
+from lm629_host import data
+from lm629_host.cli import main as cli
 from lm629_host import TransportError
 from lm629_host.ftdi_emu import SHARED, EmulatedFT232H
 from lm629_host.model import ChipModel
@@ -70,7 +74,8 @@ def test_access_denied_says_how_to_install_the_udev_rule(bus):
         lm629_host.open("ftdi://ftdi:232h:FT5LM629/1")
     text = str(info.value)
     assert "access denied" in text
-    assert "sudo cp udev/99-lm629-ft232h.rules /etc/udev/rules.d/" in text
+    # the command names the rule where this installation keeps it (no checkout needed)
+    assert f"sudo cp {data.udev_rule()} /etc/udev/rules.d/" in text and data.udev_rule().is_file()
     assert "udevadm control --reload-rules" in text
 
 
@@ -108,13 +113,17 @@ def test_bad_options_are_value_errors_before_any_usb_traffic(bus):
 
 
 def test_udev_rule_matches_the_ft232h_and_the_readme_commands():
-    rule = (ROOT / "udev" / "99-lm629-ft232h.rules").read_text()
+    rule = data.udev_rule().read_text()
     lines = [ln for ln in rule.splitlines() if ln.strip() and not ln.startswith("#")]
     assert any('ATTRS{idVendor}=="0403"' in ln and 'ATTRS{idProduct}=="6014"' in ln
                and 'MODE="0660"' in ln and 'GROUP="plugdev"' in ln for ln in lines)
     readme = (ROOT / "README.md").read_text()
     section = readme.split("## The FT232H adapter", 1)[1].split("\n## ", 1)[0]
-    assert "sudo cp udev/99-lm629-ft232h.rules /etc/udev/rules.d/" in section
+    assert 'sudo cp "$(lm629 udev --path)" /etc/udev/rules.d/' in section
+    r = CliRunner().invoke(cli, ["udev", "--path"])
+    assert r.output.strip() == str(data.udev_rule())
+    r = CliRunner().invoke(cli, ["udev"])
+    assert all(c in r.output for c in data.udev_install_commands())
     assert ftdi.UDEV_RULE == "/etc/udev/rules.d/99-lm629-ft232h.rules"
 
 

@@ -94,6 +94,7 @@ from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
+from .. import data
 from .. import ftdi_pins as pins
 from ..errors import BusyTimeout, TransportError
 from ..opcodes import RESET_WAIT_S, Cmd, Status
@@ -129,7 +130,7 @@ RST_LOW_S = 10e-6  #: >= 8 clocks of the slowest (1 MHz) chip, with margin
 #: commands that act on the chip (not repeatable once taken): the stream is cut before them
 ACTIONS = frozenset({Cmd.RESET, Cmd.STT, Cmd.DFH, Cmd.SIP, Cmd.UDF})
 
-UDEV_RULE = "/etc/udev/rules.d/99-lm629-ft232h.rules"
+UDEV_RULE = f"{data.UDEV_RULES_DIR}/{data.UDEV_RULE}"  #: where the installed rule lives
 
 
 # ---------------------------------------------------------------------------- compilation
@@ -597,11 +598,9 @@ ADVICE_NO_BACKEND = (
     "sudo apt-get install libusb-1.0-0; Fedora: sudo dnf install libusb1; macOS: "
     "brew install libusb), then try again")
 ADVICE_ACCESS = (
-    "access denied to the FT232H's USB device. Install the udev rule shipped with this project "
-    "and replug the adapter:\n"
-    f"    sudo cp udev/99-lm629-ft232h.rules {UDEV_RULE}\n"
-    "    sudo udevadm control --reload-rules && sudo udevadm trigger\n"
-    "    sudo usermod -aG plugdev $USER   (then log out and in again)")
+    "access denied to the FT232H's USB device. Install the udev rule shipped with this package "
+    "and replug the adapter (`lm629 udev` prints these commands):\n"
+    + "\n".join("    " + c for c in data.udev_install_commands()))
 ADVICE_BUSY = (
     "device busy: another program, or the ftdi_sio kernel driver, holds the FT232H. Close other "
     "programs using it (another lm629, a serial terminal); to free it from ftdi_sio either "
