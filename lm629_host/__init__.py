@@ -29,7 +29,7 @@ from .urls import query_params
 __version__ = "0.1.0"
 
 
-def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa: A001
+def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa: A001 - lm629_host.open, as io.open
          busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> LM629:
     """Open the chip behind ``url`` (``sim://`` by default; see :mod:`lm629_host.transports`).
 

@@ -185,7 +185,7 @@ class AvrSim:
                 m.reset_pulse()
                 r = 0
             return (r & 0xFF) | (0x100 if m.hi else 0)
-        except BaseException as exc:  # ctypes would swallow it: keep it, stop the run
+        except BaseException as exc:  # noqa: BLE001 - ctypes would swallow it: keep it, stop the run
             self._error = exc
             return -1
 
@@ -286,7 +286,7 @@ class AvrSim:
     def __del__(self) -> None:  # pragma: no cover - best effort
         try:
             self.close()
-        except Exception:
+        except Exception:  # noqa: BLE001 - at interpreter exit anything may be gone already
             pass
 
 

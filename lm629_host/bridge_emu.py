@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from .link import (
@@ -201,7 +202,7 @@ class BridgeEmulator:
 ModelClock = SimClock
 
 
-def _last_due(queue: deque[tuple[float, int]], deadline: float) -> float:
+def _last_due(queue: Sequence[tuple[float, object]], deadline: float) -> float:
     """Arrival time of the last byte of ``queue`` (time-ordered) due by ``deadline``; the first
     byte must be due."""
     last = queue[0][0]
@@ -305,6 +306,8 @@ class EmuLinkTransport(LinkTransport):
 
     scheme = "sim+emu"
     simulated = True
+    model: ChipModel  #: the chip behind the emulated bridge
+    emulator: BridgeEmulator  #: the emulated bridge
     #: the emulated bridge answers at once: the margin only covers rounding
     margin_s = 1e-3
 
@@ -335,7 +338,7 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     outer = wrap(pipe) if wrap is not None else pipe
     t = EmuLinkTransport.__new__(EmuLinkTransport)
     t.margin_s = margin_s
-    t.model = model  # type: ignore[attr-defined]
-    t.emulator = emu  # type: ignore[attr-defined]
+    t.model = model
+    t.emulator = emu
     LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
     return t

@@ -29,7 +29,7 @@ import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NoReturn
 
 import click
 
@@ -52,7 +52,7 @@ from .errors import (
 from .lm629 import LM629, Snapshot, check_int
 from .move import MoveRules
 from .opcodes import ACCELERATION_MAX, POSITION_MAX, POSITION_MIN, VELOCITY_MAX, Signals, Status
-from .program import BusCycle, Program
+from .program import BusCycle, Program, ProgramResult
 from .transports import is_simulated
 from .urls import parse_hz, query_params, with_query
 from .units import FIXED_ONE, Scale
@@ -185,7 +185,7 @@ class Session:
         """Run every bus program of ``chip`` whole: a stop signal waits for its end."""
         execute = chip.transport.execute
 
-        def guarded(program: Program):  # type: ignore[no-untyped-def]
+        def guarded(program: Program) -> ProgramResult:
             self._bus_depth += 1
             try:
                 result = execute(program)
@@ -196,7 +196,7 @@ class Session:
                 self._raise_signal(signum)
             return result
 
-        chip.transport.execute = guarded  # type: ignore[method-assign]
+        chip.transport.execute = guarded  # type: ignore[method-assign]  # this CLI run's transport only
 
     def _trace(self, cycle: BusCycle) -> None:
         if self.trace:
@@ -271,7 +271,7 @@ class LM629Group(click.Group):
 
 
 def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
-          always_tb: bool = False) -> None:
+          always_tb: bool = False) -> NoReturn:
     session = ctx.obj if isinstance(ctx.obj, Session) else None
     if always_tb or (session is not None and session.verbose):
         traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
@@ -368,12 +368,14 @@ def _log_to_stderr(level: int) -> None:
 
 
 def _session() -> Session:
-    return click.get_current_context().find_object(Session)  # type: ignore[return-value]
+    session = click.get_current_context().find_object(Session)
+    assert session is not None, "main() sets the Session before any command runs"
+    return session
 
 
 # ---------------------------------------------------------------------------------- rendering
 def _flags(status: int) -> str:
-    names = [f.name.lower() for f in Status if status & f]  # type: ignore[union-attr]
+    names = [(f.name or "").lower() for f in Status if status & f]
     return ",".join(names) or "-"
 
 
@@ -811,7 +813,7 @@ def index(wait_s: float | None, search: int | None) -> None:
 @click.option("--relative", "-r", is_flag=True, help="Relative to the current target (SBPR).")
 @click.option("--raw", is_flag=True, help="Counts even with --lines.")
 @click.option("--wait", "wait_s", type=FINITE, default=None, help="Wait for it (seconds).")
-def breakpoint(position: float, relative: bool, raw: bool, wait_s: float | None) -> None:  # noqa: A001
+def breakpoint(position: float, relative: bool, raw: bool, wait_s: float | None) -> None:  # noqa: A001 - the command is `lm629 breakpoint`
     """Set a breakpoint (SBPA/SBPR) at POSITION (counts; revolutions with --lines); status
     bit 6 when the position passes it."""
     s = _session()
@@ -859,9 +861,9 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
     s = _session()
     scale = s.scale
     chip = s.open()
-    f = open(csv_path, "w", newline="") if csv_path else None  # noqa: SIM115
+    f = open(csv_path, "w", newline="") if csv_path else None  # noqa: SIM115 - closed in finally
     writer = csvmod.writer(f) if f else None
-    header = ("t_s", "desired_position", "real_position", "following_error",
+    header: tuple[str, ...] = ("t_s", "desired_position", "real_position", "following_error",
               "desired_velocity", "real_velocity", "status", "flags")
     if scale is not None:
         header = header[:6] + ("real_position_rev", "real_velocity_rpm") + header[6:]

@@ -10,6 +10,7 @@ serial line; a stall longer than the host's timeout looks like a lost reply that
 
 from __future__ import annotations
 
+import functools
 import random
 from collections import deque
 from dataclasses import dataclass, field
@@ -202,10 +203,11 @@ def soak(chip, n: int) -> SoakResult:
     r = SoakResult()
     for i in range(n):
         r.calls += 1
+        entry: tuple[int, tuple[int, ...]]
         if i % 2:
             pos = 1000 + i
             entry = (int(Cmd.SBPA), ((pos >> 16) & 0xFFFF, pos & 0xFFFF))
-            call = lambda: chip.set_breakpoint(pos)  # noqa: E731
+            call = functools.partial(chip.set_breakpoint, pos)
         else:
             entry = (int(Cmd.RDRP), ())
             call = chip.read_real_position
@@ -274,7 +276,7 @@ def check_record(history: list[Entry], expected: list[tuple[Entry, bool]]) -> tu
                              f"or out of order: {history[j:j + 5]} (record position {j})")
     ran = lost = 0
     j = n_hist
-    for (entry, certain), step in zip(reversed(expected), reversed(back)):
+    for (_entry, certain), step in zip(reversed(expected), reversed(back)):
         j, took = step[j]
         if not certain:
             ran += took

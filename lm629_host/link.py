@@ -121,6 +121,21 @@ def c_defines() -> list[tuple[str, int, str]]:
 
 
 # ---------------------------------------------------------------------------------- CRC, COBS
+def _crc_table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return tuple(table)
+
+
+#: the CRC's byte table, for the firmware (``tools/gen_tables.py`` writes it into
+#: ``lm629_tables.h``); the host computes the same CRC with the stdlib (:func:`crc16`)
+_CRC_TABLE = _crc_table()
+
+
 def crc16(data: bytes) -> int:
     """CRC-16/GENIBUS: poly 0x1021, init 0xFFFF, no reflection, final xor 0xFFFF (check
     value: ``crc16(b"123456789") == 0xD64E``).  The final xor matters: without it a frame
@@ -314,7 +329,7 @@ class HelloInfo:
 
     def describe(self) -> str:
         caps = Capability(self.capabilities)
-        names = [c.name.lower() for c in Capability if c in caps]  # type: ignore[union-attr]
+        names = [(c.name or "").lower() for c in Capability if c in caps]
         return (f"bridge firmware {self.firmware_version}, protocol {self.protocol}, "
                 f"{self.cpu_hz / 1e6:g} MHz, programs up to {self.max_program} bytes / "
                 f"{self.max_reads} words, {self.chip_selects} chip select(s), "
@@ -404,7 +419,7 @@ class RunReply:
             raise FrameError(f"RUN_REPLY of {len(payload)} bytes does not hold {n} status bytes "
                              "and whole words")
         words = struct.unpack(f">{len(rest) // 2}H", rest)
-        return cls(*payload[:4], tuple(payload[5:5 + n]), words)
+        return cls(payload[0], payload[1], payload[2], payload[3], tuple(payload[5:5 + n]), words)
 
 
 def reply_size(ops: Sequence[BusOp]) -> int:
@@ -433,7 +448,8 @@ class Pipe(Protocol):
     while it waits; a serial port waits in real time.
     """
 
-    clock: Clock
+    @property
+    def clock(self) -> Clock: ...
 
     def write(self, data: bytes) -> None: ...
 

@@ -306,11 +306,11 @@ class LM629:
                            DERIVATIVE_INTERVAL_MAX) - 1
         control = ds << 8
         for flag in FILTER_ORDER:
-            if values[flag.name.lower()] is not None:
+            if values[(flag.name or "").lower()] is not None:
                 control |= flag
         p = self.program().command(Cmd.LFIL).write(control)
         for flag in FILTER_ORDER:
-            v = values[flag.name.lower()]
+            v = values[(flag.name or "").lower()]
             if v is not None:
                 p.write(v)
         return p

@@ -17,6 +17,7 @@ real bridge would answer that late.
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import logging
 import os
@@ -25,7 +26,7 @@ import socket
 import threading
 import time
 import tty
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from .bridge_emu import BridgeEmulator
@@ -40,23 +41,26 @@ log = logging.getLogger("lm629_host.simserve")
 IDLE_TICK_S = 0.02
 
 
-class FarEnd:
+class FarEnd(abc.ABC):
     """What the server needs from a far end: bytes in, reply bytes out, a simulated clock that
     the server keeps level with the wall clock, and the chip model."""
 
     model: ChipModel
 
-    def receive(self, data: bytes) -> list[bytes]: ...  # pragma: no cover - interface
+    @abc.abstractmethod
+    def receive(self, data: bytes) -> list[bytes]: ...
 
-    def now(self) -> float: ...  # pragma: no cover - interface
+    @abc.abstractmethod
+    def now(self) -> float: ...
 
+    @abc.abstractmethod
     def advance_to(self, t: float) -> bytes:
         """Run the far end up to simulated time ``t``; returns bytes it sent meanwhile."""
-        ...  # pragma: no cover - interface
 
-    def describe(self) -> str: ...  # pragma: no cover - interface
+    @abc.abstractmethod
+    def describe(self) -> str: ...
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional: a far end may hold nothing
         pass
 
 
@@ -307,13 +311,13 @@ class SimServer:
         self.close()
 
     # ------------------------------------------------------------------ serving
-    def _fds(self) -> list[int | socket.socket]:
+    def _fds(self) -> Sequence[int | socket.socket]:
         if self._listener is None:
             assert self.master is not None
             return [self.master]
         return [self._listener] + ([self._client] if self._client is not None else [])
 
-    def _read(self, ready: list[int | socket.socket]) -> bytes:
+    def _read(self, ready: Sequence[int | socket.socket]) -> bytes:
         """Bytes from the client; on TCP also takes a new connection (which replaces the last)."""
         if self._listener is None:
             assert self.master is not None

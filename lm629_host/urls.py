@@ -91,6 +91,14 @@ def _number(text: str, kind: str) -> int | float:
     return v
 
 
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 @dataclass(frozen=True)
 class Option:
     """One URL option: its name, type, default, allowed range (inclusive) and unit.
@@ -127,8 +135,9 @@ class Option:
         try:
             value = _number(text, self.kind)
         except ValueError:
-            what = "a frequency (8MHz, 6e6)" if self.kind == "hz" else (
-                "a whole number" if self.kind == "int" else "a number")
+            what = "a frequency (8MHz, 6e6)" if self.kind == "hz" else "a number"
+            if self.kind == "int" and _is_float(text):
+                what = "a whole number"
             raise ValueError(f"{url}: {name}={text!r} is not {what}") from None
         if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
             raise ValueError(f"{url}: {name}={text} is outside {self.range()}")

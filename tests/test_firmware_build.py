@@ -16,7 +16,6 @@ from lm629_host import bridge_pins as pins
 from lm629_host.link import MAX_FRAME, RUN_OVERHEAD, RUN_REPLY_OVERHEAD
 from lm629_host.program import OP_ARG_BYTES, Op
 
-from firmware_helpers import firmware_built
 
 ROOT = Path(__file__).resolve().parent.parent
 FW = ROOT / "firmware_bridge"

@@ -25,7 +25,7 @@ def state(chip) -> tuple:
 
 
 try:
-    import lm629_host.model._fastloop  # noqa: F401
+    import lm629_host.model._fastloop
     LOOPS = ("0", "py", "c")
 except ImportError:  # no C compiler when the package was installed
     LOOPS = ("0", "py")

@@ -10,14 +10,12 @@ import pytest
 
 from lm629_host import LM629, BusyTimeout
 from lm629_host.avrsim import CPU_HZ, STATUS, AvrPipe, AvrSim
-from lm629_host.link import (FrameReader, FrameType, LinkTransport, Result, RunReply, encode_frame,
-                             run_payload)
+from lm629_host.link import (FrameReader, FrameType, LinkTransport, Result, RunReply, encode_frame)
 from lm629_host.opcodes import Cmd, Status
 from lm629_host.program import Program
 from lm629_host.transports import open_transport
 from lm629_host.transports.sim import build_model
 
-from firmware_helpers import firmware_built  # noqa: F401
 
 pytestmark = pytest.mark.usefixtures("firmware_built")
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import threading
 
-import pytest
 
 from lm629_host import Signals, Status
 from lm629_host.simserve import SimServer

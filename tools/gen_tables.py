@@ -19,11 +19,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lm629_host import bridge_pins as pins  # noqa: E402
-from lm629_host.link import _CRC_TABLE, c_defines  # noqa: E402
-from lm629_host.opcodes import Cmd, Status  # noqa: E402
-from lm629_host.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, Op  # noqa: E402
-from generated import write_or_check  # noqa: E402
+from lm629_host import bridge_pins as pins  # noqa: E402 - after sys.path.insert
+from lm629_host.link import _CRC_TABLE, c_defines  # noqa: E402 - after sys.path.insert
+from lm629_host.opcodes import Cmd, Status  # noqa: E402 - after sys.path.insert
+from lm629_host.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, Op  # noqa: E402 - after sys.path.insert
+from generated import write_or_check  # noqa: E402 - after sys.path.insert
 
 OUT = ROOT / "firmware_bridge" / "lm629_tables.h"
 
@@ -42,7 +42,7 @@ def render() -> str:
     lines.append(f"#define OP_MAX 0x{max(int(o) for o in Op):02X}u")
     table = ", ".join(str(OP_ARG_BYTES.get(Op(i), 0)) if i in {int(o) for o in Op} else "0xFF"
                       for i in range(max(int(o) for o in Op) + 1))
-    lines.append(f"/* argument bytes by op code, 0xFF: no such op */")
+    lines.append("/* argument bytes by op code, 0xFF: no such op */")
     lines.append(f"#define OP_ARG_BYTES_INIT {{ {table} }}")
     lines.append(f"#define DEFAULT_BUSY_TIMEOUT_US {round(DEFAULT_BUSY_TIMEOUT_S * 1e6)}u")
     lines += ["", "/* LM628/LM629 commands (lm629_host.opcodes.Cmd) */"]

@@ -83,74 +83,74 @@ class EmulatedBackend(usb.backend.IBackend):
         self.libusb_present = True
 
     # enumeration and descriptors
-    def enumerate_devices(self):  # type: ignore[no-untyped-def]
+    def enumerate_devices(self):
         return iter(list(self.devices))
 
-    def get_parent(self, dev):  # type: ignore[no-untyped-def]
+    def get_parent(self, dev):
         return None
 
-    def get_device_descriptor(self, dev):  # type: ignore[no-untyped-def]
+    def get_device_descriptor(self, dev):
         return _device_descriptor(dev)
 
-    def get_configuration_descriptor(self, dev, config):  # type: ignore[no-untyped-def]
+    def get_configuration_descriptor(self, dev, config):
         if config != 0:
             raise IndexError(f"configuration {config}")
         return _config_descriptor()
 
-    def get_interface_descriptor(self, dev, intf, alt, config):  # type: ignore[no-untyped-def]
+    def get_interface_descriptor(self, dev, intf, alt, config):
         if (intf, alt, config) != (0, 0, 0):
             raise IndexError(f"interface {intf}/{alt}")
         return _interface_descriptor()
 
-    def get_endpoint_descriptor(self, dev, ep, intf, alt, config):  # type: ignore[no-untyped-def]
+    def get_endpoint_descriptor(self, dev, ep, intf, alt, config):
         if ep not in (0, 1):
             raise IndexError(f"endpoint {ep}")
         return _endpoint_descriptor((EP_IN, EP_OUT)[ep])
 
     # handles and configuration
-    def open_device(self, dev):  # type: ignore[no-untyped-def]
+    def open_device(self, dev):
         code = getattr(dev, "open_error", None)
         if code:
             raise USBError(f"[Errno {code}] {errno.errorcode.get(code, code)}", code, code)
         return _Handle(dev)
 
-    def close_device(self, dev_handle):  # type: ignore[no-untyped-def]
+    def close_device(self, dev_handle):
         pass
 
-    def set_configuration(self, dev_handle, config_value):  # type: ignore[no-untyped-def]
+    def set_configuration(self, dev_handle, config_value):
         dev_handle.configuration = config_value
 
-    def get_configuration(self, dev_handle):  # type: ignore[no-untyped-def]
+    def get_configuration(self, dev_handle):
         return dev_handle.configuration
 
-    def set_interface_altsetting(self, dev_handle, intf, altsetting):  # type: ignore[no-untyped-def]
+    def set_interface_altsetting(self, dev_handle, intf, altsetting):
         pass
 
-    def claim_interface(self, dev_handle, intf):  # type: ignore[no-untyped-def]
+    def claim_interface(self, dev_handle, intf):
         code = getattr(dev_handle.dev, "claim_error", None)
         if code:
             raise USBError(f"[Errno {code}] {errno.errorcode.get(code, code)}", code, code)
 
-    def release_interface(self, dev_handle, intf):  # type: ignore[no-untyped-def]
+    def release_interface(self, dev_handle, intf):
         pass
 
-    def is_kernel_driver_active(self, dev_handle, intf):  # type: ignore[no-untyped-def]
+    def is_kernel_driver_active(self, dev_handle, intf):
         return False
 
-    def detach_kernel_driver(self, dev_handle, intf):  # type: ignore[no-untyped-def]
+    def detach_kernel_driver(self, dev_handle, intf):
         pass
 
-    def attach_kernel_driver(self, dev_handle, intf):  # type: ignore[no-untyped-def]
+    def attach_kernel_driver(self, dev_handle, intf):
         pass
 
-    def clear_halt(self, dev_handle, ep):  # type: ignore[no-untyped-def]
+    def clear_halt(self, dev_handle, ep):
         pass
 
-    def reset_device(self, dev_handle):  # type: ignore[no-untyped-def]
+    def reset_device(self, dev_handle):
         dev_handle.dev.control_out(0, 0, 0, b"")
 
     # transfers
-    def bulk_write(self, dev_handle, ep, intf, data, timeout):  # type: ignore[no-untyped-def]
+    def bulk_write(self, dev_handle, ep, intf, data, timeout):
         if ep != EP_OUT:
             raise USBError(f"bulk write to endpoint {ep:#x}", errno.EINVAL, errno.EINVAL)
         try:
@@ -159,14 +159,14 @@ class EmulatedBackend(usb.backend.IBackend):
             raise usb.core.USBTimeoutError(f"[Errno 110] Operation timed out ({exc})",
                                            errno.ETIMEDOUT, -7) from None
 
-    def bulk_read(self, dev_handle, ep, intf, buff, timeout):  # type: ignore[no-untyped-def]
+    def bulk_read(self, dev_handle, ep, intf, buff, timeout):
         if ep != EP_IN:
             raise USBError(f"bulk read from endpoint {ep:#x}", errno.EINVAL, errno.EINVAL)
         data = dev_handle.dev.bulk_in(len(buff) * buff.itemsize)
         buff[:len(data)] = array.array("B", data)
         return len(data)
 
-    def ctrl_transfer(self, dev_handle, bmRequestType, bRequest, wValue, wIndex, data, timeout):  # type: ignore[no-untyped-def]  # noqa: N803,E501
+    def ctrl_transfer(self, dev_handle, bmRequestType, bRequest, wValue, wIndex, data, timeout):  # noqa: N803 - pyusb names the parameters
         dev: EmulatedFT232H = dev_handle.dev
         if bmRequestType & 0x60 == 0x00:  # standard request
             if bRequest == 6 and wValue >> 8 == 3:  # GET_DESCRIPTOR, string
@@ -194,7 +194,7 @@ class EmulatedBackend(usb.backend.IBackend):
 SHARED = EmulatedBackend()
 
 
-def get_backend(find_library=None):  # type: ignore[no-untyped-def]
+def get_backend(find_library=None):
     """pyusb's backend-module entry point: the shared emulated backend, or None when it plays a
     machine without libusb."""
     return SHARED if SHARED.libusb_present else None

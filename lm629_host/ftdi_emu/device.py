@@ -188,7 +188,7 @@ class EmulatedFT232H:
         self._stretch_left = transfers
         self._stretch_clocks = max(1, round(seconds * self.model.clock_hz))
 
-    def _strobe(self, fn, *args):  # type: ignore[no-untyped-def]
+    def _strobe(self, fn, *args):
         m = self.model
         if not self._stretch_left:
             return fn(*args)

@@ -38,7 +38,7 @@ opcodes, busy after RESET, PORT12 on an LM629, the busy and reset times):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 from ..errors import ProtocolViolation
 from ..opcodes import (
@@ -161,6 +161,12 @@ def _sample_loop(choice: str) -> Callable[[tuple, tuple], tuple] | None:
 
 class ChipModel:
     """One LM628 or LM629 with its motor, as seen from its pins."""
+
+    # set by _reset_registers (declared here: the sample loop reads them before, in the file)
+    signals_extra: int
+    breakpoint: int
+    filter_buffer: FilterRegisters
+    _udf_pending: bool
 
     def __init__(self, params: ChipParams | None = None, motor: MotorParams | None = None):
         self.params = params or ChipParams()
@@ -497,7 +503,7 @@ class ChipModel:
 
     # ------------------------------------------------------------------ command execution
     def _accept_word(self, word: int) -> None:
-        cmd = Cmd(self._cmd)  # type: ignore[arg-type]
+        cmd = Cmd(self._cmd)  # type: ignore[arg-type]  # a command is under way: _cmd is set
         self._words.append(word)
         self._words_left -= 1
         if len(self._words) == 1 and cmd is Cmd.LFIL:
@@ -596,7 +602,7 @@ class ChipModel:
         buf.ds = control >> 8
         for flag in FILTER_ORDER:
             if control & flag:
-                setattr(buf, flag.name.lower(), next(values))
+                setattr(buf, (flag.name or "").lower(), next(values))
 
     def _load_trajectory(self, words: list[int]) -> None:
         control, values = words[0], iter(words[1:])

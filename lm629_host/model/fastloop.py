@@ -15,7 +15,8 @@ may have become quiescent (so that the caller can skip ahead).
 from __future__ import annotations
 
 from math import floor, log
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
+from collections.abc import Callable
 
 from ..opcodes import Signals, Status
 from .pid import SUM_MAX, SUM_MIN

@@ -159,8 +159,8 @@ class Transport(abc.ABC):
         def execute(self: Transport, program: Program) -> ProgramResult:
             with self.lock:
                 return fn(self, program)
-        execute._runs_locked = True  # type: ignore[attr-defined]
-        cls.execute = execute  # type: ignore[method-assign]
+        execute._runs_locked = True  # type: ignore[attr-defined]  # marks the wrapper
+        cls.execute = execute  # type: ignore[method-assign]  # every execute runs locked
 
     @property
     def lock(self) -> threading.RLock:
@@ -205,7 +205,7 @@ class Transport(abc.ABC):
         """Run ``program``; return its results or raise an :class:`~lm629_host.LM629Error`
         subclass that names the failing operation."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
         """Release the port.  Idempotent."""
 
     def describe(self) -> str:

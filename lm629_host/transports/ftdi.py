@@ -337,7 +337,7 @@ class FtdiTransport(Transport):
     scheme = "ftdi"
     has_reset_line = True
 
-    def __init__(self, ftdi: object, url: str, *, trace: TraceCallback | None = None,
+    def __init__(self, ftdi: Any, url: str, *, trace: TraceCallback | None = None,
                  clock: Clock | None = None, busy_s: float = DEFAULT_BUSY_US * 1e-6,
                  tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS) -> None:
         super().__init__(url, trace=trace)
@@ -423,7 +423,7 @@ class FtdiTransport(Transport):
         ftdi, self.ftdi = self.ftdi, None
         if ftdi is not None:
             try:
-                ftdi.close()  # type: ignore[attr-defined]
+                ftdi.close()
             except Exception as exc:  # noqa: BLE001 - closing a vanished device must not raise
                 log.warning("closing %s: %s", self.url, exc)
 
@@ -440,8 +440,8 @@ class FtdiTransport(Transport):
         # wait that many latency periods for it, and a few more
         attempts = 3 + int(stream.delay_s * 1000 / max(1, self.latency_ms))
         try:
-            ftdi.write_data(stream.data)  # type: ignore[attr-defined]
-            answer = bytes(ftdi.read_data_bytes(need, attempts))  # type: ignore[attr-defined]
+            ftdi.write_data(stream.data)
+            answer = bytes(ftdi.read_data_bytes(need, attempts))
         except TransportError:
             raise
         except Exception as exc:
@@ -570,8 +570,8 @@ class FtdiTransport(Transport):
                 last_status = self._poll_until_clear(program, op_index,
                                                      first + program.busy_timeout_s, words)
                 pos = unit_start
-        words = tuple(reads[k] for k in sorted(reads))
-        return ProgramResult(words, tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
+        return ProgramResult(tuple(reads[k] for k in sorted(reads)),
+                             tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
 
 
 # ---------------------------------------------------------------------------- URLs, opening
@@ -619,7 +619,7 @@ def _usb_errno(exc: BaseException) -> int | None:
             return _errno.EACCES
         if "resource busy" in text or "errno 16" in text:
             return _errno.EBUSY
-        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]
+        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]  # None ends the loop
     return None
 
 

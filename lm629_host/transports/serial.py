@@ -29,7 +29,7 @@ from dataclasses import dataclass
 try:  # POSIX only; imported early so that the advice works even where modules can't load
     import grp
 except ImportError:  # pragma: no cover - Windows
-    grp = None  # type: ignore[assignment]
+    grp = None  # type: ignore[assignment]  # Windows has no grp module
 
 from ..errors import TransportError
 from ..link import DEFAULT_RETRIES, LinkTransport
@@ -78,7 +78,7 @@ def is_handler_url(device: str) -> bool:
 def _ask_group(path: str) -> str:
     """The group that owns ``path`` (dialout on Debian/Ubuntu, uucp on Arch)."""
     try:
-        return grp.getgrgid(os.stat(path).st_gid).gr_name  # type: ignore[union-attr]
+        return grp.getgrgid(os.stat(path).st_gid).gr_name
     except (AttributeError, KeyError, OSError):
         return "dialout"
 
@@ -149,7 +149,7 @@ class SerialPipe:
     def write(self, data: bytes) -> None:
         try:
             self.port.write(data)
-        except Exception as exc:  # noqa: BLE001 - SerialException, OSError
+        except Exception as exc:
             raise TransportError(f"write failed ({exc}): was the board unplugged?",
                                  port=self.port.port) from exc
 
@@ -168,7 +168,7 @@ class SerialPipe:
             if data:
                 data += port.read(port.in_waiting)
             return bytes(data)
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             raise TransportError(f"read failed ({exc}): was the board unplugged?",
                                  port=port.port) from exc
 
@@ -181,7 +181,7 @@ class SerialPipe:
     def close(self) -> None:
         try:
             self.port.close()
-        except Exception:  # noqa: BLE001
+        except Exception:  # noqa: BLE001 - closing a vanished port must not raise
             pass
 
 

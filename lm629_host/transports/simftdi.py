@@ -22,6 +22,7 @@ from __future__ import annotations
 import usb.core
 
 from ..errors import ProtocolViolation
+from ..model import ChipModel
 from ..ftdi_emu import EmulatedBackend, EmulatedFT232H
 from ..program import Program, ProgramResult, TraceCallback
 from ..urls import Option, parse_options, query_params
@@ -73,7 +74,7 @@ class SimFtdiTransport(FtdiTransport):
         t.model, t.device, t.strict = model, device, strict
         return t
 
-    model: object
+    model: ChipModel
     device: EmulatedFT232H
     strict: bool
 
@@ -86,12 +87,12 @@ class SimFtdiTransport(FtdiTransport):
         return []
 
     def describe(self) -> str:
-        p = self.model.params  # type: ignore[attr-defined]
+        p = self.model.params
         return (f"{self.url} (FT232H transport on an emulated FT232H, simulated "
                 f"{p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)")
 
     def execute(self, program: Program) -> ProgramResult:
-        violations = self.model.violations  # type: ignore[attr-defined]
+        violations = self.model.violations
         mark, tmark, hits = len(violations), len(self.device.timing_violations), self.busy_hits
         try:
             return super().execute(program)
