@@ -139,7 +139,7 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
             return run_header(reply, RESULT_BAD_PROGRAM, nops, LINK_NONE_BYTE, 0);
         if (op == OP_READ)
             reads++;
-        else if (op == OP_STATUS || op == OP_SYNC)
+        else if (op == OP_STATUS || op == OP_SYNC || op == OP_WAIT_STATUS)
             n_status++;
         p += 1u + op_args[op];
     }
@@ -155,9 +155,12 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
     for (const uint8_t *p = prog; p != end; nops++) {
         uint8_t op = *p++;
         uint16_t arg = 0;
+        uint8_t mask = 0;
         if (op_args[op] == 1) {
             arg = *p++;
-        } else if (op_args[op] == 2) {
+        } else if (op_args[op] >= 2) {
+            if (op_args[op] == 3) /* OP_WAIT_STATUS: the mask, then the timeout */
+                mask = *p++;
             arg = (uint16_t)((p[0] << 8) | p[1]);
             p += 2;
         }
@@ -183,6 +186,18 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
             st[ns++] = last;
         } else if (op == OP_RESET) {
             bus_reset_pulse();
+        } else if (op == OP_WAIT_STATUS) {
+            /* a status read every WAIT_STATUS_POLL_US until a bit of the mask is set or `arg`
+             * ms have passed (each period is a little longer than its nominal time, so the
+             * wait never ends early); the host judges which from the status */
+            uint32_t polls = (uint32_t)arg * (1000u / WAIT_STATUS_POLL_US);
+            for (;;) {
+                last = bus_read_status();
+                if ((last & mask) || !polls--)
+                    break;
+                bus_wait_us(WAIT_STATUS_POLL_US);
+            }
+            st[ns++] = last;
         } else { /* OP_WAIT */
             bus_wait_us(arg);
         }
@@ -281,7 +296,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_MINOR;
         r[len++] = FIRMWARE_PATCH;
         r[len++] = 0;
-        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE;
+        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
         r[len++] = (uint8_t)LINK_MAX_PROGRAM;
         r[len++] = LINK_MAX_READS;

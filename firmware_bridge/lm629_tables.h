@@ -11,10 +11,12 @@
 #define OP_RESET 0x05u  /* 0 argument byte(s) */
 #define OP_WAIT 0x06u  /* 2 argument byte(s) */
 #define OP_SYNC 0x07u  /* 0 argument byte(s) */
-#define OP_MAX 0x07u
+#define OP_WAIT_STATUS 0x08u  /* 3 argument byte(s) */
+#define OP_MAX 0x08u
 /* argument bytes by op code, 0xFF: no such op */
-#define OP_ARG_BYTES_INIT { 0xFF, 0, 1, 2, 0, 0, 2, 0 }
+#define OP_ARG_BYTES_INIT { 0xFF, 0, 1, 2, 0, 0, 2, 0, 3 }
 #define DEFAULT_BUSY_TIMEOUT_US 5000u
+#define WAIT_STATUS_POLL_US 125u  /* OP_WAIT_STATUS status read period */
 
 /* LM628/LM629 commands (lm629_host.opcodes.Cmd) */
 #define CMD_RESET 0x00u
@@ -78,6 +80,7 @@
 #define CAP_RESET_LINE 1u  /* HELLO_REPLY capability bit */
 #define CAP_HI_LINE 2u  /* HELLO_REPLY capability bit */
 #define CAP_BUSY_ON_BRIDGE 4u  /* HELLO_REPLY capability bit */
+#define CAP_WAIT_STATUS 8u  /* HELLO_REPLY capability bit */
 
 /* CRC-16/GENIBUS table (lm629_host.link._CRC_TABLE): 256 high bytes, then 256 low bytes */
 #define LINK_CRC_TABLE_INIT { \

@@ -22,6 +22,7 @@ import ctypes
 import math
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 from .errors import ProtocolViolation, TransportError
@@ -89,8 +90,15 @@ def ensure_built() -> None:
         raise HarnessError(f"the simavr harness and firmware are not built and the toolchain is "
                            f"missing ({', '.join(toolchain_missing())}): apt-get install {PACKAGES}, "
                            "then `make -C firmware_bridge`")
-    r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), "firmware", "harness"],
-                       capture_output=True, text=True)
+    cmd = ["make", "-s", "-C", str(FIRMWARE_DIR), "firmware", "harness"]
+    # `make -q`: exit 0 when everything is up to date; otherwise say once what is built (a cold
+    # build takes a few seconds, which should not pass in silence)
+    files = ["build/lm629_bridge.hex", "build/lm629_bridge_1000000.hex", "build/libfitl.so"]
+    if subprocess.run(["make", "-q", "-C", str(FIRMWARE_DIR), *files],
+                      capture_output=True).returncode:
+        print(f"sim+avr://: building the bridge firmware and the simavr harness "
+              f"(make -C {FIRMWARE_DIR} firmware harness)", file=sys.stderr, flush=True)
+    r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode:
         raise HarnessError(f"`make -C {FIRMWARE_DIR} firmware harness` failed:\n"
                            f"{(r.stdout + r.stderr)[-2000:]}")

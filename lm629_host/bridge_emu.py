@@ -29,6 +29,7 @@ from .link import (
     RUN_OVERHEAD,
     RUN_REPLY_OVERHEAD,
     BadProgram,
+    Capability,
     Frame,
     FrameError,
     FrameReader,
@@ -41,7 +42,7 @@ from .link import (
 )
 from .model import ChipModel
 from .opcodes import Status
-from .program import BusOp, Op
+from .program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
 from .transports.sim import SimClock
 
 _BUSY = int(Status.BUSY)
@@ -73,7 +74,8 @@ class BridgeEmulator:
     """The far end of the link: frames in, frames out, programs run on ``model``."""
 
     model: ChipModel
-    info: HelloInfo = field(default_factory=lambda: HelloInfo(firmware=EMU_FIRMWARE))
+    info: HelloInfo = field(default_factory=lambda: HelloInfo(
+        firmware=EMU_FIRMWARE, capabilities=int(HelloInfo.capabilities | Capability.WAIT_STATUS)))
     stats: EmuStats = field(default_factory=EmuStats)
 
     def __post_init__(self) -> None:
@@ -139,7 +141,7 @@ class BridgeEmulator:
         except BadProgram as exc:
             return RunReply(Result.BAD_PROGRAM, exc.index)
         reads = sum(1 for o in ops if o.op is Op.READ)
-        n_status = sum(1 for o in ops if o.op is Op.STATUS or o.op is Op.SYNC)
+        n_status = sum(1 for o in ops if o.op in STATUS_OPS)
         if reads > self.info.max_reads or n_status > 255 \
                 or RUN_REPLY_OVERHEAD + n_status + 2 * reads > MAX_FRAME:
             return RunReply(Result.PROGRAM_TOO_LONG)
@@ -162,6 +164,24 @@ class BridgeEmulator:
                 return True, status
             if m.tick >= deadline:
                 return False, status
+
+    def _wait_status(self, mask: int, timeout_s: float) -> int:
+        """Op.WAIT_STATUS as the firmware runs it: a status read every WAIT_STATUS_POLL_US
+        until one has a bit of ``mask`` or ``timeout_s`` has passed.  The reads that would find
+        nothing are skipped: the clock goes to the status change (SimClock), then on to the
+        firmware's next read after it, which is made for real."""
+        m = self.model
+        clock = SimClock(m)
+        period = WAIT_STATUS_POLL_US * 1e-6
+        end = m.now() + timeout_s
+        while True:
+            status = self._strobe().read_status()
+            t = m.now()
+            if status & mask or t >= end:
+                return status
+            clock.advance_until_status(mask, end)
+            j = max(1, math.ceil((m.now() - t) / (period + BUS_CYCLE_S) - 1e-9))
+            clock.advance_to(min(end, t + j * period + (j - 1) * BUS_CYCLE_S))
 
     def run_ops(self, ops: list[BusOp], timeout_s: float) -> RunReply:
         """Run decoded operations with the busy discipline; stop at a busy timeout."""
@@ -195,6 +215,9 @@ class BridgeEmulator:
                 self.stats.bus_cycles += 1
             elif op is Op.WAIT:
                 m.advance(o.arg * 1e-6)
+            elif op is Op.WAIT_STATUS:
+                last = self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3)
+                statuses.append(last)
         return RunReply(Result.OK, 0xFF, last, int(m.hi), tuple(statuses), tuple(words))
 
 

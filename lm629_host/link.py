@@ -29,7 +29,8 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 from .errors import BusyTimeout, TransportError
-from .program import OP_ARG_BYTES, BusOp, Op, Program, ProgramResult, TraceCallback, cycles_of
+from .program import (OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program,
+                      ProgramResult, TraceCallback, cycles_of)
 from .transports.base import Clock, Transport
 
 log = logging.getLogger("lm629_host.link")
@@ -91,6 +92,7 @@ class Capability(enum.IntFlag):
     RESET_LINE = 0x01  #: the bridge drives /RST
     HI_LINE = 0x02  #: the bridge reads HI
     BUSY_ON_BRIDGE = 0x04  #: busy is polled on the bridge (always, in protocol 1)
+    WAIT_STATUS = 0x08  #: the bridge runs Op.WAIT_STATUS (older bridges: the host polls)
 
 
 #: "index of the failing operation" and "last status byte" when there is none
@@ -424,7 +426,7 @@ class RunReply:
 
 def reply_size(ops: Sequence[BusOp]) -> int:
     """Decoded size of the RUN_REPLY to ``ops`` when it succeeds."""
-    n_status = sum(1 for o in ops if o.op is Op.STATUS or o.op is Op.SYNC)
+    n_status = sum(1 for o in ops if o.op in STATUS_OPS)
     n_words = sum(1 for o in ops if o.op is Op.READ)
     return RUN_REPLY_OVERHEAD + n_status + 2 * n_words
 
@@ -538,6 +540,8 @@ class LinkTransport(Transport):
                 t += timeout_s
             elif o.op is Op.WAIT:
                 t += o.arg * 1e-6
+            elif o.op is Op.WAIT_STATUS:  # the wait, each poll period a little late, + 10 ms
+                t += (o.arg & 0xFFFF) * 1e-3 * 1.1 + 0.01
         return t
 
     def _no_answer(self, what: str, attempts: int) -> TransportError:
@@ -723,6 +727,7 @@ class LinkTransport(Transport):
         self.info = info
         self.has_reset_line = bool(info.capabilities & Capability.RESET_LINE)
         self._has_hi = bool(info.capabilities & Capability.HI_LINE)
+        self.has_wait_status = bool(info.capabilities & Capability.WAIT_STATUS)
         return info
 
     def ping(self, data: bytes = b"") -> float:
@@ -751,7 +756,7 @@ class LinkTransport(Transport):
         for o in program.ops:
             n = 1 + OP_ARG_BYTES[o.op]
             r = 1 if o.op is Op.READ else 0
-            s = 1 if o.op is Op.STATUS or o.op is Op.SYNC else 0
+            s = 1 if o.op in STATUS_OPS else 0
             if chunk and (size + n > max_program or reads + r > info.max_reads
                           or RUN_REPLY_OVERHEAD + n_status + s + 2 * (reads + r) > MAX_FRAME):
                 yield chunk
@@ -803,7 +808,7 @@ class LinkTransport(Transport):
             if reply.result in (Result.OK, Result.BUSY_TIMEOUT):
                 done = len(ops) if reply.result == Result.OK else min(reply.index, len(ops))
                 want_words = sum(1 for o in ops[:done] if o.op is Op.READ)
-                want_status = sum(1 for o in ops[:done] if o.op in (Op.STATUS, Op.SYNC))
+                want_status = sum(1 for o in ops[:done] if o.op in STATUS_OPS)
                 if len(reply.words) != want_words or len(reply.statuses) != want_status:
                     raise FrameError(
                         f"RUN_REPLY carries {len(reply.statuses)} status byte(s) and "
@@ -826,7 +831,7 @@ class LinkTransport(Transport):
                 stats.bus_cycles += 1
             if op is Op.WRITE or op is Op.READ:
                 stats.bus_cycles += 2
-            elif op is Op.COMMAND or op is Op.STATUS or op is Op.RESET:
+            elif op is Op.COMMAND or op is Op.STATUS or op is Op.RESET or op is Op.WAIT_STATUS:
                 stats.bus_cycles += 1
 
     def _emit_cycles(self, ops: Sequence[BusOp], words: Sequence[int],

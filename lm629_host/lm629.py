@@ -12,6 +12,7 @@ word first, positions in two's complement (spec "Bus cycles").
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -35,8 +36,8 @@ from .opcodes import (
     Status,
     TrajectoryFlags,
 )
-from .program import DEFAULT_BUSY_TIMEOUT_S, Program, ProgramResult
-from .transports.base import Clock, Transport
+from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
+from .transports.base import Clock, Transport, WallClock
 
 log = logging.getLogger("lm629_host")
 
@@ -510,8 +511,9 @@ class LM629:
         return _s16(self._read(Cmd.RDSUM, 1)[0])
 
     # ------------------------------------------------------------------ waiting
-    def wait_for(self, flags: Status | int, timeout: float = 10.0, poll: float = 1e-3) -> Status:
-        """Poll the status byte until any of ``flags`` is set; return the status.
+    def wait_for(self, flags: Status | int, timeout: float = 10.0,
+                 poll: float | None = None) -> Status:
+        """Wait until any of ``flags`` is set in the status byte; return the status.
 
         Waits on the transport's clock (simulated time on ``sim://``).  Raises
         :class:`WaitTimeout` after ``timeout`` seconds.
@@ -522,21 +524,39 @@ class LM629:
         runs.  Clear the flag first (:meth:`reset_interrupts`), or better, move with
         :meth:`move_to` and ``Move.wait()``, which clear the move's flags in the program that
         starts it and wait until the shaft is at rest on the target.
+
+        Where the transport runs the wait on its far side (``Op.WAIT_STATUS``: the simulators,
+        a bridge whose HELLO says so), the wait is one exchange: up to 65 s at a time on a
+        simulator, which goes straight to the status change and reads it for real; 0.25 s at a
+        time on hardware, so that Ctrl-C (held while a program runs) still stops a motor
+        promptly.  Otherwise the host polls: every ``poll`` seconds when given, else at a rate
+        set by the wait itself (:func:`_poll_interval`), not a fixed 1 ms across the link.
         """
         value = Status(check_int("flags", int(flags), 1, 0xFF))
         if not timeout > 0:
             raise ValueError(f"timeout={timeout} must be positive (seconds)")
-        if not poll > 0:
+        if poll is not None and not poll > 0:
             raise ValueError(f"poll={poll} must be positive (seconds)")
         clock = self.clock
-        deadline = clock.now() + timeout
+        start = clock.now()
+        deadline = start + timeout
+        far = self.transport.has_wait_status
+        chunk_ms = (WAIT_STATUS_WALL_CHUNK_MS if isinstance(clock, WallClock)
+                    else WAIT_STATUS_MAX_MS)
         while True:
-            status = self.read_status()
+            if far:
+                ms = min(chunk_ms, max(0, math.ceil((deadline - clock.now()) * 1e3)))
+                status = Status(self.run(self.program().wait_status(int(value), ms)).statuses[-1])
+            else:
+                status = self.read_status()
             if status & value:
                 return status
-            if clock.now() >= deadline:
+            now = clock.now()
+            if now >= deadline:
                 raise WaitTimeout(value, timeout, int(status))
-            clock.sleep(min(poll, max(0.0, deadline - clock.now())) or poll)
+            if not far:
+                step = poll if poll is not None else _poll_interval(now - start)
+                clock.sleep(min(step, deadline - now))
 
     # ------------------------------------------------------------------ experts
     def raw(self, command: int, write: Iterable[int] = (), read: int = 0) -> tuple[int, ...]:
@@ -551,6 +571,18 @@ class LM629:
             p.write(w)
         self._ce_clear = False  # any byte may provoke a command error
         return self.run(p.read(read)).words
+
+
+#: the longest far-side wait per exchange on a wall clock (Ctrl-C is held while a program runs)
+WAIT_STATUS_WALL_CHUNK_MS = 250
+#: host polling of a wait: from 1 ms, then this fraction of the time waited so far, at most
+#: POLL_MAX_S: a change is seen at most ~5 % late, and a 10 s wait costs ~280 reads, not 10,000
+POLL_MIN_S, POLL_FRACTION, POLL_MAX_S = 1e-3, 0.05, 0.05
+
+
+def _poll_interval(waited_s: float) -> float:
+    """The host's status poll period after ``waited_s`` of a wait (no far-side wait)."""
+    return min(POLL_MAX_S, max(POLL_MIN_S, waited_s * POLL_FRACTION))
 
 
 __all__ = ["LM629", "Snapshot", "FilterFlags", "check_int", "Move", "MoveResult", "MoveRules"]

@@ -34,11 +34,25 @@ class Op(enum.IntEnum):
     RESET = 0x05  #: pulse /RST low for at least 8 chip clocks
     WAIT = 0x06  #: wait ``arg`` microseconds (0..65535)
     SYNC = 0x07  #: busy check only: read status until busy is clear; reported in ``statuses``
+    #: read the status (no busy check) until any bit of a mask is set or a timeout in ms has
+    #: passed; the last status read is reported in ``statuses`` (the host judges the timeout).
+    #: ``arg`` = mask << 16 | timeout_ms.  Bridges that have it say so in HELLO (capability
+    #: WAIT_STATUS); a waiting host then costs one round trip per wait instead of a poll a ms.
+    WAIT_STATUS = 0x08
+
+
+#: how often the far end reads the status during WAIT_STATUS: half a chip sample at 8 MHz (the
+#: interrupt bits change at most once a sample), so a bit is seen at most 125 us late; 8 a ms
+WAIT_STATUS_POLL_US = 125
+#: the longest WAIT_STATUS one operation can carry (16 bits of milliseconds)
+WAIT_STATUS_MAX_MS = 0xFFFF
 
 
 #: How many argument bytes each operation carries on the wire.
 OP_ARG_BYTES = {Op.STATUS: 0, Op.COMMAND: 1, Op.WRITE: 2, Op.READ: 0, Op.RESET: 0, Op.WAIT: 2,
-                Op.SYNC: 0}
+                Op.SYNC: 0, Op.WAIT_STATUS: 3}
+#: the operations that report a status byte in ``ProgramResult.statuses``
+STATUS_OPS = frozenset({Op.STATUS, Op.SYNC, Op.WAIT_STATUS})
 
 
 @dataclass(frozen=True)
@@ -64,7 +78,16 @@ class BusOp:
             return "/RST pulse"
         if self.op is Op.SYNC:
             return "wait for busy clear"
+        if self.op is Op.WAIT_STATUS:
+            return f"wait for status {self.arg >> 16:02X} ({self.arg & 0xFFFF} ms)"
         return f"wait {self.arg} us"
+
+
+# The operations without a varying argument exist once (a BusOp is immutable): building a
+# program is part of every command's host cost.
+_READ_OP = BusOp(Op.READ)
+_STATUS_OP = BusOp(Op.STATUS)
+_COMMAND_OPS: dict[int, BusOp] = {}
 
 
 @dataclass
@@ -78,7 +101,11 @@ class Program:
     busy_timeout_s: float = DEFAULT_BUSY_TIMEOUT_S
 
     def command(self, cmd: int) -> Program:
-        self.ops.append(BusOp(Op.COMMAND, int(cmd) & 0xFF))
+        byte = int(cmd) & 0xFF
+        op = _COMMAND_OPS.get(byte)
+        if op is None:
+            op = _COMMAND_OPS[byte] = BusOp(Op.COMMAND, byte)
+        self.ops.append(op)
         return self
 
     def write(self, word: int) -> Program:
@@ -93,12 +120,11 @@ class Program:
         return self.write(value >> 16).write(value & 0xFFFF)
 
     def read(self, count: int = 1) -> Program:
-        for _ in range(count):
-            self.ops.append(BusOp(Op.READ))
+        self.ops.extend([_READ_OP] * count)
         return self
 
     def status(self) -> Program:
-        self.ops.append(BusOp(Op.STATUS))
+        self.ops.append(_STATUS_OP)
         return self
 
     def sync(self) -> Program:
@@ -115,6 +141,16 @@ class Program:
         if not 0 <= microseconds <= 0xFFFF:
             raise ValueError(f"wait of {microseconds} us is outside 0..65535 us")
         self.ops.append(BusOp(Op.WAIT, microseconds))
+        return self
+
+    def wait_status(self, mask: int, timeout_ms: int) -> Program:
+        """Wait on the far side for any bit of ``mask`` in the status byte, for at most
+        ``timeout_ms``; the last status read is reported (see :attr:`Op.WAIT_STATUS`)."""
+        if not 1 <= mask <= 0xFF:
+            raise ValueError(f"status mask {mask} is outside 01..FF")
+        if not 0 <= timeout_ms <= WAIT_STATUS_MAX_MS:
+            raise ValueError(f"wait of {timeout_ms} ms is outside 0..{WAIT_STATUS_MAX_MS} ms")
+        self.ops.append(BusOp(Op.WAIT_STATUS, (mask << 16) | timeout_ms))
         return self
 
     def extend(self, other: Program) -> Program:
@@ -186,7 +222,7 @@ def cycles_of(program: Iterable[BusOp], result: ProgramResult) -> Iterator[BusCy
             if w is None:
                 return
             yield BusCycle("read", w)
-        elif o.op is Op.STATUS or o.op is Op.SYNC:
+        elif o.op in STATUS_OPS:
             s = next(statuses, None)
             if s is None:
                 return

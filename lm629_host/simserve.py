@@ -113,6 +113,8 @@ class PipeFarEnd(FarEnd):
             for o in ops:
                 if o.op is Op.WAIT:
                     t += o.arg * 1e-6
+                elif o.op is Op.WAIT_STATUS:  # as LinkTransport.reply_timeout
+                    t += (o.arg & 0xFFFF) * 1e-3 * 1.1 + 0.01
                 elif o.op is not Op.STATUS and o.op is not Op.RESET:
                     t += busy
         return t

@@ -25,6 +25,8 @@ COMMANDS: list[tuple[str, Callable[[LM629], object]]] = [
     ("LTRJ (6 words)", lambda c: c.load_trajectory(acceleration=0x1234, velocity=0x56789,
                                                    position=-1000)),
     ("STT", lambda c: c.start()),
+    ("LTRJ (6 words) + STT", lambda c: c.load_trajectory(acceleration=0x1234, velocity=0x56789,
+                                                         position=-1000, start=True)),
     ("LFIL (4 coeff.)", lambda c: c.load_filter(kp=20, ki=1, kd=100, il=500)),
     ("RDSTAT", lambda c: c.read_status()),
     ("snapshot (6 reads)", lambda c: c.snapshot()),
@@ -33,7 +35,12 @@ COMMANDS: list[tuple[str, Callable[[LM629], object]]] = [
 
 
 def prepare(chip: LM629, name: str) -> None:
-    if name == "STT":  # an STT needs a trajectory loaded (not counted)
+    """What a command needs first (not counted)."""
+    if name in ("STT", "LTRJ (6 words) + STT"):
+        # the last STT started a move, and the chip refuses an acceleration change while it
+        # moves with the drive on (CommandError at the next STT): motor off first
+        chip.load_trajectory(stop="off", start=True)
+    if name == "STT":  # an STT needs a trajectory loaded
         chip.load_trajectory(acceleration=0x1234, velocity=0x56789, position=-1000)
 
 

@@ -25,12 +25,14 @@ from lm629_host.bridge_emu import open_emulated
 from lm629_host.faultlink import FaultPipe, check_record, soak
 
 
-def open_far(far: str, baud: int):
+def open_far(far: str, baud: int, n: int = 5000):
+    # the record is a bounded window: room for every command of a run, with a wide margin
+    rec = f"record=1&record_window={max(10_000, 16 * n)}"
     if far == "emu":
-        t = open_emulated("sim://?record=1", baud=baud)
+        t = open_emulated(f"sim://?{rec}", baud=baud)
         return t, t.model, t.emulator.stats
     from lm629_host.transports.simavr import SimAvrTransport  # the compiled firmware
-    avr = SimAvrTransport.from_url(f"sim+avr://?record=1&baud={baud}")
+    avr = SimAvrTransport.from_url(f"sim+avr://?{rec}&baud={baud}")
     return avr, avr.model, avr.sim.link_counters()  # the firmware's own counters (None: no avr-nm)
 
 
@@ -49,7 +51,7 @@ def main() -> int:
                  faults=0)
     t0 = time.perf_counter()
     for run in range(args.runs):
-        t, model, far_stats = open_far(args.far, args.baud)
+        t, model, far_stats = open_far(args.far, args.baud, args.n)
         chip = LM629(t)
         if args.retries is not None:
             t.retries = args.retries

@@ -37,7 +37,7 @@ def frames() -> list[tuple[str, bytes]]:
     biggest = Program()
     for i in range(81):
         biggest.write((i * 0x0101) & 0xFF00)  # 0000, 0100, 0200...: zeros in every op
-    info = HelloInfo(firmware=(1, 0, 0), capabilities=0x0007, max_program=243, max_reads=120,
+    info = HelloInfo(firmware=(1, 0, 0), capabilities=0x000F, max_program=243, max_reads=120,
                      chip_selects=1, cpu_hz=16_000_000)
     return [
         ("hello", frame_body(FrameType.HELLO, 0x01)),

@@ -22,7 +22,7 @@ sys.path.insert(0, str(ROOT))
 from lm629_host import bridge_pins as pins  # noqa: E402 - after sys.path.insert
 from lm629_host.link import _CRC_TABLE, c_defines  # noqa: E402 - after sys.path.insert
 from lm629_host.opcodes import Cmd, Status  # noqa: E402 - after sys.path.insert
-from lm629_host.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, Op  # noqa: E402 - after sys.path.insert
+from lm629_host.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, WAIT_STATUS_POLL_US, Op  # noqa: E402 - after sys.path.insert
 from generated import write_or_check  # noqa: E402 - after sys.path.insert
 
 OUT = ROOT / "firmware_bridge" / "lm629_tables.h"
@@ -45,6 +45,7 @@ def render() -> str:
     lines.append("/* argument bytes by op code, 0xFF: no such op */")
     lines.append(f"#define OP_ARG_BYTES_INIT {{ {table} }}")
     lines.append(f"#define DEFAULT_BUSY_TIMEOUT_US {round(DEFAULT_BUSY_TIMEOUT_S * 1e6)}u")
+    lines.append(f"#define WAIT_STATUS_POLL_US {WAIT_STATUS_POLL_US}u  /* OP_WAIT_STATUS status read period */")
     lines += ["", "/* LM628/LM629 commands (lm629_host.opcodes.Cmd) */"]
     for c in Cmd:
         lines.append(f"#define CMD_{c.name} 0x{int(c):02X}u")

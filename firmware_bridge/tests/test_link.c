@@ -196,6 +196,35 @@ static void test_exactly_once(void)
     printf("exactly once: a repeated RUN is answered from the cache, other CRC or HELLO runs anew\n");
 }
 
+/* OP_WAIT_STATUS: status reads every WAIT_STATUS_POLL_US until the mask matches or the
+ * timeout (ms) has passed; one status reported, the result OK either way */
+static void test_wait_status(void)
+{
+    uint8_t wire[320], out[320], *p;
+    uint8_t prog[] = {0x00, 0x13, 0x88, OP_WAIT_STATUS, 0x04, 0x00, 0x0A}; /* bit 2, 10 ms */
+    link_init(&L);
+    fake_reset();
+    fake.n_script = 4;
+    memcpy(fake.script, "\x80\x80\x80\x84", 4);
+    int n = feed(wire, frame(0x02, 0x10, prog, sizeof prog, wire), out);
+    CHECK(n > 0 && reply_payload(out, n, 0x82, 0x10, &p) == 6, "wait status reply size");
+    CHECK(p[0] == 0 && p[2] == 0x84 && p[4] == 1 && p[5] == 0x84, "wait status: reply %02X %02X %02X %02X",
+          p[0], p[2], p[4], p[5]);
+    CHECK(fake.total_polls == 4 && fake.waited_us == 3 * WAIT_STATUS_POLL_US,
+          "wait status: %u reads, %u us waited (expected 4, %u)", fake.total_polls, fake.waited_us,
+          3 * WAIT_STATUS_POLL_US);
+    /* the timeout: 2 ms of a status that never matches = 1 + 2 * 8 reads, 16 periods */
+    fake_reset();
+    fake.status = 0x80;
+    prog[6] = 0x02;
+    n = feed(wire, frame(0x02, 0x11, prog, sizeof prog, wire), out);
+    CHECK(n > 0 && reply_payload(out, n, 0x82, 0x11, &p) == 6 && p[0] == 0 && p[5] == 0x80,
+          "wait status timeout reply");
+    CHECK(fake.total_polls == 17 && fake.waited_us == 16 * WAIT_STATUS_POLL_US,
+          "wait status timeout: %u reads, %u us waited", fake.total_polls, fake.waited_us);
+    printf("wait status: reads until the mask matches, or for the timeout; one status reported\n");
+}
+
 static void test_errors(void)
 {
     uint8_t wire[320], out[320], *p;
@@ -249,6 +278,7 @@ int main(int argc, char **argv)
     test_codec();
     test_golden_requests();
     test_exactly_once();
+    test_wait_status();
     test_errors();
     printf("test_link: %d checks passed\n", checks);
     return 0;

@@ -139,6 +139,34 @@ class Violation(str):
         return v
 
 
+class CommandRecord(list):
+    """The record of ``sim://?record=1``: a list of (command, words), bounded.
+
+    It keeps at least the latest ``window`` commands (``record_window``) and drops the oldest
+    in blocks of ``window // 8`` (so an append stays O(1) amortised and memory stays bounded
+    in a long run: a plain list grew by ~137 bytes a command); ``dropped`` counts them.  It is
+    a list, so slices and comparisons work as before."""
+
+    def __init__(self, window: int) -> None:
+        super().__init__()
+        if window < 1:
+            raise ValueError(f"record_window={window} must be at least 1")
+        self.window = window
+        self.dropped = 0
+        self._limit = window + max(1, window // 8)
+
+    def append(self, item: tuple[int, tuple[int, ...]]) -> None:
+        super().append(item)
+        if len(self) > self._limit:
+            n = len(self) - self.window
+            del self[:n]
+            self.dropped += n
+
+    def clear(self) -> None:
+        super().clear()
+        self.dropped = 0
+
+
 def _sample_loop(choice: str) -> Callable[[tuple, tuple], tuple] | None:
     """The steady-state sample loop named by ``ChipParams.fast``."""
     choice = str(choice).lower()
@@ -181,8 +209,8 @@ class ChipModel:
         self.reset_clocks = max(8, round(self.params.reset_s * self.clock_hz))
         self.next_sample = SAMPLE_CLOCKS
         self.samples = 0
-        #: every command that reached the chip, with its words (when ``params.record``)
-        self.history: list[tuple[int, tuple[int, ...]]] = []
+        #: the latest commands that reached the chip, with their words (when ``params.record``)
+        self.history = CommandRecord(self.params.record_window)
         #: every host protocol violation, in order, each with its simulated time (``.time``)
         self.violations: list[Violation] = []
         #: run steady-state samples through :func:`.fastloop.run_fast` (False: only the readable
@@ -357,6 +385,15 @@ class ChipModel:
         if self.params.fault == "busy":
             return True
         return self.tick < self._busy_until
+
+    def busy_deadline(self) -> int | None:
+        """The clock tick from which the status reads busy clear, as things stand (a past tick
+        when it is clear now; None when busy has no known end: ``fault=busy``).  Busy only
+        changes on host strobes and at the end of a reset, which ends with it, so a host may
+        skip status reads before this tick knowing they would read busy."""
+        if self.params.fault == "busy":
+            return None
+        return 0 if self._in_hw_reset else self._busy_until
 
     @property
     def status(self) -> int:

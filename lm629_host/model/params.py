@@ -22,6 +22,8 @@ class ChipParams:
     #: None, "reset" (never leaves reset), "busy" (busy stuck high) or "rst" (/RST not connected)
     fault: str | None = None
     record: bool = False  #: keep a record of every command that reached the chip (fault tests)
+    #: how many of the latest commands the record keeps (``ChipModel.history``: a bounded window)
+    record_window: int = 10_000
     #: the sample loop: "auto" (the C loop if it was built, else "py"), "c", "py" (the
     #: flattened loop of model/fastloop.py) or "0" (only the readable per-sample code)
     fast: str = "auto"

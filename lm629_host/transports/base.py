@@ -25,11 +25,13 @@ from dataclasses import asdict, dataclass
 
 from ..errors import BusyTimeout, TransportError
 from ..opcodes import Status
-from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
+from ..program import WAIT_STATUS_POLL_US, BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
 
 log = logging.getLogger("lm629_host.bus")
 
 _BUSY = int(Status.BUSY)  # a plain int: enum arithmetic costs microseconds in the poll loop
+_STATUS, _COMMAND, _WRITE, _READ = int(Op.STATUS), int(Op.COMMAND), int(Op.WRITE), int(Op.READ)
+_RESET, _WAIT, _SYNC, _WAIT_STATUS = int(Op.RESET), int(Op.WAIT), int(Op.SYNC), int(Op.WAIT_STATUS)
 
 
 @dataclass
@@ -141,6 +143,9 @@ class Transport(abc.ABC):
     simulated: bool = False
     #: True when the transport can pulse /RST; otherwise ``LM629.reset`` sends command RESET
     has_reset_line: bool = True
+    #: True when it runs ``Op.WAIT_STATUS`` (a wait for a status bit on the far side); without
+    #: it, ``LM629.wait_for`` polls from the host
+    has_wait_status: bool = False
 
     def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
         self.url = url
@@ -237,6 +242,7 @@ class CycleTransport(Transport):
 
     #: time between two busy polls while the chip is busy
     poll_interval_s: float = 2e-6
+    has_wait_status = True
 
     @abc.abstractmethod
     def _read_status(self) -> int: ...
@@ -256,15 +262,52 @@ class CycleTransport(Transport):
     def _hi(self) -> bool | None:
         return None
 
-    def _wait_not_busy(self, program: Program, index: int, words: list[int]) -> int:
+    def _skip_busy_polls(self, deadline: float) -> int:
+        """Hook for a transport that knows when busy will clear (the chip model does): advance
+        the clock over the busy polls whose answer is already known to be "busy", exactly as
+        the poll loop would have (same cycle and sleep times, none past ``deadline``), and
+        return how many were skipped; the poll that finds busy clear is still a real read.
+        The default knows nothing and skips none."""
+        return 0
+
+    def _sleep_until_status(self, mask: int, deadline: float) -> None:
+        """Hook: let time pass before the next status read of a WAIT_STATUS (one poll period
+        of a bridge, never past ``deadline``); a simulator may go straight to the change."""
         clock = self._inner_clock  # execute holds the lock
-        deadline = clock.now() + program.busy_timeout_s
+        clock.sleep(min(WAIT_STATUS_POLL_US * 1e-6, deadline - clock.now()))
+
+    def _wait_status(self, mask: int, timeout_s: float, tracing: bool) -> int:
+        """Op.WAIT_STATUS: real status reads until one has a bit of ``mask`` or the timeout."""
+        clock = self._inner_clock  # execute holds the lock
+        deadline = clock.now() + timeout_s
         stats = self.stats
         while True:
             status = self._read_status()
             stats.bus_cycles += 1
+            if tracing:
+                self._emit(BusCycle("status", status))
+            if status & mask or clock.now() >= deadline:
+                return status
+            self._sleep_until_status(mask, deadline)
+
+    def _tracing(self) -> bool:
+        return self.trace is not None or log.isEnabledFor(logging.DEBUG)
+
+    def _wait_not_busy(self, program: Program, index: int, words: list[int],
+                       tracing: bool = True) -> int:
+        clock = self._inner_clock  # execute holds the lock
+        deadline = clock.now() + program.busy_timeout_s
+        stats = self.stats
+        if not tracing:  # a trace shows every poll: then they are all made
+            skipped = self._skip_busy_polls(deadline)
+            stats.bus_cycles += skipped
+            stats.busy_polls += skipped
+        while True:
+            status = self._read_status()
+            stats.bus_cycles += 1
             stats.busy_polls += 1
-            self._emit(BusCycle("status", status))
+            if tracing:
+                self._emit(BusCycle("status", status))
             if not status & _BUSY:
                 return status
             if clock.now() >= deadline:
@@ -279,35 +322,49 @@ class CycleTransport(Transport):
         words: list[int] = []
         statuses: list[int] = []
         status: int | None = None
+        # plain ints on the hot path, and no BusCycle objects made unless someone looks at them
+        # (SimTransport runs its own fused copy of this loop: keep the two in step)
+        tracing = self._tracing()
+        emit = self._emit
         for index, o in enumerate(program.ops):
-            op = o.op
-            if op is Op.COMMAND or op is Op.WRITE or op is Op.READ:
-                status = self._wait_not_busy(program, index, words)
-                stats.bus_cycles += 1 if op is Op.COMMAND else 2
-                if op is Op.COMMAND:
+            op = int(o.op)
+            if op == _COMMAND or op == _WRITE or op == _READ:
+                status = self._wait_not_busy(program, index, words, tracing)
+                if op == _COMMAND:
+                    stats.bus_cycles += 1
                     self._write_command(o.arg)
-                    self._emit(BusCycle("command", o.arg))
-                elif op is Op.WRITE:
+                    if tracing:
+                        emit(BusCycle("command", o.arg))
+                elif op == _WRITE:
+                    stats.bus_cycles += 2
                     self._write_word(o.arg)
-                    self._emit(BusCycle("write", o.arg))
+                    if tracing:
+                        emit(BusCycle("write", o.arg))
                 else:
+                    stats.bus_cycles += 2
                     w = self._read_word()
                     words.append(w)
-                    self._emit(BusCycle("read", w))
-            elif op is Op.STATUS:
+                    if tracing:
+                        emit(BusCycle("read", w))
+            elif op == _STATUS:
                 status = self._read_status()
                 stats.bus_cycles += 1
                 statuses.append(status)
-                self._emit(BusCycle("status", status))
-            elif op is Op.SYNC:
-                status = self._wait_not_busy(program, index, words)
+                if tracing:
+                    emit(BusCycle("status", status))
+            elif op == _SYNC:
+                status = self._wait_not_busy(program, index, words, tracing)
                 statuses.append(status)
-            elif op is Op.RESET:
+            elif op == _RESET:
                 self._pulse_reset()
                 stats.bus_cycles += 1
-                self._emit(BusCycle("reset", 0))
-            elif op is Op.WAIT:
+                if tracing:
+                    emit(BusCycle("reset", 0))
+            elif op == _WAIT:
                 self._inner_clock.sleep(o.arg * 1e-6)
+            elif op == _WAIT_STATUS:
+                status = self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3, tracing)
+                statuses.append(status)
             else:  # pragma: no cover - Op is closed
                 raise AssertionError(op)
         return ProgramResult(tuple(words), tuple(statuses), status, self._hi())

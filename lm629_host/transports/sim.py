@@ -12,16 +12,22 @@ is busy, the busy check polls every ``poll_interval_s``.  ``chip.clock`` is the 
 
 from __future__ import annotations
 
+import copy
 import math
 import os
+from typing import cast
 
 from ..model import ChipModel, ChipParams, MotorParams
-from ..program import TraceCallback
+from ..errors import BusyTimeout
+from ..program import WAIT_STATUS_POLL_US, BusOp, Op, Program, ProgramResult, TraceCallback
 from ..urls import Option, dataclass_options, parse_options
 from .base import Clock, CycleTransport, PortInfo
 
 #: simulated duration of one /RD or /WR strobe cycle, recovery included
 CYCLE_S = 0.5e-6
+
+_STATUS, _COMMAND, _WRITE, _READ = Op.STATUS, Op.COMMAND, Op.WRITE, Op.READ
+_RESET, _WAIT, _SYNC, _WAIT_STATUS = Op.RESET, Op.WAIT, Op.SYNC, Op.WAIT_STATUS
 
 
 class SimClock(Clock):
@@ -40,6 +46,70 @@ class SimClock(Clock):
         """Run the model up to simulated time ``t`` (seconds), rounded up to a whole clock."""
         m = self.model
         m.advance_to(math.ceil(t * m.clock_hz - 1e-6))
+
+    def advance_until_status(self, mask: int, t: float) -> None:
+        """Run the model to the first tick at which its status has a bit of ``mask`` set, or to
+        simulated time ``t`` (seconds), whichever comes first.
+
+        This is what lets a wait cost about what the model costs: instead of a status read
+        every poll period, the clock goes straight to the status change, and the caller then
+        reads the status for real.  With no host strobe in between, the status bits other
+        than busy only ever rise (the interrupt bits are latched until RSTI, motor off is
+        cleared only by STT, no sample runs while a reset completes) and they change only at a
+        sample or at the end of a reset; so the first such tick is found by running copies of
+        the model ahead (growing steps, then halving), and the model itself is run once, to
+        that tick.  A mask with the busy bit (which falls) is not searched: the clock advances
+        one poll period of the bridge."""
+        m = self.model
+        limit = math.ceil(t * m.clock_hz - 1e-6)
+        if limit <= m.tick:
+            return
+        if mask & 1:
+            m.advance_to(min(limit, m.tick + round(WAIT_STATUS_POLL_US * 1e-6 * m.clock_hz)))
+            return
+        if m.status & mask:
+            return
+        # candidates: the sample ticks base + k * S (interrupt bits rise at samples); the end
+        # of a reset is the one change off that grid, found at the next grid point or `limit`
+        S = m.sample_clocks
+        base = m.next_sample
+        probe = _clone(m)
+        k_lo, k, step = -1, 0, 1  # k_lo: the last grid point known clear (-1: now)
+        while True:  # growing steps on one copy
+            at = base + k * S
+            if at >= limit:
+                probe.advance_to(limit)
+                if not probe.status & mask:
+                    m.advance_to(limit)
+                    return
+                k_hi = (limit - base) // S + 1  # the grid point past the limit stands for it
+                break
+            probe.advance_to(at)
+            if probe.status & mask:
+                k_hi = k
+                break
+            k_lo, k = k, k + step
+            step += step // 4 + 1
+        # halving: the copy at k_lo goes on while it finds the status clear; when it finds it
+        # set, the model itself goes to k_lo and a fresh copy starts from there
+        half: ChipModel | None = None
+        while k_hi - k_lo > 1:
+            mid = (k_lo + k_hi) // 2
+            if half is None:
+                if k_lo >= 0:
+                    m.advance_to(base + k_lo * S)
+                half = _clone(m)
+            half.advance_to(base + mid * S)
+            if half.status & mask:
+                k_hi, half = mid, None
+            else:
+                k_lo = mid
+        m.advance_to(min(limit, base + k_hi * S))
+
+
+def _clone(m: ChipModel) -> ChipModel:
+    """A copy of the model to run ahead (its command record and violations left out)."""
+    return copy.deepcopy(m, {id(m.history): [], id(m.violations): []})
 
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
@@ -90,6 +160,154 @@ class SimTransport(CycleTransport):
         self.model = model
         self.clock = SimClock(model)
         self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
+        #: False: make every busy poll (the reference the skip is tested against)
+        self.skip_known_busy = True
+
+    def execute(self, program: Program) -> ProgramResult:
+        """:meth:`CycleTransport.execute` fused with this transport's strobes and busy skip.
+
+        The same strobes at the same ticks, the same counters, the same errors: only the
+        layers of calls between them are gone (most of a command's host cost; the chip model
+        is the rest).  With a trace (every poll shown), with ``skip_known_busy`` off, or when
+        busy has no known end (``fault=busy``), the general loop runs instead; the tests
+        compare the two (tests/test_wait_and_busy_paths.py)."""
+        m = self.model
+        if (not self.skip_known_busy or self._tracing() or m.busy_deadline() is None):
+            return super().execute(program)
+        stats = self.stats
+        stats.programs += 1
+        stats.round_trips += 1
+        c = self._cycle_clocks
+        s = max(0, round(self.poll_interval_s * m.clock_hz))
+        hz = m.clock_hz
+        timeout = program.busy_timeout_s
+        advance_to = m.advance_to
+        words: list[int] = []
+        statuses: list[int] = []
+        status: int | None = None
+        cycles = polls = 0
+        try:
+            for index, o in enumerate(program.ops):
+                op = o.op
+                if op is _COMMAND or op is _WRITE or op is _READ or op is _SYNC:
+                    # the busy check: the polls the busy deadline answers are counted, the
+                    # one that finds busy clear is made (as _skip_busy_polls + the poll loop)
+                    t0 = m.tick
+                    until = m.busy_deadline()
+                    if until is not None and until > t0 + c:
+                        k = -(-(until - t0 - c) // (c + s))
+                        if (t0 + k * c + (k - 1) * s) / hz >= t0 / hz + timeout:
+                            stats.bus_cycles += cycles
+                            stats.busy_polls += polls
+                            cycles = polls = 0
+                            status = self._wait_not_busy(program, index, words, False)
+                            k = -1
+                        else:
+                            advance_to(t0 + k * (c + s))
+                            cycles += k
+                            polls += k
+                    else:
+                        k = 0
+                    if k >= 0:
+                        advance_to(m.tick + c)
+                        status = m.read_status()
+                        cycles += 1
+                        polls += 1
+                        if status & 1:  # busy after all (a reset ended it otherwise): poll on
+                            stats.bus_cycles += cycles
+                            stats.busy_polls += polls
+                            cycles = polls = 0
+                            status = self._poll_on(program, index, words, t0 / hz + timeout,
+                                                   status)
+                    if op is _COMMAND:
+                        advance_to(m.tick + c)
+                        m.write_command(o.arg)
+                        cycles += 1
+                    elif op is _WRITE:
+                        advance_to(m.tick + c)
+                        m.write_data(o.arg >> 8)
+                        advance_to(m.tick + c)
+                        m.write_data(o.arg & 0xFF)
+                        cycles += 2
+                    elif op is _READ:
+                        advance_to(m.tick + c)
+                        hi = m.read_data()
+                        advance_to(m.tick + c)
+                        words.append((hi << 8) | m.read_data())
+                        cycles += 2
+                    else:
+                        statuses.append(status)  # type: ignore[arg-type]  # the busy check set it
+                elif op is _STATUS:
+                    advance_to(m.tick + c)
+                    status = m.read_status()
+                    cycles += 1
+                    statuses.append(status)
+                else:  # RESET, WAIT, WAIT_STATUS: rare, not on the hot path
+                    stats.bus_cycles += cycles
+                    stats.busy_polls += polls
+                    cycles = polls = 0
+                    st = self._run_rare(o)
+                    if st is not None:
+                        status = st
+                        statuses.append(st)
+        finally:
+            stats.bus_cycles += cycles
+            stats.busy_polls += polls
+        return ProgramResult(tuple(words), tuple(statuses), status, m.hi)
+
+    def _poll_on(self, program: Program, index: int, words: list[int], deadline: float,
+                 status: int) -> int:
+        """The rest of the poll loop after a busy ``status``, with its deadline (as
+        CycleTransport._wait_not_busy)."""
+        clock, stats = self._inner_clock, self.stats  # execute holds the lock
+        while True:
+            if clock.now() >= deadline:
+                raise BusyTimeout(program.ops[index].describe(), program.busy_timeout_s,
+                                  status, index, words)
+            clock.sleep(self.poll_interval_s)
+            status = self._read_status()
+            stats.bus_cycles += 1
+            stats.busy_polls += 1
+            if not status & 1:
+                return status
+
+    def _run_rare(self, o: BusOp) -> int | None:
+        """RESET, WAIT and WAIT_STATUS as CycleTransport.execute runs them."""
+        if o.op is _RESET:
+            self._pulse_reset()
+            self.stats.bus_cycles += 1
+        elif o.op is _WAIT:
+            self._inner_clock.sleep(o.arg * 1e-6)
+        elif o.op is _WAIT_STATUS:
+            return self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3, False)
+        else:  # pragma: no cover - Op is closed
+            raise AssertionError(o.op)
+        return None
+
+    def _skip_busy_polls(self, deadline: float) -> int:
+        """Skip the busy polls the model's busy deadline already answers.
+
+        The poll loop reads the status one strobe (``c`` clocks) after the last cycle, then
+        sleeps ``poll_interval_s`` (``s`` clocks) while busy: read ``j`` happens at
+        ``t0 + (j + 1) c + j s``.  Every read before the model's busy deadline answers busy, so
+        the clock jumps over them to where the first read at or after the deadline happens;
+        that read is made for real by the caller.  The model runs the same samples either way
+        (it is advanced to the same ticks, only in fewer steps), so counters, simulated time
+        and the chip's state are those of the full loop (tests/test_sim_fastpath.py)."""
+        m = self.model
+        if not self.skip_known_busy:
+            return 0
+        until = m.busy_deadline()
+        c = self._cycle_clocks
+        t0 = m.tick
+        if until is None or until <= t0 + c:
+            return 0  # busy has no known end (fault=busy), or the first read finds it clear
+        s = max(0, round(self.poll_interval_s * m.clock_hz))
+        k = -(-(until - t0 - c) // (c + s))  # reads before the deadline
+        if (t0 + k * c + (k - 1) * s) / m.clock_hz >= deadline:
+            return 0  # the full loop would time out: let it, with its own message
+        m.advance_to(t0 + k * (c + s))
+        return k
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
@@ -126,6 +344,10 @@ class SimTransport(CycleTransport):
         m = self.model
         m.advance_to(m.tick + 8)  # /RST held low for 8 clocks, the datasheet minimum
         m.reset_pulse()
+
+    def _sleep_until_status(self, mask: int, deadline: float) -> None:
+        """Straight to the next status change (see :meth:`SimClock.advance_until_status`)."""
+        cast(SimClock, self._inner_clock).advance_until_status(mask, deadline)
 
     def _hi(self) -> bool:
         return self.model.hi

@@ -1,0 +1,497 @@
+#!/usr/bin/env python3
+"""Every figure of the README's performance table, measured now, before and after.
+
+    python3 tools/bench_all.py                  # measure and print the table
+    python3 tools/bench_all.py --write-readme   # ... and write it into README.md ("Performance")
+    python3 tools/bench_all.py --baseline REF   # "before" = another commit (default below)
+    python3 tools/bench_all.py --write-readme --fresh-clone   # also a fresh clone's test run
+
+"Before" is measured, not remembered: the baseline commit's ``lm629_host`` is unpacked from git
+into a temporary directory (its C sample loop built there) and the same probes run against it
+in a subprocess, on the same machine at the same time as "after".  Figures that have no
+"before" (the transports the issue only asked to measure) show "-".  Wall-clock figures are
+medians of 3 on a shared 2-core machine (+/- 30 %); simulated figures are exact.
+
+Also runs every other benchmark in tools/ briefly, so that one that no longer runs shows here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+#: main before issue 12's second round (the CRC table still made by preprocessor macros)
+BASELINE = "26fd81f"
+COMMAND = "python3 tools/bench_all.py --write-readme"
+BEGIN, END = "<!-- bench_all.py: begin -->", "<!-- bench_all.py: end -->"
+
+
+# ------------------------------------------------------------------ probes (run in a subprocess)
+def _per_call_us(fn, n: int) -> float:
+    fn()
+    t0 = time.perf_counter()
+    for _ in range(n):
+        fn()
+    return (time.perf_counter() - t0) / n * 1e6
+
+
+def _median3(fn) -> float:
+    return statistics.median(fn() for _ in range(3))
+
+
+def _chip(url: str = "sim://"):
+    import lm629_host
+
+    chip = lm629_host.open(url)
+    chip.reset()
+    chip.load_filter(kp=20)
+    chip.update_filter()
+    return chip
+
+
+def _per_command(chip, fn, n: int) -> dict:
+    """Counters and simulated time per command (exact: what must not change)."""
+    s = chip.transport.stats
+    s.reset()
+    t0 = chip.clock.now()
+    for _ in range(n):
+        fn()
+    return {"bus_cycles": s.bus_cycles / n, "busy_polls": s.busy_polls / n,
+            "sim_us": (chip.clock.now() - t0) / n * 1e6}
+
+
+def probe_cost() -> dict:
+    """Host cost and waiting speed, one measurement each: main() runs this probe on the
+    baseline and on this tree in turn, three times, and takes the medians (the machine's load
+    drifts: interleaving keeps "before" and "after" under the same load)."""
+    from lm629_host import Status
+    from lm629_host.opcodes import Cmd
+
+    out: dict = {}
+    chip = _chip()
+    out["rdrp_us"] = _per_call_us(chip.read_real_position, 3000)
+    pos = [1000]
+
+    def ltrj_stt() -> None:  # as tools/bench_core.py
+        pos[0] = -pos[0]
+        chip.run(chip.trajectory_program(acceleration=100, velocity=65536, position=pos[0])
+                 .command(Cmd.STT))
+
+    out["ltrj_stt_us"] = _per_call_us(ltrj_stt, 1000)
+    # a move of ~21.7 s: 2 counts/sample after a 1.7 s ramp
+    c = _chip()
+    c.load_trajectory(acceleration=20, velocity=0x20000, position=156240)
+    c.start()
+    t0, w0 = c.clock.now(), time.perf_counter()
+    c.wait_for(Status.TRAJECTORY_COMPLETE, timeout=60)
+    out["wait_x"] = (c.clock.now() - t0) / (time.perf_counter() - w0)
+    return out
+
+
+def probe_core() -> dict:
+    """The exact figures that exist before and after (the API they use is the same)."""
+    import tracemalloc
+
+    import lm629_host
+    from lm629_host.opcodes import Cmd
+
+    out: dict = {"module": lm629_host.__file__}
+    chip = _chip()
+    out["rdrp_counts"] = _per_command(chip, chip.read_real_position, 1000)
+    pos = [1000]
+
+    def ltrj_stt() -> None:
+        pos[0] = -pos[0]
+        chip.run(chip.trajectory_program(acceleration=100, velocity=65536, position=pos[0])
+                 .command(Cmd.STT))
+
+    out["ltrj_stt_counts"] = _per_command(chip, ltrj_stt, 1000)
+    out["wait_emu"] = _link_wait("sim+emu://?baud=115200")
+
+    chip = lm629_host.open("sim://?record=1")
+    chip.reset()
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    for i in range(100_000):
+        chip.run(chip.program().command(Cmd.SBPA).write32(i))
+    out["record_mb"] = (tracemalloc.get_traced_memory()[0] - before) / 1e6
+    tracemalloc.stop()
+    return out
+
+
+def _link_wait(url: str, transport=None, seconds: float = 10.0) -> dict:
+    """Bytes on the link during a wait of ``seconds`` for a bit that never comes."""
+    import lm629_host
+    from lm629_host import Status
+    from lm629_host.errors import WaitTimeout
+
+    chip = lm629_host.LM629(transport) if transport is not None else lm629_host.open(url)
+    chip.reset()
+    s = chip.transport.stats
+    b0, r0, t0 = s.bytes_in + s.bytes_out, s.round_trips, chip.clock.now()
+    try:
+        chip.wait_for(Status.INDEX_PULSE, timeout=seconds)
+    except WaitTimeout:
+        pass
+    t = chip.clock.now() - t0
+    return {"bps": (s.bytes_in + s.bytes_out - b0) / t, "round_trips": s.round_trips - r0, "s": t}
+
+
+def probe_after() -> dict:
+    """The figures only measured now: the other transports, the variants of waiting."""
+    import lm629_host
+    import lm629_host.lm629 as lm
+    from lm629_host.bridge_emu import BridgeEmulator, EmuLinkTransport, EmuPipe
+    from lm629_host.link import HelloInfo, LinkTransport
+    from lm629_host.transports.sim import build_model
+
+    out: dict = {}
+    # waiting: as on a wall clock (one exchange per 250 ms), and an old bridge (host polls)
+    saved = lm.WAIT_STATUS_MAX_MS
+    lm.WAIT_STATUS_MAX_MS = lm.WAIT_STATUS_WALL_CHUNK_MS
+    try:
+        out["wait_emu_wall"] = _link_wait("sim+emu://?baud=115200")
+        out["wait_avr_wall"] = _link_wait("sim+avr://?baud=115200")
+    finally:
+        lm.WAIT_STATUS_MAX_MS = saved
+    model = build_model("sim://")
+    emu = BridgeEmulator(model, info=HelloInfo(capabilities=0x07))  # no WAIT_STATUS
+    t = EmuLinkTransport.__new__(EmuLinkTransport)
+    t.model, t.emulator = model, emu
+    LinkTransport.__init__(t, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
+    out["wait_emu_old_bridge"] = _link_wait("", transport=t)
+    out["wait_ftdi"] = _link_wait("sim+ftdi://")  # no far-side wait: the host polls
+
+    # simulated microseconds per command through the firmware and the FT232H
+    for url in ("sim+avr://?baud=115200", "sim+avr://?baud=1000000", "sim+ftdi://"):
+        chip = _chip(url)
+        pos = [1000]
+
+        def timed(fn, n: int = 20) -> float:
+            total = 0.0
+            for _ in range(n):
+                chip.load_trajectory(stop="off", start=True)  # no refused STT
+                pos[0] = -pos[0]
+                t0 = chip.clock.now()
+                fn()
+                total += chip.clock.now() - t0
+            return total / n * 1e6
+
+        out[url] = {
+            "rdrp": timed(chip.read_real_position),
+            "ltrj_stt": timed(lambda: chip.load_trajectory(
+                acceleration=100, velocity=65536, position=pos[0], start=True)),
+        }
+
+    # exchanges per typed command: bridge round trips (sim+emu://), FT232H USB transfer pairs
+    for url in ("sim+emu://", "sim+ftdi://"):
+        chip = _chip(url)
+        trips = {}
+        for name, fn in (("rdrp", chip.read_real_position),
+                         ("ltrj_stt", lambda: chip.load_trajectory(
+                             acceleration=100, velocity=65536, position=500, start=True)),
+                         ("reset", chip.reset)):
+            chip.load_trajectory(stop="off", start=True)
+            r0 = chip.transport.stats.round_trips
+            fn()
+            trips[name] = chip.transport.stats.round_trips - r0
+        out["trips " + url] = trips
+
+    # the chip model alone (tools/bench_model.py's measure), bring-up end to end
+    sys.path.insert(0, str(ROOT / "tools"))
+    import bench_model
+    from lm629_host.bringup import run_bringup
+
+    out["model_move_x"] = _median3(lambda: bench_model.measure("move", "auto", 10.0, 0.1)[0])
+
+    def bringup() -> float:
+        c = lm629_host.open("sim://")
+        w0 = time.perf_counter()
+        run_bringup(c)
+        return time.perf_counter() - w0
+
+    out["bringup_s"] = _median3(bringup)
+    return out
+
+
+# ------------------------------------------------------------------ builds
+def _timed_run(cmd: list[str], cwd: Path) -> tuple[float, float]:
+    """Wall seconds and peak resident MB of ``cmd`` (GNU time), or raises."""
+    r = subprocess.run(["/usr/bin/time", "-f", "%e %M", *cmd], cwd=cwd, capture_output=True,
+                       text=True)
+    if r.returncode:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{r.stderr[-1500:]}")
+    wall, kb = r.stderr.strip().splitlines()[-1].split()
+    return float(wall), int(kb) / 1024
+
+
+def compile_link_c(fw: Path) -> dict:
+    """One compile of link.c with the host's gcc and with avr-gcc (the Makefile's flags)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        host = _timed_run(["cc", "-O2", "-g", "-std=c99", "-Wall", "-Wextra", "-I.", "-c",
+                           "link.c", "-o", f"{tmp}/link.o"], fw)
+        avr = _timed_run(["avr-gcc", "-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os",
+                          "-std=gnu99", "-c", "link.c", "-o", f"{tmp}/link_avr.o"], fw)
+    return {"host": host, "avr": avr}
+
+
+def whole_build() -> tuple[float, float]:
+    """``make -B firmware harness`` on a copy of firmware_bridge/ (both images, the harness)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        dst = Path(tmp) / "firmware_bridge"
+        shutil.copytree(ROOT / "firmware_bridge", dst, ignore=shutil.ignore_patterns("build"))
+        return _timed_run(["make", "-s", "-B", "firmware", "harness"], dst)
+
+
+def fresh_clone_tests(ref: str) -> tuple[float, float, str]:
+    """A fresh clone of ``ref``: venv, ``pip install -e '.[test]'``, then the test run timed
+    (wall, peak MB of pytest and what it builds, its summary line)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp) / "clone"
+        subprocess.run(["git", "clone", "-q", str(ROOT), str(d)], check=True)
+        subprocess.run(["git", "-C", str(d), "checkout", "-q", ref], check=True)
+        subprocess.run([sys.executable, "-m", "venv", ".venv"], cwd=d, check=True)
+        py = str(d / ".venv" / "bin" / "python3")
+        subprocess.run([py, "-m", "pip", "install", "-q", "-e", ".[test]"], cwd=d,
+                       check=True, capture_output=True)
+        r = subprocess.run(["/usr/bin/time", "-f", "%e %M", py, "-m", "pytest", "-q",
+                            "-p", "no:cacheprovider"], cwd=d, capture_output=True, text=True)
+        wall, kb = r.stderr.strip().splitlines()[-1].split()
+        summary = r.stdout.strip().splitlines()[-1] if r.stdout.strip() else "?"
+        return float(wall), int(kb) / 1024, summary
+
+
+# ------------------------------------------------------------------ the baseline tree
+def unpack(ref: str, dest: Path) -> None:
+    """The baseline commit's sources into ``dest``, with its C sample loop built in place."""
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], capture_output=True,
+                             check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], cwd=dest,
+                   capture_output=True, check=True)
+
+
+def run_probe(name: str, path: Path) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(path))
+    r = subprocess.run([sys.executable, str(Path(__file__)), "--probe", name], env=env,
+                       capture_output=True, text=True, cwd=path)
+    if r.returncode:
+        raise RuntimeError(f"probe {name} on {path} failed:\n{r.stderr[-3000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+# ------------------------------------------------------------------ other benchmarks run clean
+OTHERS = [
+    ["bench_core.py", "--n", "200"],
+    ["bench_model.py", "--seconds", "1"],
+    ["bench_link.py", "--n", "20"],
+    ["bench_bridge.py", "--n", "10"],
+    ["bench_ftdi.py", "--repeat", "5"],
+    ["bench_cli.py", "--repeats", "1"],
+    ["fault_soak.py", "--runs", "1", "--n", "200"],
+]
+
+
+def run_others() -> tuple[list[str], dict[str, str]]:
+    """Run each; the failures, and the last line each printed."""
+    bad, last = [], {}
+    for args in OTHERS:
+        r = subprocess.run([sys.executable, str(ROOT / "tools" / args[0]), *args[1:]],
+                           capture_output=True, text=True, cwd=ROOT)
+        if r.returncode:
+            bad.append(f"{' '.join(args)}: exit {r.returncode}: {r.stderr.strip()[-300:]}")
+        lines = r.stdout.strip().splitlines()
+        last[args[0]] = lines[-1] if lines else ""
+    return bad, last
+
+
+def firmware_size() -> str:
+    r = subprocess.run(["make", "-s", "-C", str(ROOT / "firmware_bridge"), "size"],
+                       capture_output=True, text=True)
+    m = re.search(r"flash (\d+) of (\d+) bytes.*RAM (\d+) of (\d+)", r.stdout)
+    return f"flash {m[1]} of {m[2]} bytes, static RAM {m[3]} of {m[4]}" if m else "?"
+
+
+# ------------------------------------------------------------------ the table
+def rows(before: dict, after: dict, extra: dict, builds: dict) -> list[tuple[str, str, str, str]]:
+    """(figure, before, after, target) for the README."""
+    def x(a: float, b: float) -> str:
+        return f"{a / b:.1f}x better"
+
+    bc, ac = builds["before_link"], builds["after_link"]
+    r = [
+        ("one compile of `firmware_bridge/link.c`, host gcc: wall, peak memory",
+         f"{bc['host'][0]:.1f} s, {bc['host'][1]:.0f} MB", f"{ac['host'][0]:.2f} s, "
+         f"{ac['host'][1]:.0f} MB", "<= 1 s, <= 200 MB"),
+        ("one compile of `link.c`, avr-gcc", f"{bc['avr'][0]:.1f} s, {bc['avr'][1]:.0f} MB",
+         f"{ac['avr'][0]:.2f} s, {ac['avr'][1]:.0f} MB", "<= 1 s, <= 200 MB"),
+        ("whole firmware build (`make -B firmware harness`: two images + simavr harness)", "-",
+         f"{builds['whole'][0]:.1f} s, {builds['whole'][1]:.0f} MB", ""),
+        ("`wait_for` on a 21.7 s move, `sim://`, x real time", f"{before['wait_x']:.0f}x",
+         f"{after['wait_x']:.0f}x ({after['wait_x'] / before['wait_x']:.0f}x faster)",
+         ">= 2000x"),
+        ("`sim://` host cost, `read_real_position()` (RDRP)", f"{before['rdrp_us']:.1f} us",
+         f"{after['rdrp_us']:.1f} us ({x(before['rdrp_us'], after['rdrp_us'])})", ">= 2x better"),
+        ("`sim://` host cost, LTRJ (6 words) + STT", f"{before['ltrj_stt_us']:.1f} us",
+         f"{after['ltrj_stt_us']:.1f} us ({x(before['ltrj_stt_us'], after['ltrj_stt_us'])})",
+         ">= 2x better"),
+        ("`sim://` per RDRP / per LTRJ+STT: bus cycles, busy polls, simulated us (must not change)",
+         _counts(before), _counts(after), "identical"),
+        ("link bytes/s during a 10 s wait, `sim+emu://` 115200 baud",
+         f"{before['wait_emu']['bps']:.0f} B/s ({before['wait_emu']['round_trips']} round trips)",
+         f"{after['wait_emu']['bps']:.1f} B/s ({after['wait_emu']['round_trips']} round trip, "
+         f"WAIT_STATUS on the bridge); on a wall clock (a 250 ms exchange, so that Ctrl-C stays "
+         f"prompt) {extra['wait_emu_wall']['bps']:.0f} B/s, the compiled firmware (`sim+avr://`) "
+         f"{extra['wait_avr_wall']['bps']:.0f} B/s; a bridge without WAIT_STATUS (host polls "
+         f"at the wait's rate) {extra['wait_emu_old_bridge']['bps']:.0f} B/s "
+         f"({extra['wait_emu_old_bridge']['round_trips']} reads); FT232H (`sim+ftdi://`, host "
+         f"polls) {extra['wait_ftdi']['bps']:.0f} B/s over USB "
+         f"({extra['wait_ftdi']['round_trips']} reads)", ""),
+        ("`sim://?record=1`, memory after 100k commands (SBPA + 2 words)",
+         f"{before['record_mb']:.1f} MB (unbounded)", f"{after['record_mb']:.1f} MB "
+         "(a window of 10,000: `record_window=`)", "bounded"),
+    ]
+    for url, name in (("sim+avr://?baud=115200", "`sim+avr://` 115200 baud"),
+                      ("sim+avr://?baud=1000000", "`sim+avr://` 1,000,000 baud"),
+                      ("sim+ftdi://", "`sim+ftdi://` (emulated FT232H)")):
+        e = extra[url]
+        r.append((f"{name}: RDRP / LTRJ(6)+STT, simulated", "-",
+                  f"{e['rdrp']:.0f} us / {e['ltrj_stt']:.0f} us", "next round"))
+    if "fresh" in builds:
+        (bw, bm, bs), (aw, am, as_) = builds["fresh"]
+        r.append((f"test run of a fresh clone (`pytest -q` after `pip install -e '.[test]'`, "
+                  f"firmware builds included; measured {builds['fresh_date']} with "
+                  "`--fresh-clone`)", f"{bw:.0f} s, {bm:.0f} MB ({bs})",
+                  f"{aw:.0f} s, {am:.0f} MB ({as_})", "faster"))
+    te, tf = extra["trips sim+emu://"], extra["trips sim+ftdi://"]
+    r += [
+        ("exchanges per typed command, RDRP / LTRJ(6)+STT / `reset()`: serial bridge round "
+         "trips; FT232H USB write+read pairs", "-",
+         f"bridge {te['rdrp']} / {te['ltrj_stt']} / {te['reset']}; FT232H {tf['rdrp']} / "
+         f"{tf['ltrj_stt']} / {tf['reset']}", ""),
+        ("bridge firmware size", "-", builds["size"], ""),
+        ("exactly-once over a lossy link (`tools/fault_soak.py --runs 1 --n 200`, 0.2 % byte "
+         "faults)", "-", builds["soak"].replace("total: ", "").replace("|", "/"), ""),
+        ("chip model alone, 10 s move with the PID active, x real time", "-",
+         f"{extra['model_move_x']:.0f}x", ""),
+        ("`lm629 bringup` sequence on `sim://`, wall", "-", f"{extra['bringup_s']:.2f} s", ""),
+    ]
+    return r
+
+
+def _counts(d: dict) -> str:
+    a, b = d["rdrp_counts"], d["ltrj_stt_counts"]
+    return (f"{a['bus_cycles']:.0f}, {a['busy_polls']:.0f}, {a['sim_us']:.2f} / "
+            f"{b['bus_cycles']:.0f}, {b['busy_polls']:.0f}, {b['sim_us']:.2f}")
+
+
+def render(table: list[tuple[str, str, str, str]], date: str, ref: str, bad: list[str]) -> str:
+    lines = [
+        BEGIN,
+        f"Measured {date} by `{COMMAND}` (this table is its output: run it again to refresh);",
+        f"\"before\" is commit {ref} measured in the same run. Wall-clock figures are medians of",
+        "3 on a shared 2-core machine (+/- 30 %); simulated figures are exact.",
+        "",
+        "| figure | before | after | target |",
+        "|---|---|---|---|",
+    ]
+    lines += [f"| {a} | {b} | {c} | {d} |" for a, b, c, d in table]
+    if not any(a.startswith("test run of a fresh clone") for a, *_ in table):
+        kept = previous_fresh_row()
+        if kept:
+            lines.append(kept)
+    lines.append("")
+    lines.append("Every benchmark in `tools/` ran clean in the same run." if not bad else
+                 "Benchmarks that failed: " + "; ".join(bad))
+    lines.append(END)
+    return "\n".join(lines)
+
+
+def previous_fresh_row() -> str | None:
+    """The fresh-clone row of the README's table, kept when this run does not remeasure it
+    (it takes minutes: ``--fresh-clone``); it carries its own date."""
+    m = re.search(r"^\| test run of a fresh clone .*$", (ROOT / "README.md").read_text(),
+                  flags=re.M)
+    return m[0] if m else None
+
+
+def write_readme(block: str) -> None:
+    path = ROOT / "README.md"
+    text = path.read_text()
+    if BEGIN in text:
+        text = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: block, text,
+                      flags=re.S)
+    else:
+        head, sep, rest = text.partition("## Performance\n")
+        if not sep:
+            raise SystemExit("README.md has no '## Performance' section")
+        nxt = re.search(r"^## ", rest, flags=re.M)
+        tail = rest[nxt.start():] if nxt else ""
+        text = f"{head}{sep}\n{block}\n\n{tail}"
+    path.write_text(text)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--write-readme", action="store_true")
+    ap.add_argument("--baseline", default=BASELINE)
+    ap.add_argument("--fresh-clone", action="store_true",
+                    help="also time the test run of a fresh clone, before and after (minutes)")
+    ap.add_argument("--probe", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.probe:
+        print(json.dumps({"core": probe_core, "cost": probe_cost,
+                          "after": probe_after}[args.probe]()))
+        return 0
+
+    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    with tempfile.TemporaryDirectory() as tmp:
+        old = Path(tmp)
+        print(f"unpacking the baseline {args.baseline} ...", file=sys.stderr)
+        unpack(args.baseline, old)
+        print("compiling link.c, before and after ...", file=sys.stderr)
+        builds = {"before_link": compile_link_c(old / "firmware_bridge"),
+                  "after_link": compile_link_c(ROOT / "firmware_bridge"),
+                  "whole": whole_build()}
+        print("probes, before and after ...", file=sys.stderr)
+        before = run_probe("core", old)
+        after = run_probe("core", ROOT)
+        runs: dict[str, list[dict]] = {"before": [], "after": []}
+        for _ in range(3):  # in turn, so that both see the same load
+            runs["before"].append(run_probe("cost", old))
+            runs["after"].append(run_probe("cost", ROOT))
+    for d, key in ((before, "before"), (after, "after")):
+        for name in runs[key][0]:
+            d[name] = statistics.median(r[name] for r in runs[key])
+    extra = run_probe("after", ROOT)
+    if args.fresh_clone:
+        print("fresh clones: pip install and the test run, before and after ...",
+              file=sys.stderr)
+        builds["fresh"] = (fresh_clone_tests(args.baseline), fresh_clone_tests("HEAD"))
+        builds["fresh_date"] = date[:10]
+    print("the other benchmarks ...", file=sys.stderr)
+    bad, last = run_others()
+    builds["size"] = firmware_size()
+    builds["soak"] = last.get("fault_soak.py", "?")
+    block = render(rows(before, after, extra, builds), date, args.baseline, bad)
+    print(block)
+    if args.write_readme:
+        write_readme(block)
+        print("README.md: Performance section written", file=sys.stderr)
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
