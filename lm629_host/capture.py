@@ -148,44 +148,6 @@ def read_csv(path: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-def write_png(cap: Capture, path: str | Path, *, title: str = "") -> Path:
-    """Desired and actual position against time (ms), following error below.  Raises
-    :class:`PlotUnavailable` when matplotlib is missing."""
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise PlotUnavailable(
-            "matplotlib is not installed, so no PNG was drawn (the CSV has the data): "
-            "pip install 'lm629-host[plot]'") from exc
-    path = Path(path)
-    t_ms = [t * 1e3 for t in cap.times()]
-    fig, (ax, ax_err) = plt.subplots(2, 1, sharex=True, figsize=(8, 6),
-                                     gridspec_kw={"height_ratios": [3, 1]})
-    try:
-        ax.plot(t_ms, [s.desired_position for s in cap.rows], label="desired position",
-                color="tab:blue", drawstyle="steps-post")
-        ax.plot(t_ms, [s.real_position for s in cap.rows], label="actual position",
-                color="tab:red")
-        ax.axhline(cap.target, color="grey", linewidth=0.6, linestyle=":")
-        ax.set_ylabel("position (counts)")
-        ax.legend(loc="lower right")
-        ax.grid(True, alpha=0.3)
-        f = cap.filter
-        gains = ", ".join(f"{k}={v}" for k, v in f.items()) or "filter as loaded"
-        ax.set_title(title or f"LM629 response: {gains}; overshoot {cap.overshoot} counts")
-        ax_err.plot(t_ms, [s.following_error for s in cap.rows], color="tab:purple")
-        ax_err.set_ylabel("following error")
-        ax_err.set_xlabel("time after STT (ms)")
-        ax_err.grid(True, alpha=0.3)
-        fig.tight_layout()
-        fig.savefig(path, dpi=100)
-    finally:
-        plt.close(fig)
-    return path
-
-
 def summary(cap: Capture) -> Sequence[str]:
     """The figures a tuner looks at, one per line."""
     lines = [f"target {cap.target} counts, {len(cap.rows)} samples over "
@@ -198,5 +160,5 @@ def summary(cap: Capture) -> Sequence[str]:
     return lines
 
 
-__all__ = ["Capture", "capture_move", "write_csv", "read_csv", "write_png", "summary",
+__all__ = ["Capture", "capture_move", "write_csv", "read_csv", "summary",
            "PlotUnavailable", "CSV_COLUMNS", "STEP_VELOCITY", "STEP_ACCELERATION"]

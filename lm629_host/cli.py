@@ -36,10 +36,11 @@ import click
 import lm629_host
 
 from .bringup import BringupOptions, StepResult, run_bringup
-from .capture import PlotUnavailable, capture_move, summary, write_csv, write_png
+from .capture import PlotUnavailable, capture_move, summary, write_csv
 from .cli_calc import calc
 from .safety import STOP_NOTE, emergency_stop, stop_on_error
 from .cli_types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
+from .cli_tune import tune as _tune
 from .errors import (
     BusyTimeout,
     CommandError,
@@ -952,6 +953,7 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
     png = None if no_png else png_path or os.path.splitext(csv_path)[0] + ".png"
     if png:
         check_writable(png, "--png")
+    from .plot import plot_capture
     filt = {k: v for k, v in dict(kp=kp, ki=ki, kd=kd, il=il,
                                   derivative_interval=ds).items() if v is not None}
     chip = s.open()
@@ -968,7 +970,7 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
     click.echo(f"wrote {write_csv(cap, csv_path)}")
     if png:
         try:
-            click.echo(f"wrote {write_png(cap, png)}")
+            click.echo(f"wrote {plot_capture(cap, png, lines=s.lines)}")
         except PlotUnavailable as exc:
             click.echo(f"lm629: {exc}", err=True)
     if cap.fault is not None:
@@ -1096,6 +1098,7 @@ def doctor() -> None:
 
 
 main.add_command(calc)
+main.add_command(_tune)  # lm629 tune (lm629_host/cli_tune.py)
 
 try:  # the serial-bridge groups: `lm629 bridge list|flash`, `lm629 sim serve`
     from .cli_bridge import bridge as _bridge

@@ -1,0 +1,845 @@
+"""``autotune``: PID gains found on the user's own axis, safely, in one call.
+
+Why a model and not a rule of thumb: the LM629's filter is integer arithmetic with an 8-bit
+output (AN-706 5.2.3): a proportional term below one output step does nothing (a dead band of
+256 / kp counts), the drive saturates on any sizeable step, and the derivative of a position
+read in whole counts is coarse.  Ziegler-Nichols style rules ignore all three, and the three
+decide whether a move ends within 2 counts or 50.  So the tuner:
+
+1. **checks the loop phasing** (AN-706 2.12, AN-868 "Tuning the PID") with a gentle P-only step
+   of ``travel / 8`` counts whose first output is 1/8 of full scale: a shaft heading the other
+   way is reversed leads (``MotionError`` RUNAWAY, "swap the motor leads"); a shaft that does
+   not move even at full-scale output is a stall;
+2. **identifies the axis** from two P-only steps (``travel / 4`` out and back, first output
+   half scale): a second-order plant in the chip's own units -- acceleration at full-scale
+   output, speed decay rate (back-EMF and viscous friction), dry friction and a constant load,
+   all per sample -- fitted by simulating the chip's filter arithmetic sample by sample against
+   every position read (Nelder-Mead, a few hundred simulations);
+3. **designs** gains by pole placement on that model (natural frequency x damping x derivative
+   interval, then integral variants of the best), predicting each candidate's test move on the
+   model with the output quantisation and saturation, and keeping the one whose worst score
+   (settle time inside the tolerance, overshoot, end error, hunting) over the model and three
+   variants of it (30 % lighter, 40 % heavier, a fifth of the dry friction) is best;
+4. **checks** them with the test move (a step of ``distance`` counts out and back) and leaves
+   them loaded and applied (LFIL + UDF).
+
+Safety: every position read (every snapshot of every experiment) is checked against the
+travel band ``origin +/- travel`` less the distance the shaft needs to stop; the chip's own
+following-error stop (LPES) is armed at ``travel`` counts while tuning; any fault stops the
+motor (abrupt stop, then motor off) and raises :class:`~lm629_host.errors.MotionError`.
+Everything waits on ``chip.clock`` (simulated time on ``sim://``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+from .safety import STOP_NOTE, emergency_stop, stop_on_error
+from .errors import MotionError
+from .lm629 import LM629, Snapshot, check_int
+from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
+
+#: a step: the largest trajectory words, so the desired position jumps within a sample
+STEP_VELOCITY = VELOCITY_MAX
+STEP_ACCELERATION = ACCELERATION_MAX
+SAMPLE_CLOCKS = 2048
+
+Progress = Callable[[str], None]
+
+
+# ---------------------------------------------------------------------------------- gains
+@dataclass(frozen=True)
+class Gains:
+    """The filter words (LFIL): ``ds`` is the derivative sampling byte, interval ds + 1."""
+
+    kp: int
+    ki: int = 0
+    kd: int = 0
+    il: int = 0
+    ds: int = 0
+
+    def as_filter(self) -> dict[str, int]:
+        """Keyword arguments of :meth:`LM629.load_filter`."""
+        return dict(kp=self.kp, ki=self.ki, kd=self.kd, il=self.il,
+                    derivative_interval=self.ds + 1)
+
+    def cli(self) -> str:
+        """The ``lm629 filter`` line that sets these gains."""
+        return (f"lm629 filter --kp {self.kp} --ki {self.ki} --kd {self.kd} --il {self.il} "
+                f"--ds {self.ds + 1}")
+
+    def __str__(self) -> str:
+        return f"kp={self.kp} ki={self.ki} kd={self.kd} il={self.il} ds={self.ds + 1}"
+
+
+# ---------------------------------------------------------------------------------- model
+@dataclass(frozen=True)
+class AxisModel:
+    """The axis as the tuner sees it, in the chip's units (counts, samples of 2048 clocks).
+
+    dw/dn = accel x out / full_scale - rate x w - coulomb x sign(w) - load, with w the speed
+    in counts/sample and ``out`` the output code (-128..127 on the 8-bit port; -2048..2047 in
+    LM628 12-bit mode), held for a sample.  The same structure as a DC motor with the armature
+    inductance neglected, so one sample is integrated exactly.
+    """
+
+    accel: float  #: counts/sample^2 at full-scale output, shaft at rest
+    rate: float  #: speed decay per sample (back-EMF braking + viscous friction)
+    coulomb: float = 0.0  #: dry friction, counts/sample^2
+    load: float = 0.0  #: constant load, counts/sample^2 (positive pulls toward negative counts)
+    twelve_bit: bool = False
+
+    @property
+    def full_scale(self) -> int:
+        return 2048 if self.twelve_bit else 128
+
+    @property
+    def per_filter_unit(self) -> float:
+        """counts/sample^2 per unit of the filter's 16-bit result (both output widths)."""
+        return self.accel / 32768
+
+    def stop_distance(self, speed: float) -> float:
+        """Counts the shaft needs to stop from ``speed`` counts/sample at full braking."""
+        brake = max(self.accel - abs(self.load), 1e-9)
+        return speed * speed / (2 * brake) + abs(speed)
+
+    def scaled(self, factor: float) -> AxisModel:
+        """The same axis with ``factor`` times the inertia (robustness check)."""
+        return replace(self, accel=self.accel / factor, rate=self.rate / factor,
+                       coulomb=self.coulomb / factor, load=self.load / factor)
+
+    def describe(self, sample_s: float) -> str:
+        a = self.accel / sample_s ** 2
+        return (f"acceleration at full output {a:,.0f} counts/s^2, time constant "
+                f"{sample_s / max(self.rate, 1e-12) * 1e3:.1f} ms, top speed "
+                f"{self.accel / max(self.rate, 1e-12) / sample_s:,.0f} counts/s, dry friction "
+                f"{self.coulomb / self.accel * 100:.1f} % and load "
+                f"{self.load / self.accel * 100:+.1f} % of full output")
+
+
+@dataclass
+class PidState:
+    """The filter's memory (AN-706 5.2.3): 24-bit error sum, last derivative error, held
+    derivative term, derivative countdown, and the output code in force."""
+
+    esum: int = 0
+    elast: int = 0
+    dterm: int = 0
+    countdown: int = 0
+    out: int = 0
+
+
+def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: float,
+             w0: float = 0.0, state: PidState | None = None,
+             skip_ahead: bool = True) -> tuple[list[int], list[int]]:
+    """Predict ``len(desired)`` samples: (encoder counts, output codes) at each sample.
+
+    Each sample in the chip's order: the motor runs one sample on the output held since the
+    last one, the encoder is read, the filter computes the next output from
+    ``desired[n] - count`` (AN-706 5.2.3-5.2.5: 16-bit error, 16-bit products saturating,
+    24-bit sum whose top 16 bits multiply ki, limited to il, derivative every ds + 1 samples
+    and held, 16-bit sum, top 8 or 12 bits out).  ``tests/test_tuning.py`` checks this
+    arithmetic against the chip model's filter.  ``skip_ahead``: while the shaft is stuck and
+    nothing in the filter can change, jump to the next change of the desired position.
+    """
+    st = state or PidState()
+    kp, ki, kd, il, ds = gains.kp, gains.ki, gains.kd, gains.il, gains.ds
+    shift = 4 if model.twelve_bit else 8
+    g = model.accel / model.full_scale
+    a = max(model.rate, 1e-12)
+    c, d = model.coulomb, model.load
+    decay = math.exp(-a)
+    gain = (1.0 - decay) / a
+    x, w = x0, w0
+    esum, elast, dterm, countdown, out = st.esum, st.elast, st.dterm, st.countdown, st.out
+    counts: list[int] = []
+    outs: list[int] = []
+    floor = math.floor
+    total_n = len(desired)
+    # where the desired position changes next, for each run of equal values (skip-ahead)
+    changes = [k for k in range(1, total_n) if desired[k - 1] != desired[k]] + [total_n]
+    next_change = 0
+    i = -1
+    while i + 1 < total_n:
+        i += 1
+        target = desired[i]
+        while changes[next_change] <= i:
+            next_change += 1
+        # motor, one sample (as a DC motor with dry friction: exact between sticking points)
+        drive = out * g - d
+        stuck = False
+        if w == 0.0:
+            if -c <= drive <= c:
+                force = None
+                stuck = True
+            else:
+                force = drive - c if drive > 0 else drive + c
+        else:
+            force = drive - c if w > 0 else drive + c
+        if force is not None:
+            w_inf = force / a
+            w1 = w_inf + (w - w_inf) * decay
+            if w != 0.0 and (w1 > 0) != (w > 0):
+                x += w_inf * (-math.log(-w_inf / (w - w_inf)) / a) + w / a
+                w = 0.0
+            else:
+                x += w_inf + (w - w_inf) * gain
+                w = w1
+        n = floor(x)
+        counts.append(n)
+        # filter
+        e = target - n
+        e = 32767 if e > 32767 else (-32768 if e < -32768 else e)
+        total = esum + e
+        total = 8388607 if total > 8388607 else (-8388608 if total < -8388608 else total)
+        held = ki * (esum >> 8)
+        if (held >= il or held <= -il) and abs(total) > abs(esum):
+            total = esum
+        esum = total
+        term = ki * (total >> 8)
+        term = il if term > il else (-il if term < -il else term)
+        if countdown == 0:
+            diff = e - elast
+            diff = 32767 if diff > 32767 else (-32768 if diff < -32768 else diff)
+            dterm = kd * diff
+            dterm = 32767 if dterm > 32767 else (-32768 if dterm < -32768 else dterm)
+            elast = e
+            countdown = ds
+        else:
+            countdown -= 1
+        p = kp * e
+        p = 32767 if p > 32767 else (-32768 if p < -32768 else p)
+        u = p + term + dterm
+        u = 32767 if u > 32767 else (-32768 if u < -32768 else u)
+        held_out = out
+        out = u >> shift
+        outs.append(out)
+        if skip_ahead and stuck and out == held_out and e == elast and dterm == 0 \
+                and (ki == 0 or e == 0):
+            # nothing changes until the desired position does (the chip model's skip-ahead,
+            # for the same reason)
+            skip = changes[next_change] - i - 1
+            counts.extend([n] * skip)
+            outs.extend([out] * skip)
+            countdown = (countdown - skip) % (ds + 1)  # the derivative keeps its phase
+            i += skip
+    st.esum, st.elast, st.dterm, st.countdown, st.out = esum, elast, dterm, countdown, out
+    return counts, outs
+
+
+# ---------------------------------------------------------------------------------- metrics
+@dataclass(frozen=True)
+class MoveMetrics:
+    """One step response, the figures a tuner looks at (counts, seconds after the STT)."""
+
+    distance: int
+    final_error: int  #: target - position at the end of the record
+    overshoot: int  #: counts past the target, in the move's direction, >= 0
+    settle_s: float | None  #: first time after which the shaft stays within the tolerance
+    rise_s: float | None  #: 10 % -> 90 % of the distance
+    peak_following_error: int  #: largest |desired - real| (a step: about the distance)
+    hunt: int = 0  #: counts peak to peak over the last quarter of the record (hunting at rest)
+
+    def worst(self, other: MoveMetrics) -> MoveMetrics:
+        settle = None if self.settle_s is None or other.settle_s is None else \
+            max(self.settle_s, other.settle_s)
+        rise = None if self.rise_s is None or other.rise_s is None else max(self.rise_s,
+                                                                             other.rise_s)
+        return MoveMetrics(self.distance, max(self.final_error, other.final_error, key=abs),
+                           max(self.overshoot, other.overshoot), settle, rise,
+                           max(self.peak_following_error, other.peak_following_error, key=abs),
+                           max(self.hunt, other.hunt))
+
+    def line(self) -> str:
+        settle = "never" if self.settle_s is None else f"{self.settle_s * 1e3:.1f} ms"
+        rise = "-" if self.rise_s is None else f"{self.rise_s * 1e3:.1f} ms"
+        hunt = f", hunting {self.hunt} counts peak to peak at rest" if self.hunt else ""
+        return (f"final error {self.final_error:+d}, overshoot {self.overshoot}, settle {settle}, "
+                f"rise {rise}, peak following error {self.peak_following_error:+d} counts{hunt}")
+
+
+def step_metrics(times: Sequence[float], positions: Sequence[int], desired: Sequence[int],
+                 start: int, target: int, tolerance: int) -> MoveMetrics:
+    """Metrics of one response: ``times`` after the STT, real and desired positions."""
+    sign = 1 if target >= start else -1
+    dist = target - start
+    overshoot = max([0] + [sign * (p - target) for p in positions])
+    settle = None
+    for t, p in zip(reversed(times), reversed(positions)):
+        if abs(p - target) > tolerance:
+            break
+        settle = t
+    rise = None
+    t10 = next((t for t, p in zip(times, positions) if sign * (p - start) >= 0.1 * abs(dist)),
+               None)
+    t90 = next((t for t, p in zip(times, positions) if sign * (p - start) >= 0.9 * abs(dist)),
+               None)
+    if t10 is not None and t90 is not None:
+        rise = t90 - t10
+    pfe = max((dsr - p for dsr, p in zip(desired, positions)), key=abs, default=0)
+    tail = [p for t, p in zip(times, positions) if t >= 0.75 * times[-1]] if times else []
+    hunt = max(tail) - min(tail) if tail else 0
+    return MoveMetrics(dist, target - positions[-1] if positions else dist, overshoot, settle,
+                       rise, pfe, hunt)
+
+
+def score(m: MoveMetrics, horizon_s: float, tolerance: int) -> float:
+    """Smaller is better: settle time, plus overshoot (a settle-time-equivalent penalty),
+    plus a large penalty for a final error outside the tolerance and a small one for each
+    count beyond half of it (a margin for what the model does not know) and for each count
+    of hunting at rest."""
+    settle = horizon_s * 2 if m.settle_s is None else m.settle_s
+    over = max(0, m.overshoot - tolerance) / max(abs(m.distance), 1)
+    miss = max(0, abs(m.final_error) - tolerance)
+    margin = max(0, abs(m.final_error) - tolerance // 2)  # prefer ending well inside
+    return settle * (1 + 8 * over) + horizon_s * (over + miss + 0.05 * (margin + m.hunt))
+
+
+# ---------------------------------------------------------------------------------- records
+@dataclass
+class Record:
+    """Snapshots of one experiment and the steps commanded in it (time, target)."""
+
+    name: str
+    gains: Gains | None
+    rows: list[Snapshot] = field(default_factory=list)
+    steps: list[tuple[float, int]] = field(default_factory=list)
+    t0: float = 0.0
+    state0: PidState | None = None  #: the filter's state at t0, when known
+
+    def times(self) -> list[float]:
+        return [s.time - self.t0 for s in self.rows]
+
+    def segment(self, k: int) -> tuple[list[float], list[int], list[int], int, int]:
+        """(times after its STT, real, desired, start, target) of the k-th step."""
+        t_k, target = self.steps[k]
+        t_end = self.steps[k + 1][0] if k + 1 < len(self.steps) else math.inf
+        before = [s for s in self.rows if s.time <= t_k]
+        start = before[-1].desired_position if before else self.rows[0].desired_position
+        rows = [s for s in self.rows if t_k < s.time <= t_end]
+        return ([s.time - t_k for s in rows], [s.real_position for s in rows],
+                [s.desired_position for s in rows], start, target)
+
+
+@dataclass
+class TuneResult:
+    """What :func:`autotune` found, measured and predicted.  ``kp ki kd il ds`` are the chip's
+    words (``ds`` the derivative sampling byte: interval ``ds + 1`` samples)."""
+
+    kp: int
+    ki: int
+    kd: int
+    il: int
+    ds: int
+    model: AxisModel
+    sample_s: float
+    origin: int
+    travel: int
+    distance: int
+    tolerance: int
+    predicted: MoveMetrics
+    measured: MoveMetrics  #: worse of the out and back test moves with the tuned gains
+    before: MoveMetrics | None = None  #: the same test move with the gains found loaded
+    records: list[Record] = field(default_factory=list)
+    fit_rms: float = 0.0  #: counts, model vs the identification steps
+    #: every real position read during tuning (the travel-band check is on all of them)
+    positions: list[int] = field(default_factory=list)
+
+    @property
+    def gains(self) -> Gains:
+        return Gains(self.kp, self.ki, self.kd, self.il, self.ds)
+
+    @property
+    def ok(self) -> bool:
+        """The test moves ended within the tolerance."""
+        return abs(self.measured.final_error) <= self.tolerance
+
+    def record(self, name: str) -> Record | None:
+        return next((r for r in self.records if r.name == name), None)
+
+
+# ---------------------------------------------------------------------------------- the session
+class _Session:
+    """The experiments on the chip, each position read checked against the travel band."""
+
+    def __init__(self, chip: LM629, travel: int, poll_s: float, progress: Progress,
+                 clock_hz: float | None = None):
+        self.chip = chip
+        self.travel = travel
+        self.poll_s = poll_s
+        self.progress = progress
+        self.model: AxisModel | None = None
+        self.positions: list[int] = []
+        first = chip.snapshot()
+        # the band is around where the shaft is: the desired position while the loop holds
+        # it, the real one while the drive is off (after a reset, or a stop with motor off)
+        self.drive_off = bool(first.signals & Signals.MOTOR_OFF)
+        self.origin = first.real_position if self.drive_off else first.desired_position
+        self.sample_s = SAMPLE_CLOCKS / (clock_hz or _clock_hz(chip))
+        self.records: list[Record] = []
+        self.driving = False  #: an STT of ours turned the drive on (reset leaves it off)
+        self.check(first)
+
+    def fault(self, reason: str, message: str, snap: Snapshot | None = None) -> MotionError:
+        _ok, note = emergency_stop(self.chip)
+        err = MotionError(reason, f"{message} -- {note}",
+                          position=None if snap is None else snap.real_position,
+                          error=None if snap is None else snap.following_error)
+        setattr(err, STOP_NOTE, note)  # stop_on_error and the CLI: stopped once, said once
+        return err
+
+    def check(self, s: Snapshot) -> None:
+        """The safety checks on every snapshot."""
+        self.positions.append(s.real_position)
+        off = s.real_position - self.origin
+        speed = abs(s.real_velocity) + 1
+        stop = self.model.stop_distance(speed) if self.model else speed * speed + 4 * speed
+        if abs(off) + stop > self.travel:
+            raise self.fault(MotionError.RUNAWAY,
+                             f"the shaft is {off:+d} counts from where tuning started, moving "
+                             f"{s.real_velocity:+d} counts/sample: it would leave the travel "
+                             f"band of +/-{self.travel} counts; give a larger --travel if the "
+                             "axis has room, or check the mechanics", s)
+        if s.status & Status.POSITION_ERROR:
+            raise self.fault(MotionError.POSITION_ERROR,
+                             f"following error {s.following_error:+d} counts exceeded the "
+                             f"{self.travel}-count limit armed for tuning", s)
+        if self.driving and s.signals & Signals.MOTOR_OFF:
+            raise self.fault(MotionError.MOTOR_OFF, "the drive was found off during tuning", s)
+
+    def snap(self) -> Snapshot:
+        """A snapshot timed at the middle of its bus program (on a bridge the reads happen
+        during the round trip, not at its end), checked."""
+        t0 = self.chip.clock.now()
+        s = self.chip.snapshot()
+        s = replace(s, time=(t0 + s.time) / 2)
+        self.check(s)
+        return s
+
+    def load(self, g: Gains) -> None:
+        self.chip.load_filter(**g.as_filter())
+        self.chip.update_filter()
+
+    def step_to(self, rec: Record, target: int) -> None:
+        self.chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
+        self.chip.load_trajectory(acceleration=STEP_ACCELERATION, velocity=STEP_VELOCITY,
+                                  position=target, start=True)
+        self.driving = True
+        rec.steps.append((self.chip.clock.now(), target))
+
+    def record(self, rec: Record, duration_s: float,
+               watch: Callable[[Snapshot], bool] | None = None) -> Snapshot:
+        """Snapshots every ``poll_s`` for ``duration_s``; ``watch`` returning True ends early."""
+        clock = self.chip.clock
+        end = clock.now() + duration_s
+        s = rec.rows[-1] if rec.rows else self.snap()
+        while clock.now() < end:
+            clock.sleep(self.poll_s)
+            s = self.snap()
+            rec.rows.append(s)
+            if watch is not None and watch(s):
+                break
+        return s
+
+    def rest(self, limit_s: float) -> Snapshot:
+        """Wait until the shaft has stood still for 10 polls, or raise TIMEOUT after
+        ``limit_s``; first turn the drive on, holding the origin, if it is off (a load would
+        pull the shaft away)."""
+        rec = Record("rest", None)
+        if not self.driving and self.drive_off:
+            self.step_to(rec, self.origin)
+        rec.rows.append(self.snap())
+        s, still = self.settle(rec, limit_s)
+        if not still:
+            raise self.fault(MotionError.TIMEOUT,
+                             f"the shaft did not come to rest within {limit_s:g} s (it is "
+                             f"{s.real_position - self.origin:+d} counts from the start, moving "
+                             f"{s.real_velocity:+d} counts/sample): an oscillation or a load "
+                             "that keeps moving it: check the mechanics and the gains loaded", s)
+        return s
+
+    def begin(self, name: str, gains: Gains | None) -> Record:
+        rec = Record(name, gains)
+        s = self.snap()
+        rec.rows.append(s)
+        rec.t0 = s.time
+        self.records.append(rec)
+        return rec
+
+    def settle(self, rec: Record, limit_s: float, quiet: int = 10) -> tuple[Snapshot, bool]:
+        """Record until the shaft has stayed within 2 counts peak to peak for ``quiet`` polls
+        (an encoder edge may flicker, a loop may hunt a count either way), at most
+        ``limit_s``; (last snapshot, came to rest)."""
+        window: list[int] = [rec.rows[-1].real_position]
+
+        def watch(s: Snapshot) -> bool:
+            window.append(s.real_position)
+            del window[:-quiet - 1]
+            return len(window) > quiet and max(window) - min(window) <= 2
+
+        last = self.record(rec, limit_s, watch)
+        return last, len(window) > quiet and max(window) - min(window) <= 2
+
+
+def _clock_hz(chip: LM629) -> float:
+    """The simulated chip's clock, else the usual 8 MHz."""
+    model = getattr(chip.transport, "model", None)
+    return float(getattr(model, "clock_hz", 8_000_000))
+
+
+# ---------------------------------------------------------------------------------- phasing
+def _phasing(ses: _Session, step: int, time_s: float) -> Record:
+    """A gentle P-only step; RUNAWAY when the shaft heads away, STALL when nothing turns it."""
+    kp = max(1, round(16 * 256 / step))  # first output 1/8 of full scale
+    while True:
+        g = Gains(kp)
+        ses.progress(f"phasing: P-only step of {step:+d} counts at kp={kp}")
+        ses.load(g)
+        rec = ses.begin(f"phasing kp={kp}", g)
+        start = rec.rows[0].real_position
+        target = ses.origin + step
+        ses.step_to(rec, target)
+        away = max(4, step // 10)
+
+        def watch(s: Snapshot) -> bool:
+            moved = s.real_position - start
+            if moved <= -away:
+                raise ses.fault(
+                    MotionError.RUNAWAY,
+                    f"phasing: the desired position went {step:+d} counts and the shaft went "
+                    f"{moved:+d}: the loop pushes the wrong way. Swap the motor leads (or the "
+                    "encoder's A and B channels)", s)
+            return moved >= step // 2
+
+        s = ses.record(rec, time_s, watch)
+        moved = s.real_position - start
+        if moved >= step // 2 or (moved >= 2 and kp * step >= 32768):
+            ses.progress(f"phasing ok: the shaft followed {moved:+d} counts")
+            # back to the origin and rest there
+            ses.step_to(rec, ses.origin)
+            ses.settle(rec, 1.0)
+            return rec
+        if kp * step >= 32768 * 2:
+            raise ses.fault(MotionError.STALL,
+                            f"the shaft did not turn: desired {step:+d} counts at full-scale "
+                            f"output, the shaft moved {moved:+d}. Check the amplifier's supply "
+                            "and enable, the PWM/sign wiring, the motor and the encoder", s)
+        kp *= 2  # more drive, up to full scale
+        ses.step_to(rec, ses.origin)
+        ses.settle(rec, 0.5)
+
+
+# ---------------------------------------------------------------------------------- identification
+def _identify_run(ses: _Session, step: int, hold_s: float) -> Record:
+    kp = max(1, min(COEFFICIENT_MAX, round(64 * 256 / step)))  # first output half scale
+    g = Gains(kp)
+    ses.progress(f"identify: P-only steps of {step:+d} counts out and back at kp={kp}")
+    ses.load(g)
+    ses.rest(3.0)  # the fit starts from a shaft at rest
+    rec = ses.begin("identify", g)
+    rec.state0 = PidState(elast=rec.rows[0].following_error,
+                          out=(kp * rec.rows[0].following_error) >> 8)
+    ses.step_to(rec, ses.origin + step)
+    ses.record(rec, hold_s)
+    ses.step_to(rec, ses.origin)
+    ses.record(rec, hold_s)
+    return rec
+
+
+def _desired_samples(rec: Record, n: int, sample_s: float) -> list[int]:
+    start = rec.rows[0].desired_position
+    out = [start] * n
+    for t, target in rec.steps:
+        k = max(0, math.ceil((t - rec.t0) / sample_s - 0.5))
+        for i in range(k, n):
+            out[i] = target
+    return out
+
+
+def _residual(model: AxisModel, rec: Record, sample_s: float, desired: list[int],
+              idx: list[int], meas: list[int]) -> float:
+    s0 = rec.rows[0]
+    st = replace(rec.state0) if rec.state0 else PidState()
+    counts, _ = simulate(model, rec.gains or Gains(0), desired, x0=s0.real_position + 0.5,
+                         state=st)
+    err = 0.0
+    for i, m in zip(idx, meas):
+        d = counts[i] - m
+        err += d * d
+    return math.sqrt(err / max(1, len(idx)))
+
+
+def _nelder_mead(f: Callable[[list[float]], float], x0: list[float], steps: list[float],
+                 iters: int) -> tuple[list[float], float]:
+    pts = [list(x0)]
+    for i, s in enumerate(steps):
+        p = list(x0)
+        p[i] += s
+        pts.append(p)
+    vals = [f(p) for p in pts]
+    n = len(x0)
+    for _ in range(iters):
+        order = sorted(range(n + 1), key=vals.__getitem__)
+        pts = [pts[i] for i in order]
+        vals = [vals[i] for i in order]
+        cen = [sum(p[j] for p in pts[:-1]) / n for j in range(n)]
+        worst = pts[-1]
+        xr = [c + (c - w) for c, w in zip(cen, worst)]
+        fr = f(xr)
+        if fr < vals[0]:
+            xe = [c + 2 * (c - w) for c, w in zip(cen, worst)]
+            fe = f(xe)
+            pts[-1], vals[-1] = (xe, fe) if fe < fr else (xr, fr)
+        elif fr < vals[-2]:
+            pts[-1], vals[-1] = xr, fr
+        else:
+            xc = [c + 0.5 * (w - c) for c, w in zip(cen, worst)]
+            fc = f(xc)
+            if fc < vals[-1]:
+                pts[-1], vals[-1] = xc, fc
+            else:
+                best = pts[0]
+                pts = [best] + [[b + 0.5 * (q - b) for b, q in zip(best, p)] for p in pts[1:]]
+                vals = [vals[0]] + [f(p) for p in pts[1:]]
+    i = min(range(n + 1), key=vals.__getitem__)
+    return pts[i], vals[i]
+
+
+def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
+              iters: int = 60) -> tuple[AxisModel, float]:
+    """Fit an :class:`AxisModel` to an identification record; returns (model, rms counts)."""
+    t_last = rec.rows[-1].time - rec.t0
+    n = int(t_last / sample_s) + 2
+    desired = _desired_samples(rec, n, sample_s)
+    idx, meas = [], []
+    for s in rec.rows[1:]:
+        k = round((s.time - rec.t0) / sample_s - 0.5)
+        if 0 <= k < n:
+            idx.append(k)
+            meas.append(s.real_position)
+    # first guess: the initial acceleration of the first step (x = a t^2 / 2 at a known output)
+    kp = rec.gains.kp if rec.gains else 1
+    t_step, target = rec.steps[0]
+    x0 = rec.rows[0].real_position
+    out0 = max(1, min(127, (kp * abs(target - x0)) >> 8))
+    guess = 1e-3
+    for s in rec.rows:
+        dt = (s.time - t_step) / sample_s
+        moved = abs(s.real_position - x0)
+        if dt > 2 and moved >= max(3, abs(target - x0) // 20):
+            guess = 2 * moved / dt ** 2 * 128 / out0
+            break
+
+    def make(p: list[float]) -> AxisModel:
+        acc = math.exp(p[0])
+        return AxisModel(acc, math.exp(p[1]), abs(p[2]) * acc, p[3] * acc, twelve_bit)
+
+    def f(p: list[float]) -> float:
+        if not -30 < p[0] < 5 or not -20 < p[1] < 1 or abs(p[2]) > 1 or abs(p[3]) > 1:
+            return 1e12
+        return _residual(make(p), rec, sample_s, desired, idx, meas)
+
+    best, best_val = None, math.inf
+    for rate0 in (1e-3, 1e-2):  # two starts: slow and fast mechanical time constants
+        p, v = _nelder_mead(f, [math.log(guess), math.log(rate0), 0.005, 0.0],
+                            [0.5, 1.0, 0.01, 0.02], iters // 2)
+        if v < best_val:
+            best, best_val = p, v
+    p, v = _nelder_mead(f, best, [0.1, 0.3, 0.005, 0.005], iters)  # polish
+    if v < best_val:
+        best, best_val = p, v
+    return make(best), best_val
+
+
+# ---------------------------------------------------------------------------------- design
+def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
+                 tolerance: int) -> MoveMetrics:
+    """The test move (out by ``distance``, then back) on the model, from rest at 0."""
+    worst = None
+    for start, target in ((0, distance), (distance, 0)):
+        counts, _ = simulate(model, g, [target] * horizon, x0=start + 0.5,
+                             state=PidState(elast=0))
+        times = [(k + 1) for k in range(horizon)]
+        m = step_metrics(times, counts, [target] * horizon, start, target, tolerance)
+        worst = m if worst is None else worst.worst(m)
+    assert worst is not None
+    return worst
+
+
+def _pd_candidates(model: AxisModel) -> list[Gains]:
+    """Pole placement for x'' = k u - a x' (k per filter unit): kp = wn^2 / k and
+    kd (ds + 1) = (2 zeta wn - a) / k, over a grid of wn, zeta and derivative intervals."""
+    k = model.per_filter_unit
+    out: list[Gains] = []
+    wn = math.sqrt(k * 8)  # kp = 8 at the low end
+    while wn <= 0.5:
+        for zeta in (0.8, 1.1):
+            for ds in (0, 1, 3, 7):
+                if wn * (ds + 1) > 0.6:
+                    continue  # the held derivative's delay would eat the phase margin
+                kp = round(wn * wn / k)
+                kd = round((2 * zeta * wn - model.rate) / k / (ds + 1))
+                if 1 <= kp <= COEFFICIENT_MAX and 0 <= kd <= COEFFICIENT_MAX:
+                    out.append(Gains(kp, 0, kd, 0, ds))
+        wn *= 1.4
+    return out
+
+
+def _with_integral(model: AxisModel, g: Gains) -> list[Gains]:
+    """ki for integral times of 6 and 15 / wn samples; il twice what holds the load and
+    friction (AN-706 4.5.2: a limit against wind-up), at least 4 output steps."""
+    k = model.per_filter_unit
+    wn = math.sqrt(g.kp * k)
+    need = (abs(model.load) + model.coulomb) / k
+    il = min(COEFFICIENT_MAX, max(1024, round(2 * need + 512)))
+    out = []
+    for ti in (6 / wn, 15 / wn):
+        ki = round(256 * g.kp / ti)
+        if 1 <= ki <= COEFFICIENT_MAX:
+            out.append(replace(g, ki=ki, il=il))
+    return out
+
+
+def test_duration(model: AxisModel, distance: int, sample_s: float, at_least: float) -> float:
+    """Seconds to record after each step: six times the fastest possible move (full drive
+    to the middle, full braking after it), at least ``at_least``, at most 2 s."""
+    t_min = 2 * math.sqrt(abs(distance) / max(model.accel, 1e-12)) * sample_s
+    return min(2.0, max(at_least, 6 * t_min + 0.05))
+
+
+def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
+           sample_s: float) -> tuple[Gains, MoveMetrics]:
+    """Gains for the test move: PD candidates by pole placement screened on the model (out
+    and back, two thirds of the horizon); the ten best and integral variants of the best
+    four are then judged by their worst score on the model and three variants of it."""
+    horizon = int(horizon_s / sample_s)
+    quick = max(200, horizon * 2 // 3)
+
+    def screen(g: Gains) -> float:
+        return score(predict_move(model, g, distance, quick, tolerance), quick, tolerance)
+
+    pd = sorted(_pd_candidates(model), key=screen)
+    ranked = pd[:10] + [g for p in pd[:4] for g in _with_integral(model, p)]
+    # robustness: 30 % lighter and 40 % heavier, and a fifth of the dry friction (a fit
+    # rarely pins friction down; less of it lets the shaft creep to the dead band's edge)
+    variants = (model.scaled(0.7), model.scaled(1.4), replace(model, coulomb=model.coulomb / 5))
+    best = None
+    for g in ranked:
+        nominal = predict_move(model, g, distance, horizon, tolerance)
+        worst = max(score(predict_move(v, g, distance, horizon, tolerance), horizon, tolerance)
+                    for v in variants)
+        total = max(worst, score(nominal, horizon, tolerance))
+        if best is None or total < best[0]:
+            best = (total, g, nominal)
+    assert best is not None
+    g, m = best[1], best[2]
+    return g, _in_seconds(m, sample_s)
+
+
+def _in_seconds(m: MoveMetrics, sample_s: float) -> MoveMetrics:
+    return replace(m, settle_s=None if m.settle_s is None else m.settle_s * sample_s,
+                   rise_s=None if m.rise_s is None else m.rise_s * sample_s)
+
+
+# ---------------------------------------------------------------------------------- test move
+def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, duration_s: float,
+               tolerance: int) -> tuple[MoveMetrics, Record]:
+    if gains is not None:
+        ses.load(gains)
+    ses.rest(3.0)  # both test moves start from rest at the origin
+    rec = ses.begin(name, gains)
+    worst = None
+    for target in (ses.origin + distance, ses.origin):
+        ses.step_to(rec, target)
+        ses.record(rec, duration_s)
+        t, real, des, start, tgt = rec.segment(len(rec.steps) - 1)
+        m = step_metrics(t, real, des, start, tgt, tolerance)
+        worst = m if worst is None else worst.worst(m)
+    assert worst is not None
+    return worst, rec
+
+
+def measure_move(chip: LM629, gains: Gains | None, *, distance: int, travel: int,
+                 duration_s: float = 0.4, tolerance: int = 2, poll_s: float = 1e-3
+                 ) -> tuple[MoveMetrics, Record]:
+    """The tuner's test move (a step of ``distance`` counts out and back) with ``gains``
+    (None: as loaded), guarded like the tuning experiments; the worse of the two moves."""
+    ses = _Session(chip, travel, poll_s, lambda text: None)
+    with stop_on_error(chip):
+        return _test_move(ses, "test", gains, distance, duration_s, tolerance)
+
+
+# ---------------------------------------------------------------------------------- autotune
+def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance: int = 2,
+             before: Gains | None = None, duration_s: float = 0.4, poll_s: float = 1e-3,
+             clock_hz: float | None = None, progress: Progress | None = None) -> TuneResult:
+    """Find, check and apply PID gains for the axis, inside ``+/- travel`` counts of where the
+    shaft is now.
+
+    ``distance``: the test move (a step out and back), default ``min(2000, travel // 2)``;
+    ``tolerance``: counts a move must end within; ``before``: gains to measure the same test
+    move with first, for comparison (``TuneResult.before``; the chip cannot report the gains it
+    has, so they are named); ``duration_s``: seconds recorded after each
+    step of the test move; ``poll_s``: seconds between snapshots (on a bridge at least a round
+    trip); ``clock_hz``: the chip's clock (default: the simulator's, else 8 MHz); ``progress``
+    gets a line per stage.
+
+    On success the gains are loaded and applied (LFIL + UDF) and the following-error limit
+    armed for tuning is put back to the reset value (7FFF, flag only: LPEI).  Raises
+    :class:`MotionError` (motor stopped: abrupt stop, then motor off) on a phasing fault
+    (RUNAWAY, with the swap-the-leads advice), a shaft that would leave the band (RUNAWAY), a
+    position error, a stall, a shaft that does not come to rest (TIMEOUT); ``ValueError`` for
+    bad arguments before any bus cycle.
+    """
+    travel = check_int("travel", travel, 100, 1 << 28)
+    if distance is None:
+        distance = min(2000, travel // 2)
+    distance = check_int("distance", distance, 10, travel * 3 // 4)
+    tolerance = check_int("tolerance", tolerance, 0, 1000)
+    if not 0.05 <= duration_s <= 10:
+        raise ValueError(f"duration_s={duration_s} must be 0.05..10 seconds")
+    if not 0 < poll_s <= 0.05:
+        raise ValueError(f"poll_s={poll_s} must be > 0 and at most 0.05 seconds")
+    say = progress or (lambda text: None)
+    if chip.is_moving():
+        raise ValueError("the motor is moving: tuning starts from rest (`lm629 stop` first)")
+    ses = _Session(chip, travel, poll_s, say, clock_hz)
+    with stop_on_error(chip):  # Ctrl-C, link faults: motor stopped first
+        chip.load_position_error(min(COEFFICIENT_MAX, travel), stop=True)
+        # 1 phasing, gentle
+        _phasing(ses, max(8, travel // 8), 0.3)
+        # 2 before: the test move with the gains to compare against (after the phasing check,
+        # so that reversed leads are found gently, never by a full-size step)
+        measured_before = None
+        if before is not None:
+            say(f"before: test move of {distance:+d} counts out and back at {before}")
+            measured_before, _rec = _test_move(ses, "before", before, distance, duration_s,
+                                               tolerance)
+            say(f"before: {measured_before.line()}")
+        # 3 identification
+        ident = _identify_run(ses, max(8, travel // 4), 0.25)
+        model, rms = fit_model(ident, ses.sample_s, twelve_bit=_twelve_bit(chip))
+        ses.model = model
+        say(f"model: {model.describe(ses.sample_s)} (fit {rms:.1f} counts rms)")
+        # 4 design
+        duration_s = test_duration(model, distance, ses.sample_s, duration_s)
+        gains, predicted = design(model, distance, tolerance, duration_s, ses.sample_s)
+        say(f"gains: {gains}; predicted: {predicted.line()}")
+        # 5 check
+        measured, _rec = _test_move(ses, "after", gains, distance, duration_s, tolerance)
+        say(f"measured: {measured.line()}")
+    chip.load_position_error(COEFFICIENT_MAX)  # the tuning limit off again (reset's value)
+    return TuneResult(gains.kp, gains.ki, gains.kd, gains.il, gains.ds, model, ses.sample_s,
+                      ses.origin, travel, distance, tolerance, predicted, measured, measured_before,
+                      ses.records, rms, ses.positions)
+
+
+def _twelve_bit(chip: LM629) -> bool:
+    return not chip.read_signals() & Signals.EIGHT_BIT_OUTPUT
+
+
+__all__ = ["autotune", "measure_move", "TuneResult", "Gains", "AxisModel", "MoveMetrics",
+           "PidState", "simulate", "fit_model", "design", "predict_move", "step_metrics",
+           "score", "Record"]

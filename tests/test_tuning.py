@@ -1,0 +1,306 @@
+"""``lm629_host.tuning.autotune``, ``lm629 tune`` and the step plot.
+
+Numbers come from the spec and the physics: the filter arithmetic of AN-706 5.2.3-5.2.5 (the
+chip model's :func:`pid_step` is the reference), the motor's equation of motion with the
+``sim://`` defaults (12 V, 4 ohm, 0.025 N m/A, 4e-6 kg m^2, 500 lines, 256 us samples), and
+the travel band given to the tuner.  Every position the tuner reads is recorded by wrapping
+``chip.snapshot`` and checked against the band, and so is where the shaft finally stops.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+from click.testing import CliRunner
+
+import lm629_host
+from lm629_host import cli
+from lm629_host.errors import MotionError
+from lm629_host.model.params import MotorParams
+from lm629_host.model.pid import PIDState, pid_step
+from lm629_host.opcodes import Signals
+from lm629_host.tuning import AxisModel, Gains, PidState, autotune, simulate, step_metrics
+
+T = 2048 / 8e6  #: sample period at 8 MHz
+TRAVEL = 5000
+DISTANCE = 2000
+
+
+def physical(p: MotorParams) -> AxisModel:
+    """The sim:// motor in the tuner's units: acceleration at full output, decay per sample,
+    dry friction and load per sample^2 (J dw/dt = kt (V - kt w) / R - b w - Tc - TL)."""
+    counts_per_rad = 4 * p.lines / (2 * math.pi)
+    acc = p.torque_constant / p.resistance / p.inertia * p.amp_volts * counts_per_rad * T * T
+    rate = (p.torque_constant ** 2 / p.resistance + p.friction) / p.inertia * T
+    return AxisModel(acc, rate, p.coulomb / p.inertia * counts_per_rad * T * T,
+                     p.load_torque / p.inertia * counts_per_rad * T * T)
+
+
+class Watched:
+    """Every snapshot the tuner takes (real positions), and the chip after it."""
+
+    def __init__(self, url: str):
+        self.chip = lm629_host.open(url)
+        self.chip.reset()
+        self.chip.load_filter(kp=20)
+        self.chip.update_filter()
+        self.origin = self.chip.read_desired_position()
+        self.positions: list[int] = []
+        real = self.chip.snapshot
+
+        def snapshot():
+            s = real()
+            self.positions.append(s.real_position)
+            return s
+        self.chip.snapshot = snapshot  # type: ignore[method-assign]
+
+    def in_band(self, travel: int) -> bool:
+        return all(abs(p - self.origin) <= travel for p in self.positions)
+
+    def shaft(self) -> float:
+        """Where the shaft is (the model's encoder count)."""
+        return self.chip.transport.model.motion.motor.count
+
+
+# ---------------------------------------------------------------------------------- predictor
+def test_predictor_filter_is_the_chips_arithmetic():
+    """With the shaft held by dry friction the predicted output codes are exactly the chip
+    filter's (AN-706 5.2.3-5.2.5 as the chip model computes it), including the 16-bit
+    saturation, the integration limit and a held derivative."""
+    rng = random.Random(14)
+    stuck = AxisModel(accel=1e-3, rate=0.01, coulomb=1.0)  # never breaks away
+    for _ in range(20):
+        g = Gains(rng.randint(0, 3000), rng.randint(0, 300), rng.randint(0, 20000),
+                  rng.randint(0, 32767), rng.randint(0, 7))
+        desired = [rng.randint(-300, 300) for _ in range(60)] + [rng.randint(-40000, 40000)
+                                                                for _ in range(5)]
+        _counts, outs = simulate(stuck, g, desired, x0=0.5, state=PidState())
+        ref = PIDState()
+        expected = [pid_step(ref, d, g.kp, g.ki, g.kd, g.il, g.ds) >> 8 for d in desired]
+        assert outs == expected
+
+
+def test_predictor_motor_is_the_exact_solution():
+    """Constant full output, no friction: w(n) = w_inf (1 - e^-an), x(n) = w_inf (n - (1 -
+    e^-an) / a) with w_inf = accel x 127/128 / a (the output code saturates at 127)."""
+    m = AxisModel(accel=0.09, rate=0.0101)
+    n = 400
+    counts, outs = simulate(m, Gains(kp=32767), [10 ** 6] * n, x0=0.5, state=PidState(out=127))
+    assert set(outs) == {127}
+    w_inf = 0.09 * 127 / 128 / 0.0101
+    for k in (1, 50, 399):
+        x = 0.5 + w_inf * ((k + 1) - (1 - math.exp(-0.0101 * (k + 1))) / 0.0101)
+        assert counts[k] == math.floor(x)
+
+
+def test_step_metrics_from_a_known_response():
+    times = [0.001 * k for k in range(10)]
+    pos = [0, 100, 500, 950, 1040, 1010, 998, 1001, 1000, 1000]
+    m = step_metrics(times, pos, [1000] * 10, 0, 1000, tolerance=2)
+    assert m.overshoot == 40 and m.final_error == 0
+    assert m.settle_s == pytest.approx(0.006)  # from 998 on, within +/-2 to the end
+    assert m.rise_s == pytest.approx(0.003 - 0.001)  # 10 % (100) at 1 ms, 90 % (950) at 3 ms
+    assert m.peak_following_error == 1000
+    assert m.hunt == 1  # the last quarter (t >= 6.75 ms): 1001, 1000, 1000
+
+
+# ---------------------------------------------------------------------------------- autotune
+MOTORS = {
+    "default": "",
+    "10x inertia": "inertia=4e-5",
+    "holding load": "load_torque=0.004",
+    "low friction": "friction=2e-7&coulomb=2e-5",
+    "slow amplifier": "amp_volts=3",
+}
+
+
+@pytest.mark.parametrize("name", list(MOTORS))
+def test_autotune_ends_on_target_inside_the_band(name):
+    url = "sim://" + (f"?{MOTORS[name]}" if MOTORS[name] else "")
+    w = Watched(url)
+    r = autotune(w.chip, travel=TRAVEL, distance=DISTANCE, poll_s=0.002)
+    # the identified axis is the simulated motor (acceleration and decay within 10 %)
+    truth = physical(w.chip.transport.model.motor_params)
+    assert r.model.accel == pytest.approx(truth.accel, rel=0.10)
+    assert r.model.rate == pytest.approx(truth.rate, rel=0.25)
+    if truth.load:
+        assert r.model.load == pytest.approx(truth.load, rel=0.2)
+    # the test moves with the tuned gains: within 2 counts, overshoot under 2 % of the move
+    assert r.ok and abs(r.measured.final_error) <= 2
+    assert r.measured.overshoot <= DISTANCE // 50
+    assert (r.kp, r.ki, r.kd, r.il, r.ds) == tuple(r.gains.__dict__.values())
+    # every position read, and the shaft itself, stayed inside the band
+    assert w.positions and w.in_band(TRAVEL)
+    assert r.positions and all(abs(p - r.origin) <= TRAVEL for p in r.positions)
+    # the gains are loaded and applied: a new +/-2000 step, nothing loaded, ends within 2
+    for target in (w.origin + DISTANCE, w.origin):
+        w.chip.load_trajectory(acceleration=(1 << 30) - 1, velocity=(1 << 30) - 1,
+                               position=target, start=True)
+        w.chip.clock.sleep(1.0)
+        assert abs(w.chip.read_real_position() - target) <= 2
+    w.chip.close()
+
+
+def test_reversed_leads_runaway_stops_the_motor_inside_the_band():
+    w = Watched("sim://?reversed=1")
+    with pytest.raises(MotionError) as err:
+        autotune(w.chip, travel=2000)
+    e = err.value
+    assert e.reason == MotionError.RUNAWAY
+    assert "Swap the motor leads" in str(e) and "motor stopped" in str(e)
+    assert e.position is not None and e.position < 0  # it went the wrong way
+    assert w.chip.read_signals() & Signals.MOTOR_OFF
+    w.chip.clock.sleep(1.0)  # the shaft coasts to a stop
+    assert w.in_band(2000) and abs(w.shaft() - w.origin) <= 2000
+    w.chip.close()
+
+
+def test_stalled_rotor_is_a_stall_after_full_scale_output():
+    w = Watched("sim://?stall=1")
+    with pytest.raises(MotionError) as err:
+        autotune(w.chip, travel=2000)
+    assert err.value.reason == MotionError.STALL and "did not turn" in str(err.value)
+    assert w.chip.read_signals() & Signals.MOTOR_OFF
+    w.chip.close()
+
+
+@pytest.mark.parametrize("kw", [dict(travel=50), dict(travel=2000, distance=1600),
+                                dict(travel=2000, tolerance=-1), dict(travel=2000, poll_s=0)])
+def test_bad_arguments_touch_nothing(open_chip, recorder, kw):
+    chip = open_chip("sim://")
+    recorder.clear()
+    with pytest.raises(ValueError):
+        autotune(chip, **kw)
+    assert recorder.cycles == []
+
+
+def test_autotune_through_the_bridge_firmware():
+    from lm629_host.avrsim import toolchain_missing
+    if toolchain_missing():
+        pytest.skip("AVR toolchain missing")
+    w = Watched("sim+avr://")
+    r = autotune(w.chip, travel=TRAVEL, distance=DISTANCE, poll_s=0.002)
+    assert r.ok and abs(r.measured.final_error) <= 2 and r.measured.overshoot <= DISTANCE // 50
+    assert w.positions and w.in_band(TRAVEL)
+    w.chip.close()
+
+
+# ---------------------------------------------------------------------------------- CLI and plot
+@pytest.fixture
+def run():
+    def _run(*args: str):
+        return CliRunner().invoke(cli.main, list(args), env={"LM629_PORT": ""},
+                                  catch_exceptions=False)
+    return _run
+
+
+def test_cli_tune_prints_gains_and_the_filter_line_and_plots(run, tmp_path):
+    png = tmp_path / "tune.png"
+    r = run("tune", "--travel", "5000", "--yes", "--plot", str(png), "--interval", "0.002")
+    assert r.exit_code == 0, r.output + r.stderr
+    line = next(ln for ln in r.output.splitlines() if ln.startswith("set them again with:"))
+    words = line.split()
+    gains = {words[i][2:]: int(words[i + 1]) for i in range(len(words))
+             if words[i].startswith("--")}
+    assert set(gains) == {"kp", "ki", "kd", "il", "ds"}
+    assert "before (kp=20" in r.output and "tuned, measured:" in r.output
+    assert "phasing" in r.stderr  # progress while it works
+    assert png.stat().st_size > 10_000
+
+
+def test_cli_tune_reversed_leads_exit_code_and_advice(run):
+    r = run("--port", "sim://?reversed=1", "tune", "--travel", "2000", "--yes")
+    assert r.exit_code == 9  # MotionError: the "motion fault" code of `lm629 --help`
+    assert "Swap the motor leads" in r.stderr and "motor stopped" in r.stderr
+
+
+def test_cli_tune_bad_travel_is_usage_error(run):
+    r = run("tune", "--travel", "10", "--yes")
+    assert r.exit_code == 2 and "--travel" in r.stderr
+
+
+@pytest.mark.parametrize("kd", [0, 3000])
+def test_rebuilt_output_is_the_chips_output(kd):
+    """The plot's output trace, rebuilt from a snapshot (kp e + RDSUM + kd x derivative
+    difference, top 8 bits), is the chip's output code.  Holding still against a load after
+    a move (e and the integral stand still, the difference is 0): exactly.  Moving at 1
+    count/sample (P + I only: the encoder's whole counts make the derivative flicker), where
+    RDDP and RDRP may be read one sample apart, a count of error: within kp / 256 codes."""
+    from lm629_host.plot import rebuilt_output
+    chip = lm629_host.open("sim://?load_torque=0.004")
+    chip.reset()
+    g = Gains(kp=300, ki=40, kd=kd, il=5000, ds=0)
+    chip.load_filter(**g.as_filter())
+    chip.update_filter()
+    chip.load_trajectory(acceleration=655, velocity=65536, velocity_mode=True, start=True)
+    model = chip.transport.model
+    outputs = set()
+    for phase in ("moving", "holding"):
+        chip.clock.sleep(0.6)
+        for _ in range(30):
+            chip.clock.sleep(0.003)
+            s = chip.snapshot()
+            if phase == "holding":
+                assert rebuilt_output(s, g) == model.motion.output
+                outputs.add(model.motion.output)
+            elif kd == 0:
+                assert abs(rebuilt_output(s, g) - model.motion.output) <= math.ceil(g.kp / 256)
+                outputs.add(model.motion.output)
+        chip.load_trajectory(stop="smooth", start=True)
+    assert min(outputs) > 0  # the load needs drive: the codes checked exactly are not 0
+    chip.close()
+
+
+def test_step_command_draws_with_the_new_plot(run, tmp_path):
+    csv = tmp_path / "step.csv"
+    # with --lines the distance is in revolutions: 0.15 rev = 300 counts at 2000 counts/rev
+    r = run("--lines", "500", "step", "0.15", "--kp", "100", "--kd", "1000", "--csv", str(csv))
+    assert r.exit_code == 0, r.stderr
+    assert (tmp_path / "step.png").stat().st_size > 10_000
+
+
+def test_ctrl_c_while_tuning_stops_the_motor():
+    """A KeyboardInterrupt in the middle of the identification (the 150th position read)
+    goes on to the caller after the motor was stopped (abrupt stop, then motor off)."""
+    w = Watched("sim://")
+    real = w.chip.snapshot
+
+    def snapshot():
+        if len(w.positions) == 150:
+            raise KeyboardInterrupt
+        return real()
+    w.chip.snapshot = snapshot  # type: ignore[method-assign]
+    with pytest.raises(KeyboardInterrupt) as err:
+        autotune(w.chip, travel=TRAVEL)
+    assert "motor stopped" in getattr(err.value, "lm629_stop_note")
+    assert w.chip.read_signals() & Signals.MOTOR_OFF
+    w.chip.close()
+
+
+def test_predictor_skip_ahead_changes_nothing():
+    """The predictor skips samples while nothing can change (shaft stuck by dry friction,
+    output steady, desired position standing); sample by sample gives the same counts and
+    outputs, including the derivative's phase after the skip (interval 4)."""
+    m = AxisModel(accel=0.09, rate=0.0101, coulomb=0.002, load=0.0005)
+    plan = [0] * 50 + [300] * 1500 + [-200] * 1500 + [-190] * 300
+    for g in (Gains(kp=60, kd=900, ds=3), Gains(kp=150, ki=30, kd=2000, il=3000, ds=1)):
+        fast = simulate(m, g, plan, x0=0.5, state=PidState())
+        slow = simulate(m, g, plan, x0=0.5, state=PidState(), skip_ahead=False)
+        assert fast == slow
+        assert fast[0][1549] > 250 and fast[0][-1] < -150  # it did move (and then stuck)
+
+
+def test_a_shaft_that_never_rests_is_a_timeout():
+    """kp = 30000 P-only against a load with no friction to damp it: the loop limit-cycles
+    around the hold position and never stands still for 10 polls; the test move waits at
+    most 3 s for rest before it starts, then stops the motor and says so."""
+    from lm629_host.tuning import measure_move
+    w = Watched("sim://?coulomb=0&friction=0&load_torque=0.001")
+    with pytest.raises(MotionError) as err:
+        measure_move(w.chip, Gains(kp=30000), distance=1000, travel=2000)
+    assert err.value.reason == MotionError.TIMEOUT and "did not come to rest" in str(err.value)
+    assert w.chip.read_signals() & Signals.MOTOR_OFF
+    assert w.in_band(2000)
+    w.chip.close()

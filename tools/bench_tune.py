@@ -1,0 +1,124 @@
+#!/usr/bin/env python3
+"""Tuned gains against the best of a grid search, on motors of different kinds (``sim://``).
+
+For each motor: ``autotune`` (travel 5000, a 2000-count step out and back as its test move)
+from a fresh chip holding at kp = 20; then every point of a kp x ki x kd grid on a fresh chip,
+each measured with the same test move (``tuning.measure_move``, guarded like tuning: a point
+that would leave the band is stopped and counted as a fault).  The tuned gains are measured
+again the same way.  "Best" is the smallest ``tuning.score`` (settle time within the
+tolerance, with penalties for overshoot and for ending outside it): the same yardstick for both.
+
+    python3 tools/bench_tune.py            # the full grid (a few minutes on one core)
+    python3 tools/bench_tune.py --quick    # a coarse grid
+    python3 tools/bench_tune.py --url 'sim+avr://'   # through the compiled bridge firmware
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import lm629_host  # noqa: E402
+from lm629_host.errors import MotionError  # noqa: E402
+from lm629_host.tuning import Gains, MoveMetrics, autotune, measure_move, score  # noqa: E402
+
+MOTORS = (
+    ("default", ""),
+    ("10x inertia", "inertia=4e-5"),
+    ("holding load", "load_torque=0.004"),
+    ("low friction", "friction=2e-7&coulomb=2e-5"),
+    ("slow amplifier (3 V)", "amp_volts=3"),
+)
+TRAVEL = 5000
+DISTANCE = 2000
+TOLERANCE = 2
+DURATION = 1.0  #: seconds recorded after each step of the test move (every motor settles)
+POLL = 0.002
+
+
+def url_of(base: str, params: str) -> str:
+    if not params:
+        return base
+    return base + ("&" if "?" in base else "?") + params
+
+
+def fresh(url: str) -> lm629_host.LM629:
+    chip = lm629_host.open(url)
+    chip.reset()
+    chip.load_filter(kp=20)
+    chip.update_filter()
+    return chip
+
+
+def measure(url: str, g: Gains) -> MoveMetrics | None:
+    with fresh(url) as chip:
+        try:
+            m, _rec = measure_move(chip, g, distance=DISTANCE, travel=TRAVEL,
+                                   duration_s=DURATION, tolerance=TOLERANCE, poll_s=POLL)
+        except MotionError:
+            return None
+    return m
+
+
+def cost(m: MoveMetrics | None) -> float:
+    return float("inf") if m is None else score(m, DURATION, TOLERANCE)
+
+
+def row(name: str, what: str, g: Gains, m: MoveMetrics | None) -> str:
+    if m is None:
+        return f"| {name} | {what} | {g} | fault | | | | |"
+    settle = "-" if m.settle_s is None else f"{m.settle_s * 1e3:.0f}"
+    return (f"| {name} | {what} | {g} | {m.final_error:+d} | {m.overshoot} | {settle} | "
+            f"{abs(m.peak_following_error)} | {m.hunt} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--url", default="sim://", help="base URL (motor parameters are appended)")
+    ap.add_argument("--quick", action="store_true", help="a coarse grid")
+    ap.add_argument("--motor", action="append", help="only these motors (names as listed)")
+    args = ap.parse_args()
+    if args.quick:
+        grid = list(itertools.product((25, 100, 400), (0, 16), (0, 1000, 4000, 16000)))
+    else:
+        grid = list(itertools.product((25, 50, 100, 200, 400, 800), (0, 4, 16, 64),
+                                      (0, 300, 1000, 3000, 10000, 30000)))
+    print(f"grid: {len(grid)} points (kp x ki x kd, il 4000, ds 1); test move "
+          f"{DISTANCE:+d} counts out and back, tolerance {TOLERANCE}, {DURATION:g} s per step")
+    print("| motor | gains from | gains | final error | overshoot | settle ms | "
+          "peak following error | hunting at rest |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, params in MOTORS:
+        if args.motor and name not in args.motor:
+            continue
+        url = url_of(args.url, params)
+        t = time.perf_counter()
+        with fresh(url) as chip:
+            result = autotune(chip, travel=TRAVEL, distance=DISTANCE, tolerance=TOLERANCE)
+        tune_s = time.perf_counter() - t
+        tuned = measure(url, result.gains)
+        best = None
+        faults = 0
+        t = time.perf_counter()
+        for kp, ki, kd in grid:
+            g = Gains(kp, ki, kd, 4000 if ki else 0, 0)
+            m = measure(url, g)
+            faults += m is None
+            if best is None or cost(m) < cost(best[1]):
+                best = (g, m)
+        grid_s = time.perf_counter() - t
+        assert best is not None
+        print(row(f"{name} (`{params or 'defaults'}`)", f"tune ({tune_s:.1f} s wall)",
+                  result.gains, tuned))
+        print(row("", f"grid best of {len(grid)} ({grid_s:.0f} s wall, {faults} left the band)",
+                  best[0], best[1]))
+        sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()
