@@ -54,7 +54,7 @@ class Watched:
             s = real()
             self.positions.append(s.real_position)
             return s
-        self.chip.snapshot = snapshot  # type: ignore[method-assign]
+        self.chip.snapshot = snapshot  # type: ignore[method-assign]  # a scripted shaft
 
     def in_band(self, travel: int) -> bool:
         return all(abs(p - self.origin) <= travel for p in self.positions)
@@ -271,10 +271,10 @@ def test_ctrl_c_while_tuning_stops_the_motor():
         if len(w.positions) == 150:
             raise KeyboardInterrupt
         return real()
-    w.chip.snapshot = snapshot  # type: ignore[method-assign]
+    w.chip.snapshot = snapshot  # type: ignore[method-assign]  # a scripted shaft
     with pytest.raises(KeyboardInterrupt) as err:
         autotune(w.chip, travel=TRAVEL)
-    assert "motor stopped" in getattr(err.value, "lm629_stop_note")
+    assert "motor stopped" in err.value.lm629_stop_note  # type: ignore[attr-defined]  # set by stop_on_error
     assert w.chip.read_signals() & Signals.MOTOR_OFF
     w.chip.close()
 
