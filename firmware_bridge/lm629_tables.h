@@ -52,7 +52,7 @@
 #define STATUS_BREAKPOINT 0x40u
 #define STATUS_MOTOR_OFF 0x80u
 
-/* link protocol (lm629_host.link, firmware_bridge/PROTOCOL.md) */
+/* link protocol (lm629_host.bridge.protocol, firmware_bridge/PROTOCOL.md) */
 #define LINK_PROTOCOL_VERSION 1u  /* HELLO_REPLY protocol version */
 #define LINK_MAX_FRAME 250u  /* largest decoded frame, each way */
 #define LINK_MAX_WIRE_FRAME 252u  /* largest encoded frame with its delimiter */
@@ -82,7 +82,7 @@
 #define CAP_BUSY_ON_BRIDGE 4u  /* HELLO_REPLY capability bit */
 #define CAP_WAIT_STATUS 8u  /* HELLO_REPLY capability bit */
 
-/* CRC-16/GENIBUS table (lm629_host.link._CRC_TABLE): 256 high bytes, then 256 low bytes */
+/* CRC-16/GENIBUS table (lm629_host.bridge.protocol._CRC_TABLE): 256 high bytes, then 256 low bytes */
 #define LINK_CRC_TABLE_INIT { \
     0x00, 0x10, 0x20, 0x30, 0x40, 0x50, 0x60, 0x70, 0x81, 0x91, 0xA1, 0xB1, 0xC1, 0xD1, 0xE1, 0xF1, \
     0x12, 0x02, 0x32, 0x22, 0x52, 0x42, 0x72, 0x62, 0x93, 0x83, 0xB3, 0xA3, 0xD3, 0xC3, 0xF3, 0xE3, \
@@ -118,7 +118,7 @@
     0x1F, 0x3E, 0x5D, 0x7C, 0x9B, 0xBA, 0xD9, 0xF8, 0x17, 0x36, 0x55, 0x74, 0x93, 0xB2, 0xD1, 0xF0, \
 }
 
-/* pin map (lm629_host.bridge_pins): Uno pin, port bit, LM629 pin */
+/* pin map (lm629_host.bridge.pins): Uno pin, port bit, LM629 pin */
 /*    D2 = PD2 -> D0 (io) */
 /*    D3 = PD3 -> D1 (io) */
 /*    D4 = PD4 -> D2 (io) */

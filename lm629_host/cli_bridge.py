@@ -159,7 +159,7 @@ def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) 
 
     Then, from other shells: lm629 --port serial://PATH ...   (or pyserial, a terminal)
     """
-    from .simserve import SimServer
+    from .sim.serve import SimServer
 
     if (pty_path is None) == (tcp is None):
         raise click.UsageError("give --pty PATH or --tcp [HOST:]PORT (one of them)")

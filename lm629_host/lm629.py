@@ -37,7 +37,8 @@ from .opcodes import (
     TrajectoryFlags,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
-from .transports.base import Clock, Transport, WallClock
+from .clock import Clock, WallClock
+from .transports.base import Transport
 
 log = logging.getLogger("lm629_host")
 

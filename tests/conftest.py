@@ -18,7 +18,7 @@ os.environ.setdefault("LM629_SIM_STRICT", "1")
 import pytest
 
 import lm629_host
-from lm629_host import avrsim
+from lm629_host.sim import avr as avrsim
 from lm629_host.program import BusCycle
 
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"

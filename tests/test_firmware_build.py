@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from lm629_host import bridge_pins as pins
-from lm629_host.link import MAX_FRAME, RUN_OVERHEAD, RUN_REPLY_OVERHEAD
+from lm629_host.bridge import pins as pins
+from lm629_host.bridge.protocol import MAX_FRAME, RUN_OVERHEAD, RUN_REPLY_OVERHEAD
 from lm629_host.program import OP_ARG_BYTES, Op
 
 

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from click.testing import CliRunner
 
-from lm629_host import avrsim, data
+from lm629_host.sim import avr as avrsim
+from lm629_host import data
 from lm629_host.cli import main as cli
 
 

@@ -20,8 +20,8 @@ from click.testing import CliRunner
 from lm629_host import data
 from lm629_host.cli import main as cli
 from lm629_host import TransportError
-from lm629_host.ftdi_emu import SHARED, EmulatedFT232H
-from lm629_host.model import ChipModel
+from lm629_host.sim.ftdi import SHARED, EmulatedFT232H
+from lm629_host.sim.model import ChipModel
 from lm629_host.transports import ftdi
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 @pytest.fixture
 def bus(monkeypatch):
     """An emulated USB bus with one FT232H (serial FT5LM629) wired to a chip model."""
-    monkeypatch.setattr(UsbTools, "BACKENDS", ("lm629_host.ftdi_emu.backend",))
+    monkeypatch.setattr(UsbTools, "BACKENDS", ("lm629_host.sim.ftdi.backend",))
     UsbTools.flush_cache()
     UsbTools.release_all_devices()
     monkeypatch.setattr(SHARED, "devices", [EmulatedFT232H(ChipModel(), serial="FT5LM629")])
@@ -128,7 +128,7 @@ def test_udev_rule_matches_the_ft232h_and_the_readme_commands():
 
 
 def test_readme_wiring_table_is_the_pin_map():
-    from lm629_host.ftdi_pins import WIRING
+    from lm629_host.transports.ftdi_pins import WIRING
     readme = (ROOT / "README.md").read_text()
     section = readme.split("## The FT232H adapter", 1)[1].split("\n## ", 1)[0]
     for line, label, pin, direction, note in WIRING:

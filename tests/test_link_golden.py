@@ -10,10 +10,20 @@ from pathlib import Path
 
 import pytest
 
-from lm629_host.link import (
+from lm629_host.bridge.protocol import (
     _CRC_TABLE,
-    MAX_FRAME, FrameError, FrameType, HelloInfo, Result, RunReply, cobs_decode, cobs_encode, crc16,
-    decode_frame, decode_program, encode_frame,
+    MAX_FRAME,
+    FrameError,
+    FrameType,
+    HelloInfo,
+    Result,
+    RunReply,
+    cobs_decode,
+    cobs_encode,
+    crc16,
+    decode_frame,
+    decode_program,
+    encode_frame,
 )
 from lm629_host.opcodes import Cmd
 from lm629_host.program import BusOp, Op

@@ -16,8 +16,8 @@ import importlib
 import pytest
 
 from lm629_host import CommandError, ProtocolViolation, Signals, Status
-from lm629_host.model import ChipModel, ChipParams
-from lm629_host.model.motor import Motor
+from lm629_host.sim.model import ChipModel, ChipParams
+from lm629_host.sim.model.motor import Motor
 from lm629_host.opcodes import Cmd
 from lm629_host.transports import SCHEMES
 
@@ -33,7 +33,7 @@ def _available(url: str) -> bool:
     except ImportError:
         return False
     if url.startswith("sim+avr"):
-        from lm629_host.avrsim import toolchain_missing
+        from lm629_host.sim.avr import toolchain_missing
 
         return not toolchain_missing()
     return True

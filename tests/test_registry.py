@@ -14,12 +14,20 @@ import lm629_host
 from lm629_host.cli import main as cli
 from lm629_host.errors import TransportError
 from lm629_host.opcodes import Status
-from lm629_host.transports import (BUILTIN, ENTRY_POINT_GROUP, Transport, is_simulated,
-                                   registry, transport_class, transport_classes)
+from lm629_host.transports import (
+    BUILTIN,
+    ENTRY_POINT_GROUP,
+    Transport,
+    is_simulated,
+    registry,
+    transport_class,
+    transport_classes,
+)
 
 PLUGIN = '''
 from lm629_host.transports.base import Check, PortInfo
-from lm629_host.transports.sim import SimTransport, build_model
+from lm629_host.transports.sim import SimTransport
+from lm629_host.sim.build import build_model
 
 
 class BenchTransport(SimTransport):

@@ -18,7 +18,7 @@ import lm629_host
 from lm629_host import Status, TransportError
 from lm629_host.cli_bridge import _main as cli
 from lm629_host.opcodes import Cmd
-from lm629_host.simserve import SimServer
+from lm629_host.sim.serve import SimServer
 from lm629_host.transports import serial as serial_mod
 from lm629_host.transports.serial import SerialTransport, options_of
 
@@ -202,9 +202,9 @@ def test_sim_serve_cli_serves_until_sigterm(tmp_path):
 def test_pipe_far_end_serves_any_simulated_pipe(tmp_path):
     """The adapter that serves the firmware (``--firmware``) works on any simulated pipe: here
     the Python bridge behind an EmuPipe at 115200 baud stands in for the simavr UART."""
-    from lm629_host.bridge_emu import BridgeEmulator, EmuPipe
-    from lm629_host.simserve import PipeFarEnd
-    from lm629_host.transports.sim import build_model
+    from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+    from lm629_host.sim.serve import PipeFarEnd
+    from lm629_host.sim.build import build_model
 
     model = build_model("sim://?record=1")
     far = PipeFarEnd(EmuPipe(BridgeEmulator(model), baud=115200), model, "emu behind a pipe",
@@ -242,10 +242,10 @@ def test_doctor_reports_handshake_and_round_trip(server):
 
 
 def test_every_pipe_is_a_pipe(server):
-    from lm629_host.bridge_emu import BridgeEmulator, EmuPipe
-    from lm629_host.faultlink import FaultPipe
-    from lm629_host.link import Pipe
-    from lm629_host.transports.sim import build_model
+    from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+    from lm629_host.sim.faults import FaultPipe
+    from lm629_host.transports.link import Pipe
+    from lm629_host.sim.build import build_model
 
     emu = EmuPipe(BridgeEmulator(build_model("sim://")))
     with lm629_host.open(f"serial://{server.link}") as chip:

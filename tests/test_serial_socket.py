@@ -17,8 +17,8 @@ import pytest
 import lm629_host
 from lm629_host import Status, TransportError
 from lm629_host.opcodes import Cmd
-from lm629_host.simserve import SimServer
-from lm629_host.link import FrameReader, FrameType
+from lm629_host.sim.serve import SimServer
+from lm629_host.bridge.protocol import FrameReader, FrameType
 from lm629_host.transports.serial import RTT_PINGS, SerialTransport, options_of
 
 

@@ -9,12 +9,13 @@ from pathlib import Path
 import pytest
 
 from lm629_host import LM629, BusyTimeout
-from lm629_host.avrsim import CPU_HZ, STATUS, AvrPipe, AvrSim
-from lm629_host.link import (FrameReader, FrameType, LinkTransport, Result, RunReply, encode_frame)
+from lm629_host.sim.avr import CPU_HZ, STATUS, AvrPipe, AvrSim
+from lm629_host.bridge.protocol import FrameReader, FrameType, Result, RunReply, encode_frame
+from lm629_host.transports.link import LinkTransport
 from lm629_host.opcodes import Cmd, Status
 from lm629_host.program import Program
 from lm629_host.transports import open_transport
-from lm629_host.transports.sim import build_model
+from lm629_host.sim.build import build_model
 
 
 pytestmark = pytest.mark.usefixtures("firmware_built")

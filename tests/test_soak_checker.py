@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from lm629_host.faultlink import check_record
+from lm629_host.sim.faults import check_record
 from lm629_host.opcodes import Cmd
 
 RDRP = (int(Cmd.RDRP), ())

@@ -12,7 +12,7 @@ import threading
 
 
 from lm629_host import Signals, Status
-from lm629_host.simserve import SimServer
+from lm629_host.sim.serve import SimServer
 
 CALLS = 1000
 

@@ -18,8 +18,8 @@ from click.testing import CliRunner
 import lm629_host
 from lm629_host import cli
 from lm629_host.errors import MotionError
-from lm629_host.model.params import MotorParams
-from lm629_host.model.pid import PIDState, pid_step
+from lm629_host.sim.model.params import MotorParams
+from lm629_host.sim.model.pid import PIDState, pid_step
 from lm629_host.opcodes import Signals
 from lm629_host.tuning import AxisModel, Gains, PidState, autotune, simulate, step_metrics
 
@@ -177,7 +177,7 @@ def test_bad_arguments_touch_nothing(open_chip, recorder, kw):
 
 
 def test_autotune_through_the_bridge_firmware():
-    from lm629_host.avrsim import toolchain_missing
+    from lm629_host.sim.avr import toolchain_missing
     if toolchain_missing():
         pytest.skip("AVR toolchain missing")
     w = Watched("sim+avr://")

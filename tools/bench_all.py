@@ -152,9 +152,11 @@ def probe_after() -> dict:
     """The figures only measured now: the other transports, the variants of waiting."""
     import lm629_host
     import lm629_host.lm629 as lm
-    from lm629_host.bridge_emu import BridgeEmulator, EmuLinkTransport, EmuPipe
-    from lm629_host.link import HelloInfo, LinkTransport
-    from lm629_host.transports.sim import build_model
+    from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+    from lm629_host.transports.simemu import EmuLinkTransport
+    from lm629_host.bridge.protocol import HelloInfo
+    from lm629_host.transports.link import LinkTransport
+    from lm629_host.sim.build import build_model
 
     out: dict = {}
     # waiting: as on a wall clock (one exchange per 250 ms), and an old bridge (host polls)

@@ -97,7 +97,7 @@ def main() -> None:
           "(framing + CRC + emulated bridge)")
 
     print("4. serial:// on a pseudo-terminal (real time, lm629 sim serve's server)")
-    from lm629_host.simserve import SimServer
+    from lm629_host.sim.serve import SimServer
     from lm629_host.transports.serial import SerialTransport
     with tempfile.TemporaryDirectory() as d:
         srv = SimServer(Path(d) / "lm629", "sim://").start()

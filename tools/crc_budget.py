@@ -32,8 +32,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from lm629_host.link import (FrameType, MAX_FRAME, RunReply, cobs_decode, crc16,
-                             encode_frame, run_payload)
+from lm629_host.bridge.protocol import (
+    FrameType,
+    MAX_FRAME,
+    RunReply,
+    cobs_decode,
+    crc16,
+    encode_frame,
+    run_payload,
+)
 from lm629_host.opcodes import Cmd
 from lm629_host.program import BusOp, Op
 

@@ -21,8 +21,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from lm629_host import LM629
-from lm629_host.bridge_emu import open_emulated
-from lm629_host.faultlink import FaultPipe, check_record, soak
+from lm629_host.transports.simemu import open_emulated
+from lm629_host.sim.faults import FaultPipe, check_record, soak
 
 
 def open_far(far: str, baud: int, n: int = 5000):

@@ -17,8 +17,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from lm629_host.link import (
-    FrameType, HelloInfo, Result, RunReply, cobs_encode, frame_body, run_payload,
+from lm629_host.bridge.protocol import (
+    FrameType,
+    HelloInfo,
+    Result,
+    RunReply,
+    cobs_encode,
+    frame_body,
+    run_payload,
 )
 from lm629_host.opcodes import Cmd
 from lm629_host.program import Program

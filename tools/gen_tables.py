@@ -19,8 +19,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lm629_host import bridge_pins as pins  # noqa: E402 - after sys.path.insert
-from lm629_host.link import _CRC_TABLE, c_defines  # noqa: E402 - after sys.path.insert
+from lm629_host.bridge import pins as pins  # noqa: E402 - after sys.path.insert
+from lm629_host.bridge.protocol import _CRC_TABLE, c_defines  # noqa: E402 - after sys.path.insert
 from lm629_host.opcodes import Cmd, Status  # noqa: E402 - after sys.path.insert
 from lm629_host.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, WAIT_STATUS_POLL_US, Op  # noqa: E402 - after sys.path.insert
 from generated import write_or_check  # noqa: E402 - after sys.path.insert
@@ -52,20 +52,20 @@ def render() -> str:
     lines += ["", "/* status byte bits (lm629_host.opcodes.Status) */"]
     for s in Status:
         lines.append(f"#define STATUS_{s.name} 0x{int(s):02X}u")
-    lines += ["", "/* link protocol (lm629_host.link, firmware_bridge/PROTOCOL.md) */"]
+    lines += ["", "/* link protocol (lm629_host.bridge.protocol, firmware_bridge/PROTOCOL.md) */"]
     for name, value, comment in c_defines():
         lines.append(f"#define {name} {value}u  /* {comment} */")
     # The CRC table as literal bytes (high bytes of the 256 entries, then the low bytes): made
     # by the preprocessor from LINK_CRC_POLY it cost 18 s and 3 GB per compile of link.c.
     hi = [e >> 8 for e in _CRC_TABLE]
     lo = [e & 0xFF for e in _CRC_TABLE]
-    lines += ["", "/* CRC-16/GENIBUS table (lm629_host.link._CRC_TABLE): 256 high bytes, then 256 low bytes */",
+    lines += ["", "/* CRC-16/GENIBUS table (lm629_host.bridge.protocol._CRC_TABLE): 256 high bytes, then 256 low bytes */",
               "#define LINK_CRC_TABLE_INIT { \\"]
     for row in range(0, 512, 16):
         chunk = (hi + lo)[row:row + 16]
         lines.append("    " + ", ".join(f"0x{b:02X}" for b in chunk) + ", \\")
     lines.append("}")
-    lines += ["", "/* pin map (lm629_host.bridge_pins): Uno pin, port bit, LM629 pin */"]
+    lines += ["", "/* pin map (lm629_host.bridge.pins): Uno pin, port bit, LM629 pin */"]
     for w in pins.WIRING:
         lines.append(f"/*   {w.board_pin:>3} = P{w.port}{w.bit} -> {w.chip_pin} ({w.direction}) */")
     lines += [

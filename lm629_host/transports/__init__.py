@@ -35,7 +35,8 @@ from importlib.metadata import entry_points
 from ..errors import TransportError
 from ..program import TraceCallback
 from ..urls import query_params, scheme_of
-from .base import Check, Clock, CycleTransport, PortInfo, Stats, Transport, WallClock
+from .base import Check, CycleTransport, PortInfo, Stats, Transport
+from ..clock import Clock, WallClock
 
 log = logging.getLogger("lm629_host.transports")
 
@@ -49,7 +50,7 @@ BUILTIN: dict[str, str] = {
     "ftdi": "lm629_host.transports.ftdi:FtdiTransport",
     "sim+avr": "lm629_host.transports.simavr:SimAvrTransport",
     "sim+ftdi": "lm629_host.transports.simftdi:SimFtdiTransport",
-    "sim+emu": "lm629_host.bridge_emu:EmuLinkTransport",
+    "sim+emu": "lm629_host.transports.simemu:EmuLinkTransport",
 }
 #: the old name of :data:`BUILTIN`
 SCHEMES = BUILTIN

@@ -20,12 +20,20 @@ import abc
 import functools
 import logging
 import threading
-import time
 from dataclasses import asdict, dataclass
 
 from ..errors import BusyTimeout, TransportError
 from ..opcodes import Status
-from ..program import WAIT_STATUS_POLL_US, BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
+from ..clock import Clock, WallClock
+from ..program import (
+    WAIT_STATUS_POLL_US,
+    BusCycle,
+    BusOp,
+    Op,
+    Program,
+    ProgramResult,
+    TraceCallback,
+)
 
 log = logging.getLogger("lm629_host.bus")
 
@@ -74,27 +82,6 @@ class Check:
     name: str
     ok: bool
     message: str
-
-
-class Clock(abc.ABC):
-    """A time base: ``now()`` in seconds and ``sleep(seconds)``."""
-
-    @abc.abstractmethod
-    def now(self) -> float: ...
-
-    @abc.abstractmethod
-    def sleep(self, seconds: float) -> None: ...
-
-
-class WallClock(Clock):
-    """Real time, for transports that reach real hardware."""
-
-    def now(self) -> float:
-        return time.monotonic()
-
-    def sleep(self, seconds: float) -> None:
-        if seconds > 0:
-            time.sleep(seconds)
 
 
 class LockedClock(Clock):

@@ -11,7 +11,7 @@ parameters (all optional)::
 * ``low_latency``: ask the USB serial driver for low latency (on Linux, FTDI adapters hold
   short replies back for up to 16 ms otherwise: the "latency timer trap").
 
-The link itself (frames, retries, exactly-once) is :class:`~lm629_host.link.LinkTransport`;
+The link itself (frames, retries, exactly-once) is :class:`~lm629_host.bridge.protocol.LinkTransport`;
 this module adds the port: opening it with errors that say what to do, the pipe over pyserial,
 the round-trip time measured after the handshake, ``list_ports()`` and ``doctor()``.
 """
@@ -32,10 +32,11 @@ except ImportError:  # pragma: no cover - Windows
     grp = None  # type: ignore[assignment]  # Windows has no grp module
 
 from ..errors import TransportError
-from ..link import DEFAULT_RETRIES, LinkTransport
+from .link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
 from ..urls import Option, parse_options, query_params, with_query
-from .base import Check, Clock, PortInfo, WallClock
+from .base import Check, PortInfo
+from ..clock import Clock, WallClock
 
 log = logging.getLogger("lm629_host.serial")
 
@@ -134,7 +135,7 @@ def options_of(url: str) -> SerialOptions:
 
 
 class SerialPipe:
-    """A :class:`~lm629_host.link.Pipe` over an open pyserial port, in real time."""
+    """A :class:`~lm629_host.bridge.protocol.Pipe` over an open pyserial port, in real time."""
 
     def __init__(self, port, clock: Clock | None = None) -> None:  # port: serial.Serial
         self.port = port

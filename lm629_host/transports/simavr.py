@@ -15,11 +15,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..avrsim import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
-from ..link import DEFAULT_RETRIES, LinkTransport
+from ..sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
+from .link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
 from ..urls import Option, parse_options, query_params
-from .sim import build_model
+from ..sim.build import build_model
 
 
 #: URL options of this transport (the others are the chip model's)

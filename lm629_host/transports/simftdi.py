@@ -1,5 +1,5 @@
 """``sim+ftdi://``: the real FT232H transport and the real pyftdi, on an emulated FT232H wired
-to the chip model (:mod:`lm629_host.ftdi_emu`).
+to the chip model (:mod:`lm629_host.sim.ftdi`).
 
 URL parameters: every ``sim://`` parameter (chip, clock, strict, fault, record, motor...), the
 ``ftdi://`` options (``latency``, ``busy_us``, ``frequency``), and the emulation's costs:
@@ -22,14 +22,15 @@ from __future__ import annotations
 import usb.core
 
 from ..errors import ProtocolViolation
-from ..model import ChipModel
-from ..ftdi_emu import EmulatedBackend, EmulatedFT232H
+from ..sim.model import ChipModel
+from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
 from ..program import Program, ProgramResult, TraceCallback
 from ..urls import Option, parse_options, query_params
-from .base import Check, Clock, PortInfo
+from .base import Check, PortInfo
+from ..clock import Clock
 from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, open_mpsse
 from .ftdi import OPTIONS as FTDI_OPTIONS
-from .sim import build_model
+from ..sim.build import build_model
 
 #: URL options that belong to this transport rather than to the chip model: the FT232H
 #: transport's and the emulation's costs

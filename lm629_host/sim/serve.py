@@ -4,7 +4,7 @@ The server creates a pseudo-terminal, links its device at ``PATH`` and answers o
 bridge on a USB serial port, so that several CLI invocations, a lab script and a serial
 terminal can all talk to one simulated chip through the unchanged ``serial://PATH`` transport.
 
-The far end is the Python bridge (:class:`~lm629_host.bridge_emu.BridgeEmulator`) by default;
+The far end is the Python bridge (:class:`~lm629_host.sim.bridge.BridgeEmulator`) by default;
 with ``firmware=True`` it is the real compiled firmware running in simavr, taken from the
 ``sim+avr://`` transport (:func:`firmware_far_end`).
 
@@ -29,13 +29,20 @@ import tty
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from .bridge_emu import BridgeEmulator
-from .link import MAX_WIRE_FRAME, BadProgram, Frame, FrameReader, FrameType, decode_program
+from .bridge import BridgeEmulator
+from ..bridge.protocol import (
+    MAX_WIRE_FRAME,
+    BadProgram,
+    Frame,
+    FrameReader,
+    FrameType,
+    decode_program,
+)
 from .model import ChipModel
-from .program import Op
-from .transports.sim import build_model
+from ..program import Op
+from .build import build_model
 
-log = logging.getLogger("lm629_host.simserve")
+log = logging.getLogger("lm629_host.sim.serve")
 
 #: how often the idle server moves the simulation forward
 IDLE_TICK_S = 0.02
@@ -86,7 +93,7 @@ class EmuFarEnd(FarEnd):
 
 
 class PipeFarEnd(FarEnd):
-    """Any bridge behind a simulated :class:`~lm629_host.link.Pipe` (the compiled firmware in
+    """Any bridge behind a simulated :class:`~lm629_host.bridge.protocol.Pipe` (the compiled firmware in
     simavr).  Bytes go in through the pipe; for each good request the server waits, on the
     pipe's simulated clock, for the reply frame (up to the per-request timeout the host would
     compute), so that a pty client gets whole replies."""
@@ -159,33 +166,19 @@ class PipeFarEnd(FarEnd):
 
 
 def firmware_far_end(url: str) -> FarEnd:
-    """The compiled bridge firmware in simavr as a far end.
+    """The compiled bridge firmware in simavr (:mod:`.avr`, 115200 baud) as a far end, over a
+    chip model built from the simulator options of ``url``.  Raises RuntimeError saying what
+    is missing when the firmware or the harness cannot run."""
+    from .avr import DEFAULT_BAUD, AvrPipe, AvrSim, HarnessError
 
-    Opens ``sim+avr://`` with the simulator parameters of ``url`` (the firmware transport, a
-    LinkTransport over a simulated AVR UART) and takes over its pipe.  Raises RuntimeError
-    saying what is missing when that transport is not available.
-    """
-    from .errors import LM629Error
-    from .transports import open_transport
-
-    query = url.split("?", 1)[1] if "?" in url else ""
-    avr_url = "sim+avr://" + (f"?{query}" if query else "")
+    model = build_model(url)
     try:
-        t = open_transport(avr_url)
-    except (LM629Error, ImportError, OSError) as exc:
-        raise RuntimeError(f"--firmware needs the sim+avr:// transport (the compiled firmware "
-                           f"in simavr): {exc}. Build it with `make -C firmware_bridge` "
-                           "(needs gcc-avr, avr-libc, simavr, libsimavr-dev), or serve the "
-                           "Python bridge without --firmware.") from None
-    pipe = getattr(t, "pipe", None)
-    model = getattr(t, "model", None) or getattr(pipe, "model", None)
-    if pipe is None or model is None:
-        t.close()
-        raise RuntimeError("the sim+avr:// transport exposes no .pipe and .model to serve: "
-                           "serve the Python bridge without --firmware")
-    info = getattr(t, "info", None)
-    name = f"bridge firmware {info.firmware_version} in simavr" if info else "firmware in simavr"
-    return PipeFarEnd(pipe, model, name, baud=getattr(t, "baud", None))
+        sim = AvrSim(model)
+    except (HarnessError, OSError) as exc:
+        raise RuntimeError(f"--firmware runs the compiled firmware in simavr: {exc}. Build it "
+                           "with `make -C firmware_bridge` (needs gcc-avr, avr-libc, simavr, "
+                           "libsimavr-dev), or serve the Python bridge without --firmware.") from None
+    return PipeFarEnd(AvrPipe(sim), model, "bridge firmware in simavr", baud=DEFAULT_BAUD)
 
 
 class SimServer:

@@ -2,7 +2,7 @@
 
 Every model choice that is a number lives here, so that it can be changed in one place when
 someone measures a real chip; the choices themselves, with their reasons, are listed in one
-place, the docstring of :mod:`lm629_host.model` (``[model choice N]`` below is item N there).
+place, the docstring of :mod:`lm629_host.sim.model` (``[model choice N]`` below is item N there).
 """
 
 from __future__ import annotations

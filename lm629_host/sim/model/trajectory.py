@@ -5,7 +5,7 @@ position register), velocities in 16.16 counts/sample and accelerations in 16.16
 counts/sample^2, exactly the units of the LTRJ words.  Everything is integer arithmetic, so
 a move ends exactly on its target and the sequence of desired positions is reproducible
 bit for bit.  The model choices (7-15 concern the generator) are listed in one place, the
-docstring of :mod:`lm629_host.model`.
+docstring of :mod:`lm629_host.sim.model`.
 """
 
 from __future__ import annotations

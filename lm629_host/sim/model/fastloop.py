@@ -18,7 +18,7 @@ from math import floor, log
 from typing import TYPE_CHECKING
 from collections.abc import Callable
 
-from ..opcodes import Signals, Status
+from ...opcodes import Signals, Status
 from .pid import SUM_MAX, SUM_MIN
 from .trajectory import HALF, SPAN, landing_velocity, stop_distance
 

@@ -27,7 +27,7 @@ at the previous sample (the output is held for the whole sample); the encoder is
 trajectory generator steps; the filter computes the new output from e = desired - real.
 
 Where the datasheet and the notes are silent this module follows the model choices listed in
-one place, the docstring of :mod:`lm629_host.model` (``model/__init__.py``): 7-23 concern the
+one place, the docstring of :mod:`lm629_host.sim.model` (``model/__init__.py``): 7-23 concern the
 sample loop here, 26 the encoder.
 """
 
@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags
+from ...opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags
 from .motor import Motor
 from .pid import SUM_MAX, SUM_MIN, PIDState, lm628_dac_code, lm629_pwm, output_code, pid_step, sat16
 from .trajectory import Trajectory, wrap_counts

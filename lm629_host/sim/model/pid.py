@@ -14,7 +14,7 @@ u(n) = kp e(n) + ki sum(e) + kd [e(n') - e(n'-1)], computed as the chip computes
 
 The output stage takes the top 8 bits (8-bit mode, the LM629's PWM) or the top 12 bits
 (LM628 12-bit mode) of that result [model choice 22].  The model choices are listed in one
-place, the docstring of :mod:`lm629_host.model`.
+place, the docstring of :mod:`lm629_host.sim.model`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The compiled bridge firmware in simavr, wired to a :class:`~lm629_host.model.ChipModel`.
+"""The compiled bridge firmware in simavr, wired to a :class:`~lm629_host.sim.model.ChipModel`.
 
 ``firmware_bridge/harness/fitl.c`` (built by ``make -C firmware_bridge`` into
 ``build/libfitl.so``) runs the firmware ELF in libsimavr, instruction by instruction, decodes the
@@ -6,7 +6,7 @@ chip-select, port-select, read, write and reset edges in C, and calls :meth:`Avr
 here once per bus cycle; the model answers reads, and the harness drives the byte onto the data
 pins only after the chip's read access time.  The UART is fed in-process.
 
-:class:`AvrPipe` is the :class:`~lm629_host.link.Pipe` of the ``sim+avr://`` transport: bytes
+:class:`AvrPipe` is the :class:`~lm629_host.bridge.protocol.Pipe` of the ``sim+avr://`` transport: bytes
 written go to the simulated UART, ``read`` runs the AVR (in C, many instructions per call) until
 a reply frame is out or the timeout passes, and its clock is the AVR's simulated time.  Nothing
 here sleeps on the wall clock.
@@ -25,11 +25,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-from .errors import ProtocolViolation, TransportError
+from ..errors import ProtocolViolation, TransportError
 from .model import ChipModel
-from .transports.base import Clock
+from ..clock import Clock
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = ROOT / "firmware_bridge"
 BUILD_DIR = FIRMWARE_DIR / "build"
 LIBRARY = BUILD_DIR / "libfitl.so"
@@ -312,7 +312,7 @@ class AvrClock(Clock):
 
 
 class AvrPipe:
-    """A :class:`~lm629_host.link.Pipe` to the firmware's UART in simavr."""
+    """A :class:`~lm629_host.bridge.protocol.Pipe` to the firmware's UART in simavr."""
 
     def __init__(self, sim: AvrSim) -> None:
         self.sim = sim

@@ -2,7 +2,7 @@
 
 This is the one definition.  ``tools/gen_tables.py`` writes it into
 ``firmware_bridge/lm629_tables.h`` for the firmware, the simavr harness
-(:mod:`lm629_host.avrsim`) wires the simulated chip to the same port bits, and the README's
+(:mod:`lm629_host.sim.avr`) wires the simulated chip to the same port bits, and the README's
 wiring table is checked against :data:`WIRING` by a test.
 
 Why this layout:

@@ -1,7 +1,7 @@
 """THE pin map of the FT232H adapter: which FT232H line drives which LM628/LM629 pin.
 
 This is the one definition.  The transport (:mod:`lm629_host.transports.ftdi`) compiles bus
-programs with these masks, the emulated FT232H (:mod:`lm629_host.ftdi_emu`) wires its pins to the
+programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
 chip model with them, and the README's wiring table is checked against :data:`WIRING` by a test.
 
 Why this layout:

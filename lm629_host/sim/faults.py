@@ -1,7 +1,7 @@
-"""A lossy link for the fault tests: a :class:`~lm629_host.link.Pipe` wrapper that drops,
+"""A lossy link for the fault tests: a :class:`~lm629_host.bridge.protocol.Pipe` wrapper that drops,
 corrupts, duplicates and delays bytes at configurable rates, from a seeded random generator.
 
-It wraps any pipe (the in-process :class:`~lm629_host.bridge_emu.EmuPipe`, the simulated AVR
+It wraps any pipe (the in-process :class:`~lm629_host.sim.bridge.EmuPipe`, the simulated AVR
 UART of ``sim+avr://``), in either direction or both, and counts what it did, so that a test
 can prove that the faults happened and that the link still ran every command exactly once.
 Delays are stalls of the byte stream on the pipe's own clock (order is kept, as on a real
@@ -15,7 +15,7 @@ import random
 from collections import deque
 from dataclasses import dataclass, field
 
-from .link import Pipe
+from ..transports.link import Pipe
 
 
 @dataclass
@@ -196,9 +196,9 @@ def soak(chip, n: int) -> SoakResult:
     """``n`` typed commands on ``chip`` (an :class:`~lm629_host.LM629`), alternately a unique
     SBPA breakpoint (its two words identify the call) and a real-position read that must read
     0 (the motor is at rest).  Typed errors are counted; any other exception propagates."""
-    from .errors import LM629Error, TransportError
-    from .link import LinkError
-    from .opcodes import Cmd
+    from ..errors import LM629Error, TransportError
+    from ..transports.link import LinkError
+    from ..opcodes import Cmd
 
     r = SoakResult()
     for i in range(n):

@@ -16,7 +16,7 @@ logic (breakpoint, excessive position error).
 The model knows nothing of the driver: it takes bytes and answers bytes.
 
 Host-interface behaviour, from the spec (where the spec is silent, the model choices 1-6 of
-:mod:`lm629_host.model` apply: ignored strobes and the byte phase, stray data bytes and unknown
+:mod:`lm629_host.sim.model` apply: ignored strobes and the byte phase, stray data bytes and unknown
 opcodes, busy after RESET, PORT12 on an LM629, the busy and reset times):
 
 * busy is set after a command byte and after the second byte of a data word, for
@@ -40,8 +40,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from collections.abc import Callable
 
-from ..errors import ProtocolViolation
-from ..opcodes import (
+from ...errors import ProtocolViolation
+from ...opcodes import (
     COEFFICIENT_MAX,
     COMMANDS,
     FILTER_ORDER,

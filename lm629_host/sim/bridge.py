@@ -1,14 +1,14 @@
-"""The bridge's far side in Python, over a :class:`~lm629_host.model.ChipModel`.
+"""The bridge's far side in Python, over a :class:`~lm629_host.sim.model.ChipModel`.
 
 An independent implementation of what ``firmware_bridge/`` does, written from PROTOCOL.md:
 it reads frames, answers HELLO and PING, runs RUN programs with the busy discipline against the
 model's clock, keeps the last RUN's ``seq``/CRC/reply and answers a repeat from that cache.
 It serves two benches that need no AVR toolchain:
 
-* :class:`EmuPipe`, an in-process :class:`~lm629_host.link.Pipe` whose clock is the model's
+* :class:`EmuPipe`, an in-process :class:`~lm629_host.bridge.protocol.Pipe` whose clock is the model's
   clock, with the serial wire's byte time at a chosen baud rate: the link tests and the fault
   tests run on it without ever sleeping on the wall clock;
-* ``lm629 sim serve --pty PATH`` (:mod:`lm629_host.simserve`), where it answers a real
+* ``lm629 sim serve --pty PATH`` (:mod:`lm629_host.sim.serve`), where it answers a real
   pseudo-terminal in real time.
 
 The chip model knows nothing of this module; this module only strobes the model's pins.
@@ -21,10 +21,8 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from .link import (
-    DEFAULT_RETRIES,
+from ..bridge.protocol import (
     MAX_FRAME,
-    LinkTransport,
     MAX_PING,
     RUN_OVERHEAD,
     RUN_REPLY_OVERHEAD,
@@ -41,9 +39,9 @@ from .link import (
     encode_frame,
 )
 from .model import ChipModel
-from .opcodes import Status
-from .program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
-from .transports.sim import SimClock
+from ..opcodes import Status
+from ..program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
+from .clock import SimClock
 
 _BUSY = int(Status.BUSY)
 
@@ -319,49 +317,4 @@ class EmuPipe:
 
 
 __all__ = ["BridgeEmulator", "EmuPipe", "EmuStats", "ModelClock", "EMU_FIRMWARE", "BUS_CYCLE_S",
-           "EmuLinkTransport", "open_emulated"]
-
-
-class EmuLinkTransport(LinkTransport):
-    """``sim+emu://?baud=115200&...``: the link protocol to the Python bridge emulator, in
-    process and in simulated time (the other parameters are the ``sim://`` ones).  The whole
-    serial path without a pseudo-terminal or the AVR toolchain."""
-
-    scheme = "sim+emu"
-    simulated = True
-    model: ChipModel  #: the chip behind the emulated bridge
-    emulator: BridgeEmulator  #: the emulated bridge
-    #: the emulated bridge answers at once: the margin only covers rounding
-    margin_s = 1e-3
-
-    @classmethod
-    def from_url(cls, url: str, *, trace=None) -> EmuLinkTransport:
-        return open_emulated(url, trace=trace)
-
-
-def open_emulated(url: str = "sim://", *, baud: int | None = None,
-                  retries: int = DEFAULT_RETRIES, wrap=None, trace=None, margin_s: float = 1e-3) -> EmuLinkTransport:
-    """A :class:`EmuLinkTransport` to an emulated bridge over a model built from the simulator
-    ``url`` (``sim://?record=1`` ...), all in simulated time.
-
-    ``baud``: the simulated line (``None``: the URL's ``baud=``, else 115200; 0: no wire time).
-    ``wrap(pipe) -> pipe`` inserts a wrapper between host and bridge (e.g. a
-    :class:`~lm629_host.faultlink.FaultPipe`).  The model is ``transport.model``, the far end
-    ``transport.emulator``.
-    """
-    from .transports.sim import build_model
-    from .urls import Option, parse_options, query_params
-
-    own = (Option("baud", "int", 115200, 0, 4_000_000, "baud (0: no wire time)"),)
-    model = build_model(url, allowed=frozenset({"baud"}))
-    if baud is None:
-        baud = parse_options(url, own, ignore=set(query_params(url)) - {"baud"})["baud"]
-    emu = BridgeEmulator(model)
-    pipe = EmuPipe(emu, baud=baud or None)
-    outer = wrap(pipe) if wrap is not None else pipe
-    t = EmuLinkTransport.__new__(EmuLinkTransport)
-    t.margin_s = margin_s
-    t.model = model
-    t.emulator = emu
-    LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
-    return t
+           ]

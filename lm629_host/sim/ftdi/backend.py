@@ -11,7 +11,7 @@ Two ways in:
 * ``usb.core.find(backend=EmulatedBackend([device]), idVendor=0x0403)`` gives a pyusb device
   for ``Ftdi.open_mpsse_from_device`` (``sim+ftdi://`` does this: no global state touched);
 * this module has a ``get_backend()`` like pyusb's own backend modules, returning the shared
-  :data:`SHARED` backend, so that a test can put ``"lm629_host.ftdi_emu.backend"`` into
+  :data:`SHARED` backend, so that a test can put ``"lm629_host.sim.ftdi.backend"`` into
   ``pyftdi.usbtools.UsbTools.BACKENDS`` and run pyftdi's URL lookup (``ftdi://ftdi:232h:SN/1``)
   and device listing on emulated devices.  ``SHARED.libusb_present = False`` makes
   ``get_backend()`` answer None, as pyusb's libusb1 module does when the library is missing.

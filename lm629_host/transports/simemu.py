@@ -1,0 +1,57 @@
+"""``sim+emu://?baud=115200&...``: the link protocol to the Python bridge
+(:class:`~lm629_host.sim.bridge.BridgeEmulator`), in process and in simulated time (the other
+parameters are the ``sim://`` ones).  The whole serial path without a pseudo-terminal or the AVR
+toolchain."""
+
+from __future__ import annotations
+
+from ..sim.bridge import BridgeEmulator, EmuPipe
+from ..sim.build import build_model
+from ..sim.model import ChipModel
+from ..urls import Option, parse_options, query_params
+from .link import DEFAULT_RETRIES, LinkTransport
+
+
+class EmuLinkTransport(LinkTransport):
+    """``sim+emu://?baud=115200&...``: the link protocol to the Python bridge emulator, in
+    process and in simulated time (the other parameters are the ``sim://`` ones).  The whole
+    serial path without a pseudo-terminal or the AVR toolchain."""
+
+    scheme = "sim+emu"
+    simulated = True
+    model: ChipModel  #: the chip behind the emulated bridge
+    emulator: BridgeEmulator  #: the emulated bridge
+    #: the emulated bridge answers at once: the margin only covers rounding
+    margin_s = 1e-3
+
+    @classmethod
+    def from_url(cls, url: str, *, trace=None) -> EmuLinkTransport:
+        return open_emulated(url, trace=trace)
+
+
+def open_emulated(url: str = "sim://", *, baud: int | None = None,
+                  retries: int = DEFAULT_RETRIES, wrap=None, trace=None, margin_s: float = 1e-3) -> EmuLinkTransport:
+    """A :class:`EmuLinkTransport` to an emulated bridge over a model built from the simulator
+    ``url`` (``sim://?record=1`` ...), all in simulated time.
+
+    ``baud``: the simulated line (``None``: the URL's ``baud=``, else 115200; 0: no wire time).
+    ``wrap(pipe) -> pipe`` inserts a wrapper between host and bridge (e.g. a
+    :class:`~lm629_host.sim.faults.FaultPipe`).  The model is ``transport.model``, the far end
+    ``transport.emulator``.
+    """
+    own = (Option("baud", "int", 115200, 0, 4_000_000, "baud (0: no wire time)"),)
+    model = build_model(url, allowed=frozenset({"baud"}))
+    if baud is None:
+        baud = parse_options(url, own, ignore=set(query_params(url)) - {"baud"})["baud"]
+    emu = BridgeEmulator(model)
+    pipe = EmuPipe(emu, baud=baud or None)
+    outer = wrap(pipe) if wrap is not None else pipe
+    t = EmuLinkTransport.__new__(EmuLinkTransport)
+    t.margin_s = margin_s
+    t.model = model
+    t.emulator = emu
+    LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
+    return t
+
+
+__all__ = ["EmuLinkTransport", "open_emulated"]
