@@ -1,4 +1,4 @@
-"""The model choices are listed in one place (lm629_host/model/__init__.py's docstring).
+"""The model choices are listed in one place (lm629_host/sim/model/__init__.py's docstring).
 
 Every ``[model choice N]`` elsewhere in the model refers to an item of that list, and no
 module keeps an unnumbered ``[model choice]`` (a second, hand-kept description) of its own.

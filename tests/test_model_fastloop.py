@@ -1,4 +1,4 @@
-"""The flattened sample loops (model/fastloop.py, model/_fastloop.c) against the readable code.
+"""The flattened sample loops (sim/model/fastloop.py, sim/model/_fastloop.c) against the readable code.
 
 Three chips, ``fast=0`` (Motion.sample + ChipModel._sample only), ``fast=py`` and ``fast=c``,
 take exactly the same host traffic; every register, the shaft state and the filter memory must agree after
@@ -126,7 +126,7 @@ def test_the_c_loop_is_built_and_chosen_by_default():
     chip = lm629_host.open("sim://")
     loop = chip.transport.model.fast
     chip.close()
-    assert "c" in LOOPS, "lm629_host/model/_fastloop.c was not built (pip install -e .)"
+    assert "c" in LOOPS, "lm629_host/sim/model/_fastloop.c was not built (pip install -e .)"
     assert loop is not py_loop and loop.__module__ == "lm629_host.sim.model._fastloop"
 
 

@@ -6,7 +6,7 @@ Every scenario runs on ``sim://`` (the model strobed directly) and through real 
 ``sim+emu://`` (the Python bridge far end), ``sim+avr://`` (the compiled bridge firmware in
 simavr) and ``sim+ftdi://`` (pyftdi on the emulated FT232H).  Numbers: 8 MHz, T = 256 us,
 ONE = 65536 = 1 count/sample, the default motor (500 lines: 2000 counts/rev).  The model
-choices cited are items of the list in ``lm629_host/model/__init__.py``.
+choices cited are items of the list in ``lm629_host/sim/model/__init__.py``.
 """
 
 from __future__ import annotations

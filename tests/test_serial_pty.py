@@ -16,7 +16,7 @@ from click.testing import CliRunner
 
 import lm629_host
 from lm629_host import Status, TransportError
-from lm629_host.cli_bridge import _main as cli
+from lm629_host.cli import main as cli
 from lm629_host.opcodes import Cmd
 from lm629_host.sim.serve import SimServer
 from lm629_host.transports import serial as serial_mod
@@ -180,7 +180,7 @@ def test_bridge_flash_command_lines(tmp_path):
 def test_sim_serve_cli_serves_until_sigterm(tmp_path):
     link = tmp_path / "bench"
     env = dict(os.environ, PYTHONPATH=str(Path(lm629_host.__file__).parent.parent))
-    proc = subprocess.Popen([sys.executable, "-m", "lm629_host.cli_bridge", "sim", "serve",
+    proc = subprocess.Popen([sys.executable, "-m", "lm629_host", "sim", "serve",
                              "--pty", str(link), "--url", "sim://?chip=lm628"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:

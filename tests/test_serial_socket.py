@@ -114,7 +114,7 @@ def test_firmware_in_simavr_behind_a_tcp_port():
 
 def test_sim_serve_tcp_cli(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(Path(lm629_host.__file__).parent.parent))
-    proc = subprocess.Popen([sys.executable, "-m", "lm629_host.cli_bridge", "sim", "serve",
+    proc = subprocess.Popen([sys.executable, "-m", "lm629_host", "sim", "serve",
                              "--tcp", "127.0.0.1:0", "--url", "sim://?chip=lm628"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
@@ -130,6 +130,6 @@ def test_sim_serve_tcp_cli(tmp_path):
         out, _ = proc.communicate(timeout=10)
     assert proc.returncode == 0, out
     assert "stopped (" in out
-    r = subprocess.run([sys.executable, "-m", "lm629_host.cli_bridge", "sim", "serve"],
+    r = subprocess.run([sys.executable, "-m", "lm629_host", "sim", "serve"],
                        capture_output=True, text=True, env=env, timeout=30)
     assert r.returncode == 2 and "give --pty PATH or --tcp" in r.stderr

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Error-detection budget of the bridge link (PROTOCOL.md "Error detection"): what the
 16-bit CRC lets through for the frames the link really sends, under the fault model of the
-soak (``faultlink.FaultPipe``: each byte dropped, corrupted or duplicated at ``--rate`` each).
+soak (``sim.faults.FaultPipe``: each byte dropped, corrupted or duplicated at ``--rate`` each).
 
 A stream of real frames (RUN requests and RUN_REPLYs of SBPA and RDRP, and the largest frame,
 250 bytes) goes through the fault model into the host's own FrameReader.  Every frame that

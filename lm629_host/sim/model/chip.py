@@ -180,7 +180,7 @@ def _sample_loop(choice: str) -> Callable[[tuple, tuple], tuple] | None:
         from ._fastloop import run
     except ImportError:
         if choice == "c":
-            raise ValueError("fast=c: the C sample loop lm629_host/model/_fastloop.c is not built "
+            raise ValueError("fast=c: the C sample loop lm629_host/sim/model/_fastloop.c is not built "
                              "(pip install -e . builds it; it needs a C compiler and the Python "
                              "headers)") from None
         return py_loop

@@ -25,7 +25,7 @@ class ChipParams:
     #: how many of the latest commands the record keeps (``ChipModel.history``: a bounded window)
     record_window: int = 10_000
     #: the sample loop: "auto" (the C loop if it was built, else "py"), "c", "py" (the
-    #: flattened loop of model/fastloop.py) or "0" (only the readable per-sample code)
+    #: flattened loop of sim/model/fastloop.py) or "0" (only the readable per-sample code)
     fast: str = "auto"
 
 

@@ -9,14 +9,21 @@ gives the exit code and prints how the motor was left (``autotune`` stops it on 
 
 from __future__ import annotations
 
+import os
+
 import click
 
-from .capture import PlotUnavailable
-from .safety import stop_on_error
-from .tuning import Gains, TuneResult, autotune
+from ..capture import PlotUnavailable, capture_move, summary, write_csv
+from ..safety import stop_on_error
+from ..tuning import Gains, TuneResult, autotune
+from .app import _session, main
+from .common import _position
+from .motion import _motion_words, _tolerance
+from .types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
 
 #: exit code when tuning ran but the test move did not end within the tolerance
 EXIT_NOT_MET = 1
+
 
 
 def parse_gains(text: str) -> Gains | None:
@@ -24,7 +31,6 @@ def parse_gains(text: str) -> Gains | None:
     ``lm629 filter --ds``) -> :class:`Gains`; ``none`` -> None."""
     if text.strip().lower() in ("none", "no", ""):
         return None
-    from .cli import parse_int  # the one integer parser of the CLI
     values = {"kp": 0, "ki": 0, "kd": 0, "il": 0, "ds": 1}
     for part in text.replace(" ", "").split(","):
         name, sep, value = part.partition("=")
@@ -42,7 +48,7 @@ def parse_gains(text: str) -> Gains | None:
 
 
 def _plot(result: TuneResult, path: str, lines: int | None) -> str:
-    from .plot import Response, plot_responses
+    from ..plot import Response, plot_responses
     responses, texts = [], []
     for name, label in (("before", "before"), ("after", "tuned")):
         rec = result.record(name)
@@ -81,7 +87,7 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
          yes: bool, plot_path: str | None) -> None:
     """Find PID gains for this axis (phasing check, identification, design, a checked test
     move), leave them loaded and applied, and print the `lm629 filter` line that sets them."""
-    from .cli import _session  # the CLI's session: port, options, safety
+    from .app import _session  # the CLI's session: port, options, safety
     if travel < 100:
         raise ValueError(f"--travel={travel} must be at least 100 counts")
     if distance is not None and not 10 <= distance <= travel * 3 // 4:
@@ -127,3 +133,77 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
 
 
 __all__ = ["tune", "parse_gains"]
+
+
+@main.command(context_settings=SIGNED_ARGS)
+@click.argument("distance", type=FINITE, default=200)
+@click.option("--kp", type=INT)
+@click.option("--ki", type=INT)
+@click.option("--kd", type=INT)
+@click.option("--il", type=INT)
+@click.option("--ds", type=int, help="Derivative sampling interval, samples.")
+@click.option("--vel", type=FINITE, default=None,
+              help="Velocity: rpm with --lines, else a raw word (default: a step).")
+@click.option("--acc", type=FINITE, default=None,
+              help="Acceleration: rev/s^2 with --lines, else a raw word (default: a step).")
+@click.option("--raw", is_flag=True, help="Counts and raw words even with --lines.")
+@click.option("--tolerance", type=FINITE, default=None,
+              help="Done when the shaft rests this close to the target (counts; revolutions "
+                   "with --lines).")
+@click.option("--time", "duration", type=FINITE, default=0.5, show_default=True,
+              help="Seconds to record.")
+@click.option("--interval", type=FINITE, default=0.001, show_default=True,
+              help="Seconds between snapshots (on a bridge, at least one round trip).")
+@click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default="step.csv",
+              show_default=True)
+@click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
+              help="Plot file (default: the CSV name with .png).")
+@click.option("--no-png", is_flag=True, help="CSV only.")
+def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: int | None,
+         ds: int | None, vel: float | None, acc: float | None, raw: bool,
+         tolerance: float | None, duration: float, interval: float, csv_path: str,
+         png_path: str | None, no_png: bool) -> None:
+    """Record a step (or, with --vel/--acc, a move) of DISTANCE (counts; revolutions with
+    --lines): CSV and PNG of desired and actual position over time, for tuning (AN-706
+    figure 11).  Then wait until the shaft rests on the target (else a motion fault, exit 9;
+    the files are written either way)."""
+    from ..capture import STEP_ACCELERATION, STEP_VELOCITY
+    s = _session()
+    counts = _position(s, distance, "DISTANCE", raw)
+    v, a = _motion_words(s, vel, acc, raw)
+    v = STEP_VELOCITY if vel is None else v
+    a = STEP_ACCELERATION if acc is None else a
+    tol = _tolerance(s, tolerance, raw)
+    positive("--time", duration)
+    positive("--interval", interval)
+    if interval > duration:
+        raise click.BadParameter(f"{interval:g} is longer than --time {duration:g}",
+                                 param_hint="--interval")
+    check_writable(csv_path, "--csv")
+    png = None if no_png else png_path or os.path.splitext(csv_path)[0] + ".png"
+    if png:
+        check_writable(png, "--png")
+    from ..plot import plot_capture
+    filt = {k: v for k, v in dict(kp=kp, ki=ki, kd=kd, il=il,
+                                  derivative_interval=ds).items() if v is not None}
+    chip = s.open()
+    cap = capture_move(chip, counts, duration_s=duration, interval_s=interval,
+                       velocity=v, acceleration=a, filter=filt, tolerance=tol)
+    for line in summary(cap):
+        click.echo(line)
+    if s.scale is not None and not raw:
+        sc = s.scale
+        click.echo(f"in revolutions: target {sc.revolutions(cap.target):.4f}, largest following "
+                   f"error {sc.revolutions(cap.max_following_error):+.4f}, overshoot "
+                   f"{sc.revolutions(cap.overshoot):.4f}, final error "
+                   f"{sc.revolutions(cap.final_error):+.4f}")
+    click.echo(f"wrote {write_csv(cap, csv_path)}")
+    if png:
+        try:
+            click.echo(f"wrote {plot_capture(cap, png, lines=s.lines)}")
+        except PlotUnavailable as exc:
+            click.echo(f"lm629: {exc}", err=True)
+    if cap.fault is not None:
+        raise cap.fault
+
+

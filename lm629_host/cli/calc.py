@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import click
 
-from .cli_types import FINITE
-from .units import Scale
+from ..units import Scale
+from .types import FINITE
 
 
 def _word(value: int, digits: int = 8) -> str:
@@ -37,7 +37,7 @@ def calc(ctx: click.Context, lines: int | None, clock_hz: float | None, rpm: tup
          acceleration_word: tuple[str, ...], counts: tuple[str, ...],
          trapezoid: tuple[float, float, float] | None) -> None:
     """Units calculator: physical units <-> raw words (decimal and hex)."""
-    from .cli import parse_int  # the one integer parser of the CLI
+    from .types import parse_int  # the one integer parser of the CLI
     session = ctx.find_object(object)  # the global options, when run under `lm629`
     lines = lines or getattr(session, "lines", None)
     if clock_hz is None:
