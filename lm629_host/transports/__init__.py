@@ -9,7 +9,7 @@ scheme             what                                                        m
 ``ftdi://...``     an FT232H in MPSSE mode through pyftdi                      ``ftdi``
 ``sim+avr://``     the real bridge firmware in simavr, against the chip model  ``simavr``
 ``sim+ftdi://``    the FT232H transport through pyftdi on an emulated FT232H   ``simftdi``
-``sim+emu://``     the bridge link protocol to the Python bridge emulator      ``simemu``  
+``sim+emu://``     the bridge link protocol to the Python bridge emulator      ``simemu``
 =================  ==========================================================  ===============
 
 A transport is a :class:`~.base.Transport` subclass (the contract is in its docstring:
