@@ -16,7 +16,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from .errors import CommandError, ResetError, WaitTimeout
+from .errors import check_int, CommandError, ResetError, WaitTimeout
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     ACCELERATION_MAX,
@@ -63,21 +63,6 @@ def _s32(words: Iterable[int]) -> int:
 
 def _s16(word: int) -> int:
     return word - (1 << 16) if word & 0x8000 else word
-
-
-def check_int(name: str, value: object, lo: int, hi: int, *, hex_digits: int = 0) -> int:
-    """Validate an integer argument; the error names it, its value and the allowed range."""
-    if isinstance(value, bool) or not isinstance(value, int):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        else:
-            raise ValueError(f"{name}={value!r} must be an integer in {lo}..{hi}")
-    if not lo <= value <= hi:
-        rng = f"{lo}..{hi}"
-        if hex_digits:
-            rng += f" (0x{lo & (16 ** hex_digits - 1):0{hex_digits}X}..0x{hi:0{hex_digits}X})"
-        raise ValueError(f"{name}={value} is outside the allowed range {rng}")
-    return value
 
 
 def _check_flags(name: str, flags: object) -> Status:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .lm629 import check_int
+from .errors import check_int
 from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
