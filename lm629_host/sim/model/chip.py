@@ -37,7 +37,6 @@ opcodes, busy after RESET, PORT12 on an LM629, the busy and reset times):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Callable
 
 from ...errors import ProtocolViolation
@@ -59,6 +58,7 @@ from ...opcodes import (
 )
 from .fastloop import py_loop, run_fast
 from .motion import Motion
+from .registers import FilterRegisters, TrajectoryBuffer
 from .trajectory import wrap_counts
 from .params import ChipParams, MotorParams
 
@@ -85,40 +85,6 @@ def s32(value: int) -> int:
 def s16(value: int) -> int:
     value &= 0xFFFF
     return value - (1 << 16) if value & 0x8000 else value
-
-
-@dataclass
-class FilterRegisters:
-    """LFIL input buffer or working registers."""
-
-    kp: int = 0
-    ki: int = 0
-    kd: int = 0
-    il: int = 0
-    ds: int = 0  #: derivative sampling byte: interval = ds + 1 samples
-
-    def copy(self) -> FilterRegisters:
-        return FilterRegisters(self.kp, self.ki, self.kd, self.il, self.ds)
-
-
-@dataclass
-class TrajectoryBuffer:
-    """LTRJ input buffer: mode, pending stop, and the parameters loaded since the last STT."""
-
-    #: the last LTRJ control word as written (for inspection; the chip acts on the two below)
-    control: int = 0
-    #: bits 11/12 (velocity mode, forward) of the last LTRJ that carried no stop bit: the
-    #: running trajectory's mode, which a plain STT after a stop resumes [model choice 27]
-    mode: int = 0
-    #: the stop bit (8, 9 or 10) of the last LTRJ, executed once by the next accepted STT
-    stop: int = 0
-    #: 16.16 unsigned word as loaded (absolute), or the signed sum of the relative words loaded
-    #: since the last STT [model choice 29]
-    acceleration: int = 0
-    velocity: int = 0
-    position: int = 0  #: signed counts (absolute, or the sum of relative words)
-    #: which parameters were loaded (and how) since the last accepted STT
-    loaded: int = 0
 
 
 class Violation(str):

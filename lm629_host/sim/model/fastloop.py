@@ -15,15 +15,12 @@ may have become quiescent (so that the caller can skip ahead).
 from __future__ import annotations
 
 from math import floor, log
-from typing import TYPE_CHECKING
 from collections.abc import Callable
 
 from ...opcodes import Signals, Status
 from .pid import SUM_MAX, SUM_MIN
+from .registers import ChipState
 from .trajectory import HALF, SPAN, landing_velocity, stop_distance
-
-if TYPE_CHECKING:
-    from .chip import ChipModel
 
 # plain ints of the opcodes.py bits (IntFlag arithmetic is slow); _fastloop.c reads the same
 # Status bits from lm629_host.opcodes when it is imported
@@ -45,7 +42,7 @@ RESULTS = ("ran lpes_trip index_hit index_pos count out p v done esum elast dter
            "iterm u flags rp rv angle speed").split()
 
 
-def run_fast(chip: ChipModel, n: int, loop: Callable[..., tuple] | None = None) -> int:
+def run_fast(chip: ChipState, n: int, loop: Callable[..., tuple] | None = None) -> int:
     """Run up to ``n`` samples with ``loop`` (:func:`py_loop` or the C one); return how many ran."""
     m = chip.motion
     motor, t, pid = m.motor, m.traj, m.pid

@@ -4,7 +4,7 @@ Contract with :class:`~.chip.ChipModel` (the host interface), which owns this ob
 ``chip.motion`` and calls:
 
 * ``reset()`` on any reset: every register 0, drive off;
-* ``start(trajectory) -> bool`` on STT with the LTRJ input buffer (:class:`~.chip.TrajectoryBuffer`,
+* ``start(trajectory) -> bool`` on STT with the LTRJ input buffer (:class:`~.registers.TrajectoryBuffer`,
   its ``loaded`` bits say which parameters were loaded since the last STT, and how); return
   False to refuse it with a command error (acceleration changed while moving with the drive on;
   a velocity or acceleration out of 0..3FFFFFFF, which ``start`` then removes from
@@ -38,10 +38,10 @@ from typing import TYPE_CHECKING
 from ...opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags
 from .motor import Motor
 from .pid import SUM_MAX, SUM_MIN, PIDState, lm628_dac_code, lm629_pwm, output_code, pid_step, sat16
+from .registers import ChipState, TrajectoryBuffer
 from .trajectory import Trajectory, wrap_counts
 
 if TYPE_CHECKING:
-    from .chip import ChipModel, TrajectoryBuffer
     from .params import MotorParams
 
 _ACC = TrajectoryFlags.ACCELERATION
@@ -53,7 +53,7 @@ _POS_REL = TrajectoryFlags.POSITION_RELATIVE
 
 
 class Motion:
-    def __init__(self, chip: ChipModel, params: MotorParams) -> None:
+    def __init__(self, chip: ChipState, params: MotorParams) -> None:
         self.chip = chip
         self.params = params
         self.motor = Motor(params, chip.sample_clocks / chip.clock_hz)
