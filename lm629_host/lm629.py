@@ -14,7 +14,6 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
 
 from .errors import check_int, CommandError, ResetError, WaitTimeout
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
@@ -36,6 +35,7 @@ from .opcodes import (
     Status,
     TrajectoryFlags,
 )
+from .snapshot import Snapshot
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
 from .clock import Clock, WallClock
 from .transports.base import Transport
@@ -73,24 +73,6 @@ def _check_flags(name: str, flags: object) -> Status:
             f"{name}={value:#04x} has bits that are not interrupt conditions ({extra:#04x}); "
             f"allowed: {INTERRUPTS!r} (status bits 1..6)")
     return Status(value)
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    """Everything the chip reports, read in one bus program (one round trip on a bridge)."""
-
-    status: Status
-    signals: Signals
-    desired_position: int
-    real_position: int
-    desired_velocity: int  #: signed 16.16
-    real_velocity: int
-    integration_sum: int
-    time: float  #: the transport clock when the snapshot was taken
-
-    @property
-    def following_error(self) -> int:
-        return self.desired_position - self.real_position
 
 
 class LM629:
