@@ -128,7 +128,7 @@ def test_udev_rule_matches_the_ft232h_and_the_readme_commands():
 
 
 def test_readme_wiring_table_is_the_pin_map():
-    from lm629_host.transports.ftdi_pins import WIRING
+    from lm629_host.ftdi_pins import WIRING
     readme = (ROOT / "README.md").read_text()
     section = readme.split("## The FT232H adapter", 1)[1].split("\n## ", 1)[0]
     for line, label, pin, direction, note in WIRING:

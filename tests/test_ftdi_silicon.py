@@ -12,7 +12,7 @@ import pytest
 import usb.core
 
 import lm629_host
-from lm629_host.transports import ftdi_pins as pins
+from lm629_host import ftdi_pins as pins
 from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
 from lm629_host.sim.model import ChipModel
 from lm629_host.opcodes import Cmd

@@ -1,6 +1,6 @@
 """FT232H stream compilation: exact MPSSE bytes, delays, stream cuts, and bus timing at the pins.
 
-Expected bytes come from the pin map (lm629_host.transports.ftdi_pins: /CS ADBUS1, /RD ADBUS2, /WR ADBUS3,
+Expected bytes come from the pin map (lm629_host.ftdi_pins: /CS ADBUS1, /RD ADBUS2, /WR ADBUS3,
 /PS ADBUS4, /RST ADBUS6, D0-D7 on ACBUS) and FTDI AN_108's opcodes (0x80 set low byte, value,
 direction; 0x82 set high byte; 0x81/0x83 read low/high byte; 0x8E n: n+1 idle clock bits;
 0x8F lo hi: (n+1) x 8 idle clocks; 0x87 send immediate).

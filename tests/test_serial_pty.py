@@ -244,7 +244,7 @@ def test_doctor_reports_handshake_and_round_trip(server):
 def test_every_pipe_is_a_pipe(server):
     from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
     from lm629_host.sim.faults import FaultPipe
-    from lm629_host.transports.link import Pipe
+    from lm629_host.bridge.protocol import Pipe
     from lm629_host.sim.build import build_model
 
     emu = EmuPipe(BridgeEmulator(build_model("sim://")))

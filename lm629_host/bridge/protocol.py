@@ -7,7 +7,8 @@
   (:mod:`lm629_host.transports.link`) and by the Python far end (:mod:`lm629_host.sim.bridge`),
   so that both speak exactly the same bytes.
 
-No I/O here: the transport over a byte stream is :class:`~lm629_host.transports.link.LinkTransport`.
+No I/O here beyond :class:`Pipe`, what a byte stream to a bridge must offer (a serial port,
+a simulated UART, the Python far end); the transport over it is :class:`~lm629_host.transports.link.LinkTransport`.
 """
 
 from __future__ import annotations
@@ -17,7 +18,9 @@ import struct
 from binascii import crc_hqx
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
+from ..clock import Clock
 from ..program import OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program
 
 # ---------------------------------------------------------------------------------- constants
@@ -398,7 +401,28 @@ def wire_size(decoded: int) -> int:
     return decoded + 1 + decoded // 254 + 1
 
 
+# ---------------------------------------------------------------------------------- the pipe
+@runtime_checkable
+class Pipe(Protocol):
+    """A byte stream to a bridge, with its own clock.
+
+    ``read(timeout_s)`` waits up to ``timeout_s`` on ``clock`` for the first byte and returns
+    what is available then (``b""`` on timeout).  A simulated pipe advances its simulated clock
+    while it waits; a serial port waits in real time.
+    """
+
+    @property
+    def clock(self) -> Clock: ...
+
+    def write(self, data: bytes) -> None: ...
+
+    def read(self, timeout_s: float) -> bytes: ...
+
+    def close(self) -> None: ...
+
+
 __all__ = [
+    "Pipe",
     "BadProgram",
     "Capability",
     "Frame",

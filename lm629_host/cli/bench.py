@@ -10,9 +10,7 @@ import click
 import lm629_host
 
 from ..bringup import BringupOptions, StepResult, run_bringup
-from ..errors import (
-    LM629Error,
-)
+from ..errors import LM629Error
 from ..lm629 import check_int
 from ..opcodes import Status
 from .app import _session, log, main

@@ -9,9 +9,7 @@ from typing import Any
 
 import click
 
-from ..errors import (
-    CommandError,
-)
+from ..errors import CommandError
 from ..lm629 import check_int
 from ..opcodes import VELOCITY_MAX, Status
 from ..safety import stop_on_error

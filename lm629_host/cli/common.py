@@ -10,9 +10,7 @@ from typing import Any
 
 import click
 
-from ..errors import (
-    WaitTimeout,
-)
+from ..errors import WaitTimeout
 from ..lm629 import LM629, Snapshot
 from ..opcodes import POSITION_MAX, POSITION_MIN, Signals, Status
 from ..units import FIXED_ONE, Scale

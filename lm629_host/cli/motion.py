@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import click
 
-from ..errors import (
-    MotionError,
-)
+from ..errors import MotionError
 from ..lm629 import LM629, Snapshot
 from ..move import MoveRules
 from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status

@@ -75,7 +75,7 @@ What the FT232H itself asks for
 
 * Opening must not glitch the bus: see :func:`open_mpsse` (bit-mode mask 0, clock modes off,
   levels and directions in one 0x80).
-* Its buffers hold 1 KiB each way (:data:`~lm629_host.transports.ftdi_pins.FIFO_BYTES`).  A stream is
+* Its buffers hold 1 KiB each way (:data:`~lm629_host.ftdi_pins.FIFO_BYTES`).  A stream is
   written whole before its answer is read; if its answers fill the chip->host buffer while
   more than 1 KiB of it is still unwritten, the MPSSE engine stops and the write times out.
   So a program is cut into streams of at most 1 KiB (``StreamCompiler.compile(max_bytes=)``),
@@ -95,7 +95,7 @@ from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from .. import data
-from . import ftdi_pins as pins
+from .. import ftdi_pins as pins
 from ..errors import BusyTimeout, TransportError
 from ..opcodes import RESET_WAIT_S, Cmd, Status
 from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
@@ -159,7 +159,7 @@ class Stream:
 
 
 class StreamCompiler:
-    """Bus operations -> MPSSE bytes, with the pin map of :mod:`lm629_host.transports.ftdi_pins`."""
+    """Bus operations -> MPSSE bytes, with the pin map of :mod:`lm629_host.ftdi_pins`."""
 
     def __init__(self, tck_hz: float = DEFAULT_TCK_HZ, busy_s: float = DEFAULT_BUSY_US * 1e-6):
         self.tck_hz = tck_hz

@@ -17,7 +17,6 @@ import logging
 import random
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from typing import Protocol, runtime_checkable
 
 from ..bridge.protocol import (
     MAX_FRAME,
@@ -29,6 +28,7 @@ from ..bridge.protocol import (
     RUN_REPLY_OVERHEAD,
     Capability,
     Frame,
+    Pipe,
     FrameError,
     FrameReader,
     FrameType,
@@ -52,7 +52,6 @@ from ..program import (
     TraceCallback,
     cycles_of,
 )
-from ..clock import Clock
 from .base import Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
@@ -82,26 +81,6 @@ class LinkError(TransportError):
 
 
 _BUSY_CHECKED = (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC)
-
-
-# ---------------------------------------------------------------------------------- the pipe
-@runtime_checkable
-class Pipe(Protocol):
-    """A byte stream to a bridge, with its own clock.
-
-    ``read(timeout_s)`` waits up to ``timeout_s`` on ``clock`` for the first byte and returns
-    what is available then (``b""`` on timeout).  A simulated pipe advances its simulated clock
-    while it waits; a serial port waits in real time.
-    """
-
-    @property
-    def clock(self) -> Clock: ...
-
-    def write(self, data: bytes) -> None: ...
-
-    def read(self, timeout_s: float) -> bytes: ...
-
-    def close(self) -> None: ...
 
 
 # ---------------------------------------------------------------------------------- transport
