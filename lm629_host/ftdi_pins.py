@@ -2,7 +2,7 @@
 
 This is the one definition.  The transport (:mod:`lm629_host.transports.ftdi`) compiles bus
 programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
-chip model with them, and the README's wiring table is checked against :data:`WIRING` by a test.
+chip model with them, and docs/ftdi.md's wiring table is checked against :data:`WIRING` by a test.
 
 Why this layout:
 
@@ -50,7 +50,7 @@ DATA_IN = 0x00  #: ACBUS direction while the chip may drive D0-D7 (reads, idle)
 FIFO_BYTES = 1024
 
 #: (FT232H line, breakout label, LM629 pin, direction seen from the adapter, note), for the
-#: README's wiring table.  The LM629 pin numbers are those of the 28-pin DIP package (AN-706
+#: docs/ftdi.md's wiring table.  The LM629 pin numbers are those of the 28-pin DIP package (AN-706
 #: names HI pin 17 and /RST pin 27; check the others against your package's datasheet).
 WIRING: tuple[tuple[str, str, str, str, str], ...] = (
     ("ACBUS0-7", "C0-C7", "D0-D7 (pins 4-11)", "in/out", "data bus, C0 = D0"),

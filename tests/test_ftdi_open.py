@@ -112,13 +112,12 @@ def test_bad_options_are_value_errors_before_any_usb_traffic(bus):
     assert bus.devices[0].counters.control == 0
 
 
-def test_udev_rule_matches_the_ft232h_and_the_readme_commands():
+def test_udev_rule_matches_the_ft232h_and_the_documented_commands():
     rule = data.udev_rule().read_text()
     lines = [ln for ln in rule.splitlines() if ln.strip() and not ln.startswith("#")]
     assert any('ATTRS{idVendor}=="0403"' in ln and 'ATTRS{idProduct}=="6014"' in ln
                and 'MODE="0660"' in ln and 'GROUP="plugdev"' in ln for ln in lines)
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## The FT232H adapter", 1)[1].split("\n## ", 1)[0]
+    section = (ROOT / "docs" / "ftdi.md").read_text()
     assert 'sudo cp "$(lm629 udev --path)" /etc/udev/rules.d/' in section
     r = CliRunner().invoke(cli, ["udev", "--path"])
     assert r.output.strip() == str(data.udev_rule())
@@ -127,10 +126,9 @@ def test_udev_rule_matches_the_ft232h_and_the_readme_commands():
     assert ftdi.UDEV_RULE == "/etc/udev/rules.d/99-lm629-ft232h.rules"
 
 
-def test_readme_wiring_table_is_the_pin_map():
+def test_documented_wiring_table_is_the_pin_map():
     from lm629_host.ftdi_pins import WIRING
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## The FT232H adapter", 1)[1].split("\n## ", 1)[0]
+    section = (ROOT / "docs" / "ftdi.md").read_text()
     for line, label, pin, direction, note in WIRING:
         row = f"| {line} | {label} | {pin} | {direction} | {note} |"
         assert row in section, row

@@ -19,7 +19,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lm629_host.bridge import pins as pins  # noqa: E402 - after sys.path.insert
+from lm629_host.bridge import pins  # noqa: E402 - after sys.path.insert
 from lm629_host.bridge.protocol import _CRC_TABLE, c_defines  # noqa: E402 - after sys.path.insert
 from lm629_host.opcodes import Cmd, Status  # noqa: E402 - after sys.path.insert
 from lm629_host.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, WAIT_STATUS_POLL_US, Op  # noqa: E402 - after sys.path.insert

@@ -2,7 +2,7 @@
 
 This is the one definition.  ``tools/gen_tables.py`` writes it into
 ``firmware_bridge/lm629_tables.h`` for the firmware, the simavr harness
-(:mod:`lm629_host.sim.avr`) wires the simulated chip to the same port bits, and the README's
+(:mod:`lm629_host.sim.avr`) wires the simulated chip to the same port bits, and docs/bridge.md's
 wiring table is checked against :data:`WIRING` by a test.
 
 Why this layout:
@@ -54,7 +54,7 @@ RST = PinWire("A4", "C", 4, "/RST", "out")
 HI = PinWire("A5", "C", 5, "HI", "in")
 
 CONTROL: tuple[PinWire, ...] = (CS, PS, RD, WR, RST, HI)
-#: every wire, data bus first (the README's wiring table lists these, plus GND)
+#: every wire, data bus first (docs/bridge.md's wiring table lists these, plus GND)
 WIRING: tuple[PinWire, ...] = DATA + CONTROL
 
 #: data bus bits 0..5 sit on port D from bit DATA_LOW_SHIFT up; bits 6..7 on port B bits 0..1

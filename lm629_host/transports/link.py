@@ -59,7 +59,7 @@ log = logging.getLogger("lm629_host.bridge.protocol")
 #: retries of one request (same ``seq``, same bytes) before the host gives up.  Seven: at 1 % of
 #: bytes faulty (each of drop, corrupt, duplicate, delay at 0.25 %) one attempt of a small RUN
 #: fails about one time in five, so 3 retries leave ~0.15 % of commands failed, 7 leave none
-#: measured in 100,000 (README "The serial bridge"); a dead link costs 8 timeouts to notice
+#: measured in 100,000 (docs/bridge.md); a dead link costs 8 timeouts to notice
 DEFAULT_RETRIES = 7
 #: how many recent attempts :attr:`LinkTransport.error_rate` looks back over
 ERROR_WINDOW = 200
