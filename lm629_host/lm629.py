@@ -18,6 +18,8 @@ from collections.abc import Iterable
 from .errors import check_int, CommandError, ResetError, WaitTimeout
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
+    s16,
+    s32,
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
     DERIVATIVE_INTERVAL_MAX,
@@ -56,13 +58,9 @@ _STOPS = {
 
 
 def _s32(words: Iterable[int]) -> int:
+    """Two words read high first, as one signed 32-bit value."""
     hi, lo = words
-    v = (hi << 16) | lo
-    return v - (1 << 32) if v & 0x80000000 else v
-
-
-def _s16(word: int) -> int:
-    return word - (1 << 16) if word & 0x8000 else word
+    return s32((hi << 16) | lo)
 
 
 def _check_flags(name: str, flags: object) -> Status:
@@ -225,7 +223,7 @@ class LM629:
         r = self.run(p)
         w = r.words
         return Snapshot(Status(r.statuses[0]), Signals(w[0]), _s32(w[1:3]), _s32(w[3:5]),
-                        _s32(w[5:7]), _s16(w[7]), _s16(w[8]), self.clock.now())
+                        _s32(w[5:7]), s16(w[7]), s16(w[8]), self.clock.now())
 
     # ------------------------------------------------------------------ interrupts
     def mask_interrupts(self, flags: Status | int) -> None:
@@ -472,11 +470,11 @@ class LM629:
 
     def read_real_velocity(self) -> int:
         """RDRV: real velocity, integer counts/sample (signed 16-bit)."""
-        return _s16(self._read(Cmd.RDRV, 1)[0])
+        return s16(self._read(Cmd.RDRV, 1)[0])
 
     def read_integration_sum(self) -> int:
         """RDSUM: the integration term (signed 16-bit)."""
-        return _s16(self._read(Cmd.RDSUM, 1)[0])
+        return s16(self._read(Cmd.RDSUM, 1)[0])
 
     # ------------------------------------------------------------------ waiting
     def wait_for(self, flags: Status | int, timeout: float = 10.0,

@@ -39,11 +39,11 @@ from ..bridge.protocol import (
     encode_frame,
 )
 from .model import ChipModel
-from ..opcodes import Status
+from ..opcodes import BUSY_BIT
 from ..program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
 from .clock import SimClock
 
-_BUSY = int(Status.BUSY)
+_BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 
 #: the emulator's firmware version (HELLO_REPLY); 0.x marks "not the AVR firmware"
 EMU_FIRMWARE = (0, 9, 0)

@@ -394,11 +394,9 @@ class SimServer:
             self._thread = None
 
     def describe(self) -> str:
-        p = self.model.params
         where = (f"TCP port {self.device}" if self.tcp is not None
                  else f"{self.device} (linked at {self.link})")
-        return (f"{self.far.describe()} with a simulated {p.variant.upper()} at "
-                f"{p.clock_hz / 1e6:g} MHz, on {where}")
+        return f"{self.far.describe()} with a {self.model.describe()}, on {where}"
 
 
 __all__ = ["EmuFarEnd", "FarEnd", "PipeFarEnd", "SimServer", "firmware_far_end"]

@@ -23,7 +23,7 @@ import threading
 from dataclasses import asdict, dataclass
 
 from ..errors import BusyTimeout, TransportError
-from ..opcodes import Status
+from ..opcodes import BUSY_BIT
 from ..clock import Clock, WallClock
 from ..program import (
     WAIT_STATUS_POLL_US,
@@ -37,7 +37,7 @@ from ..program import (
 
 log = logging.getLogger("lm629_host.bus")
 
-_BUSY = int(Status.BUSY)  # a plain int: enum arithmetic costs microseconds in the poll loop
+_BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 _STATUS, _COMMAND, _WRITE, _READ = int(Op.STATUS), int(Op.COMMAND), int(Op.WRITE), int(Op.READ)
 _RESET, _WAIT, _SYNC, _WAIT_STATUS = int(Op.RESET), int(Op.WAIT), int(Op.SYNC), int(Op.WAIT_STATUS)
 

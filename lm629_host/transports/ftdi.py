@@ -97,7 +97,7 @@ from urllib.parse import urlsplit, urlunsplit
 from .. import data
 from .. import ftdi_pins as pins
 from ..errors import BusyTimeout, TransportError
-from ..opcodes import RESET_WAIT_S, Cmd, Status
+from ..opcodes import BUSY_BIT, RESET_WAIT_S, Cmd
 from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
 from ..urls import Option, parse_options
 from .base import Check, PortInfo, Transport
@@ -105,7 +105,7 @@ from ..clock import Clock, WallClock
 
 log = logging.getLogger("lm629_host.ftdi")
 
-_BUSY = int(Status.BUSY)
+_BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 
 # MPSSE opcodes (FTDI AN_108); the ones this transport emits
 SET_LOW = 0x80

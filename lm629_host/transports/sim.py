@@ -199,8 +199,7 @@ class SimTransport(CycleTransport):
         return [PortInfo("sim://", "the bundled chip simulator (always there)")]
 
     def describe(self) -> str:
-        p = self.model.params
-        return f"{self.url} (simulated {p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)"
+        return f"{self.url} ({self.model.describe()})"
 
     def _strobe(self) -> ChipModel:
         m = self.model

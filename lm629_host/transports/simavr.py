@@ -60,10 +60,9 @@ class SimAvrTransport(LinkTransport):
         return cls(AvrSim(model, firmware), url, trace=trace, baud=baud)
 
     def describe(self) -> str:
-        p = self.model.params
         fw = self.info.firmware_version if self.info else "?"
-        return (f"{self.url} (bridge firmware {fw} in simavr at {self.baud} baud, simulated "
-                f"{p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)")
+        return (f"{self.url} (bridge firmware {fw} in simavr at {self.baud} baud, "
+                f"{self.model.describe()})")
 
 
 __all__ = ["SimAvrTransport"]

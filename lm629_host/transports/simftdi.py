@@ -88,9 +88,7 @@ class SimFtdiTransport(FtdiTransport):
         return []
 
     def describe(self) -> str:
-        p = self.model.params
-        return (f"{self.url} (FT232H transport on an emulated FT232H, simulated "
-                f"{p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)")
+        return f"{self.url} (FT232H transport on an emulated FT232H, {self.model.describe()})"
 
     def execute(self, program: Program) -> ProgramResult:
         violations = self.model.violations

@@ -41,6 +41,8 @@ from collections.abc import Callable
 
 from ...errors import ProtocolViolation
 from ...opcodes import (
+    BUSY_BIT,
+    s32,
     COEFFICIENT_MAX,
     COMMANDS,
     FILTER_ORDER,
@@ -65,7 +67,7 @@ from .params import ChipParams, MotorParams
 
 # Plain ints of the status bits: IntFlag arithmetic costs microseconds per operation and the
 # status byte is computed for every busy poll, so ``flags`` is always kept as a plain int.
-_BUSY = int(Status.BUSY)
+_BUSY = BUSY_BIT
 _MOTOR_OFF = int(Status.MOTOR_OFF)
 _CMD_ERROR = int(Status.COMMAND_ERROR)
 _TRAJ_DONE = int(Status.TRAJECTORY_COMPLETE)
@@ -74,17 +76,6 @@ _BREAKPOINT = int(Status.BREAKPOINT)
 _MODE_BITS = int(TrajectoryFlags.VELOCITY_MODE | TrajectoryFlags.FORWARD)
 #: signals bits 7..1 repeat the status byte (the rest of the signals word is kept apart)
 _STATUS_IN_SIGNALS = int(INTERRUPTS | Status.MOTOR_OFF)
-
-
-def s32(value: int) -> int:
-    """Two's complement of a 32-bit pattern."""
-    value &= 0xFFFFFFFF
-    return value - (1 << 32) if value & 0x80000000 else value
-
-
-def s16(value: int) -> int:
-    value &= 0xFFFF
-    return value - (1 << 16) if value & 0x8000 else value
 
 
 class Violation(str):
@@ -196,6 +187,10 @@ class ChipModel:
     @property
     def sample_clocks(self) -> int:
         return SAMPLE_CLOCKS
+
+    def describe(self) -> str:
+        """``simulated LM629 at 8 MHz``: how every simulator names the chip it runs."""
+        return f"simulated {self.params.variant.upper()} at {self.clock_hz / 1e6:g} MHz"
 
     def now(self) -> float:
         """Simulated seconds since power-on."""
