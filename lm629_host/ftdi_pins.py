@@ -1,4 +1,5 @@
-"""THE pin map of the FT232H adapter: which FT232H line drives which LM628/LM629 pin.
+"""THE pin map of the FT232H adapter: which FT232H line drives which LM628/LM629 pin (and
+the MPSSE commands that move them, FTDI AN_108).
 
 This is the one definition.  The transport (:mod:`lm629_host.transports.ftdi`) compiles bus
 programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
@@ -63,6 +64,25 @@ WIRING: tuple[tuple[str, str, str, str, str], ...] = (
     ("ADBUS0", "D0", "-", "out", "TCK: toggled by delays, leave unconnected"),
     ("GND", "GND", "GND (pin 14)", "", "common ground"),
 )
+
+# MPSSE commands (FTDI AN_108): the transport writes them, the emulated FT232H executes them
+SET_LOW = 0x80  #: set ADBUS levels and directions (2 bytes follow)
+GET_LOW = 0x81  #: read ADBUS
+SET_HIGH = 0x82  #: set ACBUS levels and directions (2 bytes follow)
+GET_HIGH = 0x83  #: read ACBUS
+LOOPBACK_ON = 0x84
+LOOPBACK_OFF = 0x85
+SET_DIVISOR = 0x86  #: TCK divisor (2 bytes follow)
+SEND_IMMEDIATE = 0x87  #: flush the answer to the host now
+DISABLE_DIV5 = 0x8A
+ENABLE_DIV5 = 0x8B
+ENABLE_CLK_3PHASE = 0x8C
+DISABLE_CLK_3PHASE = 0x8D
+CLK_BITS = 0x8E  #: n+1 idle clocks (1 byte follows)
+CLK_BYTES = 0x8F  #: 8 x (n+1) idle clocks (2 bytes follow)
+ENABLE_CLK_ADAPTIVE = 0x96
+DISABLE_CLK_ADAPTIVE = 0x97
+
 
 __all__ = ["TCK", "CS", "RD", "WR", "PS", "HI", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
            "DATA_IN", "FIFO_BYTES", "WIRING"]

@@ -107,16 +107,10 @@ log = logging.getLogger("lm629_host.ftdi")
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 
-# MPSSE opcodes (FTDI AN_108); the ones this transport emits
-SET_LOW = 0x80
-GET_LOW = 0x81
-SET_HIGH = 0x82
-GET_HIGH = 0x83
-SEND_IMMEDIATE = 0x87
-CLK_BITS = 0x8E
-CLK_BYTES = 0x8F
-DISABLE_CLK_3PHASE = 0x8D
-DISABLE_CLK_ADAPTIVE = 0x97
+# the MPSSE commands this transport emits (FTDI AN_108; defined in ftdi_pins)
+SET_LOW, GET_LOW, SET_HIGH, GET_HIGH = pins.SET_LOW, pins.GET_LOW, pins.SET_HIGH, pins.GET_HIGH
+SEND_IMMEDIATE, CLK_BITS, CLK_BYTES = pins.SEND_IMMEDIATE, pins.CLK_BITS, pins.CLK_BYTES
+DISABLE_CLK_3PHASE, DISABLE_CLK_ADAPTIVE = pins.DISABLE_CLK_3PHASE, pins.DISABLE_CLK_ADAPTIVE
 #: bytes a stream may still need after its last operation: control lines idle (3), D0-D7
 #: released (3), read HI (1), send immediate (1)
 STREAM_TAIL = 8

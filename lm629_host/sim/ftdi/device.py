@@ -303,49 +303,50 @@ class EmulatedFT232H:
         self.stalled = False
         while i < len(buf):
             op = buf[i]
-            need = 3 if op in (0x80, 0x82, 0x86, 0x8F) else 2 if op == 0x8E else 1
+            need = (3 if op in (pins.SET_LOW, pins.SET_HIGH, pins.SET_DIVISOR, pins.CLK_BYTES)
+                    else 2 if op == pins.CLK_BITS else 1)
             if i + need > len(buf):
                 break  # the rest of this command comes with the next bulk OUT
-            if op in (0x81, 0x83) and len(self._rx) >= pins.FIFO_BYTES:
+            if op in (pins.GET_LOW, pins.GET_HIGH) and len(self._rx) >= pins.FIFO_BYTES:
                 # the answer buffer is full: wait for the host to read (full packets go out
                 # without waiting for the latency timer)
                 self._flushed = len(self._rx)
                 self.stalled = True
                 break
-            if op in (0x8E, 0x8F) and self.adaptive:
+            if op in (pins.CLK_BITS, pins.CLK_BYTES) and self.adaptive:
                 self.stalled = True  # idle clocks wait for RTCK (GPIOL3), which never comes
                 break
             arg = buf[i + 1:i + need]
             i += need
             self.advance_ns(self.command_ns)
-            if op == 0x80:
+            if op == pins.SET_LOW:
                 self._set_low(arg[0], arg[1])
-            elif op == 0x82:
+            elif op == pins.SET_HIGH:
                 self._set_high(arg[0], arg[1])
-            elif op == 0x81 or op == 0x83:
-                self._rx.append(self._read_low() if op == 0x81 else self._read_high())
+            elif op == pins.GET_LOW or op == pins.GET_HIGH:
+                self._rx.append(self._read_low() if op == pins.GET_LOW else self._read_high())
                 self.counters.most_unread = max(self.counters.most_unread, len(self._rx))
-            elif op == 0x87:
+            elif op == pins.SEND_IMMEDIATE:
                 self._flushed = len(self._rx)
-            elif op == 0x8E:
+            elif op == pins.CLK_BITS:
                 self.advance_ns(self._clocks_ns(arg[0] + 1))
-            elif op == 0x8F:
+            elif op == pins.CLK_BYTES:
                 self.advance_ns(self._clocks_ns(((arg[0] | arg[1] << 8) + 1) * 8))
-            elif op == 0x86:
+            elif op == pins.SET_DIVISOR:
                 self.tck_divisor = arg[0] | arg[1] << 8
-            elif op == 0x8A:
+            elif op == pins.DISABLE_DIV5:
                 self.div5 = False
-            elif op == 0x8B:
+            elif op == pins.ENABLE_DIV5:
                 self.div5 = True
-            elif op == 0x8C:
+            elif op == pins.ENABLE_CLK_3PHASE:
                 self.three_phase = True
-            elif op == 0x8D:
+            elif op == pins.DISABLE_CLK_3PHASE:
                 self.three_phase = False
-            elif op == 0x96:
+            elif op == pins.ENABLE_CLK_ADAPTIVE:
                 self.adaptive = True
-            elif op == 0x97:
+            elif op == pins.DISABLE_CLK_ADAPTIVE:
                 self.adaptive = False
-            elif op in (0x84, 0x85):
+            elif op in (pins.LOOPBACK_ON, pins.LOOPBACK_OFF):
                 pass  # loopback on / off: nothing on our pins
             else:
                 # the real engine answers an unknown opcode with 0xFA and the opcode
