@@ -12,7 +12,8 @@ void bus_write_command(uint8_t cmd);    /* /CS /PS low, /WR strobe */
 void bus_write_data(uint8_t byte);      /* /CS low /PS high, /WR strobe */
 uint8_t bus_read_data(void);            /* /CS low /PS high, /RD strobe */
 void bus_reset_pulse(void);             /* /RST low for >= 8 chip clocks */
-uint8_t bus_hi(void);                   /* the HI line, 0 or 1 */
+void bus_select(uint8_t chip);          /* the chip (its /CS) the following strobes address */
+uint8_t bus_hi(void);                   /* the selected chip's HI line, 0 or 1 */
 void bus_wait_us(uint16_t us);          /* at least `us` microseconds */
 void bus_timer_start(void);             /* start the busy-timeout stopwatch */
 uint8_t bus_timer_elapsed(uint16_t us); /* 1 once `us` microseconds have passed since start */

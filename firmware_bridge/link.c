@@ -141,6 +141,8 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
             reads++;
         else if (op == OP_STATUS || op == OP_SYNC || op == OP_WAIT_STATUS)
             n_status++;
+        else if (op == OP_SELECT && p[1] >= LINK_CHIP_SELECTS)
+            return run_header(reply, RESULT_BAD_CHIP_SELECT, nops, LINK_NONE_BYTE, 0);
         p += 1u + op_args[op];
     }
     if (reads > LINK_MAX_READS || LINK_RUN_REPLY_OVERHEAD + n_status + 2u * reads > LINK_MAX_FRAME)
@@ -152,6 +154,9 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
     uint8_t ns = 0, last = LINK_NONE_BYTE, result = RESULT_OK, index = LINK_NONE_BYTE;
     uint8_t nw = 0;
     nops = 0;
+    uint8_t chip = cs; /* the chip selected now: chip 0 between programs */
+    if (chip)
+        bus_select(chip);
     for (const uint8_t *p = prog; p != end; nops++) {
         uint8_t op = *p++;
         uint16_t arg = 0;
@@ -186,6 +191,9 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
             st[ns++] = last;
         } else if (op == OP_RESET) {
             bus_reset_pulse();
+        } else if (op == OP_SELECT) {
+            chip = (uint8_t)arg;
+            bus_select(chip);
         } else if (op == OP_WAIT_STATUS) {
             /* a status read every WAIT_STATUS_POLL_US until a bit of the mask is set or `arg`
              * ms have passed (each period is a little longer than its nominal time, so the
@@ -206,6 +214,8 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
     reply[1] = index;
     reply[2] = last;
     reply[3] = bus_hi();
+    if (chip)
+        bus_select(0); /* every /CS released between programs */
     reply[4] = ns;
     /* on a failure the unused status slots close up, so the words follow the statuses read */
     if (ns != n_status)
@@ -296,7 +306,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_MINOR;
         r[len++] = FIRMWARE_PATCH;
         r[len++] = 0;
-        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS;
+        r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS | CAP_SELECT;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
         r[len++] = (uint8_t)LINK_MAX_PROGRAM;
         r[len++] = LINK_MAX_READS;

@@ -7,9 +7,13 @@
 #include "lm629_tables.h"
 
 #define FIRMWARE_MAJOR 1
-#define FIRMWARE_MINOR 0
+#define FIRMWARE_MINOR 1 /* 1.1: several chips (Op.SELECT, four chip selects) */
 #define FIRMWARE_PATCH 0
+#ifdef LINK_ONE_CHIP /* build/lm629_bridge_1chip: a bridge that reports one chip select */
 #define LINK_CHIP_SELECTS 1
+#else
+#define LINK_CHIP_SELECTS CHIP_SELECTS /* lm629_tables.h, from bridge_pins.CHIP_SELECTS */
+#endif
 #define LINK_MAX_PROGRAM (LINK_MAX_FRAME - LINK_RUN_OVERHEAD)
 #define LINK_MAX_READS ((LINK_MAX_FRAME - LINK_RUN_REPLY_OVERHEAD) / 2)
 #ifndef LINK_CPU_HZ

@@ -12,9 +12,10 @@
 #define OP_WAIT 0x06u  /* 2 argument byte(s) */
 #define OP_SYNC 0x07u  /* 0 argument byte(s) */
 #define OP_WAIT_STATUS 0x08u  /* 3 argument byte(s) */
-#define OP_MAX 0x08u
+#define OP_SELECT 0x09u  /* 1 argument byte(s) */
+#define OP_MAX 0x09u
 /* argument bytes by op code, 0xFF: no such op */
-#define OP_ARG_BYTES_INIT { 0xFF, 0, 1, 2, 0, 0, 2, 0, 3 }
+#define OP_ARG_BYTES_INIT { 0xFF, 0, 1, 2, 0, 0, 2, 0, 3, 1 }
 #define DEFAULT_BUSY_TIMEOUT_US 5000u
 #define WAIT_STATUS_POLL_US 125u  /* OP_WAIT_STATUS status read period */
 
@@ -81,6 +82,7 @@
 #define CAP_HI_LINE 2u  /* HELLO_REPLY capability bit */
 #define CAP_BUSY_ON_BRIDGE 4u  /* HELLO_REPLY capability bit */
 #define CAP_WAIT_STATUS 8u  /* HELLO_REPLY capability bit */
+#define CAP_SELECT 16u  /* HELLO_REPLY capability bit */
 
 /* CRC-16/GENIBUS table (lm629_host.bridge.protocol._CRC_TABLE): 256 high bytes, then 256 low bytes */
 #define LINK_CRC_TABLE_INIT { \
@@ -133,6 +135,10 @@
 /*    A3 = PC3 -> /WR (out) */
 /*    A4 = PC4 -> /RST (out) */
 /*    A5 = PC5 -> HI (in) */
+/*   D10 = PB2 -> /CS1 (out) */
+/*   D11 = PB3 -> /CS2 (out) */
+/*   D12 = PB4 -> /CS3 (out) */
+/*   D13 = PB5 -> HI1 (in) */
 #define DATA_LO_PORT PORTD
 #define DATA_LO_PIN PIND
 #define DATA_LO_DDR DDRD
@@ -155,5 +161,14 @@
 #define PIN_WR 0x08u  /* /WR */
 #define PIN_RST 0x10u  /* /RST */
 #define PIN_HI 0x20u  /* HI */
+/* chip selects (bridge_pins.CHIP_SELECTS) and HI lines (HI_LINES), one per chip: the
+ * bit of each on the control port and on the data-high port (0: not on that port) */
+#define CHIP_SELECTS 4u
+#define CS_CTRL_MASKS_INIT { 0x01u, 0x00u, 0x00u, 0x00u }
+#define CS_DHI_MASKS_INIT { 0x00u, 0x04u, 0x08u, 0x10u }
+#define CS_DHI_ALL 0x1Cu
+#define HI_CTRL_MASKS_INIT { 0x20u, 0x00u, 0x00u, 0x00u }
+#define HI_DHI_MASKS_INIT { 0x00u, 0x20u, 0x00u, 0x00u }
+#define HI_DHI_ALL 0x20u
 
 #endif

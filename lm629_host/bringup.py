@@ -22,11 +22,11 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-from .safety import emergency_stop, stop_on_error
 from .errors import ResetError
 from .lm629 import LM629
 from .opcodes import Status
 from .program import Program, ProgramResult
+from .safety import emergency_stop, stop_on_error
 from .units import FIXED_ONE, Scale
 
 #: exit codes of a bring-up (also documented by ``lm629 --help``)
@@ -142,7 +142,7 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
         done(StepResult("reset", False, f"status bytes seen: {_hex(exc.statuses)}",
                         [str(exc)], {"statuses": list(exc.statuses)}))
         return out
-    expected = "00, 84/C4, 80/C0" if chip.transport.has_reset_line else "84/C4, 80/C0"
+    expected = "00, 84/C4, 80/C0" if chip.uses_reset_line else "84/C4, 80/C0"
     done(StepResult("reset", True, f"status bytes seen: {_hex(seen)} (expected {expected})",
                     data={"statuses": seen, "status": int(status)}))
 

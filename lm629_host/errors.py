@@ -31,12 +31,15 @@ class BusyTimeout(LM629Error):
 class ResetError(LM629Error):
     """The reset check of AN-706 4.4.1 failed."""
 
-    def __init__(self, statuses: Sequence[int], expected: str, attempts: int = 1):
+    def __init__(self, statuses: Sequence[int], expected: str, attempts: int = 1, *,
+                 axis: int | None = None):
         self.statuses = tuple(statuses)
         self.attempts = attempts
+        self.axis = axis  #: the failing chip on a multi-axis board (None: a single chip)
         seen = " ".join(f"{s:02X}" for s in self.statuses) or "nothing"
+        prefix = f"axis {axis}: " if axis is not None else ""
         super().__init__(
-            f"reset check failed after {attempts} attempt(s): status read {seen}, expected "
+            f"{prefix}reset check failed after {attempts} attempt(s): status read {seen}, expected "
             f"{expected}. Check the chip's supply and clock (CLK pin), that /RST is wired and "
             "released, and that the data bus and /PS are wired the right way round."
         )
@@ -48,6 +51,18 @@ class TransportError(LM629Error):
     def __init__(self, message: str, port: str | None = None):
         self.port = port
         super().__init__(f"{port}: {message}" if port else message)
+
+
+class AxisError(LM629Error, ValueError):
+    """An axis (chip select) that the board does not have: raised before any bus cycle."""
+
+    def __init__(self, axis: object, available: int, where: str):
+        self.axis = axis
+        self.available = available
+        super().__init__(
+            f"axis {axis} does not exist: {where} has {available} chip select(s) (axes "
+            f"0..{available - 1}). Check the axis number, the board's `axes=` and, on a bridge, "
+            "that its firmware is the multi-axis one (lm629 bridge flash).")
 
 
 class CommandError(LM629Error):

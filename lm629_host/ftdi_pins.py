@@ -34,11 +34,20 @@ WR = 1 << 3  #: ADBUS3 -> /WR  (active low; the chip latches on the rising edge)
 PS = 1 << 4  #: ADBUS4 -> /PS  (low: command/status, high: data)
 HI = 1 << 5  #: ADBUS5 (GPIOL1) <- HI (input, active high)
 RST = 1 << 6  #: ADBUS6 -> /RST (active low)
+CS1 = 1 << 7  #: ADBUS7 -> /CS of a second chip (active low), the one free line left
 
-#: ADBUS lines driven by the adapter (HI and the spare ADBUS7 are inputs)
-CTRL_DIRECTION = TCK | CS | RD | WR | PS | RST
-#: the idle state of the control lines: chip deselected, strobes and /RST high, TCK low
-CTRL_IDLE = CS | RD | WR | PS | RST
+#: /CS of chip 0 and chip 1 (``Op.SELECT`` indexes this): two axes on one FT232H.  The chips
+#: share D0-D7, /RD, /WR, /PS and /RST; the second has no HI line (no free pin: its status is
+#: read instead).  ACBUS8/9 are not MPSSE lines, ADBUS0 is TCK: two is what the FT232H allows.
+CHIP_SELECTS = (CS, CS1)
+#: HI of each chip, where it has a line
+HI_LINES = (HI, 0)
+CS_ALL = CS | CS1
+
+#: ADBUS lines driven by the adapter (HI is the one input)
+CTRL_DIRECTION = TCK | CS | RD | WR | PS | RST | CS1
+#: the idle state of the control lines: chips deselected, strobes and /RST high, TCK low
+CTRL_IDLE = CS | RD | WR | PS | RST | CS1
 
 # --- ACBUS (high byte, MPSSE commands 0x82 set / 0x83 read): the data bus ---------------------
 DATA_OUT = 0xFF  #: ACBUS direction while the adapter drives D0-D7 (writes)
@@ -61,6 +70,7 @@ WIRING: tuple[tuple[str, str, str, str, str], ...] = (
     ("ADBUS4", "D4", "/PS (pin 16)", "out", ""),
     ("ADBUS5", "D5", "HI (pin 17)", "in", "GPIOL1"),
     ("ADBUS6", "D6", "/RST (pin 27)", "out", "10k pull-up"),
+    ("ADBUS7", "D7", "/CS of a second chip", "out", "10k pull-up; second axis"),
     ("ADBUS0", "D0", "-", "out", "TCK: toggled by delays, leave unconnected"),
     ("GND", "GND", "GND (pin 14)", "", "common ground"),
 )
@@ -84,5 +94,6 @@ ENABLE_CLK_ADAPTIVE = 0x96
 DISABLE_CLK_ADAPTIVE = 0x97
 
 
-__all__ = ["TCK", "CS", "RD", "WR", "PS", "HI", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
+__all__ = ["TCK", "CS", "CS1", "CHIP_SELECTS", "HI_LINES", "CS_ALL", "RD", "WR", "PS", "HI",
+           "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
            "DATA_IN", "FIFO_BYTES", "WIRING"]

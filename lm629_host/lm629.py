@@ -15,11 +15,10 @@ import logging
 import math
 from collections.abc import Iterable
 
-from .errors import check_int, CommandError, ResetError, WaitTimeout
+from .clock import Clock, WallClock
+from .errors import AxisError, CommandError, ResetError, WaitTimeout, check_int
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
-    s16,
-    s32,
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
     DERIVATIVE_INTERVAL_MAX,
@@ -36,10 +35,11 @@ from .opcodes import (
     Signals,
     Status,
     TrajectoryFlags,
+    s16,
+    s32,
 )
-from .snapshot import Snapshot
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
-from .clock import Clock, WallClock
+from .snapshot import Snapshot
 from .transports.base import Transport
 
 log = logging.getLogger("lm629_host")
@@ -73,6 +73,17 @@ def _check_flags(name: str, flags: object) -> Status:
     return Status(value)
 
 
+#: the reads of a snapshot after its status byte: (command, words)
+SNAPSHOT_READS = ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2), (Cmd.RDRV, 1),
+                  (Cmd.RDSUM, 1))
+
+
+def snapshot_of(status: int, w: tuple[int, ...], time: float) -> Snapshot:
+    """A :class:`Snapshot` from its status byte and the words of :data:`SNAPSHOT_READS`."""
+    return Snapshot(Status(status), Signals(w[0]), _s32(w[1:3]), _s32(w[3:5]), _s32(w[5:7]),
+                    s16(w[7]), s16(w[8]), time)
+
+
 class LM629:
     """One LM628 or LM629 behind a transport.  Use :func:`lm629_host.open` to make one.
 
@@ -87,10 +98,18 @@ class LM629:
     move_rules: MoveRules = MoveRules()
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
-                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S):
+                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None):
         chip = chip.lower()
         if chip not in ("lm628", "lm629"):
             raise ValueError(f"chip={chip!r}: expected 'lm628' or 'lm629'")
+        if axis is not None and (isinstance(axis, bool) or not isinstance(axis, int)
+                                 or not 0 <= axis < transport.chip_selects):
+            raise AxisError(axis, transport.chip_selects, transport.describe())
+        #: the chip select this object addresses on a multi-axis board (None: the only chip);
+        #: every program it builds starts with ``select(axis)`` (a program starts on chip 0)
+        self.axis = axis
+        #: the chip select its programs address (``axis``, or 0 for the only chip)
+        self.chip_select: int = axis or 0
         self.busy_timeout = busy_timeout
         self.transport = transport
         self.variant = chip
@@ -119,8 +138,11 @@ class LM629:
         self._busy_timeout = float(seconds)
 
     def program(self) -> Program:
-        """A new, empty bus program with this chip's busy timeout."""
-        return Program(busy_timeout_s=self._busy_timeout)
+        """A new, empty bus program with this chip's busy timeout (and its chip select)."""
+        p = Program(busy_timeout_s=self._busy_timeout)
+        if self.axis:
+            p.select(self.axis)
+        return p
 
     @property
     def clock(self) -> Clock:
@@ -141,7 +163,8 @@ class LM629:
         self.close()
 
     def __repr__(self) -> str:
-        return f"<LM629 {self.variant} on {self.transport.describe()}>"
+        where = f" axis {self.axis}" if self.axis is not None else ""
+        return f"<LM629 {self.variant}{where} on {self.transport.describe()}>"
 
     def _command(self, cmd: Cmd) -> None:
         self.run(self.program().command(cmd))
@@ -150,6 +173,13 @@ class LM629:
         return self.run(self.program().command(cmd).read(words)).words
 
     # ------------------------------------------------------------------ reset
+    @property
+    def uses_reset_line(self) -> bool:
+        """True when :meth:`reset` pulses /RST.  An axis of a multi-axis board sends the
+        RESET command instead: /RST is shared and would reset every chip on the bus
+        (:meth:`Board.reset <lm629_host.board.Board.reset>` pulses it for all of them)."""
+        return self.transport.has_reset_line and self.axis is None
+
     def reset_programs(self) -> tuple[Program, Program]:
         """The AN-706 3.7 / 4.4.1 initialisation as two programs.
 
@@ -159,7 +189,7 @@ class LM629:
         (80 or C0 expected), and PORT12 when it was set before.
         """
         p = self.program()
-        if self.transport.has_reset_line:
+        if self.uses_reset_line:
             p.reset().status()
         else:
             p.command(Cmd.RESET).status()
@@ -179,7 +209,7 @@ class LM629:
         status byte seen.
         """
         seen: list[int] = []
-        hw = self.transport.has_reset_line
+        hw = self.uses_reset_line
         for _ in range(self.reset_attempts):
             first_program, init_program = self.reset_programs()
             first, done = self.run(first_program).statuses
@@ -217,13 +247,10 @@ class LM629:
     def snapshot(self) -> Snapshot:
         """Status, signals, positions, velocities and integration sum in one bus program."""
         p = self.program().status()
-        for cmd, n in ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2),
-                       (Cmd.RDRV, 1), (Cmd.RDSUM, 1)):
+        for cmd, n in SNAPSHOT_READS:
             p.command(cmd).read(n)
         r = self.run(p)
-        w = r.words
-        return Snapshot(Status(r.statuses[0]), Signals(w[0]), _s32(w[1:3]), _s32(w[3:5]),
-                        _s32(w[5:7]), s16(w[7]), s16(w[8]), self.clock.now())
+        return snapshot_of(r.statuses[0], r.words, self.clock.now())
 
     # ------------------------------------------------------------------ interrupts
     def mask_interrupts(self, flags: Status | int) -> None:

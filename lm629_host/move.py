@@ -44,12 +44,14 @@ from .opcodes import Signals, Status
 from .safety import STOP_NOTE, Stoppable, emergency_stop
 from .snapshot import Snapshot
 
+
 class MovingChip(Stoppable, Protocol):
     """What a move needs of its chip (an :class:`~lm629_host.LM629` is one, and makes its
     moves): its rules and clock, snapshots, and a way to stop.  Declared here so that this
     module does not import the typed layer back."""
 
     move_rules: MoveRules
+    chip_select: int  #: which chip of a multi-axis board
 
     @property
     def transport(self) -> object:

@@ -39,6 +39,10 @@ class Op(enum.IntEnum):
     #: ``arg`` = mask << 16 | timeout_ms.  Bridges that have it say so in HELLO (capability
     #: WAIT_STATUS); a waiting host then costs one round trip per wait instead of a poll a ms.
     WAIT_STATUS = 0x08
+    #: switch chip select: the operations after it go to chip ``arg`` (0..chip selects - 1) on
+    #: a multi-axis board.  A program starts on chip 0 (on a bridge: the RUN's ``cs``); /RST
+    #: and WAIT concern every chip.  So a synchronized start on several axes is one program.
+    SELECT = 0x09
 
 
 #: how often the far end reads the status during WAIT_STATUS: half a chip sample at 8 MHz (the
@@ -50,7 +54,7 @@ WAIT_STATUS_MAX_MS = 0xFFFF
 
 #: How many argument bytes each operation carries on the wire.
 OP_ARG_BYTES = {Op.STATUS: 0, Op.COMMAND: 1, Op.WRITE: 2, Op.READ: 0, Op.RESET: 0, Op.WAIT: 2,
-                Op.SYNC: 0, Op.WAIT_STATUS: 3}
+                Op.SYNC: 0, Op.WAIT_STATUS: 3, Op.SELECT: 1}
 #: the operations that report a status byte in ``ProgramResult.statuses``
 STATUS_OPS = frozenset({Op.STATUS, Op.SYNC, Op.WAIT_STATUS})
 
@@ -78,6 +82,8 @@ class BusOp:
             return "/RST pulse"
         if self.op is Op.SYNC:
             return "wait for busy clear"
+        if self.op is Op.SELECT:
+            return f"select chip {self.arg}"
         if self.op is Op.WAIT_STATUS:
             return f"wait for status {self.arg >> 16:02X} ({self.arg & 0xFFFF} ms)"
         return f"wait {self.arg} us"
@@ -131,6 +137,13 @@ class Program:
         """Wait until busy is clear and record that status byte (e.g. to see the command-error
         bit that the chip sets while it processes a command)."""
         self.ops.append(BusOp(Op.SYNC))
+        return self
+
+    def select(self, chip: int) -> Program:
+        """The operations after this one go to chip ``chip`` (its /CS), on a multi-axis bus."""
+        if not 0 <= chip <= 0xFF:
+            raise ValueError(f"chip select {chip} is outside 0..255")
+        self.ops.append(BusOp(Op.SELECT, chip))
         return self
 
     def reset(self) -> Program:
@@ -188,8 +201,9 @@ class ProgramResult:
 class BusCycle:
     """One bus cycle, as passed to a trace callback.
 
-    ``kind`` is one of "reset", "status", "command", "write", "read"; ``value`` is the byte for
-    status and command cycles, the 16-bit word for write and read, and 0 for reset.
+    ``kind`` is one of "reset", "status", "command", "write", "read", "select"; ``value`` is the
+    byte for status and command cycles, the 16-bit word for write and read, 0 for reset and
+    the chip for select (a /CS change on a multi-axis bus, no strobe).
     """
 
     kind: str
@@ -229,3 +243,5 @@ def cycles_of(program: Iterable[BusOp], result: ProgramResult) -> Iterator[BusCy
             yield BusCycle("status", s)
         elif o.op is Op.RESET:
             yield BusCycle("reset", 0)
+        elif o.op is Op.SELECT:
+            yield BusCycle("select", o.arg)

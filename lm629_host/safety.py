@@ -15,9 +15,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
-
 from typing import Protocol
-
 
 
 class Stoppable(Protocol):

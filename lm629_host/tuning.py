@@ -36,10 +36,10 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from .safety import STOP_NOTE, emergency_stop, stop_on_error
 from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
+from .safety import STOP_NOTE, emergency_stop, stop_on_error
 
 #: a step: the largest trajectory words, so the desired position jumps within a sample
 STEP_VELOCITY = VELOCITY_MAX

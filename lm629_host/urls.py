@@ -18,7 +18,7 @@ from typing import Any
 from urllib.parse import parse_qs, parse_qsl, urlencode, urlsplit
 
 __all__ = ["Option", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
-           "query_params", "scheme_of", "with_query"]
+           "query_params", "scheme_of", "split_params", "with_query"]
 
 #: the words a boolean option takes (an empty value, ``?strict``, means true)
 _TRUE = ("1", "true", "yes", "on", "")
@@ -46,6 +46,20 @@ def with_query(url: str, values: Mapping[str, str]) -> str:
              for k, v in parse_qsl(query, keep_blank_values=True)]
     pairs += list(values.items())
     return base + ("?" + urlencode(pairs, safe=":/") if pairs else "")
+
+
+def split_params(url: str, names: frozenset[str] | set[str]) -> tuple[str, dict[str, str]]:
+    """``url`` without the query parameters ``names``, and their values (e.g. ``cs`` and
+    ``axes``, which the board layer reads and a hardware transport does not know)."""
+    if "?" not in url:
+        return url, {}
+    base, query = url.split("?", 1)
+    pairs = parse_qsl(query, keep_blank_values=True)
+    taken = {k: v for k, v in pairs if k in names}
+    if not taken:
+        return url, {}
+    rest = urlencode([(k, v) for k, v in pairs if k not in names], safe=":/")
+    return (base + "?" + rest if rest else base), taken
 
 
 def parse_hz(text: str) -> float:

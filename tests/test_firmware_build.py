@@ -36,7 +36,10 @@ def test_pin_map_spans_two_ports_around_uart_and_crystal():
     assert [pins.join_byte(*pins.split_byte(b)) for b in range(256)] == list(range(256))
     assert pins.split_byte(0xFF) == (0xFC, 0x03)  # PD2..PD7, PB0..PB1: PD0/PD1 stay the UART
     assert {w.chip_pin for w in pins.WIRING} == {f"D{i}" for i in range(8)} | {
-        "/CS", "/PS", "/RD", "/WR", "/RST", "HI"}
+        "/CS", "/PS", "/RD", "/WR", "/RST", "HI", "/CS1", "/CS2", "/CS3", "HI1"}
+    # four chip selects: A0 (chip 0, the one-chip wiring) and PB2-PB4; HI of chip 1 on PB5
+    assert [(w.port, w.bit) for w in pins.CHIP_SELECTS] == [("C", 0), ("B", 2), ("B", 3), ("B", 4)]
+    assert [(w.port, w.bit) if w else None for w in pins.HI_LINES] == [("C", 5), ("B", 5), None, None]
 
 
 def test_documented_wiring_table_matches_the_pin_map():

@@ -14,10 +14,10 @@ import lm629_host
 from lm629_host import Cmd, Program
 from lm629_host.transports.ftdi import StreamCompiler, streams_of, units_of
 
-IDLE = 0x5E  # /CS /RD /WR /PS /RST high, TCK low
-DIR = 0x5F  # TCK, /CS, /RD, /WR, /PS, /RST driven; HI (ADBUS5) and ADBUS7 inputs
-SEL_CMD = 0x4C  # /CS and /PS low
-SEL_DATA = 0x5C  # /CS low, /PS high
+IDLE = 0xDE  # /CS /RD /WR /PS /RST and /CS of chip 1 (ADBUS7) high, TCK low
+DIR = 0xDF  # TCK, /CS, /RD, /WR, /PS, /RST, ADBUS7 driven; HI (ADBUS5) the one input
+SEL_CMD = 0xCC  # /CS and /PS low (chip 1 deselected)
+SEL_DATA = 0xDC  # /CS low, /PS high
 
 
 def status_read(sel: int) -> list[int]:

@@ -121,7 +121,7 @@ def test_replies_decode_to_their_fields():
     g = golden()
     info = HelloInfo.decode(decode_frame(g["hello_reply"][1]).payload)
     assert (info.protocol, info.firmware, info.capabilities, info.max_program, info.max_reads,
-            info.chip_selects, info.cpu_hz) == (1, (1, 0, 0), 15, 243, 120, 1, 16_000_000)
+            info.chip_selects, info.cpu_hz) == (1, (1, 1, 0), 0x1F, 243, 120, 4, 16_000_000)
     r = RunReply.decode(decode_frame(g["run_reply_busy_timeout"][1]).payload)
     assert (r.result, r.index, r.last_status, r.hi, r.statuses, r.words) == \
         (Result.BUSY_TIMEOUT, 3, 0x81, 0, (0xC4,), (0x1234,))
@@ -135,3 +135,24 @@ def test_max_frame_is_max():
     assert len(enc) == MAX_FRAME + 2  # one COBS code byte per block here, plus the delimiter
     with pytest.raises(ValueError, match="MAX_FRAME"):
         encode_frame(FrameType.RUN, 0, dec[2:-2] + b"\x01")
+
+
+def test_sync_start_bytes_and_the_python_bridge_answers_them():
+    """RUN seq 0x11 starting on chip 1 (cs field), STT, SELECT 2, STT: the bytes of
+    PROTOCOL.md, and the Python far end (four chip selects, SELECT) answers the golden reply,
+    both STTs reaching their chips."""
+    from lm629_host.sim.bridge import MULTI_AXIS_INFO, BridgeEmulator
+    from lm629_host.sim.build import build_bus
+    dec, wire = golden()["run_sync_start"]
+    assert dec[2:5] == bytes((1, 0x13, 0x88))  # cs 1, 5000 us
+    assert dec[5:-2] == bytes((Op.COMMAND, Cmd.STT, Op.SELECT, 2, Op.COMMAND, Cmd.STT))
+    bus = build_bus("sim://?axes=3&record=1&strict=0")
+    bus.advance(0.002)  # past power-on: status C4 with the breakpoint flag below
+    for c in bus.chips:
+        c.flags |= 0x40  # breakpoint level-held, as after reset + MSKI/RSTI (choice 19)
+    emu = BridgeEmulator(bus, MULTI_AXIS_INFO)
+    replies = emu.receive(wire)
+    assert [c.history for c in bus.chips] == [[], [(0x01, ())], [(0x01, ())]]
+    assert replies and decode_frame(replies[0]).payload == \
+        decode_frame(golden()["run_reply_sync_start"][1]).payload
+

@@ -263,7 +263,7 @@ def test_refused_programs_are_typed_errors_and_nothing_ran():
     refusal comes back as a TransportError naming the result code; nothing ran."""
     t = open_emulated("sim://?record=1", baud=0)
     t.model.record_clear()
-    t.cs = 1  # the emulated bridge has one chip select
+    t.cs = 4  # the emulated bridge has four chip selects (0..3)
     with pytest.raises(TransportError, match="BAD_CHIP_SELECT; nothing of it ran"):
         t.execute(Program().command(Cmd.DFH))
     t.cs = 0

@@ -43,8 +43,8 @@ def frames() -> list[tuple[str, bytes]]:
     biggest = Program()
     for i in range(81):
         biggest.write((i * 0x0101) & 0xFF00)  # 0000, 0100, 0200...: zeros in every op
-    info = HelloInfo(firmware=(1, 0, 0), capabilities=0x000F, max_program=243, max_reads=120,
-                     chip_selects=1, cpu_hz=16_000_000)
+    info = HelloInfo(firmware=(1, 1, 0), capabilities=0x001F, max_program=243, max_reads=120,
+                     chip_selects=4, cpu_hz=16_000_000)
     return [
         ("hello", frame_body(FrameType.HELLO, 0x01)),
         ("hello_reply", frame_body(FrameType.HELLO_REPLY, 0x01, info.encode())),
@@ -61,6 +61,11 @@ def frames() -> list[tuple[str, bytes]]:
             RunReply(Result.BUSY_TIMEOUT, 3, 0x81, 0, (0xC4,), (0x1234,)).encode())),
         ("run_max_frame", frame_body(FrameType.RUN, 0xFE, run_payload(biggest.ops, 65535))),
         ("error_reply", frame_body(FrameType.ERROR_REPLY, 0x33, bytes((Result.BAD_REQUEST,)))),
+        # a synchronized start on chips 1 and 2: the RUN starts on chip 1 (cs), SELECT 2
+        ("run_sync_start", frame_body(FrameType.RUN, 0x11, run_payload(
+            Program().command(Cmd.STT).select(2).command(Cmd.STT).ops, 5000, cs=1))),
+        ("run_reply_sync_start", frame_body(
+            FrameType.RUN_REPLY, 0x11, RunReply(Result.OK, 0xFF, 0xC4, 1, (), ()).encode())),
     ]
 
 

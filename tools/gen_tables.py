@@ -88,6 +88,22 @@ def render() -> str:
     ]
     for w in pins.CONTROL:
         lines.append(f"#define PIN_{w.chip_pin.lstrip('/')} 0x{1 << w.bit:02X}u  /* {w.chip_pin} */")
+    n = len(pins.CHIP_SELECTS)
+
+    def init(values: list[int]) -> str:
+        return "{ " + ", ".join(f"0x{v:02X}u" for v in values) + " }"
+
+    lines += [
+        "/* chip selects (bridge_pins.CHIP_SELECTS) and HI lines (HI_LINES), one per chip: the",
+        " * bit of each on the control port and on the data-high port (0: not on that port) */",
+        f"#define CHIP_SELECTS {n}u",
+        f"#define CS_CTRL_MASKS_INIT {init(pins.port_masks(pins.CHIP_SELECTS, pins.CONTROL_PORT))}",
+        f"#define CS_DHI_MASKS_INIT {init(pins.port_masks(pins.CHIP_SELECTS, pins.DATA_HIGH_PORT))}",
+        f"#define CS_DHI_ALL 0x{sum(pins.port_masks(pins.CHIP_SELECTS, pins.DATA_HIGH_PORT)):02X}u",
+        f"#define HI_CTRL_MASKS_INIT {init(pins.port_masks(pins.HI_LINES, pins.CONTROL_PORT))}",
+        f"#define HI_DHI_MASKS_INIT {init(pins.port_masks(pins.HI_LINES, pins.DATA_HIGH_PORT))}",
+        f"#define HI_DHI_ALL 0x{sum(pins.port_masks(pins.HI_LINES, pins.DATA_HIGH_PORT)):02X}u",
+    ]
     lines += ["", "#endif", ""]
     return "\n".join(lines)
 

@@ -7,7 +7,13 @@
  * read access time (before that the pins carry the complement, so firmware that samples too
  * early reads garbage).  Timing minimums of the chip are checked against the AVR's cycle count
  * and collected as violations.  The UART is fed in-process: host bytes wait in a queue and are
- * raised only while the simulated UART says XON. */
+ * raised only while the simulated UART says XON.
+ *
+ * Several chips (a multi-axis board): the /CS lines of CS_*_MASKS_INIT (chip 0 on the control
+ * port, chips 1-3 on the data-high port) say which chip a strobe reaches; the callback's kind
+ * carries it (kind | chip << 4), and its answer carries every chip's HI (bit 8 + chip), which is
+ * driven onto the HI pins of HI_*_MASKS_INIT.  Two chips selected during a strobe is a
+ * violation; a strobe with no /CS low reaches no chip. */
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -24,7 +30,8 @@
 
 /* bus cycle kinds passed to the Python callback */
 enum { FITL_STATUS = 0, FITL_COMMAND = 1, FITL_WRITE = 2, FITL_READ = 3, FITL_RESET = 4 };
-/* callback: (kind, value, cycle) -> byte read | HI << 8, or < 0 to stop (Python raised) */
+/* callback: (kind | chip << 4, value, cycle) -> byte read | HI of chip k << (8 + k), or < 0 to
+ * stop (Python raised) */
 typedef int (*fitl_bus_cb)(int kind, int value, uint64_t cycle);
 
 #define CPU_HZ 16000000ul
@@ -41,6 +48,8 @@ typedef struct {
     fitl_bus_cb cb;
     avr_irq_t *uart_in;
     avr_irq_t *data_lo_pin[8], *data_hi_pin[8], *hi_pin;
+    avr_irq_t *hi_pins[CHIP_SELECTS];    /* HI of each chip (NULL: no line) */
+    int chip;                            /* the chip whose /CS is low, -1 none, -2 several */
     uint8_t ctrl;                       /* last control port value */
     uint8_t lo_port, hi_port;           /* last data port values */
     uint8_t lo_ddr, hi_ddr;
@@ -96,15 +105,40 @@ static avr_cycle_count_t access_done(avr_t *avr, avr_cycle_count_t when, void *p
     return 0;
 }
 
+static const uint8_t cs_ctrl[CHIP_SELECTS] = CS_CTRL_MASKS_INIT;
+static const uint8_t cs_dhi[CHIP_SELECTS] = CS_DHI_MASKS_INIT;
+static const uint8_t hi_ctrl[CHIP_SELECTS] = HI_CTRL_MASKS_INIT;
+static const uint8_t hi_dhi[CHIP_SELECTS] = HI_DHI_MASKS_INIT;
+
+/* the level of the data-high port's /CS lines: a line the firmware does not drive is pulled
+ * up (the README's 10k pull-ups), so a firmware that leaves them inputs (1.0) selects no chip */
+static uint8_t dhi_level(fitl_t *h, uint8_t port)
+{
+    return (uint8_t)((port & h->hi_ddr) | ~h->hi_ddr);
+}
+
+/* the chip whose /CS is low on (control port, data-high port): -1 none, -2 more than one */
+static int chip_of(uint8_t ctrl, uint8_t dhi)
+{
+    int found = -1;
+    for (int k = 0; k < (int)CHIP_SELECTS; k++)
+        if ((cs_ctrl[k] && !(ctrl & cs_ctrl[k])) || (cs_dhi[k] && !(dhi & cs_dhi[k])))
+            found = found == -1 ? k : -2;
+    return found;
+}
+
 static int call(fitl_t *h, int kind, int value)
 {
     h->bus_cycles++;
-    int r = h->cb(kind, value, h->avr->cycle);
+    int chip = h->chip < 0 ? 0 : h->chip;
+    int r = h->cb(kind | chip << 4, value, h->avr->cycle);
     if (r < 0) {
         h->stop = h->failed = 1;
         return 0;
     }
-    avr_raise_irq(h->hi_pin, (r >> 8) & 1);
+    for (int k = 0; k < (int)CHIP_SELECTS; k++)
+        if (h->hi_pins[k])
+            avr_raise_irq(h->hi_pins[k], (r >> (8 + k)) & 1);
     return r & 0xFF;
 }
 
@@ -123,6 +157,7 @@ static void ctrl_hook(avr_irq_t *irq, uint32_t value, void *param)
     h->ctrl = v;
     if (!((fell | rose) & 0xFF))
         return;
+    h->chip = chip_of(v, dhi_level(h, h->hi_port));
     if ((fell | rose) & (PIN_CS | PIN_PS)) {
         if (!(old & PIN_RD) || !(old & PIN_WR))
             violation(h, "/CS or /PS changed during a strobe");
@@ -132,7 +167,9 @@ static void ctrl_hook(avr_irq_t *irq, uint32_t value, void *param)
         h->rst_fall = now;
     if (rose & PIN_RST)
         call(h, FITL_RESET, (int)(now - h->rst_fall));
-    int selected = !(v & PIN_CS);
+    int selected = h->chip >= 0;
+    if ((fell & (PIN_RD | PIN_WR)) && h->chip == -2)
+        violation(h, "two chips selected during a strobe");
     if ((fell & (PIN_RD | PIN_WR)) && selected) {
         if (!(v & PIN_RD) && !(v & PIN_WR))
             violation(h, "/RD and /WR low together");
@@ -196,6 +233,12 @@ static void hi_port_hook(avr_irq_t *irq, uint32_t value, void *param)
     (void)irq;
     fitl_t *h = param;
     uint8_t v = (uint8_t)value;
+    if ((dhi_level(h, v) ^ dhi_level(h, h->hi_port)) & CS_DHI_ALL) { /* a /CS of chips 1-3 */
+        if (!(h->ctrl & PIN_RD) || !(h->ctrl & PIN_WR))
+            violation(h, "/CS changed during a strobe");
+        h->sel_change = h->avr->cycle;
+        h->chip = chip_of(h->ctrl, dhi_level(h, v));
+    }
     if ((v ^ h->hi_port) & DATA_HI_MASK & h->hi_ddr) {
         h->hi_port = v;
         data_changed(h);
@@ -218,6 +261,15 @@ static void hi_ddr_hook(avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq;
     fitl_t *h = param;
+    if (((uint8_t)value ^ h->hi_ddr) & CS_DHI_ALL) { /* /CS lines of chips 1-3 made outputs */
+        uint8_t old = dhi_level(h, h->hi_port);
+        uint8_t ddr = h->hi_ddr;
+        h->hi_ddr = (uint8_t)value;
+        if ((dhi_level(h, h->hi_port) ^ old) & CS_DHI_ALL)
+            h->sel_change = h->avr->cycle;
+        h->chip = chip_of(h->ctrl, dhi_level(h, h->hi_port));
+        h->hi_ddr = ddr; /* the data-bus bookkeeping below compares against the old value */
+    }
     if (((uint8_t)value ^ h->hi_ddr) & DATA_HI_MASK) {
         h->hi_ddr = (uint8_t)value;
         data_changed(h);
@@ -310,6 +362,19 @@ fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
         hi_bit++;
     h->hi_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(CTRL_PORT_LETTER), hi_bit);
     avr_raise_irq(h->hi_pin, 0);
+    h->chip = -1;
+    h->hi_port = 0; /* reset values: port and direction 0, the /CS lines pulled up */
+    h->hi_ddr = 0;
+    for (int k = 0; k < (int)CHIP_SELECTS; k++) {
+        uint8_t m = hi_ctrl[k] ? hi_ctrl[k] : hi_dhi[k];
+        int bit = 0;
+        while (m && !(m & (1u << bit)))
+            bit++;
+        h->hi_pins[k] = !m ? NULL : avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(
+            hi_ctrl[k] ? CTRL_PORT_LETTER : DATA_HI_PORT_LETTER), bit);
+        if (h->hi_pins[k])
+            avr_raise_irq(h->hi_pins[k], 0);
+    }
     h->uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), out_hook, h);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), xon_hook, h);

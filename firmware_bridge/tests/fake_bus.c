@@ -42,6 +42,12 @@ uint8_t bus_read_data(void)
     return b;
 }
 void bus_reset_pulse(void) { fake.resets++; note('X', 0); }
+void bus_select(uint8_t chip)
+{
+    fake.selected = chip;
+    if (fake.n_selects < sizeof fake.selects)
+        fake.selects[fake.n_selects++] = chip;
+}
 uint8_t bus_hi(void) { return fake.hi; }
 void bus_wait_us(uint16_t us) { fake.waited_us += us; note('T', (uint8_t)(us >> 8)); }
 void bus_timer_start(void) { fake.elapsed_us = 0; }

@@ -5,6 +5,9 @@
 typedef struct {
     uint8_t status;       /* status byte returned when not busy */
     uint8_t hi;           /* HI line */
+    uint8_t selected;     /* chip select of the last bus_select */
+    uint8_t selects[8];   /* the chips bus_select was called with, in order */
+    uint16_t n_selects;
     uint8_t script[16];   /* if n_script: status reads return these in turn, the last repeats */
     uint16_t n_script, script_at;
     uint16_t busy_polls;  /* the next this-many status reads show busy (bit 0 set) */

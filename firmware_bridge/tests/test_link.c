@@ -164,6 +164,15 @@ static void test_golden_requests(void)
     n = feed(mx->enc, mx->nenc, out);
     CHECK(n > 0 && reply_payload(out, n, 0x82, 0xFE, &p) == 5 && p[0] == 0, "max frame run");
     CHECK(fake.log_len == 81 * 4, "max frame wrote %d log entries", fake.log_len / 2);
+    /* a synchronized start on chips 1 and 2: cs 1, STT, SELECT 2, STT */
+    fake_reset();
+    fake.status = 0xC4;
+    fake.hi = 1; /* chip 2's HI: its trajectory-complete flag, enabled after reset */
+    expect_reply("run_sync_start", "run_reply_sync_start");
+    static const uint8_t stts[] = {'C', 0x01, 'C', 0x01};
+    CHECK(fake.log_len == sizeof stts && !memcmp(fake.log, stts, sizeof stts)
+          && fake.n_selects == 3 && fake.selects[0] == 1 && fake.selects[1] == 2
+          && fake.selects[2] == 0, "sync start reached the bus differently");
     /* unknown request type -> ERROR_REPLY BAD_REQUEST */
     n = feed(wire, frame(0x04, 0x33, NULL, 0, wire), out);
     vec_t *er = get("error_reply");
@@ -245,10 +254,15 @@ static void test_errors(void)
     CHECK(feed(wire, 301, out) == 0, "overlong frame answered");
     CHECK(feed(q->enc, q->nenc, out) > 0, "no resync after overlong frame");
     /* bad chip select, bad op, truncated arg, too many reads, truncated RUN */
-    uint8_t cs1[] = {0x01, 0x00, 0x00, 0x01};
+    uint8_t cs1[] = {LINK_CHIP_SELECTS, 0x00, 0x00, 0x01};
     n = feed(wire, frame(0x02, 1, cs1, sizeof cs1, wire), out);
     CHECK(reply_payload(out, n, 0x82, 1, &p) == 5 && p[0] == RESULT_BAD_CHIP_SELECT, "bad cs");
-    uint8_t badop[] = {0x00, 0x00, 0x00, 0x01, 0x02, 0x01, 0x09};
+    /* a SELECT beyond the chip selects: refused before the bus, naming the operation */
+    uint8_t badsel[] = {0x00, 0x00, 0x00, OP_STATUS, OP_SELECT, LINK_CHIP_SELECTS};
+    n = feed(wire, frame(0x02, 1, badsel, sizeof badsel, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 1, &p) == 5 && p[0] == RESULT_BAD_CHIP_SELECT && p[1] == 1,
+          "bad SELECT");
+    uint8_t badop[] = {0x00, 0x00, 0x00, 0x01, 0x02, 0x01, OP_MAX + 2};
     n = feed(wire, frame(0x02, 2, badop, sizeof badop, wire), out);
     CHECK(reply_payload(out, n, 0x82, 2, &p) == 5 && p[0] == RESULT_BAD_PROGRAM && p[1] == 2,
           "bad op index %d", p[1]);
@@ -272,10 +286,33 @@ static void test_errors(void)
            "reads, RUN and PING sizes answered with their codes\n");
 }
 
+/* RUN's cs selects the first chip, OP_SELECT the next: both reach the bus in program order */
+static void test_select(void)
+{
+    uint8_t wire[320], out[320], *p;
+    link_init(&L);
+    fake_reset();
+    uint8_t prog[] = {0x01, 0x00, 0x00, OP_STATUS, OP_SELECT, 0x03, OP_STATUS, OP_SELECT, 0x00};
+    int n = feed(wire, frame(0x02, 9, prog, sizeof prog, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 9, &p) == 7 && p[0] == RESULT_OK && p[4] == 2, "select run");
+    /* cs 1, SELECT 3, SELECT 0 (chip 0 at the end: nothing to release) */
+    CHECK(fake.n_selects == 3 && fake.selects[0] == 1 && fake.selects[1] == 3
+          && fake.selects[2] == 0, "selects %d: %d %d %d", fake.n_selects, fake.selects[0],
+          fake.selects[1], fake.selects[2]);
+    /* a program that ends on chip 2 releases it: chip 0 selected again */
+    fake_reset();
+    uint8_t prog2[] = {0x00, 0x00, 0x00, OP_SELECT, 0x02, OP_STATUS};
+    n = feed(wire, frame(0x02, 10, prog2, sizeof prog2, wire), out);
+    CHECK(reply_payload(out, n, 0x82, 10, &p) == 6 && p[0] == RESULT_OK && fake.n_selects == 2
+          && fake.selects[0] == 2 && fake.selects[1] == 0, "release after chip 2");
+    printf("select: the RUN's cs, then each SELECT, reach the bus in order\n");
+}
+
 int main(int argc, char **argv)
 {
     load(argc > 1 ? argv[1] : "golden_frames.txt");
     test_codec();
+    test_select();
     test_golden_requests();
     test_exactly_once();
     test_wait_status();

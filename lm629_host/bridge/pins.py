@@ -15,6 +15,19 @@ Why this layout:
   touches nothing else; /CS and /PS change before the strobe falls (their setup time);
 * HI is an input on PC5 (A5), read once after each program.
 
+Several chips (a multi-axis board): they share D0-D7, /PS, /RD, /WR and /RST; each has its own
+/CS.  The pins left over are PB2-PB5 (Uno D10-D13), so chip 0 keeps /CS on A0 (a one-chip
+board is wired as before) and chips 1-3 take /CS on D10, D11, D12 (``/CS1``..``/CS3`` in the
+table: the /CS pin of that chip); D13 takes HI of chip 1.  Chips 2 and 3 have no HI line (the
+host reads their status instead).  Four chip selects on an Uno/Nano.  D11-D13 are also the
+ISP header's MOSI/MISO/SCK: disconnect the chips (or hold them in reset) while flashing over
+ISP; the USB bootloader does not use them.  On a Nano D13 carries the LED and its resistor to
+ground, a load on HI1 that a TTL output drives without trouble.
+
+A chip select on port B is held low by the firmware for the stretch of a program that
+addresses that chip (the chip ignores /CS without a strobe; D6-D7 share port B, written masked),
+so its setup time before every strobe is long met.
+
 Put 10 kOhm pull-ups on /CS, /RD, /WR and /RST: while the AVR is in reset (the Uno resets when
 the port opens) its pins float, and the pull-ups keep the chip deselected and out of reset.
 """
@@ -54,8 +67,18 @@ RST = PinWire("A4", "C", 4, "/RST", "out")
 HI = PinWire("A5", "C", 5, "HI", "in")
 
 CONTROL: tuple[PinWire, ...] = (CS, PS, RD, WR, RST, HI)
+CS1 = PinWire("D10", "B", 2, "/CS1", "out")
+CS2 = PinWire("D11", "B", 3, "/CS2", "out")
+CS3 = PinWire("D12", "B", 4, "/CS3", "out")
+HI1 = PinWire("D13", "B", 5, "HI1", "in")
+#: /CS of chip 0, 1, 2, 3 (the RUN's ``cs`` and ``Op.SELECT`` index this)
+CHIP_SELECTS: tuple[PinWire, ...] = (CS, CS1, CS2, CS3)
+#: HI of each chip, where it has a pin (None: read the status instead)
+HI_LINES: tuple[PinWire | None, ...] = (HI, HI1, None, None)
+#: the wires of chips 1-3
+AXES: tuple[PinWire, ...] = (CS1, CS2, CS3, HI1)
 #: every wire, data bus first (docs/bridge.md's wiring table lists these, plus GND)
-WIRING: tuple[PinWire, ...] = DATA + CONTROL
+WIRING: tuple[PinWire, ...] = DATA + CONTROL + AXES
 
 #: data bus bits 0..5 sit on port D from bit DATA_LOW_SHIFT up; bits 6..7 on port B bits 0..1
 DATA_LOW_PORT, DATA_LOW_SHIFT, DATA_LOW_MASK = "D", 2, 0xFC
@@ -72,6 +95,9 @@ def _check() -> None:
             assert w.port == DATA_HIGH_PORT and w.bit == i - DATA_HIGH_SHIFT, w
     for w in CONTROL:
         assert w.port == CONTROL_PORT, w
+    for w in CHIP_SELECTS + tuple(h for h in HI_LINES if h):
+        assert w.port in (CONTROL_PORT, DATA_HIGH_PORT), w  # the firmware's two masks
+    assert len(HI_LINES) == len(CHIP_SELECTS)
     used = {(w.port, w.bit) for w in WIRING}
     assert len(used) == len(WIRING), "two wires on one port bit"
     assert not used & {("D", 0), ("D", 1), ("B", 6), ("B", 7)}, "UART or crystal pin used"
@@ -96,5 +122,11 @@ def join_byte(port_low: int, port_high: int) -> int:
             | ((port_high & DATA_HIGH_MASK) << DATA_HIGH_SHIFT))
 
 
+def port_masks(wires: tuple[PinWire | None, ...], port: str) -> list[int]:
+    """For each wire (one per chip), its bit mask on ``port`` (0: elsewhere or no wire)."""
+    return [(1 << w.bit) if w is not None and w.port == port else 0 for w in wires]
+
+
 __all__ = ["PinWire", "DATA", "CONTROL", "WIRING", "CS", "PS", "RD", "WR", "RST", "HI", "mask",
+           "CS1", "CS2", "CS3", "HI1", "CHIP_SELECTS", "HI_LINES", "AXES", "port_masks",
            "split_byte", "join_byte"]

@@ -67,6 +67,9 @@ class Capability(enum.IntFlag):
     HI_LINE = 0x02  #: the bridge reads HI
     BUSY_ON_BRIDGE = 0x04  #: busy is polled on the bridge (always, in protocol 1)
     WAIT_STATUS = 0x08  #: the bridge runs Op.WAIT_STATUS (older bridges: the host polls)
+    #: the bridge runs Op.SELECT: a program may switch chip select (a multi-axis bridge; an
+    #: older bridge gets one RUN per chip, its ``cs`` field naming the chip)
+    SELECT = 0x10
 
 
 #: "index of the failing operation" and "last status byte" when there is none

@@ -36,7 +36,9 @@ import click
 
 import lm629_host
 
+from ..board import Board
 from ..errors import (
+    AxisError,
     BusyTimeout,
     CommandError,
     LM629Error,
@@ -51,7 +53,7 @@ from ..program import BusCycle, Program, ProgramResult
 from ..safety import STOP_NOTE
 from ..transports import is_simulated
 from ..units import Scale
-from ..urls import parse_hz, query_params, with_query
+from ..urls import parse_hz, query_params, scheme_of, with_query
 
 log = logging.getLogger("lm629_host.cli")
 
@@ -126,6 +128,9 @@ class Session:
     trace: bool
     stats: bool
     _chip: LM629 | None = None
+    axis_spec: tuple[int, ...] | str | None = None  #: --axis (see cli.axes)
+    _board: Any = None
+    _prepare: bool = True
     _old_handlers: dict[int, Any] | None = None
     _bus_depth: int = 0
     _pending: int | None = None
@@ -200,6 +205,9 @@ class Session:
 
     def open(self, *, prepare: bool = True) -> LM629:
         """The chip.  On an in-process simulator: reset it and load kp = 20 (``prepare``)."""
+        if self._chip is None and (self.axis_spec is not None or "axes=" in self.port):
+            self._chip = open_axis(self, prepare)
+            return self._chip
         if self._chip is None:
             if not self.port_given:
                 click.echo("lm629: no --port or LM629_PORT: using the simulator sim:// (a fresh "
@@ -219,6 +227,11 @@ class Session:
         return self._chip
 
     def close(self) -> None:
+        if self._board is not None:
+            if self.stats:
+                click.echo(f"stats: {self._board.transport.stats}", err=True)
+            self._board.close()
+            self._board = self._chip = None
         if self._chip is not None:
             if self.stats:
                 click.echo(f"stats: {self._chip.transport.stats}", err=True)
@@ -228,6 +241,85 @@ class Session:
             for sig, handler in self._old_handlers.items():
                 signal.signal(sig, handler)
             self._old_handlers = None
+
+
+# ---------------------------------------------------------------------- the session's axes
+#: more than the largest board (the bridge: 4 chip selects); checked again when it opens
+MAX_AXIS = 15
+
+
+def parse_axes(text: str) -> tuple[int, ...] | str:
+    """``"1"`` -> (1,), ``"0,1"`` -> (0, 1), ``"all"`` -> "all" (click.BadParameter else)."""
+    text = text.strip().lower()
+    if text == "all":
+        return "all"
+    try:
+        axes = tuple(int(t) for t in text.split(",") if t.strip() != "")
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: an axis number, a list (0,1) or 'all'",
+                                 param_hint="--axis") from None
+    if not axes or any(not 0 <= a <= MAX_AXIS for a in axes) or len(set(axes)) != len(axes):
+        raise click.BadParameter(f"{text!r}: axis numbers 0..{MAX_AXIS}, each once",
+                                 param_hint="--axis")
+    return axes
+
+
+def _url_axes(s: Session) -> int | None:
+    raw = query_params(s.port).get("axes")
+    return int(raw) if raw and raw.isdigit() else None
+
+
+def axes_of(s: Session) -> tuple[int, ...]:
+    """The axes this command works on (``all``: every chip select of the board, opened)."""
+    spec = s.axis_spec
+    if spec is None:
+        n = _url_axes(s)
+        return tuple(range(n)) if n else (0,)
+    if spec == "all":
+        return tuple(range(len(board(s).axes)))
+    assert isinstance(spec, tuple)  # parse_axes: a tuple of axes, or "all"
+    return spec
+
+
+def several(s: Session) -> bool:
+    return len(axes_of(s)) > 1
+
+
+def board(s: Session) -> Board:
+    """The board behind the port, with at least the axes named (opened once; on a simulator
+    every axis is reset and given kp = 20, as a single simulated chip is)."""
+    if s._board is None:
+        spec = s.axis_spec
+        want = max(spec) + 1 if isinstance(spec, tuple) else None
+        url = s.url()
+        if want is not None and scheme_of(url).startswith("sim") and (_url_axes(s) or 1) < want:
+            url += ("&" if "?" in url else "?") + f"axes={want}"
+        b = lm629_host.open_board(url, chip=s.chip_name, trace=s._trace)
+        if want is not None and len(b.axes) < want:
+            b.close()
+            raise AxisError(want - 1, len(b.axes), s.port)
+        s._guard_programs(b.axes[0])
+        for a in b.axes:
+            a.move_rules = MoveRules(clock_hz=s.clock_hz)
+        if s.is_sim and s._prepare:
+            b.reset()
+            for a in b.axes:
+                a.load_filter(kp=20)
+                a.update_filter()
+                a.sync()
+        s._board = b
+    return s._board
+
+
+def open_axis(s: Session, prepare: bool) -> LM629:
+    """The one chip a single-axis command drives."""
+    axes = axes_of(s) if s.axis_spec is not None else (0,)
+    if len(axes) > 1:
+        raise click.UsageError(f"--axis names {len(axes)} axes: this command drives one "
+                               "(status, watch, move with several targets and bringup take "
+                               "several)")
+    s._prepare = prepare
+    return board(s).axis(axes[0])
 
 
 def _help_epilog() -> str:
@@ -297,10 +389,14 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
 @click.option("-v", "--verbose", count=True, help="-v: info, -vv: debug with the bus hex trace.")
 @click.option("--trace", is_flag=True, help="Print every bus cycle on stderr.")
 @click.option("--stats", is_flag=True, help="Print the transport's counters at exit.")
+@click.option("--axis", "axis_text", default=None, metavar="N|N,M|all",
+              help="Which chip on a multi-axis board (its chip select; default 0, or every "
+                   "chip of the URL's axes=); a list or 'all' for status, watch, move with one "
+                   "target per axis, bringup.")
 @click.version_option(lm629_host.__version__, prog_name="lm629")
 @click.pass_context
 def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines: int | None,
-         verbose: int, trace: bool, stats: bool) -> None:
+         verbose: int, trace: bool, stats: bool, axis_text: str | None) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
     try:
         clock_hz = _check_clock(parse_hz(clock), "--clock")
@@ -339,6 +435,8 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
     _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
     session = Session(url, port is not None, chip_name, clock_hz,
                       lines, verbose, trace, stats)
+    if axis_text is not None:
+        session.axis_spec = parse_axes(axis_text)
     ctx.obj = session
     ctx.call_on_close(session.close)
     session.install_signals()

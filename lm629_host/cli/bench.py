@@ -11,9 +11,9 @@ import lm629_host
 
 from ..bringup import BringupOptions, StepResult, run_bringup
 from ..errors import LM629Error
-from ..lm629 import check_int
+from ..lm629 import LM629, check_int
 from ..opcodes import Status
-from .app import _session, log, main
+from .app import Session, _session, log, main
 from .common import _abort_is_interrupt, _flags, _position
 from .types import FINITE
 
@@ -32,7 +32,20 @@ def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
     check_int("--move", move_distance, -100_000, 100_000)
     check_int("--hold-kp", hold_kp, 1, 0x7FFF)
     options = BringupOptions(hold_kp=hold_kp, move_distance=move_distance)
+    from . import axes
+    if axes.several(s):  # one axis after the other; the exit code is the worst
+        codes = []
+        for k in axes.axes_of(s):
+            s._prepare = False
+            chip = axes.board(s).axis(k)
+            click.echo(f"bring-up of axis {k}")
+            codes.append(_bringup_one(s, chip, options, yes))
+        click.get_current_context().exit(max(codes))
     chip = s.open(prepare=False)
+    click.get_current_context().exit(_bringup_one(s, chip, options, yes))
+
+
+def _bringup_one(s: Session, chip: LM629, options: BringupOptions, yes: bool) -> int:
     click.echo(f"bring-up of {chip.variant.upper()} on {chip.transport.describe()}")
 
     def report(step: StepResult) -> None:
@@ -48,7 +61,7 @@ def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
                          announce=lambda text: log.info("step: %s", text))
     click.echo("verdict: " + ("PASS, every step" if result.passed else "FAIL" if any(
         st.ok is False for st in result.steps) else "INCOMPLETE"))
-    click.get_current_context().exit(result.exit_code)
+    return result.exit_code
 
 
 @main.command("list")

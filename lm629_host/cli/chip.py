@@ -25,6 +25,9 @@ from .types import FINITE, INT, SIGNED_ARGS, check_writable, positive
 def status(as_json: bool) -> None:
     """Status byte and signals register decoded, positions, velocities, integration sum."""
     s = _session()
+    from . import axes
+    if axes.several(s):
+        return axes.status(s, as_json, snapshot_dict)
     snap = s.open().snapshot()
     d = snapshot_dict(snap, s.scale)
     if as_json:
@@ -166,6 +169,9 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
         check_writable(csv_path, "--csv")
     s = _session()
     scale = s.scale
+    from . import axes
+    if axes.several(s):
+        return axes.watch_rows(s, count, rate, _flags, csv_path)
     chip = s.open()
     f = open(csv_path, "w", newline="") if csv_path else None  # noqa: SIM115 - closed in finally
     writer = csvmod.writer(f) if f else None

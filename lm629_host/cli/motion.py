@@ -80,7 +80,9 @@ def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
 
 
 @main.command(context_settings=SIGNED_ARGS)
-@click.argument("target", type=FINITE)
+@click.argument("targets", type=FINITE, nargs=-1, required=True, metavar="TARGET...")
+@click.option("--linear", is_flag=True, help="With one target per --axis: a straight line, "
+                                             "the words scaled by each axis's share.")
 @click.option("--relative", "-r", is_flag=True, help="TARGET is a distance from where it is.")
 @click.option("--vel", type=FINITE, help="Velocity: rpm with --lines (default 60), else raw "
                                           "16.16 counts/sample (default 65536).")
@@ -93,16 +95,26 @@ def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
 @click.option("--no-wait", is_flag=True, help="Start the move and return (it keeps running).")
 @click.option("--timeout", type=FINITE, default=None,
               help="Seconds to wait (default: 1.5 x the profile + 2 s).")
-def move(target: float, relative: bool, vel: float | None, acc: float | None, raw: bool,
-         tolerance: float | None, no_wait: bool, timeout: float | None) -> None:
+def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | None,
+         acc: float | None, raw: bool, tolerance: float | None, no_wait: bool,
+         timeout: float | None) -> None:
     """Move to TARGET (counts; revolutions with --lines; negative as typed: move -5000) and
     wait until the shaft rests on it.  A move that does not end on target is a motion fault:
     the motor is stopped and the exit code is 9."""
     s = _session()
     v, a = _motion_words(s, vel, acc, raw)
-    counts = _position(s, target, "TARGET", raw)
     tol = _tolerance(s, tolerance, raw)
     positive("--timeout", timeout)
+    from . import axes
+    if len(targets) > 1 or linear or axes.several(s):
+        if relative:
+            raise click.UsageError("--relative moves one axis")
+        goals = [_position(s, t, "TARGET", raw) for t in targets]
+        with stop_on_error(axes.board(s).axes[0]):
+            axes.move_many(s, goals, v, a, linear, tol, timeout, no_wait)
+        return
+    target = targets[0]
+    counts = _position(s, target, "TARGET", raw)
     chip = s.open()
     # every check before anything moves: the words, the goal, and whether the chip would
     # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)

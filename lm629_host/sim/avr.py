@@ -14,6 +14,10 @@ here sleeps on the wall clock.
 The model's time follows the AVR's: before each strobe it is advanced to
 ``avr_cycle * clock_hz // 16 MHz``.  The HI line the firmware reads is the model's HI as of the
 last bus cycle (the firmware reads HI right after its program's last strobe).
+
+Several chips: ``model`` may be a :class:`~lm629_host.sim.model.ChipBus`; the harness names the
+chip whose /CS was low with each cycle (the firmware's chip-select pins, from the pin map) and
+the bus routes the strobe to it; /RST reaches all of them; every chip's HI goes back to its pin.
 """
 
 from __future__ import annotations
@@ -25,9 +29,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ..errors import ProtocolViolation, TransportError
-from .model import ChipModel
 from ..clock import Clock
+from ..errors import ProtocolViolation, TransportError
+from .model import ChipBus, ChipModel
 
 ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = ROOT / "firmware_bridge"
@@ -144,7 +148,7 @@ class AvrSim:
     ``strict``: a timing violation of the chip's bus minimums seen by the harness raises
     :class:`~lm629_host.errors.ProtocolViolation` (default: the model's own ``strict``)."""
 
-    def __init__(self, model: ChipModel, firmware: Path | str | None = None, *,
+    def __init__(self, model: ChipModel | ChipBus, firmware: Path | str | None = None, *,
                  strict: bool | None = None) -> None:
         self.model = model
         self._lib = load_library()
@@ -174,6 +178,13 @@ class AvrSim:
             tick = cycle * m.clock_hz // CPU_HZ
             if tick > m.tick:
                 m.advance_to(tick)
+            chip, kind = kind >> 4, kind & 0x0F
+            if isinstance(m, ChipBus):
+                if kind != RESET:
+                    m.select(chip)
+            elif chip:
+                raise ProtocolViolation(f"the firmware strobed chip select {chip}; this "
+                                        "simulation wires one chip (sim+avr://?axes=N)")
             if kind == STATUS:
                 r = m.read_status()
             elif kind == READ:
@@ -192,6 +203,12 @@ class AvrSim:
                                             "needs at least 8")
                 m.reset_pulse()
                 r = 0
+            if isinstance(m, ChipBus):
+                his = 0
+                for k, c in enumerate(m.chips):
+                    if c.hi:
+                        his |= 0x100 << k
+                return (r & 0xFF) | his
             return (r & 0xFF) | (0x100 if m.hi else 0)
         except BaseException as exc:  # noqa: BLE001 - ctypes would swallow it: keep it, stop the run
             self._error = exc

@@ -21,6 +21,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from ..bridge import pins as bridge_pins
 from ..bridge.protocol import (
     MAX_FRAME,
     MAX_PING,
@@ -38,10 +39,10 @@ from ..bridge.protocol import (
     decode_program,
     encode_frame,
 )
-from .model import ChipModel
 from ..opcodes import BUSY_BIT
 from ..program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
 from .clock import SimClock
+from .model import ChipBus, ChipModel, chips_of
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 
@@ -67,16 +68,47 @@ class EmuStats:
     bus_cycles: int = 0  #: strobes and /RST pulses
 
 
+#: what this emulator is by default: the multi-axis firmware's chip selects, SELECT runs
+MULTI_AXIS_INFO = HelloInfo(
+    firmware=EMU_FIRMWARE, chip_selects=len(bridge_pins.CHIP_SELECTS),
+    capabilities=int(Capability.RESET_LINE | Capability.HI_LINE | Capability.BUSY_ON_BRIDGE
+                     | Capability.WAIT_STATUS | Capability.SELECT))
+#: a bridge of before issue 11 (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
+#: WAIT_STATUS: firmware 1.0's capabilities)
+ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
+
+
+class _NoChip:
+    """An unwired chip select: writes reach nothing, reads find the bus floating (FF)."""
+
+    hi = False
+
+    def read_status(self) -> int:
+        return 0xFF
+
+    read_data = read_status
+
+    def write_command(self, byte: int) -> None:
+        pass
+
+    write_data = write_command
+
+
+_NO_CHIP = _NoChip()
+
+
 @dataclass
 class BridgeEmulator:
-    """The far end of the link: frames in, frames out, programs run on ``model``."""
+    """The far end of the link: frames in, frames out, programs run on ``model`` (one chip,
+    or a :class:`~lm629_host.sim.model.ChipBus` whose chips sit on chip selects 0, 1, ...)."""
 
-    model: ChipModel
-    info: HelloInfo = field(default_factory=lambda: HelloInfo(
-        firmware=EMU_FIRMWARE, capabilities=int(HelloInfo.capabilities | Capability.WAIT_STATUS)))
+    model: ChipModel | ChipBus
+    info: HelloInfo = field(default_factory=lambda: MULTI_AXIS_INFO)
     stats: EmuStats = field(default_factory=EmuStats)
 
     def __post_init__(self) -> None:
+        self._chips = chips_of(self.model)
+        self._cs = 0
         self._reader = FrameReader()
         self._cache: tuple[int, int, bytes] | None = None  # seq, crc, encoded reply
         self._cycle_ticks = max(1, round(BUS_CYCLE_S * self.model.clock_hz))
@@ -138,6 +170,13 @@ class BridgeEmulator:
             ops = decode_program(body)
         except BadProgram as exc:
             return RunReply(Result.BAD_PROGRAM, exc.index)
+        for i, o in enumerate(ops):
+            if o.op is Op.SELECT:
+                if not self.info.capabilities & Capability.SELECT:
+                    return RunReply(Result.BAD_PROGRAM, i)  # an older bridge knows no SELECT
+                if o.arg >= self.info.chip_selects:
+                    return RunReply(Result.BAD_CHIP_SELECT, i)
+        self._cs = cs
         reads = sum(1 for o in ops if o.op is Op.READ)
         n_status = sum(1 for o in ops if o.op in STATUS_OPS)
         if reads > self.info.max_reads or n_status > 255 \
@@ -150,7 +189,11 @@ class BridgeEmulator:
         m = self.model
         m.advance_to(m.tick + self._cycle_ticks)
         self.stats.bus_cycles += 1
-        return m
+        return self._chip()
+
+    def _chip(self) -> ChipModel:
+        k = self._cs
+        return self._chips[k] if k < len(self._chips) else _NO_CHIP  # type: ignore[return-value]  # an unwired select: the floating bus
 
     def _wait_not_busy(self, timeout_s: float) -> tuple[bool, int]:
         m = self.model
@@ -192,7 +235,7 @@ class BridgeEmulator:
             if op is Op.COMMAND or op is Op.WRITE or op is Op.READ or op is Op.SYNC:
                 ok, last = self._wait_not_busy(timeout_s)
                 if not ok:
-                    return RunReply(Result.BUSY_TIMEOUT, index, last, int(m.hi),
+                    return RunReply(Result.BUSY_TIMEOUT, index, last, int(self._chip().hi),
                                     tuple(statuses), tuple(words))
                 if op is Op.COMMAND:
                     self._strobe().write_command(o.arg)
@@ -213,10 +256,13 @@ class BridgeEmulator:
                 self.stats.bus_cycles += 1
             elif op is Op.WAIT:
                 m.advance(o.arg * 1e-6)
+            elif op is Op.SELECT:
+                self._cs = o.arg
             elif op is Op.WAIT_STATUS:
                 last = self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3)
                 statuses.append(last)
-        return RunReply(Result.OK, 0xFF, last, int(m.hi), tuple(statuses), tuple(words))
+        return RunReply(Result.OK, 0xFF, last, int(self._chip().hi), tuple(statuses),
+                        tuple(words))
 
 
 #: the far end runs on the chip model's simulated clock (the one ``sim://`` uses)

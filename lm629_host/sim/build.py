@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import os
 
-from ..urls import Option, dataclass_options, parse_options
-from .model import ChipModel, ChipParams, MotorParams
+from ..errors import AxisError
+from ..urls import Option, dataclass_options, parse_options, query_params
+from .model import ChipBus, ChipModel, ChipParams, MotorParams
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
 
@@ -42,3 +43,32 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
             value = value.lower()
         setattr(chip if hasattr(chip, name) else motor, name, value)
     return ChipModel(chip, motor)
+
+
+#: the most chips a simulated bus takes (``axes=``)
+MAX_AXES = 8
+
+
+def axes_of(url: str, limit: int = MAX_AXES) -> int:
+    """The URL's ``axes=`` (default 1), checked against ``limit`` chip selects."""
+    raw = query_params(url).get("axes", "1")
+    try:
+        n = int(raw)
+    except ValueError:
+        raise ValueError(f"{url}: axes={raw!r} is not a whole number of chips") from None
+    if n < 1:
+        raise ValueError(f"{url}: axes={n}: a bus needs at least one chip")
+    if n > limit:
+        raise AxisError(n - 1, limit, f"the simulated adapter of {url}")
+    return n
+
+
+def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
+              limit: int = MAX_AXES) -> ChipModel | ChipBus:
+    """The chip (``axes=1``, the default) or the :class:`ChipBus` of ``axes=N`` chips, each
+    with its own motor, all configured from the same URL parameters."""
+    n = axes_of(url, limit)
+    allowed = allowed | {"axes"}
+    if n == 1:
+        return build_model(url, allowed=allowed)
+    return ChipBus([build_model(url, allowed=allowed) for _ in range(n)])

@@ -9,13 +9,13 @@ import math
 
 from ..clock import Clock
 from ..program import WAIT_STATUS_POLL_US
-from .model import ChipModel
+from .model import ChipBus, ChipModel
 
 
 class SimClock(Clock):
     """The model's simulated time.  ``sleep`` advances the model."""
 
-    def __init__(self, model: ChipModel) -> None:
+    def __init__(self, model: ChipModel | ChipBus) -> None:
         self.model = model
 
     def now(self) -> float:
@@ -46,7 +46,7 @@ class SimClock(Clock):
         limit = math.ceil(t * m.clock_hz - 1e-6)
         if limit <= m.tick:
             return
-        if mask & 1:
+        if mask & 1 or isinstance(m, ChipBus):  # (a bus: one poll period, as a bridge)
             m.advance_to(min(limit, m.tick + round(WAIT_STATUS_POLL_US * 1e-6 * m.clock_hz)))
             return
         if m.status & mask:

@@ -29,7 +29,6 @@ import tty
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from .bridge import BridgeEmulator
 from ..bridge.protocol import (
     MAX_WIRE_FRAME,
     BadProgram,
@@ -38,9 +37,10 @@ from ..bridge.protocol import (
     FrameType,
     decode_program,
 )
-from .model import ChipModel
 from ..program import Op
-from .build import build_model
+from .bridge import BridgeEmulator
+from .build import build_bus
+from .model import ChipBus, ChipModel, chips_of
 
 log = logging.getLogger("lm629_host.sim.serve")
 
@@ -52,7 +52,7 @@ class FarEnd(abc.ABC):
     """What the server needs from a far end: bytes in, reply bytes out, a simulated clock that
     the server keeps level with the wall clock, and the chip model."""
 
-    model: ChipModel
+    model: ChipModel | ChipBus
 
     @abc.abstractmethod
     def receive(self, data: bytes) -> list[bytes]: ...
@@ -74,8 +74,8 @@ class FarEnd(abc.ABC):
 class EmuFarEnd(FarEnd):
     """The Python bridge over the model, driven straight."""
 
-    def __init__(self, model: ChipModel) -> None:
-        self.model = model
+    def __init__(self, model: ChipModel | ChipBus) -> None:
+        self.model = model  # one chip, or a ChipBus (``--url 'sim://?axes=2'``)
         self.emulator = BridgeEmulator(model)
 
     def receive(self, data: bytes) -> list[bytes]:
@@ -101,7 +101,7 @@ class PipeFarEnd(FarEnd):
     #: added to each per-request wait, simulated seconds
     MARGIN_S = 0.05
 
-    def __init__(self, pipe, model: ChipModel, name: str, *, baud: int | None = None) -> None:
+    def __init__(self, pipe, model: ChipModel | ChipBus, name: str, *, baud: int | None = None) -> None:
         self.pipe = pipe
         self.model = model
         self.name = name
@@ -169,9 +169,12 @@ def firmware_far_end(url: str) -> FarEnd:
     """The compiled bridge firmware in simavr (:mod:`.avr`, 115200 baud) as a far end, over a
     chip model built from the simulator options of ``url``.  Raises RuntimeError saying what
     is missing when the firmware or the harness cannot run."""
+    from ..bridge.pins import CHIP_SELECTS
     from .avr import DEFAULT_BAUD, AvrPipe, AvrSim, HarnessError
 
-    model = build_model(url)
+    model = build_bus(url, limit=len(CHIP_SELECTS))
+    if isinstance(model, ChipBus):
+        model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
     try:
         sim = AvrSim(model)
     except (HarnessError, OSError) as exc:
@@ -196,7 +199,7 @@ class SimServer:
         self.tcp = tcp
         self.url = url
         if far_end is None:
-            far_end = firmware_far_end(url) if firmware else EmuFarEnd(build_model(url))
+            far_end = firmware_far_end(url) if firmware else EmuFarEnd(build_bus(url))
         self.far = far_end
         self.model = far_end.model
         self.master: int | None = None
@@ -396,7 +399,8 @@ class SimServer:
     def describe(self) -> str:
         where = (f"TCP port {self.device}" if self.tcp is not None
                  else f"{self.device} (linked at {self.link})")
-        return f"{self.far.describe()} with a {self.model.describe()}, on {where}"
+        chips = chips_of(self.model)
+        return f"{self.far.describe()} with a {chips[0].describe(len(chips))}, on {where}"
 
 
 __all__ = ["EmuFarEnd", "FarEnd", "PipeFarEnd", "SimServer", "firmware_far_end"]

@@ -32,11 +32,11 @@ import logging
 from collections.abc import Iterator
 from importlib.metadata import entry_points
 
+from ..clock import Clock, WallClock
 from ..errors import TransportError
 from ..program import TraceCallback
-from ..urls import query_params, scheme_of
+from ..urls import query_params, scheme_of, split_params
 from .base import Check, CycleTransport, PortInfo, Stats, Transport
-from ..clock import Clock, WallClock
 
 log = logging.getLogger("lm629_host.transports")
 
@@ -119,5 +119,5 @@ def open_transport(url: str = DEFAULT_URL, *, trace: TraceCallback | None = None
 __all__ = [
     "BUILTIN", "Check", "Clock", "CycleTransport", "DEFAULT_URL", "ENTRY_POINT_GROUP",
     "PortInfo", "SCHEMES", "Stats", "Transport", "WallClock", "is_simulated", "open_transport",
-    "query_params", "registry", "scheme_of", "transport_class", "transport_classes",
+    "query_params", "registry", "scheme_of", "split_params", "transport_class", "transport_classes",
 ]

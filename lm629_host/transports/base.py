@@ -22,9 +22,9 @@ import logging
 import threading
 from dataclasses import asdict, dataclass
 
+from ..clock import Clock, WallClock
 from ..errors import BusyTimeout, TransportError
 from ..opcodes import BUSY_BIT
-from ..clock import Clock, WallClock
 from ..program import (
     WAIT_STATUS_POLL_US,
     BusCycle,
@@ -40,6 +40,7 @@ log = logging.getLogger("lm629_host.bus")
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 _STATUS, _COMMAND, _WRITE, _READ = int(Op.STATUS), int(Op.COMMAND), int(Op.WRITE), int(Op.READ)
 _RESET, _WAIT, _SYNC, _WAIT_STATUS = int(Op.RESET), int(Op.WAIT), int(Op.SYNC), int(Op.WAIT_STATUS)
+_SELECT = int(Op.SELECT)
 
 
 @dataclass
@@ -130,6 +131,8 @@ class Transport(abc.ABC):
     simulated: bool = False
     #: True when the transport can pulse /RST; otherwise ``LM629.reset`` sends command RESET
     has_reset_line: bool = True
+    #: how many chips (/CS lines) a program can address with ``Op.SELECT`` (a multi-axis board)
+    chip_selects: int = 1
     #: True when it runs ``Op.WAIT_STATUS`` (a wait for a status bit on the far side); without
     #: it, ``LM629.wait_for`` polls from the host
     has_wait_status: bool = False
@@ -249,6 +252,11 @@ class CycleTransport(Transport):
     def _hi(self) -> bool | None:
         return None
 
+    def _select_chip(self, chip: int) -> None:
+        """/CS of ``chip`` for the following cycles (a program starts on chip 0)."""
+        if chip != 0:
+            raise ValueError(f"chip select {chip}: {self.url} drives one chip (0)")
+
     def _skip_busy_polls(self, deadline: float) -> int:
         """Hook for a transport that knows when busy will clear (the chip model does): advance
         the clock over the busy polls whose answer is already known to be "busy", exactly as
@@ -309,6 +317,8 @@ class CycleTransport(Transport):
         words: list[int] = []
         statuses: list[int] = []
         status: int | None = None
+        if self.chip_selects > 1:
+            self._select_chip(0)
         # plain ints on the hot path, and no BusCycle objects made unless someone looks at them
         # (SimTransport runs its own fused copy of this loop: keep the two in step)
         tracing = self._tracing()
@@ -349,6 +359,10 @@ class CycleTransport(Transport):
                     emit(BusCycle("reset", 0))
             elif op == _WAIT:
                 self._inner_clock.sleep(o.arg * 1e-6)
+            elif op == _SELECT:
+                self._select_chip(o.arg)
+                if tracing:
+                    emit(BusCycle("select", o.arg))
             elif op == _WAIT_STATUS:
                 status = self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3, tracing)
                 statuses.append(status)

@@ -96,12 +96,12 @@ from urllib.parse import urlsplit, urlunsplit
 
 from .. import data
 from .. import ftdi_pins as pins
-from ..errors import BusyTimeout, TransportError
+from ..clock import Clock, WallClock
+from ..errors import AxisError, BusyTimeout, TransportError
 from ..opcodes import BUSY_BIT, RESET_WAIT_S, Cmd
 from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
 from ..urls import Option, parse_options
 from .base import Check, PortInfo, Transport
-from ..clock import Clock, WallClock
 
 log = logging.getLogger("lm629_host.ftdi")
 
@@ -188,7 +188,8 @@ class StreamCompiler:
             units -= n
 
     def _select(self, s: Stream, data_port: bool) -> None:
-        want = (pins.CTRL_IDLE & ~pins.CS & ~pins.PS) | (pins.PS if data_port else 0)
+        cs = pins.CHIP_SELECTS[self._cs]
+        want = (pins.CTRL_IDLE & ~cs & ~pins.PS) | (pins.PS if data_port else 0)
         if self._ctrl != want:
             self._low(s, want)
             self._bits(s, 1)  # /CS and /PS setup before the strobe
@@ -218,39 +219,52 @@ class StreamCompiler:
         s.events.append(("status", len(s.slots)))
         self._read_byte(s, Slot(kind, op), data_port=False)
 
-    def compile(self, ops: Sequence[BusOp], first: int = 0, lead_s: float = 0.0,
-                max_bytes: int | None = None) -> Stream:
+    def compile(self, ops: Sequence[BusOp], first: int = 0,
+                lead_s: float | dict[int, float] = 0.0, max_bytes: int | None = None,
+                chip: int = 0, skip: frozenset[int] | set[int] = frozenset()) -> Stream:
         """Compile ``ops`` (program operations ``first``, ``first + 1``...).  ``lead_s``: busy
-        wait still owed to the previous stream's last transfer.  ``max_bytes``: stop before the
-        first operation that would make the stream longer (the FT232H's 1 KiB buffer); the
-        index after the last operation compiled is :attr:`end`."""
+        wait still owed to the previous stream's last transfer, per chip (a number: to every
+        chip).  ``max_bytes``: stop before the first operation that would make the stream
+        longer (the FT232H's 1 KiB buffer); the index after the last operation compiled is
+        :attr:`end`.  ``chip``: the chip selected where the stream starts (``Op.SELECT``
+        changes it); ``skip``: operation indices left out (a repeat's units already taken).
+
+        The busy wait is owed per chip: after an STT on chip 0 the stream goes on at once to
+        chip 1's status read and STT, so a synchronized start's STTs are a few MPSSE commands
+        apart (microseconds), not a busy wait apart."""
         s = Stream()
         self._ctrl = pins.CTRL_IDLE
         self._dir = pins.DATA_IN
-        owed = lead_s  # the wait owed before the next busy check
+        self._cs = chip
+        n_chips = len(pins.CHIP_SELECTS)
+        owed = (dict(lead_s) if isinstance(lead_s, dict)
+                else {k: float(lead_s) for k in range(n_chips)})  # owed before a busy check
         self.end = first + len(ops)
         for i, o in enumerate(ops, first):
-            mark = (len(s.data), len(s.slots), len(s.events), s.delay_s, s.strobes, owed,
-                    self._ctrl, self._dir)
+            mark = (len(s.data), len(s.slots), len(s.events), s.delay_s, s.strobes, dict(owed),
+                    self._ctrl, self._dir, self._cs)
             op = o.op
+            cs = self._cs
+            if i in skip and op is not Op.SELECT:
+                continue
             if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
-                self.delay(s, owed)
-                owed = 0.0
+                self.delay(s, owed.get(cs, 0.0))
+                owed[cs] = 0.0
                 self._status(s, "sync" if op is Op.SYNC else "check", i)
                 if op is Op.COMMAND:
                     self._write_byte(s, o.arg, data_port=False)
                     s.events.append(("command", o.arg))
-                    owed = RESET_WAIT_S if o.arg == Cmd.RESET else self.busy_s
+                    owed[cs] = RESET_WAIT_S if o.arg == Cmd.RESET else self.busy_s
                 elif op is Op.WRITE:
                     self._write_byte(s, o.arg >> 8, data_port=True)
                     self._write_byte(s, o.arg & 0xFF, data_port=True)
                     s.events.append(("write", o.arg))
-                    owed = self.busy_s
+                    owed[cs] = self.busy_s
                 elif op is Op.READ:
                     s.events.append(("read", len(s.slots)))
                     self._read_byte(s, Slot("hi", i), data_port=True)
                     self._read_byte(s, Slot("lo", i), data_port=True)
-                    owed = self.busy_s
+                    owed[cs] = self.busy_s
             elif op is Op.STATUS:
                 self._status(s, "status", i)
             elif op is Op.RESET:
@@ -259,10 +273,15 @@ class StreamCompiler:
                 self._low(s, pins.CTRL_IDLE)
                 s.events.append(("reset", 0))
                 s.strobes += 1
-                owed = 0.0
+                owed = {}
             elif op is Op.WAIT:
                 self.delay(s, o.arg * 1e-6)
-                owed = max(0.0, owed - o.arg * 1e-6)
+                owed = {k: max(0.0, v - o.arg * 1e-6) for k, v in owed.items()}
+            elif op is Op.SELECT:
+                if not 0 <= o.arg < n_chips:
+                    raise ValueError(f"chip select {o.arg}: the FT232H wiring has {n_chips}")
+                self._cs = o.arg
+                s.events.append(("select", o.arg))
             else:  # pragma: no cover - Op is closed
                 raise AssertionError(op)
             if max_bytes is not None and (len(s.data) + STREAM_TAIL > max_bytes
@@ -271,7 +290,7 @@ class StreamCompiler:
                     raise ValueError(f"{o.describe()} alone does not fit a stream of "
                                      f"{max_bytes} bytes")
                 n_data, n_slots, n_events, s.delay_s, s.strobes, owed, self._ctrl, \
-                    self._dir = mark
+                    self._dir, self._cs = mark
                 del s.data[n_data:], s.slots[n_slots:], s.events[n_events:]
                 self.end = i
                 break
@@ -310,18 +329,33 @@ def _is_action(o: BusOp) -> bool:
     return o.op is Op.RESET or (o.op is Op.COMMAND and (o.arg in ACTIONS or o.arg not in _KNOWN))
 
 
+def chips_of_units(ops: Sequence[BusOp], start_chip: int = 0) -> dict[int, int]:
+    """The chip each operation addresses (a program starts on chip 0; SELECT switches)."""
+    chip, out = start_chip, {}
+    for i, o in enumerate(ops):
+        if o.op is Op.SELECT:
+            chip = o.arg
+        out[i] = chip
+    return out
+
+
 def streams_of(ops: Sequence[BusOp]) -> list[list[tuple[int, int]]]:
-    """Group units into streams: a new stream before an action that follows a transfer."""
+    """Group units into streams: a new stream before an action that follows a transfer on the
+    same chip (/RST: on any chip).  An action on another chip does not cut: its loads were
+    checked in earlier programs, so a synchronized start on several chips is one stream."""
     streams: list[list[tuple[int, int]]] = [[]]
-    transfers = False
+    transfers: set[int] = set()
+    chip = 0
     for u in units_of(ops):
         o = ops[u[0]]
-        if _is_action(o) and transfers:
+        if o.op is Op.SELECT:
+            chip = o.arg
+        elif _is_action(o) and (chip in transfers or (o.op is Op.RESET and transfers)):
             streams.append([])
-            transfers = False
+            transfers = set()
         streams[-1].append(u)
         if o.op in (Op.COMMAND, Op.WRITE, Op.READ):
-            transfers = True
+            transfers.add(chip)
     return [s for s in streams if s]
 
 
@@ -331,6 +365,8 @@ class FtdiTransport(Transport):
 
     scheme = "ftdi"
     has_reset_line = True
+    #: /CS lines of the wiring (ftdi_pins.CHIP_SELECTS): two axes
+    chip_selects = len(pins.CHIP_SELECTS)
 
     def __init__(self, ftdi: Any, url: str, *, trace: TraceCallback | None = None,
                  clock: Clock | None = None, busy_s: float = DEFAULT_BUSY_US * 1e-6,
@@ -342,7 +378,7 @@ class FtdiTransport(Transport):
         self.busy_s = busy_s
         self.latency_ms = latency_ms
         self._last_end = -1.0  # clock time at which the last stream's answer came back
-        self._owed = 0.0  # busy wait owed after the last stream's last transfer
+        self._owed: dict[int, float] = {}  # busy wait owed after each chip's last transfer
         self.busy_hits = 0  #: status reads before a transfer that showed busy (all time)
 
     # ------------------------------------------------------------------ opening
@@ -458,11 +494,12 @@ class FtdiTransport(Transport):
         self._last_end = self.clock.now()
         return answer
 
-    def _lead(self) -> float:
-        """The busy wait still owed to the last transfer of the previous stream."""
-        if self._owed <= 0 or self._last_end < 0:
-            return 0.0
-        return max(0.0, self._owed - (self.clock.now() - self._last_end))
+    def _lead(self) -> dict[int, float]:
+        """The busy wait still owed to each chip's last transfer of the previous streams."""
+        if self._last_end < 0:
+            return {}
+        gone = self.clock.now() - self._last_end
+        return {k: max(0.0, v - gone) for k, v in self._owed.items() if v > gone}
 
     def _emit_stream(self, stream: Stream, answer: bytes) -> None:
         if self.trace is None and not log.isEnabledFor(logging.DEBUG):
@@ -482,6 +519,7 @@ class FtdiTransport(Transport):
         poll = Stream()
         c = self.compiler
         c._ctrl, c._dir = pins.CTRL_IDLE, pins.DATA_IN
+        c._cs = chips_of_units(program.ops).get(index, 0)
         c._status(poll, "status", index)
         c._low(poll, pins.CTRL_IDLE)
         poll.data.append(SEND_IMMEDIATE)
@@ -490,7 +528,7 @@ class FtdiTransport(Transport):
             self.stats.busy_polls += 1
             self._emit(BusCycle("status", status))
             if not status & _BUSY:
-                self._owed = 0.0
+                self._owed = {k: v for k, v in self._owed.items() if k != c._cs}
                 return status
             if self.clock.now() >= deadline:
                 raise BusyTimeout(program.ops[index].describe(), program.busy_timeout_s, status,
@@ -498,8 +536,12 @@ class FtdiTransport(Transport):
 
     # ------------------------------------------------------------------ programs
     def execute(self, program: Program) -> ProgramResult:
-        self.stats.programs += 1
         ops = program.ops
+        for o in ops:
+            if o.op is Op.SELECT and o.arg >= self.chip_selects:
+                raise AxisError(o.arg, self.chip_selects, f"the FT232H wiring of {self.url}")
+        self.stats.programs += 1
+        chip_at = chips_of_units(ops)
         statuses: dict[int, int] = {}
         reads: dict[int, int] = {}
         last_status: int | None = None
@@ -509,11 +551,13 @@ class FtdiTransport(Transport):
             end = units[-1][1]
             first_try: dict[int, float] = {}
             pos = units[0][0]
+            skip: set[int] = set()
             while pos < end:
                 # as much as fits the FT232H's buffers; a long unit (a command reading many
                 # words) may span streams: a repeat still starts at its command byte
                 stream = self.compiler.compile(ops[pos:end], pos, self._lead(),
-                                               max_bytes=pins.FIFO_BYTES)
+                                               max_bytes=pins.FIFO_BYTES,
+                                               chip=chip_at[pos - 1] if pos else 0, skip=skip)
                 stop = self.compiler.end
                 owed_after = self.compiler.owed_after
                 t0 = self.clock.now()
@@ -524,23 +568,24 @@ class FtdiTransport(Transport):
                 self.stats.busy_polls += sum(1 for sl in stream.slots if sl.kind in ("check", "sync"))
                 # the first transfer whose busy check showed busy, and the start of its unit
                 failed: tuple[int, int] | None = None
+                busy_units: set[int] = set()
                 for slot, byte in zip(stream.slots, answer):
-                    if slot.kind == "check" and byte & _BUSY:
-                        failed = (unit_of[slot.op], slot.op)
-                        break
+                    if slot.kind in ("check", "sync") and byte & _BUSY and slot.op >= 0:
+                        busy_units.add(unit_of[slot.op])
+                        if failed is None and slot.kind == "check":
+                            failed = (unit_of[slot.op], slot.op)
                 ok_end = failed[0] if failed else stop
-                for slot, byte in zip(stream.slots, answer):
-                    if slot.op < 0 or slot.op >= ok_end:
-                        continue
-                    if slot.kind in ("status", "sync"):
-                        statuses[slot.op] = byte
-                        last_status = byte
-                    elif slot.kind == "check":
-                        last_status = byte
-                    elif slot.kind == "hi":
-                        reads[slot.op] = byte << 8
-                    elif slot.kind == "lo":
-                        reads[slot.op] |= byte
+                # on a multi-chip stream, the units after the failed one on other chips whose
+                # every check passed were taken: they are recorded now and left out of the
+                # repeat (an STT on chip 1 must not run twice because chip 0 was busy)
+                taken: set[int] = set()
+                if failed is not None:
+                    fchip = chip_at[failed[1]]
+                    taken = {a for a, b in units if ok_end < a and b <= stop
+                             and a not in busy_units and ops[a].op is not Op.SELECT
+                             and chip_at[a] != fchip and a not in skip}
+                last_status = self._record(stream, answer, ok_end, taken, unit_of, statuses,
+                                           reads, last_status)
                 # a SYNC that saw busy waits here (not a failure: it is asked to wait)
                 for slot, byte in zip(stream.slots, answer):
                     if slot.kind == "sync" and slot.op < ok_end and byte & _BUSY:
@@ -550,23 +595,45 @@ class FtdiTransport(Transport):
                 if failed is None:
                     pos = stop
                     continue
+                skip |= {k for a, b in units if a in taken for k in range(a, b)}
                 unit_start, op_index = failed
                 # what earlier streams read for this unit is read again
-                for k in [k for k in reads if k >= unit_start]:
+                for k in [k for k in reads if k >= unit_start and unit_of.get(k) not in taken]:
                     del reads[k]
                 self.busy_hits += 1
                 self.stats.retries += 1
                 first = first_try.setdefault(unit_start, t0)
                 log.warning("%s: busy was still set before %s (the chip held busy past the "
-                            "stream's %g us wait); repeating from %s", self.url,
+                            "stream's %g us wait); repeating from %s%s", self.url,
                             ops[op_index].describe(), self.busy_s * 1e6,
-                            ops[unit_start].describe())
+                            ops[unit_start].describe(),
+                            f" (leaving out {len(taken)} unit(s) other chips took)" if taken
+                            else "")
                 words = [reads[j] for j in sorted(reads) if j < unit_start]
                 last_status = self._poll_until_clear(program, op_index,
                                                      first + program.busy_timeout_s, words)
                 pos = unit_start
         return ProgramResult(tuple(reads[k] for k in sorted(reads)),
                              tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
+
+    @staticmethod
+    def _record(stream: Stream, answer: bytes, ok_end: int, taken: set[int],
+                unit_of: dict[int, int], statuses: dict[int, int], reads: dict[int, int],
+                last_status: int | None) -> int | None:
+        """Keep the bytes of the operations before ``ok_end`` and of the units ``taken``."""
+        for slot, byte in zip(stream.slots, answer):
+            if slot.op < 0 or (slot.op >= ok_end and unit_of.get(slot.op) not in taken):
+                continue
+            if slot.kind in ("status", "sync"):
+                statuses[slot.op] = byte
+                last_status = byte
+            elif slot.kind == "check":
+                last_status = byte
+            elif slot.kind == "hi":
+                reads[slot.op] = byte << 8
+            elif slot.kind == "lo":
+                reads[slot.op] |= byte
+        return last_status
 
 
 # ---------------------------------------------------------------------------- URLs, opening

@@ -28,11 +28,11 @@ from ..bridge.protocol import (
     RUN_REPLY_OVERHEAD,
     Capability,
     Frame,
-    Pipe,
     FrameError,
     FrameReader,
     FrameType,
     HelloInfo,
+    Pipe,
     Result,
     RunReply,
     busy_timeout_us,
@@ -41,7 +41,7 @@ from ..bridge.protocol import (
     run_payload,
     wire_size,
 )
-from ..errors import BusyTimeout, TransportError
+from ..errors import AxisError, BusyTimeout, TransportError
 from ..program import (
     OP_ARG_BYTES,
     STATUS_OPS,
@@ -345,9 +345,9 @@ class LinkTransport(Transport):
                                  "requires: reflash the firmware (lm629 bridge flash)",
                                  port=self.url)
         if self.cs >= info.chip_selects:
-            raise ValueError(f"cs={self.cs} is outside the bridge's chip selects "
-                             f"0..{info.chip_selects - 1}")
+            raise AxisError(self.cs, info.chip_selects, f"the bridge at {self.url}")
         self.info = info
+        self.chip_selects = info.chip_selects
         self.has_reset_line = bool(info.capabilities & Capability.RESET_LINE)
         self._has_hi = bool(info.capabilities & Capability.HI_LINE)
         self.has_wait_status = bool(info.capabilities & Capability.WAIT_STATUS)
@@ -369,38 +369,66 @@ class LinkTransport(Transport):
         return self.clock.now() - t0
 
     # ------------------------------------------------------------------ programs
-    def _chunks(self, program: Program) -> Iterator[list[BusOp]]:
+    def _chunks(self, program: Program) -> Iterator[tuple[int, int, list[BusOp]]]:
         """Split ``program`` at operation boundaries into runs that fit the bridge's limits
-        (HELLO_REPLY's largest program and reads, and MAX_FRAME for the reply): usually one."""
+        (HELLO_REPLY's largest program and reads, and MAX_FRAME for the reply): usually one.
+        Yields (index of the run's first operation in ``program``, chip select, operations).
+
+        Chip selects: the SELECTs at the head of a run become the RUN's ``cs`` field; a SELECT
+        inside a run stays in it on a bridge that runs them (Capability.SELECT), and cuts the
+        run on an older one (one RUN per chip: correct, one round trip more each)."""
         info = self.info or HelloInfo()
         max_program = min(info.max_program, MAX_FRAME - RUN_OVERHEAD)
+        inline = bool(info.capabilities & Capability.SELECT)
         chunk: list[BusOp] = []
         size = reads = n_status = 0
-        for o in program.ops:
+        cs, first = self.cs, 0
+        for i, o in enumerate(program.ops):
+            if o.op is Op.SELECT:
+                if not chunk:
+                    cs, first = o.arg, i + 1
+                    continue
+                if not inline:
+                    yield first, cs, chunk
+                    chunk, size, reads, n_status = [], 0, 0, 0
+                    cs, first = o.arg, i + 1
+                    continue
             n = 1 + OP_ARG_BYTES[o.op]
             r = 1 if o.op is Op.READ else 0
             s = 1 if o.op in STATUS_OPS else 0
             if chunk and (size + n > max_program or reads + r > info.max_reads
                           or RUN_REPLY_OVERHEAD + n_status + s + 2 * (reads + r) > MAX_FRAME):
-                yield chunk
+                yield first, cs, chunk
+                # the next run starts on the chip the last SELECT of this one chose
+                cs = next((p.arg for p in reversed(chunk) if p.op is Op.SELECT), cs)
                 chunk, size, reads, n_status = [], 0, 0, 0
+                first = i
             chunk.append(o)
             size, reads, n_status = size + n, reads + r, n_status + s
-        yield chunk
+        if chunk or first == 0:
+            yield first, cs, chunk
 
     def execute(self, program: Program) -> ProgramResult:
         if self._closed:
             raise TransportError("the port is closed", port=self.url)
         timeout_us = busy_timeout_us(program)
+        n_cs = self.chip_selects
+        for o in program.ops:
+            if o.op is Op.SELECT and o.arg >= n_cs:
+                raise AxisError(o.arg, n_cs, f"the bridge at {self.url}")
         self._resync()
         self.stats.programs += 1
         words: list[int] = []
         statuses: list[int] = []
         status: int | None = None
         hi: bool | None = None
-        base = 0
-        for ops in self._chunks(program):
-            reply = self._run(ops, timeout_us, program.busy_timeout_s)
+        chip = self.cs
+        for base, cs, ops in self._chunks(program):
+            if cs != chip:  # a chip select carried in the RUN's cs field: traced as a select
+                chip = cs
+                self._emit_cycles([BusOp(Op.SELECT, cs)], (), ())
+            chip = next((o.arg for o in reversed(ops) if o.op is Op.SELECT), chip)
+            reply = self._run(ops, timeout_us, program.busy_timeout_s, cs)
             ok = reply.result == Result.OK
             busy = reply.result == Result.BUSY_TIMEOUT
             # operations that touched the bus: all, those before the failing one and its busy
@@ -416,11 +444,11 @@ class LinkTransport(Transport):
             hi = bool(reply.hi) if self._has_hi else None
             if not ok:
                 self._raise_result(reply, ops, base, program, words)
-            base += len(ops)
         return ProgramResult(tuple(words), tuple(statuses), status, hi)
 
-    def _run(self, ops: list[BusOp], timeout_us: int, timeout_s: float) -> RunReply:
-        payload = run_payload(ops, timeout_us, self.cs)
+    def _run(self, ops: list[BusOp], timeout_us: int, timeout_s: float,
+             cs: int | None = None) -> RunReply:
+        payload = run_payload(ops, timeout_us, self.cs if cs is None else cs)
         req = wire_size(len(payload) + 4)
         rep = wire_size(reply_size(ops))
         timeout = self.reply_timeout(req, rep, ops, timeout_s)

@@ -31,12 +31,12 @@ try:  # POSIX only; imported early so that the advice works even where modules c
 except ImportError:  # pragma: no cover - Windows
     grp = None  # type: ignore[assignment]  # Windows has no grp module
 
+from ..clock import Clock, WallClock
 from ..errors import TransportError
-from .link import DEFAULT_RETRIES, LinkTransport
 from ..program import TraceCallback
 from ..urls import Option, parse_options, query_params, with_query
 from .base import Check, PortInfo
-from ..clock import Clock, WallClock
+from .link import DEFAULT_RETRIES, LinkTransport
 
 log = logging.getLogger("lm629_host.serial")
 

@@ -4,6 +4,7 @@ URL parameters (all optional)::
 
     sim://?chip=lm628&clock=6000000&strict=1&fault=reset|busy|rst&record=1
           &lines=500&reversed=1&...      (motor and encoder: see model.params.MotorParams)
+          &axes=2                        (N chips, each with its own motor, on one bus and clock)
 
 Each bus strobe costs ``CYCLE_S`` of simulated time (a fast host's bus cycle); while the chip
 is busy, the busy check polls every ``poll_interval_s``.  ``chip.clock`` is the model's clock:
@@ -14,11 +15,11 @@ from __future__ import annotations
 
 from typing import cast
 
-from ..sim.model import ChipModel
 from ..errors import BusyTimeout
 from ..program import BusOp, Op, Program, ProgramResult, TraceCallback
-from ..sim.build import build_model
+from ..sim.build import build_bus
 from ..sim.clock import SimClock
+from ..sim.model import ChipBus, ChipModel, chips_of
 from .base import CycleTransport, PortInfo
 
 #: simulated duration of one /RD or /WR strobe cycle, recovery included
@@ -26,6 +27,7 @@ CYCLE_S = 0.5e-6
 
 _STATUS, _COMMAND, _WRITE, _READ = Op.STATUS, Op.COMMAND, Op.WRITE, Op.READ
 _RESET, _WAIT, _SYNC, _WAIT_STATUS = Op.RESET, Op.WAIT, Op.SYNC, Op.WAIT_STATUS
+_SELECT = Op.SELECT
 
 
 class SimTransport(CycleTransport):
@@ -35,10 +37,13 @@ class SimTransport(CycleTransport):
     simulated = True
     has_reset_line = True
 
-    def __init__(self, model: ChipModel, url: str = "sim://", *,
+    def __init__(self, model: ChipModel | ChipBus, url: str = "sim://", *,
                  trace: TraceCallback | None = None) -> None:
         super().__init__(url, trace=trace)
         self.model = model
+        #: the chips on the bus, chip select 0 first (one chip: ``[model]``)
+        self.models = chips_of(model)
+        self.chip_selects = len(self.models)
         self.clock = SimClock(model)
         self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
         #: False: make every busy poll (the reference the skip is tested against)
@@ -58,6 +63,8 @@ class SimTransport(CycleTransport):
         stats = self.stats
         stats.programs += 1
         stats.round_trips += 1
+        if isinstance(m, ChipBus):
+            m.select(0)  # a program starts on chip 0
         c = self._cycle_clocks
         s = max(0, round(self.poll_interval_s * m.clock_hz))
         hz = m.clock_hz
@@ -123,6 +130,8 @@ class SimTransport(CycleTransport):
                     status = m.read_status()
                     cycles += 1
                     statuses.append(status)
+                elif op is _SELECT:
+                    cast(ChipBus, m).select(o.arg)  # SELECT only reaches a bus (chip_selects)
                 else:  # RESET, WAIT, WAIT_STATUS: rare, not on the hot path
                     stats.bus_cycles += cycles
                     stats.busy_polls += polls
@@ -192,16 +201,22 @@ class SimTransport(CycleTransport):
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
-        return cls(build_model(url), url, trace=trace)
+        return cls(build_bus(url), url, trace=trace)
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:
         return [PortInfo("sim://", "the bundled chip simulator (always there)")]
 
     def describe(self) -> str:
-        return f"{self.url} ({self.model.describe()})"
+        return f"{self.url} ({self.models[0].describe(len(self.models))})"
 
-    def _strobe(self) -> ChipModel:
+    def _select_chip(self, chip: int) -> None:
+        if isinstance(self.model, ChipBus):
+            self.model.select(chip)
+        else:
+            super()._select_chip(chip)
+
+    def _strobe(self) -> ChipModel | ChipBus:
         m = self.model
         m.advance_to(m.tick + self._cycle_clocks)
         return m

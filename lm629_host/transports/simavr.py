@@ -3,7 +3,7 @@ against the chip model; the host side is the unchanged link protocol (:class:`Li
 
 URL parameters::
 
-    sim+avr://?baud=115200&firmware=path/to/lm629_bridge.elf&<any sim:// parameter>
+    sim+avr://?baud=115200&firmware=path/to/lm629_bridge.elf&axes=2&<any sim:// parameter>
 
 ``baud``: the simulated serial line (115200 or 1000000 with the images ``make -C
 firmware_bridge`` builds; another rate needs ``firmware=`` built with ``make BAUD=...``).
@@ -15,12 +15,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
-from .link import DEFAULT_RETRIES, LinkTransport
+from ..bridge.pins import CHIP_SELECTS
 from ..program import TraceCallback
+from ..sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
+from ..sim.build import build_bus
+from ..sim.model import chips_of
 from ..urls import Option, parse_options, query_params
-from ..sim.build import build_model
-
+from .link import DEFAULT_RETRIES, LinkTransport
 
 #: URL options of this transport (the others are the chip model's)
 OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
@@ -41,6 +42,8 @@ class SimAvrTransport(LinkTransport):
                  retries: int = DEFAULT_RETRIES, baud: int = DEFAULT_BAUD) -> None:
         self.sim = sim
         self.model = sim.model
+        #: the chips on the bridge's chip selects 0, 1, ... (``sim+avr://?axes=N``)
+        self.models = chips_of(sim.model)
         super().__init__(AvrPipe(sim), url, trace=trace, retries=retries, baud=baud)
 
     @classmethod
@@ -56,13 +59,15 @@ class SimAvrTransport(LinkTransport):
                              f"{' or '.join(map(str, BUILT_BAUDS))} baud; for another rate build "
                              f"one with `make -C firmware_bridge BAUD={baud}` and pass "
                              "firmware=firmware_bridge/build/lm629_bridge.elf")
-        model = build_model(url, allowed=OWN_PARAMS)
+        model = build_bus(url, allowed=OWN_PARAMS, limit=len(CHIP_SELECTS))
+        if hasattr(model, "lines"):
+            model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
         return cls(AvrSim(model, firmware), url, trace=trace, baud=baud)
 
     def describe(self) -> str:
         fw = self.info.firmware_version if self.info else "?"
         return (f"{self.url} (bridge firmware {fw} in simavr at {self.baud} baud, "
-                f"{self.model.describe()})")
+                f"{self.models[0].describe(len(self.models))})")
 
 
 __all__ = ["SimAvrTransport"]

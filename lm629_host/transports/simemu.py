@@ -5,9 +5,10 @@ toolchain."""
 
 from __future__ import annotations
 
-from ..sim.bridge import BridgeEmulator, EmuPipe
-from ..sim.build import build_model
-from ..sim.model import ChipModel
+from ..bridge.pins import CHIP_SELECTS
+from ..sim.bridge import MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
+from ..sim.build import build_bus
+from ..sim.model import ChipBus, ChipModel, chips_of
 from ..urls import Option, parse_options, query_params
 from .link import DEFAULT_RETRIES, LinkTransport
 
@@ -19,7 +20,8 @@ class EmuLinkTransport(LinkTransport):
 
     scheme = "sim+emu"
     simulated = True
-    model: ChipModel  #: the chip behind the emulated bridge
+    model: ChipModel | ChipBus  #: the chip (or the chips) behind the emulated bridge
+    models: list[ChipModel]  #: the chips on the bridge's chip selects 0, 1, ...
     emulator: BridgeEmulator  #: the emulated bridge
     #: the emulated bridge answers at once: the margin only covers rounding
     margin_s = 1e-3
@@ -39,16 +41,21 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     :class:`~lm629_host.sim.faults.FaultPipe`).  The model is ``transport.model``, the far end
     ``transport.emulator``.
     """
-    own = (Option("baud", "int", 115200, 0, 4_000_000, "baud (0: no wire time)"),)
-    model = build_model(url, allowed=frozenset({"baud"}))
+    own = (Option("baud", "int", 115200, 0, 4_000_000, "baud (0: no wire time)"),
+           Option("bridge", "str", "", choices=("", "1", str(len(CHIP_SELECTS)))))
+    opts = parse_options(url, own, ignore=set(query_params(url)) - {"baud", "bridge"})
     if baud is None:
-        baud = parse_options(url, own, ignore=set(query_params(url)) - {"baud"})["baud"]
-    emu = BridgeEmulator(model)
+        baud = opts["baud"]
+    # bridge=1: a one-chip bridge of before issue 11; else the multi-axis firmware's HELLO
+    info = ONE_CHIP_INFO if opts["bridge"] == "1" else MULTI_AXIS_INFO
+    model = build_bus(url, allowed=frozenset({"baud", "bridge"}), limit=info.chip_selects)
+    emu = BridgeEmulator(model, info)
     pipe = EmuPipe(emu, baud=baud or None)
     outer = wrap(pipe) if wrap is not None else pipe
     t = EmuLinkTransport.__new__(EmuLinkTransport)
     t.margin_s = margin_s
     t.model = model
+    t.models = chips_of(model)
     t.emulator = emu
     LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
     return t

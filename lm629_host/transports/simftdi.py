@@ -21,16 +21,17 @@ from __future__ import annotations
 
 import usb.core
 
+from .. import ftdi_pins
+from ..clock import Clock
 from ..errors import ProtocolViolation
-from ..sim.model import ChipModel
-from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
 from ..program import Program, ProgramResult, TraceCallback
+from ..sim.build import build_bus
+from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
+from ..sim.model import ChipBus, ChipModel, chips_of
 from ..urls import Option, parse_options, query_params
 from .base import Check, PortInfo
-from ..clock import Clock
 from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, open_mpsse
 from .ftdi import OPTIONS as FTDI_OPTIONS
-from ..sim.build import build_model
 
 #: URL options that belong to this transport rather than to the chip model: the FT232H
 #: transport's and the emulation's costs
@@ -59,13 +60,14 @@ class SimFtdiTransport(FtdiTransport):
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimFtdiTransport:
-        model = build_model(url, allowed=OWN_PARAMS)
-        # build_model checked every other option: they are the chip model's
+        model = build_bus(url, allowed=OWN_PARAMS, limit=len(ftdi_pins.CHIP_SELECTS))
+        # build_bus checked every other option: they are the chip model's
         opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - OWN_PARAMS)
         latency, busy_us, frequency = opts["latency"], opts["busy_us"], opts["frequency"]
         usb_us, command_ns = opts["usb_us"], opts["command_ns"]
         strict = model.params.strict
-        model.params.strict = False
+        for chip in chips_of(model):
+            chip.params.strict = False
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns))
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
@@ -73,9 +75,11 @@ class SimFtdiTransport(FtdiTransport):
         t = cls(ftdi, url, trace=trace, clock=EmulatedClock(device), busy_s=busy_us * 1e-6,
                 tck_hz=frequency, latency_ms=latency)
         t.model, t.device, t.strict = model, device, strict
+        t.models = chips_of(model)
         return t
 
-    model: ChipModel
+    model: ChipModel | ChipBus
+    models: list[ChipModel]  #: the chips on the emulated adapter's chip selects
     device: EmulatedFT232H
     strict: bool
 
@@ -88,7 +92,8 @@ class SimFtdiTransport(FtdiTransport):
         return []
 
     def describe(self) -> str:
-        return f"{self.url} (FT232H transport on an emulated FT232H, {self.model.describe()})"
+        chips = self.models[0].describe(len(self.models))
+        return f"{self.url} (FT232H transport on an emulated FT232H, {chips})"
 
     def execute(self, program: Program) -> ProgramResult:
         violations = self.model.violations

@@ -52,8 +52,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..model import ChipModel
 from ... import ftdi_pins as pins
+from ..model import ChipBus, ChipModel, chips_of
 
 # FTDI vendor requests (the ones pyftdi sends; FTDI AN_232B-series numbering)
 REQ_RESET = 0x00
@@ -114,7 +114,7 @@ class EmulatedFT232H:
     product_id = 0x6014
     bcd_device = 0x0900  #: FT232H (pyftdi recognises the part by this)
 
-    def __init__(self, model: ChipModel, *, serial: str = "LM629EMU", usb_ns: int = 125_000,
+    def __init__(self, model: ChipModel | ChipBus, *, serial: str = "LM629EMU", usb_ns: int = 125_000,
                  command_ns: int = 500, bus: int = 1, address: int = 7,
                  adaptive: bool = False, three_phase: bool = False) -> None:
         self.model = model
@@ -357,7 +357,7 @@ class EmulatedFT232H:
     # ------------------------------------------------------------------ pins
     def _read_low(self) -> int:
         value = (self._low_val & self._low_dir) | (~self._low_dir & 0xFF & ~pins.HI)
-        if self.model.hi:
+        if chips_of(self.model)[0].hi:  # HI is chip 0's line (chip 1 has none)
             value |= pins.HI
         return value & 0xFF
 
@@ -394,15 +394,25 @@ class EmulatedFT232H:
         changed = old ^ level
         if changed:
             self.ctrl_log.append((self.ns, level))
-        if not changed & (pins.CS | pins.RD | pins.WR | pins.PS | pins.RST):
+        if not changed & (pins.CS_ALL | pins.RD | pins.WR | pins.PS | pins.RST):
             return
         self._run_model()
         now = self.ns
         for name, bit in (("CS", pins.CS), ("RD", pins.RD), ("WR", pins.WR), ("PS", pins.PS),
-                          ("RST", pins.RST)):
+                          ("RST", pins.RST), ("CS1", pins.CS1)):
             if changed & bit:
                 self._edge_ns[name + ("_rise" if level & bit else "_fall")] = now
-        selected = not level & pins.CS
+        low = [k for k, cs in enumerate(pins.CHIP_SELECTS) if not level & cs]
+        selected = len(low) == 1
+        if len(low) > 1 and changed & (pins.RD | pins.WR) and not level & (pins.RD | pins.WR):
+            self._timing("two chips selected during a strobe")
+        if selected and isinstance(self.model, ChipBus):
+            if low[0] >= len(self.model.chips):
+                selected = False  # a /CS line with no chip on it
+            else:
+                self.model.select(low[0])
+        elif selected and low[0] != 0:
+            selected = False  # one chip, wired to /CS of chip 0
         # /RST
         if changed & pins.RST:
             if level & pins.RST:

@@ -173,9 +173,18 @@ Restarts, buffered parameters, ranges, reset (new in issue 15)
     from the moment the reset begins and the shaft coasts (or is driven by its load); only the
     chip's registers, trajectory and filter wait.  When the reset completes, wherever the
     shaft then is becomes real position 0.
+
+Several chips on one bus (:mod:`.bus`, new in issue 11)
+
+32. The chips of one :class:`ChipBus` share one clock and one /RST, so they sample at the same
+    ticks (a real board shares the oscillator; after one /RST their sample counts agree).  A
+    strobe on a /CS line with no chip on it reaches nothing, and a read there finds the data
+    bus floating: it reads FF (busy set), so a host's busy check times out on an unwired axis,
+    as it would on a bench with pull-ups on the data bus.
 """
 
+from .bus import ChipBus, chips_of
 from .chip import ChipModel, Violation
 from .params import ChipParams, MotorParams
 
-__all__ = ["ChipModel", "ChipParams", "MotorParams", "Violation"]
+__all__ = ["ChipBus", "chips_of", "ChipModel", "ChipParams", "MotorParams", "Violation"]

@@ -42,7 +42,6 @@ from collections.abc import Callable
 from ...errors import ProtocolViolation
 from ...opcodes import (
     BUSY_BIT,
-    s32,
     COEFFICIENT_MAX,
     COMMANDS,
     FILTER_ORDER,
@@ -57,13 +56,13 @@ from ...opcodes import (
     TrajectoryFlags,
     lfil_word_count,
     ltrj_word_count,
+    s32,
 )
 from .fastloop import py_loop, run_fast
 from .motion import Motion
+from .params import ChipParams, MotorParams
 from .registers import FilterRegisters, TrajectoryBuffer
 from .trajectory import wrap_counts
-from .params import ChipParams, MotorParams
-
 
 # Plain ints of the status bits: IntFlag arithmetic costs microseconds per operation and the
 # status byte is computed for every busy poll, so ``flags`` is always kept as a plain int.
@@ -188,9 +187,11 @@ class ChipModel:
     def sample_clocks(self) -> int:
         return SAMPLE_CLOCKS
 
-    def describe(self) -> str:
-        """``simulated LM629 at 8 MHz``: how every simulator names the chip it runs."""
-        return f"simulated {self.params.variant.upper()} at {self.clock_hz / 1e6:g} MHz"
+    def describe(self, count: int = 1) -> str:
+        """``simulated LM629 at 8 MHz`` (``count`` chips: ``simulated 2 x LM629 ...``): how
+        every simulator names what it runs."""
+        n = f"{count} x " if count > 1 else ""
+        return f"simulated {n}{self.params.variant.upper()} at {self.clock_hz / 1e6:g} MHz"
 
     def now(self) -> float:
         """Simulated seconds since power-on."""

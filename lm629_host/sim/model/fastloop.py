@@ -14,8 +14,8 @@ may have become quiescent (so that the caller can skip ahead).
 
 from __future__ import annotations
 
-from math import floor, log
 from collections.abc import Callable
+from math import floor, log
 
 from ...opcodes import Signals, Status
 from .pid import SUM_MAX, SUM_MIN
