@@ -39,14 +39,22 @@ def test_handshake_and_typed_commands_over_the_pty(server):
         assert "round trip" in t.describe() and 0 < t.rtt_s < 0.5
         # a pty has no ASYNC_LOW_LATENCY: the transport says so instead of failing
         assert "not supported" in t.low_latency
-        assert chip.reset() in (Status(0x80), Status(0xC0))
-        server.model.record_clear()
-        t.stats.reset()
-        chip.load_filter(kp=10)
-        chip.update_filter()
-        assert chip.read_real_position() == 0
-        assert t.stats.round_trips == 3 and t.stats.retries == 0
-    assert server.model.history == [(0x1E, (0x0008, 0x000A)), (0x04, ()), (int(Cmd.RDRP), ())]
+        three_commands_once(chip, server.model)
+
+
+def three_commands_once(chip, model) -> None:
+    """Reset, then LFIL kp=10, UDF and RDRP over a bridge link: one round trip each, no
+    retry, and each command exactly once in the chip's record (LFIL with kp only: flags 0008,
+    kp 10 = 000A)."""
+    t = chip.transport
+    assert chip.reset() in (Status(0x80), Status(0xC0))
+    model.record_clear()
+    t.stats.reset()
+    chip.load_filter(kp=10)
+    chip.update_filter()
+    assert chip.read_real_position() == 0
+    assert t.stats.round_trips == 3 and t.stats.retries == 0
+    assert model.history == [(0x1E, (0x0008, 0x000A)), (0x04, ()), (int(Cmd.RDRP), ())]
 
 
 def test_several_clients_share_one_chip(server):

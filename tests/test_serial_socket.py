@@ -18,6 +18,7 @@ import lm629_host
 from lm629_host import Status, TransportError
 from lm629_host.opcodes import Cmd
 from lm629_host.sim.serve import SimServer
+from test_serial_pty import three_commands_once
 from lm629_host.bridge.protocol import FrameReader, FrameType
 from lm629_host.transports.serial import RTT_PINGS, SerialTransport, options_of
 
@@ -36,16 +37,7 @@ def test_socket_url_reaches_a_bridge_on_a_tcp_port(tcp_server):
         t = chip.transport
         assert isinstance(t, SerialTransport) and t.retries == 3
         assert t.info is not None and t.info.firmware_version == "0.9.0"  # the Python bridge
-        assert chip.reset() in (Status(0x80), Status(0xC0))
-        tcp_server.model.record_clear()
-        t.stats.reset()
-        chip.load_filter(kp=10)
-        chip.update_filter()
-        assert chip.read_real_position() == 0
-        assert t.stats.round_trips == 3 and t.stats.retries == 0
-    # LFIL with kp only (flags 0008, kp 10 = 000A), UDF, RDRP: each once, in order
-    assert tcp_server.model.history == [(0x1E, (0x0008, 0x000A)), (0x04, ()),
-                                        (int(Cmd.RDRP), ())]
+        three_commands_once(chip, tcp_server.model)
 
 
 def test_the_chip_keeps_its_state_between_tcp_clients(tcp_server):
