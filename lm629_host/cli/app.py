@@ -49,7 +49,7 @@ from ..errors import (
 )
 from ..lm629 import LM629
 from ..move import MoveRules
-from ..program import BusCycle, Program, ProgramResult
+from ..program import BusCycle
 from ..safety import STOP_NOTE
 from ..transports import is_simulated
 from ..units import Scale
@@ -132,7 +132,7 @@ class Session:
     _board: Any = None
     _prepare: bool = True
     _old_handlers: dict[int, Any] | None = None
-    _bus_depth: int = 0
+    _guarded: Any = None  #: the transport whose programs a stop signal waits for
     _pending: int | None = None
 
     @property
@@ -175,7 +175,7 @@ class Session:
             return
 
         def on_signal(signum: int, frame: Any) -> None:
-            if self._bus_depth:
+            if self._guarded is not None and self._guarded.program_depth:
                 self._pending = signum
             else:
                 self._raise_signal(signum)
@@ -183,21 +183,16 @@ class Session:
         self._old_handlers = {sig: signal.signal(sig, on_signal) for sig in _STOP_SIGNALS}
 
     def _guard_programs(self, chip: LM629) -> None:
-        """Run every bus program of ``chip`` whole: a stop signal waits for its end."""
-        execute = chip.transport.execute
+        """Run every bus program of ``chip`` whole: a stop signal that comes during one is held
+        (the handler reads the transport's ``program_depth``) and raised when it has ended
+        (the transport's ``after_program`` hook)."""
+        self._guarded = chip.transport
+        chip.transport.after_program = self._deliver_pending
 
-        def guarded(program: Program) -> ProgramResult:
-            self._bus_depth += 1
-            try:
-                result = execute(program)
-            finally:
-                self._bus_depth -= 1
-            if self._pending is not None and not self._bus_depth:
-                signum, self._pending = self._pending, None
-                self._raise_signal(signum)
-            return result
-
-        chip.transport.execute = guarded  # type: ignore[method-assign]  # this CLI run's transport only
+    def _deliver_pending(self) -> None:
+        if self._pending is not None:
+            signum, self._pending = self._pending, None
+            self._raise_signal(signum)
 
     def _trace(self, cycle: BusCycle) -> None:
         if self.trace:

@@ -17,6 +17,7 @@ wait, ``LM629.wait_for``) waits on the right time base.
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 import functools
 import logging
 import threading
@@ -129,6 +130,12 @@ class Transport(abc.ABC):
     scheme: str = ""
     #: True when the far side is simulated: no hardware, a fresh chip at every open
     simulated: bool = False
+    #: bus programs under way (nested ones count): a signal handler that must not cut a
+    #: program in half reads it (the CLI's)
+    program_depth: int = 0
+    #: called after every outermost bus program that ended normally, outside the lock (the CLI
+    #: raises a stop signal there that it held during the program); None: nothing
+    after_program: Callable[[], None] | None = None
     #: True when the transport can pulse /RST; otherwise ``LM629.reset`` sends command RESET
     has_reset_line: bool = True
     #: how many chips (/CS lines) a program can address with ``Op.SELECT`` (a multi-axis board)
@@ -153,7 +160,15 @@ class Transport(abc.ABC):
         @functools.wraps(fn)
         def execute(self: Transport, program: Program) -> ProgramResult:
             with self.lock:
-                return fn(self, program)
+                self.program_depth += 1
+                try:
+                    result = fn(self, program)
+                finally:
+                    self.program_depth -= 1
+            hook = self.after_program
+            if hook is not None and not self.program_depth:
+                hook()
+            return result
         execute._runs_locked = True  # type: ignore[attr-defined]  # marks the wrapper
         cls.execute = execute  # type: ignore[method-assign]  # every execute runs locked
 
