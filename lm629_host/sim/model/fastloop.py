@@ -52,7 +52,7 @@ def run_fast(chip: ChipState, n: int, loop: Callable[..., tuple] | None = None) 
     twelve = not signals & _EIGHT_BIT
     cpr = motor.counts_per_rev
     ints = (n, f.kp, f.ki, f.kd, f.il, f.ds, 4 if twelve else 8, int(mp.stall), cpr,
-            motor.index_k, m._count, m._home, m.output,
+            motor.index_k, m.encoder_count, m.home_count, m.output,
             t.position, t.velocity, t.acceleration, t.max_velocity, t.target, int(t.done),
             int(t.velocity_mode), int(t.forward), int(t.stopping),
             pid.error_sum, pid.last_error, pid.derivative, pid.countdown, pid.integral, pid.output,
@@ -62,7 +62,7 @@ def run_fast(chip: ChipState, n: int, loop: Callable[..., tuple] | None = None) 
     floats = (mp.amp_volts / (2048 if twelve else 128), motor.accel_per_volt, motor.load_accel,
               motor.coulomb_accel, motor.rate, motor.decay, motor.gain, motor.sample_s,
               motor.angle, motor.speed)
-    (ran, lpes_trip, index_hit, index_pos, m._count, m.output, t.position, t.velocity, done,
+    (ran, lpes_trip, index_hit, index_pos, m.encoder_count, m.output, t.position, t.velocity, done,
      pid.error_sum, pid.last_error, pid.derivative, pid.countdown, pid.integral, pid.output,
      flags, m.real_position, m.real_velocity, motor.angle, motor.speed) = (loop or py_loop)(ints, floats)
     t.done = bool(done)

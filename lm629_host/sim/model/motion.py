@@ -66,8 +66,10 @@ class Motion:
         """Any reset: registers 0, drive off.  The shaft stays where it is."""
         self.traj.reset()
         self.pid = PIDState()
-        self._home = self.motor.count  # real position 0 here
-        self._count = self.motor.count  # encoder count at the last sample
+        #: the encoder count where real position is 0, and the count at the last sample: the
+        #: sample loop's state, which the flattened loop (fastloop.py) reads and writes too
+        self.home_count = self.motor.count
+        self.encoder_count = self.motor.count
         self.real_position = 0
         self.real_velocity = 0
         self.index_position = 0
@@ -181,7 +183,7 @@ class Motion:
 
     def define_home(self) -> None:
         self.traj.define_home()
-        self._home = self._count
+        self.home_count = self.encoder_count
         self.real_position = 0
 
     def arm_index(self) -> None:
@@ -207,14 +209,14 @@ class Motion:
         full_scale = 2048 if self.twelve_bit else 128
         motor.run(self.output * (motor.params.amp_volts / full_scale))
         # 2. the encoder
-        c0, c1 = self._count, motor.count
-        self._count = c1
+        c0, c1 = self.encoder_count, motor.count
+        self.encoder_count = c1
         self.real_velocity = c1 - c0
-        self.real_position = wrap_counts(c1 - self._home)
+        self.real_position = wrap_counts(c1 - self.home_count)
         if chip.signals_extra & Signals.ACQUIRE_INDEX:
             k = motor.index_between(c0, c1)
             if k is not None:
-                self.index_position = wrap_counts(k - self._home)
+                self.index_position = wrap_counts(k - self.home_count)
                 chip.signals_extra &= ~Signals.ACQUIRE_INDEX
                 events |= Status.INDEX_PULSE
         t = self.traj
@@ -240,7 +242,7 @@ class Motion:
     def run_plant_only(self) -> None:
         """One sample during a reset: the shaft turns with the drive at zero, nothing else.
 
-        The encoder's counts are kept (``_count`` is not touched): the reset that follows
+        The encoder's counts are kept (``encoder_count`` is not touched): the reset that follows
         makes wherever the shaft then is position 0.
         """
         self.output = 0
