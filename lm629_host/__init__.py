@@ -24,14 +24,15 @@ from .lm629 import LM629, Snapshot
 from .move import Move, MoveResult, MoveRules
 from .opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
 from .program import DEFAULT_BUSY_TIMEOUT_S, BusCycle, Program, ProgramResult
-from .transports import DEFAULT_URL, open_transport, query_params, scheme_of, split_params
+from .transports import DEFAULT_URL, transport_class
+from .urls import query_params, split_params
 
 __version__ = "0.1.0"
 
-from .board import Board, BoardMove, open_board  # noqa: E402  (board needs open's pieces)
+from .board import Board, BoardMove, open_board
 
 
-def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa: A001
+def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa: A001 - lm629_host.open, as io.open
          busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> LM629:
     """Open the chip behind ``url`` (``sim://`` by default; see :mod:`lm629_host.transports`).
 
@@ -40,8 +41,9 @@ def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa
     bounds every busy check (0.2 to 65.5 ms; default 5 ms).  On a multi-axis board ``?cs=k``
     opens the chip on chip select ``k`` (default 0); :func:`open_board` opens them all.
     """
+    cls = transport_class(url)
     if chip is None:
-        chip = query_params(url).get("chip", "lm629") if scheme_of(url).startswith("sim") else "lm629"
+        chip = query_params(url).get("chip", "lm629") if cls.simulated else "lm629"
     url, taken = split_params(url, {"cs"})
     axis = None
     if "cs" in taken:
@@ -49,7 +51,7 @@ def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa
             axis = int(taken["cs"])
         except ValueError:
             raise ValueError(f"cs={taken['cs']!r} is not a chip select number (0, 1, ...)") from None
-    transport = open_transport(url, trace=trace)
+    transport = cls.from_url(url, trace=trace)
     try:
         return LM629(transport, chip=chip, busy_timeout=busy_timeout, axis=axis)
     except Exception:

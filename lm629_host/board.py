@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from .errors import AxisError, CommandError, MotionError, ResetError
 from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, snapshot_of
 from .move import MOVE_FLAGS, Move, MoveResult
-from .safety import emergency_stop
 from .opcodes import (
     ACCELERATION_MAX,
     INTERRUPTS,
@@ -44,8 +43,10 @@ from .opcodes import (
     Status,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
+from .safety import emergency_stop
 from .transports import DEFAULT_URL, open_transport, query_params, scheme_of, split_params
-from .transports.base import Clock, Transport
+from .clock import Clock
+from .transports.base import Transport
 
 ONE = 1 << 16  #: one count (per sample, per sample^2) in the chip's 16.16 words
 
@@ -193,7 +194,7 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
             worst = max(worst, abs(trapezoid_samples(dist[k], *words[k]) - t_lead))
         key = (worst, abs(cand - ideal))
         if best is None or key < best[:2]:
-            best = (worst, abs(cand - ideal), words)  # type: ignore[assignment]
+            best = (worst, abs(cand - ideal), words)
         if worst < 0.05:
             break  # the nearest candidate that matches within a twentieth of a sample
     assert best is not None
@@ -221,7 +222,7 @@ class BoardMove:
 
     @property
     def targets(self) -> dict[int, int]:
-        return {m.chip.axis: m.target for m in self.moves}
+        return {m.chip.chip_select: m.target for m in self.moves}
 
     def wait(self, timeout: float | None = None, tolerance: int | None = None,
              **kw: object) -> list[MoveResult]:
@@ -235,21 +236,22 @@ class BoardMove:
         results = []
         user_progress = kw.pop("progress", None)
         for m in self.moves:
-            others = [o.chip for o in self.moves if o is not m and o.result is None]
+            others = [self.board.axis(o.chip.chip_select) for o in self.moves
+                      if o is not m and o.result is None]
 
             def watch(snap: Snapshot, _others: list[LM629] = others) -> None:
                 if user_progress is not None:
-                    user_progress(snap)  # type: ignore[operator]
+                    user_progress(snap)  # type: ignore[operator]  # a callable by contract
                 if _others:
                     self.board._check_others(_others)
             try:
-                results.append(m.wait(timeout, tolerance, progress=watch, **kw))  # type: ignore[arg-type]
+                results.append(m.wait(timeout, tolerance, progress=watch, **kw))  # type: ignore[arg-type]  # Move.wait's own keywords
             except MotionError as exc:
                 self.board._stop_all()
                 if exc.axis is not None:  # another axis's flag, seen while this one was watched
                     raise
                 text = str(exc).split("): ", 1)[-1]  # "motion fault (reason): message"
-                raise MotionError(exc.reason, text, axis=m.chip.axis, position=exc.position,
+                raise MotionError(exc.reason, text, axis=m.chip.chip_select, position=exc.position,
                                   error=exc.error) from exc
             except BaseException:
                 self.board._stop_all()
@@ -309,8 +311,8 @@ class Board:
 
     def _pick(self, axes: Sequence[LM629 | int]) -> list[LM629]:
         chosen = [self.axis(a) for a in axes] if axes else list(self.axes)
-        if len({a.axis for a in chosen}) != len(chosen):
-            raise ValueError(f"an axis is named twice: {[a.axis for a in chosen]}")
+        if len({a.chip_select for a in chosen}) != len(chosen):
+            raise ValueError(f"an axis is named twice: {[a.chip_select for a in chosen]}")
         return chosen
 
     def program(self) -> _BoardProgram:
@@ -323,40 +325,40 @@ class Board:
         Retries ``reset_attempts`` times, then raises :class:`ResetError` naming the first
         axis that failed, with its status bytes."""
         hw = self.transport.has_reset_line
-        seen: dict[int, list[int]] = {a.axis: [] for a in self.axes}
-        failed = self.axes[0].axis
+        seen: dict[int, list[int]] = {a.chip_select: [] for a in self.axes}
+        failed = self.axes[0].chip_select
         for _ in range(self.reset_attempts):
             p = self.program()
             if hw:
                 p.reset()
             else:
                 for a in self.axes:
-                    p.on(a.axis).command(Cmd.RESET)
+                    p.on(a.chip_select).command(Cmd.RESET)
             for a in self.axes:
-                p.on(a.axis).status()
+                p.on(a.chip_select).status()
             p.wait(round(RESET_WAIT_S * 1e6))
             for a in self.axes:
-                p.on(a.axis).status()
+                p.on(a.chip_select).status()
             st = self.transport.execute(p).statuses
             n = len(self.axes)
             bad = None
             for k, a in enumerate(self.axes):
                 first, done = st[k], st[n + k]
-                seen[a.axis] += (first, done)
+                seen[a.chip_select] += (first, done)
                 if bad is None and ((hw and first != 0) or done not in RESET_DONE_STATUSES):
-                    bad = a.axis
+                    bad = a.chip_select
             if bad is not None:
                 failed = bad
                 continue
             q = self.program()
             for a in self.axes:
-                q.on(a.axis).command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
+                q.on(a.chip_select).command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
                 if a._port12:
                     q.command(Cmd.PORT12)
             cleared = self.transport.execute(q).statuses
             for a, c in zip(self.axes, cleared):
-                seen[a.axis].append(c)
-            bad = next((a.axis for a, c in zip(self.axes, cleared)
+                seen[a.chip_select].append(c)
+            bad = next((a.chip_select for a, c in zip(self.axes, cleared)
                         if c not in RESET_CLEARED_STATUSES), None)
             if bad is None:
                 for a in self.axes:
@@ -382,13 +384,13 @@ class Board:
         for a in chosen:
             flags = Status(clear) | (Status(0) if a._ce_clear else Status.COMMAND_ERROR)
             if flags:
-                p.on(a.axis).command(Cmd.RSTI).write(int(INTERRUPTS & ~flags))
+                p.on(a.chip_select).command(Cmd.RSTI).write(int(INTERRUPTS & ~flags))
         for a in chosen:
-            p.on(a.axis).sync()
+            p.on(a.chip_select).sync()
         for a in chosen:
-            p.on(a.axis).command(Cmd.STT)
+            p.on(a.chip_select).command(Cmd.STT)
         for a in chosen:
-            p.on(a.axis).sync()
+            p.on(a.chip_select).sync()
         return p, chosen
 
     def start(self, *axes: LM629 | int, prefix: Program | None = None,
@@ -408,7 +410,7 @@ class Board:
             else:
                 a._ce_clear = True
         if refused is not None:
-            raise CommandError(f"STT on axis {refused[0].axis}", refused[1])
+            raise CommandError(f"STT on axis {refused[0].chip_select}", refused[1])
         return [Status(s) for s in after]
 
     # ------------------------------------------------------------------ moves
@@ -418,7 +420,7 @@ class Board:
         a move reports cleared in the same program (as :meth:`LM629.move_to` does)."""
         loads = self.program()
         for a, (acc, vel, target) in words.items():
-            loads.on(a.axis).extend(a.trajectory_program(acc, vel, target))
+            loads.on(a.chip_select).extend(a.trajectory_program(acc, vel, target))
         self.start(*words, prefix=loads, clear=MOVE_FLAGS)
         t0 = self.clock.now()
         return BoardMove(self, [Move(a, target, vel, acc, starts[a], t0)
@@ -435,13 +437,13 @@ class Board:
             if isinstance(value, Mapping):
                 m = {self.axis(k): v for k, v in value.items()}
                 if a not in m:
-                    raise ValueError(f"{name}: no value for axis {a.axis}")
+                    raise ValueError(f"{name}: no value for axis {a.chip_select}")
                 value = m[a]
             hi = VELOCITY_MAX if name == "velocity" else ACCELERATION_MAX
-            return check_int(f"{name} of axis {a.axis}", value, 1, hi, hex_digits=8)
+            return check_int(f"{name} of axis {a.chip_select}", value, 1, hi, hex_digits=8)
 
         words = {a: (per(acceleration, a, "acceleration"), per(velocity, a, "velocity"),
-                     check_int(f"target of axis {a.axis}", t, POSITION_MIN, POSITION_MAX,
+                     check_int(f"target of axis {a.chip_select}", t, POSITION_MIN, POSITION_MAX,
                                hex_digits=8))
                  for a, t in resolved.items()}
         starts = {a: a.snapshot() for a in words}
@@ -453,12 +455,12 @@ class Board:
         """:func:`plan_linear` from where the axes are now (their desired positions)."""
         resolved = {self.axis(k): v for k, v in targets.items()}
         for a, t in resolved.items():
-            check_int(f"target of axis {a.axis}", t, POSITION_MIN, POSITION_MAX, hex_digits=8)
+            check_int(f"target of axis {a.chip_select}", t, POSITION_MIN, POSITION_MAX, hex_digits=8)
         check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
         check_int("acceleration", acceleration, 1, ACCELERATION_MAX, hex_digits=8)
         if starts is None:
             starts = {a: a.snapshot() for a in resolved}
-        return plan_linear({a.axis: (starts[a].desired_position, t) for a, t in resolved.items()},
+        return plan_linear({a.chip_select: (starts[a].desired_position, t) for a, t in resolved.items()},
                            velocity, acceleration)
 
     def move_linear(self, targets: Mapping[LM629 | int, int], *, velocity: int,
@@ -488,22 +490,22 @@ class Board:
 
     def _check_others(self, axes: Sequence[LM629]) -> None:
         """The chip's own fault flags on ``axes`` (one program): MotionError naming the axis."""
-        for a, s in zip(axes, self.statuses([x.axis for x in axes])):
+        for a, s in zip(axes, self.statuses([x.chip_select for x in axes])):
             if s & Status.POSITION_ERROR:
                 raise MotionError(MotionError.POSITION_ERROR,
                                   f"the chip raised its position-error flag (status {s:02X}) "
-                                  "while another axis was watched", axis=a.axis)
+                                  "while another axis was watched", axis=a.chip_select)
             if s & Status.MOTOR_OFF:
                 raise MotionError(MotionError.MOTOR_OFF,
                                   f"the drive was found off (status {s:02X}) while another "
-                                  "axis was watched", axis=a.axis)
+                                  "axis was watched", axis=a.chip_select)
 
     def statuses(self, axes: Sequence[LM629 | int] = ()) -> list[Status]:
         """The status byte of every axis, one program."""
         p = self.program()
         chosen = self._pick(axes)
         for a in chosen:
-            p.on(a.axis).status()
+            p.on(a.chip_select).status()
         return [Status(s) for s in self.transport.execute(p).statuses]
 
     def snapshots(self, axes: Sequence[LM629 | int] = ()) -> list[Snapshot]:
@@ -511,7 +513,7 @@ class Board:
         chosen = self._pick(axes)
         p = self.program()
         for a in chosen:
-            p.on(a.axis).status()
+            p.on(a.chip_select).status()
             for cmd, n in SNAPSHOT_READS:
                 p.command(cmd).read(n)
         r = self.transport.execute(p)
@@ -552,7 +554,7 @@ class _BoardProgram(Program):
 
 
 def open_board(url: str = DEFAULT_URL, *, axes: int | None = None, chip: str | None = None,
-               trace=None, busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> Board:  # type: ignore[no-untyped-def]
+               trace=None, busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> Board:
     """Open every chip behind ``url``: ``sim://?axes=2``, a multi-axis bridge, an FT232H with
     two /CS lines.  The number of axes is ``axes``, else the URL's ``axes=``, else what the
     transport reports (the simulator's chips, the bridge's chip selects from HELLO, the

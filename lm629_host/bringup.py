@@ -19,13 +19,14 @@ it, so that the sequence is tested without click.  All waiting is on the chip's 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-from .safety import emergency_stop, stop_on_error
 from .errors import ResetError
 from .lm629 import LM629
 from .opcodes import Status
+from .program import Program, ProgramResult
+from .safety import emergency_stop, stop_on_error
 from .units import FIXED_ONE, Scale
 
 #: exit codes of a bring-up (also documented by ``lm629 --help``)
@@ -67,7 +68,7 @@ class StepResult:
     ok: bool | None
     summary: str
     details: list[str] = field(default_factory=list)
-    data: dict[str, object] = field(default_factory=dict)
+    data: Mapping[str, object] = field(default_factory=dict)
 
     @property
     def verdict(self) -> str:
@@ -98,12 +99,12 @@ def reset_with_statuses(chip: LM629) -> tuple[Status, list[int]]:
     seen: list[int] = []
     run = chip.run
 
-    def recording(program):  # type: ignore[no-untyped-def]
+    def recording(program: Program) -> ProgramResult:
         result = run(program)
         seen.extend(result.statuses)
         return result
 
-    chip.run = recording  # type: ignore[method-assign]
+    chip.run = recording  # type: ignore[method-assign]  # this chip's programs only, for the report
     try:
         return chip.reset(), seen
     finally:
@@ -276,19 +277,21 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
                 quiet = 0
                 settled_at = None
         final = target - s.real_position
-        data = {"max_following_error": worst, "final_error": final, "dead_band": o.dead_band,
-                "settle_s": None if settled_at is None else round(settled_at - t_done, 4)}
+        result: dict[str, object] = {"max_following_error": worst, "final_error": final,
+                                     "dead_band": o.dead_band,
+                                     "settle_s": None if settled_at is None
+                                     else round(settled_at - t_done, 4)}
         if settled_at is None or quiet < 25:
             _ok, note = emergency_stop(chip)
             done(StepResult("settle", False,
                             f"did not settle within +/-{o.dead_band} counts in "
                             f"{o.settle_timeout_s:g} s (error now {final:+d}, largest following "
-                            f"error {worst:+d}): add kd for damping, or lower kp", [note], data))
+                            f"error {worst:+d}): add kd for damping, or lower kp", [note], result))
             return out
         done(StepResult("settle", True,
                         f"largest following error {worst:+d} counts; settled "
                         f"{settled_at - t_done:.3f} s after the trajectory ended, "
-                        f"{final:+d} counts from the target", data=data))
+                        f"{final:+d} counts from the target", data=result))
 
     # 6 -------------------------------------------------------------------------- next steps
     done(StepResult("next", None, "the loop works; now tune it", [
@@ -296,7 +299,7 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
         "raise kd until the overshoot is gone, then kp for stiffness (AN-868 'Tuning the PID')",
         "add ki with a small il when a load leaves a steady error",
         "set a following-error limit that stops the motor:  lm629 limit 2000 --stop",
-        "the motor is left holding position at kp = %d" % o.hold_kp]))
+        f"the motor is left holding position at kp = {o.hold_kp}"]))
     return out
 
 

@@ -15,11 +15,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .safety import stop_on_error
 from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
 from .move import MoveResult
 from .opcodes import ACCELERATION_MAX, VELOCITY_MAX
+from .safety import stop_on_error
 from .units import FIXED_ONE
 
 #: a "step": the largest words the chip takes, so the desired position jumps within samples

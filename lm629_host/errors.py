@@ -120,3 +120,18 @@ class MotionError(LM629Error):
         self.error = error
         prefix = f"axis {axis}: " if axis is not None else ""
         super().__init__(f"{prefix}motion fault ({reason}): {message}")
+
+
+def check_int(name: str, value: object, lo: int, hi: int, *, hex_digits: int = 0) -> int:
+    """Validate an integer argument; the error names it, its value and the allowed range."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        else:
+            raise ValueError(f"{name}={value!r} must be an integer in {lo}..{hi}")
+    if not lo <= value <= hi:
+        rng = f"{lo}..{hi}"
+        if hex_digits:
+            rng += f" (0x{lo & (16 ** hex_digits - 1):0{hex_digits}X}..0x{hi:0{hex_digits}X})"
+        raise ValueError(f"{name}={value} is outside the allowed range {rng}")
+    return value

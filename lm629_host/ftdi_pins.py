@@ -1,8 +1,9 @@
-"""THE pin map of the FT232H adapter: which FT232H line drives which LM628/LM629 pin.
+"""THE pin map of the FT232H adapter: which FT232H line drives which LM628/LM629 pin (and
+the MPSSE commands that move them, FTDI AN_108).
 
 This is the one definition.  The transport (:mod:`lm629_host.transports.ftdi`) compiles bus
-programs with these masks, the emulated FT232H (:mod:`lm629_host.ftdi_emu`) wires its pins to the
-chip model with them, and the README's wiring table is checked against :data:`WIRING` by a test.
+programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
+chip model with them, and docs/ftdi.md's wiring table is checked against :data:`WIRING` by a test.
 
 Why this layout:
 
@@ -59,7 +60,7 @@ DATA_IN = 0x00  #: ACBUS direction while the chip may drive D0-D7 (reads, idle)
 FIFO_BYTES = 1024
 
 #: (FT232H line, breakout label, LM629 pin, direction seen from the adapter, note), for the
-#: README's wiring table.  The LM629 pin numbers are those of the 28-pin DIP package (AN-706
+#: docs/ftdi.md's wiring table.  The LM629 pin numbers are those of the 28-pin DIP package (AN-706
 #: names HI pin 17 and /RST pin 27; check the others against your package's datasheet).
 WIRING: tuple[tuple[str, str, str, str, str], ...] = (
     ("ACBUS0-7", "C0-C7", "D0-D7 (pins 4-11)", "in/out", "data bus, C0 = D0"),
@@ -73,6 +74,25 @@ WIRING: tuple[tuple[str, str, str, str, str], ...] = (
     ("ADBUS0", "D0", "-", "out", "TCK: toggled by delays, leave unconnected"),
     ("GND", "GND", "GND (pin 14)", "", "common ground"),
 )
+
+# MPSSE commands (FTDI AN_108): the transport writes them, the emulated FT232H executes them
+SET_LOW = 0x80  #: set ADBUS levels and directions (2 bytes follow)
+GET_LOW = 0x81  #: read ADBUS
+SET_HIGH = 0x82  #: set ACBUS levels and directions (2 bytes follow)
+GET_HIGH = 0x83  #: read ACBUS
+LOOPBACK_ON = 0x84
+LOOPBACK_OFF = 0x85
+SET_DIVISOR = 0x86  #: TCK divisor (2 bytes follow)
+SEND_IMMEDIATE = 0x87  #: flush the answer to the host now
+DISABLE_DIV5 = 0x8A
+ENABLE_DIV5 = 0x8B
+ENABLE_CLK_3PHASE = 0x8C
+DISABLE_CLK_3PHASE = 0x8D
+CLK_BITS = 0x8E  #: n+1 idle clocks (1 byte follows)
+CLK_BYTES = 0x8F  #: 8 x (n+1) idle clocks (2 bytes follow)
+ENABLE_CLK_ADAPTIVE = 0x96
+DISABLE_CLK_ADAPTIVE = 0x97
+
 
 __all__ = ["TCK", "CS", "CS1", "CHIP_SELECTS", "HI_LINES", "CS_ALL", "RD", "WR", "PS", "HI",
            "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",

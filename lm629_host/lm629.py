@@ -14,9 +14,9 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
 
-from .errors import AxisError, CommandError, ResetError, WaitTimeout
+from .clock import Clock, WallClock
+from .errors import AxisError, CommandError, ResetError, WaitTimeout, check_int
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     ACCELERATION_MAX,
@@ -35,9 +35,12 @@ from .opcodes import (
     Signals,
     Status,
     TrajectoryFlags,
+    s16,
+    s32,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
-from .transports.base import Clock, Transport, WallClock
+from .snapshot import Snapshot
+from .transports.base import Transport
 
 log = logging.getLogger("lm629_host")
 
@@ -55,28 +58,9 @@ _STOPS = {
 
 
 def _s32(words: Iterable[int]) -> int:
+    """Two words read high first, as one signed 32-bit value."""
     hi, lo = words
-    v = (hi << 16) | lo
-    return v - (1 << 32) if v & 0x80000000 else v
-
-
-def _s16(word: int) -> int:
-    return word - (1 << 16) if word & 0x8000 else word
-
-
-def check_int(name: str, value: object, lo: int, hi: int, *, hex_digits: int = 0) -> int:
-    """Validate an integer argument; the error names it, its value and the allowed range."""
-    if isinstance(value, bool) or not isinstance(value, int):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        else:
-            raise ValueError(f"{name}={value!r} must be an integer in {lo}..{hi}")
-    if not lo <= value <= hi:
-        rng = f"{lo}..{hi}"
-        if hex_digits:
-            rng += f" (0x{lo & (16 ** hex_digits - 1):0{hex_digits}X}..0x{hi:0{hex_digits}X})"
-        raise ValueError(f"{name}={value} is outside the allowed range {rng}")
-    return value
+    return s32((hi << 16) | lo)
 
 
 def _check_flags(name: str, flags: object) -> Status:
@@ -89,24 +73,6 @@ def _check_flags(name: str, flags: object) -> Status:
     return Status(value)
 
 
-@dataclass(frozen=True)
-class Snapshot:
-    """Everything the chip reports, read in one bus program (one round trip on a bridge)."""
-
-    status: Status
-    signals: Signals
-    desired_position: int
-    real_position: int
-    desired_velocity: int  #: signed 16.16
-    real_velocity: int
-    integration_sum: int
-    time: float  #: the transport clock when the snapshot was taken
-
-    @property
-    def following_error(self) -> int:
-        return self.desired_position - self.real_position
-
-
 #: the reads of a snapshot after its status byte: (command, words)
 SNAPSHOT_READS = ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2), (Cmd.RDRV, 1),
                   (Cmd.RDSUM, 1))
@@ -115,7 +81,7 @@ SNAPSHOT_READS = ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2), 
 def snapshot_of(status: int, w: tuple[int, ...], time: float) -> Snapshot:
     """A :class:`Snapshot` from its status byte and the words of :data:`SNAPSHOT_READS`."""
     return Snapshot(Status(status), Signals(w[0]), _s32(w[1:3]), _s32(w[3:5]), _s32(w[5:7]),
-                    _s16(w[7]), _s16(w[8]), time)
+                    s16(w[7]), s16(w[8]), time)
 
 
 class LM629:
@@ -142,6 +108,8 @@ class LM629:
         #: the chip select this object addresses on a multi-axis board (None: the only chip);
         #: every program it builds starts with ``select(axis)`` (a program starts on chip 0)
         self.axis = axis
+        #: the chip select its programs address (``axis``, or 0 for the only chip)
+        self.chip_select: int = axis or 0
         self.busy_timeout = busy_timeout
         self.transport = transport
         self.variant = chip
@@ -332,11 +300,11 @@ class LM629:
                            DERIVATIVE_INTERVAL_MAX) - 1
         control = ds << 8
         for flag in FILTER_ORDER:
-            if values[flag.name.lower()] is not None:
+            if values[(flag.name or "").lower()] is not None:
                 control |= flag
         p = self.program().command(Cmd.LFIL).write(control)
         for flag in FILTER_ORDER:
-            v = values[flag.name.lower()]
+            v = values[(flag.name or "").lower()]
             if v is not None:
                 p.write(v)
         return p
@@ -529,11 +497,11 @@ class LM629:
 
     def read_real_velocity(self) -> int:
         """RDRV: real velocity, integer counts/sample (signed 16-bit)."""
-        return _s16(self._read(Cmd.RDRV, 1)[0])
+        return s16(self._read(Cmd.RDRV, 1)[0])
 
     def read_integration_sum(self) -> int:
         """RDSUM: the integration term (signed 16-bit)."""
-        return _s16(self._read(Cmd.RDSUM, 1)[0])
+        return s16(self._read(Cmd.RDSUM, 1)[0])
 
     # ------------------------------------------------------------------ waiting
     def wait_for(self, flags: Status | int, timeout: float = 10.0,

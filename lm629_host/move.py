@@ -36,14 +36,32 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+from .clock import Clock
 from .errors import MotionError
 from .opcodes import Signals, Status
-from .safety import STOP_NOTE, emergency_stop
+from .safety import STOP_NOTE, Stoppable, emergency_stop
+from .snapshot import Snapshot
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .lm629 import LM629, Snapshot
+
+class MovingChip(Stoppable, Protocol):
+    """What a move needs of its chip (an :class:`~lm629_host.LM629` is one, and makes its
+    moves): its rules and clock, snapshots, and a way to stop.  Declared here so that this
+    module does not import the typed layer back."""
+
+    move_rules: MoveRules
+    chip_select: int  #: which chip of a multi-axis board
+
+    @property
+    def transport(self) -> object:
+        """Looked at only for a simulated model's clock rate."""
+
+    @property
+    def clock(self) -> Clock: ...
+
+    def snapshot(self) -> Snapshot: ...
+
 
 #: the flags a move reports, cleared in the program that starts it
 MOVE_FLAGS = Status.TRAJECTORY_COMPLETE | Status.BREAKPOINT | Status.POSITION_ERROR
@@ -87,7 +105,7 @@ class MoveResult:
 class Move:
     """A started move (from :meth:`LM629.move_to`).  :meth:`wait` until it is done."""
 
-    def __init__(self, chip: LM629, target: int, velocity: int, acceleration: int | None,
+    def __init__(self, chip: MovingChip, target: int, velocity: int, acceleration: int | None,
                  start: Snapshot, t0: float) -> None:
         self.chip = chip
         self.target = target

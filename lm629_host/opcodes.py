@@ -141,6 +141,22 @@ class FilterFlags(enum.IntFlag):
 #: LFIL coefficients in the order their words follow the control word.
 FILTER_ORDER = (FilterFlags.KP, FilterFlags.KI, FilterFlags.KD, FilterFlags.IL)
 
+#: :attr:`Status.BUSY` as a plain int, for the busy-poll loops (IntFlag arithmetic costs
+#: microseconds there)
+BUSY_BIT = int(Status.BUSY)
+
+
+def s16(value: int) -> int:
+    """A 16-bit word as the chip's two's complement (signed words: velocities, errors)."""
+    value &= 0xFFFF
+    return value - (1 << 16) if value & 0x8000 else value
+
+
+def s32(value: int) -> int:
+    """A 32-bit pattern as the chip's two's complement (positions, 16.16 velocities)."""
+    value &= 0xFFFFFFFF
+    return value - (1 << 32) if value & 0x80000000 else value
+
 
 class TrajectoryFlags(enum.IntFlag):
     """The LTRJ control word."""

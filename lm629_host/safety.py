@@ -15,11 +15,15 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Protocol
 
-from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:  # the typed layer imports move, which imports this module
-    from .lm629 import LM629
+class Stoppable(Protocol):
+    """What stopping needs of a chip (an :class:`~lm629_host.LM629` is one): LTRJ with a stop
+    bit and STT.  Declared here so that the typed layer, which uses this module through
+    :mod:`.move`, is not imported back."""
+
+    def load_trajectory(self, *, stop: str | None = None, start: bool = False) -> object: ...
 
 log = logging.getLogger("lm629_host.cli")
 
@@ -27,7 +31,7 @@ log = logging.getLogger("lm629_host.cli")
 STOP_NOTE = "lm629_stop_note"
 
 
-def emergency_stop(chip: LM629) -> tuple[bool, str]:
+def emergency_stop(chip: Stoppable) -> tuple[bool, str]:
     """Abrupt stop, then motor off; each tried even when the other fails.
 
     Returns (stopped, one line saying how the motor was left).  The motor counts as stopped
@@ -61,7 +65,7 @@ def emergency_stop(chip: LM629) -> tuple[bool, str]:
 
 
 @contextmanager
-def stop_on_error(chip: LM629) -> Iterator[None]:
+def stop_on_error(chip: Stoppable) -> Iterator[None]:
     """Run a block that may leave the motor moving; on any exception (Ctrl-C included) stop
     the motor first, note how on the exception (attribute ``lm629_stop_note``), re-raise."""
     try:
@@ -76,4 +80,4 @@ def stop_on_error(chip: LM629) -> Iterator[None]:
         raise
 
 
-__all__ = ["emergency_stop", "stop_on_error", "STOP_NOTE"]
+__all__ = ["emergency_stop", "stop_on_error", "STOP_NOTE", "Stoppable"]

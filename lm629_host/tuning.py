@@ -36,10 +36,10 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from .safety import STOP_NOTE, emergency_stop, stop_on_error
 from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
+from .safety import STOP_NOTE, emergency_stop, stop_on_error
 
 #: a step: the largest trajectory words, so the desired position jumps within a sample
 STEP_VELOCITY = VELOCITY_MAX
@@ -503,7 +503,7 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
         ses.step_to(rec, target)
         away = max(4, step // 10)
 
-        def watch(s: Snapshot) -> bool:
+        def watch(s: Snapshot, start: int = start, away: int = away) -> bool:
             moved = s.real_position - start
             if moved <= -away:
                 raise ses.fault(
@@ -641,7 +641,8 @@ def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
             return 1e12
         return _residual(make(p), rec, sample_s, desired, idx, meas)
 
-    best, best_val = None, math.inf
+    best: list[float] = []
+    best_val = math.inf
     for rate0 in (1e-3, 1e-2):  # two starts: slow and fast mechanical time constants
         p, v = _nelder_mead(f, [math.log(guess), math.log(rate0), 0.005, 0.0],
                             [0.5, 1.0, 0.01, 0.02], iters // 2)

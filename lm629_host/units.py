@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .lm629 import check_int
+from .errors import check_int
 from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
@@ -159,7 +159,7 @@ class Scale:
         return self.seconds(ramp), self.seconds(ramp + distance / v)
 
     # -- PID scaling (AN-706 5.2) --------------------------------------------------------------
-    def pid_to_chip(self, Kp: float = 0.0, Ki: float = 0.0, Kd: float = 0.0, *,  # noqa: N803
+    def pid_to_chip(self, Kp: float = 0.0, Ki: float = 0.0, Kd: float = 0.0, *,  # noqa: N803 - Kp, Ki, Kd as in AN-706's formulas
                     derivative_interval: int = 1, output_bits: int = 8) -> dict[str, int]:
         """Continuous-domain gains (output LSB per count, per count-second, per count/second)
         -> the chip's kp, ki, kd.  8-bit output (LM629, LM628 8-bit): kp = 256 Kp,

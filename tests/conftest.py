@@ -15,27 +15,30 @@ import os
 
 os.environ.setdefault("LM629_SIM_STRICT", "1")
 
-import pytest  # noqa: E402
+import pytest
 
-import lm629_host  # noqa: E402
-from lm629_host import avrsim  # noqa: E402
-from lm629_host.program import BusCycle  # noqa: E402
+import lm629_host
+from lm629_host.sim import avr as avrsim
+from lm629_host.program import BusCycle
 
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"
+
+#: the ``firmware_built`` fixture, for every test module that asks for it by name
+pytest_plugins = ("firmware_helpers",)
 
 
 def _avr_missing() -> list[str]:
     return avrsim.toolchain_missing()
 
 
-def pytest_sessionstart(session) -> None:  # type: ignore[no-untyped-def]
+def pytest_sessionstart(session: pytest.Session) -> None:
     missing = _avr_missing()
     if missing and os.environ.get(_REQUIRE_AVR) == "1":
         pytest.exit(f"{_REQUIRE_AVR}=1 but the AVR toolchain is missing ({', '.join(missing)}):"
                     f" apt-get install {avrsim.PACKAGES}", returncode=1)
 
 
-def pytest_report_header(config) -> str | None:  # type: ignore[no-untyped-def]
+def pytest_report_header(config: pytest.Config) -> str | None:
     missing = _avr_missing()
     if missing:
         return (f"!!! AVR toolchain missing ({', '.join(missing)}): the firmware-in-the-loop "
@@ -43,7 +46,7 @@ def pytest_report_header(config) -> str | None:  # type: ignore[no-untyped-def]
     return None
 
 
-def pytest_terminal_summary(terminalreporter) -> None:  # type: ignore[no-untyped-def]
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
     missing = _avr_missing()
     if not missing:
         return

@@ -12,7 +12,7 @@ import os
 
 import pytest
 
-from lm629_host import avrsim
+from lm629_host.sim import avr as avrsim
 
 #: set by .ci/run: a missing toolchain fails the firmware tests instead of skipping them
 REQUIRE_ENV = "LM629_REQUIRE_AVR"

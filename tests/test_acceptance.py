@@ -28,7 +28,7 @@ def _available(url: str) -> bool:
     except ImportError:
         return False
     if url.startswith("sim+avr"):
-        from lm629_host.avrsim import toolchain_missing
+        from lm629_host.sim.avr import toolchain_missing
 
         return not toolchain_missing()
     return True

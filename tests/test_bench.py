@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from lm629_host.avrsim import toolchain_missing
+from lm629_host.sim.avr import toolchain_missing
 from test_cli import _console_script
 
 FAR_ENDS = ["python", "firmware"]

@@ -12,8 +12,8 @@ import pytest
 import lm629_host
 from lm629_host import AxisError, ResetError
 from lm629_host.board import plan_linear, trapezoid_samples
-from lm629_host.model import chips_of
-from lm629_host.model.chip import SAMPLE_CLOCKS
+from lm629_host.sim.model import chips_of
+from lm629_host.sim.model.chip import SAMPLE_CLOCKS
 from lm629_host.opcodes import Status
 
 #: the transports of the Done-when list; sim+avr:// and sim+ftdi:// join as they gain axes=
@@ -46,7 +46,7 @@ def run_samples(board, limit: int):
     done = [None] * len(models)
     path = []
     dt = sample_s(board)
-    for n in range(1, limit + 1):
+    for _ in range(1, limit + 1):
         board.clock.sleep(dt)
         path.append(tuple(m.motion.traj.position for m in models))
         for k, m in enumerate(models):
@@ -213,9 +213,10 @@ def test_a_bridge_without_select_gets_one_run_per_chip():
     """A two-select bridge that cannot switch chip inside a program (no Capability.SELECT):
     the host cuts the program at each SELECT, the RUN's cs field names the chip; correct, one
     round trip per chip."""
-    from lm629_host.bridge_emu import BridgeEmulator, EmuPipe
-    from lm629_host.link import HelloInfo, LinkTransport
-    from lm629_host.transports.sim import build_bus
+    from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+    from lm629_host.bridge.protocol import HelloInfo
+    from lm629_host.transports.link import LinkTransport
+    from lm629_host.sim.build import build_bus
 
     bus = build_bus("sim://?axes=2")
     emu = BridgeEmulator(bus, HelloInfo(chip_selects=2))
@@ -311,7 +312,7 @@ def test_the_firmware_built_for_one_chip_under_this_host():
     """The compiled firmware reporting one chip select (build/lm629_bridge_1chip.elf) in
     simavr: HELLO says 1, the host drives its chip, axis 1 is one clear error before any
     traffic, and a board of two is refused at open."""
-    from lm629_host.avrsim import BUILD_DIR, ensure_built
+    from lm629_host.sim.avr import BUILD_DIR, ensure_built
     ensure_built()
     fw = BUILD_DIR / "lm629_bridge_1chip.elf"
     url = f"sim+avr://?baud=1000000&firmware={fw}"

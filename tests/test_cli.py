@@ -19,6 +19,8 @@ from click.testing import CliRunner
 
 import lm629_host
 from lm629_host import Cmd, TrajectoryFlags, cli
+from lm629_host.cli import app as cli_app
+from lm629_host.cli import motion as cli_motion
 
 T = 2048 / 8e6
 
@@ -37,13 +39,13 @@ def run():
 def opened(monkeypatch):
     """The chips the CLI opened (to look at the model after the command)."""
     chips = []
-    real = cli._open
+    real = cli_app._open
 
     def _open(url, chip, trace):
         c = real(url, chip, trace)
         chips.append(c)
         return c
-    monkeypatch.setattr(cli, "_open", _open)
+    monkeypatch.setattr(cli_app, "_open", _open)
     return chips
 
 
@@ -182,7 +184,7 @@ def test_ctrl_c_during_a_move_stops_the_motor_then_exits_130(run, monkeypatch):
     a bus program): the CLI lets that program finish, then stops the motor (abrupt stop, motor
     off) on a clean bus -- the strict simulator would raise on a program cut in half."""
     chips = []
-    real = cli._open
+    real = cli_app._open
 
     def _open(url, chip, trace):
         state = {"after_stt": None}
@@ -201,7 +203,7 @@ def test_ctrl_c_during_a_move_stops_the_motor_then_exits_130(run, monkeypatch):
         c = real(url, chip, interrupting)
         chips.append(c)
         return c
-    monkeypatch.setattr(cli, "_open", _open)
+    monkeypatch.setattr(cli_app, "_open", _open)
     before = signal.getsignal(signal.SIGINT)
     r = run("--port", "sim://?record=1", "move", "20000")
     assert signal.getsignal(signal.SIGINT) is before  # the CLI's handler is gone again
@@ -379,7 +381,7 @@ def test_chip_dying_mid_move_exits_4_and_says_the_motor_may_still_run(run, monke
     out (exit 4), the safety stop cannot reach the chip either, and the one error line says to
     switch off the motor supply."""
     chips = []
-    real = cli._open
+    real = cli_app._open
 
     def _open(url, chip, trace):
         n = {"cycles": 0, "started": False}
@@ -395,7 +397,7 @@ def test_chip_dying_mid_move_exits_4_and_says_the_motor_may_still_run(run, monke
         c = real(url, chip, dying)
         chips.append(c)
         return c
-    monkeypatch.setattr(cli, "_open", _open)
+    monkeypatch.setattr(cli_app, "_open", _open)
     r = run("--port", "sim://?record=1", "move", "20000")
     assert r.exit_code == 4
     lines = err_lines(r)
@@ -407,7 +409,7 @@ def test_chip_dying_mid_move_exits_4_and_says_the_motor_may_still_run(run, monke
 def test_move_progress_line_on_a_terminal(run, monkeypatch):
     """On a terminal the wait rewrites one progress line (carriage return, erase to the end);
     at 1 count/sample with 50 ms polls a 2000-count move shows ~11 updates."""
-    monkeypatch.setattr(cli, "_isatty", lambda: True)
+    monkeypatch.setattr(cli_motion, "_isatty", lambda: True)
     r = run("--port", "sim://", "move", "2000")
     assert r.exit_code == 0
     updates = r.stderr.count("\r")
@@ -419,7 +421,7 @@ def test_ctrl_c_ends_watch_cleanly(run, monkeypatch):
     """watch moves nothing: Ctrl-C (a real SIGINT, during the 3rd row's bus program) ends it
     with exit 130 (the --help table) once that program is over; the interrupted row is not
     printed, nothing is stopped."""
-    real = cli._open
+    real = cli_app._open
 
     def _open(url, chip, trace):
         n = {"rdsigs": 0}
@@ -431,7 +433,7 @@ def test_ctrl_c_ends_watch_cleanly(run, monkeypatch):
                 if n["rdsigs"] == 3:
                     os.kill(os.getpid(), signal.SIGINT)
         return real(url, chip, interrupting)
-    monkeypatch.setattr(cli, "_open", _open)
+    monkeypatch.setattr(cli_app, "_open", _open)
     r = run("--port", "sim://", "watch", "--rate", "50")
     assert r.exit_code == 130
     assert len(r.stdout.splitlines()) == 1 + 2
@@ -454,13 +456,13 @@ def test_acceleration_is_left_out_while_the_motor_moves():
     chip.reset()
     chip.load_filter(kp=20)
     chip.update_filter()
-    assert cli._acceleration_unless_moving(chip, 500, given=True) == 500  # at rest
+    assert cli_motion._acceleration_unless_moving(chip, 500, given=True) == 500  # at rest
     chip.load_trajectory(acceleration=500, velocity=65536, velocity_mode=True, start=True)
     chip.clock.sleep(0.05)
     assert chip.is_moving()
-    assert cli._acceleration_unless_moving(chip, 500, given=False) is None
+    assert cli_motion._acceleration_unless_moving(chip, 500, given=False) is None
     with pytest.raises(ValueError, match="the motor is moving"):
-        cli._acceleration_unless_moving(chip, 500, given=True)
+        cli_motion._acceleration_unless_moving(chip, 500, given=True)
     chip.load_trajectory(velocity=65536, position=chip.read_desired_position() + 300, start=True)
     chip.wait_for(lm629_host.Status.TRAJECTORY_COMPLETE, timeout=2)
     assert not chip.is_moving()

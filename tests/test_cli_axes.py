@@ -79,7 +79,7 @@ def test_a_two_chip_bench_keeps_its_state_between_processes(tmp_path):
     import subprocess
     import sys
 
-    from lm629_host.simserve import SimServer
+    from lm629_host.sim.serve import SimServer
 
     with SimServer(tmp_path / "lm629", "sim://?axes=2").start() as srv:
         port = f"serial://{srv.link}?axes=2"

@@ -13,6 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from lm629_host import Cmd, cli
+from lm629_host.cli import app as cli_app
 from test_cli import _console_script, err_lines
 
 
@@ -29,13 +30,13 @@ def run():
 @pytest.fixture
 def opened(monkeypatch):
     chips = []
-    real = cli._open
+    real = cli_app._open
 
     def _open(url, chip, trace):
         c = real(url, chip, trace)
         chips.append(c)
         return c
-    monkeypatch.setattr(cli, "_open", _open)
+    monkeypatch.setattr(cli_app, "_open", _open)
     return chips
 
 
@@ -183,7 +184,7 @@ def test_velocity_checks_the_shaft_turns(run, opened, fault, reason):
 def test_sigterm_during_watch_exits_143_and_stops_nothing(run, monkeypatch):
     import os
     import signal
-    real = cli._open
+    real = cli_app._open
     chips = []
 
     def _open(url, chip, trace):
@@ -198,7 +199,7 @@ def test_sigterm_during_watch_exits_143_and_stops_nothing(run, monkeypatch):
         c = real(url, chip, killing)
         chips.append(c)
         return c
-    monkeypatch.setattr(cli, "_open", _open)
+    monkeypatch.setattr(cli_app, "_open", _open)
     before = signal.getsignal(signal.SIGTERM)
     r = run("--port", "sim://?record=1", "watch", "--rate", "50")
     assert signal.getsignal(signal.SIGTERM) is before  # restored

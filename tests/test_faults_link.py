@@ -18,8 +18,8 @@ from __future__ import annotations
 import pytest
 
 from lm629_host import LM629, TransportError
-from lm629_host.bridge_emu import open_emulated
-from lm629_host.faultlink import FaultPipe, check_record, soak
+from lm629_host.transports.simemu import open_emulated
+from lm629_host.sim.faults import FaultPipe, check_record, soak
 from lm629_host.opcodes import Cmd
 
 
@@ -161,7 +161,7 @@ def test_exactly_once_through_pyserial_on_a_pty(tmp_path):
     """The same check in real time through the real serial stack: pyserial on a pseudo-
     terminal served by ``lm629 sim serve``'s server, with the lossy wrapper around the
     SerialPipe (a few hundred commands: real timeouts cost real time)."""
-    from lm629_host.simserve import SimServer
+    from lm629_host.sim.serve import SimServer
     import lm629_host
 
     with SimServer(tmp_path / "lossy", "sim://?record=1").start() as srv:
@@ -189,7 +189,7 @@ def test_seq_wrap_after_a_give_up_cannot_hit_the_cache():
     from the cache and never run (a lost command reported as done).  After a give-up the host
     says HELLO (which empties the cache) before sending anything, and while that HELLO is
     unanswered it sends nothing: those failures say so (``may_have_run`` False)."""
-    from lm629_host.link import LinkError
+    from lm629_host.transports.link import LinkError
 
     chip, model, fp, far_stats = open_faulty("emu", {}, 0, baud=1_000_000)
     t = chip.transport
@@ -232,7 +232,7 @@ def test_a_bad_link_warns_before_it_costs_a_command(caplog):
 
     rates = dict(drop=0.0025, corrupt=0.0025, duplicate=0.0025, delay=0.0025, delay_s=0.01)
     chip, model, fp, far_stats = open_faulty("emu", rates, 4, baud=1_000_000)
-    with caplog.at_level(logging.WARNING, logger="lm629_host.link"):
+    with caplog.at_level(logging.WARNING, logger="lm629_host.bridge.protocol"):
         r = soak(chip, 1000)
     assert r.typed_errors == 0
     warnings = [rec.getMessage() for rec in caplog.records if "exchanges failed" in rec.getMessage()]
@@ -245,7 +245,7 @@ def test_request_arriving_after_the_host_gave_up_runs_once_and_in_order():
     reaches the bridge before anything sent after it (a serial line keeps order), runs once
     (its retries are answered from the cache), its late replies are ignored as stale, and the
     next command runs after it and returns its own answer."""
-    from lm629_host.link import LinkError
+    from lm629_host.transports.link import LinkError
 
     chip, model, fp, far_stats = open_faulty("emu", {}, 0, baud=115200)
     fp.out.rates.delay, fp.out.rates.delay_s = 1.0, 0.05  # every byte stalls the line 50 ms

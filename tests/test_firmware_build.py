@@ -10,13 +10,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 
-from lm629_host import bridge_pins as pins
-from lm629_host.link import MAX_FRAME, RUN_OVERHEAD, RUN_REPLY_OVERHEAD
+from lm629_host.bridge import pins
+from lm629_host.bridge.protocol import MAX_FRAME, RUN_OVERHEAD, RUN_REPLY_OVERHEAD
 from lm629_host.program import OP_ARG_BYTES, Op
 
-from firmware_helpers import firmware_built
 
 ROOT = Path(__file__).resolve().parent.parent
 FW = ROOT / "firmware_bridge"
@@ -44,11 +42,8 @@ def test_pin_map_spans_two_ports_around_uart_and_crystal():
     assert [(w.port, w.bit) if w else None for w in pins.HI_LINES] == [("C", 5), ("B", 5), None, None]
 
 
-def test_readme_wiring_table_matches_the_pin_map():
-    text = (ROOT / "README.md").read_text()
-    if "## The serial bridge" not in text:
-        pytest.skip("README has no serial bridge section yet")
-    section = text.split("## The serial bridge", 1)[1].split("\n## ", 1)[0]
+def test_documented_wiring_table_matches_the_pin_map():
+    section = (ROOT / "docs" / "bridge.md").read_text()  # the wiring table for the bench
     rows = set(re.findall(r"^\|\s*(D\d+|A\d)\s*\|\s*P([BCD])(\d)\s*\|\s*(\S+)\s*\|", section, re.M))
     assert rows == {(w.board_pin, w.port, str(w.bit), w.chip_pin) for w in pins.WIRING}
 

@@ -15,9 +15,13 @@ import pytest
 from pyftdi.usbtools import UsbTools
 
 import lm629_host
+from click.testing import CliRunner
+
+from lm629_host import data
+from lm629_host.cli import main as cli
 from lm629_host import TransportError
-from lm629_host.ftdi_emu import SHARED, EmulatedFT232H
-from lm629_host.model import ChipModel
+from lm629_host.sim.ftdi import SHARED, EmulatedFT232H
+from lm629_host.sim.model import ChipModel
 from lm629_host.transports import ftdi
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -26,7 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 @pytest.fixture
 def bus(monkeypatch):
     """An emulated USB bus with one FT232H (serial FT5LM629) wired to a chip model."""
-    monkeypatch.setattr(UsbTools, "BACKENDS", ("lm629_host.ftdi_emu.backend",))
+    monkeypatch.setattr(UsbTools, "BACKENDS", ("lm629_host.sim.ftdi.backend",))
     UsbTools.flush_cache()
     UsbTools.release_all_devices()
     monkeypatch.setattr(SHARED, "devices", [EmulatedFT232H(ChipModel(), serial="FT5LM629")])
@@ -70,7 +74,8 @@ def test_access_denied_says_how_to_install_the_udev_rule(bus):
         lm629_host.open("ftdi://ftdi:232h:FT5LM629/1")
     text = str(info.value)
     assert "access denied" in text
-    assert "sudo cp udev/99-lm629-ft232h.rules /etc/udev/rules.d/" in text
+    # the command names the rule where this installation keeps it (no checkout needed)
+    assert f"sudo cp {data.udev_rule()} /etc/udev/rules.d/" in text and data.udev_rule().is_file()
     assert "udevadm control --reload-rules" in text
 
 
@@ -102,26 +107,28 @@ def test_doctor_finds_the_adapter(bus):
 def test_bad_options_are_value_errors_before_any_usb_traffic(bus):
     with pytest.raises(ValueError, match="latency=0 is outside 1..255"):
         lm629_host.open("ftdi://ftdi:232h:FT5LM629/1?latency=0")
-    with pytest.raises(ValueError, match="unknown option"):
+    with pytest.raises(ValueError, match="unknown FT232H parameter"):
         lm629_host.open("ftdi://ftdi:232h:FT5LM629/1?baud=9600")
     assert bus.devices[0].counters.control == 0
 
 
-def test_udev_rule_matches_the_ft232h_and_the_readme_commands():
-    rule = (ROOT / "udev" / "99-lm629-ft232h.rules").read_text()
+def test_udev_rule_matches_the_ft232h_and_the_documented_commands():
+    rule = data.udev_rule().read_text()
     lines = [ln for ln in rule.splitlines() if ln.strip() and not ln.startswith("#")]
     assert any('ATTRS{idVendor}=="0403"' in ln and 'ATTRS{idProduct}=="6014"' in ln
                and 'MODE="0660"' in ln and 'GROUP="plugdev"' in ln for ln in lines)
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## The FT232H adapter", 1)[1].split("\n## ", 1)[0]
-    assert "sudo cp udev/99-lm629-ft232h.rules /etc/udev/rules.d/" in section
+    section = (ROOT / "docs" / "ftdi.md").read_text()
+    assert 'sudo cp "$(lm629 udev --path)" /etc/udev/rules.d/' in section
+    r = CliRunner().invoke(cli, ["udev", "--path"])
+    assert r.output.strip() == str(data.udev_rule())
+    r = CliRunner().invoke(cli, ["udev"])
+    assert all(c in r.output for c in data.udev_install_commands())
     assert ftdi.UDEV_RULE == "/etc/udev/rules.d/99-lm629-ft232h.rules"
 
 
-def test_readme_wiring_table_is_the_pin_map():
+def test_documented_wiring_table_is_the_pin_map():
     from lm629_host.ftdi_pins import WIRING
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## The FT232H adapter", 1)[1].split("\n## ", 1)[0]
+    section = (ROOT / "docs" / "ftdi.md").read_text()
     for line, label, pin, direction, note in WIRING:
         row = f"| {line} | {label} | {pin} | {direction} | {note} |"
         assert row in section, row

@@ -1,5 +1,5 @@
 """What the FT232H silicon does that the transport must respect, on the emulated FT232H that
-models it (``lm629_host.ftdi_emu.device``): the bit-mode mask at open, the 1 KiB buffers,
+models it (``lm629_host.sim.ftdi.device``): the bit-mode mask at open, the 1 KiB buffers,
 clock modes left on by another tool, and the purge requests as libftdi and pyftdi define them.
 
 The emulator's models are checked first (pyftdi's plain calls show each behaviour), then the
@@ -13,8 +13,8 @@ import usb.core
 
 import lm629_host
 from lm629_host import ftdi_pins as pins
-from lm629_host.ftdi_emu import EmulatedBackend, EmulatedFT232H
-from lm629_host.model import ChipModel
+from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
+from lm629_host.sim.model import ChipModel
 from lm629_host.opcodes import Cmd
 from lm629_host.program import Program
 from lm629_host.transports.ftdi import FT232H_PID, FTDI_VID, FtdiTransport, open_mpsse

@@ -17,8 +17,14 @@ from __future__ import annotations
 
 import pytest
 
-from firmware_helpers import firmware_built  # noqa: F401  (fixture)
-from lm629_host.link import FrameReader, FrameType, cobs_encode, crc16, encode_frame, run_payload
+from lm629_host.bridge.protocol import (
+    FrameReader,
+    FrameType,
+    cobs_encode,
+    crc16,
+    encode_frame,
+    run_payload,
+)
 from lm629_host.opcodes import INTERRUPTS, Cmd, Status
 from lm629_host.program import BusOp, Op, Program
 
@@ -36,7 +42,7 @@ def test_integration_term_is_limited_to_il_both_signs(open_chip, loop, target, k
     are chosen so that no multiple of ki equals il (300 x k never is 500, 100 x k never is
     12345): an unlimited term would read the first multiple past il (-600, -12400...)."""
     if loop == "c":
-        from lm629_host.model import fastloop
+        from lm629_host.sim.model import fastloop
         if getattr(fastloop, "c_loop", None) is None and not _c_loop_built():
             pytest.skip("the C sample loop is not built here (pip install -e . builds it)")
     chip = open_chip(f"sim://?stall=1&fast={loop}")
@@ -53,7 +59,7 @@ def test_integration_term_is_limited_to_il_both_signs(open_chip, loop, target, k
 
 def _c_loop_built() -> bool:
     try:
-        from lm629_host.model import _fastloop  # type: ignore[attr-defined]  # noqa: F401
+        from lm629_host.sim.model import _fastloop  # noqa: F401 - only whether it was built
         return True
     except ImportError:
         return False
@@ -100,7 +106,7 @@ def test_rsti_clears_only_the_flags_asked_for(open_chip, recorder):
 def _far(kind: str):
     """(pipe, model) of a far end after a clean handshake; frames are sent raw below."""
     if kind == "emu":
-        from lm629_host.bridge_emu import open_emulated
+        from lm629_host.transports.simemu import open_emulated
         t = open_emulated("sim://?record=1", baud=1_000_000)
         return t, t.pipe, t.model
     from lm629_host.transports import open_transport

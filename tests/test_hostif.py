@@ -11,9 +11,10 @@ import pytest
 
 import lm629_host
 from lm629_host import ProtocolViolation, Signals, Status
-from lm629_host.model import ChipModel, ChipParams
+from lm629_host.sim.model import ChipModel, ChipParams
 from lm629_host.opcodes import Cmd
-from lm629_host.transports.sim import SimTransport, build_model
+from lm629_host.transports.sim import SimTransport
+from lm629_host.sim.build import build_model
 
 BUSY = 160  # clocks at 8 MHz
 

@@ -6,12 +6,19 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lm629_host.bridge_emu import BridgeEmulator
-from lm629_host.link import (
-    MAX_FRAME, Frame, FrameError, FrameReader, FrameType, cobs_decode, cobs_encode,
-    decode_frame, encode_frame,
+from lm629_host.sim.bridge import BridgeEmulator
+from lm629_host.bridge.protocol import (
+    MAX_FRAME,
+    Frame,
+    FrameError,
+    FrameReader,
+    FrameType,
+    cobs_decode,
+    cobs_encode,
+    decode_frame,
+    encode_frame,
 )
-from lm629_host.transports.sim import build_model
+from lm629_host.sim.build import build_model
 
 GOOD = encode_frame(FrameType.HELLO, 0x42)
 

@@ -10,9 +10,21 @@ from pathlib import Path
 
 import pytest
 
-from lm629_host.link import (
-    MAX_FRAME, FrameError, FrameType, HelloInfo, Result, RunReply, cobs_decode, cobs_encode, crc16,
-    decode_frame, decode_program, decode_short_reply, encode_frame,
+from lm629_host.bridge.protocol import (
+    _CRC_TABLE,
+    MAX_FRAME,
+    FrameError,
+    FrameType,
+    HelloInfo,
+    Result,
+    RunReply,
+    cobs_decode,
+    cobs_encode,
+    crc16,
+    decode_frame,
+    decode_program,
+    decode_short_reply,
+    encode_frame,
 )
 from lm629_host.opcodes import Cmd
 from lm629_host.program import BusOp, Op, Program
@@ -51,6 +63,35 @@ def test_codec_round_trip(name):
 def test_crc_check_value():
     # the catalogue check value of CRC-16/GENIBUS
     assert crc16(b"123456789") == 0xD64E
+
+
+def _crc16_bitwise(data: bytes) -> int:
+    """CRC-16/GENIBUS bit by bit, as the catalogue defines it (poly 0x1021, init 0xFFFF, no
+    reflection, xorout 0xFFFF): the reference the stdlib-based crc16 is held against."""
+    crc = 0xFFFF
+    for b in data:
+        crc ^= b << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc ^ 0xFFFF
+
+
+def _crc16_table(data: bytes) -> int:
+    """The firmware's way: the byte table that tools/gen_tables.py writes into lm629_tables.h."""
+    crc = 0xFFFF
+    for b in data:
+        crc = ((crc << 8) & 0xFFFF) ^ _CRC_TABLE[(crc >> 8) ^ b]
+    return crc ^ 0xFFFF
+
+
+def test_crc_equals_the_bitwise_definition_and_the_firmware_table():
+    import random
+    rng = random.Random(13)
+    samples = [b"", b"\x00", b"\xff" * 3, bytes(range(256))]
+    samples += [bytes(rng.randrange(256) for _ in range(rng.randrange(1, MAX_FRAME)))
+                for _ in range(300)]
+    for data in samples:
+        assert crc16(data) == _crc16_bitwise(data) == _crc16_table(data), data.hex()
 
 
 def test_a_delimiter_turned_into_01_fails_the_crc():
@@ -114,8 +155,8 @@ def test_sync_start_bytes_and_the_python_bridge_answers_them():
     """RUN seq 0x11 starting on chip 1 (cs field), STT, SELECT 2, STT: the bytes of
     PROTOCOL.md, and the Python far end (four chip selects, SELECT) answers the golden reply,
     both STTs reaching their chips."""
-    from lm629_host.bridge_emu import MULTI_AXIS_INFO, BridgeEmulator
-    from lm629_host.transports.sim import build_bus
+    from lm629_host.sim.bridge import MULTI_AXIS_INFO, BridgeEmulator
+    from lm629_host.sim.build import build_bus
     dec, wire = golden()["run_sync_start"]
     assert dec[2:5] == bytes((1, 0x13, 0x88))  # cs 1, 5000 us
     assert dec[5:-2] == bytes((Op.COMMAND, Cmd.STT, Op.SELECT, 2, Op.COMMAND, Cmd.STT))

@@ -14,14 +14,22 @@ from pathlib import Path
 import pytest
 
 from lm629_host import LM629, BusyTimeout, TransportError
-from lm629_host.bridge_emu import BridgeEmulator, EmuPipe, open_emulated
-from lm629_host.link import (
-    FrameType, HelloInfo, LinkTransport, Result, decode_frame, encode_frame, reply_size,
-    run_payload, wire_size,
+from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+from lm629_host.transports.simemu import open_emulated
+from lm629_host.bridge.protocol import (
+    FrameType,
+    HelloInfo,
+    Result,
+    decode_frame,
+    encode_frame,
+    reply_size,
+    run_payload,
+    wire_size,
 )
+from lm629_host.transports.link import LinkTransport
 from lm629_host.opcodes import Cmd
 from lm629_host.program import Op, Program
-from lm629_host.transports.sim import build_model
+from lm629_host.sim.build import build_model
 
 GOLDEN = Path(__file__).resolve().parent.parent / "firmware_bridge" / "golden_frames.txt"
 

@@ -1,4 +1,4 @@
-"""The model choices are listed in one place (lm629_host/model/__init__.py's docstring).
+"""The model choices are listed in one place (lm629_host/sim/model/__init__.py's docstring).
 
 Every ``[model choice N]`` elsewhere in the model refers to an item of that list, and no
 module keeps an unnumbered ``[model choice]`` (a second, hand-kept description) of its own.
@@ -9,13 +9,13 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import lm629_host.model
+import lm629_host.sim.model
 
-MODEL = Path(lm629_host.model.__file__).parent
+MODEL = Path(lm629_host.sim.model.__file__).parent
 
 
 def items() -> list[int]:
-    doc = lm629_host.model.__doc__
+    doc = lm629_host.sim.model.__doc__
     section = doc[doc.index("Model choices\n============="):]
     return [int(n) for n in re.findall(r"^(\d+)\. ", section, re.MULTILINE)]
 

@@ -1,4 +1,4 @@
-"""The flattened sample loops (model/fastloop.py, model/_fastloop.c) against the readable code.
+"""The flattened sample loops (sim/model/fastloop.py, sim/model/_fastloop.c) against the readable code.
 
 Three chips, ``fast=0`` (Motion.sample + ChipModel._sample only), ``fast=py`` and ``fast=c``,
 take exactly the same host traffic; every register, the shaft state and the filter memory must agree after
@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 import lm629_host
-from lm629_host.model.trajectory import ONE
+from lm629_host.sim.model.trajectory import ONE
 
 T = 2048 / 8e6  # one sample at 8 MHz
 
@@ -25,7 +25,7 @@ def state(chip) -> tuple:
 
 
 try:
-    import lm629_host.model._fastloop  # noqa: F401
+    import lm629_host.sim.model._fastloop
     LOOPS = ("0", "py", "c")
 except ImportError:  # no C compiler when the package was installed
     LOOPS = ("0", "py")
@@ -122,12 +122,12 @@ def test_stops_wraparound_and_12_bit_output(pair):
 
 def test_the_c_loop_is_built_and_chosen_by_default():
     """CI installs with a C compiler: the default must be the C loop, not the fallback."""
-    from lm629_host.model.fastloop import py_loop
+    from lm629_host.sim.model.fastloop import py_loop
     chip = lm629_host.open("sim://")
     loop = chip.transport.model.fast
     chip.close()
-    assert "c" in LOOPS, "lm629_host/model/_fastloop.c was not built (pip install -e .)"
-    assert loop is not py_loop and loop.__module__ == "lm629_host.model._fastloop"
+    assert "c" in LOOPS, "lm629_host/sim/model/_fastloop.c was not built (pip install -e .)"
+    assert loop is not py_loop and loop.__module__ == "lm629_host.sim.model._fastloop"
 
 
 def test_unknown_loop_name_is_refused():
@@ -198,7 +198,7 @@ def test_the_loops_take_their_status_bits_from_opcodes():
     import re
     from pathlib import Path
 
-    from lm629_host.model import fastloop
+    from lm629_host.sim.model import fastloop
     from lm629_host.opcodes import Signals, Status
 
     assert (fastloop._COMPLETE, fastloop._INDEX, fastloop._WRAP, fastloop._PERR, fastloop._BP) == (

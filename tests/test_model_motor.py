@@ -11,8 +11,8 @@ from math import pi
 import pytest
 
 import lm629_host
-from lm629_host.model.motor import Motor
-from lm629_host.model.params import MotorParams
+from lm629_host.sim.model.motor import Motor
+from lm629_host.sim.model.params import MotorParams
 
 T = 2048 / 8e6
 COUNTS_PER_RAD = 2000 / (2 * pi)

@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-from lm629_host.model.pid import PIDState, lm628_dac_code, lm629_pwm, output_code, pid_step, sat16
+from lm629_host.sim.model.pid import (
+    PIDState,
+    lm628_dac_code,
+    lm629_pwm,
+    output_code,
+    pid_step,
+    sat16,
+)
 
 
 def run(errors, kp=0, ki=0, kd=0, il=0, ds=0):

@@ -6,7 +6,7 @@ Every scenario runs on ``sim://`` (the model strobed directly) and through real 
 ``sim+emu://`` (the Python bridge far end), ``sim+avr://`` (the compiled bridge firmware in
 simavr) and ``sim+ftdi://`` (pyftdi on the emulated FT232H).  Numbers: 8 MHz, T = 256 us,
 ONE = 65536 = 1 count/sample, the default motor (500 lines: 2000 counts/rev).  The model
-choices cited are items of the list in ``lm629_host/model/__init__.py``.
+choices cited are items of the list in ``lm629_host/sim/model/__init__.py``.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import importlib
 import pytest
 
 from lm629_host import CommandError, ProtocolViolation, Signals, Status
-from lm629_host.model import ChipModel, ChipParams
-from lm629_host.model.motor import Motor
+from lm629_host.sim.model import ChipModel, ChipParams
+from lm629_host.sim.model.motor import Motor
 from lm629_host.opcodes import Cmd
 from lm629_host.transports import SCHEMES
 
@@ -33,7 +33,7 @@ def _available(url: str) -> bool:
     except ImportError:
         return False
     if url.startswith("sim+avr"):
-        from lm629_host.avrsim import toolchain_missing
+        from lm629_host.sim.avr import toolchain_missing
 
         return not toolchain_missing()
     return True

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from lm629_host.model.trajectory import (
+from lm629_host.sim.model.trajectory import (
     ONE,
     Trajectory,
     landing_velocity,

@@ -16,9 +16,9 @@ from click.testing import CliRunner
 
 import lm629_host
 from lm629_host import Status, TransportError
-from lm629_host.cli_bridge import _main as cli
+from lm629_host.cli import main as cli
 from lm629_host.opcodes import Cmd
-from lm629_host.simserve import SimServer
+from lm629_host.sim.serve import SimServer
 from lm629_host.transports import serial as serial_mod
 from lm629_host.transports.serial import SerialTransport, options_of
 
@@ -39,14 +39,22 @@ def test_handshake_and_typed_commands_over_the_pty(server):
         assert "round trip" in t.describe() and 0 < t.rtt_s < 0.5
         # a pty has no ASYNC_LOW_LATENCY: the transport says so instead of failing
         assert "not supported" in t.low_latency
-        assert chip.reset() in (Status(0x80), Status(0xC0))
-        server.model.record_clear()
-        t.stats.reset()
-        chip.load_filter(kp=10)
-        chip.update_filter()
-        assert chip.read_real_position() == 0
-        assert t.stats.round_trips == 3 and t.stats.retries == 0
-    assert server.model.history == [(0x1E, (0x0008, 0x000A)), (0x04, ()), (int(Cmd.RDRP), ())]
+        three_commands_once(chip, server.model)
+
+
+def three_commands_once(chip, model) -> None:
+    """Reset, then LFIL kp=10, UDF and RDRP over a bridge link: one round trip each, no
+    retry, and each command exactly once in the chip's record (LFIL with kp only: flags 0008,
+    kp 10 = 000A)."""
+    t = chip.transport
+    assert chip.reset() in (Status(0x80), Status(0xC0))
+    model.record_clear()
+    t.stats.reset()
+    chip.load_filter(kp=10)
+    chip.update_filter()
+    assert chip.read_real_position() == 0
+    assert t.stats.round_trips == 3 and t.stats.retries == 0
+    assert model.history == [(0x1E, (0x0008, 0x000A)), (0x04, ()), (int(Cmd.RDRP), ())]
 
 
 def test_several_clients_share_one_chip(server):
@@ -180,7 +188,7 @@ def test_bridge_flash_command_lines(tmp_path):
 def test_sim_serve_cli_serves_until_sigterm(tmp_path):
     link = tmp_path / "bench"
     env = dict(os.environ, PYTHONPATH=str(Path(lm629_host.__file__).parent.parent))
-    proc = subprocess.Popen([sys.executable, "-m", "lm629_host.cli_bridge", "sim", "serve",
+    proc = subprocess.Popen([sys.executable, "-m", "lm629_host", "sim", "serve",
                              "--pty", str(link), "--url", "sim://?chip=lm628"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
@@ -202,9 +210,9 @@ def test_sim_serve_cli_serves_until_sigterm(tmp_path):
 def test_pipe_far_end_serves_any_simulated_pipe(tmp_path):
     """The adapter that serves the firmware (``--firmware``) works on any simulated pipe: here
     the Python bridge behind an EmuPipe at 115200 baud stands in for the simavr UART."""
-    from lm629_host.bridge_emu import BridgeEmulator, EmuPipe
-    from lm629_host.simserve import PipeFarEnd
-    from lm629_host.transports.sim import build_model
+    from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+    from lm629_host.sim.serve import PipeFarEnd
+    from lm629_host.sim.build import build_model
 
     model = build_model("sim://?record=1")
     far = PipeFarEnd(EmuPipe(BridgeEmulator(model), baud=115200), model, "emu behind a pipe",
@@ -242,10 +250,10 @@ def test_doctor_reports_handshake_and_round_trip(server):
 
 
 def test_every_pipe_is_a_pipe(server):
-    from lm629_host.bridge_emu import BridgeEmulator, EmuPipe
-    from lm629_host.faultlink import FaultPipe
-    from lm629_host.link import Pipe
-    from lm629_host.transports.sim import build_model
+    from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+    from lm629_host.sim.faults import FaultPipe
+    from lm629_host.bridge.protocol import Pipe
+    from lm629_host.sim.build import build_model
 
     emu = EmuPipe(BridgeEmulator(build_model("sim://")))
     with lm629_host.open(f"serial://{server.link}") as chip:

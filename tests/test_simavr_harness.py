@@ -9,15 +9,14 @@ from pathlib import Path
 import pytest
 
 from lm629_host import LM629, BusyTimeout
-from lm629_host.avrsim import CPU_HZ, STATUS, AvrPipe, AvrSim
-from lm629_host.link import (FrameReader, FrameType, LinkTransport, Result, RunReply, encode_frame,
-                             run_payload)
+from lm629_host.sim.avr import CPU_HZ, STATUS, AvrPipe, AvrSim
+from lm629_host.bridge.protocol import FrameReader, FrameType, Result, RunReply, encode_frame
+from lm629_host.transports.link import LinkTransport
 from lm629_host.opcodes import Cmd, Status
 from lm629_host.program import Program
 from lm629_host.transports import open_transport
-from lm629_host.transports.sim import build_model
+from lm629_host.sim.build import build_model
 
-from firmware_helpers import firmware_built  # noqa: F401
 
 pytestmark = pytest.mark.usefixtures("firmware_built")
 
@@ -237,7 +236,7 @@ def test_firmware_switches_its_uart_on_set_baud_and_goes_back_when_nothing_comes
     """SET_BAUD 1000000 to the 115200 image: UBRR0 goes from 16 to 1 once the reply has left;
     with no good frame at the new rate within the window (250 ms) it goes back to 16.  With
     one, it stays (sim+avr://?fast_baud=1000000: the host switches, then polls at 1 Mbaud)."""
-    from lm629_host.link import FrameType
+    from lm629_host.bridge.protocol import FrameType
     from lm629_host.transports import open_transport
 
     t = open_transport("sim+avr://?baud=115200")

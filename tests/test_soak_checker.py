@@ -1,4 +1,4 @@
-"""The exactly-once checker of the fault soak (``faultlink.check_record``) decides exactly.
+"""The exactly-once checker of the fault soak (``sim.faults.check_record``) decides exactly.
 
 The record from issue 16 (run 0 of ``tools/fault_soak.py --runs 2 --n 5000 --rate 0.01``,
 Python far end): calls SBPA 5805 (returned), RDRP (raised), SBPA 5807 (raised), RDRP (returned),
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from lm629_host.faultlink import check_record
+from lm629_host.sim.faults import check_record
 from lm629_host.opcodes import Cmd
 
 RDRP = (int(Cmd.RDRP), ())

@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import threading
 
-import pytest
 
 from lm629_host import Signals, Status
-from lm629_host.simserve import SimServer
+from lm629_host.sim.serve import SimServer
 
 CALLS = 1000
 

@@ -18,8 +18,8 @@ from click.testing import CliRunner
 import lm629_host
 from lm629_host import cli
 from lm629_host.errors import MotionError
-from lm629_host.model.params import MotorParams
-from lm629_host.model.pid import PIDState, pid_step
+from lm629_host.sim.model.params import MotorParams
+from lm629_host.sim.model.pid import PIDState, pid_step
 from lm629_host.opcodes import Signals
 from lm629_host.tuning import AxisModel, Gains, PidState, autotune, simulate, step_metrics
 
@@ -54,7 +54,7 @@ class Watched:
             s = real()
             self.positions.append(s.real_position)
             return s
-        self.chip.snapshot = snapshot  # type: ignore[method-assign]
+        self.chip.snapshot = snapshot  # type: ignore[method-assign]  # a scripted shaft
 
     def in_band(self, travel: int) -> bool:
         return all(abs(p - self.origin) <= travel for p in self.positions)
@@ -177,7 +177,7 @@ def test_bad_arguments_touch_nothing(open_chip, recorder, kw):
 
 
 def test_autotune_through_the_bridge_firmware():
-    from lm629_host.avrsim import toolchain_missing
+    from lm629_host.sim.avr import toolchain_missing
     if toolchain_missing():
         pytest.skip("AVR toolchain missing")
     w = Watched("sim+avr://")
@@ -271,10 +271,10 @@ def test_ctrl_c_while_tuning_stops_the_motor():
         if len(w.positions) == 150:
             raise KeyboardInterrupt
         return real()
-    w.chip.snapshot = snapshot  # type: ignore[method-assign]
+    w.chip.snapshot = snapshot  # type: ignore[method-assign]  # a scripted shaft
     with pytest.raises(KeyboardInterrupt) as err:
         autotune(w.chip, travel=TRAVEL)
-    assert "motor stopped" in getattr(err.value, "lm629_stop_note")
+    assert "motor stopped" in err.value.lm629_stop_note  # type: ignore[attr-defined]  # set by stop_on_error
     assert w.chip.read_signals() & Signals.MOTOR_OFF
     w.chip.close()
 

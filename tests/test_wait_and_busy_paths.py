@@ -19,15 +19,17 @@ import pytest
 
 import lm629_host
 from lm629_host import Status
-from lm629_host.bridge_emu import BridgeEmulator, EmuLinkTransport, EmuPipe
+from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+from lm629_host.transports.simemu import EmuLinkTransport
 from lm629_host.errors import BusyTimeout, WaitTimeout
-from lm629_host.link import Capability, HelloInfo, LinkTransport
+from lm629_host.bridge.protocol import Capability, HelloInfo
+from lm629_host.transports.link import LinkTransport
 from lm629_host.lm629 import POLL_MAX_S, _poll_interval
 from lm629_host.opcodes import Cmd
 from lm629_host.program import WAIT_STATUS_POLL_US, Program
-from lm629_host.transports.sim import SimClock, build_model
+from lm629_host.sim.clock import SimClock
+from lm629_host.sim.build import build_model
 
-from firmware_helpers import firmware_built  # noqa: F401
 
 
 def _scenario(chip) -> list:
@@ -154,7 +156,7 @@ def _emu(capabilities: int) -> EmuLinkTransport:
     model = build_model("sim://")
     emu = BridgeEmulator(model, info=HelloInfo(capabilities=capabilities))
     t = EmuLinkTransport.__new__(EmuLinkTransport)
-    t.model, t.emulator = model, emu  # type: ignore[attr-defined]
+    t.model, t.emulator = model, emu
     LinkTransport.__init__(t, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
     return t
 
@@ -235,7 +237,7 @@ def test_first_sim_avr_use_says_what_it_builds(tmp_path, monkeypatch, capsys):
     silent."""
     import shutil
 
-    from lm629_host import avrsim
+    from lm629_host.sim import avr as avrsim
 
     fw = tmp_path / "firmware_bridge"
     shutil.copytree(avrsim.FIRMWARE_DIR, fw, ignore=shutil.ignore_patterns("build"))

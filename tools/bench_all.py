@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
-"""Every figure of the README's performance table, measured now, before and after.
+"""Every figure of the performance table (docs/performance.md), measured now, before and after.
 
     python3 tools/bench_all.py                  # measure and print the table
-    python3 tools/bench_all.py --write-readme   # ... and write it into README.md ("Performance")
+    python3 tools/bench_all.py --write-readme   # ... and write it into docs/performance.md
     python3 tools/bench_all.py --baseline REF   # "before" = another commit (default below)
     python3 tools/bench_all.py --write-readme --fresh-clone   # also a fresh clone's test run
 
@@ -197,9 +197,11 @@ def probe_after() -> dict:
     """The figures only measured now: the other transports, the variants of waiting."""
     import lm629_host
     import lm629_host.lm629 as lm
-    from lm629_host.bridge_emu import BridgeEmulator, EmuLinkTransport, EmuPipe
-    from lm629_host.link import HelloInfo, LinkTransport
-    from lm629_host.transports.sim import build_model
+    from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+    from lm629_host.transports.simemu import EmuLinkTransport
+    from lm629_host.bridge.protocol import HelloInfo
+    from lm629_host.transports.link import LinkTransport
+    from lm629_host.sim.build import build_model
 
     out: dict = {}
     # waiting: as on a wall clock (one exchange per 250 ms), and an old bridge (host polls)
@@ -455,16 +457,20 @@ def render(table: list[tuple[str, str, str, str]], date: str, ref: str, bad: lis
     return "\n".join(lines)
 
 
+#: where the table lives (the README links to it)
+PERFORMANCE_DOC = ROOT / "docs" / "performance.md"
+
+
 def previous_fresh_row() -> str | None:
     """The fresh-clone row of the README's table, kept when this run does not remeasure it
     (it takes minutes: ``--fresh-clone``); it carries its own date."""
-    m = re.search(r"^\| test run of a fresh clone .*$", (ROOT / "README.md").read_text(),
+    m = re.search(r"^\| test run of a fresh clone .*$", PERFORMANCE_DOC.read_text(),
                   flags=re.M)
     return m[0] if m else None
 
 
 def write_readme(block: str) -> None:
-    path = ROOT / "README.md"
+    path = PERFORMANCE_DOC
     text = path.read_text()
     if BEGIN in text:
         text = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: block, text,
@@ -472,7 +478,7 @@ def write_readme(block: str) -> None:
     else:
         head, sep, rest = text.partition("## Performance\n")
         if not sep:
-            raise SystemExit("README.md has no '## Performance' section")
+            raise SystemExit(f"{PERFORMANCE_DOC} has no '## Performance' section")
         nxt = re.search(r"^## ", rest, flags=re.M)
         tail = rest[nxt.start():] if nxt else ""
         text = f"{head}{sep}\n{block}\n\n{tail}"
@@ -535,7 +541,7 @@ def main() -> int:
     print(block)
     if args.write_readme:
         write_readme(block)
-        print("README.md: Performance section written", file=sys.stderr)
+        print(f"{PERFORMANCE_DOC}: table written", file=sys.stderr)
     return 1 if bad else 0
 
 

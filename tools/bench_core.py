@@ -18,7 +18,7 @@ import argparse
 import time
 
 import lm629_host
-from lm629_host.model import ChipModel, ChipParams
+from lm629_host.sim.model import ChipModel, ChipParams
 from lm629_host.opcodes import Cmd
 
 

@@ -51,7 +51,7 @@ def measure(url: str, name: str, call: Callable[[LM629], object], repeat: int) -
         device = getattr(t, "device", None)
         usb = emu = wall = 0.0
         stats0 = None
-        for i in range(repeat):
+        for _ in range(repeat):
             prepare(chip, name)
             before = t.stats.as_dict()
             c0 = (device.counters.bulk_out + device.counters.bulk_in) if device else 0

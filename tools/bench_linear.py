@@ -19,10 +19,10 @@ import math
 import random
 
 from lm629_host.board import plan_linear
-from lm629_host.model.trajectory import Trajectory
+from lm629_host.sim.model.trajectory import Trajectory
 
 
-def run(plan) -> tuple[int, float]:  # type: ignore[no-untyped-def]
+def run(plan) -> tuple[int, float]:
     trs = []
     for ap in plan.axes:
         t = Trajectory()
@@ -43,7 +43,7 @@ def run(plan) -> tuple[int, float]:  # type: ignore[no-untyped-def]
         p = [(t.position >> 16) - ap.start for t, ap in zip(trs, plan.axes)]
         along = sum(a * b for a, b in zip(p, d)) / length
         dev = max(dev, math.sqrt(max(0.0, sum(x * x for x in p) - along * along)))
-    return max(ends) - min(ends), dev  # type: ignore[type-var,operator]
+    return max(ends) - min(ends), dev  # type: ignore[type-var,operator]  # ends are numbers
 
 
 def main() -> None:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import lm629_host  # noqa: E402
+import lm629_host
 
 
 def poll_sim_time(url: str, n: int) -> tuple[float, float]:
@@ -97,12 +97,14 @@ def main() -> None:
           "(framing + CRC + emulated bridge)")
 
     print("4. serial:// on a pseudo-terminal (real time, lm629 sim serve's server)")
-    from lm629_host.simserve import SimServer
+    from lm629_host.sim.serve import SimServer
+    from lm629_host.transports.serial import SerialTransport
     with tempfile.TemporaryDirectory() as d:
         srv = SimServer(Path(d) / "lm629", "sim://").start()
         try:
             with lm629_host.open(f"serial://{srv.link}") as chip:
                 t = chip.transport
+                assert isinstance(t, SerialTransport)
                 rtts = [t.ping() for _ in range(200)]
                 chip.reset()
                 m = min(n, 1000)

@@ -76,7 +76,7 @@ def main() -> None:
           f"{args.poll:g} s (8 MHz: 3906 samples per simulated s)")
     loops = ["c", "py", "0"]
     try:
-        import lm629_host.model._fastloop  # noqa: F401
+        import lm629_host.sim.model._fastloop  # noqa: F401 - only whether it was built
     except ImportError:
         loops.remove("c")
         print("(the C loop is not built: pip install -e . with a C compiler)")

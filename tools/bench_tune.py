@@ -23,9 +23,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import lm629_host  # noqa: E402
-from lm629_host.errors import MotionError  # noqa: E402
-from lm629_host.tuning import Gains, MoveMetrics, autotune, measure_move, score  # noqa: E402
+import lm629_host
+from lm629_host.errors import MotionError
+from lm629_host.tuning import Gains, MoveMetrics, autotune, measure_move, score
 
 MOTORS = (
     ("default", ""),

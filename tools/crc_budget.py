@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Error-detection budget of the bridge link (PROTOCOL.md "Error detection"): what the
 16-bit CRC lets through for the frames the link really sends, under the fault model of the
-soak (``faultlink.FaultPipe``: each byte dropped, corrupted or duplicated at ``--rate`` each).
+soak (``sim.faults.FaultPipe``: each byte dropped, corrupted or duplicated at ``--rate`` each).
 
 A stream of real frames (RUN requests and RUN_REPLYs of SBPA and RDRP, and the largest frame,
 250 bytes) goes through the fault model into the host's own FrameReader.  Every frame that
@@ -32,10 +32,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from lm629_host.link import (FrameType, MAX_FRAME, RunReply, cobs_decode, crc16,  # noqa: E402
-                             encode_frame, run_payload)
-from lm629_host.opcodes import Cmd  # noqa: E402
-from lm629_host.program import BusOp, Op  # noqa: E402
+from lm629_host.bridge.protocol import (
+    FrameType,
+    MAX_FRAME,
+    RunReply,
+    cobs_decode,
+    crc16,
+    encode_frame,
+    run_payload,
+)
+from lm629_host.opcodes import Cmd
+from lm629_host.program import BusOp, Op
 
 
 def frames() -> list[tuple[str, bytes]]:
@@ -125,9 +132,9 @@ def main() -> int:
                     if crc16(dec[:-2]) & 0xFF == dec[-1]:
                         weak_pass += 1
         counted = rest_same if reply else rest
-        p = counted / damaged * 2 ** -16 if damaged else 0.0
+        p_pass = counted / damaged * 2 ** -16 if damaged else 0.0
         print(f"{name:22} {len(wire):4} {damaged:8} {stopped:8} {burst:9} {rest:7} "
-              f"{rest_same:10} {p:22.2e} {weak_pass:10} / {rest / 256:9.1f}")
+              f"{rest_same:10} {p_pass:22.2e} {weak_pass:10} / {rest / 256:9.1f}")
     return 0
 
 

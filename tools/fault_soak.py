@@ -20,9 +20,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from lm629_host import LM629  # noqa: E402
-from lm629_host.bridge_emu import open_emulated  # noqa: E402
-from lm629_host.faultlink import FaultPipe, check_record, soak  # noqa: E402
+from lm629_host import LM629
+from lm629_host.transports.simemu import open_emulated
+from lm629_host.sim.faults import FaultPipe, check_record, soak
 
 
 def open_far(far: str, baud: int, n: int = 5000):
@@ -31,9 +31,9 @@ def open_far(far: str, baud: int, n: int = 5000):
     if far == "emu":
         t = open_emulated(f"sim://?{rec}", baud=baud)
         return t, t.model, t.emulator.stats
-    from lm629_host.transports import open_transport  # sim+avr://: the compiled firmware
-    t = open_transport(f"sim+avr://?{rec}&baud={baud}")
-    return t, t.model, t.sim.link_counters()  # the firmware's own counters (None: no avr-nm)
+    from lm629_host.transports.simavr import SimAvrTransport  # the compiled firmware
+    avr = SimAvrTransport.from_url(f"sim+avr://?{rec}&baud={baud}")
+    return avr, avr.model, avr.sim.link_counters()  # the firmware's own counters (None: no avr-nm)
 
 
 def main() -> int:

@@ -17,13 +17,20 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from lm629_host.link import (  # noqa: E402
-    FrameType, HelloInfo, Result, RunReply, cobs_encode, encode_program, frame_body, run_payload,
+from lm629_host.bridge.protocol import (
+    FrameType,
+    HelloInfo,
+    Result,
+    RunReply,
+    cobs_encode,
+    encode_program,
+    frame_body,
+    run_payload,
     short_reply_payload,
 )
-from lm629_host.opcodes import Cmd  # noqa: E402
-from lm629_host.program import Program  # noqa: E402
-from generated import write_or_check  # noqa: E402
+from lm629_host.opcodes import Cmd
+from lm629_host.program import Program
+from generated import write_or_check
 
 OUT = Path(__file__).resolve().parent.parent / "firmware_bridge" / "golden_frames.txt"
 

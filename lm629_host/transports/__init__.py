@@ -9,84 +9,115 @@ scheme             what                                                        m
 ``ftdi://...``     an FT232H in MPSSE mode through pyftdi                      ``ftdi``
 ``sim+avr://``     the real bridge firmware in simavr, against the chip model  ``simavr``
 ``sim+ftdi://``    the FT232H transport through pyftdi on an emulated FT232H   ``simftdi``
-``sim+emu://``     the bridge link protocol to the Python bridge emulator      ``bridge_emu``
+``sim+emu://``     the bridge link protocol to the Python bridge emulator      ``simemu``
 =================  ==========================================================  ===============
 
-A new transport is one module holding a :class:`~.base.Transport` subclass with a
-``from_url(url, trace=...)`` classmethod, plus one line in ``SCHEMES``.
+A transport is a :class:`~.base.Transport` subclass (the contract is in its docstring:
+``from_url``, ``list_ports``, ``doctor``, ``simulated``).  The built-in ones are the table
+above (:data:`BUILTIN`); another package adds its own without editing this one, through the
+entry-point group ``lm629_host.transports`` (name = scheme, value = ``module:Class``), e.g. in
+its ``pyproject.toml``::
+
+    [project.entry-points."lm629_host.transports"]
+    mybus = "mypackage.mybus:MyBusTransport"
+
+Modules are imported on first use, so that optional dependencies stay optional and the
+simulators are only loaded when a simulator URL is opened.
 """
 
 from __future__ import annotations
 
 import importlib
-from urllib.parse import parse_qs, parse_qsl, urlencode, urlsplit
+import logging
+from collections.abc import Iterator
+from importlib.metadata import entry_points
 
+from ..clock import Clock, WallClock
 from ..errors import TransportError
 from ..program import TraceCallback
-from .base import Check, Clock, CycleTransport, PortInfo, Stats, Transport, WallClock
+from ..urls import query_params, scheme_of, split_params
+from .base import Check, CycleTransport, PortInfo, Stats, Transport
 
-#: scheme -> "module:Class" (imported on first use, so that optional dependencies stay optional)
-SCHEMES: dict[str, str] = {
+log = logging.getLogger("lm629_host.transports")
+
+#: the entry-point group through which other packages register transports
+ENTRY_POINT_GROUP = "lm629_host.transports"
+
+#: scheme -> "module:Class" of the transports that ship with this package
+BUILTIN: dict[str, str] = {
     "sim": "lm629_host.transports.sim:SimTransport",
     "serial": "lm629_host.transports.serial:SerialTransport",
     "ftdi": "lm629_host.transports.ftdi:FtdiTransport",
     "sim+avr": "lm629_host.transports.simavr:SimAvrTransport",
     "sim+ftdi": "lm629_host.transports.simftdi:SimFtdiTransport",
-    "sim+emu": "lm629_host.bridge_emu:EmuLinkTransport",
+    "sim+emu": "lm629_host.transports.simemu:EmuLinkTransport",
 }
+#: the old name of :data:`BUILTIN`
+SCHEMES = BUILTIN
 
 DEFAULT_URL = "sim://"
 
 
-def scheme_of(url: str) -> str:
-    """The scheme of ``url``; a bare device path (``/dev/ttyUSB0``, ``COM3``) means serial."""
-    if "://" not in url:
-        return "serial"
-    return url.split("://", 1)[0].lower()
+def registry() -> dict[str, str]:
+    """scheme -> "module:Class": the built-in transports, then those that installed packages
+    register under :data:`ENTRY_POINT_GROUP` (read afresh at each call: a package installed
+    while the program runs is seen).  A plug-in cannot replace a built-in scheme."""
+    found = dict(BUILTIN)
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        scheme = ep.name.lower()
+        if scheme in BUILTIN:
+            log.warning("entry point %s = %s ignored: %s:// is built in", ep.name, ep.value,
+                        scheme)
+            continue
+        found.setdefault(scheme, ep.value)
+    return found
 
 
-def query_params(url: str) -> dict[str, str]:
-    """``?a=1&b=2`` of a URL as a dict of last values."""
-    q = urlsplit(url).query
-    return {k: v[-1] for k, v in parse_qs(q, keep_blank_values=True).items()}
-
-
-def split_params(url: str, names: frozenset[str] | set[str]) -> tuple[str, dict[str, str]]:
-    """``url`` without the query parameters ``names``, and their values (e.g. ``cs`` and
-    ``axes``, which the board layer reads and a hardware transport does not know)."""
-    if "?" not in url:
-        return url, {}
-    base, query = url.split("?", 1)
-    pairs = parse_qsl(query, keep_blank_values=True)
-    taken = {k: v for k, v in pairs if k in names}
-    if not taken:
-        return url, {}
-    rest = urlencode([(k, v) for k, v in pairs if k not in names], safe=":/")
-    return (base + "?" + rest if rest else base), taken
+def _load(scheme: str, target: str) -> type[Transport]:
+    module_name, _, cls_name = target.partition(":")
+    cls = getattr(importlib.import_module(module_name), cls_name)
+    if not (isinstance(cls, type) and issubclass(cls, Transport)):
+        raise TypeError(f"{target} (registered for {scheme}://) is not a Transport subclass")
+    return cls
 
 
 def transport_class(url: str) -> type[Transport]:
+    """The transport class for ``url``'s scheme (its module imported now)."""
     scheme = scheme_of(url)
-    target = SCHEMES.get(scheme)
+    known = registry()
+    target = known.get(scheme)
     if target is None:
         raise TransportError(
-            f"unknown port scheme {scheme!r}; known: {', '.join(s + '://' for s in SCHEMES)} "
+            f"unknown port scheme {scheme!r}; known: {', '.join(s + '://' for s in known)} "
             "or a serial device path", port=url)
-    module_name, cls_name = target.split(":")
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
+        return _load(scheme, target)
+    except (ImportError, AttributeError, TypeError) as exc:
         raise TransportError(f"the {scheme}:// transport is not available: {exc}", port=url) from exc
-    return getattr(module, cls_name)
+
+
+def transport_classes() -> Iterator[tuple[str, type[Transport] | None, str | None]]:
+    """(scheme, class or None, why it cannot be loaded) for every registered transport: what
+    ``lm629 list`` and ``lm629 doctor`` walk through."""
+    for scheme, target in registry().items():
+        try:
+            yield scheme, _load(scheme, target), None
+        except Exception as exc:  # noqa: BLE001 - a missing optional backend is a doctor line
+            yield scheme, None, f"{type(exc).__name__}: {exc}"
+
+
+def is_simulated(url: str) -> bool:
+    """True when ``url`` names a simulated port (no hardware behind it)."""
+    return transport_class(url).simulated
 
 
 def open_transport(url: str = DEFAULT_URL, *, trace: TraceCallback | None = None) -> Transport:
     """Open the transport named by ``url``."""
-    cls = transport_class(url)
-    return cls.from_url(url, trace=trace)  # type: ignore[attr-defined]
+    return transport_class(url).from_url(url, trace=trace)
 
 
 __all__ = [
-    "Check", "Clock", "CycleTransport", "PortInfo", "Stats", "Transport", "WallClock", "SCHEMES", "DEFAULT_URL",
-    "open_transport", "query_params", "scheme_of", "split_params", "transport_class",
+    "BUILTIN", "Check", "Clock", "CycleTransport", "DEFAULT_URL", "ENTRY_POINT_GROUP",
+    "PortInfo", "SCHEMES", "Stats", "Transport", "WallClock", "is_simulated", "open_transport",
+    "query_params", "registry", "scheme_of", "split_params", "transport_class", "transport_classes",
 ]

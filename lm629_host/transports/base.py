@@ -17,19 +17,28 @@ wait, ``LM629.wait_for``) waits on the right time base.
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 import functools
 import logging
 import threading
-import time
 from dataclasses import asdict, dataclass
 
-from ..errors import BusyTimeout
-from ..opcodes import Status
-from ..program import WAIT_STATUS_POLL_US, BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
+from ..clock import Clock, WallClock
+from ..errors import BusyTimeout, TransportError
+from ..opcodes import BUSY_BIT
+from ..program import (
+    WAIT_STATUS_POLL_US,
+    BusCycle,
+    BusOp,
+    Op,
+    Program,
+    ProgramResult,
+    TraceCallback,
+)
 
 log = logging.getLogger("lm629_host.bus")
 
-_BUSY = int(Status.BUSY)  # a plain int: enum arithmetic costs microseconds in the poll loop
+_BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 _STATUS, _COMMAND, _WRITE, _READ = int(Op.STATUS), int(Op.COMMAND), int(Op.WRITE), int(Op.READ)
 _RESET, _WAIT, _SYNC, _WAIT_STATUS = int(Op.RESET), int(Op.WAIT), int(Op.SYNC), int(Op.WAIT_STATUS)
 _SELECT = int(Op.SELECT)
@@ -77,27 +86,6 @@ class Check:
     message: str
 
 
-class Clock(abc.ABC):
-    """A time base: ``now()`` in seconds and ``sleep(seconds)``."""
-
-    @abc.abstractmethod
-    def now(self) -> float: ...
-
-    @abc.abstractmethod
-    def sleep(self, seconds: float) -> None: ...
-
-
-class WallClock(Clock):
-    """Real time, for transports that reach real hardware."""
-
-    def now(self) -> float:
-        return time.monotonic()
-
-    def sleep(self, seconds: float) -> None:
-        if seconds > 0:
-            time.sleep(seconds)
-
-
 class LockedClock(Clock):
     """A simulated clock whose ``sleep`` runs the simulation forward under the transport's
     lock, so that a thread waiting on it never advances the chip model in the middle of
@@ -122,6 +110,16 @@ class LockedClock(Clock):
 class Transport(abc.ABC):
     """Runs bus programs on one chip.  Subclasses set ``url``, ``clock`` and ``has_reset_line``.
 
+    The contract of a transport class, all that the registry (:mod:`lm629_host.transports`),
+    :func:`lm629_host.open`, ``lm629 list`` and ``lm629 doctor`` use:
+
+    * ``scheme``: the URL scheme it is registered under;
+    * ``simulated``: True when no hardware is behind it (the CLI prepares a fresh chip);
+    * :meth:`from_url` opens one; :meth:`execute` runs a bus program; :meth:`close`;
+    * :meth:`list_ports` and :meth:`doctor` (class methods, empty by default) say what this
+      machine has for this kind of port and what is wrong with it;
+    * :meth:`describe` and ``repr()`` say what an open one is connected to.
+
     Threads: every ``execute`` runs whole under ``self.lock`` (one re-entrant lock per
     transport, so shared by every :class:`~lm629_host.LM629` on it): threads sharing a chip
     never interleave bus cycles.  A simulated clock (anything but :class:`WallClock`) is
@@ -130,6 +128,14 @@ class Transport(abc.ABC):
 
     #: the scheme this transport is registered under (``sim``, ``serial``...)
     scheme: str = ""
+    #: True when the far side is simulated: no hardware, a fresh chip at every open
+    simulated: bool = False
+    #: bus programs under way (nested ones count): a signal handler that must not cut a
+    #: program in half reads it (the CLI's)
+    program_depth: int = 0
+    #: called after every outermost bus program that ended normally, outside the lock (the CLI
+    #: raises a stop signal there that it held during the program); None: nothing
+    after_program: Callable[[], None] | None = None
     #: True when the transport can pulse /RST; otherwise ``LM629.reset`` sends command RESET
     has_reset_line: bool = True
     #: how many chips (/CS lines) a program can address with ``Op.SELECT`` (a multi-axis board)
@@ -154,9 +160,17 @@ class Transport(abc.ABC):
         @functools.wraps(fn)
         def execute(self: Transport, program: Program) -> ProgramResult:
             with self.lock:
-                return fn(self, program)
-        execute._runs_locked = True  # type: ignore[attr-defined]
-        cls.execute = execute  # type: ignore[method-assign]
+                self.program_depth += 1
+                try:
+                    result = fn(self, program)
+                finally:
+                    self.program_depth -= 1
+            hook = self.after_program
+            if hook is not None and not self.program_depth:
+                hook()
+            return result
+        execute._runs_locked = True  # type: ignore[attr-defined]  # marks the wrapper
+        cls.execute = execute  # type: ignore[method-assign]  # every execute runs locked
 
     @property
     def lock(self) -> threading.RLock:
@@ -180,17 +194,36 @@ class Transport(abc.ABC):
         #: the clock itself, for code that already holds the lock (inside ``execute``)
         self._inner_clock = inner
 
+    @classmethod
+    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> Transport:
+        """Open the port named by ``url`` (its options after ``?``: see the subclass)."""
+        raise TransportError(f"{cls.__name__} cannot be opened from a URL", port=url)
+
+    @classmethod
+    def list_ports(cls) -> list[PortInfo]:
+        """The ports of this kind found on this machine (``lm629 list``)."""
+        return []
+
+    @classmethod
+    def doctor(cls, port: str | None = None) -> list[Check]:
+        """What ``lm629 doctor`` says about this kind of port on this machine (libraries,
+        permissions, adapters found); ``port``: one port to examine closely."""
+        return []
+
     @abc.abstractmethod
     def execute(self, program: Program) -> ProgramResult:
         """Run ``program``; return its results or raise an :class:`~lm629_host.LM629Error`
         subclass that names the failing operation."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
         """Release the port.  Idempotent."""
 
     def describe(self) -> str:
         """One line for the CLI and error messages: what this transport is connected to."""
         return self.url
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.url!r}>"
 
     def _emit(self, cycle: BusCycle) -> None:
         if self.trace is not None:

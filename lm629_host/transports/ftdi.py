@@ -104,31 +104,29 @@ import errno as _errno
 import logging
 import math
 import os
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
+from .. import data
 from .. import ftdi_pins as pins
+from ..clock import Clock, WallClock
 from ..errors import AxisError, BusyTimeout, TransportError
-from ..opcodes import RESET_WAIT_S, Cmd, Status
+from ..opcodes import BUSY_BIT, RESET_WAIT_S, Cmd
 from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
-from . import query_params
-from .base import Check, Clock, PortInfo, Transport, WallClock
+from ..urls import Option, parse_options
+from .base import Check, PortInfo, Transport
 
 log = logging.getLogger("lm629_host.ftdi")
 
-_BUSY = int(Status.BUSY)
+_BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 
-# MPSSE opcodes (FTDI AN_108); the ones this transport emits
-SET_LOW = 0x80
-GET_LOW = 0x81
-SET_HIGH = 0x82
-GET_HIGH = 0x83
-SEND_IMMEDIATE = 0x87
-CLK_BITS = 0x8E
-CLK_BYTES = 0x8F
-DISABLE_CLK_3PHASE = 0x8D
-DISABLE_CLK_ADAPTIVE = 0x97
+# the MPSSE commands this transport emits (FTDI AN_108; defined in ftdi_pins)
+SET_LOW, GET_LOW, SET_HIGH, GET_HIGH = pins.SET_LOW, pins.GET_LOW, pins.SET_HIGH, pins.GET_HIGH
+SEND_IMMEDIATE, CLK_BITS, CLK_BYTES = pins.SEND_IMMEDIATE, pins.CLK_BITS, pins.CLK_BYTES
+DISABLE_CLK_3PHASE, DISABLE_CLK_ADAPTIVE = pins.DISABLE_CLK_3PHASE, pins.DISABLE_CLK_ADAPTIVE
 #: bytes a stream may still need after its last operation: control lines idle (3), D0-D7
 #: released (3), read HI (1), send immediate (1)
 STREAM_TAIL = 8
@@ -153,7 +151,7 @@ RST_LOW_S = 10e-6  #: >= 8 clocks of the slowest (1 MHz) chip, with margin
 #: commands that act on the chip (not repeatable once taken): the stream is cut before them
 ACTIONS = frozenset({Cmd.RESET, Cmd.STT, Cmd.DFH, Cmd.SIP, Cmd.UDF})
 
-UDEV_RULE = "/etc/udev/rules.d/99-lm629-ft232h.rules"
+UDEV_RULE = f"{data.UDEV_RULES_DIR}/{data.UDEV_RULE}"  #: where the installed rule lives
 
 
 # ---------------------------------------------------------------------------- compilation
@@ -430,7 +428,7 @@ class FtdiTransport(Transport):
     #: /CS lines of the wiring (ftdi_pins.CHIP_SELECTS): two axes
     chip_selects = len(pins.CHIP_SELECTS)
 
-    def __init__(self, ftdi: object, url: str, *, trace: TraceCallback | None = None,
+    def __init__(self, ftdi: Any, url: str, *, trace: TraceCallback | None = None,
                  clock: Clock | None = None, busy_s: float | None = DEFAULT_BUSY_US * 1e-6,
                  tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS) -> None:
         """``busy_s``: the wait after each transfer; None: measured on the chip before the first
@@ -459,11 +457,72 @@ class FtdiTransport(Transport):
         return cls(ftdi, url, trace=trace, busy_s=None if busy is None else busy * 1e-6,
                    tck_hz=opts["frequency"], latency_ms=opts["latency"])
 
+    @classmethod
+    def list_ports(cls) -> list[PortInfo]:
+        """FT232H adapters on the USB bus (for ``lm629 list``); [] when pyftdi or libusb is
+        missing (``doctor()`` says which)."""
+        try:
+            from pyftdi.ftdi import Ftdi
+            found = Ftdi.find_all([(FTDI_VID, FT232H_PID)], nocache=True)
+        except ImportError:
+            return []
+        except ValueError:  # no backend
+            return []
+        except Exception as exc:  # noqa: BLE001 - enumeration can fail on access rights
+            code = _usb_errno(exc)
+            problem = ADVICE_ACCESS if code == _errno.EACCES else str(exc)
+            return [PortInfo("ftdi://ftdi:232h/1", "FTDI FT232H (0403:6014)", False, problem)]
+        ports = []
+        for desc, _ifcount in sorted(found, key=lambda d: (d[0].bus or 0, d[0].address or 0)):
+            where = f"bus {desc.bus} address {desc.address}"
+            if desc.sn:
+                url = f"ftdi://ftdi:232h:{desc.sn}/1"
+            else:
+                url = f"ftdi://ftdi:232h:{desc.bus:x}:{desc.address:x}/1"
+            ports.append(PortInfo(url, f"FTDI FT232H {desc.description or ''} ({where}, "
+                                       f"serial {desc.sn or 'none'})".replace("  ", " ")))
+        return ports
+
+    @classmethod
+    def doctor(cls, port: str | None = None) -> list[Check]:
+        """What ``lm629 doctor`` reports about FT232H support on this machine."""
+        checks: list[Check] = []
+        try:
+            import pyftdi
+            checks.append(Check("pyftdi", True, f"pyftdi {pyftdi.__version__}"))
+        except ImportError:
+            return [Check("pyftdi", False, "pyftdi is not installed: pip install 'lm629-host[ftdi]'")]
+        try:
+            from pyftdi.usbtools import UsbTools
+            UsbTools.find_backend()
+            checks.append(Check("libusb", True, "pyusb found a libusb backend"))
+        except ValueError:
+            checks.append(Check("libusb", False, ADVICE_NO_BACKEND))
+            return checks
+        ports = cls.list_ports()
+        usable = [p for p in ports if p.usable]
+        if usable:
+            checks.append(Check("FT232H", True, ", ".join(p.url for p in usable)))
+        elif ports:
+            checks.append(Check("FT232H", False, ports[0].problem))
+        else:
+            checks.append(Check("FT232H", False, "no FT232H (0403:6014) on the USB bus"))
+        rule = os.path.exists(UDEV_RULE)
+        checks.append(Check("udev rule", rule or os.geteuid() == 0,
+                            f"{UDEV_RULE} installed" if rule else
+                            ("not installed (not needed as root)" if os.geteuid() == 0 else
+                             "not installed: " + ADVICE_ACCESS.split("\n", 1)[1].strip())))
+        if os.path.isdir("/sys/module/ftdi_sio"):
+            checks.append(Check("ftdi_sio", True, "the ftdi_sio driver is loaded: pyftdi detaches it "
+                                                  "from the adapter when it opens it; if that fails, "
+                                                  "see the 'device busy' advice"))
+        return checks
+
     def close(self) -> None:
         ftdi, self.ftdi = self.ftdi, None
         if ftdi is not None:
             try:
-                ftdi.close()  # type: ignore[attr-defined]
+                ftdi.close()
             except Exception as exc:  # noqa: BLE001 - closing a vanished device must not raise
                 log.warning("closing %s: %s", self.url, exc)
 
@@ -555,8 +614,8 @@ class FtdiTransport(Transport):
         # wait that many latency periods for it, and a few more
         attempts = 3 + int(stream.delay_s * 1000 / max(1, self.latency_ms))
         try:
-            ftdi.write_data(stream.data)  # type: ignore[attr-defined]
-            answer = bytes(ftdi.read_data_bytes(need, attempts))  # type: ignore[attr-defined]
+            ftdi.write_data(stream.data)
+            answer = bytes(ftdi.read_data_bytes(need, attempts))
         except TransportError:
             raise
         except Exception as exc:
@@ -630,8 +689,8 @@ class FtdiTransport(Transport):
             try:
                 self.calibrate_busy()
             finally:  # its exchanges are not the program's: counted apart
-                for k, v in saved.items():
-                    setattr(self.stats, k, v)
+                for name, value in saved.items():
+                    setattr(self.stats, name, value)
         self.stats.programs += 1
         chip_at = chips_of_units(ops)
         statuses: dict[int, int] = {}
@@ -706,8 +765,8 @@ class FtdiTransport(Transport):
                                                      first + program.busy_timeout_s, words)
                 self._learn_busy(self.clock.now() - t0)
                 pos = unit_start
-        words = tuple(reads[k] for k in sorted(reads))
-        return ProgramResult(words, tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
+        return ProgramResult(tuple(reads[k] for k in sorted(reads)),
+                             tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
 
     @staticmethod
     def _record(stream: Stream, answer: bytes, ok_end: int, taken: set[int],
@@ -730,27 +789,21 @@ class FtdiTransport(Transport):
 
 
 # ---------------------------------------------------------------------------- URLs, opening
-def options_of(url: str) -> dict[str, int | float]:
-    q = query_params(url)
-    unknown = set(q) - {"latency", "busy_us", "frequency"}
-    if unknown:
-        raise ValueError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; "
-                         "known: latency (ms), busy_us, frequency (Hz)")
-    opts: dict[str, int | float | None] = {"latency": DEFAULT_LATENCY_MS, "busy_us": None,
-                                           "frequency": DEFAULT_TCK_HZ}
-    limits = {"latency": (1, 255), "busy_us": (0, 65535), "frequency": (1e5, 30e6)}
-    for name, text in q.items():
-        if name == "busy_us" and text == "auto":
-            continue
-        try:
-            value = float(text)
-        except ValueError:
-            raise ValueError(f"{url}: {name}={text!r} is not a number") from None
-        lo, hi_ = limits[name]
-        if not lo <= value <= hi_:
-            raise ValueError(f"{url}: {name}={text} is outside {lo:g}..{hi_:g}")
-        opts[name] = int(value) if name == "latency" else value
-    return opts
+#: the URL options of the FT232H transport (``busy_us`` none, or ``auto``: measured)
+OPTIONS = (
+    Option("latency", "int", DEFAULT_LATENCY_MS, 1, 255, "ms"),
+    Option("busy_us", "float", None, 0, 65535, "us", optional=True),
+    Option("frequency", "hz", DEFAULT_TCK_HZ, 1e5, 30e6, "Hz"),
+)
+
+
+def auto_as_none(url: str, name: str) -> str:
+    """``url`` with ``name=auto`` spelled ``name=none`` (an optional option's None)."""
+    return re.sub(rf"(?i)([?&]{name}=)auto(?=&|$)", r"\g<1>none", url)
+
+
+def options_of(url: str) -> dict[str, Any]:
+    return parse_options(auto_as_none(url, "busy_us"), OPTIONS, what="FT232H")
 
 
 def pyftdi_url(url: str) -> str:
@@ -764,11 +817,9 @@ ADVICE_NO_BACKEND = (
     "sudo apt-get install libusb-1.0-0; Fedora: sudo dnf install libusb1; macOS: "
     "brew install libusb), then try again")
 ADVICE_ACCESS = (
-    "access denied to the FT232H's USB device. Install the udev rule shipped with this project "
-    "and replug the adapter:\n"
-    f"    sudo cp udev/99-lm629-ft232h.rules {UDEV_RULE}\n"
-    "    sudo udevadm control --reload-rules && sudo udevadm trigger\n"
-    "    sudo usermod -aG plugdev $USER   (then log out and in again)")
+    "access denied to the FT232H's USB device. Install the udev rule shipped with this package "
+    "and replug the adapter (`lm629 udev` prints these commands):\n"
+    + "\n".join("    " + c for c in data.udev_install_commands()))
 ADVICE_BUSY = (
     "device busy: another program, or the ftdi_sio kernel driver, holds the FT232H. Close other "
     "programs using it (another lm629, a serial terminal); to free it from ftdi_sio either "
@@ -787,7 +838,7 @@ def _usb_errno(exc: BaseException) -> int | None:
             return _errno.EACCES
         if "resource busy" in text or "errno 16" in text:
             return _errno.EBUSY
-        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]
+        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]  # None ends the loop
     return None
 
 
@@ -860,65 +911,9 @@ def open_mpsse(url: str, latency_ms: int = DEFAULT_LATENCY_MS,
 
 
 # ---------------------------------------------------------------------------- list, doctor
-def list_ports() -> list[PortInfo]:
-    """FT232H adapters on the USB bus (for ``lm629 list``); [] when pyftdi or libusb is
-    missing (``doctor()`` says which)."""
-    try:
-        from pyftdi.ftdi import Ftdi
-        found = Ftdi.find_all([(FTDI_VID, FT232H_PID)], nocache=True)
-    except ImportError:
-        return []
-    except ValueError:  # no backend
-        return []
-    except Exception as exc:  # noqa: BLE001 - enumeration can fail on access rights
-        code = _usb_errno(exc)
-        problem = ADVICE_ACCESS if code == _errno.EACCES else str(exc)
-        return [PortInfo("ftdi://ftdi:232h/1", "FTDI FT232H (0403:6014)", False, problem)]
-    ports = []
-    for desc, _ifcount in sorted(found, key=lambda d: (d[0].bus or 0, d[0].address or 0)):
-        where = f"bus {desc.bus} address {desc.address}"
-        if desc.sn:
-            url = f"ftdi://ftdi:232h:{desc.sn}/1"
-        else:
-            url = f"ftdi://ftdi:232h:{desc.bus:x}:{desc.address:x}/1"
-        ports.append(PortInfo(url, f"FTDI FT232H {desc.description or ''} ({where}, "
-                                   f"serial {desc.sn or 'none'})".replace("  ", " ")))
-    return ports
-
-
-def doctor() -> list[Check]:
-    """What ``lm629 doctor`` reports about FT232H support on this machine."""
-    checks: list[Check] = []
-    try:
-        import pyftdi
-        checks.append(Check("pyftdi", True, f"pyftdi {pyftdi.__version__}"))
-    except ImportError:
-        return [Check("pyftdi", False, "pyftdi is not installed: pip install 'lm629-host[ftdi]'")]
-    try:
-        from pyftdi.usbtools import UsbTools
-        UsbTools.find_backend()
-        checks.append(Check("libusb", True, "pyusb found a libusb backend"))
-    except ValueError:
-        checks.append(Check("libusb", False, ADVICE_NO_BACKEND))
-        return checks
-    ports = list_ports()
-    usable = [p for p in ports if p.usable]
-    if usable:
-        checks.append(Check("FT232H", True, ", ".join(p.url for p in usable)))
-    elif ports:
-        checks.append(Check("FT232H", False, ports[0].problem))
-    else:
-        checks.append(Check("FT232H", False, "no FT232H (0403:6014) on the USB bus"))
-    rule = os.path.exists(UDEV_RULE)
-    checks.append(Check("udev rule", rule or os.geteuid() == 0,
-                        f"{UDEV_RULE} installed" if rule else
-                        ("not installed (not needed as root)" if os.geteuid() == 0 else
-                         "not installed: " + ADVICE_ACCESS.split("\n", 1)[1].strip())))
-    if os.path.isdir("/sys/module/ftdi_sio"):
-        checks.append(Check("ftdi_sio", True, "the ftdi_sio driver is loaded: pyftdi detaches it "
-                                              "from the adapter when it opens it; if that fails, "
-                                              "see the 'device busy' advice"))
-    return checks
+#: module-level names of the class methods (``ftdi.list_ports()``)
+list_ports = FtdiTransport.list_ports
+doctor = FtdiTransport.doctor
 
 
 __all__ = ["FtdiTransport", "StreamCompiler", "Stream", "Slot", "units_of", "streams_of",

@@ -14,7 +14,7 @@ parameters (all optional)::
 * ``low_latency``: ask the USB serial driver for low latency (on Linux, FTDI adapters hold
   short replies back for up to 16 ms otherwise: the "latency timer trap").
 
-The link itself (frames, retries, exactly-once) is :class:`~lm629_host.link.LinkTransport`;
+The link itself (frames, retries, exactly-once) is :class:`~lm629_host.bridge.protocol.LinkTransport`;
 this module adds the port: opening it with errors that say what to do, the pipe over pyserial,
 the round-trip time measured after the handshake, ``list_ports()`` and ``doctor()``.
 """
@@ -32,13 +32,15 @@ from dataclasses import dataclass
 try:  # POSIX only; imported early so that the advice works even where modules can't load
     import grp
 except ImportError:  # pragma: no cover - Windows
-    grp = None  # type: ignore[assignment]
+    grp = None  # type: ignore[assignment]  # Windows has no grp module
 
+from ..bridge.protocol import FAST_BAUD
+from ..clock import Clock, WallClock
 from ..errors import TransportError
-from ..link import DEFAULT_RETRIES, FAST_BAUD, LinkTransport
 from ..program import TraceCallback
-from . import query_params
-from .base import Check, Clock, PortInfo, WallClock
+from ..urls import Option, parse_options, query_params, with_query
+from .base import Check, PortInfo
+from .link import DEFAULT_RETRIES, LinkTransport
 
 log = logging.getLogger("lm629_host.serial")
 
@@ -61,13 +63,28 @@ KNOWN_USB_IDS: dict[tuple[int, int], str] = {
     (0x10C4, 0xEA60): "Silicon Labs CP210x",
 }
 
-_PARAMS = {"baud", "retries", "boot", "low_latency", "cs", "fast_baud"}
+#: the URL options of a serial bridge
+OPTIONS = (
+    Option("baud", "int", DEFAULT_BAUD, 300, 4_000_000, "baud"),
+    Option("retries", "int", DEFAULT_RETRIES, 0, 20),
+    Option("boot", "float", DEFAULT_BOOT_S, 0.0, 30.0, "s"),
+    Option("low_latency", "bool", True),
+    Option("cs", "int", 0, 0, 255),
+    Option("fast_baud", "int", FAST_BAUD, 0, 4_000_000, "baud"),  # 0: stay at baud
+)
+_OPTION_NAMES = frozenset(o.name for o in OPTIONS)
+
+
+def is_handler_url(device: str) -> bool:
+    """True for a pyserial URL (``socket://host:port``, ``rfc2217://host:port``,
+    ``spy:///dev/ttyUSB0``...) rather than a device path."""
+    return "://" in device
 
 
 def _ask_group(path: str) -> str:
     """The group that owns ``path`` (dialout on Debian/Ubuntu, uucp on Arch)."""
     try:
-        return grp.getgrgid(os.stat(path).st_gid).gr_name  # type: ignore[union-attr]
+        return grp.getgrgid(os.stat(path).st_gid).gr_name
     except (AttributeError, KeyError, OSError):
         return "dialout"
 
@@ -111,39 +128,21 @@ class SerialOptions:
 
 def options_of(url: str) -> SerialOptions:
     """Parse and check a ``serial://`` URL (ValueError naming the parameter)."""
-    q = query_params(url)
-    unknown = set(q) - _PARAMS
-    if unknown:
-        raise ValueError(f"{url}: unknown serial parameter(s) {', '.join(sorted(unknown))}; "
-                         f"known: {', '.join(sorted(_PARAMS))}")
     device = device_of(url)
     if not device:
         raise ValueError(f"{url}: no device path (e.g. serial:///dev/ttyACM0)")
-
-    def num(name: str, default, conv, lo, hi):
-        if name not in q:
-            return default
-        try:
-            v = conv(q[name])
-        except ValueError:
-            raise ValueError(f"{url}: {name}={q[name]!r} is not a number") from None
-        if not lo <= v <= hi:
-            raise ValueError(f"{url}: {name}={v} is outside {lo}..{hi}")
-        return v
-
-    return SerialOptions(
-        device=device,
-        baud=num("baud", DEFAULT_BAUD, int, 300, 4_000_000),
-        retries=num("retries", DEFAULT_RETRIES, int, 0, 20),
-        boot_s=num("boot", DEFAULT_BOOT_S, float, 0.0, 30.0),
-        low_latency=q.get("low_latency", "1") not in ("0", "false", "no"),
-        cs=num("cs", 0, int, 0, 255),
-        fast=num("fast_baud", FAST_BAUD, int, 0, 4_000_000),
-    )
+    handler = {}
+    if is_handler_url(device):  # socket://, rfc2217://, spy://: the other options are its own
+        handler = {k: v for k, v in query_params(url).items() if k not in _OPTION_NAMES}
+        device = with_query(device, handler)
+    opts = parse_options(url, OPTIONS, what="serial", ignore=handler)
+    return SerialOptions(device=device, baud=opts["baud"], retries=opts["retries"],
+                         boot_s=opts["boot"], low_latency=opts["low_latency"], cs=opts["cs"],
+                         fast=opts["fast_baud"])
 
 
 class SerialPipe:
-    """A :class:`~lm629_host.link.Pipe` over an open pyserial port, in real time."""
+    """A :class:`~lm629_host.bridge.protocol.Pipe` over an open pyserial port, in real time."""
 
     def __init__(self, port, clock: Clock | None = None) -> None:  # port: serial.Serial
         self.port = port
@@ -158,7 +157,7 @@ class SerialPipe:
     def write(self, data: bytes) -> None:
         try:
             self.port.write(data)
-        except Exception as exc:  # noqa: BLE001 - SerialException, OSError
+        except Exception as exc:
             raise TransportError(f"write failed ({exc}): was the board unplugged?",
                                  port=self.port.port) from exc
 
@@ -177,7 +176,7 @@ class SerialPipe:
             if data:
                 data += port.read(port.in_waiting)
             return bytes(data)
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             raise TransportError(f"read failed ({exc}): was the board unplugged?",
                                  port=port.port) from exc
 
@@ -186,7 +185,7 @@ class SerialPipe:
         try:
             self.port.flush()
             self.port.baudrate = baud
-        except Exception as exc:  # noqa: BLE001 - SerialException, ValueError
+        except Exception as exc:
             raise TransportError(f"cannot set {baud} baud ({exc})", port=self.port.port) from exc
 
     def reset_input(self) -> None:
@@ -198,20 +197,28 @@ class SerialPipe:
     def close(self) -> None:
         try:
             self.port.close()
-        except Exception:  # noqa: BLE001
+        except Exception:  # noqa: BLE001 - closing a vanished port must not raise
             pass
 
 
 def open_port(device: str, baud: int):
     """Open ``device`` with pyserial (8N1, exclusive) or raise a :class:`TransportError` that
-    says what to do."""
+    says what to do.  ``device`` may be any pyserial URL (``serial_for_url``): a bridge on
+    another machine (``socket://host:port`` behind ser2net, ``rfc2217://host:port``), or
+    ``spy://PORT?file=...`` to hex-dump the traffic."""
     import serial
 
     try:
-        return serial.Serial(device, baud, timeout=0, write_timeout=2.0, exclusive=True)
+        # exclusive: a lock on a local port (spy:// included); network handlers ignore it
+        return serial.serial_for_url(device, baud, timeout=0, write_timeout=2.0, exclusive=True)
     except serial.SerialException as exc:
         code = getattr(exc, "errno", None)
         text = str(exc)
+        if is_handler_url(device):
+            raise TransportError(
+                f"cannot open {device}: {text}. For socket:// and rfc2217://: is the bridge's "
+                "server (ser2net, `lm629 sim serve --tcp PORT`) running on that host and port, "
+                "and does a firewall let it through?", port=device) from None
         if code == errno.ENOENT or "No such file" in text or "FileNotFoundError" in text:
             raise TransportError(advice_missing(device), port=device) from None
         if code == errno.EACCES or "Permission denied" in text or "PermissionError" in text:
@@ -289,7 +296,7 @@ class SerialTransport(LinkTransport):
                    boot_s=opts.boot_s, low_latency=low, fast=opts.fast)
 
     def _no_answer(self, what: str, attempts: int) -> TransportError:
-        dev = device_of(self.url)
+        dev = device_of(self.url)  # with a socket:// URL the advice is the remote board's
         return TransportError(
             f"no answer to {what} within {self.hello_total_s:g} s ({attempts} attempts) at "
             f"{self.baud} baud. Check: is the bridge firmware flashed (lm629 bridge flash "
@@ -305,6 +312,80 @@ class SerialTransport(LinkTransport):
         rtt = f", round trip {self.rtt_s * 1e3:.2f} ms" if self.rtt_s is not None else ""
         return super().describe() + rtt
 
+    @classmethod
+    def list_ports(cls, probe: bool = True, boot_s: float = DEFAULT_BOOT_S) -> list[PortInfo]:
+        """Serial ports whose USB id is a usual bridge board, each probed with HELLO (``probe``).
+        A port that answers says its firmware version; one that does not says why."""
+        out: list[PortInfo] = []
+        for p in _candidates():
+            if p.vid is None:
+                continue
+            name = KNOWN_USB_IDS.get((p.vid, p.pid))
+            if name is None:
+                continue
+            desc = f"{name} [{p.vid:04X}:{p.pid:04X}]" + (f" s/n {p.serial_number}"
+                                                            if p.serial_number else "")
+            if not probe:
+                out.append(PortInfo(p.device, desc))
+                continue
+            try:
+                t = cls.from_url(f"serial://{p.device}?boot={boot_s}")
+            except TransportError as exc:
+                out.append(PortInfo(p.device, desc, usable=False, problem=str(exc)))
+                continue
+            try:
+                info = t.info
+                rtt = f", round trip {t.rtt_s * 1e3:.2f} ms" if t.rtt_s is not None else ""
+                out.append(PortInfo(p.device, f"{desc}: {info.describe() if info else '?'}{rtt}"))
+            finally:
+                t.close()
+        return out
+
+    @classmethod
+    def doctor(cls, port: str | None = None) -> list[Check]:
+        """What ``lm629 doctor`` reports about serial bridges: pyserial, group membership, the
+        ports found, and for ``port`` (or each bridge found) the handshake, the low-latency mode
+        and the measured round-trip time."""
+        checks: list[Check] = []
+        try:
+            import serial
+            checks.append(Check("pyserial", True, f"pyserial {serial.__version__}"))
+        except ImportError:
+            return [Check("pyserial", False, "pyserial is missing: pip install pyserial")]
+        if sys.platform.startswith("linux") and grp is not None:
+            try:
+                members = grp.getgrnam("dialout")
+                in_group = os.getgid() == members.gr_gid or os.getuid() == 0 or \
+                    members.gr_gid in os.getgroups()
+                checks.append(Check("dialout", in_group,
+                                    "user may open serial ports" if in_group else
+                                    "user is not in 'dialout': sudo usermod -aG dialout $USER, "
+                                    "then log out and in"))
+            except KeyError:
+                pass
+        ports = [port] if port else [p.url for p in cls.list_ports(probe=False)]
+        if not ports:
+            checks.append(Check("bridge ports", True, "no Uno/Nano/CH340/FTDI serial port found"))
+        for dev in ports:
+            try:
+                t = cls.from_url(dev if "://" in dev else f"serial://{dev}")
+            except (TransportError, ValueError) as exc:
+                checks.append(Check(f"bridge {dev}", False, str(exc)))
+                continue
+            try:
+                msg = f"{t.describe()}; low latency {t.low_latency or 'n/a'}"
+                timer = latency_timer_ms(device_of(dev))
+                if timer is not None:
+                    msg += f"; FTDI latency timer {timer} ms"
+                ok = t.rtt_s is not None and t.rtt_s < 0.01
+                if not ok:
+                    msg += (" -- slow round trip: on an FTDI adapter set its latency timer to 1 ms "
+                            "(echo 1 > /sys/bus/usb-serial/devices/ttyUSBn/latency_timer)")
+                checks.append(Check(f"bridge {dev}", ok, msg))
+            finally:
+                t.close()
+        return checks
+
 
 def _candidates() -> list:
     try:
@@ -314,78 +395,9 @@ def _candidates() -> list:
     return list(lp.comports())
 
 
-def list_ports(probe: bool = True, boot_s: float = DEFAULT_BOOT_S) -> list[PortInfo]:
-    """Serial ports whose USB id is a usual bridge board, each probed with HELLO (``probe``).
-    A port that answers says its firmware version; one that does not says why."""
-    out: list[PortInfo] = []
-    for p in _candidates():
-        if p.vid is None:
-            continue
-        name = KNOWN_USB_IDS.get((p.vid, p.pid))
-        if name is None:
-            continue
-        desc = f"{name} [{p.vid:04X}:{p.pid:04X}]" + (f" s/n {p.serial_number}"
-                                                        if p.serial_number else "")
-        if not probe:
-            out.append(PortInfo(p.device, desc))
-            continue
-        try:
-            t = SerialTransport.from_url(f"serial://{p.device}?boot={boot_s}")
-        except TransportError as exc:
-            out.append(PortInfo(p.device, desc, usable=False, problem=str(exc)))
-            continue
-        try:
-            info = t.info
-            rtt = f", round trip {t.rtt_s * 1e3:.2f} ms" if t.rtt_s is not None else ""
-            out.append(PortInfo(p.device, f"{desc}: {info.describe() if info else '?'}{rtt}"))
-        finally:
-            t.close()
-    return out
-
-
-def doctor(port: str | None = None) -> list[Check]:
-    """What ``lm629 doctor`` reports about serial bridges: pyserial, group membership, the
-    ports found, and for ``port`` (or each bridge found) the handshake, the low-latency mode
-    and the measured round-trip time."""
-    checks: list[Check] = []
-    try:
-        import serial
-        checks.append(Check("pyserial", True, f"pyserial {serial.__version__}"))
-    except ImportError:
-        return [Check("pyserial", False, "pyserial is missing: pip install pyserial")]
-    if sys.platform.startswith("linux") and grp is not None:
-        try:
-            members = grp.getgrnam("dialout")
-            in_group = os.getgid() == members.gr_gid or os.getuid() == 0 or \
-                members.gr_gid in os.getgroups()
-            checks.append(Check("dialout", in_group,
-                                "user may open serial ports" if in_group else
-                                "user is not in 'dialout': sudo usermod -aG dialout $USER, "
-                                "then log out and in"))
-        except KeyError:
-            pass
-    ports = [port] if port else [p.url for p in list_ports(probe=False)]
-    if not ports:
-        checks.append(Check("bridge ports", True, "no Uno/Nano/CH340/FTDI serial port found"))
-    for dev in ports:
-        try:
-            t = SerialTransport.from_url(dev if "://" in dev else f"serial://{dev}")
-        except (TransportError, ValueError) as exc:
-            checks.append(Check(f"bridge {dev}", False, str(exc)))
-            continue
-        try:
-            msg = f"{t.describe()}; low latency {t.low_latency or 'n/a'}"
-            timer = latency_timer_ms(device_of(dev))
-            if timer is not None:
-                msg += f"; FTDI latency timer {timer} ms"
-            ok = t.rtt_s is not None and t.rtt_s < 0.01
-            if not ok:
-                msg += (" -- slow round trip: on an FTDI adapter set its latency timer to 1 ms "
-                        "(echo 1 > /sys/bus/usb-serial/devices/ttyUSBn/latency_timer)")
-            checks.append(Check(f"bridge {dev}", ok, msg))
-        finally:
-            t.close()
-    return checks
+#: module-level names of the class methods (``serial.list_ports()``)
+list_ports = SerialTransport.list_ports
+doctor = SerialTransport.doctor
 
 
 __all__ = ["SerialPipe", "SerialTransport", "doctor", "list_ports", "options_of", "open_port",

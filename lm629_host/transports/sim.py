@@ -13,17 +13,14 @@ is busy, the busy check polls every ``poll_interval_s``.  ``chip.clock`` is the 
 
 from __future__ import annotations
 
-import copy
-import math
-import os
+from typing import cast
 
-from ..errors import AxisError
-from ..model import ChipBus, ChipModel, ChipParams, MotorParams, chips_of
-from ..model.params import apply_params
 from ..errors import BusyTimeout
-from ..program import WAIT_STATUS_POLL_US, BusOp, Op, Program, ProgramResult, TraceCallback
-from . import query_params
-from .base import Clock, CycleTransport
+from ..program import BusOp, Op, Program, ProgramResult, TraceCallback
+from ..sim.build import build_bus
+from ..sim.clock import SimClock
+from ..sim.model import ChipBus, ChipModel, chips_of
+from .base import CycleTransport, PortInfo
 
 #: simulated duration of one /RD or /WR strobe cycle, recovery included
 CYCLE_S = 0.5e-6
@@ -33,151 +30,11 @@ _RESET, _WAIT, _SYNC, _WAIT_STATUS = Op.RESET, Op.WAIT, Op.SYNC, Op.WAIT_STATUS
 _SELECT = Op.SELECT
 
 
-class SimClock(Clock):
-    """The model's simulated time.  ``sleep`` advances the model."""
-
-    def __init__(self, model: ChipModel) -> None:
-        self.model = model
-
-    def now(self) -> float:
-        return self.model.tick / self.model.clock_hz
-
-    def sleep(self, seconds: float) -> None:
-        self.model.advance(seconds)
-
-    def advance_to(self, t: float) -> None:
-        """Run the model up to simulated time ``t`` (seconds), rounded up to a whole clock."""
-        m = self.model
-        m.advance_to(math.ceil(t * m.clock_hz - 1e-6))
-
-    def advance_until_status(self, mask: int, t: float) -> None:
-        """Run the model to the first tick at which its status has a bit of ``mask`` set, or to
-        simulated time ``t`` (seconds), whichever comes first.
-
-        This is what lets a wait cost about what the model costs: instead of a status read
-        every poll period, the clock goes straight to the status change, and the caller then
-        reads the status for real.  With no host strobe in between, the status bits other
-        than busy only ever rise (the interrupt bits are latched until RSTI, motor off is
-        cleared only by STT, no sample runs while a reset completes) and they change only at a
-        sample or at the end of a reset; so the first such tick is found by running copies of
-        the model ahead (growing steps, then halving), and the model itself is run once, to
-        that tick.  A mask with the busy bit (which falls) is not searched: the clock advances
-        one poll period of the bridge."""
-        m = self.model
-        limit = math.ceil(t * m.clock_hz - 1e-6)
-        if limit <= m.tick:
-            return
-        if mask & 1 or isinstance(m, ChipBus):  # (a bus: one poll period, as a bridge)
-            m.advance_to(min(limit, m.tick + round(WAIT_STATUS_POLL_US * 1e-6 * m.clock_hz)))
-            return
-        if m.status & mask:
-            return
-        # candidates: the sample ticks base + k * S (interrupt bits rise at samples); the end
-        # of a reset is the one change off that grid, found at the next grid point or `limit`
-        S = m.sample_clocks
-        base = m.next_sample
-        probe = _clone(m)
-        k_lo, k, step = -1, 0, 1  # k_lo: the last grid point known clear (-1: now)
-        while True:  # growing steps on one copy
-            at = base + k * S
-            if at >= limit:
-                probe.advance_to(limit)
-                if not probe.status & mask:
-                    m.advance_to(limit)
-                    return
-                k_hi = (limit - base) // S + 1  # the grid point past the limit stands for it
-                break
-            probe.advance_to(at)
-            if probe.status & mask:
-                k_hi = k
-                break
-            k_lo, k = k, k + step
-            step += step // 4 + 1
-        # halving: the copy at k_lo goes on while it finds the status clear; when it finds it
-        # set, the model itself goes to k_lo and a fresh copy starts from there
-        probe = None
-        while k_hi - k_lo > 1:
-            mid = (k_lo + k_hi) // 2
-            if probe is None:
-                if k_lo >= 0:
-                    m.advance_to(base + k_lo * S)
-                probe = _clone(m)
-            probe.advance_to(base + mid * S)
-            if probe.status & mask:
-                k_hi, probe = mid, None
-            else:
-                k_lo = mid
-        m.advance_to(min(limit, base + k_hi * S))
-
-
-def _clone(m: ChipModel) -> ChipModel:
-    """A copy of the model to run ahead (its command record and violations left out)."""
-    return copy.deepcopy(m, {id(m.history): [], id(m.violations): []})
-
-
-_ALIASES = {"chip": "variant", "clock": "clock_hz"}
-
-#: the bench failures the simulators rehearse: the chip never leaves reset, busy stuck high,
-#: the /RST line not connected
-FAULTS = (None, "reset", "busy", "rst")
-
-
-def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel:
-    """A :class:`ChipModel` configured from a simulator URL's query string.
-
-    Used by every simulated transport (``sim://``, ``sim+avr://``, ``sim+ftdi://``), so that
-    the same parameters mean the same thing everywhere.  Parameters in ``allowed`` belong to
-    the calling transport and are skipped here; any other unknown name is an error.
-    """
-    values = {_ALIASES.get(k, k): v for k, v in query_params(url).items()}
-    chip, motor = ChipParams(), MotorParams()
-    # LM629_SIM_STRICT=1 makes strict the default (the test suite runs that way); a URL's own
-    # strict=0 still wins, for tests that provoke violations on purpose.
-    chip.strict = os.environ.get("LM629_SIM_STRICT", "") not in ("", "0")
-    used = apply_params(chip, values, url=url) | apply_params(motor, values, url=url)
-    unknown = set(values) - used - set(allowed)
-    if unknown:
-        raise ValueError(f"{url}: unknown simulator parameter(s) {', '.join(sorted(unknown))}")
-    chip.variant = chip.variant.lower()
-    if chip.fault not in FAULTS:
-        raise ValueError(f"{url}: fault={chip.fault!r}: expected one of "
-                         f"{', '.join(f for f in FAULTS if f)}")
-    return ChipModel(chip, motor)
-
-
-#: the most chips a simulated bus takes (``axes=``)
-MAX_AXES = 8
-
-
-def axes_of(url: str, limit: int = MAX_AXES) -> int:
-    """The URL's ``axes=`` (default 1), checked against ``limit`` chip selects."""
-    raw = query_params(url).get("axes", "1")
-    try:
-        n = int(raw)
-    except ValueError:
-        raise ValueError(f"{url}: axes={raw!r} is not a whole number of chips") from None
-    if n < 1:
-        raise ValueError(f"{url}: axes={n}: a bus needs at least one chip")
-    if n > limit:
-        raise AxisError(n - 1, limit, f"the simulated adapter of {url}")
-    return n
-
-
-def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
-              limit: int = MAX_AXES) -> ChipModel | ChipBus:
-    """The chip (``axes=1``, the default) or the :class:`ChipBus` of ``axes=N`` chips, each
-    with its own motor, all configured from the same URL parameters."""
-    n = axes_of(url, limit)
-    allowed = allowed | {"axes"}
-    if n == 1:
-        return build_model(url, allowed=allowed)
-    return ChipBus([build_model(url, allowed=allowed) for _ in range(n)])
-
-
 class SimTransport(CycleTransport):
     """Bus cycles straight into an in-process :class:`ChipModel`."""
 
     scheme = "sim"
+    simulated = True
     has_reset_line = True
 
     def __init__(self, model: ChipModel | ChipBus, url: str = "sim://", *,
@@ -206,7 +63,7 @@ class SimTransport(CycleTransport):
         stats = self.stats
         stats.programs += 1
         stats.round_trips += 1
-        if self.chip_selects > 1:
+        if isinstance(m, ChipBus):
             m.select(0)  # a program starts on chip 0
         c = self._cycle_clocks
         s = max(0, round(self.poll_interval_s * m.clock_hz))
@@ -267,14 +124,14 @@ class SimTransport(CycleTransport):
                         words.append((hi << 8) | m.read_data())
                         cycles += 2
                     else:
-                        statuses.append(status)
+                        statuses.append(status)  # type: ignore[arg-type]  # the busy check set it
                 elif op is _STATUS:
                     advance_to(m.tick + c)
                     status = m.read_status()
                     cycles += 1
                     statuses.append(status)
                 elif op is _SELECT:
-                    m.select(o.arg)
+                    cast(ChipBus, m).select(o.arg)  # SELECT only reaches a bus (chip_selects)
                 else:  # RESET, WAIT, WAIT_STATUS: rare, not on the hot path
                     stats.bus_cycles += cycles
                     stats.busy_polls += polls
@@ -346,10 +203,12 @@ class SimTransport(CycleTransport):
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
         return cls(build_bus(url), url, trace=trace)
 
+    @classmethod
+    def list_ports(cls) -> list[PortInfo]:
+        return [PortInfo("sim://", "the bundled chip simulator (always there)")]
+
     def describe(self) -> str:
-        p = self.model.params
-        n = f"{len(self.models)} x " if len(self.models) > 1 else ""
-        return f"{self.url} (simulated {n}{p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)"
+        return f"{self.url} ({self.models[0].describe(len(self.models))})"
 
     def _select_chip(self, chip: int) -> None:
         if isinstance(self.model, ChipBus):
@@ -357,7 +216,7 @@ class SimTransport(CycleTransport):
         else:
             super()._select_chip(chip)
 
-    def _strobe(self) -> ChipModel:
+    def _strobe(self) -> ChipModel | ChipBus:
         m = self.model
         m.advance_to(m.tick + self._cycle_clocks)
         return m
@@ -383,7 +242,7 @@ class SimTransport(CycleTransport):
 
     def _sleep_until_status(self, mask: int, deadline: float) -> None:
         """Straight to the next status change (see :meth:`SimClock.advance_until_status`)."""
-        self._inner_clock.advance_until_status(mask, deadline)
+        cast(SimClock, self._inner_clock).advance_until_status(mask, deadline)
 
     def _hi(self) -> bool:
         return self.model.hi

@@ -8,27 +8,35 @@ URL parameters::
 ``baud``: the simulated serial line (115200 or 1000000 with the images ``make -C
 firmware_bridge`` builds; another rate needs ``firmware=`` built with ``make BAUD=...``).
 ``fast_baud``: after the handshake, switch the line to this rate (SET_BAUD; default: stay at
-``baud``, so that the URL's rate is the one measured).  Every bus cycle the chip model sees was made by the compiled AVR code; the transport's clock is
-the AVR's simulated time.  ``transport.model`` is the chip, ``transport.sim`` the AVR.
+``baud``, so that the URL's rate is the one measured).  Every bus cycle the chip model sees
+was made by the compiled AVR code; the transport's clock is the AVR's simulated time.
+``transport.model`` is the chip, ``transport.sim`` the AVR.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from ..avrsim import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
-from ..link import DEFAULT_RETRIES, LinkTransport
+from ..bridge.pins import CHIP_SELECTS
 from ..program import TraceCallback
-from . import query_params
-from ..bridge_pins import CHIP_SELECTS
-from ..model import chips_of
-from .sim import build_bus
+from ..sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
+from ..sim.build import build_bus
+from ..sim.model import chips_of
+from ..urls import Option, parse_options, query_params
+from .link import DEFAULT_RETRIES, LinkTransport
+
+#: URL options of this transport (the others are the chip model's)
+OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
+           Option("firmware", "str", ""),
+           Option("fast_baud", "int", 0, 0, 4_000_000, "baud"))  # 0: stay at baud
+OWN_PARAMS = frozenset(o.name for o in OPTIONS)
 
 
 class SimAvrTransport(LinkTransport):
     """The link protocol to the compiled firmware in simavr, in simulated time."""
 
     scheme = "sim+avr"
+    simulated = True
     #: the wire time estimate counts 10 bits a byte, simavr's UART takes 11: the margin covers
     #: that (10% of two 253-byte frames at 115200 baud is 4.8 ms) and the firmware's own time
     margin_s = 0.02
@@ -43,15 +51,10 @@ class SimAvrTransport(LinkTransport):
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimAvrTransport:
-        params = query_params(url)
-        raw = params.get("baud", str(DEFAULT_BAUD))
-        try:
-            baud = int(raw)
-        except ValueError:
-            raise ValueError(f"{url}: baud={raw!r} is not a number (115200 or 1000000)") from None
-        fw = params.get("firmware")
-        if fw:
-            firmware = Path(fw)
+        opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - OWN_PARAMS)
+        baud = opts["baud"]
+        if opts["firmware"]:
+            firmware = Path(opts["firmware"])
         elif baud in BUILT_BAUDS:
             firmware = firmware_path(baud)
         else:
@@ -59,26 +62,20 @@ class SimAvrTransport(LinkTransport):
                              f"{' or '.join(map(str, BUILT_BAUDS))} baud; for another rate build "
                              f"one with `make -C firmware_bridge BAUD={baud}` and pass "
                              "firmware=firmware_bridge/build/lm629_bridge.elf")
-        fast = params.get("fast_baud", "0")
-        try:
-            fast_baud = int(fast)
-        except ValueError:
-            raise ValueError(f"{url}: fast_baud={fast!r} is not a number") from None
-        model = build_bus(url, allowed=frozenset({"firmware", "baud", "fast_baud"}),
-                          limit=len(CHIP_SELECTS))
+        model = build_bus(url, allowed=OWN_PARAMS, limit=len(CHIP_SELECTS))
         if hasattr(model, "lines"):
             model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
         t = cls(AvrSim(model, firmware), url, trace=trace, baud=baud)
+        fast_baud = opts["fast_baud"]
         if fast_baud and fast_baud != baud:
             t.switch_baud(fast_baud)  # SET_BAUD: the firmware switches its UART
             t.stats.reset()
         return t
 
     def describe(self) -> str:
-        p = self.model.params
         fw = self.info.firmware_version if self.info else "?"
-        return (f"{self.url} (bridge firmware {fw} in simavr at {self.baud} baud, simulated "
-                f"{p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)")
+        return (f"{self.url} (bridge firmware {fw} in simavr at {self.baud} baud, "
+                f"{self.models[0].describe(len(self.models))})")
 
 
 __all__ = ["SimAvrTransport"]

@@ -1,5 +1,5 @@
 """``sim+ftdi://``: the real FT232H transport and the real pyftdi, on an emulated FT232H wired
-to the chip model (:mod:`lm629_host.ftdi_emu`).
+to the chip model (:mod:`lm629_host.sim.ftdi`).
 
 URL parameters: every ``sim://`` parameter (chip, clock, strict, fault, record, motor...), the
 ``ftdi://`` options (``latency``, ``busy_us``, ``frequency``), and the emulation's costs:
@@ -22,18 +22,23 @@ from __future__ import annotations
 import usb.core
 
 from .. import ftdi_pins
+from ..clock import Clock
 from ..errors import ProtocolViolation
-from ..ftdi_emu import EmulatedBackend, EmulatedFT232H
 from ..program import Program, ProgramResult, TraceCallback
-from . import query_params
-from .base import Clock
-from .ftdi import (DEFAULT_LATENCY_MS, DEFAULT_TCK_HZ, FT232H_PID, FTDI_VID,
-                   FtdiTransport, open_mpsse)
-from ..model import chips_of
-from .sim import build_bus
+from ..sim.build import build_bus
+from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
+from ..sim.model import ChipBus, ChipModel, chips_of
+from ..urls import Option, parse_options, query_params
+from .base import Check, PortInfo
+from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, open_mpsse
+from .ftdi import OPTIONS as FTDI_OPTIONS
 
-#: URL parameters that belong to this transport rather than to the chip model
-OWN_PARAMS = frozenset({"latency", "busy_us", "frequency", "usb_us", "command_ns"})
+#: URL options that belong to this transport rather than to the chip model: the FT232H
+#: transport's and the emulation's costs
+OPTIONS = (*FTDI_OPTIONS,
+           Option("usb_us", "float", 125, 0, 1e6, "us"),
+           Option("command_ns", "float", 500, 0, 1e6, "ns"))
+OWN_PARAMS = frozenset(o.name for o in OPTIONS)
 
 
 class EmulatedClock(Clock):
@@ -51,29 +56,16 @@ class EmulatedClock(Clock):
 
 class SimFtdiTransport(FtdiTransport):
     scheme = "sim+ftdi"
+    simulated = True
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimFtdiTransport:
         model = build_bus(url, allowed=OWN_PARAMS, limit=len(ftdi_pins.CHIP_SELECTS))
-        q = query_params(url)
-
-        def num(name: str, default: float, lo: float, hi: float) -> float:
-            text = q.get(name)
-            if text is None:
-                return default
-            try:
-                value = float(text)
-            except ValueError:
-                raise ValueError(f"{url}: {name}={text!r} is not a number") from None
-            if not lo <= value <= hi:
-                raise ValueError(f"{url}: {name}={text} is outside {lo:g}..{hi:g}")
-            return value
-
-        latency = int(num("latency", DEFAULT_LATENCY_MS, 1, 255))
-        busy_us = None if q.get("busy_us", "auto") == "auto" else num("busy_us", 0, 0, 65535)
-        frequency = num("frequency", DEFAULT_TCK_HZ, 1e5, 30e6)
-        usb_us = num("usb_us", 125, 0, 1e6)
-        command_ns = num("command_ns", 500, 0, 1e6)
+        # build_bus checked every other option: they are the chip model's
+        opts = parse_options(auto_as_none(url, "busy_us"), OPTIONS,
+                             ignore=set(query_params(url)) - OWN_PARAMS)
+        latency, busy_us, frequency = opts["latency"], opts["busy_us"], opts["frequency"]
+        usb_us, command_ns = opts["usb_us"], opts["command_ns"]
         strict = model.params.strict
         for chip in chips_of(model):
             chip.params.strict = False
@@ -86,20 +78,28 @@ class SimFtdiTransport(FtdiTransport):
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
                 latency_ms=latency)
         t.model, t.device, t.strict = model, device, strict
-        t.models = chips_of(model)  # type: ignore[attr-defined]
+        t.models = chips_of(model)
         return t
 
-    model: object
+    model: ChipModel | ChipBus
+    models: list[ChipModel]  #: the chips on the emulated adapter's chip selects
     device: EmulatedFT232H
     strict: bool
 
+    @classmethod
+    def list_ports(cls) -> list[PortInfo]:
+        return []  # the FT232H's adapters are not this simulator's
+
+    @classmethod
+    def doctor(cls, port: str | None = None) -> list[Check]:
+        return []
+
     def describe(self) -> str:
-        p = self.model.params  # type: ignore[attr-defined]
-        return (f"{self.url} (FT232H transport on an emulated FT232H, simulated "
-                f"{p.variant.upper()} at {p.clock_hz / 1e6:g} MHz)")
+        chips = self.models[0].describe(len(self.models))
+        return f"{self.url} (FT232H transport on an emulated FT232H, {chips})"
 
     def execute(self, program: Program) -> ProgramResult:
-        violations = self.model.violations  # type: ignore[attr-defined]
+        violations = self.model.violations
         mark, tmark, hits = len(violations), len(self.device.timing_violations), self.busy_hits
         try:
             return super().execute(program)

@@ -1,0 +1,465 @@
+"""The ``lm629`` group: global options, the session (the port, opened once), exit codes and
+error messages.  The commands are in the family modules beside this one.
+
+``lm629``: the bench command line, from first power-on to a tuned move.
+
+Each command opens the port (``--port``, else ``$LM629_PORT``, else the simulator), does one
+job through :class:`lm629_host.LM629` and closes it.  Every number is checked before anything
+moves (:mod:`lm629_host.cli.types`).  Moves go through :meth:`LM629.move_to`: done means the
+shaft rests on the target, anything else is a motion fault (exit 9).  Commands that start a
+move run inside :func:`lm629_host.safety.stop_on_error`: Ctrl-C, SIGTERM, SIGHUP (all
+raised as KeyboardInterrupt, after the bus program under way), a closed pipe or any error
+stops the motor (abrupt stop, then motor off) before the program exits; commands that only
+read or wait never stop anything.  Errors are one line on stderr (a traceback with ``-v``) and
+an exit code per way of ending (see ``EXIT_CODES``, printed by ``lm629 --help``).
+
+An in-process simulator (``sim://``, ``sim+avr://``, ``sim+ftdi://``, ``sim+emu://``) is a fresh
+chip for each command: the CLI resets it and loads kp = 20 first, so that ``move`` and friends
+do something, and says so on stderr.  For a simulated chip that keeps its state between
+commands run ``lm629 sim serve --pty /tmp/lm629`` and use ``--port /tmp/lm629``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import signal
+import sys
+import threading
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NoReturn
+
+import click
+
+import lm629_host
+
+from ..board import Board
+from ..errors import (
+    AxisError,
+    BusyTimeout,
+    CommandError,
+    LM629Error,
+    MotionError,
+    ResetError,
+    TransportError,
+    WaitTimeout,
+)
+from ..lm629 import LM629
+from ..move import MoveRules
+from ..program import BusCycle
+from ..safety import STOP_NOTE
+from ..transports import is_simulated
+from ..units import Scale
+from ..urls import parse_hz, query_params, scheme_of, with_query
+
+log = logging.getLogger("lm629_host.cli")
+
+#: exit code -> meaning (one place: the handler and ``--help`` both read it)
+EXIT_CODES: dict[int, str] = {
+    0: "success",
+    1: "a check failed (bringup verdict, doctor found problems)",
+    2: "bad usage or bad value (nothing was sent that moves the motor)",
+    3: "transport error (port missing, busy, no permission, no answer)",
+    4: "busy timeout (the chip held its busy bit)",
+    5: "reset failure (the chip did not come out of reset)",
+    6: "command error (the chip rejected a command)",
+    7: "wait timeout (a flag or the index did not come in time)",
+    8: "other driver error",
+    9: "motion fault: the shaft did not end where it was sent (stall, runaway, position "
+       "error, following error, motor off, move timeout); the motor was stopped",
+    129: "hang-up (SIGHUP); a moving motor was stopped first",
+    130: "interrupted (Ctrl-C, or the prompt aborted); a moving motor was stopped first",
+    141: "output closed (broken pipe) while the motor moved; it was stopped first",
+    143: "terminated (SIGTERM); a moving motor was stopped first",
+}
+
+_ERROR_EXITS: tuple[tuple[type[BaseException], int], ...] = (
+    (ValueError, 2), (TransportError, 3), (BusyTimeout, 4), (ResetError, 5),
+    (CommandError, 6), (WaitTimeout, 7), (MotionError, 9), (LM629Error, 8),
+)
+
+#: the signals that end a command like Ctrl-C does: the motor is stopped, then exit 128 + N
+_STOP_SIGNALS = {signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)",
+                 signal.SIGHUP: "hang-up (SIGHUP)"}
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised like Ctrl-C's KeyboardInterrupt so that every ``except
+    KeyboardInterrupt`` that stops the motor handles it too; ``signum`` picks the exit code."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+
+def _simulated(url: str) -> bool:
+    """Whether ``url`` names a simulator (False for an unknown scheme: opening it says why)."""
+    try:
+        return is_simulated(url)
+    except TransportError:
+        return False
+
+
+def _open(url: str, chip: str, trace: Callable[[BusCycle], None] | None) -> LM629:
+    """Open the chip (one seam, so that tests can watch what the CLI opened)."""
+    return lm629_host.open(url, chip=chip, trace=trace)
+
+
+def _check_clock(hz: float, where: str) -> float:
+    if not 1e6 <= hz <= 8e6:
+        raise click.BadParameter(f"{hz:g} Hz is outside the chip's 1-8 MHz", param_hint=where)
+    return hz
+
+
+@dataclass
+class Session:
+    """The global options and the chip they open (lazily: ``calc`` never opens a port)."""
+
+    port: str
+    port_given: bool
+    chip_name: str
+    clock_hz: float
+    lines: int | None
+    verbose: int
+    trace: bool
+    stats: bool
+    _chip: LM629 | None = None
+    axis_spec: tuple[int, ...] | str | None = None  #: --axis (see cli.axes)
+    _board: Any = None
+    _prepare: bool = True
+    _old_handlers: dict[int, Any] | None = None
+    _guarded: Any = None  #: the transport whose programs a stop signal waits for
+    _pending: int | None = None
+
+    @property
+    def is_sim(self) -> bool:
+        return _simulated(self.port)
+
+    @property
+    def scale(self) -> Scale | None:
+        return Scale(self.lines, self.clock_hz) if self.lines else None
+
+    @property
+    def sample_s(self) -> float:
+        return 2048 / self.clock_hz
+
+    def url(self) -> str:
+        """The port URL; a simulator URL gets the global --chip/--clock/--lines unless it
+        names them itself, so that the simulated chip matches the options (the conflict
+        rule is applied by :func:`main`), and ``clock=8MHz`` is written in Hz."""
+        if not self.is_sim:
+            return self.port
+        have = query_params(self.port)
+        add = {"chip": self.chip_name, "clock": str(int(self.clock_hz))}
+        if self.lines:
+            add["lines"] = str(self.lines)
+        values = {k: v for k, v in add.items() if k not in have}
+        if "clock" in have:
+            values["clock"] = str(int(self.clock_hz))
+        return with_query(self.port, values) if values else self.port
+
+    @staticmethod
+    def _raise_signal(signum: int) -> None:
+        raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
+
+    def install_signals(self) -> None:
+        """Ctrl-C, SIGTERM and SIGHUP end a command the same way: raised as
+        KeyboardInterrupt (Terminated for the last two) so that a moving motor is stopped,
+        then the exit code says which.  A signal during a bus program is held until the
+        program has finished, so that the safety stop starts on a clean bus."""
+        if threading.current_thread() is not threading.main_thread() or self._old_handlers:
+            return
+
+        def on_signal(signum: int, frame: Any) -> None:
+            if self._guarded is not None and self._guarded.program_depth:
+                self._pending = signum
+            else:
+                self._raise_signal(signum)
+
+        self._old_handlers = {sig: signal.signal(sig, on_signal) for sig in _STOP_SIGNALS}
+
+    def _guard_programs(self, chip: LM629) -> None:
+        """Run every bus program of ``chip`` whole: a stop signal that comes during one is held
+        (the handler reads the transport's ``program_depth``) and raised when it has ended
+        (the transport's ``after_program`` hook)."""
+        self._guarded = chip.transport
+        chip.transport.after_program = self._deliver_pending
+
+    def _deliver_pending(self) -> None:
+        if self._pending is not None:
+            signum, self._pending = self._pending, None
+            self._raise_signal(signum)
+
+    def _trace(self, cycle: BusCycle) -> None:
+        if self.trace:
+            click.echo(f"bus {cycle}", err=True)
+
+    def open(self, *, prepare: bool = True) -> LM629:
+        """The chip.  On an in-process simulator: reset it and load kp = 20 (``prepare``)."""
+        if self._chip is None and (self.axis_spec is not None or "axes=" in self.port):
+            self._chip = open_axis(self, prepare)
+            return self._chip
+        if self._chip is None:
+            if not self.port_given:
+                click.echo("lm629: no --port or LM629_PORT: using the simulator sim:// (a fresh "
+                           "simulated chip for this command only; for one that keeps its state "
+                           "run `lm629 sim serve --pty /tmp/lm629` and pass --port /tmp/lm629)",
+                           err=True)
+            self._chip = _open(self.url(), self.chip_name, self._trace)
+            self._guard_programs(self._chip)
+            self._chip.move_rules = MoveRules(clock_hz=self.clock_hz)
+            log.info("opened %s", self._chip.transport.describe())
+            if self.is_sim and prepare:
+                self._chip.reset()
+                self._chip.load_filter(kp=20)
+                self._chip.update_filter()
+                self._chip.sync()  # UDF's busy over before the command's reads
+                log.info("fresh simulated chip: reset, kp = 20 loaded")
+        return self._chip
+
+    def close(self) -> None:
+        if self._board is not None:
+            if self.stats:
+                click.echo(f"stats: {self._board.transport.stats}", err=True)
+            self._board.close()
+            self._board = self._chip = None
+        if self._chip is not None:
+            if self.stats:
+                click.echo(f"stats: {self._chip.transport.stats}", err=True)
+            self._chip.close()
+            self._chip = None
+        if self._old_handlers:
+            for sig, handler in self._old_handlers.items():
+                signal.signal(sig, handler)
+            self._old_handlers = None
+
+
+# ---------------------------------------------------------------------- the session's axes
+#: more than the largest board (the bridge: 4 chip selects); checked again when it opens
+MAX_AXIS = 15
+
+
+def parse_axes(text: str) -> tuple[int, ...] | str:
+    """``"1"`` -> (1,), ``"0,1"`` -> (0, 1), ``"all"`` -> "all" (click.BadParameter else)."""
+    text = text.strip().lower()
+    if text == "all":
+        return "all"
+    try:
+        axes = tuple(int(t) for t in text.split(",") if t.strip() != "")
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: an axis number, a list (0,1) or 'all'",
+                                 param_hint="--axis") from None
+    if not axes or any(not 0 <= a <= MAX_AXIS for a in axes) or len(set(axes)) != len(axes):
+        raise click.BadParameter(f"{text!r}: axis numbers 0..{MAX_AXIS}, each once",
+                                 param_hint="--axis")
+    return axes
+
+
+def _url_axes(s: Session) -> int | None:
+    raw = query_params(s.port).get("axes")
+    return int(raw) if raw and raw.isdigit() else None
+
+
+def axes_of(s: Session) -> tuple[int, ...]:
+    """The axes this command works on (``all``: every chip select of the board, opened)."""
+    spec = s.axis_spec
+    if spec is None:
+        n = _url_axes(s)
+        return tuple(range(n)) if n else (0,)
+    if spec == "all":
+        return tuple(range(len(board(s).axes)))
+    assert isinstance(spec, tuple)  # parse_axes: a tuple of axes, or "all"
+    return spec
+
+
+def several(s: Session) -> bool:
+    return len(axes_of(s)) > 1
+
+
+def board(s: Session) -> Board:
+    """The board behind the port, with at least the axes named (opened once; on a simulator
+    every axis is reset and given kp = 20, as a single simulated chip is)."""
+    if s._board is None:
+        spec = s.axis_spec
+        want = max(spec) + 1 if isinstance(spec, tuple) else None
+        url = s.url()
+        if want is not None and scheme_of(url).startswith("sim") and (_url_axes(s) or 1) < want:
+            url += ("&" if "?" in url else "?") + f"axes={want}"
+        b = lm629_host.open_board(url, chip=s.chip_name, trace=s._trace)
+        if want is not None and len(b.axes) < want:
+            b.close()
+            raise AxisError(want - 1, len(b.axes), s.port)
+        s._guard_programs(b.axes[0])
+        for a in b.axes:
+            a.move_rules = MoveRules(clock_hz=s.clock_hz)
+        if s.is_sim and s._prepare:
+            b.reset()
+            for a in b.axes:
+                a.load_filter(kp=20)
+                a.update_filter()
+                a.sync()
+        s._board = b
+    return s._board
+
+
+def open_axis(s: Session, prepare: bool) -> LM629:
+    """The one chip a single-axis command drives."""
+    axes = axes_of(s) if s.axis_spec is not None else (0,)
+    if len(axes) > 1:
+        raise click.UsageError(f"--axis names {len(axes)} axes: this command drives one "
+                               "(status, watch, move with several targets and bringup take "
+                               "several)")
+    s._prepare = prepare
+    return board(s).axis(axes[0])
+
+
+def _help_epilog() -> str:
+    codes = "\n".join(f"  {k:>3}  {v}" for k, v in EXIT_CODES.items())
+    return ("\b\nExit codes:\n" + codes + "\n\n\bWith neither --port nor LM629_PORT the bundled "
+            "simulator is used (a fresh chip per command).\nStart with:  lm629 bringup --yes")
+
+
+class LM629Group(click.Group):
+    """A click group that turns exceptions into one stderr line and an exit code."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as exc:  # bad usage or value: one line, exit 2
+            sub = exc.ctx.command_path if exc.ctx is not None else "lm629"
+            _fail(ctx, f"{exc.format_message()} (see `{sub} --help`)", exc, 2)
+        except (click.exceptions.Exit, click.ClickException, click.exceptions.Abort):
+            raise
+        except KeyboardInterrupt as exc:
+            signum = getattr(exc, "signum", signal.SIGINT)
+            _fail(ctx, _STOP_SIGNALS.get(signum, f"signal {signum}"), exc, 128 + signum)
+        except BrokenPipeError as exc:
+            # stdout closed early (`lm629 calc ... | head`): not an error while nothing moved;
+            # keep Python from complaining again when it flushes stdout at exit
+            with contextlib.suppress(OSError):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            if getattr(exc, STOP_NOTE, None) is not None:  # it ended a move: not a success
+                _fail(ctx, "output closed (broken pipe) during a move", exc, 141)
+            ctx.exit(0)
+        except Exception as exc:  # noqa: BLE001 - mapped to exit codes below
+            code = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), None)
+            if code is None:
+                _fail(ctx, f"internal error ({type(exc).__name__}): {exc}", exc, 8, always_tb=True)
+            kind = "bad value" if isinstance(exc, ValueError) else "error"
+            _fail(ctx, f"{kind}: {exc}", exc, code)
+
+
+def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
+          always_tb: bool = False) -> NoReturn:
+    session = ctx.obj if isinstance(ctx.obj, Session) else None
+    if always_tb or (session is not None and session.verbose):
+        traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
+    note = getattr(exc, STOP_NOTE, None)
+    try:  # stderr may be closed too (a dropped ssh session): the exit code still tells
+        click.echo(f"lm629: {message}" + (f" -- {note}" if note and note not in message
+                                          else ""), err=True)
+    except (OSError, ValueError):
+        pass
+    ctx.exit(code)
+
+
+@click.group(cls=LM629Group, epilog=_help_epilog(),
+             context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("--port", "-p", envvar="LM629_PORT", default=None, metavar="URL",
+              help="sim://, serial://PATH or a device path, ftdi://..., sim+avr:// "
+                   "(env LM629_PORT; default sim://).")
+@click.option("--chip", "chip_name", type=click.Choice(["lm628", "lm629"]), default="lm629",
+              show_default=True, help="Which chip is on the board (a simulator URL's chip= "
+                                      "is used when --chip is not given; both must agree).")
+@click.option("--clock", default="8MHz", show_default=True, metavar="HZ",
+              help="The chip's clock (8MHz, 6e6...): sample period 2048/clock (a simulator "
+                   "URL's clock= is used when --clock is not given; both must agree).")
+@click.option("--lines", type=int, default=None, metavar="N",
+              help="Encoder lines per revolution: positions in revolutions, velocities in rpm, "
+                   "accelerations in rev/s^2.")
+@click.option("-v", "--verbose", count=True, help="-v: info, -vv: debug with the bus hex trace.")
+@click.option("--trace", is_flag=True, help="Print every bus cycle on stderr.")
+@click.option("--stats", is_flag=True, help="Print the transport's counters at exit.")
+@click.option("--axis", "axis_text", default=None, metavar="N|N,M|all",
+              help="Which chip on a multi-axis board (its chip select; default 0, or every "
+                   "chip of the URL's axes=); a list or 'all' for status, watch, move with one "
+                   "target per axis, bringup.")
+@click.version_option(lm629_host.__version__, prog_name="lm629")
+@click.pass_context
+def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines: int | None,
+         verbose: int, trace: bool, stats: bool, axis_text: str | None) -> None:
+    """Bench bring-up and tuning of an LM628/LM629 motion controller."""
+    try:
+        clock_hz = _check_clock(parse_hz(clock), "--clock")
+    except ValueError:
+        raise click.BadParameter(f"{clock!r} is not a frequency (8MHz, 6e6)",
+                                 param_hint="--clock") from None
+    if lines is not None and lines < 1:
+        raise click.BadParameter(f"{lines} must be at least 1", param_hint="--lines")
+    if port is not None and not port.strip():
+        raise click.BadParameter("is empty (an unset variable in `--port \"$BOARD\"`?); "
+                                 "leave --port out to use the simulator", param_hint="--port")
+    url = port or lm629_host.DEFAULT_URL
+    if _simulated(url):
+        # the rule: a simulator URL's chip= / clock= describe the simulated chip; --chip and
+        # --clock given on the command line must agree with them, and when not given, the
+        # URL's values are used
+        q = query_params(url)
+        given = {name: ctx.get_parameter_source(name) not in (
+            click.core.ParameterSource.DEFAULT, None) for name in ("chip_name", "clock")}
+        if "chip" in q:
+            url_chip = q["chip"].lower()
+            if given["chip_name"] and url_chip != chip_name:
+                raise click.BadParameter(f"{chip_name} conflicts with chip={q['chip']} in "
+                                         f"{url}: give one of them", param_hint="--chip")
+            chip_name = url_chip
+        if "clock" in q:
+            try:
+                url_hz = _check_clock(parse_hz(q["clock"]), "--port clock=")
+            except ValueError:
+                raise click.BadParameter(f"clock={q['clock']!r} in {url} is not a frequency",
+                                         param_hint="--port") from None
+            if given["clock"] and url_hz != clock_hz:
+                raise click.BadParameter(f"{clock} conflicts with clock={q['clock']} in {url}: "
+                                         "give one of them", param_hint="--clock")
+            clock_hz = url_hz
+    _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
+    session = Session(url, port is not None, chip_name, clock_hz,
+                      lines, verbose, trace, stats)
+    if axis_text is not None:
+        session.axis_spec = parse_axes(axis_text)
+    ctx.obj = session
+    ctx.call_on_close(session.close)
+    session.install_signals()
+
+
+class _ClickHandler(logging.Handler):
+    """Log lines to click's stderr (whatever stream that is at the time: tests swap it)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            click.echo(self.format(record), err=True)
+        except Exception:  # noqa: BLE001 - logging must never raise
+            self.handleError(record)
+
+
+def _log_to_stderr(level: int) -> None:
+    logger = logging.getLogger("lm629_host")
+    if not any(isinstance(h, _ClickHandler) for h in logger.handlers):
+        handler = _ClickHandler()
+        handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+        logger.addHandler(handler)
+    logger.setLevel(level)
+
+
+def _session() -> Session:
+    session = click.get_current_context().find_object(Session)
+    assert session is not None, "main() sets the Session before any command runs"
+    return session
+
+
+# ---------------------------------------------------------------------------------- rendering

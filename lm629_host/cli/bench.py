@@ -1,0 +1,162 @@
+"""The bench and this machine: ``bringup`` (AN-706 2.12), ``list`` (the ports each
+transport finds), ``doctor`` (what is installed and what is wrong), ``udev`` (the FT232H rule)."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+import lm629_host
+
+from ..bringup import BringupOptions, StepResult, run_bringup
+from ..errors import LM629Error
+from ..lm629 import LM629, check_int
+from ..opcodes import Status
+from .app import Session, _session, log, main
+from .common import _abort_is_interrupt, _flags, _position
+from .types import FINITE
+
+
+@main.command()
+@click.option("--yes", "-y", is_flag=True, help="Do not ask before the motor turns (scripts).")
+@click.option("--move", "move_distance", type=FINITE, default=None,
+              help="The small move: counts (default 1000), revolutions with --lines.")
+@click.option("--hold-kp", type=int, default=20, show_default=True, help="kp of the hold step.")
+def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
+    """The AN-706 2.12 bring-up: reset, phasing at kp = 1, kp = 20 hold, a small move,
+    following error and settle time, next steps.  A prompt ended by Ctrl-C or end of input
+    exits 130 with nothing moved."""
+    s = _session()
+    move_distance = 1000 if move_distance is None else _position(s, move_distance, "--move")
+    check_int("--move", move_distance, -100_000, 100_000)
+    check_int("--hold-kp", hold_kp, 1, 0x7FFF)
+    options = BringupOptions(hold_kp=hold_kp, move_distance=move_distance)
+    from . import axes
+    if axes.several(s):  # one axis after the other; the exit code is the worst
+        codes = []
+        for k in axes.axes_of(s):
+            s._prepare = False
+            chip = axes.board(s).axis(k)
+            click.echo(f"bring-up of axis {k}")
+            codes.append(_bringup_one(s, chip, options, yes))
+        click.get_current_context().exit(max(codes))
+    chip = s.open(prepare=False)
+    click.get_current_context().exit(_bringup_one(s, chip, options, yes))
+
+
+def _bringup_one(s: Session, chip: LM629, options: BringupOptions, yes: bool) -> int:
+    click.echo(f"bring-up of {chip.variant.upper()} on {chip.transport.describe()}")
+
+    def report(step: StepResult) -> None:
+        color = {True: "green", False: "red", None: "yellow"}[step.ok]
+        click.echo(f"  [{click.style(step.verdict, fg=color)}] {step.name:8s} {step.summary}")
+        for d in step.details:
+            click.echo(f"             {d}")
+
+    def confirm(question: str) -> bool:
+        return yes or _abort_is_interrupt(lambda: click.confirm(question, default=False))
+
+    result = run_bringup(chip, options, confirm=confirm, report=report, clock_hz=s.clock_hz,
+                         announce=lambda text: log.info("step: %s", text))
+    click.echo("verdict: " + ("PASS, every step" if result.passed else "FAIL" if any(
+        st.ok is False for st in result.steps) else "INCOMPLETE"))
+    return result.exit_code
+
+
+@main.command("list")
+def list_cmd() -> None:
+    """Ports that can be found: simulators, serial bridges, FT232H adapters."""
+    from ..transports import transport_classes
+    for scheme, cls, problem in transport_classes():
+        if cls is None:
+            click.echo(f"{scheme}://  not available: {problem}")
+            continue
+        try:
+            ports = cls.list_ports()
+        except Exception as exc:  # noqa: BLE001 - one backend's failure is one line
+            click.echo(f"{scheme}://  listing failed: {exc}")
+            continue
+        for p in ports:
+            mark = "" if p.usable else f"  [cannot open: {p.problem}]"
+            click.echo(f"{p.url:27s} {p.description}{mark}")
+
+
+@main.command()
+@click.option("--path", "path_only", is_flag=True, help="Print only the rule file's path.")
+def udev(path_only: bool) -> None:
+    """The udev rule that lets your user open FT232H adapters (ftdi://) without root: where
+    this installation keeps it, and the commands that install it."""
+    from .. import data
+    if path_only:
+        click.echo(str(data.udev_rule()))
+        return
+    click.echo(f"rule file: {data.udev_rule()}")
+    click.echo("install it (once per machine), then replug the adapter:")
+    for command in data.udev_install_commands():
+        click.echo(f"    {command}")
+
+
+@main.command()
+def doctor() -> None:
+    """What is installed, what can be found and what is wrong (backends, permissions, latency,
+    firmware version, round-trip time)."""
+    import platform
+    import time
+    s = _session()
+    problems = 0
+
+    def line(name: str, ok: bool, msg: str) -> None:
+        nonlocal problems
+        problems += not ok
+        click.echo(f"  [{click.style('ok' if ok else '!!', fg='green' if ok else 'red')}] "
+                   f"{name}: {msg}")
+
+    click.echo("python and packages")
+    line("python", sys.version_info >= (3, 10), platform.python_version())
+    line("lm629-host", True, lm629_host.__version__)
+    try:
+        import matplotlib
+        line("matplotlib", True, f"{matplotlib.__version__} (lm629 step draws PNGs)")
+    except ImportError:
+        line("matplotlib", False, "missing: lm629 step writes CSV only; "
+                                  "pip install 'lm629-host[plot]'")
+    from ..transports import transport_classes
+    for scheme, cls, problem in transport_classes():
+        if cls is None:
+            click.echo(f"{scheme}://")
+            line(scheme, False, f"transport not available: {problem}")
+            continue
+        try:
+            checks = cls.doctor()
+        except Exception as exc:  # noqa: BLE001 - one backend's failure is one line
+            click.echo(f"{scheme}://")
+            line(scheme, False, f"doctor failed: {exc}")
+            continue
+        if checks:
+            click.echo(f"{scheme}://")
+        for c in checks:
+            line(c.name, c.ok, c.message)
+    if s.port_given:
+        click.echo(f"port {s.port}")
+        try:
+            chip = s.open(prepare=False)
+            line("open", True, chip.transport.describe())
+            t0 = time.perf_counter()
+            n = 20
+            busy = 0
+            for _ in range(n):
+                st = chip.read_status()
+                busy += bool(st & Status.BUSY)
+            dt = (time.perf_counter() - t0) / n
+            stuck = (f"; the busy bit was set in all {n} reads: the chip is stuck busy (check "
+                     "its clock input, its supply and /RST)") if busy == n else ""
+            line("status read", busy < n, f"{int(st):02X} ({_flags(st)}), {dt * 1e3:.3f} ms "
+                                          f"per round trip (wall clock){stuck}")
+        except LM629Error as exc:
+            line("open", False, str(exc))
+    click.echo("no problems found" if not problems else f"{problems} problem(s) above")
+    if problems:
+        click.get_current_context().exit(1)
+
+

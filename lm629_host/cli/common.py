@@ -1,0 +1,119 @@
+"""What several command families share: positions in counts or revolutions, the status
+flags in words, progress lines, waits that say what they waited for."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import click
+
+from ..errors import WaitTimeout
+from ..lm629 import LM629, Snapshot
+from ..opcodes import POSITION_MAX, POSITION_MIN, Signals, Status
+from ..units import FIXED_ONE, Scale
+from .app import Session
+
+
+def _flags(status: int) -> str:
+    names = [(f.name or "").lower() for f in Status if status & f]
+    return ",".join(names) or "-"
+
+
+def snapshot_dict(s: Snapshot, scale: Scale | None = None) -> dict[str, Any]:
+    d: dict[str, Any] = {
+        "status": f"{int(s.status):02X}",
+        "status_flags": [f.name for f in Status if s.status & f],
+        "signals": f"{int(s.signals):04X}",
+        "signals_flags": [f.name for f in Signals if s.signals & f],
+        "desired_position": s.desired_position,
+        "real_position": s.real_position,
+        "following_error": s.following_error,
+        "desired_velocity": s.desired_velocity,
+        "real_velocity": s.real_velocity,
+        "integration_sum": s.integration_sum,
+        "time_s": round(s.time, 6),
+    }
+    if scale is not None:
+        d["desired_position_rev"] = scale.revolutions(s.desired_position)
+        d["real_position_rev"] = scale.revolutions(s.real_position)
+        d["desired_velocity_rpm"] = scale.rpm(s.desired_velocity)
+        d["real_velocity_rpm"] = scale.rpm(s.real_velocity * FIXED_ONE)
+    return d
+
+
+def _progress_line(s: Snapshot, target: int | None = None, scale: Scale | None = None) -> str:
+    if scale is not None:
+        tgt = f" -> {scale.revolutions(target):.4f}" if target is not None else ""
+        return (f"t={s.time:8.3f}s  desired {scale.revolutions(s.desired_position):>10.4f}{tgt} "
+                f"rev  actual {scale.revolutions(s.real_position):>10.4f} rev  error "
+                f"{s.following_error:>+6d} counts  v {scale.rpm(s.real_velocity * FIXED_ONE):+.1f} rpm")
+    tgt = f" -> {target}" if target is not None else ""
+    return (f"t={s.time:8.3f}s  desired {s.desired_position:>10d}{tgt}  actual "
+            f"{s.real_position:>10d}  error {s.following_error:>+6d}  v {s.real_velocity:+d}")
+
+
+def _position(s: Session, value: float, name: str, raw: bool = False) -> int:
+    """A position or distance as typed: revolutions with --lines (unless raw), else counts."""
+    if s.scale is not None and not raw:
+        counts = round(value * s.scale.counts_per_rev)
+    else:
+        if float(value) != int(value):
+            raise click.BadParameter(f"{value:g} must be whole counts without --lines",
+                                     param_hint=name)
+        counts = int(value)
+    if not POSITION_MIN <= counts <= POSITION_MAX:
+        raise click.BadParameter(f"{value:g} is {counts} counts, outside "
+                                 f"{POSITION_MIN}..{POSITION_MAX}", param_hint=name)
+    return counts
+
+
+def _show_position(s: Session, counts: int) -> str:
+    return (f"{counts} counts ({s.scale.revolutions(counts):.4f} rev)" if s.scale is not None
+            else f"{counts} counts")
+
+
+def _wait_flag(chip: LM629, flag: Status, words: str, timeout: float) -> Status:
+    """``wait_for`` whose timeout says in words what it waited for."""
+    try:
+        return chip.wait_for(flag, timeout=timeout, poll=0.001)
+    except WaitTimeout as exc:
+        raise WaitTimeout(words, timeout, exc.status) from None
+
+
+def _abort_is_interrupt(ask: Callable[[], bool]) -> bool:
+    """A prompt ended by Ctrl-C or end of input ends the command like Ctrl-C (exit 130)."""
+    try:
+        return ask()
+    except (click.exceptions.Abort, EOFError):
+        raise KeyboardInterrupt from None
+
+
+@contextmanager
+def _live(enabled: bool) -> Iterator[Callable[[str], None]]:
+    """A progress line rewritten in place on a terminal; silent otherwise."""
+    shown = False
+
+    def show(text: str) -> None:
+        nonlocal shown
+        if enabled:
+            click.echo("\r" + text + "\x1b[K", nl=False, err=True, color=True)
+            shown = True
+
+    try:
+        yield show
+    finally:
+        if shown:
+            click.echo("", err=True)
+
+
+def _isatty() -> bool:
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+# ---------------------------------------------------------------------------------- commands

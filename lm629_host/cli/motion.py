@@ -1,0 +1,237 @@
+"""Commands that move the motor: ``move``, ``velocity``, ``stop``, ``home``.  Each runs inside
+:func:`lm629_host.safety.stop_on_error`: any way it ends stops the motor first."""
+
+from __future__ import annotations
+
+import click
+
+from ..errors import MotionError
+from ..lm629 import LM629, Snapshot
+from ..move import MoveRules
+from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status
+from ..safety import STOP_NOTE, emergency_stop, stop_on_error
+from ..units import FIXED_ONE
+from .app import Session, _session, main
+from .common import _isatty, _live, _position, _progress_line, _show_position, _wait_flag
+from .types import FINITE, SIGNED_ARGS, positive
+
+
+def _motion_words(s: Session, velocity: float | None, acceleration: float | None,
+                  raw: bool) -> tuple[int, int]:
+    """(velocity, acceleration) raw words from the options: rpm and rev/s^2 with --lines."""
+    scale = None if raw else s.scale
+    if scale is None:
+        v = 65536 if velocity is None else velocity
+        a = 655 if acceleration is None else acceleration
+        for name, x in (("--vel", v), ("--acc", a)):
+            if float(x) != int(x):
+                raise click.BadParameter(f"{x:g} must be a whole raw word without --lines",
+                                         param_hint=name)
+        v, a = int(v), int(a)
+    else:
+        try:
+            v = scale.velocity(60.0 if velocity is None else velocity)
+            a = scale.acceleration(10.0 if acceleration is None else acceleration)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--vel/--acc") from None
+    for name, word, hi, what in (("--vel", v, VELOCITY_MAX, "the motor would never move"),
+                                 ("--acc", a, ACCELERATION_MAX, "the move would never start")):
+        if word < 1:
+            raise click.BadParameter(f"gives the word {word}: {what} (the word must be "
+                                     f"1..{hi})", param_hint=name)
+        if word > hi:
+            raise click.BadParameter(f"gives the word {word}, above the chip's {hi}",
+                                     param_hint=name)
+    return v, a
+
+
+def _acceleration_unless_moving(chip: LM629, acceleration: int, given: bool) -> int | None:
+    """The acceleration word to load, or None while the motor moves: the chip refuses an STT
+    that changes the acceleration during a move with the drive on (AN-706 4.6.1), so velocity
+    and target change on the fly with the acceleration already loaded."""
+    if not chip.is_moving():
+        return acceleration
+    if given:
+        raise ValueError("--acc: the motor is moving, and the chip refuses a new acceleration "
+                         "until the move has ended or the motor is off (AN-706 4.6.1); leave "
+                         "--acc out to change velocity or target on the fly, or `lm629 stop` first")
+    return None
+
+
+def _wait_still(chip: LM629, limit_s: float, poll: float = 0.01) -> Snapshot:
+    """Wait (at most ``limit_s``) until the shaft has not moved for 5 polls."""
+    snap = chip.snapshot()
+    end = snap.time + limit_s
+    still = 0
+    while still < 5 and snap.time < end:
+        chip.clock.sleep(poll)
+        last, snap = snap, chip.snapshot()
+        still = still + 1 if (snap.real_position == last.real_position
+                              and snap.real_velocity == 0) else 0
+    return snap
+
+
+def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
+    if tolerance is None:
+        return None
+    if tolerance < 0:
+        raise click.BadParameter(f"{tolerance:g} must be >= 0", param_hint="--tolerance")
+    return _position(s, tolerance, "--tolerance", raw)
+
+
+@main.command(context_settings=SIGNED_ARGS)
+@click.argument("targets", type=FINITE, nargs=-1, required=True, metavar="TARGET...")
+@click.option("--linear", is_flag=True, help="With one target per --axis: a straight line, "
+                                             "the words scaled by each axis's share.")
+@click.option("--relative", "-r", is_flag=True, help="TARGET is a distance from where it is.")
+@click.option("--vel", type=FINITE, help="Velocity: rpm with --lines (default 60), else raw "
+                                          "16.16 counts/sample (default 65536).")
+@click.option("--acc", type=FINITE, help="Acceleration: rev/s^2 with --lines (default 10), else "
+                                          "raw 16.16 counts/sample^2 (default 655).")
+@click.option("--raw", is_flag=True, help="Counts and raw words even with --lines.")
+@click.option("--tolerance", type=FINITE, default=None,
+              help=f"Done when the shaft rests this close to the target (counts; revolutions "
+                   f"with --lines; default {MoveRules().tolerance} counts).")
+@click.option("--no-wait", is_flag=True, help="Start the move and return (it keeps running).")
+@click.option("--timeout", type=FINITE, default=None,
+              help="Seconds to wait (default: 1.5 x the profile + 2 s).")
+def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | None,
+         acc: float | None, raw: bool, tolerance: float | None, no_wait: bool,
+         timeout: float | None) -> None:
+    """Move to TARGET (counts; revolutions with --lines; negative as typed: move -5000) and
+    wait until the shaft rests on it.  A move that does not end on target is a motion fault:
+    the motor is stopped and the exit code is 9."""
+    s = _session()
+    v, a = _motion_words(s, vel, acc, raw)
+    tol = _tolerance(s, tolerance, raw)
+    positive("--timeout", timeout)
+    from . import axes
+    if len(targets) > 1 or linear or axes.several(s):
+        if relative:
+            raise click.UsageError("--relative moves one axis")
+        goals = [_position(s, t, "TARGET", raw) for t in targets]
+        with stop_on_error(axes.board(s).axes[0]):
+            axes.move_many(s, goals, v, a, linear, tol, timeout, no_wait)
+        return
+    target = targets[0]
+    counts = _position(s, target, "TARGET", raw)
+    chip = s.open()
+    # every check before anything moves: the words, the goal, and whether the chip would
+    # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)
+    chip.trajectory_program(acceleration=a, velocity=v, position=0)
+    if relative:
+        chip.trajectory_program(position=chip.read_desired_position() + counts)
+    acceleration = _acceleration_unless_moving(chip, a, acc is not None)
+    scale = None if raw else s.scale
+    with stop_on_error(chip):
+        m = chip.move_to(counts, velocity=v, acceleration=acceleration, relative=relative)
+        click.echo(f"moving to {_show_position(s, m.target)} (velocity word {v}, acceleration "
+                   f"word {a if acceleration is not None else 'as loaded (moving)'})")
+        if no_wait:
+            return
+        with _live(_isatty()) as show:
+            shown = [-1.0]
+
+            def progress(snap: Snapshot) -> None:
+                if snap.time - shown[0] >= 0.05:  # 20 updates a second of the chip's clock
+                    shown[0] = snap.time
+                    show(_progress_line(snap, m.target, scale))
+            r = m.wait(timeout=timeout, tolerance=tol, progress=progress)
+    click.echo(f"done: at {_show_position(s, r.position)}, {r.error:+d} counts from the target "
+               f"{m.target} (tolerance {tol if tol is not None else chip.move_rules.tolerance}), "
+               f"at rest {r.duration:.3f} s after the start")
+
+
+@main.command(context_settings=SIGNED_ARGS)
+@click.argument("speed", type=FINITE)
+@click.option("--acc", type=FINITE, help="rev/s^2 with --lines, else raw (default 655).")
+@click.option("--reverse", is_flag=True, help="Turn backwards.")
+@click.option("--raw", is_flag=True, help="Raw words even with --lines.")
+@click.option("--time", "run_s", type=FINITE, default=None,
+              help="Run this many seconds, check the shaft turns at the speed, then stop "
+                   "smoothly and wait until it rests (else leave it running).")
+def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
+             run_s: float | None) -> None:
+    """Velocity mode at SPEED (rpm with --lines, else raw 16.16 counts/sample)."""
+    s = _session()
+    if speed < 0:
+        raise click.BadParameter(f"{speed:g} must be >= 0; use --reverse to turn backwards",
+                                 param_hint="SPEED")
+    v, a = _motion_words(s, speed, acc, raw)
+    positive("--time", run_s)
+    scale = None if raw else s.scale
+
+    def speed_text(word: int) -> str:
+        return (f"{scale.rpm(word):.1f} rpm" if scale is not None
+                else f"{word / FIXED_ONE:.4f} counts/sample")
+
+    chip = s.open()
+    chip.trajectory_program(acceleration=a, velocity=v, velocity_mode=True)
+    acceleration = _acceleration_unless_moving(chip, a, acc is not None)
+    with stop_on_error(chip):
+        chip.load_trajectory(acceleration=acceleration, velocity=v, velocity_mode=True,
+                             forward=not reverse, start=True)
+        click.echo(f"velocity mode {'backward' if reverse else 'forward'}: {speed_text(v)} "
+                   f"(velocity word {v}, acceleration word {a})")
+        if run_s is None:
+            return
+        chip.clock.sleep(run_s)
+        snap = chip.snapshot()
+        want = snap.desired_velocity  # where the ramp is now (the target speed or on the way)
+        got = snap.real_velocity * FIXED_ONE
+        click.echo(f"after {run_s:g} s: actual {speed_text(got)} (desired "
+                   f"{speed_text(snap.desired_velocity)}), position "
+                   f"{_show_position(s, snap.real_position)}")
+        if abs(want) >= FIXED_ONE:
+            # from 1 count/sample up the shaft must turn the desired way at least at half the
+            # desired speed (the real velocity is whole counts/sample)
+            if got * want < 0:
+                raise _motion_fault(chip, MotionError.RUNAWAY, snap,
+                                    "the shaft turns the wrong way: swap the motor leads or "
+                                    "the encoder's A and B channels")
+            if abs(got) < abs(want) // 2:
+                raise _motion_fault(chip, MotionError.STALL, snap,
+                                    f"the shaft turns at {speed_text(got)}, not "
+                                    f"{speed_text(want)}: check the amplifier, the motor "
+                                    "and the encoder, or lower the speed")
+        chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)  # the stop's own completion, below
+        chip.load_trajectory(stop="smooth", start=True)
+        decel_s = abs(snap.desired_velocity) / max(a, 1) * s.sample_s
+        _wait_flag(chip, Status.TRAJECTORY_COMPLETE, "the smooth stop to complete",
+                   decel_s * 1.5 + 1.0)
+        rest = _wait_still(chip, 1.0)
+        if rest.real_velocity != 0:
+            raise _motion_fault(chip, MotionError.FOLLOWING_ERROR, rest,
+                                "the shaft did not come to rest after the smooth stop")
+    click.echo(f"smooth stop: at rest at {_show_position(s, rest.real_position)}")
+
+
+def _motion_fault(chip: LM629, reason: str, snap: Snapshot, message: str) -> MotionError:
+    """Stop the motor (abrupt, then off) and make the MotionError that says so."""
+    _ok, note = emergency_stop(chip)
+    exc = MotionError(reason, f"{message}; {note}", position=snap.real_position,
+                      error=snap.following_error)
+    setattr(exc, STOP_NOTE, note)
+    return exc
+
+
+@main.command()
+@click.option("--smooth", "mode", flag_value="smooth", help="Decelerate at the loaded rate.")
+@click.option("--abrupt", "mode", flag_value="abrupt", default=True,
+              help="Stop at once, hold position (default).")
+@click.option("--off", "mode", flag_value="off", help="Motor off (output zero).")
+def stop(mode: str) -> None:
+    """Stop the motor."""
+    chip = _session().open()
+    chip.load_trajectory(stop=mode, start=True)
+    click.echo(f"{mode} stop sent")
+
+
+@main.command()
+def home() -> None:
+    """Define the current position as 0 (DFH)."""
+    chip = _session().open()
+    chip.define_home()
+    click.echo("home defined: position 0 is here")
+
+

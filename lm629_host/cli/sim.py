@@ -1,0 +1,70 @@
+"""``lm629 sim serve``: a simulated bridge and chip on a pseudo-terminal or a TCP port, that
+keeps its state between clients like a board on the bench (:mod:`lm629_host.sim.serve`)."""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+
+import click
+
+
+@click.group(help="The simulated bench.")
+def sim() -> None:
+    pass
+
+
+def _tcp_address(text: str) -> tuple[str, int]:
+    """``PORT`` or ``HOST:PORT`` (the host defaults to 127.0.0.1: this machine only)."""
+    host, _, port = text.rpartition(":")
+    try:
+        number = int(port)
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is not PORT or HOST:PORT", param_hint="--tcp") from None
+    if not 0 <= number <= 65535:
+        raise click.BadParameter(f"port {number} is outside 0..65535", param_hint="--tcp")
+    return host or "127.0.0.1", number
+
+
+@sim.command("serve")
+@click.option("--pty", "pty_path", type=click.Path(path_type=Path), default=None,
+              help="Where to link the pseudo-terminal (e.g. /tmp/lm629).")
+@click.option("--tcp", "tcp", default=None, metavar="[HOST:]PORT",
+              help="Serve on a TCP port instead (0: any free one; host 127.0.0.1 unless given), "
+                   "for clients on serial://socket://HOST:PORT, as behind ser2net.")
+@click.option("--firmware", is_flag=True,
+              help="Run the real bridge firmware in simavr instead of the Python emulator.")
+@click.option("--url", default="sim://", show_default=True,
+              help="The simulated chip: sim:// parameters (chip=, clock=, record=...).")
+def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) -> None:
+    """Serve a simulated bridge and chip on a pseudo-terminal (or a TCP port) until Ctrl-C.
+
+    Then, from other shells: lm629 --port serial://PATH ...   (or pyserial, a terminal)
+    """
+    from ..sim.serve import SimServer
+
+    if (pty_path is None) == (tcp is None):
+        raise click.UsageError("give --pty PATH or --tcp [HOST:]PORT (one of them)")
+    address = _tcp_address(tcp) if tcp is not None else None
+    if pty_path is not None and not pty_path.parent.is_dir():
+        raise click.BadParameter(f"{str(pty_path)!r}: the directory {str(pty_path.parent)!r} "
+                                 "does not exist", param_hint="--pty")
+    try:
+        server = SimServer(pty_path, url, firmware=firmware, tcp=address)
+    except (RuntimeError, ValueError) as exc:
+        raise click.ClickException(str(exc)) from None
+    try:
+        server.open()
+    except (FileExistsError, ValueError, OSError) as exc:
+        server.far.close()
+        raise click.BadParameter(str(exc), param_hint="--tcp" if tcp else "--pty") from None
+    click.echo(f"serving {server.describe()}")
+    click.echo(f"connect with: lm629 --port {server.client_url} ...   (Ctrl-C stops)")
+    signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.close()
+        click.echo(f"stopped ({server.bytes_in} bytes in, {server.bytes_out} bytes out)")

@@ -1,0 +1,475 @@
+"""The bridge's far side in Python, over a :class:`~lm629_host.sim.model.ChipModel`.
+
+An independent implementation of what ``firmware_bridge/`` does, written from PROTOCOL.md:
+it reads frames, answers HELLO and PING, runs RUN programs with the busy discipline against the
+model's clock, keeps the last RUN's ``seq``/CRC/reply and answers a repeat from that cache.
+It serves two benches that need no AVR toolchain:
+
+* :class:`EmuPipe`, an in-process :class:`~lm629_host.bridge.protocol.Pipe` whose clock is the model's
+  clock, with the serial wire's byte time at a chosen baud rate: the link tests and the fault
+  tests run on it without ever sleeping on the wall clock;
+* ``lm629 sim serve --pty PATH`` (:mod:`lm629_host.sim.serve`), where it answers a real
+  pseudo-terminal in real time.
+
+The chip model knows nothing of this module; this module only strobes the model's pins.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..bridge import pins as bridge_pins
+from ..bridge.protocol import (
+    BAUD_WINDOW_MS,
+    CODE_BYTES,
+    CODE_SLOTS,
+    MAX_FRAME,
+    MAX_PING,
+    RUN_OVERHEAD,
+    RUN_REPLY_OVERHEAD,
+    BadProgram,
+    Capability,
+    Frame,
+    FrameError,
+    FrameReader,
+    FrameType,
+    HelloInfo,
+    Result,
+    RunReply,
+    decode_program,
+    encode_frame,
+    short_reply_payload,
+)
+from ..opcodes import BUSY_BIT
+from ..program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
+from .clock import SimClock
+from .model import ChipBus, ChipModel, chips_of
+
+_BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
+
+#: the emulator's firmware version (HELLO_REPLY); 0.x marks "not the AVR firmware"
+EMU_FIRMWARE = (0, 9, 0)
+#: one /RD or /WR strobe of the emulated bridge, recovery included (an AVR at 16 MHz needs
+#: about 16 instructions per strobe with the data bus split over two ports)
+BUS_CYCLE_S = 1e-6
+#: /RST held low by the emulated bridge (the datasheet asks for 8 chip clocks)
+RESET_PULSE_S = 4e-6
+
+
+@dataclass
+class EmuStats:
+    """What happened on the far side (for the fault tests: nothing runs twice)."""
+
+    frames: int = 0  #: good frames received
+    bad_frames: int = 0  #: frames dropped for COBS, length or CRC errors
+    runs: int = 0  #: RUN programs executed
+    cache_hits: int = 0  #: RUN repeats answered from the cache
+    replies: int = 0  #: frames sent
+    busy_polls: int = 0  #: status reads made only for the busy check
+    bus_cycles: int = 0  #: strobes and /RST pulses
+
+
+#: what this emulator is by default: the multi-axis firmware's chip selects, SELECT runs
+MULTI_AXIS_INFO = HelloInfo(
+    firmware=EMU_FIRMWARE, chip_selects=len(bridge_pins.CHIP_SELECTS),
+    capabilities=int(Capability.RESET_LINE | Capability.HI_LINE | Capability.BUSY_ON_BRIDGE
+                     | Capability.WAIT_STATUS | Capability.SELECT | Capability.COMPACT_RUN
+                     | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH))
+#: a bridge of before issue 11 (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
+#: WAIT_STATUS: firmware 1.0's capabilities)
+ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
+
+
+class _NoChip:
+    """An unwired chip select: writes reach nothing, reads find the bus floating (FF)."""
+
+    hi = False
+
+    def read_status(self) -> int:
+        return 0xFF
+
+    read_data = read_status
+
+    def write_command(self, byte: int) -> None:
+        pass
+
+    write_data = write_command
+
+
+_NO_CHIP = _NoChip()
+
+
+@dataclass
+class BridgeEmulator:
+    """The far end of the link: frames in, frames out, programs run on ``model`` (one chip,
+    or a :class:`~lm629_host.sim.model.ChipBus` whose chips sit on chip selects 0, 1, ...)."""
+
+    model: ChipModel | ChipBus
+    info: HelloInfo = field(default_factory=lambda: MULTI_AXIS_INFO)
+    stats: EmuStats = field(default_factory=EmuStats)
+
+    def __post_init__(self) -> None:
+        self._chips = chips_of(self.model)
+        self._cs = 0
+        self._reader = FrameReader()
+        self._cache: tuple[int, int, bytes] | None = None  # seq, crc, encoded reply
+        self._codes: dict[int, bytes] = {}  # programs kept for RUN_CODE
+        self._cycle_ticks = max(1, round(BUS_CYCLE_S * self.model.clock_hz))
+        if self.info.max_program > MAX_FRAME - RUN_OVERHEAD:
+            raise ValueError(f"max_program={self.info.max_program} does not fit MAX_FRAME")
+
+    # ------------------------------------------------------------------ frames
+    def receive(self, data: bytes) -> list[bytes]:
+        """Bytes from the host; returns the encoded reply frames, in order.  Programs run on
+        the model at its current time (the caller advances it to the arrival of the bytes)."""
+        out: list[bytes] = []
+        for item in self._reader.feed(data):
+            if isinstance(item, FrameError):
+                self.stats.bad_frames += 1  # never answered: the host's retry covers it
+                continue
+            self.stats.frames += 1
+            reply = self._handle(item)
+            if reply is not None:
+                self.stats.replies += 1
+                out.append(reply)
+        return out
+
+    #: the line's rate at the far end (EmuPipe sets it), the rate it goes back to and until
+    #: when (after SET_BAUD, until a good frame comes at the new rate), a switch answered
+    rate: int = 0
+    _back: tuple[int, float] | None = None
+    _pending: int = 0
+
+    def expire(self, t: float) -> None:
+        """At time ``t``: no good frame came at the new rate within BAUD_WINDOW_MS: back."""
+        if self._back is not None and t > self._back[1]:
+            self.rate, self._back = self._back[0], None
+
+    def switch_after_reply(self, t: float) -> None:
+        """The reply to SET_BAUD has left at ``t`` (at the old rate): switch now."""
+        if self._pending:
+            self._back = (self.rate, t + BAUD_WINDOW_MS * 1e-3)
+            self.rate, self._pending = self._pending, 0
+
+    def _handle(self, frame: Frame) -> bytes | None:
+        t = frame.type
+        self._back = None  # a good frame: the rate works
+        if t == FrameType.SET_BAUD and self.info.capabilities & Capability.BAUD_SWITCH \
+                and len(frame.payload) == 4:
+            baud = int.from_bytes(frame.payload, "big")
+            div = (self.info.cpu_hz // 8 + baud // 2) // baud if baud else 0
+            made = self.info.cpu_hz // 8 // div if div else 0
+            ok = 1 <= div <= 4096 and abs(made - baud) * 50 <= baud
+            self._pending = made if ok else 0
+            return encode_frame(FrameType.BAUD_REPLY, frame.seq,
+                                bytes((Result.OK if ok else Result.BAD_BAUD,)) + made.to_bytes(4, "big"))
+        if t == FrameType.HELLO:
+            self._cache = None
+            self._codes.clear()
+            return encode_frame(FrameType.HELLO_REPLY, frame.seq, self.info.encode())
+        if t == FrameType.PING:
+            if len(frame.payload) > MAX_PING:
+                return self._error(frame.seq, Result.BAD_REQUEST)
+            return encode_frame(FrameType.PONG, frame.seq, frame.payload)
+        if t == FrameType.RUN:
+            if len(frame.payload) < 3:
+                return self._error(frame.seq, Result.BAD_REQUEST)
+            cache = self._cache
+            if cache is not None and cache[0] == frame.seq and cache[1] == frame.crc:
+                self.stats.cache_hits += 1
+                return cache[2]
+            reply = encode_frame(FrameType.RUN_REPLY, frame.seq, self._run(frame.payload).encode())
+            self._cache = (frame.seq, frame.crc, reply)
+            return reply
+        caps = self.info.capabilities
+        if (t == FrameType.RUN_SHORT and caps & Capability.COMPACT_RUN) or (
+                caps & Capability.PROGRAM_CODES and (
+                    (t == FrameType.RUN_STORE and len(frame.payload) >= 1)
+                    or (t == FrameType.RUN_CODE and len(frame.payload) == 1))):
+            cache = self._cache
+            if cache is not None and cache[0] == frame.seq and cache[1] == frame.crc:
+                self.stats.cache_hits += 1
+                return cache[2]
+            program: bytes | None = frame.payload
+            if t != FrameType.RUN_SHORT:
+                code = frame.payload[0]
+                if t == FrameType.RUN_STORE:
+                    program = frame.payload[1:]
+                    if code < CODE_SLOTS:
+                        self._codes.pop(code, None)
+                        try:  # a program that checks out is kept, whatever its run does
+                            if len(program) <= CODE_BYTES and \
+                                    self._check(decode_program(program)) is None:
+                                self._codes[code] = program
+                        except BadProgram:
+                            pass
+                    else:
+                        program = None
+                else:
+                    program = self._codes.get(code)
+            if program is None:
+                result = RunReply(Result.UNKNOWN_CODE)
+            else:
+                if t == FrameType.RUN_STORE and len(program) > CODE_BYTES:
+                    result = RunReply(Result.PROGRAM_TOO_LONG)
+                else:
+                    # cs 0 and the default busy timeout, then as RUN
+                    result = self._run(bytes((0, 0, 0)) + program)
+            # a program that ran to its end is answered in the compact form, else as a RUN
+            if result.result == Result.OK and program is not None:
+                reply = encode_frame(FrameType.RUN_SHORT_REPLY, frame.seq,
+                                     short_reply_payload(decode_program(program), result))
+            else:
+                reply = encode_frame(FrameType.RUN_REPLY, frame.seq, result.encode())
+            self._cache = (frame.seq, frame.crc, reply)
+            return reply
+        if t & 0x80:
+            return None  # a reply type from the host: not a request, ignore it
+        return self._error(frame.seq, Result.BAD_REQUEST)
+
+    def _error(self, seq: int, code: Result) -> bytes:
+        return encode_frame(FrameType.ERROR_REPLY, seq, bytes((code,)))
+
+    # ------------------------------------------------------------------ programs
+    def _run(self, payload: bytes) -> RunReply:
+        cs = payload[0]
+        timeout_us = int.from_bytes(payload[1:3], "big") or 5000
+        body = payload[3:]
+        if cs >= self.info.chip_selects:
+            return RunReply(Result.BAD_CHIP_SELECT)
+        if len(body) > self.info.max_program:
+            return RunReply(Result.PROGRAM_TOO_LONG)
+        try:
+            ops = decode_program(body)
+        except BadProgram as exc:
+            return RunReply(Result.BAD_PROGRAM, exc.index)
+        refused = self._check(ops)
+        if refused is not None:
+            return refused
+        self._cs = cs
+        self.stats.runs += 1
+        return self.run_ops(ops, timeout_us * 1e-6)
+
+    def _check(self, ops: list[BusOp]) -> RunReply | None:
+        """Why the bridge refuses decoded ``ops`` (a SELECT it cannot make, limits), or None."""
+        for i, o in enumerate(ops):
+            if o.op is Op.SELECT:
+                if not self.info.capabilities & Capability.SELECT:
+                    return RunReply(Result.BAD_PROGRAM, i)  # an older bridge knows no SELECT
+                if o.arg >= self.info.chip_selects:
+                    return RunReply(Result.BAD_CHIP_SELECT, i)
+        reads = sum(1 for o in ops if o.op is Op.READ)
+        n_status = sum(1 for o in ops if o.op in STATUS_OPS)
+        if reads > self.info.max_reads or n_status > 255 \
+                or RUN_REPLY_OVERHEAD + n_status + 2 * reads > MAX_FRAME:
+            return RunReply(Result.PROGRAM_TOO_LONG)
+        return None
+
+    def _strobe(self) -> ChipModel:
+        m = self.model
+        m.advance_to(m.tick + self._cycle_ticks)
+        self.stats.bus_cycles += 1
+        return self._chip()
+
+    def _chip(self) -> ChipModel:
+        k = self._cs
+        return self._chips[k] if k < len(self._chips) else _NO_CHIP  # type: ignore[return-value]  # an unwired select: the floating bus
+
+    def _wait_not_busy(self, timeout_s: float) -> tuple[bool, int]:
+        m = self.model
+        deadline = m.tick + math.ceil(timeout_s * m.clock_hz)
+        while True:
+            status = self._strobe().read_status()
+            self.stats.busy_polls += 1
+            if not status & _BUSY:
+                return True, status
+            if m.tick >= deadline:
+                return False, status
+
+    def _wait_status(self, mask: int, timeout_s: float) -> int:
+        """Op.WAIT_STATUS as the firmware runs it: a status read every WAIT_STATUS_POLL_US
+        until one has a bit of ``mask`` or ``timeout_s`` has passed.  The reads that would find
+        nothing are skipped: the clock goes to the status change (SimClock), then on to the
+        firmware's next read after it, which is made for real."""
+        m = self.model
+        clock = SimClock(m)
+        period = WAIT_STATUS_POLL_US * 1e-6
+        end = m.now() + timeout_s
+        while True:
+            status = self._strobe().read_status()
+            t = m.now()
+            if status & mask or t >= end:
+                return status
+            clock.advance_until_status(mask, end)
+            j = max(1, math.ceil((m.now() - t) / (period + BUS_CYCLE_S) - 1e-9))
+            clock.advance_to(min(end, t + j * period + (j - 1) * BUS_CYCLE_S))
+
+    def run_ops(self, ops: list[BusOp], timeout_s: float) -> RunReply:
+        """Run decoded operations with the busy discipline; stop at a busy timeout."""
+        m = self.model
+        words: list[int] = []
+        statuses: list[int] = []
+        last = 0xFF
+        for index, o in enumerate(ops):
+            op = o.op
+            if op is Op.COMMAND or op is Op.WRITE or op is Op.READ or op is Op.SYNC:
+                ok, last = self._wait_not_busy(timeout_s)
+                if not ok:
+                    return RunReply(Result.BUSY_TIMEOUT, index, last, int(self._chip().hi),
+                                    tuple(statuses), tuple(words))
+                if op is Op.COMMAND:
+                    self._strobe().write_command(o.arg)
+                elif op is Op.WRITE:
+                    self._strobe().write_data(o.arg >> 8)
+                    self._strobe().write_data(o.arg & 0xFF)
+                elif op is Op.READ:
+                    hi = self._strobe().read_data()
+                    words.append((hi << 8) | self._strobe().read_data())
+                else:
+                    statuses.append(last)
+            elif op is Op.STATUS:
+                last = self._strobe().read_status()
+                statuses.append(last)
+            elif op is Op.RESET:
+                m.advance(RESET_PULSE_S)
+                m.reset_pulse()
+                self.stats.bus_cycles += 1
+            elif op is Op.WAIT:
+                m.advance(o.arg * 1e-6)
+            elif op is Op.SELECT:
+                self._cs = o.arg
+            elif op is Op.WAIT_STATUS:
+                last = self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3)
+                statuses.append(last)
+        return RunReply(Result.OK, 0xFF, last, int(self._chip().hi), tuple(statuses),
+                        tuple(words))
+
+
+#: the far end runs on the chip model's simulated clock (the one ``sim://`` uses)
+ModelClock = SimClock
+
+
+def _last_due(queue: Sequence[tuple[Any, ...]], deadline: float) -> float:
+    """Arrival time of the last byte of ``queue`` (time-ordered) due by ``deadline``; the first
+    byte must be due."""
+    last = queue[0][0]
+    for item in queue:
+        t = item[0]
+        if t > deadline:
+            break
+        last = t
+    return last
+
+
+class EmuPipe:
+    """An in-process serial line to a :class:`BridgeEmulator`, in the model's simulated time.
+
+    Each byte takes ``10 / baud`` seconds on the wire in each direction (``baud=None``: no
+    wire time); the far end sees a frame when its last byte has arrived, runs it (advancing the
+    model) and its reply is on the wire from then on.  ``read`` advances the simulated clock up
+    to the next byte or the timeout.
+    """
+
+    def __init__(self, emulator: BridgeEmulator, *, baud: int | None = 115200,
+                 max_baud: int | None = None) -> None:
+        self.emulator = emulator
+        self.clock = ModelClock(emulator.model)
+        self.byte_s = 10.0 / baud if baud else 0.0
+        self._timed = bool(baud)
+        #: the host side's rate; a byte sent at another rate than the receiver's is lost (as
+        #: garbage would be), and so is one above ``max_baud`` (a line or USB serial adapter
+        #: that cannot carry it)
+        self.rate = baud or 0
+        self.max_baud = max_baud
+        emulator.rate = self.rate
+        self._to_far: deque[tuple[float, bytes, int]] = deque()  # (arrival time, byte, rate)
+        self._to_host: deque[tuple[float, int, int]] = deque()
+        self._tx_free = 0.0  # when the host->bridge wire is free again
+        self._rx_free = 0.0  # when the bridge->host wire is free again
+        self.closed = False
+
+    def set_baud(self, baud: int) -> None:
+        """The host side's rate (the far end's changes on SET_BAUD)."""
+        self.rate = baud
+        if self._timed:
+            self.byte_s = 10.0 / baud
+
+    def _carried(self, rate: int, receiver: int) -> bool:
+        return rate == receiver and (self.max_baud is None or rate <= self.max_baud)
+
+    def write(self, data: bytes) -> None:
+        t = max(self.clock.now(), self._tx_free)
+        bs = self.byte_s
+        if bs == 0.0:
+            self._to_far.append((t, bytes(data), self.rate))
+        else:
+            for b in data:
+                t += bs
+                self._to_far.append((t, bytes((b,)), self.rate))
+        self._tx_free = t
+
+    def _deliver_far(self, until: float) -> None:
+        """Hand the far end every byte that has arrived by ``until`` and queue its replies."""
+        chunk = bytearray()
+        q = self._to_far
+        emu = self.emulator
+        while q and q[0][0] <= until:
+            t, b, rate = q.popleft()
+            emu.expire(t)
+            if self._carried(rate, emu.rate):
+                chunk += b
+        if not chunk:
+            return
+        for reply in emu.receive(bytes(chunk)):
+            t = max(self.clock.now(), self._rx_free)
+            bs = self.byte_s
+            for byte in reply:
+                t += bs
+                self._to_host.append((t, byte, emu.rate))
+            self._rx_free = t
+            emu.switch_after_reply(t)
+
+    def read(self, timeout_s: float) -> bytes:
+        clock = self.clock
+        deadline = clock.now() + max(0.0, timeout_s)
+        while True:
+            now = clock.now()
+            h = self._to_host
+            if h and h[0][0] <= deadline:
+                # the reply is on its way: wait for the burst that is on the wire (up to the
+                # deadline), as a serial read with a short inter-byte timeout would
+                last = _last_due(h, deadline)
+                if last > now:
+                    clock.advance_to(last)
+                out = bytearray()
+                while h and h[0][0] <= last:
+                    _, b, rate = h.popleft()
+                    if self._carried(rate, self.rate):
+                        out.append(b)
+                self._deliver_far(max(last, clock.now()))
+                return bytes(out)
+            q = self._to_far
+            if q and q[0][0] <= deadline:
+                t = _last_due(q, deadline)
+                if t > now:
+                    clock.advance_to(t)
+                self._deliver_far(max(t, clock.now()))
+                continue
+            if deadline > now:
+                clock.advance_to(deadline)
+            return b""
+
+    def in_flight(self) -> int:
+        """Bytes still on the wire in either direction."""
+        return len(self._to_far) + len(self._to_host)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+__all__ = ["BridgeEmulator", "EmuPipe", "EmuStats", "ModelClock", "EMU_FIRMWARE", "BUS_CYCLE_S",
+           ]

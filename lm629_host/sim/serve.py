@@ -1,0 +1,423 @@
+"""``lm629 sim serve --pty PATH``: a simulated bridge on a pseudo-terminal.
+
+The server creates a pseudo-terminal, links its device at ``PATH`` and answers on it like a
+bridge on a USB serial port, so that several CLI invocations, a lab script and a serial
+terminal can all talk to one simulated chip through the unchanged ``serial://PATH`` transport.
+
+The far end is the Python bridge (:class:`~lm629_host.sim.bridge.BridgeEmulator`) by default;
+with ``firmware=True`` it is the real compiled firmware running in simavr, taken from the
+``sim+avr://`` transport (:func:`firmware_far_end`).
+
+Time: this is a real-time service, so its clock follows the wall clock.  The far end keeps its
+own simulated clock; the server advances it to the wall time elapsed since start (the motor
+keeps moving between clients), and when a request took the simulation past the wall time (a
+WAIT, a long busy) the server sleeps until the wall clock catches up before it answers, as the
+real bridge would answer that late.
+"""
+
+from __future__ import annotations
+
+import abc
+import contextlib
+import logging
+import os
+import select
+import socket
+import threading
+import time
+import tty
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from ..bridge.protocol import (
+    MAX_WIRE_FRAME,
+    BadProgram,
+    Frame,
+    FrameReader,
+    FrameType,
+    decode_program,
+)
+from ..program import Op
+from .bridge import BridgeEmulator
+from .build import build_bus
+from .model import ChipBus, ChipModel, chips_of
+
+log = logging.getLogger("lm629_host.sim.serve")
+
+#: how often the idle server moves the simulation forward
+IDLE_TICK_S = 0.02
+
+
+class FarEnd(abc.ABC):
+    """What the server needs from a far end: bytes in, reply bytes out, a simulated clock that
+    the server keeps level with the wall clock, and the chip model."""
+
+    model: ChipModel | ChipBus
+
+    @abc.abstractmethod
+    def receive(self, data: bytes) -> list[bytes]: ...
+
+    @abc.abstractmethod
+    def now(self) -> float: ...
+
+    @abc.abstractmethod
+    def advance_to(self, t: float) -> bytes:
+        """Run the far end up to simulated time ``t``; returns bytes it sent meanwhile."""
+
+    @abc.abstractmethod
+    def describe(self) -> str: ...
+
+    def close(self) -> None:  # noqa: B027 - optional: a far end may hold nothing
+        pass
+
+
+class EmuFarEnd(FarEnd):
+    """The Python bridge over the model, driven straight."""
+
+    def __init__(self, model: ChipModel | ChipBus) -> None:
+        self.model = model  # one chip, or a ChipBus (``--url 'sim://?axes=2'``)
+        self.emulator = BridgeEmulator(model)
+
+    def receive(self, data: bytes) -> list[bytes]:
+        return self.emulator.receive(data)
+
+    def now(self) -> float:
+        return self.model.now()
+
+    def advance_to(self, t: float) -> bytes:
+        self.model.advance_to(int(t * self.model.clock_hz))
+        return b""
+
+    def describe(self) -> str:
+        return f"Python bridge emulator (firmware {self.emulator.info.firmware_version})"
+
+
+class PipeFarEnd(FarEnd):
+    """Any bridge behind a simulated :class:`~lm629_host.bridge.protocol.Pipe` (the compiled firmware in
+    simavr).  Bytes go in through the pipe; for each good request the server waits, on the
+    pipe's simulated clock, for the reply frame (up to the per-request timeout the host would
+    compute), so that a pty client gets whole replies."""
+
+    #: added to each per-request wait, simulated seconds
+    MARGIN_S = 0.05
+
+    def __init__(self, pipe, model: ChipModel | ChipBus, name: str, *, baud: int | None = None) -> None:
+        self.pipe = pipe
+        self.model = model
+        self.name = name
+        self.baud = baud
+        self._requests = FrameReader()
+        self._replies = FrameReader()
+        #: programs the far end keeps by code (RUN_STORE), to time a RUN_CODE's reply
+        self._codes: dict[int, bytes] = {}
+
+    def _timeout(self, frame: Frame) -> float:
+        t = self.MARGIN_S + (2 * MAX_WIRE_FRAME * 10 / self.baud if self.baud else 0.0)
+        ftype, payload = frame.type, frame.payload
+        program: bytes | None = None
+        if ftype == FrameType.HELLO:
+            self._codes.clear()  # the far end forgets its codes too
+        elif ftype == FrameType.RUN_SHORT:
+            program = payload
+        elif ftype == FrameType.RUN_STORE and payload:
+            program = payload[1:]
+            self._codes[payload[0]] = program
+        elif ftype == FrameType.RUN_CODE and len(payload) == 1:
+            program = self._codes.get(payload[0], b"")
+        elif ftype == FrameType.RUN and len(payload) >= 3:
+            program = payload[3:]
+        if program is not None:
+            # the compact forms run with the default busy timeout
+            busy = ((int.from_bytes(payload[1:3], "big") if ftype == FrameType.RUN else 0)
+                    or 5000) * 1e-6
+            try:
+                ops = decode_program(program)
+            except BadProgram:
+                return t
+            for o in ops:
+                if o.op is Op.WAIT:
+                    t += o.arg * 1e-6
+                elif o.op is Op.WAIT_STATUS:  # as LinkTransport.reply_timeout
+                    t += (o.arg & 0xFFFF) * 1e-3 * 1.1 + 0.01
+                elif o.op is not Op.STATUS and o.op is not Op.RESET:
+                    t += busy
+        return t
+
+    def receive(self, data: bytes) -> list[bytes]:
+        self.pipe.write(data)
+        waits = [self._timeout(f) for f in self._requests.feed(data)
+                 if isinstance(f, Frame) and not f.type & 0x80]
+        out = bytearray()
+        for timeout in waits:
+            deadline = self.pipe.clock.now() + timeout
+            while True:
+                left = deadline - self.pipe.clock.now()
+                if left <= 0:
+                    break
+                chunk = self.pipe.read(left)
+                if not chunk:
+                    break
+                out += chunk
+                if any(isinstance(f, Frame) for f in self._replies.feed(chunk)):
+                    break
+        return [bytes(out)] if out else []
+
+    def now(self) -> float:
+        return self.pipe.clock.now()
+
+    def advance_to(self, t: float) -> bytes:
+        left = t - self.pipe.clock.now()
+        if left <= 0:
+            return b""
+        data = self.pipe.read(left)
+        if data:
+            for _ in self._replies.feed(data):
+                pass
+        return data
+
+    def describe(self) -> str:
+        return self.name
+
+    def close(self) -> None:
+        self.pipe.close()
+
+
+def firmware_far_end(url: str) -> FarEnd:
+    """The compiled bridge firmware in simavr (:mod:`.avr`, 115200 baud) as a far end, over a
+    chip model built from the simulator options of ``url``.  Raises RuntimeError saying what
+    is missing when the firmware or the harness cannot run."""
+    from ..bridge.pins import CHIP_SELECTS
+    from .avr import DEFAULT_BAUD, AvrPipe, AvrSim, HarnessError
+
+    model = build_bus(url, limit=len(CHIP_SELECTS))
+    if isinstance(model, ChipBus):
+        model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
+    try:
+        sim = AvrSim(model)
+    except (HarnessError, OSError) as exc:
+        raise RuntimeError(f"--firmware runs the compiled firmware in simavr: {exc}. Build it "
+                           "with `make -C firmware_bridge` (needs gcc-avr, avr-libc, simavr, "
+                           "libsimavr-dev), or serve the Python bridge without --firmware.") from None
+    return PipeFarEnd(AvrPipe(sim), model, "bridge firmware in simavr", baud=DEFAULT_BAUD)
+
+
+class SimServer:
+    """A far end served on a pseudo-terminal linked at ``link``, or on a TCP port (``tcp=(host,
+    port)``, port 0: any free one) for ``serial://socket://host:port`` clients, as a bridge
+    behind ser2net would be.  On TCP one client is served at a time; a new connection takes
+    over from the previous one (the chip keeps its state, as a board does between programs)."""
+
+    def __init__(self, link: str | os.PathLike | None = None, url: str = "sim://", *,
+                 firmware: bool = False, far_end: FarEnd | None = None,
+                 tcp: tuple[str, int] | None = None) -> None:
+        if (link is None) == (tcp is None):
+            raise ValueError("serve on a pty link or on a TCP port: give one of them")
+        self.link = Path(link) if link is not None else None
+        self.tcp = tcp
+        self.url = url
+        if far_end is None:
+            far_end = firmware_far_end(url) if firmware else EmuFarEnd(build_bus(url))
+        self.far = far_end
+        self.model = far_end.model
+        self.master: int | None = None
+        self.slave: int | None = None
+        self.device = ""
+        self._listener: socket.socket | None = None
+        self._client: socket.socket | None = None
+        #: (host, port) the TCP server listens on, once open
+        self.address: tuple[str, int] | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.bytes_in = 0
+        self.bytes_out = 0
+
+    @property
+    def client_url(self) -> str:
+        """What a client passes to ``--port``."""
+        if self.tcp is not None:
+            host, port = self.address or self.tcp
+            return f"serial://socket://{host}:{port}"
+        return f"serial://{self.link}"
+
+    @property
+    def _opened(self) -> bool:
+        return self.master is not None or self._listener is not None
+
+    # ------------------------------------------------------------------ set-up
+    def open(self) -> str:
+        """Open where clients connect: the TCP port, or the pseudo-terminal and its link.
+        Returns the pty's device path, or ``host:port``."""
+        if self.tcp is not None:
+            return self._open_tcp()
+        return self._open_pty()
+
+    def _open_tcp(self) -> str:
+        assert self.tcp is not None
+        listener = socket.create_server(self.tcp)
+        listener.setblocking(False)
+        self._listener = listener
+        host, port = listener.getsockname()[:2]
+        self.address = (self.tcp[0] or host, port)
+        self.device = f"{self.address[0]}:{port}"
+        return self.device
+
+    def _open_pty(self) -> str:
+        """Create the pseudo-terminal and the link; returns the pty's device path.
+
+        The link is only ever created here, never taken over: a path that exists (a file, a
+        directory, a link to a live pseudo-terminal that another server holds) is refused
+        with FileExistsError.  Only a dangling link to a pseudo-terminal (left by a server
+        that was killed) is replaced.  :meth:`close` removes the link only while it is still
+        the one this server made."""
+        assert self.link is not None
+        parent = self.link.parent
+        if not parent.is_dir():
+            raise ValueError(f"--pty {self.link}: the directory {parent} does not exist")
+        if self.link.is_symlink():
+            target = os.readlink(self.link)
+            if os.path.exists(self.link):
+                raise FileExistsError(
+                    f"{self.link} -> {target} is in use (another `lm629 sim serve`, or "
+                    "another program, holds it): stop that server or choose another --pty path")
+            if not target.startswith("/dev/pts/"):
+                raise FileExistsError(f"{self.link} is a link to {target}, not a pseudo-"
+                                      "terminal this tool made: choose another --pty path")
+            os.unlink(self.link)  # stale: its server is gone
+        elif os.path.lexists(self.link):
+            raise FileExistsError(f"{self.link} exists and is not a link this tool made: "
+                                  "choose another --pty path")
+        master, slave = os.openpty()
+        tty.setraw(slave)  # no echo, no line editing: a byte pipe like a USB serial port
+        self.device = os.ttyname(slave)
+        try:
+            os.symlink(self.device, self.link)  # fails if another server won the race
+        except OSError:
+            os.close(master)
+            os.close(slave)
+            self.device = ""
+            raise
+        self.master, self.slave = master, slave
+        # the server keeps the slave open, so the pty survives clients that come and go
+        return self.device
+
+    def close(self) -> None:
+        self.stop()
+        self.far.close()
+        for fd in (self.master, self.slave):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self.master = self.slave = None
+        for sock in (self._client, self._listener):
+            if sock is not None:
+                sock.close()
+        self._client = self._listener = None
+        with contextlib.suppress(OSError):
+            if self.device and self.link is not None and self.link.is_symlink() \
+                    and os.readlink(self.link) == self.device:
+                self.link.unlink()
+
+    def __enter__(self) -> SimServer:
+        if not self._opened:
+            self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ serving
+    def _fds(self) -> Sequence[int | socket.socket]:
+        if self._listener is None:
+            assert self.master is not None
+            return [self.master]
+        return [self._listener] + ([self._client] if self._client is not None else [])
+
+    def _read(self, ready: Sequence[int | socket.socket]) -> bytes:
+        """Bytes from the client; on TCP also takes a new connection (which replaces the last)."""
+        if self._listener is None:
+            assert self.master is not None
+            try:
+                return os.read(self.master, 4096)
+            except OSError:
+                return b""  # EIO while no client has the slave open (ours stays open)
+        if self._listener in ready:
+            with contextlib.suppress(BlockingIOError):
+                client, peer = self._listener.accept()
+                if self._client is not None:
+                    self._client.close()
+                client.setblocking(True)
+                client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                self._client = client
+                log.info("client %s:%s connected", *peer[:2])
+                return b""
+        if self._client is not None and self._client in ready:
+            try:
+                data = self._client.recv(4096)
+            except OSError:
+                data = b""
+            if not data:  # the client went away: wait for the next one
+                self._client.close()
+                self._client = None
+            return data
+        return b""
+
+    def _write(self, data: bytes) -> None:
+        if self._listener is None:
+            assert self.master is not None
+            os.write(self.master, data)
+        elif self._client is not None:
+            with contextlib.suppress(OSError):  # a client gone while we answered
+                self._client.sendall(data)
+
+    def serve_forever(self, on_ready: Callable[[], None] | None = None) -> None:
+        """Answer until :meth:`stop` (or KeyboardInterrupt)."""
+        if not self._opened:
+            self.open()
+        far = self.far
+        wall0 = time.monotonic()
+        sim0 = far.now()
+        if on_ready is not None:
+            on_ready()
+        while not self._stop.is_set():
+            ready, _, _ = select.select(self._fds(), [], [], IDLE_TICK_S)
+            stray = far.advance_to(sim0 + time.monotonic() - wall0)
+            replies = [stray] if stray else []
+            if ready:
+                data = self._read(ready)
+                if data:
+                    self.bytes_in += len(data)
+                    replies += far.receive(data)
+            if not replies:
+                continue
+            ahead = (far.now() - sim0) - (time.monotonic() - wall0)
+            if ahead > 0:
+                time.sleep(ahead)  # real-time service: answer no earlier than a bridge would
+            for r in replies:
+                self._write(r)
+                self.bytes_out += len(r)
+
+    def start(self) -> SimServer:
+        """Serve in a background thread (tests, scripts)."""
+        if not self._opened:
+            self.open()
+        ready = threading.Event()
+        self._thread = threading.Thread(target=self.serve_forever, args=(ready.set,),
+                                        name=f"lm629-sim-serve {self.link or self.device}", daemon=True)
+        self._thread.start()
+        ready.wait(5)
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(5)
+            self._thread = None
+
+    def describe(self) -> str:
+        where = (f"TCP port {self.device}" if self.tcp is not None
+                 else f"{self.device} (linked at {self.link})")
+        chips = chips_of(self.model)
+        return f"{self.far.describe()} with a {chips[0].describe(len(chips))}, on {where}"
+
+
+__all__ = ["EmuFarEnd", "FarEnd", "PipeFarEnd", "SimServer", "firmware_far_end"]

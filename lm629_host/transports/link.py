@@ -1,0 +1,667 @@
+"""The transport over a bridge that runs whole bus programs on its far side: the host end of
+the link protocol (``firmware_bridge/PROTOCOL.md``; its bytes are :mod:`lm629_host.bridge.protocol`).
+
+:class:`Pipe` is the byte stream to a bridge with its own clock (a pyserial port, a simulated
+AVR UART, the Python far end, a lossy test wrapper); :class:`LinkTransport` is the transport over
+any pipe: handshake on open, one RUN frame per program, retries with the same ``seq``, typed
+errors.  ``serial://``, ``sim+avr://`` and ``sim+emu://`` are this transport over their pipes.
+
+The bridge answers a repeated RUN (same ``seq`` and CRC) from its cache, so the retries here
+never run a program twice; after the last retry the host cannot know whether the program ran
+and says so.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+from collections import OrderedDict, deque
+from collections.abc import Callable, Iterator, Sequence
+
+from ..bridge.protocol import (
+    ALSO_REPLY_TO,
+    BAUD_WINDOW_MS,
+    CODE_BYTES,
+    CODE_SLOTS,
+    FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
+    RUN_TYPES,
+    decode_short_reply,
+    encode_program,
+    MAX_FRAME,
+    MAX_PING,
+    NONE_BYTE,
+    PROTOCOL_VERSION,
+    REPLY_TO,
+    RUN_OVERHEAD,
+    RUN_REPLY_OVERHEAD,
+    Capability,
+    Frame,
+    FrameError,
+    FrameReader,
+    FrameType,
+    HelloInfo,
+    Pipe,
+    Result,
+    RunReply,
+    busy_timeout_us,
+    encode_frame,
+    reply_size,
+    run_payload,
+    wire_size,
+)
+from ..errors import AxisError, BusyTimeout, TransportError
+from ..program import (
+    OP_ARG_BYTES,
+    STATUS_OPS,
+    BusOp,
+    Op,
+    Program,
+    ProgramResult,
+    TraceCallback,
+    cycles_of,
+)
+from .base import Transport
+
+log = logging.getLogger("lm629_host.bridge.protocol")
+
+#: retries of one request (same ``seq``, same bytes) before the host gives up.  Seven: at 1 % of
+#: bytes faulty (each of drop, corrupt, duplicate, delay at 0.25 %) one attempt of a small RUN
+#: fails about one time in five, so 3 retries leave ~0.15 % of commands failed, 7 leave none
+#: measured in 100,000 (docs/bridge.md); a dead link costs 8 timeouts to notice
+DEFAULT_RETRIES = 7
+#: how many recent attempts :attr:`LinkTransport.error_rate` looks back over
+ERROR_WINDOW = 200
+#: an error rate above this makes a give-up message call the link too bad to use
+BAD_LINK_RATE = 0.2
+#: above this error rate (over a full window) the link logs one warning per window, even while
+#: the retries still hide every failure: 5 % of exchanges failing is a cable to look at
+WARN_LINK_RATE = 0.05
+
+
+class LinkError(TransportError):
+    """The link gave up on a request.  ``may_have_run``: True when the request may have reached
+    the bridge (its program may or may not have run), False when nothing was sent to the chip
+    (the resynchronising HELLO before it got no answer)."""
+
+    def __init__(self, message: str, *, port: str, may_have_run: bool) -> None:
+        super().__init__(message, port=port)
+        self.may_have_run = may_have_run
+
+
+_BUSY_CHECKED = (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC)
+
+
+# ---------------------------------------------------------------------------------- transport
+class LinkTransport(Transport):
+    """A transport whose far side is a bridge speaking PROTOCOL.md over a :class:`Pipe`.
+
+    One RUN frame per bus program (programs longer than the bridge takes are split at operation
+    boundaries).  The reply timeout is computed per request (:meth:`reply_timeout`).  On a
+    timeout or a bad frame the same frame is sent again, ``retries`` times at most; replies
+    with another ``seq`` (late answers to earlier attempts) are ignored.
+    """
+
+    scheme = "link"
+    #: added to every reply timeout: the far end's own processing time and the latency of a
+    #: USB serial adapter (a simulated pipe may lower it: its latency is known)
+    margin_s: float = 0.05
+    #: bits on the wire per byte for the timeout estimate: start + 8 data + stop (a simulated
+    #: UART with two stop bits sets 11)
+    wire_bits: int = 10
+    #: how long :meth:`hello` keeps asking before "no answer" (an Uno boots in ~1-2 s after the
+    #: port opens; subclasses for real ports raise it)
+    hello_total_s: float = 0.5
+    #: the wait for one HELLO_REPLY before HELLO is sent again
+    hello_interval_s: float = 0.1
+
+    def __init__(self, pipe: Pipe, url: str, *, trace: TraceCallback | None = None,
+                 retries: int = DEFAULT_RETRIES, baud: int | None = None, cs: int = 0,
+                 handshake: bool = True, compact: bool = True) -> None:
+        super().__init__(url, trace=trace)
+        if retries < 0:
+            raise ValueError(f"retries={retries} must be >= 0")
+        if baud is not None and baud <= 0:
+            raise ValueError(f"baud={baud} must be a positive number of bits per second")
+        self.pipe = pipe
+        self.clock = pipe.clock
+        #: use RUN_SHORT where the bridge offers it (False: always RUN, as protocol 1 began)
+        self.compact = compact
+        self.has_compact_run = False
+        self.has_program_codes = False
+        #: short programs the bridge keeps, by code (RUN_CODE), least recently used first
+        self._codes: OrderedDict[bytes, int] = OrderedDict()
+        #: short programs sent lately (the second time, one gets a code)
+        self._recent: OrderedDict[bytes, None] = OrderedDict()
+        self.retries = retries
+        self.baud = baud
+        self.cs = cs
+        self.info: HelloInfo | None = None
+        self._seq = random.randrange(256)
+        self._reader = FrameReader()
+        self._closed = False
+        self._has_hi = True
+        #: bad frames and stale replies seen (for the fault tests and ``doctor``)
+        self.bad_frames = 0
+        self.stale_replies = 0
+        self.timeouts = 0  #: attempts that got no (usable) answer in time
+        #: the last ERROR_WINDOW attempts, True for each that failed (bad frame or no answer)
+        self._attempts: deque[bool] = deque(maxlen=ERROR_WINDOW)
+        #: a request was given up: the bridge's cache may still hold its seq, so the next
+        #: request is preceded by a HELLO (which empties that cache) -- see :meth:`_resync`
+        self._need_resync = False
+        self._since_warning = 0  #: attempts since the last link-quality warning
+        if handshake:
+            try:
+                self.hello()
+            except BaseException:
+                self.close()
+                raise
+            # the counters start with the first program, as on every other transport (the
+            # HELLOs a booting bridge left unanswered are not the line's error rate either)
+            self.stats.reset()
+            self._attempts.clear()
+
+    # ------------------------------------------------------------------ helpers
+    def _next_seq(self) -> int:
+        self._seq = (self._seq + 1) & 0xFF
+        return self._seq
+
+    def _byte_s(self) -> float:
+        return self.wire_bits / self.baud if self.baud else 0.0
+
+    def reply_timeout(self, request_wire: int, reply_wire: int, ops: Sequence[BusOp] = (),
+                      timeout_s: float = 0.0) -> float:
+        """Wire time of request and reply at the baud rate, plus ``timeout_s`` for every
+        busy-checked operation, plus the program's WAITs, plus :attr:`margin_s`."""
+        t = (request_wire + reply_wire) * self._byte_s() + self.margin_s
+        for o in ops:
+            if o.op in _BUSY_CHECKED:
+                t += timeout_s
+            elif o.op is Op.WAIT:
+                t += o.arg * 1e-6
+            elif o.op is Op.WAIT_STATUS:  # the wait, each poll period a little late, + 10 ms
+                t += (o.arg & 0xFFFF) * 1e-3 * 1.1 + 0.01
+        return t
+
+    def _no_answer(self, what: str, attempts: int) -> TransportError:
+        return TransportError(
+            f"no answer to {what} after {attempts} attempt(s). Check that the bridge firmware "
+            f"is flashed (lm629 bridge flash --port {self.url}), that the baud rate matches the "
+            "firmware's, and that nothing else holds the port.", port=self.url)
+
+    # ------------------------------------------------------------------ link quality
+    @property
+    def error_rate(self) -> float:
+        """Fraction of the last :data:`ERROR_WINDOW` attempts that failed (a bad frame, or no
+        usable answer in time): the line's health as the host sees it."""
+        a = self._attempts
+        return sum(a) / len(a) if a else 0.0
+
+    def _attempt(self, failed: bool) -> None:
+        """Count one attempt; warn (once per window) when the line is bad, before it costs a
+        command."""
+        self._attempts.append(failed)
+        self._since_warning += 1
+        if (self._since_warning >= ERROR_WINDOW and len(self._attempts) == ERROR_WINDOW
+                and self.error_rate >= WARN_LINK_RATE):
+            self._since_warning = 0
+            log.warning("%s: %s", self.url, self._quality())
+
+    def _quality(self) -> str:
+        """One sentence on the measured link quality and what to check."""
+        a = self._attempts
+        failed, n = sum(a), len(a)
+        rate = failed / n if n else 0.0
+        verdict = ("the link is too noisy to use: " if rate >= BAD_LINK_RATE
+                   else "link quality: ")
+        return (f"{verdict}{failed} of the last {n} exchanges failed ({100 * rate:.0f} %; "
+                f"{self.bad_frames} bad frame(s), {self.timeouts} timeout(s) since open). "
+                "Check the USB cable (short, shielded, away from motor and amplifier wiring), "
+                "the ground between the bridge and the LM629 board, and that the baud rate "
+                f"matches the firmware's ({self.baud or '?'} here)")
+
+    # ------------------------------------------------------------------ exchanges
+    def _exchange(self, ftype: FrameType, payload: bytes, timeout_s: float, what: str,
+                  retries: int, check: Callable[[Frame], object] | None = None) -> Frame:
+        """Send one request and return its reply, retrying with the same frame.
+
+        ``check(frame)`` may raise :class:`FrameError` for a reply that passed its CRC but
+        cannot be the answer (wrong length for the program): that is line damage the CRC
+        missed, and the request is sent again (the bridge answers from its cache)."""
+        seq = self._next_seq()
+        wire = encode_frame(ftype, seq, payload)
+        want = REPLY_TO[ftype]
+        stats = self.stats
+        clock = self.clock
+        attempts = 0
+        bad_before = self.bad_frames
+        for attempt in range(retries + 1):
+            if attempt:
+                stats.retries += 1
+                log.info("%s: retry %d of %s seq %d", self.url, attempt, what, seq)
+            attempts += 1
+            # before a retry, a lone delimiter ends whatever half frame the far end holds
+            out = b"\x00" + wire if attempt or ftype is FrameType.HELLO else wire
+            self.pipe.write(out)
+            stats.bytes_out += len(out)
+            stats.round_trips += 1
+            deadline = clock.now() + timeout_s
+            frame = self._await(seq, deadline)
+            if frame is None:
+                self._attempt(True)
+                continue
+            if frame.type == FrameType.ERROR_REPLY:
+                code = frame.payload[0] if frame.payload else -1
+                raise TransportError(
+                    f"the bridge refused {what} (ERROR_REPLY, code {code}): the host and the "
+                    "firmware disagree on the protocol. Reflash the firmware that matches this "
+                    "host (lm629 bridge flash).", port=self.url)
+            if frame.type != want and frame.type != ALSO_REPLY_TO.get(ftype):
+                raise TransportError(
+                    f"the bridge answered {what} with frame type {frame.type:02X}, expected "
+                    f"{int(want):02X}: reflash the firmware that matches this host "
+                    "(lm629 bridge flash).", port=self.url)
+            if check is not None:
+                try:
+                    check(frame)
+                except FrameError as exc:
+                    self.bad_frames += 1
+                    self._attempt(True)
+                    log.debug("%s: reply to %s passed its CRC but is malformed: %s", self.url,
+                              what, exc)
+                    continue
+            self._attempt(False)
+            return frame
+        if ftype is FrameType.HELLO:
+            raise self._no_answer(what, attempts)
+        self._need_resync = True  # the bridge may hold this seq in its cache
+        if ftype not in RUN_TYPES:
+            raise self._no_answer(what, attempts)
+        raise LinkError(
+            f"no valid answer to {what} after {attempts} attempt(s) "
+            f"({self.bad_frames - bad_before} bad frame(s)): the program may or may not "
+            f"have run on the chip; {self._quality()}; then reset the chip (LM629.reset) "
+            "before going on.", port=self.url, may_have_run=True)
+
+    def _await(self, seq: int, deadline: float) -> Frame | None:
+        """The reply with ``seq``, or None on timeout or on a bad frame (which calls for a
+        retry at once: the far end does not answer frames it could not read)."""
+        clock = self.clock
+        while True:
+            left = deadline - clock.now()
+            if left <= 0:
+                self.timeouts += 1
+                return None
+            data = self.pipe.read(left)
+            if not data:
+                self.timeouts += 1
+                return None
+            self.stats.bytes_in += len(data)
+            found: Frame | None = None
+            bad = False
+            for item in self._reader.feed(data):
+                if isinstance(item, FrameError):
+                    self.bad_frames += 1
+                    log.debug("%s: bad frame: %s", self.url, item)
+                    bad = True
+                elif item.seq != seq or item.type & 0x80 == 0:
+                    self.stale_replies += 1
+                    log.debug("%s: ignored frame type %02X seq %d (waiting for %d)",
+                              self.url, item.type, item.seq, seq)
+                elif found is None:
+                    found = item
+            if found is not None:
+                return found
+            if bad:
+                return None
+
+    def _resync(self) -> None:
+        """After a request was given up, HELLO before the next one.
+
+        The bridge answers a RUN whose seq and CRC equal its cached ones from the cache.  The
+        seq wraps at 256, so after a give-up (the bridge may hold that request's reply) a
+        later request with the same bytes could come round to the same seq while nothing in
+        between reached the bridge (a cable out for 256 calls of a polling loop): it would be
+        answered from the cache and never run.  HELLO empties the cache; until a HELLO is
+        answered, no request is sent at all (so those failures are certain: nothing ran)."""
+        if not self._need_resync:
+            return
+        timeout = max(self.hello_interval_s,
+                      self.reply_timeout(wire_size(4), wire_size(4 + HelloInfo.SIZE)))
+        try:
+            self._exchange(FrameType.HELLO, b"", timeout, "HELLO (resynchronising after a "
+                           "failed exchange)", self.retries)
+        except TransportError:
+            raise LinkError(
+                "no answer from the bridge since the last failed exchange (HELLO unanswered "
+                f"{self.retries + 1} times): nothing was sent to the chip; {self._quality()}.",
+                port=self.url, may_have_run=False) from None
+        self._need_resync = False
+        self._forget_codes()  # HELLO emptied the bridge's codes
+
+    # ------------------------------------------------------------------ protocol requests
+    def hello(self) -> HelloInfo:
+        """HELLO until answered (for :attr:`hello_total_s`); check the protocol version."""
+        timeout = max(self.hello_interval_s,
+                      self.reply_timeout(wire_size(4), wire_size(4 + HelloInfo.SIZE)))
+        retries = max(0, round(self.hello_total_s / timeout) - 1)
+        frame = self._exchange(FrameType.HELLO, b"", timeout, "HELLO (handshake)", retries)
+        try:
+            info = HelloInfo.decode(frame.payload)
+        except FrameError as exc:
+            raise TransportError(f"malformed HELLO_REPLY ({exc}): reflash the bridge firmware "
+                                 "(lm629 bridge flash)", port=self.url) from None
+        if info.protocol != PROTOCOL_VERSION:
+            raise TransportError(
+                f"the bridge speaks link protocol version {info.protocol}, this host speaks "
+                f"version {PROTOCOL_VERSION}. Reflash the bridge with the firmware of this "
+                f"host's release: lm629 bridge flash --port {self.url} (or upgrade lm629-host "
+                "to match the firmware).", port=self.url)
+        if not info.capabilities & Capability.BUSY_ON_BRIDGE:
+            raise TransportError("the bridge does not poll busy itself, which protocol 1 "
+                                 "requires: reflash the firmware (lm629 bridge flash)",
+                                 port=self.url)
+        if self.cs >= info.chip_selects:
+            raise AxisError(self.cs, info.chip_selects, f"the bridge at {self.url}")
+        self.info = info
+        self.chip_selects = info.chip_selects
+        self.has_reset_line = bool(info.capabilities & Capability.RESET_LINE)
+        self._has_hi = bool(info.capabilities & Capability.HI_LINE)
+        self.has_wait_status = bool(info.capabilities & Capability.WAIT_STATUS)
+        self.has_compact_run = bool(info.capabilities & Capability.COMPACT_RUN) and self.compact
+        self.has_program_codes = (self.has_compact_run
+                                  and bool(info.capabilities & Capability.PROGRAM_CODES))
+        self._forget_codes()  # HELLO empties the bridge's codes
+        return info
+
+    def ping(self, data: bytes = b"") -> float:
+        """PING with ``data`` echoed; returns the round-trip time on the pipe's clock."""
+        if len(data) > MAX_PING:
+            raise ValueError(f"ping payload of {len(data)} bytes is longer than {MAX_PING}")
+        self._resync()
+        t0 = self.clock.now()
+        n = 4 + len(data)
+        frame = self._exchange(FrameType.PING, data,
+                               self.reply_timeout(wire_size(n), wire_size(n)), "PING",
+                               self.retries)
+        if frame.payload != data:
+            raise TransportError("PONG does not echo the PING payload: the link corrupts data "
+                                 "that passes its CRC; check the baud rate", port=self.url)
+        return self.clock.now() - t0
+
+    def switch_baud(self, baud: int) -> bool:
+        """Ask the bridge to run the line at ``baud`` (SET_BAUD; the pipe must have
+        ``set_baud``).  True when the link runs at it now.  False when it stays at the rate it
+        had, with a warning that says why: a bridge without BAUD_SWITCH (then nothing is
+        sent), a rate the bridge cannot make, or no answer at the new rate (a USB serial
+        adapter that cannot do it): then the bridge goes back by itself after
+        BAUD_WINDOW_MS, and so does the host.  A failure to talk at either rate afterwards is
+        a :class:`TransportError`."""
+        set_baud = getattr(self.pipe, "set_baud", None)
+        info = self.info
+        if (set_baud is None or info is None or not info.capabilities & Capability.BAUD_SWITCH
+                or baud == self.baud):
+            return False
+        old = self.baud
+        self._resync()
+        try:
+            frame = self._exchange(
+                FrameType.SET_BAUD, baud.to_bytes(4, "big"),
+                self.reply_timeout(wire_size(8), wire_size(9)), f"SET_BAUD {baud}", self.retries)
+            result = frame.payload[0] if frame.payload else -1
+        except TransportError:
+            result = None  # the bridge may or may not have switched: wait its window out
+        if result == Result.OK:
+            set_baud(baud)
+            self.baud = baud
+            # three HELLOs at the new rate, all within the bridge's window
+            tries = 3
+            hello_s = max(self.reply_timeout(wire_size(4), wire_size(4 + HelloInfo.SIZE)),
+                          BAUD_WINDOW_MS * 1e-3 * 0.6 / tries)
+            try:
+                self._exchange(FrameType.HELLO, b"", hello_s, f"HELLO at {baud} baud",
+                               tries - 1)
+            except TransportError:
+                pass
+            else:
+                self._forget_codes()
+                log.info("%s: the link runs at %d baud", self.url, baud)
+                return True
+            why = f"no answer at {baud} baud (can the USB serial adapter do it?)"
+        elif result is None:
+            why = "no answer to SET_BAUD"
+        else:
+            why = f"the bridge cannot make {baud} baud (result {result})"
+        # back to the old rate; the bridge goes back too once its window has passed
+        set_baud(old)
+        self.baud = old
+        if result is None or result == Result.OK:  # else the bridge never left the old rate
+            self.clock.sleep(BAUD_WINDOW_MS * 1e-3 * 1.2)
+        self._need_resync = True  # HELLO at the old rate before anything else
+        try:
+            self._resync()
+        except TransportError:
+            if result != Result.OK:
+                raise
+            # its answer to our HELLO at the new rate may have been lost, so that it stayed
+            set_baud(baud)
+            self.baud = baud
+            self._need_resync = True
+            self._resync()
+            log.info("%s: the link runs at %d baud", self.url, baud)
+            return True
+        log.warning("%s: staying at %d baud: %s", self.url, old, why)
+        return False
+
+    # ------------------------------------------------------------------ programs
+    def _chunks(self, program: Program) -> Iterator[tuple[int, int, list[BusOp]]]:
+        """Split ``program`` at operation boundaries into runs that fit the bridge's limits
+        (HELLO_REPLY's largest program and reads, and MAX_FRAME for the reply): usually one.
+        Yields (index of the run's first operation in ``program``, chip select, operations).
+
+        Chip selects: the SELECTs at the head of a run become the RUN's ``cs`` field; a SELECT
+        inside a run stays in it on a bridge that runs them (Capability.SELECT), and cuts the
+        run on an older one (one RUN per chip: correct, one round trip more each)."""
+        info = self.info or HelloInfo()
+        max_program = min(info.max_program, MAX_FRAME - RUN_OVERHEAD)
+        inline = bool(info.capabilities & Capability.SELECT)
+        chunk: list[BusOp] = []
+        size = reads = n_status = 0
+        cs, first = self.cs, 0
+        for i, o in enumerate(program.ops):
+            if o.op is Op.SELECT:
+                if not chunk:
+                    cs, first = o.arg, i + 1
+                    continue
+                if not inline:
+                    yield first, cs, chunk
+                    chunk, size, reads, n_status = [], 0, 0, 0
+                    cs, first = o.arg, i + 1
+                    continue
+            n = 1 + OP_ARG_BYTES[o.op]
+            r = 1 if o.op is Op.READ else 0
+            s = 1 if o.op in STATUS_OPS else 0
+            if chunk and (size + n > max_program or reads + r > info.max_reads
+                          or RUN_REPLY_OVERHEAD + n_status + s + 2 * (reads + r) > MAX_FRAME):
+                yield first, cs, chunk
+                # the next run starts on the chip the last SELECT of this one chose
+                cs = next((p.arg for p in reversed(chunk) if p.op is Op.SELECT), cs)
+                chunk, size, reads, n_status = [], 0, 0, 0
+                first = i
+            chunk.append(o)
+            size, reads, n_status = size + n, reads + r, n_status + s
+        if chunk or first == 0:
+            yield first, cs, chunk
+
+    def execute(self, program: Program) -> ProgramResult:
+        if self._closed:
+            raise TransportError("the port is closed", port=self.url)
+        timeout_us = busy_timeout_us(program)
+        n_cs = self.chip_selects
+        for o in program.ops:
+            if o.op is Op.SELECT and o.arg >= n_cs:
+                raise AxisError(o.arg, n_cs, f"the bridge at {self.url}")
+        self._resync()
+        self.stats.programs += 1
+        words: list[int] = []
+        statuses: list[int] = []
+        status: int | None = None
+        hi: bool | None = None
+        chip = self.cs
+        for base, cs, ops in self._chunks(program):
+            if cs != chip:  # a chip select carried in the RUN's cs field: traced as a select
+                chip = cs
+                self._emit_cycles([BusOp(Op.SELECT, cs)], (), ())
+            chip = next((o.arg for o in reversed(ops) if o.op is Op.SELECT), chip)
+            reply = self._run(ops, timeout_us, program.busy_timeout_s, cs)
+            ok = reply.result == Result.OK
+            busy = reply.result == Result.BUSY_TIMEOUT
+            # operations that touched the bus: all, those before the failing one and its busy
+            # check after a busy timeout, none when the bridge refused the program
+            ran = ops if ok else ops[:reply.index + 1] if busy else []
+            self._account(ran, reply)
+            self._emit_cycles(ops if ok else ops[:reply.index] if busy else [], reply.words,
+                              reply.statuses)
+            words += reply.words
+            statuses += reply.statuses
+            if reply.last_status != NONE_BYTE or any(o.op not in (Op.WAIT, Op.RESET) for o in ran):
+                status = reply.last_status
+            hi = bool(reply.hi) if self._has_hi else None
+            if not ok:
+                self._raise_result(reply, ops, base, program, words)
+        return ProgramResult(tuple(words), tuple(statuses), status, hi)
+
+    def _run(self, ops: list[BusOp], timeout_us: int, timeout_s: float,
+             cs: int | None = None) -> RunReply:
+        chip = self.cs if cs is None else cs
+        # the compact form where the bridge takes it and the fields it leaves out are the
+        # defaults (starting on chip select 0, the firmware's busy timeout): 5 fewer bytes a
+        # round trip
+        short = (self.has_compact_run and chip == 0
+                 and timeout_us == FIRMWARE_DEFAULT_BUSY_TIMEOUT_US)
+        store: tuple[bytes, int] | None = None
+        if short:
+            ftype, payload = FrameType.RUN_SHORT, encode_program(ops)
+            if self.has_program_codes and len(payload) <= CODE_BYTES:
+                ftype, payload, store = self._by_code(payload)
+        else:
+            ftype, payload = FrameType.RUN, run_payload(ops, timeout_us, chip)
+        req = wire_size(len(payload) + 4)
+        rep = wire_size(reply_size(ops))  # a RUN_REPLY (a failure) is the longer answer
+        timeout = self.reply_timeout(req, rep, ops, timeout_s)
+        decoded: list[RunReply] = []
+
+        def check(frame: Frame) -> None:
+            if frame.type == FrameType.RUN_SHORT_REPLY:
+                decoded.append(decode_short_reply(frame.payload, ops))  # FrameError: retried
+                return
+            reply = RunReply.decode(frame.payload)  # FrameError: retried
+            if reply.result in (Result.OK, Result.BUSY_TIMEOUT):
+                done = len(ops) if reply.result == Result.OK else min(reply.index, len(ops))
+                want_words = sum(1 for o in ops[:done] if o.op is Op.READ)
+                want_status = sum(1 for o in ops[:done] if o.op in STATUS_OPS)
+                if len(reply.words) != want_words or len(reply.statuses) != want_status:
+                    raise FrameError(
+                        f"RUN_REPLY carries {len(reply.statuses)} status byte(s) and "
+                        f"{len(reply.words)} word(s), expected {want_status} and {want_words}")
+            decoded.append(reply)
+
+        self._exchange(ftype, payload, timeout, f"RUN of {len(ops)} operation(s)",
+                       self.retries, check)
+        reply = decoded[-1]
+        if ftype is FrameType.RUN_CODE and reply.result == Result.UNKNOWN_CODE:
+            # the bridge lost its codes (it restarted without the host seeing a HELLO):
+            # nothing ran; forget them all and send the program itself
+            log.info("%s: the bridge keeps no program under code %d: sending it again",
+                     self.url, payload[0])
+            self._forget_codes()
+            return self._run(ops, timeout_us, timeout_s, cs)
+        if store is not None and reply.result == Result.OK:
+            self._codes[store[0]] = store[1]
+        # a refused program (BAD_PROGRAM...) is raised by the caller, whatever it carries
+        return reply
+
+    def _by_code(self, program: bytes) -> tuple[FrameType, bytes, tuple[bytes, int] | None]:
+        """How to send a short program to a bridge that keeps programs under codes: by its
+        code (RUN_CODE, 1 byte) when the bridge keeps it; the second time it is seen, with a
+        code for it (RUN_STORE: the least recently used code is reused); the first time, as
+        it is (RUN_SHORT: programs that carry changing data are not worth a code).  Returns
+        the frame type, its payload, and (program, code) to remember once it ran."""
+        codes = self._codes
+        code = codes.get(program)
+        if code is not None:
+            codes.move_to_end(program)
+            return FrameType.RUN_CODE, bytes((code,)), None
+        if program not in self._recent:
+            self._recent[program] = None
+            if len(self._recent) > 2 * CODE_SLOTS:
+                self._recent.popitem(last=False)
+            return FrameType.RUN_SHORT, program, None
+        used = set(codes.values())
+        free = [c for c in range(CODE_SLOTS) if c not in used]
+        if free:
+            code = free[0]
+        else:
+            _, code = codes.popitem(last=False)  # the least recently used
+        # until it ran, the bridge may hold either program under this code: forget both
+        for p, c in list(codes.items()):
+            if c == code:
+                del codes[p]
+        return FrameType.RUN_STORE, bytes((code,)) + program, (program, code)
+
+    def _forget_codes(self) -> None:
+        """The bridge forgot its programs (HELLO) or may hold others than we think."""
+        self._codes.clear()
+
+    def _account(self, ops: Sequence[BusOp], reply: RunReply) -> None:
+        """Bus cycles and busy polls as far as the reply lets us reconstruct them: each busy
+        check costs at least one status read (polls beyond the first are not reported)."""
+        stats = self.stats
+        for o in ops:
+            op = o.op
+            if op in _BUSY_CHECKED:
+                stats.busy_polls += 1
+                stats.bus_cycles += 1
+            if op is Op.WRITE or op is Op.READ:
+                stats.bus_cycles += 2
+            elif op is Op.COMMAND or op is Op.STATUS or op is Op.RESET or op is Op.WAIT_STATUS:
+                stats.bus_cycles += 1
+
+    def _emit_cycles(self, ops: Sequence[BusOp], words: Sequence[int],
+                     statuses: Sequence[int]) -> None:
+        if self.trace is None and not logging.getLogger("lm629_host.bus").isEnabledFor(logging.DEBUG):
+            return
+        for cycle in cycles_of(ops, ProgramResult(tuple(words), tuple(statuses))):
+            self._emit(cycle)
+
+    def _raise_result(self, reply: RunReply, ops: list[BusOp], base: int, program: Program,
+                      words: list[int]) -> None:
+        index = reply.index
+        op = ops[index].describe() if index < len(ops) else f"operation {index}"
+        where = f" at operation {base + index} ({op})" if index < len(ops) else ""
+        if reply.result == Result.BUSY_TIMEOUT:
+            status = None if reply.last_status == NONE_BYTE else reply.last_status
+            raise BusyTimeout(op, program.busy_timeout_s, status, base + index, words)
+        try:
+            name = Result(reply.result).name
+        except ValueError:
+            name = f"unknown result {reply.result}"
+        raise TransportError(
+            f"the bridge refused the program{where}: {name}; nothing of it ran. "
+            "Host and firmware disagree on the program format or limits; reflash the firmware "
+            "that matches this host (lm629 bridge flash).", port=self.url)
+
+    # ------------------------------------------------------------------ misc
+    def describe(self) -> str:
+        if self.info is None:
+            return self.url
+        return f"{self.url} ({self.info.describe()})"
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.pipe.close()
+
+
+__all__ = ["BAD_LINK_RATE", "DEFAULT_RETRIES", "ERROR_WINDOW", "LinkError", "LinkTransport", "Pipe",
+           "WARN_LINK_RATE"]

@@ -1,0 +1,74 @@
+"""``sim+emu://?baud=115200&...``: the link protocol to the Python bridge
+(:class:`~lm629_host.sim.bridge.BridgeEmulator`), in process and in simulated time (the other
+parameters are the ``sim://`` ones).  The whole serial path without a pseudo-terminal or the AVR
+toolchain."""
+
+from __future__ import annotations
+
+from ..bridge.pins import CHIP_SELECTS
+from ..sim.bridge import MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
+from ..sim.build import build_bus
+from ..sim.model import ChipBus, ChipModel, chips_of
+from ..urls import Option, parse_options, query_params
+from .link import DEFAULT_RETRIES, LinkTransport
+
+
+class EmuLinkTransport(LinkTransport):
+    """``sim+emu://?baud=115200&...``: the link protocol to the Python bridge emulator, in
+    process and in simulated time (the other parameters are the ``sim://`` ones).  The whole
+    serial path without a pseudo-terminal or the AVR toolchain."""
+
+    scheme = "sim+emu"
+    simulated = True
+    model: ChipModel | ChipBus  #: the chip (or the chips) behind the emulated bridge
+    models: list[ChipModel]  #: the chips on the bridge's chip selects 0, 1, ...
+    emulator: BridgeEmulator  #: the emulated bridge
+    #: the emulated bridge answers at once: the margin only covers rounding
+    margin_s = 1e-3
+
+    @classmethod
+    def from_url(cls, url: str, *, trace=None) -> EmuLinkTransport:
+        return open_emulated(url, trace=trace)
+
+
+def open_emulated(url: str = "sim://", *, baud: int | None = None,
+                  retries: int = DEFAULT_RETRIES, wrap=None, trace=None, margin_s: float = 1e-3) -> EmuLinkTransport:
+    """A :class:`EmuLinkTransport` to an emulated bridge over a model built from the simulator
+    ``url`` (``sim://?record=1`` ...), all in simulated time.
+
+    ``baud``: the simulated line (``None``: the URL's ``baud=``, else 115200; 0: no wire time).
+    URL ``fast_baud=N``: switch the line to N baud after the handshake (SET_BAUD);
+    ``max_baud=N``: the line carries nothing faster (a USB serial adapter that cannot), so
+    such a switch falls back.
+    ``wrap(pipe) -> pipe`` inserts a wrapper between host and bridge (e.g. a
+    :class:`~lm629_host.sim.faults.FaultPipe`).  The model is ``transport.model``, the far end
+    ``transport.emulator``.
+    """
+    own = (Option("baud", "int", 115200, 0, 4_000_000, "baud (0: no wire time)"),
+           Option("bridge", "str", "", choices=("", "1", str(len(CHIP_SELECTS)))),
+           Option("fast_baud", "int", 0, 0, 4_000_000, "baud (0: stay at baud)"),
+           Option("max_baud", "int", 0, 0, 4_000_000, "baud (0: any)"))
+    names = {"baud", "bridge", "fast_baud", "max_baud"}
+    opts = parse_options(url, own, ignore=set(query_params(url)) - names)
+    if baud is None:
+        baud = opts["baud"]
+    # bridge=1: a one-chip bridge of before issue 11; else the multi-axis firmware's HELLO
+    info = ONE_CHIP_INFO if opts["bridge"] == "1" else MULTI_AXIS_INFO
+    model = build_bus(url, allowed=frozenset(names), limit=info.chip_selects)
+    emu = BridgeEmulator(model, info)
+    pipe = EmuPipe(emu, baud=baud or None, max_baud=opts["max_baud"] or None)
+    outer = wrap(pipe) if wrap is not None else pipe
+    t = EmuLinkTransport.__new__(EmuLinkTransport)
+    t.margin_s = margin_s
+    t.model = model
+    t.models = chips_of(model)
+    t.emulator = emu
+    LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
+    fast = opts["fast_baud"]
+    if fast and fast != baud:
+        t.switch_baud(fast)  # a line that cannot carry it (max_baud): a notice, and it stays
+        t.stats.reset()
+    return t
+
+
+__all__ = ["EmuLinkTransport", "open_emulated"]

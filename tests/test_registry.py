@@ -1,0 +1,115 @@
+"""The transport contract and the registry: built-ins, and a third-party transport installed as
+a distribution with an ``lm629_host.transports`` entry point (a real one on ``sys.path``,
+found by importlib.metadata as pip would leave it), seen by ``open``, ``lm629 list`` and
+``lm629 doctor`` without any edit of this package."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+from click.testing import CliRunner
+
+import lm629_host
+from lm629_host.cli import main as cli
+from lm629_host.errors import TransportError
+from lm629_host.opcodes import Status
+from lm629_host.transports import (
+    BUILTIN,
+    ENTRY_POINT_GROUP,
+    Transport,
+    is_simulated,
+    registry,
+    transport_class,
+    transport_classes,
+)
+
+PLUGIN = '''
+from lm629_host.transports.base import Check, PortInfo
+from lm629_host.transports.sim import SimTransport
+from lm629_host.sim.build import build_model
+
+
+class BenchTransport(SimTransport):
+    """A third party's transport: here the chip model under another scheme."""
+
+    scheme = "bench"
+
+    @classmethod
+    def from_url(cls, url, *, trace=None):
+        return cls(build_model("sim://"), url, trace=trace)
+
+    @classmethod
+    def list_ports(cls):
+        return [PortInfo("bench://rig-7", "the rig in room 7")]
+
+    @classmethod
+    def doctor(cls, port=None):
+        return [Check("bench rig", True, "rig 7 answers")]
+
+
+class NotATransport:
+    pass
+'''
+
+
+@pytest.fixture
+def plugin(tmp_path, monkeypatch):
+    """A distribution 'lm629-bench' that registers bench:// (and tries to take sim://)."""
+    (tmp_path / "lm629_bench_plugin.py").write_text(PLUGIN)
+    info = tmp_path / "lm629_bench-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: lm629-bench\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(textwrap.dedent(f"""\
+        [{ENTRY_POINT_GROUP}]
+        bench = lm629_bench_plugin:BenchTransport
+        sim = lm629_bench_plugin:BenchTransport
+        broken = lm629_bench_plugin:NotATransport
+        """))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return tmp_path
+
+
+def test_every_builtin_keeps_the_contract():
+    for scheme, cls, problem in transport_classes():
+        assert problem is None, (scheme, problem)
+        assert issubclass(cls, Transport)
+        assert cls.scheme == scheme
+        assert cls.simulated == scheme.startswith("sim"), scheme
+        assert isinstance(cls.list_ports(), list)
+    assert set(registry()) == set(BUILTIN)
+
+
+def test_open_says_simulated_and_repr():
+    assert is_simulated("sim+emu://") and not is_simulated("/dev/ttyACM0")
+    with lm629_host.open("sim://?chip=lm628") as chip:
+        assert repr(chip.transport) == "<SimTransport 'sim://?chip=lm628'>"
+        assert chip.variant == "lm628"  # a simulator URL's chip= is the chip
+
+
+def test_a_third_party_transport_through_its_entry_point(plugin, caplog):
+    assert registry()["bench"] == "lm629_bench_plugin:BenchTransport"
+    # a plug-in cannot take a built-in scheme
+    assert registry()["sim"] == BUILTIN["sim"]
+    assert "sim:// is built in" in caplog.text
+    with lm629_host.open("bench://rig-7") as chip:
+        chip.reset()
+        chip.load_filter(kp=20)
+        chip.update_filter()
+        st = chip.sync()  # UDF done; after reset: motor off (80/C0), no command error
+        assert st & Status.MOTOR_OFF and not st & (Status.COMMAND_ERROR | Status.BUSY)
+        assert type(chip.transport).__name__ == "BenchTransport"
+    with pytest.raises(TransportError, match="not a Transport subclass"):
+        transport_class("broken://")
+
+    r = CliRunner().invoke(cli, ["list"])
+    assert r.exit_code == 0, r.output
+    assert "bench://rig-7" in r.output and "the rig in room 7" in r.output
+    assert "broken://  not available" in r.output
+    r = CliRunner().invoke(cli, ["doctor"])
+    assert "bench://" in r.output and "rig 7 answers" in r.output
+
+
+def test_unknown_scheme_names_the_known_ones():
+    with pytest.raises(TransportError, match=r"unknown port scheme 'nope'; known: sim://"):
+        lm629_host.open("nope://x")

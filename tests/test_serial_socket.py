@@ -1,0 +1,130 @@
+"""``serial://`` opens through pyserial's ``serial_for_url``: a bridge on another machine
+(``socket://``, as behind ser2net) and ``spy://`` work.  The far end is served on a real TCP
+port (or pty) by ``lm629 sim serve``'s server, in real time: the Python bridge, and the
+compiled firmware in simavr."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import lm629_host
+from lm629_host import Status, TransportError
+from lm629_host.opcodes import Cmd
+from lm629_host.sim.serve import SimServer
+from test_serial_pty import three_commands_once
+from lm629_host.bridge.protocol import REPLY_TO, FrameReader, FrameType
+from lm629_host.transports.serial import RTT_PINGS, SerialTransport, options_of
+
+
+@pytest.fixture
+def tcp_server():
+    srv = SimServer(tcp=("127.0.0.1", 0), url="sim://?record=1").start()
+    yield srv
+    srv.close()
+
+
+def test_socket_url_reaches_a_bridge_on_a_tcp_port(tcp_server):
+    port = tcp_server.address[1]
+    url = f"serial://socket://localhost:{port}?retries=3"
+    with lm629_host.open(url) as chip:
+        t = chip.transport
+        assert isinstance(t, SerialTransport) and t.retries == 3
+        assert t.info is not None and t.info.firmware_version == "0.9.0"  # the Python bridge
+        three_commands_once(chip, tcp_server.model)
+
+
+def test_the_chip_keeps_its_state_between_tcp_clients(tcp_server):
+    url = tcp_server.client_url
+    assert url == f"serial://socket://127.0.0.1:{tcp_server.address[1]}"
+    with lm629_host.open(url) as a:
+        a.reset()
+        a.set_breakpoint(0x00012345)
+        a.define_home()
+    with lm629_host.open(url) as b:  # a second connection: the same chip, its state kept
+        assert b.read_desired_position() == 0
+        b.load_filter(kp=7)
+    hist = tcp_server.model.history
+    assert (int(Cmd.SBPA), (0x0001, 0x2345)) in hist and hist[-1] == (0x1E, (0x0008, 0x0007))
+
+
+def test_handler_options_pass_through_ours_are_checked():
+    o = options_of("serial://socket://bench-pc:2000?baud=57600&logging=debug")
+    assert o.device == "socket://bench-pc:2000?logging=debug" and o.baud == 57600
+    with pytest.raises(ValueError, match="baud=9 is outside 300..4000000"):
+        options_of("serial://socket://bench-pc:2000?baud=9")
+    with pytest.raises(ValueError, match="unknown serial parameter"):
+        options_of("serial:///dev/ttyACM0?logging=debug")  # a device path has no handler
+
+
+def test_a_closed_tcp_port_says_what_to_check():
+    import socket
+    with socket.socket() as s:  # a port that nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(TransportError, match="is the bridge's server .* running"):
+        lm629_host.open(f"serial://socket://127.0.0.1:{port}?boot=0")
+
+
+def test_spy_url_hex_dumps_the_traffic(tmp_path):
+    log = tmp_path / "spy.txt"
+    with SimServer(tmp_path / "lm629").start() as srv:
+        with lm629_host.open(f"serial://spy://{srv.link}?file={log}") as chip:
+            chip.reset()
+    # pyserial's spy writes "time TX|RX offset hex... ascii" lines: decode both directions
+    wire: dict[str, bytearray] = {"TX": bytearray(), "RX": bytearray()}
+    for line in log.read_text().splitlines():
+        m = re.match(r"\S+ (TX|RX) +[0-9A-F]{4}  ((?:[0-9A-F]{2} {1,2}){1,16})", line)
+        if m:
+            wire[m.group(1)] += bytes.fromhex(m.group(2))
+    sent = [f.type for f in FrameReader().feed(bytes(wire["TX"]))]
+    got = [f.type for f in FrameReader().feed(bytes(wire["RX"]))]
+    # the handshake, the switch to 1 Mbaud (SET_BAUD, then HELLO at the new rate), the five
+    # PINGs that time the round trip (RTT_PINGS), then reset's programs in the compact form
+    head = [FrameType.HELLO, FrameType.SET_BAUD, FrameType.HELLO]
+    assert sent[:len(head) + RTT_PINGS] == head + [FrameType.PING] * RTT_PINGS
+    assert set(sent[len(head) + RTT_PINGS:]) <= {FrameType.RUN_SHORT, FrameType.RUN_STORE,
+                                                 FrameType.RUN_CODE}
+    assert got == [REPLY_TO[FrameType(t)] for t in sent]
+
+
+def test_firmware_in_simavr_behind_a_tcp_port():
+    from firmware_helpers import require_firmware
+
+    require_firmware()  # skips only without the toolchain; a broken build fails
+    with SimServer(tcp=("127.0.0.1", 0), url="sim://?record=1", firmware=True).start() as srv:
+        with lm629_host.open(srv.client_url) as chip:
+            assert "bridge firmware 1." in chip.transport.describe()
+            chip.reset()
+            chip.load_filter(kp=10)
+            chip.update_filter()
+    assert srv.model.history[-2:] == [(0x1E, (0x0008, 0x000A)), (0x04, ())]
+
+
+def test_sim_serve_tcp_cli(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(Path(lm629_host.__file__).parent.parent))
+    proc = subprocess.Popen([sys.executable, "-m", "lm629_host", "sim", "serve",
+                             "--tcp", "127.0.0.1:0", "--url", "sim://?chip=lm628"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        first = proc.stdout.readline()
+        second = proc.stdout.readline()
+        assert "simulated LM628" in first and "TCP port 127.0.0.1:" in first, first
+        url = second.split("--port ", 1)[1].split()[0]
+        assert url.startswith("serial://socket://127.0.0.1:")
+        with lm629_host.open(url) as chip:
+            assert chip.reset() in (Status(0x80), Status(0xC0))
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=10)
+    assert proc.returncode == 0, out
+    assert "stopped (" in out
+    r = subprocess.run([sys.executable, "-m", "lm629_host", "sim", "serve"],
+                       capture_output=True, text=True, env=env, timeout=30)
+    assert r.returncode == 2 and "give --pty PATH or --tcp" in r.stderr

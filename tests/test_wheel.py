@@ -1,0 +1,85 @@
+"""A wheel built from this tree works without the checkout: installed into a fresh virtual
+environment in a folder outside the checkout, it runs a bring-up on the bundled simulator,
+points ``bridge flash`` at the firmware image it carries, and shows the udev commands with the
+rule's installed path.
+
+The fresh environment gets the package's dependencies (click, pyserial, pyusb) from the test
+environment's site-packages as a plain path entry, so that nothing is downloaded and the
+editable install of this checkout (a ``.pth`` hook there, which a plain path entry does not
+run) cannot be what is imported: the test checks where ``lm629_host`` came from.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("wheel")
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
+                        "--no-build-isolation", "-w", str(tmp / "dist"), str(ROOT)],
+                       capture_output=True, text=True, cwd=tmp)
+    assert r.returncode == 0, r.stdout + r.stderr
+    wheel = next((tmp / "dist").glob("lm629_host-*.whl"))
+    venv = tmp / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    py = venv / "bin" / "python"
+    site = Path(subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_path("
+                                "'purelib'))"], capture_output=True, text=True,
+                               check=True).stdout.strip())
+    r = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps",
+                        "--target", str(site), str(wheel)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    (site / "deps.pth").write_text(sysconfig.get_path("purelib") + "\n")
+    away = tmp / "bench"
+    away.mkdir()
+    return py, site, away
+
+
+def run(installed, *args: str) -> subprocess.CompletedProcess[str]:
+    py, _, away = installed
+    return subprocess.run([str(py), "-m", "lm629_host", *args], capture_output=True,
+                          text=True, cwd=away, timeout=120,
+                          env={"PATH": "/usr/bin:/bin", "HOME": str(away)})
+
+
+def test_the_installed_package_is_the_wheel(installed):
+    py, site, away = installed
+    r = subprocess.run([str(py), "-c", "import lm629_host; print(lm629_host.__file__)"],
+                       capture_output=True, text=True, cwd=away, check=True)
+    assert Path(r.stdout.strip()).is_relative_to(site)
+    assert not Path(r.stdout.strip()).is_relative_to(ROOT)
+
+
+def test_bringup_on_the_simulator(installed):
+    r = run(installed, "bringup", "--yes")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "verdict: PASS, every step" in r.stdout
+
+
+def test_bridge_flash_points_at_the_shipped_image(installed):
+    _, site, _ = installed
+    image = site / "lm629_host" / "data" / "lm629_bridge.hex"
+    assert image.is_file() and image.read_bytes() == (
+        ROOT / "lm629_host" / "data" / "lm629_bridge.hex").read_bytes()
+    r = run(installed, "bridge", "flash", "--dry-run", "--port", "/dev/ttyACM0")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().endswith(f"-U flash:w:{image}:i")
+
+
+def test_udev_commands_name_the_installed_rule(installed):
+    _, site, _ = installed
+    rule = site / "lm629_host" / "data" / "99-lm629-ft232h.rules"
+    assert rule.is_file()
+    r = run(installed, "udev")
+    assert r.returncode == 0, r.stderr
+    assert f"sudo cp {rule} /etc/udev/rules.d/" in r.stdout
+    assert run(installed, "udev", "--path").stdout.strip() == str(rule)
