@@ -80,7 +80,7 @@ def test_golden_zero_bytes_and_unknown_request():
     r = RunReply.decode(frames[0].payload)
     assert r.result == Result.OK and len(r.words) == 1  # RDSIGS after LPEI 0000 and WAIT 256 us
     assert s.model.history == [(Cmd.LPEI, (0,)), (Cmd.RDSIGS, ())]
-    assert exchange(s, encode_frame(0x05, 0x33)) == g["error_reply"]
+    assert exchange(s, encode_frame(0x70, 0x33)) == g["error_reply"]  # no such request type
 
 
 def test_no_host_byte_lost_when_the_uart_fifo_fills():
