@@ -3,7 +3,8 @@
 The chip is left holding at 1000 counts (kp = 20: the shaft rests within the 12.8-count dead
 band); four threads then make 1000 calls each.  Every value read has one right answer (RDDP is
 exactly 1000, RDRP inside the dead band, the breakpoint thread's own SBPA never changes them),
-the strict simulator raises on any protocol violation, and the link counts no retry.
+the strict simulator raises on any protocol violation, and the emulated link (simulated
+time) counts no retry.
 """
 
 from __future__ import annotations
@@ -86,4 +87,7 @@ def test_four_threads_over_the_serial_link(tmp_path, open_chip):
     with SimServer(tmp_path / "bench", "sim://?strict=1").start() as srv:
         chip = open_chip(f"serial://{srv.link}")
         assert _hammer(chip) == []
-        assert chip.transport.stats.retries == 0
+        # no retry count here: over a real-time pty a loaded CI machine may time a reply out,
+        # and the retry is answered from the bridge's cache (exactly-once: test_faults_link);
+        # the emulated link above, on simulated time, must need none
+
