@@ -94,3 +94,18 @@ def open_chip(recorder):
     yield _open
     for chip in opened:
         chip.close()
+
+
+@pytest.fixture
+def opened(monkeypatch):
+    """The chips the CLI opened in this test (to look at the model after the command)."""
+    from lm629_host.cli import app as cli_app
+    chips = []
+    real = cli_app._open
+
+    def _open(url, chip, trace):
+        c = real(url, chip, trace)
+        chips.append(c)
+        return c
+    monkeypatch.setattr(cli_app, "_open", _open)
+    return chips

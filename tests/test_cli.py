@@ -35,20 +35,6 @@ def run():
     return _run
 
 
-@pytest.fixture
-def opened(monkeypatch):
-    """The chips the CLI opened (to look at the model after the command)."""
-    chips = []
-    real = cli_app._open
-
-    def _open(url, chip, trace):
-        c = real(url, chip, trace)
-        chips.append(c)
-        return c
-    monkeypatch.setattr(cli_app, "_open", _open)
-    return chips
-
-
 def err_lines(result) -> list[str]:
     return [ln for ln in result.stderr.splitlines() if ln.strip()]
 

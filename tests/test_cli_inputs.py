@@ -27,19 +27,6 @@ def run():
     return _run
 
 
-@pytest.fixture
-def opened(monkeypatch):
-    chips = []
-    real = cli_app._open
-
-    def _open(url, chip, trace):
-        c = real(url, chip, trace)
-        chips.append(c)
-        return c
-    monkeypatch.setattr(cli_app, "_open", _open)
-    return chips
-
-
 def _moved(chips) -> bool:
     return any(c in (Cmd.LTRJ, Cmd.STT) for chip in chips
                for c, _ in chip.transport.model.history)
