@@ -269,3 +269,52 @@ def test_request_arriving_after_the_host_gave_up_runs_once_and_in_order():
     assert model.history == [(sbpa, (1, 0x2345)), (sbpa, (5, 0x4321)), (int(Cmd.RDRP), ())]
     assert far_stats.runs == 3 and far_stats.cache_hits == chip.transport.retries
     assert chip.transport.stale_replies > 0
+
+
+class DamageFirstByte:
+    """A pipe wrapper that damages the program of the next compact RUN requests the way
+    ``tools/fault_soak.py --rate 0.01`` (run 3) found a noisy line can: the first program byte
+    gone and a CRC that still matches (a 2^-16 chance per mangled frame; PROTOCOL.md's
+    error-detection budget).  The far end then refuses the program (BAD_PROGRAM) and runs
+    none of it."""
+
+    def __init__(self, inner, times: int) -> None:
+        self.inner, self.clock, self.left = inner, inner.clock, times
+
+    def write(self, data: bytes) -> None:
+        from lm629_host.bridge.protocol import FrameType, decode_frame, encode_frame
+        frame = decode_frame(data)
+        # the program starts after the code byte in a RUN_STORE (the retry of a program the
+        # host has just seen is sent with a code for it)
+        at = {FrameType.RUN_SHORT: 0, FrameType.RUN_STORE: 1}.get(frame.type)
+        if at is not None and self.left:
+            self.left -= 1
+            p = frame.payload
+            data = encode_frame(frame.type, frame.seq, p[:at] + p[at + 1:])
+        self.inner.write(data)
+
+    def read(self, timeout_s: float) -> bytes:
+        return self.inner.read(timeout_s)
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+@pytest.mark.parametrize("far", ["emu", "avr"])
+def test_a_refusal_caused_by_an_undetected_corruption_is_sent_again_once(far):
+    """BAD_PROGRAM means nothing ran, so the host sends the program once more (a new
+    exchange): the call succeeds and the chip's record holds it exactly once.  Refused twice,
+    it is a typed error that says nothing ran (``may_have_run`` False) and names the fix."""
+    from lm629_host.transports.link import LinkError
+    chip, model, _fp, _far = open_faulty(far, {}, seed=3, baud=1_000_000)
+    t = chip.transport
+    t.pipe = DamageFirstByte(t.pipe, times=1)
+    retries = t.stats.retries
+    chip.set_breakpoint(1777)
+    assert list(model.history) == [(int(Cmd.SBPA), (0, 1777))]
+    assert t.stats.retries == retries + 1
+    t.pipe = DamageFirstByte(t.pipe.inner, times=2)
+    with pytest.raises(LinkError, match="refused the program .*twice: BAD_PROGRAM") as info:
+        chip.set_breakpoint(1779)
+    assert info.value.may_have_run is False
+    assert list(model.history) == [(int(Cmd.SBPA), (0, 1777))]

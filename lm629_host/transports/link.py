@@ -89,6 +89,8 @@ class LinkError(TransportError):
 
 
 _BUSY_CHECKED = (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC)
+#: results by which the bridge refuses a program before running any of it
+_REFUSALS = (Result.BAD_PROGRAM, Result.PROGRAM_TOO_LONG, Result.BAD_CHIP_SELECT)
 
 
 # ---------------------------------------------------------------------------------- transport
@@ -532,7 +534,7 @@ class LinkTransport(Transport):
         return ProgramResult(tuple(words), tuple(statuses), status, hi)
 
     def _run(self, ops: list[BusOp], timeout_us: int, timeout_s: float,
-             cs: int | None = None) -> RunReply:
+             cs: int | None = None, refused_once: bool = False) -> RunReply:
         chip = self.cs if cs is None else cs
         # the compact form where the bridge takes it and the fields it leaves out are the
         # defaults (starting on chip select 0, the firmware's busy timeout): 5 fewer bytes a
@@ -576,6 +578,15 @@ class LinkTransport(Transport):
                      self.url, payload[0])
             self._forget_codes()
             return self._run(ops, timeout_us, timeout_s, cs)
+        if reply.result in _REFUSALS and not refused_once:
+            # The bridge refused the program and ran none of it.  This host built a program
+            # the bridge's HELLO limits allow, so on a noisy line the likely cause is a request
+            # damaged in a way its CRC-16 let through (PROTOCOL.md, error-detection budget):
+            # send it once more, a new exchange, before blaming the firmware.  Safe: nothing ran.
+            self.stats.retries += 1
+            log.info("%s: the bridge refused a program it should take (%s): sending it again",
+                     self.url, Result(reply.result).name)
+            return self._run(ops, timeout_us, timeout_s, cs, refused_once=True)
         if store is not None and reply.result == Result.OK:
             self._codes[store[0]] = store[1]
         # a refused program (BAD_PROGRAM...) is raised by the caller, whatever it carries
@@ -646,10 +657,13 @@ class LinkTransport(Transport):
             name = Result(reply.result).name
         except ValueError:
             name = f"unknown result {reply.result}"
-        raise TransportError(
-            f"the bridge refused the program{where}: {name}; nothing of it ran. "
+        # refused twice (see _run): nothing of this part ran; earlier parts of a program cut
+        # into several RUNs (base > 0) did
+        raise LinkError(
+            f"the bridge refused the program{where} twice: {name}; nothing of it ran. "
             "Host and firmware disagree on the program format or limits; reflash the firmware "
-            "that matches this host (lm629 bridge flash).", port=self.url)
+            "that matches this host (lm629 bridge flash).", port=self.url,
+            may_have_run=base > 0)
 
     # ------------------------------------------------------------------ misc
     def describe(self) -> str:
