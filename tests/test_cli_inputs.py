@@ -193,3 +193,17 @@ def test_sigterm_during_watch_exits_143_and_stops_nothing(run, monkeypatch):
     assert r.exit_code == 143
     assert r.stderr == "(2 rows)\nlm629: terminated (SIGTERM)\n"
     assert not _moved(chips)  # the simulator's preparation has no LTRJ/STT; nothing stopped
+
+
+def test_the_readme_exit_code_table_lists_every_code_of_the_cli():
+    """README.md's exit-code table and ``EXIT_CODES`` (what ``lm629 --help`` prints) name the
+    same codes: one list, checked, not two hand-kept copies that drift."""
+    import re
+    from pathlib import Path
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    table = readme[readme.index("Exit codes (also in `lm629 --help`)"):]
+    table = table[table.index("\n|"):].strip()
+    table = table[:table.index("\n\n")]
+    codes = {int(c) for row in table.splitlines()[2:]
+             for cell in row.split("|")[1::2] for c in re.findall(r"\d+", cell)}
+    assert codes == set(cli_app.EXIT_CODES)
