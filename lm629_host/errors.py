@@ -21,10 +21,16 @@ class BusyTimeout(LM629Error):
         self.index = index
         self.words = tuple(words)
         seen = f"; last status read {status:02X}" if status is not None else ""
+        if status == 0xFF:  # every bit high: nothing drives the data bus (pull-ups, or FF)
+            advice = ("Status FF is what a bus that no chip drives reads: check that this "
+                      "chip's /CS reaches it and that it has power; on a board with fewer chips "
+                      "than the bridge has chip selects, name the chips wired (?axes=N).")
+        else:
+            advice = ("Check the chip's power and its clock input, that /CS and /PS reach the "
+                      "chip, and that /RST is not held low.")
         super().__init__(
             f"busy bit stayed set for {timeout_s * 1e3:.3g} ms before {operation}{seen} "
-            "(the chip never holds busy for more than 100 us). Check the chip's power and "
-            "its clock input, that /CS and /PS reach the chip, and that /RST is not held low."
+            f"(the chip never holds busy for more than 100 us). {advice}"
         )
 
 

@@ -410,3 +410,13 @@ def test_a_refused_stt_names_its_axis():
         with pytest.raises(lm629_host.CommandError, match="STT on axis 1"):
             board.start()
         assert chips(board)[0].motion.traj.target == 500
+
+
+def test_an_unwired_chip_select_says_so():
+    """A chip select with no chip reads a floating bus, FF (model choice 32): the busy
+    timeout names that case and the ?axes=N fix instead of only the power and clock (the
+    Python bridge has four chip selects, one chip wired here)."""
+    from lm629_host import BusyTimeout
+    with lm629_host.open("sim+emu://?axes=1&cs=2") as chip:
+        with pytest.raises(BusyTimeout, match="last status read FF.*no chip drives.*axes=N"):
+            chip.read_real_position()

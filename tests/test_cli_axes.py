@@ -99,3 +99,11 @@ def test_a_two_chip_bench_keeps_its_state_between_processes(tmp_path):
         assert [row["desired_position"] for row in rows] == [400, -300]
         chips = srv.model.chips
         assert [c.motion.desired_position for c in chips] == [400, -300]
+        # a wrong number of targets is bad usage: exit 2, and nothing moved or stopped (both
+        # servos still hold, motor on; before the fix the usage error stopped axis 0)
+        r = lm629("move", "100")
+        assert r.returncode == 2 and "1 target(s) for 2 axis" in r.stderr
+        assert "motor stopped" not in r.stderr
+        rows = json.loads(lm629("status", "--json").stdout)["axes"]
+        assert [row["desired_position"] for row in rows] == [400, -300]
+        assert not any(int(row["status"], 16) & 0x80 for row in rows), rows

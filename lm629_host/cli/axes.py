@@ -22,8 +22,8 @@ import click
 from ..lm629 import LM629
 from .app import MAX_AXIS, Session, axes_of, board, open_axis, parse_axes, several
 
-__all__ = ["MAX_AXIS", "axes_of", "board", "move_many", "open_axis", "parse_axes", "several",
-           "status", "watch_rows"]
+__all__ = ["MAX_AXIS", "axes_of", "board", "check_targets", "move_many", "open_axis",
+           "parse_axes", "several", "status", "watch_rows"]
 
 def status(s: Session, as_json: bool, snapshot_dict: Any) -> None:
     b = board(s)
@@ -77,13 +77,18 @@ def watch_rows(s: Session, count: int | None, rate: float, flags: Any,
             f.close()
 
 
-def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, linear: bool,
-              tolerance: int | None, timeout: float | None, no_wait: bool) -> None:
-    """``lm629 --axis 0,1 move X Y [--linear]``: one target per axis, started together."""
+def check_targets(s: Session, targets: list[int]) -> None:
+    """One target per axis, or a usage error (before anything moves or stops)."""
     axes = axes_of(s)
     if len(targets) != len(axes):
         raise click.UsageError(f"{len(targets)} target(s) for {len(axes)} axis/axes "
                                f"({', '.join(map(str, axes))}): give one target per axis")
+
+
+def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, linear: bool,
+              tolerance: int | None, timeout: float | None, no_wait: bool) -> None:
+    """``lm629 --axis 0,1 move X Y [--linear]``: one target per axis, started together."""
+    axes = axes_of(s)  # as many as targets: checked by check_targets before anything moves
     b = board(s)
     goal: dict[LM629 | int, int] = dict(zip(axes, targets))
     try:
@@ -106,6 +111,3 @@ def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, 
         click.echo(f"done: axis {k} at {r.position}, {r.error:+d} counts from {r.target}, "
                    f"at rest {r.duration:.3f} s after the start")
 
-
-__all__ = ["parse_axes", "axes_of", "several", "board", "open_axis", "status", "watch_rows",
-           "move_many"]

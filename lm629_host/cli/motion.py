@@ -110,6 +110,7 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
         if relative:
             raise click.UsageError("--relative moves one axis")
         goals = [_position(s, t, "TARGET", raw) for t in targets]
+        axes.check_targets(s, goals)
         with stop_on_error(axes.board(s).axes[0]):
             axes.move_many(s, goals, v, a, linear, tol, timeout, no_wait)
         return

@@ -651,8 +651,9 @@ class LinkTransport(Transport):
         op = ops[index].describe() if index < len(ops) else f"operation {index}"
         where = f" at operation {base + index} ({op})" if index < len(ops) else ""
         if reply.result == Result.BUSY_TIMEOUT:
-            status = None if reply.last_status == NONE_BYTE else reply.last_status
-            raise BusyTimeout(op, program.busy_timeout_s, status, base + index, words)
+            # a busy timeout always read the status, so FF here is a status (a bus no chip
+            # drives), not the "no status" byte
+            raise BusyTimeout(op, program.busy_timeout_s, reply.last_status, base + index, words)
         try:
             name = Result(reply.result).name
         except ValueError:
