@@ -107,3 +107,10 @@ def test_a_two_chip_bench_keeps_its_state_between_processes(tmp_path):
         rows = json.loads(lm629("status", "--json").stdout)["axes"]
         assert [row["desired_position"] for row in rows] == [400, -300]
         assert not any(int(row["status"], 16) & 0x80 for row in rows), rows
+
+
+def test_a_straight_line_of_length_zero_says_so(run):
+    """Sent again to where it already is, a linear move moves nothing and says so."""
+    r = run("--port", "sim://?axes=2", "move", "0", "0", "--linear")
+    assert r.exit_code == 0, r.output
+    assert "already at [0, 0], nothing moved" in r.output and "straight line" not in r.output

@@ -96,7 +96,8 @@ def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, 
             m = b.move_linear(goal, velocity=velocity, acceleration=acceleration)
             words = ", ".join(f"axis {p.axis}: v {p.velocity} a {p.acceleration}"
                               for p in m.plan.axes if p.distance)  # type: ignore[union-attr]  # a linear move has a plan
-            click.echo(f"straight line to {targets} ({words})")
+            if words:
+                click.echo(f"straight line to {targets} ({words})")
         else:
             m = b.move(goal, velocity=velocity, acceleration=acceleration)
             click.echo(f"moving axes {list(axes)} to {targets} (velocity word {velocity}, "
@@ -107,6 +108,8 @@ def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, 
     except BaseException:
         b.stop(list(axes))
         raise
+    if not m.moves:  # every axis already on its target: a straight line of length 0
+        click.echo(f"done: axes {list(axes)} already at {targets}, nothing moved")
     for k, r in zip((mv.chip.chip_select for mv in m.moves), results):
         click.echo(f"done: axis {k} at {r.position}, {r.error:+d} counts from {r.target}, "
                    f"at rest {r.duration:.3f} s after the start")
