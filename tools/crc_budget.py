@@ -39,16 +39,19 @@ from lm629_host.bridge.protocol import (
     cobs_decode,
     crc16,
     encode_frame,
+    encode_program,
     run_payload,
+    short_reply_payload,
 )
 from lm629_host.opcodes import Cmd
 from lm629_host.program import BusOp, Op
 
 
 def frames() -> list[tuple[str, bytes]]:
-    sbpa = run_payload([BusOp(Op.COMMAND, int(Cmd.SBPA)), BusOp(Op.WRITE, 0x0001),
-                        BusOp(Op.WRITE, 0x2345)], 5000)
-    rdrp = run_payload([BusOp(Op.COMMAND, int(Cmd.RDRP)), BusOp(Op.READ), BusOp(Op.READ)], 5000)
+    sbpa_ops = [BusOp(Op.COMMAND, int(Cmd.SBPA)), BusOp(Op.WRITE, 0x0001), BusOp(Op.WRITE, 0x2345)]
+    rdrp_ops = [BusOp(Op.COMMAND, int(Cmd.RDRP)), BusOp(Op.READ), BusOp(Op.READ)]
+    sbpa = run_payload(sbpa_ops, 5000)
+    rdrp = run_payload(rdrp_ops, 5000)
     big = run_payload([BusOp(Op.WRITE, 0x1234 + i) for i in range(81)], 5000)
     return [
         ("SBPA request", encode_frame(FrameType.RUN, 0x41, sbpa)),
@@ -57,6 +60,11 @@ def frames() -> list[tuple[str, bytes]]:
         ("RDRP reply", encode_frame(FrameType.RUN_REPLY, 0x42,
                                     RunReply(last_status=0x80, words=(0, 1234)).encode())),
         (f"largest ({MAX_FRAME} bytes)", encode_frame(FrameType.RUN, 0x43, big)),
+        # the compact frames (RUN_SHORT, programs kept under codes): what a poll sends now
+        ("SBPA RUN_SHORT", encode_frame(FrameType.RUN_SHORT, 0x44, encode_program(sbpa_ops))),
+        ("RDRP RUN_CODE", encode_frame(FrameType.RUN_CODE, 0x45, bytes((3,)))),
+        ("RDRP short reply", encode_frame(FrameType.RUN_SHORT_REPLY, 0x45, short_reply_payload(
+            rdrp_ops, RunReply(last_status=0x80, words=(0, 1234))))),
     ]
 
 
