@@ -24,12 +24,12 @@ quantisation of each ramp.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from .errors import AxisError, CommandError, MotionError, ResetError
 from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, snapshot_of
-from .move import MOVE_FLAGS, Move, MoveResult
+from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     ACCELERATION_MAX,
     INTERRUPTS,
@@ -224,39 +224,43 @@ class BoardMove:
     def targets(self) -> dict[int, int]:
         return {m.chip.chip_select: m.target for m in self.moves}
 
-    def wait(self, timeout: float | None = None, tolerance: int | None = None,
-             **kw: object) -> list[MoveResult]:
+    def wait(self, timeout: float | None = None, tolerance: int | None = None, *,
+             rules: MoveRules | None = None,
+             progress: Callable[[Snapshot], None] | None = None) -> list[MoveResult]:
         """Like :meth:`Move.wait <lm629_host.Move.wait>` for every axis (same ``timeout``
         from the common start, same ``tolerance``); returns their results, axis order.
 
-        The axes are waited for one after the other; while one is watched, the others' status
-        bytes are read with every poll (one program), so that a position-error flag or a drive
-        found off on any axis ends the wait at once.  A motion fault on one axis stops every
-        axis and raises :class:`MotionError` naming the axis (``exc.axis``)."""
-        results = []
-        user_progress = kw.pop("progress", None)
-        for m in self.moves:
-            others = [self.board.axis(o.chip.chip_select) for o in self.moves
-                      if o is not m and o.result is None]
-
-            def watch(snap: Snapshot, _others: list[LM629] = others) -> None:
-                if user_progress is not None:
-                    user_progress(snap)  # type: ignore[operator]  # a callable by contract
-                if _others:
-                    self.board._check_others(_others)
-            try:
-                results.append(m.wait(timeout, tolerance, progress=watch, **kw))  # type: ignore[arg-type]  # Move.wait's own keywords
-            except MotionError as exc:
-                self.board._stop_all()
-                if exc.axis is not None:  # another axis's flag, seen while this one was watched
-                    raise
-                text = str(exc).split("): ", 1)[-1]  # "motion fault (reason): message"
-                raise MotionError(exc.reason, text, axis=m.chip.chip_select, position=exc.position,
-                                  error=exc.error) from exc
-            except BaseException:
-                self.board._stop_all()
-                raise
-        return results
+        Every poll reads the snapshot of every axis still moving in one bus program and checks
+        each against its own move's rules (:class:`~lm629_host.move.MoveWatch`): a stall, a
+        runaway, a position-error flag or a drive found off on *any* axis ends the wait at
+        once.  A motion fault on one axis stops every axis and raises :class:`MotionError`
+        naming the axis (``exc.axis``).  ``progress`` is called with every snapshot read."""
+        watches = {m: m.watch(timeout, tolerance, rules) for m in self.moves if m.result is None}
+        clock = self.board.clock
+        try:
+            while watches:
+                pending = list(watches.items())
+                snaps = self.board.snapshots([m.chip.chip_select for m, _ in pending])
+                for (m, w), snap in zip(pending, snaps):
+                    if progress is not None:
+                        progress(snap)
+                    try:
+                        done = w.check(snap)
+                    except MotionError as exc:
+                        self.board._stop_all()
+                        text = str(exc).split("): ", 1)[-1]  # "motion fault (reason): message"
+                        raise MotionError(exc.reason, text, axis=m.chip.chip_select,
+                                          position=exc.position, error=exc.error) from exc
+                    if done is not None:
+                        del watches[m]
+                if watches:
+                    clock.sleep(min(w.rules.poll for w in watches.values()))
+        except MotionError:
+            raise
+        except BaseException:
+            self.board._stop_all()
+            raise
+        return [m.result for m in self.moves if m.result is not None]
 
 
 class Board:
@@ -487,18 +491,6 @@ class Board:
         """Every axis: abrupt stop, then motor off (each tried even when another fails)."""
         for a in self.axes:
             emergency_stop(a)
-
-    def _check_others(self, axes: Sequence[LM629]) -> None:
-        """The chip's own fault flags on ``axes`` (one program): MotionError naming the axis."""
-        for a, s in zip(axes, self.statuses([x.chip_select for x in axes])):
-            if s & Status.POSITION_ERROR:
-                raise MotionError(MotionError.POSITION_ERROR,
-                                  f"the chip raised its position-error flag (status {s:02X}) "
-                                  "while another axis was watched", axis=a.chip_select)
-            if s & Status.MOTOR_OFF:
-                raise MotionError(MotionError.MOTOR_OFF,
-                                  f"the drive was found off (status {s:02X}) while another "
-                                  "axis was watched", axis=a.chip_select)
 
     def statuses(self, axes: Sequence[LM629 | int] = ()) -> list[Status]:
         """The status byte of every axis, one program."""

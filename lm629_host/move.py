@@ -19,8 +19,9 @@ The rules (:class:`MoveRules`, ``chip.move_rules``; every field settable):
 * **stall**: the following error is above the tolerance and the shaft has not moved
   ``stall_counts`` for ``stall_time`` seconds while the trajectory is still running.
 * **runaway**: the shaft moves away from the desired position (the error grows) for
-  ``runaway_counts`` counts while speeding up: positive feedback (motor leads or encoder
-  channels swapped).  An overshoot slows down as it goes, so it is not a runaway.
+  ``runaway_counts`` counts while speeding up, and the error has reached ``runaway_counts``:
+  positive feedback (motor leads or encoder channels swapped).  An overshoot slows down as it
+  goes and a lagging deceleration keeps the error small, so neither is a runaway.
 * **position error** / **motor off**: the chip's own flag (LPEI / LPES), or the drive found off.
 * **following error**: the trajectory completed but the shaft came to rest outside the
   tolerance, or did not come to rest within ``settle_timeout`` seconds.
@@ -36,7 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import NoReturn, Protocol
 
 from .clock import Clock
 from .errors import MotionError
@@ -151,6 +152,21 @@ class Move:
 
     def _wait(self, timeout: float | None, tolerance: int | None, rules: MoveRules | None,
               progress: Callable[[Snapshot], None] | None) -> MoveResult:
+        watch = self.watch(timeout, tolerance, rules)
+        chip, clock = self.chip, self.chip.clock
+        while True:
+            s = chip.snapshot()
+            if progress is not None:
+                progress(s)
+            result = watch.check(s)
+            if result is not None:
+                return result
+            clock.sleep(watch.rules.poll)
+
+    def watch(self, timeout: float | None = None, tolerance: int | None = None,
+              rules: MoveRules | None = None) -> MoveWatch:
+        """The rules of :meth:`wait` as a checker fed with snapshots read elsewhere (a board
+        reads every axis's snapshot in one program and feeds each move's watch)."""
         r = rules or self.chip.move_rules
         if tolerance is not None:
             r = replace(r, tolerance=tolerance)
@@ -159,83 +175,9 @@ class Move:
             timeout = (1.5 * profile if profile is not None else 60.0) + r.settle_timeout + 1.0
         if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
             raise ValueError(f"timeout={timeout!r} must be a positive number of seconds")
-        chip, target, clock = self.chip, self.target, self.chip.clock
-        deadline = self.t0 + timeout
-        prev = self.start
-        progress_at, progress_pos = prev.time, prev.real_position
-        away, away_v0 = 0, 0
-        complete_at: float | None = None
-        quiet_since: float | None = None
-        while True:
-            s = chip.snapshot()
-            if progress is not None:
-                progress(s)
-            err = target - s.real_position
-            if s.status & Status.POSITION_ERROR:
-                self._fault(MotionError.POSITION_ERROR, s,
-                            "the chip raised its position-error flag (following error above "
-                            "the LPEI/LPES limit)")
-            if s.status & Status.MOTOR_OFF or s.signals & Signals.MOTOR_OFF:
-                self._fault(MotionError.MOTOR_OFF, s, "the drive was found off during the move")
-            # shaft progress (stall) and motion away from the desired position (runaway)
-            if abs(s.real_position - progress_pos) >= r.stall_counts:
-                progress_at, progress_pos = s.time, s.real_position
-            fe = s.following_error
-            moved = s.real_position - prev.real_position
-            if moved and fe and (moved > 0) != (fe > 0) and abs(fe) > abs(prev.following_error):
-                if not away:
-                    away_v0 = abs(prev.real_velocity)
-                away += abs(moved)
-            elif moved:
-                away = 0
-            if (away >= r.runaway_counts and abs(fe) > r.tolerance
-                    and abs(s.real_velocity) >= away_v0):
-                self._fault(MotionError.RUNAWAY, s,
-                            f"the shaft ran {away} counts away from the desired position "
-                            f"(following error {fe:+d}): swap the motor leads or the encoder's "
-                            "A and B channels")
-            if complete_at is None and s.status & Status.TRAJECTORY_COMPLETE \
-                    and s.desired_position == target:
-                complete_at = s.time
-            if complete_at is None and abs(fe) > r.tolerance \
-                    and s.time - progress_at >= r.stall_time:
-                self._fault(MotionError.STALL, s,
-                            f"the desired position moved {s.desired_position - self.start.desired_position:+d} "
-                            f"counts, the shaft {s.real_position - self.start.real_position:+d} "
-                            f"(no progress for {s.time - progress_at:.2f} s): check the "
-                            "amplifier, its supply, the motor and the encoder")
-            if complete_at is not None:
-                at_rest = s.real_velocity == 0 and s.real_position == prev.real_position
-                if at_rest:
-                    quiet_since = prev.time if quiet_since is None else quiet_since
-                else:
-                    quiet_since = None
-                if quiet_since is not None and s.time - quiet_since >= r.settle_time:
-                    if abs(err) <= r.tolerance:
-                        self.result = MoveResult(target, s.real_position, err, s.time - self.t0)
-                        return self.result
-                    if abs(s.real_position - self.start.real_position) < r.stall_counts:
-                        self._fault(MotionError.STALL, s,
-                                    f"the desired position went to the target, the shaft did "
-                                    f"not move ({err:+d} counts from the target): check the "
-                                    "amplifier, its supply, the motor and the encoder")
-                    self._fault(MotionError.FOLLOWING_ERROR, s,
-                                f"the shaft came to rest {err:+d} counts from the target "
-                                f"(tolerance {r.tolerance}): add ki, raise kp, or check the load")
-                if s.time - complete_at >= r.settle_timeout:
-                    self._fault(MotionError.FOLLOWING_ERROR, s,
-                                f"the shaft did not settle within {r.tolerance} counts in "
-                                f"{r.settle_timeout:g} s after the trajectory ended (error "
-                                f"{err:+d}): add kd for damping, or lower kp")
-            if s.time >= deadline:
-                self._fault(MotionError.TIMEOUT, s,
-                            f"not on target after {timeout:g} s (desired {s.desired_position}, "
-                            f"target {target}, shaft {s.real_position})")
-            prev = s
-            clock.sleep(r.poll)
+        return MoveWatch(self, r, timeout)
 
-    def _fault(self, reason: str, s: Snapshot, message: str) -> None:
-        from .safety import STOP_NOTE, emergency_stop
+    def _fault(self, reason: str, s: Snapshot, message: str) -> NoReturn:
         _ok, note = emergency_stop(self.chip)
         exc = MotionError(reason, f"{message}; {note}", position=s.real_position,
                           error=self.target - s.real_position)
@@ -243,4 +185,89 @@ class Move:
         raise exc
 
 
-__all__ = ["MOVE_FLAGS", "Move", "MoveResult", "MoveRules"]
+class MoveWatch:
+    """The done / fault rules of one move (see the module docstring), fed one snapshot at a
+    time: :meth:`check` returns the :class:`MoveResult` once the move is done, None while it
+    goes on, and on a fault stops the motor and raises :class:`MotionError`."""
+
+    def __init__(self, move: Move, rules: MoveRules, timeout: float) -> None:
+        self.move, self.rules, self.timeout = move, rules, timeout
+        self.deadline = move.t0 + timeout
+        self.prev = move.start
+        self.progress_at, self.progress_pos = move.start.time, move.start.real_position
+        self.away, self.away_v0 = 0, 0
+        self.complete_at: float | None = None
+        self.quiet_since: float | None = None
+
+    def check(self, s: Snapshot) -> MoveResult | None:
+        m, r, prev = self.move, self.rules, self.prev
+        target = m.target
+        err = target - s.real_position
+        if s.status & Status.POSITION_ERROR:
+            m._fault(MotionError.POSITION_ERROR, s,
+                     "the chip raised its position-error flag (following error above "
+                     "the LPEI/LPES limit)")
+        if s.status & Status.MOTOR_OFF or s.signals & Signals.MOTOR_OFF:
+            m._fault(MotionError.MOTOR_OFF, s, "the drive was found off during the move")
+        # shaft progress (stall) and motion away from the desired position (runaway)
+        if abs(s.real_position - self.progress_pos) >= r.stall_counts:
+            self.progress_at, self.progress_pos = s.time, s.real_position
+        fe = s.following_error
+        moved = s.real_position - prev.real_position
+        if moved and fe and (moved > 0) != (fe > 0) and abs(fe) > abs(prev.following_error):
+            if not self.away:
+                self.away_v0 = abs(prev.real_velocity)
+            self.away += abs(moved)
+        elif moved:
+            self.away = 0
+        # a runaway leaves the desired position behind: the error grows with the distance run
+        # away (a lagging deceleration or an overshoot keeps it small, and slow moves make the
+        # per-sample velocity 0 or 1, too coarse to tell alone)
+        if (self.away >= r.runaway_counts and abs(fe) >= r.runaway_counts
+                and abs(s.real_velocity) >= self.away_v0):
+            m._fault(MotionError.RUNAWAY, s,
+                     f"the shaft ran {self.away} counts away from the desired position "
+                     f"(following error {fe:+d}): swap the motor leads or the encoder's "
+                     "A and B channels")
+        if self.complete_at is None and s.status & Status.TRAJECTORY_COMPLETE \
+                and s.desired_position == target:
+            self.complete_at = s.time
+        if self.complete_at is None and abs(fe) > r.tolerance \
+                and s.time - self.progress_at >= r.stall_time:
+            m._fault(MotionError.STALL, s,
+                     f"the desired position moved {s.desired_position - m.start.desired_position:+d} "
+                     f"counts, the shaft {s.real_position - m.start.real_position:+d} "
+                     f"(no progress for {s.time - self.progress_at:.2f} s): check the "
+                     "amplifier, its supply, the motor and the encoder")
+        if self.complete_at is not None:
+            at_rest = s.real_velocity == 0 and s.real_position == prev.real_position
+            if at_rest:
+                self.quiet_since = prev.time if self.quiet_since is None else self.quiet_since
+            else:
+                self.quiet_since = None
+            if self.quiet_since is not None and s.time - self.quiet_since >= r.settle_time:
+                if abs(err) <= r.tolerance:
+                    m.result = MoveResult(target, s.real_position, err, s.time - m.t0)
+                    return m.result
+                if abs(s.real_position - m.start.real_position) < r.stall_counts:
+                    m._fault(MotionError.STALL, s,
+                             f"the desired position went to the target, the shaft did "
+                             f"not move ({err:+d} counts from the target): check the "
+                             "amplifier, its supply, the motor and the encoder")
+                m._fault(MotionError.FOLLOWING_ERROR, s,
+                         f"the shaft came to rest {err:+d} counts from the target "
+                         f"(tolerance {r.tolerance}): add ki, raise kp, or check the load")
+            if s.time - self.complete_at >= r.settle_timeout:
+                m._fault(MotionError.FOLLOWING_ERROR, s,
+                         f"the shaft did not settle within {r.tolerance} counts in "
+                         f"{r.settle_timeout:g} s after the trajectory ended (error "
+                         f"{err:+d}): add kd for damping, or lower kp")
+        if s.time >= self.deadline:
+            m._fault(MotionError.TIMEOUT, s,
+                     f"not on target after {self.timeout:g} s (desired {s.desired_position}, "
+                     f"target {target}, shaft {s.real_position})")
+        self.prev = s
+        return None
+
+
+__all__ = ["MOVE_FLAGS", "Move", "MoveResult", "MoveRules", "MoveWatch"]

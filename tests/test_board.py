@@ -420,3 +420,22 @@ def test_an_unwired_chip_select_says_so():
     with lm629_host.open("sim+emu://?axes=1&cs=2") as chip:
         with pytest.raises(BusyTimeout, match="last status read FF.*no chip drives.*axes=N"):
             chip.read_real_position()
+
+
+@pytest.mark.parametrize("url", ["sim://", "sim+emu://?baud=1000000"])
+def test_a_runaway_on_the_second_axis_is_caught_while_the_first_still_moves(url):
+    """Every poll of BoardMove.wait checks every moving axis against its own move's rules,
+    not only the first one's: axis 1 with reversed leads runs away while axis 0 has most of
+    a long move still to go, and the wait stops both and names axis 1."""
+    from lm629_host import MotionError, Status
+    with open2(url) as b:
+        b.reset()
+        tune(b)
+        chips(b)[1].set_motor_params(reversed=True)
+        m = b.move({0: 200_000, 1: 3000}, velocity=2 * 65536, acceleration=2000)
+        with pytest.raises(MotionError) as info:
+            m.wait()
+        assert info.value.axis == 1 and info.value.reason == MotionError.RUNAWAY
+        # 200,000 counts at 2 counts/sample take 0.4 s and more; the fault came well before
+        assert abs(b.axes[0].read_real_position()) < 100_000
+        assert all(a.read_status() & Status.MOTOR_OFF for a in b.axes)  # both stopped
