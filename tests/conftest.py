@@ -109,3 +109,33 @@ def opened(monkeypatch):
         return c
     monkeypatch.setattr(cli_app, "_open", _open)
     return chips
+
+
+@pytest.fixture
+def signal_on_row(monkeypatch):
+    """``arm(signum, row=3)``: the CLI's chips deliver a real ``signum`` to this process during
+    the bus program of the ``row``-th RDSIGS (a ``watch`` row's snapshot), as a user's Ctrl-C
+    or a ``kill`` would arrive mid-program; returns the list of chips opened."""
+    import os
+    from lm629_host.cli import app as cli_app
+    from lm629_host.opcodes import Cmd
+
+    def arm(signum: int, row: int = 3) -> list:
+        chips = []
+        real = cli_app._open
+
+        def _open(url, chip, trace):
+            n = [0]
+
+            def signalling(cycle):
+                trace(cycle)
+                if cycle.kind == "command" and cycle.value == Cmd.RDSIGS:
+                    n[0] += 1
+                    if n[0] == row:
+                        os.kill(os.getpid(), signum)
+            c = real(url, chip, signalling)
+            chips.append(c)
+            return c
+        monkeypatch.setattr(cli_app, "_open", _open)
+        return chips
+    return arm

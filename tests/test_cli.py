@@ -403,23 +403,11 @@ def test_move_progress_line_on_a_terminal(run, monkeypatch):
     assert "-> 2000" in r.stderr and "\x1b[K" in r.stderr
 
 
-def test_ctrl_c_ends_watch_cleanly(run, monkeypatch):
+def test_ctrl_c_ends_watch_cleanly(run, signal_on_row):
     """watch moves nothing: Ctrl-C (a real SIGINT, during the 3rd row's bus program) ends it
     with exit 130 (the --help table) once that program is over; the interrupted row is not
     printed, nothing is stopped."""
-    real = cli_app._open
-
-    def _open(url, chip, trace):
-        n = {"rdsigs": 0}
-
-        def interrupting(cycle):
-            trace(cycle)
-            if cycle.kind == "command" and cycle.value == Cmd.RDSIGS:
-                n["rdsigs"] += 1
-                if n["rdsigs"] == 3:
-                    os.kill(os.getpid(), signal.SIGINT)
-        return real(url, chip, interrupting)
-    monkeypatch.setattr(cli_app, "_open", _open)
+    signal_on_row(signal.SIGINT)
     r = run("--port", "sim://", "watch", "--rate", "50")
     assert r.exit_code == 130
     assert len(r.stdout.splitlines()) == 1 + 2

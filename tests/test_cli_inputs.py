@@ -168,25 +168,9 @@ def test_velocity_checks_the_shaft_turns(run, opened, fault, reason):
     assert opened[-1].transport.model.motor_off
 
 
-def test_sigterm_during_watch_exits_143_and_stops_nothing(run, monkeypatch):
-    import os
+def test_sigterm_during_watch_exits_143_and_stops_nothing(run, signal_on_row):
     import signal
-    real = cli_app._open
-    chips = []
-
-    def _open(url, chip, trace):
-        n = {"rdsigs": 0}
-
-        def killing(cycle):
-            trace(cycle)
-            if cycle.kind == "command" and cycle.value == Cmd.RDSIGS:
-                n["rdsigs"] += 1
-                if n["rdsigs"] == 3:
-                    os.kill(os.getpid(), signal.SIGTERM)
-        c = real(url, chip, killing)
-        chips.append(c)
-        return c
-    monkeypatch.setattr(cli_app, "_open", _open)
+    chips = signal_on_row(signal.SIGTERM)
     before = signal.getsignal(signal.SIGTERM)
     r = run("--port", "sim://?record=1", "watch", "--rate", "50")
     assert signal.getsignal(signal.SIGTERM) is before  # restored

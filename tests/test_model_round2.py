@@ -11,32 +11,17 @@ choices cited are items of the list in ``lm629_host/sim/model/__init__.py``.
 
 from __future__ import annotations
 
-import importlib
-
 import pytest
 
 from lm629_host import CommandError, ProtocolViolation, Signals, Status
 from lm629_host.sim.model import ChipModel, ChipParams
 from lm629_host.sim.model.motor import Motor
 from lm629_host.opcodes import Cmd
-from lm629_host.transports import SCHEMES
+from test_acceptance import _available
 
 ONE = 65536
 T = 2048 / 8e6
 URLS = ["sim://", "sim+emu://", "sim+avr://", "sim+ftdi://"]
-
-
-def _available(url: str) -> bool:
-    module = SCHEMES[url.split("://")[0]].split(":")[0]
-    try:
-        importlib.import_module(module)
-    except ImportError:
-        return False
-    if url.startswith("sim+avr"):
-        from lm629_host.sim.avr import toolchain_missing
-
-        return not toolchain_missing()
-    return True
 
 
 @pytest.fixture(params=URLS)
