@@ -463,10 +463,6 @@ class EmuPipe:
                 clock.advance_to(deadline)
             return b""
 
-    def in_flight(self) -> int:
-        """Bytes still on the wire in either direction."""
-        return len(self._to_far) + len(self._to_host)
-
     def close(self) -> None:
         self.closed = True
 

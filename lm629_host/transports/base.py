@@ -29,7 +29,6 @@ from ..opcodes import BUSY_BIT
 from ..program import (
     WAIT_STATUS_POLL_US,
     BusCycle,
-    BusOp,
     Op,
     Program,
     ProgramResult,
@@ -385,6 +384,3 @@ class CycleTransport(Transport):
                 raise AssertionError(op)
         return ProgramResult(tuple(words), tuple(statuses), status, self._hi())
 
-
-def describe_ops(ops: list[BusOp]) -> str:
-    return ", ".join(o.describe() for o in ops)
