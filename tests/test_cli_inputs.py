@@ -33,6 +33,8 @@ def _moved(chips) -> bool:
 
 
 BAD = [
+    (["filter", "--ds", "0"], "--ds"),  # the library's derivative_interval, named as typed
+    (["filter", "--kp", "70000"], "--kp"),
     (["move", "inf"], "TARGET"),
     (["move", "nan"], "TARGET"),
     (["move", "1.5"], "whole counts"),

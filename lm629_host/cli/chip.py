@@ -68,7 +68,12 @@ def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, d
         raise click.UsageError("give at least one of --kp --ki --kd --il --ds")
     s = _session()
     chip = s.open()
-    chip.filter_program(kp, ki, kd, il, ds)  # validate before any traffic
+    try:
+        chip.filter_program(kp, ki, kd, il, ds)  # validate before any traffic
+    except ValueError as exc:  # the library names its argument; the user typed an option
+        arg = str(exc).split("=", 1)[0]
+        raise click.BadParameter(str(exc), param_hint={"derivative_interval": "--ds"}.get(
+            arg, f"--{arg}")) from None
     if ds is None and not s.is_sim:
         # the chip cannot report its derivative interval and every LFIL carries it (AN-706
         # 4.5.1): a new process does not know the last one, so say what is sent
