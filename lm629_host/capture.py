@@ -18,13 +18,9 @@ from pathlib import Path
 from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
 from .move import MoveResult
-from .opcodes import ACCELERATION_MAX, VELOCITY_MAX
+from .pid import STEP_ACCELERATION, STEP_VELOCITY
 from .safety import stop_on_error
 from .units import FIXED_ONE
-
-#: a "step": the largest words the chip takes, so the desired position jumps within samples
-STEP_VELOCITY = VELOCITY_MAX
-STEP_ACCELERATION = ACCELERATION_MAX
 
 CSV_COLUMNS = ("t_s", "desired_position", "real_position", "following_error",
                "desired_velocity", "real_velocity", "integration_sum", "status")
@@ -161,4 +157,4 @@ def summary(cap: Capture) -> Sequence[str]:
 
 
 __all__ = ["Capture", "capture_move", "write_csv", "read_csv", "summary",
-           "PlotUnavailable", "CSV_COLUMNS", "STEP_VELOCITY", "STEP_ACCELERATION"]
+           "PlotUnavailable", "CSV_COLUMNS"]

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from .capture import Capture, PlotUnavailable
 from .lm629 import Snapshot
+from .pid import derivative_term, filter_sum, full_scale, output_code, sat16
 from .tuning import Gains, MoveMetrics, step_metrics
 from .units import FIXED_ONE
 
@@ -49,13 +50,10 @@ class Response:
 
 def rebuilt_output(s: Snapshot, g: Gains, twelve_bit: bool = False) -> int:
     """The output code the filter computes for the state in snapshot ``s`` (see module doc)."""
-    def sat(v: float) -> int:
-        return max(-32768, min(32767, int(v)))
-
-    e = sat(s.following_error)
-    diff = sat(round((s.desired_velocity / FIXED_ONE - s.real_velocity) * (g.ds + 1)))
-    u = sat(sat(g.kp * e) + s.integration_sum + sat(g.kd * diff))
-    return u >> (4 if twelve_bit else 8)
+    e = sat16(s.following_error)
+    diff = round((s.desired_velocity / FIXED_ONE - s.real_velocity) * (g.ds + 1))
+    u = filter_sum(g.kp, e, s.integration_sum, derivative_term(g.kd, diff))
+    return output_code(u, twelve_bit)
 
 
 def response_from_capture(cap: Capture, label: str = "response") -> Response:
@@ -133,7 +131,7 @@ def plot_responses(path: str | Path, responses: Sequence[Response], *, title: st
                             fontsize=8, rotation=90, xytext=(3, 0), textcoords="offset points")
             ax_err.plot(t_ms, [s.following_error for s in r.rows], color=color)
             if r.gains is not None:
-                fs = 2048 if r.twelve_bit else 128
+                fs = full_scale(r.twelve_bit)
                 ax_out.plot(t_ms, [100 * rebuilt_output(s, r.gains, r.twelve_bit) / fs
                                    for s in r.rows], color=color, drawstyle="steps-post")
         ax.set_ylabel("position (counts)")

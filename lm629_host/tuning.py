@@ -38,13 +38,22 @@ from dataclasses import dataclass, field, replace
 
 from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
-from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
+from .opcodes import COEFFICIENT_MAX, Signals, Status
+from .pid import (
+    STEP_ACCELERATION,
+    STEP_VELOCITY,
+    U_FULL_SCALE,
+    PIDState,
+    full_scale,
+    holds,
+    output_shift,
+    pid_step,
+    sample_period_s,
+    sat16,
+    skip_held,
+)
 from .safety import STOP_NOTE, emergency_stop, stop_on_error
 
-#: a step: the largest trajectory words, so the desired position jumps within a sample
-STEP_VELOCITY = VELOCITY_MAX
-STEP_ACCELERATION = ACCELERATION_MAX
-SAMPLE_CLOCKS = 2048
 
 Progress = Callable[[str], None]
 
@@ -93,12 +102,12 @@ class AxisModel:
 
     @property
     def full_scale(self) -> int:
-        return 2048 if self.twelve_bit else 128
+        return full_scale(self.twelve_bit)
 
     @property
     def per_filter_unit(self) -> float:
         """counts/sample^2 per unit of the filter's 16-bit result (both output widths)."""
-        return self.accel / 32768
+        return self.accel / U_FULL_SCALE
 
     def stop_distance(self, speed: float) -> float:
         """Counts the shaft needs to stop from ``speed`` counts/sample at full braking."""
@@ -119,20 +128,8 @@ class AxisModel:
                 f"{self.load / self.accel * 100:+.1f} % of full output")
 
 
-@dataclass
-class PidState:
-    """The filter's memory (AN-706 5.2.3): 24-bit error sum, last derivative error, held
-    derivative term, derivative countdown, and the output code in force."""
-
-    esum: int = 0
-    elast: int = 0
-    dterm: int = 0
-    countdown: int = 0
-    out: int = 0
-
-
 def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: float,
-             w0: float = 0.0, state: PidState | None = None,
+             w0: float = 0.0, state: PIDState | None = None,
              skip_ahead: bool = True) -> tuple[list[int], list[int]]:
     """Predict ``len(desired)`` samples: (encoder counts, output codes) at each sample.
 
@@ -144,16 +141,16 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
     arithmetic against the chip model's filter.  ``skip_ahead``: while the shaft is stuck and
     nothing in the filter can change, jump to the next change of the desired position.
     """
-    st = state or PidState()
+    st = state or PIDState()
     kp, ki, kd, il, ds = gains.kp, gains.ki, gains.kd, gains.il, gains.ds
-    shift = 4 if model.twelve_bit else 8
+    shift = output_shift(model.twelve_bit)
     g = model.accel / model.full_scale
     a = max(model.rate, 1e-12)
     c, d = model.coulomb, model.load
     decay = math.exp(-a)
     gain = (1.0 - decay) / a
     x, w = x0, w0
-    esum, elast, dterm, countdown, out = st.esum, st.elast, st.dterm, st.countdown, st.out
+    out = st.output >> shift
     counts: list[int] = []
     outs: list[int] = []
     floor = math.floor
@@ -189,43 +186,19 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
                 w = w1
         n = floor(x)
         counts.append(n)
-        # filter
-        e = target - n
-        e = 32767 if e > 32767 else (-32768 if e < -32768 else e)
-        total = esum + e
-        total = 8388607 if total > 8388607 else (-8388608 if total < -8388608 else total)
-        held = ki * (esum >> 8)
-        if (held >= il or held <= -il) and abs(total) > abs(esum):
-            total = esum
-        esum = total
-        term = ki * (total >> 8)
-        term = il if term > il else (-il if term < -il else term)
-        if countdown == 0:
-            diff = e - elast
-            diff = 32767 if diff > 32767 else (-32768 if diff < -32768 else diff)
-            dterm = kd * diff
-            dterm = 32767 if dterm > 32767 else (-32768 if dterm < -32768 else dterm)
-            elast = e
-            countdown = ds
-        else:
-            countdown -= 1
-        p = kp * e
-        p = 32767 if p > 32767 else (-32768 if p < -32768 else p)
-        u = p + term + dterm
-        u = 32767 if u > 32767 else (-32768 if u < -32768 else u)
+        # the filter: the chip's own arithmetic
+        e = sat16(target - n)
         held_out = out
-        out = u >> shift
+        out = pid_step(st, e, kp, ki, kd, il, ds) >> shift
         outs.append(out)
-        if skip_ahead and stuck and out == held_out and e == elast and dterm == 0 \
-                and (ki == 0 or e == 0):
+        if skip_ahead and stuck and out == held_out and holds(st, e, ki, il):
             # nothing changes until the desired position does (the chip model's skip-ahead,
             # for the same reason)
             skip = changes[next_change] - i - 1
             counts.extend([n] * skip)
             outs.extend([out] * skip)
-            countdown = (countdown - skip) % (ds + 1)  # the derivative keeps its phase
+            skip_held(st, skip, e, il, ds)
             i += skip
-    st.esum, st.elast, st.dterm, st.countdown, st.out = esum, elast, dterm, countdown, out
     return counts, outs
 
 
@@ -307,7 +280,7 @@ class Record:
     rows: list[Snapshot] = field(default_factory=list)
     steps: list[tuple[float, int]] = field(default_factory=list)
     t0: float = 0.0
-    state0: PidState | None = None  #: the filter's state at t0, when known
+    state0: PIDState | None = None  #: the filter's state at t0, when known
 
     def times(self) -> list[float]:
         return [s.time - self.t0 for s in self.rows]
@@ -377,7 +350,7 @@ class _Session:
         # it, the real one while the drive is off (after a reset, or a stop with motor off)
         self.drive_off = bool(first.signals & Signals.MOTOR_OFF)
         self.origin = first.real_position if self.drive_off else first.desired_position
-        self.sample_s = SAMPLE_CLOCKS / (clock_hz or _clock_hz(chip))
+        self.sample_s = sample_period_s(clock_hz or _clock_hz(chip))
         self.records: list[Record] = []
         self.driving = False  #: an STT of ours turned the drive on (reset leaves it off)
         self.check(first)
@@ -515,13 +488,13 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
 
         s = ses.record(rec, time_s, watch)
         moved = s.real_position - start
-        if moved >= step // 2 or (moved >= 2 and kp * step >= 32768):
+        if moved >= step // 2 or (moved >= 2 and kp * step >= U_FULL_SCALE):
             ses.progress(f"phasing ok: the shaft followed {moved:+d} counts")
             # back to the origin and rest there
             ses.step_to(rec, ses.origin)
             ses.settle(rec, 1.0)
             return rec
-        if kp * step >= 32768 * 2:
+        if kp * step >= U_FULL_SCALE * 2:
             raise ses.fault(MotionError.STALL,
                             f"the shaft did not turn: desired {step:+d} counts at full-scale "
                             f"output, the shaft moved {moved:+d}. Check the amplifier's supply "
@@ -539,8 +512,8 @@ def _identify_run(ses: _Session, step: int, hold_s: float) -> Record:
     ses.load(g)
     ses.rest(3.0)  # the fit starts from a shaft at rest
     rec = ses.begin("identify", g)
-    rec.state0 = PidState(elast=rec.rows[0].following_error,
-                          out=(kp * rec.rows[0].following_error) >> 8)
+    e0 = sat16(rec.rows[0].following_error)
+    rec.state0 = PIDState(last_error=e0, output=sat16(kp * e0))
     ses.step_to(rec, ses.origin + step)
     ses.record(rec, hold_s)
     ses.step_to(rec, ses.origin)
@@ -561,7 +534,7 @@ def _desired_samples(rec: Record, n: int, sample_s: float) -> list[int]:
 def _residual(model: AxisModel, rec: Record, sample_s: float, desired: list[int],
               idx: list[int], meas: list[int]) -> float:
     s0 = rec.rows[0]
-    st = replace(rec.state0) if rec.state0 else PidState()
+    st = replace(rec.state0) if rec.state0 else PIDState()
     counts, _ = simulate(model, rec.gains or Gains(0), desired, x0=s0.real_position + 0.5,
                          state=st)
     err = 0.0
@@ -623,13 +596,14 @@ def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
     kp = rec.gains.kp if rec.gains else 1
     t_step, target = rec.steps[0]
     x0 = rec.rows[0].real_position
-    out0 = max(1, min(127, (kp * abs(target - x0)) >> 8))
+    fs = full_scale(twelve_bit)
+    out0 = max(1, min(fs - 1, sat16(kp * abs(target - x0)) >> output_shift(twelve_bit)))
     guess = 1e-3
     for s in rec.rows:
         dt = (s.time - t_step) / sample_s
         moved = abs(s.real_position - x0)
         if dt > 2 and moved >= max(3, abs(target - x0) // 20):
-            guess = 2 * moved / dt ** 2 * 128 / out0
+            guess = 2 * moved / dt ** 2 * fs / out0
             break
 
     def make(p: list[float]) -> AxisModel:
@@ -661,7 +635,7 @@ def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
     worst = None
     for start, target in ((0, distance), (distance, 0)):
         counts, _ = simulate(model, g, [target] * horizon, x0=start + 0.5,
-                             state=PidState(elast=0))
+                             state=PIDState())
         times = [(k + 1) for k in range(horizon)]
         m = step_metrics(times, counts, [target] * horizon, start, target, tolerance)
         worst = m if worst is None else worst.worst(m)
@@ -842,5 +816,5 @@ def _twelve_bit(chip: LM629) -> bool:
 
 
 __all__ = ["autotune", "measure_move", "TuneResult", "Gains", "AxisModel", "MoveMetrics",
-           "PidState", "simulate", "fit_model", "design", "predict_move", "step_metrics",
+           "PIDState", "simulate", "fit_model", "design", "predict_move", "step_metrics",
            "score", "Record"]

@@ -18,13 +18,13 @@ import math
 from dataclasses import dataclass
 
 from .errors import check_int
+from .pid import sample_period_s
 from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
     DERIVATIVE_INTERVAL_MAX,
     POSITION_MAX,
     POSITION_MIN,
-    SAMPLE_CLOCKS,
     VELOCITY_MAX,
 )
 
@@ -87,7 +87,7 @@ class Scale:
     @property
     def sample_period(self) -> float:
         """Seconds per sample, 2048 / fCLK."""
-        return SAMPLE_CLOCKS / self.clock_hz
+        return sample_period_s(self.clock_hz)
 
     # -- to raw words ------------------------------------------------------------------------
     def position(self, revolutions: float) -> int:

@@ -1,7 +1,7 @@
 """``lm629_host.tuning.autotune``, ``lm629 tune`` and the step plot.
 
 Numbers come from the spec and the physics: the filter arithmetic of AN-706 5.2.3-5.2.5 (the
-chip model's :func:`pid_step` is the reference), the motor's equation of motion with the
+chip model's flattened sample loop is the reference), the motor's equation of motion with the
 ``sim://`` defaults (12 V, 4 ohm, 0.025 N m/A, 4e-6 kg m^2, 500 lines, 256 us samples), and
 the travel band given to the tuner.  Every position the tuner reads is recorded by wrapping
 ``chip.snapshot`` and checked against the band, and so is where the shaft finally stops.
@@ -19,9 +19,11 @@ import lm629_host
 from lm629_host import cli
 from lm629_host.errors import MotionError
 from lm629_host.sim.model.params import MotorParams
-from lm629_host.sim.model.pid import PIDState, pid_step
+from lm629_host.pid import PIDState
 from lm629_host.opcodes import Signals
-from lm629_host.tuning import AxisModel, Gains, PidState, autotune, simulate, step_metrics
+from lm629_host.tuning import AxisModel, Gains, autotune, simulate, step_metrics
+
+from filter_helpers import LOOPS, loop_filter
 
 T = 2048 / 8e6  #: sample period at 8 MHz
 TRAVEL = 5000
@@ -76,9 +78,9 @@ def test_predictor_filter_is_the_chips_arithmetic():
                   rng.randint(0, 32767), rng.randint(0, 7))
         desired = [rng.randint(-300, 300) for _ in range(60)] + [rng.randint(-40000, 40000)
                                                                 for _ in range(5)]
-        _counts, outs = simulate(stuck, g, desired, x0=0.5, state=PidState())
-        ref = PIDState()
-        expected = [pid_step(ref, d, g.kp, g.ki, g.kd, g.il, g.ds) >> 8 for d in desired]
+        _counts, outs = simulate(stuck, g, desired, x0=0.5, state=PIDState())
+        expected = [out for _u, out, _mem in loop_filter(LOOPS["py"], desired, g.kp, g.ki, g.kd,
+                                                          g.il, g.ds, False)]
         assert outs == expected
 
 
@@ -87,7 +89,7 @@ def test_predictor_motor_is_the_exact_solution():
     e^-an) / a) with w_inf = accel x 127/128 / a (the output code saturates at 127)."""
     m = AxisModel(accel=0.09, rate=0.0101)
     n = 400
-    counts, outs = simulate(m, Gains(kp=32767), [10 ** 6] * n, x0=0.5, state=PidState(out=127))
+    counts, outs = simulate(m, Gains(kp=32767), [10 ** 6] * n, x0=0.5, state=PIDState(output=127 << 8))
     assert set(outs) == {127}
     w_inf = 0.09 * 127 / 128 / 0.0101
     for k in (1, 50, 399):
@@ -286,8 +288,8 @@ def test_predictor_skip_ahead_changes_nothing():
     m = AxisModel(accel=0.09, rate=0.0101, coulomb=0.002, load=0.0005)
     plan = [0] * 50 + [300] * 1500 + [-200] * 1500 + [-190] * 300
     for g in (Gains(kp=60, kd=900, ds=3), Gains(kp=150, ki=30, kd=2000, il=3000, ds=1)):
-        fast = simulate(m, g, plan, x0=0.5, state=PidState())
-        slow = simulate(m, g, plan, x0=0.5, state=PidState(), skip_ahead=False)
+        fast = simulate(m, g, plan, x0=0.5, state=PIDState())
+        slow = simulate(m, g, plan, x0=0.5, state=PIDState(), skip_ahead=False)
         assert fast == slow
         assert fast[0][1549] > 250 and fast[0][-1] < -150  # it did move (and then stuck)
 

@@ -49,6 +49,7 @@ from ..errors import (
 )
 from ..lm629 import LM629
 from ..move import MoveRules
+from ..pid import sample_period_s
 from ..program import BusCycle
 from ..safety import STOP_NOTE
 from ..transports import is_simulated
@@ -145,7 +146,7 @@ class Session:
 
     @property
     def sample_s(self) -> float:
-        return 2048 / self.clock_hz
+        return sample_period_s(self.clock_hz)
 
     def url(self) -> str:
         """The port URL; a simulator URL gets the global --chip/--clock/--lines unless it

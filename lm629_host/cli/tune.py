@@ -167,7 +167,7 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
     --lines): CSV and PNG of desired and actual position over time, for tuning (AN-706
     figure 11).  Then wait until the shaft rests on the target (else a motion fault, exit 9;
     the files are written either way)."""
-    from ..capture import STEP_ACCELERATION, STEP_VELOCITY
+    from ..pid import STEP_ACCELERATION, STEP_VELOCITY
     s = _session()
     counts = _position(s, distance, "DISTANCE", raw)
     v, a = _motion_words(s, vel, acc, raw)

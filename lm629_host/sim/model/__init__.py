@@ -4,8 +4,9 @@ The model knows nothing of the driver: it is driven one bus cycle at a time thro
 :class:`ChipModel`, by the ``sim://`` transport, the simavr harness or the emulated FT232H.
 
 Modules: :mod:`.chip` (host interface and command decoder), :mod:`.motion` (what happens at
-each sample), :mod:`.trajectory`, :mod:`.pid`, :mod:`.motor`, :mod:`.params` (every number),
-:mod:`.fastloop` and ``_fastloop.c`` (the same sample loop flattened, for speed).
+each sample), :mod:`.trajectory`, :mod:`.motor`, :mod:`.params` (every number), :mod:`.fastloop`
+and ``_fastloop.c`` (the same sample loop flattened, for speed).  The PID filter's arithmetic is
+the driver's :mod:`lm629_host.pid` (the tuner and the step plot use it too).
 
 Model choices
 =============
@@ -108,7 +109,7 @@ Motor off and the chip's events (:mod:`.motion`, ``ChipModel._sample``)
     at start, so a SIP without motion latches nothing.  *(changed, #15: it was at count 0,
     under the shaft, and SIP latched at the first sample.)*
 
-Filter, output and registers (:mod:`.pid`, :mod:`.motion`)
+Filter, output and registers (:mod:`lm629_host.pid`, :mod:`.motion`)
 
 21. PID arithmetic: a 16 x 16 product that overflows 16 bits saturates to 7FFF / 8000 (AN-706
     5.2.5's "all the lower bits are set ... a predictable saturated output", read as signed

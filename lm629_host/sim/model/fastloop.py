@@ -1,7 +1,7 @@
 """The sample loop again, flattened into one function of local variables, for speed.
 
 Every test waits on the model, and a move at 8 MHz is 3906 samples per simulated second.
-:meth:`.motion.Motion.sample` (with :mod:`.trajectory`, :mod:`.pid`, :mod:`.motor` and
+:meth:`.motion.Motion.sample` (with :mod:`.trajectory`, :mod:`lm629_host.pid`, :mod:`.motor` and
 ``ChipModel._sample``) is the readable source of truth; this function computes exactly the
 same thing, bit for bit and float for float, without attribute look-ups, enum arithmetic or
 calls on the common path.  ``tests/test_model_fastloop.py`` runs both side by side over
@@ -18,7 +18,7 @@ from collections.abc import Callable
 from math import floor, log
 
 from ...opcodes import Signals, Status
-from .pid import SUM_MAX, SUM_MIN
+from ...pid import SUM_MAX, SUM_MIN, full_scale, output_shift
 from .registers import ChipState
 from .trajectory import HALF, SPAN, landing_velocity, stop_distance
 
@@ -51,7 +51,7 @@ def run_fast(chip: ChipState, n: int, loop: Callable[..., tuple] | None = None) 
     signals = int(chip.signals_extra)
     twelve = not signals & _EIGHT_BIT
     cpr = motor.counts_per_rev
-    ints = (n, f.kp, f.ki, f.kd, f.il, f.ds, 4 if twelve else 8, int(mp.stall), cpr,
+    ints = (n, f.kp, f.ki, f.kd, f.il, f.ds, output_shift(twelve), int(mp.stall), cpr,
             motor.index_k, m.encoder_count, m.home_count, m.output,
             t.position, t.velocity, t.acceleration, t.max_velocity, t.target, int(t.done),
             int(t.velocity_mode), int(t.forward), int(t.stopping),
@@ -59,7 +59,7 @@ def run_fast(chip: ChipState, n: int, loop: Callable[..., tuple] | None = None) 
             int(chip.motor_off), chip.breakpoint, chip.position_error_threshold,
             signals & _STOP_ON_ERROR, int(chip.flags), signals & _ACQUIRE_INDEX,
             m.real_position, m.real_velocity)
-    floats = (mp.amp_volts / (2048 if twelve else 128), motor.accel_per_volt, motor.load_accel,
+    floats = (mp.amp_volts / full_scale(twelve), motor.accel_per_volt, motor.load_accel,
               motor.coulomb_accel, motor.rate, motor.decay, motor.gain, motor.sample_s,
               motor.angle, motor.speed)
     (ran, lpes_trip, index_hit, index_pos, m.encoder_count, m.output, t.position, t.velocity, done,

@@ -37,7 +37,17 @@ from typing import TYPE_CHECKING
 
 from ...opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags
 from .motor import Motor
-from .pid import SUM_MAX, SUM_MIN, PIDState, lm628_dac_code, lm629_pwm, output_code, pid_step, sat16
+from ...pid import (
+    PIDState,
+    full_scale,
+    holds,
+    lm628_dac_code,
+    lm629_pwm,
+    output_code,
+    pid_step,
+    sat16,
+    skip_held,
+)
 from .registers import ChipState, TrajectoryBuffer
 from .trajectory import Trajectory, wrap_counts
 
@@ -206,8 +216,7 @@ class Motion:
         events = 0
         motor = self.motor
         # 1. the motor runs for one sample with the output held since the last one
-        full_scale = 2048 if self.twelve_bit else 128
-        motor.run(self.output * (motor.params.amp_volts / full_scale))
+        motor.run(self.output * (motor.params.amp_volts / full_scale(self.twelve_bit)))
         # 2. the encoder
         c0, c1 = self.encoder_count, motor.count
         self.encoder_count = c1
@@ -267,7 +276,7 @@ class Motion:
         m = self.motor
         if m.speed != 0.0:
             return False
-        volts = self.output * (m.params.amp_volts / (2048 if self.twelve_bit else 128))
+        volts = self.output * (m.params.amp_volts / full_scale(self.twelve_bit))
         if not m.params.stall and abs(volts * m.accel_per_volt - m.load_accel) > m.coulomb_accel:
             return False  # the shaft is about to break away
         if self.real_velocity:
@@ -277,22 +286,12 @@ class Motion:
         t = self.traj
         if not t.done or t.velocity:
             return False
-        p = self.pid
         e = sat16(wrap_counts((t.position >> 16) - self.real_position))
-        if p.derivative != 0 or p.last_error != e:
-            return False
-        f = self.chip.filter
-        if e and f.il == 0 and p.error_sum and (p.error_sum > 0) != (e > 0):
-            return False  # the sum is unwinding towards 0 (the only change allowed at il = 0)
-        return e == 0 or f.ki == 0
+        return holds(self.pid, e, self.chip.filter.ki, self.chip.filter.il)
 
     def skip(self, n: int) -> None:
         """Advance ``n`` quiescent samples at once (only what still changes: the error sum)."""
         if self.chip.motor_off:
             return
-        p = self.pid
         e = sat16(wrap_counts(self.desired_position - self.real_position))
-        if e and self.chip.filter.il > 0:  # quiescent with e != 0 means ki == 0: never held
-            p.error_sum = max(SUM_MIN, min(SUM_MAX, p.error_sum + n * e))
-        ds1 = self.chip.filter.ds + 1
-        p.countdown = (p.countdown - n) % ds1
+        skip_held(self.pid, n, e, self.chip.filter.il, self.chip.filter.ds)
