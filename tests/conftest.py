@@ -21,6 +21,8 @@ import lm629_host
 from lm629_host.sim import avr as avrsim
 from lm629_host.program import BusCycle
 
+from sim_urls import FAST_LINK_URLS, SIM_URLS, available
+
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"
 
 #: the ``firmware_built`` fixture, for every test module that asks for it by name
@@ -57,6 +59,25 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         "!", f"AVR toolchain missing ({', '.join(missing)}): {n} firmware-in-the-loop tests "
         f"SKIPPED, the firmware is UNTESTED. apt-get install {avrsim.PACKAGES}, or run "
         f".ci/run as root (it installs them and sets {_REQUIRE_AVR}=1)", red=True, bold=True)
+
+
+def _transport(request: pytest.FixtureRequest) -> str:
+    url = request.param
+    if not available(url):
+        pytest.skip(f"{url}: the transport (or for sim+avr:// the AVR toolchain) is not here")
+    return url
+
+
+@pytest.fixture(params=SIM_URLS)
+def transport_url(request: pytest.FixtureRequest) -> str:
+    """Every simulated transport (:data:`sim_urls.SIM_URLS`), base URL."""
+    return _transport(request)
+
+
+@pytest.fixture(params=FAST_LINK_URLS)
+def fast_transport_url(request: pytest.FixtureRequest) -> str:
+    """Every simulated transport, the serial links at 1 Mbaud (:data:`sim_urls.FAST_LINK_URLS`)."""
+    return _transport(request)
 
 
 class Recorder:

@@ -1,54 +1,27 @@
 """The core issue's acceptance scenarios, run unchanged on every simulated transport.
 
-``sim://`` drives the chip model directly; ``sim+avr://`` goes through the real bridge firmware
-in simavr; ``sim+ftdi://`` through the real FT232H transport and pyftdi on an emulated FT232H.
+``sim://`` drives the chip model directly; ``sim+emu://`` goes through LinkTransport's frames
+to the Python bridge far end; ``sim+avr://`` through the real bridge firmware in simavr;
+``sim+ftdi://`` through the real FT232H transport and pyftdi on an emulated FT232H (the
+``transport_url`` fixture of tests/conftest.py).
 Every figure below comes from the application notes (AN-693 table 4, AN-706 3.7 / 4.4.1) or
 the datasheet's command table.
 """
 
 from __future__ import annotations
 
-import importlib
 import time
 
 import pytest
 
 from lm629_host import BusyTimeout, ResetError, Signals, Status, WaitTimeout
-from lm629_host.transports import SCHEMES
 
-URLS = ["sim://", "sim+avr://", "sim+ftdi://"]
-
-
-def _available(url: str) -> bool:
-    """The transport's module imports, and for sim+avr:// the AVR toolchain is there to build
-    the firmware (``.ci/run`` installs it, so CI never skips)."""
-    module = SCHEMES[url.split("://")[0]].split(":")[0]
-    try:
-        importlib.import_module(module)
-    except ImportError:
-        return False
-    if url.startswith("sim+avr"):
-        from lm629_host.sim.avr import toolchain_missing
-
-        return not toolchain_missing()
-    return True
+from sim_urls import with_params
 
 
-@pytest.fixture(params=URLS)
-def base_url(request) -> str:
-    url = request.param
-    if not _available(url):
-        pytest.skip(f"{url} transport not in this tree yet")
-    return url
-
-
-def with_params(base: str, params: str) -> str:
-    return f"{base}?{params}" if params else base
-
-
-def test_an693_filter_module_puts_exactly_its_bytes_on_the_bus(base_url, open_chip, recorder):
+def test_an693_filter_module_puts_exactly_its_bytes_on_the_bus(transport_url, open_chip, recorder):
     """AN-693 table 4: LFIL, control word 0008 (ds = 0, kp only), kp = 000A, UDF."""
-    chip = open_chip(base_url)
+    chip = open_chip(transport_url)
     recorder.clear()
     chip.load_filter(kp=10)
     chip.update_filter()
@@ -63,9 +36,9 @@ def test_an693_filter_module_puts_exactly_its_bytes_on_the_bus(base_url, open_ch
             assert not cycles[i - 1].value & Status.BUSY
 
 
-def test_an706_initialisation_through_reset(base_url, open_chip, recorder):
+def test_an706_initialisation_through_reset(transport_url, open_chip, recorder):
     """AN-706 4.4.1 / 3.7: /RST, status 00, 84 or C4 within 1.5 ms, MSKI 0, RSTI 0, 80 or C0."""
-    chip = open_chip(base_url)
+    chip = open_chip(transport_url)
     recorder.clear()
     t0 = chip.clock.now()
     status = chip.reset()
@@ -83,8 +56,8 @@ def test_an706_initialisation_through_reset(base_url, open_chip, recorder):
     assert Signals.HOST_INTERRUPT not in signals
 
 
-def test_reset_error_when_the_chip_never_leaves_reset(base_url, open_chip):
-    chip = open_chip(with_params(base_url, "fault=reset"))
+def test_reset_error_when_the_chip_never_leaves_reset(transport_url, open_chip):
+    chip = open_chip(with_params(transport_url, "fault=reset"))
     with pytest.raises(ResetError) as info:
         chip.reset()
     assert set(info.value.statuses) == {0x00}
@@ -92,8 +65,8 @@ def test_reset_error_when_the_chip_never_leaves_reset(base_url, open_chip):
     assert "00" in str(info.value) and "84 or C4" in str(info.value)
 
 
-def test_busy_timeout_when_busy_is_stuck(base_url, open_chip):
-    chip = open_chip(with_params(base_url, "fault=busy"))
+def test_busy_timeout_when_busy_is_stuck(transport_url, open_chip):
+    chip = open_chip(with_params(transport_url, "fault=busy"))
     t0 = chip.clock.now()
     with pytest.raises(BusyTimeout) as info:
         chip.read_real_position()
@@ -102,8 +75,8 @@ def test_busy_timeout_when_busy_is_stuck(base_url, open_chip):
     assert chip.clock.now() - t0 >= 5e-3  # the default busy timeout, on the transport's clock
 
 
-def test_ltrj_stt_words_msb_first_with_signed_position(base_url, open_chip, recorder):
-    chip = open_chip(base_url)
+def test_ltrj_stt_words_msb_first_with_signed_position(transport_url, open_chip, recorder):
+    chip = open_chip(transport_url)
     chip.reset()
     chip.load_filter(kp=20)
     chip.update_filter()
@@ -118,16 +91,16 @@ def test_ltrj_stt_words_msb_first_with_signed_position(base_url, open_chip, reco
         ("command", 0x01)]
 
 
-def test_derivative_interval_is_remembered_between_lfils(base_url, open_chip, recorder):
-    chip = open_chip(base_url)
+def test_derivative_interval_is_remembered_between_lfils(transport_url, open_chip, recorder):
+    chip = open_chip(transport_url)
     chip.load_filter(kp=5, derivative_interval=4)
     recorder.clear()
     chip.load_filter(ki=7, il=100)
     assert recorder.data() == [("command", 0x1E), ("write", 0x0305), ("write", 7), ("write", 100)]
 
 
-def test_breakpoint_interrupt_drives_hi_and_rsti_clears_it(base_url, open_chip):
-    chip = open_chip(base_url)
+def test_breakpoint_interrupt_drives_hi_and_rsti_clears_it(transport_url, open_chip):
+    chip = open_chip(transport_url)
     chip.reset()
     chip.mask_interrupts(Status.BREAKPOINT)
     # after reset the breakpoint and the desired position are both 0: the flag sets at the
@@ -141,8 +114,8 @@ def test_breakpoint_interrupt_drives_hi_and_rsti_clears_it(base_url, open_chip):
     assert Signals.BREAKPOINT not in signals and Signals.HOST_INTERRUPT not in signals
 
 
-def test_wait_for_times_out_on_the_transport_clock(base_url, open_chip):
-    chip = open_chip(base_url)
+def test_wait_for_times_out_on_the_transport_clock(transport_url, open_chip):
+    chip = open_chip(transport_url)
     chip.reset()
     t0 = chip.clock.now()
     with pytest.raises(WaitTimeout):
@@ -150,8 +123,8 @@ def test_wait_for_times_out_on_the_transport_clock(base_url, open_chip):
     assert 0.02 <= chip.clock.now() - t0 < 0.03
 
 
-def test_bad_arguments_touch_nothing(base_url, open_chip, recorder):
-    chip = open_chip(base_url)
+def test_bad_arguments_touch_nothing(transport_url, open_chip, recorder):
+    chip = open_chip(transport_url)
     before = chip.transport.stats.as_dict()
     recorder.clear()
     with pytest.raises(ValueError, match="kp=32768"):
@@ -162,11 +135,11 @@ def test_bad_arguments_touch_nothing(base_url, open_chip, recorder):
     assert chip.transport.stats.as_dict() == before
 
 
-def test_signed_reads_of_a_move_below_minus_65536(base_url, open_chip):
+def test_signed_reads_of_a_move_below_minus_65536(transport_url, open_chip):
     """Reads come back signed: RDDP/RDRP/RDDV as 32-bit two's complement (high word FFFE
     for -70000), RDRV 16-bit.  A fast move far below zero: the desired position ends exactly on
     -70000 (0xFFFEEE90), the motor lags behind but runs backwards."""
-    chip = open_chip(base_url)
+    chip = open_chip(transport_url)
     chip.reset()
     chip.define_home()
     chip.load_filter(kp=20)
@@ -182,8 +155,8 @@ def test_signed_reads_of_a_move_below_minus_65536(base_url, open_chip):
     assert chip.read_integration_sum() == 0  # ki = 0
 
 
-def test_lm628_port12_and_port8_switch_the_output_mode(base_url, open_chip):
-    chip = open_chip(with_params(base_url, "chip=lm628"))
+def test_lm628_port12_and_port8_switch_the_output_mode(transport_url, open_chip):
+    chip = open_chip(with_params(transport_url, "chip=lm628"))
     chip.reset()
     chip.port12()
     assert Signals.EIGHT_BIT_OUTPUT not in chip.read_signals()
@@ -193,14 +166,14 @@ def test_lm628_port12_and_port8_switch_the_output_mode(base_url, open_chip):
     assert Signals.EIGHT_BIT_OUTPUT in chip.read_signals()
 
 
-def test_nothing_sleeps_on_the_wall_clock(base_url, open_chip, monkeypatch):
+def test_nothing_sleeps_on_the_wall_clock(transport_url, open_chip, monkeypatch):
     """Every simulated transport waits on its own clock: a reset (1.5 ms), 0.2 s of sleep and
     a 0.05 s wait_for timeout run with time.sleep forbidden."""
     def forbidden(seconds):
-        raise AssertionError(f"time.sleep({seconds}) on {base_url}")
+        raise AssertionError(f"time.sleep({seconds}) on {transport_url}")
 
     monkeypatch.setattr(time, "sleep", forbidden)
-    chip = open_chip(base_url)
+    chip = open_chip(transport_url)
     chip.reset()
     t0 = chip.clock.now()
     chip.clock.sleep(0.2)

@@ -1,7 +1,7 @@
 """Several axes on one bus (issue 11): chip selects, one reset, synchronized start, straight
-lines.  Each behaviour runs on the transports named in TRANSPORTS with two chips; the numbers
-checked are the chip's own (every desired position at every sample, the sample a trajectory
-completes), read from the chip models behind the transport."""
+lines.  Each behaviour runs on every simulated transport (``fast_transport_url``) with two
+chips; the numbers checked are the chip's own (every desired position at every sample, the
+sample a trajectory completes), read from the chip models behind the transport."""
 
 from __future__ import annotations
 
@@ -16,8 +16,6 @@ from lm629_host.sim.model import chips_of
 from lm629_host.sim.model.chip import SAMPLE_CLOCKS
 from lm629_host.opcodes import Status
 
-#: the transports of the Done-when list; sim+avr:// and sim+ftdi:// join as they gain axes=
-TRANSPORTS = ["sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://"]
 
 
 def open2(url: str, **kw) -> lm629_host.Board:
@@ -77,8 +75,8 @@ def test_plan_rejects_what_the_chip_cannot_do():
 
 
 # ------------------------------------------------------------------------------ the board
-@pytest.mark.parametrize("url", TRANSPORTS)
-def test_one_reset_checks_every_chip(url):
+def test_one_reset_checks_every_chip(fast_transport_url):
+    url = fast_transport_url
     with open2(url) as board:
         assert [int(s) for s in board.reset()] == [0xC0, 0xC0]
         assert board.transport.stats.programs == 2  # /RST + checks, then MSKI/RSTI on each
@@ -89,8 +87,8 @@ def test_one_reset_checks_every_chip(url):
         assert info.value.axis == 1
 
 
-@pytest.mark.parametrize("url", TRANSPORTS)
-def test_independent_moves_end_each_on_its_own_target(url):
+def test_independent_moves_end_each_on_its_own_target(fast_transport_url):
+    url = fast_transport_url
     with open2(url) as board:
         board.reset()
         tune(board)
@@ -109,8 +107,8 @@ def test_independent_moves_end_each_on_its_own_target(url):
         assert 0 <= -1200 - y.read_real_position() <= 12
 
 
-@pytest.mark.parametrize("url", TRANSPORTS)
-def test_synchronized_start_is_one_program_and_identical_profiles_end_together(url):
+def test_synchronized_start_is_one_program_and_identical_profiles_end_together(fast_transport_url):
+    url = fast_transport_url
     with open2(url) as board:
         board.reset()
         tune(board)
@@ -125,8 +123,8 @@ def test_synchronized_start_is_one_program_and_identical_profiles_end_together(u
         assert all(p[0] == p[1] for p in path)
 
 
-@pytest.mark.parametrize("url", TRANSPORTS)
-def test_move_linear_keeps_to_the_line_and_lands_both(url):
+def test_move_linear_keeps_to_the_line_and_lands_both(fast_transport_url):
+    url = fast_transport_url
     with open2(url) as board:
         board.reset()
         tune(board)
@@ -159,8 +157,8 @@ def test_move_linear_the_issue_example_on_sim():
         assert path[-1] == (12000 << 16, 6000 << 16)
 
 
-@pytest.mark.parametrize("url", TRANSPORTS)
-def test_a_fault_on_one_axis_names_it_and_stops_both(url):
+def test_a_fault_on_one_axis_names_it_and_stops_both(fast_transport_url):
+    url = fast_transport_url
     with open2(url) as board:
         board.reset()
         tune(board)
@@ -285,8 +283,8 @@ def test_resetting_one_axis_leaves_the_other_alone():
         assert chips(board)[0].filter.kp == 0
 
 
-@pytest.mark.parametrize("url", TRANSPORTS)
-def test_stt_skew_of_a_synchronized_start_is_below_one_sample(url):
+def test_stt_skew_of_a_synchronized_start_is_below_one_sample(fast_transport_url):
+    url = fast_transport_url
     """The STT strobes as the chips see them (their own clock ticks), in one program: the
     skew must be below one sample (2048 chip clocks, 256 us at 8 MHz); the bench prints it
     (tools/bench_multiaxis.py): 1 us on sim://, 2 us on the Python bridge, 17 us through the

@@ -9,6 +9,10 @@ its pins (``sim://?record=1`` -> ``ChipModel.history``):
   (after the retries: "may or may not have run"), and it ran at most once;
 * every read that returned normally returned the right value.
 
+And frame by frame, on both far ends (the Python bridge and the compiled firmware): the reply
+cache is keyed by seq AND CRC (PROTOCOL.md "Exactly once"), and a frame that fails its CRC is
+neither run nor answered.
+
 Everything runs in the model's simulated time (no wall-clock sleeping).  The counts are
 printed (``pytest -s``); ``tools/fault_soak.py`` runs longer soaks.
 """
@@ -18,6 +22,15 @@ from __future__ import annotations
 import pytest
 
 from lm629_host import LM629, TransportError
+from lm629_host.bridge.protocol import (
+    FrameReader,
+    FrameType,
+    cobs_encode,
+    crc16,
+    encode_frame,
+    run_payload,
+)
+from lm629_host.program import BusOp, Op
 from lm629_host.transports.simemu import open_emulated
 from lm629_host.sim.faults import FaultPipe, check_record, soak
 from lm629_host.opcodes import Cmd
@@ -318,3 +331,77 @@ def test_a_refusal_caused_by_an_undetected_corruption_is_sent_again_once(far):
         chip.set_breakpoint(1779)
     assert info.value.may_have_run is False
     assert list(model.history) == [(int(Cmd.SBPA), (0, 1777))]
+
+
+# ------------------------------------------------------------------ far ends: cache, CRC
+def _far(kind: str):
+    """(pipe, model) of a far end after a clean handshake; frames are sent raw below."""
+    if kind == "emu":
+        from lm629_host.transports.simemu import open_emulated
+        t = open_emulated("sim://?record=1", baud=1_000_000)
+        return t, t.pipe, t.model
+    from lm629_host.transports import open_transport
+    t = open_transport("sim+avr://?record=1&baud=1000000")
+    return t, t.pipe, t.model
+
+
+@pytest.fixture(params=["emu", "avr"])
+def far_end(request):
+    if request.param == "avr":
+        request.getfixturevalue("firmware_built")
+    t, pipe, model = _far(request.param)
+    model.record_clear()
+    yield pipe, model
+    t.close()
+
+
+def _sbpa(pos: int) -> bytes:
+    return run_payload([BusOp(Op.COMMAND, int(Cmd.SBPA)), BusOp(Op.WRITE, pos >> 16),
+                        BusOp(Op.WRITE, pos & 0xFFFF)], 1000)
+
+
+def _exchange(pipe, wire: bytes, wait_s: float = 0.02) -> list:
+    """Send ``wire``; every good frame that comes back within ``wait_s``."""
+    pipe.write(wire)
+    reader = FrameReader()
+    out = []
+    deadline = pipe.clock.now() + wait_s
+    while (left := deadline - pipe.clock.now()) > 0:
+        data = pipe.read(left)
+        if not data:
+            break
+        out += [f for f in reader.feed(data) if not isinstance(f, Exception)]
+    return out
+
+
+def test_reply_cache_is_keyed_by_seq_and_crc(far_end):
+    pipe, model = far_end
+    a, b = _sbpa(0x10001), _sbpa(0x10002)
+    sbpa = int(Cmd.SBPA)
+    r1 = _exchange(pipe, encode_frame(FrameType.RUN, 77, a))
+    assert [f.seq for f in r1] == [77] and model.history == [(sbpa, (1, 1))]
+    # the same frame again: answered from the cache, byte for byte, not run
+    r2 = _exchange(pipe, encode_frame(FrameType.RUN, 77, a))
+    assert r2 == r1 and model.history == [(sbpa, (1, 1))]
+    # same seq, other program (other CRC): a new request, run
+    r3 = _exchange(pipe, encode_frame(FrameType.RUN, 77, b))
+    assert [f.seq for f in r3] == [77] and model.history == [(sbpa, (1, 1)), (sbpa, (1, 2))]
+    # same program, other seq: run again
+    _exchange(pipe, encode_frame(FrameType.RUN, 78, b))
+    assert model.history == [(sbpa, (1, 1)), (sbpa, (1, 2)), (sbpa, (1, 2))]
+
+
+@pytest.mark.parametrize("where", ["crc", "payload"])
+def test_frame_failing_its_crc_is_neither_run_nor_answered(far_end, where):
+    pipe, model = far_end
+    payload = _sbpa(0x12345)
+    body = bytearray(bytes((FrameType.RUN, 5)) + payload)
+    body += crc16(bytes(body)).to_bytes(2, "big")
+    # one bit flipped, the COBS framing kept valid: only the CRC can tell
+    at = len(body) - 1 if where == "crc" else 7
+    body[at] ^= 0x01 if body[at] != 0x01 else 0x02
+    assert _exchange(pipe, cobs_encode(bytes(body)) + b"\x00") == []
+    assert model.history == []
+    # the line recovers at once: the good frame runs
+    assert len(_exchange(pipe, encode_frame(FrameType.RUN, 5, payload))) == 1
+    assert model.history == [(int(Cmd.SBPA), (1, 0x2345))]

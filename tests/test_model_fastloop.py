@@ -214,8 +214,8 @@ def test_the_loops_take_their_status_bits_from_opcodes():
 
 
 # ---------------------------------------------------------------- issue 15 scenarios
-# The round-2 behaviours (tests/test_model_round2.py) under all three loops, register by
-# register: restarts after stops and motor off, the hold after a completed move, the plant
+# The round-2 behaviours (tests/test_model_scenarios.py, on every transport) under all three
+# loops, register by register: restarts after stops and motor off, the hold after a completed move, the plant
 # through /RST and RESET, RSTI after reset, the default index, buffered and relative values,
 # an out-of-range word.
 

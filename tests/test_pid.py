@@ -1,11 +1,14 @@
 """The PID filter and output stage (:mod:`lm629_host.pid`) against numbers worked out from
 AN-706 5.2.3-5.2.5, and the chip model's two flattened sample loops (``fastloop.py_loop`` and
-``_fastloop.c``) against it, bit for bit."""
+``_fastloop.c``) against it, bit for bit; the integration limit in every loop the model runs."""
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
+from lm629_host import Status
 
 from lm629_host.pid import (
     U_FULL_SCALE,
@@ -162,3 +165,26 @@ def test_model_loops_compute_this_filter_bit_for_bit(kp, ki, kd, il, ds, twelve,
                               countdown=s.countdown, iterm=s.integral, u=s.output)))
     for name, loop in LOOPS.items():
         assert loop_filter(loop, errors, kp, ki, kd, il, ds, twelve) == expected, name
+
+
+@pytest.mark.parametrize("loop", ["0", "py", "c"])
+@pytest.mark.parametrize("target,ki,il", [(-1000, 300, 500), (1000, 300, 500),
+                                          (-3000, 100, 12345)])
+def test_integration_term_is_limited_to_il_both_signs(open_chip, loop, target, ki, il):
+    """Shaft locked (stall=1), kp = kd = 0: the desired position runs to ``target`` and stays
+    there, so the error ends at e = target and the 24-bit sum keeps growing by e until the
+    term ki x (sum >> 8) passes il; from then on RDSUM reads exactly sign(e) x il.  ki and il
+    are chosen so that no multiple of ki equals il (300 x k never is 500, 100 x k never is
+    12345): an unlimited term would read the first multiple past il (-600, -12400...)."""
+    if loop == "c" and "c" not in LOOPS:
+        pytest.skip("the C sample loop is not built here (pip install -e . builds it)")
+    chip = open_chip(f"sim://?stall=1&fast={loop}")
+    chip.reset()
+    chip.load_filter(kp=0, ki=ki, kd=0, il=il)
+    chip.update_filter()
+    chip.load_trajectory(position=target, start=True, acceleration=65536 * 2, velocity=65536 * 20)
+    chip.wait_for(Status.TRAJECTORY_COMPLETE, timeout=1.0)
+    chip.clock.sleep(0.05)  # ~200 more samples at the limit
+    expected = il if target > 0 else -il
+    assert chip.read_integration_sum() == expected
+    assert chip.read_real_position() == 0  # the shaft did not move: e stayed = target

@@ -1,0 +1,42 @@
+"""The simulated transports the suite runs its end-to-end tests on, named once.
+
+``tests/conftest.py`` turns these lists into the fixtures ``transport_url`` (every simulated
+transport, base URL) and ``fast_transport_url`` (the same with the serial links at 1 Mbaud, for
+tests whose subject is not the link's speed); a test module that needs the plain list (to
+parametrize) imports it from here.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from lm629_host.transports import SCHEMES
+
+#: the chip model strobed directly, the Python bridge far end, the compiled bridge firmware in
+#: simavr, the FT232H transport on the emulated FT232H
+SIM_URLS = ("sim://", "sim+emu://", "sim+avr://", "sim+ftdi://")
+
+#: the same, the serial links at 1 Mbaud (the default 115200 adds ~1 ms a round trip)
+FAST_LINK_URLS = ("sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://")
+
+
+def available(url: str) -> bool:
+    """The transport's module imports, and for sim+avr:// the AVR toolchain is there to build
+    the firmware (``.ci/run`` installs it, so CI never skips)."""
+    module = SCHEMES[url.split("://")[0]].split(":")[0]
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        return False
+    if url.startswith("sim+avr"):
+        from lm629_host.sim.avr import toolchain_missing
+
+        return not toolchain_missing()
+    return True
+
+
+def with_params(url: str, params: str) -> str:
+    """``url`` with ``params`` (``a=1&b=2``) added to its query."""
+    if not params:
+        return url
+    return f"{url}{'&' if '?' in url else '?'}{params}"
