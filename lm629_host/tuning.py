@@ -6,10 +6,12 @@ output (AN-706 5.2.3): a proportional term below one output step does nothing (a
 read in whole counts is coarse.  Ziegler-Nichols style rules ignore all three, and the three
 decide whether a move ends within 2 counts or 50.  So the tuner:
 
-1. **checks the loop phasing** (AN-706 2.12, AN-868 "Tuning the PID") with a gentle P-only step
-   of ``travel / 8`` counts whose first output is 1/8 of full scale: a shaft heading the other
-   way is reversed leads (``MotionError`` RUNAWAY, "swap the motor leads"); a shaft that does
-   not move even at full-scale output is a stall;
+1. **checks the loop phasing** (AN-706 2.12, AN-868 "Tuning the PID") with gentle P-only steps
+   of ``travel / 8`` counts up and down whose first output is 1/8 of full scale: a shaft
+   heading away from both targets is reversed leads (``MotionError`` RUNAWAY, "swap the motor
+   leads"); one going the same way after both is a load (gravity on a vertical axis), and the
+   gain is raised until the loop holds it, or the tuner says that it cannot (STALL); a shaft
+   that does not move even at full-scale output is a stall (see :func:`_phasing`);
 2. **identifies the axis** from two P-only steps (``travel / 4`` out and back, first output
    half scale): a second-order plant in the chip's own units -- acceleration at full-scale
    output, speed decay rate (back-EMF and viscous friction), dry friction and a constant load,
@@ -353,6 +355,12 @@ class _Session:
         self.sample_s = sample_period_s(clock_hz or _clock_hz(chip))
         self.records: list[Record] = []
         self.driving = False  #: an STT of ours turned the drive on (reset leaves it off)
+        #: the way a load pulls the shaft (+1, -1), once seen: the shaft moving with the drive
+        #: off, or the same way after a step up and a step down (phasing); 0 while not seen
+        self.pulled = 0
+        if self.drive_off and first.real_velocity:
+            self.pulled = 1 if first.real_velocity > 0 else -1
+        self.phasing_kp: int | None = None  #: the phasing gain in force, while phasing
         self.check(first)
 
     def fault(self, reason: str, message: str, snap: Snapshot | None = None) -> MotionError:
@@ -370,6 +378,16 @@ class _Session:
         speed = abs(s.real_velocity) + 1
         stop = self.model.stop_distance(speed) if self.model else speed * speed + 4 * speed
         if abs(off) + stop > self.travel:
+            moving = (s.real_velocity > 0) - (s.real_velocity < 0)
+            if self.phasing_kp is not None and self.pulled and moving == self.pulled:
+                raise self.fault(MotionError.STALL,
+                                 f"phasing: a load pulls the shaft {'up' if moving > 0 else 'down'}"
+                                 f" (it moved that way with the drive off, or whichever way it "
+                                 f"was stepped): it is {off:+d} counts from where tuning started "
+                                 f"and would leave the travel band of +/-{self.travel}: the load "
+                                 f"pulls harder than kp={self.phasing_kp} holds: raise it or "
+                                 "support the axis (phasing starts at kp = 32768 / --travel: a "
+                                 "shorter travel starts stiffer; or more amplifier gain)", s)
             raise self.fault(MotionError.RUNAWAY,
                              f"the shaft is {off:+d} counts from where tuning started, moving "
                              f"{s.real_velocity:+d} counts/sample: it would leave the travel "
@@ -464,42 +482,98 @@ def _clock_hz(chip: LM629) -> float:
 
 # ---------------------------------------------------------------------------------- phasing
 def _phasing(ses: _Session, step: int, time_s: float) -> Record:
-    """A gentle P-only step; RUNAWAY when the shaft heads away, STALL when nothing turns it."""
+    """Gentle P-only steps, ``+step`` then ``-step`` from the origin, at a gain whose first
+    output is 1/8 of full scale, doubled until the shaft follows both.
+
+    What the two steps tell apart (each step's "moved" counts from where the shaft was at its
+    STT, at most ``time_s`` later):
+
+    * the shaft follows both steps: the loop is phased right;
+    * it heads away from both targets (down after the step up, up after the step down):
+      reversed leads (RUNAWAY, "swap the motor leads");
+    * it goes the same way after both: a load (gravity on a vertical axis, a spring) pulls it
+      harder than the loop pushes at this gain; the gain is doubled.  Reversed leads under a
+      load can look the same once; they give themselves away as the gain rises, because the
+      shaft then runs away *faster* (a loop phased right pulls it back harder): RUNAWAY;
+    * it hardly moves after either: more drive (the gain doubled).
+
+    At full-scale output (kp x step >= 2 x 8000h) a shaft still pulled away is a load the drive
+    cannot hold (STALL: "the load pulls harder than kp=N holds"), one that never moved a
+    stalled rotor or a dead drive (STALL, "did not turn")."""
     kp = max(1, round(16 * 256 / step))  # first output 1/8 of full scale
+    away = max(4, step // 10)
+    pulled_speed: float | None = None  # counts/s the shaft was pulled away at, previous gain
+    pulled_sign = 0  # ... against the step of this sign
     while True:
+        ses.phasing_kp = kp
         g = Gains(kp)
-        ses.progress(f"phasing: P-only step of {step:+d} counts at kp={kp}")
+        ses.progress(f"phasing: P-only steps of {step:+d} and {-step:+d} counts at kp={kp}")
         ses.load(g)
         rec = ses.begin(f"phasing kp={kp}", g)
-        start = rec.rows[0].real_position
-        target = ses.origin + step
-        ses.step_to(rec, target)
-        away = max(4, step // 10)
+        moved: dict[int, int] = {}
+        speed: dict[int, float] = {}
+        last = rec.rows[-1]
+        for sign in (1, -1):
+            start = last.real_position
+            t_start = last.time
 
-        def watch(s: Snapshot, start: int = start, away: int = away) -> bool:
-            moved = s.real_position - start
-            if moved <= -away:
-                raise ses.fault(
-                    MotionError.RUNAWAY,
-                    f"phasing: the desired position went {step:+d} counts and the shaft went "
-                    f"{moved:+d}: the loop pushes the wrong way. Swap the motor leads (or the "
-                    "encoder's A and B channels)", s)
-            return moved >= step // 2
+            def watch(s: Snapshot, start: int = start, sign: int = sign) -> bool:
+                along = sign * (s.real_position - start)
+                return along >= step // 2 or along <= -away
 
-        s = ses.record(rec, time_s, watch)
-        moved = s.real_position - start
-        if moved >= step // 2 or (moved >= 2 and kp * step >= U_FULL_SCALE):
-            ses.progress(f"phasing ok: the shaft followed {moved:+d} counts")
-            # back to the origin and rest there
-            ses.step_to(rec, ses.origin)
+            ses.step_to(rec, ses.origin + sign * step)
+            last = ses.record(rec, time_s, watch)
+            moved[sign] = last.real_position - start
+            speed[sign] = abs(moved[sign]) / max(last.time - t_start, 1e-9)
+            if sign * moved[sign] >= step // 2:
+                # followed: let it come to rest there, so that the next step starts from a
+                # shaft at rest (a shaft still coasting up would seem to refuse a step down)
+                last, _still = ses.settle(rec, time_s)
+        follows = {sign: sign * moved[sign] >= step // 2 or (sign * moved[sign] >= 2
+                                                              and kp * step >= U_FULL_SCALE)
+                   for sign in (1, -1)}
+        heads_away = {sign: sign * moved[sign] <= -away for sign in (1, -1)}
+        seen = (f"the desired position went {step:+d} counts and the shaft went {moved[1]:+d}, "
+                f"then {-step:+d} and it went {moved[-1]:+d}")
+        if all(follows.values()):
+            ses.progress(f"phasing ok: the shaft followed {moved[1]:+d} and {moved[-1]:+d} "
+                         "counts")
+            ses.step_to(rec, ses.origin)  # back to the origin and rest there
             ses.settle(rec, 1.0)
+            ses.phasing_kp = None
             return rec
-        if kp * step >= U_FULL_SCALE * 2:
+        if all(heads_away.values()):
+            raise ses.fault(MotionError.RUNAWAY,
+                            f"phasing: {seen}: the shaft runs away from any target, the loop "
+                            "pushes the wrong way. Swap the motor leads (or the encoder's A "
+                            "and B channels)", last)
+        pulled = next((sign for sign in (1, -1) if heads_away[sign]), None)
+        if pulled is not None:
+            # the same way after both steps: a load (or reversed leads under one), pulling
+            # against the step that it headed away from
+            if pulled_sign == pulled and pulled_speed is not None \
+                    and speed[pulled] > 1.25 * pulled_speed:
+                raise ses.fault(MotionError.RUNAWAY,
+                                f"phasing: {seen}, and it ran away faster at kp={kp} than at "
+                                f"kp={kp // 2}: the loop pushes the wrong way. Swap the motor "
+                                "leads (or the encoder's A and B channels)", last)
+            pulled_speed, pulled_sign = speed[pulled], pulled
+            ses.pulled = -pulled  # it headed away from the step up: pulled down
+            if kp * step >= U_FULL_SCALE * 2:
+                down = "down" if pulled > 0 else "up"
+                raise ses.fault(MotionError.STALL,
+                                f"phasing: {seen}: a load pulls the shaft {down} whichever way "
+                                f"it is driven, and at kp={kp} the output is at full scale: the "
+                                f"load pulls harder than kp={kp} holds: raise the amplifier's "
+                                "supply or gain, or support the axis", last)
+            ses.progress(f"phasing: {seen}: a load pulls the shaft; more gain")
+        elif kp * step >= U_FULL_SCALE * 2:
             raise ses.fault(MotionError.STALL,
                             f"the shaft did not turn: desired {step:+d} counts at full-scale "
-                            f"output, the shaft moved {moved:+d}. Check the amplifier's supply "
-                            "and enable, the PWM/sign wiring, the motor and the encoder", s)
-        kp *= 2  # more drive, up to full scale
+                            f"output, the shaft moved {moved[1]:+d}. Check the amplifier's "
+                            "supply and enable, the PWM/sign wiring, the motor and the encoder",
+                            last)
+        kp = min(COEFFICIENT_MAX, kp * 2)  # more drive, up to full scale
         ses.step_to(rec, ses.origin)
         ses.settle(rec, 0.5)
 

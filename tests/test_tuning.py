@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import random
+import re
 
 import pytest
 from click.testing import CliRunner
@@ -24,6 +25,7 @@ from lm629_host.opcodes import Signals
 from lm629_host.tuning import AxisModel, Gains, autotune, simulate, step_metrics
 
 from filter_helpers import LOOPS, loop_filter
+from sim_urls import with_params
 
 T = 2048 / 8e6  #: sample period at 8 MHz
 TRAVEL = 5000
@@ -152,10 +154,65 @@ def test_reversed_leads_runaway_stops_the_motor_inside_the_band():
     e = err.value
     assert e.reason == MotionError.RUNAWAY
     assert "Swap the motor leads" in str(e) and "motor stopped" in str(e)
-    assert e.position is not None and e.position < 0  # it went the wrong way
+    # the shaft headed away from both phasing steps (travel 2000: steps of +/-250 counts;
+    # "away" is a tenth of the step, 25 counts): down after the step up, up after the step down
+    moves = [int(m) for m in re.findall(r"shaft went ([+-]\d+)|it went ([+-]\d+)", str(e))
+             for m in m if m]
+    assert len(moves) == 2 and moves[0] <= -25 and moves[1] >= 25
     assert w.chip.read_signals() & Signals.MOTOR_OFF
     w.chip.clock.sleep(1.0)  # the shaft coasts to a stop
     assert w.in_band(2000) and abs(w.shaft() - w.origin) <= 2000
+    w.chip.close()
+
+
+#: 0.005 N m: more than the dry friction (2e-4) and than the phasing gain holds at small errors:
+#: code c drives c x 12 V / 128 / 4 ohm x 0.025 N m/A = c x 5.86e-4 N m, so the loop needs
+#: c >= 9 (e >= 330 counts at the phasing gain kp = 32768 / 5000 = 7) to hold it; the drive is
+#: off after reset, so the shaft is already falling when tuning starts
+HOLDING_LOAD = "load_torque=0.005"
+
+
+@pytest.mark.parametrize("base", ["sim://", "sim+emu://?baud=115200", "sim+avr://?baud=115200"])
+def test_a_holding_load_is_not_reversed_leads(base):
+    """Issue 20: the load pulls the shaft down whichever way phasing steps it; that is a load,
+    not reversed leads: the tuner raises the gain and tunes the axis."""
+    if base.startswith("sim+avr"):
+        from lm629_host.sim.avr import toolchain_missing
+        if toolchain_missing():
+            pytest.skip("AVR toolchain missing")
+    w = Watched(with_params(base, HOLDING_LOAD))
+    said: list[str] = []
+    r = autotune(w.chip, travel=TRAVEL, distance=DISTANCE, poll_s=0.002, progress=said.append)
+    assert any("phasing ok" in line for line in said)
+    truth = physical(w.chip.transport.model.motor_params)
+    assert truth.load > 0 and r.model.load == pytest.approx(truth.load, rel=0.2)
+    assert r.ok and abs(r.measured.final_error) <= 2
+    assert w.in_band(TRAVEL)
+    w.chip.close()
+
+
+def test_reversed_leads_under_a_load_are_still_refused():
+    w = Watched(f"sim://?reversed=1&{HOLDING_LOAD}")
+    with pytest.raises(MotionError) as err:
+        autotune(w.chip, travel=TRAVEL)
+    assert err.value.reason == MotionError.RUNAWAY and "Swap the motor leads" in str(err.value)
+    assert w.chip.read_signals() & Signals.MOTOR_OFF
+    assert w.in_band(TRAVEL)
+    w.chip.close()
+
+
+def test_a_load_the_drive_cannot_hold_is_named_not_reversed_leads():
+    """0.09 N m against at most 127 x 5.86e-4 = 0.0744 N m at full-scale output: no gain
+    holds it.  The shaft falls with the drive off (after reset), so the tuner knows it is a
+    load; it stops the motor before the band's edge and says so."""
+    w = Watched("sim://?load_torque=0.09")
+    with pytest.raises(MotionError) as err:
+        autotune(w.chip, travel=TRAVEL)
+    e = str(err.value)
+    assert err.value.reason == MotionError.STALL
+    assert "the load pulls harder than kp=7 holds" in e and "Swap" not in e
+    assert w.chip.read_signals() & Signals.MOTOR_OFF
+    assert w.in_band(TRAVEL)
     w.chip.close()
 
 
