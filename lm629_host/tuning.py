@@ -40,7 +40,7 @@ from dataclasses import dataclass, field, replace
 
 from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
-from .opcodes import COEFFICIENT_MAX, Signals, Status
+from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
 from .pid import (
     STEP_ACCELERATION,
     STEP_VELOCITY,
@@ -321,6 +321,9 @@ class TuneResult:
     fit_rms: float = 0.0  #: counts, model vs the identification steps
     #: every real position read during tuning (the travel-band check is on all of them)
     positions: list[int] = field(default_factory=list)
+    profile: Profile | None = None  #: the trapezoid move judged and checked
+    predicted_move: MoveMetrics | None = None  #: the trapezoid move on the model
+    measured_move: MoveMetrics | None = None  #: ... and on the axis (settle after the profile)
 
     @property
     def gains(self) -> Gains:
@@ -328,8 +331,9 @@ class TuneResult:
 
     @property
     def ok(self) -> bool:
-        """The test moves ended within the tolerance."""
-        return abs(self.measured.final_error) <= self.tolerance
+        """The test moves (step and trapezoid) ended within the tolerance."""
+        return all(abs(m.final_error) <= self.tolerance
+                   for m in (self.measured, self.measured_move) if m is not None)
 
     def record(self, name: str) -> Record | None:
         return next((r for r in self.records if r.name == name), None)
@@ -413,10 +417,12 @@ class _Session:
         self.chip.load_filter(**g.as_filter())
         self.chip.update_filter()
 
-    def step_to(self, rec: Record, target: int) -> None:
+    def step_to(self, rec: Record, target: int, profile: Profile | None = None) -> None:
+        """A step to ``target`` (or a trapezoid move with ``profile``), STT now."""
         self.chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
-        self.chip.load_trajectory(acceleration=STEP_ACCELERATION, velocity=STEP_VELOCITY,
-                                  position=target, start=True)
+        v, a = (profile.velocity, profile.acceleration) if profile else (STEP_VELOCITY,
+                                                                          STEP_ACCELERATION)
+        self.chip.load_trajectory(acceleration=a, velocity=v, position=target, start=True)
         self.driving = True
         rec.steps.append((self.chip.clock.now(), target))
 
@@ -703,15 +709,63 @@ def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
 
 
 # ---------------------------------------------------------------------------------- design
+#: the trapezoid move candidates are judged on when the user names none (issue 20): 4 counts
+#: per sample, 1/8 count per sample^2 (the default motor reaches 4 counts/sample in 32
+#: samples, an eighth of its acceleration at full output)
+MOVE_VELOCITY = 0x40000
+MOVE_ACCELERATION = 0x2000
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A trapezoid move's limits, the chip's 16.16 words (counts/sample, counts/sample^2)."""
+
+    velocity: int
+    acceleration: int
+
+    def desired(self, distance: int) -> list[int]:
+        """The desired position (counts from the start) at each sample until it reaches
+        ``distance``: accelerate by ``acceleration`` up to ``velocity``, brake by it so as to
+        land on the target (the chip's generator to within a count; AN-706 5.3)."""
+        sign = 1 if distance >= 0 else -1
+        target = abs(distance) << 16
+        a, vmax = self.acceleration, self.velocity
+        p = v = 0
+        out: list[int] = []
+        while p < target:
+            left = target - p
+            if v * v // (2 * a) + v >= left:
+                v = max(v - a, min(a, left))  # braking; the last steps land on the target
+            else:
+                v = min(v + a, vmax)
+            v = min(v, left)
+            p += v
+            out.append(sign * (p >> 16))
+        return out
+
+    def samples(self, distance: int) -> int:
+        return len(self.desired(distance))
+
+    def __str__(self) -> str:
+        return f"velocity {self.velocity:#x}, acceleration {self.acceleration:#x}"
+
+
 def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
-                 tolerance: int) -> MoveMetrics:
-    """The test move (out by ``distance``, then back) on the model, from rest at 0."""
+                 tolerance: int, profile: Profile | None = None) -> MoveMetrics:
+    """The test move (out by ``distance``, then back) on the model, from rest at 0: a step,
+    or with ``profile`` a trapezoid move (settle then counted from the profile's end)."""
     worst = None
+    ramp = profile.desired(distance) if profile else []
     for start, target in ((0, distance), (distance, 0)):
-        counts, _ = simulate(model, g, [target] * horizon, x0=start + 0.5,
-                             state=PIDState())
-        times = [(k + 1) for k in range(horizon)]
-        m = step_metrics(times, counts, [target] * horizon, start, target, tolerance)
+        sign = 1 if target >= start else -1
+        desired = [start + sign * abs(d) for d in ramp][:horizon]
+        desired += [target] * (horizon - len(desired))
+        counts, _ = simulate(model, g, desired, x0=start + 0.5, state=PIDState())
+        times = [(k + 1 - len(ramp)) for k in range(horizon)]
+        m = step_metrics(times, counts, desired, start, target, tolerance)
+        if profile:
+            m = replace(m, rise_s=None, settle_s=None if m.settle_s is None
+                        else max(0.0, m.settle_s))
         worst = m if worst is None else worst.worst(m)
     assert worst is not None
     return worst
@@ -759,32 +813,46 @@ def test_duration(model: AxisModel, distance: int, sample_s: float, at_least: fl
 
 
 def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
-           sample_s: float) -> tuple[Gains, MoveMetrics]:
-    """Gains for the test move: PD candidates by pole placement screened on the model (out
-    and back, two thirds of the horizon); the ten best and integral variants of the best
-    four are then judged by their worst score on the model and three variants of it."""
+           sample_s: float, profile: Profile | None = None
+           ) -> tuple[Gains, MoveMetrics, MoveMetrics | None]:
+    """Gains for the test moves: PD candidates by pole placement screened on the model (the
+    step out and back, two thirds of the horizon); the ten best and integral variants of the
+    best four are then judged by their worst score on the model and three variants of it, on
+    the step and (with ``profile``) on the trapezoid move too, whose overshoot weighs more: a
+    user's move should stop on its target, not past it.  Returns (gains, predicted step,
+    predicted trapezoid)."""
     horizon = int(horizon_s / sample_s)
     quick = max(200, horizon * 2 // 3)
+    ramp = profile.samples(distance) if profile else 0
 
-    def screen(g: Gains) -> float:
-        return score(predict_move(model, g, distance, quick, tolerance), quick, tolerance)
+    def judged(m: AxisModel, g: Gains, horizon: int = horizon
+               ) -> tuple[float, MoveMetrics, MoveMetrics | None]:
+        step = predict_move(m, g, distance, horizon, tolerance)
+        total = score(step, horizon, tolerance)
+        move = None
+        if profile is not None:
+            move = predict_move(m, g, distance, horizon + ramp, tolerance, profile)
+            total += score(move, horizon, tolerance) + horizon * 0.02 * max(
+                0, move.overshoot - tolerance)
+        return total, step, move
 
-    pd = sorted(_pd_candidates(model), key=screen)
+    # screened on the whole horizon when a move is judged too: a stiffer loop that the move
+    # favours settles a large step more slowly, and a short screen would drop it unseen
+    pd = sorted(_pd_candidates(model),
+                key=lambda g: judged(model, g, quick if profile is None else horizon)[0])
     ranked = pd[:10] + [g for p in pd[:4] for g in _with_integral(model, p)]
     # robustness: 30 % lighter and 40 % heavier, and a fifth of the dry friction (a fit
     # rarely pins friction down; less of it lets the shaft creep to the dead band's edge)
     variants = (model.scaled(0.7), model.scaled(1.4), replace(model, coulomb=model.coulomb / 5))
     best = None
     for g in ranked:
-        nominal = predict_move(model, g, distance, horizon, tolerance)
-        worst = max(score(predict_move(v, g, distance, horizon, tolerance), horizon, tolerance)
-                    for v in variants)
-        total = max(worst, score(nominal, horizon, tolerance))
+        total, step, move = judged(model, g)
+        total = max([total] + [judged(v, g)[0] for v in variants])
         if best is None or total < best[0]:
-            best = (total, g, nominal)
+            best = (total, g, step, move)
     assert best is not None
-    g, m = best[1], best[2]
-    return g, _in_seconds(m, sample_s)
+    _total, g, step, move = best
+    return g, _in_seconds(step, sample_s), None if move is None else _in_seconds(move, sample_s)
 
 
 def _in_seconds(m: MoveMetrics, sample_s: float) -> MoveMetrics:
@@ -794,36 +862,57 @@ def _in_seconds(m: MoveMetrics, sample_s: float) -> MoveMetrics:
 
 # ---------------------------------------------------------------------------------- test move
 def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, duration_s: float,
-               tolerance: int) -> tuple[MoveMetrics, Record]:
+               tolerance: int, profile: Profile | None = None) -> tuple[MoveMetrics, Record]:
+    """The step (or with ``profile`` the trapezoid move) out by ``distance`` and back, each
+    recorded for ``duration_s`` after the profile's end (the settle time counted from there)."""
     if gains is not None:
         ses.load(gains)
     ses.rest(3.0)  # both test moves start from rest at the origin
     rec = ses.begin(name, gains)
+    ramp_s = profile.samples(distance) * ses.sample_s if profile else 0.0
     worst = None
     for target in (ses.origin + distance, ses.origin):
-        ses.step_to(rec, target)
-        ses.record(rec, duration_s)
+        ses.step_to(rec, target, profile)
+        ses.record(rec, ramp_s + duration_s)
         t, real, des, start, tgt = rec.segment(len(rec.steps) - 1)
-        m = step_metrics(t, real, des, start, tgt, tolerance)
+        m = step_metrics([x - ramp_s for x in t], real, des, start, tgt, tolerance)
+        if profile:
+            m = replace(m, rise_s=None, settle_s=None if m.settle_s is None
+                        else max(0.0, m.settle_s))
         worst = m if worst is None else worst.worst(m)
     assert worst is not None
     return worst, rec
 
 
 def measure_move(chip: LM629, gains: Gains | None, *, distance: int, travel: int,
-                 duration_s: float = 0.4, tolerance: int = 2, poll_s: float = 1e-3
-                 ) -> tuple[MoveMetrics, Record]:
-    """The tuner's test move (a step of ``distance`` counts out and back) with ``gains``
-    (None: as loaded), guarded like the tuning experiments; the worse of the two moves."""
+                 duration_s: float = 0.4, tolerance: int = 2, poll_s: float = 1e-3,
+                 profile: Profile | None = None) -> tuple[MoveMetrics, Record]:
+    """The tuner's test move (a step of ``distance`` counts out and back, or with ``profile``
+    the trapezoid move) with ``gains`` (None: as loaded), guarded like the tuning experiments;
+    the worse of the two moves."""
     ses = _Session(chip, travel, poll_s, lambda text: None)
     with stop_on_error(chip):
-        return _test_move(ses, "test", gains, distance, duration_s, tolerance)
+        return _test_move(ses, "test", gains, distance, duration_s, tolerance, profile)
+
+
+def default_profile(model: AxisModel, velocity: int | None = None,
+                    acceleration: int | None = None) -> Profile:
+    """The trapezoid move to judge gains on: the words given, else :data:`MOVE_VELOCITY` and
+    :data:`MOVE_ACCELERATION` where the identified axis can follow them with drive to spare
+    (at most a quarter of its top speed, a third of its acceleration at full output)."""
+    if velocity is None:
+        top = model.accel / max(model.rate, 1e-12)
+        velocity = max(1, min(MOVE_VELOCITY, round(top / 4 * 65536)))
+    if acceleration is None:
+        acceleration = max(1, min(MOVE_ACCELERATION, round(model.accel / 3 * 65536)))
+    return Profile(velocity, acceleration)
 
 
 # ---------------------------------------------------------------------------------- autotune
 def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance: int = 2,
              before: Gains | None = None, duration_s: float = 0.4, poll_s: float = 1e-3,
-             clock_hz: float | None = None, progress: Progress | None = None) -> TuneResult:
+             clock_hz: float | None = None, velocity: int | None = None,
+             acceleration: int | None = None, progress: Progress | None = None) -> TuneResult:
     """Find, check and apply PID gains for the axis, inside ``+/- travel`` counts of where the
     shaft is now.
 
@@ -832,7 +921,10 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
     move with first, for comparison (``TuneResult.before``; the chip cannot report the gains it
     has, so they are named); ``duration_s``: seconds recorded after each
     step of the test move; ``poll_s``: seconds between snapshots (on a bridge at least a round
-    trip); ``clock_hz``: the chip's clock (default: the simulator's, else 8 MHz); ``progress``
+    trip); ``clock_hz``: the chip's clock (default: the simulator's, else 8 MHz);
+    ``velocity``/``acceleration``: the words of the trapezoid move the gains are judged and
+    checked on besides the step, the same ``distance`` out and back (default
+    :func:`default_profile`: 0x40000 and 0x2000 where the axis can follow them); ``progress``
     gets a line per stage.
 
     On success the gains are loaded and applied (LFIL + UDF) and the following-error limit
@@ -851,6 +943,10 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
         raise ValueError(f"duration_s={duration_s} must be 0.05..10 seconds")
     if not 0 < poll_s <= 0.05:
         raise ValueError(f"poll_s={poll_s} must be > 0 and at most 0.05 seconds")
+    if velocity is not None:
+        velocity = check_int("velocity", velocity, 1, VELOCITY_MAX)
+    if acceleration is not None:
+        acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX)
     say = progress or (lambda text: None)
     if chip.is_moving():
         raise ValueError("the motor is moving: tuning starts from rest (`lm629 stop` first)")
@@ -874,15 +970,22 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
         say(f"model: {model.describe(ses.sample_s)} (fit {rms:.1f} counts rms)")
         # 4 design
         duration_s = test_duration(model, distance, ses.sample_s, duration_s)
-        gains, predicted = design(model, distance, tolerance, duration_s, ses.sample_s)
-        say(f"gains: {gains}; predicted: {predicted.line()}")
-        # 5 check
+        profile = default_profile(model, velocity, acceleration)
+        gains, predicted, predicted_move = design(model, distance, tolerance, duration_s,
+                                                  ses.sample_s, profile)
+        assert predicted_move is not None
+        say(f"gains: {gains}; predicted step: {predicted.line()}")
+        say(f"predicted move ({profile}): {predicted_move.line()}")
+        # 5 check: the step and the trapezoid move
         measured, _rec = _test_move(ses, "after", gains, distance, duration_s, tolerance)
-        say(f"measured: {measured.line()}")
+        say(f"measured step: {measured.line()}")
+        measured_move, _rec = _test_move(ses, "after move", None, distance, duration_s,
+                                         tolerance, profile)
+        say(f"measured move: {measured_move.line()}")
     chip.load_position_error(COEFFICIENT_MAX)  # the tuning limit off again (reset's value)
     return TuneResult(gains.kp, gains.ki, gains.kd, gains.il, gains.ds, model, ses.sample_s,
                       ses.origin, travel, distance, tolerance, predicted, measured, measured_before,
-                      ses.records, rms, ses.positions)
+                      ses.records, rms, ses.positions, profile, predicted_move, measured_move)
 
 
 def _twelve_bit(chip: LM629) -> bool:
@@ -891,4 +994,4 @@ def _twelve_bit(chip: LM629) -> bool:
 
 __all__ = ["autotune", "measure_move", "TuneResult", "Gains", "AxisModel", "MoveMetrics",
            "PIDState", "simulate", "fit_model", "design", "predict_move", "step_metrics",
-           "score", "Record"]
+           "score", "Record", "Profile", "default_profile", "MOVE_VELOCITY", "MOVE_ACCELERATION"]

@@ -135,6 +135,18 @@ def test_autotune_ends_on_target_inside_the_band(name):
     assert r.ok and abs(r.measured.final_error) <= 2
     assert r.measured.overshoot <= DISTANCE // 50
     assert (r.kp, r.ki, r.kd, r.il, r.ds) == tuple(r.gains.__dict__.values())
+    # the trapezoid move judged and checked besides the step (issue 20): 0x40000 and 0x2000
+    # where the axis follows them with drive to spare (a quarter of its top speed, a third of
+    # its acceleration at full output), and then within 2 counts, overshoot under 20 counts
+    # (1 % of the move), the model's prediction within a few counts of the measurement
+    v = min(0x40000, truth.accel / truth.rate / 4 * 65536)
+    a = min(0x2000, truth.accel / 3 * 65536)
+    assert r.profile.velocity == pytest.approx(v, rel=0.15)
+    assert r.profile.acceleration == pytest.approx(a, rel=0.15)
+    mv = r.measured_move
+    assert abs(mv.final_error) <= 2 and mv.overshoot <= 20
+    assert abs(mv.peak_following_error) < DISTANCE // 20  # a move, not a step: it follows
+    assert abs(mv.overshoot - r.predicted_move.overshoot) <= 4
     # every position read, and the shaft itself, stayed inside the band
     assert w.positions and w.in_band(TRAVEL)
     assert r.positions and all(abs(p - r.origin) <= TRAVEL for p in r.positions)
@@ -265,8 +277,25 @@ def test_cli_tune_prints_gains_and_the_filter_line_and_plots(run, tmp_path):
              if words[i].startswith("--")}
     assert set(gains) == {"kp", "ki", "kd", "il", "ds"}
     assert "before (kp=20" in r.output and "tuned, measured:" in r.output
+    assert "move, measured:" in r.output and "velocity 0x40000, acceleration 0x2000" in r.output
     assert "phasing" in r.stderr  # progress while it works
     assert png.stat().st_size > 10_000
+
+
+def test_cli_tune_judges_the_move_the_user_names(run):
+    r = run("tune", "--travel", "5000", "--yes", "--velocity", "131072", "--acceleration",
+            "4096", "--interval", "0.002")
+    assert r.exit_code == 0, r.output + r.stderr
+    move = next(ln for ln in r.output.splitlines() if ln.startswith("move, measured:"))
+    assert "velocity 0x20000, acceleration 0x1000" in move
+    assert "overshoot" in move and "peak following error" in move
+
+
+@pytest.mark.parametrize("args, name", [(("--velocity", "0"), "--vel"),
+                                        (("--acceleration", "1e12"), "--acc")])
+def test_cli_tune_bad_move_words_are_usage_errors(run, args, name):
+    r = run("--port", "sim://", "tune", "--travel", "5000", "--yes", *args)
+    assert r.exit_code == 2 and name in r.output + r.stderr
 
 
 def test_cli_tune_reversed_leads_exit_code_and_advice(run):

@@ -80,11 +80,19 @@ def _plot(result: TuneResult, path: str, lines: int | None) -> str:
                    "('kp=40,kd=300', ds in samples), or 'none'.")
 @click.option("--interval", type=float, default=0.001, show_default=True,
               help="Seconds between snapshots (on a bridge, at least one round trip).")
+@click.option("--velocity", type=FINITE, default=None,
+              help="The trapezoid move the gains are judged and checked on besides the step "
+                   "(--distance out and back): its velocity, a raw word (rpm with --lines); "
+                   "default 0x40000 where the axis can follow it.")
+@click.option("--acceleration", type=FINITE, default=None,
+              help="... and its acceleration, a raw word (rev/s^2 with --lines); default "
+                   "0x2000 where the axis can follow it.")
 @click.option("--yes", "-y", is_flag=True, help="Do not ask before the motor turns (scripts).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
               help="PNG of the test move before and after.")
 def tune(travel: int, distance: int | None, tolerance: int, before_text: str, interval: float,
-         yes: bool, plot_path: str | None) -> None:
+         velocity: float | None, acceleration: float | None, yes: bool,
+         plot_path: str | None) -> None:
     """Find PID gains for this axis (phasing check, identification, design, a checked test
     move), leave them loaded and applied, and print the `lm629 filter` line that sets them."""
     from .app import _session  # the CLI's session: port, options, safety
@@ -96,6 +104,10 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
         raise ValueError(f"--interval={interval} must be > 0 and at most 0.05 seconds")
     before = parse_gains(before_text)
     s = _session()
+    # the move's words, validated before anything is opened (None: the tuner's default)
+    words = _motion_words(s, velocity, acceleration, raw=False)
+    v_word = None if velocity is None else words[0]
+    a_word = None if acceleration is None else words[1]
     chip = s.open()
     click.echo(f"tuning {chip.variant.upper()} on {chip.transport.describe()}, inside "
                f"+/-{travel} counts of where the shaft is")
@@ -107,6 +119,7 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
     with stop_on_error(chip):
         result = autotune(chip, travel=travel, distance=distance, tolerance=tolerance,
                           before=before, poll_s=interval, clock_hz=s.clock_hz,
+                          velocity=v_word, acceleration=a_word,
                           progress=lambda text: click.echo(f"  {text}", err=True))
     scale = s.scale
     click.echo(f"axis: {result.model.describe(result.sample_s)}")
@@ -115,6 +128,11 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
         click.echo(f"before ({before}): {result.before.line()}")
     click.echo(f"tuned, predicted:  {result.predicted.line()}")
     click.echo(f"tuned, measured:   {result.measured.line()}  [{d}]")
+    if result.measured_move is not None and result.predicted_move is not None:
+        m = (f"{result.distance:+d}-count move out and back, {result.profile}; settle after "
+             "the profile's end")
+        click.echo(f"move, predicted:   {result.predicted_move.line()}")
+        click.echo(f"move, measured:    {result.measured_move.line()}  [{m}]")
     click.echo(f"gains: {result.gains} (loaded and applied: LFIL + UDF)")
     click.echo(f"set them again with:  {result.gains.cli()}")
     if scale is not None:
@@ -126,7 +144,9 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
         except PlotUnavailable as exc:
             click.echo(f"lm629: {exc}", err=True)
     if not result.ok:
-        click.echo(f"lm629: the test move ended {result.measured.final_error:+d} counts from "
+        worst = max((m for m in (result.measured, result.measured_move) if m is not None),
+                    key=lambda m: abs(m.final_error))
+        click.echo(f"lm629: a test move ended {worst.final_error:+d} counts from "
                    f"target (tolerance {tolerance}): the gains are loaded, but check the axis "
                    "(backlash, a load that changes with position) and run tune again", err=True)
         click.get_current_context().exit(EXIT_NOT_MET)
