@@ -294,10 +294,12 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
                         f"{final:+d} counts from the target", data=result))
 
     # 6 -------------------------------------------------------------------------- next steps
-    done(StepResult("next", None, "the loop works; now tune it", [
-        "watch desired and actual position of a step:  lm629 step 200 --kp 20 --kd 100",
-        "raise kd until the overshoot is gone, then kp for stiffness (AN-868 'Tuning the PID')",
-        "add ki with a small il when a load leaves a steady error",
+    travel = o.move_distance
+    done(StepResult("next", None, f"the loop works; now tune it:  lm629 tune --travel {travel}", [
+        f"lm629 tune --travel {travel} finds the gains (phasing, identification, design, then a "
+        f"checked step and trapezoid move) inside +/-{travel} counts of where the shaft is now: "
+        f"give it the room the axis has either way (this bring-up's move went "
+        f"{o.move_distance:+d} counts)",
         "set a following-error limit that stops the motor:  lm629 limit 2000 --stop",
         f"the motor is left holding position at kp = {o.hold_kp}"]))
     return out

@@ -22,6 +22,8 @@ def test_default_simulator_passes_every_step(open_chip):
     report = run_bringup(chip, report=seen.append)
     assert [s.name for s in seen] == ["reset", "phasing", "hold", "move", "settle", "next"]
     assert report.passed and report.exit_code == 0
+    # the last step names the tuner, with the room the bring-up's move showed (1000 counts)
+    assert report.step("next").summary.endswith("lm629 tune --travel 1000")
     reset = report.step("reset")
     first, done, cleared = reset.data["statuses"]
     assert first == 0x00 and done in (0x84, 0xC4) and cleared in (0x80, 0xC0)
