@@ -128,6 +128,10 @@ def test_sim_serve_tcp_cli(tmp_path):
     r = subprocess.run([sys.executable, "-m", "lm629_host", "sim", "serve"],
                        capture_output=True, text=True, env=env, timeout=30)
     assert r.returncode == 2 and "give --pty PATH or --tcp" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "lm629_host", "sim", "serve", "--tcp", "0",
+                        "--url", "sim://?usb=ch340"], capture_output=True, text=True, env=env,
+                       timeout=30)
+    assert r.returncode == 2 and "usb='ch340': expected one of none, uno, ftdi, cdc" in r.stderr
 
 
 @pytest.mark.parametrize("url, device", [

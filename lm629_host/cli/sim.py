@@ -52,7 +52,9 @@ def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) 
                                  "does not exist", param_hint="--pty")
     try:
         server = SimServer(pty_path, url, firmware=firmware, tcp=address)
-    except (RuntimeError, ValueError) as exc:
+    except ValueError as exc:  # a bad --url parameter (usb=, chip=, ...): a usage error
+        raise click.BadParameter(str(exc), param_hint="--url") from None
+    except RuntimeError as exc:
         raise click.ClickException(str(exc)) from None
     try:
         server.open()
