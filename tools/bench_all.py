@@ -211,7 +211,7 @@ USB_LINKS = (
     ("FT232H, MPSSE (`sim+ftdi://`)", "sim+ftdi://"),
 )
 #: the move timed per link: 4000 counts at 4 counts/sample, 2048 / 65536 counts/sample^2
-USB_MOVE = dict(position=4000, velocity=4 * 65536, acceleration=2048)
+USB_MOVE = {"position": 4000, "velocity": 4 * 65536, "acceleration": 2048}
 USB_FILTER = dict(kp=400, kd=2000)  # settles in ~45 ms: the link's share shows
 
 
@@ -263,10 +263,11 @@ def probe_usb() -> dict:
             clock = chip.clock
             clock.sleep(i * UNO_FLUSH_S / 3)
             t0 = clock.now()
-            move = chip.move_to(**USB_MOVE)
+            move = chip.move_to(USB_MOVE["position"], velocity=USB_MOVE["velocity"],
+                                acceleration=USB_MOVE["acceleration"])
             move.wait()
             runs.append({"rdrp": rdrp, "ltrj_stt": ltrj, "move": clock.now() - t0,
-                         "profile": move.profile_s(8e6), "rows": rows})
+                         "profile": move.profile_s(8e6) or 0.0, "rows": rows})
             chip.close()
         out[base] = {k: statistics.mean(r[k] for r in runs) for k in runs[0]}
     return out
