@@ -178,9 +178,8 @@ class Ftdi(Adapter):
         return self.latency_s + 2 * FRAME_S
 
     def receive(self, t: float, data: bytes) -> list[tuple[float, bytes]]:
-        # bring the timer's grid up to t first: status-only packets restart it meanwhile
-        self.started = _grid_after(self.started, self.latency_s, t) - self.latency_s \
-            if not self.held else self.started
+        if not self.held:  # the status-only packets restarted the timer on its grid meanwhile
+            self.started = _grid_after(self.started, self.latency_s, t) - self.latency_s
         super().receive(t, data)
         out: list[tuple[float, bytes]] = []
         while len(self.held) >= FTDI_PACKET_DATA:  # a full packet goes out without waiting
