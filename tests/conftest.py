@@ -21,7 +21,7 @@ import lm629_host
 from lm629_host.sim import avr as avrsim
 from lm629_host.program import BusCycle
 
-from sim_urls import FAST_LINK_URLS, SIM_URLS, available
+from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
 
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"
 
@@ -77,6 +77,13 @@ def transport_url(request: pytest.FixtureRequest) -> str:
 @pytest.fixture(params=FAST_LINK_URLS)
 def fast_transport_url(request: pytest.FixtureRequest) -> str:
     """Every simulated transport, the serial links at 1 Mbaud (:data:`sim_urls.FAST_LINK_URLS`)."""
+    return _transport(request)
+
+
+@pytest.fixture(params=SIM_URLS + BEHIND_USB_URLS)
+def usb_transport_url(request: pytest.FixtureRequest) -> str:
+    """Every simulated transport, and the serial links behind an Uno's USB chip
+    (:data:`sim_urls.BEHIND_USB_URLS`)."""
     return _transport(request)
 
 

@@ -1,8 +1,9 @@
 """The simulated transports the suite runs its end-to-end tests on, named once.
 
 ``tests/conftest.py`` turns these lists into the fixtures ``transport_url`` (every simulated
-transport, base URL) and ``fast_transport_url`` (the same with the serial links at 1 Mbaud, for
-tests whose subject is not the link's speed); a test module that needs the plain list (to
+transport, base URL), ``fast_transport_url`` (the same with the serial links at 1 Mbaud, for
+tests whose subject is not the link's speed) and ``usb_transport_url`` (every simulated
+transport and the serial links behind an Uno's USB chip); a test module that needs the plain list (to
 parametrize) imports it from here.
 """
 
@@ -18,6 +19,13 @@ SIM_URLS = ("sim://", "sim+emu://", "sim+avr://", "sim+ftdi://")
 
 #: the same, the serial links at 1 Mbaud (the default 115200 adds ~1 ms a round trip)
 FAST_LINK_URLS = ("sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://")
+
+
+#: a bench's USB: an Arduino Uno R3's 16U2 (4.096 ms flush tick, 1 ms frames) at 1 Mbaud
+UNO = "usb=uno&fast_baud=1000000"
+
+#: the two serial links behind an Uno's USB chip (:mod:`lm629_host.sim.usb`)
+BEHIND_USB_URLS = (f"sim+emu://?{UNO}", f"sim+avr://?{UNO}")
 
 
 def available(url: str) -> bool:

@@ -27,8 +27,8 @@ def _ready(chip, kp: int = 20):
     return chip
 
 
-def test_move_to_twice_then_relative(transport_url, open_chip, recorder):
-    chip = _ready(open_chip(transport_url))
+def test_move_to_twice_then_relative(usb_transport_url, open_chip, recorder):
+    chip = _ready(open_chip(usb_transport_url))
     first = chip.move_to(1000, velocity=65536, acceleration=655).wait()
     assert first.target == 1000 and abs(first.error) <= 13
     assert first.error == 1000 - first.position
@@ -46,9 +46,9 @@ def test_move_to_twice_then_relative(transport_url, open_chip, recorder):
     assert abs(2000 - chip.read_real_position()) <= 13
 
 
-def test_flags_are_cleared_in_the_program_that_starts_the_move(transport_url, open_chip,
+def test_flags_are_cleared_in_the_program_that_starts_the_move(usb_transport_url, open_chip,
                                                                recorder):
-    chip = _ready(open_chip(transport_url))
+    chip = _ready(open_chip(usb_transport_url))
     chip.move_to(300, velocity=65536, acceleration=655).wait()
     recorder.clear()
     programs = chip.transport.stats.programs
@@ -64,8 +64,8 @@ def test_flags_are_cleared_in_the_program_that_starts_the_move(transport_url, op
     move.wait()
 
 
-def test_stalled_motor_is_a_motion_fault_with_the_motor_stopped(transport_url, open_chip):
-    chip = _ready(open_chip(with_params(transport_url, "stall=1")))
+def test_stalled_motor_is_a_motion_fault_with_the_motor_stopped(usb_transport_url, open_chip):
+    chip = _ready(open_chip(with_params(usb_transport_url, "stall=1")))
     with pytest.raises(MotionError) as e:
         chip.move_to(5000, velocity=65536, acceleration=655).wait()
     assert e.value.reason == MotionError.STALL
