@@ -8,10 +8,11 @@ decide whether a move ends within 2 counts or 50.  So the tuner:
 
 1. **checks the loop phasing** (AN-706 2.12, AN-868 "Tuning the PID") with gentle P-only steps
    of ``travel / 8`` counts up and down whose first output is 1/8 of full scale: a shaft
-   heading away from both targets is reversed leads (``MotionError`` RUNAWAY, "swap the motor
-   leads"); one going the same way after both is a load (gravity on a vertical axis), and the
-   gain is raised until the loop holds it, or the tuner says that it cannot (STALL); a shaft
-   that does not move even at full-scale output is a stall (see :func:`_phasing`);
+   heading away from a target that slows down once the drive is off is reversed leads
+   (``MotionError`` RUNAWAY, "swap the motor leads"); one that keeps going is pulled by a load
+   (gravity on a vertical axis), and the gain is raised until the loop holds it, or the tuner
+   says that it cannot (STALL); a shaft that does not move even at full-scale output is a
+   stall (see :func:`_phasing`);
 2. **identifies the axis** from two P-only steps (``travel / 4`` out and back, first output
    half scale): a second-order plant in the chip's own units -- acceleration at full-scale
    output, speed decay rate (back-EMF and viscous friction), dry friction and a constant load,
@@ -487,29 +488,77 @@ def _clock_hz(chip: LM629) -> float:
 
 
 # ---------------------------------------------------------------------------------- phasing
+def _coast(ses: _Session, rec: Record, time_s: float) -> tuple[float, float]:
+    """Turn the drive off (LTRJ motor off + STT) and watch the shaft for ``time_s``: its
+    speed (counts/s, along the way it was going) over the first and the last third."""
+    ses.chip.load_trajectory(stop="off", start=True)
+    ses.driving = False  # off on purpose: the session's drive-off check must not fire
+    first = rec.rows[-1]
+    ses.record(rec, time_s)
+    rows = [r for r in rec.rows if r.time >= first.time]
+    if len(rows) < 4:
+        return 0.0, 0.0
+    third = max(1, len(rows) // 3)
+    way = 1 if rows[-1].real_position >= first.real_position else -1
+
+    def speed(a: Snapshot, b: Snapshot) -> float:
+        return way * (b.real_position - a.real_position) / max(b.time - a.time, 1e-9)
+
+    return speed(rows[0], rows[third]), speed(rows[-1 - third], rows[-1])
+
+
+def _brakes_past_target(ses: _Session, rec: Record, target: int, sign: int, away: int,
+                        time_s: float) -> None:
+    """Once the shaft is ``away`` counts past ``target`` (in the direction ``sign``), its speed
+    over the next polls must not grow: RUNAWAY (reversed leads under a load) if it does."""
+    def past(s: Snapshot) -> bool:
+        return sign * (s.real_position - target) >= away
+
+    s0 = ses.record(rec, time_s, past)
+    if not past(s0):
+        return
+    window = [s0]
+
+    def polls(s: Snapshot) -> bool:
+        window.append(s)
+        return len(window) >= 9
+
+    ses.record(rec, time_s, polls)
+    if len(window) < 9:
+        return
+    a, b, c = window[0], window[4], window[8]
+    early = sign * (b.real_position - a.real_position) / max(b.time - a.time, 1e-9)
+    late = sign * (c.real_position - b.real_position) / max(c.time - b.time, 1e-9)
+    if late > early and late > 0:
+        raise ses.fault(MotionError.RUNAWAY,
+                        f"phasing: past its target {target:+d} the shaft sped up "
+                        f"({early:,.0f} then {late:,.0f} counts/s) with the load's pull and the "
+                        "loop's: the loop pushes the wrong way. Swap the motor leads (or the "
+                        "encoder's A and B channels)", c)
+
+
 def _phasing(ses: _Session, step: int, time_s: float) -> Record:
     """Gentle P-only steps, ``+step`` then ``-step`` from the origin, at a gain whose first
     output is 1/8 of full scale, doubled until the shaft follows both.
 
-    What the two steps tell apart (each step's "moved" counts from where the shaft was at its
-    STT, at most ``time_s`` later):
-
-    * the shaft follows both steps: the loop is phased right;
-    * it heads away from both targets (down after the step up, up after the step down):
-      reversed leads (RUNAWAY, "swap the motor leads");
-    * it goes the same way after both: a load (gravity on a vertical axis, a spring) pulls it
-      harder than the loop pushes at this gain; the gain is doubled.  Reversed leads under a
-      load can look the same once; they give themselves away as the gain rises, because the
-      shaft then runs away *faster* (a loop phased right pulls it back harder): RUNAWAY;
-    * it hardly moves after either: more drive (the gain doubled).
+    When the shaft heads away from a step's target, the drive is turned off at once and the
+    shaft watched coasting (:func:`_coast`): a shaft that slows down by itself was being pushed
+    away by the loop: reversed leads (RUNAWAY, "swap the motor leads"; the drive is already
+    off, and no second step pushes a reversed loop on).  One that keeps its speed or speeds
+    up is pulled by a load (gravity on a vertical axis, a spring): the other step, the load's
+    way, follows if the leads are right, and heads away too if they are reversed (RUNAWAY);
+    then the gain is doubled and the loop engaged again.  Reversed leads under a load stronger
+    than the phasing drive can still look like a load; they give themselves away as the gain
+    rises, because the shaft then heads away *faster* (a loop phased right pulls it back
+    harder): RUNAWAY.  A shaft that hardly moves gets more drive (the gain doubled).
 
     At full-scale output (kp x step >= 2 x 8000h) a shaft still pulled away is a load the drive
     cannot hold (STALL: "the load pulls harder than kp=N holds"), one that never moved a
-    stalled rotor or a dead drive (STALL, "did not turn")."""
+    stalled rotor or a dead drive (STALL, "did not turn").  A load that takes the shaft to the
+    band's edge while phasing is the same STALL (:meth:`_Session.check`)."""
     kp = max(1, round(16 * 256 / step))  # first output 1/8 of full scale
     away = max(4, step // 10)
-    pulled_speed: float | None = None  # counts/s the shaft was pulled away at, previous gain
-    pulled_sign = 0  # ... against the step of this sign
+    pulled_speed: float | None = None  # counts/s the shaft headed away at, previous gain
     while True:
         ses.phasing_kp = kp
         g = Gains(kp)
@@ -517,8 +566,8 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
         ses.load(g)
         rec = ses.begin(f"phasing kp={kp}", g)
         moved: dict[int, int] = {}
-        speed: dict[int, float] = {}
         last = rec.rows[-1]
+        headed: tuple[int, float] | None = None  # (direction, counts/s) of a shaft heading away
         for sign in (1, -1):
             start = last.real_position
             t_start = last.time
@@ -530,49 +579,66 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
             ses.step_to(rec, ses.origin + sign * step)
             last = ses.record(rec, time_s, watch)
             moved[sign] = last.real_position - start
-            speed[sign] = abs(moved[sign]) / max(last.time - t_start, 1e-9)
+            if sign * moved[sign] <= -away:
+                seen = ", then ".join(
+                    f"the desired position went {k * step:+d} counts and the shaft "
+                    f"{moved[k]:+d}" for k in moved)
+                if headed is not None:  # away from both targets
+                    raise ses.fault(MotionError.RUNAWAY,
+                                    f"phasing: {seen}: the shaft runs away from any target, the "
+                                    "loop pushes the wrong way. Swap the motor leads (or the "
+                                    "encoder's A and B channels)", last)
+                headed = (-sign, abs(moved[sign]) / max(last.time - t_start, 1e-9))
+                early, late = _coast(ses, rec, min(time_s, 0.06))
+                if late < 0.5 * early or late <= 0:
+                    raise ses.fault(MotionError.RUNAWAY,
+                                    f"phasing: {seen}: it headed away from the target and "
+                                    "slowed down once the drive was off: the loop pushes the "
+                                    "wrong way. Swap the motor leads (or the encoder's A and B "
+                                    "channels)", last)
+                # it kept going with the drive off: a load pulls it; the other step (the load's
+                # way) tells a load from reversed leads under one
+                last = rec.rows[-1]
+                continue
             if sign * moved[sign] >= step // 2:
+                if headed is not None:
+                    # the load's way after a coast: a loop phased right brakes the shaft once
+                    # it is past the target, a reversed one drives it on faster
+                    _brakes_past_target(ses, rec, ses.origin + sign * step, sign, away, time_s)
                 # followed: let it come to rest there, so that the next step starts from a
                 # shaft at rest (a shaft still coasting up would seem to refuse a step down)
                 last, _still = ses.settle(rec, time_s)
-        follows = {sign: sign * moved[sign] >= step // 2 or (sign * moved[sign] >= 2
-                                                              and kp * step >= U_FULL_SCALE)
-                   for sign in (1, -1)}
-        heads_away = {sign: sign * moved[sign] <= -away for sign in (1, -1)}
-        seen = (f"the desired position went {step:+d} counts and the shaft went {moved[1]:+d}, "
-                f"then {-step:+d} and it went {moved[-1]:+d}")
-        if all(follows.values()):
+            elif not (sign * moved[sign] >= 2 and kp * step >= U_FULL_SCALE):
+                break  # hardly moved: more drive
+        seen = ", then ".join(f"the desired position went {sign * step:+d} counts and the shaft "
+                              f"{moved[sign]:+d}" for sign in moved)
+        if headed is None and len(moved) == 2 and all(
+                sign * moved[sign] >= step // 2 or (sign * moved[sign] >= 2
+                                                     and kp * step >= U_FULL_SCALE)
+                for sign in moved):
             ses.progress(f"phasing ok: the shaft followed {moved[1]:+d} and {moved[-1]:+d} "
                          "counts")
             ses.step_to(rec, ses.origin)  # back to the origin and rest there
             ses.settle(rec, 1.0)
             ses.phasing_kp = None
             return rec
-        if all(heads_away.values()):
-            raise ses.fault(MotionError.RUNAWAY,
-                            f"phasing: {seen}: the shaft runs away from any target, the loop "
-                            "pushes the wrong way. Swap the motor leads (or the encoder's A "
-                            "and B channels)", last)
-        pulled = next((sign for sign in (1, -1) if heads_away[sign]), None)
-        if pulled is not None:
-            # the same way after both steps: a load (or reversed leads under one), pulling
-            # against the step that it headed away from
-            if pulled_sign == pulled and pulled_speed is not None \
-                    and speed[pulled] > 1.25 * pulled_speed:
+        if headed is not None:
+            way, speed = headed
+            if ses.pulled == way and pulled_speed is not None and speed > 1.25 * pulled_speed:
                 raise ses.fault(MotionError.RUNAWAY,
-                                f"phasing: {seen}, and it ran away faster at kp={kp} than at "
+                                f"phasing: {seen}, and it headed away faster at kp={kp} than at "
                                 f"kp={kp // 2}: the loop pushes the wrong way. Swap the motor "
                                 "leads (or the encoder's A and B channels)", last)
-            pulled_speed, pulled_sign = speed[pulled], pulled
-            ses.pulled = -pulled  # it headed away from the step up: pulled down
+            ses.pulled, pulled_speed = way, speed
             if kp * step >= U_FULL_SCALE * 2:
-                down = "down" if pulled > 0 else "up"
                 raise ses.fault(MotionError.STALL,
-                                f"phasing: {seen}: a load pulls the shaft {down} whichever way "
-                                f"it is driven, and at kp={kp} the output is at full scale: the "
-                                f"load pulls harder than kp={kp} holds: raise the amplifier's "
-                                "supply or gain, or support the axis", last)
-            ses.progress(f"phasing: {seen}: a load pulls the shaft; more gain")
+                                f"phasing: {seen}: a load pulls the shaft "
+                                f"{'up' if way > 0 else 'down'} (it kept going with the drive "
+                                f"off), and at kp={kp} the output is at full scale: the load "
+                                f"pulls harder than kp={kp} holds: raise the amplifier's supply "
+                                "or gain, or support the axis", last)
+            ses.progress(f"phasing: {seen}; it kept going with the drive off: a load pulls it "
+                         f"{'up' if way > 0 else 'down'}; more gain")
         elif kp * step >= U_FULL_SCALE * 2:
             raise ses.fault(MotionError.STALL,
                             f"the shaft did not turn: desired {step:+d} counts at full-scale "
@@ -580,7 +646,8 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
                             "supply and enable, the PWM/sign wiring, the motor and the encoder",
                             last)
         kp = min(COEFFICIENT_MAX, kp * 2)  # more drive, up to full scale
-        ses.step_to(rec, ses.origin)
+        ses.load(Gains(kp))
+        ses.step_to(rec, ses.origin)  # the loop engaged again (after a coast, the drive on)
         ses.settle(rec, 0.5)
 
 

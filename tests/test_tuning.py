@@ -25,7 +25,7 @@ from lm629_host.opcodes import Signals
 from lm629_host.tuning import AxisModel, Gains, autotune, simulate, step_metrics
 
 from filter_helpers import LOOPS, loop_filter
-from sim_urls import with_params
+from sim_urls import BEHIND_USB_URLS, with_params
 
 T = 2048 / 8e6  #: sample period at 8 MHz
 TRAVEL = 5000
@@ -121,12 +121,7 @@ MOTORS = {
 
 
 #: behind an Arduino Uno R3's USB chip (the 16U2's 4.096 ms flush tick, 1 ms frames) at 1 Mbaud
-UNO_EMU = "sim+emu://?usb=uno&fast_baud=1000000"
-UNO_AVR = "sim+avr://?usb=uno&fast_baud=1000000"
-
-
-def _url(base: str, params: str) -> str:
-    return base + (f"{'&' if '?' in base else '?'}{params}" if params else "")
+UNO_EMU, UNO_AVR = BEHIND_USB_URLS
 
 
 @pytest.mark.parametrize("base, name", [("sim://", name) for name in MOTORS] + [
@@ -137,12 +132,12 @@ def _url(base: str, params: str) -> str:
         "11-15 % high (0.436-0.450 for 0.391, seeds 0-2); the tuned move itself ends within "
         "1 count, overshoot 1"))),
     pytest.param(UNO_EMU, "holding load", marks=pytest.mark.xfail(strict=True, reason=(
-        "issue 20: with a holding load the tuner's phasing step says 'Swap the motor leads' "
-        "on a motor wired correctly (desired +625, shaft -83); sim+avr:// at 115200 without "
-        "USB fails the same way, sim+emu:// without USB passes"))),
+        "issue 20: phasing now tells the load from reversed leads behind usb=uno (it passes); "
+        "what fails is the identification, as on the default motor: the acceleration 12 % "
+        "high (0.437 for 0.391)"))),
 ])
 def test_autotune_ends_on_target_inside_the_band(base, name):
-    w = Watched(_url(base, MOTORS[name]))
+    w = Watched(with_params(base, MOTORS[name]))
     r = autotune(w.chip, travel=TRAVEL, distance=DISTANCE, poll_s=0.002)
     # the identified axis is the simulated motor (acceleration and decay within 10 %)
     truth = physical(w.chip.transport.model.motor_params)
@@ -180,17 +175,18 @@ def test_autotune_ends_on_target_inside_the_band(base, name):
 
 @pytest.mark.parametrize("base", ["sim://", UNO_EMU])
 def test_reversed_leads_runaway_stops_the_motor_inside_the_band(base):
-    w = Watched(_url(base, "reversed=1"))
+    w = Watched(with_params(base, "reversed=1"))
     with pytest.raises(MotionError) as err:
         autotune(w.chip, travel=2000)
     e = err.value
     assert e.reason == MotionError.RUNAWAY
     assert "Swap the motor leads" in str(e) and "motor stopped" in str(e)
-    # the shaft headed away from both phasing steps (travel 2000: steps of +/-250 counts;
-    # "away" is a tenth of the step, 25 counts): down after the step up, up after the step down
-    moves = [int(m) for m in re.findall(r"shaft went ([+-]\d+)|it went ([+-]\d+)", str(e))
-             for m in m if m]
-    assert len(moves) == 2 and moves[0] <= -25 and moves[1] >= 25
+    # the shaft headed away from the first phasing step (travel 2000: +250 counts; "away" is
+    # a tenth of the step, 25 counts), and with the drive then off it slowed down by itself:
+    # pushed by the loop, not pulled by a load
+    went = re.search(r"went \+250 counts and the shaft ([+-]\d+)", str(e))
+    assert went and int(went.group(1)) <= -25
+    assert "slowed down once the drive was off" in str(e)
     assert w.chip.read_signals() & Signals.MOTOR_OFF
     w.chip.clock.sleep(1.0)  # the shaft coasts to a stop
     assert w.in_band(2000) and abs(w.shaft() - w.origin) <= 2000
