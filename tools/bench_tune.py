@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
 """Tuned gains against the best of a grid search, on motors of different kinds (``sim://``).
 
-For each motor: ``autotune`` (travel 5000, a 2000-count step out and back as its test move)
-from a fresh chip holding at kp = 20; then every point of a kp x ki x kd grid on a fresh chip,
-each measured with the same test move (``tuning.measure_move``, guarded like tuning: a point
-that would leave the band is stopped and counted as a fault).  The tuned gains are measured
-again the same way.  "Best" is the smallest ``tuning.score`` (settle time within the
-tolerance, with penalties for overshoot and for ending outside it): the same yardstick for both.
+For each motor: ``autotune`` (travel 5000, a 2000-count step out and back and a 2000-count
+trapezoid move out and back as its test moves) from a fresh chip holding at kp = 20; then every
+point of a kp x ki x kd grid on a fresh chip, each measured with the same two test moves
+(``tuning.measure_move``, guarded like tuning: a point that would leave the band is stopped and
+counted as a fault; the move at the profile the tuner chose for that motor, 0x40000 and 0x2000
+where the axis follows them).  The tuned gains are measured again the same way.  "Best" is the
+smallest sum of ``tuning.score`` over the two moves (settle time within the tolerance, with
+penalties for overshoot and for ending outside it): the same yardstick for both.  Each row
+gives the step's figures and the move's (its settle counted from the profile's end).
 
     python3 tools/bench_tune.py            # the full grid (a few minutes on one core)
     python3 tools/bench_tune.py --quick    # a coarse grid
@@ -25,12 +28,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
 from lm629_host.errors import MotionError
-from lm629_host.tuning import Gains, MoveMetrics, autotune, measure_move, score
+from lm629_host.tuning import Gains, MoveMetrics, Profile, autotune, measure_move, score
 
 MOTORS = (
     ("default", ""),
     ("10x inertia", "inertia=4e-5"),
     ("holding load", "load_torque=0.004"),
+    ("holding load 0.005", "load_torque=0.005"),
     ("low friction", "friction=2e-7&coulomb=2e-5"),
     ("slow amplifier (3 V)", "amp_volts=3"),
 )
@@ -55,26 +59,37 @@ def fresh(url: str) -> lm629_host.LM629:
     return chip
 
 
-def measure(url: str, g: Gains) -> MoveMetrics | None:
-    with fresh(url) as chip:
-        try:
-            m, _rec = measure_move(chip, g, distance=DISTANCE, travel=TRAVEL,
-                                   duration_s=DURATION, tolerance=TOLERANCE, poll_s=POLL)
-        except MotionError:
-            return None
-    return m
+Measured = tuple[MoveMetrics, MoveMetrics] | None  #: (step, move), None: a fault
 
 
-def cost(m: MoveMetrics | None) -> float:
-    return float("inf") if m is None else score(m, DURATION, TOLERANCE)
+def measure(url: str, g: Gains, profile: Profile) -> Measured:
+    out = []
+    for p in (None, profile):
+        with fresh(url) as chip:
+            try:
+                m, _rec = measure_move(chip, g, distance=DISTANCE, travel=TRAVEL,
+                                       duration_s=DURATION, tolerance=TOLERANCE, poll_s=POLL,
+                                       profile=p)
+            except MotionError:
+                return None
+        out.append(m)
+    return out[0], out[1]
 
 
-def row(name: str, what: str, g: Gains, m: MoveMetrics | None) -> str:
-    if m is None:
-        return f"| {name} | {what} | {g} | fault | | | | |"
+def cost(m: Measured) -> float:
+    return float("inf") if m is None else sum(score(x, DURATION, TOLERANCE) for x in m)
+
+
+def _figures(m: MoveMetrics) -> str:
     settle = "-" if m.settle_s is None else f"{m.settle_s * 1e3:.0f}"
-    return (f"| {name} | {what} | {g} | {m.final_error:+d} | {m.overshoot} | {settle} | "
-            f"{abs(m.peak_following_error)} | {m.hunt} |")
+    return (f"{m.final_error:+d} | {m.overshoot} | {settle} | {abs(m.peak_following_error)} | "
+            f"{m.hunt}")
+
+
+def row(name: str, what: str, g: Gains, m: Measured) -> str:
+    if m is None:
+        return f"| {name} | {what} | {g} | fault | | | | | fault | | | | |"
+    return f"| {name} | {what} | {g} | {_figures(m[0])} | {_figures(m[1])} |"
 
 
 def main() -> None:
@@ -88,11 +103,13 @@ def main() -> None:
     else:
         grid = list(itertools.product((25, 50, 100, 200, 400, 800), (0, 4, 16, 64),
                                       (0, 300, 1000, 3000, 10000, 30000)))
-    print(f"grid: {len(grid)} points (kp x ki x kd, il 4000, ds 1); test move "
-          f"{DISTANCE:+d} counts out and back, tolerance {TOLERANCE}, {DURATION:g} s per step")
-    print("| motor | gains from | gains | final error | overshoot | settle ms | "
-          "peak following error | hunting at rest |")
-    print("|---|---|---|---|---|---|---|---|")
+    print(f"grid: {len(grid)} points (kp x ki x kd, il 4000, ds 1); test moves "
+          f"{DISTANCE:+d} counts out and back (a step, and a trapezoid at the tuner's profile), "
+          f"tolerance {TOLERANCE}, {DURATION:g} s per move after its profile")
+    print("| motor | gains from | gains | step: final error | overshoot | settle ms | "
+          "peak following error | hunting | move: final error | overshoot | settle ms after "
+          "the profile | peak following error | hunting |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, params in MOTORS:
         if args.motor and name not in args.motor:
             continue
@@ -101,20 +118,21 @@ def main() -> None:
         with fresh(url) as chip:
             result = autotune(chip, travel=TRAVEL, distance=DISTANCE, tolerance=TOLERANCE)
         tune_s = time.perf_counter() - t
-        tuned = measure(url, result.gains)
+        assert result.profile is not None
+        tuned = measure(url, result.gains, result.profile)
         best = None
         faults = 0
         t = time.perf_counter()
         for kp, ki, kd in grid:
             g = Gains(kp, ki, kd, 4000 if ki else 0, 0)
-            m = measure(url, g)
+            m = measure(url, g, result.profile)
             faults += m is None
             if best is None or cost(m) < cost(best[1]):
                 best = (g, m)
         grid_s = time.perf_counter() - t
         assert best is not None
-        print(row(f"{name} (`{params or 'defaults'}`)", f"tune ({tune_s:.1f} s wall)",
-                  result.gains, tuned))
+        print(row(f"{name} (`{params or 'defaults'}`, move {result.profile})",
+                  f"tune ({tune_s:.1f} s wall)", result.gains, tuned))
         print(row("", f"grid best of {len(grid)} ({grid_s:.0f} s wall, {faults} left the band)",
                   best[0], best[1]))
         sys.stdout.flush()
