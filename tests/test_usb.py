@@ -27,14 +27,14 @@ from lm629_host.sim.usb import (
     adapter_of,
     next_frame,
 )
-from test_acceptance import _available
+from sim_urls import available
 
 LINKS = ["sim+emu://", "sim+avr://"]
 
 
 @pytest.fixture(params=LINKS)
 def link(request) -> str:
-    if not _available(request.param):
+    if not available(request.param):
         pytest.skip(f"{request.param} not available here")
     return request.param
 
