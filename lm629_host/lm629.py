@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 from .clock import Clock, WallClock
 from .errors import AxisError, CommandError, ResetError, WaitTimeout, check_int
@@ -41,6 +42,9 @@ from .opcodes import (
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
 from .snapshot import Snapshot
 from .transports.base import Transport
+
+if TYPE_CHECKING:
+    from .recording import RecordStream, Trace
 
 log = logging.getLogger("lm629_host")
 
@@ -550,6 +554,26 @@ class LM629:
             if not far:
                 step = poll if poll is not None else _poll_interval(now - start)
                 clock.sleep(min(step, deadline - now))
+
+    # ------------------------------------------------------------------ recording
+    def record(self, period_s: float, duration_s: float, *, full: bool = False) -> Trace:
+        """Sample status, desired (RDDP) and real (RDRP) position every ``period_s`` for
+        ``duration_s``, timed where the chip is: the bridge's own timer (rows stamped with its
+        clock and streamed, so the link's latency changes nothing but when they arrive), the
+        simulator's clock on ``sim://``; elsewhere the host polls
+        (``transport.record_note()`` says which).  ``full``: every register of a snapshot.
+        A rate the line cannot carry is a ``ValueError`` naming the highest it can, before
+        any traffic.  A row lost on the link is a gap (``trace.missing``), never made up.
+        See :mod:`lm629_host.recording`."""
+        from . import recording
+        return recording.record(self, period_s, duration_s, full=full)
+
+    def record_stream(self, period_s: float, duration_s: float | None = None, *,
+                      full: bool = False) -> RecordStream:
+        """The rows of :meth:`record` as they arrive (``duration_s=None``: until closed), for
+        live views: ``with chip.record_stream(1e-3) as rows: for row in rows: ...``."""
+        from . import recording
+        return recording.open_stream(self, period_s, duration_s, full=full)
 
     # ------------------------------------------------------------------ experts
     def raw(self, command: int, write: Iterable[int] = (), read: int = 0) -> tuple[int, ...]:
