@@ -285,13 +285,14 @@ class BridgeEmulator:
         return self._end(rec.seq, result, index, rec.index)
 
     def record_step(self) -> list[bytes]:
-        """The row due now: stamp the bridge's clock (its 4 us ticks), run the sample program,
+        """The row due now: stamp the bridge's clock (4 us ticks from the first row), run the sample program,
         and return its RECORD_ROW (and the RECORD_END after the last row or a busy timeout).
         The caller has advanced the model to :attr:`record_due`."""
         rec = self._rec
         assert rec is not None
         m = self.model
-        stamp = int(m.now() * 1e6) // RECORD_TICK_US * RECORD_TICK_US & 0xFFFFFFFF
+        # the firmware's clock counts 4 us ticks from the first row
+        stamp = round((m.now() - rec.start) * 1e6 / RECORD_TICK_US) * RECORD_TICK_US & 0xFFFFFFFF
         self._cs = 0
         reply = self.run_ops(rec.ops, FIRMWARE_BUSY_TIMEOUT_S)
         if reply.result != Result.OK:
@@ -442,6 +443,9 @@ class _Recording:
     rows: int
     due: float
     index: int = 0
+
+    def __post_init__(self) -> None:
+        self.start = self.due  #: the first row's time: the stamps count from it
 
 
 #: the far end runs on the chip model's simulated clock (the one ``sim://`` uses)

@@ -259,7 +259,9 @@ class Transport(abc.ABC):
         """One sentence: how this transport records (for the CLI and error messages)."""
         if self.records_on_far_side:
             return "rows sampled on the chip's own clock (simulated): exact"
-        return HOST_POLLED_NOTE
+        if isinstance(self.clock, WallClock):
+            return HOST_POLLED_NOTE
+        return HOST_POLLED_NOTE.replace("host's clock", "host's (simulated) clock")
 
     def record_max_rate(self, program: Program) -> float | None:
         """The highest rate (rows/s) at which ``program`` can be recorded, or None when the

@@ -683,7 +683,9 @@ class LinkTransport(Transport):
     # ------------------------------------------------------------------ recording (RECORD)
     @property
     def records_on_far_side(self) -> bool:
-        return self.has_record or super().records_on_far_side
+        """Only with RECORD: without it every row is a host exchange, stamped when it starts
+        (in simulated time too)."""
+        return self.has_record
 
     def record_note(self) -> str:
         if self.has_record:
