@@ -56,7 +56,7 @@ class Handle(Generic[T]):
         if not self._done:
             raise RuntimeError(f"{self.label}: the batch has not run yet (it runs when its "
                                "`with` block ends)")
-        return self._value  # type: ignore[no-any-return]
+        return self._value
 
     def __repr__(self) -> str:
         return f"<Handle {self.label}: {self._value!r}>" if self._done else \
