@@ -24,15 +24,23 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 from .errors import LM629Error
 from .program import STATUS_OPS, Op, Program, ProgramResult
-
-if TYPE_CHECKING:
-    from .lm629 import LM629
+from .transports.base import Transport
 
 T = TypeVar("T")
+
+
+class BatchChip(Protocol):
+    """What a batch needs of its chip (an :class:`~lm629_host.LM629`; declared here so that
+    this module does not import the typed layer back)."""
+
+    transport: Transport
+    _run_hook: Callable[[Program], ProgramResult] | None
+
+    def program(self) -> Program: ...
 
 #: the typed calls a batch takes: each is exactly one bus program
 BATCHABLE = frozenset({
@@ -89,14 +97,14 @@ def _name_call(exc: LM629Error, where: str) -> None:
         exc.args = (f"{where}: {exc.args[0]}",) + exc.args[1:]
 
 
-def _state(chip: LM629) -> dict[str, Any]:
+def _state(chip: BatchChip) -> dict[str, Any]:
     return {k: v for k, v in vars(chip).items() if k.startswith("_") and k != "_run_hook"}
 
 
 class Batch:
     """Typed calls queued on a chip (see the module doc); use it as a context manager."""
 
-    def __init__(self, chip: LM629) -> None:
+    def __init__(self, chip: BatchChip) -> None:
         self.chip = chip
         self.calls: list[_Call] = []
         self._state = _state(chip)

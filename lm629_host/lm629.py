@@ -501,9 +501,13 @@ class LM629:
                                                             self.clock.now())
         if acceleration is not None:
             self._move_acceleration = acceleration
-        return Move(self, target, velocity,
+        move = Move(self, target, velocity,
                     acceleration if acceleration is not None else self._move_acceleration,
                     start, self.clock.now())
+        from . import movewait
+        if movewait.can_wait_far(self):  # the end seen on the far side (WAIT_STATUS)
+            move.waiter = movewait.wait_far
+        return move
 
     #: the last acceleration word move_to loaded (for the default timeout)
     _move_acceleration: int | None = None

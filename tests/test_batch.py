@@ -90,3 +90,35 @@ def test_bad_arguments_and_unbatchable_calls_send_nothing():
         with pytest.raises(AttributeError, match="cannot be queued"):
             chip.batch().reset()
         assert st.round_trips == 0
+
+
+def _polled_move(url: str) -> float:
+    with lm629_host.open(url) as chip:
+        chip.reset()
+        chip.load_filter(kp=20, kd=100)
+        chip.update_filter()
+        return chip.move_to(4000, velocity=4 * 65536, acceleration=6553).wait().duration
+
+
+@pytest.mark.parametrize("url", URLS)
+def test_move_wait_sees_the_end_on_the_far_side(url, request):
+    """A 4000-count move at 4 counts/sample: each exchange waits on the bridge for trajectory
+    complete (at most a poll) and reads a snapshot; once complete, one exchange holds the
+    snapshots the settle rule still needs, a poll apart.  The end is seen when ``sim://``'s
+    polling loop (no link) sees it, give or take a poll and the 1 Mbaud link's exchanges."""
+    polled = _polled_move("sim://")
+    with _chip(url, request) as chip:
+        chip.load_filter(kp=20, kd=100)
+        chip.update_filter()
+        st = chip.transport.stats
+        before = st.round_trips
+        move = chip.move_to(4000, velocity=4 * 65536, acceleration=6553)
+        assert move.waiter is not None
+        seen: list[float] = []
+        r = move.wait(progress=lambda s: seen.append(s.time))
+        rules = chip.move_rules
+        assert abs(r.error) <= 20
+        assert abs(r.duration - polled) <= rules.poll + 0.003, (r.duration, polled)
+        # polls while it moves, then one or two settle exchanges
+        assert st.round_trips - before <= polled / rules.poll + 3
+        assert round(seen[-1] - seen[-2], 6) == rules.poll
