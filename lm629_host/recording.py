@@ -17,7 +17,7 @@ A row lost on a faulty link is a *gap*: its index is missing from :attr:`Trace.r
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -221,6 +221,28 @@ def open_stream(chip: RecordingChip, period_s: float, duration_s: float | None =
     return RecordStream(chip, period_s, rows, full)
 
 
+def far_snapshots(chip: RecordingChip, period_s: float, rows: int = 0,
+                  ) -> Generator[Snapshot, None, None] | None:
+    """Snapshots every ``period_s`` (``rows`` of them, 0: until closed) recorded on the far
+    side, for the CLI's ``watch`` and ``step`` and the tuner; None when the transport does not
+    record on its far side or cannot carry the rate (the caller then polls as before).  Their
+    times are the transport clock when the recording began plus each row's far-side time."""
+    transport = chip.transport
+    if not transport.records_on_far_side:
+        return None
+    top = transport.record_max_rate(sample_program(chip, full=True))
+    if top is not None and 1.0 / period_s > top:
+        return None
+    stream = RecordStream(chip, period_s, rows, True)
+    start = transport.clock.now()
+
+    def gen() -> Generator[Snapshot, None, None]:
+        with stream:
+            for row in stream:
+                yield row.snapshot(start)
+    return gen()
+
+
 def record(chip: RecordingChip, period_s: float, duration_s: float, *,
            full: bool = False) -> Trace:
     """Record for ``duration_s`` (see :meth:`LM629.record <lm629_host.LM629.record>`)."""
@@ -231,5 +253,6 @@ def record(chip: RecordingChip, period_s: float, duration_s: float, *,
     return stream.trace()
 
 
-__all__ = ["BASIC_READS", "FULL_READS", "RecordStream", "Row", "Trace", "open_stream", "record",
+__all__ = ["BASIC_READS", "FULL_READS", "RecordStream", "Row", "Trace", "far_snapshots",
+           "open_stream", "record",
            "rows_for", "sample_program"]

@@ -214,3 +214,27 @@ def test_an_old_bridge_is_polled_by_the_host_and_says_so():
     assert not tr.far_side
     assert tr.missing and len(tr) + len(tr.missing) == 50
     assert t.emulator.stats.recordings == 0
+
+
+def test_watch_and_step_record_on_the_far_side(tmp_path):
+    """``lm629 watch`` and ``lm629 step`` on a bridge with RECORD: the rows are the bridge's,
+    exactly a period apart on its clock (a host-polled row at 1 Mbaud would be ~0.4 ms late)."""
+    import csv
+
+    from click.testing import CliRunner
+
+    from lm629_host.cli import main
+    url = "sim+emu://?fast_baud=1000000"
+    out = tmp_path / "w.csv"
+    r = CliRunner().invoke(main, ["--port", url, "watch", "--rate", "500", "--count", "5",
+                                  "--csv", str(out)])
+    assert r.exit_code == 0, r.output
+    t = [float(x["t_s"]) for x in csv.DictReader(out.open())]
+    assert [round(b - a, 6) for a, b in zip(t, t[1:])] == [0.002] * 4
+    out = tmp_path / "s.csv"
+    r = CliRunner().invoke(main, ["--port", url, "step", "300", "--kp", "20", "--kd", "100",
+                                  "--csv", str(out), "--no-png", "--time", "0.05"])
+    assert r.exit_code == 0, r.output
+    t = [float(x["t_s"]) for x in csv.DictReader(out.open())]
+    assert len(t) == 51  # the snapshot before the move, then 50 rows 1 ms apart
+    assert [round(b - a, 6) for a, b in zip(t[1:], t[2:])] == [0.001] * 49
