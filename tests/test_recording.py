@@ -238,3 +238,23 @@ def test_watch_and_step_record_on_the_far_side(tmp_path):
     t = [float(x["t_s"]) for x in csv.DictReader(out.open())]
     assert len(t) == 51  # the snapshot before the move, then 50 rows 1 ms apart
     assert [round(b - a, 6) for a, b in zip(t[1:], t[2:])] == [0.001] * 49
+
+
+@pytest.mark.parametrize("firmware", [False, True])
+def test_record_over_a_pty_to_sim_serve(tmp_path, firmware, request):
+    """``lm629 sim serve`` (real time, pyserial on a pty): the rows run at their times on the
+    served bridge (the Python one, or the compiled firmware) and reach the host in bunches, as
+    behind a USB adapter; their stamps are the bridge's, exactly a period apart."""
+    from lm629_host.sim.serve import SimServer
+
+    if firmware:
+        request.getfixturevalue("firmware_built")
+    srv = SimServer(tmp_path / "lm629", "sim://", firmware=firmware)
+    with srv.start():
+        with lm629_host.open(f"serial://{srv.link}") as chip:
+            chip.reset()
+            assert chip.transport.records_on_far_side
+            tr = chip.record(2e-3, 0.2)
+            assert len(tr) == 100 and not tr.missing
+            assert all(abs(b - a - 2e-3) <= 4e-6 for a, b in zip(tr.t, tr.t[1:]))
+            assert chip.read_real_position() == 0  # a quiet line after it

@@ -21,6 +21,7 @@ import abc
 import contextlib
 import logging
 import os
+import math
 import select
 import socket
 import threading
@@ -85,8 +86,14 @@ class EmuFarEnd(FarEnd):
         return self.model.now()
 
     def advance_to(self, t: float) -> bytes:
-        self.model.advance_to(int(t * self.model.clock_hz))
-        return b""
+        """Up to ``t``, with the rows of a recording (RECORD) that fall due on the way, each
+        run at its time: they go out together, stamped with the bridge's clock."""
+        emu, out = self.emulator, bytearray()
+        while (due := emu.record_due) is not None and due <= t:
+            self.model.advance_to(max(self.model.tick, math.ceil(due * self.model.clock_hz - 1e-6)))
+            out += b"".join(emu.record_step())
+        self.model.advance_to(max(self.model.tick, int(t * self.model.clock_hz)))
+        return bytes(out)
 
     def describe(self) -> str:
         return f"Python bridge emulator (firmware {self.emulator.info.firmware_version})"
@@ -166,14 +173,16 @@ class PipeFarEnd(FarEnd):
         return self.pipe.clock.now()
 
     def advance_to(self, t: float) -> bytes:
-        left = t - self.pipe.clock.now()
-        if left <= 0:
-            return b""
-        data = self.pipe.read(left)
-        if data:
-            for _ in self._replies.feed(data):
+        out = bytearray()
+        while (left := t - self.pipe.clock.now()) > 0:  # all of it: a recording's rows too
+            data = self.pipe.read(left)
+            if not data:
+                break
+            out += data
+        if out:
+            for _ in self._replies.feed(bytes(out)):
                 pass
-        return data
+        return bytes(out)
 
     def describe(self) -> str:
         return self.name
