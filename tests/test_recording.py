@@ -258,3 +258,18 @@ def test_record_over_a_pty_to_sim_serve(tmp_path, firmware, request):
             assert len(tr) == 100 and not tr.missing
             assert all(abs(b - a - 2e-3) <= 4e-6 for a, b in zip(tr.t, tr.t[1:]))
             assert chip.read_real_position() == 0  # a quiet line after it
+
+
+def test_the_ft232h_polls_from_the_host_and_says_so():
+    """No timer beside the chip on an FT232H: the base class's host polling, stamped by the
+    host, and ``record_note`` says what that costs."""
+    from test_acceptance import _available
+    if not _available("sim+ftdi://"):
+        pytest.skip("sim+ftdi:// not available here")
+    with lm629_host.open("sim+ftdi://") as chip:
+        chip.reset()
+        t = chip.transport
+        assert not t.records_on_far_side and t.record_max_rate(chip.program()) is None
+        assert "one exchange each" in t.record_note() and "gap" in t.record_note()
+        tr = chip.record(1e-3, 0.02)
+        assert not tr.far_side and len(tr) + len(tr.missing) == 20

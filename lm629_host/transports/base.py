@@ -251,9 +251,10 @@ class Transport(abc.ABC):
     @property
     def records_on_far_side(self) -> bool:
         """True when the rows of :meth:`record_rows` are timed where the chip is: a far side's
-        own timer, or a simulator's clock (which is the chip's).  False: host-polled, on the
-        wall clock (:meth:`record_note` says what that means)."""
-        return not isinstance(self.clock, WallClock)
+        own timer, or the strobes of a simulator that drives the chip's pins itself
+        (:class:`CycleTransport` on a simulated clock).  False: host-polled, one exchange a
+        row (:meth:`record_note` says what that means): the FT232H, a bridge without RECORD."""
+        return False
 
     def record_note(self) -> str:
         """One sentence: how this transport records (for the CLI and error messages)."""
@@ -320,6 +321,11 @@ class CycleTransport(Transport):
     #: time between two busy polls while the chip is busy
     poll_interval_s: float = 2e-6
     has_wait_status = True
+
+    @property
+    def records_on_far_side(self) -> bool:
+        """On a simulated clock each row's strobes reach the chip at its due time: exact."""
+        return not isinstance(self.clock, WallClock)
 
     @abc.abstractmethod
     def _read_status(self) -> int: ...
