@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import lm629_host  # noqa: E402 - after sys.path.insert
+import lm629_host
 
 
 def measure(url: str) -> str:

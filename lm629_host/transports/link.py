@@ -795,6 +795,8 @@ class LinkTransport(Transport):
                                 if last_index >= 0 else idx16
                             t_us = stamp if last_us is None else t_us + ((stamp - last_us) & 0xFFFFFFFF)
                             last_index, last_us = index, stamp
+                            self._account(ops, RunReply())  # the row's bus cycles, as a RUN's
+                            self._emit_cycles(ops, words, statuses)
                             yield RawRow(index, t_us * 1e-6, words, statuses)
                             if rows and index >= rows - 1:
                                 # the end follows at once: take it, or leave it to be ignored
