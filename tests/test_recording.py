@@ -135,7 +135,7 @@ def test_a_lost_row_is_a_gap_never_a_value():
         if f.type == FrameType.RECORD_ROW:
             sent[int.from_bytes(f.payload[:2], "big")] = f.payload
         return out
-    emu.record_step = spy  # type: ignore[method-assign]
+    emu.record_step = spy  # type: ignore[method-assign]  # a spy on what the bridge sends
     t.pipe = FaultPipe(t.pipe, drop=0.003, corrupt=0.003, seed=7, to_bridge=False)
     tr = chip.record(1e-3, 0.5)
     assert tr.missing, "no row met a fault: raise the rates"
@@ -180,7 +180,7 @@ def test_a_lost_request_is_sent_again():
     def write_then_heal(data):
         original(data)
         fp.out.rates.drop = 0.0
-    t.pipe.write = write_then_heal  # type: ignore[method-assign]
+    t.pipe.write = write_then_heal  # type: ignore[method-assign]  # heal the line after one write
     tr = chip.record(1e-3, 0.01)
     assert len(tr) == 10 and t.stats.retries == 1 and t.emulator.stats.recordings == 1
 
