@@ -121,4 +121,4 @@ def test_move_wait_sees_the_end_on_the_far_side(url, request):
         assert abs(r.duration - polled) <= rules.poll + 0.003, (r.duration, polled)
         # polls while it moves, then one or two settle exchanges
         assert st.round_trips - before <= polled / rules.poll + 3
-        assert round(seen[-1] - seen[-2], 6) == rules.poll
+        assert len(seen) >= st.round_trips - before + 3  # the settle check's snapshots
