@@ -257,18 +257,23 @@ class Bench:
         self._warned = False
         if self.simulated:
             self.url = _sim_url(session.url, _marker_params(self.item))
+            problem = None
             try:
                 self.transport = open_transport(split_params(self.url, {"cs"})[0])
             except (LM629Error, ValueError) as exc:
-                pytest.fail(f"{_marker_text(self.item)}: {exc}; also axes (chips on the bus)",
-                            pytrace=False)
+                problem = f"{_marker_text(self.item)}: {exc}; also axes (chips on the bus)"
+            if problem is not None:  # outside the except: one message, no chained traceback
+                pytest.fail(problem, pytrace=False)
             self.owned = True
         else:
             self.url = session.url
+            problem = None
             try:
                 self.transport = session.transport()
             except PortError as exc:
-                pytest.exit(str(exc), returncode=pytest.ExitCode.USAGE_ERROR)
+                problem = str(exc)
+            if problem is not None:  # one stop for the run (the check after collection missed it)
+                pytest.exit(problem, returncode=pytest.ExitCode.USAGE_ERROR)
             self.owned = False
         self._attach()
 
@@ -346,9 +351,8 @@ class Bench:
     def chip(self) -> lm629_host.LM629:
         cs = split_params(self.url, {"cs"})[1].get("cs")
         variant = query_params(self.url).get("chip", "lm629") if self.simulated else "lm629"
-        try:
-            axis = int(cs) if cs is not None else None
-        except ValueError:
+        axis = int(cs) if cs is not None and cs.isdigit() else None
+        if cs is not None and axis is None:
             pytest.fail(f"{self.url}: cs={cs!r} is not a chip select number", pytrace=False)
         chip = lm629_host.LM629(self.transport, chip=variant, axis=axis)
         self.chips.append(chip)
@@ -358,10 +362,10 @@ class Bench:
     def open_board(self) -> lm629_host.Board:
         params = query_params(self.url)
         variant = params.get("chip", "lm629") if self.simulated else "lm629"
-        try:
-            n = int(params["axes"]) if "axes" in params else None
-        except ValueError:
-            pytest.fail(f"{self.url}: axes={params['axes']!r} is not a number of chips", pytrace=False)
+        raw = params.get("axes")
+        n = int(raw) if raw is not None and raw.isdigit() else None
+        if raw is not None and n is None:
+            pytest.fail(f"{self.url}: axes={raw!r} is not a number of chips", pytrace=False)
         if self.session.profile is not None:
             board = _profiled_board(self)
         else:
