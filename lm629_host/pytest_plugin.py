@@ -31,10 +31,11 @@ Why the choices (docs/testing.md has the user's side):
 from __future__ import annotations
 
 import collections
-import collections.abc
 import enum
 import inspect
+import signal
 import sys
+import threading
 import warnings
 from collections.abc import Generator, Iterator
 from dataclasses import dataclass
@@ -47,7 +48,7 @@ import lm629_host
 
 from .errors import LM629Error
 from .opcodes import STOP_FLAGS, Cmd, Status
-from .program import BusCycle, Op, Program, ProgramResult
+from .program import STATUS_OPS, BusOp, Op, Program, ProgramResult
 from .safety import emergency_stop
 from .transports import DEFAULT_URL, open_transport, transport_class
 from .transports.base import Transport
@@ -55,10 +56,10 @@ from .urls import query_params, split_params, with_query
 
 #: the fixtures that open the port (a collected test using one makes the run check the port)
 FIXTURES = ("lm629", "lm629_board")
-#: how many bus cycles a test keeps for its failure report
-TRACE_CYCLES = 400
-#: how many lines of them the report shows (runs of one busy poll count as one line)
-TRACE_LINES = 60
+#: the signals that end a run on a real port as an interrupted one (the motor stopped first)
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: how many bus programs (one line each in the failure report) a test keeps
+TRACE_PROGRAMS = 40
 #: the URL parameters of a simulated bus that the model does not read itself
 _BUS_PARAMS = ("axes", "cs")
 
@@ -118,6 +119,8 @@ class Session:
         self.url: str = port or DEFAULT_URL
         self.allow_motion: bool = bool(config.getoption("lm629_allow_motion", False))
         self._transport: Transport | None = None
+        self._old_handlers: dict[int, Any] = {}
+        self._pending: int | None = None  #: a stop signal held until the bus program ends
         self._checked = False
         try:
             self.simulated = transport_class(self.url).simulated
@@ -145,9 +148,38 @@ class Session:
                 self._transport = open_transport(url)
             except (LM629Error, ValueError, OSError) as exc:
                 raise PortError(f"--lm629-port {self.url} cannot be opened: {exc}") from None
+            self._install_signals(self._transport)
         return self._transport
 
+    def _install_signals(self, transport: Transport) -> None:
+        """Ctrl-C, SIGTERM and SIGHUP (a CI job's timeout, a closed terminal) end the run as
+        an interrupted one, so that the fixtures' teardown stops a moving motor (without this
+        SIGTERM and SIGHUP would kill pytest where it stands).  A signal that arrives during a
+        bus program is held until the program has ended (the transport's ``program_depth`` and
+        ``after_program``, as the CLI does), so that the stop starts on a clean bus."""
+        if threading.current_thread() is not threading.main_thread():
+            return
+
+        def on_signal(signum: int, frame: object) -> None:
+            if transport.program_depth:
+                self._pending = signum
+            else:
+                raise KeyboardInterrupt(f"{signal.Signals(signum).name}: the lm629 fixtures stop the motor")
+
+        def deliver() -> None:
+            if self._pending is not None:
+                signum, self._pending = self._pending, None
+                raise KeyboardInterrupt(f"{signal.Signals(signum).name}: the lm629 fixtures stop the motor")
+
+        self._pending = None
+        transport.after_program = deliver
+        for sig in _STOP_SIGNALS:
+            self._old_handlers[sig] = signal.signal(sig, on_signal)
+
     def close(self) -> None:
+        for sig, handler in self._old_handlers.items():
+            signal.signal(sig, handler)
+        self._old_handlers.clear()
         if self._transport is not None:
             self._transport.close()
             self._transport = None
@@ -229,10 +261,13 @@ def pytest_report_header(config: pytest.Config) -> str | None:
 
 # ---------------------------------------------------------------------------- one test's bench
 @dataclass
-class _Cycle:
-    time: float
-    chip: int
-    cycle: BusCycle
+class _Run:
+    """One bus program of the test, as the failure report shows it."""
+
+    time: float  #: the transport's clock when it ended
+    ops: tuple[BusOp, ...]
+    result: ProgramResult | None  #: None: it raised
+    error: str = ""
 
 
 class Bench:
@@ -246,8 +281,7 @@ class Bench:
         self.moving_allowed = (self.simulated or session.allow_motion
                                or self.item.get_closest_marker("lm629_motion") is not None)
         self.motion_marked = self.item.get_closest_marker("lm629_motion") is not None
-        self.cycles: collections.deque[_Cycle] = collections.deque(maxlen=TRACE_CYCLES)
-        self._chip_now = 0
+        self.runs: collections.deque[_Run] = collections.deque(maxlen=TRACE_PROGRAMS)
         self.chips: list[lm629_host.LM629] = []
         self.board: lm629_host.Board | None = None
         self.outcome: str | None = None  #: the call phase's outcome, None while not known
@@ -278,8 +312,6 @@ class Bench:
         self._attach()
 
     def _attach(self) -> None:
-        self._saved_trace = self.transport.trace
-        self.transport.trace = self._record
         self._execute = self.transport.execute
         self.transport.execute = self._guarded  # type: ignore[method-assign]  # this test only
 
@@ -293,22 +325,23 @@ class Bench:
 
     def _detach(self) -> None:
         self.transport.execute = self._execute  # type: ignore[method-assign]  # as it was
-        self.transport.trace = self._saved_trace
 
     # -- the trace and the guard
-    def _record(self, cycle: BusCycle) -> None:
-        if cycle.kind == "select":
-            self._chip_now = cycle.value
-        self.cycles.append(_Cycle(self.transport.clock.now(), self._chip_now, cycle))
-        if self._saved_trace is not None:
-            self._saved_trace(cycle)
-
     def _guarded(self, program: Program) -> ProgramResult:
-        self._chip_now = 0  # a program starts on chip 0
+        """Every bus program of the test: checked for an unmarked start, then run and kept
+        for the report (commands, words, status bytes: what the program itself carries and
+        read, so the simulator keeps its fast path; busy polls are not listed)."""
         starts = self._starts(program)
         if starts and not self.motion_marked:
             self._unmarked_start(starts)
-        return self._execute(program)
+        ops = tuple(program.ops)
+        try:
+            result = self._execute(program)
+        except BaseException as exc:
+            self.runs.append(_Run(self.transport.clock.now(), ops, None, f"{type(exc).__name__}: {exc}"))
+            raise
+        self.runs.append(_Run(self.transport.clock.now(), ops, result))
+        return result
 
     def _starts(self, program: Program) -> list[int]:
         """The chips on which ``program`` starts a trajectory that is not a stop: an STT after
@@ -398,15 +431,12 @@ class Bench:
         return new
 
     def trace_text(self) -> str:
-        lines = [f"last bus cycles on {self.url}, newest last (t: {'simulated' if self.simulated else 'wall'} "
-                 "time in ms; the busy polls before a status that found busy clear are counted):"]
-        rows = _rows(self.cycles)
-        if len(rows) > TRACE_LINES:
-            lines.append(f"  ... {len(rows) - TRACE_LINES} earlier lines left out")
-            rows = rows[-TRACE_LINES:]
-        if not rows:
-            lines.append("  (no bus cycle)")
-        lines += [f"  {t * 1e3:12.4f}  cs{chip}  {text}" for t, chip, text in rows]
+        clock = "simulated" if self.simulated else "wall"
+        lines = [f"last bus programs on {self.url}, oldest first, one a line (t: {clock} time in ms "
+                 "when it ended; words in hex; <- read; [status] the last one its busy checks read):"]
+        if not self.runs:
+            lines.append("  (no bus program)")
+        lines += [f"  {r.time * 1e3:12.4f}  {_program_text(r)}" for r in self.runs]
         return "\n".join(lines)
 
     def snapshot_text(self) -> str:
@@ -511,54 +541,60 @@ def _profiled_board(bench: Bench) -> lm629_host.Board:
     return board
 
 
-def _rows(cycles: collections.abc.Iterable[_Cycle]) -> list[tuple[float, int, str]]:
-    """One line per cycle, decoded; a run of busy status reads folds into the status read that
-    ends it ("status C0 ... after 8 busy polls"), and a repeated status into one line (x N)."""
-    rows: list[tuple[float, int, str]] = []
-    busy = 0
-    last: tuple[int, int] | None = None  # (chip, status) of the line above, for repeats
-    repeat = 1
-    for c in cycles:
-        if c.cycle.kind != "status":
-            if busy:
-                rows.append((c.time, c.chip, f"status  busy x{busy}"))
-            busy, last, repeat = 0, None, 1
-            rows.append((c.time, c.chip, _describe(c.cycle)))
-            continue
-        value = c.cycle.value
-        if value & Status.BUSY:
-            busy += 1
-            continue
-        text = _describe(c.cycle) + (f" (after {busy} busy polls)" if busy else "")
-        if last == (c.chip, value) and not busy:
-            repeat += 1
-            rows[-1] = (rows[-1][0], c.chip, rows[-1][2].split("  x")[0] + f"  x{repeat}")
-        else:
-            repeat = 1
-            rows.append((c.time, c.chip, text))
-        last, busy = (c.chip, value), 0
-    if busy:
-        rows.append((0.0, 0, f"status  busy x{busy} (still busy at the end)"))
-    return rows
+def _program_text(run: _Run) -> str:
+    """``cs0: LTRJ 0008 0004 0000; STT; sync C0 (BREAKPOINT|MOTOR_OFF)``: one program decoded."""
+    words = iter(run.result.words if run.result else ())
+    statuses = iter(run.result.statuses if run.result else ())
+    parts: list[str] = []
+    chip = 0
+    for o in run.ops:
+        op = o.op
+        if op is Op.COMMAND:
+            try:
+                parts.append(Cmd(o.arg).name)
+            except ValueError:
+                parts.append(f"command {o.arg:02X}")
+        elif op is Op.WRITE:
+            parts[-1:] = [(parts[-1] if parts else "write") + f" {o.arg:04X}"]
+        elif op is Op.READ:
+            w = next(words, None)
+            text = f"{w:04X}" if w is not None else "????"
+            if parts and "<-" in parts[-1]:
+                parts[-1] += f" {text}"
+            else:
+                parts[-1:] = [(parts[-1] if parts else "read") + f" <- {text}"]
+        elif op in STATUS_OPS:
+            st = next(statuses, None)
+            name = {Op.STATUS: "status", Op.SYNC: "sync"}.get(op, f"wait for {o.arg >> 16:02X}")
+            parts.append(f"{name} {_status_text(st)}")
+        elif op is Op.RESET:
+            parts.append("/RST")
+        elif op is Op.WAIT:
+            parts.append(f"wait {o.arg} us")
+        elif op is Op.SELECT:
+            chip = o.arg
+            parts.append(f"cs{chip}:")
+    if not run.ops or run.ops[0].op is not Op.SELECT:
+        parts.insert(0, "cs0:")  # a program starts on chip 0
+    text = "; ".join(parts).replace(":;", ":")
+    result = run.result
+    if result is not None and result.status is not None and (
+            not result.statuses or result.statuses[-1] != result.status):
+        text += f"  [status {_status_text(result.status)}]"
+    if run.error:
+        text += f"  !! {run.error.splitlines()[0][:160]}"
+    return text
+
+
+def _status_text(status: int | None) -> str:
+    if status is None:
+        return "??"
+    return f"{status:02X} ({_flag_names(Status, status)})"
 
 
 def _flag_names(flags: type[enum.Flag], value: int) -> str:
     names = [f.name for f in flags if value & f.value]
     return "|".join(n for n in names if n) or "none"
-
-
-def _describe(cycle: BusCycle) -> str:
-    if cycle.kind == "command":
-        try:
-            name = Cmd(cycle.value).name
-        except ValueError:
-            name = "unknown opcode"
-        return f"command {cycle.value:02X} {name}"
-    if cycle.kind == "status":
-        return f"status  {cycle.value:02X} {_flag_names(Status, cycle.value)}"
-    if cycle.kind == "select":
-        return f"select  chip {cycle.value}"
-    return str(cycle)
 
 
 # ---------------------------------------------------------------------------- fixtures
@@ -624,7 +660,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
         if bench.axes():
             text += "\nafter the failure: " + bench.stop()
             bench.outcome = "stopped"
-        rep.sections.append(("lm629: last bus cycles and chip snapshot", text))
+        rep.sections.append(("lm629: last bus programs and chip snapshot", text))
 
 
 __all__ = ["Bench", "FIXTURES", "MARKERS", "MotionNotAllowed", "PortError", "Session"]

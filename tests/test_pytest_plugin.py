@@ -98,15 +98,20 @@ def test_user_file_on_the_simulator(user_dir):
     v = _section(out, "test_ltrj_velocity_word_above_3fffffff")
     assert re.search(r"ProtocolViolation: host protocol violation at [\d.]+ us: LTRJ velocity word "
                      r"40000000 is above 3FFFFFFF", v)
+    assert re.search(r"cs0: LTRJ 0008 4000 0000  !! ProtocolViolation: host protocol violation", v)
     c = _section(out, "test_a_caught_violation_still_fails")
     assert re.search(r"lm629 host protocol violation at [\d.]+ us of simulated time: LTRJ velocity "
                      r"word FFFFFFFF is above 3FFFFFFF", c)
     # the deliberate failure: the last bus cycles, decoded, and the chip's snapshot
     d = _section(out, "test_deliberate_failure")
-    assert "lm629: last bus cycles and chip snapshot" in d
-    cycles = d[d.index("last bus cycles on"):]
-    assert re.search(r"cs0  command 0A RDRP\n.*status  C0 BREAKPOINT\|MOTOR_OFF.*\n.*read    0000", cycles)
-    assert "command 1C MSKI" in cycles and "reset" in cycles
+    assert "lm629: last bus programs and chip snapshot" in d
+    programs = d[d.index("last bus programs on sim://?strict=1"):].splitlines()
+    # the reset (AN-706 4.4.1: 00 at once, C4 after 1.5 ms, C0 after MSKI/RSTI), then the RDRP
+    assert re.fullmatch(r" +1\.50\d+  cs0: /RST; status 00 \(none\); wait 1500 us; status C4 "
+                        r"\(TRAJECTORY_COMPLETE\|BREAKPOINT\|MOTOR_OFF\)", programs[1])
+    assert re.fullmatch(r" +[\d.]+  cs0: MSKI 0000; RSTI 0000; sync C0 \(BREAKPOINT\|MOTOR_OFF\)", programs[2])
+    assert re.fullmatch(r" +[\d.]+  cs0: RDRP <- 0000 0000  \[status C0 \(BREAKPOINT\|MOTOR_OFF\)\]",
+                        programs[3])
     # read just after the RDRP's second byte: busy for that byte's 20 us, or clear again
     assert re.search(r"chip snapshot cs0 at t=[\d.]+ ms: status C[01] \((BUSY\|)?BREAKPOINT\|MOTOR_OFF\), "
                      r"signals 01C0 .* real position 0, following error 0", d)
@@ -217,6 +222,25 @@ def test_fails_in_the_middle_of_a_long_move(lm629):
 '''
 
 
+TERM_FILE = '''
+import os
+import signal
+
+import pytest
+
+
+@pytest.mark.lm629_motion
+def test_terminated_in_the_middle_of_a_move(lm629):
+    lm629.load_filter(kp=20, kd=200)
+    lm629.update_filter()
+    lm629.move_to(400000, velocity=4 * 65536, acceleration=3277)
+    lm629.clock.sleep(0.2)
+    os.kill(os.getpid(), signal.SIGTERM)
+    lm629.clock.sleep(5)  # the signal ends the test here
+    pytest.fail("SIGTERM did not end the test")
+'''
+
+
 def _status(url: str) -> dict:
     import json
     p = subprocess.run([_console_script(), "--port", url, "status", "--json"], capture_output=True,
@@ -246,7 +270,18 @@ def test_the_same_file_on_a_persistent_bench(user_dir):
         # the board kept its state: the motor is off, short of the target, and stays there
         first = _status(url)
         second = _status(url)
-    print(first)
+        assert "MOTOR_OFF" in first["status_flags"]
+        assert first["real_position"] < 400000 // 2
+        assert abs(second["real_position"] - first["real_position"]) <= 2
+
+        # SIGTERM in the middle of a move (a CI job's timeout): an interrupted run, motor stopped
+        user_dir.makepyfile(test_term=TERM_FILE)
+        r = user_dir.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-port", url,
+                                          "--lm629-allow-motion", "test_term.py")
+        assert r.ret == pytest.ExitCode.INTERRUPTED
+        assert "KeyboardInterrupt: SIGTERM: the lm629 fixtures stop the motor" in r.stdout.str()
+        first = _status(url)
+        second = _status(url)
     assert "MOTOR_OFF" in first["status_flags"]
-    assert first["real_position"] < 400000 // 2
+    assert 0 < first["real_position"] < 400000 // 2
     assert abs(second["real_position"] - first["real_position"]) <= 2
