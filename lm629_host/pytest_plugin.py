@@ -31,10 +31,10 @@ Why the choices (docs/testing.md has the user's side):
 from __future__ import annotations
 
 import collections
+import dataclasses
 import enum
-import inspect
+import importlib.util
 import signal
-import sys
 import threading
 import warnings
 from collections.abc import Generator, Iterator
@@ -46,7 +46,7 @@ import pytest
 
 import lm629_host
 
-from .errors import LM629Error
+from .errors import AxisError, LM629Error
 from .opcodes import STOP_FLAGS, Cmd, Status
 from .program import STATUS_OPS, BusOp, Op, Program, ProgramResult
 from .safety import emergency_stop
@@ -109,13 +109,17 @@ class Session:
 
     def __init__(self, config: pytest.Config) -> None:
         self.profile: Path | None = None
+        self.profile_data: Any = None  #: the loaded lm629_host.profile.Profile
         profile = config.getoption("lm629_profile", None)
         port = config.getoption("lm629_port", None)
         if profile is not None:
             self.profile = Path(profile)
-            _check_profile_support(self.profile)
+            self.profile_data = _load_profile(self.profile)
             if port is None:
-                port = _profile_port(self.profile)
+                try:
+                    port = self.profile_data.url()
+                except ValueError as exc:
+                    raise pytest.UsageError(f"--lm629-profile {profile}: {exc}") from None
         self.url: str = port or DEFAULT_URL
         self.allow_motion: bool = bool(config.getoption("lm629_allow_motion", False))
         self._transport: Transport | None = None
@@ -188,29 +192,19 @@ class Session:
 _SESSION = pytest.StashKey[Session]()
 
 
-def _check_profile_support(path: Path) -> None:
-    """--lm629-profile needs ``open_board(profile=...)`` (the profile feature, issue 21)."""
-    if "profile" not in inspect.signature(lm629_host.open_board).parameters:
+def _load_profile(path: Path) -> Any:
+    """The board profile at ``path`` (the profile feature, ``lm629_host.profile``), or one
+    usage error: the feature is missing, or the file is bad (its file:line and key)."""
+    if importlib.util.find_spec("lm629_host.profile") is None:
         raise pytest.UsageError(
             f"--lm629-profile {path}: this lm629-host has no board profiles yet "
-            "(lm629_host.open_board(profile=...), the profile feature); upgrade lm629-host, or "
-            "drop the option and give the port with --lm629-port")
-    if not path.is_file():
-        raise pytest.UsageError(f"--lm629-profile {path}: no such file")
-
-
-def _profile_port(path: Path) -> str | None:
-    """The ``[board] port`` of a profile, None when it has none."""
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:  # the same API under its old name (the profile feature depends on it there)
-        import tomli as tomllib
+            "(lm629_host.profile, the profile feature); upgrade lm629-host, or drop the option "
+            "and give the port with --lm629-port")
+    from . import profile as profiles  # type: ignore[attr-defined,unused-ignore]  # issue 21's module
     try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, ValueError) as exc:
+        return profiles.load_profile(path)
+    except ValueError as exc:  # ProfileError: file, line and key in one line
         raise pytest.UsageError(f"--lm629-profile {path}: {exc}") from None
-    port = data.get("board", {}).get("port")
-    return str(port) if port is not None else None
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -315,14 +309,6 @@ class Bench:
         self._execute = self.transport.execute
         self.transport.execute = self._guarded  # type: ignore[method-assign]  # this test only
 
-    def adopt(self, transport: Transport) -> None:
-        """Trace and guard ``transport`` (opened by someone else for this test) instead."""
-        self._detach()
-        if self.owned:
-            self.transport.close()
-        self.transport, self.owned = transport, True
-        self._attach()
-
     def _detach(self) -> None:
         self.transport.execute = self._execute  # type: ignore[method-assign]  # as it was
 
@@ -399,12 +385,16 @@ class Bench:
         n = int(raw) if raw is not None and raw.isdigit() else None
         if raw is not None and n is None:
             pytest.fail(f"{self.url}: axes={raw!r} is not a number of chips", pytrace=False)
-        if self.session.profile is not None:
-            board = _profiled_board(self)
-        else:
-            board = lm629_host.Board(self.transport, n, chip=variant)
+        prof = self.session.profile_data
+        board = lm629_host.Board(self.transport, n, chip=prof.chip if prof is not None else variant)
         self.board = board
+        if prof is not None:
+            named = _name_axes(board, prof)
         board.reset()
+        if prof is not None:
+            # a reset chip has lost every setting: the profile's gains, LPES, PORT12 again
+            from . import profile as profiles  # type: ignore[attr-defined,unused-ignore]  # issue 21's module
+            profiles.apply_profile(named, prof)
         return board
 
     def axes(self) -> list[lm629_host.LM629]:
@@ -531,14 +521,21 @@ def _marker_text(item: pytest.Item) -> str:
     return f"@pytest.mark.lm629_sim({', '.join(args)})"
 
 
-def _profiled_board(bench: Bench) -> lm629_host.Board:
-    """``open_board(url, profile=FILE)``: the profile's named axes (the profile feature,
-    issue 21, which :func:`_check_profile_support` found) on this test's port.  It opens a
-    transport of its own; the bench traces and guards that one instead."""
-    board = lm629_host.open_board(split_params(bench.url, {"cs"})[0],  # type: ignore[call-arg]  # newer API
-                                  profile=str(bench.session.profile))
-    bench.adopt(board.transport)
-    return board
+def _name_axes(board: lm629_host.Board, prof: Any) -> dict[str, lm629_host.LM629]:
+    """Give each axis of ``board`` the profile's name, soft limits, chip variant and clock
+    (as ``open_board(profile=...)`` does, on this test's transport); nothing is sent."""
+    from . import profile as profiles  # type: ignore[attr-defined,unused-ignore]  # issue 21's module
+    named = {}
+    for name, ax in prof.axes.items():
+        if ax.cs >= len(board.axes):
+            raise AxisError(ax.cs, len(board.axes), f"{board.transport.describe()} (axis {name} "
+                                                    f"of {prof.path})")
+        chip = board.axes[ax.cs]
+        profiles.attach(chip, prof, ax)
+        chip.move_rules = dataclasses.replace(chip.move_rules, clock_hz=prof.clock_hz)
+        named[name] = chip
+    board.profile = prof  # type: ignore[attr-defined,unused-ignore]  # board["x"] (issue 21)
+    return named
 
 
 def _program_text(run: _Run) -> str:

@@ -10,7 +10,7 @@ deliberate failures written here.  The figures: the chip samples every 2048 cloc
 from __future__ import annotations
 
 import importlib.metadata
-import inspect
+import importlib.util
 import os
 import re
 import shutil
@@ -21,7 +21,6 @@ from pathlib import Path
 
 import pytest
 
-import lm629_host
 from test_cli import _console_script
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "lab"
@@ -170,14 +169,57 @@ def test_help_fixtures_and_markers_list_everything(pytester):
         assert f"@pytest.mark.{marker}" in r.stdout.str()
 
 
-@pytest.mark.skipif("profile" in inspect.signature(lm629_host.open_board).parameters,
-                    reason="the profile feature is here: the option opens the profile's board")
+HAS_PROFILES = importlib.util.find_spec("lm629_host.profile") is not None
+
+PROFILE = """\
+[board]
+port = "sim://"
+
+[axis.x]
+cs = 0
+kp = 20
+kd = 200
+min = -20000
+max = 20000
+following_error = 2000
+"""
+
+PROFILE_TEST = """
+import pytest
+from lm629_host import Signals
+
+
+@pytest.mark.lm629_motion
+def test_the_profiles_named_axis(lm629_board):
+    x = lm629_board["x"]
+    # applied after the fixture's reset: LPES with stop on error arms signals bit 9
+    assert x.read_signals() & Signals.STOP_ON_ERROR
+    with pytest.raises(ValueError, match="20000"):
+        x.move_to(45000, velocity=65536, acceleration=6554)  # past max: nothing sent
+    assert x.move_to(1000, velocity=65536, acceleration=6554).wait().position == pytest.approx(1000, abs=20)
+"""
+
+
+@pytest.mark.skipif(HAS_PROFILES, reason="the profile feature is here: "
+                    "test_profile_option_gives_the_named_axes runs instead")
 def test_profile_option_without_the_profile_feature_is_one_clear_error(pytester):
-    pytester.makefile(".toml", board='[board]\nport = "sim://"\n')
+    pytester.makefile(".toml", board=PROFILE)
     pytester.makepyfile("def test_board(lm629_board):\n    pass\n")
     r = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-profile", "board.toml")
     assert r.ret == pytest.ExitCode.USAGE_ERROR
     assert "--lm629-profile board.toml: this lm629-host has no board profiles yet" in r.stderr.str()
+
+
+@pytest.mark.skipif(not HAS_PROFILES, reason="no lm629_host.profile (the profile feature) in this tree")
+def test_profile_option_gives_the_named_axes(pytester):
+    pytester.makefile(".toml", board=PROFILE)
+    pytester.makepyfile(test_profiled=PROFILE_TEST)
+    r = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-profile", "board.toml")
+    r.assert_outcomes(passed=1)
+    pytester.makefile(".toml", bad=PROFILE.replace("kp = 20", "kp = 99999"))
+    r = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-profile", "bad.toml")
+    assert r.ret == pytest.ExitCode.USAGE_ERROR
+    assert re.search(r"ERROR: --lm629-profile bad.toml: .*bad.toml.*kp", r.stderr.str())
 
 
 # ---------------------------------------------------------------------------- a persistent bench
