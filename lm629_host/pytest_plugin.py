@@ -89,8 +89,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                          "socket://HOST:PORT, ftdi://... (env LM629_PORT is NOT read: a test run "
                          "reaches a bench only when asked to)")
     group.addoption("--lm629-profile", dest="lm629_profile", default=None, metavar="FILE",
-                    help="a board profile (TOML): lm629_board gets its named axes, its port unless "
-                         "--lm629-port is given")
+                    help="a bench profile (TOML): its port unless --lm629-port is given; "
+                         "lm629_board names the axes (board['x']), with their soft limits, and "
+                         "applies the profile after the reset")
     group.addoption("--lm629-allow-motion", dest="lm629_allow_motion", action="store_true",
                     help="on a real port, run the tests marked lm629_motion (skipped without it) "
                          "and let any test start a trajectory")
