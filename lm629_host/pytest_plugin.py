@@ -266,8 +266,8 @@ class _Run:
 
 
 class Bench:
-    """What one test uses: its transport (a fresh simulator, or the run's real port), the bus
-    cycles seen (for the failure report), the motion guard, and the chips handed out."""
+    """What one test uses: its transport (a fresh simulator, or the run's real port), its last
+    bus programs (for the failure report), the motion guard, and the chips handed out."""
 
     def __init__(self, session: Session, request: pytest.FixtureRequest) -> None:
         self.session = session
@@ -282,7 +282,6 @@ class Bench:
         self.outcome: str | None = None  #: the call phase's outcome, None while not known
         self.violations_seen = 0
         self._last_ltrj: dict[int, int | None] = {}
-        self._ltrj_pending: set[int] = set()
         self._warned = False
         if self.simulated:
             self.url = _sim_url(session.url, _marker_params(self.item))
@@ -343,7 +342,7 @@ class Bench:
                     control = self._last_ltrj.get(chip)
                     if control is None or not control & STOP_FLAGS:
                         starts.append(chip)
-                elif o.arg in (Cmd.RESET,):
+                elif o.arg == Cmd.RESET:
                     self._last_ltrj[chip] = None
             elif o.op is Op.WRITE and expect_control:
                 self._last_ltrj[chip] = o.arg
