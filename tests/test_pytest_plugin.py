@@ -234,7 +234,7 @@ def _sim_serve():
         banner = proc.stdout.readline()
         m = re.search(r"on TCP port ([\d.]+:\d+)", banner)
         assert m, banner + proc.stderr.read()
-        yield f"serial://socket://{m.group(1)}"
+        yield f"socket://{m.group(1)}"  # a pyserial URL is a port as it is
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=20)
