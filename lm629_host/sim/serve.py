@@ -40,6 +40,7 @@ from ..bridge.protocol import (
 from ..program import Op
 from .bridge import BridgeEmulator
 from .build import build_bus
+from .wiring import Miswiring, wiring_of
 from .model import ChipBus, ChipModel, chips_of
 
 log = logging.getLogger("lm629_host.sim.serve")
@@ -74,9 +75,9 @@ class FarEnd(abc.ABC):
 class EmuFarEnd(FarEnd):
     """The Python bridge over the model, driven straight."""
 
-    def __init__(self, model: ChipModel | ChipBus) -> None:
+    def __init__(self, model: ChipModel | ChipBus, wiring: Miswiring | None = None) -> None:
         self.model = model  # one chip, or a ChipBus (``--url 'sim://?axes=2'``)
-        self.emulator = BridgeEmulator(model)
+        self.emulator = BridgeEmulator(model, wiring=wiring)
 
     def receive(self, data: bytes) -> list[bytes]:
         return self.emulator.receive(data)
@@ -193,7 +194,7 @@ def firmware_far_end(url: str) -> FarEnd:
     if isinstance(model, ChipBus):
         model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
     try:
-        sim = AvrSim(model)
+        sim = AvrSim(model, wiring=wiring_of(url))
     except (HarnessError, OSError) as exc:
         raise RuntimeError(f"--firmware runs the compiled firmware in simavr: {exc}. Build it "
                            "with `make -C firmware_bridge` (needs gcc-avr, avr-libc, simavr, "
@@ -216,7 +217,8 @@ class SimServer:
         self.tcp = tcp
         self.url = url
         if far_end is None:
-            far_end = firmware_far_end(url) if firmware else EmuFarEnd(build_bus(url))
+            far_end = (firmware_far_end(url) if firmware
+                       else EmuFarEnd(build_bus(url), wiring_of(url)))
         self.far = far_end
         self.model = far_end.model
         self.master: int | None = None
