@@ -50,8 +50,9 @@ class SimTransport(CycleTransport):
         self.chip_selects = len(self.models)
         self.clock = SimClock(model)
         self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
-        #: False: make every busy poll (the reference the skip is tested against)
-        self.skip_known_busy = True
+        #: False: make every busy poll (the reference the skip is tested against); never
+        #: skipped through miswired lines (the skip reads the chip's own busy, not the pins')
+        self.skip_known_busy = self.bent is None
 
     def execute(self, program: Program) -> ProgramResult:
         """:meth:`CycleTransport.execute` fused with this transport's strobes and busy skip.
