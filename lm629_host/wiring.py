@@ -278,12 +278,11 @@ def _message(adapter: str, name: str) -> list[Suspect]:
     a = f"D{parts[0][1]}"
     if parts[1] == "low":
         return [Suspect(a, f"{_where(adapter, a)} reads 0 always: check the wire to "
-                           f"{adapter_pin(adapter, a)} (open to ground? a short to GND or to a "
-                           "neighbour at 0)")]
+                           f"{adapter_pin(adapter, a)} (a short to GND or to a line held low)")]
     if parts[1] == "high":
         return [Suspect(a, f"{_where(adapter, a)} reads 1 always: check the wire to "
-                           f"{adapter_pin(adapter, a)} (missing or open: the pull-up; or a short "
-                           "to +5 V)")]
+                           f"{adapter_pin(adapter, a)} (missing or broken: the line floats high; "
+                           "or a short to +5 V)")]
     b = f"D{parts[1][1]}"
     return [Suspect(x, f"{_where(adapter, x)} carries {y}'s bit: the wires of {a} and {b} are "
                        f"swapped: {x} must go to {adapter_pin(adapter, x)}")
