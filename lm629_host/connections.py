@@ -124,7 +124,7 @@ def extras(adapter: str) -> list[tuple[str, str, str]]:
     rows = [("GND", f"GND (pin {pin_of('GND')})", "common ground")]
     if adapter.lower() == "ft232h":
         rows.append(("ADBUS0 (D0)", "-", "TCK: toggled by the delays, leave unconnected"))
-    rows.append(("+5 V", f"/CS, /RD, /WR, /RST of every chip", "10 kOhm pull-up each"))
+    rows.append(("+5 V", "/CS, /RD, /WR, /RST of every chip", "10 kOhm pull-up each"))
     rows.append(("+5 V (optional)", f"D0-D7 (pins {pin_of('D0')}-{pin_of('D7')})",
                  "10 kOhm pull-ups: an open data wire then reads 1, which the wiring check finds"))
     return rows

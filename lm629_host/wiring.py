@@ -148,6 +148,8 @@ class WiringReport:
     readings: list[Reading] = field(default_factory=list)
     suspects: list[Suspect] = field(default_factory=list)
     hi_seen: list[bool] = field(default_factory=list)
+    #: counts the shaft turned during the check (None: not known, a data line is suspect)
+    travel: int | None = None
 
     @property
     def passed(self) -> bool:
@@ -155,9 +157,11 @@ class WiringReport:
 
     def lines(self) -> list[str]:
         if self.passed:
+            moved = "" if self.travel is None else (
+                f"; the shaft turned {self.travel} count(s) (zero-gain filter)")
             return [f"wiring check: every data line passed ({len(self.readings)} readings: "
-                    "/RST statuses, RSTI, patterns 000055AA and FFFFAA55, a relative move); "
-                    "the chip is left reset"]
+                    "/RST statuses, RSTI, RDDP, RDSIGS, SBPA, patterns 000055AA and FFFFAA55, "
+                    f"a relative move){moved}; the chip is left reset, motor off"]
         return [s.message for s in self.suspects]
 
 
@@ -322,12 +326,15 @@ def _ltrj(p: Program, target: int) -> Program:
     return p.command(Cmd.STT).wait(MOVE_WAIT_US)
 
 
-def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], list[bool]]:
+def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], list[bool], int]:
     """Every experiment, each from a fresh /RST; the chip is left reset.  Returns the readings,
-    the experiments by name and the HI line after each program that reads it."""
+    the experiments by name, the HI line after each program that reads it, and how far the
+    shaft turned in all (RDRP at the end of each move experiment: counts since its /RST, which
+    zeroes the real position; meaningful when the data lines pass)."""
     readings: list[Reading] = []
     hi: list[bool] = []
     exps: dict[str, Experiment] = {}
+    travel: list[int] = []
 
     def add(exp_name: str, what: str, expected: frozenset[int], got: int | None, error: str,
             size: int = 1) -> None:
@@ -375,15 +382,17 @@ def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], 
         if relative is not None:
             p.command(Cmd.LTRJ).write(LTRJ_RELATIVE).write32(relative).command(Cmd.STT) \
                 .wait(MOVE_WAIT_US)
-        p.status().command(Cmd.RDDP).read(2)
+        p.status().command(Cmd.RDDP).read(2).command(Cmd.RDRP).read(2)
         st, w, _, err = _run(chip, p)
+        if len(w) == 4:  # the real position since this experiment's /RST zeroed it
+            travel.append(abs(_signed32(w[2] << 16 | w[3])))
         add(name, f"status after the move to {name}", MOVED, st[0] if st else None, err)
-        value = (w[0] << 16 | w[1]) if len(w) == 2 else None
+        value = (w[0] << 16 | w[1]) if len(w) >= 2 else None
         want = (target + (relative or 0)) & 0xFFFFFFFF
         add(name, f"RDDP after the move to {name}", frozenset({want}), value, err, size=4)
     # the end: motor off, the chip left reset
     _run(chip, _reset(chip, chip.program()).wait(RESET_WAIT_US).status())
-    return readings, exps, hi
+    return readings, exps, hi, sum(travel)
 
 
 def _control_suspects(adapter: str, readings: list[Reading], hi: list[bool]) -> list[Suspect]:
@@ -439,7 +448,7 @@ def _got(readings: Sequence[Reading]) -> tuple[int | None, ...]:
     return tuple(r.got for r in readings)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _fingerprint(name: str, variant: str) -> tuple[int | None, ...]:
     """What the experiments read on a simulated bench (``sim://``) wired with ``name``."""
     from .lm629 import LM629  # the typed layer imports nothing of this module
@@ -491,8 +500,10 @@ def check_wiring(chip: LM629, adapter: str | None = None) -> WiringReport:
     """Run the experiments on ``chip`` and name the suspect wires (nothing moves; the chip is
     left reset)."""
     adapter = adapter or adapter_of(chip.transport.url)
-    readings, exps, hi = run_experiments(chip)
-    return diagnose(adapter, readings, exps, hi, chip.variant)
+    readings, exps, hi, travel = run_experiments(chip)
+    report = diagnose(adapter, readings, exps, hi, chip.variant)
+    report.travel = travel if report.passed else None
+    return report
 
 
 __all__ = ["Reading", "Suspect", "WiringReport", "adapter_of", "check_wiring", "diagnose",
