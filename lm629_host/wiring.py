@@ -515,5 +515,15 @@ def check_wiring(chip: LM629, adapter: str | None = None) -> WiringReport:
     return report
 
 
-__all__ = ["Reading", "Suspect", "WiringReport", "adapter_of", "check_wiring", "diagnose",
+def wiring_suspects(chip: LM629) -> list[str]:
+    """The suspect lines of a wiring check on ``chip`` (empty: every line passed, or the check
+    could not run: its error is then the one line), for bring-up and doctor."""
+    try:
+        report = check_wiring(chip)
+    except LM629Error as exc:
+        return [f"the wiring check could not run: {exc}"]
+    return [] if report.passed else report.lines()
+
+
+__all__ = ["wiring_suspects", "Reading", "Suspect", "WiringReport", "adapter_of", "check_wiring", "diagnose",
            "run_experiments", "suspects_of_data_bus"]

@@ -275,3 +275,14 @@ def test_a_miswired_persistent_bench(tmp_path):
         assert p.returncode == 1
         assert "LM629 D6 (pin 10)" in p.stdout and "Uno D8" in p.stdout
         assert "LM629 D7 (pin 11)" in p.stdout and "Uno D9" in p.stdout
+
+
+def test_doctor_suggests_the_check_when_busy_is_stuck():
+    from click.testing import CliRunner
+
+    from lm629_host.cli import main
+    r = CliRunner().invoke(main, ["--port", "sim://?wiring=d0-high", "doctor"])
+    assert r.exit_code == 1
+    assert "lm629 wiring --check" in r.output
+    r = CliRunner().invoke(main, ["--port", "sim://", "doctor"])
+    assert "lm629 wiring --check" not in r.output
