@@ -302,7 +302,10 @@ def _message(adapter: str, name: str) -> list[Suspect]:
 
 # ---------------------------------------------------------------------- the experiments
 def _reset(chip: LM629, p: Program) -> Program:
-    if chip.uses_reset_line:
+    """/RST where the adapter has the line, even on an axis of a multi-axis board: /RST is
+    shared, so every chip on the bus is reset (and left reset) by the check; the RESET command
+    would itself cross the wires under test."""
+    if chip.transport.has_reset_line:
         return p.reset()
     return p.command(Cmd.RESET)
 
@@ -351,7 +354,7 @@ def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], 
     st, _, h, err = _run(chip, _reset(chip, chip.program()).status().wait(RESET_WAIT_US)
                          .status().status())
     got = list(st) + [None] * (3 - len(st))
-    if chip.uses_reset_line:
+    if chip.transport.has_reset_line:
         add("", "status at once after /RST", AT_RESET, got[0], err)
     add("", "status 1.5 ms after /RST", RESET_DONE, got[1], err)
     add("", "status 1.5 ms after /RST (again)", RESET_DONE, got[2], err)
