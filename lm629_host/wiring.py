@@ -37,7 +37,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from .connections import adapter_name, adapter_pin
+from .connections import MAX_AXES, adapter_name, adapter_pin, connections
 from .errors import LM629Error
 from .miswiring import Miswiring
 from .opcodes import Cmd
@@ -291,9 +291,11 @@ def _message(adapter: str, name: str) -> list[Suspect]:
         return [Suspect(a, f"{_where(adapter, a)} reads 0 always: check the wire to "
                            f"{adapter_pin(adapter, a)} (a short to GND or to a line held low)")]
     if parts[1] == "high":
+        busy = (f"; busy never clears, which a chip without its clock (CLK pin {pin_of('CLK')}) "
+                "shows the same way") if a == "D0" else ""
         return [Suspect(a, f"{_where(adapter, a)} reads 1 always: check the wire to "
                            f"{adapter_pin(adapter, a)} (missing or broken: the line floats high; "
-                           "or a short to +5 V)")]
+                           f"or a short to +5 V){busy}")]
     b = f"D{parts[1][1]}"
     return [Suspect(x, f"{_where(adapter, x)} carries {y}'s bit: the wires of {a} and {b} are "
                        f"swapped: {x} must go to {adapter_pin(adapter, x)}")
@@ -407,14 +409,15 @@ def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], 
     return readings, exps, hi, sum(travel)
 
 
-def _control_suspects(adapter: str, readings: list[Reading], hi: list[bool]) -> list[Suspect]:
+def _control_suspects(adapter: str, readings: list[Reading], hi: list[bool],
+                      axis: int = 0) -> list[Suspect]:
     """What the readings say about /CS, /RD, /RST, the clock and HI when no data line does."""
     got = [r.got for r in readings if r.got is not None]
     name = adapter_name(adapter)
     out: list[Suspect] = []
     if got and all(g in (0xFF, 0xFFFFFFFF) for g in got):
         out.append(Suspect("/CS", "every read is FF: no chip drives the bus: check /CS (pin "
-                           f"{pin_of('/CS')}) to {adapter_pin(adapter, '/CS')}, /RD (pin "
+                           f"{pin_of('/CS')}) to {adapter_pin(adapter, '/CS', axis)}, /RD (pin "
                            f"{pin_of('/RD')}) to {adapter_pin(adapter, '/RD')}, the chip's supply "
                            f"(VDD pin {pin_of('VDD')}, GND pin {pin_of('GND')}) and its clock "
                            f"(CLK pin {pin_of('CLK')})"))
@@ -471,12 +474,12 @@ def _fingerprint(name: str, variant: str) -> tuple[int | None, ...]:
 
 
 def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Experiment],
-             hi: Sequence[bool] = (), variant: str = "lm629") -> WiringReport:
+             hi: Sequence[bool] = (), variant: str = "lm629", axis: int = 0) -> WiringReport:
     """The suspects that explain the readings (see the module docstring)."""
     report = WiringReport(adapter, list(readings), hi_seen=list(hi))
     if _explains(Miswiring(), readings, experiments) is not None:
         if len(hi) >= 2 and hi[0] == hi[1]:
-            report.suspects = _control_suspects(adapter, readings, list(hi))
+            report.suspects = _control_suspects(adapter, readings, list(hi), axis)
         return report
     scored = [(n, _explains(b, readings, experiments)) for n, b in suspects_of_data_bus()]
     possible = [(n, k) for n, k in scored if k is not None]
@@ -497,7 +500,7 @@ def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Exper
             report.suspects.insert(0, Suspect("?", f"{len(found)} wires explain what was read "
                                               "(one of them, or several):"))
         return report
-    report.suspects = _control_suspects(adapter, readings, list(hi))
+    report.suspects = _control_suspects(adapter, readings, list(hi), axis)
     return report
 
 
@@ -513,7 +516,11 @@ def check_wiring(chip: LM629, adapter: str | None = None) -> WiringReport:
     left reset)."""
     adapter = adapter or adapter_of(chip.transport.url)
     readings, exps, hi, travel = run_experiments(chip)
-    report = diagnose(adapter, readings, exps, hi, chip.variant)
+    axis = chip.axis or 0
+    if not any(c.chip_line == "HI" and c.chip == axis
+               for c in connections(adapter, MAX_AXES[adapter])):
+        hi = []  # this chip has no HI line on this adapter (its status is read instead)
+    report = diagnose(adapter, readings, exps, hi, chip.variant, axis)
     report.travel = travel if report.passed else None
     return report
 

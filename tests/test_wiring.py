@@ -286,3 +286,15 @@ def test_doctor_suggests_the_check_when_busy_is_stuck():
     assert "lm629 wiring --check" in r.output
     r = CliRunner().invoke(main, ["--port", "sim://", "doctor"])
     assert "lm629 wiring --check" not in r.output
+
+
+@pytest.mark.parametrize("fault,says", [
+    ("rst", "the pulse does not reach the chip: check /RST (pin 27) to Uno A4"),
+    ("reset", "the chip stays in reset (status 00 1.5 ms after /RST)"),
+    ("busy", "LM629 D0 (pin 4) reads 1 always"),
+])
+def test_control_line_faults_are_named(fault, says):
+    report = _check(f"sim://?fault={fault}")
+    assert not report.passed and says in " ".join(report.lines())
+    if fault == "busy":
+        assert "CLK pin 26" in report.lines()[0]
