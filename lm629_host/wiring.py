@@ -504,7 +504,7 @@ def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Exper
     return report
 
 
-def adapter_of(url: str) -> str:
+def adapter_for(url: str) -> str:
     """The adapter a port URL drives: the FT232H for ``ftdi://`` and ``sim+ftdi://``, the
     Uno bridge otherwise (``sim://`` models the same bus)."""
     scheme = url.split("://", 1)[0].lower() if "://" in url else "serial"
@@ -514,7 +514,7 @@ def adapter_of(url: str) -> str:
 def check_wiring(chip: LM629, adapter: str | None = None) -> WiringReport:
     """Run the experiments on ``chip`` and name the suspect wires (nothing moves; the chip is
     left reset)."""
-    adapter = adapter or adapter_of(chip.transport.url)
+    adapter = adapter or adapter_for(chip.transport.url)
     readings, exps, hi, travel = run_experiments(chip)
     axis = chip.axis or 0
     if not any(c.chip_line == "HI" and c.chip == axis
@@ -535,5 +535,5 @@ def wiring_suspects(chip: LM629) -> list[str]:
     return [] if report.passed else report.lines()
 
 
-__all__ = ["wiring_suspects", "Reading", "Suspect", "WiringReport", "adapter_of", "check_wiring", "diagnose",
+__all__ = ["wiring_suspects", "Reading", "Suspect", "WiringReport", "adapter_for", "check_wiring", "diagnose",
            "run_experiments", "suspects_of_data_bus"]

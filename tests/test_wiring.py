@@ -151,10 +151,13 @@ MOTORS = [f"inertia={i}&load_torque={t}&coulomb={c}"
 MOTORS += ["stall=1", "reversed=1", "lines=2000", "friction=1e-4"]
 
 
-def test_no_false_suspect_over_20_motors():
+@pytest.mark.parametrize("url", ["sim://", "sim+emu://", "sim+avr://"])
+def test_no_false_suspect_over_20_motors(url):
+    if url == "sim+avr://" and toolchain_missing():
+        pytest.skip("AVR toolchain missing")
     assert len(MOTORS) == 20
     for m in MOTORS:
-        with lm629_host.open(f"sim://?{m}") as chip:
+        with lm629_host.open(f"{url}?{m}") as chip:
             report = check_wiring(chip)
             assert report.passed, (m, report.lines())
             if "load_torque=0.002" not in m:  # no load to turn it: zero drive, no motion

@@ -7,7 +7,7 @@ from __future__ import annotations
 import click
 
 from ..connections import ADAPTERS, MAX_AXES, text_table
-from ..wiring import adapter_of, check_wiring
+from ..wiring import adapter_for, check_wiring
 from ..wiring_svg import write_png, write_svg
 from .app import _session, main
 
@@ -32,7 +32,7 @@ def wiring(adapter: str | None, axes: int, svg: str | None, png: str | None,
     With --check: reset the chip, write patterns (zero-gain filter: the shaft does not move),
     read them back, and print one line per suspect wire; the chip is left reset, motor off."""
     s = _session()
-    name = (adapter or adapter_of(s.port)).lower()
+    name = (adapter or adapter_for(s.port)).lower()
     if not 1 <= axes <= MAX_AXES[name]:
         raise click.BadParameter(f"{axes}: the {name} wiring has 1..{MAX_AXES[name]} chip "
                                  "selects", param_hint="--axes")
