@@ -125,14 +125,17 @@ def test_the_message_of_the_issue():
         "LM629 D5 (pin 9) reads 0 always: check the wire to Uno D7")
 
 
-@pytest.mark.parametrize("url", ["sim+emu://", "sim+avr://"])
+@pytest.mark.parametrize("url", ["sim+emu://", "sim+avr://",
+                                 "sim+emu://?usb=uno&fast_baud=1000000"])
 def test_the_fault_list_on_the_bridges(url):
-    """The Done-when list on the Python bridge and the real firmware, in one process each."""
-    if url == "sim+avr://" and toolchain_missing():
+    """The Done-when list on the Python bridge and the real firmware, in one process each;
+    and behind the Uno's USB chip (its 4.096 ms flush tick): the waits are in the programs."""
+    if url.startswith("sim+avr://") and toolchain_missing():
         pytest.skip("AVR toolchain missing")
     wrong = {}
+    sep = "&" if "?" in url else "?"
     for fault in REQUIRED:
-        report = _check(f"{url}?wiring={fault}")
+        report = _check(f"{url}{sep}wiring={fault}")
         if {s.line for s in report.suspects} != _lines(fault) or not all(
                 f"Uno {UNO[s.line]}" in s.message for s in report.suspects):
             wrong[fault] = report.lines()
@@ -271,9 +274,10 @@ def test_on_a_persistent_bench_from_separate_processes(tmp_path, far_end):
         assert "MOTOR_OFF" in s["status_flags"]
 
 
-def test_a_miswired_persistent_bench(tmp_path):
+@pytest.mark.parametrize("far_end", ["python", "firmware"])
+def test_a_miswired_persistent_bench(tmp_path, far_end):
     from test_bench import serve
-    with serve(tmp_path, "python", "sim://?wiring=d6-d7") as bench:
+    with serve(tmp_path, far_end, "sim://?wiring=d6-d7") as bench:
         p = bench.run("wiring", "--check")
         assert p.returncode == 1
         assert "LM629 D6 (pin 10)" in p.stdout and "Uno D8" in p.stdout
