@@ -142,6 +142,18 @@ def test_the_fault_list_on_the_bridges(url):
     assert not wrong
 
 
+def test_the_fault_list_on_the_ft232h():
+    """The same list on the emulated FT232H (not in the Done-when list): its pins named."""
+    wrong = {}
+    for fault in REQUIRED:
+        report = _check(f"sim+ftdi://?wiring={fault}")
+        if {s.line for s in report.suspects} != _lines(fault) or not all(
+                f"FT232H ACBUS{s.line[1]} (breakout C{s.line[1]})" in s.message
+                for s in report.suspects):
+            wrong[fault] = report.lines()
+    assert not wrong
+
+
 def test_the_ft232h_names_its_own_pins():
     report = _check("sim+ftdi://?wiring=d5-high")
     assert report.lines() == [
