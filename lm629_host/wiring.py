@@ -13,6 +13,8 @@ What it looks at (each from a fresh /RST, the AN-706 4.4.1 statuses as a guide):
 * the status right after /RST (00: the chip drives it, no command is involved) and 1.5 ms
   later (84 or C4): the read path alone;
 * RSTI 0000, then the status (80 or C0);
+* RDDP, RDSIGS and SBPA after /RST, and SBPA alone: command bytes that differ from LTRJ's
+  and RSTI's where the faults that turn those into other commands differ;
 * LTRJ (absolute position, velocity, acceleration), STT, RDDP: two patterns whose bytes put
   0 and 1 on every line (``000055AA``, ``FFFFAA55``), and a relative move after one (the
   chip adds: a swapped pair shows there although a pattern read back through the same two
@@ -393,7 +395,13 @@ def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], 
         size=2)
     add("reads", "status after RDSIGS", RESET_DONE, sts[1], err)
     add("reads", "status after SBPA 00000000", RESET_DONE, sts[2], err)
-    # 4. the patterns, and the relative move
+    # 4. SBPA 00000000 alone after /RST: the one command with bit 5 and not bit 3 (D3 stuck
+    # low leaves it alone and breaks RDDP above; D3 swapped with D5 turns it into RDDP)
+    exps["sbpa"] = Experiment("sbpa", (int(Cmd.SBPA),), (0,))
+    st, _, _, err = _run(chip, _reset(chip, chip.program()).wait(RESET_WAIT_US)
+                         .command(Cmd.SBPA).write(0).write(0).sync())
+    add("sbpa", "status after SBPA 00000000 alone", RESET_DONE, st[0] if st else None, err)
+    # 5. the patterns, and the relative move
     for target, relative in [(p, None) for p in PATTERNS] + [RELATIVE]:
         name = f"{target:08X}" + (f"+{relative:08X}" if relative is not None else "")
         cmds = (int(Cmd.LTRJ), int(Cmd.STT), int(Cmd.RDDP))

@@ -32,16 +32,11 @@ REQUIRED = ([f"d{i}-low" for i in range(8)] + [f"d{i}-high" for i in range(8)]
             + ["d3-open", "d2-d3", "d6-d7"])
 #: every single swap (on sim:// in full)
 SWAPS = [f"d{i}-d{j}" for i in range(8) for j in range(i + 1, 8)]
-#: d3-d5 reads exactly as d3-low on every experiment (LTRJ, RSTI, RDDP and RDSIGS are all
-#: turned into other commands, and no command the chip has carries bit 5 alone), so the check
-#: names D3 reading 0: the right wire to look at, not the whole pair
-SAME_AS = {"d3-d5": "d3-low"}
 PINS = {f"D{i}": 4 + i for i in range(8)}
 UNO = {f"D{i}": f"D{i + 2}" for i in range(8)}
 
 
 def _lines(fault: str) -> set[str]:
-    fault = SAME_AS.get(fault, fault)
     return {f"D{x}" for x in re.findall(r"d(\d)", fault)}
 
 
