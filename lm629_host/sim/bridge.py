@@ -54,6 +54,7 @@ from ..bridge.protocol import (
 from ..opcodes import BUSY_BIT
 from ..program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
 from .clock import SimClock
+from .wiring import BentChip, Miswiring
 from .model import ChipBus, ChipModel, chips_of
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
@@ -120,15 +121,20 @@ class BridgeEmulator:
     model: ChipModel | ChipBus
     info: HelloInfo = field(default_factory=lambda: MULTI_AXIS_INFO)
     stats: EmuStats = field(default_factory=EmuStats)
+    #: ``wiring=``: the data lines between the bridge's pins and the chips (None: correct)
+    wiring: Miswiring | None = None
 
     def __post_init__(self) -> None:
         self._chips = chips_of(self.model)
+        if self.wiring is not None:  # the bus is shared: every chip behind the same wires
+            self._chips = [BentChip(c, self.wiring) for c in self._chips]  # type: ignore[misc]  # BentChip has a chip's strobes
         self._cs = 0
         self._reader = FrameReader()
         self._cache: tuple[int, int, bytes] | None = None  # seq, crc, encoded reply
         self._codes: dict[int, bytes] = {}  # programs kept for RUN_CODE
         self._cycle_ticks = max(1, round(BUS_CYCLE_S * self.model.clock_hz))
         self._rec: _Recording | None = None
+        self._no_chip = _NO_CHIP if self.wiring is None else BentChip(_NO_CHIP, self.wiring)
         if self.info.max_program > MAX_FRAME - RUN_OVERHEAD:
             raise ValueError(f"max_program={self.info.max_program} does not fit MAX_FRAME")
 
@@ -356,7 +362,7 @@ class BridgeEmulator:
 
     def _chip(self) -> ChipModel:
         k = self._cs
-        return self._chips[k] if k < len(self._chips) else _NO_CHIP  # type: ignore[return-value]  # an unwired select: the floating bus
+        return self._chips[k] if k < len(self._chips) else self._no_chip  # type: ignore[return-value]  # an unwired select: the floating bus
 
     def _wait_not_busy(self, timeout_s: float) -> tuple[bool, int]:
         m = self.model

@@ -42,6 +42,7 @@ from ..bridge.protocol import (
 from ..program import Op
 from .bridge import BridgeEmulator, EmuPipe
 from .build import build_bus
+from .wiring import Miswiring, wiring_of
 from .model import ChipBus, ChipModel, chips_of
 from .usb import OPTION_NAMES as USB_OPTIONS
 from .usb import UsbPipe, adapter_of, wrap_usb
@@ -78,9 +79,9 @@ class FarEnd(abc.ABC):
 class EmuFarEnd(FarEnd):
     """The Python bridge over the model, driven straight."""
 
-    def __init__(self, model: ChipModel | ChipBus) -> None:
+    def __init__(self, model: ChipModel | ChipBus, wiring: Miswiring | None = None) -> None:
         self.model = model  # one chip, or a ChipBus (``--url 'sim://?axes=2'``)
-        self.emulator = BridgeEmulator(model)
+        self.emulator = BridgeEmulator(model, wiring=wiring)
 
     def receive(self, data: bytes) -> list[bytes]:
         return self.emulator.receive(data)
@@ -210,9 +211,10 @@ def emulator_far_end(url: str) -> FarEnd:
     adapter (:mod:`.usb`)."""
     model = build_bus(url, allowed=USB_OPTIONS)
     adapter = adapter_of(url)
+    wiring = wiring_of(url)
     if adapter is None:
-        return EmuFarEnd(model)
-    pipe = UsbPipe(_PtyLine(BridgeEmulator(model), baud=None), adapter)
+        return EmuFarEnd(model, wiring)
+    pipe = UsbPipe(_PtyLine(BridgeEmulator(model, wiring=wiring), baud=None), adapter)
     return PipeFarEnd(pipe, model, f"Python bridge emulator behind USB {adapter.describe()}")
 
 
@@ -229,7 +231,7 @@ def firmware_far_end(url: str) -> FarEnd:
     if isinstance(model, ChipBus):
         model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
     try:
-        sim = AvrSim(model)
+        sim = AvrSim(model, wiring=wiring_of(url))
     except (HarnessError, OSError) as exc:
         raise RuntimeError(f"--firmware runs the compiled firmware in simavr: {exc}. Build it "
                            "with `make -C firmware_bridge` (needs gcc-avr, avr-libc, simavr, "
