@@ -25,8 +25,9 @@ from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
 
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"
 
-#: the ``firmware_built`` fixture, for every test module that asks for it by name
-pytest_plugins = ("firmware_helpers",)
+#: the ``firmware_built`` fixture, for every test module that asks for it by name; pytester
+#: runs the lm629 pytest plugin (tests/test_pytest_plugin.py)
+pytest_plugins = ("firmware_helpers", "pytester")
 
 
 def _avr_missing() -> list[str]:
