@@ -507,16 +507,34 @@ def _coast(ses: _Session, rec: Record, time_s: float) -> tuple[float, float]:
     return speed(rows[0], rows[third]), speed(rows[-1 - third], rows[-1])
 
 
-def _brakes_past_target(ses: _Session, rec: Record, target: int, sign: int, away: int,
-                        time_s: float) -> None:
-    """Once the shaft is ``away`` counts past ``target`` (in the direction ``sign``), its speed
-    over the next polls must not grow: RUNAWAY (reversed leads under a load) if it does."""
-    def past(s: Snapshot) -> bool:
-        return sign * (s.real_position - target) >= away
+def _load_way_step(ses: _Session, rec: Record, target: int, way: int, away: int, step: int,
+                   time_s: float, seen: str) -> Snapshot:
+    """The step after a coast that showed a load pulling the shaft ``way``: to ``target``.
 
-    s0 = ses.record(rec, time_s, past)
+    A loop phased right pulls the shaft towards the target, and once the shaft is a whole step
+    past it the load's way the drive there (1/8 of full scale at the phasing gain: any load
+    that gain can hold) brakes it.  A reversed loop either pushes the shaft away from the
+    target against the load, or drives it on, faster, with the load: RUNAWAY either way."""
+    start = rec.rows[-1]
+
+    def against(s: Snapshot) -> bool:
+        x = s.real_position
+        return way * (x - start.real_position) <= -away and \
+            abs(target - x) > abs(target - start.real_position)
+
+    def past(s: Snapshot) -> bool:
+        return way * (s.real_position - target) >= step
+
+    ses.step_to(rec, target)
+    s0 = ses.record(rec, time_s, lambda s: against(s) or past(s))
+    if against(s0):
+        raise ses.fault(MotionError.RUNAWAY,
+                        f"phasing: {seen}, then the desired position went to {target:+d} and "
+                        f"the shaft {s0.real_position - start.real_position:+d}: the shaft runs "
+                        "away from any target, the loop pushes the wrong way. Swap the motor "
+                        "leads (or the encoder's A and B channels)", s0)
     if not past(s0):
-        return
+        return s0
     window = [s0]
 
     def polls(s: Snapshot) -> bool:
@@ -525,16 +543,17 @@ def _brakes_past_target(ses: _Session, rec: Record, target: int, sign: int, away
 
     ses.record(rec, time_s, polls)
     if len(window) < 9:
-        return
+        return window[-1]
     a, b, c = window[0], window[4], window[8]
-    early = sign * (b.real_position - a.real_position) / max(b.time - a.time, 1e-9)
-    late = sign * (c.real_position - b.real_position) / max(c.time - b.time, 1e-9)
+    early = way * (b.real_position - a.real_position) / max(b.time - a.time, 1e-9)
+    late = way * (c.real_position - b.real_position) / max(c.time - b.time, 1e-9)
     if late > early and late > 0:
         raise ses.fault(MotionError.RUNAWAY,
-                        f"phasing: past its target {target:+d} the shaft sped up "
-                        f"({early:,.0f} then {late:,.0f} counts/s) with the load's pull and the "
-                        "loop's: the loop pushes the wrong way. Swap the motor leads (or the "
-                        "encoder's A and B channels)", c)
+                        f"phasing: {seen}; a step past its target {target:+d} the shaft sped "
+                        f"up ({early:,.0f} then {late:,.0f} counts/s) with the load's pull and "
+                        "the loop's: the loop pushes the wrong way. Swap the motor leads (or "
+                        "the encoder's A and B channels)", c)
+    return c
 
 
 def _phasing(ses: _Session, step: int, time_s: float) -> Record:
@@ -567,6 +586,7 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
         rec = ses.begin(f"phasing kp={kp}", g)
         moved: dict[int, int] = {}
         last = rec.rows[-1]
+        seen = ""
         headed: tuple[int, float] | None = None  # (direction, counts/s) of a shaft heading away
         for sign in (1, -1):
             start = last.real_position
@@ -576,6 +596,13 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
                 along = sign * (s.real_position - start)
                 return along >= step // 2 or along <= -away
 
+            if headed is not None:
+                # after a coast that showed a load: the step the load's way (see there)
+                last = _load_way_step(ses, rec, ses.origin + sign * step, headed[0], away, step,
+                                      time_s, seen)
+                moved[sign] = last.real_position - start
+                last, _still = ses.settle(rec, time_s)
+                continue
             ses.step_to(rec, ses.origin + sign * step)
             last = ses.record(rec, time_s, watch)
             moved[sign] = last.real_position - start
@@ -601,10 +628,6 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
                 last = rec.rows[-1]
                 continue
             if sign * moved[sign] >= step // 2:
-                if headed is not None:
-                    # the load's way after a coast: a loop phased right brakes the shaft once
-                    # it is past the target, a reversed one drives it on faster
-                    _brakes_past_target(ses, rec, ses.origin + sign * step, sign, away, time_s)
                 # followed: let it come to rest there, so that the next step starts from a
                 # shaft at rest (a shaft still coasting up would seem to refuse a step down)
                 last, _still = ses.settle(rec, time_s)
