@@ -36,12 +36,13 @@ Everything waits on ``chip.clock`` (simulated time on ``sim://``).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 
 from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
+from .recording import far_snapshots, sample_program
 from .pid import (
     STEP_ACCELERATION,
     STEP_VELOCITY,
@@ -284,17 +285,26 @@ class Record:
     steps: list[tuple[float, int]] = field(default_factory=list)
     t0: float = 0.0
     state0: PIDState | None = None  #: the filter's state at t0, when known
+    #: for each step, the index in ``rows`` of the first row read after its STT
+    step_rows: list[int] = field(default_factory=list)
+    #: the rows recorded on the far side, one (first, end) index range per recording: their
+    #: times within a range are the far side's clock (exact), only its offset is the host's
+    far_runs: list[tuple[int, int]] = field(default_factory=list)
 
     def times(self) -> list[float]:
         return [s.time - self.t0 for s in self.rows]
 
     def segment(self, k: int) -> tuple[list[float], list[int], list[int], int, int]:
-        """(times after its STT, real, desired, start, target) of the k-th step."""
+        """(times after its STT, real, desired, start, target) of the k-th step.
+
+        The rows are told apart by when they were read (``step_rows``), not by their times: a
+        far-side recording started at the STT stamps its first row with the STT's own time
+        (``sim://``), and behind USB the host learns of the STT a flush tick after the chip."""
         t_k, target = self.steps[k]
-        t_end = self.steps[k + 1][0] if k + 1 < len(self.steps) else math.inf
-        before = [s for s in self.rows if s.time <= t_k]
-        start = before[-1].desired_position if before else self.rows[0].desired_position
-        rows = [s for s in self.rows if t_k < s.time <= t_end]
+        first = self.step_rows[k]
+        end = self.step_rows[k + 1] if k + 1 < len(self.step_rows) else len(self.rows)
+        start = self.rows[max(0, first - 1)].desired_position
+        rows = self.rows[first:end]
         return ([s.time - t_k for s in rows], [s.real_position for s in rows],
                 [s.desired_position for s in rows], start, target)
 
@@ -366,9 +376,27 @@ class _Session:
         if self.drive_off and first.real_velocity:
             self.pulled = 1 if first.real_velocity > 0 else -1
         self.phasing_kp: int | None = None  #: the phasing gain in force, while phasing
+        self._stream: Generator[Snapshot, None, None] | None = None  #: a recording under way
+        self.far_period = self._far_period(chip)
         self.check(first)
 
+    def _far_period(self, chip: LM629) -> float | None:
+        """The period of far-side recordings (issue 20: the transport's own clock times the
+        rows, host latency only delays them), or None where the host polls: a whole number of
+        chip samples, at least ``poll_s`` and what the line carries.  Whole samples: a row
+        period of 1 ms is 3.906 samples at 8 MHz, so rows would fall at every phase of the
+        chip's sample and a fit that puts each row on its sample would be up to half a sample
+        out (5 counts at 10 counts/sample); at 2.048 ms every row is at the same phase."""
+        transport = chip.transport
+        if not transport.records_on_far_side:
+            return None
+        top = transport.record_max_rate(sample_program(chip, full=True))
+        shortest = max(self.poll_s, 1.0 / top if top else 0.0)
+        return math.ceil(shortest / self.sample_s - 1e-9) * self.sample_s
+
     def fault(self, reason: str, message: str, snap: Snapshot | None = None) -> MotionError:
+        if self._stream is not None:  # a recording in progress: end it before the stop
+            self._stream.close()
         _ok, note = emergency_stop(self.chip)
         err = MotionError(reason, f"{message} -- {note}",
                           position=None if snap is None else snap.real_position,
@@ -426,10 +454,36 @@ class _Session:
         self.chip.load_trajectory(acceleration=a, velocity=v, position=target, start=True)
         self.driving = True
         rec.steps.append((self.chip.clock.now(), target))
+        rec.step_rows.append(len(rec.rows))
 
     def record(self, rec: Record, duration_s: float,
                watch: Callable[[Snapshot], bool] | None = None) -> Snapshot:
-        """Snapshots every ``poll_s`` for ``duration_s``; ``watch`` returning True ends early."""
+        """Snapshots for ``duration_s``, each checked; ``watch`` returning True ends early.
+
+        Where the transport records on its far side (the bridge's RECORD, a simulator's
+        clock) one recording every :attr:`far_period`, its rows timed by the far side's clock
+        from the recording's start (their first row is taken at once, at the STT's time on
+        ``sim://``: :meth:`Record.segment` tells the steps' rows apart by when they were read);
+        else polled from the host every ``poll_s``.  A fault found on a row ends the
+        recording before the motor is stopped."""
+        period = self.far_period
+        rows = None if period is None else far_snapshots(
+            self.chip, period, max(1, math.ceil(duration_s / period)))
+        if rows is not None:
+            s = rec.rows[-1] if rec.rows else self.snap()
+            first = len(rec.rows)
+            self._stream = rows
+            try:
+                for s in rows:
+                    self.check(s)
+                    rec.rows.append(s)
+                    if watch is not None and watch(s):
+                        break
+            finally:
+                self._stream = None
+                rows.close()
+                rec.far_runs.append((first, len(rec.rows)))
+            return s
         clock = self.chip.clock
         end = clock.now() + duration_s
         s = rec.rows[-1] if rec.rows else self.snap()
@@ -750,9 +804,105 @@ def _nelder_mead(f: Callable[[list[float]], float], x0: list[float], steps: list
     return pts[i], vals[i]
 
 
+@dataclass
+class _Segment:
+    """The rows a far-side recording took after one P-only step: the fit starts the model
+    at the first row (its position, the output the filter holds for its error, a speed fitted
+    with the model), so when the STT ran on the chip's clock does not matter."""
+
+    target: int
+    first: Snapshot
+    idx: list[int]  #: samples after the first row, less one (the index into simulate's counts)
+    meas: list[int]  #: real positions there
+
+    def residual(self, model: AxisModel, g: Gains, w0: float) -> tuple[float, int]:
+        e = sat16(self.target - self.first.real_position)
+        st = PIDState(last_error=e, output=sat16(g.kp * e))
+        counts, _ = simulate(model, g, [self.target] * (self.idx[-1] + 1),
+                             x0=self.first.real_position + 0.5, w0=w0, state=st)
+        return sum((counts[i] - m) ** 2 for i, m in zip(self.idx, self.meas)), len(self.idx)
+
+
+def _far_segments(rec: Record, sample_s: float) -> list[_Segment] | None:
+    """Each step's rows, when one far-side recording began at each step of a P-only record
+    (the identification's), else None (host-polled rows: :func:`fit_model` uses the step times
+    on the host's clock).
+
+    Why not the step times: the host stamps an STT when its reply arrives, behind an Uno's USB
+    chip up to a 4.096 ms flush tick after the chip ran it, and the far side's rows are timed
+    from the first row, which the bridge takes when the RECORD request reaches it (a USB frame
+    later): on one clock the shaft would seem to move 2-5 ms early, an acceleration 11-18 %
+    high.  Within one recording the rows' times are the far side's own, exact."""
+    if rec.gains is None or rec.gains.ki or rec.gains.kd or not rec.steps:
+        return None
+    runs = dict(rec.far_runs)
+    out = []
+    for (_t, target), first in zip(rec.steps, rec.step_rows):
+        end = runs.get(first, first)
+        if end - first < 4:
+            return None
+        rows = rec.rows[first:end]
+        idx = [round((s.time - rows[0].time) / sample_s) - 1 for s in rows[1:]]
+        if idx[0] < 0 or any(b <= a for a, b in zip(idx, idx[1:])):
+            return None
+        out.append(_Segment(target, rows[0], idx, [s.real_position for s in rows[1:]]))
+    return out
+
+
+def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
+             iters: int) -> tuple[AxisModel, float]:
+    """:func:`fit_model` on far-side segments: the axis and each segment's starting speed."""
+    m = len(segs)
+    # first guesses: each segment's speed over its first two rows, the acceleration from the
+    # first segment's change of speed over its first three at the output it held
+    speeds = [(s.meas[0] - s.first.real_position) / (s.idx[0] + 1) for s in segs]
+    s0 = segs[0]
+    fs = full_scale(twelve_bit)
+    out0 = max(1, min(fs - 1, abs(sat16(g.kp * (s0.target - s0.first.real_position)))
+                      >> output_shift(twelve_bit)))
+    guess = 1e-3
+    if len(s0.idx) > 1:
+        dv = (s0.meas[1] - s0.meas[0]) / (s0.idx[1] - s0.idx[0]) - speeds[0]
+        dt = (s0.idx[1] + s0.idx[0]) / 2 + 1 - (s0.idx[0] + 1) / 2
+        guess = max(1e-6, abs(dv) / max(dt, 1e-9) * fs / out0)
+
+    def make(p: list[float]) -> AxisModel:
+        acc = math.exp(p[0])
+        return AxisModel(acc, math.exp(p[1]), abs(p[2]) * acc, p[3] * acc, twelve_bit)
+
+    def f(p: list[float]) -> float:
+        if not -30 < p[0] < 5 or not -20 < p[1] < 1 or abs(p[2]) > 1 or abs(p[3]) > 1:
+            return 1e12
+        model = make(p)
+        err, n = 0.0, 0
+        for seg, w0 in zip(segs, p[4:]):
+            e, k = seg.residual(model, g, w0)
+            err, n = err + e, n + k
+        return math.sqrt(err / max(1, n))
+
+    best: list[float] = []
+    best_val = math.inf
+    for rate0 in (1e-3, 1e-2):  # two starts: slow and fast mechanical time constants
+        p, v = _nelder_mead(f, [math.log(guess), math.log(rate0), 0.005, 0.0] + speeds,
+                            [0.5, 1.0, 0.01, 0.02] + [0.5] * m, iters // 2)
+        if v < best_val:
+            best, best_val = p, v
+    p, v = _nelder_mead(f, best, [0.1, 0.3, 0.005, 0.005] + [0.1] * m, iters)  # polish
+    if v < best_val:
+        best, best_val = p, v
+    return make(best), best_val
+
+
 def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
               iters: int = 60) -> tuple[AxisModel, float]:
-    """Fit an :class:`AxisModel` to an identification record; returns (model, rms counts)."""
+    """Fit an :class:`AxisModel` to an identification record; returns (model, rms counts).
+
+    Rows recorded on the far side are fitted step by step from the first row after each
+    STT (:func:`_far_segments`); host-polled rows from the record's start, at the step times."""
+    segs = _far_segments(rec, sample_s)
+    if segs is not None:
+        assert rec.gains is not None
+        return _fit_far(segs, rec.gains, sample_s, twelve_bit, iters)
     t_last = rec.rows[-1].time - rec.t0
     n = int(t_last / sample_s) + 2
     desired = _desired_samples(rec, n, sample_s)

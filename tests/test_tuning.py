@@ -21,7 +21,7 @@ from lm629_host import cli
 from lm629_host.errors import MotionError
 from lm629_host.sim.model.params import MotorParams
 from lm629_host.pid import PIDState
-from lm629_host.opcodes import Signals
+from lm629_host.opcodes import Signals, s32
 from lm629_host.tuning import AxisModel, Gains, autotune, simulate, step_metrics
 
 from filter_helpers import LOOPS, loop_filter
@@ -43,7 +43,8 @@ def physical(p: MotorParams) -> AxisModel:
 
 
 class Watched:
-    """Every snapshot the tuner takes (real positions), and the chip after it."""
+    """Every position the tuner reads (snapshots, and the rows of far-side recordings), and
+    the chip after it.  ``interrupt_at``: raise KeyboardInterrupt at that many reads."""
 
     def __init__(self, url: str):
         self.chip = lm629_host.open(url)
@@ -52,13 +53,29 @@ class Watched:
         self.chip.update_filter()
         self.origin = self.chip.read_desired_position()
         self.positions: list[int] = []
+        self.interrupt_at: int | None = None
         real = self.chip.snapshot
+        record_rows = self.chip.transport.record_rows
+
+        def seen(position: int) -> None:
+            if len(self.positions) == self.interrupt_at:
+                raise KeyboardInterrupt
+            self.positions.append(position)
 
         def snapshot():
             s = real()
-            self.positions.append(s.real_position)
+            seen(s.real_position)
             return s
+
+        def rows(program, period_s, n):
+            for raw in record_rows(program, period_s, n):
+                # the tuner records whole snapshots (recording.FULL_READS): RDSIGS, then RDDP's
+                # and RDRP's two words each
+                assert len(raw.words) == 9
+                seen(s32((raw.words[3] << 16) | raw.words[4]))
+                yield raw
         self.chip.snapshot = snapshot  # type: ignore[method-assign]  # a scripted shaft
+        self.chip.transport.record_rows = rows  # type: ignore[method-assign]  # and its rows
 
     def in_band(self, travel: int) -> bool:
         return all(abs(p - self.origin) <= travel for p in self.positions)
@@ -125,16 +142,11 @@ UNO_EMU, UNO_AVR = BEHIND_USB_URLS
 
 
 @pytest.mark.parametrize("base, name", [("sim://", name) for name in MOTORS] + [
-    # issue 20's tuner (tuning.py) meets the Uno's latency here; its host-polled identification
-    # sees the 4.096 ms flush tick as timing jitter
-    pytest.param(UNO_EMU, "default", marks=pytest.mark.xfail(strict=True, reason=(
-        "issue 20: behind usb=uno the host-polled identification puts the acceleration "
-        "11-15 % high (0.436-0.450 for 0.391, seeds 0-2); the tuned move itself ends within "
-        "1 count, overshoot 1"))),
-    pytest.param(UNO_EMU, "holding load", marks=pytest.mark.xfail(strict=True, reason=(
-        "issue 20: phasing now tells the load from reversed leads behind usb=uno (it passes); "
-        "what fails is the identification, as on the default motor: the acceleration 12 % "
-        "high (0.437 for 0.391)"))),
+    # issue 20's tuner (tuning.py) meets the Uno's latency here: it identifies and judges on
+    # rows the bridge records on its own timer (host-polled, the 4.096 ms flush tick put the
+    # acceleration 11-15 % high)
+    (UNO_EMU, "default"),
+    (UNO_EMU, "holding load"),
 ])
 def test_autotune_ends_on_target_inside_the_band(base, name):
     w = Watched(with_params(base, MOTORS[name]))
@@ -372,13 +384,7 @@ def test_ctrl_c_while_tuning_stops_the_motor():
     """A KeyboardInterrupt in the middle of the identification (the 150th position read)
     goes on to the caller after the motor was stopped (abrupt stop, then motor off)."""
     w = Watched("sim://")
-    real = w.chip.snapshot
-
-    def snapshot():
-        if len(w.positions) == 150:
-            raise KeyboardInterrupt
-        return real()
-    w.chip.snapshot = snapshot  # type: ignore[method-assign]  # a scripted shaft
+    w.interrupt_at = 150
     with pytest.raises(KeyboardInterrupt) as err:
         autotune(w.chip, travel=TRAVEL)
     assert "motor stopped" in err.value.lm629_stop_note  # type: ignore[attr-defined]  # set by stop_on_error
