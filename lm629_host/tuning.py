@@ -849,22 +849,35 @@ def _far_segments(rec: Record, sample_s: float) -> list[_Segment] | None:
     return out
 
 
+def _first_speed(seg: _Segment) -> float:
+    """counts/sample at the first row: the parabola through the first three rows."""
+    p0 = seg.first.real_position
+    if len(seg.idx) < 2:
+        return (seg.meas[0] - p0) / (seg.idx[0] + 1)
+    t1, t2 = seg.idx[0] + 1, seg.idx[1] + 1
+    d1, d2 = seg.meas[0] - p0, seg.meas[1] - p0
+    c = (d2 / t2 - d1 / t1) / (t2 - t1)
+    return d1 / t1 - c * t1
+
+
 def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
              iters: int) -> tuple[AxisModel, float]:
     """:func:`fit_model` on far-side segments: the axis and each segment's starting speed."""
     m = len(segs)
-    # first guesses: each segment's speed over its first two rows, the acceleration from the
-    # first segment's change of speed over its first three at the output it held
-    speeds = [(s.meas[0] - s.first.real_position) / (s.idx[0] + 1) for s in segs]
+    # first guesses: each segment's speed over its first two rows; the acceleration from
+    # the first segment as from rest (x = a t^2 / 2 at the output held for the first row's
+    # error), where the shaft has gone a twentieth of the way (a slow axis hardly moves
+    # between the first rows, a fast one is already well under way)
+    speeds = [_first_speed(s) for s in segs]
     s0 = segs[0]
+    x0 = s0.first.real_position
     fs = full_scale(twelve_bit)
-    out0 = max(1, min(fs - 1, abs(sat16(g.kp * (s0.target - s0.first.real_position)))
-                      >> output_shift(twelve_bit)))
+    out0 = max(1, min(fs - 1, abs(sat16(g.kp * (s0.target - x0))) >> output_shift(twelve_bit)))
     guess = 1e-3
-    if len(s0.idx) > 1:
-        dv = (s0.meas[1] - s0.meas[0]) / (s0.idx[1] - s0.idx[0]) - speeds[0]
-        dt = (s0.idx[1] + s0.idx[0]) / 2 + 1 - (s0.idx[0] + 1) / 2
-        guess = max(1e-6, abs(dv) / max(dt, 1e-9) * fs / out0)
+    for k, x in zip(s0.idx, s0.meas):
+        if abs(x - x0) >= max(3, abs(s0.target - x0) // 20):
+            guess = 2 * abs(x - x0) / (k + 1) ** 2 * fs / out0
+            break
 
     def make(p: list[float]) -> AxisModel:
         acc = math.exp(p[0])
@@ -880,17 +893,44 @@ def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
             err, n = err + e, n + k
         return math.sqrt(err / max(1, n))
 
+    # the axis with the speeds at their guesses (two starts: slow and fast mechanical time
+    # constants), then each speed alone on that axis, then all together: one simplex over
+    # all at once from the guesses stalls (a speed 0.1 count/sample off grows to tens of
+    # counts, the axis's parameters barely move the fit)
     best: list[float] = []
     best_val = math.inf
-    for rate0 in (1e-3, 1e-2):  # two starts: slow and fast mechanical time constants
-        p, v = _nelder_mead(f, [math.log(guess), math.log(rate0), 0.005, 0.0] + speeds,
-                            [0.5, 1.0, 0.01, 0.02] + [0.5] * m, iters // 2)
+    for rate0 in (1e-3, 1e-2):
+        p, v = _nelder_mead(lambda q: f(q + speeds), [math.log(guess), math.log(rate0), 0.005,
+                                                        0.0], [0.5, 1.0, 0.01, 0.02], iters // 2)
         if v < best_val:
             best, best_val = p, v
-    p, v = _nelder_mead(f, best, [0.1, 0.3, 0.005, 0.005] + [0.1] * m, iters)  # polish
+    model = make(best)
+    for i, seg in enumerate(segs):
+        speeds[i] = _golden(lambda w, seg=seg: seg.residual(model, g, w)[0],
+                            speeds[i] - 1.0, speeds[i] + 1.0)
+    best = best + speeds
+    best_val = f(best)
+    p, v = _nelder_mead(f, best, [0.1, 0.3, 0.005, 0.005] + [0.05] * m, iters)  # polish
     if v < best_val:
         best, best_val = p, v
     return make(best), best_val
+
+
+def _golden(f: Callable[[float], float], a: float, b: float, tol: float = 0.01) -> float:
+    """The minimum of ``f`` on [a, b] (golden-section search, ``f`` unimodal there)."""
+    r = (math.sqrt(5) - 1) / 2
+    c, d = b - r * (b - a), a + r * (b - a)
+    fc, fd = f(c), f(d)
+    while b - a > tol:
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - r * (b - a)
+            fc = f(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + r * (b - a)
+            fd = f(d)
+    return (a + b) / 2
 
 
 def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
