@@ -906,8 +906,9 @@ def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
             best, best_val = p, v
     model = make(best)
     for i, seg in enumerate(segs):
-        speeds[i] = _golden(lambda w, seg=seg: seg.residual(model, g, w)[0],
-                            speeds[i] - 1.0, speeds[i] + 1.0)
+        def sq(w: float, seg: _Segment = seg) -> float:
+            return seg.residual(model, g, w)[0]
+        speeds[i] = _golden(sq, speeds[i] - 1.0, speeds[i] + 1.0)
     best = best + speeds
     best_val = f(best)
     p, v = _nelder_mead(f, best, [0.1, 0.3, 0.005, 0.005] + [0.05] * m, iters)  # polish
