@@ -14,6 +14,16 @@ gives the step's figures and the move's (its settle counted from the profile's e
     python3 tools/bench_tune.py            # the full grid (a few minutes on one core)
     python3 tools/bench_tune.py --quick    # a coarse grid
     python3 tools/bench_tune.py --url 'sim+avr://'   # through the compiled bridge firmware
+    python3 tools/bench_tune.py --matrix   # issue 20's done-when: 5 transports x 3 motors
+
+``--matrix``: on each transport of issue 20 (``sim://``, ``sim+emu://``, ``sim+avr://``,
+``sim+ftdi://``, ``sim+emu://?usb=uno&fast_baud=1000000``) and each of its motors (default,
+10x inertia, a holding load of 0.005 N m), ``autotune(chip, travel=2000)`` from a fresh chip
+holding at kp = 20, then with the gains it leaves loaded the 2000-count step and the
+2000-count trapezoid move at the tuner's profile, each out and back (``measure_move``, band
++/-5000: travel 2000 allows the tuner test moves of 1500 at most), the worse of out and back.
+A combination holds when the move ends within 3 counts with an overshoot of at most 20 counts
+(1 % of the move); the step's figures are shown beside it.
 """
 
 from __future__ import annotations
@@ -92,12 +102,61 @@ def row(name: str, what: str, g: Gains, m: Measured) -> str:
     return f"| {name} | {what} | {g} | {_figures(m[0])} | {_figures(m[1])} |"
 
 
+MATRIX_URLS = ("sim://", "sim+emu://", "sim+avr://", "sim+ftdi://",
+               "sim+emu://?usb=uno&fast_baud=1000000")
+MATRIX_MOTORS = (("default", ""), ("10x inertia", "inertia=4e-5"),
+                 ("holding load 0.005 N m", "load_torque=0.005"))
+MATRIX_TRAVEL = 2000  #: autotune's travel (issue 20's done-when)
+
+
+def matrix(urls: list[str]) -> int:
+    """Issue 20's done-when table; the number of combinations that hold."""
+    print(f"autotune(chip, travel={MATRIX_TRAVEL}), then {DISTANCE}-count moves out and back "
+          f"with the gains loaded (worse of the two); holds: the move within 3 counts, "
+          f"overshoot <= {DISTANCE // 100}")
+    print("| transport | motor | gains | step: final error | overshoot | move: final error | "
+          "overshoot | peak following error | holds | wall s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    held = 0
+    for base in urls:
+        for name, params in MATRIX_MOTORS:
+            t = time.perf_counter()
+            with fresh(url_of(base, params)) as chip:
+                try:
+                    r = autotune(chip, travel=MATRIX_TRAVEL)
+                    assert r.profile is not None
+                    step, _ = measure_move(chip, None, distance=DISTANCE, travel=TRAVEL,
+                                           duration_s=DURATION, tolerance=TOLERANCE)
+                    move, _ = measure_move(chip, None, distance=DISTANCE, travel=TRAVEL,
+                                           duration_s=DURATION, tolerance=TOLERANCE,
+                                           profile=r.profile)
+                except MotionError as exc:
+                    print(f"| {base} | {name} | fault: {str(exc)[:120]} | | | | | | no | "
+                          f"{time.perf_counter() - t:.0f} |")
+                    sys.stdout.flush()
+                    continue
+            ok = abs(move.final_error) <= 3 and move.overshoot <= DISTANCE // 100
+            held += ok
+            print(f"| {base} | {name} | {r.gains} | {step.final_error:+d} | {step.overshoot} | "
+                  f"{move.final_error:+d} | {move.overshoot} | {abs(move.peak_following_error)} "
+                  f"| {'yes' if ok else 'NO'} | {time.perf_counter() - t:.0f} |")
+            sys.stdout.flush()
+    print(f"{held} of {len(urls) * len(MATRIX_MOTORS)} hold")
+    return held
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--url", default="sim://", help="base URL (motor parameters are appended)")
     ap.add_argument("--quick", action="store_true", help="a coarse grid")
     ap.add_argument("--motor", action="append", help="only these motors (names as listed)")
+    ap.add_argument("--matrix", action="store_true",
+                    help="issue 20's done-when: autotune(travel=2000) on 5 transports x 3 "
+                         "motors, then 2000-count moves (--url: only that transport)")
     args = ap.parse_args()
+    if args.matrix:
+        matrix([args.url] if args.url != "sim://" or "--url" in sys.argv else list(MATRIX_URLS))
+        return
     if args.quick:
         grid = list(itertools.product((25, 100, 400), (0, 16), (0, 1000, 4000, 16000)))
     else:
