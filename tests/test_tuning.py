@@ -173,6 +173,14 @@ def test_autotune_ends_on_target_inside_the_band(base, name):
     assert abs(mv.final_error) <= 2 and mv.overshoot <= 20
     assert abs(mv.peak_following_error) < DISTANCE // 20  # a move, not a step: it follows
     assert abs(mv.overshoot - r.predicted_move.overshoot) <= 4
+    # identified on far-side recordings (sim:// and the bridge behind USB both record there):
+    # one per step, rows a whole number of chip samples apart on the far side's clock
+    ident = r.record("identify")
+    assert [first for first, _end in ident.far_runs] == ident.step_rows
+    for first, end in ident.far_runs:
+        gaps = {round((b.time - a.time) / T, 6) for a, b in
+                zip(ident.rows[first:end], ident.rows[first + 1:end])}
+        assert gaps == {8.0}  # poll_s 2 ms, at 1 Mbaud or on sim://: 2.048 ms, 8 samples
     # every position read, and the shaft itself, stayed inside the band
     assert w.positions and w.in_band(TRAVEL)
     assert r.positions and all(abs(p - r.origin) <= TRAVEL for p in r.positions)
@@ -182,6 +190,20 @@ def test_autotune_ends_on_target_inside_the_band(base, name):
                                position=target, start=True)
         w.chip.clock.sleep(1.0)
         assert abs(w.chip.read_real_position() - target) <= 2
+    w.chip.close()
+
+
+def test_autotune_polls_from_the_host_where_the_transport_cannot_record():
+    """The FT232H records nothing on its far side: the tuner polls as before (issue 20's
+    fallback) and still ends on target."""
+    w = Watched("sim+ftdi://")
+    assert not w.chip.transport.records_on_far_side
+    r = autotune(w.chip, travel=2000)
+    assert all(not rec.far_runs for rec in r.records)
+    truth = physical(w.chip.transport.model.motor_params)
+    assert r.model.accel == pytest.approx(truth.accel, rel=0.10)
+    assert r.ok and r.measured_move is not None and abs(r.measured_move.final_error) <= 2
+    assert w.in_band(2000)
     w.chip.close()
 
 
