@@ -37,6 +37,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 from .errors import MotionError
+from .limits import clip_step
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
 from .safety import STOP_NOTE, emergency_stop, stop_on_error
@@ -424,8 +425,8 @@ class _Session:
 
     def step_to(self, rec: Record, target: int) -> None:
         self.chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
-        self.chip.load_trajectory(acceleration=STEP_ACCELERATION, velocity=STEP_VELOCITY,
-                                  position=target, start=True)
+        v, a = clip_step(self.chip, STEP_VELOCITY, STEP_ACCELERATION)  # an axis's soft caps
+        self.chip.load_trajectory(acceleration=a, velocity=v, position=target, start=True)
         self.driving = True
         rec.steps.append((self.chip.clock.now(), target))
 

@@ -9,7 +9,7 @@ A new command is a function in its family's module decorated with ``@main.comman
 
 from __future__ import annotations
 
-from . import bench, chip, motion  # noqa: F401 - importing them registers their commands
+from . import bench, chip, motion, profile  # noqa: F401 - importing them registers their commands
 from .app import EXIT_CODES, Session, Terminated, main
 from .bridge import bridge
 from .calc import calc

@@ -83,8 +83,11 @@ def _plot(result: TuneResult, path: str, lines: int | None) -> str:
 @click.option("--yes", "-y", is_flag=True, help="Do not ask before the motor turns (scripts).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
               help="PNG of the test move before and after.")
+@click.option("--save", "save_path", is_flag=False, flag_value="", default=None,
+              metavar="[FILE]", help="Write the gains into the profile (FILE, else --profile's), "
+                                     "keeping its comments.")
 def tune(travel: int, distance: int | None, tolerance: int, before_text: str, interval: float,
-         yes: bool, plot_path: str | None) -> None:
+         yes: bool, plot_path: str | None, save_path: str | None) -> None:
     """Find PID gains for this axis (phasing check, identification, design, a checked test
     move), leave them loaded and applied, and print the `lm629 filter` line that sets them."""
     from .app import _session  # the CLI's session: port, options, safety
@@ -97,6 +100,9 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
     before = parse_gains(before_text)
     s = _session()
     chip = s.open()
+    from . import profile
+    save_to = profile.save_target(s, chip, save_path)
+    profile.tune_band(chip, travel)
     click.echo(f"tuning {chip.variant.upper()} on {chip.transport.describe()}, inside "
                f"+/-{travel} counts of where the shaft is")
     if not yes and not click.confirm(f"The motor will turn, up to {travel} counts either way "
@@ -108,6 +114,7 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
         result = autotune(chip, travel=travel, distance=distance, tolerance=tolerance,
                           before=before, poll_s=interval, clock_hz=s.clock_hz,
                           progress=lambda text: click.echo(f"  {text}", err=True))
+    profile.after_tune(s, chip, result.gains, save_to, result.ok)
     scale = s.scale
     click.echo(f"axis: {result.model.describe(result.sample_s)}")
     d = f"{result.distance:+d}-count step out and back"
@@ -187,6 +194,9 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
     filt = {k: v for k, v in dict(kp=kp, ki=ki, kd=kd, il=il,
                                   derivative_interval=ds).items() if v is not None}
     chip = s.open()
+    from ..limits import clip_step
+    if vel is None and acc is None:  # a step: the fastest trapezoid an axis's caps allow
+        v, a = clip_step(chip, v, a)
     cap = capture_move(chip, counts, duration_s=duration, interval_s=interval,
                        velocity=v, acceleration=a, filter=filt, tolerance=tol)
     for line in summary(cap):
