@@ -11,6 +11,7 @@ Plugged into :mod:`.app` through its ``HOOKS`` (app.py does not import this modu
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,8 @@ import click
 
 from ..board import Board
 from ..lm629 import LM629
-from ..opcodes import Signals
+from ..errors import WaitTimeout
+from ..opcodes import Signals, Status
 from ..profile import (
     AXIS_KEYS,
     Profile,
@@ -34,6 +36,8 @@ from ..profile import (
 )
 from .app import HOOKS, Session, _session, axes_of, board, main
 from .common import _flags
+
+log = logging.getLogger("lm629_host.cli")
 
 #: the file ``profile init`` writes when neither FILE nor --profile names one
 DEFAULT_FILE = "lm629.toml"
@@ -101,7 +105,9 @@ def profile_opened(s: Session, b: Board) -> None:
     for name, chip in named_axes(s, b).items():
         attach(chip, prof, prof.axes[name])
     if s._prepare and getattr(s, "reapply", True):
-        ensure_applied(named_axes(s, b), prof, _say)
+        # an in-process simulator is a fresh chip for every command (and says so): applying
+        # the profile to it is the rule, not news
+        ensure_applied(named_axes(s, b), prof, log.info if s.is_sim else _say)
 
 
 HOOKS["profile_options"] = profile_options
@@ -128,6 +134,44 @@ def check_move(s: Session, targets: list[int], velocity: int, acceleration: int,
         lim = limits.get(cs)
         if lim is not None:
             lim.check_trajectory(acceleration, velocity, None if relative else target)
+
+
+def index_search(s: Session, word: int | None) -> tuple[int | None, bool]:
+    """``index --search [WORD]``: (velocity word, forward).  No WORD (0): the profile's
+    ``index_velocity`` of the axis; the direction is its sign (forward when not set)."""
+    if word is None:
+        return None, True
+    prof: Profile | None = s.profile
+    ax = prof.by_cs(axes_of(s)[0]) if prof is not None else None
+    speed = ax.index_velocity if ax is not None else None
+    forward = speed is None or speed > 0
+    if word == 0:
+        if speed is None:
+            raise click.BadParameter("give a velocity WORD (no index_velocity in a profile for "
+                                     "this axis)", param_hint="--search")
+        word = max(1, round(abs(speed) * (2048 / s.clock_hz) * 65536))
+    return word, forward
+
+
+def search_within_limits(chip: LM629, word: int, forward: bool, timeout: float) -> None:
+    """Look for the index by a move towards the soft limit (max, or min backwards) at
+    ``word``: it ends at the limit at the latest.  The index pulse, or a WaitTimeout saying
+    the move reached the limit (or ``timeout``) without one; the caller stops the motor."""
+    lim = chip.limits
+    assert lim is not None
+    goal = lim.max if forward else lim.min
+    if goal is None:
+        raise ValueError(f"the search runs {'forward' if forward else 'backward'} and the axis "
+                         f"has no {'max' if forward else 'min'}: give it one in the profile")
+    chip.move_to(goal, velocity=word, acceleration=min(655, lim.acceleration_word or 655))
+    status = chip.wait_for(Status.INDEX_PULSE | Status.TRAJECTORY_COMPLETE, timeout=timeout,
+                           poll=0.001)
+    if not status & Status.INDEX_PULSE:
+        exc = WaitTimeout("the index pulse", timeout, int(status))
+        exc.args = (f"no index pulse on the way to the soft limit {goal} (the move reached it; "
+                    f"status {int(status):02X}): search the other way (the sign of the profile's "
+                    "index_velocity) or check the encoder's index channel",)
+        raise exc
 
 
 def tune_band(chip: LM629, travel: int) -> None:
