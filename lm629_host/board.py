@@ -320,7 +320,10 @@ class Board:
             if self.profile is None:
                 raise KeyError(f"{which!r}: this board was opened without a profile, so its "
                                "axes have no names (board[0], or open_board(profile=...))")
-            return self.axis(self.profile.axis(which).cs)
+            try:
+                return self.axis(self.profile.axis(which).cs)
+            except ValueError as exc:  # a mapping's missing key
+                raise KeyError(str(exc)) from None
         return self.axis(which)
 
     def axis(self, which: LM629 | int) -> LM629:

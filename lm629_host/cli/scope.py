@@ -100,7 +100,7 @@ def scope(duration: float | None, png_path: str | None, rate: float, window_s: f
     win = ScopeWindow(names, window_s)
     live = sys.stdout.isatty()
     size = shutil.get_terminal_size((100, 30))
-    width, height = max(40, size.columns), max(12, size.lines - 2)
+    width, height = max(40, size.columns), max(12, size.lines - 4)  # room for 3 lines below
     where = s.port
 
     def title() -> str:
@@ -109,7 +109,9 @@ def scope(duration: float | None, png_path: str | None, rate: float, window_s: f
             last = win.last(n)
             if last is not None:
                 parts.append(f"{n}: {last[1]} / {last[2]} ({last[1] - last[2]:+d})")
-        return f"{where}: desired / actual  " + "  ".join(parts)
+        text = "desired / actual  " + "  ".join(parts) + f"  on {where}"
+        return text if len(text) <= width - 4 else text[:width - 7] + "..."  # plotext drops
+        # a title wider than the plot
 
     clock = b.clock
     drawn = clock.now()
