@@ -71,11 +71,13 @@ def shell() -> None:
             code_ = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), 1)
             click.get_current_context().exit(code_)
         return
-    banner = (f"lm629 shell on {b.transport.describe()}: {names} "
+    banner = (f"lm629 shell on {s.port}: {names} "
               f"(+ lm629_host, Status, Signals)")
     try:
         from IPython import start_ipython
     except ImportError:
+        start_ipython = None
+    if start_ipython is None:  # outside the except: a traceback in the console has no chain
         code.interact(banner=banner + "; Ctrl-D ends", local=ns, exitmsg="")
         return
     click.echo(banner)
