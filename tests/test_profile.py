@@ -9,6 +9,7 @@ the velocity word 51.2 x 65536 = 3355443.2 -> 3355443; 4e6 counts/s^2 is 4e6 x 2
 
 from __future__ import annotations
 
+import dataclasses
 import textwrap
 
 import pytest
@@ -221,3 +222,79 @@ def test_cli_profile_init_writes_a_template_from_the_options(tmp_path):
     assert prof.axis("x").lines == 500
     r = runner.invoke(main, ["--profile", str(path), "profile", "init"])
     assert r.exit_code == 2 and "exists (--force" in r.stderr
+
+
+CAPPED = textwrap.dedent("""\
+    [board]
+    port = "sim://"
+    [axis.x]
+    cs = 0
+    kp = 20
+    min = -20000
+    max = 20000
+    max_velocity = 200000        # word 3355443: 51.2 counts/sample
+    max_acceleration = 4000000   # word 17179: 0.262 counts/sample^2
+    following_error = 2000
+    """)
+
+
+def test_tuning_on_a_capped_axis_ramps_within_the_caps_and_predicts_the_ramp(tmp_path):
+    """The tuner's steps are the fastest trapezoid the caps allow (a step's words would be
+    refused); the fit and the design follow that trapezoid, so the model fits the
+    identification as well as a step's (within 2 counts rms) and the prediction matches the
+    measured test move."""
+    from lm629_host.tuning import autotune
+    with lm629_host.open_board(profile=_write(tmp_path, CAPPED)) as board:
+        x = board["x"]
+        words = []
+
+        class Spy(SoftLimits):  # the same limits, every trajectory's words written down
+            def check_trajectory(self, acceleration, velocity, position, **kw):
+                words.append((velocity, acceleration))
+                super().check_trajectory(acceleration, velocity, position, **kw)
+
+        x.limits = Spy(**dataclasses.asdict(x.limits))
+        result = autotune(x, travel=2000)
+    assert result.ok
+    steps = [w for w in words if w[0] is not None and w[1] is not None]
+    assert steps and all(w == (3355443, 17179) for w in steps)
+    assert result.fit_rms < 2.0
+    assert result.measured.settle_s is not None and result.predicted.settle_s is not None
+    assert abs(result.measured.settle_s - result.predicted.settle_s) < 0.005
+    assert abs(result.measured.overshoot - result.predicted.overshoot) <= 3
+
+
+def test_cli_step_tune_and_index_search_stay_inside_the_limits(tmp_path):
+    runner = CliRunner()
+    prof = _write(tmp_path, CAPPED)
+    # step: without --vel/--acc the step is brought down to the caps, and says so in its words
+    csv = tmp_path / "step.csv"
+    r = runner.invoke(main, ["--profile", str(prof), "step", "1000", "--csv", str(csv),
+                             "--no-png"])
+    assert r.exit_code == 0, r.output
+    assert ("a step brought down to the soft caps: velocity word 3355443, acceleration word "
+            "17179") in r.output
+    rows = [ln.split(",") for ln in csv.read_text().splitlines()]
+    desired = [int(row[rows[0].index("desired_position")]) for row in rows[1:]]
+    assert 0 < desired[2] < 1000 and desired[-1] == 1000  # a ramp, not a jump
+    # tune: a band that leaves min..max is refused before anything moves
+    r = runner.invoke(main, ["--profile", str(prof), "tune", "--travel", "25000", "--yes"])
+    assert r.exit_code == 2
+    assert "--travel 25000 from 0: the band reaches -25000 is below the soft limit min" in r.stderr
+    # index --search: a move towards max (not velocity mode); the default simulated index is
+    # 1000 counts away (half a revolution of 500 lines), inside the limits
+    r = runner.invoke(main, ["--profile", str(prof), "index", "--search", "6553"])
+    assert r.exit_code == 0, r.output
+    assert "index at position 1000 counts" in r.output
+    narrow = _write(tmp_path, CAPPED.replace("max = 20000", "max = 600"), "narrow.toml")
+    r = runner.invoke(main, ["--profile", str(narrow), "index", "--search", "6553"])
+    assert r.exit_code == 7
+    assert "no index pulse on the way to the soft limit 600 (the move reached it" in r.stderr
+    assert "motor stopped" in r.stderr
+    r = runner.invoke(main, ["--profile", str(narrow), "index", "--search"])
+    assert r.exit_code == 2 and "no index_velocity" in r.stderr
+    back = _write(tmp_path, CAPPED.replace("min = -20000", "min = -1500")
+                  + "index_velocity = -2000\n", "back.toml")
+    r = runner.invoke(main, ["--profile", str(back), "index", "--search"])
+    assert r.exit_code == 0, r.output
+    assert "index at position -1000 counts" in r.output

@@ -195,8 +195,11 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
                                   derivative_interval=ds).items() if v is not None}
     chip = s.open()
     from ..limits import clip_step
-    if vel is None and acc is None:  # a step: the fastest trapezoid an axis's caps allow
+    if vel is None and acc is None and chip.limits is not None:  # a step in the caps
         v, a = clip_step(chip, v, a)
+        if (v, a) != (STEP_VELOCITY, STEP_ACCELERATION):
+            click.echo(f"a step brought down to the soft caps: velocity word {v}, acceleration "
+                       f"word {a} ({chip.limits.where})")
     cap = capture_move(chip, counts, duration_s=duration, interval_s=interval,
                        velocity=v, acceleration=a, filter=filt, tolerance=tol)
     for line in summary(cap):
