@@ -298,3 +298,19 @@ def test_cli_step_tune_and_index_search_stay_inside_the_limits(tmp_path):
     r = runner.invoke(main, ["--profile", str(back), "index", "--search"])
     assert r.exit_code == 0, r.output
     assert "index at position -1000 counts" in r.output
+
+
+def test_a_straight_line_is_held_to_each_axis_share_of_the_path_words(tmp_path):
+    """x's cap is the word 3355443; a path velocity word of 4000000 gives x the share
+    1000 / sqrt(1000^2 + 3000^2) = 0.316 of it, 1264911: inside.  The same word on x alone is
+    above the cap (exit 2, nothing moved)."""
+    two = _write(tmp_path, CAPPED + "[axis.y]\ncs = 1\nkp = 20\n", "two.toml")
+    runner = CliRunner()
+    r = runner.invoke(main, ["--profile", str(two), "--axis", "x,y", "move", "1000", "3000",
+                             "--linear", "--vel", "4000000", "--acc", "10000"])
+    assert r.exit_code == 0, r.output
+    assert "done: axis 0 at" in r.output and "done: axis 1 at" in r.output
+    r = runner.invoke(main, ["--profile", str(two), "--axis", "x,y", "move", "1000", "3000",
+                             "--vel", "4000000", "--acc", "10000"])
+    assert r.exit_code == 2 and r.stdout == ""
+    assert "velocity word 4000000" in r.stderr and "[axis.x] max_velocity" in r.stderr

@@ -106,7 +106,8 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     tol = _tolerance(s, tolerance, raw)
     positive("--timeout", timeout)
     from . import axes, profile
-    profile.check_move(s, [_position(s, t, "TARGET", raw) for t in targets], v, a, relative)
+    profile.check_move(s, [_position(s, t, "TARGET", raw) for t in targets], v, a, relative,
+                       linear)
     if len(targets) > 1 or linear or axes.several(s):
         if relative:
             raise click.UsageError("--relative moves one axis")

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -124,15 +126,20 @@ def limits_of(s: Session) -> dict[int, Any]:
 
 
 def check_move(s: Session, targets: list[int], velocity: int, acceleration: int,
-               relative: bool = False) -> None:
+               relative: bool = False, linear: bool = False) -> None:
     """A move's targets and words against the profile's limits, before the port is opened
-    (the library checks them again as the trajectory is built)."""
+    (the library checks them again as the trajectory is built).  A straight line's words
+    are the path's: each axis gets its share, checked when the line is planned."""
     limits = limits_of(s)
     if not limits:
         return
     for cs, target in zip(axes_of(s) if len(targets) > 1 else axes_of(s)[:1], targets):
         lim = limits.get(cs)
-        if lim is not None:
+        if lim is None:
+            continue
+        if linear:
+            lim.check_position(target)
+        else:
             lim.check_trajectory(acceleration, velocity, None if relative else target)
 
 
@@ -210,14 +217,25 @@ def save_target(s: Session, chip: LM629, save: str | None) -> tuple[Path, str] |
     return path, ax.name
 
 
+@contextmanager
+def tuning(s: Session, chip: LM629) -> Iterator[None]:
+    """Around ``autotune`` (inside the motor's stop on error): the profile's following-error
+    stop armed again however tuning ends (it arms its own at the travel and leaves LPEI 7FFF
+    when it succeeds, which would read as lost settings)."""
+    try:
+        yield
+    finally:
+        ax = s.profile.by_cs(chip.chip_select) if s.profile is not None else None
+        if ax is not None:
+            try:
+                chip.load_position_error(ax.threshold, stop=True)
+            except Exception as exc:  # noqa: BLE001 - the error that ended tuning matters more
+                log.warning("could not arm the profile's following error again: %s", exc)
+
+
 def after_tune(s: Session, chip: LM629, gains: Any, target: tuple[Path, str] | None,
                ok: bool) -> None:
-    """After ``tune``: the profile's following-error stop armed again (autotune leaves LPEI
-    7FFF, which would read as lost settings), and the gains saved when asked and good."""
-    if s.profile is not None:
-        ax = s.profile.by_cs(chip.chip_select)
-        if ax is not None:
-            chip.load_position_error(ax.threshold, stop=True)
+    """After ``tune``: the gains saved when asked and good."""
     if target is None:
         return
     path, name = target
@@ -313,5 +331,5 @@ def show_cmd() -> None:
             click.echo(f"  limits: {chip.limits.describe()}")
 
 
-__all__ = ["after_tune", "check_move", "profile_group", "profile_opened", "profile_options",
+__all__ = ["after_tune", "check_move", "tuning", "profile_group", "profile_opened", "profile_options",
            "save_target", "tune_band"]

@@ -110,7 +110,7 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
                                      default=False):
         click.echo("nothing moved")
         click.get_current_context().exit(EXIT_NOT_MET)
-    with stop_on_error(chip):
+    with profile.tuning(s, chip), stop_on_error(chip):
         result = autotune(chip, travel=travel, distance=distance, tolerance=tolerance,
                           before=before, poll_s=interval, clock_hz=s.clock_hz,
                           progress=lambda text: click.echo(f"  {text}", err=True))
