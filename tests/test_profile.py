@@ -314,3 +314,28 @@ def test_a_straight_line_is_held_to_each_axis_share_of_the_path_words(tmp_path):
                              "--vel", "4000000", "--acc", "10000"])
     assert r.exit_code == 2 and r.stdout == ""
     assert "velocity word 4000000" in r.stderr and "[axis.x] max_velocity" in r.stderr
+
+
+def test_shell_runs_a_piped_script_and_a_failing_one_stops_what_moves(tmp_path):
+    runner = CliRunner()
+    prof = _write(tmp_path)
+    r = runner.invoke(main, ["--profile", str(prof), "shell"],
+                      input="print(sorted(k for k in dir() if not k.startswith('_')))\n"
+                            "print(board['x'] is x, chip is x, y.chip_select)\n")
+    assert r.exit_code == 0, r.output
+    assert r.stdout.splitlines() == [
+        "['Signals', 'Status', 'board', 'chip', 'lm629_host', 'x', 'y']", "True True 1"]
+    # a soft limit in a script: its traceback, the ValueError's exit code, y holding is left on
+    r = runner.invoke(main, ["--profile", str(prof), "shell"],
+                      input="x.move_to(45000, velocity=65536)\n")
+    assert r.exit_code == 2
+    assert "ValueError: target 45000 is above the soft limit max = 20000" in r.stderr
+    assert "was moving" not in r.stderr
+    # an error of the script's own while x moves: x stopped, exit 1
+    r = runner.invoke(main, ["--profile", str(prof), "shell"],
+                      input="x.move_to(15000, velocity=65536, acceleration=655)\n"
+                            "raise RuntimeError('boom')\n")
+    assert r.exit_code == 1
+    assert "RuntimeError: boom" in r.stderr
+    assert "lm629: x was moving: motor stopped (abrupt stop, then motor off)" in r.stderr
+    assert "lm629: y was moving" not in r.stderr

@@ -104,6 +104,7 @@ def profile_opened(s: Session, b: Board) -> None:
     lost its settings gets the profile (one line each), unless the command says not to
     (``reset``, ``profile show``, ``profile apply``)."""
     prof: Profile = s.profile
+    b.profile = prof  # board["x"] in the shell
     for name, chip in named_axes(s, b).items():
         attach(chip, prof, prof.axes[name])
     if s._prepare and getattr(s, "reapply", True):

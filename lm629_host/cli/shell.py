@@ -40,14 +40,18 @@ def namespace(s: Any, b: Any) -> dict[str, Any]:
     return ns
 
 
-def _stop_moving(b: Any) -> None:
-    """Stop the axes whose trajectory runs with the drive on (a holding servo is left on)."""
+def _stop_moving(b: Any, names: dict[int, str]) -> None:
+    """Stop the axes whose trajectory runs with the drive on (a holding servo is left on),
+    one line each on stderr."""
     for a in b.axes:
+        name = names.get(a.chip_select, f"axis{a.chip_select}")
         try:
-            if a.is_moving():
-                emergency_stop(a)
-        except Exception:  # noqa: BLE001 - the link may be what failed: try the others
+            moving = a.is_moving()
+        except Exception as exc:  # noqa: BLE001 - the link may be what failed: try the others
+            click.echo(f"lm629: {name}: could not tell whether it moves ({exc})", err=True)
             continue
+        if moving:
+            click.echo(f"lm629: {name} was moving: {emergency_stop(a)[1]}", err=True)
 
 
 @main.command()
@@ -58,16 +62,18 @@ def shell() -> None:
     b = board(s)
     ns = namespace(s, b)
     names = ", ".join(k for k in ns if k not in ("lm629_host", "Status", "Signals"))
+    names_of = {chip.chip_select: k for k, chip in ns.items()
+                if k not in ("chip", "board") and isinstance(chip, lm629_host.LM629)}
     if not sys.stdin.isatty():
         source = sys.stdin.read()
         try:
             exec(compile(source, "<stdin>", "exec"), ns)
         except (KeyboardInterrupt, click.exceptions.Exit):
-            _stop_moving(b)
+            _stop_moving(b, names_of)
             raise
         except Exception as exc:  # noqa: BLE001 - the script's own errors, reported below
-            _stop_moving(b)
             traceback.print_exc()
+            _stop_moving(b, names_of)
             code_ = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), 1)
             click.get_current_context().exit(code_)
         return
