@@ -162,6 +162,8 @@ def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
                                  param_hint="SPEED")
     v, a = _motion_words(s, speed, acc, raw)
     positive("--time", run_s)
+    from . import profile
+    profile.check_velocity_mode(s, v, a)
     scale = None if raw else s.scale
 
     def speed_text(word: int) -> str:

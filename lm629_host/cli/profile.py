@@ -144,6 +144,13 @@ def check_move(s: Session, targets: list[int], velocity: int, acceleration: int,
             lim.check_trajectory(acceleration, velocity, None if relative else target)
 
 
+def check_velocity_mode(s: Session, velocity: int, acceleration: int) -> None:
+    """``lm629 velocity`` against the limits of its axis, before the port is opened."""
+    lim = limits_of(s).get(axes_of(s)[0])
+    if lim is not None:
+        lim.check_trajectory(acceleration, velocity, None, velocity_mode=True)
+
+
 def index_search(s: Session, word: int | None) -> tuple[int | None, bool]:
     """``index --search [WORD]``: (velocity word, forward).  No WORD (0): the profile's
     ``index_velocity`` of the axis; the direction is its sign (forward when not set)."""
@@ -332,5 +339,5 @@ def show_cmd() -> None:
             click.echo(f"  limits: {chip.limits.describe()}")
 
 
-__all__ = ["after_tune", "check_move", "tuning", "profile_group", "profile_opened", "profile_options",
+__all__ = ["after_tune", "check_move", "check_velocity_mode", "tuning", "profile_group", "profile_opened", "profile_options",
            "save_target", "tune_band"]
