@@ -27,7 +27,7 @@ import logging
 import math
 import os
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from .errors import AxisError, CommandError, MotionError, ResetError
@@ -615,16 +615,8 @@ def open_board(url: str | None = None, *, axes: int | None = None, chip: str | N
 
 
 def _with_profile(board: Board, prof: Profile, apply: bool | str) -> None:
-    from .profile import apply_profile, attach, ensure_applied
-    for ax in prof.axes.values():
-        if ax.cs >= len(board.axes):
-            raise AxisError(ax.cs, len(board.axes), f"{board.transport.describe()} (axis "
-                                                    f"{ax.name} of {prof.path})")
-        chip = board.axes[ax.cs]
-        attach(chip, prof, ax)
-        chip.move_rules = replace(chip.move_rules, clock_hz=prof.clock_hz)
-    board.profile = prof
-    named = {name: board.axes[ax.cs] for name, ax in prof.axes.items()}
+    from .profile import apply_profile, ensure_applied, name_axes
+    named = name_axes(board, prof)
     if apply == "auto":
         ensure_applied(named, prof, log.warning)
     elif apply:

@@ -355,6 +355,27 @@ def attach(chip: Any, profile: Profile, axis: AxisProfile) -> None:
     chip.profile_axis = axis.name
 
 
+def name_axes(board: Any, profile: Profile) -> dict[str, Any]:
+    """Give each axis of ``board`` (a :class:`~lm629_host.Board`) the profile's name, soft
+    limits, chip variant and clock, and the board the profile (``board["x"]``); nothing is
+    sent.  The profile's axes by name; :class:`~lm629_host.AxisError` for an axis whose chip
+    select the board does not have."""
+    from dataclasses import replace
+
+    from .errors import AxisError
+    named = {}
+    for name, ax in profile.axes.items():
+        if ax.cs >= len(board.axes):
+            raise AxisError(ax.cs, len(board.axes), f"{board.transport.describe()} (axis "
+                                                    f"{name} of {profile.path})")
+        chip = board.axes[ax.cs]
+        attach(chip, profile, ax)
+        chip.move_rules = replace(chip.move_rules, clock_hz=profile.clock_hz)
+        named[name] = chip
+    board.profile = profile
+    return named
+
+
 def settings_lost(chip: Any) -> Signals | None:
     """The signals register when the chip has lost the profile's settings (reset or powered
     up since they were applied: LPES's bit 9 clear), else None.  One RDSIGS."""
@@ -476,5 +497,5 @@ def template(*, port: str | None, chip: str = "lm629", clock: str = "8MHz",
 
 
 __all__ = ["AXIS_KEYS", "BOARD_KEYS", "AxisProfile", "Profile", "ProfileError", "apply_axis",
-           "apply_profile", "attach", "ensure_applied", "key_lines", "load_profile",
+           "apply_profile", "attach", "ensure_applied", "key_lines", "load_profile", "name_axes",
            "parse_profile", "resolve_port", "save_gains", "settings_lost", "template"]

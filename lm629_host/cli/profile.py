@@ -29,9 +29,9 @@ from ..profile import (
     Profile,
     ProfileError,
     apply_profile,
-    attach,
     ensure_applied,
     load_profile,
+    name_axes,
     save_gains,
     settings_lost,
     template,
@@ -104,9 +104,7 @@ def profile_opened(s: Session, b: Board) -> None:
     lost its settings gets the profile (one line each), unless the command says not to
     (``reset``, ``profile show``, ``profile apply``)."""
     prof: Profile = s.profile
-    b.profile = prof  # board["x"] in the shell
-    for name, chip in named_axes(s, b).items():
-        attach(chip, prof, prof.axes[name])
+    name_axes(b, prof)  # limits, variants, board["x"] in the shell
     if s._prepare and getattr(s, "reapply", True):
         # an in-process simulator is a fresh chip for every command (and says so): applying
         # the profile to it is the rule, not news
