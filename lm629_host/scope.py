@@ -1,9 +1,9 @@
 """What ``lm629 scope`` shows: desired and actual position and following error of some axes,
 over the last few seconds, read without touching the motor.
 
-Why a module apart from the command: the feed is one function, :func:`feed`, so that a faster
-source can replace the host's polling without the plot knowing (a bridge that records on its
-side and streams the samples); the window (:class:`ScopeWindow`) and the PNG
+Why a module apart from the command: the feed is one function, :func:`feed`: rows recorded
+on the far side where the transport can (a bridge that records on its side and streams the
+samples), the host's polling elsewhere, without the plot knowing; the window (:class:`ScopeWindow`) and the PNG
 (:func:`save_png`) are plain data and matplotlib, usable from a lab script.
 
 Reads only: every bus program the feed runs is status and register reads
@@ -26,10 +26,26 @@ from .snapshot import Snapshot
 def feed(board: Any, axes: Sequence[int], rate_hz: float,
          duration_s: float | None = None) -> Iterator[list[Snapshot]]:
     """The snapshots of ``axes`` (chip selects of ``board``), ``rate_hz`` times a second of
-    the transport's clock, each tick's in one bus program (host polling), for ``duration_s``
-    (None: until the caller stops).  The one source of :mod:`scope`'s samples."""
+    the transport's clock, for ``duration_s`` (None: until the caller stops).  The one source
+    of :mod:`scope`'s samples.
+
+    One axis on a transport that records on its far side (the bridge's RECORD, the
+    simulator's clock: :func:`lm629_host.recording.far_snapshots`): rows timed and streamed
+    there, so the host's pauses (a redraw) cost no samples.  Otherwise the host polls, each
+    tick's axes in one bus program."""
     if not 0 < rate_hz <= 2000:
         raise ValueError(f"rate_hz={rate_hz} must be in 0..2000 samples per second")
+    if len(axes) == 1:
+        from .recording import far_snapshots
+        rows = 0 if duration_s is None else max(1, round(duration_s * rate_hz))
+        recorded = far_snapshots(board.axes[axes[0]], 1.0 / rate_hz, rows)
+        if recorded is not None:
+            try:
+                for snap in recorded:
+                    yield [snap]
+            finally:
+                recorded.close()  # stops the far side's recording
+            return
     clock = board.clock
     start = clock.now()
     n = 0

@@ -76,7 +76,8 @@ def _names(s: Any) -> list[str]:
 @click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
               help="Also save the last window as a PNG (matplotlib) when it ends.")
 @click.option("--rate", type=FINITE, default=100.0, show_default=True,
-              help="Samples per second (on a bridge, at most one per round trip).")
+              help="Samples per second (recorded on the bridge where it can, else polled: "
+                   "at most one per round trip).")
 @click.option("--window", "window_s", type=FINITE, default=2.0, show_default=True,
               help="Seconds shown.")
 @click.option("--refresh", type=FINITE, default=5.0, show_default=True,
