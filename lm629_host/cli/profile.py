@@ -56,6 +56,8 @@ def profile_options(ctx: click.Context, path: str, port: str | None, chip_name: 
     """The global options with the profile's values where the command line gives none (an
     explicit profile beats ``$LM629_PORT``); ``--axis`` names -> chip selects."""
     ctx.meta["lm629.profile_path"] = path
+    if ctx.invoked_subcommand in ("sim", "bridge"):  # no board of the profile: $LM629_PROFILE
+        return None, port, chip_name, clock, lines, axis_text  # set for the bench is ignored
     if not os.path.exists(path) and ctx.invoked_subcommand == "profile":
         return None, port, chip_name, clock, lines, axis_text  # `profile init` makes it
     prof = load_profile(path)
@@ -65,7 +67,7 @@ def profile_options(ctx: click.Context, path: str, port: str | None, chip_name: 
         chip_name = prof.chip
     if not _given(ctx, "clock"):
         clock = f"{prof.clock_hz:g}"
-    named = [a for a in prof.axes.values()]
+    named = list(prof.axes.values())
     if axis_text is not None and axis_text.strip().lower() != "all":
         named, numbers = [], []
         for word in (w.strip() for w in axis_text.split(",") if w.strip()):
