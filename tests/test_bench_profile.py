@@ -113,6 +113,9 @@ def test_profile_apply_limits_and_power_cycles(tmp_path, bench_profile, far_end)
         assert p.stdout.strip() == str(s["real_position"])
     # a power cycle: a new server is a chip that has lost everything
     with serve(tmp_path, far_end):
+        p = b.run("profile", "show")  # reads only: says so, applies nothing
+        assert p.returncode == 0 and p.stderr == "", p.stderr
+        assert "settings LOST (signals bit 9 clear" in p.stdout
         p = b.run("--axis", "x", "move", "1500")
         assert p.returncode == 0, p.stderr
         err = _lines(p.stderr)

@@ -339,3 +339,16 @@ def test_shell_runs_a_piped_script_and_a_failing_one_stops_what_moves(tmp_path):
     assert "RuntimeError: boom" in r.stderr
     assert "lm629: x was moving: motor stopped (abrupt stop, then motor off)" in r.stderr
     assert "lm629: y was moving" not in r.stderr
+
+
+def test_a_chip_that_lost_its_settings_while_moving_is_not_applied_mid_move(tmp_path):
+    prof = load_profile(_write(tmp_path))
+    with lm629_host.open_board(profile=prof) as board:
+        x = board["x"]
+        x.move_to(15000, velocity=65536, acceleration=655)  # 3.8 s at 1 count/sample
+        x.clock.sleep(0.2)
+        x.load_position_error(0x7FFF)  # LPEI by another program, mid-move: bit 9 clear
+        said: list[str] = []
+        assert ensure_applied({"x": x}, prof, said.append) == []
+        assert len(said) == 1 and "is moving" in said[0] and "not applied" in said[0]
+        assert x.is_moving() and not x.read_signals() & Signals.STOP_ON_ERROR
