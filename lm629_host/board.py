@@ -567,8 +567,8 @@ def open_board(url: str = DEFAULT_URL, *, axes: int | None = None, chip: str | N
             except ValueError:
                 raise ValueError(f"axes={taken['axes']!r} is not a number of chips") from None
     transport = open_transport(url, trace=trace)
-    if n is None and hasattr(transport, "models"):
-        n = len(transport.models)  # a simulator: the chips it built, not its adapter's selects
+    if n is None:
+        n = transport.chip_count  # a simulator: the chips it built, not its adapter's selects
     try:
         return Board(transport, n, chip=chip, busy_timeout=busy_timeout)
     except BaseException:

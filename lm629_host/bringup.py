@@ -127,7 +127,7 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
     o = options
     out = BringupReport()
     if clock_hz is None:
-        clock_hz = float(getattr(getattr(chip.transport, "model", None), "clock_hz", 8_000_000))
+        clock_hz = chip.clock_hz
 
     def done(step: StepResult) -> StepResult:
         out.steps.append(step)

@@ -24,6 +24,7 @@ from .opcodes import (
     DERIVATIVE_INTERVAL_MAX,
     FILTER_ORDER,
     INTERRUPTS,
+    NOMINAL_CLOCK_HZ,
     POSITION_MAX,
     POSITION_MIN,
     RESET_CLEARED_STATUSES,
@@ -148,6 +149,12 @@ class LM629:
     def clock(self) -> Clock:
         """The transport's clock: simulated on ``sim://``, the wall clock on hardware."""
         return self.transport.clock
+
+    @property
+    def clock_hz(self) -> float:
+        """The chip's clock input (Hz): the transport's when it knows it (a simulator's model),
+        else the nominal 8 MHz.  Used for default timeouts and expected move times only."""
+        return self.transport.clock_hz or NOMINAL_CLOCK_HZ
 
     def run(self, program: Program) -> ProgramResult:
         """Run a bus program (for experts and for composite operations)."""

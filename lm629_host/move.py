@@ -55,8 +55,8 @@ class MovingChip(Stoppable, Protocol):
     chip_select: int  #: which chip of a multi-axis board
 
     @property
-    def transport(self) -> object:
-        """Looked at only for a simulated model's clock rate."""
+    def clock_hz(self) -> float:
+        """The chip's clock (Hz), for the default timeout."""
 
     @property
     def clock(self) -> Clock: ...
@@ -79,8 +79,8 @@ class MoveRules:
     stall_counts: int = 4  #: shaft motion that counts as progress
     runaway_counts: int = 200  #: shaft motion away from the desired position
     poll: float = 0.005  #: seconds between status reads
-    clock_hz: float | None = None  #: the chip's clock for the default timeout (None: 8 MHz
-    #: or the simulator's own)
+    clock_hz: float | None = None  #: the chip's clock for the default timeout (None: the
+    #: chip's own ``clock_hz``: the simulator's, else 8 MHz)
 
     def __post_init__(self) -> None:
         for name in ("settle_time", "settle_timeout", "stall_time", "poll"):
@@ -130,8 +130,7 @@ class Move:
     def _clock_hz(self, rules: MoveRules) -> float:
         if rules.clock_hz:
             return rules.clock_hz
-        model = getattr(self.chip.transport, "model", None)
-        return float(getattr(model, "clock_hz", 8e6))
+        return self.chip.clock_hz
 
     def wait(self, timeout: float | None = None, tolerance: int | None = None, *,
              rules: MoveRules | None = None,

@@ -377,7 +377,7 @@ class _Session:
         # it, the real one while the drive is off (after a reset, or a stop with motor off)
         self.drive_off = bool(first.signals & Signals.MOTOR_OFF)
         self.origin = first.real_position if self.drive_off else first.desired_position
-        self.sample_s = SAMPLE_CLOCKS / (clock_hz or _clock_hz(chip))
+        self.sample_s = SAMPLE_CLOCKS / (clock_hz or chip.clock_hz)
         self.records: list[Record] = []
         self.driving = False  #: an STT of ours turned the drive on (reset leaves it off)
         self.check(first)
@@ -481,12 +481,6 @@ class _Session:
 
         last = self.record(rec, limit_s, watch)
         return last, len(window) > quiet and max(window) - min(window) <= 2
-
-
-def _clock_hz(chip: LM629) -> float:
-    """The simulated chip's clock, else the usual 8 MHz."""
-    model = getattr(chip.transport, "model", None)
-    return float(getattr(model, "clock_hz", 8_000_000))
 
 
 # ---------------------------------------------------------------------------------- phasing

@@ -23,6 +23,7 @@ from .opcodes import (
     COEFFICIENT_MAX,
     DERIVATIVE_INTERVAL_MAX,
     POSITION_MAX,
+    NOMINAL_CLOCK_HZ,
     POSITION_MIN,
     SAMPLE_CLOCKS,
     VELOCITY_MAX,
@@ -72,7 +73,7 @@ class Scale:
     """Conversions for one axis: encoder lines and the chip's clock."""
 
     encoder_lines: int
-    clock_hz: float = 8_000_000
+    clock_hz: float = NOMINAL_CLOCK_HZ
 
     def __post_init__(self) -> None:
         check_int("encoder_lines", self.encoder_lines, 1, 1_000_000)

@@ -153,3 +153,18 @@ def test_every_transport_is_in_transports():
     ours = {c for c in seen if c.__module__.startswith("lm629_host.")}
     assert len(ours) >= 8
     assert {c.__module__ for c in ours if not c.__module__.startswith("lm629_host.transports.")} == set()
+
+
+def test_the_driver_asks_the_transport_not_its_model():
+    """Outside sim/ and the simulator transports nothing reads a transport's ``model`` or
+    ``models`` (the chip model is the simulator's business): Transport.clock_hz and
+    Transport.chip_count say what the driver needs."""
+    import re
+    pattern = re.compile(r"transport\.models?\b|[\"']models?[\"']")
+    found = []
+    for name, path in _modules().items():
+        if name.startswith("lm629_host.sim") or name.startswith("lm629_host.transports.sim"):
+            continue
+        found += [f"{path.name}:{n}" for n, line in enumerate(path.read_text().splitlines(), 1)
+                  if pattern.search(line)]
+    assert found == []

@@ -24,6 +24,7 @@ from ..sim.build import build_bus
 from ..sim.model import chips_of
 from ..urls import Option, parse_options, query_params
 from .link import DEFAULT_RETRIES, LinkTransport
+from .sim import ModelChips
 
 #: URL options of this transport (the others are the chip model's)
 OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
@@ -32,7 +33,7 @@ OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
 OWN_PARAMS = frozenset(o.name for o in OPTIONS)
 
 
-class SimAvrTransport(LinkTransport):
+class SimAvrTransport(ModelChips, LinkTransport):
     """The link protocol to the compiled firmware in simavr, in simulated time."""
 
     scheme = "sim+avr"

@@ -11,9 +11,10 @@ from ..sim.build import build_bus
 from ..sim.model import ChipBus, ChipModel, chips_of
 from ..urls import Option, parse_options, query_params
 from .link import DEFAULT_RETRIES, LinkTransport
+from .sim import ModelChips
 
 
-class EmuLinkTransport(LinkTransport):
+class EmuLinkTransport(ModelChips, LinkTransport):
     """``sim+emu://?baud=115200&...``: the link protocol to the Python bridge emulator, in
     process and in simulated time (the other parameters are the ``sim://`` ones).  The whole
     serial path without a pseudo-terminal or the AVR toolchain."""
