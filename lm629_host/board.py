@@ -248,9 +248,7 @@ class BoardMove:
                         done = w.check(snap)
                     except MotionError as exc:
                         self.board._stop_all()
-                        text = str(exc).split("): ", 1)[-1]  # "motion fault (reason): message"
-                        raise MotionError(exc.reason, text, axis=m.chip.chip_select,
-                                          position=exc.position, error=exc.error) from exc
+                        raise exc.on_axis(m.chip.chip_select) from exc
                     if done is not None:
                         del watches[m]
                 if watches:

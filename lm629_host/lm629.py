@@ -16,7 +16,7 @@ import math
 from collections.abc import Iterable
 
 from .clock import Clock, WallClock
-from .errors import AxisError, CommandError, ResetError, WaitTimeout, check_int
+from .errors import ArgumentError, AxisError, CommandError, ResetError, WaitTimeout, check_int
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     ACCELERATION_MAX,
@@ -68,7 +68,8 @@ def _check_flags(name: str, flags: object) -> Status:
     value = check_int(name, int(flags) if isinstance(flags, Status) else flags, 0, 0xFF)
     extra = value & ~INTERRUPTS
     if extra:
-        raise ValueError(
+        raise ArgumentError(
+            name, value,
             f"{name}={value:#04x} has bits that are not interrupt conditions ({extra:#04x}); "
             f"allowed: {INTERRUPTS!r} (status bits 1..6)")
     return Status(value)
@@ -132,10 +133,11 @@ class LM629:
     def busy_timeout(self, seconds: float) -> None:
         if not isinstance(seconds, (int, float)) or not BUSY_TIMEOUT_MIN_S <= seconds <= \
                 BUSY_TIMEOUT_MAX_S:
-            raise ValueError(
-                f"busy_timeout={seconds!r} s is outside {BUSY_TIMEOUT_MIN_S * 1e3:g}.."
+            raise ArgumentError(
+                "busy_timeout", seconds, f"busy_timeout={seconds!r} s is outside {BUSY_TIMEOUT_MIN_S * 1e3:g}.."
                 f"{BUSY_TIMEOUT_MAX_S * 1e3:g} ms (well above the chip's 100 us worst case, "
-                "within what the bridge protocol carries)")
+                "within what the bridge protocol carries)", lo=BUSY_TIMEOUT_MIN_S,
+                hi=BUSY_TIMEOUT_MAX_S)
         self._busy_timeout = float(seconds)
 
     def program(self) -> Program:
@@ -512,11 +514,12 @@ class LM629:
 
     # ------------------------------------------------------------------ waiting
     def wait_for(self, flags: Status | int, timeout: float = 10.0,
-                 poll: float | None = None) -> Status:
+                 poll: float | None = None, *, what: str | None = None) -> Status:
         """Wait until any of ``flags`` is set in the status byte; return the status.
 
         Waits on the transport's clock (simulated time on ``sim://``).  Raises
-        :class:`WaitTimeout` after ``timeout`` seconds.
+        :class:`WaitTimeout` after ``timeout`` seconds (its ``what``: ``what`` when given, the
+        words a person reads, else the flags' names).
 
         A flag raised *earlier* satisfies it at once: the chip keeps its flags until RSTI
         clears them.  After a first move, ``load_trajectory(..., start=True)`` then
@@ -534,9 +537,9 @@ class LM629:
         """
         value = Status(check_int("flags", int(flags), 1, 0xFF))
         if not timeout > 0:
-            raise ValueError(f"timeout={timeout} must be positive (seconds)")
+            raise ArgumentError("timeout", timeout, f"timeout={timeout} must be positive (seconds)")
         if poll is not None and not poll > 0:
-            raise ValueError(f"poll={poll} must be positive (seconds)")
+            raise ArgumentError("poll", poll, f"poll={poll} must be positive (seconds)")
         clock = self.clock
         start = clock.now()
         deadline = start + timeout
@@ -553,7 +556,7 @@ class LM629:
                 return status
             now = clock.now()
             if now >= deadline:
-                raise WaitTimeout(value, timeout, int(status))
+                raise WaitTimeout(value, timeout, int(status), what=what)
             if not far:
                 step = poll if poll is not None else _poll_interval(now - start)
                 clock.sleep(min(step, deadline - now))

@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 from typing import NoReturn, Protocol
 
 from .clock import Clock
-from .errors import MotionError
+from .errors import ArgumentError, MotionError, MotionFault
 from .opcodes import Signals, Status
 from .safety import STOP_NOTE, Stoppable, emergency_stop
 from .snapshot import Snapshot
@@ -86,11 +86,12 @@ class MoveRules:
         for name in ("settle_time", "settle_timeout", "stall_time", "poll"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}={v!r} must be a positive number of seconds")
+                raise ArgumentError(name, v, f"{name}={v!r} must be a positive number of seconds")
         for name in ("tolerance", "stall_counts", "runaway_counts"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise ValueError(f"{name}={v!r} must be a whole number of counts >= 0")
+                raise ArgumentError(name, v, f"{name}={v!r} must be a whole number of counts >= 0",
+                                    lo=0)
 
 
 @dataclass(frozen=True)
@@ -173,10 +174,11 @@ class Move:
             profile = self.profile_s(self._clock_hz(r))
             timeout = (1.5 * profile if profile is not None else 60.0) + r.settle_timeout + 1.0
         if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
-            raise ValueError(f"timeout={timeout!r} must be a positive number of seconds")
+            raise ArgumentError("timeout", timeout,
+                                f"timeout={timeout!r} must be a positive number of seconds")
         return MoveWatch(self, r, timeout)
 
-    def _fault(self, reason: str, s: Snapshot, message: str) -> NoReturn:
+    def _fault(self, reason: MotionFault, s: Snapshot, message: str) -> NoReturn:
         _ok, note = emergency_stop(self.chip)
         exc = MotionError(reason, f"{message}; {note}", position=s.real_position,
                           error=self.target - s.real_position)

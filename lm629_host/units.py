@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .errors import check_int
+from .errors import ArgumentError, check_int
 from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
@@ -43,9 +43,9 @@ def from_fixed(word: int) -> float:
 
 def _positive(name: str, value: float) -> float:
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        raise ValueError(f"{name}={value!r} must be a finite number")
+        raise ArgumentError(name, value, f"{name}={value!r} must be a finite number")
     if value <= 0:
-        raise ValueError(f"{name}={value} must be greater than 0")
+        raise ArgumentError(name, value, f"{name}={value} must be greater than 0")
     return float(value)
 
 

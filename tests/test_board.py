@@ -435,7 +435,10 @@ def test_a_runaway_on_the_second_axis_is_caught_while_the_first_still_moves(url)
         m = b.move({0: 200_000, 1: 3000}, velocity=2 * 65536, acceleration=2000)
         with pytest.raises(MotionError) as info:
             m.wait()
-        assert info.value.axis == 1 and info.value.reason == MotionError.RUNAWAY
+        assert info.value.axis == 1 and info.value.reason is MotionError.RUNAWAY
+        # the axis's own fault, named for the axis: the same detail, one prefix
+        assert str(info.value) == f"axis 1: motion fault (runaway): {info.value.detail}"
+        assert "swap the motor leads" in info.value.detail and "axis" not in info.value.detail
         # 200,000 counts at 2 counts/sample take 0.4 s and more; the fault came well before
         assert abs(b.axes[0].read_real_position()) < 100_000
         assert all(a.read_status() & Status.MOTOR_OFF for a in b.axes)  # both stopped

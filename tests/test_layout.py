@@ -168,3 +168,14 @@ def test_the_driver_asks_the_transport_not_its_model():
         found += [f"{path.name}:{n}" for n, line in enumerate(path.read_text().splitlines(), 1)
                   if pattern.search(line)]
     assert found == []
+
+
+def test_no_code_splits_an_exceptions_text():
+    """Errors carry their parts (ArgumentError.argument, MotionError.reason/detail/axis,
+    WaitTimeout.what): nothing cuts them out of a message."""
+    import re
+    pattern = re.compile(r"str\(\s*\w+\s*\)\s*\.\s*(split|rsplit|partition|rpartition)\b"
+                         r"|\.args\[0\]\s*\.\s*(split|partition)")
+    found = [f"{path.name}:{n}" for path in _modules().values()
+             for n, line in enumerate(path.read_text().splitlines(), 1) if pattern.search(line)]
+    assert found == []

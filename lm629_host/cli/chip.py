@@ -9,7 +9,7 @@ from typing import Any
 
 import click
 
-from ..errors import CommandError
+from ..errors import ArgumentError, CommandError
 from ..lm629 import check_int
 from ..opcodes import VELOCITY_MAX, Status
 from ..safety import stop_on_error
@@ -70,10 +70,9 @@ def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, d
     chip = s.open()
     try:
         chip.filter_program(kp, ki, kd, il, ds)  # validate before any traffic
-    except ValueError as exc:  # the library names its argument; the user typed an option
-        arg = str(exc).split("=", 1)[0]
+    except ArgumentError as exc:  # the library names its argument; the user typed an option
         raise click.BadParameter(str(exc), param_hint={"derivative_interval": "--ds"}.get(
-            arg, f"--{arg}")) from None
+            exc.argument, f"--{exc.argument}")) from None
     if ds is None and not s.is_sim:
         # the chip cannot report its derivative interval and every LFIL carries it (AN-706
         # 4.5.1): a new process does not know the last one, so say what is sent
