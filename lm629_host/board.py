@@ -27,7 +27,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
-from .errors import AxisError, CommandError, MotionError, ResetError
+from .errors import ArgumentError, AxisError, CommandError, MotionError, ResetError
 from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, snapshot_of
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
@@ -44,7 +44,8 @@ from .opcodes import (
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
 from .safety import emergency_stop
-from .transports import DEFAULT_URL, open_transport, query_params, scheme_of, split_params
+from .ports import resolve_port
+from .transports import DEFAULT_URL
 from .clock import Clock
 from .transports.base import Transport
 
@@ -266,7 +267,8 @@ class Board:
     select, that share it.  Use :func:`open_board`."""
 
     def __init__(self, transport: Transport, axes: int | None = None, *, chip: str = "lm629",
-                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, reset_attempts: int = 2) -> None:
+                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, reset_attempts: int = 2,
+                 clock_hz: float | None = None) -> None:
         available = transport.chip_selects
         n = available if axes is None else axes
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
@@ -276,7 +278,7 @@ class Board:
         self.transport = transport
         self.axes: tuple[LM629, ...] = tuple(
             LM629(transport, chip=chip, busy_timeout=busy_timeout, axis=k,
-                  reset_attempts=reset_attempts) for k in range(n))
+                  reset_attempts=reset_attempts, clock_hz=clock_hz) for k in range(n))
         self.busy_timeout = busy_timeout
         self.reset_attempts = reset_attempts
 
@@ -544,31 +546,25 @@ class _BoardProgram(Program):
 
 
 def open_board(url: str = DEFAULT_URL, *, axes: int | None = None, chip: str | None = None,
-               trace=None, busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> Board:
+               clock: float | str | None = None, trace=None,
+               busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> Board:
     """Open every chip behind ``url``: ``sim://?axes=2``, a multi-axis bridge, an FT232H with
-    two /CS lines.  The number of axes is ``axes``, else the URL's ``axes=``, else what the
-    transport reports (the simulator's chips, the bridge's chip selects from HELLO, the
-    FT232H's /CS lines).  More axes than the board has chip selects is an :class:`AxisError`."""
-    if chip is None:
-        chip = query_params(url).get("chip", "lm629") if scheme_of(url).startswith("sim") else "lm629"
-    n = axes
-    if scheme_of(url).startswith("sim"):
-        if n is None and "axes" in query_params(url):
-            n = int(query_params(url)["axes"])
-        elif n is not None and "axes" not in query_params(url):
-            url += ("&" if "?" in url else "?") + f"axes={n}"
-    else:
-        url, taken = split_params(url, {"axes"})
-        if n is None and "axes" in taken:
-            try:
-                n = int(taken["axes"])
-            except ValueError:
-                raise ValueError(f"axes={taken['axes']!r} is not a number of chips") from None
-    transport = open_transport(url, trace=trace)
+    two /CS lines.  The number of axes is ``axes`` or the URL's ``axes=`` (both: they must
+    agree, :func:`lm629_host.ports.resolve_port`), else what the transport reports (the
+    simulator's chips, the bridge's chip selects from HELLO, the FT232H's /CS lines).  More
+    axes than the board has chip selects is an :class:`AxisError`; ``cs=`` (one chip) is an
+    error here."""
+    spec = resolve_port(url, chip=chip, clock=clock, axes=axes)
+    if spec.cs is not None:
+        raise ArgumentError("cs", spec.cs, f"cs={spec.cs} names one chip: open_board opens "
+                                           "every chip of the board (lm629_host.open takes cs=)")
+    transport = spec.open_transport(trace)
+    n = spec.axes
     if n is None:
         n = transport.chip_count  # a simulator: the chips it built, not its adapter's selects
     try:
-        return Board(transport, n, chip=chip, busy_timeout=busy_timeout)
+        return Board(transport, n, chip=spec.chip, busy_timeout=busy_timeout,
+                     clock_hz=spec.clock_hz)
     except BaseException:
         transport.close()
         raise

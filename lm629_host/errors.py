@@ -76,6 +76,16 @@ class TransportError(LM629Error):
         super().__init__(f"{port}: {message}" if port else message)
 
 
+class SchemeError(TransportError, ArgumentError):
+    """A port URL whose scheme no transport is registered for: bad usage (an ArgumentError
+    with ``argument`` ``"port"``), and a TransportError for code that catches those."""
+
+    def __init__(self, message: str, port: str):
+        self.port = port
+        self.argument, self.value, self.lo, self.hi = "port", port, None, None
+        Exception.__init__(self, f"{port}: {message}")
+
+
 class AxisError(LM629Error, ArgumentError):
     """An axis (chip select) that the board does not have: raised before any bus cycle
     (``argument`` is ``"axis"``, the range 0..available - 1)."""

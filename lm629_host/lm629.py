@@ -100,7 +100,8 @@ class LM629:
     move_rules: MoveRules = MoveRules()
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
-                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None):
+                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None,
+                 clock_hz: float | None = None):
         chip = chip.lower()
         if chip not in ("lm628", "lm629"):
             raise ValueError(f"chip={chip!r}: expected 'lm628' or 'lm629'")
@@ -116,6 +117,7 @@ class LM629:
         self.transport = transport
         self.variant = chip
         self.reset_attempts = reset_attempts
+        self._clock_hz = clock_hz  # the clock said by the caller (a URL's clock=, --clock)
         self._ds = 0  # derivative sampling byte, re-sent with every LFIL (AN-706 4.5.1)
         self._port12 = False  # re-issued after every reset (LM628 with a 12-bit DAC)
         # True while the command-error flag is known to be clear (after reset(), after a good
@@ -155,8 +157,9 @@ class LM629:
     @property
     def clock_hz(self) -> float:
         """The chip's clock input (Hz): the transport's when it knows it (a simulator's model),
-        else the nominal 8 MHz.  Used for default timeouts and expected move times only."""
-        return self.transport.clock_hz or NOMINAL_CLOCK_HZ
+        else the one given when it was opened (``clock=``), else the nominal 8 MHz.  Used for
+        default timeouts, expected move times and the sample period of tuning."""
+        return self.transport.clock_hz or self._clock_hz or NOMINAL_CLOCK_HZ
 
     def run(self, program: Program) -> ProgramResult:
         """Run a bus program (for experts and for composite operations)."""

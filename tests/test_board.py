@@ -180,8 +180,10 @@ def test_axis_beyond_the_board_is_one_clear_error():
         lm629_host.open("sim://?cs=2")
     with pytest.raises(AxisError, match="axis 2 does not exist.*2 chip select"):
         lm629_host.open("sim://?axes=2&cs=2")
-    with pytest.raises(AxisError):
-        lm629_host.open_board("sim://?axes=1", axes=3)
+    with pytest.raises(AxisError, match="axis 2 does not exist.*1 chip select"):
+        lm629_host.open_board("sim+emu://?bridge=1&baud=1000000", axes=3)  # a one-chip bridge
+    with pytest.raises(ValueError, match="axes=3 conflicts with axes=1 in sim://[?]axes=1"):
+        lm629_host.open_board("sim://?axes=1", axes=3)  # the URL and the argument disagree
     with lm629_host.open("sim://?axes=2&cs=1") as chip:
         chip.reset()
         assert chip.axis == 1 and chip.read_desired_position() == 0

@@ -1,0 +1,199 @@
+"""What a port opens: one place that settles a port URL and the options given beside it.
+
+A port is named by a URL (``sim://?axes=2``, ``serial:///dev/ttyACM0?cs=1``,
+``socket://bench:7000``).  Four things about the chips behind it can be said in the URL's
+query or as arguments (:func:`lm629_host.open`, :func:`lm629_host.open_board`, the CLI's
+``--chip``/``--clock``/``--axis``, a profile):
+
+=========  ==================================================================================
+``chip``   ``lm628`` or ``lm629`` (default ``lm629``)
+``clock``  the chip's clock, 1..8 MHz (``8MHz``, ``6e6``; a number in Hz as an argument)
+``axes``   how many chips a multi-axis board has (chip selects 0..axes-1)
+``cs``     the one chip :func:`lm629_host.open` drives on such a board
+=========  ==================================================================================
+
+The rules, applied by :func:`resolve_port` and nowhere else:
+
+* the same option in the URL and as an argument must agree: a conflict is an
+  :class:`~lm629_host.errors.ArgumentError` naming both sides;
+* a bad value is an ``ArgumentError`` naming the option (``axes='x' in sim://?axes=x is not
+  a whole number of chips``);
+* an unknown scheme is a :class:`~lm629_host.errors.SchemeError` (a ValueError and a
+  TransportError: bad usage, exit 2 in the CLI), except that any scheme pyserial knows
+  (``socket://``, ``rfc2217://``, ``spy://``, ``loop://``...) is a serial port;
+* a simulator builds the chips it is told of: its URL gets the arguments (``chip=``,
+  ``clock=``, ``axes=``) so that the model matches what the driver believes; a hardware
+  transport gets none of the four (they describe the board, not the link).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass
+
+from .errors import ArgumentError
+from .opcodes import NOMINAL_CLOCK_HZ
+from .program import TraceCallback
+from .transports import DEFAULT_URL, registry, transport_class
+from .transports.base import Transport
+from .urls import parse_hz, query_params, scheme_of, split_params, with_query
+
+#: the chips the driver knows
+CHIPS = ("lm628", "lm629")
+#: the chip's clock range (datasheets: 1 to 8 MHz parts)
+CLOCK_MIN_HZ, CLOCK_MAX_HZ = 1_000_000, NOMINAL_CLOCK_HZ
+#: the options this module takes out of a URL (a hardware transport never sees them)
+BOARD_OPTIONS = frozenset({"chip", "clock", "axes", "cs"})
+
+
+@dataclass(frozen=True)
+class PortSpec:
+    """A port, settled: which transport opens it, with which URL, and what is behind it."""
+
+    url: str  #: the URL as given
+    scheme: str  #: the scheme of the transport that opens it (``serial`` for a device path)
+    transport: type[Transport]  #: its class (module imported)
+    open_url: str  #: the URL handed to ``transport.from_url``
+    chip: str  #: ``lm628`` or ``lm629``
+    clock_hz: float | None  #: the chip's clock when said (URL or argument); None: not said
+    axes: int | None  #: the number of chips when said; None: what the transport reports
+    cs: int | None  #: the one chip to drive (``open``); None: the only chip, or all of them
+
+    @property
+    def simulated(self) -> bool:
+        return self.transport.simulated
+
+    def open_transport(self, trace: TraceCallback | None = None) -> Transport:
+        """Open the transport (its errors are its own: port missing, busy, no answer)."""
+        return self.transport.from_url(self.open_url, trace=trace)
+
+
+def _hz_text(hz: float) -> str:
+    return f"{hz / 1e6:g}MHz" if hz >= 1e6 else f"{hz:g}Hz"
+
+
+def _check_clock(hz: float, said: str) -> float:
+    if not CLOCK_MIN_HZ <= hz <= CLOCK_MAX_HZ:
+        raise ArgumentError("clock", hz, f"{said} is outside the chip's 1-8 MHz",
+                            lo=CLOCK_MIN_HZ, hi=CLOCK_MAX_HZ)
+    return float(hz)
+
+
+def _whole(name: str, text: str, url: str, lo: int, what: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise ArgumentError(name, text, f"{name}={text!r} in {url} is not {what}", lo=lo) from None
+    if n < lo:
+        raise ArgumentError(name, n, f"{name}={n} in {url}: at least {lo}", lo=lo)
+    return n
+
+
+def _argument_int(name: str, value: object, lo: int, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+        raise ArgumentError(name, value, f"{name}={value!r} must be {what} (at least {lo})", lo=lo)
+    return value
+
+
+def _conflict(name: str, given: str, url_text: str, url: str) -> ArgumentError:
+    return ArgumentError(name, given, f"{given} conflicts with {name}={url_text} in {url}: "
+                                      "give one of them")
+
+
+def _pyserial_knows(scheme: str) -> bool:
+    """True when pyserial has a URL handler for ``scheme`` (``socket``, ``rfc2217``, ``spy``,
+    ``loop``, ...): such a URL is a serial port (pyserial's ``serial_for_url`` opens it)."""
+    if not scheme.isidentifier():
+        return False
+    try:
+        return importlib.util.find_spec(f"serial.urlhandler.protocol_{scheme}") is not None
+    except ImportError:  # pyserial missing: then no serial port at all
+        return False
+
+
+def _transport(url: str) -> tuple[str, type[Transport], str]:
+    """(scheme, transport class, URL for it): the registry's, else serial for a pyserial URL."""
+    scheme = scheme_of(url)
+    if scheme not in registry() and _pyserial_knows(scheme):
+        return "serial", transport_class("serial://"), "serial://" + url
+    return scheme, transport_class(url), url  # SchemeError for an unknown scheme
+
+
+def resolve_port(url: str = DEFAULT_URL, *, chip: str | None = None,
+                 clock: float | str | None = None, axes: int | None = None,
+                 cs: int | None = None) -> PortSpec:
+    """Settle ``url`` and the options given beside it (see the module docstring) into a
+    :class:`PortSpec`; nothing is opened.  ``clock``: Hz, or a frequency text (``"6MHz"``).
+
+    Raises :class:`~lm629_host.errors.ArgumentError` (a ValueError naming the option, and
+    both sides of a conflict) or :class:`~lm629_host.errors.SchemeError` (an unknown scheme);
+    a transport's own options are checked when it opens.
+    """
+    if not isinstance(url, str) or not url.strip():
+        raise ArgumentError("port", url, f"port {url!r} is empty: give a URL (sim://, "
+                                         "serial:///dev/ttyACM0, ftdi://...) or a device path")
+    scheme, cls, open_url = _transport(url)
+    q = query_params(url)
+
+    if chip is not None:
+        if not isinstance(chip, str) or chip.lower() not in CHIPS:
+            raise ArgumentError("chip", chip, f"chip={chip!r}: expected 'lm628' or 'lm629'")
+        chip = chip.lower()
+    if "chip" in q:
+        url_chip = q["chip"].lower()
+        if url_chip not in CHIPS:
+            raise ArgumentError("chip", q["chip"], f"chip={q['chip']!r} in {url}: expected "
+                                                   "lm628 or lm629")
+        if chip is not None and chip != url_chip:
+            raise _conflict("chip", f"chip={chip}", q["chip"], url)
+        chip = url_chip
+
+    clock_hz: float | None = None
+    if clock is not None:
+        try:
+            hz = parse_hz(clock) if isinstance(clock, str) else float(clock)
+        except (TypeError, ValueError):
+            raise ArgumentError("clock", clock, f"clock={clock!r} is not a frequency "
+                                                "(8MHz, 6e6)") from None
+        clock_hz = _check_clock(hz, f"clock={_hz_text(hz)}")
+    if "clock" in q:
+        try:
+            url_hz = parse_hz(q["clock"])
+        except ValueError:
+            raise ArgumentError("clock", q["clock"], f"clock={q['clock']!r} in {url} is not a "
+                                                     "frequency (8MHz, 6e6)") from None
+        url_hz = _check_clock(url_hz, f"clock={q['clock']} in {url}")
+        if clock_hz is not None and clock_hz != url_hz:
+            raise _conflict("clock", f"clock={_hz_text(clock_hz)}", q["clock"], url)
+        clock_hz = url_hz
+
+    if axes is not None:
+        axes = _argument_int("axes", axes, 1, "a whole number of chips")
+    if "axes" in q:
+        url_axes = _whole("axes", q["axes"], url, 1, "a whole number of chips")
+        if axes is not None and axes != url_axes:
+            raise _conflict("axes", f"axes={axes}", q["axes"], url)
+        axes = url_axes
+
+    if cs is not None:
+        cs = _argument_int("cs", cs, 0, "a chip select number (0, 1, ...)")
+    if "cs" in q:
+        url_cs = _whole("cs", q["cs"], url, 0, "a chip select number (0, 1, ...)")
+        if cs is not None and cs != url_cs:
+            raise _conflict("cs", f"cs={cs}", q["cs"], url)
+        cs = url_cs
+
+    if cls.simulated:  # the model is built from its URL: tell it what the arguments say
+        open_url, _cs = split_params(open_url, {"cs"})
+        add = {"chip": chip, "clock": None if clock_hz is None else str(round(clock_hz)),
+               "axes": None if axes is None else str(axes)}
+        missing = {k: v for k, v in add.items() if v is not None and k not in q}
+        if missing:
+            open_url = with_query(open_url, missing)
+    else:
+        open_url, _taken = split_params(open_url, BOARD_OPTIONS)
+    return PortSpec(url=url, scheme=scheme, transport=cls, open_url=open_url,
+                    chip=chip or "lm629", clock_hz=clock_hz, axes=axes, cs=cs)
+
+
+__all__ = ["BOARD_OPTIONS", "CHIPS", "PortSpec", "resolve_port"]
