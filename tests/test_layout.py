@@ -179,3 +179,30 @@ def test_no_code_splits_an_exceptions_text():
     found = [f"{path.name}:{n}" for path in _modules().values()
              for n, line in enumerate(path.read_text().splitlines(), 1) if pattern.search(line)]
     assert found == []
+
+
+def test_the_package_root_is_what_a_lab_script_needs():
+    """``lm629_host.__all__`` is the curated set (docs/python.md lists it); no helper leaks
+    into the root, the tuner loads on first use, and nothing of sim/ is imported."""
+    code = (
+        "import sys, types\n"
+        "import lm629_host\n"
+        "assert 'lm629_host.tuning' not in sys.modules, 'tuning imported eagerly'\n"
+        "from lm629_host import Scale, autotune, emergency_stop, MotionError, MotionFault\n"
+        "assert 'lm629_host.tuning' in sys.modules and autotune.__module__ == 'lm629_host.tuning'\n"
+        "public = [n for n in dir(lm629_host) if (not n.startswith('_') or n == '__version__')\n"
+        "          and not isinstance(getattr(lm629_host, n), types.ModuleType)]\n"
+        "lazy = {'autotune', 'TuneResult'}\n"
+        "print(sorted((set(public) - lazy) ^ (set(lm629_host.__all__) - lazy)))\n"
+        "print(sorted(m for m in sys.modules if m.startswith('lm629_host.sim')))\n"
+        "for name in ('query_params', 'split_params', 'transport_class', 'resolve_port'):\n"
+        "    assert not hasattr(lm629_host, name), name\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split("\n")[:2] == ["[]", "[]"]
+    import lm629_host
+    from lm629_host import MotionError, MotionFault
+    assert all(isinstance(r, MotionFault) for r in MotionError.REASONS)
+    doc = (ROOT / "docs" / "python.md").read_text()
+    missing = [n for n in lm629_host.__all__ if f"`{n}`" not in doc and n != "__version__"]
+    assert missing == []
