@@ -42,7 +42,7 @@ from typing import NoReturn, Protocol
 from .clock import Clock
 from .errors import ArgumentError, MotionError, MotionFault
 from .opcodes import Signals, Status
-from .safety import STOP_NOTE, Stoppable, emergency_stop
+from .safety import STOP_NOTE, Stoppable, emergency_stop, motion_fault
 from .snapshot import Snapshot
 
 
@@ -179,11 +179,8 @@ class Move:
         return MoveWatch(self, r, timeout)
 
     def _fault(self, reason: MotionFault, s: Snapshot, message: str) -> NoReturn:
-        _ok, note = emergency_stop(self.chip)
-        exc = MotionError(reason, f"{message}; {note}", position=s.real_position,
-                          error=self.target - s.real_position)
-        setattr(exc, STOP_NOTE, note)  # stopped already: an outer stop_on_error does not repeat it
-        raise exc
+        raise motion_fault(self.chip, reason, message, position=s.real_position,
+                           error=self.target - s.real_position)
 
 
 class MoveWatch:

@@ -36,10 +36,10 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from .errors import MotionError
+from .errors import MotionError, MotionFault
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
-from .safety import STOP_NOTE, emergency_stop, stop_on_error
+from .safety import motion_fault, stop_on_error
 
 #: a step: the largest trajectory words, so the desired position jumps within a sample
 STEP_VELOCITY = VELOCITY_MAX
@@ -382,13 +382,10 @@ class _Session:
         self.driving = False  #: an STT of ours turned the drive on (reset leaves it off)
         self.check(first)
 
-    def fault(self, reason: str, message: str, snap: Snapshot | None = None) -> MotionError:
-        _ok, note = emergency_stop(self.chip)
-        err = MotionError(reason, f"{message} -- {note}",
-                          position=None if snap is None else snap.real_position,
-                          error=None if snap is None else snap.following_error)
-        setattr(err, STOP_NOTE, note)  # stop_on_error and the CLI: stopped once, said once
-        return err
+    def fault(self, reason: MotionFault, message: str, snap: Snapshot | None = None) -> MotionError:
+        return motion_fault(self.chip, reason, message,
+                            position=None if snap is None else snap.real_position,
+                            error=None if snap is None else snap.following_error)
 
     def check(self, s: Snapshot) -> None:
         """The safety checks on every snapshot."""

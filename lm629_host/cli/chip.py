@@ -12,11 +12,10 @@ import click
 from ..errors import ArgumentError, CommandError
 from ..lm629 import check_int
 from ..opcodes import VELOCITY_MAX, Status
-from ..safety import stop_on_error
+from ..supervise import search_index
 from ..units import FIXED_ONE
 from .app import _session, main
 from .common import _flags, _position, _show_position, _wait_flag, snapshot_dict
-from .motion import _wait_still
 from .types import FINITE, INT, SIGNED_ARGS, check_writable, positive
 
 
@@ -100,24 +99,17 @@ def index(wait_s: float | None, search: int | None) -> None:
                                  param_hint="--search")
     s = _session()
     chip = s.open()
-    if search is not None:
-        chip.trajectory_program(acceleration=655, velocity=search, velocity_mode=True)
+    if search is not None:  # the library's search: armed, turned, stopped, at rest
+        at = search_index(chip, search, timeout=wait_s or 10.0)
+        click.echo(f"index at position {_show_position(s, at)}")
+        return
     chip.reset_interrupts(Status.INDEX_PULSE)
     chip.set_index_position()
-    if search is None and wait_s is None:
+    if wait_s is None:
         click.echo("index armed (SIP): read it later with `lm629 status` / RDIP")
         return
-    words = "the index pulse (status bit 3)"
-    if search is None:  # only waiting: a timeout must not touch a servo holding position
-        _wait_flag(chip, Status.INDEX_PULSE, words, wait_s or 10.0)
-    else:
-        with stop_on_error(chip):
-            chip.load_trajectory(acceleration=655, velocity=search, velocity_mode=True,
-                                 start=True)
-            _wait_flag(chip, Status.INDEX_PULSE, words + " while turning", wait_s or 10.0)
-            chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
-            chip.load_trajectory(stop="abrupt", start=True)
-            _wait_still(chip, 1.0)
+    # only waiting: a timeout must not touch a servo holding position
+    _wait_flag(chip, Status.INDEX_PULSE, "the index pulse (status bit 3)", wait_s)
     click.echo(f"index at position {_show_position(s, chip.read_index_position())}")
 
 
