@@ -27,17 +27,14 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
-from .errors import ArgumentError, AxisError, CommandError, MotionError, ResetError
-from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, snapshot_of
+from .errors import ArgumentError, AxisError, CommandError, MotionError
+from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, reset_chips, snapshot_of
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     ACCELERATION_MAX,
     INTERRUPTS,
     POSITION_MAX,
     POSITION_MIN,
-    RESET_CLEARED_STATUSES,
-    RESET_DONE_STATUSES,
-    RESET_WAIT_S,
     VELOCITY_MAX,
     Cmd,
     Status,
@@ -325,54 +322,12 @@ class Board:
     # ------------------------------------------------------------------ reset
     def reset(self) -> list[Status]:
         """One /RST for every chip (the line is shared), then AN-706 4.4.1's check on each:
-        00 at once, 84/C4 after 1.5 ms, 80/C0 after MSKI/RSTI 0000.  Two programs in all.
+        00 at once, 84/C4 after 1.5 ms, 80/C0 after MSKI/RSTI 0000.  Two programs in all
+        (:func:`~lm629_host.lm629.reset_chips`, which :meth:`LM629.reset` runs for one chip).
         Retries ``reset_attempts`` times, then raises :class:`ResetError` naming the first
         axis that failed, with its status bytes."""
-        hw = self.transport.has_reset_line
-        seen: dict[int, list[int]] = {a.chip_select: [] for a in self.axes}
-        failed = self.axes[0].chip_select
-        for _ in range(self.reset_attempts):
-            p = self.program()
-            if hw:
-                p.reset()
-            else:
-                for a in self.axes:
-                    p.on(a.chip_select).command(Cmd.RESET)
-            for a in self.axes:
-                p.on(a.chip_select).status()
-            p.wait(round(RESET_WAIT_S * 1e6))
-            for a in self.axes:
-                p.on(a.chip_select).status()
-            st = self.transport.execute(p).statuses
-            n = len(self.axes)
-            bad = None
-            for k, a in enumerate(self.axes):
-                first, done = st[k], st[n + k]
-                seen[a.chip_select] += (first, done)
-                if bad is None and ((hw and first != 0) or done not in RESET_DONE_STATUSES):
-                    bad = a.chip_select
-            if bad is not None:
-                failed = bad
-                continue
-            q = self.program()
-            for a in self.axes:
-                q.on(a.chip_select).command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
-                if a._port12:
-                    q.command(Cmd.PORT12)
-            cleared = self.transport.execute(q).statuses
-            for a, c in zip(self.axes, cleared):
-                seen[a.chip_select].append(c)
-            bad = next((a.chip_select for a, c in zip(self.axes, cleared)
-                        if c not in RESET_CLEARED_STATUSES), None)
-            if bad is None:
-                for a in self.axes:
-                    a._ds = 0
-                    a._ce_clear = True
-                return [Status(c) for c in cleared]
-            failed = bad
-        expected = ("00 at once, 84 or C4 after 1.5 ms, 80 or C0 after MSKI/RSTI 0000" if hw
-                    else "84 or C4 after the RESET command, 80 or C0 after MSKI/RSTI 0000")
-        raise ResetError(seen[failed], expected, self.reset_attempts, axis=failed)
+        return reset_chips(self.axes, pulse=self.transport.has_reset_line,
+                           attempts=self.reset_attempts)[0]
 
     # ------------------------------------------------------------------ synchronized start
     def start_program(self, axes: Sequence[LM629 | int] = (), prefix: Program | None = None,
@@ -386,7 +341,7 @@ class Board:
         if prefix is not None:
             p.extend(prefix)
         for a in chosen:
-            flags = Status(clear) | (Status(0) if a._ce_clear else Status.COMMAND_ERROR)
+            flags = a.start_flags(clear)
             if flags:
                 p.on(a.chip_select).command(Cmd.RSTI).write(int(INTERRUPTS & ~flags))
         for a in chosen:
@@ -407,12 +362,8 @@ class Board:
         before, after = statuses[-2 * n:-n], statuses[-n:]
         refused = None
         for a, b, s in zip(chosen, before, after):
-            if s & Status.COMMAND_ERROR:
-                a._ce_clear = False
-                if not b & Status.COMMAND_ERROR and refused is None:
-                    refused = (a, s)
-            else:
-                a._ce_clear = True
+            if a.start_checked(b, s) and refused is None:
+                refused = (a, s)
         if refused is not None:
             raise CommandError(f"STT on axis {refused[0].chip_select}", refused[1])
         return [Status(s) for s in after]
