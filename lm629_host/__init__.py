@@ -36,6 +36,7 @@ from .ports import resolve_port as _resolve_port
 from .program import DEFAULT_BUSY_TIMEOUT_S as _DEFAULT_BUSY_TIMEOUT_S
 from .program import BusCycle, Program, ProgramResult
 from .safety import emergency_stop, stop_on_error
+from .supervise import VelocityRun, run_velocity, search_index, wait_still
 from .transports import DEFAULT_URL
 from .units import Scale
 
@@ -87,6 +88,8 @@ __all__ = [
     "open", "open_board", "DEFAULT_URL", "LM629", "Board", "BoardMove",
     # moves
     "Move", "MoveResult", "MoveRules", "Snapshot", "plan_linear", "LinearPlan",
+    # velocity mode, the index, rest
+    "run_velocity", "VelocityRun", "search_index", "wait_still",
     # errors
     "LM629Error", "ArgumentError", "AxisError", "SchemeError", "TransportError", "BusyTimeout",
     "ResetError", "CommandError", "WaitTimeout", "MotionError", "MotionFault",
