@@ -29,7 +29,9 @@ The rules, applied by :func:`resolve_port` and nowhere else:
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from .errors import ArgumentError
 from .opcodes import NOMINAL_CLOCK_HZ
@@ -72,6 +74,19 @@ def _hz_text(hz: float) -> str:
     return f"{hz / 1e6:g}MHz" if hz >= 1e6 else f"{hz:g}Hz"
 
 
+# each option: (the argument checked, shown as text) and (the URL's text checked): ArgumentError
+def _chip_argument(value: object) -> tuple[str, str]:
+    if not isinstance(value, str) or value.lower() not in CHIPS:
+        raise ArgumentError("chip", value, f"chip={value!r}: expected 'lm628' or 'lm629'")
+    return value.lower(), f"chip={value.lower()}"
+
+
+def _chip_in_url(text: str, url: str) -> str:
+    if text.lower() not in CHIPS:
+        raise ArgumentError("chip", text, f"chip={text!r} in {url}: expected lm628 or lm629")
+    return text.lower()
+
+
 def _check_clock(hz: float, said: str) -> float:
     if not CLOCK_MIN_HZ <= hz <= CLOCK_MAX_HZ:
         raise ArgumentError("clock", hz, f"{said} is outside the chip's 1-8 MHz",
@@ -79,25 +94,67 @@ def _check_clock(hz: float, said: str) -> float:
     return float(hz)
 
 
-def _whole(name: str, text: str, url: str, lo: int, what: str) -> int:
+def _clock_argument(value: object) -> tuple[float, str]:
     try:
-        n = int(text)
+        hz = parse_hz(value) if isinstance(value, str) else float(value)  # type: ignore[arg-type]  # anything else: the TypeError below
+    except (TypeError, ValueError):
+        raise ArgumentError("clock", value, f"clock={value!r} is not a frequency "
+                                            "(8MHz, 6e6)") from None
+    return _check_clock(hz, f"clock={_hz_text(hz)}"), f"clock={_hz_text(hz)}"
+
+
+def _clock_in_url(text: str, url: str) -> float:
+    try:
+        hz = parse_hz(text)
     except ValueError:
-        raise ArgumentError(name, text, f"{name}={text!r} in {url} is not {what}", lo=lo) from None
-    if n < lo:
-        raise ArgumentError(name, n, f"{name}={n} in {url}: at least {lo}", lo=lo)
-    return n
+        raise ArgumentError("clock", text, f"clock={text!r} in {url} is not a frequency "
+                                           "(8MHz, 6e6)") from None
+    return _check_clock(hz, f"clock={text} in {url}")
 
 
-def _argument_int(name: str, value: object, lo: int, what: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-        raise ArgumentError(name, value, f"{name}={value!r} must be {what} (at least {lo})", lo=lo)
+def _whole_argument(name: str, lo: int, what: str) -> Callable[[object], tuple[int, str]]:
+    def check(value: object) -> tuple[int, str]:
+        if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+            raise ArgumentError(name, value, f"{name}={value!r} must be {what} (at least {lo})",
+                                lo=lo)
+        return value, f"{name}={value}"
+    return check
+
+
+def _whole_in_url(name: str, lo: int, what: str) -> Callable[[str, str], int]:
+    def check(text: str, url: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            raise ArgumentError(name, text, f"{name}={text!r} in {url} is not {what}",
+                                lo=lo) from None
+        if n < lo:
+            raise ArgumentError(name, n, f"{name}={n} in {url}: at least {lo}", lo=lo)
+        return n
+    return check
+
+
+_AXES, _CS = "a whole number of chips", "a chip select number (0, 1, ...)"
+#: option -> (check of an argument, check of the URL's text)
+_OPTIONS: dict[str, tuple[Callable[[Any], tuple[Any, str]], Callable[[str, str], Any]]] = {
+    "chip": (_chip_argument, _chip_in_url),
+    "clock": (_clock_argument, _clock_in_url),
+    "axes": (_whole_argument("axes", 1, _AXES), _whole_in_url("axes", 1, _AXES)),
+    "cs": (_whole_argument("cs", 0, _CS), _whole_in_url("cs", 0, _CS)),
+}
+
+
+def _settle(name: str, given: object, url: str, query: dict[str, str]) -> Any:
+    """One option: the argument and the URL's value, each checked; they must agree."""
+    of_argument, of_url = _OPTIONS[name]
+    value, shown = of_argument(given) if given is not None else (None, "")
+    if name in query:
+        in_url = of_url(query[name], url)
+        if value is not None and value != in_url:
+            raise ArgumentError(name, given, f"{shown} conflicts with {name}={query[name]} in "
+                                              f"{url}: give one of them")
+        value = in_url
     return value
-
-
-def _conflict(name: str, given: str, url_text: str, url: str) -> ArgumentError:
-    return ArgumentError(name, given, f"{given} conflicts with {name}={url_text} in {url}: "
-                                      "give one of them")
 
 
 def _pyserial_knows(scheme: str) -> bool:
@@ -134,66 +191,19 @@ def resolve_port(url: str = DEFAULT_URL, *, chip: str | None = None,
                                          "serial:///dev/ttyACM0, ftdi://...) or a device path")
     scheme, cls, open_url = _transport(url)
     q = query_params(url)
-
-    if chip is not None:
-        if not isinstance(chip, str) or chip.lower() not in CHIPS:
-            raise ArgumentError("chip", chip, f"chip={chip!r}: expected 'lm628' or 'lm629'")
-        chip = chip.lower()
-    if "chip" in q:
-        url_chip = q["chip"].lower()
-        if url_chip not in CHIPS:
-            raise ArgumentError("chip", q["chip"], f"chip={q['chip']!r} in {url}: expected "
-                                                   "lm628 or lm629")
-        if chip is not None and chip != url_chip:
-            raise _conflict("chip", f"chip={chip}", q["chip"], url)
-        chip = url_chip
-
-    clock_hz: float | None = None
-    if clock is not None:
-        try:
-            hz = parse_hz(clock) if isinstance(clock, str) else float(clock)
-        except (TypeError, ValueError):
-            raise ArgumentError("clock", clock, f"clock={clock!r} is not a frequency "
-                                                "(8MHz, 6e6)") from None
-        clock_hz = _check_clock(hz, f"clock={_hz_text(hz)}")
-    if "clock" in q:
-        try:
-            url_hz = parse_hz(q["clock"])
-        except ValueError:
-            raise ArgumentError("clock", q["clock"], f"clock={q['clock']!r} in {url} is not a "
-                                                     "frequency (8MHz, 6e6)") from None
-        url_hz = _check_clock(url_hz, f"clock={q['clock']} in {url}")
-        if clock_hz is not None and clock_hz != url_hz:
-            raise _conflict("clock", f"clock={_hz_text(clock_hz)}", q["clock"], url)
-        clock_hz = url_hz
-
-    if axes is not None:
-        axes = _argument_int("axes", axes, 1, "a whole number of chips")
-    if "axes" in q:
-        url_axes = _whole("axes", q["axes"], url, 1, "a whole number of chips")
-        if axes is not None and axes != url_axes:
-            raise _conflict("axes", f"axes={axes}", q["axes"], url)
-        axes = url_axes
-
-    if cs is not None:
-        cs = _argument_int("cs", cs, 0, "a chip select number (0, 1, ...)")
-    if "cs" in q:
-        url_cs = _whole("cs", q["cs"], url, 0, "a chip select number (0, 1, ...)")
-        if cs is not None and cs != url_cs:
-            raise _conflict("cs", f"cs={cs}", q["cs"], url)
-        cs = url_cs
-
+    values = {name: _settle(name, given, url, q)
+              for name, given in (("chip", chip), ("clock", clock), ("axes", axes), ("cs", cs))}
     if cls.simulated:  # the model is built from its URL: tell it what the arguments say
         open_url, _cs = split_params(open_url, {"cs"})
-        add = {"chip": chip, "clock": None if clock_hz is None else str(round(clock_hz)),
-               "axes": None if axes is None else str(axes)}
-        missing = {k: v for k, v in add.items() if v is not None and k not in q}
-        if missing:
-            open_url = with_query(open_url, missing)
-    else:
+        add = {name: str(round(values[name]) if name == "clock" else values[name])
+               for name in ("chip", "clock", "axes") if values[name] is not None and name not in q}
+        if add:
+            open_url = with_query(open_url, add)
+    else:  # they describe the board, not the link
         open_url, _taken = split_params(open_url, BOARD_OPTIONS)
     return PortSpec(url=url, scheme=scheme, transport=cls, open_url=open_url,
-                    chip=chip or "lm629", clock_hz=clock_hz, axes=axes, cs=cs)
+                    chip=values["chip"] or "lm629", clock_hz=values["clock"],
+                    axes=values["axes"], cs=values["cs"])
 
 
 __all__ = ["BOARD_OPTIONS", "CHIPS", "PortSpec", "resolve_port"]
