@@ -390,7 +390,7 @@ class LM629:
         """The flags a program must clear (RSTI) before its STT on this chip: ``clear``, and
         the command-error flag unless it is known to be clear, so that a refusal of this STT
         is never hidden by a stale flag."""
-        clear = Status(clear)
+        clear = _check_flags("clear", clear)
         return clear if self._ce_clear else clear | Status.COMMAND_ERROR
 
     def start_checked(self, before: int, after: int) -> bool:
