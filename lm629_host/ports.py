@@ -19,8 +19,9 @@ The rules, applied by :func:`resolve_port` and nowhere else:
 * a bad value is an ``ArgumentError`` naming the option (``axes='x' in sim://?axes=x is not
   a whole number of chips``);
 * an unknown scheme is a :class:`~lm629_host.errors.SchemeError` (a ValueError and a
-  TransportError: bad usage, exit 2 in the CLI), except that any scheme pyserial knows
-  (``socket://``, ``rfc2217://``, ``spy://``, ``loop://``...) is a serial port;
+  TransportError: bad usage, exit 2 in the CLI), except that any scheme pyserial knows is a
+  serial port (``socket://``, ``rfc2217://``, ``spy://``, ``loop://`` through the registry's
+  ``URL_SCHEMES``, any other handler with ``serial://`` put in front);
 * a simulator builds the chips it is told of: its URL gets the arguments (``chip=``,
   ``clock=``, ``axes=``) so that the model matches what the driver believes; a hardware
   transport gets none of the four (they describe the board, not the link).
@@ -36,7 +37,7 @@ from typing import Any
 from .errors import ArgumentError
 from .opcodes import NOMINAL_CLOCK_HZ
 from .program import TraceCallback
-from .transports import DEFAULT_URL, registry, transport_class
+from .transports import DEFAULT_URL, URL_SCHEMES, registry, transport_class
 from .transports.base import Transport
 from .urls import parse_hz, query_params, scheme_of, split_params, with_query
 
@@ -169,11 +170,15 @@ def _pyserial_knows(scheme: str) -> bool:
 
 
 def _transport(url: str) -> tuple[str, type[Transport], str]:
-    """(scheme, transport class, URL for it): the registry's, else serial for a pyserial URL."""
+    """(scheme, transport class, URL for it): the registry's (with its :data:`URL_SCHEMES
+    <lm629_host.transports.URL_SCHEMES>`, pyserial's usual handlers opened as they are), else
+    the serial transport, ``serial://`` in front, for any other scheme pyserial has a handler
+    for (``hwgrep://``, ``alt://``...)."""
     scheme = scheme_of(url)
-    if scheme not in registry() and _pyserial_knows(scheme):
+    if scheme not in registry() and scheme not in URL_SCHEMES and _pyserial_knows(scheme):
         return "serial", transport_class("serial://"), "serial://" + url
-    return scheme, transport_class(url), url  # SchemeError for an unknown scheme
+    cls = transport_class(url)  # SchemeError for an unknown scheme
+    return cls.scheme or scheme, cls, url
 
 
 def resolve_port(url: str = DEFAULT_URL, *, chip: str | None = None,

@@ -43,7 +43,9 @@ def base_url(request) -> str:
 
 
 def with_params(base: str, params: str) -> str:
-    return f"{base}?{params}" if params else base
+    if not params:
+        return base
+    return f"{base}{'&' if '?' in base else '?'}{params}"
 
 
 def test_an693_filter_module_puts_exactly_its_bytes_on_the_bus(base_url, open_chip, recorder):

@@ -76,12 +76,18 @@ def test_a_hardware_url_keeps_its_own_options_and_gives_up_the_boards():
     assert (spec.chip, spec.clock_hz, spec.axes, spec.cs) == ("lm628", 6e6, 2, 1)
 
 
-@pytest.mark.parametrize("url", ["socket://bench:7000?logging=debug", "rfc2217://bench:7000",
-                                 "spy:///dev/ttyUSB0?file=x.txt", "loop://"])
-def test_a_scheme_pyserial_knows_is_a_serial_port(url):
+@pytest.mark.parametrize("url, open_url", [
+    ("socket://bench:7000?logging=debug", "socket://bench:7000?logging=debug"),
+    ("rfc2217://bench:7000?chip=lm628", "rfc2217://bench:7000"),  # the board's option taken
+    ("spy:///dev/ttyUSB0?file=x.txt", "spy:///dev/ttyUSB0?file=x.txt"),
+    ("loop://", "loop://"),
+    # a handler the registry does not list: serial:// in front, as it has always been taken
+    ("hwgrep://0403:6014", "serial://hwgrep://0403:6014"),
+])
+def test_a_scheme_pyserial_knows_is_a_serial_port(url, open_url):
     spec = resolve_port(url)
-    assert spec.transport is SerialTransport
-    assert spec.open_url == "serial://" + url  # serial:// in front, as it has always been taken
+    assert spec.transport is SerialTransport and spec.scheme == "serial"
+    assert spec.open_url == open_url
 
 
 def test_a_socket_url_given_directly_reaches_a_bridge():
