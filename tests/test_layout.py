@@ -169,6 +169,8 @@ def test_the_driver_asks_the_transport_not_its_model():
     for name, path in _modules().items():
         if name.startswith("lm629_host.sim") or name.startswith("lm629_host.transports.sim"):
             continue
+        if name == "lm629_host.pytest_plugin":  # a test tool: it reports the simulated chips'
+            continue  # protocol violations (Bench.models), a door to the simulator by design
         found += [f"{path.name}:{n}" for n, line in enumerate(path.read_text().splitlines(), 1)
                   if pattern.search(line)]
     assert found == []
