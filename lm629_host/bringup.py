@@ -31,6 +31,7 @@ from .lm629 import LM629
 from .opcodes import Status
 from .safety import STOP_NOTE, emergency_stop, stop_on_error
 from .units import FIXED_ONE, Scale
+from .wiring import wiring_suspects
 
 
 @dataclass(frozen=True)
@@ -146,8 +147,11 @@ def reset_step(chip: LM629) -> StepResult:
     try:
         status, seen = reset_with_statuses(chip)
     except ResetError as exc:
+        # name the wire, not only the bytes: the wiring check moves nothing (lm629_host.wiring)
+        wires = wiring_suspects(chip)
         return StepResult("reset", False, f"status bytes seen: {_hex(exc.statuses)}",
-                          [str(exc)], {"statuses": list(exc.statuses)})
+                          [f"wiring check: {w}" for w in wires] + [str(exc)],
+                          {"statuses": list(exc.statuses), "wiring": wires})
     expected = "00, 84/C4, 80/C0" if chip.uses_reset_line else "84/C4, 80/C0"
     return StepResult("reset", True, f"status bytes seen: {_hex(seen)} (expected {expected})",
                       data={"statuses": seen, "status": int(status)})

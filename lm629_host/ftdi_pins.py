@@ -3,7 +3,8 @@ the MPSSE commands that move them, FTDI AN_108).
 
 This is the one definition.  The transport (:mod:`lm629_host.transports.ftdi`) compiles bus
 programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
-chip model with them, and docs/ftdi.md's wiring table is checked against :data:`WIRING` by a test.
+chip model with them, and docs/ftdi.md's wiring table and drawing are generated from them
+(:mod:`lm629_host.connections`, ``tools/gen_wiring.py``; a test checks they are current).
 
 Why this layout:
 
@@ -59,22 +60,6 @@ DATA_IN = 0x00  #: ACBUS direction while the chip may drive D0-D7 (reads, idle)
 #: transport never sends a stream, or asks for a reply, longer than this
 FIFO_BYTES = 1024
 
-#: (FT232H line, breakout label, LM629 pin, direction seen from the adapter, note), for the
-#: docs/ftdi.md's wiring table.  The LM629 pin numbers are those of the 28-pin DIP package (AN-706
-#: names HI pin 17 and /RST pin 27; check the others against your package's datasheet).
-WIRING: tuple[tuple[str, str, str, str, str], ...] = (
-    ("ACBUS0-7", "C0-C7", "D0-D7 (pins 4-11)", "in/out", "data bus, C0 = D0"),
-    ("ADBUS1", "D1", "/CS (pin 12)", "out", "10k pull-up"),
-    ("ADBUS2", "D2", "/RD (pin 13)", "out", "10k pull-up"),
-    ("ADBUS3", "D3", "/WR (pin 15)", "out", "10k pull-up"),
-    ("ADBUS4", "D4", "/PS (pin 16)", "out", ""),
-    ("ADBUS5", "D5", "HI (pin 17)", "in", "GPIOL1"),
-    ("ADBUS6", "D6", "/RST (pin 27)", "out", "10k pull-up"),
-    ("ADBUS7", "D7", "/CS of a second chip", "out", "10k pull-up; second axis"),
-    ("ADBUS0", "D0", "-", "out", "TCK: toggled by delays, leave unconnected"),
-    ("GND", "GND", "GND (pin 14)", "", "common ground"),
-)
-
 # MPSSE commands (FTDI AN_108): the transport writes them, the emulated FT232H executes them
 SET_LOW = 0x80  #: set ADBUS levels and directions (2 bytes follow)
 GET_LOW = 0x81  #: read ADBUS
@@ -96,4 +81,4 @@ DISABLE_CLK_ADAPTIVE = 0x97
 
 __all__ = ["TCK", "CS", "CS1", "CHIP_SELECTS", "HI_LINES", "CS_ALL", "RD", "WR", "PS", "HI",
            "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
-           "DATA_IN", "FIFO_BYTES", "WIRING"]
+           "DATA_IN", "FIFO_BYTES"]

@@ -140,3 +140,14 @@ def test_a_fault_in_the_small_move_is_the_move_steps_verdict_with_the_motor_off(
     assert [s.name for s in steps] == ["move"] and steps[0].ok is False
     assert steps[0].summary.startswith(words) and "motor stopped" in steps[0].details[0]
     assert chip.read_status() & Status.MOTOR_OFF
+
+
+def test_a_failed_reset_names_the_wire(open_chip):
+    """Issue 23: the reset step runs the wiring check and names the wire: D2/D3 swapped make
+    the reset's C4 read C8 (bits 2 and 3 exchanged)."""
+    report = run_bringup(open_chip("sim://?wiring=d2-d3"))
+    step = report.steps[0]
+    assert step.ok is False and report.reset_failed  # exit 5 in the CLI
+    assert "C8" in step.summary
+    assert step.details[0].startswith("wiring check: LM629 D2 (pin 6) carries D3's bit")
+    assert "Uno D4" in step.details[0] and "Uno D5" in step.details[1]

@@ -9,6 +9,7 @@ import os
 from ..errors import AxisError
 from ..urls import Option, dataclass_options, parse_options, query_params
 from .model import ChipBus, ChipModel, ChipParams, MotorParams
+from .wiring import wiring_of
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
 
@@ -44,9 +45,12 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
     the calling transport and are skipped here; any other unknown name is an error.
     """
     chip, motor = ChipParams(), MotorParams()
-    chip.strict = strict_default()  # a URL's own strict= wins (below)
+    # strict_default(), unless the URL says strict= (below); never where wiring= miswires the
+    # bench (sim/wiring.py): a bent wire bends the host's bytes, and the chip's protocol
+    # checks would blame the host for the wire
+    chip.strict = strict_default() and wiring_of(url) is None
     values = parse_options(url, _CHIP_OPTIONS + _MOTOR_OPTIONS, what="simulator",
-                           ignore=allowed, aliases=_ALIASES, given_only=True)
+                           ignore=allowed | {"wiring"}, aliases=_ALIASES, given_only=True)
     for name, value in values.items():
         if name == "clock_hz":
             value = round(value)

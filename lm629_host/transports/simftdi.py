@@ -26,6 +26,7 @@ from ..clock import Clock
 from ..errors import ProtocolViolation
 from ..program import Program, ProgramResult, TraceCallback
 from ..sim.build import build_bus
+from ..sim.wiring import wiring_of
 from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
 from ..sim.model import ChipBus, ChipModel, chips_of
 from ..urls import Option, parse_options, query_params
@@ -70,7 +71,8 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
         strict = model.params.strict
         for chip in chips_of(model):
             chip.params.strict = False
-        device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns))
+        device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
+                                wiring=wiring_of(url))
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
         ftdi = open_mpsse(url, latency, frequency, device=usb_dev)

@@ -53,6 +53,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ... import ftdi_pins as pins
+from ..wiring import Miswiring
 from ..model import ChipBus, ChipModel, chips_of
 
 # FTDI vendor requests (the ones pyftdi sends; FTDI AN_232B-series numbering)
@@ -116,8 +117,12 @@ class EmulatedFT232H:
 
     def __init__(self, model: ChipModel | ChipBus, *, serial: str = "LM629EMU", usb_ns: int = 125_000,
                  command_ns: int = 500, bus: int = 1, address: int = 7,
-                 adaptive: bool = False, three_phase: bool = False) -> None:
+                 adaptive: bool = False, three_phase: bool = False,
+                 wiring: Miswiring | None = None) -> None:
         self.model = model
+        #: ``wiring=``: the wires between ACBUS0-7 and the chip's D0-D7 (None: correct); a
+        #: byte is bent where the chip latches it and where it drives the bus
+        self.wiring = wiring
         self.serial = serial
         self.manufacturer = "FTDI"
         self.product = "Single RS232-HS"
@@ -440,6 +445,8 @@ class EmulatedFT232H:
                 m = self.model
                 self._drive = (m.read_status() if not level & pins.PS
                                else self._strobe(m.read_data))
+                if self.wiring is not None:
+                    self._drive = self.wiring.to_host(self._drive)
                 if self._high_dir:
                     self._timing("/RD low while the adapter drives D0-D7 (contention)")
             elif level & pins.RD:
@@ -455,6 +462,8 @@ class EmulatedFT232H:
             if self._high_dir != 0xFF:
                 self._timing("/WR strobed with D0-D7 not driven by the adapter")
             byte = self._high_val
+            if self.wiring is not None:
+                byte = self.wiring.to_chip(byte)
             m = self.model
             if level & pins.PS:
                 self._strobe(m.write_data, byte)
