@@ -159,6 +159,7 @@ class Profile:
     axes: dict[str, AxisProfile]
     note: str = ""
     given: frozenset[str] = frozenset()  #: the [board] keys the file sets
+    lines: dict[str, int] = field(default_factory=dict)  #: [board] key -> line in the file
 
     def axis(self, name: str) -> AxisProfile:
         try:
@@ -180,26 +181,27 @@ class Profile:
                           lines=tuple(axis.key_lines.items()))
 
     def url(self) -> str:
-        """The port the profile names (ValueError when it names none)."""
+        """The port the profile names, with its chip and clock (and, for a simulator, a chip
+        per chip select) said in the URL, settled by :func:`lm629_host.ports.resolve_port`,
+        the one place a port meets ``chip=``/``clock=``/``axes=``: a URL that says otherwise
+        than ``[board]`` is a ProfileError naming both.  ValueError when it names no port."""
+        from .ports import resolve_port
+        from .urls import query_params, with_query
         if not self.port:
             raise ProfileError(f"{self.path}: [board] has no port = \"...\": give --port or "
                                "write the port URL into the profile")
-        return resolve_port(self.port, self.chip, self.clock_hz, self)
-
-
-def resolve_port(url: str, chip: str, clock_hz: float, profile: Profile) -> str:
-    """The one place a profile's port becomes the URL opened: a simulator URL gets the
-    profile's chip, clock and enough chips for its chip selects unless it names them."""
-    from .urls import query_params, scheme_of, with_query
-    if not scheme_of(url).startswith("sim"):
-        return url
-    have = query_params(url)
-    add = {"chip": chip, "clock": str(int(clock_hz))}
-    n = max((a.cs for a in profile.axes.values()), default=0) + 1
-    if n > 1:
-        add["axes"] = str(n)
-    values = {k: v for k, v in add.items() if k not in have}
-    return with_query(url, values) if values else url
+        try:
+            spec = resolve_port(self.port, chip=self.chip, clock=self.clock_hz)
+        except ValueError as exc:
+            line = f":{self.lines['port']}" if "port" in self.lines else ""
+            raise ProfileError(f"{self.path}{line}: [board] port: {exc}") from None
+        have = query_params(self.port)
+        add = {"chip": self.chip, "clock": str(round(self.clock_hz))}
+        n = max((a.cs for a in self.axes.values()), default=0) + 1
+        if spec.transport.simulated and n > 1:
+            add["axes"] = str(n)  # the simulator builds the chips the profile names
+        add = {k: v for k, v in add.items() if k not in have}
+        return with_query(self.port, add) if add else self.port
 
 
 # ---------------------------------------------------------------------------- loading
@@ -331,7 +333,8 @@ def parse_profile(text: str, path: str | os.PathLike[str] = "<profile>") -> Prof
             raise chk.fail(table, "index_velocity", "0 would never find the index")
         axes[name] = ax
     return Profile(path, board.get("port"), chip, clock_hz, axes, board.get("note", ""),
-                   frozenset(board))
+                   frozenset(board), {k: chk.lines[("board", k)] for k in board
+                                      if ("board", k) in chk.lines})
 
 
 def load_profile(path: str | os.PathLike[str]) -> Profile:
@@ -498,4 +501,4 @@ def template(*, port: str | None, chip: str = "lm629", clock: str = "8MHz",
 
 __all__ = ["AXIS_KEYS", "BOARD_KEYS", "AxisProfile", "Profile", "ProfileError", "apply_axis",
            "apply_profile", "attach", "ensure_applied", "key_lines", "load_profile", "name_axes",
-           "parse_profile", "resolve_port", "save_gains", "settings_lost", "template"]
+           "parse_profile", "save_gains", "settings_lost", "template"]

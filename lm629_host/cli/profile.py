@@ -22,8 +22,7 @@ import click
 
 from ..board import Board
 from ..lm629 import LM629
-from ..errors import WaitTimeout
-from ..opcodes import Signals, Status
+from ..opcodes import Signals
 from ..profile import (
     AXIS_KEYS,
     Profile,
@@ -36,6 +35,7 @@ from ..profile import (
     settings_lost,
     template,
 )
+from ..urls import query_params, with_query
 from .app import HOOKS, Session, _session, axes_of, board, main
 from .common import _flags
 
@@ -63,6 +63,11 @@ def profile_options(ctx: click.Context, path: str, port: str | None, chip_name: 
     prof = load_profile(path)
     if not _given(ctx, "port") and prof.port:
         port = prof.url()
+    elif port is not None:  # --port: the profile's chip and clock unless it says its own
+        have = query_params(port)
+        add = {k: v for k, v in (("chip", prof.chip), ("clock", str(round(prof.clock_hz))))
+               if k not in have and not _given(ctx, "chip_name" if k == "chip" else k)}
+        port = with_query(port, add) if add else port
     if not _given(ctx, "chip_name"):
         chip_name = prof.chip
     if not _given(ctx, "clock"):
@@ -166,27 +171,6 @@ def index_search(s: Session, word: int | None) -> tuple[int | None, bool]:
                                      "this axis)", param_hint="--search")
         word = max(1, round(abs(speed) * (2048 / s.clock_hz) * 65536))
     return word, forward
-
-
-def search_within_limits(chip: LM629, word: int, forward: bool, timeout: float) -> None:
-    """Look for the index by a move towards the soft limit (max, or min backwards) at
-    ``word``: it ends at the limit at the latest.  The index pulse, or a WaitTimeout saying
-    the move reached the limit (or ``timeout``) without one; the caller stops the motor."""
-    lim = chip.limits
-    assert lim is not None
-    goal = lim.max if forward else lim.min
-    if goal is None:
-        raise ValueError(f"the search runs {'forward' if forward else 'backward'} and the axis "
-                         f"has no {'max' if forward else 'min'}: give it one in the profile")
-    chip.move_to(goal, velocity=word, acceleration=min(655, lim.acceleration_word or 655))
-    status = chip.wait_for(Status.INDEX_PULSE | Status.TRAJECTORY_COMPLETE, timeout=timeout,
-                           poll=0.001)
-    if not status & Status.INDEX_PULSE:
-        exc = WaitTimeout("the index pulse", timeout, int(status))
-        exc.args = (f"no index pulse on the way to the soft limit {goal} (the move reached it; "
-                    f"status {int(status):02X}): search the other way (the sign of the profile's "
-                    "index_velocity) or check the encoder's index channel",)
-        raise exc
 
 
 def tune_band(chip: LM629, travel: int) -> None:
