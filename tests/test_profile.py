@@ -352,3 +352,19 @@ def test_a_chip_that_lost_its_settings_while_moving_is_not_applied_mid_move(tmp_
         assert ensure_applied({"x": x}, prof, said.append) == []
         assert len(said) == 1 and "is moving" in said[0] and "not applied" in said[0]
         assert x.is_moving() and not x.read_signals() & Signals.STOP_ON_ERROR
+
+
+def test_the_profiles_port_is_settled_by_the_one_resolver(tmp_path):
+    """[board] chip and clock go into the URL (ports.resolve_port splits them off a hardware
+    URL and builds a simulator from them); a URL that says otherwise is one ProfileError."""
+    hw = parse_profile(GOOD.replace('port = "sim://"', 'port = "serial:///dev/ttyACM0"')
+                       .replace('chip = "lm629"', 'chip = "lm628"'), tmp_path / "hw.toml")
+    assert hw.url() == "serial:///dev/ttyACM0?chip=lm628&clock=8000000"
+    assert lm629_host.ports.resolve_port(hw.url()).chip == "lm628"
+    bad = parse_profile(GOOD.replace('port = "sim://"', 'port = "sim://?chip=lm628"'),
+                        tmp_path / "bad.toml")
+    with pytest.raises(ProfileError) as err:
+        bad.url()
+    msg = str(err.value)
+    assert msg.startswith(f"{tmp_path / 'bad.toml'}:3: [board] port: ") and "lm628" in msg
+    assert "lm629" in msg and "\n" not in msg
