@@ -1,8 +1,8 @@
 """THE pin map of the FT232H adapter: which FT232H line drives which LM628/LM629 pin (and
 the MPSSE commands that move them, FTDI AN_108).
 
-This is the one definition.  The transport (:mod:`lm629_host.transports.ftdi`) compiles bus
-programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
+This is the one definition.  The stream compiler (:mod:`lm629_host.transports.mpsse`)
+compiles bus programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
 chip model with them, and docs/ftdi.md's wiring table is checked against :data:`WIRING` by a test.
 
 Why this layout:

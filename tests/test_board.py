@@ -240,7 +240,7 @@ def test_ftdi_streams_cut_per_chip():
     first); an STT on another chip does not: a synchronized start is one USB exchange."""
     from lm629_host.opcodes import Cmd
     from lm629_host.program import Program
-    from lm629_host.transports.ftdi import streams_of
+    from lm629_host.transports.mpsse import streams_of
     p = Program().command(Cmd.LTRJ).write(0).command(Cmd.STT)
     assert len(streams_of(p.ops)) == 2
     q = Program().sync().command(Cmd.STT).select(1).sync().command(Cmd.STT)

@@ -102,11 +102,8 @@ from __future__ import annotations
 
 import errno as _errno
 import logging
-import math
 import os
 import re
-from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
@@ -114,28 +111,25 @@ from .. import data
 from .. import ftdi_pins as pins
 from ..clock import Clock, WallClock
 from ..errors import AxisError, BusyTimeout, TransportError
-from ..opcodes import BUSY_BIT, RESET_WAIT_S, Cmd
-from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
+from ..opcodes import BUSY_BIT
+from ..program import BusCycle, Op, Program, ProgramResult, TraceCallback
 from ..urls import Option, parse_options
 from .base import Check, PortInfo, Transport
+from .mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, chips_of_units,
+                    streams_of)
 
 log = logging.getLogger("lm629_host.ftdi")
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 
-# the MPSSE commands this transport emits (FTDI AN_108; defined in ftdi_pins)
-SET_LOW, GET_LOW, SET_HIGH, GET_HIGH = pins.SET_LOW, pins.GET_LOW, pins.SET_HIGH, pins.GET_HIGH
-SEND_IMMEDIATE, CLK_BITS, CLK_BYTES = pins.SEND_IMMEDIATE, pins.CLK_BITS, pins.CLK_BYTES
+# the MPSSE commands the transport itself sends (FTDI AN_108; defined in ftdi_pins)
+SET_LOW, SET_HIGH = pins.SET_LOW, pins.SET_HIGH
 DISABLE_CLK_3PHASE, DISABLE_CLK_ADAPTIVE = pins.DISABLE_CLK_3PHASE, pins.DISABLE_CLK_ADAPTIVE
-#: bytes a stream may still need after its last operation: control lines idle (3), D0-D7
-#: released (3), read HI (1), send immediate (1)
-STREAM_TAIL = 8
 
 FTDI_VID = 0x0403
 FT232H_PID = 0x6014
 
 DEFAULT_LATENCY_MS = 1  #: the FTDI default is 16 ms, the floor of every short read
-DEFAULT_BUSY_US = 100  #: the chip's documented worst-case busy time
 #: the cost of one MPSSE command in the busy-wait estimate: pyftdi's figure for two SET_BITS
 #: in a row (``Ftdi.mpsse_bit_delay``, measured on an FT2232H), the emulator's default
 COMMAND_S = 500e-9
@@ -146,277 +140,8 @@ CALIBRATION_POLLS = 40
 #: differs between commands (the datasheet gives 15-25 us typical) shows it at a check, which
 #: repeats the command and lengthens the wait (:meth:`FtdiTransport._learn_busy`)
 CALIBRATION_MARGIN = 1.0
-DEFAULT_TCK_HZ = 6e6
-RST_LOW_S = 10e-6  #: >= 8 clocks of the slowest (1 MHz) chip, with margin
-#: commands that act on the chip (not repeatable once taken): the stream is cut before them
-ACTIONS = frozenset({Cmd.RESET, Cmd.STT, Cmd.DFH, Cmd.SIP, Cmd.UDF})
 
 UDEV_RULE = f"{data.UDEV_RULES_DIR}/{data.UDEV_RULE}"  #: where the installed rule lives
-
-
-# ---------------------------------------------------------------------------- compilation
-@dataclass(frozen=True)
-class Slot:
-    """One byte the stream reads: ``kind`` is "check" (status before a transfer), "status"
-    (a STATUS op), "sync" (a SYNC op), "hi"/"lo" (bytes of a data word) or "pins" (HI)."""
-
-    kind: str
-    op: int  #: index of the program operation it belongs to (-1 for "pins")
-
-
-@dataclass
-class Stream:
-    """A compiled MPSSE stream: the bytes to send, what each answer byte is, the bus events in
-    order (for the trace) and how long its delays last."""
-
-    data: bytearray = field(default_factory=bytearray)
-    slots: list[Slot] = field(default_factory=list)
-    #: ("status", slot), ("command", byte), ("write", word), ("read", slot of high byte),
-    #: ("reset", 0), in bus order
-    events: list[tuple[str, int]] = field(default_factory=list)
-    delay_s: float = 0.0
-    strobes: int = 0
-
-
-class StreamCompiler:
-    """Bus operations -> MPSSE bytes, with the pin map of :mod:`lm629_host.ftdi_pins`."""
-
-    def __init__(self, tck_hz: float = DEFAULT_TCK_HZ, busy_s: float = DEFAULT_BUSY_US * 1e-6,
-                 command_s: float = 0.0):
-        self.tck_hz = tck_hz
-        self.busy_s = busy_s
-        #: what one MPSSE command is taken to cost when a busy wait is shortened by the
-        #: commands run between the transfer and its check (0: not counted, the wait is idle
-        #: clocks alone).  Only a busy wait uses it, never a timing minimum: a wrong figure
-        #: makes a check see busy, which the transport repeats and learns from.
-        self.command_s = command_s
-        self._t = 0.0  #: estimated stream time of what was compiled so far
-
-    # primitives
-    def _low(self, s: Stream, value: int) -> None:
-        s.data += bytes((SET_LOW, value, pins.CTRL_DIRECTION))
-        self._ctrl = value
-        self._t += self.command_s
-
-    def _high(self, s: Stream, value: int, direction: int) -> None:
-        s.data += bytes((SET_HIGH, value, direction))
-        self._dir = direction
-        self._t += self.command_s
-
-    def _bits(self, s: Stream, n: int) -> None:
-        s.data += bytes((CLK_BITS, n - 1))
-        s.delay_s += n / self.tck_hz
-        self._t += self.command_s + n / self.tck_hz
-
-    def delay(self, s: Stream, seconds: float) -> None:
-        """Idle clocks lasting at least ``seconds``."""
-        clocks = math.ceil(seconds * self.tck_hz - 1e-9)
-        if clocks <= 0:
-            return
-        if clocks <= 8:
-            self._bits(s, clocks)
-            return
-        units = math.ceil(clocks / 8)
-        while units:
-            n = min(units, 0x10000)
-            s.data += bytes((CLK_BYTES, (n - 1) & 0xFF, (n - 1) >> 8))
-            s.delay_s += n * 8 / self.tck_hz
-            self._t += self.command_s + n * 8 / self.tck_hz
-            units -= n
-
-    def _select(self, s: Stream, data_port: bool) -> None:
-        cs = pins.CHIP_SELECTS[self._cs]
-        want = (pins.CTRL_IDLE & ~cs & ~pins.PS) | (pins.PS if data_port else 0)
-        if self._ctrl != want:
-            self._low(s, want)
-            self._bits(s, 1)  # /CS and /PS setup before the strobe
-
-    def _check_lead(self, data_port: bool) -> int:
-        """Commands a read of the status (``data_port`` False) or of data will run before
-        /RD falls: a release of D0-D7, a change of /CS and /PS (with its setup bit), /RD."""
-        n = 1 if self._dir != pins.DATA_IN else 0
-        cs = pins.CHIP_SELECTS[self._cs]
-        want = (pins.CTRL_IDLE & ~cs & ~pins.PS) | (pins.PS if data_port else 0)
-        return n + (2 if self._ctrl != want else 0) + 1
-
-    def _read_byte(self, s: Stream, slot: Slot, data_port: bool) -> None:
-        if self._dir != pins.DATA_IN:
-            self._high(s, 0, pins.DATA_IN)
-        self._select(s, data_port)
-        self._low(s, self._ctrl & ~pins.RD)
-        self.rd_fell_at = self._t  # when the byte is driven: what a status read reports
-        self._bits(s, 2)  # read access time
-        s.data.append(GET_HIGH)
-        self._t += self.command_s
-        s.slots.append(slot)
-        self._low(s, self._ctrl | pins.RD)
-        self._bits(s, 1)  # recovery, /PS hold
-        s.strobes += 1
-
-    def _write_byte(self, s: Stream, byte: int, data_port: bool) -> None:
-        self._select(s, data_port)
-        self._high(s, byte, pins.DATA_OUT)
-        self._low(s, self._ctrl & ~pins.WR)
-        self._bits(s, 1)  # /WR pulse width, data setup
-        self._low(s, self._ctrl | pins.WR)
-        self._bits(s, 1)  # data hold, recovery
-        s.strobes += 1
-
-    def _status(self, s: Stream, kind: str, op: int) -> None:
-        s.events.append(("status", len(s.slots)))
-        self._read_byte(s, Slot(kind, op), data_port=False)
-
-    def compile(self, ops: Sequence[BusOp], first: int = 0,
-                lead_s: float | dict[int, float] = 0.0, max_bytes: int | None = None,
-                chip: int = 0, skip: frozenset[int] | set[int] = frozenset()) -> Stream:
-        """Compile ``ops`` (program operations ``first``, ``first + 1``...).  ``lead_s``: busy
-        wait still owed to the previous stream's last transfer, per chip (a number: to every
-        chip).  ``max_bytes``: stop before the first operation that would make the stream
-        longer (the FT232H's 1 KiB buffer); the index after the last operation compiled is
-        :attr:`end`.  ``chip``: the chip selected where the stream starts (``Op.SELECT``
-        changes it); ``skip``: operation indices left out (a repeat's units already taken).
-
-        The busy wait is owed per chip: after an STT on chip 0 the stream goes on at once to
-        chip 1's status read and STT, so a synchronized start's STTs are a few MPSSE commands
-        apart (microseconds), not a busy wait apart."""
-        s = Stream()
-        self._ctrl = pins.CTRL_IDLE
-        self._dir = pins.DATA_IN
-        self._cs = chip
-        self._t = 0.0
-        n_chips = len(pins.CHIP_SELECTS)
-        owed = (dict(lead_s) if isinstance(lead_s, dict)
-                else {k: float(lead_s) for k in range(n_chips)})  # owed before a busy check
-        owed_from: dict[int, float] = {}  # ... from this stream time (0: the stream's start)
-        self.end = first + len(ops)
-        for i, o in enumerate(ops, first):
-            mark = (len(s.data), len(s.slots), len(s.events), s.delay_s, s.strobes, dict(owed),
-                    self._ctrl, self._dir, self._cs, self._t, dict(owed_from))
-            op = o.op
-            cs = self._cs
-            if i in skip and op is not Op.SELECT:
-                continue
-            if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
-                if self.command_s:
-                    # what the stream runs between the transfer and the check's /RD counts
-                    ran = (self._t - owed_from.get(cs, 0.0)
-                           + self._check_lead(False) * self.command_s)
-                    self.delay(s, owed.get(cs, 0.0) - ran)
-                else:
-                    self.delay(s, owed.get(cs, 0.0))
-                owed[cs] = 0.0
-                self._status(s, "sync" if op is Op.SYNC else "check", i)
-                if op is Op.COMMAND:
-                    self._write_byte(s, o.arg, data_port=False)
-                    s.events.append(("command", o.arg))
-                    owed[cs] = RESET_WAIT_S if o.arg == Cmd.RESET else self.busy_s
-                elif op is Op.WRITE:
-                    self._write_byte(s, o.arg >> 8, data_port=True)
-                    self._write_byte(s, o.arg & 0xFF, data_port=True)
-                    s.events.append(("write", o.arg))
-                    owed[cs] = self.busy_s
-                elif op is Op.READ:
-                    s.events.append(("read", len(s.slots)))
-                    self._read_byte(s, Slot("hi", i), data_port=True)
-                    self._read_byte(s, Slot("lo", i), data_port=True)
-                    owed[cs] = self.busy_s
-                owed_from[cs] = self._t
-            elif op is Op.STATUS:
-                self._status(s, "status", i)
-            elif op is Op.RESET:
-                self._low(s, pins.CTRL_IDLE & ~pins.RST)
-                self.delay(s, RST_LOW_S)
-                self._low(s, pins.CTRL_IDLE)
-                s.events.append(("reset", 0))
-                s.strobes += 1
-                owed = {}
-            elif op is Op.WAIT:
-                self.delay(s, o.arg * 1e-6)
-                if not self.command_s:  # else the idle clocks count in the stream time
-                    owed = {k: max(0.0, v - o.arg * 1e-6) for k, v in owed.items()}
-            elif op is Op.SELECT:
-                if not 0 <= o.arg < n_chips:
-                    raise ValueError(f"chip select {o.arg}: the FT232H wiring has {n_chips}")
-                self._cs = o.arg
-                s.events.append(("select", o.arg))
-            else:  # pragma: no cover - Op is closed
-                raise AssertionError(op)
-            if max_bytes is not None and (len(s.data) + STREAM_TAIL > max_bytes
-                                          or len(s.slots) + 1 > max_bytes):
-                if i == first:
-                    raise ValueError(f"{o.describe()} alone does not fit a stream of "
-                                     f"{max_bytes} bytes")
-                n_data, n_slots, n_events, s.delay_s, s.strobes, owed, self._ctrl, \
-                    self._dir, self._cs, self._t, owed_from = mark
-                del s.data[n_data:], s.slots[n_slots:], s.events[n_events:]
-                self.end = i
-                break
-        if self._ctrl != pins.CTRL_IDLE:
-            self._low(s, pins.CTRL_IDLE)
-        if self._dir != pins.DATA_IN:
-            self._high(s, 0, pins.DATA_IN)
-        s.data.append(GET_LOW)
-        s.slots.append(Slot("pins", -1))
-        s.data.append(SEND_IMMEDIATE)
-        self._t += 2 * self.command_s
-        # what is still owed when the stream ends (the commands after each last transfer ran)
-        self.owed_after = ({k: max(0.0, v - (self._t - owed_from.get(k, 0.0)))
-                            for k, v in owed.items()} if self.command_s else owed)
-        return s
-
-
-def units_of(ops: Sequence[BusOp]) -> list[tuple[int, int]]:
-    """Split a program into units ``(start, end)``: a command with its data words, or one other
-    operation.  A unit is what gets repeated."""
-    units: list[tuple[int, int]] = []
-    i = 0
-    while i < len(ops):
-        j = i + 1
-        if ops[i].op is Op.COMMAND:
-            while j < len(ops) and ops[j].op in (Op.WRITE, Op.READ):
-                j += 1
-        units.append((i, j))
-        i = j
-    return units
-
-
-_KNOWN = frozenset(int(c) for c in Cmd)
-
-
-def _is_action(o: BusOp) -> bool:
-    """An operation that acts on the chip: /RST, or a command that is not a plain load or read
-    (an unknown opcode sent with ``LM629.raw`` counts as one: nothing says it is harmless)."""
-    return o.op is Op.RESET or (o.op is Op.COMMAND and (o.arg in ACTIONS or o.arg not in _KNOWN))
-
-
-def chips_of_units(ops: Sequence[BusOp], start_chip: int = 0) -> dict[int, int]:
-    """The chip each operation addresses (a program starts on chip 0; SELECT switches)."""
-    chip, out = start_chip, {}
-    for i, o in enumerate(ops):
-        if o.op is Op.SELECT:
-            chip = o.arg
-        out[i] = chip
-    return out
-
-
-def streams_of(ops: Sequence[BusOp]) -> list[list[tuple[int, int]]]:
-    """Group units into streams: a new stream before an action that follows a transfer on the
-    same chip (/RST: on any chip).  An action on another chip does not cut: its loads were
-    checked in earlier programs, so a synchronized start on several chips is one stream."""
-    streams: list[list[tuple[int, int]]] = [[]]
-    transfers: set[int] = set()
-    chip = 0
-    for u in units_of(ops):
-        o = ops[u[0]]
-        if o.op is Op.SELECT:
-            chip = o.arg
-        elif _is_action(o) and (chip in transfers or (o.op is Op.RESET and transfers)):
-            streams.append([])
-            transfers = set()
-        streams[-1].append(u)
-        if o.op in (Op.COMMAND, Op.WRITE, Op.READ):
-            transfers.add(chip)
-    return [s for s in streams if s]
 
 
 # ---------------------------------------------------------------------------- transport
@@ -546,32 +271,13 @@ class FtdiTransport(Transport):
         busy still repeats the command (and lengthens the wait, :meth:`_learn_busy`).
         Returns the busy time measured, or None (the fixed wait kept)."""
         c = StreamCompiler(self.compiler.tck_hz, self.busy_s, COMMAND_S)
-        first = Stream()
-        c._ctrl, c._dir, c._t, c._cs = pins.CTRL_IDLE, pins.DATA_IN, 0.0, 0  # chip 0
-        c._status(first, "status", 0)
-        c._low(first, pins.CTRL_IDLE)
-        first.data.append(SEND_IMMEDIATE)
+        first = c.status_stream(0, "status", 0)
         self.calibration_exchanges = 1
         if self._exchange(first)[0] & _BUSY:
             log.info("%s: the chip is busy at open: keeping the documented %g us busy wait",
                      self.url, self.busy_s * 1e6)
             return None
-        s = Stream()
-        c._ctrl, c._dir, c._t, c._cs = pins.CTRL_IDLE, pins.DATA_IN, 0.0, 0
-        c._status(s, "check", 0)
-        c._write_byte(s, int(Cmd.RDSIGS), data_port=False)
-        t0 = c._t - 1 / c.tck_hz  # /WR rose one bit before (the hold bit after it)
-        times = []
-        for _ in range(CALIBRATION_POLLS):
-            c._status(s, "status", 0)
-            times.append(c.rd_fell_at - t0)
-        c.delay(s, DEFAULT_BUSY_US * 1e-6)
-        c._read_byte(s, Slot("hi", 0), data_port=True)
-        c._read_byte(s, Slot("lo", 0), data_port=True)
-        c._low(s, pins.CTRL_IDLE)
-        s.data.append(GET_LOW)
-        s.slots.append(Slot("pins", -1))
-        s.data.append(SEND_IMMEDIATE)
+        s, times = c.calibration_stream(CALIBRATION_POLLS)
         answer = self._exchange(s)
         self.calibration_exchanges = 2
         polls = answer[1:1 + CALIBRATION_POLLS]
@@ -659,19 +365,14 @@ class FtdiTransport(Transport):
                           words: list[int]) -> int:
         """Status reads, one short exchange each, until busy is clear; BusyTimeout at
         ``deadline``."""
-        poll = Stream()
-        c = self.compiler
-        c._ctrl, c._dir = pins.CTRL_IDLE, pins.DATA_IN
-        c._cs = chips_of_units(program.ops).get(index, 0)
-        c._status(poll, "status", index)
-        c._low(poll, pins.CTRL_IDLE)
-        poll.data.append(SEND_IMMEDIATE)
+        chip = chips_of_units(program.ops).get(index, 0)
+        poll = self.compiler.status_stream(chip, "status", index)
         while True:
             status = self._exchange(poll)[0]
             self.stats.busy_polls += 1
             self._emit(BusCycle("status", status))
             if not status & _BUSY:
-                self._owed = {k: v for k, v in self._owed.items() if k != c._cs}
+                self._owed = {k: v for k, v in self._owed.items() if k != chip}
                 return status
             if self.clock.now() >= deadline:
                 raise BusyTimeout(program.ops[index].describe(), program.busy_timeout_s, status,
@@ -916,5 +617,4 @@ list_ports = FtdiTransport.list_ports
 doctor = FtdiTransport.doctor
 
 
-__all__ = ["FtdiTransport", "StreamCompiler", "Stream", "Slot", "units_of", "streams_of",
-           "open_mpsse", "list_ports", "doctor", "options_of", "pyftdi_url"]
+__all__ = ["FtdiTransport", "open_mpsse", "list_ports", "doctor", "options_of", "pyftdi_url"]
