@@ -14,8 +14,11 @@ Why this layout:
   (0x80).  ADBUS0 is the MPSSE clock output TCK: the stream's delays are idle clocks
   (0x8E/0x8F), which toggle TCK, so ADBUS0 is left unconnected (it is a handy scope trigger);
 * HI is on ADBUS5, which the FT232H calls GPIOL1: the one line the MPSSE wait-on-I/O
-  commands (0x88/0x89) can watch, should a future version wait for the host interrupt in the
-  adapter itself;
+  commands (0x88/0x89) can watch.  With ``busy_pin=gpiol1`` (:data:`WIRING_BUSY_PIN`) that
+  line watches D0 instead: D0 (pin 4, ACBUS0) is wired to ADBUS5 too, and HI is left
+  unconnected (its flags are bits 1-6 of the status byte, which the driver reads anyway).
+  During a status read held with /CS, /PS and /RD low, D0 is the busy bit, so a stream can
+  wait in the adapter until busy clears (see :mod:`lm629_host.transports.ftdi`);
 * /RST is on ADBUS6 and not on a line with a special function, so that nothing but an explicit
   set-low-byte command can ever pulse it.
 
@@ -32,7 +35,8 @@ CS = 1 << 1  #: ADBUS1 -> /CS  (active low)
 RD = 1 << 2  #: ADBUS2 -> /RD  (active low)
 WR = 1 << 3  #: ADBUS3 -> /WR  (active low; the chip latches on the rising edge)
 PS = 1 << 4  #: ADBUS4 -> /PS  (low: command/status, high: data)
-HI = 1 << 5  #: ADBUS5 (GPIOL1) <- HI (input, active high)
+GPIOL1 = 1 << 5  #: ADBUS5: the line MPSSE's wait-on-I/O (0x88/0x89) watches
+HI = GPIOL1  #: ADBUS5 (GPIOL1) <- HI (input, active high), in the default wiring
 RST = 1 << 6  #: ADBUS6 -> /RST (active low)
 CS1 = 1 << 7  #: ADBUS7 -> /CS of a second chip (active low), the one free line left
 
@@ -75,6 +79,15 @@ WIRING: tuple[tuple[str, str, str, str, str], ...] = (
     ("GND", "GND", "GND (pin 14)", "", "common ground"),
 )
 
+#: the URL option ``busy_pin``: the wirings a stream can wait on, by name -> the ADBUS bit
+BUSY_PINS = {"gpiol1": GPIOL1}
+#: what ``busy_pin=gpiol1`` changes in :data:`WIRING` (rows replacing those of the same FT232H
+#: line): ADBUS5 watches D0, HI is not connected.  D0 keeps its wire to C0 (ACBUS0).
+WIRING_BUSY_PIN: tuple[tuple[str, str, str, str, str], ...] = (
+    ("ADBUS5", "D5", "D0 (pin 4), with C0", "in", "GPIOL1: busy during a held status read"),
+    ("-", "-", "HI (pin 17)", "", "not connected: its flags are in the status byte"),
+)
+
 # MPSSE commands (FTDI AN_108): the transport writes them, the emulated FT232H executes them
 SET_LOW = 0x80  #: set ADBUS levels and directions (2 bytes follow)
 GET_LOW = 0x81  #: read ADBUS
@@ -90,10 +103,12 @@ ENABLE_CLK_3PHASE = 0x8C
 DISABLE_CLK_3PHASE = 0x8D
 CLK_BITS = 0x8E  #: n+1 idle clocks (1 byte follows)
 CLK_BYTES = 0x8F  #: 8 x (n+1) idle clocks (2 bytes follow)
+WAIT_HIGH = 0x88  #: wait until GPIOL1 is high (no timeout: the engine stops until it is)
+WAIT_LOW = 0x89  #: wait until GPIOL1 is low
 ENABLE_CLK_ADAPTIVE = 0x96
 DISABLE_CLK_ADAPTIVE = 0x97
 
 
 __all__ = ["TCK", "CS", "CS1", "CHIP_SELECTS", "HI_LINES", "CS_ALL", "RD", "WR", "PS", "HI",
-           "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
-           "DATA_IN", "FIFO_BYTES", "WIRING"]
+           "GPIOL1", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
+           "DATA_IN", "FIFO_BYTES", "WIRING", "BUSY_PINS", "WIRING_BUSY_PIN"]

@@ -113,7 +113,7 @@ def transported() -> dict[str, Any]:
     out: dict[str, Any] = {}
     for url in ("sim+ftdi://", "sim+ftdi://?busy_us=100", "sim+ftdi://?axes=2"):
         with lm629_host.open(url) as chip:
-            dev = chip.transport.device  # type: ignore[attr-defined]
+            dev = chip.transport.device  # type: ignore[attr-defined]  # sim+ftdi:// only
             sent: list[bytes] = []
             orig = dev.bulk_out
 
@@ -122,7 +122,7 @@ def transported() -> dict[str, Any]:
                 _sent.append(bytes(data))
                 return _orig(data)
 
-            dev.bulk_out = rec  # type: ignore[method-assign]
+            dev.bulk_out = rec  # type: ignore[method-assign]  # a recording wrapper
             chip.reset()
             chip.load_filter(kp=20, ki=1, kd=100, il=500)
             chip.load_trajectory(acceleration=0x1234, velocity=0x56789, position=-1000,

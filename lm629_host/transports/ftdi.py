@@ -3,7 +3,8 @@
 URL: pyftdi's own, ``ftdi://ftdi:232h[:SERIAL]/1``, plus options after ``?``:
 ``latency`` (USB latency timer, ms, default 1), ``busy_us`` (the wait after each transfer:
 ``auto``, the default, measures the chip's busy time before the first program; a number fixes
-it, 100 being the documented worst case), ``frequency`` (MPSSE clock TCK in Hz, default 6 MHz).
+it, 100 being the documented worst case), ``frequency`` (MPSSE clock TCK in Hz, default 6 MHz),
+``busy_pin`` (``gpiol1``: D0 is also wired to ADBUS5, see "Waiting on the busy pin" below).
 
 How a bus program becomes USB traffic
 =====================================
@@ -69,17 +70,26 @@ What is safe to repeat, and why the stream is cut before some commands:
   first, and only repeatable commands after it: repeating "from the first busy to the end of
   the stream" never doubles an action.
 
-Rejected alternatives: waiting in the adapter with MPSSE "wait on I/O" (0x88/0x89) needs busy
-on a pin, but the chip shows busy only on D0 during a status read, and the data sheet does not
-say that D0 follows busy while /RD stays low; the wait has no timeout either, so a stuck chip
-would hang the MPSSE engine.  Polling each status read in its own USB exchange costs a round
-trip per transfer (the problem this transport exists to avoid).
+Waiting on the busy pin (``busy_pin=gpiol1``, an option because it needs a wire and an
+assumption): MPSSE "wait on I/O" (0x88/0x89) watches GPIOL1 (ADBUS5).  With D0 wired there
+too, each busy check is a status read held low while the engine waits for busy to rise (right
+after a transfer on the same chip) and to clear (:meth:`.mpsse.StreamCompiler.held_check`).
+Every transfer then lands after the chip took the one before, whatever its busy time, so no
+cut before actions is needed and LTRJ + STT is one exchange.  It rests on what the data sheet
+does not say: that D0 follows busy while /RD stays low (docs/ftdi.md lists what to measure).
+The wait has no timeout: a chip that never clears busy stops the engine; the read gives up
+after the program's busy timeout, and :meth:`FtdiTransport._recover` purges the FT232H, leaves
+and re-enters MPSSE with the lines idle, and raises BusyTimeout for the operation whose check
+never came (nothing from it on reached the chip).  A check that shows busy after the wait
+means the pin does not follow D0: a TransportError, never a repeat (an STT may follow in the
+stream).  Polling each status read in its own USB exchange costs a round trip per transfer
+(the problem this transport exists to avoid).
 
 With the fixed wait of the documented worst case the repeat path is a fault detector: it runs
 only on a chip out of its data sheet, a noisy bus, or the emulator's ``stretch_busy`` hook;
 with the measured wait also on a chip slower for some command than for the one measured.
 
-Why LTRJ + STT stays two exchanges: a single stream cannot make STT depend on the checks of
+Why LTRJ + STT stays two exchanges without the busy pin: a single stream cannot make STT depend on the checks of
 the loads before it.  A chip holding busy 300 us after one transfer makes every later transfer
 of the stream (STT included) land in busy and be ignored, which a repeat would mend; but one
 holding it a little longer than the wait (35 us) drops one word and lets the next words and
@@ -155,14 +165,23 @@ class FtdiTransport(Transport):
 
     def __init__(self, ftdi: Any, url: str, *, trace: TraceCallback | None = None,
                  clock: Clock | None = None, busy_s: float | None = DEFAULT_BUSY_US * 1e-6,
-                 tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS) -> None:
+                 tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS,
+                 busy_pin: str | None = None) -> None:
         """``busy_s``: the wait after each transfer; None: measured on the chip before the first
         program (:meth:`calibrate_busy`; opening itself never touches the bus), the documented
-        100 us when it cannot be."""
+        100 us when it cannot be.  ``busy_pin``: "gpiol1" when D0 is wired to ADBUS5
+        (``ftdi_pins.WIRING_BUSY_PIN``): every busy check then waits in the adapter on the pin
+        (no timed wait, nothing to calibrate, no cut before STT), and HI is not seen."""
         super().__init__(url, trace=trace)
         self.ftdi = ftdi
         self.clock = clock or WallClock()
-        self.compiler = StreamCompiler(tck_hz, DEFAULT_BUSY_US * 1e-6 if busy_s is None else busy_s)
+        if busy_pin is not None and busy_pin not in pins.BUSY_PINS:
+            raise ValueError(f"busy_pin={busy_pin!r}: expected one of "
+                             f"{', '.join(pins.BUSY_PINS)} (or none)")
+        self.busy_pin = busy_pin
+        self.tck_hz = tck_hz
+        self.compiler = StreamCompiler(tck_hz, DEFAULT_BUSY_US * 1e-6 if busy_s is None else busy_s,
+                                       busy_pin=busy_pin is not None)
         self.busy_s = self.compiler.busy_s
         self.latency_ms = latency_ms
         self._last_end = -1.0  # clock time at which the last stream's answer came back
@@ -171,7 +190,9 @@ class FtdiTransport(Transport):
         #: the chip's busy time measured at open (None: not measured, the fixed wait is used)
         self.calibrated_busy_s: float | None = None
         self.calibration_exchanges = 0  #: USB write+read pairs the calibration took
-        self._calibrate = busy_s is None  # before the first program
+        # before the first program; with a busy pin there is no timed wait to measure
+        self._calibrate = busy_s is None and busy_pin is None
+        self.stalls = 0  #: streams that stopped at a wait on the busy pin and were purged
 
     # ------------------------------------------------------------------ opening
     @classmethod
@@ -180,7 +201,8 @@ class FtdiTransport(Transport):
         ftdi = open_mpsse(pyftdi_url(url), opts["latency"], opts["frequency"])
         busy = opts["busy_us"]
         return cls(ftdi, url, trace=trace, busy_s=None if busy is None else busy * 1e-6,
-                   tck_hz=opts["frequency"], latency_ms=opts["latency"])
+                   tck_hz=opts["frequency"], latency_ms=opts["latency"],
+                   busy_pin=busy_pin_of(opts))
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:
@@ -297,7 +319,8 @@ class FtdiTransport(Transport):
 
     def _set_busy(self, busy_s: float) -> None:
         self.busy_s = busy_s
-        self.compiler = StreamCompiler(self.compiler.tck_hz, busy_s, COMMAND_S)
+        self.compiler = StreamCompiler(self.compiler.tck_hz, busy_s, COMMAND_S,
+                                       busy_pin=self.busy_pin is not None)
 
     def _learn_busy(self, seen_s: float) -> None:
         """A check saw busy after a calibrated wait: wait longer from now on (twice as long, or
@@ -311,14 +334,17 @@ class FtdiTransport(Transport):
         self._set_busy(busy)
 
     # ------------------------------------------------------------------ one exchange
-    def _exchange(self, stream: Stream) -> bytes:
+    def _exchange(self, stream: Stream, wait_s: float = 0.0) -> bytes:
+        """Write ``stream``, read its answer.  ``wait_s``: how long its waits on the busy pin
+        may take in all (they have no timeout of their own: the read gives up after that)."""
         ftdi = self.ftdi
         if ftdi is None:
             raise TransportError("the port is closed", port=self.url)
         need = len(stream.slots)
         # on hardware the answer can only come once the stream's delays have run: let pyftdi
         # wait that many latency periods for it, and a few more
-        attempts = 3 + int(stream.delay_s * 1000 / max(1, self.latency_ms))
+        attempts = 3 + int((stream.delay_s + (wait_s if stream.waits else 0.0)) * 1000
+                           / max(1, self.latency_ms))
         try:
             ftdi.write_data(stream.data)
             answer = bytes(ftdi.read_data_bytes(need, attempts))
@@ -334,6 +360,8 @@ class FtdiTransport(Transport):
         st.bytes_out += len(stream.data)
         st.bytes_in += len(answer)
         st.bus_cycles += stream.strobes
+        if len(answer) != need and stream.waits:
+            raise _Stalled(answer)
         if len(answer) != need:
             raise TransportError(
                 f"the FT232H returned {len(answer)} of the {need} bytes the stream reads "
@@ -398,7 +426,8 @@ class FtdiTransport(Transport):
         reads: dict[int, int] = {}
         last_status: int | None = None
         hi: bool | None = None
-        for units in streams_of(ops):
+        wired = self.busy_pin is not None
+        for units in streams_of(ops, cut_actions=not wired):
             unit_of = {k: a for a, b in units for k in range(a, b)}
             end = units[-1][1]
             first_try: dict[int, float] = {}
@@ -413,10 +442,13 @@ class FtdiTransport(Transport):
                 stop = self.compiler.end
                 owed_after = self.compiler.owed_after
                 t0 = self.clock.now()
-                answer = self._exchange(stream)
+                try:
+                    answer = self._exchange(stream, program.busy_timeout_s)
+                except _Stalled as stall:
+                    raise self._recover(program, stream, stall.answer, reads) from None
                 self._owed = owed_after
                 self._emit_stream(stream, answer)
-                hi = bool(answer[-1] & pins.HI)
+                hi = None if wired else bool(answer[-1] & pins.HI)
                 self.stats.busy_polls += sum(1 for sl in stream.slots if sl.kind in ("check", "sync"))
                 # the first transfer whose busy check showed busy, and the start of its unit
                 failed: tuple[int, int] | None = None
@@ -426,6 +458,8 @@ class FtdiTransport(Transport):
                         busy_units.add(unit_of[slot.op])
                         if failed is None and slot.kind == "check":
                             failed = (unit_of[slot.op], slot.op)
+                if failed is not None and wired:
+                    raise self._unwired(ops[failed[1]].describe())
                 ok_end = failed[0] if failed else stop
                 # on a multi-chip stream, the units after the failed one on other chips whose
                 # every check passed were taken: they are recorded now and left out of the
@@ -469,6 +503,53 @@ class FtdiTransport(Transport):
         return ProgramResult(tuple(reads[k] for k in sorted(reads)),
                              tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
 
+    def _recover(self, program: Program, stream: Stream, answer: bytes,
+                 reads: dict[int, int]) -> BusyTimeout:
+        """A stream stopped at a wait on the busy pin (MPSSE waits for ever; the read gave up):
+        purge both buffers, leave MPSSE and enter it again (the engine drops the command it
+        waits at; every line is an input for that moment, held high by the pull-ups, so the
+        held status read ends), set the lines idle as at open, read the status once.  The
+        operation whose check never came is the one the chip did not take; those before it
+        were taken.  Returns the BusyTimeout to raise."""
+        self.stalls += 1
+        index = stream.slots[len(answer)].op if len(answer) < len(stream.slots) else -1
+        ftdi = self.ftdi
+        log.warning("%s: busy never cleared during the wait on %s before %s: purging the "
+                    "FT232H and setting its lines idle again", self.url, self.busy_pin,
+                    program.ops[index].describe() if index >= 0 else "the end")
+        try:
+            from pyftdi.ftdi import Ftdi
+            ftdi.purge_buffers()
+            ftdi.set_bitmode(0, Ftdi.BitMode.RESET)
+            ftdi.set_bitmode(0, Ftdi.BitMode.MPSSE)
+            ftdi.set_frequency(self.tck_hz)
+            ftdi.write_data(bytes((DISABLE_CLK_ADAPTIVE, DISABLE_CLK_3PHASE,
+                                   SET_LOW, pins.CTRL_IDLE, pins.CTRL_DIRECTION,
+                                   SET_HIGH, 0, pins.DATA_IN)))
+            chip = chips_of_units(program.ops).get(index, 0)
+            status: int | None = self._exchange(
+                self.compiler.status_stream(chip, "status", index))[0]
+        except TransportError:
+            raise
+        except Exception as exc:  # pyftdi raises FtdiError, UsbToolsError, USBError...
+            raise TransportError(
+                f"the FT232H stalled on the busy pin and could not be reset ({exc}); unplug "
+                "and replug it: a command may or may not have reached the chip",
+                port=self.url) from exc
+        self._last_end = self.clock.now()
+        words = [reads[k] for k in sorted(reads)]
+        return BusyTimeout(program.ops[index].describe() if index >= 0 else "the end of the "
+                           "program", program.busy_timeout_s, status, index, words)
+
+    def _unwired(self, what: str) -> TransportError:
+        return TransportError(
+            f"busy_pin={self.busy_pin}: the status read after the wait on the pin still showed "
+            f"busy before {what}, so the pin did not follow D0: check the wire from D0 (C0) to "
+            "ADBUS5 and that HI is no longer on ADBUS5 (docs/ftdi.md, 'Waiting on the busy "
+            "bit'). The transfers after it in the same exchange may have been ignored by the "
+            "chip: read back what matters (a move may have started) before going on, or open "
+            "the port without busy_pin", port=self.url)
+
     @staticmethod
     def _record(stream: Stream, answer: bytes, ok_end: int, taken: set[int],
                 unit_of: dict[int, int], statuses: dict[int, int], reads: dict[int, int],
@@ -489,13 +570,30 @@ class FtdiTransport(Transport):
         return last_status
 
 
+class _Stalled(Exception):
+    """The answer of a stream that waits on the busy pin came back short: the engine is
+    still waiting (``answer``: what it sent before)."""
+
+    def __init__(self, answer: bytes) -> None:
+        super().__init__(f"{len(answer)} answer bytes")
+        self.answer = answer
+
+
 # ---------------------------------------------------------------------------- URLs, opening
-#: the URL options of the FT232H transport (``busy_us`` none, or ``auto``: measured)
+#: the URL options of the FT232H transport (``busy_us`` none, or ``auto``: measured;
+#: ``busy_pin`` none, or a line wired to D0: ``ftdi_pins.BUSY_PINS``)
 OPTIONS = (
     Option("latency", "int", DEFAULT_LATENCY_MS, 1, 255, "ms"),
     Option("busy_us", "float", None, 0, 65535, "us", optional=True),
     Option("frequency", "hz", DEFAULT_TCK_HZ, 1e5, 30e6, "Hz"),
+    Option("busy_pin", "str", "none", choices=("none", *pins.BUSY_PINS)),
 )
+
+
+def busy_pin_of(opts: dict[str, Any]) -> str | None:
+    """The ``busy_pin`` option as the transport takes it (None: not wired)."""
+    pin = str(opts["busy_pin"]).lower()
+    return None if pin == "none" else pin
 
 
 def auto_as_none(url: str, name: str) -> str:

@@ -26,6 +26,7 @@ from ..program import BusOp, Op
 # the MPSSE commands the streams use (FTDI AN_108; defined in ftdi_pins)
 SET_LOW, GET_LOW, SET_HIGH, GET_HIGH = pins.SET_LOW, pins.GET_LOW, pins.SET_HIGH, pins.GET_HIGH
 SEND_IMMEDIATE, CLK_BITS, CLK_BYTES = pins.SEND_IMMEDIATE, pins.CLK_BITS, pins.CLK_BYTES
+WAIT_HIGH, WAIT_LOW = pins.WAIT_HIGH, pins.WAIT_LOW
 #: bytes a stream may still need after its last operation: control lines idle (3), D0-D7
 #: released (3), read HI (1), send immediate (1)
 STREAM_TAIL = 8
@@ -58,16 +59,19 @@ class Stream:
     events: list[tuple[str, int]] = field(default_factory=list)
     delay_s: float = 0.0
     strobes: int = 0
+    #: status reads that wait on the busy pin (0x89, with 0x88 before it after a transfer):
+    #: the stream lasts as long as the chip holds busy, which the compiler cannot know
+    waits: int = 0
 
     def mark(self, state: CompilerState) -> Mark:
         """Where the stream and the compiler are now, to come back to."""
         return Mark(len(self.data), len(self.slots), len(self.events), self.delay_s,
-                    self.strobes, state.copy())
+                    self.strobes, self.waits, state.copy())
 
     def rollback(self, mark: Mark) -> CompilerState:
         """Drop everything compiled since ``mark``; the compiler state as it was then."""
         del self.data[mark.data:], self.slots[mark.slots:], self.events[mark.events:]
-        self.delay_s, self.strobes = mark.delay_s, mark.strobes
+        self.delay_s, self.strobes, self.waits = mark.delay_s, mark.strobes, mark.waits
         return mark.state.copy()
 
 
@@ -83,6 +87,9 @@ class CompilerState:
     owed: dict[int, float] = field(default_factory=dict)
     #: ... counted from this stream time (absent: the stream's start)
     owed_from: dict[int, float] = field(default_factory=dict)
+    #: with a busy pin: the chip whose transfer the stream made last, nothing but status
+    #: reads since (its busy is still to be seen rising), else None
+    expect_busy: int | None = None
 
     def copy(self) -> CompilerState:
         return replace(self, owed=dict(self.owed), owed_from=dict(self.owed_from))
@@ -97,6 +104,7 @@ class Mark:
     events: int
     delay_s: float
     strobes: int
+    waits: int
     state: CompilerState
 
 
@@ -104,9 +112,12 @@ class StreamCompiler:
     """Bus operations -> MPSSE bytes, with the pin map of :mod:`lm629_host.ftdi_pins`."""
 
     def __init__(self, tck_hz: float = DEFAULT_TCK_HZ, busy_s: float = DEFAULT_BUSY_US * 1e-6,
-                 command_s: float = 0.0):
+                 command_s: float = 0.0, busy_pin: bool = False):
         self.tck_hz = tck_hz
         self.busy_s = busy_s
+        #: D0 is wired to GPIOL1 (``busy_pin=gpiol1``): each busy check is a status read held
+        #: while the adapter waits on the pin (:meth:`held_check`), not a timed wait before it
+        self.busy_pin = busy_pin
         #: what one MPSSE command is taken to cost when a busy wait is shortened by the
         #: commands run between the transfer and its check (0: not counted, the wait is idle
         #: clocks alone).  Only a busy wait uses it, never a timing minimum: a wrong figure
@@ -173,14 +184,19 @@ class StreamCompiler:
         n = 1 if self.state.direction != pins.DATA_IN else 0
         return n + (2 if self.state.ctrl != self._selected(data_port) else 0) + 1
 
-    def read_byte(self, s: Stream, slot: Slot, data_port: bool) -> None:
-        """One read strobe: /RD low, the access time, sample D0-D7, /RD high, recovery."""
+    def read_byte(self, s: Stream, slot: Slot, data_port: bool, waits: bytes = b"") -> None:
+        """One read strobe: /RD low, the access time, sample D0-D7, /RD high, recovery.
+        ``waits``: wait-on-I/O commands run while /RD is held low, before the sample."""
         if self.state.direction != pins.DATA_IN:
             self._high(s, 0, pins.DATA_IN)
         self._select(s, data_port)
         self._low(s, self.state.ctrl & ~pins.RD)
         self.rd_fell_at = self.state.t  # when the byte is driven: what a status read reports
         self._bits(s, 2)  # read access time
+        if waits:
+            s.data += waits
+            s.waits += 1
+            self.state.t += len(waits) * self.command_s
         s.data.append(GET_HIGH)
         self.state.t += self.command_s
         s.slots.append(slot)
@@ -202,6 +218,25 @@ class StreamCompiler:
         """A status read (``kind`` "check", "status" or "sync" for program operation ``op``)."""
         s.events.append(("status", len(s.slots)))
         self.read_byte(s, Slot(kind, op), data_port=False)
+
+    def held_check(self, s: Stream, kind: str, op: int) -> None:
+        """A busy check that waits in the adapter (busy pin wired): /CS, /PS and /RD go low and
+        stay low while the engine waits for GPIOL1 (D0, the busy bit) to be low, then the
+        status byte is sampled (so the check still shows what the chip said) and /RD rises.
+
+        Right after a transfer on the same chip the engine first waits for busy to be *seen
+        high* (0x88): the data sheet says busy is set "after the rising edge" of the strobe
+        without saying how soon, so a read that starts within a few hundred ns could see it
+        still clear and let the next transfer land while the chip is busy.  Waiting for the
+        rise proves the chip took the transfer; it is safe only while the transfer's busy is
+        certainly still to come or on (15-25 us typical, AN-706 2.11, against the ~3 us of
+        commands between the strobe and the 0x88), so it is left out after anything that
+        takes time (WAIT, /RST, another chip's operations, a held wait already done)."""
+        st = self.state
+        waits = bytes((WAIT_HIGH, WAIT_LOW)) if st.expect_busy == st.cs else bytes((WAIT_LOW,))
+        s.events.append(("status", len(s.slots)))
+        self.read_byte(s, Slot(kind, op), data_port=False, waits=waits)
+        st.expect_busy = None
 
     def finish(self, s: Stream, read_pins: bool = True) -> Stream:
         """Lines idle, D0-D7 released, HI sampled (``read_pins``), send immediate."""
@@ -265,7 +300,22 @@ class StreamCompiler:
             cs = st.cs
             if i in skip and op is not Op.SELECT:
                 continue
-            if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
+            if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC) and self.busy_pin:
+                self.held_check(s, "sync" if op is Op.SYNC else "check", i)
+                if op is Op.COMMAND:
+                    self.write_byte(s, o.arg, data_port=False)
+                    s.events.append(("command", o.arg))
+                elif op is Op.WRITE:
+                    self.write_byte(s, o.arg >> 8, data_port=True)
+                    self.write_byte(s, o.arg & 0xFF, data_port=True)
+                    s.events.append(("write", o.arg))
+                elif op is Op.READ:
+                    s.events.append(("read", len(s.slots)))
+                    self.read_byte(s, Slot("hi", i), data_port=True)
+                    self.read_byte(s, Slot("lo", i), data_port=True)
+                if op is not Op.SYNC:
+                    st.expect_busy = cs
+            elif op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
                 if self.command_s:
                     # what the stream runs between the transfer and the check's /RD counts
                     ran = (st.t - st.owed_from.get(cs, 0.0)
@@ -299,13 +349,17 @@ class StreamCompiler:
                 s.events.append(("reset", 0))
                 s.strobes += 1
                 st.owed = {}
+                st.expect_busy = None
             elif op is Op.WAIT:
                 self.delay(s, o.arg * 1e-6)
+                st.expect_busy = None
                 if not self.command_s:  # else the idle clocks count in the stream time
                     st.owed = {k: max(0.0, v - o.arg * 1e-6) for k, v in st.owed.items()}
             elif op is Op.SELECT:
                 if not 0 <= o.arg < n_chips:
                     raise ValueError(f"chip select {o.arg}: the FT232H wiring has {n_chips}")
+                if o.arg != st.cs:
+                    st.expect_busy = None
                 st.cs = o.arg
                 s.events.append(("select", o.arg))
             else:  # pragma: no cover - the FT232H has no far side for WAIT_STATUS
@@ -359,10 +413,12 @@ def chips_of_units(ops: Sequence[BusOp], start_chip: int = 0) -> dict[int, int]:
     return out
 
 
-def streams_of(ops: Sequence[BusOp]) -> list[list[tuple[int, int]]]:
+def streams_of(ops: Sequence[BusOp], cut_actions: bool = True) -> list[list[tuple[int, int]]]:
     """Group units into streams: a new stream before an action that follows a transfer on the
     same chip (/RST: on any chip).  An action on another chip does not cut: its loads were
-    checked in earlier programs, so a synchronized start on several chips is one stream."""
+    checked in earlier programs, so a synchronized start on several chips is one stream.
+    ``cut_actions`` False (busy pin wired: every transfer waits until the chip has taken the
+    one before): one stream, as long as the program needs no /RST cut."""
     streams: list[list[tuple[int, int]]] = [[]]
     transfers: set[int] = set()
     chip = 0
@@ -370,7 +426,8 @@ def streams_of(ops: Sequence[BusOp]) -> list[list[tuple[int, int]]]:
         o = ops[u[0]]
         if o.op is Op.SELECT:
             chip = o.arg
-        elif is_action(o) and (chip in transfers or (o.op is Op.RESET and transfers)):
+        elif is_action(o) and ((cut_actions and chip in transfers)
+                               or (o.op is Op.RESET and transfers)):
             streams.append([])
             transfers = set()
         streams[-1].append(u)

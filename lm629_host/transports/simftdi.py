@@ -2,7 +2,8 @@
 to the chip model (:mod:`lm629_host.sim.ftdi`).
 
 URL parameters: every ``sim://`` parameter (chip, clock, strict, fault, record, motor...), the
-``ftdi://`` options (``latency``, ``busy_us``, ``frequency``), and the emulation's costs:
+``ftdi://`` options (``latency``, ``busy_us``, ``frequency``, ``busy_pin``: the emulated
+adapter is then wired as ``ftdi_pins.WIRING_BUSY_PIN``), and the emulation's costs:
 ``usb_us`` (per bulk transfer, default 125) and ``command_ns`` (per MPSSE command, default 500).
 
 The clock is the emulated FT232H's: USB transfers, MPSSE commands, idle clocks and
@@ -30,7 +31,7 @@ from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
 from ..sim.model import ChipBus, ChipModel, chips_of
 from ..urls import Option, parse_options, query_params
 from .base import Check, PortInfo
-from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, open_mpsse
+from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, busy_pin_of, open_mpsse
 from .ftdi import OPTIONS as FTDI_OPTIONS
 
 #: URL options that belong to this transport rather than to the chip model: the FT232H
@@ -69,14 +70,16 @@ class SimFtdiTransport(FtdiTransport):
         strict = model.params.strict
         for chip in chips_of(model):
             chip.params.strict = False
-        device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns))
+        busy_pin = busy_pin_of(opts)
+        device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
+                                busy_pin=busy_pin is not None)
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
         ftdi = open_mpsse(url, latency, frequency, device=usb_dev)
         # busy_us None: measured at open on the chip model, through the emulated adapter
         t = cls(ftdi, url, trace=trace, clock=EmulatedClock(device),
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
-                latency_ms=latency)
+                latency_ms=latency, busy_pin=busy_pin)
         t.model, t.device, t.strict = model, device, strict
         t.models = chips_of(model)
         return t
