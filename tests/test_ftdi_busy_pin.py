@@ -171,3 +171,49 @@ def test_documented_busy_pin_wiring_is_the_pin_map():
     for line, label, pin, direction, note in pins.WIRING_BUSY_PIN:
         row = f"| {line} | {label} | {pin} | {direction} | {note} |"
         assert row in section, row
+
+
+# ------------------------------------------------------------------------- the pin check
+def test_the_first_program_checks_that_d0_and_gpiol1_show_busy_during_a_held_read(open_chip):
+    """Before the first program: a status read, then RDSIGS and one status read held 100 us
+    (the documented worst case), sampled at once and at the end: D0 and GPIOL1 read busy, then
+    both clear.  Two exchanges, counted apart from the program's."""
+    chip = open_chip(WIRED)
+    t = chip.transport
+    programs, trips = t.stats.programs, t.stats.round_trips
+    chip.read_status()
+    assert not t._check_pin  # done before that first program
+    assert (t.stats.programs - programs, t.stats.round_trips - trips) == (1, 1)
+    assert t.check_busy_pin() is True  # and again by hand: D0 and GPIOL1 busy, then clear
+
+
+def test_a_chip_that_latches_its_status_at_rd_falling_is_refused(open_chip):
+    """The emulated chip made to keep the status byte of /RD's falling edge (live_status=0):
+    D0 still shows busy 100 us later, so waiting on the pin would never end: a TransportError
+    at the first program that says to open the port without busy_pin, and no stream waits."""
+    chip = open_chip("sim+ftdi://?busy_pin=gpiol1&live_status=0")
+    with pytest.raises(lm629_host.TransportError, match="without busy_pin") as err:
+        chip.read_status()
+    assert "still showed busy 100 us later" in str(err.value)
+    assert chip.transport.stalls == 0
+
+
+def test_gpiol1_wired_to_nothing_is_refused(open_chip):
+    """The adapter wired as by default (HI on ADBUS5) but opened with busy_pin: GPIOL1 does
+    not follow D0."""
+    from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
+    from lm629_host.sim.build import build_bus
+    from lm629_host.transports.ftdi import FT232H_PID, FTDI_VID, FtdiTransport, open_mpsse
+    from lm629_host.transports.simftdi import EmulatedClock
+    import usb.core
+
+    model = build_bus("sim://")
+    device = EmulatedFT232H(model, busy_pin=False, live_status=True)
+    usb_dev = usb.core.find(backend=EmulatedBackend([device]), idVendor=FTDI_VID,
+                            idProduct=FT232H_PID)
+    ftdi = open_mpsse("ftdi://ftdi:232h/1", device=usb_dev)
+    t = FtdiTransport(ftdi, "ftdi://ftdi:232h/1?busy_pin=gpiol1", clock=EmulatedClock(device),
+                      busy_pin="gpiol1")
+    with pytest.raises(lm629_host.TransportError, match="GPIOL1 does not follow D0"):
+        t.execute(Program().status())
+    t.close()

@@ -190,8 +190,10 @@ class FtdiTransport(Transport):
         #: the chip's busy time measured at open (None: not measured, the fixed wait is used)
         self.calibrated_busy_s: float | None = None
         self.calibration_exchanges = 0  #: USB write+read pairs the calibration took
-        # before the first program; with a busy pin there is no timed wait to measure
+        # before the first program; with a busy pin there is no timed wait to measure, but
+        # what the pin relies on is checked instead (check_busy_pin)
         self._calibrate = busy_s is None and busy_pin is None
+        self._check_pin = busy_pin is not None
         self.stalls = 0  #: streams that stopped at a wait on the busy pin and were purged
 
     # ------------------------------------------------------------------ opening
@@ -317,6 +319,51 @@ class FtdiTransport(Transport):
                  self.url, times[clear] * 1e6, busy * 1e6)
         return times[clear]
 
+    def check_busy_pin(self) -> bool:
+        """Before the first program with ``busy_pin``: see on the chip what waiting on the pin
+        relies on (docs/ftdi.md, "What must be measured"), in two exchanges (a status read,
+        then :meth:`.mpsse.StreamCompiler.pin_check_stream`): right after RDSIGS's command byte a
+        held status read must show busy on D0 and the same level on GPIOL1, and 100 us later,
+        /RD still low, busy clear on both.  So a chip that latches its status at /RD falling,
+        or a missing or misplaced wire, is a TransportError here, not a stream that waits for
+        ever later.  A chip busy at open is left alone; one that shows no busy after the
+        command (in reset, unpowered) is checked again before the next program.  True when the
+        pin was seen to work, False when not checked."""
+        if self._exchange(self.compiler.status_stream(0, "status", 0))[0] & _BUSY:
+            log.info("%s: the chip is busy at open: the busy pin is not checked", self.url)
+            return False
+        answer = self._exchange(self.compiler.pin_check_stream())
+        check, d_on, p_on, d_off, p_off = answer[:5]
+        if check & _BUSY:  # busy again since the first read: RDSIGS was ignored, no harm
+            self.busy_hits += 1
+            log.info("%s: the chip turned busy at open: the busy pin is not checked", self.url)
+            return False
+        seen = [(d & _BUSY, bool(p & pins.BUSY_PINS[self.busy_pin or ""]))
+                for d, p in ((d_on, p_on), (d_off, p_off))]
+        where = "the wire from D0 (C0, LM629 pin 4) to ADBUS5 (D5), and that HI is off ADBUS5"
+        if any(bool(d) != p for d, p in seen):
+            raise TransportError(
+                f"busy_pin={self.busy_pin}: GPIOL1 does not follow D0 during a status read "
+                f"(D0/GPIOL1 read {seen[0][0]}/{int(seen[0][1])} with busy on, {seen[1][0]}/"
+                f"{int(seen[1][1])} 100 us later): check {where}; or open the port without "
+                "busy_pin", port=self.url)
+        if not seen[0][0]:
+            # the chip took no command (in its /RST window, never out of reset, not powered):
+            # nothing learnt about the pin; checked again before the next program
+            log.info("%s: the chip showed no busy after RDSIGS: the busy pin is checked again "
+                     "before the next program", self.url)
+            self._check_pin = True
+            return False
+        if seen[1][0]:
+            raise TransportError(
+                f"busy_pin={self.busy_pin}: D0 still showed busy 100 us later with /RD held low, "
+                "so this chip does not show busy on D0 for as long as a status read is held (it "
+                "may latch its status when /RD falls): waiting on the pin would never end. Open "
+                "the port without busy_pin (the timed wait works on any chip)", port=self.url)
+        log.info("%s: busy pin checked: D0 and GPIOL1 showed busy and then clear during one "
+                 "held status read", self.url)
+        return True
+
     def _set_busy(self, busy_s: float) -> None:
         self.busy_s = busy_s
         self.compiler = StreamCompiler(self.compiler.tck_hz, busy_s, COMMAND_S,
@@ -412,11 +459,12 @@ class FtdiTransport(Transport):
         for o in ops:
             if o.op is Op.SELECT and o.arg >= self.chip_selects:
                 raise AxisError(o.arg, self.chip_selects, f"the FT232H wiring of {self.url}")
-        if self._calibrate:
-            self._calibrate = False
+        if self._calibrate or self._check_pin:
+            opening = self.calibrate_busy if self._calibrate else self.check_busy_pin
+            self._calibrate = self._check_pin = False
             saved = self.stats.as_dict()
             try:
-                self.calibrate_busy()
+                opening()
             finally:  # its exchanges are not the program's: counted apart
                 for name, value in saved.items():
                     setattr(self.stats, name, value)

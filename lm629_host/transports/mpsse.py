@@ -275,6 +275,31 @@ class StreamCompiler:
         self.read_byte(s, Slot("lo", 0), data_port=True)
         return self.finish(s), times
 
+    def pin_check_stream(self, hold_s: float = DEFAULT_BUSY_US * 1e-6) -> Stream:
+        """What the busy pin relies on, seen on chip 0: a check, RDSIGS (a read command: it
+        changes nothing), then one status read held low, sampled (D0-D7, then ADBUS with
+        GPIOL1) right away, while the command's busy is on, and again ``hold_s`` later (the
+        documented worst case: busy is over), then /RD high and RDSIGS's word.  Answer slots:
+        check, D0-D7, ADBUS, D0-D7, ADBUS, the word's two bytes, and the final ADBUS."""
+        s = self.begin(0)
+        self.status(s, "check", 0)
+        self.write_byte(s, int(Cmd.RDSIGS), data_port=False)
+        self._high(s, 0, pins.DATA_IN)  # release D0-D7 for the chip
+        self._select(s, data_port=False)
+        self._low(s, self.state.ctrl & ~pins.RD)
+        self._bits(s, 2)  # read access time
+        for k in range(2):
+            if k:
+                self.delay(s, hold_s)
+            s.data += bytes((GET_HIGH, GET_LOW))
+            s.slots += [Slot("status", 0), Slot("pins", -1)]
+        self._low(s, self.state.ctrl | pins.RD)
+        self._bits(s, 1)
+        s.strobes += 1
+        self.read_byte(s, Slot("hi", 0), data_port=True)
+        self.read_byte(s, Slot("lo", 0), data_port=True)
+        return self.finish(s)
+
     def compile(self, ops: Sequence[BusOp], first: int = 0,
                 lead_s: float | dict[int, float] = 0.0, max_bytes: int | None = None,
                 chip: int = 0, skip: frozenset[int] | set[int] = frozenset()) -> Stream:

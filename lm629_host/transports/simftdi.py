@@ -4,7 +4,9 @@ to the chip model (:mod:`lm629_host.sim.ftdi`).
 URL parameters: every ``sim://`` parameter (chip, clock, strict, fault, record, motor...), the
 ``ftdi://`` options (``latency``, ``busy_us``, ``frequency``, ``busy_pin``: the emulated
 adapter is then wired as ``ftdi_pins.WIRING_BUSY_PIN``), and the emulation's costs:
-``usb_us`` (per bulk transfer, default 125) and ``command_ns`` (per MPSSE command, default 500).
+``usb_us`` (per bulk transfer, default 125), ``command_ns`` (per MPSSE command, default 500)
+and ``live_status`` (``0``: the emulated chip latches its status byte at /RD falling even with
+the busy pin wired, the case the transport's pin check refuses).
 
 The clock is the emulated FT232H's: USB transfers, MPSSE commands, idle clocks and
 ``clock.sleep`` all advance it, and the chip model with it.  Nothing sleeps on the wall clock.
@@ -38,7 +40,10 @@ from .ftdi import OPTIONS as FTDI_OPTIONS
 #: transport's and the emulation's costs
 OPTIONS = (*FTDI_OPTIONS,
            Option("usb_us", "float", 125, 0, 1e6, "us"),
-           Option("command_ns", "float", 500, 0, 1e6, "ns"))
+           Option("command_ns", "float", 500, 0, 1e6, "ns"),
+           # whether the emulated chip shows its status live while /RD is held low (the
+           # unknown a busy pin relies on: docs/ftdi.md); default: live with busy_pin
+           Option("live_status", "str", "auto", choices=("auto", "0", "1")))
 OWN_PARAMS = frozenset(o.name for o in OPTIONS)
 
 
@@ -71,8 +76,9 @@ class SimFtdiTransport(FtdiTransport):
         for chip in chips_of(model):
             chip.params.strict = False
         busy_pin = busy_pin_of(opts)
+        live = {"auto": None, "0": False, "1": True}[str(opts["live_status"]).lower()]
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
-                                busy_pin=busy_pin is not None)
+                                busy_pin=busy_pin is not None, live_status=live)
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
         ftdi = open_mpsse(url, latency, frequency, device=usb_dev)
