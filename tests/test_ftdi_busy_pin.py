@@ -198,22 +198,48 @@ def test_a_chip_that_latches_its_status_at_rd_falling_is_refused(open_chip):
     assert chip.transport.stalls == 0
 
 
-def test_gpiol1_wired_to_nothing_is_refused(open_chip):
-    """The adapter wired as by default (HI on ADBUS5) but opened with busy_pin: GPIOL1 does
-    not follow D0."""
-    from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
-    from lm629_host.sim.build import build_bus
-    from lm629_host.transports.ftdi import FT232H_PID, FTDI_VID, FtdiTransport, open_mpsse
-    from lm629_host.transports.simftdi import EmulatedClock
-    import usb.core
+@pytest.fixture
+def usb_bus(monkeypatch):
+    """pyftdi's USB lookup sees one emulated FT232H (serial FT5LM629) on a chip model; the
+    test wires it (``usb_bus(busy_pin=...)``) and opens it by its ``ftdi://`` URL."""
+    from pyftdi.usbtools import UsbTools
 
-    model = build_bus("sim://")
-    device = EmulatedFT232H(model, busy_pin=False, live_status=True)
-    usb_dev = usb.core.find(backend=EmulatedBackend([device]), idVendor=FTDI_VID,
-                            idProduct=FT232H_PID)
-    ftdi = open_mpsse("ftdi://ftdi:232h/1", device=usb_dev)
-    t = FtdiTransport(ftdi, "ftdi://ftdi:232h/1?busy_pin=gpiol1", clock=EmulatedClock(device),
-                      busy_pin="gpiol1")
-    with pytest.raises(lm629_host.TransportError, match="GPIOL1 does not follow D0"):
-        t.execute(Program().status())
-    t.close()
+    from lm629_host.sim.ftdi import EmulatedFT232H
+    from lm629_host.sim.ftdi.backend import SHARED
+    from lm629_host.sim.model import ChipModel
+
+    monkeypatch.setattr(UsbTools, "BACKENDS", ("lm629_host.sim.ftdi.backend",))
+    UsbTools.flush_cache()
+    UsbTools.release_all_devices()
+    monkeypatch.setattr(SHARED, "libusb_present", True)
+
+    def wire(busy_pin: bool) -> EmulatedFT232H:
+        device = EmulatedFT232H(ChipModel(), serial="FT5LM629", busy_pin=busy_pin,
+                                live_status=True)
+        monkeypatch.setattr(SHARED, "devices", [device])
+        return device
+
+    yield wire
+    UsbTools.release_all_devices()
+    UsbTools.flush_cache()
+
+
+def test_ftdi_url_with_busy_pin_on_an_adapter_wired_for_it(usb_bus):
+    device = usb_bus(busy_pin=True)
+    with lm629_host.open("ftdi://ftdi:232h:FT5LM629/1?busy_pin=gpiol1") as chip:
+        assert chip.transport.busy_pin == "gpiol1"
+        chip.reset()
+        trips = device.counters.bulk_out
+        load_ltrj(chip, start=True)
+        assert device.counters.bulk_out - trips == 1
+        assert device.model.trajectory.position == -1000
+
+
+def test_gpiol1_wired_to_hi_as_by_default_is_refused(usb_bus):
+    """The adapter still wired as by default (HI on ADBUS5) but opened with busy_pin: the
+    check before the first program sees GPIOL1 not follow D0, and no stream waits on it."""
+    usb_bus(busy_pin=False)
+    with lm629_host.open("ftdi://ftdi:232h:FT5LM629/1?busy_pin=gpiol1") as chip:
+        with pytest.raises(lm629_host.TransportError, match="GPIOL1 does not follow D0"):
+            chip.read_status()
+        assert chip.transport.stalls == 0
