@@ -57,8 +57,8 @@ while a bulk IN is pending, up to that request's latency timer, so a host whose 
 out sees exactly what it would see on the real chip.
 
 A status read held low.  Whether D0-D7 follow the status while /RD stays low is not in the
-data sheet (it gives the access time from /RD falling, no hold-low maximum, and calls the
-status a hardware register, AN-706 3.4); the emulation choice is that they do (the status
+data sheet (it gives the access time from /RD falling, no hold-low maximum; AN-706 3.6 calls
+the status a hardware register); the emulation choice is that they do (the status
 byte is the register's current value whenever it is sampled), which is what a held read on
 a busy pin relies on and what a bench must measure (docs/ftdi.md).  It is on with the busy
 pin wired (``live_status``, default ``busy_pin``); in the default wiring the byte stays the
