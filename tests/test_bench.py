@@ -24,7 +24,9 @@ import pytest
 from lm629_host.sim.avr import toolchain_missing
 from test_cli import _console_script
 
-FAR_ENDS = ["python", "firmware"]
+#: the far ends served; "+uno": behind an Arduino Uno R3's USB chip (``usb=uno``: the 16U2's
+#: 4.096 ms flush tick and 1 ms frames, lm629_host/sim/usb.py), in real time as on a bench
+FAR_ENDS = ["python", "firmware", "firmware+uno"]
 FAST = ["--vel", "655360", "--acc", "65536"]  # 10 counts/sample after a 10-sample ramp
 
 
@@ -61,6 +63,9 @@ class Bench:
 @contextmanager
 def serve(tmp: Path, far_end: str, url: str = "sim://"):
     """``lm629 sim serve --pty tmp/bench`` as a process; ready once it printed its banner."""
+    far_end, _, usb = far_end.partition("+")
+    if usb:
+        url += f"{'&' if '?' in url else '?'}usb={usb}"
     if far_end == "firmware":
         missing = toolchain_missing()
         if missing:
@@ -141,8 +146,9 @@ def test_a_signal_during_a_move_stops_the_motor(tmp_path, far_end, sig):
         assert "MOTOR_OFF" in s["status_flags"] and s["desired_velocity"] == 0
 
 
-def test_closed_stdout_during_a_move_stops_the_motor(tmp_path):
-    with serve(tmp_path, "python") as b:
+@pytest.mark.parametrize("far_end", ["python", "python+uno"])
+def test_closed_stdout_during_a_move_stops_the_motor(tmp_path, far_end):
+    with serve(tmp_path, far_end) as b:
         b.ready()
         proc = subprocess.Popen(b.argv("move", "200000"), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True, env=_env())
@@ -155,8 +161,9 @@ def test_closed_stdout_during_a_move_stops_the_motor(tmp_path):
         assert "MOTOR_OFF" in s["status_flags"] and s["desired_velocity"] == 0
 
 
-def test_index_wait_timeout_leaves_a_holding_servo_on(tmp_path):
-    with serve(tmp_path, "python", "sim://?index_offset=500") as b:
+@pytest.mark.parametrize("far_end", ["python", "python+uno"])
+def test_index_wait_timeout_leaves_a_holding_servo_on(tmp_path, far_end):
+    with serve(tmp_path, far_end, "sim://?index_offset=500") as b:
         b.ready()
         assert b.run("move", "100").returncode == 0
         p = b.run("index", "--wait", "0.2")

@@ -17,9 +17,15 @@ from lm629_host.opcodes import INTERRUPTS
 from test_acceptance import _available, with_params
 
 
-@pytest.fixture(params=["sim://", "sim+emu://", "sim+avr://", "sim+ftdi://"])
+#: a bench's USB: an Arduino Uno R3's 16U2 (4.096 ms flush tick, 1 ms frames) at 1 Mbaud
+UNO = "usb=uno&fast_baud=1000000"
+
+
+@pytest.fixture(params=["sim://", "sim+emu://", "sim+avr://", "sim+ftdi://",
+                        f"sim+emu://?{UNO}", f"sim+avr://?{UNO}"])
 def base_url(request) -> str:
-    """Every simulated transport (the acceptance set plus the Python bridge)."""
+    """Every simulated transport (the acceptance set plus the Python bridge), and the two
+    serial links behind an Uno's USB chip (:mod:`lm629_host.sim.usb`)."""
     if not _available(request.param):
         pytest.skip(f"{request.param} not available here")
     return request.param

@@ -42,7 +42,7 @@ def test_socket_url_reaches_a_bridge_on_a_tcp_port(tcp_server):
 
 def test_the_chip_keeps_its_state_between_tcp_clients(tcp_server):
     url = tcp_server.client_url
-    assert url == f"serial://socket://127.0.0.1:{tcp_server.address[1]}"
+    assert url == f"socket://127.0.0.1:{tcp_server.address[1]}"  # no serial:// in front
     with lm629_host.open(url) as a:
         a.reset()
         a.set_breakpoint(0x00012345)
@@ -117,7 +117,7 @@ def test_sim_serve_tcp_cli(tmp_path):
         second = proc.stdout.readline()
         assert "simulated LM628" in first and "TCP port 127.0.0.1:" in first, first
         url = second.split("--port ", 1)[1].split()[0]
-        assert url.startswith("serial://socket://127.0.0.1:")
+        assert url.startswith("socket://127.0.0.1:")
         with lm629_host.open(url) as chip:
             assert chip.reset() in (Status(0x80), Status(0xC0))
     finally:
@@ -128,3 +128,56 @@ def test_sim_serve_tcp_cli(tmp_path):
     r = subprocess.run([sys.executable, "-m", "lm629_host", "sim", "serve"],
                        capture_output=True, text=True, env=env, timeout=30)
     assert r.returncode == 2 and "give --pty PATH or --tcp" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "lm629_host", "sim", "serve", "--tcp", "0",
+                        "--url", "sim://?usb=ch340"], capture_output=True, text=True, env=env,
+                       timeout=30)
+    assert r.returncode == 2 and "usb='ch340': expected one of none, uno, ftdi, cdc" in r.stderr
+
+
+@pytest.mark.parametrize("url, device", [
+    ("socket://bench-pc:2000?baud=57600&logging=debug", "socket://bench-pc:2000?logging=debug"),
+    ("rfc2217://bench-pc:2217?timeout=3", "rfc2217://bench-pc:2217?timeout=3"),
+    ("spy:///dev/ttyACM0?file=/tmp/x.txt", "spy:///dev/ttyACM0?file=/tmp/x.txt"),
+    ("loop://", "loop://"),
+])
+def test_pyserial_urls_are_ports_as_they_are(url, device):
+    """The registry sends pyserial's URL schemes to the serial bridge transport; the URL is
+    pyserial's device, our options taken out of it (``serial://`` in front means the same)."""
+    from lm629_host.transports import transport_class
+
+    assert transport_class(url) is SerialTransport
+    assert options_of(url).device == device
+    assert options_of("serial://" + url).device == device
+    assert not lm629_host.transports.is_simulated(url)
+
+
+def test_loop_url_opens_pyserial_and_says_no_bridge_answered():
+    """``loop://`` is opened by pyserial (its loopback hears the host's own HELLO, which is
+    no reply): the error is the bridge's "no answer", not an unknown scheme."""
+    with pytest.raises(TransportError, match="no answer to HELLO"):
+        lm629_host.open("loop://?boot=0")
+
+
+def test_cli_status_on_a_socket_port_from_separate_processes():
+    """``lm629 --port socket://127.0.0.1:PORT status`` against ``lm629 sim serve --tcp``, each
+    its own process, as on a bench: the status a reset chip has (0xC0 or 0x80, AN-706 4.2)."""
+    env = dict(os.environ, PYTHONPATH=str(Path(lm629_host.__file__).parent.parent))
+    env.pop("LM629_PORT", None)
+    proc = subprocess.Popen([sys.executable, "-m", "lm629_host", "sim", "serve",
+                             "--tcp", "127.0.0.1:0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        proc.stdout.readline()
+        url = proc.stdout.readline().split("--port ", 1)[1].split()[0]
+        assert re.fullmatch(r"socket://127\.0\.0\.1:\d+", url), url
+        cli = [sys.executable, "-m", "lm629_host", "--port", url]
+        r = subprocess.run([*cli, "reset"], capture_output=True, text=True, env=env, timeout=60)
+        assert r.returncode == 0, r.stderr
+        r = subprocess.run([*cli, "status", "--json"], capture_output=True, text=True, env=env,
+                           timeout=60)
+        assert r.returncode == 0, r.stderr
+        import json
+        assert int(json.loads(r.stdout)["status"], 16) in (0x80, 0xC0), r.stdout
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=10)

@@ -116,10 +116,29 @@ MOTORS = {
 }
 
 
-@pytest.mark.parametrize("name", list(MOTORS))
-def test_autotune_ends_on_target_inside_the_band(name):
-    url = "sim://" + (f"?{MOTORS[name]}" if MOTORS[name] else "")
-    w = Watched(url)
+#: behind an Arduino Uno R3's USB chip (the 16U2's 4.096 ms flush tick, 1 ms frames) at 1 Mbaud
+UNO_EMU = "sim+emu://?usb=uno&fast_baud=1000000"
+UNO_AVR = "sim+avr://?usb=uno&fast_baud=1000000"
+
+
+def _url(base: str, params: str) -> str:
+    return base + (f"{'&' if '?' in base else '?'}{params}" if params else "")
+
+
+@pytest.mark.parametrize("base, name", [("sim://", name) for name in MOTORS] + [
+    # issue 20's tuner (tuning.py) meets the Uno's latency here; its host-polled identification
+    # sees the 4.096 ms flush tick as timing jitter
+    pytest.param(UNO_EMU, "default", marks=pytest.mark.xfail(strict=True, reason=(
+        "issue 20: behind usb=uno the host-polled identification puts the acceleration "
+        "11-15 % high (0.436-0.450 for 0.391, seeds 0-2); the tuned move itself ends within "
+        "1 count, overshoot 1"))),
+    pytest.param(UNO_EMU, "holding load", marks=pytest.mark.xfail(strict=True, reason=(
+        "issue 20: with a holding load the tuner's phasing step says 'Swap the motor leads' "
+        "on a motor wired correctly (desired +625, shaft -83); sim+avr:// at 115200 without "
+        "USB fails the same way, sim+emu:// without USB passes"))),
+])
+def test_autotune_ends_on_target_inside_the_band(base, name):
+    w = Watched(_url(base, MOTORS[name]))
     r = autotune(w.chip, travel=TRAVEL, distance=DISTANCE, poll_s=0.002)
     # the identified axis is the simulated motor (acceleration and decay within 10 %)
     truth = physical(w.chip.transport.model.motor_params)
@@ -143,8 +162,9 @@ def test_autotune_ends_on_target_inside_the_band(name):
     w.chip.close()
 
 
-def test_reversed_leads_runaway_stops_the_motor_inside_the_band():
-    w = Watched("sim://?reversed=1")
+@pytest.mark.parametrize("base", ["sim://", UNO_EMU])
+def test_reversed_leads_runaway_stops_the_motor_inside_the_band(base):
+    w = Watched(_url(base, "reversed=1"))
     with pytest.raises(MotionError) as err:
         autotune(w.chip, travel=2000)
     e = err.value
@@ -176,11 +196,12 @@ def test_bad_arguments_touch_nothing(open_chip, recorder, kw):
     assert recorder.cycles == []
 
 
-def test_autotune_through_the_bridge_firmware():
+@pytest.mark.parametrize("url", ["sim+avr://", UNO_AVR])
+def test_autotune_through_the_bridge_firmware(url):
     from lm629_host.sim.avr import toolchain_missing
     if toolchain_missing():
         pytest.skip("AVR toolchain missing")
-    w = Watched("sim+avr://")
+    w = Watched(url)
     r = autotune(w.chip, travel=TRAVEL, distance=DISTANCE, poll_s=0.002)
     assert r.ok and abs(r.measured.final_error) <= 2 and r.measured.overshoot <= DISTANCE // 50
     assert w.positions and w.in_band(TRAVEL)

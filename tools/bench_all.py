@@ -5,6 +5,7 @@
     python3 tools/bench_all.py --write-readme   # ... and write it into docs/performance.md
     python3 tools/bench_all.py --baseline REF   # "before" = another commit (default below)
     python3 tools/bench_all.py --write-readme --fresh-clone   # also a fresh clone's test run
+    python3 tools/bench_all.py --write-readme --only-usb      # only the per-adapter table
 
 "Before" is measured, not remembered: the baseline commit's ``lm629_host`` is unpacked from git
 into a temporary directory (its C sample loop built there) and the same probes run against it
@@ -41,6 +42,11 @@ FTDI_LIMIT_US = {"rdrp": 253.0, "ltrj_stt": 478.0}
 FTDI_BUSY_PIN = "sim+ftdi://?busy_pin=gpiol1"
 COMMAND = "python3 tools/bench_all.py --write-readme"
 BEGIN, END = "<!-- bench_all.py: begin -->", "<!-- bench_all.py: end -->"
+USB_BEGIN, USB_END = "<!-- bench_all.py usb: begin -->", "<!-- bench_all.py usb: end -->"
+#: the README's summary of the per-adapter table (generated too)
+SUMMARY_BEGIN = "<!-- bench_all.py usb summary: begin -->"
+SUMMARY_END = "<!-- bench_all.py usb summary: end -->"
+README = ROOT / "README.md"
 
 
 # ------------------------------------------------------------------ probes (run in a subprocess)
@@ -200,6 +206,159 @@ def _timed_commands(url: str) -> dict:
     out["bytes"] = s.bytes_out + s.bytes_in
     chip.close()
     return out
+
+
+#: the links a user can have between the host and the chip (docs/usb.md): name, URL; the
+#: serial ones through the compiled firmware (sim+avr://) at 1 Mbaud
+USB_LINKS = (
+    ("none (the line alone, no USB)", "sim+avr://?fast_baud=1000000"),
+    ("Arduino Uno R3 (16U2, `usb=uno`)", "sim+avr://?fast_baud=1000000&usb=uno"),
+    ("FTDI FT232R/FT231X, 1 ms latency timer (`usb=ftdi&latency_ms=1`)",
+     "sim+avr://?fast_baud=1000000&usb=ftdi&latency_ms=1"),
+    ("FTDI, default 16 ms latency timer (`usb=ftdi`)", "sim+avr://?fast_baud=1000000&usb=ftdi"),
+    ("native full-speed CDC (ATmega32U4, `usb=cdc`)", "sim+avr://?fast_baud=1000000&usb=cdc"),
+    ("FT232H, MPSSE (`sim+ftdi://`)", "sim+ftdi://"),
+)
+#: the move timed per link: 4000 counts at 4 counts/sample, 2048 / 65536 counts/sample^2
+USB_MOVE = {"position": 4000, "velocity": 4 * 65536, "acceleration": 2048}
+USB_FILTER = dict(kp=400, kd=2000)  # settles in ~45 ms: the link's share shows
+
+
+def probe_usb() -> dict:
+    """Simulated time per link (exact for a seed): RDRP and LTRJ(6)+STT back to back, a
+    4000-count move_to + wait against the profile's own time, and the rate of host-polled
+    snapshots (what ``lm629 watch`` and ``step`` sample at today).  Three runs at different
+    phases (usb_seed 0-2, the move started i/3 of a flush tick later) are averaged."""
+    import lm629_host
+    from lm629_host.sim.usb import UNO_FLUSH_S
+
+    out: dict = {}
+    for _name, base in USB_LINKS:
+        runs = []
+        for i in range(3):
+            url = f"{base}&usb_seed={i}" if "usb=" in base else base
+            chip = lm629_host.open(url)
+            chip.reset()
+            chip.load_filter(**USB_FILTER)
+            chip.update_filter()
+            clock = chip.clock
+            clock.sleep(i * UNO_FLUSH_S / 3)
+            for _ in range(3):
+                chip.read_real_position()  # the bridge keeps the program (RUN_CODE)
+            t0 = clock.now()
+            for _ in range(20):
+                chip.read_real_position()
+            rdrp = (clock.now() - t0) / 20
+            ltrj, pos = 0.0, 500
+            for k in range(13):
+                chip.load_trajectory(stop="off", start=True)  # no refused STT
+                pos = -pos
+                t0 = clock.now()
+                chip.load_trajectory(acceleration=100, velocity=65536, position=pos,
+                                     start=True)
+                if k >= 3:
+                    ltrj += (clock.now() - t0) / 10
+            t0 = clock.now()
+            n = 0
+            while clock.now() - t0 < 0.25:
+                chip.snapshot()
+                n += 1
+            rows = n / (clock.now() - t0)
+            chip.close()
+            chip = lm629_host.open(url)  # the move on a chip at rest, as a script's first
+            chip.reset()
+            chip.load_filter(**USB_FILTER)
+            chip.update_filter()
+            clock = chip.clock
+            clock.sleep(i * UNO_FLUSH_S / 3)
+            t0 = clock.now()
+            move = chip.move_to(USB_MOVE["position"], velocity=USB_MOVE["velocity"],
+                                acceleration=USB_MOVE["acceleration"])
+            move.wait()
+            runs.append({"rdrp": rdrp, "ltrj_stt": ltrj, "move": clock.now() - t0,
+                         "profile": move.profile_s(8e6) or 0.0, "rows": rows})
+            chip.close()
+        out[base] = {k: statistics.mean(r[k] for r in runs) for k in runs[0]}
+    return out
+
+
+def render_usb(usb: dict, date: str) -> str:
+    """The per-adapter table (docs/performance.md, "Per USB adapter")."""
+    from lm629_host.sim.usb import UNO_FLUSH_S
+
+    none = usb[USB_LINKS[0][1]]
+    lines = [
+        USB_BEGIN,
+        f"Measured {date} by `{COMMAND}` (or `--only-usb`), in simulated time: the compiled",
+        "firmware in simavr at 1 Mbaud behind each USB model of `lm629_host/sim/usb.py`",
+        "(docs/usb.md), and the emulated FT232H. Means of 3 runs at different flush-timer",
+        f"phases. The move: `move_to({USB_MOVE['position']}, velocity={USB_MOVE['velocity']}, "
+        f"acceleration={USB_MOVE['acceleration']}).wait()` with kp={USB_FILTER['kp']}, "
+        f"kd={USB_FILTER['kd']}; its profile takes {none['profile'] * 1e3:.1f} ms.",
+        "Recording: host-polled snapshots (one exchange each, as `lm629 watch` and `step` "
+        "sample today); far-side recording is not in this tree yet.",
+        "",
+        "| link | RDRP | LTRJ(6)+STT | move_to + wait (over the profile) | recording, host-polled |",
+        "|---|---|---|---|---|",
+    ]
+    for name, url in USB_LINKS:
+        d = usb[url]
+        extra = d["move"] - d["profile"]
+        more = d["move"] - none["move"]
+        vs = "" if url == USB_LINKS[0][1] else f"; {more * 1e3:+.1f} ms vs none" + (
+            f" = {more / UNO_FLUSH_S:+.2f} flush ticks" if "usb=uno" in url else "")
+        lines.append(f"| {name} | {_us(d['rdrp'])} | {_us(d['ltrj_stt'])} | "
+                     f"{d['move'] * 1e3:.1f} ms (+{extra * 1e3:.1f} ms{vs}) | "
+                     f"{d['rows']:.0f} rows/s |")
+    lines.append(USB_END)
+    return "\n".join(lines)
+
+
+def render_usb_summary(usb: dict) -> str:
+    """What an Uno user sees, for the README (from the same figures as the table)."""
+    none, uno = usb[USB_LINKS[0][1]], usb[USB_LINKS[1][1]]
+    ftdi1, ftdi16, cdc, ft232h = (usb[url] for _, url in USB_LINKS[2:])
+    return "\n".join([
+        SUMMARY_BEGIN,
+        "**What USB adds** (simulated, `python3 tools/bench_all.py --write-readme --only-usb`;",
+        "the models and their sources: [docs/usb.md](docs/usb.md), the table:",
+        "[docs/performance.md](docs/performance.md#per-usb-adapter)). Every command is one",
+        "exchange with the bridge, and on an **Arduino Uno R3** each exchange waits for its USB",
+        f"chip's 4.096 ms flush tick: a read such as RDRP takes {_us(uno['rdrp'])} (the",
+        f"{_us(none['rdrp'])} of the 1 Mbaud line and firmware alone is not what an Uno user",
+        f"sees), LTRJ+STT {_us(uno['ltrj_stt'])}, a 4000-count `move_to(...).wait()` "
+        f"{uno['move'] * 1e3:.1f} ms",
+        f"against {none['move'] * 1e3:.1f} ms without USB (profile "
+        f"{none['profile'] * 1e3:.1f} ms), and host-polled",
+        f"traces (`lm629 watch`, `step`) get {uno['rows']:.0f} rows/s, each row's time "
+        "rounded to a flush tick.",
+        f"An FTDI adapter takes {_us(ftdi1['rdrp'])} per exchange with its latency timer at "
+        f"1 ms (the serial",
+        f"transport asks the driver for that) and {_us(ftdi16['rdrp'])} at its default 16 ms; "
+        f"a native USB board",
+        f"(ATmega32U4) {_us(cdc['rdrp'])}; the FT232H {_us(ft232h['rdrp'])}.",
+        SUMMARY_END,
+    ])
+
+
+def _us(seconds: float) -> str:
+    return f"{seconds * 1e6:.0f} us" if seconds < 1e-3 else f"{seconds * 1e3:.2f} ms"
+
+
+def write_usb(block: str, summary: str) -> None:
+    readme = README.read_text()
+    if SUMMARY_BEGIN not in readme:
+        raise SystemExit(f"{README} has no {SUMMARY_BEGIN} ... {SUMMARY_END} block")
+    README.write_text(re.sub(re.escape(SUMMARY_BEGIN) + ".*?" + re.escape(SUMMARY_END),
+                             lambda _: summary, readme, flags=re.S))
+    path = PERFORMANCE_DOC
+    text = path.read_text()
+    if USB_BEGIN in text:
+        text = re.sub(re.escape(USB_BEGIN) + ".*?" + re.escape(USB_END), lambda _: block, text,
+                      flags=re.S)
+    else:
+        text = text.rstrip("\n") + "\n\n## Per USB adapter\n\n" + block + "\n"
+    path.write_text(text)
 
 
 def probe_after() -> dict:
@@ -514,14 +673,25 @@ def main() -> int:
                     help="'before' of the sim+avr:// and sim+ftdi:// rows (default %(default)s)")
     ap.add_argument("--fresh-clone", action="store_true",
                     help="also time the test run of a fresh clone, before and after (minutes)")
+    ap.add_argument("--only-usb", action="store_true",
+                    help="only the per-adapter table (docs/usb.md's links; about a minute)")
     ap.add_argument("--probe", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.probe:
         print(json.dumps({"core": probe_core, "cost": probe_cost, "after": probe_after,
-                          "transports": probe_transports}[args.probe]()))
+                          "transports": probe_transports, "usb": probe_usb}[args.probe]()))
         return 0
 
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    print("per USB adapter ...", file=sys.stderr)
+    usb = run_probe("usb", ROOT)
+    usb_block, summary = render_usb(usb, date), render_usb_summary(usb)
+    print(usb_block)
+    print(summary)
+    if args.write_readme:
+        write_usb(usb_block, summary)
+    if args.only_usb:
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         old = Path(tmp)
         print(f"unpacking the baseline {args.baseline} ...", file=sys.stderr)

@@ -31,11 +31,12 @@ def _tcp_address(text: str) -> tuple[str, int]:
               help="Where to link the pseudo-terminal (e.g. /tmp/lm629).")
 @click.option("--tcp", "tcp", default=None, metavar="[HOST:]PORT",
               help="Serve on a TCP port instead (0: any free one; host 127.0.0.1 unless given), "
-                   "for clients on serial://socket://HOST:PORT, as behind ser2net.")
+                   "for clients on socket://HOST:PORT, as behind ser2net.")
 @click.option("--firmware", is_flag=True,
               help="Run the real bridge firmware in simavr instead of the Python emulator.")
 @click.option("--url", default="sim://", show_default=True,
-              help="The simulated chip: sim:// parameters (chip=, clock=, record=...).")
+              help="The simulated chip: sim:// parameters (chip=, clock=, record=...), and "
+                   "usb=uno|ftdi|cdc (usb_seed=, latency_ms=) for a USB adapter's latency.")
 def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) -> None:
     """Serve a simulated bridge and chip on a pseudo-terminal (or a TCP port) until Ctrl-C.
 
@@ -51,7 +52,9 @@ def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) 
                                  "does not exist", param_hint="--pty")
     try:
         server = SimServer(pty_path, url, firmware=firmware, tcp=address)
-    except (RuntimeError, ValueError) as exc:
+    except ValueError as exc:  # a bad --url parameter (usb=, chip=, ...): a usage error
+        raise click.BadParameter(str(exc), param_hint="--url") from None
+    except RuntimeError as exc:
         raise click.ClickException(str(exc)) from None
     try:
         server.open()

@@ -6,7 +6,8 @@ terminal can all talk to one simulated chip through the unchanged ``serial://PAT
 
 The far end is the Python bridge (:class:`~lm629_host.sim.bridge.BridgeEmulator`) by default;
 with ``firmware=True`` it is the real compiled firmware running in simavr, taken from the
-``sim+avr://`` transport (:func:`firmware_far_end`).
+``sim+avr://`` transport (:func:`firmware_far_end`).  ``usb=uno|ftdi|cdc`` in the URL puts a USB
+adapter's latency (:mod:`.usb`) between the pseudo-terminal and either far end, as on a bench.
 
 Time: this is a real-time service, so its clock follows the wall clock.  The far end keeps its
 own simulated clock; the server advances it to the wall time elapsed since start (the motor
@@ -38,9 +39,11 @@ from ..bridge.protocol import (
     decode_program,
 )
 from ..program import Op
-from .bridge import BridgeEmulator
+from .bridge import BridgeEmulator, EmuPipe
 from .build import build_bus
 from .model import ChipBus, ChipModel, chips_of
+from .usb import OPTION_NAMES as USB_OPTIONS
+from .usb import UsbPipe, adapter_of, wrap_usb
 
 log = logging.getLogger("lm629_host.sim.serve")
 
@@ -113,6 +116,8 @@ class PipeFarEnd(FarEnd):
 
     def _timeout(self, frame: Frame) -> float:
         t = self.MARGIN_S + (2 * MAX_WIRE_FRAME * 10 / self.baud if self.baud else 0.0)
+        if isinstance(self.pipe, UsbPipe):
+            t += self.pipe.adapter.worst_s
         ftype, payload = frame.type, frame.payload
         program: bytes | None = None
         if ftype == FrameType.HELLO:
@@ -182,14 +187,36 @@ class PipeFarEnd(FarEnd):
         self.pipe.close()
 
 
+class _PtyLine(EmuPipe):
+    """The Python bridge's serial line when a pseudo-terminal stands for the host's port: a
+    pty carries bytes at any rate (the client's SET_BAUD changes nothing on it), so no byte is
+    lost to a rate mismatch, and no wire time is charged (``baud=None``)."""
+
+    def _carried(self, rate: int, receiver: int) -> bool:
+        return True
+
+
+def emulator_far_end(url: str) -> FarEnd:
+    """The Python bridge over a chip model built from ``url``; with ``usb=`` behind that USB
+    adapter (:mod:`.usb`)."""
+    model = build_bus(url, allowed=USB_OPTIONS)
+    adapter = adapter_of(url)
+    if adapter is None:
+        return EmuFarEnd(model)
+    pipe = UsbPipe(_PtyLine(BridgeEmulator(model), baud=None), adapter)
+    return PipeFarEnd(pipe, model, f"Python bridge emulator behind USB {adapter.describe()}")
+
+
 def firmware_far_end(url: str) -> FarEnd:
     """The compiled bridge firmware in simavr (:mod:`.avr`, 115200 baud) as a far end, over a
-    chip model built from the simulator options of ``url``.  Raises RuntimeError saying what
-    is missing when the firmware or the harness cannot run."""
+    chip model built from the simulator options of ``url`` (with ``usb=``: behind that USB
+    adapter).  Raises RuntimeError saying what is missing when the firmware or the harness
+    cannot run."""
     from ..bridge.pins import CHIP_SELECTS
     from .avr import DEFAULT_BAUD, AvrPipe, AvrSim, HarnessError
 
-    model = build_bus(url, limit=len(CHIP_SELECTS))
+    adapter = adapter_of(url)  # a bad usb= before the firmware is built
+    model = build_bus(url, allowed=USB_OPTIONS, limit=len(CHIP_SELECTS))
     if isinstance(model, ChipBus):
         model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
     try:
@@ -198,12 +225,13 @@ def firmware_far_end(url: str) -> FarEnd:
         raise RuntimeError(f"--firmware runs the compiled firmware in simavr: {exc}. Build it "
                            "with `make -C firmware_bridge` (needs gcc-avr, avr-libc, simavr, "
                            "libsimavr-dev), or serve the Python bridge without --firmware.") from None
-    return PipeFarEnd(AvrPipe(sim), model, "bridge firmware in simavr", baud=DEFAULT_BAUD)
+    name = "bridge firmware in simavr" + (f" behind USB {adapter.describe()}" if adapter else "")
+    return PipeFarEnd(wrap_usb(AvrPipe(sim), url), model, name, baud=DEFAULT_BAUD)
 
 
 class SimServer:
     """A far end served on a pseudo-terminal linked at ``link``, or on a TCP port (``tcp=(host,
-    port)``, port 0: any free one) for ``serial://socket://host:port`` clients, as a bridge
+    port)``, port 0: any free one) for ``socket://host:port`` clients, as a bridge
     behind ser2net would be.  On TCP one client is served at a time; a new connection takes
     over from the previous one (the chip keeps its state, as a board does between programs)."""
 
@@ -216,7 +244,7 @@ class SimServer:
         self.tcp = tcp
         self.url = url
         if far_end is None:
-            far_end = firmware_far_end(url) if firmware else EmuFarEnd(build_bus(url))
+            far_end = firmware_far_end(url) if firmware else emulator_far_end(url)
         self.far = far_end
         self.model = far_end.model
         self.master: int | None = None
@@ -236,7 +264,7 @@ class SimServer:
         """What a client passes to ``--port``."""
         if self.tcp is not None:
             host, port = self.address or self.tcp
-            return f"serial://socket://{host}:{port}"
+            return f"socket://{host}:{port}"
         return f"serial://{self.link}"
 
     @property
@@ -420,4 +448,5 @@ class SimServer:
         return f"{self.far.describe()} with a {chips[0].describe(len(chips))}, on {where}"
 
 
-__all__ = ["EmuFarEnd", "FarEnd", "PipeFarEnd", "SimServer", "firmware_far_end"]
+__all__ = ["EmuFarEnd", "FarEnd", "PipeFarEnd", "SimServer", "emulator_far_end",
+           "firmware_far_end"]

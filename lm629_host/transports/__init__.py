@@ -10,6 +10,10 @@ scheme             what                                                        m
 ``sim+avr://``     the real bridge firmware in simavr, against the chip model  ``simavr``
 ``sim+ftdi://``    the FT232H transport through pyftdi on an emulated FT232H   ``simftdi``
 ``sim+emu://``     the bridge link protocol to the Python bridge emulator      ``simemu``
+``socket://``,     pyserial's URL handlers as ports, as they are: a bridge      ``serial``
+``rfc2217://``,    behind ser2net or ``lm629 sim serve --tcp``, a hex dump of
+``spy://``,        the traffic, a loopback (``serial://`` in front of them is
+``loop://``        accepted too)
 =================  ==========================================================  ===============
 
 A transport is a :class:`~.base.Transport` subclass (the contract is in its docstring:
@@ -52,6 +56,11 @@ BUILTIN: dict[str, str] = {
     "sim+ftdi": "lm629_host.transports.simftdi:SimFtdiTransport",
     "sim+emu": "lm629_host.transports.simemu:EmuLinkTransport",
 }
+#: other schemes a built-in transport opens as they are: pyserial's URL handlers
+#: (``serial_for_url``), so that ``--port socket://host:port`` needs no ``serial://`` in front.
+#: Not transports of their own (``lm629 list`` and ``doctor`` walk :data:`BUILTIN` once).
+URL_SCHEMES: dict[str, str] = {"socket": "serial", "rfc2217": "serial", "spy": "serial",
+                               "loop": "serial"}
 #: the old name of :data:`BUILTIN`
 SCHEMES = BUILTIN
 
@@ -85,10 +94,11 @@ def transport_class(url: str) -> type[Transport]:
     """The transport class for ``url``'s scheme (its module imported now)."""
     scheme = scheme_of(url)
     known = registry()
-    target = known.get(scheme)
+    target = known.get(URL_SCHEMES.get(scheme, scheme))
     if target is None:
+        names = [*known, *URL_SCHEMES]
         raise TransportError(
-            f"unknown port scheme {scheme!r}; known: {', '.join(s + '://' for s in known)} "
+            f"unknown port scheme {scheme!r}; known: {', '.join(s + '://' for s in names)} "
             "or a serial device path", port=url)
     try:
         return _load(scheme, target)
@@ -118,6 +128,7 @@ def open_transport(url: str = DEFAULT_URL, *, trace: TraceCallback | None = None
 
 __all__ = [
     "BUILTIN", "Check", "Clock", "CycleTransport", "DEFAULT_URL", "ENTRY_POINT_GROUP",
-    "PortInfo", "SCHEMES", "Stats", "Transport", "WallClock", "is_simulated", "open_transport",
+    "PortInfo", "SCHEMES", "Stats", "Transport", "URL_SCHEMES", "WallClock", "is_simulated",
+    "open_transport",
     "query_params", "registry", "scheme_of", "split_params", "transport_class", "transport_classes",
 ]

@@ -1,7 +1,9 @@
 """``serial://PATH?baud=115200``: the bridge firmware on a USB serial port, through pyserial.
 
-A bare device path (``/dev/ttyACM0``, ``/dev/ttyUSB0``, ``COM3``) means the same.  URL
-parameters (all optional)::
+A bare device path (``/dev/ttyACM0``, ``/dev/ttyUSB0``, ``COM3``) means the same, and so does a
+pyserial URL as it is (``socket://host:port``, ``rfc2217://host:port``, ``spy://PORT``,
+``loop://``: the registry sends those schemes here) or after ``serial://``.  URL parameters (all
+optional)::
 
     serial:///dev/ttyACM0?baud=115200&fast_baud=1000000&retries=7&boot=2.5&low_latency=1&cs=0
 
@@ -108,10 +110,13 @@ def advice_missing(path: str) -> str:
 
 
 def device_of(url: str) -> str:
-    """The device path of a ``serial://`` URL or a bare path."""
+    """The device path of a ``serial://`` URL or a bare path; a pyserial URL given as it is
+    (``socket://host:port``) is its own device."""
     if "://" not in url:
         return url.split("?", 1)[0]
-    rest = url.split("://", 1)[1]
+    scheme, rest = url.split("://", 1)
+    if scheme.lower() != "serial":
+        return url.split("?", 1)[0]
     return rest.split("?", 1)[0]
 
 

@@ -10,6 +10,8 @@ firmware_bridge`` builds; another rate needs ``firmware=`` built with ``make BAU
 ``fast_baud``: after the handshake, switch the line to this rate (SET_BAUD; default: stay at
 ``baud``, so that the URL's rate is the one measured).  Every bus cycle the chip model sees
 was made by the compiled AVR code; the transport's clock is the AVR's simulated time.
+``usb=none|uno|ftdi|cdc`` (``usb_seed=``, ``latency_ms=``): the USB adapter between the host and
+the firmware's UART (:mod:`lm629_host.sim.usb`; ``uno`` is the 16U2 of an Arduino Uno R3).
 ``transport.model`` is the chip, ``transport.sim`` the AVR.
 """
 
@@ -22,6 +24,8 @@ from ..program import TraceCallback
 from ..sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
 from ..sim.build import build_bus
 from ..sim.model import chips_of
+from ..sim.usb import OPTION_NAMES as USB_OPTIONS
+from ..sim.usb import wrap_usb
 from ..urls import Option, parse_options, query_params
 from .link import DEFAULT_RETRIES, LinkTransport
 
@@ -29,7 +33,7 @@ from .link import DEFAULT_RETRIES, LinkTransport
 OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
            Option("firmware", "str", ""),
            Option("fast_baud", "int", 0, 0, 4_000_000, "baud"))  # 0: stay at baud
-OWN_PARAMS = frozenset(o.name for o in OPTIONS)
+OWN_PARAMS = frozenset(o.name for o in OPTIONS) | USB_OPTIONS
 
 
 class SimAvrTransport(LinkTransport):
@@ -47,11 +51,15 @@ class SimAvrTransport(LinkTransport):
         self.model = sim.model
         #: the chips on the bridge's chip selects 0, 1, ... (``sim+avr://?axes=N``)
         self.models = chips_of(sim.model)
-        super().__init__(AvrPipe(sim), url, trace=trace, retries=retries, baud=baud)
+        pipe = wrap_usb(AvrPipe(sim), url)
+        usb = getattr(pipe, "adapter", None)
+        if usb is not None:
+            self.margin_s = type(self).margin_s + usb.worst_s
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud)
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimAvrTransport:
-        opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - OWN_PARAMS)
+        opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - {o.name for o in OPTIONS})
         baud = opts["baud"]
         if opts["firmware"]:
             firmware = Path(opts["firmware"])

@@ -9,6 +9,8 @@ from ..bridge.pins import CHIP_SELECTS
 from ..sim.bridge import MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
 from ..sim.build import build_bus
 from ..sim.model import ChipBus, ChipModel, chips_of
+from ..sim.usb import OPTION_NAMES as USB_OPTIONS
+from ..sim.usb import wrap_usb
 from ..urls import Option, parse_options, query_params
 from .link import DEFAULT_RETRIES, LinkTransport
 
@@ -40,6 +42,8 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     URL ``fast_baud=N``: switch the line to N baud after the handshake (SET_BAUD);
     ``max_baud=N``: the line carries nothing faster (a USB serial adapter that cannot), so
     such a switch falls back.
+    ``usb=none|uno|ftdi|cdc`` (``usb_seed=``, ``latency_ms=``): the USB adapter between the
+    host and the bridge's UART (:mod:`lm629_host.sim.usb`), outside any ``wrap``.
     ``wrap(pipe) -> pipe`` inserts a wrapper between host and bridge (e.g. a
     :class:`~lm629_host.sim.faults.FaultPipe`).  The model is ``transport.model``, the far end
     ``transport.emulator``.
@@ -48,8 +52,8 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
            Option("bridge", "str", "", choices=("", "1", str(len(CHIP_SELECTS)))),
            Option("fast_baud", "int", 0, 0, 4_000_000, "baud (0: stay at baud)"),
            Option("max_baud", "int", 0, 0, 4_000_000, "baud (0: any)"))
-    names = {"baud", "bridge", "fast_baud", "max_baud"}
-    opts = parse_options(url, own, ignore=set(query_params(url)) - names)
+    names = {"baud", "bridge", "fast_baud", "max_baud"} | USB_OPTIONS
+    opts = parse_options(url, own, ignore=set(query_params(url)) - {o.name for o in own})
     if baud is None:
         baud = opts["baud"]
     # bridge=1: a one-chip bridge of before issue 11; else the multi-axis firmware's HELLO
@@ -57,9 +61,10 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     model = build_bus(url, allowed=frozenset(names), limit=info.chip_selects)
     emu = BridgeEmulator(model, info)
     pipe = EmuPipe(emu, baud=baud or None, max_baud=opts["max_baud"] or None)
-    outer = wrap(pipe) if wrap is not None else pipe
+    outer = wrap_usb(wrap(pipe) if wrap is not None else pipe, url)
     t = EmuLinkTransport.__new__(EmuLinkTransport)
-    t.margin_s = margin_s
+    usb = getattr(outer, "adapter", None)
+    t.margin_s = margin_s + (usb.worst_s if usb is not None else 0.0)
     t.model = model
     t.models = chips_of(model)
     t.emulator = emu
