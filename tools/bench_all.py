@@ -218,6 +218,7 @@ USB_LINKS = (
     ("FTDI, default 16 ms latency timer (`usb=ftdi`)", "sim+avr://?fast_baud=1000000&usb=ftdi"),
     ("native full-speed CDC (ATmega32U4, `usb=cdc`)", "sim+avr://?fast_baud=1000000&usb=cdc"),
     ("FT232H, MPSSE (`sim+ftdi://`)", "sim+ftdi://"),
+    ("FT232H, D0 also on GPIOL1 (`sim+ftdi://?busy_pin=gpiol1`)", FTDI_BUSY_PIN),
 )
 #: the move timed per link: 4000 counts at 4 counts/sample, 2048 / 65536 counts/sample^2
 USB_MOVE = {"position": 4000, "velocity": 4 * 65536, "acceleration": 2048}
@@ -317,7 +318,7 @@ def render_usb(usb: dict, date: str) -> str:
 def render_usb_summary(usb: dict) -> str:
     """What an Uno user sees, for the README (from the same figures as the table)."""
     none, uno = usb[USB_LINKS[0][1]], usb[USB_LINKS[1][1]]
-    ftdi1, ftdi16, cdc, ft232h = (usb[url] for _, url in USB_LINKS[2:])
+    ftdi1, ftdi16, cdc, ft232h, ft232h_pin = (usb[url] for _, url in USB_LINKS[2:])
     return "\n".join([
         SUMMARY_BEGIN,
         "**What USB adds** (simulated, `python3 tools/bench_all.py --write-readme --only-usb`;",
@@ -336,7 +337,10 @@ def render_usb_summary(usb: dict) -> str:
         f"1 ms (the serial",
         f"transport asks the driver for that) and {_us(ftdi16['rdrp'])} at its default 16 ms; "
         f"a native USB board",
-        f"(ATmega32U4) {_us(cdc['rdrp'])}; the FT232H {_us(ft232h['rdrp'])}.",
+        f"(ATmega32U4) {_us(cdc['rdrp'])}; the FT232H {_us(ft232h['rdrp'])} (LTRJ+STT "
+        f"{_us(ft232h['ltrj_stt'])},",
+        f"{_us(ft232h_pin['ltrj_stt'])} in one exchange with D0 also on GPIOL1, "
+        "`busy_pin=gpiol1`).",
         SUMMARY_END,
     ])
 
