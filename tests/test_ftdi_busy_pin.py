@@ -163,6 +163,9 @@ def test_unwired_still_cuts_before_stt_and_reads_hi(open_chip):
 def test_busy_pin_option_is_checked():
     with pytest.raises(ValueError, match="busy_pin"):
         lm629_host.open("sim+ftdi://?busy_pin=gpiol2")
+    with pytest.raises(ValueError, match="busy_us=50 and busy_pin=gpiol1"):
+        lm629_host.open("sim+ftdi://?busy_pin=gpiol1&busy_us=50")
+    lm629_host.open("sim+ftdi://?busy_pin=none&busy_us=50").close()  # unwired: as before
 
 
 def test_documented_busy_pin_wiring_is_the_pin_map():

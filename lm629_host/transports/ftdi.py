@@ -204,7 +204,7 @@ class FtdiTransport(Transport):
         busy = opts["busy_us"]
         return cls(ftdi, url, trace=trace, busy_s=None if busy is None else busy * 1e-6,
                    tck_hz=opts["frequency"], latency_ms=opts["latency"],
-                   busy_pin=busy_pin_of(opts))
+                   busy_pin=busy_pin_of(opts, url))
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:
@@ -638,10 +638,18 @@ OPTIONS = (
 )
 
 
-def busy_pin_of(opts: dict[str, Any]) -> str | None:
-    """The ``busy_pin`` option as the transport takes it (None: not wired)."""
+def busy_pin_of(opts: dict[str, Any], url: str) -> str | None:
+    """The ``busy_pin`` option as the transport takes it (None: not wired).  ``busy_us`` with
+    it is a ValueError naming both: with the pin each check waits on the chip itself, so a
+    timed wait has no use, and silently dropping what was asked would hide a mistake."""
     pin = str(opts["busy_pin"]).lower()
-    return None if pin == "none" else pin
+    if pin == "none":
+        return None
+    if opts["busy_us"] is not None:
+        raise ValueError(f"{url}: busy_us={opts['busy_us']:g} and busy_pin={pin} do not go "
+                         "together: with the busy pin every check waits on the chip's busy "
+                         "bit, there is no timed wait to set; give one of them")
+    return pin
 
 
 def auto_as_none(url: str, name: str) -> str:

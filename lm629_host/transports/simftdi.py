@@ -75,7 +75,7 @@ class SimFtdiTransport(FtdiTransport):
         strict = model.params.strict
         for chip in chips_of(model):
             chip.params.strict = False
-        busy_pin = busy_pin_of(opts)
+        busy_pin = busy_pin_of(opts, url)
         live = {"auto": None, "0": False, "1": True}[str(opts["live_status"]).lower()]
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
                                 busy_pin=busy_pin is not None, live_status=live)
