@@ -300,6 +300,35 @@ class StreamCompiler:
         self.read_byte(s, Slot("lo", 0), data_port=True)
         return self.finish(s)
 
+    def _timed_check(self, s: Stream, kind: str, op: int) -> None:
+        """A busy check after the wait still owed to the chip's last transfer: idle clocks,
+        shortened by the MPSSE commands run since (when they are counted), then a status read
+        whose byte the transport judges when the answer comes back."""
+        st = self.state
+        cs = st.cs
+        if self.command_s:
+            # what the stream runs between the transfer and the check's /RD counts
+            ran = st.t - st.owed_from.get(cs, 0.0) + self._check_lead(False) * self.command_s
+            self.delay(s, st.owed.get(cs, 0.0) - ran)
+        else:
+            self.delay(s, st.owed.get(cs, 0.0))
+        st.owed[cs] = 0.0
+        self.status(s, kind, op)
+
+    def _transfer(self, s: Stream, o: BusOp, i: int) -> None:
+        """The transfer of a COMMAND, WRITE or READ operation ``i``, after its check."""
+        if o.op is Op.COMMAND:
+            self.write_byte(s, o.arg, data_port=False)
+            s.events.append(("command", o.arg))
+        elif o.op is Op.WRITE:
+            self.write_byte(s, o.arg >> 8, data_port=True)
+            self.write_byte(s, o.arg & 0xFF, data_port=True)
+            s.events.append(("write", o.arg))
+        else:
+            s.events.append(("read", len(s.slots)))
+            self.read_byte(s, Slot("hi", i), data_port=True)
+            self.read_byte(s, Slot("lo", i), data_port=True)
+
     def compile(self, ops: Sequence[BusOp], first: int = 0,
                 lead_s: float | dict[int, float] = 0.0, max_bytes: int | None = None,
                 chip: int = 0, skip: frozenset[int] | set[int] = frozenset()) -> Stream:
@@ -325,45 +354,19 @@ class StreamCompiler:
             cs = st.cs
             if i in skip and op is not Op.SELECT:
                 continue
-            if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC) and self.busy_pin:
-                self.held_check(s, "sync" if op is Op.SYNC else "check", i)
-                if op is Op.COMMAND:
-                    self.write_byte(s, o.arg, data_port=False)
-                    s.events.append(("command", o.arg))
-                elif op is Op.WRITE:
-                    self.write_byte(s, o.arg >> 8, data_port=True)
-                    self.write_byte(s, o.arg & 0xFF, data_port=True)
-                    s.events.append(("write", o.arg))
-                elif op is Op.READ:
-                    s.events.append(("read", len(s.slots)))
-                    self.read_byte(s, Slot("hi", i), data_port=True)
-                    self.read_byte(s, Slot("lo", i), data_port=True)
-                if op is not Op.SYNC:
-                    st.expect_busy = cs
-            elif op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
-                if self.command_s:
-                    # what the stream runs between the transfer and the check's /RD counts
-                    ran = (st.t - st.owed_from.get(cs, 0.0)
-                           + self._check_lead(False) * self.command_s)
-                    self.delay(s, st.owed.get(cs, 0.0) - ran)
+            if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
+                kind = "sync" if op is Op.SYNC else "check"
+                if self.busy_pin:
+                    self.held_check(s, kind, i)
                 else:
-                    self.delay(s, st.owed.get(cs, 0.0))
-                st.owed[cs] = 0.0
-                self.status(s, "sync" if op is Op.SYNC else "check", i)
-                if op is Op.COMMAND:
-                    self.write_byte(s, o.arg, data_port=False)
-                    s.events.append(("command", o.arg))
-                    st.owed[cs] = RESET_WAIT_S if o.arg == Cmd.RESET else self.busy_s
-                elif op is Op.WRITE:
-                    self.write_byte(s, o.arg >> 8, data_port=True)
-                    self.write_byte(s, o.arg & 0xFF, data_port=True)
-                    s.events.append(("write", o.arg))
-                    st.owed[cs] = self.busy_s
-                elif op is Op.READ:
-                    s.events.append(("read", len(s.slots)))
-                    self.read_byte(s, Slot("hi", i), data_port=True)
-                    self.read_byte(s, Slot("lo", i), data_port=True)
-                    st.owed[cs] = self.busy_s
+                    self._timed_check(s, kind, i)
+                if op is not Op.SYNC:
+                    self._transfer(s, o, i)
+                    if self.busy_pin:
+                        st.expect_busy = cs
+                    else:
+                        st.owed[cs] = (RESET_WAIT_S if op is Op.COMMAND and o.arg == Cmd.RESET
+                                       else self.busy_s)
                 st.owed_from[cs] = st.t
             elif op is Op.STATUS:
                 self.status(s, "status", i)
