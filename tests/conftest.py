@@ -23,8 +23,9 @@ from lm629_host.program import BusCycle
 
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"
 
-#: the ``firmware_built`` fixture, for every test module that asks for it by name
-pytest_plugins = ("firmware_helpers",)
+#: the ``firmware_built`` fixture, for every test module that asks for it by name; pytester
+#: runs the lm629 pytest plugin (tests/test_pytest_plugin.py)
+pytest_plugins = ("firmware_helpers", "pytester")
 
 
 def _avr_missing() -> list[str]:

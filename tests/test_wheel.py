@@ -3,6 +3,8 @@ environment in a folder outside the checkout, it runs a bring-up on the bundled 
 points ``bridge flash`` at the firmware image it carries, and shows the udev commands with the
 rule's installed path.
 
+The plugin comes with it: the example lab file runs there under plain ``python -m pytest``.
+
 The fresh environment gets the package's dependencies (click, pyserial, pyusb) from the test
 environment's site-packages as a plain path entry, so that nothing is downloaded and the
 editable install of this checkout (a ``.pth`` hook there, which a plain path entry does not
@@ -83,3 +85,24 @@ def test_udev_commands_name_the_installed_rule(installed):
     assert r.returncode == 0, r.stderr
     assert f"sudo cp {rule} /etc/udev/rules.d/" in r.stdout
     assert run(installed, "udev", "--path").stdout.strip() == str(rule)
+
+
+def test_a_lab_test_file_runs_under_plain_pytest(installed):
+    """The pytest plugin comes with the wheel (entry point pytest11): the example lab file
+    runs in a folder of its own with plain ``python -m pytest``, no conftest, no -p."""
+    import shutil
+
+    py, site, away = installed
+    lab = away / "lab"
+    lab.mkdir()
+    for name in ("rig.py", "test_rig.py"):
+        shutil.copy(ROOT / "examples" / "lab" / name, lab / name)
+    r = subprocess.run([str(py), "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider"],
+                       capture_output=True, text=True, cwd=lab, timeout=300,
+                       env={"PATH": "/usr/bin:/bin", "HOME": str(away)})
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "6 passed, 1 skipped" in r.stdout
+    assert "lm629_hardware: needs a real board (--lm629-port is sim://, simulated)" in r.stdout
+    r = subprocess.run([str(py), "-c", "import lm629_host.pytest_plugin as p; print(p.__file__)"],
+                       capture_output=True, text=True, cwd=lab, check=True)
+    assert Path(r.stdout.strip()).is_relative_to(site)

@@ -1,0 +1,329 @@
+"""The pytest plugin (lm629_host/pytest_plugin.py) as a user meets it: a test file in a fresh
+directory outside the checkout, run by plain ``python -m pytest`` in a separate process, found
+through the installed entry point (no conftest, no -p).
+
+The user's file is examples/lab/ (the lab script of docs/testing.md and its tests) plus
+deliberate failures written here.  The figures: the chip samples every 2048 clocks (256 us at
+8 MHz); examples/lab/test_rig.py works out its own expected numbers.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import importlib.util
+import os
+import re
+import shutil
+import signal
+import subprocess
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from test_cli import _console_script
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "lab"
+
+FAILURES = '''
+import pytest
+from lm629_host import Cmd, ProtocolViolation
+
+
+def test_ltrj_velocity_word_above_3fffffff(lm629):
+    # LTRJ, control 0008 (velocity follows), velocity 4000 0000: above the 30-bit range
+    lm629.raw(Cmd.LTRJ, [0x0008, 0x4000, 0x0000])
+
+
+def test_a_caught_violation_still_fails(lm629):
+    try:
+        lm629.raw(Cmd.LTRJ, [0x0008, 0xFFFF, 0xFFFF])
+    except ProtocolViolation:
+        pass
+
+
+def test_deliberate_failure(lm629):
+    position = lm629.read_real_position()  # RDRP
+    assert False, f"deliberate, at {position}"
+
+
+def test_unmarked_move_is_a_warning_here(lm629):
+    lm629.load_filter(kp=20)
+    lm629.update_filter()
+    lm629.move_to(100, velocity=65536, acceleration=6554).wait()
+'''
+
+
+@pytest.fixture
+def user_dir(pytester, monkeypatch):
+    """A fresh directory outside the checkout with the user's files; the suite's own
+    LM629_SIM_STRICT is not passed on (the plugin makes its chips strict by itself)."""
+    monkeypatch.delenv("LM629_SIM_STRICT", raising=False)
+    monkeypatch.delenv("LM629_PORT", raising=False)
+    for name in ("rig.py", "test_rig.py"):
+        shutil.copy(EXAMPLE / name, pytester.path / name)
+    assert not str(pytester.path).startswith(str(EXAMPLE.parent.parent))
+    return pytester
+
+
+def _section(out: str, test: str) -> str:
+    """The failure report of ``test`` (from its ____ header to the next one)."""
+    m = re.search(rf"_{{3,}} {test} _{{3,}}\n(.*?)(?=\n_{{3,}} |\n={{3,}} )", out, re.S)
+    assert m, f"no report for {test}"
+    return m.group(1)
+
+
+def test_installing_the_package_registers_the_plugin():
+    points = importlib.metadata.entry_points(group="pytest11")
+    assert any(p.name == "lm629" and p.value == "lm629_host.pytest_plugin" for p in points)
+
+
+def test_user_file_on_the_simulator(user_dir):
+    user_dir.makepyfile(test_failures=FAILURES)
+    r = user_dir.runpytest_subprocess("-p", "no:cacheprovider", "-rs", "-s",
+                                      "--junitxml=report.xml")
+    out = r.stdout.str()
+    r.assert_outcomes(passed=7, failed=3, skipped=1, warnings=1)
+    # a 60000-count move: its trapezoid's time on the simulated clock, less on the wall clock
+    m = re.search(r"60000 counts in ([\d.]+) s of simulated time", out)
+    assert m, out
+    simulated = float(m.group(1))
+    assert simulated > 3.86
+    wall = float(re.search(r'name="test_a_long_move_takes_the_time_of_its_trapezoid" time="([\d.]+)"',
+                           (user_dir.path / "report.xml").read_text()).group(1))
+    print(f"60000-count move: {simulated:.3f} s simulated in {wall:.3f} s of wall time")
+    assert wall < simulated
+    # the violation fails the test, with its text and simulated time
+    v = _section(out, "test_ltrj_velocity_word_above_3fffffff")
+    assert re.search(r"ProtocolViolation: host protocol violation at [\d.]+ us: LTRJ velocity word "
+                     r"40000000 is above 3FFFFFFF", v)
+    assert re.search(r"cs0: LTRJ 0008 4000 0000  !! ProtocolViolation: host protocol violation", v)
+    c = _section(out, "test_a_caught_violation_still_fails")
+    assert re.search(r"lm629 host protocol violation at [\d.]+ us of simulated time: LTRJ velocity "
+                     r"word FFFFFFFF is above 3FFFFFFF", c)
+    # the deliberate failure: the last bus cycles, decoded, and the chip's snapshot
+    d = _section(out, "test_deliberate_failure")
+    assert "lm629: last bus programs and chip snapshot" in d
+    programs = d[d.index("last bus programs on sim://?strict=1"):].splitlines()
+    # the reset (AN-706 4.4.1: 00 at once, C4 after 1.5 ms, C0 after MSKI/RSTI), then the RDRP
+    assert re.fullmatch(r" +1\.50\d+  cs0: /RST; status 00 \(none\); wait 1500 us; status C4 "
+                        r"\(TRAJECTORY_COMPLETE\|BREAKPOINT\|MOTOR_OFF\)", programs[1])
+    assert re.fullmatch(r" +[\d.]+  cs0: MSKI 0000; RSTI 0000; sync C0 \(BREAKPOINT\|MOTOR_OFF\)", programs[2])
+    assert re.fullmatch(r" +[\d.]+  cs0: RDRP <- 0000 0000  \[status C0 \(BREAKPOINT\|MOTOR_OFF\)\]",
+                        programs[3])
+    # read just after the RDRP's second byte: busy for that byte's 20 us, or clear again
+    assert re.search(r"chip snapshot cs0 at t=[\d.]+ ms: status C[01] \((BUSY\|)?BREAKPOINT\|MOTOR_OFF\), "
+                     r"signals 01C0 .* real position 0, following error 0", d)
+    assert "after the failure: cs0: motor stopped (abrupt stop, then motor off)" in d
+    # the hardware test is skipped, with why
+    assert "lm629_hardware: needs a real board (--lm629-port is sim://, simulated)" in out
+    # an unmarked move on the simulator: a warning that names the marker
+    assert "starts a trajectory (chip 0) but is not marked @pytest.mark.lm629_motion" in out
+
+
+def test_unknown_lm629_sim_parameter_names_the_known_ones(pytester):
+    pytester.makepyfile('''
+        import pytest
+
+        @pytest.mark.lm629_sim("inertai=4e-5")
+        def test_typo(lm629):
+            pass
+    ''')
+    r = pytester.runpytest_subprocess("-p", "no:cacheprovider")
+    r.assert_outcomes(errors=1)
+    line = next(x for x in r.stdout.lines if "unknown simulator parameter" in x)
+    assert "@pytest.mark.lm629_sim('inertai=4e-5')" in line
+    assert re.search(r"known: .*inertia.*load_torque.*; also axes", line)
+    assert "Traceback" not in r.stdout.str()
+
+
+def test_a_port_that_does_not_exist_is_one_error_for_the_run(pytester):
+    pytester.makepyfile('''
+        def test_one(lm629):
+            pass
+
+        def test_two(lm629_board):
+            pass
+
+        def test_three(lm629):
+            pass
+    ''')
+    r = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-port", "/dev/ttyNOPE")
+    assert r.ret == pytest.ExitCode.USAGE_ERROR
+    err = r.stderr.str()
+    assert err.count("ERROR: --lm629-port /dev/ttyNOPE cannot be opened: ") == 1, err
+    assert "is the board plugged in?" in err
+    assert "passed" not in r.stdout.str() and "Traceback" not in err + r.stdout.str()
+
+
+def test_help_fixtures_and_markers_list_everything(pytester):
+    r = pytester.runpytest_subprocess("--help")
+    for option in ("--lm629-port=URL", "--lm629-profile=FILE", "--lm629-allow-motion"):
+        assert option in r.stdout.str()
+    r = pytester.runpytest_subprocess("--fixtures", "-p", "no:cacheprovider")
+    out = r.stdout.str()
+    assert re.search(r"^lm629 -- .*pytest_plugin", out, re.M)
+    assert re.search(r"^lm629_board -- .*pytest_plugin", out, re.M)
+    r = pytester.runpytest_subprocess("--markers")
+    for marker in ("lm629_sim(params=", "lm629_hardware:", "lm629_motion:"):
+        assert f"@pytest.mark.{marker}" in r.stdout.str()
+
+
+HAS_PROFILES = importlib.util.find_spec("lm629_host.profile") is not None
+
+PROFILE = """\
+[board]
+port = "sim://"
+
+[axis.x]
+cs = 0
+kp = 20
+kd = 200
+min = -20000
+max = 20000
+following_error = 2000
+"""
+
+PROFILE_TEST = """
+import pytest
+from lm629_host import Signals
+
+
+@pytest.mark.lm629_motion
+def test_the_profiles_named_axis(lm629_board):
+    x = lm629_board["x"]
+    # applied after the fixture's reset: LPES with stop on error arms signals bit 9
+    assert x.read_signals() & Signals.STOP_ON_ERROR
+    with pytest.raises(ValueError, match="20000"):
+        x.move_to(45000, velocity=65536, acceleration=6554)  # past max: nothing sent
+    assert x.move_to(1000, velocity=65536, acceleration=6554).wait().position == pytest.approx(1000, abs=20)
+"""
+
+
+@pytest.mark.skipif(HAS_PROFILES, reason="the profile feature is here: "
+                    "test_profile_option_gives_the_named_axes runs instead")
+def test_profile_option_without_the_profile_feature_is_one_clear_error(pytester):
+    pytester.makefile(".toml", board=PROFILE)
+    pytester.makepyfile("def test_board(lm629_board):\n    pass\n")
+    r = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-profile", "board.toml")
+    assert r.ret == pytest.ExitCode.USAGE_ERROR
+    assert "--lm629-profile board.toml: this lm629-host has no board profiles yet" in r.stderr.str()
+
+
+@pytest.mark.skipif(not HAS_PROFILES, reason="no lm629_host.profile (the profile feature) in this tree")
+def test_profile_option_gives_the_named_axes(pytester):
+    pytester.makefile(".toml", board=PROFILE)
+    pytester.makepyfile(test_profiled=PROFILE_TEST)
+    r = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-profile", "board.toml")
+    r.assert_outcomes(passed=1)
+    pytester.makefile(".toml", bad=PROFILE.replace("kp = 20", "kp = 99999"))
+    r = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-profile", "bad.toml")
+    assert r.ret == pytest.ExitCode.USAGE_ERROR
+    assert re.search(r"ERROR: --lm629-profile bad.toml: .*bad.toml.*kp", r.stderr.str())
+
+
+# ---------------------------------------------------------------------------- a persistent bench
+@contextmanager
+def _sim_serve():
+    """``lm629 sim serve --tcp`` as its own process (a board that keeps its state, real
+    time): yields the port URL the tests pass as --lm629-port."""
+    env = {k: v for k, v in os.environ.items() if k not in ("LM629_PORT", "LM629_SIM_STRICT")}
+    proc = subprocess.Popen([_console_script(), "sim", "serve", "--tcp", "127.0.0.1:0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        banner = proc.stdout.readline()
+        m = re.search(r"on TCP port ([\d.]+:\d+)", banner)
+        assert m, banner + proc.stderr.read()
+        yield f"socket://{m.group(1)}"  # a pyserial URL is a port as it is
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=20)
+
+
+STOP_FILE = '''
+import pytest
+from lm629_host.pytest_plugin import MotionNotAllowed
+
+
+def test_an_unmarked_move_sends_nothing(lm629, request):
+    if request.config.getoption("lm629_allow_motion"):
+        pytest.skip("--lm629-allow-motion lets any test move")
+    with pytest.raises(MotionNotAllowed, match="not marked @pytest.mark.lm629_motion"):
+        lm629.move_to(5000, velocity=65536, acceleration=6554)
+    lm629.clock.sleep(0.05)
+    assert lm629.read_desired_position() == 0
+
+
+@pytest.mark.lm629_motion
+def test_fails_in_the_middle_of_a_long_move(lm629):
+    lm629.load_filter(kp=20, kd=200)
+    lm629.update_filter()
+    lm629.move_to(400000, velocity=4 * 65536, acceleration=3277)
+    lm629.clock.sleep(0.2)
+    assert False, "deliberate, while the motor runs"
+'''
+
+
+TERM_FILE = '''
+import os
+import signal
+
+import pytest
+
+
+@pytest.mark.lm629_motion
+def test_terminated_in_the_middle_of_a_move(lm629):
+    lm629.load_filter(kp=20, kd=200)
+    lm629.update_filter()
+    lm629.move_to(400000, velocity=4 * 65536, acceleration=3277)
+    lm629.clock.sleep(0.2)
+    os.kill(os.getpid(), signal.SIGTERM)
+    lm629.clock.sleep(5)  # the signal ends the test here
+    pytest.fail("SIGTERM did not end the test")
+'''
+
+
+def _status(url: str) -> dict:
+    import json
+    p = subprocess.run([_console_script(), "--port", url, "status", "--json"], capture_output=True,
+                       text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    return json.loads(p.stdout)
+
+
+def test_the_same_file_on_a_persistent_bench(user_dir):
+    user_dir.makepyfile(test_stop=STOP_FILE)
+    with _sim_serve() as url:
+        r = user_dir.runpytest_subprocess("-p", "no:cacheprovider", "-rs", "--lm629-port", url)
+        # reset, free shaft, hardware, the unmarked move refused; 3 motion + 2 sim tests skip
+        r.assert_outcomes(passed=4, skipped=5)
+        out = r.stdout.str()
+        assert out.count(f"lm629_motion: moves the motor on the real port {url}; pass "
+                         "--lm629-allow-motion to run it") == 3
+        assert f"lm629_sim configures a simulated chip; --lm629-port {url} is a real port" in out
+
+        r = user_dir.runpytest_subprocess("-p", "no:cacheprovider", "-rs", "-s", "--lm629-port", url,
+                                          "--lm629-allow-motion")
+        r.assert_outcomes(passed=5, failed=1, skipped=3)
+        out = r.stdout.str()
+        assert re.search(r"60000 counts in [\d.]+ s of wall time", out)
+        f = _section(out, "test_fails_in_the_middle_of_a_long_move")
+        assert "after the failure: cs0: motor stopped (abrupt stop, then motor off)" in f
+        # the board kept its state: the motor is off, short of the target, and stays there
+        first = _status(url)
+        second = _status(url)
+        assert "MOTOR_OFF" in first["status_flags"]
+        assert first["real_position"] < 400000 // 2
+        assert abs(second["real_position"] - first["real_position"]) <= 2
+
+        # SIGTERM in the middle of a move (a CI job's timeout): an interrupted run, motor stopped
+        user_dir.makepyfile(test_term=TERM_FILE)
+        r = user_dir.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-port", url,
+                                          "--lm629-allow-motion", "test_term.py")
+        assert r.ret == pytest.ExitCode.INTERRUPTED
+        assert "KeyboardInterrupt: SIGTERM: the lm629 fixtures stop the motor" in r.stdout.str()
+        first = _status(url)
+        second = _status(url)
+    assert "MOTOR_OFF" in first["status_flags"]
+    assert 0 < first["real_position"] < 400000 // 2
+    assert abs(second["real_position"] - first["real_position"]) <= 2
