@@ -15,6 +15,7 @@ void bus_reset_pulse(void);             /* /RST low for >= 8 chip clocks */
 void bus_select(uint8_t chip);          /* the chip (its /CS) the following strobes address */
 uint8_t bus_hi(void);                   /* the selected chip's HI line, 0 or 1 */
 void bus_wait_us(uint16_t us);          /* at least `us` microseconds */
+uint16_t bus_ticks(void);              /* the free-running clock: 4 us ticks, wraps at 16 bits */
 void bus_timer_start(void);             /* start the busy-timeout stopwatch */
 uint8_t bus_timer_elapsed(uint16_t us); /* 1 once `us` microseconds have passed since start */
 /* poll the status byte back to back until busy is clear (1) or `timeout_us` has passed (0);

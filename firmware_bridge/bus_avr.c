@@ -153,6 +153,8 @@ uint8_t bus_hi(void) { return ((CTRL_PIN & sel_hi_ctrl) | (DATA_HI_PIN & sel_hi_
 
 void bus_timer_start(void) { timer_start = TCNT1; }
 
+uint16_t bus_ticks(void) { return TCNT1; }
+
 uint8_t bus_timer_elapsed(uint16_t us)
 {
     /* ticks of 4 us; one more than us/4 so that a start late in a tick still waits `us` */

@@ -487,6 +487,113 @@ static uint16_t send_ready(uint8_t *frame, uint8_t len, uint8_t *out)
     return (uint16_t)(o - out);
 }
 
+/* ---------------------------------------------------------------- RECORD */
+/* Why the bridge refuses a sample program: check_program's reasons, the RECORD limits, and any
+ * operation but a status read, a data-reporting command (RDDV..RDSUM), a READ or a SELECT: a
+ * recording never changes the chip, so one started twice (the host's retry) does no harm. */
+static check_t record_check(const uint8_t *prog, uint16_t plen)
+{
+    check_t c = {RESULT_PROGRAM_TOO_LONG, LINK_NONE_BYTE, 0, 0};
+    if (plen > LINK_RECORD_MAX_PROGRAM)
+        return c;
+    c = check_program(prog, (uint8_t)plen);
+    if (c.result != RESULT_OK)
+        return c;
+    uint8_t i = 0;
+    for (const uint8_t *p = prog, *end = prog + plen; p != end; i++) {
+        uint8_t op = *p;
+        if (!(op == OP_STATUS || op == OP_READ || op == OP_SELECT
+              || (op == OP_COMMAND && p[1] >= LINK_RECORD_CMD_FIRST && p[1] <= LINK_RECORD_CMD_LAST))) {
+            c.result = RESULT_BAD_PROGRAM;
+            c.index = i;
+            return c;
+        }
+        p += 1u + op_args[op];
+    }
+    if (c.n_status + 2u * c.reads > LINK_RECORD_MAX_BYTES)
+        c.result = RESULT_PROGRAM_TOO_LONG;
+    return c;
+}
+
+/* RECORD_END: result, failing operation, rows sent; sent as it is made, left in `out` */
+static uint16_t record_end(uint8_t *r, uint8_t seq, uint8_t result, uint8_t index, uint16_t rows,
+                           uint8_t *out)
+{
+    r[0] = FRAME_RECORD_END;
+    r[1] = seq;
+    r[2] = result;
+    r[3] = index;
+    r[4] = (uint8_t)(rows >> 8);
+    r[5] = (uint8_t)rows;
+    return finish(r, 6, out, 0);
+}
+
+/* RECORD: period_us (4), rows (2; 0: until stopped), the sample program.  The program runs
+ * every period on Timer1 (4 us ticks, the due times an exact multiple of the period from the
+ * first row, so the rows never drift), and each run goes out at once as a RECORD_ROW stamped
+ * with the tick count when it started (in us from the first row: the bridge's clock).  Any byte
+ * from the host ends the recording (it waits in the receive buffer and is read as usual after
+ * it); then, or after the last row, or at a busy timeout, a RECORD_END.  The reply cache is
+ * emptied: its buffer carries the rows, and a recording is never answered from a cache. */
+static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t plen,
+                       const uint8_t **out)
+{
+    uint8_t *r = l->reply;
+    l->cache_len = 0;
+    *out = l->cache;
+    uint32_t period_us = ((uint32_t)payload[0] << 24) | ((uint32_t)payload[1] << 16)
+        | ((uint32_t)payload[2] << 8) | payload[3];
+    uint16_t rows = (uint16_t)((payload[4] << 8) | payload[5]);
+    const uint8_t *prog = payload + 6;
+    uint16_t n = plen - 6;
+    check_t c = record_check(prog, n);
+    if (c.result != RESULT_OK)
+        return record_end(r, seq, c.result, c.index, 0, l->cache);
+    if (period_us < LINK_RECORD_MIN_PERIOD_US)
+        return record_end(r, seq, RESULT_BAD_RATE, LINK_NONE_BYTE, 0, l->cache);
+    uint32_t period = period_us / LINK_RECORD_TICK_US, now = 0, due = 0, base = 0;
+    uint16_t last = bus_ticks(), sent = 0;
+    uint8_t result = RESULT_OK, index = LINK_NONE_BYTE;
+    for (;;) {
+        for (;;) { /* until the row is due; the 16-bit timer is read well within its wrap */
+            uint16_t t = bus_ticks();
+            now += (uint16_t)(t - last);
+            last = t;
+            if ((int32_t)(now - due) >= 0)
+                break;
+            if (link_rx_pending())
+                goto stop;
+        }
+        if (link_rx_pending())
+            break;
+        if (!sent) /* the first row: the clock and the due times count from here */
+            due = base = now;
+        uint32_t stamp = (now - base) * LINK_RECORD_TICK_US;
+        r[0] = FRAME_RECORD_ROW;
+        r[1] = seq;
+        r[2] = (uint8_t)(sent >> 8);
+        r[3] = (uint8_t)sent;
+        r[4] = (uint8_t)(stamp >> 24);
+        r[5] = (uint8_t)(stamp >> 16);
+        r[6] = (uint8_t)(stamp >> 8);
+        r[7] = (uint8_t)stamp;
+        uint16_t unused = seq;
+        ran_t x = exec_program(prog, prog + n, 0, LINK_DEFAULT_BUSY_TIMEOUT_US, r + 8, 0, 1, &unused);
+        if (x.result != RESULT_OK) {
+            result = x.result;
+            index = x.index;
+            break;
+        }
+        finish(r, (uint16_t)(8u + x.ns + x.nw), l->cache, 0);
+        sent++;
+        due += period;
+        if (rows && sent == rows)
+            break;
+    }
+stop:
+    return record_end(r, seq, result, index, sent, l->cache);
+}
+
 static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
 {
     uint8_t *f = l->rx, *r = l->reply;
@@ -504,7 +611,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_MAJOR;
         r[len++] = FIRMWARE_MINOR;
         r[len++] = FIRMWARE_PATCH;
-        r[len++] = 0;
+        r[len++] = (uint8_t)(CAP_RECORD >> 8);
         r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS | CAP_SELECT
             | CAP_COMPACT_RUN | CAP_PROGRAM_CODES | CAP_BAUD_SWITCH;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
@@ -587,6 +694,8 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         l->cache_crc = crc;
         *out = l->cache;
         return l->cache_len;
+    } else if (type == FRAME_RECORD && plen >= 6) {
+        return record(l, seq, payload, plen, out);
     } else if (type & 0x80) {
         return 0; /* a reply type: not a request, no answer */
     } else {

@@ -7,8 +7,8 @@
 #include "lm629_tables.h"
 
 #define FIRMWARE_MAJOR 1
-#define FIRMWARE_MINOR 2 /* 1.1: several chips (Op.SELECT, four chip selects); 1.2: the compact RUN,
-                          * programs kept by code, SET_BAUD */
+#define FIRMWARE_MINOR 3 /* 1.1: several chips (Op.SELECT, four chip selects); 1.2: the compact RUN,
+                          * programs kept by code, SET_BAUD; 1.3: RECORD (rows on the bridge's timer) */
 #define FIRMWARE_PATCH 0
 #ifdef LINK_ONE_CHIP /* build/lm629_bridge_1chip: a bridge that reports one chip select */
 #define LINK_CHIP_SELECTS 1
@@ -81,6 +81,10 @@ static inline uint16_t link_feed(link_t *l, uint8_t byte, const uint8_t **out)
  * by the tests: every byte of a reply frame goes through here, in order, as soon as it is
  * known; link_feed then returns the same frame. */
 void link_tx_byte(uint8_t b);
+
+/* Supplied by the firmware (main.c) and by the tests: 1 when a byte from the host waits (it
+ * ends a recording). */
+uint8_t link_rx_pending(void);
 
 /* Run a RUN payload (cs, timeout, program) and build RUN_REPLY's payload in `reply`;
  * returns its size. */

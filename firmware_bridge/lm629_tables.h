@@ -67,6 +67,12 @@
 #define LINK_BAUD_WINDOW_MS 250u  /* SET_BAUD: a good frame at the new rate within */
 #define LINK_DEFAULT_BUSY_TIMEOUT_US 5000u  /* busy_timeout_us = 0 means this */
 #define LINK_NONE_BYTE 255u  /* no failing op / no status read yet */
+#define LINK_RECORD_MAX_PROGRAM 32u  /* RECORD: largest sample program */
+#define LINK_RECORD_MAX_BYTES 40u  /* RECORD: most bytes a row reads */
+#define LINK_RECORD_MIN_PERIOD_US 200u  /* RECORD: shortest period */
+#define LINK_RECORD_TICK_US 4u  /* RECORD: the bridge clock's tick */
+#define LINK_RECORD_CMD_FIRST 7u  /* RECORD: first data-reporting command */
+#define LINK_RECORD_CMD_LAST 13u  /* RECORD: last data-reporting command */
 #define LINK_CRC_POLY 4129u  /* CRC-16/GENIBUS polynomial */
 #define LINK_CRC_INIT 65535u  /* CRC-16/GENIBUS initial value */
 #define LINK_CRC_XOROUT 65535u  /* CRC-16/GENIBUS final xor */
@@ -77,11 +83,14 @@
 #define FRAME_RUN_STORE 5u  /* frame type */
 #define FRAME_RUN_CODE 6u  /* frame type */
 #define FRAME_SET_BAUD 7u  /* frame type */
+#define FRAME_RECORD 8u  /* frame type */
 #define FRAME_HELLO_REPLY 129u  /* frame type */
 #define FRAME_RUN_REPLY 130u  /* frame type */
 #define FRAME_PONG 131u  /* frame type */
 #define FRAME_RUN_SHORT_REPLY 132u  /* frame type */
 #define FRAME_BAUD_REPLY 135u  /* frame type */
+#define FRAME_RECORD_ROW 136u  /* frame type */
+#define FRAME_RECORD_END 137u  /* frame type */
 #define FRAME_ERROR_REPLY 255u  /* frame type */
 #define RESULT_OK 0u  /* result code */
 #define RESULT_BUSY_TIMEOUT 1u  /* result code */
@@ -91,6 +100,7 @@
 #define RESULT_BAD_REQUEST 5u  /* result code */
 #define RESULT_UNKNOWN_CODE 6u  /* result code */
 #define RESULT_BAD_BAUD 7u  /* result code */
+#define RESULT_BAD_RATE 8u  /* result code */
 #define CAP_RESET_LINE 1u  /* HELLO_REPLY capability bit */
 #define CAP_HI_LINE 2u  /* HELLO_REPLY capability bit */
 #define CAP_BUSY_ON_BRIDGE 4u  /* HELLO_REPLY capability bit */
@@ -99,6 +109,7 @@
 #define CAP_COMPACT_RUN 32u  /* HELLO_REPLY capability bit */
 #define CAP_PROGRAM_CODES 64u  /* HELLO_REPLY capability bit */
 #define CAP_BAUD_SWITCH 128u  /* HELLO_REPLY capability bit */
+#define CAP_RECORD 256u  /* HELLO_REPLY capability bit */
 
 /* CRC-16/GENIBUS table (lm629_host.bridge.protocol._CRC_TABLE): 256 high bytes, then 256 low bytes */
 #define LINK_CRC_TABLE_INIT { \

@@ -35,6 +35,8 @@ ISR(USART_RX_vect)
     }
 }
 
+uint8_t link_rx_pending(void) { return rx_head != rx_tail; }
+
 static void uart_init(void)
 {
     UCSR0A = (1 << U2X0); /* U2X before UBRR: simavr recomputes the rate on UBRR0L writes */

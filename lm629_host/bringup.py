@@ -28,6 +28,7 @@ from .opcodes import Status
 from .program import Program, ProgramResult
 from .safety import emergency_stop, stop_on_error
 from .units import FIXED_ONE, Scale
+from .wiring import wiring_suspects
 
 #: exit codes of a bring-up (also documented by ``lm629 --help``)
 EXIT_CHECK_FAILED = 1
@@ -139,8 +140,11 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
     try:
         status, seen = reset_with_statuses(chip)
     except ResetError as exc:
+        # name the wire, not only the bytes: the wiring check moves nothing (lm629_host.wiring)
+        wires = wiring_suspects(chip)
         done(StepResult("reset", False, f"status bytes seen: {_hex(exc.statuses)}",
-                        [str(exc)], {"statuses": list(exc.statuses)}))
+                        [f"wiring check: {w}" for w in wires] + [str(exc)],
+                        {"statuses": list(exc.statuses), "wiring": wires}))
         return out
     expected = "00, 84/C4, 80/C0" if chip.uses_reset_line else "84/C4, 80/C0"
     done(StepResult("reset", True, f"status bytes seen: {_hex(seen)} (expected {expected})",

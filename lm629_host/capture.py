@@ -19,6 +19,7 @@ from .errors import MotionError
 from .lm629 import LM629, Snapshot, check_int
 from .move import MoveResult
 from .opcodes import ACCELERATION_MAX, VELOCITY_MAX
+from .recording import far_snapshots
 from .safety import stop_on_error
 from .units import FIXED_ONE
 
@@ -47,6 +48,8 @@ class Capture:
     #: after the recording: where the shaft came to rest (``check=True``), or the fault
     result: MoveResult | None = None
     fault: MotionError | None = None
+    #: True when the rows were recorded on the far side (:mod:`lm629_host.recording`)
+    recorded: bool = False
 
     def times(self) -> list[float]:
         return [s.time - self.t0 for s in self.rows]
@@ -77,7 +80,9 @@ def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
     """Load ``filter`` (kp/ki/kd/il/derivative_interval; UDF), move ``distance`` counts from
     the current desired position (:meth:`LM629.move_to`: the move's flags cleared as it
     starts), and record snapshots every ``interval_s`` for ``duration_s`` seconds of the
-    chip's clock.  With ``check`` (default) then wait until the shaft rests within
+    chip's clock: on the far side where the transport records there
+    (:func:`lm629_host.recording.far_snapshots`: timed by the bridge, from one interval after
+    the STT), else polled from the host.  With ``check`` (default) then wait until the shaft rests within
     ``tolerance`` of the target (``Move.wait``): ``cap.result``, or ``cap.fault`` (a
     :class:`MotionError`, motor stopped) so that the caller can still save the recording.
     Any other exception stops the motor first."""
@@ -107,8 +112,18 @@ def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
         cap.rows.append(first)
         end = cap.t0 + duration_s
         clock = chip.clock
+        # recorded on the far side where the transport can (the bridge's timer, the
+        # simulator's clock: lm629_host.recording), from one interval after the STT
+        clock.sleep(max(0.0, cap.t0 + interval_s - clock.now()))
+        recorded = far_snapshots(chip, interval_s, max(1, round(duration_s / interval_s)))
+        if recorded is not None:
+            cap.recorded = True
+            for s in recorded:
+                cap.rows.append(s)
+                if progress is not None:
+                    progress(s)
         next_t = cap.t0
-        while True:
+        while recorded is None:  # host polling, as on a transport that cannot record
             next_t += interval_s
             wait = next_t - clock.now()
             if wait > 0:

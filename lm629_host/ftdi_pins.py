@@ -3,7 +3,8 @@ the MPSSE commands that move them, FTDI AN_108).
 
 This is the one definition.  The stream compiler (:mod:`lm629_host.transports.mpsse`)
 compiles bus programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
-chip model with them, and docs/ftdi.md's wiring table is checked against :data:`WIRING` by a test.
+chip model with them, and docs/ftdi.md's wiring table and drawing are generated from them
+(:mod:`lm629_host.connections`, ``tools/gen_wiring.py``; a test checks they are current).
 
 Why this layout:
 
@@ -14,11 +15,12 @@ Why this layout:
   (0x80).  ADBUS0 is the MPSSE clock output TCK: the stream's delays are idle clocks
   (0x8E/0x8F), which toggle TCK, so ADBUS0 is left unconnected (it is a handy scope trigger);
 * HI is on ADBUS5, which the FT232H calls GPIOL1: the one line the MPSSE wait-on-I/O
-  commands (0x88/0x89) can watch.  With ``busy_pin=gpiol1`` (:data:`WIRING_BUSY_PIN`) that
-  line watches D0 instead: D0 (pin 4, ACBUS0) is wired to ADBUS5 too, and HI is left
-  unconnected (its flags are bits 1-6 of the status byte, which the driver reads anyway).
-  During a status read held with /CS, /PS and /RD low, D0 is the busy bit, so a stream can
-  wait in the adapter until busy clears (see :mod:`lm629_host.transports.ftdi`);
+  commands (0x88/0x89) can watch.  With ``busy_pin=gpiol1`` (:data:`BUSY_PINS`) that line
+  watches D0 instead: D0 (pin 4, ACBUS0) is wired to ADBUS5 too, and HI is left unconnected
+  (its flags are bits 1-6 of the status byte, which the driver reads anyway;
+  ``connections.connections("ft232h", busy_pin=True)`` is that wiring).  During a status read
+  held with /CS, /PS and /RD low, D0 is the busy bit, so a stream can wait in the adapter
+  until busy clears (see :mod:`lm629_host.transports.ftdi`);
 * /RST is on ADBUS6 and not on a line with a special function, so that nothing but an explicit
   set-low-byte command can ever pulse it.
 
@@ -37,6 +39,9 @@ WR = 1 << 3  #: ADBUS3 -> /WR  (active low; the chip latches on the rising edge)
 PS = 1 << 4  #: ADBUS4 -> /PS  (low: command/status, high: data)
 GPIOL1 = 1 << 5  #: ADBUS5: the line MPSSE's wait-on-I/O (0x88/0x89) watches
 HI = GPIOL1  #: ADBUS5 (GPIOL1) <- HI (input, active high), in the default wiring
+#: the URL option ``busy_pin``: the lines a stream can wait on, wired to D0, by name -> the
+#: ADBUS bit (HI then has no line)
+BUSY_PINS = {"gpiol1": GPIOL1}
 RST = 1 << 6  #: ADBUS6 -> /RST (active low)
 CS1 = 1 << 7  #: ADBUS7 -> /CS of a second chip (active low), the one free line left
 
@@ -63,31 +68,6 @@ DATA_IN = 0x00  #: ACBUS direction while the chip may drive D0-D7 (reads, idle)
 #: transport never sends a stream, or asks for a reply, longer than this
 FIFO_BYTES = 1024
 
-#: (FT232H line, breakout label, LM629 pin, direction seen from the adapter, note), for the
-#: docs/ftdi.md's wiring table.  The LM629 pin numbers are those of the 28-pin DIP package (AN-706
-#: names HI pin 17 and /RST pin 27; check the others against your package's datasheet).
-WIRING: tuple[tuple[str, str, str, str, str], ...] = (
-    ("ACBUS0-7", "C0-C7", "D0-D7 (pins 4-11)", "in/out", "data bus, C0 = D0"),
-    ("ADBUS1", "D1", "/CS (pin 12)", "out", "10k pull-up"),
-    ("ADBUS2", "D2", "/RD (pin 13)", "out", "10k pull-up"),
-    ("ADBUS3", "D3", "/WR (pin 15)", "out", "10k pull-up"),
-    ("ADBUS4", "D4", "/PS (pin 16)", "out", ""),
-    ("ADBUS5", "D5", "HI (pin 17)", "in", "GPIOL1"),
-    ("ADBUS6", "D6", "/RST (pin 27)", "out", "10k pull-up"),
-    ("ADBUS7", "D7", "/CS of a second chip", "out", "10k pull-up; second axis"),
-    ("ADBUS0", "D0", "-", "out", "TCK: toggled by delays, leave unconnected"),
-    ("GND", "GND", "GND (pin 14)", "", "common ground"),
-)
-
-#: the URL option ``busy_pin``: the wirings a stream can wait on, by name -> the ADBUS bit
-BUSY_PINS = {"gpiol1": GPIOL1}
-#: what ``busy_pin=gpiol1`` changes in :data:`WIRING` (rows replacing those of the same FT232H
-#: line): ADBUS5 watches D0, HI is not connected.  D0 keeps its wire to C0 (ACBUS0).
-WIRING_BUSY_PIN: tuple[tuple[str, str, str, str, str], ...] = (
-    ("ADBUS5", "D5", "D0 (pin 4), with C0", "in", "GPIOL1: busy during a held status read"),
-    ("-", "-", "HI (pin 17)", "", "not connected: its flags are in the status byte"),
-)
-
 # MPSSE commands (FTDI AN_108): the transport writes them, the emulated FT232H executes them
 SET_LOW = 0x80  #: set ADBUS levels and directions (2 bytes follow)
 GET_LOW = 0x81  #: read ADBUS
@@ -110,5 +90,5 @@ DISABLE_CLK_ADAPTIVE = 0x97
 
 
 __all__ = ["TCK", "CS", "CS1", "CHIP_SELECTS", "HI_LINES", "CS_ALL", "RD", "WR", "PS", "HI",
-           "GPIOL1", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
-           "DATA_IN", "FIFO_BYTES", "WIRING", "BUSY_PINS", "WIRING_BUSY_PIN"]
+           "GPIOL1", "BUSY_PINS", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
+           "DATA_IN", "FIFO_BYTES"]

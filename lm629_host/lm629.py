@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
 
 from .clock import Clock, WallClock
 from .errors import AxisError, CommandError, ResetError, WaitTimeout, check_int
@@ -41,6 +42,10 @@ from .opcodes import (
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
 from .snapshot import Snapshot
 from .transports.base import Transport
+
+if TYPE_CHECKING:
+    from .batch import Batch
+    from .recording import RecordStream, Trace
 
 log = logging.getLogger("lm629_host")
 
@@ -149,9 +154,30 @@ class LM629:
         """The transport's clock: simulated on ``sim://``, the wall clock on hardware."""
         return self.transport.clock
 
+    #: set by :meth:`batch` while it collects calls: programs go there instead of the bus
+    _run_hook: Callable[[Program], ProgramResult] | None = None
+
     def run(self, program: Program) -> ProgramResult:
         """Run a bus program (for experts and for composite operations)."""
+        hook = self._run_hook
+        if hook is not None:
+            return hook(program)
         return self.transport.execute(program)
+
+    def batch(self) -> Batch:
+        """Queue typed calls into one bus program, run when the ``with`` block ends (one
+        exchange on a bridge); reads return handles whose ``.value`` is set then::
+
+            with chip.batch() as b:
+                p = b.read_real_position()
+                b.load_filter(kp=20)
+                b.update_filter()
+            print(p.value)
+
+        A command error (or a busy timeout) inside it names the call.  See
+        :mod:`lm629_host.batch`."""
+        from .batch import Batch
+        return Batch(self)
 
     def close(self) -> None:
         self.transport.close()
@@ -244,12 +270,16 @@ class LM629:
         """RDSIGS: the 16-bit signals register."""
         return Signals(self._read(Cmd.RDSIGS, 1)[0])
 
-    def snapshot(self) -> Snapshot:
-        """Status, signals, positions, velocities and integration sum in one bus program."""
+    def snapshot_program(self) -> Program:
+        """The bus program of :meth:`snapshot` (status, then :data:`SNAPSHOT_READS`)."""
         p = self.program().status()
         for cmd, n in SNAPSHOT_READS:
             p.command(cmd).read(n)
-        r = self.run(p)
+        return p
+
+    def snapshot(self) -> Snapshot:
+        """Status, signals, positions, velocities and integration sum in one bus program."""
+        r = self.run(self.snapshot_program())
         return snapshot_of(r.statuses[0], r.words, self.clock.now())
 
     # ------------------------------------------------------------------ interrupts
@@ -392,15 +422,25 @@ class LM629:
         else:
             self.run(p)
 
-    def _start(self, program: Program, clear: Status | int = 0) -> Status:
+    def _start(self, program: Program, clear: Status | int = 0,
+               head: Program | None = None) -> Status:
+        return self._start_run(program, clear, head)[0]
+
+    def _start_run(self, program: Program, clear: Status | int = 0,
+                   head: Program | None = None) -> tuple[Status, ProgramResult]:
+        """:meth:`_start` that also returns the program's result; ``head`` runs first, in the
+        same program (move_to's snapshot: one exchange)."""
         clear = Status(clear)
         if not self._ce_clear:  # also clear the command-error flag (RSTI: 0 clears)
             clear |= Status.COMMAND_ERROR
         if clear:
             program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~clear)) \
                 .extend(program)
+        if head is not None:
+            program = head.extend(program)
         program.sync().command(Cmd.STT).sync()
-        before, after = self.run(program).statuses[-2:]
+        result = self.run(program)
+        before, after = result.statuses[-2:]
         if after & Status.COMMAND_ERROR:
             self._ce_clear = False
             if not before & Status.COMMAND_ERROR:
@@ -412,7 +452,7 @@ class LM629:
                         before)
         else:
             self._ce_clear = True
-        return Status(after)
+        return Status(after), result
 
     def start(self) -> Status:
         """STT: trajectory input buffers -> working registers; the move begins.
@@ -437,28 +477,37 @@ class LM629:
         ``velocity`` and ``acceleration`` are raw 16.16 words (1..); ``acceleration=None``
         keeps the one loaded (the chip refuses a new acceleration while the motor moves with
         the drive on: leave it out to change a running move).  ``relative=True``: ``position``
-        counts from the desired position now (one more round trip, RDDP).  One bus program
-        (one round trip on a bridge) clears the flags a move reports (trajectory complete,
-        breakpoint, position error, command error), loads the trajectory and starts it, so a
-        flag left by an earlier move can never end this one's wait.  Arguments are checked
-        before any bus traffic (``ValueError``).
+        counts from the desired position now (one more round trip, a snapshot first).  One
+        bus program (one round trip on a bridge) reads the snapshot the move starts from,
+        clears the flags a move reports (trajectory complete, breakpoint, position error,
+        command error), loads the trajectory and starts it, so a flag left by an earlier move
+        can never end this one's wait.  Arguments are checked before any bus traffic
+        (``ValueError``).
         """
         check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
         velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
         if acceleration is not None:
             acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX,
                                      hex_digits=8)
-        start = self.snapshot()
-        target = start.desired_position + position if relative else position
+        first = self.snapshot() if relative else None
+        target = first.desired_position + position if first is not None else position
         program = self.trajectory_program(acceleration, velocity,
                                           check_int("target position", target, POSITION_MIN,
                                                     POSITION_MAX, hex_digits=8))
-        self._start(program, clear=MOVE_FLAGS)
+        head = self.snapshot_program() if first is None else None
+        _, r = self._start_run(program, clear=MOVE_FLAGS, head=head)
+        n = sum(w for _, w in SNAPSHOT_READS)
+        start = first if first is not None else snapshot_of(r.statuses[0], r.words[:n],
+                                                            self.clock.now())
         if acceleration is not None:
             self._move_acceleration = acceleration
-        return Move(self, target, velocity,
+        move = Move(self, target, velocity,
                     acceleration if acceleration is not None else self._move_acceleration,
                     start, self.clock.now())
+        from . import movewait
+        if movewait.can_wait_far(self):  # the end seen on the far side (WAIT_STATUS)
+            move.waiter = movewait.wait_far
+        return move
 
     #: the last acceleration word move_to loaded (for the default timeout)
     _move_acceleration: int | None = None
@@ -550,6 +599,26 @@ class LM629:
             if not far:
                 step = poll if poll is not None else _poll_interval(now - start)
                 clock.sleep(min(step, deadline - now))
+
+    # ------------------------------------------------------------------ recording
+    def record(self, period_s: float, duration_s: float, *, full: bool = False) -> Trace:
+        """Sample status, desired (RDDP) and real (RDRP) position every ``period_s`` for
+        ``duration_s``, timed where the chip is: the bridge's own timer (rows stamped with its
+        clock and streamed, so the link's latency changes nothing but when they arrive), the
+        simulator's clock on ``sim://``; elsewhere the host polls
+        (``transport.record_note()`` says which).  ``full``: every register of a snapshot.
+        A rate the line cannot carry is a ``ValueError`` naming the highest it can, before
+        any traffic.  A row lost on the link is a gap (``trace.missing``), never made up.
+        See :mod:`lm629_host.recording`."""
+        from . import recording
+        return recording.record(self, period_s, duration_s, full=full)
+
+    def record_stream(self, period_s: float, duration_s: float | None = None, *,
+                      full: bool = False) -> RecordStream:
+        """The rows of :meth:`record` as they arrive (``duration_s=None``: until closed), for
+        live views: ``with chip.record_stream(1e-3) as rows: for row in rows: ...``."""
+        from . import recording
+        return recording.open_stream(self, period_s, duration_s, full=full)
 
     # ------------------------------------------------------------------ experts
     def raw(self, command: int, write: Iterable[int] = (), read: int = 0) -> tuple[int, ...]:

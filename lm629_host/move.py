@@ -106,6 +106,10 @@ class MoveResult:
 class Move:
     """A started move (from :meth:`LM629.move_to`).  :meth:`wait` until it is done."""
 
+    #: the loop of :meth:`wait` when the far side can wait for the move's end (set by the
+    #: chip that made the move: :func:`lm629_host.movewait.wait_far`); None: host polling
+    waiter: Callable[[Move, MoveWatch, Callable[[Snapshot], None] | None], MoveResult] | None = None
+
     def __init__(self, chip: MovingChip, target: int, velocity: int, acceleration: int | None,
                  start: Snapshot, t0: float) -> None:
         self.chip = chip
@@ -154,6 +158,8 @@ class Move:
               progress: Callable[[Snapshot], None] | None) -> MoveResult:
         watch = self.watch(timeout, tolerance, rules)
         chip, clock = self.chip, self.chip.clock
+        if self.waiter is not None:  # the far side waits (lm629_host.movewait)
+            return self.waiter(self, watch, progress)
         while True:
             s = chip.snapshot()
             if progress is not None:

@@ -12,7 +12,7 @@ for a bad value and for an unknown name alike.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import parse_qs, parse_qsl, urlencode, urlsplit
@@ -130,6 +130,9 @@ class Option:
     unit: str = ""
     choices: tuple[str, ...] = ()
     optional: bool = False
+    #: a text option with its own grammar (``wiring=d5-low,d2-d3``): text -> value, ValueError
+    #: saying what is allowed; the message gets the URL and the option's name in front
+    parse: Callable[[str], Any] | None = None
 
     def convert(self, text: str, url: str) -> Any:
         """``text`` as this option's value; ValueError naming ``url`` and the option."""
@@ -142,6 +145,11 @@ class Option:
             except ValueError as exc:
                 raise ValueError(f"{url}: {name}={text!r}: {exc}") from None
         if self.kind == "str":
+            if self.parse is not None:
+                try:
+                    return self.parse(text)
+                except ValueError as exc:
+                    raise ValueError(f"{url}: {name}={text!r}: {exc}") from None
             if self.choices and text.lower() not in self.choices:
                 raise ValueError(f"{url}: {name}={text!r}: expected one of "
                                  f"{', '.join(self.choices)}")

@@ -107,3 +107,14 @@ def test_a_heavy_load_sags_at_kp1_but_is_not_called_a_runaway(open_chip):
     assert step.ok is True and "load pulled it back" in step.summary
     assert step.data["real_moved"] < 0 < step.data["last_50ms"]
     assert report.step("hold").ok is False  # and kp = 20 cannot hold such a load in its band
+
+
+def test_a_failed_reset_names_the_wire(open_chip):
+    """Issue 23: the reset step runs the wiring check and names the wire: D2/D3 swapped make
+    the reset's C4 read C8 (bits 2 and 3 exchanged)."""
+    report = run_bringup(open_chip("sim://?wiring=d2-d3"))
+    step = report.steps[0]
+    assert step.ok is False and report.exit_code == 5
+    assert "C8" in step.summary
+    assert step.details[0].startswith("wiring check: LM629 D2 (pin 6) carries D3's bit")
+    assert "Uno D4" in step.details[0] and "Uno D5" in step.details[1]

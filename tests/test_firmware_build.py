@@ -44,8 +44,14 @@ def test_pin_map_spans_two_ports_around_uart_and_crystal():
 
 def test_documented_wiring_table_matches_the_pin_map():
     section = (ROOT / "docs" / "bridge.md").read_text()  # the wiring table for the bench
-    rows = set(re.findall(r"^\|\s*(D\d+|A\d)\s*\|\s*P([BCD])(\d)\s*\|\s*(\S+)\s*\|", section, re.M))
-    assert rows == {(w.board_pin, w.port, str(w.bit), w.chip_pin) for w in pins.WIRING}
+    rows = set(re.findall(r"^\| (D\d+|A\d) \| P([BCD])(\d) \| (\S+) \(pin \d+\)(?: of chip (\d))? \|",
+                          section, re.M))
+    # the table names the /CS and HI of chip k as that chip's pins (/CS1 is /CS of chip 1)
+    want = set()
+    for w in pins.WIRING:
+        k = w.chip_pin[-1] if w.chip_pin[0] != "D" and w.chip_pin[-1].isdigit() else ""
+        want.add((w.board_pin, w.port, str(w.bit), w.chip_pin.rstrip("123") if k else w.chip_pin, k))
+    assert rows == want
 
 
 def test_make_reports_flash_and_ram_within_the_part(firmware_built):

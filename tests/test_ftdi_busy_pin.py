@@ -168,12 +168,18 @@ def test_busy_pin_option_is_checked():
     lm629_host.open("sim+ftdi://?busy_pin=none&busy_us=50").close()  # unwired: as before
 
 
-def test_documented_busy_pin_wiring_is_the_pin_map():
-    import pathlib
-    section = (pathlib.Path(__file__).parent.parent / "docs" / "ftdi.md").read_text()
-    for line, label, pin, direction, note in pins.WIRING_BUSY_PIN:
-        row = f"| {line} | {label} | {pin} | {direction} | {note} |"
-        assert row in section, row
+def test_busy_pin_wiring_moves_hi_off_gpiol1_and_puts_d0_there():
+    """The wiring that busy_pin=gpiol1 needs, from the one pin map (docs/ftdi.md's second
+    table is generated from it; tests/test_wiring.py checks it is current)."""
+    from lm629_host.connections import connections
+    plain = {(c.adapter_pin, c.chip_line) for c in connections("ft232h", 2)}
+    wired = {(c.adapter_pin, c.chip_line) for c in connections("ft232h", 2, busy_pin=True)}
+    assert plain - wired == {("ADBUS5", "HI")}
+    assert wired - plain == {("ADBUS5", "D0")}
+    assert ("ACBUS0", "D0") in wired  # D0 keeps its data wire
+    assert pins.BUSY_PINS["gpiol1"] == 1 << 5 == pins.HI  # ADBUS5: the line 0x88/0x89 watch
+    with pytest.raises(ValueError, match="only the FT232H"):
+        connections("uno", 1, busy_pin=True)
 
 
 # ------------------------------------------------------------------------- the pin check

@@ -122,7 +122,7 @@ def test_replies_decode_to_their_fields():
     g = golden()
     info = HelloInfo.decode(decode_frame(g["hello_reply"][1]).payload)
     assert (info.protocol, info.firmware, info.capabilities, info.max_program, info.max_reads,
-            info.chip_selects, info.cpu_hz) == (1, (1, 2, 0), 0xFF, 243, 120, 4, 16_000_000)
+            info.chip_selects, info.cpu_hz) == (1, (1, 3, 0), 0x1FF, 243, 120, 4, 16_000_000)
     r = RunReply.decode(decode_frame(g["run_reply_busy_timeout"][1]).payload)
     assert (r.result, r.index, r.last_status, r.hi, r.statuses, r.words) == \
         (Result.BUSY_TIMEOUT, 3, 0x81, 0, (0xC4,), (0x1234,))
@@ -170,3 +170,22 @@ def test_sync_start_bytes_and_the_python_bridge_answers_them():
     assert replies and decode_frame(replies[0]).payload == \
         decode_frame(golden()["run_reply_sync_start"][1]).payload
 
+
+
+def test_record_frames_decode_to_their_fields():
+    """RECORD: period 1000 us, 3 rows, status + RDDP + RDRP; a row carries its number, the
+    bridge's clock in us and the bytes read in program order; the end says how many rows."""
+    from lm629_host.bridge.protocol import END_PAYLOAD, RECORD_HEADER, ROW_HEADER
+    g = golden()
+    f = decode_frame(g["record_basic"][1])
+    assert f.type == FrameType.RECORD == 0x08
+    assert RECORD_HEADER.unpack_from(f.payload) == (1000, 3)
+    assert decode_program(f.payload[6:]) == [
+        BusOp(Op.STATUS), BusOp(Op.COMMAND, Cmd.RDDP), BusOp(Op.READ), BusOp(Op.READ),
+        BusOp(Op.COMMAND, Cmd.RDRP), BusOp(Op.READ), BusOp(Op.READ)]
+    row = decode_frame(g["record_row"][1])
+    assert row.type == 0x88 and ROW_HEADER.unpack_from(row.payload) == (1, 1000)
+    r = decode_short_reply(row.payload[6:] + b"\x00", decode_program(f.payload[6:]))
+    assert r.statuses == (0xC4,) and r.words == (0x0000, 0x1234, 0xFFFF, 0xFFFE)
+    end = decode_frame(g["record_end"][1])
+    assert end.type == 0x89 and END_PAYLOAD.unpack(end.payload) == (Result.OK, 0xFF, 3)

@@ -67,9 +67,11 @@ def test_flags_are_cleared_in_the_program_that_starts_the_move(base_url, open_ch
     recorder.clear()
     programs = chip.transport.stats.programs
     move = chip.move_to(600, velocity=65536, acceleration=655)
-    # one snapshot (the start point), then one program: RSTI, LTRJ with its words, STT
-    assert chip.transport.stats.programs - programs == 2
+    # one program (one exchange on a bridge, issue 19): the snapshot the move starts from,
+    # then RSTI, LTRJ with its words, STT
+    assert chip.transport.stats.programs - programs == 1
     data = recorder.data()
+    assert data.index(("command", int(Cmd.RDSIGS))) < data.index(("command", int(Cmd.RSTI)))
     rsti = data.index(("command", int(Cmd.RSTI)))
     assert data[rsti + 1] == ("write", int(INTERRUPTS & ~MOVE_FLAGS))
     assert data[rsti + 2] == ("command", int(Cmd.LTRJ))

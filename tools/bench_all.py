@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import math
 import json
 import os
 import re
@@ -227,10 +228,11 @@ USB_FILTER = dict(kp=400, kd=2000)  # settles in ~45 ms: the link's share shows
 
 def probe_usb() -> dict:
     """Simulated time per link (exact for a seed): RDRP and LTRJ(6)+STT back to back, a
-    4000-count move_to + wait against the profile's own time, and the rate of host-polled
-    snapshots (what ``lm629 watch`` and ``step`` sample at today).  Three runs at different
-    phases (usb_seed 0-2, the move started i/3 of a flush tick later) are averaged."""
+    4000-count move_to + wait against the profile's own time, and the recording rate (full
+    snapshot rows, on the bridge where it records there, else host-polled).  Three runs at
+    different phases (usb_seed 0-2, the move started i/3 of a flush tick later) are averaged."""
     import lm629_host
+    from lm629_host.recording import sample_program
     from lm629_host.sim.usb import UNO_FLUSH_S
 
     out: dict = {}
@@ -259,12 +261,20 @@ def probe_usb() -> dict:
                                      start=True)
                 if k >= 3:
                     ltrj += (clock.now() - t0) / 10
-            t0 = clock.now()
-            n = 0
-            while clock.now() - t0 < 0.25:
-                chip.snapshot()
-                n += 1
-            rows = n / (clock.now() - t0)
+            # recording: full snapshot rows at the highest rate the link carries, on the far
+            # side where the transport records there (the bridge's RECORD), else host-polled
+            t = chip.transport
+            top = t.record_max_rate(sample_program(chip, full=True))
+            if t.records_on_far_side and top is not None:
+                tr = chip.record(1 / math.floor(top), 0.25, full=True)
+                rows, far = (len(tr) - 1) / tr.t[-1], 1.0
+            else:
+                t0 = clock.now()
+                n = 0
+                while clock.now() - t0 < 0.25:
+                    chip.snapshot()
+                    n += 1
+                rows, far = n / (clock.now() - t0), 0.0
             chip.close()
             chip = lm629_host.open(url)  # the move on a chip at rest, as a script's first
             chip.reset()
@@ -277,7 +287,7 @@ def probe_usb() -> dict:
                                 acceleration=USB_MOVE["acceleration"])
             move.wait()
             runs.append({"rdrp": rdrp, "ltrj_stt": ltrj, "move": clock.now() - t0,
-                         "profile": move.profile_s(8e6) or 0.0, "rows": rows})
+                         "profile": move.profile_s(8e6) or 0.0, "rows": rows, "far": far})
             chip.close()
         out[base] = {k: statistics.mean(r[k] for r in runs) for k in runs[0]}
     return out
@@ -296,10 +306,12 @@ def render_usb(usb: dict, date: str) -> str:
         f"phases. The move: `move_to({USB_MOVE['position']}, velocity={USB_MOVE['velocity']}, "
         f"acceleration={USB_MOVE['acceleration']}).wait()` with kp={USB_FILTER['kp']}, "
         f"kd={USB_FILTER['kd']}; its profile takes {none['profile'] * 1e3:.1f} ms.",
-        "Recording: host-polled snapshots (one exchange each, as `lm629 watch` and `step` "
-        "sample today); far-side recording is not in this tree yet.",
+        "Recording: full snapshot rows (`chip.record(period, 0.25, full=True)`) at the highest",
+        "rate the link carries: sampled and stamped by the bridge (RECORD, firmware 1.3) where",
+        "it records, so USB changes only when rows arrive; host-polled (one exchange a row) on",
+        "the FT232H.",
         "",
-        "| link | RDRP | LTRJ(6)+STT | move_to + wait (over the profile) | recording, host-polled |",
+        "| link | RDRP | LTRJ(6)+STT | move_to + wait (over the profile) | recording |",
         "|---|---|---|---|---|",
     ]
     for name, url in USB_LINKS:
@@ -310,7 +322,8 @@ def render_usb(usb: dict, date: str) -> str:
             f" = {more / UNO_FLUSH_S:+.2f} flush ticks" if "usb=uno" in url else "")
         lines.append(f"| {name} | {_us(d['rdrp'])} | {_us(d['ltrj_stt'])} | "
                      f"{d['move'] * 1e3:.1f} ms (+{extra * 1e3:.1f} ms{vs}) | "
-                     f"{d['rows']:.0f} rows/s |")
+                     f"{d['rows']:.0f} rows/s, "
+                     f"{'on the bridge' if d['far'] else 'host-polled'} |")
     lines.append(USB_END)
     return "\n".join(lines)
 
@@ -330,9 +343,10 @@ def render_usb_summary(usb: dict) -> str:
         f"sees), LTRJ+STT {_us(uno['ltrj_stt'])}, a 4000-count `move_to(...).wait()` "
         f"{uno['move'] * 1e3:.1f} ms",
         f"against {none['move'] * 1e3:.1f} ms without USB (profile "
-        f"{none['profile'] * 1e3:.1f} ms), and host-polled",
-        f"traces (`lm629 watch`, `step`) get {uno['rows']:.0f} rows/s, each row's time "
-        "rounded to a flush tick.",
+        f"{none['profile'] * 1e3:.1f} ms; `move_to` is one exchange and the bridge sees the",
+        f"move's end), and traces (`chip.record`, `lm629 watch`, `step`) are sampled by the "
+        f"bridge: {uno['rows']:.0f} full rows/s,",
+        "each stamped with the bridge's clock, however the flush tick bunches them.",
         f"An FTDI adapter takes {_us(ftdi1['rdrp'])} per exchange with its latency timer at "
         f"1 ms (the serial",
         f"transport asks the driver for that) and {_us(ftdi16['rdrp'])} at its default 16 ms; "

@@ -7,7 +7,8 @@
    ratio is the lock's share of a typed command.
 2. The same reads from 4 threads sharing the chip (each bus program runs whole).
 3. ``move_to`` + ``Move.wait`` on ``sim+emu://`` (the bridge's link protocol): round trips to
-   start a move (the flags, LTRJ and STT are one program) and for the whole move.
+   start a move (the start snapshot, the flags, LTRJ and STT are one program) and for the
+   whole move; a 10-call ``batch()``.
 """
 
 from __future__ import annotations
@@ -60,9 +61,15 @@ def main() -> None:
         move = chip.move_to(1000, velocity=65536, acceleration=655)
         start = st.round_trips - before
         result = move.wait()
-        print(f"sim+emu:// move_to(1000): {start} round trips to start (1 snapshot + 1 program: "
+        print(f"sim+emu:// move_to(1000): {start} round trip(s) to start (one program: snapshot, "
               f"RSTI, LTRJ, STT), {st.round_trips - before} for the whole move; at rest "
               f"{result.error:+d} counts from the target after {result.duration:.3f} s simulated")
+        before = st.round_trips
+        with chip.batch() as b:
+            for _ in range(5):
+                b.read_real_position()
+                b.read_desired_position()
+        print(f"sim+emu:// batch() of 10 reads: {st.round_trips - before} round trip(s)")
 
 
 if __name__ == "__main__":

@@ -18,6 +18,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from lm629_host.bridge.protocol import (
+    END_PAYLOAD,
+    ROW_HEADER,
     FrameType,
     HelloInfo,
     Result,
@@ -25,6 +27,7 @@ from lm629_host.bridge.protocol import (
     cobs_encode,
     encode_program,
     frame_body,
+    record_payload,
     run_payload,
     short_reply_payload,
 )
@@ -42,11 +45,12 @@ def frames() -> list[tuple[str, bytes]]:
     # words with zero bytes inside, and a WAIT of 0x0100 us: COBS must stuff them all
     zeros = Program().command(Cmd.LPEI).write(0x0000).wait(0x0100).command(Cmd.RDSIGS).read(1)
     rdrp = Program().command(Cmd.RDRP).read(2)  # read_real_position(): -1000
+    sample = Program().status().command(Cmd.RDDP).read(2).command(Cmd.RDRP).read(2)
     # the largest RUN: 81 WRITEs of 3 bytes = 243 program bytes -> 250-byte frame
     biggest = Program()
     for i in range(81):
         biggest.write((i * 0x0101) & 0xFF00)  # 0000, 0100, 0200...: zeros in every op
-    info = HelloInfo(firmware=(1, 2, 0), capabilities=0x00FF, max_program=243, max_reads=120,
+    info = HelloInfo(firmware=(1, 3, 0), capabilities=0x01FF, max_program=243, max_reads=120,
                      chip_selects=4, cpu_hz=16_000_000)
     return [
         ("hello", frame_body(FrameType.HELLO, 0x01)),
@@ -93,6 +97,15 @@ def frames() -> list[tuple[str, bytes]]:
                                      bytes((Result.OK,)) + (1_000_000).to_bytes(4, "big"))),
         ("run_reply_unknown_code", frame_body(
             FrameType.RUN_REPLY, 0x12, RunReply(Result.UNKNOWN_CODE, 0xFF, 0xFF, 0, (), ()).encode())),
+        # RECORD (capability RECORD): status, RDDP, RDRP every 1000 us, 3 rows; a row (row 1,
+        # 1000 us on the bridge's clock: C4, desired 1234h, real -2) and the end (3 rows sent)
+        ("record_basic", frame_body(FrameType.RECORD, 0x30, record_payload(1000, 3, sample.ops))),
+        ("record_row", frame_body(FrameType.RECORD_ROW, 0x30, ROW_HEADER.pack(1, 1000) + bytes(
+            (0xC4, 0x00, 0x00, 0x12, 0x34, 0xFF, 0xFF, 0xFF, 0xFE)))),
+        ("record_end", frame_body(FrameType.RECORD_END, 0x30,
+                                  END_PAYLOAD.pack(Result.OK, 0xFF, 3))),
+        ("record_end_bad_program", frame_body(FrameType.RECORD_END, 0x31,
+                                              END_PAYLOAD.pack(Result.BAD_PROGRAM, 1, 0))),
     ]
 
 

@@ -51,6 +51,14 @@ void bus_select(uint8_t chip)
 uint8_t bus_hi(void) { return fake.hi; }
 void bus_wait_us(uint16_t us) { fake.waited_us += us; note('T', (uint8_t)(us >> 8)); }
 void bus_timer_start(void) { fake.elapsed_us = 0; }
+/* the clock advances one tick (4 us) each time it is read */
+uint16_t bus_ticks(void) { return (uint16_t)(fake.ticks++); }
+/* a byte from the host "arrives" after rx_pending_after polls (0: one is waiting already) */
+uint8_t link_rx_pending(void)
+{
+    fake.rx_polls++;
+    return fake.rx_polls > fake.rx_pending_after;
+}
 uint8_t bus_timer_elapsed(uint16_t us) { return fake.elapsed_us > us; }
 
 uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t *status)
@@ -78,9 +86,35 @@ void link_tx_byte(uint8_t b)
     tx_n++;
 }
 
+/* Before a reply only whole RECORD_ROW frames may have gone out (a recording's rows; its
+ * RECORD_END is the reply returned). */
+static int only_rows(const uint8_t *p, uint16_t n)
+{
+    uint8_t buf[1024];
+    uint16_t start = 0;
+    for (uint16_t i = 0; i < n; i++) {
+        if (p[i])
+            continue;
+        uint16_t len = (uint16_t)(i - start);
+        memcpy(buf, p + start, len);
+        int16_t d = link_cobs_decode(buf, len);
+        if (d < 4 || buf[0] != FRAME_RECORD_ROW
+            || link_crc16(buf, (uint16_t)(d - 2)) != ((buf[d - 2] << 8) | buf[d - 1]))
+            return 0;
+        fake.rows_seen++;
+        start = (uint16_t)(i + 1);
+    }
+    return start == n;
+}
+
 int fake_tx_verify(const uint8_t *out, uint16_t n)
 {
-    int ok = tx_n == n && !memcmp(out, tx_sent, n);
+    int ok = tx_n >= n && tx_n <= sizeof tx_sent && !memcmp(out, tx_sent + tx_n - n, n)
+        && only_rows(tx_sent, (uint16_t)(tx_n - n));
+    if (ok && tx_n > n)
+        memcpy(fake.rows, tx_sent, (size_t)(tx_n - n) < sizeof fake.rows ? (size_t)(tx_n - n)
+                                                                       : sizeof fake.rows);
+    fake.rows_len = (uint16_t)(tx_n - n);
     tx_n = 0;
     return ok;
 }

@@ -17,6 +17,11 @@ typedef struct {
     uint16_t log_len;
     uint32_t elapsed_us;  /* simulated time since bus_timer_start; a status read costs 1 us */
     uint32_t total_polls, resets, waited_us;
+    uint32_t ticks;                 /* bus_ticks: one more at each read */
+    uint32_t rx_polls, rx_pending_after; /* link_rx_pending: 1 after this many polls */
+    uint8_t rows[1024];             /* the RECORD_ROW frames sent before the last reply */
+    uint16_t rows_len;
+    uint32_t rows_seen;
 } fake_bus_t;
 extern fake_bus_t fake;
 void fake_reset(void);

@@ -63,9 +63,24 @@ static int make_frame(uint8_t *wire)
 {
     uint8_t d[300];
     int n = 2;
-    d[0] = (uint8_t)(rnd() % 5 ? (rnd() % 7) + 1 : rnd());
+    d[0] = (uint8_t)(rnd() % 5 ? (rnd() % 8) + 1 : rnd());
     d[1] = (uint8_t)rnd();
-    if (d[0] == 6) { /* RUN_CODE: a code, now and then out of range */
+    if (d[0] == 8) { /* RECORD: a period around the shortest, a few rows, a program of reads */
+        uint32_t period = (uint32_t)(rnd() % 4 ? 150 + rnd() % 400 : rnd());
+        for (int k = 3; k >= 0; k--)
+            d[n++] = (uint8_t)(period >> (8 * k));
+        d[n++] = 0;
+        d[n++] = (uint8_t)(rnd() % 5);
+        int ops = (int)(rnd() % 12);
+        for (int i = 0; i < ops; i++) {
+            uint8_t op = (uint8_t)(rnd() % 3 == 0 ? OP_STATUS : rnd() % 2 ? OP_READ : OP_COMMAND);
+            if (rnd() % 20 == 0)
+                op = (uint8_t)rnd();
+            d[n++] = op;
+            if (op == OP_COMMAND)
+                d[n++] = (uint8_t)(rnd() % 8 ? 7 + rnd() % 7 : rnd());
+        }
+    } else if (d[0] == 6) { /* RUN_CODE: a code, now and then out of range */
         d[n++] = (uint8_t)(rnd() % 10);
     } else if (d[0] == 7) { /* SET_BAUD: any rate, 0 included */
         for (int k = 0; k < 4; k++)
@@ -111,6 +126,7 @@ int main(int argc, char **argv)
         fake.status = (uint8_t)(rnd() & 0xFE);
         fake.busy_polls = (uint16_t)(rnd() % 4 ? 0 : rnd() % 300);
         fake.n_data = 64;
+        fake.rx_pending_after = 300; /* a recording is stopped by the host after a while */
         int n, kind = (int)(rnd() % 4);
         if (kind == 0) { /* random bytes, zeros now and then */
             n = (int)(rnd() % 400);

@@ -399,11 +399,77 @@ static void test_select(void)
     printf("select: the RUN's cs, then each SELECT, reach the bus in order\n");
 }
 
+/* RECORD: the golden request (status, RDDP, RDRP every 1000 us, 3 rows) sends three rows, each
+ * its number, its time on the bridge's clock and the bytes read in program order, then the
+ * golden RECORD_END; the due times are exact multiples of the period (250 ticks of 4 us) */
+static void test_record(void)
+{
+    uint8_t out[320], *p;
+    link_init(&L);
+    fake_reset();
+    fake.status = 0xC4;
+    fake.rx_pending_after = 100000;
+    fake.n_data = 12;
+    for (int i = 0; i < 12; i++)
+        fake.data[i] = (uint16_t)(0x1000 + i);
+    vec_t *req = get("record_basic"), *end = get("record_end");
+    int n = feed(req->enc, req->nenc, out);
+    CHECK(n == end->nenc && !memcmp(out, end->enc, (size_t)n), "record: RECORD_END differs");
+    CHECK(fake.rows_seen == 3, "record: %u rows, expected 3", fake.rows_seen);
+    uint32_t t_prev = 0;
+    int at = 0;
+    for (int k = 0; k < 3; k++) {
+        int len = 0;
+        while (fake.rows[at + len])
+            len++;
+        len++;
+        int d = reply_payload(fake.rows + at, len, FRAME_RECORD_ROW, 0x30, &p);
+        at += len;
+        CHECK(d == 6 + 9, "record: row %d of %d bytes", k, d);
+        uint32_t t = ((uint32_t)p[2] << 24) | ((uint32_t)p[3] << 16) | ((uint32_t)p[4] << 8) | p[5];
+        CHECK(((p[0] << 8) | p[1]) == k, "record: row number %d", k);
+        CHECK(k == 0 || (t - t_prev >= 1000 && t - t_prev <= 1008), "record: row %d at %u us, "
+              "the one before at %u us", k, t, t_prev);
+        t_prev = t;
+        uint16_t w0 = (uint16_t)(0x1000 + 4 * k);
+        CHECK(p[6] == 0xC4 && ((p[7] << 8) | p[8]) == w0 && ((p[9] << 8) | p[10]) == w0 + 1
+              && ((p[13] << 8) | p[14]) == w0 + 3, "record: row %d's bytes", k);
+    }
+    /* the commands: RDDP, RDRP each row, nothing else (a recording never changes the chip) */
+    int cmds = 0;
+    for (int i = 0; i + 1 < fake.log_len; i += 2)
+        if (fake.log[i] == 'C') {
+            CHECK(fake.log[i + 1] == 0x08 || fake.log[i + 1] == 0x0A, "record: command %02X",
+                  fake.log[i + 1]);
+            cmds++;
+        }
+    CHECK(cmds == 6, "record: %d commands", cmds);
+    /* a byte from the host stops it: END with the rows sent so far (row 0 at once, row 1 after
+     * 250 ticks, the byte while waiting for row 2: a tick and a poll each loop) */
+    fake_reset();
+    fake.rx_pending_after = 300;
+    n = feed(req->enc, req->nenc, out);
+    CHECK(reply_payload(out, n, FRAME_RECORD_END, 0x30, &p) == 4 && p[0] == RESULT_OK
+          && (uint32_t)((p[2] << 8) | p[3]) == fake.rows_seen && fake.rows_seen == 2,
+          "record: stopped "
+          "after %u rows", fake.rows_seen);
+    /* a program that writes is refused before anything runs: the golden refusal */
+    fake_reset();
+    uint8_t bad[] = {0x00, 0x00, 0x03, 0xE8, 0x00, 0x03, OP_STATUS, OP_COMMAND, 0x01}, wire[64];
+    vec_t *refused = get("record_end_bad_program");
+    n = feed(wire, frame(FRAME_RECORD, 0x31, bad, sizeof bad, wire), out);
+    CHECK(n == refused->nenc && !memcmp(out, refused->enc, (size_t)n) && fake.log_len == 0,
+          "record: STT in a sample program not refused");
+    printf("record: rows every 1000 us on the bridge's clock, in program order; stopped by a "
+           "byte; a writing program refused\n");
+}
+
 int main(int argc, char **argv)
 {
     load(argc > 1 ? argv[1] : "golden_frames.txt");
     test_codec();
     test_select();
+    test_record();
     test_golden_requests();
     test_exactly_once();
     test_wait_status();

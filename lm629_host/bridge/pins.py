@@ -3,7 +3,8 @@
 This is the one definition.  ``tools/gen_tables.py`` writes it into
 ``firmware_bridge/lm629_tables.h`` for the firmware, the simavr harness
 (:mod:`lm629_host.sim.avr`) wires the simulated chip to the same port bits, and docs/bridge.md's
-wiring table is checked against :data:`WIRING` by a test.
+wiring table and drawing are generated from it (:mod:`lm629_host.connections`,
+``tools/gen_wiring.py``; a test checks they are current).
 
 Why this layout:
 

@@ -52,7 +52,20 @@ BAUD_WINDOW_MS = 250
 #: the rate a host asks a bridge with BAUD_SWITCH for: an Uno's or Nano's USB serial chip
 #: (16U2, CH340, FT232R) and the ATmega328P at 16 MHz make it exactly (divisor 2 with U2X)
 FAST_BAUD = 1_000_000
+#: RECORD: the sample program's limits (bytes of program, bytes read per row), the shortest
+#: period, and the bridge's clock tick (its Timer1 at clk/64: periods and stamps are multiples)
+RECORD_MAX_PROGRAM = 32
+RECORD_MAX_BYTES = 40
+RECORD_MIN_PERIOD_US = 200
+RECORD_TICK_US = 4
+#: bytes of a RECORD_ROW around the bytes read: type, seq, row (2), t_us (4), CRC (2)
+RECORD_ROW_OVERHEAD = 10
+#: the chip's data-reporting commands (RDDV 07h .. RDSUM 0Dh): the only commands a sample
+#: program may send, so that a recording never changes the chip (and may be repeated)
+RECORD_CMD_FIRST, RECORD_CMD_LAST = 0x07, 0x0D
 _STATUS_BUSY = int(Status.BUSY)
+
+
 class FrameType(enum.IntEnum):
     HELLO = 0x01
     RUN = 0x02
@@ -61,11 +74,16 @@ class FrameType(enum.IntEnum):
     RUN_STORE = 0x05  #: slot, program: a RUN_SHORT whose program is kept under that code
     RUN_CODE = 0x06  #: slot: run the program kept under that code (PROGRAM_CODES only)
     SET_BAUD = 0x07  #: baud (4): switch the line's rate after the reply (BAUD_SWITCH only)
+    #: period_us (4), rows (2; 0: until stopped), a sample program: the bridge runs it on its
+    #: own timer and streams one RECORD_ROW per run, then RECORD_END (RECORD only)
+    RECORD = 0x08
     HELLO_REPLY = 0x81
     RUN_REPLY = 0x82
     PONG = 0x83
     RUN_SHORT_REPLY = 0x84  #: a RUN_SHORT that ran to its end (otherwise: RUN_REPLY)
     BAUD_REPLY = 0x87  #: result (1), the rate the bridge switches to (4)
+    RECORD_ROW = 0x88  #: row (2), t_us (4), the bytes the sample program read, in order
+    RECORD_END = 0x89  #: result (1), index (1), rows sent (2): the recording is over
     ERROR_REPLY = 0xFF
 
 
@@ -73,10 +91,11 @@ class FrameType(enum.IntEnum):
 REPLY_TO = {FrameType.HELLO: FrameType.HELLO_REPLY, FrameType.RUN: FrameType.RUN_REPLY,
             FrameType.PING: FrameType.PONG, FrameType.RUN_SHORT: FrameType.RUN_SHORT_REPLY,
             FrameType.RUN_STORE: FrameType.RUN_SHORT_REPLY,
-            FrameType.RUN_CODE: FrameType.RUN_SHORT_REPLY, FrameType.SET_BAUD: FrameType.BAUD_REPLY}
+            FrameType.RUN_CODE: FrameType.RUN_SHORT_REPLY, FrameType.SET_BAUD: FrameType.BAUD_REPLY,
+            FrameType.RECORD: FrameType.RECORD_ROW}
 #: other reply types a request may get: a compact RUN that failed is answered as a RUN
 ALSO_REPLY_TO = {FrameType.RUN_SHORT: FrameType.RUN_REPLY, FrameType.RUN_STORE: FrameType.RUN_REPLY,
-                 FrameType.RUN_CODE: FrameType.RUN_REPLY}
+                 FrameType.RUN_CODE: FrameType.RUN_REPLY, FrameType.RECORD: FrameType.RECORD_END}
 #: the compact requests that run a program (a give-up says it may or may not have run)
 RUN_TYPES = frozenset({FrameType.RUN, FrameType.RUN_SHORT, FrameType.RUN_STORE, FrameType.RUN_CODE})
 
@@ -90,6 +109,7 @@ class Result(enum.IntEnum):
     BAD_REQUEST = 5
     UNKNOWN_CODE = 6  #: RUN_CODE for a code the bridge keeps no program under (nothing ran)
     BAD_BAUD = 7  #: SET_BAUD to a rate the bridge cannot make within 2 % (it stays as it is)
+    BAD_RATE = 8  #: RECORD with a period below RECORD_MIN_PERIOD_US (nothing recorded)
 
 
 class Capability(enum.IntFlag):
@@ -107,6 +127,8 @@ class Capability(enum.IntFlag):
     #: the bridge switches its line's rate on SET_BAUD, and goes back to the rate it had when
     #: no good frame comes at the new rate within BAUD_WINDOW_MS
     BAUD_SWITCH = 0x80
+    #: the bridge records on its own timer (RECORD): rows stamped with its clock, streamed
+    RECORD = 0x100
 
 
 #: "index of the failing operation" and "last status byte" when there is none
@@ -132,6 +154,12 @@ def c_defines() -> list[tuple[str, int, str]]:
         ("LINK_DEFAULT_BUSY_TIMEOUT_US", FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
          "busy_timeout_us = 0 means this"),
         ("LINK_NONE_BYTE", NONE_BYTE, "no failing op / no status read yet"),
+        ("LINK_RECORD_MAX_PROGRAM", RECORD_MAX_PROGRAM, "RECORD: largest sample program"),
+        ("LINK_RECORD_MAX_BYTES", RECORD_MAX_BYTES, "RECORD: most bytes a row reads"),
+        ("LINK_RECORD_MIN_PERIOD_US", RECORD_MIN_PERIOD_US, "RECORD: shortest period"),
+        ("LINK_RECORD_TICK_US", RECORD_TICK_US, "RECORD: the bridge clock's tick"),
+        ("LINK_RECORD_CMD_FIRST", RECORD_CMD_FIRST, "RECORD: first data-reporting command"),
+        ("LINK_RECORD_CMD_LAST", RECORD_CMD_LAST, "RECORD: last data-reporting command"),
         ("LINK_CRC_POLY", 0x1021, "CRC-16/GENIBUS polynomial"),
         ("LINK_CRC_INIT", 0xFFFF, "CRC-16/GENIBUS initial value"),
         ("LINK_CRC_XOROUT", 0xFFFF, "CRC-16/GENIBUS final xor"),
@@ -498,6 +526,49 @@ def wire_size(decoded: int) -> int:
     return decoded + 1 + decoded // 254 + 1
 
 
+# ---------------------------------------------------------------------------------- RECORD
+#: RECORD's payload header: period_us, rows (0: until stopped); the program follows
+RECORD_HEADER = struct.Struct(">IH")
+#: RECORD_ROW's payload header: row number (mod 65536), the bridge's clock in us (mod 2**32)
+ROW_HEADER = struct.Struct(">HI")
+#: RECORD_END's payload: result, index of the failing operation (NONE_BYTE), rows sent
+END_PAYLOAD = struct.Struct(">BBH")
+#: the operations a sample program may hold (reads only: a recording never changes the chip)
+RECORD_OPS = frozenset({Op.STATUS, Op.COMMAND, Op.READ, Op.SELECT})
+
+
+def record_payload(period_us: int, rows: int, ops: Sequence[BusOp]) -> bytes:
+    """RECORD's payload (the host checks the program with :func:`check_record_program`)."""
+    return RECORD_HEADER.pack(period_us, rows) + encode_program(ops)
+
+
+def check_record_program(ops: Sequence[BusOp], chip_selects: int = 1) -> tuple[int, int]:
+    """Why the bridge would refuse ``ops`` as a sample program: :class:`BadProgram` for an
+    operation that is not a status read, a data-reporting command, a READ or a SELECT of a chip
+    it has; ``ValueError`` for a program or row over the limits.  Returns (program bytes, bytes
+    read per row)."""
+    for i, o in enumerate(ops):
+        if o.op not in RECORD_OPS:
+            raise BadProgram(i, f"{o.describe()} in a sample program (only status reads, "
+                                "data-reporting commands RDDV..RDSUM and READs)")
+        if o.op is Op.COMMAND and not RECORD_CMD_FIRST <= o.arg <= RECORD_CMD_LAST:
+            raise BadProgram(i, f"{o.describe()} is not a data-reporting command")
+        if o.op is Op.SELECT and o.arg >= chip_selects:
+            raise BadProgram(i, f"{o.describe()}: the bridge has {chip_selects} chip select(s)")
+    size = len(encode_program(ops))
+    read = sum(2 if o.op is Op.READ else 1 for o in ops if o.op is Op.READ or o.op in STATUS_OPS)
+    if size > RECORD_MAX_PROGRAM or read > RECORD_MAX_BYTES:
+        raise ValueError(f"a sample program of {size} bytes reading {read} bytes a row is over "
+                         f"the bridge's {RECORD_MAX_PROGRAM} / {RECORD_MAX_BYTES}")
+    return size, read
+
+
+def row_wire_bytes(read: int) -> int:
+    """Bytes on the wire of one RECORD_ROW that carries ``read`` bytes (COBS and delimiter:
+    a row is shorter than 254 bytes)."""
+    return RECORD_ROW_OVERHEAD + read + 2
+
+
 # ---------------------------------------------------------------------------------- the pipe
 @runtime_checkable
 class Pipe(Protocol):
@@ -520,6 +591,20 @@ class Pipe(Protocol):
 
 __all__ = [
     "ALSO_REPLY_TO",
+    "END_PAYLOAD",
+    "RECORD_CMD_FIRST",
+    "RECORD_CMD_LAST",
+    "RECORD_HEADER",
+    "RECORD_MAX_BYTES",
+    "RECORD_MAX_PROGRAM",
+    "RECORD_MIN_PERIOD_US",
+    "RECORD_OPS",
+    "RECORD_ROW_OVERHEAD",
+    "RECORD_TICK_US",
+    "ROW_HEADER",
+    "check_record_program",
+    "record_payload",
+    "row_wire_bytes",
     "BAUD_WINDOW_MS",
     "CODE_BYTES",
     "CODE_SLOTS",

@@ -1,7 +1,7 @@
 """``lm629``: the bench command line (the ``main`` group, :mod:`.app`), its commands in one
 module per family: :mod:`.bench` (bringup, list, doctor, udev), :mod:`.chip` (status, reset,
 filter, index, breakpoint, limit, watch, raw), :mod:`.motion` (move, velocity, stop, home),
-:mod:`.tune` (step, tune), :mod:`.calc`, :mod:`.bridge` (bridge list|flash), :mod:`.sim`
+:mod:`.tune` (step, tune), :mod:`.wiring` (wiring, wiring --check), :mod:`.calc`, :mod:`.bridge` (bridge list|flash), :mod:`.sim`
 (sim serve); :mod:`.types` holds the parameter types and checks they share.
 
 A new command is a function in its family's module decorated with ``@main.command()``.
@@ -9,7 +9,7 @@ A new command is a function in its family's module decorated with ``@main.comman
 
 from __future__ import annotations
 
-from . import bench, chip, motion  # noqa: F401 - importing them registers their commands
+from . import bench, chip, motion, wiring  # noqa: F401 - importing them registers their commands
 from .app import EXIT_CODES, Session, Terminated, main
 from .bridge import bridge
 from .calc import calc

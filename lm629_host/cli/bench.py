@@ -10,7 +10,7 @@ import click
 import lm629_host
 
 from ..bringup import BringupOptions, StepResult, run_bringup
-from ..errors import LM629Error
+from ..errors import BusyTimeout, LM629Error, ResetError
 from ..lm629 import LM629, check_int
 from ..opcodes import Status
 from .app import Session, _session, log, main
@@ -97,6 +97,11 @@ def udev(path_only: bool) -> None:
         click.echo(f"    {command}")
 
 
+#: what doctor suggests when a reset or busy check fails
+WIRING_HINT = ("  -> a data or control wire may be wrong: run `lm629 wiring --check` (it names the "
+               "wire, moving nothing) and compare with `lm629 wiring`")
+
+
 @main.command()
 def doctor() -> None:
     """What is installed, what can be found and what is wrong (backends, permissions, latency,
@@ -153,8 +158,12 @@ def doctor() -> None:
                      "its clock input, its supply and /RST)") if busy == n else ""
             line("status read", busy < n, f"{int(st):02X} ({_flags(st)}), {dt * 1e3:.3f} ms "
                                           f"per round trip (wall clock){stuck}")
+            if busy == n:
+                click.echo(WIRING_HINT)
         except LM629Error as exc:
             line("open", False, str(exc))
+            if isinstance(exc, (BusyTimeout, ResetError)):
+                click.echo(WIRING_HINT)
     click.echo("no problems found" if not problems else f"{problems} problem(s) above")
     if problems:
         click.get_current_context().exit(1)

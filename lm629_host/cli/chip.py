@@ -190,9 +190,13 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
                + (f"{'rev':>10} {'rpm':>8} " if scale is not None else "") + f"{'st':>3} flags")
     n = 0
     start = chip.clock.now()
+    # rows timed on the far side where the transport records there (lm629_host.recording:
+    # the bridge's timer, the simulator's clock); else polled, as before
+    from ..recording import far_snapshots
+    recorded = far_snapshots(chip, 1.0 / rate, count or 0)
     try:
         while count is None or n < count:
-            snap = chip.snapshot()
+            snap = chip.snapshot() if recorded is None else next(recorded)
             row: tuple[Any, ...] = (
                 f"{snap.time:.4f}", snap.desired_position, snap.real_position,
                 snap.following_error, f"{snap.desired_velocity / FIXED_ONE:.4f}",
@@ -209,7 +213,7 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
             if writer:
                 writer.writerow(row)
             n += 1
-            if count is None or n < count:  # a fixed cadence: the rows do not drift
+            if recorded is None and (count is None or n < count):  # a fixed cadence: no drift
                 chip.clock.sleep(max(0.0, start + n / rate - chip.clock.now()))
     except KeyboardInterrupt:
         # watching moves nothing, so nothing is stopped; the exit code says how it ended
@@ -217,6 +221,8 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
             click.echo(f"({n} rows)", err=True)
         raise
     finally:
+        if recorded is not None:
+            recorded.close()  # stops the far side's recording
         if f:
             f.close()
 

@@ -32,6 +32,7 @@ from pathlib import Path
 from ..bridge.protocol import CODE_BYTES, CODE_SLOTS
 from ..clock import Clock
 from ..errors import ProtocolViolation, TransportError
+from .wiring import Miswiring
 from .model import ChipBus, ChipModel
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -150,8 +151,11 @@ class AvrSim:
     :class:`~lm629_host.errors.ProtocolViolation` (default: the model's own ``strict``)."""
 
     def __init__(self, model: ChipModel | ChipBus, firmware: Path | str | None = None, *,
-                 strict: bool | None = None) -> None:
+                 strict: bool | None = None, wiring: Miswiring | None = None) -> None:
         self.model = model
+        #: ``wiring=``: the data lines between the AVR's pins and the chip, bent here where
+        #: the harness hands the pins' byte to the chip and the chip's byte to the pins
+        self.wiring = wiring
         self._lib = load_library()
         self.firmware = Path(firmware) if firmware else firmware_path()
         if not self.firmware.exists():
@@ -186,10 +190,13 @@ class AvrSim:
             elif chip:
                 raise ProtocolViolation(f"the firmware strobed chip select {chip}; this "
                                         "simulation wires one chip (sim+avr://?axes=N)")
+            w = self.wiring
+            if w is not None and kind in (COMMAND, WRITE):
+                value = w.to_chip(value)
             if kind == STATUS:
-                r = m.read_status()
+                r = m.read_status() if w is None else w.to_host(m.read_status())
             elif kind == READ:
-                r = m.read_data()
+                r = m.read_data() if w is None else w.to_host(m.read_data())
             elif kind == COMMAND:
                 m.write_command(value)
                 r = 0

@@ -27,9 +27,15 @@ from ..bridge.protocol import (
     BAUD_WINDOW_MS,
     CODE_BYTES,
     CODE_SLOTS,
+    END_PAYLOAD,
     MAX_FRAME,
     MAX_PING,
     RUN_OVERHEAD,
+    NONE_BYTE,
+    RECORD_HEADER,
+    RECORD_MIN_PERIOD_US,
+    RECORD_TICK_US,
+    ROW_HEADER,
     RUN_REPLY_OVERHEAD,
     BadProgram,
     Capability,
@@ -40,6 +46,7 @@ from ..bridge.protocol import (
     HelloInfo,
     Result,
     RunReply,
+    check_record_program,
     decode_program,
     encode_frame,
     short_reply_payload,
@@ -47,6 +54,7 @@ from ..bridge.protocol import (
 from ..opcodes import BUSY_BIT
 from ..program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
 from .clock import SimClock
+from .wiring import BentChip, Miswiring
 from .model import ChipBus, ChipModel, chips_of
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
@@ -67,6 +75,8 @@ class EmuStats:
     frames: int = 0  #: good frames received
     bad_frames: int = 0  #: frames dropped for COBS, length or CRC errors
     runs: int = 0  #: RUN programs executed
+    recordings: int = 0  #: RECORD requests that started recording
+    rows: int = 0  #: RECORD_ROW frames sent
     cache_hits: int = 0  #: RUN repeats answered from the cache
     replies: int = 0  #: frames sent
     busy_polls: int = 0  #: status reads made only for the busy check
@@ -78,7 +88,7 @@ MULTI_AXIS_INFO = HelloInfo(
     firmware=EMU_FIRMWARE, chip_selects=len(bridge_pins.CHIP_SELECTS),
     capabilities=int(Capability.RESET_LINE | Capability.HI_LINE | Capability.BUSY_ON_BRIDGE
                      | Capability.WAIT_STATUS | Capability.SELECT | Capability.COMPACT_RUN
-                     | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH))
+                     | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH | Capability.RECORD))
 #: a bridge of before issue 11 (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
 #: WAIT_STATUS: firmware 1.0's capabilities)
 ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
@@ -111,14 +121,20 @@ class BridgeEmulator:
     model: ChipModel | ChipBus
     info: HelloInfo = field(default_factory=lambda: MULTI_AXIS_INFO)
     stats: EmuStats = field(default_factory=EmuStats)
+    #: ``wiring=``: the data lines between the bridge's pins and the chips (None: correct)
+    wiring: Miswiring | None = None
 
     def __post_init__(self) -> None:
         self._chips = chips_of(self.model)
+        if self.wiring is not None:  # the bus is shared: every chip behind the same wires
+            self._chips = [BentChip(c, self.wiring) for c in self._chips]  # type: ignore[misc]  # BentChip has a chip's strobes
         self._cs = 0
         self._reader = FrameReader()
         self._cache: tuple[int, int, bytes] | None = None  # seq, crc, encoded reply
         self._codes: dict[int, bytes] = {}  # programs kept for RUN_CODE
         self._cycle_ticks = max(1, round(BUS_CYCLE_S * self.model.clock_hz))
+        self._rec: _Recording | None = None
+        self._no_chip = _NO_CHIP if self.wiring is None else BentChip(_NO_CHIP, self.wiring)
         if self.info.max_program > MAX_FRAME - RUN_OVERHEAD:
             raise ValueError(f"max_program={self.info.max_program} does not fit MAX_FRAME")
 
@@ -127,6 +143,9 @@ class BridgeEmulator:
         """Bytes from the host; returns the encoded reply frames, in order.  Programs run on
         the model at its current time (the caller advances it to the arrival of the bytes)."""
         out: list[bytes] = []
+        if data and self._rec is not None:  # any byte from the host ends a recording
+            out.append(self._end_recording(Result.OK))
+            self.stats.replies += 1
         for item in self._reader.feed(data):
             if isinstance(item, FrameError):
                 self.stats.bad_frames += 1  # never answered: the host's retry covers it
@@ -227,9 +246,75 @@ class BridgeEmulator:
                 reply = encode_frame(FrameType.RUN_REPLY, frame.seq, result.encode())
             self._cache = (frame.seq, frame.crc, reply)
             return reply
+        if t == FrameType.RECORD and caps & Capability.RECORD:
+            return self._start_recording(frame)
         if t & 0x80:
             return None  # a reply type from the host: not a request, ignore it
         return self._error(frame.seq, Result.BAD_REQUEST)
+
+    # ------------------------------------------------------------------ RECORD
+    @property
+    def record_due(self) -> float | None:
+        """When the next row of a recording is due (model seconds), None when not recording."""
+        return None if self._rec is None else self._rec.due
+
+    def _start_recording(self, frame: Frame) -> bytes | None:
+        """RECORD, as the firmware takes it: the program checked before anything runs (a
+        refusal is a RECORD_END at once); the reply cache is emptied (a recording is not
+        repeated from it: its program only reads); the first row is due now."""
+        p = frame.payload
+        if len(p) < RECORD_HEADER.size:
+            return self._error(frame.seq, Result.BAD_REQUEST)
+        self._cache = None
+        period_us, rows = RECORD_HEADER.unpack_from(p)
+        try:
+            ops = decode_program(p[RECORD_HEADER.size:])
+            check_record_program(ops, self.info.chip_selects)
+        except BadProgram as exc:
+            return self._end(frame.seq, Result.BAD_PROGRAM, exc.index, 0)
+        except ValueError:
+            return self._end(frame.seq, Result.PROGRAM_TOO_LONG, NONE_BYTE, 0)
+        if period_us < RECORD_MIN_PERIOD_US:
+            return self._end(frame.seq, Result.BAD_RATE, NONE_BYTE, 0)
+        self.stats.recordings += 1
+        period = period_us // RECORD_TICK_US * RECORD_TICK_US * 1e-6
+        self._rec = _Recording(frame.seq, ops, period, rows, self.model.now())
+        return None
+
+    def _end(self, seq: int, result: int, index: int, rows: int) -> bytes:
+        return encode_frame(FrameType.RECORD_END, seq, END_PAYLOAD.pack(result, index,
+                                                                        rows & 0xFFFF))
+
+    def _end_recording(self, result: int, index: int = NONE_BYTE) -> bytes:
+        rec, self._rec = self._rec, None
+        assert rec is not None
+        return self._end(rec.seq, result, index, rec.index)
+
+    def record_step(self) -> list[bytes]:
+        """The row due now: stamp the bridge's clock (4 us ticks from the first row), run the sample program,
+        and return its RECORD_ROW (and the RECORD_END after the last row or a busy timeout).
+        The caller has advanced the model to :attr:`record_due`."""
+        rec = self._rec
+        assert rec is not None
+        m = self.model
+        # the firmware's clock counts 4 us ticks from the first row
+        stamp = round((m.now() - rec.start) * 1e6 / RECORD_TICK_US) * RECORD_TICK_US & 0xFFFFFFFF
+        self._cs = 0
+        reply = self.run_ops(rec.ops, FIRMWARE_BUSY_TIMEOUT_S)
+        if reply.result != Result.OK:
+            self.stats.replies += 1
+            return [self._end_recording(reply.result, reply.index)]
+        out = [encode_frame(FrameType.RECORD_ROW, rec.seq,
+                            ROW_HEADER.pack(rec.index & 0xFFFF, stamp)
+                            + short_reply_payload(rec.ops, reply)[:-1])]
+        self.stats.rows += 1
+        self.stats.replies += 1
+        rec.index += 1
+        rec.due += rec.period
+        if rec.rows and rec.index >= rec.rows:
+            out.append(self._end_recording(Result.OK))
+            self.stats.replies += 1
+        return out
 
     def _error(self, seq: int, code: Result) -> bytes:
         return encode_frame(FrameType.ERROR_REPLY, seq, bytes((code,)))
@@ -277,7 +362,7 @@ class BridgeEmulator:
 
     def _chip(self) -> ChipModel:
         k = self._cs
-        return self._chips[k] if k < len(self._chips) else _NO_CHIP  # type: ignore[return-value]  # an unwired select: the floating bus
+        return self._chips[k] if k < len(self._chips) else self._no_chip  # type: ignore[return-value]  # an unwired select: the floating bus
 
     def _wait_not_busy(self, timeout_s: float) -> tuple[bool, int]:
         m = self.model
@@ -347,6 +432,26 @@ class BridgeEmulator:
                 statuses.append(last)
         return RunReply(Result.OK, 0xFF, last, int(self._chip().hi), tuple(statuses),
                         tuple(words))
+
+
+#: the busy timeout of a sample program (the firmware's default)
+FIRMWARE_BUSY_TIMEOUT_S = 5e-3
+
+
+@dataclass
+class _Recording:
+    """A recording under way: its RECORD's seq, sample program, period (s), rows asked (0:
+    until stopped), rows sent, and when the next is due (model seconds)."""
+
+    seq: int
+    ops: list[BusOp]
+    period: float
+    rows: int
+    due: float
+    index: int = 0
+
+    def __post_init__(self) -> None:
+        self.start = self.due  #: the first row's time: the stamps count from it
 
 
 #: the far end runs on the chip model's simulated clock (the one ``sim://`` uses)
@@ -424,7 +529,11 @@ class EmuPipe:
                 chunk += b
         if not chunk:
             return
-        for reply in emu.receive(bytes(chunk)):
+        self._queue_replies(emu.receive(bytes(chunk)))
+
+    def _queue_replies(self, replies: list[bytes]) -> None:
+        emu = self.emulator
+        for reply in replies:
             t = max(self.clock.now(), self._rx_free)
             bs = self.byte_s
             for byte in reply:
@@ -436,13 +545,24 @@ class EmuPipe:
     def read(self, timeout_s: float) -> bytes:
         clock = self.clock
         deadline = clock.now() + max(0.0, timeout_s)
+        emu = self.emulator
         while True:
             now = clock.now()
             h = self._to_host
-            if h and h[0][0] <= deadline:
+            q = self._to_far
+            due = emu.record_due
+            # a row of a recording falls due before the next byte moves: run it at its time
+            if due is not None and due <= deadline and (not q or due < q[0][0]) \
+                    and (not h or due < h[0][0]):
+                if due > now:
+                    clock.advance_to(due)
+                self._queue_replies(emu.record_step())
+                continue
+            limit = deadline if due is None else min(deadline, due)
+            if h and h[0][0] <= limit:
                 # the reply is on its way: wait for the burst that is on the wire (up to the
                 # deadline), as a serial read with a short inter-byte timeout would
-                last = _last_due(h, deadline)
+                last = _last_due(h, limit)
                 if last > now:
                     clock.advance_to(last)
                 out = bytearray()
@@ -452,13 +572,14 @@ class EmuPipe:
                         out.append(b)
                 self._deliver_far(max(last, clock.now()))
                 return bytes(out)
-            q = self._to_far
-            if q and q[0][0] <= deadline:
-                t = _last_due(q, deadline)
+            if q and q[0][0] <= limit:
+                t = _last_due(q, limit)
                 if t > now:
                     clock.advance_to(t)
                 self._deliver_far(max(t, clock.now()))
                 continue
+            if due is not None and due <= deadline:
+                continue  # the row comes first (the loop's head)
             if deadline > now:
                 clock.advance_to(deadline)
             return b""

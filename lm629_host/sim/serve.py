@@ -22,6 +22,7 @@ import abc
 import contextlib
 import logging
 import os
+import math
 import select
 import socket
 import threading
@@ -41,6 +42,7 @@ from ..bridge.protocol import (
 from ..program import Op
 from .bridge import BridgeEmulator, EmuPipe
 from .build import build_bus
+from .wiring import Miswiring, wiring_of
 from .model import ChipBus, ChipModel, chips_of
 from .usb import OPTION_NAMES as USB_OPTIONS
 from .usb import UsbPipe, adapter_of, wrap_usb
@@ -77,9 +79,9 @@ class FarEnd(abc.ABC):
 class EmuFarEnd(FarEnd):
     """The Python bridge over the model, driven straight."""
 
-    def __init__(self, model: ChipModel | ChipBus) -> None:
+    def __init__(self, model: ChipModel | ChipBus, wiring: Miswiring | None = None) -> None:
         self.model = model  # one chip, or a ChipBus (``--url 'sim://?axes=2'``)
-        self.emulator = BridgeEmulator(model)
+        self.emulator = BridgeEmulator(model, wiring=wiring)
 
     def receive(self, data: bytes) -> list[bytes]:
         return self.emulator.receive(data)
@@ -88,8 +90,14 @@ class EmuFarEnd(FarEnd):
         return self.model.now()
 
     def advance_to(self, t: float) -> bytes:
-        self.model.advance_to(int(t * self.model.clock_hz))
-        return b""
+        """Up to ``t``, with the rows of a recording (RECORD) that fall due on the way, each
+        run at its time: they go out together, stamped with the bridge's clock."""
+        emu, out = self.emulator, bytearray()
+        while (due := emu.record_due) is not None and due <= t:
+            self.model.advance_to(max(self.model.tick, math.ceil(due * self.model.clock_hz - 1e-6)))
+            out += b"".join(emu.record_step())
+        self.model.advance_to(max(self.model.tick, int(t * self.model.clock_hz)))
+        return bytes(out)
 
     def describe(self) -> str:
         return f"Python bridge emulator (firmware {self.emulator.info.firmware_version})"
@@ -171,14 +179,16 @@ class PipeFarEnd(FarEnd):
         return self.pipe.clock.now()
 
     def advance_to(self, t: float) -> bytes:
-        left = t - self.pipe.clock.now()
-        if left <= 0:
-            return b""
-        data = self.pipe.read(left)
-        if data:
-            for _ in self._replies.feed(data):
+        out = bytearray()
+        while (left := t - self.pipe.clock.now()) > 0:  # all of it: a recording's rows too
+            data = self.pipe.read(left)
+            if not data:
+                break
+            out += data
+        if out:
+            for _ in self._replies.feed(bytes(out)):
                 pass
-        return data
+        return bytes(out)
 
     def describe(self) -> str:
         return self.name
@@ -201,9 +211,10 @@ def emulator_far_end(url: str) -> FarEnd:
     adapter (:mod:`.usb`)."""
     model = build_bus(url, allowed=USB_OPTIONS)
     adapter = adapter_of(url)
+    wiring = wiring_of(url)
     if adapter is None:
-        return EmuFarEnd(model)
-    pipe = UsbPipe(_PtyLine(BridgeEmulator(model), baud=None), adapter)
+        return EmuFarEnd(model, wiring)
+    pipe = UsbPipe(_PtyLine(BridgeEmulator(model, wiring=wiring), baud=None), adapter)
     return PipeFarEnd(pipe, model, f"Python bridge emulator behind USB {adapter.describe()}")
 
 
@@ -220,7 +231,7 @@ def firmware_far_end(url: str) -> FarEnd:
     if isinstance(model, ChipBus):
         model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
     try:
-        sim = AvrSim(model)
+        sim = AvrSim(model, wiring=wiring_of(url))
     except (HarnessError, OSError) as exc:
         raise RuntimeError(f"--firmware runs the compiled firmware in simavr: {exc}. Build it "
                            "with `make -C firmware_bridge` (needs gcc-avr, avr-libc, simavr, "

@@ -17,7 +17,7 @@ wait, ``LM629.wait_for``) waits on the right time base.
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 import functools
 import logging
 import threading
@@ -64,6 +64,27 @@ class Stats:
 
     def __str__(self) -> str:
         return " ".join(f"{k}={v}" for k, v in self.as_dict().items())
+
+
+@dataclass(frozen=True)
+class RawRow:
+    """One row of a recording as a transport delivers it (:meth:`Transport.record_rows`):
+    ``index`` is the row's slot (0 at the first row asked, one more each period: a missing
+    index is a row lost, never filled in), ``t`` the time it was sampled in seconds on the clock
+    that timed it (the far side's where the transport records there), and what the sample
+    program read."""
+
+    index: int
+    t: float
+    words: tuple[int, ...]
+    statuses: tuple[int, ...]
+
+
+#: what the host-polled recording says of itself on a wall clock (FT232H, an old bridge)
+HOST_POLLED_NOTE = (
+    "rows are read by the host, one exchange each, and stamped with the host's clock when the "
+    "exchange starts: the spacing jitters by what an exchange takes (USB latency included), a "
+    "row is never faster than one exchange, and a period the host could not keep is a gap")
 
 
 @dataclass(frozen=True)
@@ -142,6 +163,9 @@ class Transport(abc.ABC):
     #: True when it runs ``Op.WAIT_STATUS`` (a wait for a status bit on the far side); without
     #: it, ``LM629.wait_for`` polls from the host
     has_wait_status: bool = False
+    #: True when one program may carry a far-side wait between its commands (a WAIT_STATUS
+    #: inside a longer program): then ``Move.wait`` finds a move's end in one exchange
+    far_waits: bool = False
 
     def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
         self.url = url
@@ -217,6 +241,56 @@ class Transport(abc.ABC):
     def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
         """Release the port.  Idempotent."""
 
+    # ------------------------------------------------------------------ recording
+    # The contract of LM629.record (lm629_host.recording): a transport delivers rows of a
+    # sample program (status reads, data-reporting commands, READs) run every period.  The
+    # default below polls from the host on the transport's clock: exact where that clock is
+    # the chip's own (the simulators), host-timed on hardware (HOST_POLLED_NOTE).  A transport
+    # whose far side samples on its own timer (the bridge's RECORD) overrides all three.
+
+    @property
+    def records_on_far_side(self) -> bool:
+        """True when the rows of :meth:`record_rows` are timed where the chip is: a far side's
+        own timer, or the strobes of a simulator that drives the chip's pins itself
+        (:class:`CycleTransport` on a simulated clock).  False: host-polled, one exchange a
+        row (:meth:`record_note` says what that means): the FT232H, a bridge without RECORD."""
+        return False
+
+    def record_note(self) -> str:
+        """One sentence: how this transport records (for the CLI and error messages)."""
+        if self.records_on_far_side:
+            return "rows sampled on the chip's own clock (simulated): exact"
+        if isinstance(self.clock, WallClock):
+            return HOST_POLLED_NOTE
+        return HOST_POLLED_NOTE.replace("host's clock", "host's (simulated) clock")
+
+    def record_max_rate(self, program: Program) -> float | None:
+        """The highest rate (rows/s) at which ``program`` can be recorded, or None when the
+        transport cannot tell before it tries (the host-polled default on hardware)."""
+        return None
+
+    def record_rows(self, program: Program, period_s: float, rows: int) -> Iterator[RawRow]:
+        """Run ``program`` every ``period_s`` for ``rows`` rows (0: until the iterator is
+        closed), yielding each row as it comes.  The default polls from the host: each row is
+        one :meth:`execute` at its due time on :attr:`clock`; a due time already a period
+        past when the host gets to it is skipped, a gap (never a row made up)."""
+        clock = self.clock
+        t0 = clock.now()
+        k = 0
+        while not rows or k < rows:
+            due = t0 + k * period_s
+            now = clock.now()
+            if now < due:
+                clock.sleep(due - now)
+            elif now >= due + period_s:  # the host fell behind: those rows are gaps
+                k = int((now - t0) / period_s)
+                if rows and k >= rows:
+                    return
+            t = clock.now()
+            r = self.execute(program)
+            yield RawRow(k, t, r.words, r.statuses)
+            k += 1
+
     def describe(self) -> str:
         """One line for the CLI and error messages: what this transport is connected to."""
         return self.url
@@ -247,6 +321,11 @@ class CycleTransport(Transport):
     #: time between two busy polls while the chip is busy
     poll_interval_s: float = 2e-6
     has_wait_status = True
+
+    @property
+    def records_on_far_side(self) -> bool:
+        """On a simulated clock each row's strobes reach the chip at its due time: exact."""
+        return not isinstance(self.clock, WallClock)
 
     @abc.abstractmethod
     def _read_status(self) -> int: ...

@@ -170,7 +170,7 @@ class FtdiTransport(Transport):
         """``busy_s``: the wait after each transfer; None: measured on the chip before the first
         program (:meth:`calibrate_busy`; opening itself never touches the bus), the documented
         100 us when it cannot be.  ``busy_pin``: "gpiol1" when D0 is wired to ADBUS5
-        (``ftdi_pins.WIRING_BUSY_PIN``): every busy check then waits in the adapter on the pin
+        (``connections("ft232h", busy_pin=True)``): every busy check then waits in the adapter on the pin
         (no timed wait, nothing to calibrate, no cut before STT), and HI is not seen."""
         super().__init__(url, trace=trace)
         self.ftdi = ftdi

@@ -17,13 +17,18 @@ import logging
 import random
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator, Sequence
+from typing import cast
 
 from ..bridge.protocol import (
     ALSO_REPLY_TO,
     BAUD_WINDOW_MS,
     CODE_BYTES,
     CODE_SLOTS,
+    END_PAYLOAD,
     FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
+    RECORD_MIN_PERIOD_US,
+    RECORD_TICK_US,
+    ROW_HEADER,
     RUN_TYPES,
     decode_short_reply,
     encode_program,
@@ -43,8 +48,12 @@ from ..bridge.protocol import (
     Pipe,
     Result,
     RunReply,
+    BadProgram,
     busy_timeout_us,
+    check_record_program,
     encode_frame,
+    record_payload,
+    row_wire_bytes,
     reply_size,
     run_payload,
     wire_size,
@@ -60,7 +69,7 @@ from ..program import (
     TraceCallback,
     cycles_of,
 )
-from .base import Transport
+from .base import RawRow, Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
 
@@ -130,6 +139,8 @@ class LinkTransport(Transport):
         self.compact = compact
         self.has_compact_run = False
         self.has_program_codes = False
+        #: the bridge records on its own timer (RECORD, capability bit 8)
+        self.has_record = False
         #: short programs the bridge keeps, by code (RUN_CODE), least recently used first
         self._codes: OrderedDict[bytes, int] = OrderedDict()
         #: short programs sent lately (the second time, one gets a code)
@@ -373,6 +384,9 @@ class LinkTransport(Transport):
         self.has_compact_run = bool(info.capabilities & Capability.COMPACT_RUN) and self.compact
         self.has_program_codes = (self.has_compact_run
                                   and bool(info.capabilities & Capability.PROGRAM_CODES))
+        self.has_record = bool(info.capabilities & Capability.RECORD)
+        # a WAIT_STATUS may stand anywhere in a program (Move.wait's one-exchange end check)
+        self.far_waits = self.has_wait_status
         self._forget_codes()  # HELLO empties the bridge's codes
         return info
 
@@ -665,6 +679,213 @@ class LinkTransport(Transport):
             "Host and firmware disagree on the program format or limits; reflash the firmware "
             "that matches this host (lm629 bridge flash).", port=self.url,
             may_have_run=base > 0)
+
+    # ------------------------------------------------------------------ recording (RECORD)
+    @property
+    def records_on_far_side(self) -> bool:
+        """Only with RECORD: without it every row is a host exchange, stamped when it starts
+        (in simulated time too)."""
+        return self.has_record
+
+    def record_note(self) -> str:
+        if self.has_record:
+            return ("rows sampled by the bridge on its own timer and stamped with its clock "
+                    f"({RECORD_TICK_US} us ticks): the link's latency changes only when they "
+                    "arrive")
+        return super().record_note()
+
+    #: the bridge's bus time for a sample program, per data-reporting command (busy check,
+    #: strobe, the chip busy with it) and per byte read: a generous estimate for the rate check
+    RECORD_US_PER_COMMAND = 25.0
+    RECORD_US_PER_READ = 4.0
+
+    def record_max_rate(self, program: Program) -> float | None:
+        """Rows per second the line carries for ``program``: the bridge sends each row before
+        it samples the next, so a row costs its bus time plus its wire time (at 11 bits a byte,
+        what a two-stop-bit UART or simavr takes), with 10 % to spare."""
+        if not self.has_record:
+            return super().record_max_rate(program)
+        _, read = self._check_sample(program)
+        n_cmd = sum(1 for o in program.ops if o.op is Op.COMMAND)
+        n_read = sum(1 for o in program.ops if o.op in (Op.READ, Op.STATUS))
+        bus_s = (n_cmd * self.RECORD_US_PER_COMMAND + n_read * self.RECORD_US_PER_READ) * 1e-6
+        wire_s = row_wire_bytes(read) * 11 / self.baud if self.baud else 0.0
+        return min(0.9 / (bus_s + wire_s), 1e6 / RECORD_MIN_PERIOD_US)
+
+    def _check_sample(self, program: Program) -> tuple[int, int]:
+        try:
+            return check_record_program(program.ops, self.chip_selects)
+        except BadProgram as exc:
+            raise ValueError(f"not a sample program: {exc}") from None
+
+    def record_rows(self, program: Program, period_s: float, rows: int) -> Iterator[RawRow]:
+        """RECORD: the bridge runs ``program`` every ``period_s`` on its own timer and streams
+        the rows, each stamped with its clock; the host only reads them.  One exchange (a
+        request no row answers within its time is sent again, with a new ``seq``: the program
+        only reads, so a recording started twice changes nothing on the chip).  A row lost on
+        the line is missing from what is yielded (its index is the gap).  Closing the iterator
+        early stops the bridge (any byte from the host ends a recording)."""
+        if not self.has_record:
+            yield from super().record_rows(program, period_s, rows)
+            return
+        if self._closed:
+            raise TransportError("the port is closed", port=self.url)
+        _, read = self._check_sample(program)
+        ticks = max(1, round(period_s * 1e6 / RECORD_TICK_US))
+        period_us = ticks * RECORD_TICK_US
+        if period_us < RECORD_MIN_PERIOD_US or not 0 <= rows <= 0xFFFF:
+            raise ValueError(f"period {period_s * 1e6:g} us / {rows} rows: the bridge records "
+                             f"every {RECORD_MIN_PERIOD_US} us or slower, up to 65535 rows")
+        period = period_us * 1e-6
+        ops = program.ops
+        payload = record_payload(period_us, rows, ops)
+        row_wire = row_wire_bytes(read)
+        clock = self.clock
+        stats = self.stats
+        with self.lock:
+            self._resync()
+            stats.programs += 1
+            pending: deque[Frame] = deque()
+            seq = -1
+            first: Frame | None = None
+            for attempt in range(self.retries + 1):
+                if attempt:
+                    stats.retries += 1
+                    log.info("%s: retry %d of RECORD", self.url, attempt)
+                seq = self._next_seq()
+                wire = b"\x00" + encode_frame(FrameType.RECORD, seq, payload)
+                self.pipe.write(wire)
+                stats.bytes_out += len(wire)
+                stats.round_trips += 1
+                pending.clear()
+                deadline = clock.now() + period + self.reply_timeout(
+                    wire_size(len(payload) + 4), row_wire, ops, FIRMWARE_DEFAULT_BUSY_TIMEOUT_US * 1e-6)
+                first = self._next_frame(seq, deadline, pending)
+                self._attempt(first is None)
+                if first is not None:
+                    break
+            if first is None:
+                self._need_resync = True
+                raise LinkError(f"no answer to RECORD after {self.retries + 1} attempt(s): "
+                                f"{self._quality()}", port=self.url, may_have_run=True)
+            ended = False
+            try:
+                last_index = -1
+                last_us = None
+                t_us = 0
+                silence = max(0.25, 20 * period) + self.margin_s
+                end_at = clock.now() + rows * period if rows else None
+                frame: Frame | None = first
+                while True:
+                    if frame is None:
+                        if end_at is None:
+                            raise LinkError(f"no row from the bridge for {silence:g} s during "
+                                            f"a recording: {self._quality()}", port=self.url,
+                                            may_have_run=True)
+                        return  # the last rows (and the end) were lost: they are gaps
+                    if frame.type == FrameType.RECORD_END:
+                        ended = True
+                        self._end_of_recording(frame, ops, program)
+                        return
+                    if frame.type == FrameType.RECORD_ROW:
+                        row = self._decode_row(frame.payload, ops)
+                        if row is not None:
+                            idx16, stamp, words, statuses = row
+                            index = last_index + ((idx16 - last_index) & 0xFFFF) \
+                                if last_index >= 0 else idx16
+                            t_us = stamp if last_us is None else t_us + ((stamp - last_us) & 0xFFFFFFFF)
+                            last_index, last_us = index, stamp
+                            self._account(ops, RunReply())  # the row's bus cycles, as a RUN's
+                            self._emit_cycles(ops, words, statuses)
+                            yield RawRow(index, t_us * 1e-6, words, statuses)
+                            if rows and index >= rows - 1:
+                                # the end follows at once: take it, or leave it to be ignored
+                                nxt = self._next_frame(seq, clock.now() + self.reply_timeout(
+                                    wire_size(9), wire_size(9)), pending)
+                                ended = nxt is not None and nxt.type == FrameType.RECORD_END
+                                if ended:
+                                    self._end_of_recording(cast(Frame, nxt), ops, program)
+                                return
+                    else:
+                        self.stale_replies += 1
+                    wait = silence
+                    if end_at is not None:
+                        wait = max(wait, end_at - clock.now() + silence)
+                    frame = self._next_frame(seq, clock.now() + wait, pending)
+            finally:
+                if not ended:
+                    self._stop_recording(seq, pending, period)
+
+    def _next_frame(self, seq: int, deadline: float, pending: deque[Frame]) -> Frame | None:
+        """The next frame with ``seq`` from the bridge (rows may come several in one read:
+        the rest wait in ``pending``), or None at ``deadline``.  Bad frames are counted (a
+        lost row is a gap)."""
+        clock = self.clock
+        while not pending:
+            left = deadline - clock.now()
+            if left <= 0:
+                return None
+            data = self.pipe.read(left)
+            if not data:
+                return None
+            self.stats.bytes_in += len(data)
+            for item in self._reader.feed(data):
+                if isinstance(item, FrameError):
+                    self.bad_frames += 1
+                elif item.seq != seq or item.type & 0x80 == 0:
+                    self.stale_replies += 1
+                else:
+                    pending.append(item)
+        return pending.popleft()
+
+    def _decode_row(self, payload: bytes, ops: Sequence[BusOp]
+                    ) -> tuple[int, int, tuple[int, ...], tuple[int, ...]] | None:
+        """(row, t_us, words, statuses) of a RECORD_ROW, or None for one that passed its CRC
+        but does not hold what ``ops`` read (line damage: a gap, counted as a bad frame)."""
+        n = ROW_HEADER.size
+        if len(payload) < n:
+            self.bad_frames += 1
+            return None
+        idx16, stamp = ROW_HEADER.unpack_from(payload)
+        try:
+            r = decode_short_reply(payload[n:] + b"\x00", ops)
+        except FrameError:
+            self.bad_frames += 1
+            return None
+        return idx16, stamp, r.words, r.statuses
+
+    def _end_of_recording(self, frame: Frame, ops: Sequence[BusOp], program: Program) -> None:
+        """RECORD_END: OK, or the error that stopped (or refused) the recording."""
+        if len(frame.payload) != END_PAYLOAD.size:
+            return  # damaged past its CRC: the rows already say what was recorded
+        result, index, sent = END_PAYLOAD.unpack(frame.payload)
+        if result == Result.OK:
+            return
+        if result == Result.BUSY_TIMEOUT and index < len(ops):
+            raise BusyTimeout(ops[index].describe(), FIRMWARE_DEFAULT_BUSY_TIMEOUT_US * 1e-6,
+                              NONE_BYTE, index, [])
+        try:
+            name = Result(result).name
+        except ValueError:
+            name = f"unknown result {result}"
+        raise LinkError(f"the bridge refused the recording ({name}, after {sent} row(s)): host "
+                        "and firmware disagree on RECORD; reflash the firmware that matches "
+                        "this host (lm629 bridge flash)", port=self.url, may_have_run=False)
+
+    def _stop_recording(self, seq: int, pending: deque[Frame], period: float) -> None:
+        """End a recording early: one byte stops the bridge; its RECORD_END (or a row already
+        on its way) is read and dropped, so that the next request starts on a quiet line."""
+        try:
+            self.pipe.write(b"\x00")
+            self.stats.bytes_out += 1
+            deadline = self.clock.now() + 2 * period + self.reply_timeout(
+                wire_size(64), wire_size(64))
+            while True:
+                f = self._next_frame(seq, deadline, pending)
+                if f is None or f.type == FrameType.RECORD_END:
+                    return
+        except (OSError, TransportError):  # the port went away: nothing left to stop
+            return
 
     # ------------------------------------------------------------------ misc
     def describe(self) -> str:

@@ -20,6 +20,7 @@ from ..program import BusOp, Op, Program, ProgramResult, TraceCallback
 from ..sim.build import build_bus
 from ..sim.clock import SimClock
 from ..sim.model import ChipBus, ChipModel, chips_of
+from ..sim.wiring import BentChip, Miswiring, wiring_of
 from .base import CycleTransport, PortInfo
 
 #: simulated duration of one /RD or /WR strobe cycle, recovery included
@@ -38,16 +39,20 @@ class SimTransport(CycleTransport):
     has_reset_line = True
 
     def __init__(self, model: ChipModel | ChipBus, url: str = "sim://", *,
-                 trace: TraceCallback | None = None) -> None:
+                 trace: TraceCallback | None = None, wiring: Miswiring | None = None) -> None:
         super().__init__(url, trace=trace)
         self.model = model
+        #: ``wiring=``: the model seen through miswired data lines (None: a correct bench);
+        #: its programs take the general loop, whose strobes go through it
+        self.bent = BentChip(model, wiring) if wiring is not None else None
         #: the chips on the bus, chip select 0 first (one chip: ``[model]``)
         self.models = chips_of(model)
         self.chip_selects = len(self.models)
         self.clock = SimClock(model)
         self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
-        #: False: make every busy poll (the reference the skip is tested against)
-        self.skip_known_busy = True
+        #: False: make every busy poll (the reference the skip is tested against); never
+        #: skipped through miswired lines (the skip reads the chip's own busy, not the pins')
+        self.skip_known_busy = self.bent is None
 
     def execute(self, program: Program) -> ProgramResult:
         """:meth:`CycleTransport.execute` fused with this transport's strobes and busy skip.
@@ -58,7 +63,8 @@ class SimTransport(CycleTransport):
         busy has no known end (``fault=busy``), the general loop runs instead; the tests
         compare the two (tests/test_wait_and_busy_paths.py)."""
         m = self.model
-        if (not self.skip_known_busy or self._tracing() or m.busy_deadline() is None):
+        if (not self.skip_known_busy or self._tracing() or m.busy_deadline() is None
+                or self.bent is not None):
             return super().execute(program)
         stats = self.stats
         stats.programs += 1
@@ -201,7 +207,7 @@ class SimTransport(CycleTransport):
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
-        return cls(build_bus(url), url, trace=trace)
+        return cls(build_bus(url), url, trace=trace, wiring=wiring_of(url))
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:
@@ -219,7 +225,7 @@ class SimTransport(CycleTransport):
     def _strobe(self) -> ChipModel | ChipBus:
         m = self.model
         m.advance_to(m.tick + self._cycle_clocks)
-        return m
+        return m if self.bent is None else self.bent  # type: ignore[return-value]  # BentChip has the strobes of a chip
 
     def _read_status(self) -> int:
         return self._strobe().read_status()
@@ -241,7 +247,10 @@ class SimTransport(CycleTransport):
         m.reset_pulse()
 
     def _sleep_until_status(self, mask: int, deadline: float) -> None:
-        """Straight to the next status change (see :meth:`SimClock.advance_until_status`)."""
+        """Straight to the next status change (see :meth:`SimClock.advance_until_status`);
+        through miswired lines the bits differ, so then one poll period at a time."""
+        if self.bent is not None:
+            return super()._sleep_until_status(mask, deadline)
         cast(SimClock, self._inner_clock).advance_until_status(mask, deadline)
 
     def _hi(self) -> bool:

@@ -8,6 +8,7 @@ from __future__ import annotations
 from ..bridge.pins import CHIP_SELECTS
 from ..sim.bridge import MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
 from ..sim.build import build_bus
+from ..sim.wiring import wiring_of
 from ..sim.model import ChipBus, ChipModel, chips_of
 from ..sim.usb import OPTION_NAMES as USB_OPTIONS
 from ..sim.usb import wrap_usb
@@ -59,7 +60,7 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     # bridge=1: a one-chip bridge of before issue 11; else the multi-axis firmware's HELLO
     info = ONE_CHIP_INFO if opts["bridge"] == "1" else MULTI_AXIS_INFO
     model = build_bus(url, allowed=frozenset(names), limit=info.chip_selects)
-    emu = BridgeEmulator(model, info)
+    emu = BridgeEmulator(model, info, wiring=wiring_of(url))
     pipe = EmuPipe(emu, baud=baud or None, max_baud=opts["max_baud"] or None)
     outer = wrap_usb(wrap(pipe) if wrap is not None else pipe, url)
     t = EmuLinkTransport.__new__(EmuLinkTransport)

@@ -3,7 +3,7 @@ to the chip model (:mod:`lm629_host.sim.ftdi`).
 
 URL parameters: every ``sim://`` parameter (chip, clock, strict, fault, record, motor...), the
 ``ftdi://`` options (``latency``, ``busy_us``, ``frequency``, ``busy_pin``: the emulated
-adapter is then wired as ``ftdi_pins.WIRING_BUSY_PIN``), and the emulation's costs:
+adapter is then wired as ``connections("ft232h", busy_pin=True)``), and the emulation's costs:
 ``usb_us`` (per bulk transfer, default 125), ``command_ns`` (per MPSSE command, default 500)
 and ``live_status`` (``0``: the emulated chip latches its status byte at /RD falling even with
 the busy pin wired, the case the transport's pin check refuses).
@@ -29,6 +29,7 @@ from ..clock import Clock
 from ..errors import ProtocolViolation
 from ..program import Program, ProgramResult, TraceCallback
 from ..sim.build import build_bus
+from ..sim.wiring import wiring_of
 from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
 from ..sim.model import ChipBus, ChipModel, chips_of
 from ..urls import Option, parse_options, query_params
@@ -78,7 +79,8 @@ class SimFtdiTransport(FtdiTransport):
         busy_pin = busy_pin_of(opts, url)
         live = {"auto": None, "0": False, "1": True}[str(opts["live_status"]).lower()]
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
-                                busy_pin=busy_pin is not None, live_status=live)
+                                busy_pin=busy_pin is not None, live_status=live,
+                                wiring=wiring_of(url))
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
         ftdi = open_mpsse(url, latency, frequency, device=usb_dev)

@@ -45,8 +45,8 @@ What the silicon does that a careless host gets wrong, modelled so that tests ca
   "purge RX/TX" from the chip's side, libftdi's and pyftdi's ``SIO_RESET_PURGE_RX/TX``).
 
 Wait on I/O (0x88 / 0x89: until GPIOL1, ADBUS5, is high / low; FTDI AN_108).  GPIOL1 is HI
-in the default wiring; with ``busy_pin=True`` it is wired to D0 instead (``ftdi_pins.
-WIRING_BUSY_PIN``) and HI to nothing.  The engine then really stops on the emulated clock: a
+in the default wiring; with ``busy_pin=True`` it is wired to D0 instead (``connections.
+connections("ft232h", busy_pin=True)``) and HI to nothing.  The engine then really stops on the emulated clock: a
 condition already met costs the command; one the model says will be met at a known time (busy
 clearing at ``busy_deadline()``) resumes the engine at that time; one that never comes
 (``fault=busy``, or 0x88 with busy already over) stalls it, and the device answers the host's
@@ -76,6 +76,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ... import ftdi_pins as pins
+from ..wiring import Miswiring
 from ..model import ChipBus, ChipModel, chips_of
 
 # FTDI vendor requests (the ones pyftdi sends; FTDI AN_232B-series numbering)
@@ -140,8 +141,12 @@ class EmulatedFT232H:
     def __init__(self, model: ChipModel | ChipBus, *, serial: str = "LM629EMU", usb_ns: int = 125_000,
                  command_ns: int = 500, bus: int = 1, address: int = 7,
                  adaptive: bool = False, three_phase: bool = False,
-                 busy_pin: bool = False, live_status: bool | None = None) -> None:
+                 busy_pin: bool = False, live_status: bool | None = None,
+                 wiring: Miswiring | None = None) -> None:
         self.model = model
+        #: ``wiring=``: the wires between ACBUS0-7 and the chip's D0-D7 (None: correct); a
+        #: byte is bent where the chip latches it and where it drives the bus
+        self.wiring = wiring
         self.serial = serial
         self.manufacturer = "FTDI"
         self.product = "Single RS232-HS"
@@ -466,6 +471,8 @@ class EmulatedFT232H:
                 # value for as long as /RD is low (see the module docstring)
                 self._run_model()
                 self._drive = self.model.read_status()
+                if self.wiring is not None:
+                    self._drive = self.wiring.to_host(self._drive)
             if not check:
                 return self._drive
             rd_fell = self._edge_ns.get("RD_fall", 0)
@@ -545,6 +552,8 @@ class EmulatedFT232H:
                 m = self.model
                 self._drive = (m.read_status() if not level & pins.PS
                                else self._strobe(m.read_data))
+                if self.wiring is not None:
+                    self._drive = self.wiring.to_host(self._drive)
                 if self._high_dir:
                     self._timing("/RD low while the adapter drives D0-D7 (contention)")
             elif level & pins.RD:
@@ -560,6 +569,8 @@ class EmulatedFT232H:
             if self._high_dir != 0xFF:
                 self._timing("/WR strobed with D0-D7 not driven by the adapter")
             byte = self._high_val
+            if self.wiring is not None:
+                byte = self.wiring.to_chip(byte)
             m = self.model
             if level & pins.PS:
                 self._strobe(m.write_data, byte)
