@@ -36,10 +36,10 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from .errors import MotionError
+from .errors import MotionError, MotionFault
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
-from .safety import STOP_NOTE, emergency_stop, stop_on_error
+from .safety import motion_fault, stop_on_error
 
 #: a step: the largest trajectory words, so the desired position jumps within a sample
 STEP_VELOCITY = VELOCITY_MAX
@@ -377,18 +377,15 @@ class _Session:
         # it, the real one while the drive is off (after a reset, or a stop with motor off)
         self.drive_off = bool(first.signals & Signals.MOTOR_OFF)
         self.origin = first.real_position if self.drive_off else first.desired_position
-        self.sample_s = SAMPLE_CLOCKS / (clock_hz or _clock_hz(chip))
+        self.sample_s = SAMPLE_CLOCKS / (clock_hz or chip.clock_hz)
         self.records: list[Record] = []
         self.driving = False  #: an STT of ours turned the drive on (reset leaves it off)
         self.check(first)
 
-    def fault(self, reason: str, message: str, snap: Snapshot | None = None) -> MotionError:
-        _ok, note = emergency_stop(self.chip)
-        err = MotionError(reason, f"{message} -- {note}",
-                          position=None if snap is None else snap.real_position,
-                          error=None if snap is None else snap.following_error)
-        setattr(err, STOP_NOTE, note)  # stop_on_error and the CLI: stopped once, said once
-        return err
+    def fault(self, reason: MotionFault, message: str, snap: Snapshot | None = None) -> MotionError:
+        return motion_fault(self.chip, reason, message,
+                            position=None if snap is None else snap.real_position,
+                            error=None if snap is None else snap.following_error)
 
     def check(self, s: Snapshot) -> None:
         """The safety checks on every snapshot."""
@@ -481,12 +478,6 @@ class _Session:
 
         last = self.record(rec, limit_s, watch)
         return last, len(window) > quiet and max(window) - min(window) <= 2
-
-
-def _clock_hz(chip: LM629) -> float:
-    """The simulated chip's clock, else the usual 8 MHz."""
-    model = getattr(chip.transport, "model", None)
-    return float(getattr(model, "clock_hz", 8_000_000))
 
 
 # ---------------------------------------------------------------------------------- phasing

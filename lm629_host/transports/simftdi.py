@@ -36,6 +36,7 @@ from ..urls import Option, parse_options, query_params
 from .base import Check, PortInfo
 from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, busy_pin_of, open_mpsse
 from .ftdi import OPTIONS as FTDI_OPTIONS
+from .sim import ModelChips
 
 #: URL options that belong to this transport rather than to the chip model: the FT232H
 #: transport's and the emulation's costs
@@ -61,7 +62,7 @@ class EmulatedClock(Clock):
         self.device.advance_ns(round(seconds * 1e9))
 
 
-class SimFtdiTransport(FtdiTransport):
+class SimFtdiTransport(ModelChips, FtdiTransport):
     scheme = "sim+ftdi"
     simulated = True
 
