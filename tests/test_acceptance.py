@@ -1,7 +1,8 @@
 """The core issue's acceptance scenarios, run unchanged on every simulated transport.
 
 ``sim://`` drives the chip model directly; ``sim+avr://`` goes through the real bridge firmware
-in simavr; ``sim+ftdi://`` through the real FT232H transport and pyftdi on an emulated FT232H.
+in simavr; ``sim+ftdi://`` through the real FT232H transport and pyftdi on an emulated FT232H
+(also wired with ``busy_pin=gpiol1``).
 Every figure below comes from the application notes (AN-693 table 4, AN-706 3.7 / 4.4.1) or
 the datasheet's command table.
 """
@@ -16,7 +17,8 @@ import pytest
 from lm629_host import BusyTimeout, ResetError, Signals, Status, WaitTimeout
 from lm629_host.transports import SCHEMES
 
-URLS = ["sim://", "sim+avr://", "sim+ftdi://"]
+#: the FT232H twice: timed busy waits, and waiting on the busy bit in the adapter (D0 on GPIOL1)
+URLS = ["sim://", "sim+avr://", "sim+ftdi://", "sim+ftdi://?busy_pin=gpiol1"]
 
 
 def _available(url: str) -> bool:

@@ -17,7 +17,8 @@ from lm629_host.sim.model.chip import SAMPLE_CLOCKS
 from lm629_host.opcodes import Status
 
 #: the transports of the Done-when list; sim+avr:// and sim+ftdi:// join as they gain axes=
-TRANSPORTS = ["sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://"]
+TRANSPORTS = ["sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://",
+              "sim+ftdi://?busy_pin=gpiol1"]
 
 
 def open2(url: str, **kw) -> lm629_host.Board:
@@ -242,7 +243,7 @@ def test_ftdi_streams_cut_per_chip():
     first); an STT on another chip does not: a synchronized start is one USB exchange."""
     from lm629_host.opcodes import Cmd
     from lm629_host.program import Program
-    from lm629_host.transports.ftdi import streams_of
+    from lm629_host.transports.mpsse import streams_of
     p = Program().command(Cmd.LTRJ).write(0).command(Cmd.STT)
     assert len(streams_of(p.ops)) == 2
     q = Program().sync().command(Cmd.STT).select(1).sync().command(Cmd.STT)
@@ -269,6 +270,29 @@ def test_ftdi_repeat_after_busy_never_runs_another_chips_stt_twice():
             rstis = [w for cmd, w in c.history if cmd == 0x1D]
             assert len(stts) == 1, c.history
             assert rstis and rstis[-1] == (0x7E & ~0x04,)  # RSTI clears bit 2 only
+        path, done = run_samples(board, 3000)
+        assert path[-1] == (800 << 16, 800 << 16)
+
+
+def test_ftdi_busy_pin_waits_out_one_chips_long_busy_in_a_synchronized_start():
+    """The same chip holding busy 3x its worst case, with D0 on GPIOL1: the stream waits on the
+    pin for chip 0 (the chips share D0; only the selected one drives it), no repeat, and each
+    chip sees exactly one RSTI and one STT."""
+    with lm629_host.open_board("sim+ftdi://?axes=2&record=1&busy_pin=gpiol1") as board:
+        board.reset()
+        for a in board.axes:
+            a.load_trajectory(acceleration=1500, velocity=2 * 65536, position=800)
+        for c in chips(board):
+            c.record_clear()
+        board.transport.device.stretch_busy(1, 300e-6)
+        trips = board.transport.stats.round_trips
+        board.start(clear=Status.TRAJECTORY_COMPLETE)
+        assert board.transport.stats.retries == 0
+        assert board.transport.stats.round_trips - trips == 1
+        assert board.transport.device.busy_stretched == 1
+        for c in chips(board):
+            assert [cmd for cmd, _ in c.history] == [0x1D, 0x01], c.history  # RSTI, STT
+            assert not c.violations
         path, done = run_samples(board, 3000)
         assert path[-1] == (800 << 16, 800 << 16)
 
