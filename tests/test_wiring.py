@@ -263,6 +263,18 @@ def test_cli_png_without_a_renderer(tmp_path, monkeypatch):
     assert not (tmp_path / "w.png").exists()
 
 
+def test_cli_drawing_into_a_missing_directory_is_bad_usage(tmp_path):
+    """An output file that cannot be written is one line and exit 2 (as ``step --csv``),
+    checked before the table is printed or the chip is touched, not an internal error."""
+    from click.testing import CliRunner
+
+    from lm629_host.cli import main
+    for opt in ("--svg", "--png"):
+        r = CliRunner().invoke(main, ["wiring", opt, str(tmp_path / "no" / "w.svg")])
+        assert r.exit_code == 2, r.output
+        assert "does not exist" in r.output and "Uno pin" not in r.output
+
+
 # ---------------------------------------------------------------------- a persistent bench
 @pytest.mark.parametrize("far_end", ["python", "firmware"])
 def test_on_a_persistent_bench_from_separate_processes(tmp_path, far_end):

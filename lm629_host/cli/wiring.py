@@ -10,6 +10,7 @@ from ..connections import ADAPTERS, MAX_AXES, text_table
 from ..wiring import adapter_for, check_wiring
 from ..wiring_svg import write_png, write_svg
 from .app import _session, main
+from .types import check_writable
 
 
 @main.command()
@@ -36,6 +37,9 @@ def wiring(adapter: str | None, axes: int, svg: str | None, png: str | None,
     if not 1 <= axes <= MAX_AXES[name]:
         raise click.BadParameter(f"{axes}: the {name} wiring has 1..{MAX_AXES[name]} chip "
                                  "selects", param_hint="--axes")
+    for path, opt in ((svg, "--svg"), (png, "--png")):
+        if path:
+            check_writable(path, opt)
     if check:
         chip = s.open(prepare=False)
         report = check_wiring(chip, name)
