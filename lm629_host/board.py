@@ -23,9 +23,12 @@ quantisation of each ramp.
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from .errors import ArgumentError, AxisError, CommandError, MotionError
 from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, reset_chips, snapshot_of
@@ -45,6 +48,11 @@ from .ports import resolve_port
 from .transports import DEFAULT_URL
 from .clock import Clock
 from .transports.base import Transport
+
+if TYPE_CHECKING:
+    from .profile import Profile
+
+log = logging.getLogger("lm629_host")
 
 ONE = 1 << 16  #: one count (per sample, per sample^2) in the chip's 16.16 words
 
@@ -299,6 +307,22 @@ class Board:
     def __repr__(self) -> str:
         return f"<Board {len(self.axes)} axes on {self.transport.describe()}>"
 
+    #: the profile the board was opened with (``open_board(profile=...)``), else None
+    profile: Profile | None = None
+
+    def __getitem__(self, which: str | int) -> LM629:
+        """``board["x"]``: the axis of that name in the board's profile; ``board[1]``: the
+        axis on chip select 1."""
+        if isinstance(which, str):
+            if self.profile is None:
+                raise KeyError(f"{which!r}: this board was opened without a profile, so its "
+                               "axes have no names (board[0], or open_board(profile=...))")
+            try:
+                return self.axis(self.profile.axis(which).cs)
+            except ValueError as exc:  # a mapping's missing key
+                raise KeyError(str(exc)) from None
+        return self.axis(which)
+
     def axis(self, which: LM629 | int) -> LM629:
         """The axis ``which`` (an index or one of :attr:`axes`); AxisError when it is not
         one of this board's."""
@@ -401,6 +425,9 @@ class Board:
                      check_int(f"target of axis {a.chip_select}", t, POSITION_MIN, POSITION_MAX,
                                hex_digits=8))
                  for a, t in resolved.items()}
+        for a, (acc, vel, target) in words.items():  # before any read (soft limits)
+            if a.limits is not None:
+                a.limits.check_trajectory(acc, vel, target)
         starts = {a: a.snapshot() for a in words}
         return self._launch(words, None, starts)
 
@@ -424,6 +451,9 @@ class Board:
         to ``targets``: each axis's words scaled by its share of the path
         (:func:`plan_linear`), loaded and started in one program."""
         resolved = [self.axis(k) for k in targets]
+        for a, t in zip(resolved, targets.values()):  # before any read (soft limits); the
+            if a.limits is not None:                  # words are checked as they are loaded
+                a.limits.check_position(t, f"target of axis {a.chip_select}")
         starts = {a: a.snapshot() for a in resolved}
         plan = self.plan_linear(targets, velocity=velocity, acceleration=acceleration,
                                 starts=starts)
@@ -496,15 +526,59 @@ class _BoardProgram(Program):
         return self
 
 
-def open_board(url: str = DEFAULT_URL, *, axes: int | None = None, chip: str | None = None,
+def open_board(url: str | None = None, *, axes: int | None = None, chip: str | None = None,
                clock: float | str | None = None, trace=None,
-               busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> Board:
+               busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S,
+               profile: str | os.PathLike[str] | Profile | None = None,
+               apply: bool | str = "auto") -> Board:
     """Open every chip behind ``url``: ``sim://?axes=2``, a multi-axis bridge, an FT232H with
     two /CS lines.  The number of axes is ``axes`` or the URL's ``axes=`` (both: they must
     agree, :func:`lm629_host.ports.resolve_port`), else what the transport reports (the
     simulator's chips, the bridge's chip selects from HELLO, the FT232H's /CS lines).  More
     axes than the board has chip selects is an :class:`AxisError`; ``cs=`` (one chip) is an
-    error here."""
+    error here.
+
+    ``profile``: a bench profile (:mod:`lm629_host.profile`, a path or a loaded one): the port
+    (when ``url`` is None), the chip and clock come from it, ``board["x"]`` is its axis ``x``,
+    every named axis gets its soft limits (``ValueError`` for a move outside them, before any
+    bus cycle), and ``apply`` says what is sent at open: ``"auto"`` (default) applies the
+    profile to each axis that has lost its settings (reset or powered up since: one RDSIGS
+    each; a warning is logged for each one applied), True applies it to every axis, False
+    sends nothing.  A bad profile is a :class:`~lm629_host.profile.ProfileError` (ValueError)
+    before the port is opened."""
+    prof = None
+    if profile is not None:
+        from .profile import Profile, load_profile
+        prof = profile if isinstance(profile, Profile) else load_profile(profile)
+        if apply not in (True, False, "auto"):
+            raise ValueError(f"apply={apply!r}: expected True, False or 'auto'")
+        if url is None:
+            url = prof.url()
+        chip = prof.chip if chip is None else chip
+        clock = prof.clock_hz if clock is None else clock
+    if url is None:
+        url = DEFAULT_URL
+    board = _open_board(url, axes, chip, clock, trace, busy_timeout)
+    if prof is not None:
+        try:
+            _with_profile(board, prof, apply)
+        except BaseException:
+            board.close()
+            raise
+    return board
+
+
+def _with_profile(board: Board, prof: Profile, apply: bool | str) -> None:
+    from .profile import apply_profile, ensure_applied, name_axes
+    named = name_axes(board, prof)
+    if apply == "auto":
+        ensure_applied(named, prof, log.warning)
+    elif apply:
+        apply_profile(named, prof)
+
+
+def _open_board(url: str, axes: int | None, chip: str | None, clock: float | str | None,
+                trace: Any, busy_timeout: float) -> Board:
     spec = resolve_port(url, chip=chip, clock=clock, axes=axes)
     if spec.cs is not None:
         raise ArgumentError("cs", spec.cs, f"cs={spec.cs} names one chip: open_board opens "

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from .clock import Clock, WallClock
 from .errors import ArgumentError, AxisError, CommandError, ResetError, WaitTimeout, check_int
+from .limits import SoftLimits
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     ACCELERATION_MAX,
@@ -103,6 +104,9 @@ class LM629:
 
     #: when :meth:`move_to`'s moves are done or a motion fault (settable per object)
     move_rules: MoveRules = MoveRules()
+    #: the axis's soft limits (a profile sets them): every trajectory is checked against them
+    #: in :meth:`trajectory_program`, before any bus cycle (:mod:`lm629_host.limits`)
+    limits: SoftLimits | None = None
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
                  busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None,
@@ -380,6 +384,11 @@ class LM629:
                 f"stop={stop!r} cannot be combined with new acceleration/velocity/position: the "
                 "chip would not move (spec: stop bits only stop an ongoing move). Send the stop, "
                 "then load the next move")
+        if self.limits is not None and stop is None:  # a stop is never refused
+            self.limits.check_trajectory(
+                acceleration, velocity, position, acceleration_relative=acceleration_relative,
+                velocity_relative=velocity_relative, position_relative=position_relative,
+                velocity_mode=velocity_mode)
         control = _STOPS[stop]
         if velocity_mode:
             control |= TrajectoryFlags.VELOCITY_MODE
@@ -495,6 +504,8 @@ class LM629:
         if acceleration is not None:
             acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX,
                                      hex_digits=8)
+        if self.limits is not None:  # before the first read: a refused move costs no exchange
+            self.limits.check_trajectory(acceleration, velocity, None if relative else position)
         first = self.snapshot() if relative else None
         target = first.desired_position + position if first is not None else position
         program = self.trajectory_program(acceleration, velocity,

@@ -31,7 +31,6 @@ Why the choices (docs/testing.md has the user's side):
 from __future__ import annotations
 
 import collections
-import dataclasses
 import enum
 import importlib.util
 import signal
@@ -46,7 +45,7 @@ import pytest
 
 import lm629_host
 
-from .errors import AxisError, LM629Error
+from .errors import LM629Error
 from .opcodes import STOP_FLAGS, Cmd, Status
 from .program import STATUS_OPS, BusOp, Op, Program, ProgramResult
 from .safety import emergency_stop
@@ -527,17 +526,7 @@ def _name_axes(board: lm629_host.Board, prof: Any) -> dict[str, lm629_host.LM629
     """Give each axis of ``board`` the profile's name, soft limits, chip variant and clock
     (as ``open_board(profile=...)`` does, on this test's transport); nothing is sent."""
     from . import profile as profiles  # type: ignore[attr-defined,unused-ignore]  # issue 21's module
-    named = {}
-    for name, ax in prof.axes.items():
-        if ax.cs >= len(board.axes):
-            raise AxisError(ax.cs, len(board.axes), f"{board.transport.describe()} (axis {name} "
-                                                    f"of {prof.path})")
-        chip = board.axes[ax.cs]
-        profiles.attach(chip, prof, ax)
-        chip.move_rules = dataclasses.replace(chip.move_rules, clock_hz=prof.clock_hz)
-        named[name] = chip
-    board.profile = prof  # type: ignore[attr-defined,unused-ignore]  # board["x"] (issue 21)
-    return named
+    return profiles.name_axes(board, prof)  # type: ignore[no-any-return,unused-ignore]  # typed Any here
 
 
 def _program_text(run: _Run) -> str:

@@ -13,7 +13,7 @@ raised (:func:`~lm629_host.safety.motion_fault`), as a move's does.
 
 from __future__ import annotations
 
-from .errors import MotionError, MotionFault
+from .errors import MotionError, MotionFault, WaitTimeout
 from .lm629 import LM629
 from .opcodes import SAMPLE_CLOCKS, Status
 from .safety import motion_fault, stop_on_error
@@ -124,14 +124,43 @@ def search_index(chip: LM629, velocity: int, *, timeout: float = 10.0, forward: 
     (abrupt: the index position is the point, not where the shaft ends) and wait until it
     rests; return the index position (counts).  SIP is armed and the index flag cleared first;
     the words are checked before anything moves.  A :class:`~lm629_host.WaitTimeout` when no
-    index comes within ``timeout`` seconds; any error stops the motor first."""
-    chip.trajectory_program(acceleration=acceleration, velocity=velocity, velocity_mode=True)
+    index comes within ``timeout`` seconds; any error stops the motor first.
+
+    On an axis with soft travel limits (``chip.limits``, :mod:`lm629_host.limits`) the search
+    is a move towards ``max`` (``min`` when not ``forward``) instead, which ends there at the
+    latest: velocity mode would run past it.  Reaching the limit without an index is a
+    WaitTimeout that says so.  The acceleration is brought down to the axis's cap."""
+    lim = chip.limits
+    goal = None
+    if lim is not None and lim.has_travel:
+        goal = lim.max if forward else lim.min
+        if goal is None:
+            raise ValueError(f"the index search runs {'forward' if forward else 'backward'} and "
+                             f"the axis has no soft limit {'max' if forward else 'min'} to end "
+                             "it: give it one (or search the other way)")
+        acceleration = min(acceleration, lim.acceleration_word or acceleration)
+        chip.trajectory_program(acceleration=acceleration, velocity=velocity, position=goal)
+    else:
+        chip.trajectory_program(acceleration=acceleration, velocity=velocity, velocity_mode=True)
     chip.reset_interrupts(Status.INDEX_PULSE)
     chip.set_index_position()
     with stop_on_error(chip):
-        run_velocity(chip, velocity, acceleration, forward=forward)
-        chip.wait_for(Status.INDEX_PULSE, timeout=timeout, poll=0.001,
-                      what="the index pulse (status bit 3) while turning")
+        if goal is None:
+            run_velocity(chip, velocity, acceleration, forward=forward)
+            chip.wait_for(Status.INDEX_PULSE, timeout=timeout, poll=0.001,
+                          what="the index pulse (status bit 3) while turning")
+        else:
+            chip.move_to(goal, velocity=velocity, acceleration=acceleration)
+            status = chip.wait_for(Status.INDEX_PULSE | Status.TRAJECTORY_COMPLETE,
+                                   timeout=timeout, poll=0.001,
+                                   what="the index pulse (status bit 3) on the way to the soft "
+                                        f"limit {goal}")
+            if not status & Status.INDEX_PULSE:
+                exc = WaitTimeout(Status.INDEX_PULSE, timeout, int(status))
+                exc.args = (f"no index pulse on the way to the soft limit {goal} (the move "
+                            f"reached it; status {int(status):02X}): search the other way or "
+                            "check the encoder's index channel",)
+                raise exc
         chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
         chip.load_trajectory(stop="abrupt", start=True)
         wait_still(chip, 1.0)

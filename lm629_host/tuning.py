@@ -37,6 +37,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 from .errors import MotionError, MotionFault
+from .limits import clip_step
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
 from .safety import motion_fault, stop_on_error
@@ -308,6 +309,9 @@ class Record:
     steps: list[tuple[float, int]] = field(default_factory=list)
     t0: float = 0.0
     state0: PidState | None = None  #: the filter's state at t0, when known
+    #: the (velocity, acceleration) words of the steps when an axis's soft caps brought them
+    #: below a step (:func:`lm629_host.limits.clip_step`): the desired position ramps
+    words: tuple[int, int] | None = None
 
     def times(self) -> list[float]:
         return [s.time - self.t0 for s in self.rows]
@@ -421,8 +425,9 @@ class _Session:
 
     def step_to(self, rec: Record, target: int) -> None:
         self.chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
-        self.chip.load_trajectory(acceleration=STEP_ACCELERATION, velocity=STEP_VELOCITY,
-                                  position=target, start=True)
+        v, a = clip_step(self.chip, STEP_VELOCITY, STEP_ACCELERATION)  # an axis's soft caps
+        self.chip.load_trajectory(acceleration=a, velocity=v, position=target, start=True)
+        rec.words = None if (v, a) == (STEP_VELOCITY, STEP_ACCELERATION) else (v, a)
         self.driving = True
         rec.steps.append((self.chip.clock.now(), target))
 
@@ -539,13 +544,34 @@ def _identify_run(ses: _Session, step: int, hold_s: float) -> Record:
     return rec
 
 
+def _ramp(distance: int, words: tuple[int, int], k: int) -> float:
+    """Counts travelled ``k`` samples after the start of a trapezoid (or triangle) of
+    ``distance`` counts with 16.16 (velocity, acceleration) words, in continuous arithmetic
+    (the chip's own is within a count of it)."""
+    d = abs(distance)
+    v, a = words[0] / 65536, words[1] / 65536
+    if v * v > d * a:  # a triangle: the velocity is never reached
+        v = math.sqrt(d * a)
+    t1 = v / a
+    t2 = t1 + (d - v * t1) / v
+    if k <= t1:
+        x = a * k * k / 2
+    elif k <= t2:
+        x = v * t1 / 2 + v * (k - t1)
+    else:
+        x = d - a * max(0.0, t1 + t2 - k) ** 2 / 2
+    return math.copysign(min(d, x), distance)
+
+
 def _desired_samples(rec: Record, n: int, sample_s: float) -> list[int]:
     start = rec.rows[0].desired_position
     out = [start] * n
     for t, target in rec.steps:
         k = max(0, math.ceil((t - rec.t0) / sample_s - 0.5))
+        origin = out[k] if k < n else start
         for i in range(k, n):
-            out[i] = target
+            out[i] = target if rec.words is None else round(
+                origin + _ramp(target - origin, rec.words, i - k + 1))
     return out
 
 
@@ -647,14 +673,16 @@ def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
 
 # ---------------------------------------------------------------------------------- design
 def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
-                 tolerance: int) -> MoveMetrics:
-    """The test move (out by ``distance``, then back) on the model, from rest at 0."""
+                 tolerance: int, words: tuple[int, int] | None = None) -> MoveMetrics:
+    """The test move (out by ``distance``, then back) on the model, from rest at 0: a step,
+    or with ``words`` (an axis's capped velocity and acceleration) the trapezoid they make."""
     worst = None
     for start, target in ((0, distance), (distance, 0)):
-        counts, _ = simulate(model, g, [target] * horizon, x0=start + 0.5,
-                             state=PidState(elast=0))
+        desired = [target] * horizon if words is None else [
+            round(start + _ramp(target - start, words, k + 1)) for k in range(horizon)]
+        counts, _ = simulate(model, g, desired, x0=start + 0.5, state=PidState(elast=0))
         times = [(k + 1) for k in range(horizon)]
-        m = step_metrics(times, counts, [target] * horizon, start, target, tolerance)
+        m = step_metrics(times, counts, desired, start, target, tolerance)
         worst = m if worst is None else worst.worst(m)
     assert worst is not None
     return worst
@@ -702,15 +730,17 @@ def test_duration(model: AxisModel, distance: int, sample_s: float, at_least: fl
 
 
 def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
-           sample_s: float) -> tuple[Gains, MoveMetrics]:
+           sample_s: float, words: tuple[int, int] | None = None) -> tuple[Gains, MoveMetrics]:
     """Gains for the test move: PD candidates by pole placement screened on the model (out
     and back, two thirds of the horizon); the ten best and integral variants of the best
-    four are then judged by their worst score on the model and three variants of it."""
+    four are then judged by their worst score on the model and three variants of it.
+    ``words``: the test move is a trapezoid of these words (an axis's caps), not a step."""
     horizon = int(horizon_s / sample_s)
     quick = max(200, horizon * 2 // 3)
 
     def screen(g: Gains) -> float:
-        return score(predict_move(model, g, distance, quick, tolerance), quick, tolerance)
+        return score(predict_move(model, g, distance, quick, tolerance, words), quick,
+                     tolerance)
 
     pd = sorted(_pd_candidates(model), key=screen)
     ranked = pd[:10] + [g for p in pd[:4] for g in _with_integral(model, p)]
@@ -719,9 +749,9 @@ def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
     variants = (model.scaled(0.7), model.scaled(1.4), replace(model, coulomb=model.coulomb / 5))
     best = None
     for g in ranked:
-        nominal = predict_move(model, g, distance, horizon, tolerance)
-        worst = max(score(predict_move(v, g, distance, horizon, tolerance), horizon, tolerance)
-                    for v in variants)
+        nominal = predict_move(model, g, distance, horizon, tolerance, words)
+        worst = max(score(predict_move(v, g, distance, horizon, tolerance, words), horizon,
+                          tolerance) for v in variants)
         total = max(worst, score(nominal, horizon, tolerance))
         if best is None or total < best[0]:
             best = (total, g, nominal)
@@ -817,7 +847,8 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
         say(f"model: {model.describe(ses.sample_s)} (fit {rms:.1f} counts rms)")
         # 4 design
         duration_s = test_duration(model, distance, ses.sample_s, duration_s)
-        gains, predicted = design(model, distance, tolerance, duration_s, ses.sample_s)
+        gains, predicted = design(model, distance, tolerance, duration_s, ses.sample_s,
+                                  ident.words)
         say(f"gains: {gains}; predicted: {predicted.line()}")
         # 5 check
         measured, _rec = _test_move(ses, "after", gains, distance, duration_s, tolerance)

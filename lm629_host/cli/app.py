@@ -127,6 +127,7 @@ class Session:
     _old_handlers: dict[int, Any] | None = None
     _guarded: Any = None  #: the transport whose programs a stop signal waits for
     _pending: int | None = None
+    profile: Any = None  #: the bench profile (--profile), see cli.profile
 
     @property
     def is_sim(self) -> bool:
@@ -293,6 +294,8 @@ def board(s: Session) -> Board:
                 a.update_filter()
                 a.sync()
         s._board = b
+        if s.profile is not None:
+            HOOKS["profile_opened"](s, b)
     return s._board
 
 
@@ -305,6 +308,12 @@ def open_axis(s: Session, prepare: bool) -> LM629:
                                "several)")
     s._prepare = prepare
     return board(s).axis(axes[0])
+
+
+#: what other modules plug in without app.py importing them (a circle): cli.profile sets
+#: "profile_options" (--profile -> the other global options) and "profile_opened" (limits and
+#: the re-apply check once the board is open)
+HOOKS: dict[str, Callable[..., Any]] = {}
 
 
 def _help_epilog() -> str:
@@ -378,11 +387,20 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
               help="Which chip on a multi-axis board (its chip select; default 0, or every "
                    "chip of the URL's axes=); a list or 'all' for status, watch, move with one "
                    "target per axis, bringup.")
+@click.option("--profile", "profile_path", envvar="LM629_PROFILE", default=None,
+              metavar="FILE", help="A bench profile (TOML, env LM629_PROFILE): the port, chip, "
+                                   "clock, units and named axes (--axis x) of every command, "
+                                   "soft limits, gains re-applied after a power cycle.")
 @click.version_option(lm629_host.__version__, prog_name="lm629")
 @click.pass_context
 def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines: int | None,
-         verbose: int, trace: bool, stats: bool, axis_text: str | None) -> None:
+         verbose: int, trace: bool, stats: bool, axis_text: str | None,
+         profile_path: str | None) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
+    profile = None
+    if profile_path is not None:
+        profile, port, chip_name, clock, lines, axis_text = HOOKS["profile_options"](
+            ctx, profile_path, port, chip_name, clock, lines, axis_text)
     try:
         clock_hz = _check_clock(parse_hz(clock), "--clock")
     except ValueError:
@@ -413,6 +431,7 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
                       lines, verbose, trace, stats, spec)
     if axis_text is not None:
         session.axis_spec = parse_axes(axis_text)
+    session.profile = profile
     ctx.obj = session
     ctx.call_on_close(session.close)
     session.install_signals()

@@ -88,19 +88,25 @@ def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, d
 @main.command()
 @click.option("--wait", "wait_s", type=FINITE, default=None,
               help="Wait up to this many seconds for the index pulse and print where it was.")
-@click.option("--search", type=INT, default=None, metavar="WORD",
-              help="Turn slowly (velocity mode, raw word) until the index is seen, then stop.")
+@click.option("--search", type=INT, default=None, is_flag=False, flag_value="0", metavar="[WORD]",
+              help="Turn slowly (velocity mode, raw word) until the index is seen, then stop; "
+                   "on an axis with soft limits a move towards max (min: a negative "
+                   "index_velocity), ending there at the latest; no WORD: the profile's "
+                   "index_velocity.")
 def index(wait_s: float | None, search: int | None) -> None:
     """Latch the position at the next index pulse (SIP).  Without --search nothing moves, and
     a wait that times out leaves the motor as it was."""
     positive("--wait", wait_s)
-    if search is not None and not 1 <= search <= VELOCITY_MAX:
+    if search is not None and search != 0 and not 1 <= search <= VELOCITY_MAX:
         raise click.BadParameter(f"{search} must be a velocity word 1..{VELOCITY_MAX}",
                                  param_hint="--search")
     s = _session()
+    from . import profile
+    search, forward = profile.index_search(s, search)
     chip = s.open()
-    if search is not None:  # the library's search: armed, turned, stopped, at rest
-        at = search_index(chip, search, timeout=wait_s or 10.0)
+    if search is not None:  # the library's search: armed, turned, stopped, at rest; on an
+        # axis with soft limits a move towards the limit that ends there at the latest
+        at = search_index(chip, search, timeout=wait_s or 10.0, forward=forward)
         click.echo(f"index at position {_show_position(s, at)}")
         return
     chip.reset_interrupts(Status.INDEX_PULSE)

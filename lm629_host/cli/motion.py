@@ -92,7 +92,9 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     v, a = _motion_words(s, vel, acc, raw)
     tol = _tolerance(s, tolerance, raw)
     positive("--timeout", timeout)
-    from . import axes
+    from . import axes, profile
+    profile.check_move(s, [_position(s, t, "TARGET", raw) for t in targets], v, a, relative,
+                       linear)
     if len(targets) > 1 or linear or axes.several(s):
         if relative:
             raise click.UsageError("--relative moves one axis")
@@ -106,7 +108,7 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     chip = s.open()
     # every check before anything moves: the words, the goal, and whether the chip would
     # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)
-    chip.trajectory_program(acceleration=a, velocity=v, position=0)
+    chip.trajectory_program(acceleration=a, velocity=v, position=None if relative else counts)
     if relative:
         chip.trajectory_program(position=chip.read_desired_position() + counts)
     acceleration = _acceleration_unless_moving(chip, a, acc is not None)
@@ -147,6 +149,8 @@ def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
                                  param_hint="SPEED")
     v, a = _motion_words(s, speed, acc, raw)
     positive("--time", run_s)
+    from . import profile
+    profile.check_velocity_mode(s, v, a)
     scale = None if raw else s.scale
 
     def speed_text(word: int) -> str:
