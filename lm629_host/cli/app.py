@@ -278,8 +278,9 @@ def board(s: Session) -> Board:
         spec = s.axis_spec
         want = max(spec) + 1 if isinstance(spec, tuple) else None
         url = s.url()
-        if want is not None and s.is_sim and (s.spec.axes or 1) < want:
-            url = with_query(url, {"axes": str(want)})  # a simulator builds the chips named
+        if want is not None and s.is_sim and s.spec.axes is None and want > 1:
+            # a simulator builds the chips named, unless its URL says how many it has
+            url = with_query(url, {"axes": str(want)})
         b = lm629_host.open_board(url, chip=s.chip_name, trace=s._trace)
         if want is not None and len(b.axes) < want:
             b.close()
