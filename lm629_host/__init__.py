@@ -5,64 +5,100 @@
         chip.reset()
         chip.load_filter(kp=20); chip.update_filter()
         chip.move_to(1000, velocity=65536, acceleration=655).wait()   # or MotionError
+
+The names here (``__all__``) are what a lab script needs: opening a chip or a board, moves and
+their results, the errors, the status flags, units, stopping, planning and tuning
+(docs/python.md lists them).  Everything else lives in its module (``lm629_host.urls``,
+``lm629_host.program``...).  :func:`autotune` is imported on first use (the tuner is the
+largest module and most scripts never call it); nothing here imports the simulator.
 """
 
-from __future__ import annotations
+import typing as _typing
 
 from .errors import (
+    ArgumentError,
     AxisError,
     BusyTimeout,
     CommandError,
     LM629Error,
     MotionError,
+    MotionFault,
     ProtocolViolation,
     ResetError,
+    SchemeError,
     TransportError,
     WaitTimeout,
 )
 from .lm629 import LM629, Snapshot
 from .move import Move, MoveResult, MoveRules
 from .opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
-from .program import DEFAULT_BUSY_TIMEOUT_S, BusCycle, Program, ProgramResult
-from .transports import DEFAULT_URL, transport_class
-from .urls import query_params, split_params
+from .ports import resolve_port as _resolve_port
+from .program import DEFAULT_BUSY_TIMEOUT_S as _DEFAULT_BUSY_TIMEOUT_S
+from .program import BusCycle, Program, ProgramResult
+from .safety import emergency_stop, stop_on_error
+from .supervise import VelocityRun, run_velocity, search_index, wait_still
+from .transports import DEFAULT_URL
+from .units import Scale
 
 __version__ = "0.1.0"
 
-from .board import Board, BoardMove, open_board
+from .board import Board, BoardMove, LinearPlan, open_board, plan_linear
+
+if _typing.TYPE_CHECKING:
+    from .tuning import TuneResult, autotune
+
+#: names imported on first use: name -> module
+_LAZY = {"autotune": ".tuning", "TuneResult": ".tuning"}
 
 
-def open(url: str = DEFAULT_URL, *, chip: str | None = None, trace=None,  # noqa: A001 - lm629_host.open, as io.open
-         busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> LM629:
+def __getattr__(name: str) -> _typing.Any:
+    """``lm629_host.autotune``: the tuner's module is imported when first asked for."""
+    if name in _LAZY:
+        import importlib
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def open(url: str = DEFAULT_URL, *, chip: str | None = None,  # noqa: A001 - lm629_host.open, as io.open
+         clock: float | str | None = None, trace=None,
+         busy_timeout: float = _DEFAULT_BUSY_TIMEOUT_S) -> LM629:
     """Open the chip behind ``url`` (``sim://`` by default; see :mod:`lm629_host.transports`).
 
-    ``chip`` is "lm628" or "lm629"; on a simulator URL it defaults to the URL's ``chip=``.
-    ``trace`` is called with a :class:`BusCycle` for every bus cycle.  ``busy_timeout`` (s)
-    bounds every busy check (0.2 to 65.5 ms; default 5 ms).  On a multi-axis board ``?cs=k``
-    opens the chip on chip select ``k`` (default 0); :func:`open_board` opens them all.
+    ``chip`` is "lm628" or "lm629" and ``clock`` the chip's clock (Hz, or ``"6MHz"``); either
+    may be said in the URL instead (``?chip=lm628&clock=6MHz``), and where both say it they
+    must agree (:func:`lm629_host.ports.resolve_port`).  ``trace`` is called with a
+    :class:`BusCycle` for every bus cycle.  ``busy_timeout`` (s) bounds every busy check (0.2
+    to 65.5 ms; default 5 ms).  On a multi-axis board ``?cs=k`` opens the chip on chip select
+    ``k`` (default 0); :func:`open_board` opens them all.
     """
-    cls = transport_class(url)
-    if chip is None:
-        chip = query_params(url).get("chip", "lm629") if cls.simulated else "lm629"
-    url, taken = split_params(url, {"cs"})
-    axis = None
-    if "cs" in taken:
-        try:
-            axis = int(taken["cs"])
-        except ValueError:
-            raise ValueError(f"cs={taken['cs']!r} is not a chip select number (0, 1, ...)") from None
-    transport = cls.from_url(url, trace=trace)
+    spec = _resolve_port(url, chip=chip, clock=clock)
+    transport = spec.open_transport(trace)
     try:
-        return LM629(transport, chip=chip, busy_timeout=busy_timeout, axis=axis)
+        return LM629(transport, chip=spec.chip, busy_timeout=busy_timeout, axis=spec.cs,
+                     clock_hz=spec.clock_hz)
     except Exception:
         transport.close()
         raise
 
 
 __all__ = [
-    "LM629", "Snapshot", "Move", "MoveResult", "MoveRules", "open", "open_board", "Board",
-    "BoardMove", "AxisError", "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",
-    "BusCycle", "Program", "ProgramResult", "LM629Error", "BusyTimeout", "ResetError",
-    "TransportError", "CommandError", "WaitTimeout", "MotionError", "ProtocolViolation",
+    # opening a chip, a board
+    "open", "open_board", "DEFAULT_URL", "LM629", "Board", "BoardMove",
+    # moves
+    "Move", "MoveResult", "MoveRules", "Snapshot", "plan_linear", "LinearPlan",
+    # velocity mode, the index, rest
+    "run_velocity", "VelocityRun", "search_index", "wait_still",
+    # errors
+    "LM629Error", "ArgumentError", "AxisError", "SchemeError", "TransportError", "BusyTimeout",
+    "ResetError", "CommandError", "WaitTimeout", "MotionError", "MotionFault",
+    "ProtocolViolation",
+    # flags and commands
+    "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",
+    # units, stopping, tuning
+    "Scale", "emergency_stop", "stop_on_error", "autotune", "TuneResult",
+    # bus programs, for experts and traces
+    "Program", "ProgramResult", "BusCycle",
     "__version__",
 ]

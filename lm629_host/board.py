@@ -23,30 +23,36 @@ quantisation of each ramp.
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
-from .errors import AxisError, CommandError, MotionError, ResetError
-from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, snapshot_of
+from .errors import ArgumentError, AxisError, CommandError, MotionError
+from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, reset_chips, snapshot_of
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     ACCELERATION_MAX,
     INTERRUPTS,
     POSITION_MAX,
     POSITION_MIN,
-    RESET_CLEARED_STATUSES,
-    RESET_DONE_STATUSES,
-    RESET_WAIT_S,
     VELOCITY_MAX,
     Cmd,
     Status,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
 from .safety import emergency_stop
-from .transports import DEFAULT_URL, open_transport, query_params, scheme_of, split_params
+from .ports import resolve_port
+from .transports import DEFAULT_URL
 from .clock import Clock
 from .transports.base import Transport
+
+if TYPE_CHECKING:
+    from .profile import Profile
+
+log = logging.getLogger("lm629_host")
 
 ONE = 1 << 16  #: one count (per sample, per sample^2) in the chip's 16.16 words
 
@@ -248,9 +254,7 @@ class BoardMove:
                         done = w.check(snap)
                     except MotionError as exc:
                         self.board._stop_all()
-                        text = str(exc).split("): ", 1)[-1]  # "motion fault (reason): message"
-                        raise MotionError(exc.reason, text, axis=m.chip.chip_select,
-                                          position=exc.position, error=exc.error) from exc
+                        raise exc.on_axis(m.chip.chip_select) from exc
                     if done is not None:
                         del watches[m]
                 if watches:
@@ -268,7 +272,8 @@ class Board:
     select, that share it.  Use :func:`open_board`."""
 
     def __init__(self, transport: Transport, axes: int | None = None, *, chip: str = "lm629",
-                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, reset_attempts: int = 2) -> None:
+                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, reset_attempts: int = 2,
+                 clock_hz: float | None = None) -> None:
         available = transport.chip_selects
         n = available if axes is None else axes
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
@@ -278,7 +283,7 @@ class Board:
         self.transport = transport
         self.axes: tuple[LM629, ...] = tuple(
             LM629(transport, chip=chip, busy_timeout=busy_timeout, axis=k,
-                  reset_attempts=reset_attempts) for k in range(n))
+                  reset_attempts=reset_attempts, clock_hz=clock_hz) for k in range(n))
         self.busy_timeout = busy_timeout
         self.reset_attempts = reset_attempts
 
@@ -301,6 +306,22 @@ class Board:
 
     def __repr__(self) -> str:
         return f"<Board {len(self.axes)} axes on {self.transport.describe()}>"
+
+    #: the profile the board was opened with (``open_board(profile=...)``), else None
+    profile: Profile | None = None
+
+    def __getitem__(self, which: str | int) -> LM629:
+        """``board["x"]``: the axis of that name in the board's profile; ``board[1]``: the
+        axis on chip select 1."""
+        if isinstance(which, str):
+            if self.profile is None:
+                raise KeyError(f"{which!r}: this board was opened without a profile, so its "
+                               "axes have no names (board[0], or open_board(profile=...))")
+            try:
+                return self.axis(self.profile.axis(which).cs)
+            except ValueError as exc:  # a mapping's missing key
+                raise KeyError(str(exc)) from None
+        return self.axis(which)
 
     def axis(self, which: LM629 | int) -> LM629:
         """The axis ``which`` (an index or one of :attr:`axes`); AxisError when it is not
@@ -325,54 +346,12 @@ class Board:
     # ------------------------------------------------------------------ reset
     def reset(self) -> list[Status]:
         """One /RST for every chip (the line is shared), then AN-706 4.4.1's check on each:
-        00 at once, 84/C4 after 1.5 ms, 80/C0 after MSKI/RSTI 0000.  Two programs in all.
+        00 at once, 84/C4 after 1.5 ms, 80/C0 after MSKI/RSTI 0000.  Two programs in all
+        (:func:`~lm629_host.lm629.reset_chips`, which :meth:`LM629.reset` runs for one chip).
         Retries ``reset_attempts`` times, then raises :class:`ResetError` naming the first
         axis that failed, with its status bytes."""
-        hw = self.transport.has_reset_line
-        seen: dict[int, list[int]] = {a.chip_select: [] for a in self.axes}
-        failed = self.axes[0].chip_select
-        for _ in range(self.reset_attempts):
-            p = self.program()
-            if hw:
-                p.reset()
-            else:
-                for a in self.axes:
-                    p.on(a.chip_select).command(Cmd.RESET)
-            for a in self.axes:
-                p.on(a.chip_select).status()
-            p.wait(round(RESET_WAIT_S * 1e6))
-            for a in self.axes:
-                p.on(a.chip_select).status()
-            st = self.transport.execute(p).statuses
-            n = len(self.axes)
-            bad = None
-            for k, a in enumerate(self.axes):
-                first, done = st[k], st[n + k]
-                seen[a.chip_select] += (first, done)
-                if bad is None and ((hw and first != 0) or done not in RESET_DONE_STATUSES):
-                    bad = a.chip_select
-            if bad is not None:
-                failed = bad
-                continue
-            q = self.program()
-            for a in self.axes:
-                q.on(a.chip_select).command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
-                if a._port12:
-                    q.command(Cmd.PORT12)
-            cleared = self.transport.execute(q).statuses
-            for a, c in zip(self.axes, cleared):
-                seen[a.chip_select].append(c)
-            bad = next((a.chip_select for a, c in zip(self.axes, cleared)
-                        if c not in RESET_CLEARED_STATUSES), None)
-            if bad is None:
-                for a in self.axes:
-                    a._ds = 0
-                    a._ce_clear = True
-                return [Status(c) for c in cleared]
-            failed = bad
-        expected = ("00 at once, 84 or C4 after 1.5 ms, 80 or C0 after MSKI/RSTI 0000" if hw
-                    else "84 or C4 after the RESET command, 80 or C0 after MSKI/RSTI 0000")
-        raise ResetError(seen[failed], expected, self.reset_attempts, axis=failed)
+        return reset_chips(self.axes, pulse=self.transport.has_reset_line,
+                           attempts=self.reset_attempts)[0]
 
     # ------------------------------------------------------------------ synchronized start
     def start_program(self, axes: Sequence[LM629 | int] = (), prefix: Program | None = None,
@@ -386,7 +365,7 @@ class Board:
         if prefix is not None:
             p.extend(prefix)
         for a in chosen:
-            flags = Status(clear) | (Status(0) if a._ce_clear else Status.COMMAND_ERROR)
+            flags = a.start_flags(clear)
             if flags:
                 p.on(a.chip_select).command(Cmd.RSTI).write(int(INTERRUPTS & ~flags))
         for a in chosen:
@@ -407,12 +386,8 @@ class Board:
         before, after = statuses[-2 * n:-n], statuses[-n:]
         refused = None
         for a, b, s in zip(chosen, before, after):
-            if s & Status.COMMAND_ERROR:
-                a._ce_clear = False
-                if not b & Status.COMMAND_ERROR and refused is None:
-                    refused = (a, s)
-            else:
-                a._ce_clear = True
+            if a.start_checked(b, s) and refused is None:
+                refused = (a, s)
         if refused is not None:
             raise CommandError(f"STT on axis {refused[0].chip_select}", refused[1])
         return [Status(s) for s in after]
@@ -450,6 +425,9 @@ class Board:
                      check_int(f"target of axis {a.chip_select}", t, POSITION_MIN, POSITION_MAX,
                                hex_digits=8))
                  for a, t in resolved.items()}
+        for a, (acc, vel, target) in words.items():  # before any read (soft limits)
+            if a.limits is not None:
+                a.limits.check_trajectory(acc, vel, target)
         starts = {a: a.snapshot() for a in words}
         return self._launch(words, None, starts)
 
@@ -473,6 +451,9 @@ class Board:
         to ``targets``: each axis's words scaled by its share of the path
         (:func:`plan_linear`), loaded and started in one program."""
         resolved = [self.axis(k) for k in targets]
+        for a, t in zip(resolved, targets.values()):  # before any read (soft limits); the
+            if a.limits is not None:                  # words are checked as they are loaded
+                a.limits.check_position(t, f"target of axis {a.chip_select}")
         starts = {a: a.snapshot() for a in resolved}
         plan = self.plan_linear(targets, velocity=velocity, acceleration=acceleration,
                                 starts=starts)
@@ -545,32 +526,70 @@ class _BoardProgram(Program):
         return self
 
 
-def open_board(url: str = DEFAULT_URL, *, axes: int | None = None, chip: str | None = None,
-               trace=None, busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S) -> Board:
+def open_board(url: str | None = None, *, axes: int | None = None, chip: str | None = None,
+               clock: float | str | None = None, trace=None,
+               busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S,
+               profile: str | os.PathLike[str] | Profile | None = None,
+               apply: bool | str = "auto") -> Board:
     """Open every chip behind ``url``: ``sim://?axes=2``, a multi-axis bridge, an FT232H with
-    two /CS lines.  The number of axes is ``axes``, else the URL's ``axes=``, else what the
-    transport reports (the simulator's chips, the bridge's chip selects from HELLO, the
-    FT232H's /CS lines).  More axes than the board has chip selects is an :class:`AxisError`."""
-    if chip is None:
-        chip = query_params(url).get("chip", "lm629") if scheme_of(url).startswith("sim") else "lm629"
-    n = axes
-    if scheme_of(url).startswith("sim"):
-        if n is None and "axes" in query_params(url):
-            n = int(query_params(url)["axes"])
-        elif n is not None and "axes" not in query_params(url):
-            url += ("&" if "?" in url else "?") + f"axes={n}"
-    else:
-        url, taken = split_params(url, {"axes"})
-        if n is None and "axes" in taken:
-            try:
-                n = int(taken["axes"])
-            except ValueError:
-                raise ValueError(f"axes={taken['axes']!r} is not a number of chips") from None
-    transport = open_transport(url, trace=trace)
-    if n is None and hasattr(transport, "models"):
-        n = len(transport.models)  # a simulator: the chips it built, not its adapter's selects
+    two /CS lines.  The number of axes is ``axes`` or the URL's ``axes=`` (both: they must
+    agree, :func:`lm629_host.ports.resolve_port`), else what the transport reports (the
+    simulator's chips, the bridge's chip selects from HELLO, the FT232H's /CS lines).  More
+    axes than the board has chip selects is an :class:`AxisError`; ``cs=`` (one chip) is an
+    error here.
+
+    ``profile``: a bench profile (:mod:`lm629_host.profile`, a path or a loaded one): the port
+    (when ``url`` is None), the chip and clock come from it, ``board["x"]`` is its axis ``x``,
+    every named axis gets its soft limits (``ValueError`` for a move outside them, before any
+    bus cycle), and ``apply`` says what is sent at open: ``"auto"`` (default) applies the
+    profile to each axis that has lost its settings (reset or powered up since: one RDSIGS
+    each; a warning is logged for each one applied), True applies it to every axis, False
+    sends nothing.  A bad profile is a :class:`~lm629_host.profile.ProfileError` (ValueError)
+    before the port is opened."""
+    prof = None
+    if profile is not None:
+        from .profile import Profile, load_profile
+        prof = profile if isinstance(profile, Profile) else load_profile(profile)
+        if apply not in (True, False, "auto"):
+            raise ValueError(f"apply={apply!r}: expected True, False or 'auto'")
+        if url is None:
+            url = prof.url()
+        chip = prof.chip if chip is None else chip
+        clock = prof.clock_hz if clock is None else clock
+    if url is None:
+        url = DEFAULT_URL
+    board = _open_board(url, axes, chip, clock, trace, busy_timeout)
+    if prof is not None:
+        try:
+            _with_profile(board, prof, apply)
+        except BaseException:
+            board.close()
+            raise
+    return board
+
+
+def _with_profile(board: Board, prof: Profile, apply: bool | str) -> None:
+    from .profile import apply_profile, ensure_applied, name_axes
+    named = name_axes(board, prof)
+    if apply == "auto":
+        ensure_applied(named, prof, log.warning)
+    elif apply:
+        apply_profile(named, prof)
+
+
+def _open_board(url: str, axes: int | None, chip: str | None, clock: float | str | None,
+                trace: Any, busy_timeout: float) -> Board:
+    spec = resolve_port(url, chip=chip, clock=clock, axes=axes)
+    if spec.cs is not None:
+        raise ArgumentError("cs", spec.cs, f"cs={spec.cs} names one chip: open_board opens "
+                                           "every chip of the board (lm629_host.open takes cs=)")
+    transport = spec.open_transport(trace)
+    n = spec.axes
+    if n is None:
+        n = transport.chip_count  # a simulator: the chips it built, not its adapter's selects
     try:
-        return Board(transport, n, chip=chip, busy_timeout=busy_timeout)
+        return Board(transport, n, chip=spec.chip, busy_timeout=busy_timeout,
+                     clock_hz=spec.clock_hz)
     except BaseException:
         transport.close()
         raise

@@ -10,29 +10,28 @@
 5. its largest following error and its settle time into that dead band;
 6. what to do next.
 
-:func:`run_bringup` returns a :class:`BringupReport`; the CLI (``lm629 bringup``) only renders
-it, so that the sequence is tested without click.  All waiting is on the chip's clock
-(simulated time on ``sim://``).  Any exception while the motor may move stops it first
+:func:`run_bringup` runs the steps (one function each: :func:`reset_step`,
+:func:`phasing_step`, :func:`hold_step`, :func:`move_steps`, :func:`next_steps`) and returns a
+:class:`BringupReport`; the CLI (``lm629 bringup``) only renders it and chooses the exit code,
+so that the sequence is tested without click.  The small move is watched by the rules of every
+move (:class:`~lm629_host.move.MoveWatch`) with the dead band as tolerance.  All waiting is on
+the chip's clock (simulated time on ``sim://``), and every duration is in seconds, whatever the
+poll period.  Any exception while the motor may move stops it first
 (:func:`lm629_host.safety.stop_on_error`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field, replace
 
-from .errors import ResetError
+from .errors import MotionError, ResetError
 from .lm629 import LM629
 from .opcodes import Status
-from .program import Program, ProgramResult
-from .safety import emergency_stop, stop_on_error
+from .safety import STOP_NOTE, emergency_stop, stop_on_error
 from .units import FIXED_ONE, Scale
 from .wiring import wiring_suspects
-
-#: exit codes of a bring-up (also documented by ``lm629 --help``)
-EXIT_CHECK_FAILED = 1
-EXIT_RESET_FAILED = 5
 
 
 @dataclass(frozen=True)
@@ -52,6 +51,8 @@ class BringupOptions:
     move_velocity: int = FIXED_ONE // 2  #: 0.5 counts/sample
     move_acceleration: int = FIXED_ONE // 400  #: 200 samples of ramp
     settle_timeout_s: float = 2.0
+    #: seconds at rest inside the dead band that count as settled
+    still_s: float = 0.05
     poll_s: float = 0.002
 
     @property
@@ -86,10 +87,9 @@ class BringupReport:
             any(s.name == "settle" and s.ok for s in self.steps)
 
     @property
-    def exit_code(self) -> int:
-        if self.steps and self.steps[0].name == "reset" and self.steps[0].ok is False:
-            return EXIT_RESET_FAILED
-        return 0 if self.passed else EXIT_CHECK_FAILED
+    def reset_failed(self) -> bool:
+        """The chip did not come out of reset (nothing else was tried)."""
+        return bool(self.steps) and self.steps[0].name == "reset" and self.steps[0].ok is False
 
     def step(self, name: str) -> StepResult | None:
         return next((s for s in self.steps if s.name == name), None)
@@ -97,19 +97,7 @@ class BringupReport:
 
 def reset_with_statuses(chip: LM629) -> tuple[Status, list[int]]:
     """``chip.reset()``, also returning every status byte its programs read."""
-    seen: list[int] = []
-    run = chip.run
-
-    def recording(program: Program) -> ProgramResult:
-        result = run(program)
-        seen.extend(result.statuses)
-        return result
-
-    chip.run = recording  # type: ignore[method-assign]  # this chip's programs only, for the report
-    try:
-        return chip.reset(), seen
-    finally:
-        del chip.run  # the instance attribute only: LM629.run again
+    return chip.reset_statuses()
 
 
 def _hex(statuses: list[int] | tuple[int, ...]) -> str:
@@ -124,190 +112,208 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
     """Run the sequence; stop at the first failed step.  ``confirm`` is asked before the motor
     first turns (False ends the sequence there); ``announce`` gets a line before each step,
     ``report`` each :class:`StepResult` as soon as it is known.  ``clock_hz`` (for the expected
-    move time) defaults to the simulated chip's clock, else 8 MHz."""
+    move time) defaults to the chip's (:attr:`LM629.clock_hz`)."""
     o = options
     out = BringupReport()
-    if clock_hz is None:
-        clock_hz = float(getattr(getattr(chip.transport, "model", None), "clock_hz", 8_000_000))
 
-    def done(step: StepResult) -> StepResult:
+    def done(step: StepResult) -> bool:
         out.steps.append(step)
         report(step)
-        return step
+        return step.ok is not False
 
-    # 1 -------------------------------------------------------------------------- reset
     announce("reset check (AN-706 4.4.1)")
+    if not done(reset_step(chip)):
+        return out
+    if not confirm("The motor will now turn (a slow move at kp = 1). Is the shaft free to turn?"):
+        done(StepResult("phasing", None, "skipped at your request: nothing moved"))
+        return out
+    with stop_on_error(chip):
+        announce(f"loop phasing at kp = {o.phasing_kp} (AN-706 2.12)")
+        if not done(phasing_step(chip, o)):
+            return out
+        announce(f"hold at kp = {o.hold_kp}")
+        if not done(hold_step(chip, o)):
+            return out
+        announce(f"small move: {o.move_distance:+d} counts")
+        for step in move_steps(chip, o, clock_hz or chip.clock_hz, announce):
+            if not done(step):
+                return out
+    done(next_steps(o))
+    return out
+
+
+def reset_step(chip: LM629) -> StepResult:
+    """1. The reset check (AN-706 4.4.1), with every status byte read."""
     try:
         status, seen = reset_with_statuses(chip)
     except ResetError as exc:
         # name the wire, not only the bytes: the wiring check moves nothing (lm629_host.wiring)
         wires = wiring_suspects(chip)
-        done(StepResult("reset", False, f"status bytes seen: {_hex(exc.statuses)}",
-                        [f"wiring check: {w}" for w in wires] + [str(exc)],
-                        {"statuses": list(exc.statuses), "wiring": wires}))
-        return out
+        return StepResult("reset", False, f"status bytes seen: {_hex(exc.statuses)}",
+                          [f"wiring check: {w}" for w in wires] + [str(exc)],
+                          {"statuses": list(exc.statuses), "wiring": wires})
     expected = "00, 84/C4, 80/C0" if chip.uses_reset_line else "84/C4, 80/C0"
-    done(StepResult("reset", True, f"status bytes seen: {_hex(seen)} (expected {expected})",
-                    data={"statuses": seen, "status": int(status)}))
+    return StepResult("reset", True, f"status bytes seen: {_hex(seen)} (expected {expected})",
+                      data={"statuses": seen, "status": int(status)})
 
-    if not confirm("The motor will now turn (a slow move at kp = 1). Is the shaft free to turn?"):
-        done(StepResult("phasing", None, "skipped at your request: nothing moved"))
-        return out
 
-    with stop_on_error(chip):
-        # 2 ---------------------------------------------------------------------- phasing
-        announce(f"loop phasing at kp = {o.phasing_kp} (AN-706 2.12)")
-        chip.load_filter(kp=o.phasing_kp, ki=0, kd=0, il=0)
-        chip.update_filter()
-        start = chip.snapshot()
-        chip.load_trajectory(acceleration=o.phasing_acceleration, velocity=o.phasing_velocity,
-                             position=o.phasing_distance, position_relative=True, start=True)
-        t_end = start.time + o.phasing_time_s
-        snap = start
-        trail = [start]  # the last 50 ms: where is the shaft heading now?
-        while chip.clock.now() < t_end:
-            chip.clock.sleep(o.poll_s)
-            snap = chip.snapshot()
-            trail.append(snap)
-            while trail[0].time < snap.time - 0.05:
-                trail.pop(0)
-            if snap.real_position - start.real_position < -10 * o.runaway_counts:
-                break  # running away: no need to watch any longer
-        moved = snap.real_position - start.real_position
-        wanted = snap.desired_position - start.desired_position
-        heading = snap.real_position - trail[0].real_position
-        data = {"desired_moved": wanted, "real_moved": moved, "last_50ms": heading,
-                "seconds": round(snap.time - start.time, 4)}
-        # Reversed leads: the shaft goes backwards ever faster.  A load (gravity) also pulls it
-        # back at first, but as the error grows the loop wins and the shaft turns forwards.
-        if moved < -o.runaway_counts and heading < 0:
-            _ok, note = emergency_stop(chip)
-            done(StepResult(
-                "phasing", False,
-                f"RUNAWAY: desired went {wanted:+d} counts, the shaft went {moved:+d}: the loop "
-                "pushes the wrong way. Swap the motor leads (or the encoder's A and B channels); "
-                "if a load pulls the shaft back (gravity on an arm), support it and run this again",
-                [note], data))
-            return out
-        if moved < 2 and heading <= 0:
-            _ok, note = emergency_stop(chip)
-            done(StepResult(
-                "phasing", False,
-                f"the shaft did not turn: desired went {wanted:+d} counts, the shaft {moved:+d}. "
-                "Check the amplifier's supply, the PWM/sign (or DAC) wiring to it, the motor and "
-                "the encoder connection", [note], data))
-            return out
-        sagged = " (a load pulled it back first; the loop is winning)" if moved < 2 else ""
-        done(StepResult("phasing", True,
-                        f"the shaft follows: desired {wanted:+d}, shaft {moved:+d} counts in "
-                        f"{snap.time - start.time:.2f} s{sagged}", data=data))
+def phasing_step(chip: LM629, o: BringupOptions) -> StepResult:
+    """2. A slow move at kp = 1 for ``phasing_time_s``: the shaft must follow the desired
+    position.  Reversed leads send it backwards ever faster (a load pulls it back at first
+    too, but as the error grows the loop wins and it turns forwards: the last 50 ms tell)."""
+    chip.load_filter(kp=o.phasing_kp, ki=0, kd=0, il=0)
+    chip.update_filter()
+    start = chip.snapshot()
+    chip.load_trajectory(acceleration=o.phasing_acceleration, velocity=o.phasing_velocity,
+                         position=o.phasing_distance, position_relative=True, start=True)
+    t_end = start.time + o.phasing_time_s
+    snap = start
+    trail = [start]  # the last 50 ms: where is the shaft heading now?
+    while chip.clock.now() < t_end:
+        chip.clock.sleep(o.poll_s)
+        snap = chip.snapshot()
+        trail.append(snap)
+        while trail[0].time < snap.time - 0.05:
+            trail.pop(0)
+        if snap.real_position - start.real_position < -10 * o.runaway_counts:
+            break  # running away: no need to watch any longer
+    moved = snap.real_position - start.real_position
+    wanted = snap.desired_position - start.desired_position
+    heading = snap.real_position - trail[0].real_position
+    data = {"desired_moved": wanted, "real_moved": moved, "last_50ms": heading,
+            "seconds": round(snap.time - start.time, 4)}
+    if moved < -o.runaway_counts and heading < 0:
+        _ok, note = emergency_stop(chip)
+        return StepResult(
+            "phasing", False,
+            f"RUNAWAY: desired went {wanted:+d} counts, the shaft went {moved:+d}: the loop "
+            "pushes the wrong way. Swap the motor leads (or the encoder's A and B channels); "
+            "if a load pulls the shaft back (gravity on an arm), support it and run this again",
+            [note], data)
+    if moved < 2 and heading <= 0:
+        _ok, note = emergency_stop(chip)
+        return StepResult(
+            "phasing", False,
+            f"the shaft did not turn: desired went {wanted:+d} counts, the shaft {moved:+d}. "
+            "Check the amplifier's supply, the PWM/sign (or DAC) wiring to it, the motor and "
+            "the encoder connection", [note], data)
+    sagged = " (a load pulled it back first; the loop is winning)" if moved < 2 else ""
+    return StepResult("phasing", True,
+                      f"the shaft follows: desired {wanted:+d}, shaft {moved:+d} counts in "
+                      f"{snap.time - start.time:.2f} s{sagged}", data=data)
 
-        # 3 ---------------------------------------------------------------------- hold
-        announce(f"hold at kp = {o.hold_kp}")
-        chip.load_trajectory(stop="abrupt", start=True)
-        chip.load_filter(kp=o.hold_kp)
-        chip.update_filter()
-        chip.clock.sleep(o.hold_time_s)
-        a = chip.snapshot()
-        chip.clock.sleep(0.1)
-        b = chip.snapshot()
-        err = b.following_error
-        data = {"following_error": err, "drift": b.real_position - a.real_position,
-                "dead_band": o.dead_band}
-        if abs(err) > o.dead_band or b.real_position != a.real_position:
-            _ok, note = emergency_stop(chip)
-            if b.real_position != a.real_position:
-                hint = "the shaft is still moving: an oscillation (lower kp or add kd)"
-            else:
-                hint = ("a steady error beyond the dead band: a load torque or friction holds "
-                        "the shaft off (add ki with a small il)")
-            done(StepResult(
-                "hold", False,
-                f"does not hold: error {err:+d} counts (dead band +/-{o.dead_band}), moved "
-                f"{b.real_position - a.real_position:+d} counts in 0.1 s: {hint}", [note], data))
-            return out
-        done(StepResult("hold", True, f"holds {err:+d} counts from the desired position "
-                                      f"(dead band +/-{o.dead_band})", data=data))
 
-        # 4 ---------------------------------------------------------------------- move
-        announce(f"small move: {o.move_distance:+d} counts")
-        origin = b.desired_position
-        target = origin + o.move_distance
-        ramp_s, move_s = Scale(1, clock_hz).profile_times(abs(o.move_distance), o.move_velocity,
-                                                          o.move_acceleration)
-        # absolute: a relative position counts from the last target (the phasing move's), not
-        # from where the abrupt stop left it.  move_to clears trajectory complete in the program
-        # that starts the move, so only this move's completion ends the wait below
-        move = chip.move_to(target, velocity=o.move_velocity, acceleration=o.move_acceleration)
-        t0 = move.t0
-        worst = 0
-        deadline = t0 + move_s + o.settle_timeout_s
+def hold_step(chip: LM629, o: BringupOptions) -> StepResult:
+    """3. Stop, then hold at ``hold_kp``: the shaft must rest inside the P-only dead band."""
+    chip.load_trajectory(stop="abrupt", start=True)
+    chip.load_filter(kp=o.hold_kp)
+    chip.update_filter()
+    chip.clock.sleep(o.hold_time_s)
+    a = chip.snapshot()
+    chip.clock.sleep(0.1)
+    b = chip.snapshot()
+    err = b.following_error
+    data = {"following_error": err, "drift": b.real_position - a.real_position,
+            "dead_band": o.dead_band}
+    if abs(err) > o.dead_band or b.real_position != a.real_position:
+        _ok, note = emergency_stop(chip)
+        if b.real_position != a.real_position:
+            hint = "the shaft is still moving: an oscillation (lower kp or add kd)"
+        else:
+            hint = ("a steady error beyond the dead band: a load torque or friction holds "
+                    "the shaft off (add ki with a small il)")
+        return StepResult(
+            "hold", False,
+            f"does not hold: error {err:+d} counts (dead band +/-{o.dead_band}), moved "
+            f"{b.real_position - a.real_position:+d} counts in 0.1 s: {hint}", [note], data)
+    return StepResult("hold", True, f"holds {err:+d} counts from the desired position "
+                                    f"(dead band +/-{o.dead_band})", data=data)
+
+
+def move_steps(chip: LM629, o: BringupOptions, clock_hz: float,
+               announce: Callable[[str], None] = lambda text: None) -> Iterator[StepResult]:
+    """4 and 5. The small move, watched by :class:`~lm629_host.move.MoveWatch` with the dead
+    band as tolerance and ``still_s`` as settle time: the "move" step when the trajectory has
+    completed (or failed to in the profile's time plus ``settle_timeout_s``), then the
+    "settle" step: the largest following error and the time from the trajectory's end to the
+    start of the final rest inside the dead band."""
+    origin = chip.snapshot().desired_position
+    target = origin + o.move_distance
+    ramp_s, move_s = Scale(1, clock_hz).profile_times(abs(o.move_distance), o.move_velocity,
+                                                      o.move_acceleration)
+    rules = replace(chip.move_rules, tolerance=o.dead_band, settle_time=o.still_s,
+                    settle_timeout=o.settle_timeout_s, poll=o.poll_s)
+    # absolute: a relative position counts from the last target (the phasing move's), not
+    # from where the abrupt stop left it.  move_to clears trajectory complete in the program
+    # that starts the move, so only this move's completion counts
+    move = chip.move_to(target, velocity=o.move_velocity, acceleration=o.move_acceleration)
+    watch = move.watch(timeout=move_s + 2 * o.settle_timeout_s, rules=rules)
+    complete_by = move.t0 + move_s + o.settle_timeout_s
+    worst = 0
+    s = move.start
+    try:
         while True:
             chip.clock.sleep(o.poll_s)
             s = chip.snapshot()
             if abs(s.following_error) > abs(worst):
                 worst = s.following_error
-            if s.status & Status.TRAJECTORY_COMPLETE:
+            completed = watch.complete_at is not None
+            result = watch.check(s)
+            if not completed and watch.complete_at is not None:
+                took = watch.complete_at - move.t0
+                yield StepResult("move", True,
+                                 f"trajectory complete after {took:.3f} s (profile "
+                                 f"{move_s:.3f} s, ramps {ramp_s:.3f} s)",
+                                 data={"seconds": round(took, 4),
+                                       "profile_s": round(move_s, 4), "ramp_s": round(ramp_s, 4)})
+                announce("following error and settle time")
+            if result is not None:
                 break
-            if s.time > deadline:
+            if watch.complete_at is None and s.time > complete_by:
                 _ok, note = emergency_stop(chip)
-                done(StepResult("move", False,
-                                f"the move did not complete in {move_s + o.settle_timeout_s:.2f} s "
-                                f"(profile {move_s:.2f} s); the shaft is at "
-                                f"{s.real_position - origin:+d} counts", [note]))
-                return out
-        t_done = s.time
-        data = {"seconds": round(t_done - t0, 4), "profile_s": round(move_s, 4),
-                "ramp_s": round(ramp_s, 4)}
-        done(StepResult("move", True,
-                        f"trajectory complete after {t_done - t0:.3f} s (profile {move_s:.3f} s, "
-                        f"ramps {ramp_s:.3f} s)", data=data))
+                yield StepResult("move", False,
+                                 f"the move did not complete in {move_s + o.settle_timeout_s:.2f} s "
+                                 f"(profile {move_s:.2f} s); the shaft is at "
+                                 f"{s.real_position - origin:+d} counts", [note])
+                return
+    except MotionError as exc:  # stopped already (MoveWatch)
+        if watch.complete_at is None:
+            yield StepResult("move", False, f"motion fault ({exc.reason}) during the move: "
+                                            f"the shaft is at {exc.position - origin:+d} counts"
+                             if exc.position is not None else
+                             f"motion fault ({exc.reason}) during the move", [exc.detail])
+            return
+        final = target - (exc.position if exc.position is not None else s.real_position)
+        yield StepResult("settle", False,
+                         f"did not settle within +/-{o.dead_band} counts in "
+                         f"{o.settle_timeout_s:g} s (error now {final:+d}, largest following "
+                         f"error {worst:+d}): add kd for damping, or lower kp",
+                         [getattr(exc, STOP_NOTE, None) or exc.detail],
+                         {"max_following_error": worst, "final_error": final,
+                          "dead_band": o.dead_band, "settle_s": None, "reason": str(exc.reason)})
+        return
+    t_done = watch.complete_at if watch.complete_at is not None else s.time  # done: completed
+    settled_at = max(watch.quiet_since or s.time, t_done)
+    final = target - s.real_position
+    yield StepResult("settle", True,
+                     f"largest following error {worst:+d} counts; settled "
+                     f"{settled_at - t_done:.3f} s after the trajectory ended, "
+                     f"{final:+d} counts from the target",
+                     data={"max_following_error": worst, "final_error": final,
+                           "dead_band": o.dead_band, "settle_s": round(settled_at - t_done, 4)})
 
-        # 5 ---------------------------------------------------------------------- settle
-        announce("following error and settle time")
-        settled_at = None
-        quiet = 0
-        while s.time < t_done + o.settle_timeout_s:
-            chip.clock.sleep(o.poll_s)
-            s = chip.snapshot()
-            inside = abs(target - s.real_position) <= o.dead_band and s.real_velocity == 0
-            if inside:
-                if quiet == 0:
-                    settled_at = s.time
-                quiet += 1
-                if quiet >= 25:  # 50 ms still
-                    break
-            else:
-                quiet = 0
-                settled_at = None
-        final = target - s.real_position
-        result: dict[str, object] = {"max_following_error": worst, "final_error": final,
-                                     "dead_band": o.dead_band,
-                                     "settle_s": None if settled_at is None
-                                     else round(settled_at - t_done, 4)}
-        if settled_at is None or quiet < 25:
-            _ok, note = emergency_stop(chip)
-            done(StepResult("settle", False,
-                            f"did not settle within +/-{o.dead_band} counts in "
-                            f"{o.settle_timeout_s:g} s (error now {final:+d}, largest following "
-                            f"error {worst:+d}): add kd for damping, or lower kp", [note], result))
-            return out
-        done(StepResult("settle", True,
-                        f"largest following error {worst:+d} counts; settled "
-                        f"{settled_at - t_done:.3f} s after the trajectory ended, "
-                        f"{final:+d} counts from the target", data=result))
 
-    # 6 -------------------------------------------------------------------------- next steps
+def next_steps(o: BringupOptions) -> StepResult:
+    """6. What to do next: the loop works, now tune it, with the room this move showed."""
     travel = o.move_distance
-    done(StepResult("next", None, f"the loop works; now tune it:  lm629 tune --travel {travel}", [
+    return StepResult("next", None, f"the loop works; now tune it:  lm629 tune --travel {travel}", [
         f"lm629 tune --travel {travel} finds the gains (phasing, identification, design, then a "
         f"checked step and trapezoid move) inside +/-{travel} counts of where the shaft is now: "
         f"give it the room the axis has either way (this bring-up's move went "
         f"{o.move_distance:+d} counts)",
         "set a following-error limit that stops the motor:  lm629 limit 2000 --stop",
-        f"the motor is left holding position at kp = {o.hold_kp}"]))
-    return out
+        f"the motor is left holding position at kp = {o.hold_kp}"])
 
 
 __all__ = ["BringupOptions", "BringupReport", "StepResult", "run_bringup", "reset_with_statuses",
-           "EXIT_CHECK_FAILED", "EXIT_RESET_FAILED"]
+           "reset_step", "phasing_step", "hold_step", "move_steps", "next_steps"]

@@ -74,7 +74,7 @@ def _ftdi_line(mask: int) -> int:
     return mask.bit_length() - 1
 
 
-def _ft232h(axes: int) -> list[Connection]:
+def _ft232h(axes: int, busy_pin: bool = False) -> list[Connection]:
     out = [Connection(f"ACBUS{i}", f"C{i}", f"D{i}", 0, True, "in/out") for i in range(8)]
     for mask, line in ((ftdi_pins.PS, "/PS"), (ftdi_pins.RD, "/RD"), (ftdi_pins.WR, "/WR"),
                        (ftdi_pins.RST, "/RST")):
@@ -84,15 +84,21 @@ def _ft232h(axes: int) -> list[Connection]:
         n = _ftdi_line(ftdi_pins.CHIP_SELECTS[k])
         out.append(Connection(f"ADBUS{n}", f"D{n}", "/CS", k, False, "out"))
         hi = ftdi_pins.HI_LINES[k]
-        if hi:
+        if hi and not busy_pin:
             n = _ftdi_line(hi)
             out.append(Connection(f"ADBUS{n}", f"D{n}", "HI", k, False, "in",
                                   "GPIOL1" if n == 5 else ""))
+    if busy_pin:  # D0 also to GPIOL1 (ftdi_pins.BUSY_PINS); HI has no line left
+        n = _ftdi_line(ftdi_pins.BUSY_PINS["gpiol1"])
+        out.append(Connection(f"ADBUS{n}", f"D{n}", "D0", 0, True, "in",
+                              "GPIOL1, besides C0: busy during a held status read; "
+                              "HI (pin 17) not connected"))
     return out
 
 
-def connections(adapter: str, axes: int = 1) -> list[Connection]:
+def connections(adapter: str, axes: int = 1, busy_pin: bool = False) -> list[Connection]:
     """Every wire from ``adapter`` to ``axes`` chips (GND and supplies apart), data bus first.
+    ``busy_pin``: the FT232H wired for ``busy_pin=gpiol1`` (D0 also on ADBUS5, HI off it).
     ValueError for an unknown adapter or more axes than it has chip selects."""
     adapter = adapter.lower()
     if adapter not in ADAPTERS:
@@ -100,7 +106,9 @@ def connections(adapter: str, axes: int = 1) -> list[Connection]:
     if not 1 <= axes <= MAX_AXES[adapter]:
         raise ValueError(f"--axes {axes}: the {adapter} wiring has 1..{MAX_AXES[adapter]} "
                          "chip selects")
-    return _ft232h(axes) if adapter == "ft232h" else _bridge(axes)
+    if busy_pin and adapter != "ft232h":
+        raise ValueError(f"busy_pin: only the FT232H waits on a pin, not the {adapter}")
+    return _ft232h(axes, busy_pin) if adapter == "ft232h" else _bridge(axes)
 
 
 def adapter_name(adapter: str) -> str:
@@ -130,10 +138,11 @@ def extras(adapter: str) -> list[tuple[str, str, str]]:
     return rows
 
 
-def table_rows(adapter: str, axes: int = 1) -> list[tuple[str, str, str, str, str]]:
+def table_rows(adapter: str, axes: int = 1,
+               busy_pin: bool = False) -> list[tuple[str, str, str, str, str]]:
     """(adapter pin, port bit or breakout label, LM629 pin, direction, note) for every wire."""
     rows = []
-    for c in connections(adapter, axes):
+    for c in connections(adapter, axes, busy_pin):
         notes = [n for n in (c.note, "10k pull-up" if c.pull_up else "",
                              "all chips" if c.shared and axes > 1 else "") if n]
         rows.append((c.adapter_pin, c.adapter_detail, c.chip_label, c.direction, "; ".join(notes)))
@@ -147,11 +156,11 @@ def headers(adapter: str) -> tuple[str, str, str, str, str]:
             "direction (AVR side)", "note")
 
 
-def markdown(adapter: str, axes: int | None = None) -> str:
+def markdown(adapter: str, axes: int | None = None, busy_pin: bool = False) -> str:
     """The wiring table as Markdown (every chip select the adapter has, unless ``axes``)."""
     n = MAX_AXES[adapter.lower()] if axes is None else axes
     lines = ["| " + " | ".join(headers(adapter)) + " |", "|---|---|---|---|---|"]
-    for row in table_rows(adapter, n):
+    for row in table_rows(adapter, n, busy_pin):
         lines.append("| " + " | ".join(row) + " |")
     for a, b, note in extras(adapter):
         lines.append(f"| {a} |  | {b} |  | {note} |")

@@ -2,12 +2,29 @@
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Sequence
 
 
 class LM629Error(Exception):
-    """Base class of every error this package raises on purpose (besides ValueError for
-    arguments, which is raised before any bus traffic)."""
+    """Base class of every error this package raises on purpose (besides
+    :class:`ArgumentError`, a ValueError for arguments, raised before any bus traffic)."""
+
+
+class ArgumentError(ValueError):
+    """A bad argument, found before any bus traffic.  ``argument`` is its name as the caller
+    spelled it (``kp``, ``derivative_interval``, ``axes``), ``value`` what was given, ``lo``
+    and ``hi`` the allowed range where there is one (inclusive; None: no bound or no range),
+    so that a caller with its own names for the arguments (the CLI's ``--ds``) can say the
+    same without reading the message."""
+
+    def __init__(self, argument: str, value: object, message: str, *,
+                 lo: float | None = None, hi: float | None = None) -> None:
+        self.argument = argument
+        self.value = value
+        self.lo = lo
+        self.hi = hi
+        super().__init__(message)
 
 
 class BusyTimeout(LM629Error):
@@ -59,16 +76,29 @@ class TransportError(LM629Error):
         super().__init__(f"{port}: {message}" if port else message)
 
 
-class AxisError(LM629Error, ValueError):
-    """An axis (chip select) that the board does not have: raised before any bus cycle."""
+class SchemeError(TransportError, ArgumentError):
+    """A port URL whose scheme no transport is registered for: bad usage (an ArgumentError
+    with ``argument`` ``"port"``), and a TransportError for code that catches those."""
+
+    def __init__(self, message: str, port: str):
+        self.port = port
+        self.argument, self.value, self.lo, self.hi = "port", port, None, None
+        Exception.__init__(self, f"{port}: {message}")
+
+
+class AxisError(LM629Error, ArgumentError):
+    """An axis (chip select) that the board does not have: raised before any bus cycle
+    (``argument`` is ``"axis"``, the range 0..available - 1)."""
 
     def __init__(self, axis: object, available: int, where: str):
         self.axis = axis
         self.available = available
-        super().__init__(
+        ArgumentError.__init__(
+            self, "axis", axis,
             f"axis {axis} does not exist: {where} has {available} chip select(s) (axes "
             f"0..{available - 1}). Check the axis number, the board's `axes=` and, on a bridge, "
-            "that its firmware is the multi-axis one (lm629 bridge flash).")
+            "that its firmware is the multi-axis one (lm629 bridge flash).",
+            lo=0, hi=available - 1)
 
 
 class CommandError(LM629Error):
@@ -85,14 +115,17 @@ class CommandError(LM629Error):
 
 
 class WaitTimeout(LM629Error):
-    """``wait_for`` did not see any of the awaited status flags in time."""
+    """``wait_for`` did not see any of the awaited status flags in time.  ``flags`` are the
+    flags waited for, ``what`` says in words what that was (``"the index pulse (status bit
+    3)"``; by default the flags' names), ``status`` the last status byte read."""
 
-    def __init__(self, flags: object, timeout_s: float, status: int):
+    def __init__(self, flags: object, timeout_s: float, status: int, *, what: str | None = None):
         self.flags = flags
+        self.what = str(flags) if what is None else what
         self.timeout_s = timeout_s
         self.status = status
         super().__init__(
-            f"waited {timeout_s:g} s for {flags} but status stayed {status:02X}. "
+            f"waited {timeout_s:g} s for {self.what} but status stayed {status:02X}. "
             "Check that the motor can follow (following error, stall) and that the move was started."
         )
 
@@ -101,43 +134,70 @@ class ProtocolViolation(LM629Error):
     """Raised by ``sim://?strict=1`` the moment the host breaks the chip's bus protocol."""
 
 
+class MotionFault(str, enum.Enum):
+    """Why a move did not end where it was sent (:attr:`MotionError.reason`).  A ``str`` enum:
+    each member equals its text (``MotionFault.STALL == "stall"``)."""
+
+    POSITION_ERROR = "position error"    #: the chip's position-error flag (LPEI / LPES)
+    MOTOR_OFF = "motor off"              #: the drive was found off (LPES, or someone else)
+    STALL = "stall"                      #: the desired position moves, the shaft does not
+    RUNAWAY = "runaway"                  #: the shaft heads away from the desired position
+    FOLLOWING_ERROR = "following error"  #: settled, but further from target than the tolerance
+    TIMEOUT = "timeout"                  #: the move did not complete in the time allowed
+
+    def __str__(self) -> str:
+        return self.value
+
+
 class MotionError(LM629Error):
-    """A move did not end where it was sent.  ``reason`` is one of the ``MotionError.*``
-    constants below; ``axis`` names the axis on a multi-axis board (None on a single chip);
+    """A move did not end where it was sent.  ``reason`` is a :class:`MotionFault` (also
+    reachable as ``MotionError.STALL`` ...); ``detail`` the sentence that says what was seen
+    and what to check; ``axis`` names the axis on a multi-axis board (None on a single chip);
     ``position`` and ``error`` are the last real position and following error read (counts),
-    when known.  Whoever raises it has already stopped the motor, or says in the message that
+    when known.  Whoever raises it has already stopped the motor, or says in ``detail`` that
     it could not."""
 
-    POSITION_ERROR = "position error"   #: the chip's position-error flag (LPEI / LPES)
-    MOTOR_OFF = "motor off"             #: the drive was found off (LPES, or someone else)
-    STALL = "stall"                     #: the desired position moves, the shaft does not
-    RUNAWAY = "runaway"                 #: the shaft heads away from the desired position
-    FOLLOWING_ERROR = "following error"  #: settled, but further from target than the tolerance
-    TIMEOUT = "timeout"                 #: the move did not complete in the time allowed
-    REASONS = (POSITION_ERROR, MOTOR_OFF, STALL, RUNAWAY, FOLLOWING_ERROR, TIMEOUT)
+    POSITION_ERROR = MotionFault.POSITION_ERROR
+    MOTOR_OFF = MotionFault.MOTOR_OFF
+    STALL = MotionFault.STALL
+    RUNAWAY = MotionFault.RUNAWAY
+    FOLLOWING_ERROR = MotionFault.FOLLOWING_ERROR
+    TIMEOUT = MotionFault.TIMEOUT
+    REASONS = tuple(MotionFault)
 
-    def __init__(self, reason: str, message: str, *, axis: object = None,
+    def __init__(self, reason: MotionFault | str, detail: str, *, axis: object = None,
                  position: int | None = None, error: int | None = None):
-        if reason not in self.REASONS:
-            raise ValueError(f"MotionError reason {reason!r} is not one of {self.REASONS}")
-        self.reason = reason
+        try:
+            self.reason = MotionFault(reason)
+        except ValueError:
+            raise ValueError(f"MotionError reason {reason!r} is not one of "
+                             f"{[r.value for r in MotionFault]}") from None
+        self.detail = detail
         self.axis = axis
         self.position = position
         self.error = error
         prefix = f"axis {axis}: " if axis is not None else ""
-        super().__init__(f"{prefix}motion fault ({reason}): {message}")
+        super().__init__(f"{prefix}motion fault ({self.reason.value}): {detail}")
+
+    def on_axis(self, axis: int) -> MotionError:
+        """The same fault, named for ``axis`` of a multi-axis board."""
+        return MotionError(self.reason, self.detail, axis=axis, position=self.position,
+                           error=self.error)
 
 
 def check_int(name: str, value: object, lo: int, hi: int, *, hex_digits: int = 0) -> int:
-    """Validate an integer argument; the error names it, its value and the allowed range."""
+    """Validate an integer argument; the :class:`ArgumentError` names it, its value and the
+    allowed range."""
     if isinstance(value, bool) or not isinstance(value, int):
         if isinstance(value, float) and value.is_integer():
             value = int(value)
         else:
-            raise ValueError(f"{name}={value!r} must be an integer in {lo}..{hi}")
+            raise ArgumentError(name, value, f"{name}={value!r} must be an integer in {lo}..{hi}",
+                                lo=lo, hi=hi)
     if not lo <= value <= hi:
         rng = f"{lo}..{hi}"
         if hex_digits:
             rng += f" (0x{lo & (16 ** hex_digits - 1):0{hex_digits}X}..0x{hi:0{hex_digits}X})"
-        raise ValueError(f"{name}={value} is outside the allowed range {rng}")
+        raise ArgumentError(name, value, f"{name}={value} is outside the allowed range {rng}",
+                            lo=lo, hi=hi)
     return value

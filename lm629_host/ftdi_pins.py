@@ -1,8 +1,8 @@
 """THE pin map of the FT232H adapter: which FT232H line drives which LM628/LM629 pin (and
 the MPSSE commands that move them, FTDI AN_108).
 
-This is the one definition.  The transport (:mod:`lm629_host.transports.ftdi`) compiles bus
-programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
+This is the one definition.  The stream compiler (:mod:`lm629_host.transports.mpsse`)
+compiles bus programs with these masks, the emulated FT232H (:mod:`lm629_host.sim.ftdi`) wires its pins to the
 chip model with them, and docs/ftdi.md's wiring table and drawing are generated from them
 (:mod:`lm629_host.connections`, ``tools/gen_wiring.py``; a test checks they are current).
 
@@ -15,8 +15,12 @@ Why this layout:
   (0x80).  ADBUS0 is the MPSSE clock output TCK: the stream's delays are idle clocks
   (0x8E/0x8F), which toggle TCK, so ADBUS0 is left unconnected (it is a handy scope trigger);
 * HI is on ADBUS5, which the FT232H calls GPIOL1: the one line the MPSSE wait-on-I/O
-  commands (0x88/0x89) can watch, should a future version wait for the host interrupt in the
-  adapter itself;
+  commands (0x88/0x89) can watch.  With ``busy_pin=gpiol1`` (:data:`BUSY_PINS`) that line
+  watches D0 instead: D0 (pin 4, ACBUS0) is wired to ADBUS5 too, and HI is left unconnected
+  (its flags are bits 1-6 of the status byte, which the driver reads anyway;
+  ``connections.connections("ft232h", busy_pin=True)`` is that wiring).  During a status read
+  held with /CS, /PS and /RD low, D0 is the busy bit, so a stream can wait in the adapter
+  until busy clears (see :mod:`lm629_host.transports.ftdi`);
 * /RST is on ADBUS6 and not on a line with a special function, so that nothing but an explicit
   set-low-byte command can ever pulse it.
 
@@ -33,7 +37,11 @@ CS = 1 << 1  #: ADBUS1 -> /CS  (active low)
 RD = 1 << 2  #: ADBUS2 -> /RD  (active low)
 WR = 1 << 3  #: ADBUS3 -> /WR  (active low; the chip latches on the rising edge)
 PS = 1 << 4  #: ADBUS4 -> /PS  (low: command/status, high: data)
-HI = 1 << 5  #: ADBUS5 (GPIOL1) <- HI (input, active high)
+GPIOL1 = 1 << 5  #: ADBUS5: the line MPSSE's wait-on-I/O (0x88/0x89) watches
+HI = GPIOL1  #: ADBUS5 (GPIOL1) <- HI (input, active high), in the default wiring
+#: the URL option ``busy_pin``: the lines a stream can wait on, wired to D0, by name -> the
+#: ADBUS bit (HI then has no line)
+BUSY_PINS = {"gpiol1": GPIOL1}
 RST = 1 << 6  #: ADBUS6 -> /RST (active low)
 CS1 = 1 << 7  #: ADBUS7 -> /CS of a second chip (active low), the one free line left
 
@@ -75,10 +83,12 @@ ENABLE_CLK_3PHASE = 0x8C
 DISABLE_CLK_3PHASE = 0x8D
 CLK_BITS = 0x8E  #: n+1 idle clocks (1 byte follows)
 CLK_BYTES = 0x8F  #: 8 x (n+1) idle clocks (2 bytes follow)
+WAIT_HIGH = 0x88  #: wait until GPIOL1 is high (no timeout: the engine stops until it is)
+WAIT_LOW = 0x89  #: wait until GPIOL1 is low
 ENABLE_CLK_ADAPTIVE = 0x96
 DISABLE_CLK_ADAPTIVE = 0x97
 
 
 __all__ = ["TCK", "CS", "CS1", "CHIP_SELECTS", "HI_LINES", "CS_ALL", "RD", "WR", "PS", "HI",
-           "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
+           "GPIOL1", "BUSY_PINS", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
            "DATA_IN", "FIFO_BYTES"]

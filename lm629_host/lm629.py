@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
 from .clock import Clock, WallClock
-from .errors import AxisError, CommandError, ResetError, WaitTimeout, check_int
+from .errors import ArgumentError, AxisError, CommandError, ResetError, WaitTimeout, check_int
+from .limits import SoftLimits
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     ACCELERATION_MAX,
@@ -25,6 +26,7 @@ from .opcodes import (
     DERIVATIVE_INTERVAL_MAX,
     FILTER_ORDER,
     INTERRUPTS,
+    NOMINAL_CLOCK_HZ,
     POSITION_MAX,
     POSITION_MIN,
     RESET_CLEARED_STATUSES,
@@ -72,7 +74,8 @@ def _check_flags(name: str, flags: object) -> Status:
     value = check_int(name, int(flags) if isinstance(flags, Status) else flags, 0, 0xFF)
     extra = value & ~INTERRUPTS
     if extra:
-        raise ValueError(
+        raise ArgumentError(
+            name, value,
             f"{name}={value:#04x} has bits that are not interrupt conditions ({extra:#04x}); "
             f"allowed: {INTERRUPTS!r} (status bits 1..6)")
     return Status(value)
@@ -101,9 +104,13 @@ class LM629:
 
     #: when :meth:`move_to`'s moves are done or a motion fault (settable per object)
     move_rules: MoveRules = MoveRules()
+    #: the axis's soft limits (a profile sets them): every trajectory is checked against them
+    #: in :meth:`trajectory_program`, before any bus cycle (:mod:`lm629_host.limits`)
+    limits: SoftLimits | None = None
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
-                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None):
+                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None,
+                 clock_hz: float | None = None):
         chip = chip.lower()
         if chip not in ("lm628", "lm629"):
             raise ValueError(f"chip={chip!r}: expected 'lm628' or 'lm629'")
@@ -119,6 +126,7 @@ class LM629:
         self.transport = transport
         self.variant = chip
         self.reset_attempts = reset_attempts
+        self._clock_hz = clock_hz  # the clock said by the caller (a URL's clock=, --clock)
         self._ds = 0  # derivative sampling byte, re-sent with every LFIL (AN-706 4.5.1)
         self._port12 = False  # re-issued after every reset (LM628 with a 12-bit DAC)
         # True while the command-error flag is known to be clear (after reset(), after a good
@@ -136,10 +144,11 @@ class LM629:
     def busy_timeout(self, seconds: float) -> None:
         if not isinstance(seconds, (int, float)) or not BUSY_TIMEOUT_MIN_S <= seconds <= \
                 BUSY_TIMEOUT_MAX_S:
-            raise ValueError(
-                f"busy_timeout={seconds!r} s is outside {BUSY_TIMEOUT_MIN_S * 1e3:g}.."
+            raise ArgumentError(
+                "busy_timeout", seconds, f"busy_timeout={seconds!r} s is outside {BUSY_TIMEOUT_MIN_S * 1e3:g}.."
                 f"{BUSY_TIMEOUT_MAX_S * 1e3:g} ms (well above the chip's 100 us worst case, "
-                "within what the bridge protocol carries)")
+                "within what the bridge protocol carries)", lo=BUSY_TIMEOUT_MIN_S,
+                hi=BUSY_TIMEOUT_MAX_S)
         self._busy_timeout = float(seconds)
 
     def program(self) -> Program:
@@ -153,6 +162,13 @@ class LM629:
     def clock(self) -> Clock:
         """The transport's clock: simulated on ``sim://``, the wall clock on hardware."""
         return self.transport.clock
+
+    @property
+    def clock_hz(self) -> float:
+        """The chip's clock input (Hz): the transport's when it knows it (a simulator's model),
+        else the one given when it was opened (``clock=``), else the nominal 8 MHz.  Used for
+        default timeouts, expected move times and the sample period of tuning."""
+        return self.transport.clock_hz or self._clock_hz or NOMINAL_CLOCK_HZ
 
     #: set by :meth:`batch` while it collects calls: programs go there instead of the bus
     _run_hook: Callable[[Program], ProgramResult] | None = None
@@ -206,25 +222,6 @@ class LM629:
         (:meth:`Board.reset <lm629_host.board.Board.reset>` pulses it for all of them)."""
         return self.transport.has_reset_line and self.axis is None
 
-    def reset_programs(self) -> tuple[Program, Program]:
-        """The AN-706 3.7 / 4.4.1 initialisation as two programs.
-
-        First: /RST (or the RESET command), status (00 expected at once), wait 1.5 ms, status
-        (84 or C4 expected).  Second, only once the first checked out, so that nothing is ever
-        written into a chip still in reset: MSKI 0000, RSTI 0000, status once busy is clear
-        (80 or C0 expected), and PORT12 when it was set before.
-        """
-        p = self.program()
-        if self.uses_reset_line:
-            p.reset().status()
-        else:
-            p.command(Cmd.RESET).status()
-        p.wait(round(RESET_WAIT_S * 1e6)).status()
-        q = self.program().command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
-        if self._port12:
-            q.command(Cmd.PORT12)
-        return p, q
-
     def reset(self) -> Status:
         """Reset the chip and check that it came back, as AN-706 4.4.1 prescribes.
 
@@ -232,25 +229,26 @@ class LM629:
         status 00 at once (hardware reset only: a chip that does not read 00 did not see /RST),
         84 or C4 after 1.5 ms, then masks and clears all interrupts and checks 80 or C0.
         Retries ``reset_attempts`` times in all, then raises :class:`ResetError` with every
-        status byte seen.
+        status byte seen (:func:`reset_chips`, shared with a board's reset).
         """
-        seen: list[int] = []
-        hw = self.uses_reset_line
-        for _ in range(self.reset_attempts):
-            first_program, init_program = self.reset_programs()
-            first, done = self.run(first_program).statuses
-            seen += (first, done)
-            if (hw and first != 0x00) or done not in RESET_DONE_STATUSES:
-                continue
-            cleared = self.run(init_program).statuses[0]
-            seen.append(cleared)
-            if cleared in RESET_CLEARED_STATUSES:
-                self._ds = 0
-                self._ce_clear = True
-                return Status(cleared)
-        expected = ("00 at once, 84 or C4 after 1.5 ms, 80 or C0 after MSKI/RSTI 0000" if hw
-                    else "84 or C4 after the RESET command, 80 or C0 after MSKI/RSTI 0000")
-        raise ResetError(seen, expected, self.reset_attempts)
+        return self.reset_statuses()[0]
+
+    def reset_statuses(self) -> tuple[Status, list[int]]:
+        """:meth:`reset`, also returning every status byte its programs read (bring-up)."""
+        statuses, seen = reset_chips([self], pulse=self.uses_reset_line,
+                                     attempts=self.reset_attempts)
+        return statuses[0], seen[self.chip_select]
+
+    def reset_done(self) -> None:
+        """What a reset (this object's or a board's) leaves: the derivative interval back to
+        one sample, the command-error flag clear."""
+        self._ds = 0
+        self._ce_clear = True
+
+    @property
+    def port12_selected(self) -> bool:
+        """True after :meth:`port12`: every reset issues PORT12 again."""
+        return self._port12
 
     # ------------------------------------------------------------------ status
     def read_status(self) -> Status:
@@ -386,6 +384,11 @@ class LM629:
                 f"stop={stop!r} cannot be combined with new acceleration/velocity/position: the "
                 "chip would not move (spec: stop bits only stop an ongoing move). Send the stop, "
                 "then load the next move")
+        if self.limits is not None and stop is None:  # a stop is never refused
+            self.limits.check_trajectory(
+                acceleration, velocity, position, acceleration_relative=acceleration_relative,
+                velocity_relative=velocity_relative, position_relative=position_relative,
+                velocity_mode=velocity_mode)
         control = _STOPS[stop]
         if velocity_mode:
             control |= TrajectoryFlags.VELOCITY_MODE
@@ -422,6 +425,29 @@ class LM629:
         else:
             self.run(p)
 
+    def start_flags(self, clear: Status | int = 0) -> Status:
+        """The flags a program must clear (RSTI) before its STT on this chip: ``clear``, and
+        the command-error flag unless it is known to be clear, so that a refusal of this STT
+        is never hidden by a stale flag."""
+        clear = _check_flags("clear", clear)
+        return clear if self._ce_clear else clear | Status.COMMAND_ERROR
+
+    def start_checked(self, before: int, after: int) -> bool:
+        """Take the status read just before this chip's STT (busy clear) and the one after it;
+        return True when the chip refused that STT (the caller raises :class:`CommandError`).
+        Every STT, this object's or a board's, goes through here."""
+        if not after & Status.COMMAND_ERROR:
+            self._ce_clear = True
+            return False
+        self._ce_clear = False
+        if not before & Status.COMMAND_ERROR:
+            return True
+        # the flag was set again inside this program, before the STT: only a transport that
+        # had to repeat a damaged transfer does that (it says so in its stats and log)
+        log.warning("command-error flag set before STT in the same program (status %02X): "
+                    "cannot tell whether STT was refused; check transport.stats.retries", before)
+        return False
+
     def _start(self, program: Program, clear: Status | int = 0,
                head: Program | None = None) -> Status:
         return self._start_run(program, clear, head)[0]
@@ -430,28 +456,17 @@ class LM629:
                    head: Program | None = None) -> tuple[Status, ProgramResult]:
         """:meth:`_start` that also returns the program's result; ``head`` runs first, in the
         same program (move_to's snapshot: one exchange)."""
-        clear = Status(clear)
-        if not self._ce_clear:  # also clear the command-error flag (RSTI: 0 clears)
-            clear |= Status.COMMAND_ERROR
-        if clear:
-            program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~clear)) \
+        flags = self.start_flags(clear)
+        if flags:  # RSTI: a 0 bit clears
+            program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~flags)) \
                 .extend(program)
         if head is not None:
             program = head.extend(program)
         program.sync().command(Cmd.STT).sync()
         result = self.run(program)
         before, after = result.statuses[-2:]
-        if after & Status.COMMAND_ERROR:
-            self._ce_clear = False
-            if not before & Status.COMMAND_ERROR:
-                raise CommandError("STT", after)
-            # the flag was set again inside this program, before the STT: only a transport
-            # that had to repeat a damaged transfer does that (it says so in its stats and log)
-            log.warning("command-error flag set before STT in the same program (status %02X): "
-                        "cannot tell whether STT was refused; check transport.stats.retries",
-                        before)
-        else:
-            self._ce_clear = True
+        if self.start_checked(before, after):
+            raise CommandError("STT", after)
         return Status(after), result
 
     def start(self) -> Status:
@@ -489,6 +504,8 @@ class LM629:
         if acceleration is not None:
             acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX,
                                      hex_digits=8)
+        if self.limits is not None:  # before the first read: a refused move costs no exchange
+            self.limits.check_trajectory(acceleration, velocity, None if relative else position)
         first = self.snapshot() if relative else None
         target = first.desired_position + position if first is not None else position
         program = self.trajectory_program(acceleration, velocity,
@@ -554,11 +571,12 @@ class LM629:
 
     # ------------------------------------------------------------------ waiting
     def wait_for(self, flags: Status | int, timeout: float = 10.0,
-                 poll: float | None = None) -> Status:
+                 poll: float | None = None, *, what: str | None = None) -> Status:
         """Wait until any of ``flags`` is set in the status byte; return the status.
 
         Waits on the transport's clock (simulated time on ``sim://``).  Raises
-        :class:`WaitTimeout` after ``timeout`` seconds.
+        :class:`WaitTimeout` after ``timeout`` seconds (its ``what``: ``what`` when given, the
+        words a person reads, else the flags' names).
 
         A flag raised *earlier* satisfies it at once: the chip keeps its flags until RSTI
         clears them.  After a first move, ``load_trajectory(..., start=True)`` then
@@ -576,9 +594,9 @@ class LM629:
         """
         value = Status(check_int("flags", int(flags), 1, 0xFF))
         if not timeout > 0:
-            raise ValueError(f"timeout={timeout} must be positive (seconds)")
+            raise ArgumentError("timeout", timeout, f"timeout={timeout} must be positive (seconds)")
         if poll is not None and not poll > 0:
-            raise ValueError(f"poll={poll} must be positive (seconds)")
+            raise ArgumentError("poll", poll, f"poll={poll} must be positive (seconds)")
         clock = self.clock
         start = clock.now()
         deadline = start + timeout
@@ -595,7 +613,7 @@ class LM629:
                 return status
             now = clock.now()
             if now >= deadline:
-                raise WaitTimeout(value, timeout, int(status))
+                raise WaitTimeout(value, timeout, int(status), what=what)
             if not far:
                 step = poll if poll is not None else _poll_interval(now - start)
                 clock.sleep(min(step, deadline - now))
@@ -633,6 +651,76 @@ class LM629:
             p.write(w)
         self._ce_clear = False  # any byte may provoke a command error
         return self.run(p.read(read)).words
+
+
+def reset_chips(chips: Sequence[LM629], *, pulse: bool,
+                attempts: int) -> tuple[list[Status], dict[int, list[int]]]:
+    """The AN-706 3.7 / 4.4.1 initialisation of one chip or of every chip of a board, in two
+    programs per attempt: /RST once (``pulse``; the line is shared) or the RESET command on
+    each chip, each chip's status (00 expected at once after /RST), 1.5 ms, each status (84 or
+    C4); then, only once every chip checked out, so that nothing is ever written into a chip
+    still in reset, MSKI 0000 and RSTI 0000 on each, its status once busy is clear (80 or C0),
+    and PORT12 where it was selected.  ``attempts`` in all, then :class:`ResetError` naming
+    the first chip that failed (its axis on a board of several) with its status bytes.
+
+    Returns each chip's status after the reset and every status byte read, per chip select.
+    """
+    transport = chips[0].transport
+    seen: dict[int, list[int]] = {c.chip_select: [] for c in chips}
+    failed = chips[0]
+
+    def program() -> tuple[Program, Callable[[LM629], Program]]:
+        p = Program(busy_timeout_s=chips[0].busy_timeout)
+        at = [0]  # a program starts on chip select 0
+
+        def on(chip: LM629) -> Program:
+            if chip.chip_select != at[0]:
+                p.select(chip.chip_select)
+                at[0] = chip.chip_select
+            return p
+        return p, on
+
+    for _ in range(attempts):
+        p, on = program()
+        if pulse:
+            p.reset()
+        else:
+            for c in chips:
+                on(c).command(Cmd.RESET)
+        for c in chips:
+            on(c).status()
+        p.wait(round(RESET_WAIT_S * 1e6))
+        for c in chips:
+            on(c).status()
+        st = transport.execute(p).statuses
+        n = len(chips)
+        bad = None
+        for k, c in enumerate(chips):
+            first, done = st[k], st[n + k]
+            seen[c.chip_select] += (first, done)
+            if bad is None and ((pulse and first != 0) or done not in RESET_DONE_STATUSES):
+                bad = c
+        if bad is not None:
+            failed = bad
+            continue
+        q, on = program()
+        for c in chips:
+            on(c).command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
+            if c.port12_selected:
+                q.command(Cmd.PORT12)
+        cleared = transport.execute(q).statuses
+        for c, s in zip(chips, cleared):
+            seen[c.chip_select].append(s)
+        bad = next((c for c, s in zip(chips, cleared) if s not in RESET_CLEARED_STATUSES), None)
+        if bad is None:
+            for c in chips:
+                c.reset_done()
+            return [Status(s) for s in cleared], seen
+        failed = bad
+    expected = ("00 at once, 84 or C4 after 1.5 ms, 80 or C0 after MSKI/RSTI 0000" if pulse
+                else "84 or C4 after the RESET command, 80 or C0 after MSKI/RSTI 0000")
+    raise ResetError(seen[failed.chip_select], expected, attempts,
+                     axis=failed.chip_select if len(chips) > 1 else None)
 
 
 #: the longest far-side wait per exchange on a wall clock (Ctrl-C is held while a program runs)

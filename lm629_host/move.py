@@ -40,9 +40,9 @@ from dataclasses import dataclass, replace
 from typing import NoReturn, Protocol
 
 from .clock import Clock
-from .errors import MotionError
+from .errors import ArgumentError, MotionError, MotionFault
 from .opcodes import Signals, Status
-from .safety import STOP_NOTE, Stoppable, emergency_stop
+from .safety import STOP_NOTE, Stoppable, emergency_stop, motion_fault
 from .snapshot import Snapshot
 
 
@@ -55,8 +55,8 @@ class MovingChip(Stoppable, Protocol):
     chip_select: int  #: which chip of a multi-axis board
 
     @property
-    def transport(self) -> object:
-        """Looked at only for a simulated model's clock rate."""
+    def clock_hz(self) -> float:
+        """The chip's clock (Hz), for the default timeout."""
 
     @property
     def clock(self) -> Clock: ...
@@ -79,18 +79,19 @@ class MoveRules:
     stall_counts: int = 4  #: shaft motion that counts as progress
     runaway_counts: int = 200  #: shaft motion away from the desired position
     poll: float = 0.005  #: seconds between status reads
-    clock_hz: float | None = None  #: the chip's clock for the default timeout (None: 8 MHz
-    #: or the simulator's own)
+    clock_hz: float | None = None  #: the chip's clock for the default timeout (None: the
+    #: chip's own ``clock_hz``: the simulator's, else 8 MHz)
 
     def __post_init__(self) -> None:
         for name in ("settle_time", "settle_timeout", "stall_time", "poll"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}={v!r} must be a positive number of seconds")
+                raise ArgumentError(name, v, f"{name}={v!r} must be a positive number of seconds")
         for name in ("tolerance", "stall_counts", "runaway_counts"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise ValueError(f"{name}={v!r} must be a whole number of counts >= 0")
+                raise ArgumentError(name, v, f"{name}={v!r} must be a whole number of counts >= 0",
+                                    lo=0)
 
 
 @dataclass(frozen=True)
@@ -134,8 +135,7 @@ class Move:
     def _clock_hz(self, rules: MoveRules) -> float:
         if rules.clock_hz:
             return rules.clock_hz
-        model = getattr(self.chip.transport, "model", None)
-        return float(getattr(model, "clock_hz", 8e6))
+        return self.chip.clock_hz
 
     def wait(self, timeout: float | None = None, tolerance: int | None = None, *,
              rules: MoveRules | None = None,
@@ -180,15 +180,13 @@ class Move:
             profile = self.profile_s(self._clock_hz(r))
             timeout = (1.5 * profile if profile is not None else 60.0) + r.settle_timeout + 1.0
         if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
-            raise ValueError(f"timeout={timeout!r} must be a positive number of seconds")
+            raise ArgumentError("timeout", timeout,
+                                f"timeout={timeout!r} must be a positive number of seconds")
         return MoveWatch(self, r, timeout)
 
-    def _fault(self, reason: str, s: Snapshot, message: str) -> NoReturn:
-        _ok, note = emergency_stop(self.chip)
-        exc = MotionError(reason, f"{message}; {note}", position=s.real_position,
-                          error=self.target - s.real_position)
-        setattr(exc, STOP_NOTE, note)  # stopped already: an outer stop_on_error does not repeat it
-        raise exc
+    def _fault(self, reason: MotionFault, s: Snapshot, message: str) -> NoReturn:
+        raise motion_fault(self.chip, reason, message, position=s.real_position,
+                           error=self.target - s.real_position)
 
 
 class MoveWatch:

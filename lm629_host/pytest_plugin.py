@@ -31,7 +31,6 @@ Why the choices (docs/testing.md has the user's side):
 from __future__ import annotations
 
 import collections
-import dataclasses
 import enum
 import importlib.util
 import signal
@@ -46,13 +45,14 @@ import pytest
 
 import lm629_host
 
-from .errors import AxisError, LM629Error
+from .errors import LM629Error
 from .opcodes import STOP_FLAGS, Cmd, Status
 from .program import STATUS_OPS, BusOp, Op, Program, ProgramResult
 from .safety import emergency_stop
-from .transports import DEFAULT_URL, open_transport, transport_class
+from .transports import DEFAULT_URL, transport_class
 from .transports.base import Transport
-from .urls import query_params, split_params, with_query
+from .ports import PortSpec, resolve_port
+from .urls import query_params, with_query
 
 #: the fixtures that open the port (a collected test using one makes the run check the port)
 FIXTURES = ("lm629", "lm629_board")
@@ -60,8 +60,6 @@ FIXTURES = ("lm629", "lm629_board")
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: how many bus programs (one line each in the failure report) a test keeps
 TRACE_PROGRAMS = 40
-#: the URL parameters of a simulated bus that the model does not read itself
-_BUS_PARAMS = ("axes", "cs")
 
 MARKERS = {
     "lm629_sim": "lm629_sim(params='inertia=4e-5&load_torque=0.002&axes=2', **params): this "
@@ -138,7 +136,7 @@ class Session:
             return
         if self.simulated:
             try:
-                open_transport(_sim_url(self.url, {})).close()
+                resolve_port(_sim_url(self.url, {})).open_transport().close()
             except (LM629Error, ValueError) as exc:
                 raise PortError(f"--lm629-port {self.url}: {exc}") from None
         else:
@@ -148,9 +146,8 @@ class Session:
     def transport(self) -> Transport:
         """The real port's transport, opened at the first call."""
         if self._transport is None:
-            url, _ = split_params(self.url, set(_BUS_PARAMS))
             try:
-                self._transport = open_transport(url)
+                self._transport = resolve_port(self.url).open_transport()
             except (LM629Error, ValueError, OSError) as exc:
                 raise PortError(f"--lm629-port {self.url} cannot be opened: {exc}") from None
             self._install_signals(self._transport)
@@ -287,7 +284,7 @@ class Bench:
             self.url = _sim_url(session.url, _marker_params(self.item))
             problem = None
             try:
-                self.transport = open_transport(split_params(self.url, {"cs"})[0])
+                self.transport = resolve_port(self.url).open_transport()
             except (LM629Error, ValueError) as exc:
                 problem = f"{_marker_text(self.item)}: {exc}; also axes (chips on the bus)"
             if problem is not None:  # outside the except: one message, no chained traceback
@@ -367,26 +364,28 @@ class Bench:
                 "will fail"), stacklevel=1)
 
     # -- the chips
+    def _spec(self) -> PortSpec:
+        """The port settled (lm629_host.ports: chip=, clock=, axes=, cs=), checked when the
+        transport opened; a bad value fails the test with the option named."""
+        try:
+            return resolve_port(self.url)
+        except ValueError as exc:
+            pytest.fail(f"{self.url}: {exc}", pytrace=False)
+
     def chip(self) -> lm629_host.LM629:
-        cs = split_params(self.url, {"cs"})[1].get("cs")
-        variant = query_params(self.url).get("chip", "lm629") if self.simulated else "lm629"
-        axis = int(cs) if cs is not None and cs.isdigit() else None
-        if cs is not None and axis is None:
-            pytest.fail(f"{self.url}: cs={cs!r} is not a chip select number", pytrace=False)
-        chip = lm629_host.LM629(self.transport, chip=variant, axis=axis)
+        spec = self._spec()
+        chip = lm629_host.LM629(self.transport, chip=spec.chip, axis=spec.cs,
+                                clock_hz=spec.clock_hz)
         self.chips.append(chip)
         chip.reset()
         return chip
 
     def open_board(self) -> lm629_host.Board:
-        params = query_params(self.url)
-        variant = params.get("chip", "lm629") if self.simulated else "lm629"
-        raw = params.get("axes")
-        n = int(raw) if raw is not None and raw.isdigit() else None
-        if raw is not None and n is None:
-            pytest.fail(f"{self.url}: axes={raw!r} is not a number of chips", pytrace=False)
+        spec = self._spec()
+        n = spec.axes if spec.axes is not None else self.transport.chip_count
         prof = self.session.profile_data
-        board = lm629_host.Board(self.transport, n, chip=prof.chip if prof is not None else variant)
+        board = lm629_host.Board(self.transport, n, chip=prof.chip if prof is not None else spec.chip,
+                                 clock_hz=spec.clock_hz)
         self.board = board
         if prof is not None:
             named = _name_axes(board, prof)
@@ -412,6 +411,8 @@ class Bench:
 
     # -- the report
     def models(self) -> list[Any]:
+        # the simulated chips, for their protocol violations: a test tool's door to the
+        # simulator, like the sim transports (test_layout names it)
         return list(getattr(self.transport, "models", ()))
 
     def new_violations(self) -> list[Any]:
@@ -525,17 +526,7 @@ def _name_axes(board: lm629_host.Board, prof: Any) -> dict[str, lm629_host.LM629
     """Give each axis of ``board`` the profile's name, soft limits, chip variant and clock
     (as ``open_board(profile=...)`` does, on this test's transport); nothing is sent."""
     from . import profile as profiles  # type: ignore[attr-defined,unused-ignore]  # issue 21's module
-    named = {}
-    for name, ax in prof.axes.items():
-        if ax.cs >= len(board.axes):
-            raise AxisError(ax.cs, len(board.axes), f"{board.transport.describe()} (axis {name} "
-                                                    f"of {prof.path})")
-        chip = board.axes[ax.cs]
-        profiles.attach(chip, prof, ax)
-        chip.move_rules = dataclasses.replace(chip.move_rules, clock_hz=prof.clock_hz)
-        named[name] = chip
-    board.profile = prof  # type: ignore[attr-defined,unused-ignore]  # board["x"] (issue 21)
-    return named
+    return profiles.name_axes(board, prof)  # type: ignore[no-any-return,unused-ignore]  # typed Any here
 
 
 def _program_text(run: _Run) -> str:

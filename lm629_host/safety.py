@@ -6,8 +6,9 @@ inside :func:`stop_on_error`: Ctrl-C or any exception first stops the motor the 
 abrupt stop + STT, then LTRJ motor off + STT), then the exception goes on to the CLI's error
 handler, which prints what happened and how the motor was left.
 
-A library module (no click): :mod:`lm629_host.move`, :mod:`lm629_host.bringup`,
-:mod:`lm629_host.capture` and the CLI all stop the motor through it.
+A library module (no click): :mod:`lm629_host.move`, :mod:`lm629_host.supervise`,
+:mod:`lm629_host.bringup`, :mod:`lm629_host.tuning`, :mod:`lm629_host.capture` and the CLI all
+stop the motor through it, and :func:`motion_fault` is the one way a motion fault is raised.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Protocol
 
+from .errors import MotionError, MotionFault
+
 
 class Stoppable(Protocol):
     """What stopping needs of a chip (an :class:`~lm629_host.LM629` is one): LTRJ with a stop
@@ -25,7 +28,7 @@ class Stoppable(Protocol):
 
     def load_trajectory(self, *, stop: str | None = None, start: bool = False) -> object: ...
 
-log = logging.getLogger("lm629_host.cli")
+log = logging.getLogger("lm629_host.safety")
 
 #: the attribute set on an exception that went through :func:`stop_on_error`
 STOP_NOTE = "lm629_stop_note"
@@ -64,6 +67,17 @@ def emergency_stop(chip: Stoppable) -> tuple[bool, str]:
     return True, "motor stopped (abrupt stop, then motor off)"
 
 
+def motion_fault(chip: Stoppable, reason: MotionFault, detail: str, *,
+                 position: int | None = None, error: int | None = None) -> MotionError:
+    """Stop the motor (:func:`emergency_stop`) and return the :class:`MotionError` that says
+    why and how the motor was left (``detail; motor stopped ...``), marked as stopped already
+    so that an outer :func:`stop_on_error` does not stop it again.  The caller raises it."""
+    _ok, note = emergency_stop(chip)
+    exc = MotionError(reason, f"{detail}; {note}", position=position, error=error)
+    setattr(exc, STOP_NOTE, note)
+    return exc
+
+
 @contextmanager
 def stop_on_error(chip: Stoppable) -> Iterator[None]:
     """Run a block that may leave the motor moving; on any exception (Ctrl-C included) stop
@@ -80,4 +94,4 @@ def stop_on_error(chip: Stoppable) -> Iterator[None]:
         raise
 
 
-__all__ = ["emergency_stop", "stop_on_error", "STOP_NOTE", "Stoppable"]
+__all__ = ["emergency_stop", "motion_fault", "stop_on_error", "STOP_NOTE", "Stoppable"]

@@ -39,7 +39,8 @@ import math
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 
-from .errors import MotionError
+from .errors import MotionError, MotionFault
+from .limits import clip_step
 from .lm629 import LM629, Snapshot, check_int
 from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
 from .recording import far_snapshots, sample_program
@@ -56,7 +57,7 @@ from .pid import (
     sat16,
     skip_held,
 )
-from .safety import STOP_NOTE, emergency_stop, stop_on_error
+from .safety import motion_fault, stop_on_error
 
 
 Progress = Callable[[str], None]
@@ -290,6 +291,9 @@ class Record:
     #: the rows recorded on the far side, one (first, end) index range per recording: their
     #: times within a range are the far side's clock (exact), only its offset is the host's
     far_runs: list[tuple[int, int]] = field(default_factory=list)
+    #: the (velocity, acceleration) words of the steps when an axis's soft caps brought them
+    #: below a step (:func:`lm629_host.limits.clip_step`): the desired position ramps
+    words: tuple[int, int] | None = None
 
     def times(self) -> list[float]:
         return [s.time - self.t0 for s in self.rows]
@@ -367,7 +371,7 @@ class _Session:
         # it, the real one while the drive is off (after a reset, or a stop with motor off)
         self.drive_off = bool(first.signals & Signals.MOTOR_OFF)
         self.origin = first.real_position if self.drive_off else first.desired_position
-        self.sample_s = sample_period_s(clock_hz or _clock_hz(chip))
+        self.sample_s = sample_period_s(clock_hz or chip.clock_hz)
         self.records: list[Record] = []
         self.driving = False  #: an STT of ours turned the drive on (reset leaves it off)
         #: the way a load pulls the shaft (+1, -1), once seen: the shaft moving with the drive
@@ -394,15 +398,12 @@ class _Session:
         shortest = max(self.poll_s, 1.0 / top if top else 0.0)
         return math.ceil(shortest / self.sample_s - 1e-9) * self.sample_s
 
-    def fault(self, reason: str, message: str, snap: Snapshot | None = None) -> MotionError:
+    def fault(self, reason: MotionFault, message: str, snap: Snapshot | None = None) -> MotionError:
         if self._stream is not None:  # a recording in progress: end it before the stop
             self._stream.close()
-        _ok, note = emergency_stop(self.chip)
-        err = MotionError(reason, f"{message} -- {note}",
-                          position=None if snap is None else snap.real_position,
-                          error=None if snap is None else snap.following_error)
-        setattr(err, STOP_NOTE, note)  # stop_on_error and the CLI: stopped once, said once
-        return err
+        return motion_fault(self.chip, reason, message,
+                            position=None if snap is None else snap.real_position,
+                            error=None if snap is None else snap.following_error)
 
     def check(self, s: Snapshot) -> None:
         """The safety checks on every snapshot."""
@@ -451,7 +452,10 @@ class _Session:
         self.chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
         v, a = (profile.velocity, profile.acceleration) if profile else (STEP_VELOCITY,
                                                                           STEP_ACCELERATION)
-        self.chip.load_trajectory(acceleration=a, velocity=v, position=target, start=True)
+        cv, ca = clip_step(self.chip, v, a)  # an axis's soft caps
+        self.chip.load_trajectory(acceleration=ca, velocity=cv, position=target, start=True)
+        if profile is None:
+            rec.words = None if (cv, ca) == (v, a) else (cv, ca)
         self.driving = True
         rec.steps.append((self.chip.clock.now(), target))
         rec.step_rows.append(len(rec.rows))
@@ -533,12 +537,6 @@ class _Session:
 
         last = self.record(rec, limit_s, watch)
         return last, len(window) > quiet and max(window) - min(window) <= 2
-
-
-def _clock_hz(chip: LM629) -> float:
-    """The simulated chip's clock, else the usual 8 MHz."""
-    model = getattr(chip.transport, "model", None)
-    return float(getattr(model, "clock_hz", 8_000_000))
 
 
 # ---------------------------------------------------------------------------------- phasing
@@ -745,13 +743,34 @@ def _identify_run(ses: _Session, step: int, hold_s: float) -> Record:
     return rec
 
 
+def _ramp(distance: int, words: tuple[int, int], k: int) -> float:
+    """Counts travelled ``k`` samples after the start of a trapezoid (or triangle) of
+    ``distance`` counts with 16.16 (velocity, acceleration) words, in continuous arithmetic
+    (the chip's own is within a count of it)."""
+    d = abs(distance)
+    v, a = words[0] / 65536, words[1] / 65536
+    if v * v > d * a:  # a triangle: the velocity is never reached
+        v = math.sqrt(d * a)
+    t1 = v / a
+    t2 = t1 + (d - v * t1) / v
+    if k <= t1:
+        x = a * k * k / 2
+    elif k <= t2:
+        x = v * t1 / 2 + v * (k - t1)
+    else:
+        x = d - a * max(0.0, t1 + t2 - k) ** 2 / 2
+    return math.copysign(min(d, x), distance)
+
+
 def _desired_samples(rec: Record, n: int, sample_s: float) -> list[int]:
     start = rec.rows[0].desired_position
     out = [start] * n
     for t, target in rec.steps:
         k = max(0, math.ceil((t - rec.t0) / sample_s - 0.5))
+        origin = out[k] if k < n else start
         for i in range(k, n):
-            out[i] = target
+            out[i] = target if rec.words is None else round(
+                origin + _ramp(target - origin, rec.words, i - k + 1))
     return out
 
 
@@ -833,8 +852,8 @@ def _far_segments(rec: Record, sample_s: float) -> list[_Segment] | None:
     from the first row, which the bridge takes when the RECORD request reaches it (a USB frame
     later): on one clock the shaft would seem to move 2-5 ms early, an acceleration 11-18 %
     high.  Within one recording the rows' times are the far side's own, exact."""
-    if rec.gains is None or rec.gains.ki or rec.gains.kd or not rec.steps:
-        return None
+    if rec.gains is None or rec.gains.ki or rec.gains.kd or not rec.steps or rec.words:
+        return None  # (steps ramped by an axis's caps: the step-time fit follows the ramp)
     runs = dict(rec.far_runs)
     out = []
     for (_t, target), first in zip(rec.steps, rec.step_rows):
@@ -1032,15 +1051,21 @@ class Profile:
 
 
 def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
-                 tolerance: int, profile: Profile | None = None) -> MoveMetrics:
-    """The test move (out by ``distance``, then back) on the model, from rest at 0: a step,
-    or with ``profile`` a trapezoid move (settle then counted from the profile's end)."""
+                 tolerance: int, profile: Profile | None = None,
+                 words: tuple[int, int] | None = None) -> MoveMetrics:
+    """The test move (out by ``distance``, then back) on the model, from rest at 0: a step
+    (with ``words``, an axis's capped velocity and acceleration, the trapezoid they make), or
+    with ``profile`` a trapezoid move (settle then counted from the profile's end)."""
     worst = None
     ramp = profile.desired(distance) if profile else []
     for start, target in ((0, distance), (distance, 0)):
         sign = 1 if target >= start else -1
-        desired = [start + sign * abs(d) for d in ramp][:horizon]
-        desired += [target] * (horizon - len(desired))
+        if words is not None and profile is None:
+            desired = [round(start + _ramp(target - start, words, k + 1))
+                       for k in range(horizon)]
+        else:
+            desired = [start + sign * abs(d) for d in ramp][:horizon]
+            desired += [target] * (horizon - len(desired))
         counts, _ = simulate(model, g, desired, x0=start + 0.5, state=PIDState())
         times = [(k + 1 - len(ramp)) for k in range(horizon)]
         m = step_metrics(times, counts, desired, start, target, tolerance)
@@ -1094,21 +1119,22 @@ def test_duration(model: AxisModel, distance: int, sample_s: float, at_least: fl
 
 
 def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
-           sample_s: float, profile: Profile | None = None
+           sample_s: float, profile: Profile | None = None,
+           words: tuple[int, int] | None = None
            ) -> tuple[Gains, MoveMetrics, MoveMetrics | None]:
     """Gains for the test moves: PD candidates by pole placement screened on the model (the
     step out and back, two thirds of the horizon); the ten best and integral variants of the
     best four are then judged by their worst score on the model and three variants of it, on
     the step and (with ``profile``) on the trapezoid move too, whose overshoot weighs more: a
-    user's move should stop on its target, not past it.  Returns (gains, predicted step,
-    predicted trapezoid)."""
+    user's move should stop on its target, not past it.  ``words``: the step is a trapezoid
+    of these words (an axis's caps).  Returns (gains, predicted step, predicted trapezoid)."""
     horizon = int(horizon_s / sample_s)
     quick = max(200, horizon * 2 // 3)
     ramp = profile.samples(distance) if profile else 0
 
     def judged(m: AxisModel, g: Gains, horizon: int = horizon
                ) -> tuple[float, MoveMetrics, MoveMetrics | None]:
-        step = predict_move(m, g, distance, horizon, tolerance)
+        step = predict_move(m, g, distance, horizon, tolerance, words=words)
         total = score(step, horizon, tolerance)
         move = None
         if profile is not None:
@@ -1253,7 +1279,8 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
         duration_s = test_duration(model, distance, ses.sample_s, duration_s)
         profile = default_profile(model, velocity, acceleration)
         gains, predicted, predicted_move = design(model, distance, tolerance, duration_s,
-                                                  ses.sample_s, profile)
+                                                  ses.sample_s, profile,
+                                                  ident.words)
         assert predicted_move is not None
         say(f"gains: {gains}; predicted step: {predicted.line()}")
         say(f"predicted move ({profile}): {predicted_move.line()}")

@@ -17,13 +17,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .errors import check_int
+from .errors import ArgumentError, check_int
 from .pid import sample_period_s
 from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
     DERIVATIVE_INTERVAL_MAX,
     POSITION_MAX,
+    NOMINAL_CLOCK_HZ,
     POSITION_MIN,
     VELOCITY_MAX,
 )
@@ -42,9 +43,9 @@ def from_fixed(word: int) -> float:
 
 def _positive(name: str, value: float) -> float:
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        raise ValueError(f"{name}={value!r} must be a finite number")
+        raise ArgumentError(name, value, f"{name}={value!r} must be a finite number")
     if value <= 0:
-        raise ValueError(f"{name}={value} must be greater than 0")
+        raise ArgumentError(name, value, f"{name}={value} must be greater than 0")
     return float(value)
 
 
@@ -72,7 +73,7 @@ class Scale:
     """Conversions for one axis: encoder lines and the chip's clock."""
 
     encoder_lines: int
-    clock_hz: float = 8_000_000
+    clock_hz: float = NOMINAL_CLOCK_HZ
 
     def __post_init__(self) -> None:
         check_int("encoder_lines", self.encoder_lines, 1, 1_000_000)

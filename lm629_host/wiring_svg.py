@@ -189,6 +189,11 @@ def write_svg(path: str | Path, adapter: str, axes: int = 1) -> Path:
     return p
 
 
+NO_RENDERER = ("no SVG renderer found for --png: install rsvg-convert (sudo apt-get install "
+               "librsvg2-bin) or cairosvg (pip install cairosvg), or write --svg and open it in "
+               "a browser")
+
+
 def png_renderer() -> str | None:
     """What can turn the SVG into PNG here: ``rsvg-convert``, ``cairosvg``, or None."""
     if shutil.which("rsvg-convert"):
@@ -212,10 +217,8 @@ def write_png(path: str | Path, adapter: str, axes: int = 1) -> Path:
         import cairosvg
         cairosvg.svg2png(bytestring=svg.encode(), write_to=str(p))
     else:
-        raise RuntimeError("no SVG renderer found for --png: install rsvg-convert "
-                           "(sudo apt-get install librsvg2-bin) or cairosvg (pip install "
-                           "cairosvg), or write --svg and open it in a browser")
+        raise RuntimeError(NO_RENDERER)
     return p
 
 
-__all__ = ["png_renderer", "render", "write_png", "write_svg"]
+__all__ = ["NO_RENDERER", "png_renderer", "render", "write_png", "write_svg"]

@@ -13,12 +13,16 @@ import importlib
 
 from lm629_host.transports import SCHEMES
 
+#: the FT232H waiting on the busy bit in the adapter (D0 wired to GPIOL1) instead of timing it
+FTDI_BUSY_PIN = "sim+ftdi://?busy_pin=gpiol1"
+
 #: the chip model strobed directly, the Python bridge far end, the compiled bridge firmware in
-#: simavr, the FT232H transport on the emulated FT232H
-SIM_URLS = ("sim://", "sim+emu://", "sim+avr://", "sim+ftdi://")
+#: simavr, the FT232H transport on the emulated FT232H (timed busy waits, and the busy pin)
+SIM_URLS = ("sim://", "sim+emu://", "sim+avr://", "sim+ftdi://", FTDI_BUSY_PIN)
 
 #: the same, the serial links at 1 Mbaud (the default 115200 adds ~1 ms a round trip)
-FAST_LINK_URLS = ("sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://")
+FAST_LINK_URLS = ("sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://",
+                  FTDI_BUSY_PIN)
 
 
 #: a bench's USB: an Arduino Uno R3's 16U2 (4.096 ms flush tick, 1 ms frames) at 1 Mbaud

@@ -2,8 +2,8 @@
 
 ``sim://`` drives the chip model directly; ``sim+emu://`` goes through LinkTransport's frames
 to the Python bridge far end; ``sim+avr://`` through the real bridge firmware in simavr;
-``sim+ftdi://`` through the real FT232H transport and pyftdi on an emulated FT232H (the
-``transport_url`` fixture of tests/conftest.py).
+``sim+ftdi://`` through the real FT232H transport and pyftdi on an emulated FT232H (also wired
+with ``busy_pin=gpiol1``): the ``transport_url`` fixture of tests/conftest.py.
 Every figure below comes from the application notes (AN-693 table 4, AN-706 3.7 / 4.4.1) or
 the datasheet's command table.
 """

@@ -178,8 +178,10 @@ def test_axis_beyond_the_board_is_one_clear_error():
         lm629_host.open("sim://?cs=2")
     with pytest.raises(AxisError, match="axis 2 does not exist.*2 chip select"):
         lm629_host.open("sim://?axes=2&cs=2")
-    with pytest.raises(AxisError):
-        lm629_host.open_board("sim://?axes=1", axes=3)
+    with pytest.raises(AxisError, match="axis 2 does not exist.*1 chip select"):
+        lm629_host.open_board("sim+emu://?bridge=1&baud=1000000", axes=3)  # a one-chip bridge
+    with pytest.raises(ValueError, match="axes=3 conflicts with axes=1 in sim://[?]axes=1"):
+        lm629_host.open_board("sim://?axes=1", axes=3)  # the URL and the argument disagree
     with lm629_host.open("sim://?axes=2&cs=1") as chip:
         chip.reset()
         assert chip.axis == 1 and chip.read_desired_position() == 0
@@ -238,7 +240,7 @@ def test_ftdi_streams_cut_per_chip():
     first); an STT on another chip does not: a synchronized start is one USB exchange."""
     from lm629_host.opcodes import Cmd
     from lm629_host.program import Program
-    from lm629_host.transports.ftdi import streams_of
+    from lm629_host.transports.mpsse import streams_of
     p = Program().command(Cmd.LTRJ).write(0).command(Cmd.STT)
     assert len(streams_of(p.ops)) == 2
     q = Program().sync().command(Cmd.STT).select(1).sync().command(Cmd.STT)
@@ -265,6 +267,29 @@ def test_ftdi_repeat_after_busy_never_runs_another_chips_stt_twice():
             rstis = [w for cmd, w in c.history if cmd == 0x1D]
             assert len(stts) == 1, c.history
             assert rstis and rstis[-1] == (0x7E & ~0x04,)  # RSTI clears bit 2 only
+        path, done = run_samples(board, 3000)
+        assert path[-1] == (800 << 16, 800 << 16)
+
+
+def test_ftdi_busy_pin_waits_out_one_chips_long_busy_in_a_synchronized_start():
+    """The same chip holding busy 3x its worst case, with D0 on GPIOL1: the stream waits on the
+    pin for chip 0 (the chips share D0; only the selected one drives it), no repeat, and each
+    chip sees exactly one RSTI and one STT."""
+    with lm629_host.open_board("sim+ftdi://?axes=2&record=1&busy_pin=gpiol1") as board:
+        board.reset()
+        for a in board.axes:
+            a.load_trajectory(acceleration=1500, velocity=2 * 65536, position=800)
+        for c in chips(board):
+            c.record_clear()
+        board.transport.device.stretch_busy(1, 300e-6)
+        trips = board.transport.stats.round_trips
+        board.start(clear=Status.TRAJECTORY_COMPLETE)
+        assert board.transport.stats.retries == 0
+        assert board.transport.stats.round_trips - trips == 1
+        assert board.transport.device.busy_stretched == 1
+        for c in chips(board):
+            assert [cmd for cmd, _ in c.history] == [0x1D, 0x01], c.history  # RSTI, STT
+            assert not c.violations
         path, done = run_samples(board, 3000)
         assert path[-1] == (800 << 16, 800 << 16)
 
@@ -433,7 +458,44 @@ def test_a_runaway_on_the_second_axis_is_caught_while_the_first_still_moves(url)
         m = b.move({0: 200_000, 1: 3000}, velocity=2 * 65536, acceleration=2000)
         with pytest.raises(MotionError) as info:
             m.wait()
-        assert info.value.axis == 1 and info.value.reason == MotionError.RUNAWAY
+        assert info.value.axis == 1 and info.value.reason is MotionError.RUNAWAY
+        # the axis's own fault, named for the axis: the same detail, one prefix
+        assert str(info.value) == f"axis 1: motion fault (runaway): {info.value.detail}"
+        assert "swap the motor leads" in info.value.detail and "axis" not in info.value.detail
         # 200,000 counts at 2 counts/sample take 0.4 s and more; the fault came well before
         assert abs(b.axes[0].read_real_position()) < 100_000
         assert all(a.read_status() & Status.MOTOR_OFF for a in b.axes)  # both stopped
+
+
+def test_a_board_reset_is_the_chips_reset_routine_with_its_bookkeeping():
+    """Board.reset and LM629.reset run one routine (lm629.reset_chips) and leave each axis
+    the same way through LM629's public hooks: PORT12 re-issued on the axis that selected it
+    (an LM628 with a 12-bit DAC), the derivative interval back to one sample, and the
+    command-error flag known clear (the next STT needs no RSTI before it)."""
+    from lm629_host import Cmd, Signals
+    with lm629_host.open_board("sim://?axes=2&chip=lm628&record=1") as b:
+        b.reset()
+        x, y = b.axes
+        y.port12()
+        x.load_filter(kp=20, derivative_interval=4)
+        y.raw(int(Cmd.RDSIGS), read=1)  # any raw byte: the command-error flag is no longer known
+        assert x.derivative_interval == 4 and y.start_flags() == Status.COMMAND_ERROR
+        assert y.port12_selected and not x.port12_selected
+        models = chips(b)
+        for m in models:
+            m.record_clear()
+        b.reset()
+        assert x.derivative_interval == 1 and y.derivative_interval == 1
+        assert x.start_flags() == y.start_flags() == Status(0)
+        assert [c for c, _ in models[1].history].count(Cmd.PORT12) == 1
+        assert Cmd.PORT12 not in [c for c, _ in models[0].history]
+        assert not models[1].signals & Signals.EIGHT_BIT_OUTPUT  # 12-bit again after reset
+        # a single chip's reset: the same routine, its programs on its own chip select
+        cycles = []
+        b.transport.trace = cycles.append
+        assert y.reset_statuses()[1][-1] in (0x80, 0xC0)
+        assert cycles[0].kind == "select" and cycles[0].value == 1
+        first = next(c for c in cycles if c.kind == "command")
+        assert first.value == Cmd.RESET  # the RESET command: /RST is shared by the board
+        assert any(c.kind == "command" and c.value == Cmd.PORT12 for c in cycles)
+        assert not any(c.kind == "reset" for c in cycles)

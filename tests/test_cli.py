@@ -96,7 +96,7 @@ def test_chip_stuck_in_reset_gives_one_line_and_exit_5(run):
 
 @pytest.mark.parametrize("port,code,words", [
     ("/dev/lm629-no-such-port", 3, "no serial port"),
-    ("bogus://x", 3, "unknown port scheme"),
+    ("bogus://x", 2, "unknown port scheme"),  # bad usage, not a link fault
     ("sim://?no_such_param=1", 2, "no_such_param"),
 ])
 def test_bad_ports_give_one_line(run, port, code, words):

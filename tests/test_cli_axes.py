@@ -71,6 +71,12 @@ def test_axis_errors_are_one_line(run):
     assert r.exit_code == 2 and "1 target(s) for 2 axis" in r.output
     r = run("--axis", "x", "status")
     assert r.exit_code == 2 and "--axis" in r.output
+    # a simulator builds the chips --axis names only when the URL does not say how many:
+    # sim://?axes=2 is a two-chip board, as a bridge with two chip selects would be
+    r = run("--port", "sim://?axes=2", "--axis", "3", "status")
+    assert r.exit_code == 2 and "axis 3 does not exist" in r.output
+    r = run("--port", "sim://", "--axis", "3", "status")
+    assert r.exit_code == 0, r.output
 
 
 def test_a_two_chip_bench_keeps_its_state_between_processes(tmp_path):

@@ -12,7 +12,7 @@ import pytest
 
 import lm629_host
 from lm629_host import Cmd, Program
-from lm629_host.transports.ftdi import StreamCompiler, streams_of, units_of
+from lm629_host.transports.mpsse import StreamCompiler, streams_of, units_of
 
 IDLE = 0xDE  # /CS /RD /WR /PS /RST and /CS of chip 1 (ADBUS7) high, TCK low
 DIR = 0xDF  # TCK, /CS, /RD, /WR, /PS, /RST, ADBUS7 driven; HI (ADBUS5) the one input

@@ -157,3 +157,58 @@ def test_every_transport_is_in_transports():
     ours = {c for c in seen if c.__module__.startswith("lm629_host.")}
     assert len(ours) >= 8
     assert {c.__module__ for c in ours if not c.__module__.startswith("lm629_host.transports.")} == set()
+
+
+def test_the_driver_asks_the_transport_not_its_model():
+    """Outside sim/ and the simulator transports nothing reads a transport's ``model`` or
+    ``models`` (the chip model is the simulator's business): Transport.clock_hz and
+    Transport.chip_count say what the driver needs."""
+    import re
+    pattern = re.compile(r"transport\.models?\b|[\"']models?[\"']")
+    found = []
+    for name, path in _modules().items():
+        if name.startswith("lm629_host.sim") or name.startswith("lm629_host.transports.sim"):
+            continue
+        if name == "lm629_host.pytest_plugin":  # a test tool: it reports the simulated chips'
+            continue  # protocol violations (Bench.models), a door to the simulator by design
+        found += [f"{path.name}:{n}" for n, line in enumerate(path.read_text().splitlines(), 1)
+                  if pattern.search(line)]
+    assert found == []
+
+
+def test_no_code_splits_an_exceptions_text():
+    """Errors carry their parts (ArgumentError.argument, MotionError.reason/detail/axis,
+    WaitTimeout.what): nothing cuts them out of a message."""
+    import re
+    pattern = re.compile(r"str\(\s*\w+\s*\)\s*\.\s*(split|rsplit|partition|rpartition)\b"
+                         r"|\.args\[0\]\s*\.\s*(split|partition)")
+    found = [f"{path.name}:{n}" for path in _modules().values()
+             for n, line in enumerate(path.read_text().splitlines(), 1) if pattern.search(line)]
+    assert found == []
+
+
+def test_the_package_root_is_what_a_lab_script_needs():
+    """``lm629_host.__all__`` is the curated set (docs/python.md lists it); no helper leaks
+    into the root, the tuner loads on first use, and nothing of sim/ is imported."""
+    code = (
+        "import sys, types\n"
+        "import lm629_host\n"
+        "assert 'lm629_host.tuning' not in sys.modules, 'tuning imported eagerly'\n"
+        "from lm629_host import Scale, autotune, emergency_stop, MotionError, MotionFault\n"
+        "assert 'lm629_host.tuning' in sys.modules and autotune.__module__ == 'lm629_host.tuning'\n"
+        "public = [n for n in dir(lm629_host) if (not n.startswith('_') or n == '__version__')\n"
+        "          and not isinstance(getattr(lm629_host, n), types.ModuleType)]\n"
+        "lazy = {'autotune', 'TuneResult'}\n"
+        "print(sorted((set(public) - lazy) ^ (set(lm629_host.__all__) - lazy)))\n"
+        "print(sorted(m for m in sys.modules if m.startswith('lm629_host.sim')))\n"
+        "for name in ('query_params', 'split_params', 'transport_class', 'resolve_port'):\n"
+        "    assert not hasattr(lm629_host, name), name\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split("\n")[:2] == ["[]", "[]"]
+    import lm629_host
+    from lm629_host import MotionError, MotionFault
+    assert all(isinstance(r, MotionFault) for r in MotionError.REASONS)
+    doc = (ROOT / "docs" / "python.md").read_text()
+    missing = [n for n in lm629_host.__all__ if f"`{n}`" not in doc and n != "__version__"]
+    assert missing == []

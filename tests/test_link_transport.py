@@ -28,7 +28,7 @@ from lm629_host.bridge.protocol import (
 )
 from lm629_host.transports.link import LinkTransport
 from lm629_host.opcodes import Cmd
-from lm629_host.program import Op, Program
+from lm629_host.program import Program
 from lm629_host.sim.build import build_model
 
 GOLDEN = Path(__file__).resolve().parent.parent / "firmware_bridge" / "golden_frames.txt"
@@ -363,12 +363,14 @@ def test_hi_and_reset_line_follow_the_capabilities():
     assert t.has_reset_line is True
     r = t.execute(Program().status())
     assert r.hi is t.model.hi and r.status == r.statuses[0] == t.model.status
-    emu = BridgeEmulator(build_model("sim://"), info=HelloInfo(capabilities=0x04))
+    model = build_model("sim://?record=1")
+    emu = BridgeEmulator(model, info=HelloInfo(capabilities=0x04))
     t2 = LinkTransport(EmuPipe(emu), "x")
     assert t2.has_reset_line is False
     assert t2.execute(Program().status()).hi is None
     chip = LM629(t2)
-    assert chip.reset_programs()[0].ops[0].op is Op.COMMAND  # RESET command instead of /RST
+    chip.reset()
+    assert model.history[0] == (int(Cmd.RESET), ())  # the RESET command instead of /RST
 
 
 def test_refused_programs_are_typed_errors_and_nothing_ran():

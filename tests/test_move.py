@@ -11,6 +11,7 @@ from __future__ import annotations
 import pytest
 
 from lm629_host import Cmd, MotionError, MoveRules, Status
+from lm629_host.errors import MotionFault
 from lm629_host.move import MOVE_FLAGS
 from lm629_host.opcodes import INTERRUPTS
 
@@ -71,8 +72,10 @@ def test_stalled_motor_is_a_motion_fault_with_the_motor_stopped(usb_transport_ur
     with pytest.raises(MotionError) as e:
         chip.move_to(5000, velocity=65536, acceleration=655).wait()
     assert e.value.reason == MotionError.STALL
+    assert e.value.reason is MotionFault.STALL and e.value.axis is None
     assert e.value.position == 0 and e.value.error == 5000
-    assert "motor stopped" in str(e.value)
+    assert "motor stopped" in e.value.detail
+    assert str(e.value) == f"motion fault (stall): {e.value.detail}"
     snap = chip.snapshot()
     assert snap.status & Status.MOTOR_OFF and snap.desired_velocity == 0
     chip.clock.sleep(0.05)  # nothing moves any more

@@ -113,3 +113,33 @@ def test_a_third_party_transport_through_its_entry_point(plugin, caplog):
 def test_unknown_scheme_names_the_known_ones():
     with pytest.raises(TransportError, match=r"unknown port scheme 'nope'; known: sim://"):
         lm629_host.open("nope://x")
+
+
+@pytest.mark.parametrize("scheme", ["sim", "sim+emu", "sim+ftdi"])
+def test_a_simulator_gives_its_models_clock_and_chip_count(scheme):
+    """Transport.clock_hz / chip_count: what the driver asks instead of looking at a model;
+    the clock sets the default move timeout (Move.watch) through LM629.clock_hz."""
+    with lm629_host.open(f"{scheme}://?clock=6MHz&axes=2") as chip:
+        assert chip.transport.clock_hz == 6e6 and chip.clock_hz == 6e6
+        assert chip.transport.chip_count == 2
+
+
+def test_hardware_knows_no_clock_and_the_chip_assumes_8mhz():
+    from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+    from lm629_host.sim.build import build_bus
+    from lm629_host.transports.link import LinkTransport
+
+    # the serial link's own class (what serial:// opens), to the emulated bridge of a 6 MHz chip
+    t = LinkTransport(EmuPipe(BridgeEmulator(build_bus("sim://?clock=6MHz")), baud=None), "emu")
+    chip = lm629_host.LM629(t)
+    assert t.clock_hz is None and t.chip_count is None
+    assert chip.clock_hz == 8e6  # nothing says otherwise: the nominal 8 MHz part
+    chip.move_rules = lm629_host.MoveRules(clock_hz=6e6)
+    chip.reset()
+    chip.load_filter(kp=20)
+    chip.update_filter()
+    # 1 count/sample reached in 100 samples at 655/65536: two 100-sample ramps (50 counts each)
+    # and 1900 counts of cruise, 2100 samples
+    m = chip.move_to(2000, velocity=65536, acceleration=655)
+    assert m.profile_s(6e6) == pytest.approx(2100 * 2048 / 6e6, rel=0.01)
+    assert m.watch().timeout == pytest.approx(1.5 * m.profile_s(6e6) + 1.0 + 1.0)

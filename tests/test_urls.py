@@ -60,3 +60,19 @@ def test_every_simulator_takes_a_clock_with_units():
         assert chip.transport.model.clock_hz == 6_000_000
     with lm629_host.open("sim+emu://?clock=6MHz&baud=0") as chip:
         assert chip.transport.model.clock_hz == 6_000_000
+
+
+@pytest.mark.parametrize("env, url, strict", [("1", "sim://", True), ("1", "sim://?strict=0", False),
+                                              ("0", "sim://", False), ("", "sim://?strict", True)])
+def test_strict_is_decided_in_one_place(monkeypatch, env, url, strict):
+    """LM629_SIM_STRICT sets the default (sim.build.strict_default), the URL's strict= wins;
+    the transports that apply strictness themselves take it from the model."""
+    from lm629_host.sim.build import build_model
+    from lm629_host.transports.simftdi import SimFtdiTransport
+    monkeypatch.setenv("LM629_SIM_STRICT", env)
+    assert build_model(url).params.strict is strict
+    t = SimFtdiTransport.from_url(url.replace("sim://", "sim+ftdi://"))
+    try:
+        assert t.strict is strict and not t.model.params.strict  # applied after each exchange
+    finally:
+        t.close()

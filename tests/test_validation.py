@@ -18,6 +18,7 @@ BAD_CALLS = [
     ("mask_interrupts", (0x100,), {}, ["flags=256", "0..255"]),
     ("reset_interrupts", (), {"flags": 0x81}, ["flags"]),
     ("reset_interrupts", (), {"flags": -1}, ["flags=-1"]),
+    ("start_flags", (0x80,), {}, ["clear=0x80", "not interrupt conditions"]),
     ("load_position_error", (0x8000,), {}, ["threshold=32768", "0..32767"]),
     ("load_position_error", (-1,), {"stop": True}, ["threshold=-1"]),
     ("load_position_error", (1.5,), {}, ["threshold=1.5", "integer"]),
@@ -98,6 +99,49 @@ def test_every_method_has_a_validated_argument_or_none():
     takes_args = {
         name for name, fn in inspect.getmembers(LM629, inspect.isfunction)
         if not name.startswith("_") and len(inspect.signature(fn).parameters) > 1
-        and name not in ("run", "filter_program", "trajectory_program", "start")
+        and name not in ("run", "filter_program", "trajectory_program", "start",
+                         "start_checked")  # the status bytes a board's STT program read
     }
     assert takes_args - covered == set()
+
+
+@pytest.mark.parametrize("method,kwargs,argument,value,lo,hi", [
+    ("load_filter", {"kp": 0x8000}, "kp", 0x8000, 0, 0x7FFF),
+    ("load_filter", {"derivative_interval": 0}, "derivative_interval", 0, 1, 256),
+    ("set_breakpoint", {"position": 0x40000000}, "position", 0x40000000, -0x40000000, 0x3FFFFFFF),
+    ("load_position_error", {"threshold": 1.5}, "threshold", 1.5, 0, 0x7FFF),
+])
+def test_an_argument_error_carries_its_argument_value_and_range(open_chip, method, kwargs,
+                                                                argument, value, lo, hi):
+    """The CLI names its own option (--ds for derivative_interval) from these fields, not
+    from the message text."""
+    from lm629_host.errors import ArgumentError
+    chip = open_chip("sim://")
+    with pytest.raises(ArgumentError) as info:
+        getattr(chip, method)(**kwargs)
+    e = info.value
+    assert isinstance(e, ValueError)
+    assert (e.argument, e.value, e.lo, e.hi) == (argument, value, lo, hi)
+
+
+def test_an_axis_error_is_an_argument_error_naming_the_axis(open_chip):
+    from lm629_host import AxisError, LM629
+    from lm629_host.errors import ArgumentError
+    chip = open_chip("sim://?axes=2")
+    with pytest.raises(AxisError) as info:
+        LM629(chip.transport, axis=2)
+    assert isinstance(info.value, ArgumentError)
+    assert (info.value.argument, info.value.value, info.value.lo, info.value.hi) == ("axis", 2, 0, 1)
+
+
+def test_a_wait_timeout_says_what_it_waited_for(open_chip):
+    from lm629_host import WaitTimeout
+    chip = open_chip("sim://")
+    chip.reset()
+    with pytest.raises(WaitTimeout) as info:
+        chip.wait_for(Status.INDEX_PULSE, timeout=0.01, what="the index pulse")
+    assert info.value.what == "the index pulse" and info.value.flags == Status.INDEX_PULSE
+    assert "waited 0.01 s for the index pulse but status stayed" in str(info.value)
+    with pytest.raises(WaitTimeout) as info:
+        chip.wait_for(Status.POSITION_ERROR, timeout=0.01)
+    assert info.value.what == str(Status.POSITION_ERROR)

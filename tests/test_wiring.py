@@ -261,6 +261,33 @@ def test_cli_png_without_a_renderer(tmp_path, monkeypatch):
     r = CliRunner().invoke(main, ["wiring", "--png", str(tmp_path / "w.png")])
     assert r.exit_code == 2 and "rsvg-convert" in r.output
     assert not (tmp_path / "w.png").exists()
+    r = CliRunner().invoke(main, ["--port", "sim://?wiring=d5-low", "wiring", "--check",
+                                  "--png", str(tmp_path / "w.png")])
+    assert r.exit_code == 2 and "rsvg-convert" in r.output and "LM629 D5" not in r.output
+
+
+def test_cli_drawing_into_a_missing_directory_is_bad_usage(tmp_path):
+    """An output file that cannot be written is one line and exit 2 (as ``step --csv``),
+    checked before the table is printed or the chip is touched, not an internal error."""
+    from click.testing import CliRunner
+
+    from lm629_host.cli import main
+    for opt in ("--svg", "--png"):
+        r = CliRunner().invoke(main, ["wiring", opt, str(tmp_path / "no" / "w.svg")])
+        assert r.exit_code == 2, r.output
+        assert "does not exist" in r.output and "Uno pin" not in r.output
+
+
+def test_cli_check_with_svg_still_draws(tmp_path):
+    """``--check --svg FILE`` draws too: an option given is never dropped in silence."""
+    from click.testing import CliRunner
+
+    from lm629_host.cli import main
+    out = tmp_path / "w.svg"
+    r = CliRunner().invoke(main, ["--port", "sim://?wiring=d5-low", "wiring", "--check",
+                                  "--svg", str(out)])
+    assert r.exit_code == 1 and "LM629 D5 (pin 9)" in r.output
+    assert out.read_text().startswith("<svg")
 
 
 # ---------------------------------------------------------------------- a persistent bench

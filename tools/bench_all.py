@@ -39,6 +39,8 @@ BASELINE = "26fd81f"
 LINK_BASELINE = "7b12192"
 #: the FT232H's limits (issue 12): two 125 us USB microframes + the chip's own time
 FTDI_LIMIT_US = {"rdrp": 253.0, "ltrj_stt": 478.0}
+#: the FT232H with D0 wired to GPIOL1: the adapter waits on the busy bit (docs/ftdi.md)
+FTDI_BUSY_PIN = "sim+ftdi://?busy_pin=gpiol1"
 COMMAND = "python3 tools/bench_all.py --write-readme"
 BEGIN, END = "<!-- bench_all.py: begin -->", "<!-- bench_all.py: end -->"
 USB_BEGIN, USB_END = "<!-- bench_all.py usb: begin -->", "<!-- bench_all.py usb: end -->"
@@ -171,32 +173,39 @@ def probe_transports() -> dict:
     for the first time (its program not kept yet)."""
     out: dict = {}
     for url in TRANSPORTS:
-        chip = _chip(url)
-        pos = [1000]
+        out[url] = _timed_commands(url)
+    return out
 
-        def timed(fn, n: int = 20, warm: int = 3) -> float:
-            total = 0.0
-            for i in range(warm + n):
-                chip.load_trajectory(stop="off", start=True)  # no refused STT
-                pos[0] = -pos[0]
-                t0 = chip.clock.now()
-                fn()
-                if i >= warm:
-                    total += chip.clock.now() - t0
-            return total / n * 1e6
 
-        first = timed(chip.read_real_position, 1, 0)
-        out[url] = {
-            "first": first,
-            "rdrp": timed(chip.read_real_position),
-            "ltrj_stt": timed(lambda: chip.load_trajectory(
-                acceleration=100, velocity=65536, position=pos[0], start=True)),
-        }
-        s = chip.transport.stats
-        s.reset()
-        chip.read_real_position()
-        out[url]["bytes"] = s.bytes_out + s.bytes_in
-        chip.close()
+def _timed_commands(url: str) -> dict:
+    """RDRP (the first, then the mean of 20) and LTRJ(6)+STT on ``url``, simulated us, and the
+    bytes of one RDRP round trip."""
+    chip = _chip(url)
+    pos = [1000]
+
+    def timed(fn, n: int = 20, warm: int = 3) -> float:
+        total = 0.0
+        for i in range(warm + n):
+            chip.load_trajectory(stop="off", start=True)  # no refused STT
+            pos[0] = -pos[0]
+            t0 = chip.clock.now()
+            fn()
+            if i >= warm:
+                total += chip.clock.now() - t0
+        return total / n * 1e6
+
+    first = timed(chip.read_real_position, 1, 0)
+    out = {
+        "first": first,
+        "rdrp": timed(chip.read_real_position),
+        "ltrj_stt": timed(lambda: chip.load_trajectory(
+            acceleration=100, velocity=65536, position=pos[0], start=True)),
+    }
+    s = chip.transport.stats
+    s.reset()
+    chip.read_real_position()
+    out["bytes"] = s.bytes_out + s.bytes_in
+    chip.close()
     return out
 
 
@@ -210,6 +219,7 @@ USB_LINKS = (
     ("FTDI, default 16 ms latency timer (`usb=ftdi`)", "sim+avr://?fast_baud=1000000&usb=ftdi"),
     ("native full-speed CDC (ATmega32U4, `usb=cdc`)", "sim+avr://?fast_baud=1000000&usb=cdc"),
     ("FT232H, MPSSE (`sim+ftdi://`)", "sim+ftdi://"),
+    ("FT232H, D0 also on GPIOL1 (`sim+ftdi://?busy_pin=gpiol1`)", FTDI_BUSY_PIN),
 )
 #: the move timed per link: 4000 counts at 4 counts/sample, 2048 / 65536 counts/sample^2
 USB_MOVE = {"position": 4000, "velocity": 4 * 65536, "acceleration": 2048}
@@ -321,7 +331,7 @@ def render_usb(usb: dict, date: str) -> str:
 def render_usb_summary(usb: dict) -> str:
     """What an Uno user sees, for the README (from the same figures as the table)."""
     none, uno = usb[USB_LINKS[0][1]], usb[USB_LINKS[1][1]]
-    ftdi1, ftdi16, cdc, ft232h = (usb[url] for _, url in USB_LINKS[2:])
+    ftdi1, ftdi16, cdc, ft232h, ft232h_pin = (usb[url] for _, url in USB_LINKS[2:])
     return "\n".join([
         SUMMARY_BEGIN,
         "**What USB adds** (simulated, `python3 tools/bench_all.py --write-readme --only-usb`;",
@@ -341,7 +351,10 @@ def render_usb_summary(usb: dict) -> str:
         f"1 ms (the serial",
         f"transport asks the driver for that) and {_us(ftdi16['rdrp'])} at its default 16 ms; "
         f"a native USB board",
-        f"(ATmega32U4) {_us(cdc['rdrp'])}; the FT232H {_us(ft232h['rdrp'])}.",
+        f"(ATmega32U4) {_us(cdc['rdrp'])}; the FT232H {_us(ft232h['rdrp'])} (LTRJ+STT "
+        f"{_us(ft232h['ltrj_stt'])},",
+        f"{_us(ft232h_pin['ltrj_stt'])} in one exchange with D0 also on GPIOL1, "
+        "`busy_pin=gpiol1`).",
         SUMMARY_END,
     ])
 
@@ -392,9 +405,11 @@ def probe_after() -> dict:
     LinkTransport.__init__(t, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
     out["wait_emu_old_bridge"] = _link_wait("", transport=t)
     out["wait_ftdi"] = _link_wait("sim+ftdi://")  # no far-side wait: the host polls
+    # the FT232H waiting on the busy bit in the adapter (issue 19 item 4): no "before"
+    out["ftdi_busy_pin"] = _timed_commands(FTDI_BUSY_PIN)
 
     # exchanges per typed command: bridge round trips (sim+emu://), FT232H USB transfer pairs
-    for url in ("sim+emu://", "sim+ftdi://"):
+    for url in ("sim+emu://", "sim+ftdi://", FTDI_BUSY_PIN):
         chip = _chip(url)
         trips = {}
         for name, fn in (("rdrp", chip.read_real_position),
@@ -578,6 +593,13 @@ def rows(before: dict, after: dict, extra: dict, builds: dict) -> list[tuple[str
                   f"{b['rdrp']:.0f} us / {b['ltrj_stt']:.0f} us ({b['bytes']} B)",
                   f"{a['rdrp']:.0f} us / {a['ltrj_stt']:.0f} us ({a['bytes']} B){ratio}{first}",
                   target))
+    fb = extra["ftdi_busy_pin"]
+    r.append((f"`{FTDI_BUSY_PIN}` (D0 wired to GPIOL1, the adapter waits on busy): RDRP / "
+              "LTRJ(6)+STT, simulated (bytes of one RDRP round trip)", "-",
+              f"{fb['rdrp']:.0f} us / {fb['ltrj_stt']:.0f} us ({fb['bytes']} B) "
+              f"({fb['rdrp'] / FTDI_LIMIT_US['rdrp']:.2f}x / "
+              f"{fb['ltrj_stt'] / FTDI_LIMIT_US['ltrj_stt']:.2f}x of the limits)",
+              "LTRJ(6)+STT <= 1.5x of 478 us (717)"))
     if "fresh" in builds:
         (bw, bm, bs), (aw, am, as_) = builds["fresh"]
         r.append((f"test run of a fresh clone (`pytest -q` after `pip install -e '.[test]'`, "
@@ -585,11 +607,13 @@ def rows(before: dict, after: dict, extra: dict, builds: dict) -> list[tuple[str
                   "`--fresh-clone`)", f"{bw:.0f} s, {bm:.0f} MB ({bs})",
                   f"{aw:.0f} s, {am:.0f} MB ({as_})", "faster"))
     te, tf = extra["trips sim+emu://"], extra["trips sim+ftdi://"]
+    tw = extra["trips " + FTDI_BUSY_PIN]
     r += [
         ("exchanges per typed command, RDRP / LTRJ(6)+STT / `reset()`: serial bridge round "
          "trips; FT232H USB write+read pairs", "-",
          f"bridge {te['rdrp']} / {te['ltrj_stt']} / {te['reset']}; FT232H {tf['rdrp']} / "
-         f"{tf['ltrj_stt']} / {tf['reset']}", ""),
+         f"{tf['ltrj_stt']} / {tf['reset']}; FT232H with `busy_pin=gpiol1` {tw['rdrp']} / "
+         f"{tw['ltrj_stt']} / {tw['reset']}", ""),
         ("bridge firmware size", "-", builds["size"], ""),
         ("exactly-once over a lossy link (`tools/fault_soak.py --runs 1 --n 200`, 0.2 % byte "
          "faults)", "-", builds["soak"].replace("total: ", "").replace("|", "/"), ""),

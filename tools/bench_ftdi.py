@@ -9,6 +9,10 @@ transport + pyftdi + pyusb + the emulator cost over the bare model).
 
     python3 tools/bench_ftdi.py            # default: usb_us=125, busy_us=100
     python3 tools/bench_ftdi.py --repeat 200 --url 'sim+ftdi://?busy_us=25'
+    python3 tools/bench_ftdi.py --url 'sim+ftdi://?busy_pin=gpiol1'   # D0 wired to GPIOL1
+
+The last column is RDRP's and LTRJ(6)+STT's emulated time over the limits of one exchange
+(``bench_all.FTDI_LIMIT_US``: two 125 us microframes plus the chip's own time).
 """
 
 from __future__ import annotations
@@ -17,8 +21,13 @@ import argparse
 import time
 from collections.abc import Callable
 
+from bench_all import FTDI_LIMIT_US  # tools/ is on the path when this script runs
+
 import lm629_host
 from lm629_host import LM629
+
+#: the rows measured against a limit of one exchange
+LIMIT_OF = {"RDRP": "rdrp", "LTRJ (6 words) + STT": "ltrj_stt"}
 
 COMMANDS: list[tuple[str, Callable[[LM629], object]]] = [
     ("RDRP", lambda c: c.read_real_position()),
@@ -79,14 +88,22 @@ def main() -> None:
     print(f"{args.url}, {args.repeat} runs per command; baseline sim:// in the same process")
     print(f"{'command':20s} {'USB xfers':>9s} {'rtrips':>6s} {'out B':>6s} {'in B':>5s} "
           f"{'cycles':>6s} {'retries':>7s} {'emul. us':>9s} {'host us':>8s} {'sim:// us':>9s} "
-          f"{'x sim':>6s}")
+          f"{'x sim':>6s} {'x limit':>14s}")
     for name, call in COMMANDS:
         f = measure(args.url, name, call, args.repeat)
         base = measure("sim://", name, call, args.repeat)
         print(f"{name:20s} {f['usb']:9.1f} {f['round_trips']:6.1f} {f['bytes_out']:6.0f} "
               f"{f['bytes_in']:5.0f} {f['bus_cycles']:6.0f} {f['retries']:7.1f} "
               f"{f['emu_us']:9.1f} {f['wall_us']:8.0f} {base['wall_us']:9.1f} "
-              f"{f['wall_us'] / base['wall_us']:6.1f}")
+              f"{f['wall_us'] / base['wall_us']:6.1f} {limit(name, f['emu_us']):>14s}")
+
+
+def limit(name: str, emu_us: float) -> str:
+    """``emu_us`` over the limit of one exchange for ``name``, e.g. "1.06x of 478"."""
+    key = LIMIT_OF.get(name)
+    if key is None:
+        return ""
+    return f"{emu_us / FTDI_LIMIT_US[key]:.2f}x of {FTDI_LIMIT_US[key]:.0f}"
 
 
 if __name__ == "__main__":

@@ -1,15 +1,17 @@
 """``lm629``: the bench command line (the ``main`` group, :mod:`.app`), its commands in one
 module per family: :mod:`.bench` (bringup, list, doctor, udev), :mod:`.chip` (status, reset,
 filter, index, breakpoint, limit, watch, raw), :mod:`.motion` (move, velocity, stop, home),
-:mod:`.tune` (step, tune), :mod:`.wiring` (wiring, wiring --check), :mod:`.calc`, :mod:`.bridge` (bridge list|flash), :mod:`.sim`
-(sim serve); :mod:`.types` holds the parameter types and checks they share.
+:mod:`.tune` (step, tune), :mod:`.wiring` (wiring, wiring --check), :mod:`.calc`,
+:mod:`.bridge` (bridge list|flash), :mod:`.sim` (sim serve), :mod:`.profile` (--profile,
+profile init|apply|show), :mod:`.scope`, :mod:`.shell`; :mod:`.types` holds the parameter
+types and checks they share.
 
 A new command is a function in its family's module decorated with ``@main.command()``.
 """
 
 from __future__ import annotations
 
-from . import bench, chip, motion, wiring  # noqa: F401 - importing them registers their commands
+from . import bench, chip, motion, profile, scope, shell, wiring  # noqa: F401 - importing them registers their commands
 from .app import EXIT_CODES, Session, Terminated, main
 from .bridge import bridge
 from .calc import calc

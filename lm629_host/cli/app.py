@@ -50,11 +50,11 @@ from ..errors import (
 from ..lm629 import LM629
 from ..move import MoveRules
 from ..pid import sample_period_s
+from ..ports import PortSpec, resolve_port
 from ..program import BusCycle
 from ..safety import STOP_NOTE
-from ..transports import is_simulated
 from ..units import Scale
-from ..urls import parse_hz, query_params, scheme_of, with_query
+from ..urls import parse_hz, query_params, with_query
 
 log = logging.getLogger("lm629_host.cli")
 
@@ -97,14 +97,6 @@ class Terminated(KeyboardInterrupt):
 
 
 
-def _simulated(url: str) -> bool:
-    """Whether ``url`` names a simulator (False for an unknown scheme: opening it says why)."""
-    try:
-        return is_simulated(url)
-    except TransportError:
-        return False
-
-
 def _open(url: str, chip: str, trace: Callable[[BusCycle], None] | None) -> LM629:
     """Open the chip (one seam, so that tests can watch what the CLI opened)."""
     return lm629_host.open(url, chip=chip, trace=trace)
@@ -128,6 +120,7 @@ class Session:
     verbose: int
     trace: bool
     stats: bool
+    spec: PortSpec  #: the port, settled (lm629_host.ports.resolve_port)
     _chip: LM629 | None = None
     axis_spec: tuple[int, ...] | str | None = None  #: --axis (see cli.axes)
     _board: Any = None
@@ -135,10 +128,11 @@ class Session:
     _old_handlers: dict[int, Any] | None = None
     _guarded: Any = None  #: the transport whose programs a stop signal waits for
     _pending: int | None = None
+    profile: Any = None  #: the bench profile (--profile), see cli.profile
 
     @property
     def is_sim(self) -> bool:
-        return _simulated(self.port)
+        return self.spec.simulated
 
     @property
     def scale(self) -> Scale | None:
@@ -151,7 +145,8 @@ class Session:
     def url(self) -> str:
         """The port URL; a simulator URL gets the global --chip/--clock/--lines unless it
         names them itself, so that the simulated chip matches the options (the conflict
-        rule is applied by :func:`main`), and ``clock=8MHz`` is written in Hz."""
+        rule is :func:`~lm629_host.ports.resolve_port`'s, applied in :func:`main`), and
+        ``clock=8MHz`` is written in Hz."""
         if not self.is_sim:
             return self.port
         have = query_params(self.port)
@@ -201,7 +196,7 @@ class Session:
 
     def open(self, *, prepare: bool = True) -> LM629:
         """The chip.  On an in-process simulator: reset it and load kp = 20 (``prepare``)."""
-        if self._chip is None and (self.axis_spec is not None or "axes=" in self.port):
+        if self._chip is None and (self.axis_spec is not None or self.spec.axes is not None):
             self._chip = open_axis(self, prepare)
             return self._chip
         if self._chip is None:
@@ -260,16 +255,11 @@ def parse_axes(text: str) -> tuple[int, ...] | str:
     return axes
 
 
-def _url_axes(s: Session) -> int | None:
-    raw = query_params(s.port).get("axes")
-    return int(raw) if raw and raw.isdigit() else None
-
-
 def axes_of(s: Session) -> tuple[int, ...]:
     """The axes this command works on (``all``: every chip select of the board, opened)."""
     spec = s.axis_spec
     if spec is None:
-        n = _url_axes(s)
+        n = s.spec.axes
         return tuple(range(n)) if n else (0,)
     if spec == "all":
         return tuple(range(len(board(s).axes)))
@@ -288,8 +278,9 @@ def board(s: Session) -> Board:
         spec = s.axis_spec
         want = max(spec) + 1 if isinstance(spec, tuple) else None
         url = s.url()
-        if want is not None and scheme_of(url).startswith("sim") and (_url_axes(s) or 1) < want:
-            url += ("&" if "?" in url else "?") + f"axes={want}"
+        if want is not None and s.is_sim and s.spec.axes is None and want > 1:
+            # a simulator builds the chips named, unless its URL says how many it has
+            url = with_query(url, {"axes": str(want)})
         b = lm629_host.open_board(url, chip=s.chip_name, trace=s._trace)
         if want is not None and len(b.axes) < want:
             b.close()
@@ -304,6 +295,8 @@ def board(s: Session) -> Board:
                 a.update_filter()
                 a.sync()
         s._board = b
+        if s.profile is not None:
+            HOOKS["profile_opened"](s, b)
     return s._board
 
 
@@ -316,6 +309,12 @@ def open_axis(s: Session, prepare: bool) -> LM629:
                                "several)")
     s._prepare = prepare
     return board(s).axis(axes[0])
+
+
+#: what other modules plug in without app.py importing them (a circle): cli.profile sets
+#: "profile_options" (--profile -> the other global options) and "profile_opened" (limits and
+#: the re-apply check once the board is open)
+HOOKS: dict[str, Callable[..., Any]] = {}
 
 
 def _help_epilog() -> str:
@@ -389,11 +388,20 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
               help="Which chip on a multi-axis board (its chip select; default 0, or every "
                    "chip of the URL's axes=); a list or 'all' for status, watch, move with one "
                    "target per axis, bringup.")
+@click.option("--profile", "profile_path", envvar="LM629_PROFILE", default=None,
+              metavar="FILE", help="A bench profile (TOML, env LM629_PROFILE): the port, chip, "
+                                   "clock, units and named axes (--axis x) of every command, "
+                                   "soft limits, gains re-applied after a power cycle.")
 @click.version_option(lm629_host.__version__, prog_name="lm629")
 @click.pass_context
 def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines: int | None,
-         verbose: int, trace: bool, stats: bool, axis_text: str | None) -> None:
+         verbose: int, trace: bool, stats: bool, axis_text: str | None,
+         profile_path: str | None) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
+    profile = None
+    if profile_path is not None:
+        profile, port, chip_name, clock, lines, axis_text = HOOKS["profile_options"](
+            ctx, profile_path, port, chip_name, clock, lines, axis_text)
     try:
         clock_hz = _check_clock(parse_hz(clock), "--clock")
     except ValueError:
@@ -405,34 +413,26 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
         raise click.BadParameter("is empty (an unset variable in `--port \"$BOARD\"`?); "
                                  "leave --port out to use the simulator", param_hint="--port")
     url = port or lm629_host.DEFAULT_URL
-    if _simulated(url):
-        # the rule: a simulator URL's chip= / clock= describe the simulated chip; --chip and
-        # --clock given on the command line must agree with them, and when not given, the
-        # URL's values are used
-        q = query_params(url)
-        given = {name: ctx.get_parameter_source(name) not in (
-            click.core.ParameterSource.DEFAULT, None) for name in ("chip_name", "clock")}
-        if "chip" in q:
-            url_chip = q["chip"].lower()
-            if given["chip_name"] and url_chip != chip_name:
-                raise click.BadParameter(f"{chip_name} conflicts with chip={q['chip']} in "
-                                         f"{url}: give one of them", param_hint="--chip")
-            chip_name = url_chip
-        if "clock" in q:
-            try:
-                url_hz = _check_clock(parse_hz(q["clock"]), "--port clock=")
-            except ValueError:
-                raise click.BadParameter(f"clock={q['clock']!r} in {url} is not a frequency",
-                                         param_hint="--port") from None
-            if given["clock"] and url_hz != clock_hz:
-                raise click.BadParameter(f"{clock} conflicts with clock={q['clock']} in {url}: "
-                                         "give one of them", param_hint="--clock")
-            clock_hz = url_hz
+    # the rule (lm629_host.ports): a URL's chip= / clock= describe the chip; --chip and --clock
+    # given on the command line must agree with them, and when not given, the URL's are used
+    given = {name: ctx.get_parameter_source(name) not in (
+        click.core.ParameterSource.DEFAULT, None) for name in ("chip_name", "clock")}
+    try:
+        spec = resolve_port(url, chip=chip_name if given["chip_name"] else None,
+                            clock=clock_hz if given["clock"] else None)
+    except ValueError as exc:  # ArgumentError, SchemeError: bad usage
+        hint = {"chip": "--chip", "clock": "--clock"}.get(getattr(exc, "argument", ""))
+        if hint is None or not given["chip_name" if hint == "--chip" else "clock"]:
+            hint = "--port"
+        raise click.BadParameter(str(exc), param_hint=hint) from None
+    chip_name = spec.chip
+    clock_hz = spec.clock_hz or clock_hz
     _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
     session = Session(url, port is not None, chip_name, clock_hz,
-                      lines, verbose, trace, stats)
+                      lines, verbose, trace, stats, spec)
     if axis_text is not None:
         session.axis_spec = parse_axes(axis_text)
+    session.profile = profile
     ctx.obj = session
     ctx.call_on_close(session.close)
     session.install_signals()

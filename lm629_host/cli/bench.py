@@ -61,7 +61,8 @@ def _bringup_one(s: Session, chip: LM629, options: BringupOptions, yes: bool) ->
                          announce=lambda text: log.info("step: %s", text))
     click.echo("verdict: " + ("PASS, every step" if result.passed else "FAIL" if any(
         st.ok is False for st in result.steps) else "INCOMPLETE"))
-    return result.exit_code
+    # EXIT_CODES (cli/app.py): 5 the chip did not leave reset, 1 a check failed
+    return 5 if result.reset_failed else 0 if result.passed else 1
 
 
 @main.command("list")

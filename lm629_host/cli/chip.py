@@ -9,14 +9,13 @@ from typing import Any
 
 import click
 
-from ..errors import CommandError
+from ..errors import ArgumentError, CommandError
 from ..lm629 import check_int
 from ..opcodes import VELOCITY_MAX, Status
-from ..safety import stop_on_error
+from ..supervise import search_index
 from ..units import FIXED_ONE
 from .app import _session, main
 from .common import _flags, _position, _show_position, _wait_flag, snapshot_dict
-from .motion import _wait_still
 from .types import FINITE, INT, SIGNED_ARGS, check_writable, positive
 
 
@@ -70,10 +69,9 @@ def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, d
     chip = s.open()
     try:
         chip.filter_program(kp, ki, kd, il, ds)  # validate before any traffic
-    except ValueError as exc:  # the library names its argument; the user typed an option
-        arg = str(exc).split("=", 1)[0]
+    except ArgumentError as exc:  # the library names its argument; the user typed an option
         raise click.BadParameter(str(exc), param_hint={"derivative_interval": "--ds"}.get(
-            arg, f"--{arg}")) from None
+            exc.argument, f"--{exc.argument}")) from None
     if ds is None and not s.is_sim:
         # the chip cannot report its derivative interval and every LFIL carries it (AN-706
         # 4.5.1): a new process does not know the last one, so say what is sent
@@ -90,35 +88,34 @@ def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, d
 @main.command()
 @click.option("--wait", "wait_s", type=FINITE, default=None,
               help="Wait up to this many seconds for the index pulse and print where it was.")
-@click.option("--search", type=INT, default=None, metavar="WORD",
-              help="Turn slowly (velocity mode, raw word) until the index is seen, then stop.")
+@click.option("--search", type=INT, default=None, is_flag=False, flag_value="0", metavar="[WORD]",
+              help="Turn slowly (velocity mode, raw word) until the index is seen, then stop; "
+                   "on an axis with soft limits a move towards max (min: a negative "
+                   "index_velocity), ending there at the latest; no WORD: the profile's "
+                   "index_velocity.")
 def index(wait_s: float | None, search: int | None) -> None:
     """Latch the position at the next index pulse (SIP).  Without --search nothing moves, and
     a wait that times out leaves the motor as it was."""
     positive("--wait", wait_s)
-    if search is not None and not 1 <= search <= VELOCITY_MAX:
+    if search is not None and search != 0 and not 1 <= search <= VELOCITY_MAX:
         raise click.BadParameter(f"{search} must be a velocity word 1..{VELOCITY_MAX}",
                                  param_hint="--search")
     s = _session()
+    from . import profile
+    search, forward = profile.index_search(s, search)
     chip = s.open()
-    if search is not None:
-        chip.trajectory_program(acceleration=655, velocity=search, velocity_mode=True)
+    if search is not None:  # the library's search: armed, turned, stopped, at rest; on an
+        # axis with soft limits a move towards the limit that ends there at the latest
+        at = search_index(chip, search, timeout=wait_s or 10.0, forward=forward)
+        click.echo(f"index at position {_show_position(s, at)}")
+        return
     chip.reset_interrupts(Status.INDEX_PULSE)
     chip.set_index_position()
-    if search is None and wait_s is None:
+    if wait_s is None:
         click.echo("index armed (SIP): read it later with `lm629 status` / RDIP")
         return
-    words = "the index pulse (status bit 3)"
-    if search is None:  # only waiting: a timeout must not touch a servo holding position
-        _wait_flag(chip, Status.INDEX_PULSE, words, wait_s or 10.0)
-    else:
-        with stop_on_error(chip):
-            chip.load_trajectory(acceleration=655, velocity=search, velocity_mode=True,
-                                 start=True)
-            _wait_flag(chip, Status.INDEX_PULSE, words + " while turning", wait_s or 10.0)
-            chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
-            chip.load_trajectory(stop="abrupt", start=True)
-            _wait_still(chip, 1.0)
+    # only waiting: a timeout must not touch a servo holding position
+    _wait_flag(chip, Status.INDEX_PULSE, "the index pulse (status bit 3)", wait_s)
     click.echo(f"index at position {_show_position(s, chip.read_index_position())}")
 
 

@@ -10,7 +10,6 @@ from typing import Any
 
 import click
 
-from ..errors import WaitTimeout
 from ..lm629 import LM629, Snapshot
 from ..opcodes import POSITION_MAX, POSITION_MIN, Signals, Status
 from ..units import FIXED_ONE, Scale
@@ -77,10 +76,7 @@ def _show_position(s: Session, counts: int) -> str:
 
 def _wait_flag(chip: LM629, flag: Status, words: str, timeout: float) -> Status:
     """``wait_for`` whose timeout says in words what it waited for."""
-    try:
-        return chip.wait_for(flag, timeout=timeout, poll=0.001)
-    except WaitTimeout as exc:
-        raise WaitTimeout(words, timeout, exc.status) from None
+    return chip.wait_for(flag, timeout=timeout, poll=0.001, what=words)
 
 
 def _abort_is_interrupt(ask: Callable[[], bool]) -> bool:

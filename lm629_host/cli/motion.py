@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import click
 
-from ..errors import MotionError
 from ..lm629 import LM629, Snapshot
 from ..move import MoveRules
-from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status
-from ..safety import STOP_NOTE, emergency_stop, stop_on_error
+from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX
+from ..safety import stop_on_error
+from ..supervise import run_velocity
 from ..units import FIXED_ONE
 from .app import Session, _session, main
-from .common import _isatty, _live, _position, _progress_line, _show_position, _wait_flag
+from .common import _isatty, _live, _position, _progress_line, _show_position
 from .types import FINITE, SIGNED_ARGS, positive
 
 
@@ -58,19 +58,6 @@ def _acceleration_unless_moving(chip: LM629, acceleration: int, given: bool) -> 
     return None
 
 
-def _wait_still(chip: LM629, limit_s: float, poll: float = 0.01) -> Snapshot:
-    """Wait (at most ``limit_s``) until the shaft has not moved for 5 polls."""
-    snap = chip.snapshot()
-    end = snap.time + limit_s
-    still = 0
-    while still < 5 and snap.time < end:
-        chip.clock.sleep(poll)
-        last, snap = snap, chip.snapshot()
-        still = still + 1 if (snap.real_position == last.real_position
-                              and snap.real_velocity == 0) else 0
-    return snap
-
-
 def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
     if tolerance is None:
         return None
@@ -105,7 +92,9 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     v, a = _motion_words(s, vel, acc, raw)
     tol = _tolerance(s, tolerance, raw)
     positive("--timeout", timeout)
-    from . import axes
+    from . import axes, profile
+    profile.check_move(s, [_position(s, t, "TARGET", raw) for t in targets], v, a, relative,
+                       linear)
     if len(targets) > 1 or linear or axes.several(s):
         if relative:
             raise click.UsageError("--relative moves one axis")
@@ -119,7 +108,7 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     chip = s.open()
     # every check before anything moves: the words, the goal, and whether the chip would
     # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)
-    chip.trajectory_program(acceleration=a, velocity=v, position=0)
+    chip.trajectory_program(acceleration=a, velocity=v, position=None if relative else counts)
     if relative:
         chip.trajectory_program(position=chip.read_desired_position() + counts)
     acceleration = _acceleration_unless_moving(chip, a, acc is not None)
@@ -160,6 +149,8 @@ def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
                                  param_hint="SPEED")
     v, a = _motion_words(s, speed, acc, raw)
     positive("--time", run_s)
+    from . import profile
+    profile.check_velocity_mode(s, v, a)
     scale = None if raw else s.scale
 
     def speed_text(word: int) -> str:
@@ -170,50 +161,19 @@ def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
     chip.trajectory_program(acceleration=a, velocity=v, velocity_mode=True)
     acceleration = _acceleration_unless_moving(chip, a, acc is not None)
     with stop_on_error(chip):
-        chip.load_trajectory(acceleration=acceleration, velocity=v, velocity_mode=True,
-                             forward=not reverse, start=True)
+        run = run_velocity(chip, v, acceleration, forward=not reverse)
         click.echo(f"velocity mode {'backward' if reverse else 'forward'}: {speed_text(v)} "
                    f"(velocity word {v}, acceleration word {a})")
         if run_s is None:
             return
         chip.clock.sleep(run_s)
         snap = chip.snapshot()
-        want = snap.desired_velocity  # where the ramp is now (the target speed or on the way)
-        got = snap.real_velocity * FIXED_ONE
-        click.echo(f"after {run_s:g} s: actual {speed_text(got)} (desired "
-                   f"{speed_text(snap.desired_velocity)}), position "
+        click.echo(f"after {run_s:g} s: actual {speed_text(snap.real_velocity * FIXED_ONE)} "
+                   f"(desired {speed_text(snap.desired_velocity)}), position "
                    f"{_show_position(s, snap.real_position)}")
-        if abs(want) >= FIXED_ONE:
-            # from 1 count/sample up the shaft must turn the desired way at least at half the
-            # desired speed (the real velocity is whole counts/sample)
-            if got * want < 0:
-                raise _motion_fault(chip, MotionError.RUNAWAY, snap,
-                                    "the shaft turns the wrong way: swap the motor leads or "
-                                    "the encoder's A and B channels")
-            if abs(got) < abs(want) // 2:
-                raise _motion_fault(chip, MotionError.STALL, snap,
-                                    f"the shaft turns at {speed_text(got)}, not "
-                                    f"{speed_text(want)}: check the amplifier, the motor "
-                                    "and the encoder, or lower the speed")
-        chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)  # the stop's own completion, below
-        chip.load_trajectory(stop="smooth", start=True)
-        decel_s = abs(snap.desired_velocity) / max(a, 1) * s.sample_s
-        _wait_flag(chip, Status.TRAJECTORY_COMPLETE, "the smooth stop to complete",
-                   decel_s * 1.5 + 1.0)
-        rest = _wait_still(chip, 1.0)
-        if rest.real_velocity != 0:
-            raise _motion_fault(chip, MotionError.FOLLOWING_ERROR, rest,
-                                "the shaft did not come to rest after the smooth stop")
+        run.check(snap)  # the shaft turns the way and at the speed asked, or a motion fault
+        rest = run.stop(a)
     click.echo(f"smooth stop: at rest at {_show_position(s, rest.real_position)}")
-
-
-def _motion_fault(chip: LM629, reason: str, snap: Snapshot, message: str) -> MotionError:
-    """Stop the motor (abrupt, then off) and make the MotionError that says so."""
-    _ok, note = emergency_stop(chip)
-    exc = MotionError(reason, f"{message}; {note}", position=snap.real_position,
-                      error=snap.following_error)
-    setattr(exc, STOP_NOTE, note)
-    return exc
 
 
 @main.command()

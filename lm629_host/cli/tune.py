@@ -79,7 +79,8 @@ def _plot(result: TuneResult, path: str, lines: int | None) -> str:
               help="Gains to measure the test move with first, for comparison "
                    "('kp=40,kd=300', ds in samples), or 'none'.")
 @click.option("--interval", type=float, default=0.001, show_default=True,
-              help="Seconds between snapshots (on a bridge, at least one round trip).")
+              help="Seconds between snapshots (timed by the bridge where it records; "
+                   "host-polled elsewhere, at least one round trip).")
 @click.option("--velocity", type=FINITE, default=None,
               help="The trapezoid move the gains are judged and checked on besides the step "
                    "(--distance out and back): its velocity, a raw word (rpm with --lines); "
@@ -90,9 +91,12 @@ def _plot(result: TuneResult, path: str, lines: int | None) -> str:
 @click.option("--yes", "-y", is_flag=True, help="Do not ask before the motor turns (scripts).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
               help="PNG of the test move before and after.")
+@click.option("--save", "save_path", is_flag=False, flag_value="", default=None,
+              metavar="[FILE]", help="Write the gains into the profile (FILE, else --profile's), "
+                                     "keeping its comments.")
 def tune(travel: int, distance: int | None, tolerance: int, before_text: str, interval: float,
          velocity: float | None, acceleration: float | None, yes: bool,
-         plot_path: str | None) -> None:
+         plot_path: str | None, save_path: str | None) -> None:
     """Find PID gains for this axis (phasing check, identification, design, a checked test
     move), leave them loaded and applied, and print the `lm629 filter` line that sets them."""
     from .app import _session  # the CLI's session: port, options, safety
@@ -109,6 +113,9 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
     v_word = None if velocity is None else words[0]
     a_word = None if acceleration is None else words[1]
     chip = s.open()
+    from . import profile
+    save_to = profile.save_target(s, chip, save_path)
+    profile.tune_band(chip, travel)
     click.echo(f"tuning {chip.variant.upper()} on {chip.transport.describe()}, inside "
                f"+/-{travel} counts of where the shaft is")
     if not yes and not click.confirm(f"The motor will turn, up to {travel} counts either way "
@@ -116,11 +123,12 @@ def tune(travel: int, distance: int | None, tolerance: int, before_text: str, in
                                      default=False):
         click.echo("nothing moved")
         click.get_current_context().exit(EXIT_NOT_MET)
-    with stop_on_error(chip):
+    with profile.tuning(s, chip), stop_on_error(chip):
         result = autotune(chip, travel=travel, distance=distance, tolerance=tolerance,
                           before=before, poll_s=interval, clock_hz=s.clock_hz,
                           velocity=v_word, acceleration=a_word,
                           progress=lambda text: click.echo(f"  {text}", err=True))
+    profile.after_tune(s, chip, result.gains, save_to, result.ok)
     scale = s.scale
     click.echo(f"axis: {result.model.describe(result.sample_s)}")
     d = f"{result.distance:+d}-count step out and back"
@@ -173,7 +181,8 @@ __all__ = ["tune", "parse_gains"]
 @click.option("--time", "duration", type=FINITE, default=0.5, show_default=True,
               help="Seconds to record.")
 @click.option("--interval", type=FINITE, default=0.001, show_default=True,
-              help="Seconds between snapshots (on a bridge, at least one round trip).")
+              help="Seconds between snapshots (timed by the bridge where it records; "
+                   "host-polled elsewhere, at least one round trip).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default="step.csv",
               show_default=True)
 @click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
@@ -207,6 +216,12 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
     filt = {k: v for k, v in dict(kp=kp, ki=ki, kd=kd, il=il,
                                   derivative_interval=ds).items() if v is not None}
     chip = s.open()
+    from ..limits import clip_step
+    if vel is None and acc is None and chip.limits is not None:  # a step in the caps
+        v, a = clip_step(chip, v, a)
+        if (v, a) != (STEP_VELOCITY, STEP_ACCELERATION):
+            click.echo(f"a step brought down to the soft caps: velocity word {v}, acceleration "
+                       f"word {a} ({chip.limits.where})")
     cap = capture_move(chip, counts, duration_s=duration, interval_s=interval,
                        velocity=v, acceleration=a, filter=filt, tolerance=tol)
     for line in summary(cap):

@@ -8,8 +8,10 @@ import click
 
 from ..connections import ADAPTERS, MAX_AXES, text_table
 from ..wiring import adapter_for, check_wiring
+from .. import wiring_svg
 from ..wiring_svg import write_png, write_svg
 from .app import _session, main
+from .types import check_writable
 
 
 @main.command()
@@ -36,13 +38,23 @@ def wiring(adapter: str | None, axes: int, svg: str | None, png: str | None,
     if not 1 <= axes <= MAX_AXES[name]:
         raise click.BadParameter(f"{axes}: the {name} wiring has 1..{MAX_AXES[name]} chip "
                                  "selects", param_hint="--axes")
+    for path, opt in ((svg, "--svg"), (png, "--png")):
+        if path:
+            check_writable(path, opt)
+    if png and wiring_svg.png_renderer() is None:  # before the check touches the chip
+        raise click.UsageError(wiring_svg.NO_RENDERER)
     if check:
         chip = s.open(prepare=False)
         report = check_wiring(chip, name)
         for line in report.lines():
             click.echo(line)
+        _draw(name, axes, svg, png)
         click.get_current_context().exit(0 if report.passed else 1)
     click.echo(text_table(name, axes), nl=False)
+    _draw(name, axes, svg, png)
+
+
+def _draw(name: str, axes: int, svg: str | None, png: str | None) -> None:
     if svg:
         click.echo(f"drawing written to {write_svg(svg, name, axes)}")
     if png:

@@ -13,6 +13,19 @@ from .wiring import wiring_of
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
 
+#: the environment variable that makes every simulated chip strict unless its URL says
+#: ``strict=0`` (docs/model.md): how a CI run of lab scripts, or any program that starts
+#: simulators in other processes (``lm629 sim serve``, the CLI), asks for strictness once
+STRICT_ENV = "LM629_SIM_STRICT"
+
+
+def strict_default() -> bool:
+    """Whether a simulated chip whose URL does not say ``strict=`` is strict: the one place
+    that decides it (:data:`STRICT_ENV`, default no).  Every simulator is built here, and the
+    transports that apply strictness themselves (``sim+ftdi://`` after each exchange, the AVR
+    harness for bus timing) take it from the model they were given."""
+    return os.environ.get(STRICT_ENV, "") not in ("", "0")
+
 #: the bench failures the simulators rehearse: the chip never leaves reset, busy stuck high,
 #: the /RST line not connected
 FAULTS = (None, "reset", "busy", "rst")
@@ -32,14 +45,10 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
     the calling transport and are skipped here; any other unknown name is an error.
     """
     chip, motor = ChipParams(), MotorParams()
-    # LM629_SIM_STRICT=1 makes strict the default (the test suite runs that way); a URL's own
-    # strict=0 still wins, for tests that provoke violations on purpose.
-    chip.strict = os.environ.get("LM629_SIM_STRICT", "") not in ("", "0")
-    # wiring= (sim/wiring.py) is every simulated transport's, applied at its own pins; a
-    # miswired bench bends the host's bytes, so the chip's protocol checks would blame the
-    # host for the wire: not strict there
-    if wiring_of(url) is not None:
-        chip.strict = False
+    # strict_default(), unless the URL says strict= (below); never where wiring= miswires the
+    # bench (sim/wiring.py): a bent wire bends the host's bytes, and the chip's protocol
+    # checks would blame the host for the wire
+    chip.strict = strict_default() and wiring_of(url) is None
     values = parse_options(url, _CHIP_OPTIONS + _MOTOR_OPTIONS, what="simulator",
                            ignore=allowed | {"wiring"}, aliases=_ALIASES, given_only=True)
     for name, value in values.items():

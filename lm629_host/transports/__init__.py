@@ -37,7 +37,7 @@ from collections.abc import Iterator
 from importlib.metadata import entry_points
 
 from ..clock import Clock, WallClock
-from ..errors import TransportError
+from ..errors import SchemeError, TransportError
 from ..program import TraceCallback
 from ..urls import query_params, scheme_of, split_params
 from .base import Check, CycleTransport, PortInfo, Stats, Transport
@@ -91,13 +91,14 @@ def _load(scheme: str, target: str) -> type[Transport]:
 
 
 def transport_class(url: str) -> type[Transport]:
-    """The transport class for ``url``'s scheme (its module imported now)."""
+    """The transport class for ``url``'s scheme (its module imported now); an unknown scheme
+    is a :class:`~lm629_host.errors.SchemeError`."""
     scheme = scheme_of(url)
     known = registry()
     target = known.get(URL_SCHEMES.get(scheme, scheme))
     if target is None:
         names = [*known, *URL_SCHEMES]
-        raise TransportError(
+        raise SchemeError(
             f"unknown port scheme {scheme!r}; known: {', '.join(s + '://' for s in names)} "
             "or a serial device path", port=url)
     try:

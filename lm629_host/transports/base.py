@@ -196,6 +196,20 @@ class Transport(abc.ABC):
         cls.execute = execute  # type: ignore[method-assign]  # every execute runs locked
 
     @property
+    def clock_hz(self) -> float | None:
+        """The chip's clock input in Hz when this transport knows it: a simulator gives its
+        model's; hardware cannot read it from the chip (None: the caller assumes one, see
+        :attr:`LM629.clock_hz <lm629_host.LM629.clock_hz>`)."""
+        return None
+
+    @property
+    def chip_count(self) -> int | None:
+        """How many chips are known to be on the bus: a simulator's are the ones it built
+        (fewer than its adapter's ``chip_selects``); None on hardware, where only
+        ``chip_selects`` is known."""
+        return None
+
+    @property
     def lock(self) -> threading.RLock:
         """The lock every bus program of this transport runs under (see the class doc)."""
         lock = self.__dict__.get("_lock")

@@ -3,7 +3,8 @@
 URL: pyftdi's own, ``ftdi://ftdi:232h[:SERIAL]/1``, plus options after ``?``:
 ``latency`` (USB latency timer, ms, default 1), ``busy_us`` (the wait after each transfer:
 ``auto``, the default, measures the chip's busy time before the first program; a number fixes
-it, 100 being the documented worst case), ``frequency`` (MPSSE clock TCK in Hz, default 6 MHz).
+it, 100 being the documented worst case), ``frequency`` (MPSSE clock TCK in Hz, default 6 MHz),
+``busy_pin`` (``gpiol1``: D0 is also wired to ADBUS5, see "Waiting on the busy pin" below).
 
 How a bus program becomes USB traffic
 =====================================
@@ -69,17 +70,26 @@ What is safe to repeat, and why the stream is cut before some commands:
   first, and only repeatable commands after it: repeating "from the first busy to the end of
   the stream" never doubles an action.
 
-Rejected alternatives: waiting in the adapter with MPSSE "wait on I/O" (0x88/0x89) needs busy
-on a pin, but the chip shows busy only on D0 during a status read, and the data sheet does not
-say that D0 follows busy while /RD stays low; the wait has no timeout either, so a stuck chip
-would hang the MPSSE engine.  Polling each status read in its own USB exchange costs a round
-trip per transfer (the problem this transport exists to avoid).
+Waiting on the busy pin (``busy_pin=gpiol1``, an option because it needs a wire and an
+assumption): MPSSE "wait on I/O" (0x88/0x89) watches GPIOL1 (ADBUS5).  With D0 wired there
+too, each busy check is a status read held low while the engine waits for busy to rise (right
+after a transfer on the same chip) and to clear (:meth:`.mpsse.StreamCompiler.held_check`).
+Every transfer then lands after the chip took the one before, whatever its busy time, so no
+cut before actions is needed and LTRJ + STT is one exchange.  It rests on what the data sheet
+does not say: that D0 follows busy while /RD stays low (docs/ftdi.md lists what to measure).
+The wait has no timeout: a chip that never clears busy stops the engine; the read gives up
+after the program's busy timeout, and :meth:`FtdiTransport._recover` purges the FT232H, leaves
+and re-enters MPSSE with the lines idle, and raises BusyTimeout for the operation whose check
+never came (nothing from it on reached the chip).  A check that shows busy after the wait
+means the pin does not follow D0: a TransportError, never a repeat (an STT may follow in the
+stream).  Polling each status read in its own USB exchange costs a round trip per transfer
+(the problem this transport exists to avoid).
 
 With the fixed wait of the documented worst case the repeat path is a fault detector: it runs
 only on a chip out of its data sheet, a noisy bus, or the emulator's ``stretch_busy`` hook;
 with the measured wait also on a chip slower for some command than for the one measured.
 
-Why LTRJ + STT stays two exchanges: a single stream cannot make STT depend on the checks of
+Why LTRJ + STT stays two exchanges without the busy pin: a single stream cannot make STT depend on the checks of
 the loads before it.  A chip holding busy 300 us after one transfer makes every later transfer
 of the stream (STT included) land in busy and be ignored, which a repeat would mend; but one
 holding it a little longer than the wait (35 us) drops one word and lets the next words and
@@ -102,11 +112,8 @@ from __future__ import annotations
 
 import errno as _errno
 import logging
-import math
 import os
 import re
-from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
@@ -114,28 +121,25 @@ from .. import data
 from .. import ftdi_pins as pins
 from ..clock import Clock, WallClock
 from ..errors import AxisError, BusyTimeout, TransportError
-from ..opcodes import BUSY_BIT, RESET_WAIT_S, Cmd
-from ..program import BusCycle, BusOp, Op, Program, ProgramResult, TraceCallback
+from ..opcodes import BUSY_BIT
+from ..program import BusCycle, Op, Program, ProgramResult, TraceCallback
 from ..urls import Option, parse_options
 from .base import Check, PortInfo, Transport
+from .mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, chips_of_units,
+                    streams_of)
 
 log = logging.getLogger("lm629_host.ftdi")
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 
-# the MPSSE commands this transport emits (FTDI AN_108; defined in ftdi_pins)
-SET_LOW, GET_LOW, SET_HIGH, GET_HIGH = pins.SET_LOW, pins.GET_LOW, pins.SET_HIGH, pins.GET_HIGH
-SEND_IMMEDIATE, CLK_BITS, CLK_BYTES = pins.SEND_IMMEDIATE, pins.CLK_BITS, pins.CLK_BYTES
+# the MPSSE commands the transport itself sends (FTDI AN_108; defined in ftdi_pins)
+SET_LOW, SET_HIGH = pins.SET_LOW, pins.SET_HIGH
 DISABLE_CLK_3PHASE, DISABLE_CLK_ADAPTIVE = pins.DISABLE_CLK_3PHASE, pins.DISABLE_CLK_ADAPTIVE
-#: bytes a stream may still need after its last operation: control lines idle (3), D0-D7
-#: released (3), read HI (1), send immediate (1)
-STREAM_TAIL = 8
 
 FTDI_VID = 0x0403
 FT232H_PID = 0x6014
 
 DEFAULT_LATENCY_MS = 1  #: the FTDI default is 16 ms, the floor of every short read
-DEFAULT_BUSY_US = 100  #: the chip's documented worst-case busy time
 #: the cost of one MPSSE command in the busy-wait estimate: pyftdi's figure for two SET_BITS
 #: in a row (``Ftdi.mpsse_bit_delay``, measured on an FT2232H), the emulator's default
 COMMAND_S = 500e-9
@@ -146,277 +150,8 @@ CALIBRATION_POLLS = 40
 #: differs between commands (the datasheet gives 15-25 us typical) shows it at a check, which
 #: repeats the command and lengthens the wait (:meth:`FtdiTransport._learn_busy`)
 CALIBRATION_MARGIN = 1.0
-DEFAULT_TCK_HZ = 6e6
-RST_LOW_S = 10e-6  #: >= 8 clocks of the slowest (1 MHz) chip, with margin
-#: commands that act on the chip (not repeatable once taken): the stream is cut before them
-ACTIONS = frozenset({Cmd.RESET, Cmd.STT, Cmd.DFH, Cmd.SIP, Cmd.UDF})
 
 UDEV_RULE = f"{data.UDEV_RULES_DIR}/{data.UDEV_RULE}"  #: where the installed rule lives
-
-
-# ---------------------------------------------------------------------------- compilation
-@dataclass(frozen=True)
-class Slot:
-    """One byte the stream reads: ``kind`` is "check" (status before a transfer), "status"
-    (a STATUS op), "sync" (a SYNC op), "hi"/"lo" (bytes of a data word) or "pins" (HI)."""
-
-    kind: str
-    op: int  #: index of the program operation it belongs to (-1 for "pins")
-
-
-@dataclass
-class Stream:
-    """A compiled MPSSE stream: the bytes to send, what each answer byte is, the bus events in
-    order (for the trace) and how long its delays last."""
-
-    data: bytearray = field(default_factory=bytearray)
-    slots: list[Slot] = field(default_factory=list)
-    #: ("status", slot), ("command", byte), ("write", word), ("read", slot of high byte),
-    #: ("reset", 0), in bus order
-    events: list[tuple[str, int]] = field(default_factory=list)
-    delay_s: float = 0.0
-    strobes: int = 0
-
-
-class StreamCompiler:
-    """Bus operations -> MPSSE bytes, with the pin map of :mod:`lm629_host.ftdi_pins`."""
-
-    def __init__(self, tck_hz: float = DEFAULT_TCK_HZ, busy_s: float = DEFAULT_BUSY_US * 1e-6,
-                 command_s: float = 0.0):
-        self.tck_hz = tck_hz
-        self.busy_s = busy_s
-        #: what one MPSSE command is taken to cost when a busy wait is shortened by the
-        #: commands run between the transfer and its check (0: not counted, the wait is idle
-        #: clocks alone).  Only a busy wait uses it, never a timing minimum: a wrong figure
-        #: makes a check see busy, which the transport repeats and learns from.
-        self.command_s = command_s
-        self._t = 0.0  #: estimated stream time of what was compiled so far
-
-    # primitives
-    def _low(self, s: Stream, value: int) -> None:
-        s.data += bytes((SET_LOW, value, pins.CTRL_DIRECTION))
-        self._ctrl = value
-        self._t += self.command_s
-
-    def _high(self, s: Stream, value: int, direction: int) -> None:
-        s.data += bytes((SET_HIGH, value, direction))
-        self._dir = direction
-        self._t += self.command_s
-
-    def _bits(self, s: Stream, n: int) -> None:
-        s.data += bytes((CLK_BITS, n - 1))
-        s.delay_s += n / self.tck_hz
-        self._t += self.command_s + n / self.tck_hz
-
-    def delay(self, s: Stream, seconds: float) -> None:
-        """Idle clocks lasting at least ``seconds``."""
-        clocks = math.ceil(seconds * self.tck_hz - 1e-9)
-        if clocks <= 0:
-            return
-        if clocks <= 8:
-            self._bits(s, clocks)
-            return
-        units = math.ceil(clocks / 8)
-        while units:
-            n = min(units, 0x10000)
-            s.data += bytes((CLK_BYTES, (n - 1) & 0xFF, (n - 1) >> 8))
-            s.delay_s += n * 8 / self.tck_hz
-            self._t += self.command_s + n * 8 / self.tck_hz
-            units -= n
-
-    def _select(self, s: Stream, data_port: bool) -> None:
-        cs = pins.CHIP_SELECTS[self._cs]
-        want = (pins.CTRL_IDLE & ~cs & ~pins.PS) | (pins.PS if data_port else 0)
-        if self._ctrl != want:
-            self._low(s, want)
-            self._bits(s, 1)  # /CS and /PS setup before the strobe
-
-    def _check_lead(self, data_port: bool) -> int:
-        """Commands a read of the status (``data_port`` False) or of data will run before
-        /RD falls: a release of D0-D7, a change of /CS and /PS (with its setup bit), /RD."""
-        n = 1 if self._dir != pins.DATA_IN else 0
-        cs = pins.CHIP_SELECTS[self._cs]
-        want = (pins.CTRL_IDLE & ~cs & ~pins.PS) | (pins.PS if data_port else 0)
-        return n + (2 if self._ctrl != want else 0) + 1
-
-    def _read_byte(self, s: Stream, slot: Slot, data_port: bool) -> None:
-        if self._dir != pins.DATA_IN:
-            self._high(s, 0, pins.DATA_IN)
-        self._select(s, data_port)
-        self._low(s, self._ctrl & ~pins.RD)
-        self.rd_fell_at = self._t  # when the byte is driven: what a status read reports
-        self._bits(s, 2)  # read access time
-        s.data.append(GET_HIGH)
-        self._t += self.command_s
-        s.slots.append(slot)
-        self._low(s, self._ctrl | pins.RD)
-        self._bits(s, 1)  # recovery, /PS hold
-        s.strobes += 1
-
-    def _write_byte(self, s: Stream, byte: int, data_port: bool) -> None:
-        self._select(s, data_port)
-        self._high(s, byte, pins.DATA_OUT)
-        self._low(s, self._ctrl & ~pins.WR)
-        self._bits(s, 1)  # /WR pulse width, data setup
-        self._low(s, self._ctrl | pins.WR)
-        self._bits(s, 1)  # data hold, recovery
-        s.strobes += 1
-
-    def _status(self, s: Stream, kind: str, op: int) -> None:
-        s.events.append(("status", len(s.slots)))
-        self._read_byte(s, Slot(kind, op), data_port=False)
-
-    def compile(self, ops: Sequence[BusOp], first: int = 0,
-                lead_s: float | dict[int, float] = 0.0, max_bytes: int | None = None,
-                chip: int = 0, skip: frozenset[int] | set[int] = frozenset()) -> Stream:
-        """Compile ``ops`` (program operations ``first``, ``first + 1``...).  ``lead_s``: busy
-        wait still owed to the previous stream's last transfer, per chip (a number: to every
-        chip).  ``max_bytes``: stop before the first operation that would make the stream
-        longer (the FT232H's 1 KiB buffer); the index after the last operation compiled is
-        :attr:`end`.  ``chip``: the chip selected where the stream starts (``Op.SELECT``
-        changes it); ``skip``: operation indices left out (a repeat's units already taken).
-
-        The busy wait is owed per chip: after an STT on chip 0 the stream goes on at once to
-        chip 1's status read and STT, so a synchronized start's STTs are a few MPSSE commands
-        apart (microseconds), not a busy wait apart."""
-        s = Stream()
-        self._ctrl = pins.CTRL_IDLE
-        self._dir = pins.DATA_IN
-        self._cs = chip
-        self._t = 0.0
-        n_chips = len(pins.CHIP_SELECTS)
-        owed = (dict(lead_s) if isinstance(lead_s, dict)
-                else {k: float(lead_s) for k in range(n_chips)})  # owed before a busy check
-        owed_from: dict[int, float] = {}  # ... from this stream time (0: the stream's start)
-        self.end = first + len(ops)
-        for i, o in enumerate(ops, first):
-            mark = (len(s.data), len(s.slots), len(s.events), s.delay_s, s.strobes, dict(owed),
-                    self._ctrl, self._dir, self._cs, self._t, dict(owed_from))
-            op = o.op
-            cs = self._cs
-            if i in skip and op is not Op.SELECT:
-                continue
-            if op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
-                if self.command_s:
-                    # what the stream runs between the transfer and the check's /RD counts
-                    ran = (self._t - owed_from.get(cs, 0.0)
-                           + self._check_lead(False) * self.command_s)
-                    self.delay(s, owed.get(cs, 0.0) - ran)
-                else:
-                    self.delay(s, owed.get(cs, 0.0))
-                owed[cs] = 0.0
-                self._status(s, "sync" if op is Op.SYNC else "check", i)
-                if op is Op.COMMAND:
-                    self._write_byte(s, o.arg, data_port=False)
-                    s.events.append(("command", o.arg))
-                    owed[cs] = RESET_WAIT_S if o.arg == Cmd.RESET else self.busy_s
-                elif op is Op.WRITE:
-                    self._write_byte(s, o.arg >> 8, data_port=True)
-                    self._write_byte(s, o.arg & 0xFF, data_port=True)
-                    s.events.append(("write", o.arg))
-                    owed[cs] = self.busy_s
-                elif op is Op.READ:
-                    s.events.append(("read", len(s.slots)))
-                    self._read_byte(s, Slot("hi", i), data_port=True)
-                    self._read_byte(s, Slot("lo", i), data_port=True)
-                    owed[cs] = self.busy_s
-                owed_from[cs] = self._t
-            elif op is Op.STATUS:
-                self._status(s, "status", i)
-            elif op is Op.RESET:
-                self._low(s, pins.CTRL_IDLE & ~pins.RST)
-                self.delay(s, RST_LOW_S)
-                self._low(s, pins.CTRL_IDLE)
-                s.events.append(("reset", 0))
-                s.strobes += 1
-                owed = {}
-            elif op is Op.WAIT:
-                self.delay(s, o.arg * 1e-6)
-                if not self.command_s:  # else the idle clocks count in the stream time
-                    owed = {k: max(0.0, v - o.arg * 1e-6) for k, v in owed.items()}
-            elif op is Op.SELECT:
-                if not 0 <= o.arg < n_chips:
-                    raise ValueError(f"chip select {o.arg}: the FT232H wiring has {n_chips}")
-                self._cs = o.arg
-                s.events.append(("select", o.arg))
-            else:  # pragma: no cover - Op is closed
-                raise AssertionError(op)
-            if max_bytes is not None and (len(s.data) + STREAM_TAIL > max_bytes
-                                          or len(s.slots) + 1 > max_bytes):
-                if i == first:
-                    raise ValueError(f"{o.describe()} alone does not fit a stream of "
-                                     f"{max_bytes} bytes")
-                n_data, n_slots, n_events, s.delay_s, s.strobes, owed, self._ctrl, \
-                    self._dir, self._cs, self._t, owed_from = mark
-                del s.data[n_data:], s.slots[n_slots:], s.events[n_events:]
-                self.end = i
-                break
-        if self._ctrl != pins.CTRL_IDLE:
-            self._low(s, pins.CTRL_IDLE)
-        if self._dir != pins.DATA_IN:
-            self._high(s, 0, pins.DATA_IN)
-        s.data.append(GET_LOW)
-        s.slots.append(Slot("pins", -1))
-        s.data.append(SEND_IMMEDIATE)
-        self._t += 2 * self.command_s
-        # what is still owed when the stream ends (the commands after each last transfer ran)
-        self.owed_after = ({k: max(0.0, v - (self._t - owed_from.get(k, 0.0)))
-                            for k, v in owed.items()} if self.command_s else owed)
-        return s
-
-
-def units_of(ops: Sequence[BusOp]) -> list[tuple[int, int]]:
-    """Split a program into units ``(start, end)``: a command with its data words, or one other
-    operation.  A unit is what gets repeated."""
-    units: list[tuple[int, int]] = []
-    i = 0
-    while i < len(ops):
-        j = i + 1
-        if ops[i].op is Op.COMMAND:
-            while j < len(ops) and ops[j].op in (Op.WRITE, Op.READ):
-                j += 1
-        units.append((i, j))
-        i = j
-    return units
-
-
-_KNOWN = frozenset(int(c) for c in Cmd)
-
-
-def _is_action(o: BusOp) -> bool:
-    """An operation that acts on the chip: /RST, or a command that is not a plain load or read
-    (an unknown opcode sent with ``LM629.raw`` counts as one: nothing says it is harmless)."""
-    return o.op is Op.RESET or (o.op is Op.COMMAND and (o.arg in ACTIONS or o.arg not in _KNOWN))
-
-
-def chips_of_units(ops: Sequence[BusOp], start_chip: int = 0) -> dict[int, int]:
-    """The chip each operation addresses (a program starts on chip 0; SELECT switches)."""
-    chip, out = start_chip, {}
-    for i, o in enumerate(ops):
-        if o.op is Op.SELECT:
-            chip = o.arg
-        out[i] = chip
-    return out
-
-
-def streams_of(ops: Sequence[BusOp]) -> list[list[tuple[int, int]]]:
-    """Group units into streams: a new stream before an action that follows a transfer on the
-    same chip (/RST: on any chip).  An action on another chip does not cut: its loads were
-    checked in earlier programs, so a synchronized start on several chips is one stream."""
-    streams: list[list[tuple[int, int]]] = [[]]
-    transfers: set[int] = set()
-    chip = 0
-    for u in units_of(ops):
-        o = ops[u[0]]
-        if o.op is Op.SELECT:
-            chip = o.arg
-        elif _is_action(o) and (chip in transfers or (o.op is Op.RESET and transfers)):
-            streams.append([])
-            transfers = set()
-        streams[-1].append(u)
-        if o.op in (Op.COMMAND, Op.WRITE, Op.READ):
-            transfers.add(chip)
-    return [s for s in streams if s]
 
 
 # ---------------------------------------------------------------------------- transport
@@ -430,14 +165,23 @@ class FtdiTransport(Transport):
 
     def __init__(self, ftdi: Any, url: str, *, trace: TraceCallback | None = None,
                  clock: Clock | None = None, busy_s: float | None = DEFAULT_BUSY_US * 1e-6,
-                 tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS) -> None:
+                 tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS,
+                 busy_pin: str | None = None) -> None:
         """``busy_s``: the wait after each transfer; None: measured on the chip before the first
         program (:meth:`calibrate_busy`; opening itself never touches the bus), the documented
-        100 us when it cannot be."""
+        100 us when it cannot be.  ``busy_pin``: "gpiol1" when D0 is wired to ADBUS5
+        (``connections("ft232h", busy_pin=True)``): every busy check then waits in the adapter on the pin
+        (no timed wait, nothing to calibrate, no cut before STT), and HI is not seen."""
         super().__init__(url, trace=trace)
         self.ftdi = ftdi
         self.clock = clock or WallClock()
-        self.compiler = StreamCompiler(tck_hz, DEFAULT_BUSY_US * 1e-6 if busy_s is None else busy_s)
+        if busy_pin is not None and busy_pin not in pins.BUSY_PINS:
+            raise ValueError(f"busy_pin={busy_pin!r}: expected one of "
+                             f"{', '.join(pins.BUSY_PINS)} (or none)")
+        self.busy_pin = busy_pin
+        self.tck_hz = tck_hz
+        self.compiler = StreamCompiler(tck_hz, DEFAULT_BUSY_US * 1e-6 if busy_s is None else busy_s,
+                                       busy_pin=busy_pin is not None)
         self.busy_s = self.compiler.busy_s
         self.latency_ms = latency_ms
         self._last_end = -1.0  # clock time at which the last stream's answer came back
@@ -446,7 +190,11 @@ class FtdiTransport(Transport):
         #: the chip's busy time measured at open (None: not measured, the fixed wait is used)
         self.calibrated_busy_s: float | None = None
         self.calibration_exchanges = 0  #: USB write+read pairs the calibration took
-        self._calibrate = busy_s is None  # before the first program
+        # before the first program; with a busy pin there is no timed wait to measure, but
+        # what the pin relies on is checked instead (check_busy_pin)
+        self._calibrate = busy_s is None and busy_pin is None
+        self._check_pin = busy_pin is not None
+        self.stalls = 0  #: streams that stopped at a wait on the busy pin and were purged
 
     # ------------------------------------------------------------------ opening
     @classmethod
@@ -455,7 +203,8 @@ class FtdiTransport(Transport):
         ftdi = open_mpsse(pyftdi_url(url), opts["latency"], opts["frequency"])
         busy = opts["busy_us"]
         return cls(ftdi, url, trace=trace, busy_s=None if busy is None else busy * 1e-6,
-                   tck_hz=opts["frequency"], latency_ms=opts["latency"])
+                   tck_hz=opts["frequency"], latency_ms=opts["latency"],
+                   busy_pin=busy_pin_of(opts, url))
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:
@@ -546,32 +295,13 @@ class FtdiTransport(Transport):
         busy still repeats the command (and lengthens the wait, :meth:`_learn_busy`).
         Returns the busy time measured, or None (the fixed wait kept)."""
         c = StreamCompiler(self.compiler.tck_hz, self.busy_s, COMMAND_S)
-        first = Stream()
-        c._ctrl, c._dir, c._t, c._cs = pins.CTRL_IDLE, pins.DATA_IN, 0.0, 0  # chip 0
-        c._status(first, "status", 0)
-        c._low(first, pins.CTRL_IDLE)
-        first.data.append(SEND_IMMEDIATE)
+        first = c.status_stream(0, "status", 0)
         self.calibration_exchanges = 1
         if self._exchange(first)[0] & _BUSY:
             log.info("%s: the chip is busy at open: keeping the documented %g us busy wait",
                      self.url, self.busy_s * 1e6)
             return None
-        s = Stream()
-        c._ctrl, c._dir, c._t, c._cs = pins.CTRL_IDLE, pins.DATA_IN, 0.0, 0
-        c._status(s, "check", 0)
-        c._write_byte(s, int(Cmd.RDSIGS), data_port=False)
-        t0 = c._t - 1 / c.tck_hz  # /WR rose one bit before (the hold bit after it)
-        times = []
-        for _ in range(CALIBRATION_POLLS):
-            c._status(s, "status", 0)
-            times.append(c.rd_fell_at - t0)
-        c.delay(s, DEFAULT_BUSY_US * 1e-6)
-        c._read_byte(s, Slot("hi", 0), data_port=True)
-        c._read_byte(s, Slot("lo", 0), data_port=True)
-        c._low(s, pins.CTRL_IDLE)
-        s.data.append(GET_LOW)
-        s.slots.append(Slot("pins", -1))
-        s.data.append(SEND_IMMEDIATE)
+        s, times = c.calibration_stream(CALIBRATION_POLLS)
         answer = self._exchange(s)
         self.calibration_exchanges = 2
         polls = answer[1:1 + CALIBRATION_POLLS]
@@ -589,9 +319,55 @@ class FtdiTransport(Transport):
                  self.url, times[clear] * 1e6, busy * 1e6)
         return times[clear]
 
+    def check_busy_pin(self) -> bool:
+        """Before the first program with ``busy_pin``: see on the chip what waiting on the pin
+        relies on (docs/ftdi.md, "What must be measured"), in two exchanges (a status read,
+        then :meth:`.mpsse.StreamCompiler.pin_check_stream`): right after RDSIGS's command byte a
+        held status read must show busy on D0 and the same level on GPIOL1, and 100 us later,
+        /RD still low, busy clear on both.  So a chip that latches its status at /RD falling,
+        or a missing or misplaced wire, is a TransportError here, not a stream that waits for
+        ever later.  A chip busy at open is left alone; one that shows no busy after the
+        command (in reset, unpowered) is checked again before the next program.  True when the
+        pin was seen to work, False when not checked."""
+        if self._exchange(self.compiler.status_stream(0, "status", 0))[0] & _BUSY:
+            log.info("%s: the chip is busy at open: the busy pin is not checked", self.url)
+            return False
+        answer = self._exchange(self.compiler.pin_check_stream())
+        check, d_on, p_on, d_off, p_off = answer[:5]
+        if check & _BUSY:  # busy again since the first read: RDSIGS was ignored, no harm
+            self.busy_hits += 1
+            log.info("%s: the chip turned busy at open: the busy pin is not checked", self.url)
+            return False
+        seen = [(d & _BUSY, bool(p & pins.BUSY_PINS[self.busy_pin or ""]))
+                for d, p in ((d_on, p_on), (d_off, p_off))]
+        where = "the wire from D0 (C0, LM629 pin 4) to ADBUS5 (D5), and that HI is off ADBUS5"
+        if any(bool(d) != p for d, p in seen):
+            raise TransportError(
+                f"busy_pin={self.busy_pin}: GPIOL1 does not follow D0 during a status read "
+                f"(D0/GPIOL1 read {seen[0][0]}/{int(seen[0][1])} with busy on, {seen[1][0]}/"
+                f"{int(seen[1][1])} 100 us later): check {where}; or open the port without "
+                "busy_pin", port=self.url)
+        if not seen[0][0]:
+            # the chip took no command (in its /RST window, never out of reset, not powered):
+            # nothing learnt about the pin; checked again before the next program
+            log.info("%s: the chip showed no busy after RDSIGS: the busy pin is checked again "
+                     "before the next program", self.url)
+            self._check_pin = True
+            return False
+        if seen[1][0]:
+            raise TransportError(
+                f"busy_pin={self.busy_pin}: D0 still showed busy 100 us later with /RD held low, "
+                "so this chip does not show busy on D0 for as long as a status read is held (it "
+                "may latch its status when /RD falls): waiting on the pin would never end. Open "
+                "the port without busy_pin (the timed wait works on any chip)", port=self.url)
+        log.info("%s: busy pin checked: D0 and GPIOL1 showed busy and then clear during one "
+                 "held status read", self.url)
+        return True
+
     def _set_busy(self, busy_s: float) -> None:
         self.busy_s = busy_s
-        self.compiler = StreamCompiler(self.compiler.tck_hz, busy_s, COMMAND_S)
+        self.compiler = StreamCompiler(self.compiler.tck_hz, busy_s, COMMAND_S,
+                                       busy_pin=self.busy_pin is not None)
 
     def _learn_busy(self, seen_s: float) -> None:
         """A check saw busy after a calibrated wait: wait longer from now on (twice as long, or
@@ -605,14 +381,17 @@ class FtdiTransport(Transport):
         self._set_busy(busy)
 
     # ------------------------------------------------------------------ one exchange
-    def _exchange(self, stream: Stream) -> bytes:
+    def _exchange(self, stream: Stream, wait_s: float = 0.0) -> bytes:
+        """Write ``stream``, read its answer.  ``wait_s``: how long its waits on the busy pin
+        may take in all (they have no timeout of their own: the read gives up after that)."""
         ftdi = self.ftdi
         if ftdi is None:
             raise TransportError("the port is closed", port=self.url)
         need = len(stream.slots)
         # on hardware the answer can only come once the stream's delays have run: let pyftdi
         # wait that many latency periods for it, and a few more
-        attempts = 3 + int(stream.delay_s * 1000 / max(1, self.latency_ms))
+        attempts = 3 + int((stream.delay_s + (wait_s if stream.waits else 0.0)) * 1000
+                           / max(1, self.latency_ms))
         try:
             ftdi.write_data(stream.data)
             answer = bytes(ftdi.read_data_bytes(need, attempts))
@@ -628,6 +407,8 @@ class FtdiTransport(Transport):
         st.bytes_out += len(stream.data)
         st.bytes_in += len(answer)
         st.bus_cycles += stream.strobes
+        if len(answer) != need and stream.waits:
+            raise _Stalled(answer)
         if len(answer) != need:
             raise TransportError(
                 f"the FT232H returned {len(answer)} of the {need} bytes the stream reads "
@@ -659,19 +440,14 @@ class FtdiTransport(Transport):
                           words: list[int]) -> int:
         """Status reads, one short exchange each, until busy is clear; BusyTimeout at
         ``deadline``."""
-        poll = Stream()
-        c = self.compiler
-        c._ctrl, c._dir = pins.CTRL_IDLE, pins.DATA_IN
-        c._cs = chips_of_units(program.ops).get(index, 0)
-        c._status(poll, "status", index)
-        c._low(poll, pins.CTRL_IDLE)
-        poll.data.append(SEND_IMMEDIATE)
+        chip = chips_of_units(program.ops).get(index, 0)
+        poll = self.compiler.status_stream(chip, "status", index)
         while True:
             status = self._exchange(poll)[0]
             self.stats.busy_polls += 1
             self._emit(BusCycle("status", status))
             if not status & _BUSY:
-                self._owed = {k: v for k, v in self._owed.items() if k != c._cs}
+                self._owed = {k: v for k, v in self._owed.items() if k != chip}
                 return status
             if self.clock.now() >= deadline:
                 raise BusyTimeout(program.ops[index].describe(), program.busy_timeout_s, status,
@@ -683,11 +459,12 @@ class FtdiTransport(Transport):
         for o in ops:
             if o.op is Op.SELECT and o.arg >= self.chip_selects:
                 raise AxisError(o.arg, self.chip_selects, f"the FT232H wiring of {self.url}")
-        if self._calibrate:
-            self._calibrate = False
+        if self._calibrate or self._check_pin:
+            opening = self.calibrate_busy if self._calibrate else self.check_busy_pin
+            self._calibrate = self._check_pin = False
             saved = self.stats.as_dict()
             try:
-                self.calibrate_busy()
+                opening()
             finally:  # its exchanges are not the program's: counted apart
                 for name, value in saved.items():
                     setattr(self.stats, name, value)
@@ -697,7 +474,8 @@ class FtdiTransport(Transport):
         reads: dict[int, int] = {}
         last_status: int | None = None
         hi: bool | None = None
-        for units in streams_of(ops):
+        wired = self.busy_pin is not None
+        for units in streams_of(ops, cut_actions=not wired):
             unit_of = {k: a for a, b in units for k in range(a, b)}
             end = units[-1][1]
             first_try: dict[int, float] = {}
@@ -712,10 +490,13 @@ class FtdiTransport(Transport):
                 stop = self.compiler.end
                 owed_after = self.compiler.owed_after
                 t0 = self.clock.now()
-                answer = self._exchange(stream)
+                try:
+                    answer = self._exchange(stream, program.busy_timeout_s)
+                except _Stalled as stall:
+                    raise self._recover(program, stream, stall.answer, reads) from None
                 self._owed = owed_after
                 self._emit_stream(stream, answer)
-                hi = bool(answer[-1] & pins.HI)
+                hi = None if wired else bool(answer[-1] & pins.HI)
                 self.stats.busy_polls += sum(1 for sl in stream.slots if sl.kind in ("check", "sync"))
                 # the first transfer whose busy check showed busy, and the start of its unit
                 failed: tuple[int, int] | None = None
@@ -725,6 +506,8 @@ class FtdiTransport(Transport):
                         busy_units.add(unit_of[slot.op])
                         if failed is None and slot.kind == "check":
                             failed = (unit_of[slot.op], slot.op)
+                if failed is not None and wired:
+                    raise self._unwired(ops[failed[1]].describe())
                 ok_end = failed[0] if failed else stop
                 # on a multi-chip stream, the units after the failed one on other chips whose
                 # every check passed were taken: they are recorded now and left out of the
@@ -768,6 +551,53 @@ class FtdiTransport(Transport):
         return ProgramResult(tuple(reads[k] for k in sorted(reads)),
                              tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
 
+    def _recover(self, program: Program, stream: Stream, answer: bytes,
+                 reads: dict[int, int]) -> BusyTimeout:
+        """A stream stopped at a wait on the busy pin (MPSSE waits for ever; the read gave up):
+        purge both buffers, leave MPSSE and enter it again (the engine drops the command it
+        waits at; every line is an input for that moment, held high by the pull-ups, so the
+        held status read ends), set the lines idle as at open, read the status once.  The
+        operation whose check never came is the one the chip did not take; those before it
+        were taken.  Returns the BusyTimeout to raise."""
+        self.stalls += 1
+        index = stream.slots[len(answer)].op if len(answer) < len(stream.slots) else -1
+        ftdi = self.ftdi
+        log.warning("%s: busy never cleared during the wait on %s before %s: purging the "
+                    "FT232H and setting its lines idle again", self.url, self.busy_pin,
+                    program.ops[index].describe() if index >= 0 else "the end")
+        try:
+            from pyftdi.ftdi import Ftdi
+            ftdi.purge_buffers()
+            ftdi.set_bitmode(0, Ftdi.BitMode.RESET)
+            ftdi.set_bitmode(0, Ftdi.BitMode.MPSSE)
+            ftdi.set_frequency(self.tck_hz)
+            ftdi.write_data(bytes((DISABLE_CLK_ADAPTIVE, DISABLE_CLK_3PHASE,
+                                   SET_LOW, pins.CTRL_IDLE, pins.CTRL_DIRECTION,
+                                   SET_HIGH, 0, pins.DATA_IN)))
+            chip = chips_of_units(program.ops).get(index, 0)
+            status: int | None = self._exchange(
+                self.compiler.status_stream(chip, "status", index))[0]
+        except TransportError:
+            raise
+        except Exception as exc:  # pyftdi raises FtdiError, UsbToolsError, USBError...
+            raise TransportError(
+                f"the FT232H stalled on the busy pin and could not be reset ({exc}); unplug "
+                "and replug it: a command may or may not have reached the chip",
+                port=self.url) from exc
+        self._last_end = self.clock.now()
+        words = [reads[k] for k in sorted(reads)]
+        return BusyTimeout(program.ops[index].describe() if index >= 0 else "the end of the "
+                           "program", program.busy_timeout_s, status, index, words)
+
+    def _unwired(self, what: str) -> TransportError:
+        return TransportError(
+            f"busy_pin={self.busy_pin}: the status read after the wait on the pin still showed "
+            f"busy before {what}, so the pin did not follow D0: check the wire from D0 (C0) to "
+            "ADBUS5 and that HI is no longer on ADBUS5 (docs/ftdi.md, 'Waiting on the busy "
+            "bit'). The transfers after it in the same exchange may have been ignored by the "
+            "chip: read back what matters (a move may have started) before going on, or open "
+            "the port without busy_pin", port=self.url)
+
     @staticmethod
     def _record(stream: Stream, answer: bytes, ok_end: int, taken: set[int],
                 unit_of: dict[int, int], statuses: dict[int, int], reads: dict[int, int],
@@ -788,13 +618,38 @@ class FtdiTransport(Transport):
         return last_status
 
 
+class _Stalled(Exception):
+    """The answer of a stream that waits on the busy pin came back short: the engine is
+    still waiting (``answer``: what it sent before)."""
+
+    def __init__(self, answer: bytes) -> None:
+        super().__init__(f"{len(answer)} answer bytes")
+        self.answer = answer
+
+
 # ---------------------------------------------------------------------------- URLs, opening
-#: the URL options of the FT232H transport (``busy_us`` none, or ``auto``: measured)
+#: the URL options of the FT232H transport (``busy_us`` none, or ``auto``: measured;
+#: ``busy_pin`` none, or a line wired to D0: ``ftdi_pins.BUSY_PINS``)
 OPTIONS = (
     Option("latency", "int", DEFAULT_LATENCY_MS, 1, 255, "ms"),
     Option("busy_us", "float", None, 0, 65535, "us", optional=True),
     Option("frequency", "hz", DEFAULT_TCK_HZ, 1e5, 30e6, "Hz"),
+    Option("busy_pin", "str", "none", choices=("none", *pins.BUSY_PINS)),
 )
+
+
+def busy_pin_of(opts: dict[str, Any], url: str) -> str | None:
+    """The ``busy_pin`` option as the transport takes it (None: not wired).  ``busy_us`` with
+    it is a ValueError naming both: with the pin each check waits on the chip itself, so a
+    timed wait has no use, and silently dropping what was asked would hide a mistake."""
+    pin = str(opts["busy_pin"]).lower()
+    if pin == "none":
+        return None
+    if opts["busy_us"] is not None:
+        raise ValueError(f"{url}: busy_us={opts['busy_us']:g} and busy_pin={pin} do not go "
+                         "together: with the busy pin every check waits on the chip's busy "
+                         "bit, there is no timed wait to set; give one of them")
+    return pin
 
 
 def auto_as_none(url: str, name: str) -> str:
@@ -916,5 +771,4 @@ list_ports = FtdiTransport.list_ports
 doctor = FtdiTransport.doctor
 
 
-__all__ = ["FtdiTransport", "StreamCompiler", "Stream", "Slot", "units_of", "streams_of",
-           "open_mpsse", "list_ports", "doctor", "options_of", "pyftdi_url"]
+__all__ = ["FtdiTransport", "open_mpsse", "list_ports", "doctor", "options_of", "pyftdi_url"]

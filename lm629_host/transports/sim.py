@@ -31,7 +31,25 @@ _RESET, _WAIT, _SYNC, _WAIT_STATUS = Op.RESET, Op.WAIT, Op.SYNC, Op.WAIT_STATUS
 _SELECT = Op.SELECT
 
 
-class SimTransport(CycleTransport):
+class ModelChips:
+    """What every simulator transport (``sim``, ``sim+avr``, ``sim+emu``, ``sim+ftdi``) tells
+    the driver about its chip model, so that nothing above the transports looks at the model:
+    the chip's clock (:attr:`Transport.clock_hz`) and how many chips were built
+    (:attr:`Transport.chip_count`).  Put before the transport class in the bases."""
+
+    model: ChipModel | ChipBus  #: the chip (or the chips) on the simulated bus
+    models: list[ChipModel]  #: the chips on chip selects 0, 1, ...
+
+    @property
+    def clock_hz(self) -> float:
+        return float(self.model.clock_hz)
+
+    @property
+    def chip_count(self) -> int:
+        return len(self.models)
+
+
+class SimTransport(ModelChips, CycleTransport):
     """Bus cycles straight into an in-process :class:`ChipModel`."""
 
     scheme = "sim"

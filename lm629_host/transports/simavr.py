@@ -29,6 +29,7 @@ from ..sim.usb import OPTION_NAMES as USB_OPTIONS
 from ..sim.usb import wrap_usb
 from ..urls import Option, parse_options, query_params
 from .link import DEFAULT_RETRIES, LinkTransport
+from .sim import ModelChips
 
 #: URL options of this transport (the others are the chip model's)
 OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
@@ -37,7 +38,7 @@ OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
 OWN_PARAMS = frozenset(o.name for o in OPTIONS) | USB_OPTIONS
 
 
-class SimAvrTransport(LinkTransport):
+class SimAvrTransport(ModelChips, LinkTransport):
     """The link protocol to the compiled firmware in simavr, in simulated time."""
 
     scheme = "sim+avr"

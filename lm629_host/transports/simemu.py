@@ -14,9 +14,10 @@ from ..sim.usb import OPTION_NAMES as USB_OPTIONS
 from ..sim.usb import wrap_usb
 from ..urls import Option, parse_options, query_params
 from .link import DEFAULT_RETRIES, LinkTransport
+from .sim import ModelChips
 
 
-class EmuLinkTransport(LinkTransport):
+class EmuLinkTransport(ModelChips, LinkTransport):
     """``sim+emu://?baud=115200&...``: the link protocol to the Python bridge emulator, in
     process and in simulated time (the other parameters are the ``sim://`` ones).  The whole
     serial path without a pseudo-terminal or the AVR toolchain."""

@@ -2,8 +2,11 @@
 to the chip model (:mod:`lm629_host.sim.ftdi`).
 
 URL parameters: every ``sim://`` parameter (chip, clock, strict, fault, record, motor...), the
-``ftdi://`` options (``latency``, ``busy_us``, ``frequency``), and the emulation's costs:
-``usb_us`` (per bulk transfer, default 125) and ``command_ns`` (per MPSSE command, default 500).
+``ftdi://`` options (``latency``, ``busy_us``, ``frequency``, ``busy_pin``: the emulated
+adapter is then wired as ``connections("ft232h", busy_pin=True)``), and the emulation's costs:
+``usb_us`` (per bulk transfer, default 125), ``command_ns`` (per MPSSE command, default 500)
+and ``live_status`` (``0``: the emulated chip latches its status byte at /RD falling even with
+the busy pin wired, the case the transport's pin check refuses).
 
 The clock is the emulated FT232H's: USB transfers, MPSSE commands, idle clocks and
 ``clock.sleep`` all advance it, and the chip model with it.  Nothing sleeps on the wall clock.
@@ -31,14 +34,18 @@ from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
 from ..sim.model import ChipBus, ChipModel, chips_of
 from ..urls import Option, parse_options, query_params
 from .base import Check, PortInfo
-from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, open_mpsse
+from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, busy_pin_of, open_mpsse
 from .ftdi import OPTIONS as FTDI_OPTIONS
+from .sim import ModelChips
 
 #: URL options that belong to this transport rather than to the chip model: the FT232H
 #: transport's and the emulation's costs
 OPTIONS = (*FTDI_OPTIONS,
            Option("usb_us", "float", 125, 0, 1e6, "us"),
-           Option("command_ns", "float", 500, 0, 1e6, "ns"))
+           Option("command_ns", "float", 500, 0, 1e6, "ns"),
+           # whether the emulated chip shows its status live while /RD is held low (the
+           # unknown a busy pin relies on: docs/ftdi.md); default: live with busy_pin
+           Option("live_status", "str", "auto", choices=("auto", "0", "1")))
 OWN_PARAMS = frozenset(o.name for o in OPTIONS)
 
 
@@ -55,7 +62,7 @@ class EmulatedClock(Clock):
         self.device.advance_ns(round(seconds * 1e9))
 
 
-class SimFtdiTransport(FtdiTransport):
+class SimFtdiTransport(ModelChips, FtdiTransport):
     scheme = "sim+ftdi"
     simulated = True
 
@@ -70,7 +77,10 @@ class SimFtdiTransport(FtdiTransport):
         strict = model.params.strict
         for chip in chips_of(model):
             chip.params.strict = False
+        busy_pin = busy_pin_of(opts, url)
+        live = {"auto": None, "0": False, "1": True}[str(opts["live_status"]).lower()]
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
+                                busy_pin=busy_pin is not None, live_status=live,
                                 wiring=wiring_of(url))
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
@@ -78,7 +88,7 @@ class SimFtdiTransport(FtdiTransport):
         # busy_us None: measured at open on the chip model, through the emulated adapter
         t = cls(ftdi, url, trace=trace, clock=EmulatedClock(device),
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
-                latency_ms=latency)
+                latency_ms=latency, busy_pin=busy_pin)
         t.model, t.device, t.strict = model, device, strict
         t.models = chips_of(model)
         return t

@@ -44,6 +44,29 @@ What the silicon does that a careless host gets wrong, modelled so that tests ca
 * purge: request 0 value 1 empties the host->chip buffer, value 2 the chip->host buffer (FTDI's
   "purge RX/TX" from the chip's side, libftdi's and pyftdi's ``SIO_RESET_PURGE_RX/TX``).
 
+Wait on I/O (0x88 / 0x89: until GPIOL1, ADBUS5, is high / low; FTDI AN_108).  GPIOL1 is HI
+in the default wiring; with ``busy_pin=True`` it is wired to D0 instead (``connections.
+connections("ft232h", busy_pin=True)``) and HI to nothing.  The engine then really stops on the emulated clock: a
+condition already met costs the command; one the model says will be met at a known time (busy
+clearing at ``busy_deadline()``) resumes the engine at that time; one that never comes
+(``fault=busy``, or 0x88 with busy already over) stalls it, and the device answers the host's
+bulk IN requests with empty packets at its latency timer, as the chip does, until the host
+gives up and purges (a purge of the host->chip buffer, or leaving MPSSE, drops the waiting
+command).  The engine runs no further ahead than the host's clock allows: waits are resolved
+while a bulk IN is pending, up to that request's latency timer, so a host whose read times
+out sees exactly what it would see on the real chip.
+
+A status read held low.  Whether D0-D7 follow the status while /RD stays low is not in the
+data sheet (it gives the access time from /RD falling, no hold-low maximum; AN-706 3.6 calls
+the status a hardware register); the emulation choice is that they do (the status
+byte is the register's current value whenever it is sampled), which is what a held read on
+a busy pin relies on and what a bench must measure (docs/ftdi.md).  It is on with the busy
+pin wired (``live_status``, default ``busy_pin``); in the default wiring the byte stays the
+one latched at /RD falling, the behaviour the transport's busy calibration and every figure
+of the timed-wait streams were measured with (a status read there lasts 0.8 us, so the two
+choices differ by at most one calibration poll).  Data reads stay latched at /RD falling, as
+the chip's I/O buffer is.
+
 A test hook, :meth:`EmulatedFT232H.stretch_busy`, makes the chip hold busy far longer than its
 documented 100 us after the next N transfers, to prove that the transport detects it.
 """
@@ -118,6 +141,7 @@ class EmulatedFT232H:
     def __init__(self, model: ChipModel | ChipBus, *, serial: str = "LM629EMU", usb_ns: int = 125_000,
                  command_ns: int = 500, bus: int = 1, address: int = 7,
                  adaptive: bool = False, three_phase: bool = False,
+                 busy_pin: bool = False, live_status: bool | None = None,
                  wiring: Miswiring | None = None) -> None:
         self.model = model
         #: ``wiring=``: the wires between ACBUS0-7 and the chip's D0-D7 (None: correct); a
@@ -140,6 +164,13 @@ class EmulatedFT232H:
         self.adaptive = adaptive  #: adaptive clocking on (0x96): idle clocks wait for RTCK
         self.three_phase = three_phase  #: 3-phase clocking on (0x8C): 1.5 periods a clock
         self.stalled = False  #: the engine waits (answer buffer full, or RTCK never comes)
+        #: D0 wired to GPIOL1 (ADBUS5) and HI to nothing (``busy_pin=gpiol1``)
+        self.busy_pin = busy_pin
+        #: a status read held low shows the status as it is now, not as at /RD falling
+        self.live_status = busy_pin if live_status is None else live_status
+        #: the wait-on-I/O command the engine is stopped at (0x88/0x89), or None
+        self.waiting: int | None = None
+        self.wait_ns = 0  #: total time the engine spent in wait-on-I/O commands
         #: (ns, level of the ADBUS control lines) at every change, from power-on
         self.ctrl_log: list[tuple[int, int]] = [(0, 0xFF)]
         self.timing_violations: list[str] = []
@@ -226,6 +257,8 @@ class EmulatedFT232H:
                 self._flushed = 0
                 self._pending.clear()
             self.stalled = False
+            if not self._pending:
+                self.waiting = None
         elif request == REQ_SET_LATENCY_TIMER:
             self.latency_ms = value & 0xFF
         elif request == REQ_SET_BITMODE:
@@ -248,6 +281,10 @@ class EmulatedFT232H:
 
     def _set_bitmode(self, mode: int, mask: int) -> None:
         self.bitmode = mode
+        # a change of mode stops the engine: a command it was waiting at is dropped
+        self._pending.clear()
+        self.waiting = None
+        self.stalled = False
         if mode != BITMODE_MPSSE:
             # leaving MPSSE releases every line: all inputs, pulled up
             self._set_low(0xFF, 0x00)
@@ -282,6 +319,16 @@ class EmulatedFT232H:
     def bulk_in(self, size: int) -> bytes:
         """One bulk IN packet of at most ``size`` bytes (modem-status bytes included)."""
         self.counters.bulk_in += 1
+        if self.waiting is not None:
+            # the request is pending while the engine waits on GPIOL1: it goes on when the
+            # pin comes right, if that is before this request's latency timer expires
+            expiry = self.ns + max(1, self.latency_ms) * 1_000_000
+            self._run_mpsse(until_ns=expiry)
+            if self.waiting is not None or (self._rx and not self._flushed):
+                self.advance_ns(expiry - self.ns)  # the timer sends what there is
+                self._flushed = len(self._rx)
+                if not self._rx:
+                    return MODEM_STATUS
         if self._rx and not self._flushed:
             # no send-immediate: the chip holds the bytes until its latency timer expires
             self.advance_ns(self.latency_ms * 1_000_000)
@@ -302,12 +349,47 @@ class EmulatedFT232H:
         return MODEM_STATUS + payload
 
     # ------------------------------------------------------------------ MPSSE engine
-    def _run_mpsse(self) -> None:
+    def _gpiol1(self) -> bool:
+        """The level on ADBUS5 as the engine's wait-on-I/O sees it."""
+        return bool(self._read_low() & pins.GPIOL1)
+
+    def _gpiol1_at(self, want: bool) -> int | None:
+        """When (ns) GPIOL1 will read ``want`` with nothing else changing, or None: never.
+        Only D0 of a held status read changes by itself (busy clears, ``busy_deadline``);
+        nothing sets busy without a strobe, and HI and undriven lines do not change here."""
+        if self._gpiol1() == want:
+            return self.ns
+        if not self.busy_pin or want or not self._status_held():
+            return None
+        chip = self._selected_chip()
+        deadline = None if chip is None else chip.busy_deadline()
+        if deadline is None:
+            return None
+        clock = self.model.clock_hz
+        return max(self.ns, -(-(deadline - self._epoch_tick) * 1_000_000_000 // clock))
+
+    def _run_mpsse(self, until_ns: int | None = None) -> None:
+        """Run the pending commands.  A wait-on-I/O whose condition comes by ``until_ns`` (None:
+        now; a bulk IN passes its latency timer's expiry) moves the emulated time to it, else
+        the engine stops there (:attr:`waiting`)."""
         buf = self._pending
         i = 0
         self.stalled = False
+        self.waiting = None
         while i < len(buf):
             op = buf[i]
+            if op in (pins.WAIT_HIGH, pins.WAIT_LOW):
+                at = self._gpiol1_at(op == pins.WAIT_HIGH)
+                if at is None or at > (self.ns if until_ns is None else until_ns):
+                    self.waiting = op
+                    self.stalled = True
+                    break
+                start = self.ns
+                self.advance_ns(at - self.ns)
+                self.advance_ns(self.command_ns)
+                self.wait_ns += self.ns - start
+                i += 1
+                continue
             need = (3 if op in (pins.SET_LOW, pins.SET_HIGH, pins.SET_DIVISOR, pins.CLK_BYTES)
                     else 2 if op == pins.CLK_BITS else 1)
             if i + need > len(buf):
@@ -361,13 +443,38 @@ class EmulatedFT232H:
 
     # ------------------------------------------------------------------ pins
     def _read_low(self) -> int:
-        value = (self._low_val & self._low_dir) | (~self._low_dir & 0xFF & ~pins.HI)
-        if chips_of(self.model)[0].hi:  # HI is chip 0's line (chip 1 has none)
+        value = (self._low_val & self._low_dir) | (~self._low_dir & 0xFF & ~pins.GPIOL1)
+        if self.busy_pin:  # ADBUS5 wired to D0
+            if self._read_high(check=False) & 0x01:
+                value |= pins.GPIOL1
+        elif chips_of(self.model)[0].hi:  # HI is chip 0's line (chip 1 has none)
             value |= pins.HI
         return value & 0xFF
 
-    def _read_high(self) -> int:
+    def _selected_chip(self) -> ChipModel | None:
+        """The chip whose /CS is low (one only), or None."""
+        low = [k for k, cs in enumerate(pins.CHIP_SELECTS) if not self._ctrl & cs]
+        chips = chips_of(self.model)
+        if len(low) != 1 or low[0] >= len(chips) or (len(chips) == 1 and low[0] != 0):
+            return None
+        return chips[low[0]]
+
+    def _status_held(self) -> bool:
+        """A status read is going on: /CS of one chip, /PS and /RD low."""
+        return (self._drive is not None and not self._ctrl & (pins.PS | pins.RD)
+                and self._selected_chip() is not None)
+
+    def _read_high(self, check: bool = True) -> int:
         if self._drive is not None:
+            if self.live_status and self._status_held():
+                # [emulation choice] the status register drives D0-D7 with its current
+                # value for as long as /RD is low (see the module docstring)
+                self._run_model()
+                self._drive = self.model.read_status()
+                if self.wiring is not None:
+                    self._drive = self.wiring.to_host(self._drive)
+            if not check:
+                return self._drive
             rd_fell = self._edge_ns.get("RD_fall", 0)
             if self.ns - rd_fell < RD_ACCESS_NS:
                 self._timing(f"data sampled {self.ns - rd_fell} ns after /RD fell "
