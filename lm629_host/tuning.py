@@ -355,6 +355,10 @@ class TuneResult:
 
 
 # ---------------------------------------------------------------------------------- the session
+#: the shortest time a shaft must keep within 2 counts to count as at rest (see ``settle``)
+QUIET_S = 0.05
+
+
 class _Session:
     """The experiments on the chip, each position read checked against the travel band."""
 
@@ -526,17 +530,27 @@ class _Session:
 
     def settle(self, rec: Record, limit_s: float, quiet: int = 10) -> tuple[Snapshot, bool]:
         """Record until the shaft has stayed within 2 counts peak to peak for ``quiet`` polls
-        (an encoder edge may flicker, a loop may hunt a count either way), at most
-        ``limit_s``; (last snapshot, came to rest)."""
-        window: list[int] = [rec.rows[-1].real_position]
+        and :data:`QUIET_S` (an encoder edge may flicker, a loop may hunt a count either way),
+        at most ``limit_s``; (last snapshot, came to rest).
+
+        The time as well as the rows: far-side rows come every millisecond, and ten of them
+        fit in the turn of a slow oscillation (10x inertia at the identification gain: the
+        identification then began with the shaft swinging, 660 ms identified for 250)."""
+        window: list[Snapshot] = [rec.rows[-1]]
+
+        def still() -> bool:
+            pos = [w.real_position for w in window]
+            return (len(window) > quiet and window[-1].time - window[0].time >= QUIET_S
+                    and max(pos) - min(pos) <= 2)
 
         def watch(s: Snapshot) -> bool:
-            window.append(s.real_position)
-            del window[:-quiet - 1]
-            return len(window) > quiet and max(window) - min(window) <= 2
+            window.append(s)
+            while len(window) > quiet + 1 and window[-1].time - window[1].time >= QUIET_S:
+                del window[0]
+            return still()
 
         last = self.record(rec, limit_s, watch)
-        return last, len(window) > quiet and max(window) - min(window) <= 2
+        return last, still()
 
 
 # ---------------------------------------------------------------------------------- phasing
