@@ -35,6 +35,7 @@ Everything waits on ``chip.clock`` (simulated time on ``sim://``).
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
@@ -1182,6 +1183,27 @@ def _in_seconds(m: MoveMetrics, sample_s: float) -> MoveMetrics:
 
 
 # ---------------------------------------------------------------------------------- test move
+def _since_stt(profile: Profile, distance: int, t: list[float], des: list[int], start: int,
+               sample_s: float) -> list[float]:
+    """A far-side recording's times of a trapezoid move, counted from its STT on the chip's
+    clock: the first row whose desired position is part-way says how many samples the
+    profile has run (to within one), where the host's stamp of the STT is late by the reply's
+    trip (behind an Uno up to a flush tick, 4.096 ms: a move's settle after the profile's end
+    is a few milliseconds).  Unchanged when no row is part-way."""
+    plan = profile.desired(abs(distance))
+    sign = 1 if distance >= 0 else -1
+    # counts the profile has gone at each row; going down the chip's position is floored
+    # below the start at once (2000 - 1/65536 reads 1999): one count less than the plan's
+    moved = [sign * (d - start) - (sign < 0) for d in des]
+    part = [j for j, x in enumerate(moved) if 0 < x < abs(distance) - 1]
+    if not part:
+        return t
+    j = part[len(part) // 2]  # mid-move, where the desired position changes every sample
+    k = bisect.bisect_left(plan, moved[j])  # the first sample at or past it
+    shift = (k + 0.5) * sample_s - t[j]
+    return [x + shift for x in t]
+
+
 def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, duration_s: float,
                tolerance: int, profile: Profile | None = None) -> tuple[MoveMetrics, Record]:
     """The step (or with ``profile`` the trapezoid move) out by ``distance`` and back, each
@@ -1195,7 +1217,12 @@ def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, dur
     for target in (ses.origin + distance, ses.origin):
         ses.step_to(rec, target, profile)
         ses.record(rec, ramp_s + duration_s)
-        t, real, des, start, tgt = rec.segment(len(rec.steps) - 1)
+        k = len(rec.steps) - 1
+        t, real, des, start, tgt = rec.segment(k)
+        if profile and (rec.step_rows[k], len(rec.rows)) in rec.far_runs and \
+                clip_step(ses.chip, profile.velocity, profile.acceleration) == (
+                    profile.velocity, profile.acceleration):
+            t = _since_stt(profile, tgt - start, t, des, start, ses.sample_s)
         m = step_metrics([x - ramp_s for x in t], real, des, start, tgt, tolerance)
         if profile:
             m = replace(m, rise_s=None, settle_s=None if m.settle_s is None
