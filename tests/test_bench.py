@@ -182,6 +182,24 @@ def test_watch_times_rows_from_the_first_on_a_served_bench(tmp_path, far_end):
         assert float(p.stdout.splitlines()[1].split()[0]) == 0.0
 
 
+def test_closed_stdout_after_a_move_is_exit_141_and_the_motor_holds(tmp_path, far_end):
+    """The reader goes away after the move's first line (`lm629 move N | head -1`): the last
+    line ("done: ...") is lost, so the command did not succeed, but the move itself ended
+    where it was sent and the servo holds there."""
+    with serve(tmp_path, far_end) as b:
+        b.ready()
+        proc = subprocess.Popen(b.argv("move", "300"), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=_env())
+        assert proc.stdout.readline().startswith("moving to 300")
+        proc.stdout.close()  # the "done" line, written after the move, fails
+        err = proc.stderr.read()
+        assert proc.wait(timeout=30) == 141, err
+        assert "Traceback" not in err and "Exception ignored" not in err
+        s = b.status()
+        assert s["desired_position"] == 300 and abs(300 - s["real_position"]) <= 20
+        assert "MOTOR_OFF" not in s["status_flags"]  # holding, not stopped
+
+
 @pytest.mark.parametrize("far_end", ["python", "python+uno"])
 def test_index_wait_timeout_leaves_a_holding_servo_on(tmp_path, far_end):
     with serve(tmp_path, far_end, "sim://?index_offset=500") as b:
