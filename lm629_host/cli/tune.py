@@ -79,7 +79,8 @@ def _plot(result: TuneResult, path: str, lines: int | None) -> str:
               help="Gains to measure the test move with first, for comparison "
                    "('kp=40,kd=300', ds in samples), or 'none'.")
 @click.option("--interval", type=float, default=0.001, show_default=True,
-              help="Seconds between snapshots (on a bridge, at least one round trip).")
+              help="Seconds between snapshots (timed by the bridge where it records; "
+                   "host-polled elsewhere, at least one round trip).")
 @click.option("--yes", "-y", is_flag=True, help="Do not ask before the motor turns (scripts).")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
               help="PNG of the test move before and after.")
@@ -160,7 +161,8 @@ __all__ = ["tune", "parse_gains"]
 @click.option("--time", "duration", type=FINITE, default=0.5, show_default=True,
               help="Seconds to record.")
 @click.option("--interval", type=FINITE, default=0.001, show_default=True,
-              help="Seconds between snapshots (on a bridge, at least one round trip).")
+              help="Seconds between snapshots (timed by the bridge where it records; "
+                   "host-polled elsewhere, at least one round trip).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default="step.csv",
               show_default=True)
 @click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
