@@ -1,6 +1,7 @@
 /* Link protocol (PROTOCOL.md), shared by the firmware and the host-side tests. */
 #include "link.h"
 #include "bus.h"
+#include "uart.h"
 
 /* CRC-16/GENIBUS by table: 256 entries written out as literal bytes by tools/gen_tables.py
  * (LINK_CRC_TABLE_INIT in the generated header; made by preprocessor macros instead, one

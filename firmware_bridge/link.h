@@ -66,7 +66,7 @@ uint16_t link_frame_end(link_t *l, const uint8_t **out);
 void link_byte(link_t *l, uint8_t byte);
 
 /* Feed one received byte.  Returns the number of bytes of a complete encoded reply frame
- * (delimiter included), already sent through link_tx_byte, pointed to by *out, or 0.
+ * (delimiter included), already sent through link_tx_byte (uart.h), pointed to by *out, or 0.
  * Inline: a byte inside a frame
  * costs a call of the small link_byte, not the register saves of the frame handler. */
 static inline uint16_t link_feed(link_t *l, uint8_t byte, const uint8_t **out)
@@ -77,15 +77,6 @@ static inline uint16_t link_feed(link_t *l, uint8_t byte, const uint8_t **out)
     }
     return link_frame_end(l, out);
 }
-/* Supplied by the firmware (main.c: waits for the transmitter, then hands it the byte) and
- * by the tests: every byte of a reply frame goes through here, in order, as soon as it is
- * known; link_feed then returns the same frame. */
-void link_tx_byte(uint8_t b);
-
-/* Supplied by the firmware (main.c) and by the tests: 1 when a byte from the host waits (it
- * ends a recording). */
-uint8_t link_rx_pending(void);
-
 /* Run a RUN payload (cs, timeout, program) and build RUN_REPLY's payload in `reply`;
  * returns its size. */
 uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply);

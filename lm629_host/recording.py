@@ -21,6 +21,7 @@ from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from .errors import ArgumentError
 from .opcodes import Cmd, Signals, Status, s16, s32
 from .program import Program
 from .snapshot import Snapshot
@@ -191,25 +192,49 @@ class RecordStream:
         return Trace(self.period_s, list(self.rows), self.asked, self.far_side, self._t0 or 0.0)
 
 
+#: rows in one recording at most: the bridge's RECORD counts them in 16 bits
+MAX_ROWS = 0xFFFF
+
+
+def _seconds(value: object) -> float | None:
+    """``value`` as seconds when it is a finite real number (not a bool), else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value) if math.isfinite(value) else None
+
+
+def check_period(period_s: object) -> float:
+    """``period_s`` a finite number of seconds above 0, else an :class:`ArgumentError`."""
+    period = _seconds(period_s)
+    if period is None or period <= 0:
+        raise ArgumentError("period_s", period_s, f"period_s={period_s!r} must be a finite "
+                            "number of seconds above 0")
+    return period
+
+
 def rows_for(period_s: float, duration_s: float | None) -> int:
-    """Rows of a recording of ``duration_s`` (None: until stopped, 0)."""
+    """Rows of a recording of ``duration_s`` (None: until stopped, 0); ``duration_s`` a finite
+    number of seconds from one period to 65535 periods, else an :class:`ArgumentError` naming
+    that range (``period_s`` checked first)."""
+    period = check_period(period_s)
     if duration_s is None:
         return 0
-    if not (isinstance(duration_s, (int, float)) and math.isfinite(duration_s)
-            and duration_s >= period_s):
-        raise ValueError(f"duration_s={duration_s!r} must be at least period_s={period_s!r}")
-    return max(1, round(duration_s / period_s))
+    duration = _seconds(duration_s)
+    hi = MAX_ROWS * period
+    if duration is None or not period <= duration <= hi:
+        raise ArgumentError(
+            "duration_s", duration_s,
+            f"duration_s={duration_s!r} must be a finite number of seconds in "
+            f"{period:g}..{hi:g} (one period_s={period:g} up to {MAX_ROWS} rows; "
+            "record_stream without a duration runs until closed)", lo=period, hi=hi)
+    return max(1, min(MAX_ROWS, round(duration / period)))
 
 
 def open_stream(chip: RecordingChip, period_s: float, duration_s: float | None = None, *,
                 full: bool = False) -> RecordStream:
-    """Check the request (``ValueError`` before any traffic) and make the stream."""
-    if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
-        raise ValueError(f"period_s={period_s!r} must be a positive number of seconds")
+    """Check the request (:class:`ArgumentError`, a ``ValueError``, before any traffic) and
+    make the stream."""
     rows = rows_for(period_s, duration_s)
-    if rows > 0xFFFF:
-        raise ValueError(f"{rows} rows: at most 65535 in one recording (record_stream without "
-                         "a duration runs until closed)")
     program = sample_program(chip, full)
     top = chip.transport.record_max_rate(program)
     if top is not None and 1.0 / period_s > top:
@@ -253,6 +278,6 @@ def record(chip: RecordingChip, period_s: float, duration_s: float, *,
     return stream.trace()
 
 
-__all__ = ["BASIC_READS", "FULL_READS", "RecordStream", "Row", "Trace", "far_snapshots",
-           "open_stream", "record",
-           "rows_for", "sample_program"]
+__all__ = ["BASIC_READS", "FULL_READS", "MAX_ROWS", "RecordStream", "Row", "Trace",
+           "check_period", "far_snapshots", "open_stream", "record", "rows_for",
+           "sample_program"]

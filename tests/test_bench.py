@@ -161,6 +161,45 @@ def test_closed_stdout_during_a_move_stops_the_motor(tmp_path, far_end):
         assert "MOTOR_OFF" in s["status_flags"] and s["desired_velocity"] == 0
 
 
+def test_watch_times_rows_from_the_first_on_a_served_bench(tmp_path, far_end):
+    """The served bench's clock (like a bridge's timer) has run long before the command: t_s
+    counts from the first row, in the table and in the CSV, on one axis and on several."""
+    import csv
+    with serve(tmp_path, far_end, "sim://?axes=2") as b:
+        out = tmp_path / "w.csv"
+        p = b.run("watch", "--rate", "100", "--count", "3", "--csv", str(out))
+        assert p.returncode == 0, p.stderr
+        table = [float(ln.split()[0]) for ln in p.stdout.splitlines()[1:]]
+        logged = [float(r["t_s"]) for r in csv.DictReader(out.open())]
+        for times in (table, logged):
+            assert times[0] == 0.0 and len(times) == 3
+            assert all(abs(t - 0.010 * k) < 2e-3 for k, t in enumerate(times))  # 10 ms apart
+        p = b.run("--axis", "0,1", "watch", "--rate", "100", "--count", "2", "--csv", str(out))
+        assert p.returncode == 0, p.stderr
+        rows = list(csv.DictReader(out.open()))
+        assert [r["axis"] for r in rows] == ["0", "1", "0", "1"]
+        assert float(rows[0]["t_s"]) == 0.0 and all(0 <= float(r["t_s"]) < 0.1 for r in rows)
+        assert float(p.stdout.splitlines()[1].split()[0]) == 0.0
+
+
+def test_closed_stdout_after_a_move_is_exit_141_and_the_motor_holds(tmp_path, far_end):
+    """The reader goes away after the move's first line (`lm629 move N | head -1`): the last
+    line ("done: ...") is lost, so the command did not succeed, but the move itself ended
+    where it was sent and the servo holds there."""
+    with serve(tmp_path, far_end) as b:
+        b.ready()
+        proc = subprocess.Popen(b.argv("move", "300"), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=_env())
+        assert proc.stdout.readline().startswith("moving to 300")
+        proc.stdout.close()  # the "done" line, written after the move, fails
+        err = proc.stderr.read()
+        assert proc.wait(timeout=30) == 141, err
+        assert "Traceback" not in err and "Exception ignored" not in err
+        s = b.status()
+        assert s["desired_position"] == 300 and abs(300 - s["real_position"]) <= 20
+        assert "MOTOR_OFF" not in s["status_flags"]  # holding, not stopped
+
+
 @pytest.mark.parametrize("far_end", ["python", "python+uno"])
 def test_index_wait_timeout_leaves_a_holding_servo_on(tmp_path, far_end):
     with serve(tmp_path, far_end, "sim://?index_offset=500") as b:

@@ -14,6 +14,7 @@ import pytest
 
 import lm629_host
 from lm629_host import LM629
+from lm629_host.errors import ArgumentError
 from lm629_host.bridge.protocol import Capability, FrameType, HelloInfo, decode_frame
 from lm629_host.opcodes import Cmd, s32
 from lm629_host.sim.bridge import MULTI_AXIS_INFO
@@ -109,13 +110,29 @@ def test_a_sample_program_that_writes_is_refused_before_any_traffic():
         assert t.stats.bytes_out == before
 
 
-@pytest.mark.parametrize("period,duration", [(0, 1), (-1e-3, 1), (1e-3, 5e-4), (1e-3, math.nan),
-                                             (1e-3, 100.0)])
-def test_bad_arguments_are_value_errors(period, duration):
+@pytest.mark.parametrize("period,duration,argument,lo,hi", [
+    (0, 1, "period_s", None, None), (-1e-3, 1, "period_s", None, None),
+    (math.inf, 1, "period_s", None, None), (math.nan, 1, "period_s", None, None),
+    (True, 1, "period_s", None, None),
+    # duration_s from one period to 65535 of them (RECORD counts rows in 16 bits): at 1 ms,
+    # 0.001..65.535 s
+    (1e-3, 5e-4, "duration_s", 1e-3, 65.535), (1e-3, math.nan, "duration_s", 1e-3, 65.535),
+    (1e-3, math.inf, "duration_s", 1e-3, 65.535), (1e-3, -1.0, "duration_s", 1e-3, 65.535),
+    (1e-3, 100.0, "duration_s", 1e-3, 65.535)])
+def test_bad_arguments_are_argument_errors_naming_the_range(period, duration, argument, lo, hi):
     with lm629_host.open("sim+emu://") as chip:
-        with pytest.raises(ValueError):
+        with pytest.raises(ArgumentError) as e:
             chip.record(period, duration)
-        assert chip.transport.stats.round_trips == 0
+        assert chip.transport.stats.round_trips == 0  # before any bus cycle
+    assert e.value.argument == argument
+    assert e.value.value is (duration if argument == "duration_s" else period)
+    message = str(e.value)
+    assert message.startswith(f"{argument}=") and "finite number of seconds" in message
+    if argument == "period_s":
+        assert "above 0" in message
+    else:
+        assert e.value.lo == pytest.approx(lo) and e.value.hi == pytest.approx(hi)
+        assert "in 0.001..65.535" in message
 
 
 def test_a_lost_row_is_a_gap_never_a_value():

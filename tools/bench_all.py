@@ -363,17 +363,21 @@ def _us(seconds: float) -> str:
     return f"{seconds * 1e6:.0f} us" if seconds < 1e-3 else f"{seconds * 1e3:.2f} ms"
 
 
+def replace_block(text: str, begin: str, end: str, block: str) -> str:
+    """``text`` with everything from the marker ``begin`` to ``end`` replaced by ``block``
+    (which carries the markers again)."""
+    return re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda _: block, text, flags=re.S)
+
+
 def write_usb(block: str, summary: str) -> None:
     readme = README.read_text()
     if SUMMARY_BEGIN not in readme:
         raise SystemExit(f"{README} has no {SUMMARY_BEGIN} ... {SUMMARY_END} block")
-    README.write_text(re.sub(re.escape(SUMMARY_BEGIN) + ".*?" + re.escape(SUMMARY_END),
-                             lambda _: summary, readme, flags=re.S))
+    README.write_text(replace_block(readme, SUMMARY_BEGIN, SUMMARY_END, summary))
     path = PERFORMANCE_DOC
     text = path.read_text()
     if USB_BEGIN in text:
-        text = re.sub(re.escape(USB_BEGIN) + ".*?" + re.escape(USB_END), lambda _: block, text,
-                      flags=re.S)
+        text = replace_block(text, USB_BEGIN, USB_END, block)
     else:
         text = text.rstrip("\n") + "\n\n## Per USB adapter\n\n" + block + "\n"
     path.write_text(text)
@@ -670,8 +674,7 @@ def write_readme(block: str) -> None:
     path = PERFORMANCE_DOC
     text = path.read_text()
     if BEGIN in text:
-        text = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: block, text,
-                      flags=re.S)
+        text = replace_block(text, BEGIN, END, block)
     else:
         head, sep, rest = text.partition("## Performance\n")
         if not sep:

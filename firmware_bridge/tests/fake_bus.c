@@ -1,6 +1,7 @@
 #include <string.h>
 #include "../bus.h"
 #include "../link.h"
+#include "../uart.h"
 #include "fake_bus.h"
 
 fake_bus_t fake;

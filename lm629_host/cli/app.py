@@ -73,7 +73,7 @@ EXIT_CODES: dict[int, str] = {
        "error, following error, motor off, move timeout); the motor was stopped",
     129: "hang-up (SIGHUP); a moving motor was stopped first",
     130: "interrupted (Ctrl-C, or the prompt aborted); a moving motor was stopped first",
-    141: "output closed (broken pipe) while the motor moved; it was stopped first",
+    141: "output closed (broken pipe): output was lost; a moving motor was stopped first",
     143: "terminated (SIGTERM); a moving motor was stopped first",
 }
 
@@ -328,7 +328,9 @@ class LM629Group(click.Group):
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
-            return super().invoke(ctx)
+            result = super().invoke(ctx)
+            sys.stdout.flush()  # a closed pipe shows here, not in Python's flush at exit
+            return result
         except click.UsageError as exc:  # bad usage or value: one line, exit 2
             sub = exc.ctx.command_path if exc.ctx is not None else "lm629"
             _fail(ctx, f"{exc.format_message()} (see `{sub} --help`)", exc, 2)
@@ -338,13 +340,16 @@ class LM629Group(click.Group):
             signum = getattr(exc, "signum", signal.SIGINT)
             _fail(ctx, _STOP_SIGNALS.get(signum, f"signal {signum}"), exc, 128 + signum)
         except BrokenPipeError as exc:
-            # stdout closed early (`lm629 calc ... | head`): not an error while nothing moved;
-            # keep Python from complaining again when it flushes stdout at exit
+            # stdout closed early (`lm629 move 0 | head -c 10`): output was lost, so not a
+            # success: 141 (128 + SIGPIPE) as a Unix tool ended by the signal. Keep Python from
+            # complaining again when it flushes stdout at exit
             with contextlib.suppress(OSError):
                 os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-            if getattr(exc, STOP_NOTE, None) is not None:  # it ended a move: not a success
+            if getattr(exc, STOP_NOTE, None) is not None:  # it ended a move: the motor stopped
                 _fail(ctx, "output closed (broken pipe) during a move", exc, 141)
-            ctx.exit(0)
+            # after a move or in a command that moves nothing: the motor is as the command
+            # left it (holding at the target); silent, as a tool ended by SIGPIPE
+            ctx.exit(141)
         except Exception as exc:  # noqa: BLE001 - mapped to exit codes below
             code = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), None)
             if code is None:

@@ -57,15 +57,19 @@ def watch_rows(s: Session, count: int | None, rate: float, flags: Any,
                f"{'rv':>6} {'st':>3} flags")
     n = 0
     start = b.clock.now()
+    t0: float | None = None  # t_s from the first row, as `lm629 watch` on one axis
     try:
         while count is None or n < count:
             for k, snap in zip(axes, b.snapshots(axes)):
-                click.echo(f"{snap.time:9.4f} {k:>4} {snap.desired_position:>10} "
+                if t0 is None:
+                    t0 = snap.time
+                t = snap.time - t0
+                click.echo(f"{t:9.4f} {k:>4} {snap.desired_position:>10} "
                            f"{snap.real_position:>10} {snap.following_error:>+7} "
                            f"{snap.real_velocity:>+6} {int(snap.status):02X} "
                            f"{flags(snap.status)}")
                 if writer:
-                    writer.writerow((f"{snap.time:.4f}", k, snap.desired_position,
+                    writer.writerow((f"{t:.4f}", k, snap.desired_position,
                                      snap.real_position, snap.following_error,
                                      f"{snap.desired_velocity / 65536:.4f}", snap.real_velocity,
                                      f"{int(snap.status):02X}", flags(snap.status)))

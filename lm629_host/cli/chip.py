@@ -160,7 +160,9 @@ def limit(threshold: int, stop_motor: bool) -> None:
 def watch(rate: float, count: int | None, csv_path: str | None) -> None:
     """A live table of desired/actual position, velocity, error and flags (Ctrl-C ends it).
 
-    The rows are timed on the chip's clock: simulated time on sim://."""
+    The rows are timed on the chip's clock (simulated time on sim://), t_s from the first
+    row: the transport's clock counts from whenever it started (a served bench, a bridge's
+    timer), which says nothing to the user."""
     import csv as csvmod
     if not 0 < rate <= 1000:
         raise click.BadParameter(f"{rate:g} must be in 0..1000 rows per second",
@@ -191,11 +193,14 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
     # the bridge's timer, the simulator's clock); else polled, as before
     from ..recording import far_snapshots
     recorded = far_snapshots(chip, 1.0 / rate, count or 0)
+    t0: float | None = None
     try:
         while count is None or n < count:
             snap = chip.snapshot() if recorded is None else next(recorded)
+            if t0 is None:
+                t0 = snap.time
             row: tuple[Any, ...] = (
-                f"{snap.time:.4f}", snap.desired_position, snap.real_position,
+                f"{snap.time - t0:.4f}", snap.desired_position, snap.real_position,
                 snap.following_error, f"{snap.desired_velocity / FIXED_ONE:.4f}",
                 snap.real_velocity)
             units = ""

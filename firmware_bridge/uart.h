@@ -1,0 +1,24 @@
+/* The byte transport under the link layer: the ATmega328P's USART0 (uart_avr.c) in the
+ * firmware, a fake in the host-side C tests (tests/fake_bus.c supplies link_tx_byte and
+ * link_rx_pending).  link.c and main.c both use it; neither calls into the other for it. */
+#ifndef UART_H
+#define UART_H
+#include <stdint.h>
+
+/* Every byte of a reply frame goes through here, in order, as soon as it is known (the
+ * firmware waits for the transmitter, then hands it the byte); link_feed then returns the
+ * same frame. */
+void link_tx_byte(uint8_t b);
+
+/* 1 when a byte from the host waits in the receive buffer (it ends a recording). */
+uint8_t link_rx_pending(void);
+
+/* Firmware only (uart_avr.c). */
+void uart_init(void);          /* 8N1 at BAUD, double speed, receive interrupt on */
+uint8_t uart_rx_take(void);    /* the oldest waiting byte; only when link_rx_pending() */
+/* Wait until the last byte has left the line, then switch to divisor UBRR `ubrr`; returns the
+ * divisor it replaced (SET_BAUD's way back). */
+uint16_t uart_switch(uint16_t ubrr);
+void uart_set_ubrr(uint16_t ubrr);
+
+#endif
