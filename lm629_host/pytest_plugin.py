@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import collections
 import enum
-import importlib.util
 import signal
 import threading
 import warnings
@@ -191,14 +190,9 @@ _SESSION = pytest.StashKey[Session]()
 
 
 def _load_profile(path: Path) -> Any:
-    """The board profile at ``path`` (the profile feature, ``lm629_host.profile``), or one
-    usage error: the feature is missing, or the file is bad (its file:line and key)."""
-    if importlib.util.find_spec("lm629_host.profile") is None:
-        raise pytest.UsageError(
-            f"--lm629-profile {path}: this lm629-host has no board profiles yet "
-            "(lm629_host.profile, the profile feature); upgrade lm629-host, or drop the option "
-            "and give the port with --lm629-port")
-    from . import profile as profiles  # type: ignore[attr-defined,unused-ignore]  # issue 21's module
+    """The board profile at ``path`` (:mod:`lm629_host.profile`), or one usage error naming
+    the file, the line and the key."""
+    from . import profile as profiles
     try:
         return profiles.load_profile(path)
     except ValueError as exc:  # ProfileError: file, line and key in one line

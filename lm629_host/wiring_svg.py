@@ -104,10 +104,10 @@ def render(adapter: str, axes: int = 1) -> str:
     a_top, a_bottom = row_y[0] - 2 * ROW, row_y[-1] + ROW
     out.append(f'<rect x="{ADAPTER_X}" y="{a_top}" width="{ADAPTER_W}" height="{a_bottom - a_top}" '
                'rx="10" fill="#e8f1e4" stroke="#2e6b2e" stroke-width="2"/>')
-    label = "FT232H breakout" if ft else f"Arduino {name} (ATmega328P)"
+    label = "FT232H breakout" if ft else f"Arduino {name}"  # the MCU on the next line: fits the box
     out.append(_text(ADAPTER_X + 12, a_top + 22, label, size=14, weight="bold", color="#2e6b2e"))
     out.append(_text(ADAPTER_X + 12, a_top + 40, "line (breakout label)" if ft
-                     else "header pin (port bit)", size=11, color="#2e6b2e"))
+                     else "ATmega328P: header pin (port bit)", size=11, color="#2e6b2e"))
     # the DIP
     out.append(f'<rect x="{CHIP_X}" y="{TOP - 24}" width="{CHIP_W}" height="{13 * ROW + 48}" '
                'rx="6" fill="#2b2b2b"/>')

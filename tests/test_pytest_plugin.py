@@ -169,7 +169,6 @@ def test_help_fixtures_and_markers_list_everything(pytester):
         assert f"@pytest.mark.{marker}" in r.stdout.str()
 
 
-HAS_PROFILES = importlib.util.find_spec("lm629_host.profile") is not None
 
 PROFILE = """\
 [board]
@@ -200,17 +199,6 @@ def test_the_profiles_named_axis(lm629_board):
 """
 
 
-@pytest.mark.skipif(HAS_PROFILES, reason="the profile feature is here: "
-                    "test_profile_option_gives_the_named_axes runs instead")
-def test_profile_option_without_the_profile_feature_is_one_clear_error(pytester):
-    pytester.makefile(".toml", board=PROFILE)
-    pytester.makepyfile("def test_board(lm629_board):\n    pass\n")
-    r = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--lm629-profile", "board.toml")
-    assert r.ret == pytest.ExitCode.USAGE_ERROR
-    assert "--lm629-profile board.toml: this lm629-host has no board profiles yet" in r.stderr.str()
-
-
-@pytest.mark.skipif(not HAS_PROFILES, reason="no lm629_host.profile (the profile feature) in this tree")
 def test_profile_option_gives_the_named_axes(pytester):
     pytester.makefile(".toml", board=PROFILE)
     pytester.makepyfile(test_profiled=PROFILE_TEST)
