@@ -894,6 +894,19 @@ def _first_speed(seg: _Segment) -> float:
     return d1 / t1 - c * t1
 
 
+def _axis_of(p: list[float], twelve_bit: bool) -> AxisModel:
+    """The axis a fit's parameter vector stands for: log acceleration, log rate, then friction
+    and load as fractions of the acceleration (the speeds of far-side segments follow)."""
+    acc = math.exp(p[0])
+    return AxisModel(acc, math.exp(p[1]), abs(p[2]) * acc, p[3] * acc, twelve_bit)
+
+
+def _plausible(p: list[float]) -> bool:
+    """Whether a fit's parameters stay inside what any motor on an LM629 can be (outside, the
+    residual is a wall rather than a value the search could wander along)."""
+    return -30 < p[0] < 5 and -20 < p[1] < 1 and abs(p[2]) <= 1 and abs(p[3]) <= 1
+
+
 def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
              iters: int) -> tuple[AxisModel, float]:
     """:func:`fit_model` on far-side segments: the axis and each segment's starting speed."""
@@ -914,11 +927,10 @@ def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
             break
 
     def make(p: list[float]) -> AxisModel:
-        acc = math.exp(p[0])
-        return AxisModel(acc, math.exp(p[1]), abs(p[2]) * acc, p[3] * acc, twelve_bit)
+        return _axis_of(p, twelve_bit)
 
     def f(p: list[float]) -> float:
-        if not -30 < p[0] < 5 or not -20 < p[1] < 1 or abs(p[2]) > 1 or abs(p[3]) > 1:
+        if not _plausible(p):
             return 1e12
         model = make(p)
         err, n = 0.0, 0
@@ -1002,11 +1014,10 @@ def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
             break
 
     def make(p: list[float]) -> AxisModel:
-        acc = math.exp(p[0])
-        return AxisModel(acc, math.exp(p[1]), abs(p[2]) * acc, p[3] * acc, twelve_bit)
+        return _axis_of(p, twelve_bit)
 
     def f(p: list[float]) -> float:
-        if not -30 < p[0] < 5 or not -20 < p[1] < 1 or abs(p[2]) > 1 or abs(p[3]) > 1:
+        if not _plausible(p):
             return 1e12
         return _residual(make(p), rec, sample_s, desired, idx, meas)
 
