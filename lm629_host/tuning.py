@@ -475,7 +475,9 @@ class _Session:
         ``sim://``: :meth:`Record.segment` tells the steps' rows apart by when they were read);
         else polled from the host every ``poll_s``.  A fault found on a row ends the
         recording before the motor is stopped."""
-        period = self.far_period
+        # steps ramped by an axis's caps are fitted at the host's step times (fit_model):
+        # those records stay host-polled, on the one clock that fit reads
+        period = None if rec.words else self.far_period
         rows = None if period is None else far_snapshots(
             self.chip, period, max(1, math.ceil(duration_s / period)))
         if rows is not None:
