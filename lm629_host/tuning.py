@@ -928,13 +928,10 @@ def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
             guess = 2 * abs(x - x0) / (k + 1) ** 2 * fs / out0
             break
 
-    def make(p: list[float]) -> AxisModel:
-        return _axis_of(p, twelve_bit)
-
     def f(p: list[float]) -> float:
         if not _plausible(p):
             return 1e12
-        model = make(p)
+        model = _axis_of(p, twelve_bit)
         err, n = 0.0, 0
         for seg, w0 in zip(segs, p[4:]):
             e, k = seg.residual(model, g, w0)
@@ -952,7 +949,7 @@ def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
                                                         0.0], [0.5, 1.0, 0.01, 0.02], iters // 2)
         if v < best_val:
             best, best_val = p, v
-    model = make(best)
+    model = _axis_of(best, twelve_bit)
     for i, seg in enumerate(segs):
         def sq(w: float, seg: _Segment = seg) -> float:
             return seg.residual(model, g, w)[0]
@@ -962,7 +959,7 @@ def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
     p, v = _nelder_mead(f, best, [0.1, 0.3, 0.005, 0.005] + [0.05] * m, iters)  # polish
     if v < best_val:
         best, best_val = p, v
-    return make(best), best_val
+    return _axis_of(best, twelve_bit), best_val
 
 
 def _golden(f: Callable[[float], float], a: float, b: float, tol: float = 0.01) -> float:
@@ -1015,13 +1012,10 @@ def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
             guess = 2 * moved / dt ** 2 * fs / out0
             break
 
-    def make(p: list[float]) -> AxisModel:
-        return _axis_of(p, twelve_bit)
-
     def f(p: list[float]) -> float:
         if not _plausible(p):
             return 1e12
-        return _residual(make(p), rec, sample_s, desired, idx, meas)
+        return _residual(_axis_of(p, twelve_bit), rec, sample_s, desired, idx, meas)
 
     best: list[float] = []
     best_val = math.inf
@@ -1033,7 +1027,7 @@ def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
     p, v = _nelder_mead(f, best, [0.1, 0.3, 0.005, 0.005], iters)  # polish
     if v < best_val:
         best, best_val = p, v
-    return make(best), best_val
+    return _axis_of(best, twelve_bit), best_val
 
 
 # ---------------------------------------------------------------------------------- design
