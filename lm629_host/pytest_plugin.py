@@ -386,7 +386,7 @@ class Bench:
         board.reset()
         if prof is not None:
             # a reset chip has lost every setting: the profile's gains, LPES, PORT12 again
-            from . import profile as profiles  # type: ignore[attr-defined,unused-ignore]  # issue 21's module
+            from . import profile as profiles
             profiles.apply_profile(named, prof)
         return board
 
@@ -519,8 +519,8 @@ def _marker_text(item: pytest.Item) -> str:
 def _name_axes(board: lm629_host.Board, prof: Any) -> dict[str, lm629_host.LM629]:
     """Give each axis of ``board`` the profile's name, soft limits, chip variant and clock
     (as ``open_board(profile=...)`` does, on this test's transport); nothing is sent."""
-    from . import profile as profiles  # type: ignore[attr-defined,unused-ignore]  # issue 21's module
-    return profiles.name_axes(board, prof)  # type: ignore[no-any-return,unused-ignore]  # typed Any here
+    from . import profile as profiles
+    return profiles.name_axes(board, prof)
 
 
 def _program_text(run: _Run) -> str:
