@@ -42,7 +42,7 @@ def _check_done_when(tr) -> None:
     assert on_time >= 0.99 * len(spacing), sorted(spacing)[:3] + sorted(spacing)[-3:]
     assert max(spacing) <= 2.5e-3
     steps = [b - a for a, b in zip(tr.desired, tr.desired[1:])]
-    assert min(steps) >= 0  # the desired position never goes back
+    # at full speed (15.6 counts a row): never back, 12-20 counts a row
     assert set(steps) <= set(range(12, 21)), sorted(set(steps))
     assert tr.t[0] == 0.0 and not tr.missing
 
