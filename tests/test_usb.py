@@ -11,6 +11,7 @@ on the line (sim+emu://) and 0.29 ms (firmware), so it fits inside one frame and
 
 from __future__ import annotations
 
+import math
 import statistics
 
 import pytest
@@ -25,7 +26,6 @@ from lm629_host.sim.usb import (
     Ftdi,
     Uno,
     adapter_of,
-    next_frame,
 )
 from sim_urls import available
 
@@ -67,6 +67,16 @@ def test_uno_rdrp_takes_one_flush_tick(link):
         assert all(t <= UNO_FLUSH_S + 2 * FRAME_S + 1e-6 for t in times), times
 
 
+def _frame(t: float) -> float:
+    """The first full-speed frame start at or after ``t`` (frames at whole milliseconds)."""
+    return math.ceil(t / FRAME_S - 1e-9) * FRAME_S
+
+
+def _overflow(phase: float, t: float) -> float:
+    """The 16U2's first Timer0 overflow after ``t``: at phase + n x 4.096 ms."""
+    return phase + math.ceil((t - phase) / UNO_FLUSH_S + 1e-12) * UNO_FLUSH_S
+
+
 def test_uno_reply_comes_at_the_first_frame_after_a_flush_tick():
     """One RDRP from several phases: the request goes out at the next frame start F, the
     reply is in the 16U2 0.2-0.3 ms later (the line at 1 Mbaud), waits for the next Timer0
@@ -78,8 +88,8 @@ def test_uno_reply_comes_at_the_first_frame_after_a_flush_tick():
         t0 = chip.clock.now()
         chip.read_real_position()
         t1 = chip.clock.now()
-        out = next_frame(t0)
-        expected = {round(next_frame(uno.overflow_after(out + d)), 9) for d in (0.2e-3, 0.3e-3)}
+        out = _frame(t0)
+        expected = {round(_frame(_overflow(uno.phase, out + d)), 9) for d in (0.2e-3, 0.3e-3)}
         assert round(t1, 9) in expected, (t0, t1, expected)
         chip.close()
 
