@@ -32,9 +32,7 @@ from typing import Protocol
 from .move import Move, MoveResult, MoveWatch
 from .opcodes import Status
 from .program import Program, ProgramResult
-from .recording import FULL_READS, _row
-from .snapshot import Snapshot
-from .transports.base import RawRow
+from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
 
 #: what ends a far-side wait early: the move's end, or a fault the chip flags
 END_MASK = Status.TRAJECTORY_COMPLETE | Status.POSITION_ERROR | Status.MOTOR_OFF
@@ -63,18 +61,17 @@ def can_wait_far(chip: object) -> bool:
 
 def _snapshot_ops(p: Program) -> Program:
     p.status()
-    for cmd, n in FULL_READS:
+    for cmd, n in SNAPSHOT_READS:
         p.command(cmd).read(n)
     return p
 
 
-_WORDS = sum(n for _, n in FULL_READS)
+_WORDS = sum(n for _, n in SNAPSHOT_READS)
 
 
 def _snap(result: ProgramResult, k: int, status_at: int, time: float) -> Snapshot:
-    words = result.words[k * _WORDS:(k + 1) * _WORDS]
-    raw = RawRow(0, 0.0, words, (result.statuses[status_at],))
-    return _row(raw, 0.0, True).snapshot(time)
+    return snapshot_of(result.statuses[status_at], result.words[k * _WORDS:(k + 1) * _WORDS],
+                       time)
 
 
 def wait_far(move: Move, watch: MoveWatch,
