@@ -510,9 +510,9 @@ class LM629:
         move = Move(self, target, velocity,
                     acceleration if acceleration is not None else self._move_acceleration,
                     start, self.clock.now())
-        from . import movewait
-        if movewait.can_wait_far(self):  # the end seen on the far side (WAIT_STATUS)
-            move.waiter = movewait.wait_far
+        if self.transport.far_waits:  # the end seen on the far side (WAIT_STATUS)
+            from .movewait import wait_far
+            move.waiter = wait_far
         return move
 
     #: the last acceleration word move_to loaded (for the default timeout)

@@ -53,12 +53,6 @@ class FarWaitChip(Protocol):
     def run(self, program: Program) -> ProgramResult: ...
 
 
-def can_wait_far(chip: object) -> bool:
-    """True when ``chip``'s transport waits inside a program and the chip builds programs."""
-    return bool(getattr(getattr(chip, "transport", None), "far_waits", False)) and hasattr(
-        chip, "program")
-
-
 def _snapshot_ops(p: Program) -> Program:
     p.status()
     for cmd, n in SNAPSHOT_READS:
@@ -77,7 +71,7 @@ def _snap(result: ProgramResult, k: int, status_at: int, time: float) -> Snapsho
 def wait_far(move: Move, watch: MoveWatch,
              progress: Callable[[Snapshot], None] | None) -> MoveResult:
     """The loop of :meth:`Move.wait` with the far side waiting (see the module doc)."""
-    chip: FarWaitChip = move.chip  # type: ignore[assignment]  # can_wait_far checked it builds programs
+    chip: FarWaitChip = move.chip  # type: ignore[assignment]  # only LM629.move_to sets wait_far, with itself
     clock = move.chip.clock
     rules = watch.rules
     chunk_ms = max(1, round(rules.poll * 1e3))
@@ -122,4 +116,4 @@ def wait_far(move: Move, watch: MoveWatch,
                 return result
 
 
-__all__ = ["END_MASK", "can_wait_far", "wait_far"]
+__all__ = ["END_MASK", "wait_far"]
