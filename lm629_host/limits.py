@@ -22,9 +22,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .opcodes import NOMINAL_CLOCK_HZ
+from .pid import sample_period_s
 from .units import FIXED_ONE
-
-SAMPLE_CLOCKS = 2048  #: chip clocks per sample (the sample period is 2048 / clock)
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ class SoftLimits:
     max: int | None = None  #: counts
     max_velocity: float | None = None  #: counts/s
     max_acceleration: float | None = None  #: counts/s^2
-    clock_hz: float = 8e6
+    clock_hz: float = NOMINAL_CLOCK_HZ
     where: str = "the soft limits"  #: the file they come from
     table: str = ""  #: the table in it (``axis.x``)
     lines: tuple[tuple[str, int], ...] = ()
@@ -48,7 +48,7 @@ class SoftLimits:
     # ------------------------------------------------------------------ the words
     @property
     def sample_s(self) -> float:
-        return SAMPLE_CLOCKS / self.clock_hz
+        return sample_period_s(self.clock_hz)
 
     @property
     def velocity_word(self) -> int | None:

@@ -42,7 +42,7 @@ from .opcodes import (
     s32,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
-from .snapshot import Snapshot
+from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
 from .transports.base import Transport
 
 if TYPE_CHECKING:
@@ -79,17 +79,6 @@ def _check_flags(name: str, flags: object) -> Status:
             f"{name}={value:#04x} has bits that are not interrupt conditions ({extra:#04x}); "
             f"allowed: {INTERRUPTS!r} (status bits 1..6)")
     return Status(value)
-
-
-#: the reads of a snapshot after its status byte: (command, words)
-SNAPSHOT_READS = ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2), (Cmd.RDRV, 1),
-                  (Cmd.RDSUM, 1))
-
-
-def snapshot_of(status: int, w: tuple[int, ...], time: float) -> Snapshot:
-    """A :class:`Snapshot` from its status byte and the words of :data:`SNAPSHOT_READS`."""
-    return Snapshot(Status(status), Signals(w[0]), _s32(w[1:3]), _s32(w[3:5]), _s32(w[5:7]),
-                    s16(w[7]), s16(w[8]), time)
 
 
 class LM629:
@@ -521,9 +510,9 @@ class LM629:
         move = Move(self, target, velocity,
                     acceleration if acceleration is not None else self._move_acceleration,
                     start, self.clock.now())
-        from . import movewait
-        if movewait.can_wait_far(self):  # the end seen on the far side (WAIT_STATUS)
-            move.waiter = movewait.wait_far
+        if self.transport.far_waits:  # the end seen on the far side (WAIT_STATUS)
+            from .movewait import wait_far
+            move.waiter = wait_far
         return move
 
     #: the last acceleration word move_to loaded (for the default timeout)

@@ -32,9 +32,7 @@ from typing import Protocol
 from .move import Move, MoveResult, MoveWatch
 from .opcodes import Status
 from .program import Program, ProgramResult
-from .recording import FULL_READS, _row
-from .snapshot import Snapshot
-from .transports.base import RawRow
+from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
 
 #: what ends a far-side wait early: the move's end, or a fault the chip flags
 END_MASK = Status.TRAJECTORY_COMPLETE | Status.POSITION_ERROR | Status.MOTOR_OFF
@@ -55,32 +53,25 @@ class FarWaitChip(Protocol):
     def run(self, program: Program) -> ProgramResult: ...
 
 
-def can_wait_far(chip: object) -> bool:
-    """True when ``chip``'s transport waits inside a program and the chip builds programs."""
-    return bool(getattr(getattr(chip, "transport", None), "far_waits", False)) and hasattr(
-        chip, "program")
-
-
 def _snapshot_ops(p: Program) -> Program:
     p.status()
-    for cmd, n in FULL_READS:
+    for cmd, n in SNAPSHOT_READS:
         p.command(cmd).read(n)
     return p
 
 
-_WORDS = sum(n for _, n in FULL_READS)
+_WORDS = sum(n for _, n in SNAPSHOT_READS)
 
 
 def _snap(result: ProgramResult, k: int, status_at: int, time: float) -> Snapshot:
-    words = result.words[k * _WORDS:(k + 1) * _WORDS]
-    raw = RawRow(0, 0.0, words, (result.statuses[status_at],))
-    return _row(raw, 0.0, True).snapshot(time)
+    return snapshot_of(result.statuses[status_at], result.words[k * _WORDS:(k + 1) * _WORDS],
+                       time)
 
 
 def wait_far(move: Move, watch: MoveWatch,
              progress: Callable[[Snapshot], None] | None) -> MoveResult:
     """The loop of :meth:`Move.wait` with the far side waiting (see the module doc)."""
-    chip: FarWaitChip = move.chip  # type: ignore[assignment]  # can_wait_far checked it builds programs
+    chip: FarWaitChip = move.chip  # type: ignore[assignment]  # only LM629.move_to sets wait_far, with itself
     clock = move.chip.clock
     rules = watch.rules
     chunk_ms = max(1, round(rules.poll * 1e3))
@@ -125,4 +116,4 @@ def wait_far(move: Move, watch: MoveWatch,
                 return result
 
 
-__all__ = ["END_MASK", "can_wait_far", "wait_far"]
+__all__ = ["END_MASK", "wait_far"]

@@ -24,13 +24,12 @@ from typing import Protocol
 from .errors import ArgumentError
 from .opcodes import Cmd, Signals, Status, s16, s32
 from .program import Program
-from .snapshot import Snapshot
+from .snapshot import SNAPSHOT_READS, Snapshot
 from .transports.base import RawRow, Transport
 
 #: the columns of a row: the basic ones (status, RDDP, RDRP), or a whole snapshot's
 BASIC_READS = ((Cmd.RDDP, 2), (Cmd.RDRP, 2))
-FULL_READS = ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2), (Cmd.RDRV, 1),
-              (Cmd.RDSUM, 1))
+FULL_READS = SNAPSHOT_READS
 
 
 class RecordingChip(Protocol):

@@ -785,7 +785,7 @@ class LinkTransport(Transport):
                         return  # the last rows (and the end) were lost: they are gaps
                     if frame.type == FrameType.RECORD_END:
                         ended = True
-                        self._end_of_recording(frame, ops, program)
+                        self._end_of_recording(frame, ops)
                         return
                     if frame.type == FrameType.RECORD_ROW:
                         row = self._decode_row(frame.payload, ops)
@@ -804,7 +804,7 @@ class LinkTransport(Transport):
                                     wire_size(9), wire_size(9)), pending)
                                 ended = nxt is not None and nxt.type == FrameType.RECORD_END
                                 if ended:
-                                    self._end_of_recording(cast(Frame, nxt), ops, program)
+                                    self._end_of_recording(cast(Frame, nxt), ops)
                                 return
                     else:
                         self.stale_replies += 1
@@ -854,7 +854,7 @@ class LinkTransport(Transport):
             return None
         return idx16, stamp, r.words, r.statuses
 
-    def _end_of_recording(self, frame: Frame, ops: Sequence[BusOp], program: Program) -> None:
+    def _end_of_recording(self, frame: Frame, ops: Sequence[BusOp]) -> None:
         """RECORD_END: OK, or the error that stopped (or refused) the recording."""
         if len(frame.payload) != END_PAYLOAD.size:
             return  # damaged past its CRC: the rows already say what was recorded
