@@ -34,6 +34,7 @@ from .errors import ArgumentError, AxisError, CommandError, MotionError
 from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, reset_chips, snapshot_of
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
+    FIXED_ONE,
     ACCELERATION_MAX,
     INTERRUPTS,
     POSITION_MAX,
@@ -54,9 +55,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("lm629_host")
 
-ONE = 1 << 16  #: one count (per sample, per sample^2) in the chip's 16.16 words
-
-
 # ---------------------------------------------------------------------------- planning
 def trapezoid_samples(distance: int, velocity: float, acceleration: float) -> float:
     """Duration in samples of a move of ``distance`` counts with 16.16 ``velocity`` and
@@ -65,7 +63,7 @@ def trapezoid_samples(distance: int, velocity: float, acceleration: float) -> fl
     d = abs(distance)
     if d == 0:
         return 0.0
-    v, a = velocity / ONE, acceleration / ONE
+    v, a = velocity / FIXED_ONE, acceleration / FIXED_ONE
     if v * v <= d * a:
         return d / v + v / a
     return 2.0 * math.sqrt(d / a)
@@ -101,17 +99,17 @@ class LinearPlan:
 
 def _solve_velocity(d: int, acc: int, total: float) -> list[int]:
     """Velocity words near the root of d/v + v/a = total (trapezoid), floor and ceil."""
-    a_c = acc / ONE
+    a_c = acc / FIXED_ONE
     disc = (total * a_c) ** 2 - 4 * d * a_c
     if disc < 0:
         return []
-    exact = (total * a_c - math.sqrt(disc)) / 2 * ONE
+    exact = (total * a_c - math.sqrt(disc)) / 2 * FIXED_ONE
     return [c for c in (math.floor(exact), math.ceil(exact)) if 1 <= c <= VELOCITY_MAX]
 
 
 def _solve_acceleration(d: int, total: float) -> list[int]:
     """Acceleration words near the root of 2 sqrt(d/a) = total (triangle)."""
-    exact = 4 * d / (total * total) * ONE
+    exact = 4 * d / (total * total) * FIXED_ONE
     return [c for c in (math.floor(exact), math.ceil(exact)) if 1 <= c <= ACCELERATION_MAX]
 
 
@@ -144,7 +142,7 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
     length = math.sqrt(sum(d * d for d in dist.values()))
     if not length:
         return LinearPlan(tuple(AxisPlan(k, s, t, 0, 0, 0.0) for k, (s, t) in moves.items()), 0.0)
-    v, a = velocity / ONE, acceleration / ONE
+    v, a = velocity / FIXED_ONE, acceleration / FIXED_ONE
     total = length / v + v / a if v * v <= length * a else 2.0 * math.sqrt(length / a)
     trapezoid = v * v <= length * a
     moving = [k for k in moves if dist[k]]
@@ -183,7 +181,7 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
     best: tuple[float, int, dict[int, tuple[int, int]]] | None = None
     for cand in range(ideal, max(1, ideal - width) - 1, -1):
         words = {lead: (cand, acc0[lead]) if trapezoid
-                 else (max(vel0[lead], math.isqrt(dist[lead] * cand * ONE) + 2), cand)}
+                 else (max(vel0[lead], math.isqrt(dist[lead] * cand * FIXED_ONE) + 2), cand)}
         t_lead = trapezoid_samples(dist[lead], *words[lead])
         worst = 0.0
         for k in moving:
@@ -192,7 +190,7 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
             if trapezoid:
                 options = [(c, acc0[k]) for c in _solve_velocity(dist[k], acc0[k], t_lead)]
             else:
-                options = [(max(vel0[k], math.isqrt(dist[k] * c * ONE) + 2), c)
+                options = [(max(vel0[k], math.isqrt(dist[k] * c * FIXED_ONE) + 2), c)
                            for c in _solve_acceleration(dist[k], t_lead)]
             if not options:
                 options = [(vel0[k], acc0[k])]

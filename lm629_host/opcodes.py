@@ -198,6 +198,9 @@ POSITION_MAX = 0x3FFFFFFF
 VELOCITY_MAX = 0x3FFFFFFF  #: unsigned 16.16
 ACCELERATION_MAX = 0x3FFFFFFF  #: unsigned 16.16
 DERIVATIVE_INTERVAL_MAX = 256  #: samples; the ds byte holds interval - 1
+#: 1.0 in the chip's unsigned 16.16 fixed point: one count per sample (velocity words), per
+#: sample^2 (acceleration words), and the 16 fraction bits below the position register
+FIXED_ONE = 1 << 16
 
 # --- timing (datasheet, AN-706) -------------------------------------------------------------
 BUSY_WORST_CASE_S = 100e-6  #: the chip never holds busy longer than this after a transfer

@@ -59,6 +59,7 @@ from .pid import (
     skip_held,
 )
 from .safety import motion_fault, stop_on_error
+from .units import to_fixed
 
 
 Progress = Callable[[str], None]
@@ -1257,9 +1258,9 @@ def default_profile(model: AxisModel, velocity: int | None = None,
     (at most a quarter of its top speed, a third of its acceleration at full output)."""
     if velocity is None:
         top = model.accel / max(model.rate, 1e-12)
-        velocity = max(1, min(MOVE_VELOCITY, round(top / 4 * 65536)))
+        velocity = max(1, min(MOVE_VELOCITY, to_fixed(top / 4)))
     if acceleration is None:
-        acceleration = max(1, min(MOVE_ACCELERATION, round(model.accel / 3 * 65536)))
+        acceleration = max(1, min(MOVE_ACCELERATION, to_fixed(model.accel / 3)))
     return Profile(velocity, acceleration)
 
 

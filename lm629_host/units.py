@@ -23,13 +23,12 @@ from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
     DERIVATIVE_INTERVAL_MAX,
+    FIXED_ONE,
     POSITION_MAX,
     NOMINAL_CLOCK_HZ,
     POSITION_MIN,
     VELOCITY_MAX,
 )
-
-FIXED_ONE = 1 << 16  #: 1.0 in the chip's 16.16 fixed point
 
 
 def to_fixed(value: float) -> int:

@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING
 from .connections import MAX_AXES, adapter_name, adapter_pin, connections
 from .errors import LM629Error
 from .miswiring import Miswiring
-from .opcodes import Cmd
+from .opcodes import RESET_CLEARED_STATUSES, RESET_DONE_STATUSES, RESET_WAIT_S, Cmd
 from .pinout import pin_of
 from .program import Op, Program
 
@@ -51,12 +51,12 @@ if TYPE_CHECKING:
 
 #: the AN-706 statuses: at once after /RST, 1.5 ms later, after RSTI 0000
 AT_RESET = frozenset({0x00})
-RESET_DONE = frozenset({0x84, 0xC4})
-CLEARED = frozenset({0x80, 0xC0})
+RESET_DONE = frozenset(RESET_DONE_STATUSES)
+CLEARED = frozenset(RESET_CLEARED_STATUSES)
 #: RDSIGS after /RST: the 8-bit output mode (bit 8), the status byte's bits (busy apart), the
 #: host interrupt (bit 15) set or not (a published run reads 01C0; the chip model 81C4: HI high
 #: while trajectory complete is an unmasked flag)
-SIGNALS_AFTER_RESET = frozenset(hi | 0x0100 | s for hi in (0, 0x8000) for s in (0x84, 0xC4, 0x80, 0xC0))
+SIGNALS_AFTER_RESET = frozenset(hi | 0x0100 | s for hi in (0, 0x8000) for s in RESET_DONE | CLEARED)
 #: after a move with the drive on (zero gain): trajectory complete, breakpoint latched or not,
 #: position error (bit 5) set or not: the patterns stay within the threshold /RST sets, but a
 #: load that turns the shaft while the drive is zero (an arm under gravity) can add to it
@@ -80,8 +80,8 @@ POSITION_ERROR_THRESHOLD = 0x7FFF
 MOVE_WAIT_US = 4000
 #: the wait before every transfer (the datasheet's longest busy is 100 us)
 UNHURRIED_US = 150
-#: AN-706: wait 1.5 ms after /RST
-RESET_WAIT_US = 1500
+#: the reset wait in the microseconds a bus program's wait takes
+RESET_WAIT_US = round(RESET_WAIT_S * 1e6)
 
 
 def _samples(velocity: int, accel: int, distance: int) -> float:
