@@ -338,7 +338,7 @@ class TuneResult:
     fit_rms: float = 0.0  #: counts, model vs the identification steps
     #: every real position read during tuning (the travel-band check is on all of them)
     positions: list[int] = field(default_factory=list)
-    profile: Profile | None = None  #: the trapezoid move judged and checked
+    profile: MoveProfile | None = None  #: the trapezoid move judged and checked
     predicted_move: MoveMetrics | None = None  #: the trapezoid move on the model
     measured_move: MoveMetrics | None = None  #: ... and on the axis (settle after the profile)
 
@@ -453,7 +453,7 @@ class _Session:
         self.chip.load_filter(**g.as_filter())
         self.chip.update_filter()
 
-    def step_to(self, rec: Record, target: int, profile: Profile | None = None) -> None:
+    def step_to(self, rec: Record, target: int, profile: MoveProfile | None = None) -> None:
         """A step to ``target`` (or a trapezoid move with ``profile``), STT now."""
         self.chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
         v, a = (profile.velocity, profile.acceleration) if profile else (STEP_VELOCITY,
@@ -1040,7 +1040,7 @@ MOVE_ACCELERATION = 0x2000
 
 
 @dataclass(frozen=True)
-class Profile:
+class MoveProfile:
     """A trapezoid move's limits, the chip's 16.16 words (counts/sample, counts/sample^2)."""
 
     velocity: int
@@ -1074,7 +1074,7 @@ class Profile:
 
 
 def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
-                 tolerance: int, profile: Profile | None = None,
+                 tolerance: int, profile: MoveProfile | None = None,
                  words: tuple[int, int] | None = None) -> MoveMetrics:
     """The test move (out by ``distance``, then back) on the model, from rest at 0: a step
     (with ``words``, an axis's capped velocity and acceleration, the trapezoid they make), or
@@ -1134,7 +1134,7 @@ def _with_integral(model: AxisModel, g: Gains) -> list[Gains]:
     return out
 
 
-def test_duration(model: AxisModel, distance: int, sample_s: float, at_least: float) -> float:
+def record_duration(model: AxisModel, distance: int, sample_s: float, at_least: float) -> float:
     """Seconds to record after each step: six times the fastest possible move (full drive
     to the middle, full braking after it), at least ``at_least``, at most 2 s."""
     t_min = 2 * math.sqrt(abs(distance) / max(model.accel, 1e-12)) * sample_s
@@ -1142,7 +1142,7 @@ def test_duration(model: AxisModel, distance: int, sample_s: float, at_least: fl
 
 
 def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
-           sample_s: float, profile: Profile | None = None,
+           sample_s: float, profile: MoveProfile | None = None,
            words: tuple[int, int] | None = None
            ) -> tuple[Gains, MoveMetrics, MoveMetrics | None]:
     """Gains for the test moves: PD candidates by pole placement screened on the model (the
@@ -1191,7 +1191,7 @@ def _in_seconds(m: MoveMetrics, sample_s: float) -> MoveMetrics:
 
 
 # ---------------------------------------------------------------------------------- test move
-def _since_stt(profile: Profile, distance: int, t: list[float], des: list[int], start: int,
+def _since_stt(profile: MoveProfile, distance: int, t: list[float], des: list[int], start: int,
                sample_s: float) -> list[float]:
     """A far-side recording's times of a trapezoid move, counted from its STT on the chip's
     clock: the first row whose desired position is part-way says how many samples the
@@ -1213,7 +1213,7 @@ def _since_stt(profile: Profile, distance: int, t: list[float], des: list[int], 
 
 
 def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, duration_s: float,
-               tolerance: int, profile: Profile | None = None) -> tuple[MoveMetrics, Record]:
+               tolerance: int, profile: MoveProfile | None = None) -> tuple[MoveMetrics, Record]:
     """The step (or with ``profile`` the trapezoid move) out by ``distance`` and back, each
     recorded for ``duration_s`` after the profile's end (the settle time counted from there)."""
     if gains is not None:
@@ -1242,7 +1242,7 @@ def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, dur
 
 def measure_move(chip: LM629, gains: Gains | None, *, distance: int, travel: int,
                  duration_s: float = 0.4, tolerance: int = 2, poll_s: float = 1e-3,
-                 profile: Profile | None = None) -> tuple[MoveMetrics, Record]:
+                 profile: MoveProfile | None = None) -> tuple[MoveMetrics, Record]:
     """The tuner's test move (a step of ``distance`` counts out and back, or with ``profile``
     the trapezoid move) with ``gains`` (None: as loaded), guarded like the tuning experiments;
     the worse of the two moves."""
@@ -1252,7 +1252,7 @@ def measure_move(chip: LM629, gains: Gains | None, *, distance: int, travel: int
 
 
 def default_profile(model: AxisModel, velocity: int | None = None,
-                    acceleration: int | None = None) -> Profile:
+                    acceleration: int | None = None) -> MoveProfile:
     """The trapezoid move to judge gains on: the words given, else :data:`MOVE_VELOCITY` and
     :data:`MOVE_ACCELERATION` where the identified axis can follow them with drive to spare
     (at most a quarter of its top speed, a third of its acceleration at full output)."""
@@ -1261,7 +1261,7 @@ def default_profile(model: AxisModel, velocity: int | None = None,
         velocity = max(1, min(MOVE_VELOCITY, to_fixed(top / 4)))
     if acceleration is None:
         acceleration = max(1, min(MOVE_ACCELERATION, to_fixed(model.accel / 3)))
-    return Profile(velocity, acceleration)
+    return MoveProfile(velocity, acceleration)
 
 
 # ---------------------------------------------------------------------------------- autotune
@@ -1325,7 +1325,7 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
         ses.model = model
         say(f"model: {model.describe(ses.sample_s)} (fit {rms:.1f} counts rms)")
         # 4 design
-        duration_s = test_duration(model, distance, ses.sample_s, duration_s)
+        duration_s = record_duration(model, distance, ses.sample_s, duration_s)
         profile = default_profile(model, velocity, acceleration)
         gains, predicted, predicted_move = design(model, distance, tolerance, duration_s,
                                                   ses.sample_s, profile,
@@ -1351,4 +1351,4 @@ def _twelve_bit(chip: LM629) -> bool:
 
 __all__ = ["autotune", "measure_move", "TuneResult", "Gains", "AxisModel", "MoveMetrics",
            "PIDState", "simulate", "fit_model", "design", "predict_move", "step_metrics",
-           "score", "Record", "Profile", "default_profile", "MOVE_VELOCITY", "MOVE_ACCELERATION"]
+           "score", "Record", "MoveProfile", "default_profile", "MOVE_VELOCITY", "MOVE_ACCELERATION"]
