@@ -68,26 +68,26 @@ Progress = Callable[[str], None]
 # ---------------------------------------------------------------------------------- gains
 @dataclass(frozen=True)
 class Gains:
-    """The filter words (LFIL): ``ds`` is the derivative sampling byte, interval ds + 1."""
+    """The filter's gains (LFIL) and ``ds``, the derivative interval in samples (1..256)."""
 
     kp: int
     ki: int = 0
     kd: int = 0
     il: int = 0
-    ds: int = 0
+    ds: int = 1
 
     def as_filter(self) -> dict[str, int]:
         """Keyword arguments of :meth:`LM629.load_filter`."""
         return dict(kp=self.kp, ki=self.ki, kd=self.kd, il=self.il,
-                    derivative_interval=self.ds + 1)
+                    derivative_interval=self.ds)
 
     def cli(self) -> str:
         """The ``lm629 filter`` line that sets these gains."""
         return (f"lm629 filter --kp {self.kp} --ki {self.ki} --kd {self.kd} --il {self.il} "
-                f"--ds {self.ds + 1}")
+                f"--ds {self.ds}")
 
     def __str__(self) -> str:
-        return f"kp={self.kp} ki={self.ki} kd={self.kd} il={self.il} ds={self.ds + 1}"
+        return f"kp={self.kp} ki={self.ki} kd={self.kd} il={self.il} ds={self.ds}"
 
 
 # ---------------------------------------------------------------------------------- model
@@ -143,7 +143,7 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
     Each sample in the chip's order: the motor runs one sample on the output held since the
     last one, the encoder is read, the filter computes the next output from
     ``desired[n] - count`` (AN-706 5.2.3-5.2.5: 16-bit error, 16-bit products saturating,
-    24-bit sum whose top 16 bits multiply ki, limited to il, derivative every ds + 1 samples
+    24-bit sum whose top 16 bits multiply ki, limited to il, derivative every ds samples
     and held, 16-bit sum, top 8 or 12 bits out).  ``tests/test_tuning.py`` checks this
     arithmetic against the chip model's filter.  ``skip_ahead``: while the shaft is stuck and
     nothing in the filter can change, jump to the next change of the desired position.
@@ -317,8 +317,8 @@ class Record:
 
 @dataclass
 class TuneResult:
-    """What :func:`autotune` found, measured and predicted.  ``kp ki kd il ds`` are the chip's
-    words (``ds`` the derivative sampling byte: interval ``ds + 1`` samples)."""
+    """What :func:`autotune` found, measured and predicted.  ``kp ki kd il`` are the chip's
+    words, ``ds`` the derivative interval in samples (as in :class:`Gains`)."""
 
     kp: int
     ki: int
@@ -1102,17 +1102,17 @@ def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
 
 def _pd_candidates(model: AxisModel) -> list[Gains]:
     """Pole placement for x'' = k u - a x' (k per filter unit): kp = wn^2 / k and
-    kd (ds + 1) = (2 zeta wn - a) / k, over a grid of wn, zeta and derivative intervals."""
+    kd ds = (2 zeta wn - a) / k, over a grid of wn, zeta and derivative intervals ds."""
     k = model.per_filter_unit
     out: list[Gains] = []
     wn = math.sqrt(k * 8)  # kp = 8 at the low end
     while wn <= 0.5:
         for zeta in (0.8, 1.1):
-            for ds in (0, 1, 3, 7):
-                if wn * (ds + 1) > 0.6:
+            for ds in (1, 2, 4, 8):
+                if wn * ds > 0.6:
                     continue  # the held derivative's delay would eat the phase margin
                 kp = round(wn * wn / k)
-                kd = round((2 * zeta * wn - model.rate) / k / (ds + 1))
+                kd = round((2 * zeta * wn - model.rate) / k / ds)
                 if 1 <= kp <= COEFFICIENT_MAX and 0 <= kd <= COEFFICIENT_MAX:
                     out.append(Gains(kp, 0, kd, 0, ds))
         wn *= 1.4

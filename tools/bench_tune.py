@@ -183,7 +183,7 @@ def main() -> None:
         faults = 0
         t = time.perf_counter()
         for kp, ki, kd in grid:
-            g = Gains(kp, ki, kd, 4000 if ki else 0, 0)
+            g = Gains(kp, ki, kd, 4000 if ki else 0)
             m = measure(url, g, result.profile)
             faults += m is None
             if best is None or cost(m) < cost(best[1]):

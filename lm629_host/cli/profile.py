@@ -238,9 +238,9 @@ def after_tune(s: Session, chip: LM629, gains: Any, target: tuple[Path, str] | N
                    err=True)
         return
     save_gains(path, name, {"kp": gains.kp, "ki": gains.ki, "kd": gains.kd, "il": gains.il,
-                            "ds": gains.ds + 1})
+                            "ds": gains.ds})
     click.echo(f"saved kp={gains.kp} ki={gains.ki} kd={gains.kd} il={gains.il} "
-               f"ds={gains.ds + 1} into [axis.{name}] of {path}")
+               f"ds={gains.ds} into [axis.{name}] of {path}")
 
 
 # ---------------------------------------------------------------------------- commands
