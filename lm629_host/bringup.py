@@ -29,8 +29,9 @@ from dataclasses import dataclass, field, replace
 from .errors import MotionError, ResetError
 from .lm629 import LM629
 from .opcodes import Status
+from .plan import plan
 from .safety import STOP_NOTE, emergency_stop, stop_on_error
-from .units import FIXED_ONE, Scale
+from .units import FIXED_ONE
 from .wiring import wiring_suspects
 
 
@@ -239,8 +240,8 @@ def move_steps(chip: LM629, o: BringupOptions, clock_hz: float,
     start of the final rest inside the dead band."""
     origin = chip.snapshot().desired_position
     target = origin + o.move_distance
-    ramp_s, move_s = Scale(1, clock_hz).profile_times(abs(o.move_distance), o.move_velocity,
-                                                      o.move_acceleration)
+    p = plan(o.move_distance, o.move_velocity, o.move_acceleration)
+    ramp_s, move_s = p.accel_seconds(clock_hz), p.seconds(clock_hz)
     rules = replace(chip.move_rules, tolerance=o.dead_band, settle_time=o.still_s,
                     settle_timeout=o.settle_timeout_s, poll=o.poll_s)
     # absolute: a relative position counts from the last target (the phasing move's), not

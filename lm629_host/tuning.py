@@ -43,7 +43,7 @@ from dataclasses import dataclass, field, replace
 from .errors import MotionError, MotionFault
 from .limits import clip_step
 from .lm629 import LM629, Snapshot, check_int
-from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
+from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, FIXED_ONE, VELOCITY_MAX, Signals, Status
 from .recording import far_snapshots, sample_program
 from .pid import (
     STEP_ACCELERATION,
@@ -59,6 +59,7 @@ from .pid import (
     skip_held,
 )
 from .safety import motion_fault, stop_on_error
+from .plan import plan
 from .units import to_fixed
 
 
@@ -761,23 +762,13 @@ def _identify_run(ses: _Session, step: int, hold_s: float) -> Record:
     return rec
 
 
-def _ramp(distance: int, words: tuple[int, int], k: int) -> float:
-    """Counts travelled ``k`` samples after the start of a trapezoid (or triangle) of
-    ``distance`` counts with 16.16 (velocity, acceleration) words, in continuous arithmetic
-    (the chip's own is within a count of it)."""
-    d = abs(distance)
-    v, a = words[0] / 65536, words[1] / 65536
-    if v * v > d * a:  # a triangle: the velocity is never reached
-        v = math.sqrt(d * a)
-    t1 = v / a
-    t2 = t1 + (d - v * t1) / v
-    if k <= t1:
-        x = a * k * k / 2
-    elif k <= t2:
-        x = v * t1 / 2 + v * (k - t1)
-    else:
-        x = d - a * max(0.0, t1 + t2 - k) ** 2 / 2
-    return math.copysign(min(d, x), distance)
+def _ramp(start: int, target: int, words: tuple[int, int], n: int) -> list[int]:
+    """The desired position at each of the ``n`` samples after the start of a move from
+    ``start`` to ``target`` with 16.16 (velocity, acceleration) words: the continuous plan
+    (the chip's own arithmetic is within a count of it)."""
+    p = plan(target - start, *words)
+    sign = 1 if target >= start else -1
+    return [round(start + sign * p.travelled(k + 1)) for k in range(n)]
 
 
 def _desired_samples(rec: Record, n: int, sample_s: float) -> list[int]:
@@ -786,9 +777,10 @@ def _desired_samples(rec: Record, n: int, sample_s: float) -> list[int]:
     for t, target in rec.steps:
         k = max(0, math.ceil((t - rec.t0) / sample_s - 0.5))
         origin = out[k] if k < n else start
-        for i in range(k, n):
-            out[i] = target if rec.words is None else round(
-                origin + _ramp(target - origin, rec.words, i - k + 1))
+        if rec.words is None:
+            out[k:] = [target] * (n - k)
+        else:
+            out[k:] = _ramp(origin, target, rec.words, n - k)
     return out
 
 
@@ -1051,20 +1043,7 @@ class MoveProfile:
         ``distance``: accelerate by ``acceleration`` up to ``velocity``, brake by it so as to
         land on the target (the chip's generator to within a count; AN-706 5.3)."""
         sign = 1 if distance >= 0 else -1
-        target = abs(distance) << 16
-        a, vmax = self.acceleration, self.velocity
-        p = v = 0
-        out: list[int] = []
-        while p < target:
-            left = target - p
-            if v * v // (2 * a) + v >= left:
-                v = max(v - a, min(a, left))  # braking; the last steps land on the target
-            else:
-                v = min(v + a, vmax)
-            v = min(v, left)
-            p += v
-            out.append(sign * (p >> 16))
-        return out
+        return [sign * x for x in plan(distance, self.velocity, self.acceleration).desired()]
 
     def samples(self, distance: int) -> int:
         return len(self.desired(distance))
@@ -1084,8 +1063,7 @@ def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
     for start, target in ((0, distance), (distance, 0)):
         sign = 1 if target >= start else -1
         if words is not None and profile is None:
-            desired = [round(start + _ramp(target - start, words, k + 1))
-                       for k in range(horizon)]
+            desired = _ramp(start, target, words, horizon)
         else:
             desired = [start + sign * abs(d) for d in ramp][:horizon]
             desired += [target] * (horizon - len(desired))
@@ -1137,7 +1115,7 @@ def _with_integral(model: AxisModel, g: Gains) -> list[Gains]:
 def record_duration(model: AxisModel, distance: int, sample_s: float, at_least: float) -> float:
     """Seconds to record after each step: six times the fastest possible move (full drive
     to the middle, full braking after it), at least ``at_least``, at most 2 s."""
-    t_min = 2 * math.sqrt(abs(distance) / max(model.accel, 1e-12)) * sample_s
+    t_min = plan(distance, VELOCITY_MAX, max(model.accel, 1e-12) * FIXED_ONE).samples * sample_s
     return min(2.0, max(at_least, 6 * t_min + 0.05))
 
 
@@ -1198,7 +1176,7 @@ def _since_stt(profile: MoveProfile, distance: int, t: list[float], des: list[in
     profile has run (to within one), where the host's stamp of the STT is late by the reply's
     trip (behind an Uno up to a flush tick, 4.096 ms: a move's settle after the profile's end
     is a few milliseconds).  Unchanged when no row is part-way."""
-    plan = profile.desired(abs(distance))
+    path = profile.desired(abs(distance))
     sign = 1 if distance >= 0 else -1
     # counts the profile has gone at each row; going down the chip's position is floored
     # below the start at once (2000 - 1/65536 reads 1999): one count less than the plan's
@@ -1207,7 +1185,7 @@ def _since_stt(profile: MoveProfile, distance: int, t: list[float], des: list[in
     if not part:
         return t
     j = part[len(part) // 2]  # mid-move, where the desired position changes every sample
-    k = bisect.bisect_left(plan, moved[j])  # the first sample at or past it
+    k = bisect.bisect_left(path, moved[j])  # the first sample at or past it
     shift = (k + 0.5) * sample_s - t[j]
     return [x + shift for x in t]
 

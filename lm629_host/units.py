@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 from .errors import ArgumentError, check_int
 from .pid import sample_period_s
+from .plan import plan
 from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
@@ -148,15 +149,10 @@ class Scale:
                          *self.profile_times(abs(position), velocity, acceleration))
 
     def profile_times(self, distance: int, velocity: int, acceleration: int) -> tuple[float, float]:
-        """(ramp time, whole move time) in seconds of a symmetric move with these raw words."""
-        v, a = velocity / FIXED_ONE, acceleration / FIXED_ONE
-        if a <= 0 or v <= 0:
-            return math.inf, math.inf
-        ramp = v / a
-        if v * ramp >= distance:  # triangle: the velocity is never reached
-            ramp = math.sqrt(distance / a)
-            return self.seconds(ramp), self.seconds(2 * ramp)
-        return self.seconds(ramp), self.seconds(ramp + distance / v)
+        """(ramp time, whole move time) in seconds of a symmetric move with these raw words
+        (:func:`lm629_host.plan.plan`: a triangle when the velocity is never reached)."""
+        p = plan(distance, velocity, acceleration)
+        return self.seconds(p.accel_samples), self.seconds(p.samples)
 
     # -- PID scaling (AN-706 5.2) --------------------------------------------------------------
     def pid_to_chip(self, Kp: float = 0.0, Ki: float = 0.0, Kd: float = 0.0, *,  # noqa: N803 - Kp, Ki, Kd as in AN-706's formulas

@@ -42,8 +42,9 @@ from typing import TYPE_CHECKING
 from .connections import MAX_AXES, adapter_name, adapter_pin, connections
 from .errors import LM629Error
 from .miswiring import Miswiring
-from .opcodes import RESET_CLEARED_STATUSES, RESET_DONE_STATUSES, RESET_WAIT_S, Cmd
+from .opcodes import NOMINAL_CLOCK_HZ, RESET_CLEARED_STATUSES, RESET_DONE_STATUSES, RESET_WAIT_S, Cmd
 from .pinout import pin_of
+from .plan import plan
 from .program import Op, Program
 
 if TYPE_CHECKING:
@@ -82,14 +83,6 @@ MOVE_WAIT_US = 4000
 UNHURRIED_US = 150
 #: the reset wait in the microseconds a bus program's wait takes
 RESET_WAIT_US = round(RESET_WAIT_S * 1e6)
-
-
-def _samples(velocity: int, accel: int, distance: int) -> float:
-    """Samples a trapezoid of ``velocity``/``accel`` (16.16) takes over ``distance`` counts."""
-    v, a = velocity / 65536, accel / 65536
-    if v <= 0 or a <= 0:
-        return float("inf")
-    return abs(distance) / v + v / a + 2
 
 
 def _signed32(v: int) -> int:
@@ -254,14 +247,16 @@ def _target(bend: Miswiring, exp: Experiment) -> int:
 
 def _completes(bend: Miswiring, exp: Experiment) -> bool:
     """The experiment's move (if any) ends within its wait with the bent acceleration,
-    velocity and target (judged at 8 MHz, with a factor 2 of margin); False also when STT
-    would refuse them."""
+    velocity and target (judged at 8 MHz, with a factor 2 of margin, and two samples: the
+    STT's wait for the next sample boundary, and one of slack, since the generator completes
+    within the plan's continuous time); False also when STT would refuse them."""
     if exp.target is None:
         return True
     v, a = _bend32(VELOCITY, bend.to_chip), _bend32(ACCEL, bend.to_chip)
     target = _target(bend, exp)
     return not (v > 0x3FFFFFFF or a > 0x3FFFFFFF or abs(target) > 0x3FFFFFFF
-                or _samples(v, a, target) * 256 > MOVE_WAIT_US / 2)
+                or plan(target, v, a).seconds(NOMINAL_CLOCK_HZ, margin_samples=2) * 1e6
+                > MOVE_WAIT_US / 2)
 
 
 def _explains(bend: Miswiring, readings: Sequence[Reading],
