@@ -60,6 +60,7 @@ from .pid import (
 )
 from .safety import motion_fault, stop_on_error
 from .plan import plan
+from .plant import decay_and_gain, motor_step
 from .units import to_fixed
 
 
@@ -155,8 +156,8 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
     g = model.accel / model.full_scale
     a = max(model.rate, 1e-12)
     c, d = model.coulomb, model.load
-    decay = math.exp(-a)
-    gain = (1.0 - decay) / a
+    decay, gain = decay_and_gain(a, 1.0)
+    step = motor_step
     x, w = x0, w0
     out = st.output >> shift
     counts: list[int] = []
@@ -173,25 +174,9 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
         while changes[next_change] <= i:
             next_change += 1
         # motor, one sample (as a DC motor with dry friction: exact between sticking points)
-        drive = out * g - d
-        stuck = False
-        if w == 0.0:
-            if -c <= drive <= c:
-                force = None
-                stuck = True
-            else:
-                force = drive - c if drive > 0 else drive + c
-        else:
-            force = drive - c if w > 0 else drive + c
-        if force is not None:
-            w_inf = force / a
-            w1 = w_inf + (w - w_inf) * decay
-            if w != 0.0 and (w1 > 0) != (w > 0):
-                x += w_inf * (-math.log(-w_inf / (w - w_inf)) / a) + w / a
-                w = 0.0
-            else:
-                x += w_inf + (w - w_inf) * gain
-                w = w1
+        was_still = w == 0.0
+        x, w = step(x, w, out * g - d, c, a, decay, gain, 1.0)
+        stuck = was_still and w == 0.0
         n = floor(x)
         counts.append(n)
         # the filter: the chip's own arithmetic
