@@ -612,7 +612,36 @@ def _load_way_step(ses: _Session, rec: Record, target: int, way: int, away: int,
     return c
 
 
-def _phasing(ses: _Session, step: int, time_s: float) -> Record:
+@dataclass(frozen=True)
+class Phasing:
+    """What the phasing check found: the loop pulls the shaft towards its target."""
+
+    kp: int  #: the P-only gain at which the shaft followed both steps
+    step: int  #: counts of each step, up then down from where the shaft was
+    followed: tuple[int, int]  #: counts the shaft followed the step up and the step down
+    #: the way a load was seen pulling the shaft (+1 towards more counts, -1 fewer), 0: none
+    pulled: int
+    first_moved: int  #: counts the shaft went on the very first step (a load: against it)
+
+
+def check_phasing(chip: LM629, *, travel: int, time_s: float = 0.3, poll_s: float = 1e-3,
+                  progress: Progress | None = None) -> Phasing:
+    """The tuner's phasing check on its own (AN-706 2.12): P-only steps of ``travel / 8``
+    counts up and down inside ``+/- travel`` counts of where the shaft is (:func:`_phasing`),
+    with the chip's following-error stop armed at ``travel`` meanwhile (put back to the reset
+    value, 7FFF flag only, after).  Leaves the shaft held at the starting point at the
+    phasing gain.  Raises :class:`MotionError` (motor stopped) RUNAWAY for reversed leads,
+    STALL for a shaft that does not turn or a load the drive cannot hold."""
+    travel = check_int("travel", travel, 100, 1 << 28)
+    ses = _Session(chip, travel, poll_s, progress or (lambda text: None))
+    with stop_on_error(chip):
+        chip.load_position_error(min(COEFFICIENT_MAX, travel), stop=True)
+        found = _phasing(ses, max(8, travel // 8), time_s)
+    chip.load_position_error(COEFFICIENT_MAX)
+    return found
+
+
+def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
     """Gentle P-only steps, ``+step`` then ``-step`` from the origin, at a gain whose first
     output is 1/8 of full scale, doubled until the shaft follows both.
 
@@ -634,6 +663,7 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
     kp = max(1, round(16 * 256 / step))  # first output 1/8 of full scale
     away = max(4, step // 10)
     pulled_speed: float | None = None  # counts/s the shaft headed away at, previous gain
+    first_moved: int | None = None
     while True:
         ses.phasing_kp = kp
         g = Gains(kp)
@@ -662,6 +692,8 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
             ses.step_to(rec, ses.origin + sign * step)
             last = ses.record(rec, time_s, watch)
             moved[sign] = last.real_position - start
+            if first_moved is None:
+                first_moved = moved[sign]
             if sign * moved[sign] <= -away:
                 seen = ", then ".join(
                     f"the desired position went {k * step:+d} counts and the shaft "
@@ -700,7 +732,8 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
             ses.step_to(rec, ses.origin)  # back to the origin and rest there
             ses.settle(rec, 1.0)
             ses.phasing_kp = None
-            return rec
+            return Phasing(kp, step, (moved[1], moved[-1]), ses.pulled,
+                           moved[1] if first_moved is None else first_moved)
         if headed is not None:
             way, speed = headed
             if ses.pulled == way and pulled_speed is not None and speed > 1.25 * pulled_speed:
@@ -1314,4 +1347,4 @@ def _twelve_bit(chip: LM629) -> bool:
 
 __all__ = ["autotune", "measure_move", "TuneResult", "Gains", "AxisModel", "MoveMetrics",
            "PIDState", "simulate", "fit_model", "design", "predict_move", "step_metrics",
-           "score", "Record", "MoveProfile", "default_profile", "MOVE_VELOCITY", "MOVE_ACCELERATION"]
+           "score", "Record", "MoveProfile", "Phasing", "check_phasing", "default_profile", "MOVE_VELOCITY", "MOVE_ACCELERATION"]
