@@ -39,6 +39,8 @@ from .opcodes import (
     Status,
     TrajectoryFlags,
     s16,
+    lfil_control,
+    lfil_interval,
     s32,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
@@ -116,7 +118,7 @@ class LM629:
         self.variant = chip
         self.reset_attempts = reset_attempts
         self._clock_hz = clock_hz  # the clock said by the caller (a URL's clock=, --clock)
-        self._ds = 0  # derivative sampling byte, re-sent with every LFIL (AN-706 4.5.1)
+        self._ds = 1  # derivative interval, samples, re-sent with every LFIL (AN-706 4.5.1)
         self._port12 = False  # re-issued after every reset (LM628 with a 12-bit DAC)
         # True while the command-error flag is known to be clear (after reset(), after a good
         # STT); otherwise start() clears it first, so that it can tell whether its own STT was
@@ -231,7 +233,7 @@ class LM629:
     def reset_done(self) -> None:
         """What a reset (this object's or a board's) leaves: the derivative interval back to
         one sample, the command-error flag clear."""
-        self._ds = 0
+        self._ds = 1
         self._ce_clear = True
 
     @property
@@ -305,8 +307,8 @@ class LM629:
     # ------------------------------------------------------------------ filter
     def filter_program(self, kp: int | None = None, ki: int | None = None, kd: int | None = None,
                        il: int | None = None, derivative_interval: int | None = None) -> Program:
-        """Validate and build LFIL without running it (the derivative byte is not remembered
-        until the program has run)."""
+        """Validate and build LFIL without running it (the derivative interval is not
+        remembered until the program has run)."""
         values = {"kp": kp, "ki": ki, "kd": kd, "il": il}
         for name, v in values.items():
             if v is not None:
@@ -314,8 +316,8 @@ class LM629:
         ds = self._ds
         if derivative_interval is not None:
             ds = check_int("derivative_interval", derivative_interval, 1,
-                           DERIVATIVE_INTERVAL_MAX) - 1
-        control = ds << 8
+                           DERIVATIVE_INTERVAL_MAX)
+        control = lfil_control(ds)
         for flag in FILTER_ORDER:
             if values[(flag.name or "").lower()] is not None:
                 control |= flag
@@ -335,7 +337,7 @@ class LM629:
         """
         p = self.filter_program(kp, ki, kd, il, derivative_interval)
         self.run(p)
-        self._ds = p.ops[1].arg >> 8
+        self._ds = lfil_interval(p.ops[1].arg)
 
     def update_filter(self) -> None:
         """UDF: input buffers -> working filter registers at the next sample."""
@@ -344,7 +346,7 @@ class LM629:
     @property
     def derivative_interval(self) -> int:
         """The derivative interval (samples) last sent with LFIL."""
-        return self._ds + 1
+        return self._ds
 
     # ------------------------------------------------------------------ trajectory
     def trajectory_program(self, acceleration: int | None = None, velocity: int | None = None,

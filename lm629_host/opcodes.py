@@ -177,6 +177,18 @@ class TrajectoryFlags(enum.IntFlag):
 STOP_FLAGS = TrajectoryFlags.MOTOR_OFF | TrajectoryFlags.STOP_ABRUPT | TrajectoryFlags.STOP_SMOOTH
 
 
+def lfil_control(interval: int) -> int:
+    """The LFIL control word's high byte for a derivative interval of ``interval`` samples
+    (1..256): the chip takes the derivative every (byte + 1) samples.  Everywhere else
+    ``ds`` is the interval; this and :func:`lfil_interval` are the only crossings."""
+    return (interval - 1) << 8
+
+
+def lfil_interval(control: int) -> int:
+    """The derivative interval, samples, an LFIL control word sets."""
+    return ((control >> 8) & 0xFF) + 1
+
+
 def lfil_word_count(control: int) -> int:
     """Data words after the LFIL control word: one per flagged coefficient."""
     return bin(control & 0x0F).count("1")
@@ -197,7 +209,10 @@ POSITION_MIN = -0x40000000  #: C0000000 as signed
 POSITION_MAX = 0x3FFFFFFF
 VELOCITY_MAX = 0x3FFFFFFF  #: unsigned 16.16
 ACCELERATION_MAX = 0x3FFFFFFF  #: unsigned 16.16
-DERIVATIVE_INTERVAL_MAX = 256  #: samples; the ds byte holds interval - 1
+DERIVATIVE_INTERVAL_MAX = 256  #: samples; the LFIL word's high byte holds interval - 1
+#: 1.0 in the chip's unsigned 16.16 fixed point: one count per sample (velocity words), per
+#: sample^2 (acceleration words), and the 16 fraction bits below the position register
+FIXED_ONE = 1 << 16
 
 # --- timing (datasheet, AN-706) -------------------------------------------------------------
 BUSY_WORST_CASE_S = 100e-6  #: the chip never holds busy longer than this after a transfer

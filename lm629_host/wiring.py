@@ -42,8 +42,9 @@ from typing import TYPE_CHECKING
 from .connections import MAX_AXES, adapter_name, adapter_pin, connections
 from .errors import LM629Error
 from .miswiring import Miswiring
-from .opcodes import Cmd
+from .opcodes import NOMINAL_CLOCK_HZ, RESET_CLEARED_STATUSES, RESET_DONE_STATUSES, RESET_WAIT_S, Cmd
 from .pinout import pin_of
+from .plan import plan
 from .program import Op, Program
 
 if TYPE_CHECKING:
@@ -51,12 +52,12 @@ if TYPE_CHECKING:
 
 #: the AN-706 statuses: at once after /RST, 1.5 ms later, after RSTI 0000
 AT_RESET = frozenset({0x00})
-RESET_DONE = frozenset({0x84, 0xC4})
-CLEARED = frozenset({0x80, 0xC0})
+RESET_DONE = frozenset(RESET_DONE_STATUSES)
+CLEARED = frozenset(RESET_CLEARED_STATUSES)
 #: RDSIGS after /RST: the 8-bit output mode (bit 8), the status byte's bits (busy apart), the
 #: host interrupt (bit 15) set or not (a published run reads 01C0; the chip model 81C4: HI high
 #: while trajectory complete is an unmasked flag)
-SIGNALS_AFTER_RESET = frozenset(hi | 0x0100 | s for hi in (0, 0x8000) for s in (0x84, 0xC4, 0x80, 0xC0))
+SIGNALS_AFTER_RESET = frozenset(hi | 0x0100 | s for hi in (0, 0x8000) for s in RESET_DONE | CLEARED)
 #: after a move with the drive on (zero gain): trajectory complete, breakpoint latched or not,
 #: position error (bit 5) set or not: the patterns stay within the threshold /RST sets, but a
 #: load that turns the shaft while the drive is zero (an arm under gravity) can add to it
@@ -80,16 +81,8 @@ POSITION_ERROR_THRESHOLD = 0x7FFF
 MOVE_WAIT_US = 4000
 #: the wait before every transfer (the datasheet's longest busy is 100 us)
 UNHURRIED_US = 150
-#: AN-706: wait 1.5 ms after /RST
-RESET_WAIT_US = 1500
-
-
-def _samples(velocity: int, accel: int, distance: int) -> float:
-    """Samples a trapezoid of ``velocity``/``accel`` (16.16) takes over ``distance`` counts."""
-    v, a = velocity / 65536, accel / 65536
-    if v <= 0 or a <= 0:
-        return float("inf")
-    return abs(distance) / v + v / a + 2
+#: the reset wait in the microseconds a bus program's wait takes
+RESET_WAIT_US = round(RESET_WAIT_S * 1e6)
 
 
 def _signed32(v: int) -> int:
@@ -254,14 +247,16 @@ def _target(bend: Miswiring, exp: Experiment) -> int:
 
 def _completes(bend: Miswiring, exp: Experiment) -> bool:
     """The experiment's move (if any) ends within its wait with the bent acceleration,
-    velocity and target (judged at 8 MHz, with a factor 2 of margin); False also when STT
-    would refuse them."""
+    velocity and target (judged at 8 MHz, with a factor 2 of margin, and two samples: the
+    STT's wait for the next sample boundary, and one of slack, since the generator completes
+    within the plan's continuous time); False also when STT would refuse them."""
     if exp.target is None:
         return True
     v, a = _bend32(VELOCITY, bend.to_chip), _bend32(ACCEL, bend.to_chip)
     target = _target(bend, exp)
     return not (v > 0x3FFFFFFF or a > 0x3FFFFFFF or abs(target) > 0x3FFFFFFF
-                or _samples(v, a, target) * 256 > MOVE_WAIT_US / 2)
+                or plan(target, v, a).seconds(NOMINAL_CLOCK_HZ, margin_samples=2) * 1e6
+                > MOVE_WAIT_US / 2)
 
 
 def _explains(bend: Miswiring, readings: Sequence[Reading],

@@ -11,7 +11,8 @@ import pytest
 
 import lm629_host
 from lm629_host import AxisError, ResetError
-from lm629_host.board import plan_linear, trapezoid_samples
+from lm629_host.board import plan_linear
+from lm629_host.plan import plan as plan_move
 from lm629_host.sim.model import chips_of
 from lm629_host.sim.model.chip import SAMPLE_CLOCKS
 from lm629_host.opcodes import Status
@@ -64,7 +65,7 @@ def test_plan_shares_the_words_by_distance():
     assert abs(x.acceleration - 894) <= 2 and y.acceleration * 2 == x.acceleration
     # the duration each pair of words gives, exactly, is the same within a tenth of a sample
     assert plan.spread < 0.1
-    assert abs(trapezoid_samples(12000, x.velocity, x.acceleration) / plan.samples - 1) < 0.005
+    assert abs(plan_move(12000, x.velocity, x.acceleration).samples / plan.samples - 1) < 0.005
 
 
 def test_plan_rejects_what_the_chip_cannot_do():

@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 import lm629_host
-from lm629_host.sim.model.trajectory import ONE
+from lm629_host.opcodes import FIXED_ONE as ONE
 
 T = 2048 / 8e6  # one sample at 8 MHz
 

@@ -373,3 +373,60 @@ def test_the_profiles_port_is_settled_by_the_one_resolver(tmp_path):
     msg = str(err.value)
     assert msg.startswith(f"{tmp_path / 'bad.toml'}:3: [board] port: ") and "lm628" in msg
     assert "lm629" in msg and "\n" not in msg
+
+
+def _lfil_words(recorder):
+    """Each LFIL on the bus: its control word and the coefficient words after it."""
+    data = recorder.data()
+    out = []
+    for i, (kind, value) in enumerate(data):
+        if kind == "command" and value == 0x1E:
+            words = []
+            for k, v in data[i + 1:]:
+                if k != "write":
+                    break
+                words.append(v)
+            out.append(words)
+    return out
+
+
+def test_ds_is_the_interval_from_tune_to_the_lfil_word(tmp_path, open_chip, recorder):
+    """ds = 7 samples everywhere -- the tuner's gains, their CLI line, a TuneResult, the profile
+    saved after `tune`, the profile applied -- and only on the bus the LFIL control word's
+    high byte holds 7 - 1 = 6 (AN-706 4.5.1: the derivative is sampled every byte + 1
+    samples); kp 231 and kd 773 differ from the reset values (0)."""
+    from lm629_host.cli.profile import after_tune
+    from lm629_host.cli.tune import parse_gains
+    from lm629_host.tuning import Gains, TuneResult
+
+    g = Gains(kp=231, kd=773, ds=7)
+    assert parse_gains("kp=231,kd=773,ds=7") == g
+    assert "--ds 7" in g.cli() and str(g).endswith("ds=7")
+    result = TuneResult(g.kp, g.ki, g.kd, g.il, g.ds, *([None] * 9))
+    assert result.gains == g
+    # the tuner loads its gains as the session does
+    chip = open_chip("sim://")
+    chip.reset()
+    recorder.clear()
+    chip.load_filter(**result.gains.as_filter())
+    chip.update_filter()
+    assert _lfil_words(recorder) == [[0x060F, 231, 0, 773, 0]]
+    assert chip.derivative_interval == 7
+    model = chip.transport.model
+    chip.clock.sleep(1e-3)
+    assert model.filter.ds == 7 and model.filter.kd == 773
+    # saved by `tune --save`, read back, applied to a fresh chip
+    path = _write(tmp_path)  # x: kp 20, kd 0, ds 1
+    after_tune(None, None, result.gains, (path, "x"), True)
+    prof = load_profile(path)
+    assert (prof.axes["x"].kp, prof.axes["x"].kd, prof.axes["x"].ds) == (231, 773, 7)
+    other = open_chip("sim://")
+    other.reset()
+    recorder.clear()
+    ensure_applied({"x": other}, prof, lambda text: None)
+    assert _lfil_words(recorder) == [[0x060F, 231, 0, 773, 0]]
+    assert other.derivative_interval == 7
+    # a later LFIL without an interval sends the same byte again
+    recorder.clear()
+    other.load_filter(kp=232)
+    assert _lfil_words(recorder) == [[0x0608, 232]]

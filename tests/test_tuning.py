@@ -94,7 +94,7 @@ def test_predictor_filter_is_the_chips_arithmetic():
     stuck = AxisModel(accel=1e-3, rate=0.01, coulomb=1.0)  # never breaks away
     for _ in range(20):
         g = Gains(rng.randint(0, 3000), rng.randint(0, 300), rng.randint(0, 20000),
-                  rng.randint(0, 32767), rng.randint(0, 7))
+                  rng.randint(0, 32767), rng.randint(1, 8))
         desired = [rng.randint(-300, 300) for _ in range(60)] + [rng.randint(-40000, 40000)
                                                                 for _ in range(5)]
         _counts, outs = simulate(stuck, g, desired, x0=0.5, state=PIDState())
@@ -372,7 +372,7 @@ def test_rebuilt_output_is_the_chips_output(kd):
     from lm629_host.plot import rebuilt_output
     chip = lm629_host.open("sim://?load_torque=0.004")
     chip.reset()
-    g = Gains(kp=300, ki=40, kd=kd, il=5000, ds=0)
+    g = Gains(kp=300, ki=40, kd=kd, il=5000, ds=1)
     chip.load_filter(**g.as_filter())
     chip.update_filter()
     chip.load_trajectory(acceleration=655, velocity=65536, velocity_mode=True, start=True)
@@ -420,7 +420,7 @@ def test_predictor_skip_ahead_changes_nothing():
     outputs, including the derivative's phase after the skip (interval 4)."""
     m = AxisModel(accel=0.09, rate=0.0101, coulomb=0.002, load=0.0005)
     plan = [0] * 50 + [300] * 1500 + [-200] * 1500 + [-190] * 300
-    for g in (Gains(kp=60, kd=900, ds=3), Gains(kp=150, ki=30, kd=2000, il=3000, ds=1)):
+    for g in (Gains(kp=60, kd=900, ds=4), Gains(kp=150, ki=30, kd=2000, il=3000, ds=2)):
         fast = simulate(m, g, plan, x0=0.5, state=PIDState())
         slow = simulate(m, g, plan, x0=0.5, state=PIDState(), skip_ahead=False)
         assert fast == slow

@@ -20,6 +20,7 @@ import click
 
 
 from ..lm629 import LM629
+from ..opcodes import FIXED_ONE
 from .app import MAX_AXIS, Session, axes_of, board, open_axis, parse_axes, several
 
 __all__ = ["MAX_AXIS", "axes_of", "board", "check_targets", "move_many", "open_axis",
@@ -37,7 +38,7 @@ def status(s: Session, as_json: bool, snapshot_dict: Any) -> None:
         click.echo(f"axis {k}: status {d['status']} {' '.join(d['status_flags']) or '-'}  "
                    f"signals {d['signals']}  desired {snap.desired_position}  actual "
                    f"{snap.real_position}  error {snap.following_error:+d}  velocity "
-                   f"{snap.desired_velocity / 65536:.5f}/{snap.real_velocity}")
+                   f"{snap.desired_velocity / FIXED_ONE:.5f}/{snap.real_velocity}")
 
 
 def watch_rows(s: Session, count: int | None, rate: float, flags: Any,
@@ -71,7 +72,7 @@ def watch_rows(s: Session, count: int | None, rate: float, flags: Any,
                 if writer:
                     writer.writerow((f"{t:.4f}", k, snap.desired_position,
                                      snap.real_position, snap.following_error,
-                                     f"{snap.desired_velocity / 65536:.4f}", snap.real_velocity,
+                                     f"{snap.desired_velocity / FIXED_ONE:.4f}", snap.real_velocity,
                                      f"{int(snap.status):02X}", flags(snap.status)))
             n += 1
             if count is None or n < count:

@@ -21,7 +21,7 @@ def _motion_words(s: Session, velocity: float | None, acceleration: float | None
     """(velocity, acceleration) raw words from the options: rpm and rev/s^2 with --lines."""
     scale = None if raw else s.scale
     if scale is None:
-        v = 65536 if velocity is None else velocity
+        v = FIXED_ONE if velocity is None else velocity  # 1 count/sample
         a = 655 if acceleration is None else acceleration
         for name, x in (("--vel", v), ("--acc", a)):
             if float(x) != int(x):

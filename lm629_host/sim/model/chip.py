@@ -41,6 +41,7 @@ from collections.abc import Callable
 
 from ...errors import ProtocolViolation
 from ...opcodes import (
+    lfil_interval,
     BUSY_BIT,
     COEFFICIENT_MAX,
     COMMANDS,
@@ -598,7 +599,7 @@ class ChipModel:
     def _load_filter(self, words: list[int]) -> None:
         control, values = words[0], iter(words[1:])
         buf = self.filter_buffer
-        buf.ds = control >> 8
+        buf.ds = lfil_interval(control)
         for flag in FILTER_ORDER:
             if control & flag:
                 setattr(buf, (flag.name or "").lower(), next(values))
