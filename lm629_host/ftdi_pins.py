@@ -16,7 +16,7 @@ Why this layout:
   (0x8E/0x8F), which toggle TCK, so ADBUS0 is left unconnected (it is a handy scope trigger);
 * HI is on ADBUS5, which the FT232H calls GPIOL1: the one line the MPSSE wait-on-I/O
   commands (0x88/0x89) can watch.  With ``busy_pin=gpiol1`` (:data:`BUSY_PINS`) that line
-  watches D0 instead: D0 (pin 4, ACBUS0) is wired to ADBUS5 too, and HI is left unconnected
+  watches D0 instead: D0 (ACBUS0) is wired to ADBUS5 too, and HI is left unconnected
   (its flags are bits 1-6 of the status byte, which the driver reads anyway;
   ``connections.connections("ft232h", busy_pin=True)`` is that wiring).  During a status read
   held with /CS, /PS and /RD low, D0 is the busy bit, so a stream can wait in the adapter

@@ -122,6 +122,7 @@ from .. import ftdi_pins as pins
 from ..clock import Clock, WallClock
 from ..errors import AxisError, BusyTimeout, TransportError
 from ..opcodes import BUSY_BIT
+from ..pinout import pin_of
 from ..program import BusCycle, Op, Program, ProgramResult, TraceCallback
 from ..urls import Option, parse_options
 from .base import Check, PortInfo, Transport
@@ -340,7 +341,8 @@ class FtdiTransport(Transport):
             return False
         seen = [(d & _BUSY, bool(p & pins.BUSY_PINS[self.busy_pin or ""]))
                 for d, p in ((d_on, p_on), (d_off, p_off))]
-        where = "the wire from D0 (C0, LM629 pin 4) to ADBUS5 (D5), and that HI is off ADBUS5"
+        where = (f"the wire from D0 (C0, LM629 pin {pin_of('D0')}) to ADBUS5 (D5), and that HI is "
+                 "off ADBUS5")
         if any(bool(d) != p for d, p in seen):
             raise TransportError(
                 f"busy_pin={self.busy_pin}: GPIOL1 does not follow D0 during a status read "
