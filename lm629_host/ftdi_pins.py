@@ -25,8 +25,11 @@ Why this layout:
   set-low-byte command can ever pulse it.
 
 Put 10 kOhm pull-ups on /CS, /RD, /WR and /RST: until the transport has configured the FT232H
-(and after it closes it) its lines are inputs, and the pull-ups keep the chip deselected and
-out of reset.
+its lines are inputs, and the pull-ups keep the chip deselected and out of reset.  Closing
+(pyftdi's ``close``: a bit-mode reset, ``set_bitmode(0, RESET)``) returns the FT232H to the mode
+its EEPROM selects, UART by default: then ADBUS0, ADBUS2 and ADBUS4 are the UART's TXD, RTS#
+and DTR# outputs, driven high while idle and deasserted, so /RD and /PS stay driven high, and
+every other line (/CS, /WR, /RST, the data bus) is an input again, held by the pull-ups.
 """
 
 from __future__ import annotations
