@@ -96,7 +96,8 @@ REQ_READ_EEPROM = 0x90
 
 BITMODE_RESET = 0x00
 #: the ADBUS lines the UART drives once a bit-mode reset has returned the FT232H to UART mode:
-#: TXD (ADBUS0), RTS# (ADBUS2), DTR# (ADBUS4) (FT232H datasheet FT_000288, UART pin table)
+#: TXD (ADBUS0), RTS# (ADBUS2), DTR# (ADBUS4) (FT232H datasheet FT_000288, UART pin table;
+#: pyftdi's pinout table gives ADBUS0/2/4 the same UART functions)
 UART_OUTPUTS = 0x01 | 0x04 | 0x10
 BITMODE_MPSSE = 0x02
 
