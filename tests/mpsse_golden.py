@@ -3,7 +3,9 @@
 Run as a script to write ``tests/data/mpsse_streams.json`` (``python tests/mpsse_golden.py``).
 The file checked in was written by the code *before* the compiler moved out of
 ``transports/ftdi.py`` into ``transports/mpsse.py`` (branch ftdi, commit 2728094), so that
-``tests/test_mpsse_golden.py`` proves the move changed no byte.  Two levels are captured:
+``tests/test_mpsse_golden.py`` proves the move changed no byte; the two calibrated sessions
+with a busy repeat (``sim+ftdi://`` and ``?axes=2``) are written by the code that doubles the
+wait after a repeat, the rest as the move left them.  Two levels are captured:
 
 * the pure compiler: each program below through ``StreamCompiler.compile`` with the
   arguments the transport uses (the 1 KiB cut, owed leads, per-chip waits, skips, command

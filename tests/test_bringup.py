@@ -159,5 +159,5 @@ def test_a_failed_reset_names_the_wire(open_chip):
     step = report.steps[0]
     assert step.ok is False and report.reset_failed  # exit 5 in the CLI
     assert "C8" in step.summary
-    assert step.details[0].startswith("wiring check: LM629 D2 (pin 6) carries D3's bit")
+    assert step.details[0].startswith("wiring check: LM629 D2 (pin 9) carries D3's bit")
     assert "Uno D4" in step.details[0] and "Uno D5" in step.details[1]

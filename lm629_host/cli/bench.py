@@ -159,6 +159,10 @@ def doctor() -> None:
                      "its clock input, its supply and /RST)") if busy == n else ""
             line("status read", busy < n, f"{int(st):02X} ({_flags(st)}), {dt * 1e3:.3f} ms "
                                           f"per round trip (wall clock){stuck}")
+            for c in chip.transport.port_checks():
+                line(c.name, c.ok, c.message)
+                if not c.ok and busy < n:
+                    click.echo(WIRING_HINT)
             if busy == n:
                 click.echo(WIRING_HINT)
         except LM629Error as exc:

@@ -309,6 +309,11 @@ class Transport(abc.ABC):
         """One line for the CLI and error messages: what this transport is connected to."""
         return self.url
 
+    def port_checks(self) -> list[Check]:
+        """What ``lm629 doctor`` shows about this open port once programs have run on it (how
+        the transport fitted itself to the chip); none by default."""
+        return []
+
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.url!r}>"
 

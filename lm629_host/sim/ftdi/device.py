@@ -95,6 +95,10 @@ REQ_READ_PINS = 0x0C
 REQ_READ_EEPROM = 0x90
 
 BITMODE_RESET = 0x00
+#: the ADBUS lines the UART drives once a bit-mode reset has returned the FT232H to UART mode:
+#: TXD (ADBUS0), RTS# (ADBUS2), DTR# (ADBUS4) (FT232H datasheet FT_000288, UART pin table;
+#: pyftdi's pinout table gives ADBUS0/2/4 the same UART functions)
+UART_OUTPUTS = 0x01 | 0x04 | 0x10
 BITMODE_MPSSE = 0x02
 
 PURGE_HOST_TO_CHIP = 1  #: SIO_RESET_PURGE_RX: commands not yet executed
@@ -285,8 +289,15 @@ class EmulatedFT232H:
         self._pending.clear()
         self.waiting = None
         self.stalled = False
-        if mode != BITMODE_MPSSE:
-            # leaving MPSSE releases every line: all inputs, pulled up
+        if mode == BITMODE_RESET:
+            # back to the mode the EEPROM selects, UART on a blank one: TXD, RTS# and DTR#
+            # (ADBUS0/2/4, which carry TCK, /RD and /PS here) are the UART's outputs, driven
+            # high (idle, deasserted: nothing here asserts them); every other line an input,
+            # pulled up.  So the chip sees /RD and /PS high, as when the lines were idle
+            self._set_low(0xFF, UART_OUTPUTS)
+            self._set_high(0xFF, 0x00)
+        elif mode != BITMODE_MPSSE:
+            # another bit-bang mode (not used here): every line released, pulled up
             self._set_low(0xFF, 0x00)
             self._set_high(0xFF, 0x00)
         else:
