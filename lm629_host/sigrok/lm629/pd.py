@@ -32,7 +32,7 @@ BUSY = 0x01
 
 
 def _data_channels():
-    return tuple({"id": "d%d" % i, "name": "D%d" % i, "desc": "Data bus bit %d" % i}
+    return tuple({"id": f"d{i}", "name": f"D{i}", "desc": f"Data bus bit {i}"}
                  for i in range(8))
 
 
@@ -63,7 +63,7 @@ class Decoder(srd.Decoder):
     desc = "Host bus of the LM628/LM629 precision motion controllers."
     license = "mit"
     inputs = ["logic"]
-    outputs = []
+    outputs: list = []
     tags = ["Embedded/industrial"]
     channels = _data_channels() + (
         {"id": "cs", "name": "/CS", "desc": "Chip select (active low)"},
@@ -113,7 +113,9 @@ class Decoder(srd.Decoder):
         self.cmd = None  # the command taking data words: dict, see start_command
         self.last_done = None  # the write command just completed (a word after it: long)
         self.checked = None  # the last status byte read since the last transfer
-        self.half = None  # (byte, start sample) of a word's high byte
+        # (byte, start sample, taken) of a word's high byte; not taken: the chip refused it
+        # (a stray or ignored word), and its low byte goes with it without a second warning
+        self.half = None
 
     def start(self):
         self.out_ann = self.register(srd.OUTPUT_ANN)
@@ -131,20 +133,21 @@ class Decoder(srd.Decoder):
         was none (the chip may have been busy: nothing said it was not)."""
         st, self.checked = self.checked, None
         if st is None:
-            self.warn(ss, es, "%s without a busy check before it" % what)
+            self.warn(ss, es, f"{what} without a busy check before it")
             return True
         if st & BUSY:
-            self.warn(ss, es, "%s while busy (status %02X): the chip ignores it" % (what, st))
+            self.warn(ss, es, f"{what} while busy (status {st:02X}): the chip ignores it")
             return False
         return True
 
     # ---------------------------------------------------------------- commands
     def start_command(self, op, ss, es):
         self.finish_short(ss)
+        self.half = None
         self.last_done = None
         info = COMMANDS.get(op)
         if info is None:
-            self.warn(ss, es, "unknown command %02X: the chip sets its command-error bit" % op)
+            self.warn(ss, es, f"unknown command {op:02X}: the chip sets its command-error bit")
             return
         name, direction, words = info
         self.cmd = {"op": op, "name": name, "dir": direction, "need": words, "words": [],
@@ -158,10 +161,10 @@ class Decoder(srd.Decoder):
         if c is None:
             return
         got, need = len(c["words"]), c["need"]
-        if got < need or self.half is not None:
-            what = "short %s: %d of %d words" % (c["name"], got, need)
+        if got < need or (self.half is not None and self.half[2]):
+            what = f"short {c['name']}: {got} of {need} words"
             if c["name"] in ("LTRJ", "LFIL") and got:
-                what += " (its control word %04X announces %d)" % (c["words"][0], need - 1)
+                what += f" (its control word {c['words'][0]:04X} announces {need - 1})"
             self.warn(c["ss"], ss, what)
             self.emit(c, ss, " (short)")
         self.cmd = None
@@ -174,7 +177,7 @@ class Decoder(srd.Decoder):
         self.emit(c, es, "")
 
     def emit(self, c, es, note):
-        words = " ".join("%04X" % w for w in c["words"])
+        words = " ".join(f"{w:04X}" for w in c["words"])
         plain = c["name"] + (" " + words if words else "")
         decoded = self.describe(c)
         full = plain + (": " + decoded if decoded else "") + note
@@ -184,26 +187,26 @@ class Decoder(srd.Decoder):
         """The command's meaning in a line (its words decoded)."""
         w, name = c["words"], c["name"]
         if name == "LTRJ" and w:
-            parts = ["ctrl %s" % flag_names(w[0], TRAJECTORY_BITS)]
+            parts = [f"ctrl {flag_names(w[0], TRAJECTORY_BITS)}"]
             for _, label, value, relative in self.ltrj_values(w):
                 parts.append(self.ltrj_text(label, value, relative))
             return ", ".join(parts)
         if name == "LFIL" and w:
-            parts = ["ds %d (every %d samples)" % (w[0] >> 8, (w[0] >> 8) + 1)]
+            parts = [f"ds {w[0] >> 8} (every {(w[0] >> 8) + 1} samples)"]
             for (_, label), value in zip(self.lfil_flags(w[0]), w[1:]):
-                parts.append("%s %d" % (label.lower(), value))
+                parts.append(f"{label.lower()} {value}")
             return ", ".join(parts)
         if name in ("MSKI", "RSTI") and w:
-            return "%s %s" % ("enable" if name == "MSKI" else "keep",
-                              flag_names(w[0] & INTERRUPTS, STATUS_BITS))
+            verb = "enable" if name == "MSKI" else "keep"
+            return f"{verb} {flag_names(w[0] & INTERRUPTS, STATUS_BITS)}"
         if name in ("LPES", "LPEI") and w:
-            return "threshold %d" % w[0]
+            return f"threshold {w[0]}"
         if name in ("SBPA", "SBPR") and len(w) == 2:
-            return "breakpoint %d" % s32(w[0] << 16 | w[1])
+            return f"breakpoint {s32(w[0] << 16 | w[1])}"
         if name in ("RDRP", "RDDP", "RDIP") and len(w) == 2:
-            return "position %d" % s32(w[0] << 16 | w[1])
+            return f"position {s32(w[0] << 16 | w[1])}"
         if name == "RDDV" and len(w) == 2:
-            return "velocity %s" % fixed(s32(w[0] << 16 | w[1]))
+            return f"velocity {fixed(s32(w[0] << 16 | w[1]))}"
         if name in ("RDRV", "RDSUM") and w:
             return ("velocity %d" if name == "RDRV" else "sum %d") % s16(w[0])
         if name == "RDSIGS" and w:
@@ -229,34 +232,35 @@ class Decoder(srd.Decoder):
     @staticmethod
     def ltrj_text(label, value, relative):
         if value is None:
-            return "%s missing" % label
+            return f"{label} missing"
         rel = " relative" if relative else ""
         if label == "position":
-            return "position%s %d" % (rel, s32(value))
+            return f"position{rel} {s32(value)}"
         v = s32(value) if relative else value
-        return "%s%s %s" % (label, rel, fixed(v))
+        return f"{label}{rel} {fixed(v)}"
 
     def word_text(self, c, index, word):
         """What data word ``index`` of command ``c`` means, for the words row."""
         name = c["name"]
         if name == "LTRJ":
             if index == 0:
-                return "ctrl %04X: %s" % (word, flag_names(word, TRAJECTORY_BITS))
+                return f"ctrl {word:04X}: {flag_names(word, TRAJECTORY_BITS)}"
             for k, label, _, _ in self.ltrj_values(c["words"] + [0, 0]):
                 if index in (k, k + 1):
-                    return "%s %s %04X" % (label, "hi" if index == k else "lo", word)
+                    half = "hi" if index == k else "lo"
+                    return f"{label} {half} {word:04X}"
         if name == "LFIL":
             if index == 0:
                 names = " ".join(label for _, label in self.lfil_flags(word)) or "none"
-                return "ctrl %04X: ds %d, %s" % (word, word >> 8, names)
+                return f"ctrl {word:04X}: ds {word >> 8}, {names}"
             flags = self.lfil_flags(c["words"][0])
             if index - 1 < len(flags):
-                return "%s %d" % (flags[index - 1][1].lower(), word)
+                return f"{flags[index - 1][1].lower()} {word}"
         if name in ("MSKI", "RSTI"):
-            return "mask %04X" % word
+            return f"mask {word:04X}"
         if name == "RDSIGS":
-            return "signals %04X" % word
-        return "%s word %d: %04X" % (name, index + 1, word)
+            return f"signals {word:04X}"
+        return f"{name} word {index + 1}: {word:04X}"
 
     def add_word(self, word, ss, es):
         c = self.cmd
@@ -266,65 +270,69 @@ class Decoder(srd.Decoder):
             c["need"] = 1 + 2 * sum(1 for bit, _, _ in TRAJECTORY_ORDER if word & bit)
         elif index == 0 and c["name"] == "LFIL":
             c["need"] = 1 + len(self.lfil_flags(word))
-        self.put_ann(ss, es, A_WORD, [self.word_text(c, index, word), "%04X" % word])
+        self.put_ann(ss, es, A_WORD, [self.word_text(c, index, word), f"{word:04X}"])
         if len(c["words"]) >= c["need"]:
             self.complete(es)
 
     # ---------------------------------------------------------------- bus cycles
     def status_read(self, b, ss, es):
         flags = flag_names(b & ~BUSY, STATUS_BITS)
-        self.put_ann(ss, es, A_STATUS, ["Status %02X: %s" % (b, flags), "Status %02X" % b,
-                                        "S %02X" % b])
+        self.put_ann(ss, es, A_STATUS, [f"Status {b:02X}: {flags}", f"Status {b:02X}",
+                                        f"S {b:02X}"])
         if b & BUSY:
-            self.put_ann(ss, es, A_BUSY, ["busy (%02X)" % b, "busy", "B"])
+            self.put_ann(ss, es, A_BUSY, [f"busy ({b:02X})", "busy", "B"])
         else:
-            self.put_ann(ss, es, A_READY, ["ready (%02X)" % b, "ready", "R"])
+            self.put_ann(ss, es, A_READY, [f"ready ({b:02X})", "ready", "R"])
         self.checked = b
 
     def command_write(self, b, ss, es):
         name = COMMANDS.get(b, ("unknown",))[0]
-        self.put_ann(ss, es, A_COMMAND_BYTE, ["Command %02X (%s)" % (b, name), "Cmd %02X" % b,
+        self.put_ann(ss, es, A_COMMAND_BYTE, [f"Command {b:02X} ({name})", f"Cmd {b:02X}",
                                               "C"])
-        if self.busy_check("command %02X (%s)" % (b, name), ss, es):
+        if self.busy_check(f"command {b:02X} ({name})", ss, es):
             self.start_command(b, ss, es)
 
-    def data_write(self, b, ss, es):
-        self.put_ann(ss, es, A_DATA_WRITE, ["Data write %02X" % b, "W %02X" % b, "W"])
-        if self.half is not None:  # the low byte: the chip takes the word now
-            hi, ws = self.half
-            self.half = None
-            self.checked = None
+    def low_byte(self, b, es):
+        """The second byte of a word: the chip takes the word now (unless it refused the first)."""
+        hi, ws, taken = self.half
+        self.half = None
+        self.checked = None
+        if taken:
             self.add_word(hi << 8 | b, ws, es)
+
+    def data_write(self, b, ss, es):
+        self.put_ann(ss, es, A_DATA_WRITE, [f"Data write {b:02X}", f"W {b:02X}", "W"])
+        if self.half is not None:
+            self.low_byte(b, es)
             return
+        self.half = (b, ss, False)
         if not self.busy_check("data word", ss, es):
             return
         c = self.cmd
         if c is None:
             done = self.last_done
             if done is not None:
-                what = "long %s: a word after the %d" % (done["name"], done["need"])
+                what = f"long {done['name']}: a word after the {done['need']}"
                 if done["name"] in ("LTRJ", "LFIL"):
-                    what += " its control word %04X announces" % done["words"][0]
+                    what += f" its control word {done['words'][0]:04X} announces"
                 self.warn(ss, es, what + " (the chip sets its command-error bit)")
             else:
                 self.warn(ss, es, "data written with no command (the chip sets its "
                                   "command-error bit)")
             return
         if c["dir"] != "write":
-            self.warn(ss, es, "data written to %s, a %s command (the chip sets its "
-                              "command-error bit)" % (c["name"], c["dir"] == "read" and "read"
-                                                     or "no-data"))
+            kind = "read" if c["dir"] == "read" else "no-data"
+            self.warn(ss, es, f"data written to {c['name']}, a {kind} command (the chip sets "
+                              "its command-error bit)")
             return
-        self.half = (b, ss)
+        self.half = (b, ss, True)
 
     def data_read(self, b, ss, es):
-        self.put_ann(ss, es, A_DATA_READ, ["Data read %02X" % b, "R %02X" % b, "R"])
+        self.put_ann(ss, es, A_DATA_READ, [f"Data read {b:02X}", f"R {b:02X}", "R"])
         if self.half is not None:
-            hi, ws = self.half
-            self.half = None
-            self.checked = None
-            self.add_word(hi << 8 | b, ws, es)
+            self.low_byte(b, es)
             return
+        self.half = (b, ss, False)
         if not self.busy_check("data read", ss, es):
             return
         c = self.cmd
@@ -332,10 +340,10 @@ class Decoder(srd.Decoder):
             self.warn(ss, es, "read with no command (the chip sets its command-error bit)")
             return
         if c["dir"] == "write":
-            self.warn(ss, es, "data read on %s, a write-only command (the chip sets its "
-                              "command-error bit)" % c["name"])
+            self.warn(ss, es, f"data read on {c['name']}, a write-only command (the chip sets "
+                              "its command-error bit)")
             return
-        self.half = (b, ss)
+        self.half = (b, ss, True)
 
     def reset_pulse(self, ss, es):
         self.finish_short(ss)
