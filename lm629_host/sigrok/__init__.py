@@ -13,6 +13,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,7 +48,8 @@ def install(directory: Path | None = None) -> Path:
 #: been printed, whenever a decoder ran: sigrok bug 1671 (fixed upstream by libsigrokdecode
 #: 234cbf50, 2021).  Exactly this abort is the tool's; any other failure is a real one.
 BUG_1671 = "Fatal Python error: bool_dealloc"
-BUG_1671_EXIT = 134
+#: its exit: SIGABRT, which a shell reports as 134 and subprocess as -6
+BUG_1671_EXITS = (128 + signal.SIGABRT, -signal.SIGABRT)
 
 #: the decoder's channels, in its order (required, then optional)
 CHANNELS = tuple(f"d{i}" for i in range(8)) + ("cs", "rd", "wr", "ps")
@@ -67,6 +69,13 @@ class Annotation:
 
 class SigrokError(RuntimeError):
     """sigrok-cli failed (anything but the known abort after the decode, :data:`BUG_1671`)."""
+
+
+def failed(returncode: int, stderr: str) -> bool:
+    """Whether a sigrok-cli run failed: any non-zero exit except exactly sigrok bug 1671's
+    abort at finalization (SIGABRT, exit 134 in a shell, with :data:`BUG_1671` on stderr), which comes after the
+    whole decode has been printed."""
+    return returncode != 0 and not (returncode in BUG_1671_EXITS and BUG_1671 in stderr)
 
 
 def vcd_signals(path: Path | str) -> list[str]:
@@ -107,7 +116,7 @@ def decode(vcd: Path | str, *, chip: int = 0, decoders: Path | None = None,
            "-P", "lm629:" + channel_map(vcd_signals(vcd), chip),
            "-A", "lm629", "--protocol-decoder-jsontrace"]
     r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout_s)
-    if r.returncode and not (r.returncode == BUG_1671_EXIT and BUG_1671 in r.stderr):
+    if failed(r.returncode, r.stderr):
         raise SigrokError(f"{' '.join(cmd)} exited {r.returncode}: {r.stderr.strip()[-2000:]}")
     begun: dict[tuple[str, str], list[float]] = {}
     out = []
@@ -135,6 +144,6 @@ def warnings(annotations: list[Annotation]) -> list[str]:
     return [a.text for a in annotations if a.row == "Protocol warnings"]
 
 
-__all__ = ["Annotation", "BUG_1671", "BUG_1671_EXIT", "CHANNELS", "DECODER", "FILES",
-           "OPTIONAL_CHANNELS", "SigrokError", "channel_map", "commands", "decode", "install",
+__all__ = ["Annotation", "BUG_1671", "BUG_1671_EXITS", "CHANNELS", "DECODER", "FILES",
+           "OPTIONAL_CHANNELS", "SigrokError", "channel_map", "commands", "decode", "failed", "install",
            "user_decoders_dir", "vcd_signals", "warnings"]
