@@ -43,7 +43,7 @@ if shutil.which("sigrok-cli") is None:  # pragma: no cover - .ci/run installs it
 
 #: the three simulators whose bus is drawn three different ways (the serial link at 1 Mbaud:
 #: the link's speed is not the subject)
-SIMS = ["sim://", "sim+avr://?baud=1000000", "sim+ftdi://"]
+SIMS = ["sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://"]
 #: a short move: 4 counts/sample at most, 0.03 counts/sample^2 (16.16 words), 300 counts
 MOVE = {"velocity": 4 * 65536, "acceleration": 2000}
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 import atexit
 import weakref
 from collections.abc import Sequence
-from typing import IO, Any
+from typing import IO, Any, cast
 
 from ..urls import Option, parse_options, query_params
 from .model import ChipBus, ChipModel
@@ -148,15 +148,54 @@ class BusVcd:
         _open_writers.discard(self)
 
 
+class _ProbedChip:
+    """One chip of a :class:`ProbedBus`: its strobes are drawn with its own /CS, then passed
+    on; everything else is the chip's own (reads and writes of attributes alike)."""
+
+    __slots__ = ("_bus", "_chip", "_index")
+
+    def __init__(self, chip: ChipModel, bus: ProbedBus, index: int) -> None:
+        object.__setattr__(self, "_chip", chip)
+        object.__setattr__(self, "_bus", bus)
+        object.__setattr__(self, "_index", index)
+
+    def read_status(self) -> int:
+        b = self._chip.read_status()
+        self._bus.draw(self._index, "rd", 0, b, True)
+        return b
+
+    def read_data(self) -> int:
+        b = self._chip.read_data()
+        self._bus.draw(self._index, "rd", 1, b, True)
+        return b
+
+    def write_command(self, byte: int) -> None:
+        self._bus.draw(self._index, "wr", 0, byte & 0xFF, False)
+        self._chip.write_command(byte)
+
+    def write_data(self, byte: int) -> None:
+        self._bus.draw(self._index, "wr", 1, byte & 0xFF, False)
+        self._chip.write_data(byte)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._chip, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self._chip, name, value)
+
+
 class ProbedBus(ChipBus):
     """A :class:`ChipBus` whose strobes, /RST pulses and HI lines are drawn into a
     :class:`BusVcd` on the model's clock, for the simulators that drive the model one strobe at
-    a time (``sim://``, ``sim+emu://``).  ``cycle_clocks``: the transport's bus cycle, in chip
-    clocks: each strobe is drawn as that cycle ending at the tick of the model call."""
+    a time (``sim://``, ``sim+emu://``).  Its ``chips`` draw their own strobes, so a simulator
+    that strobes the bus and one that strobes a chip of it (the Python bridge) are drawn
+    alike.  ``cycle_clocks``: the simulator's bus cycle, in chip clocks: each strobe is drawn
+    as that cycle ending at the tick of the model call."""
 
     def __init__(self, chips: Sequence[ChipModel], lines: int | None, vcd: BusVcd,
                  cycle_clocks: int) -> None:
         super().__init__(chips, lines)
+        self.chips = [cast(ChipModel, _ProbedChip(c, self, k)) for k, c in enumerate(self.chips)]
         self.vcd = vcd
         self.cycle_clocks = max(1, cycle_clocks)
         self._ns_per_tick = 1e9 / self.clock_hz
@@ -164,7 +203,6 @@ class ProbedBus(ChipBus):
         self._his = self.his
         self.vcd.set(self.tick * self._ns_per_tick, {})
 
-    # ------------------------------------------------------------------ drawing
     def _window(self) -> tuple[float, float]:
         """The (start, end) in ns of a bus cycle that ends now (never before the last one)."""
         end = self.tick * self._ns_per_tick
@@ -173,17 +211,19 @@ class ProbedBus(ChipBus):
         self._free_ns = end
         return start, end
 
-    def _draw(self, strobe: str, ps: int, byte: int, read: bool) -> None:
+    def draw(self, chip: int, strobe: str, ps: int, byte: int, read: bool) -> None:
+        """One strobe of chip ``chip`` ending now: /CS and /PS set up, the strobe low for half
+        the cycle, a read's byte driven after a quarter (the access time), all released."""
         v = self.vcd
         t0, t1 = self._window()
         w = t1 - t0
-        cs = cs_name(self.selected)
+        cs = cs_name(chip)
         v.set(t0, {cs: 0, "ps": ps})
         if not read:
             v.data(t0, byte)
         v.set(t0 + w / 4, {strobe: 0})
         if read:
-            v.data(t0 + w / 2, byte)  # the chip drives D0-D7 after its access time
+            v.data(t0 + w / 2, byte)
         v.set(t0 + 3 * w / 4, {strobe: 1})
         v.set(t1, {cs: 1, "ps": 1})
         v.data(t1, 0xFF)  # released: the pull-ups
@@ -194,25 +234,6 @@ class ProbedBus(ChipBus):
         if his != self._his:
             self._his = his
             self.vcd.set(ns, {hi_name(k): int(h) for k, h in enumerate(his)})
-
-    # ------------------------------------------------------------------ the strobes
-    def read_status(self) -> int:
-        b = super().read_status()
-        self._draw("rd", 0, b, True)
-        return b
-
-    def read_data(self) -> int:
-        b = super().read_data()
-        self._draw("rd", 1, b, True)
-        return b
-
-    def write_command(self, byte: int) -> None:
-        self._draw("wr", 0, byte & 0xFF, False)
-        super().write_command(byte)
-
-    def write_data(self, byte: int) -> None:
-        self._draw("wr", 1, byte & 0xFF, False)
-        super().write_data(byte)
 
     def reset_pulse(self) -> None:
         """/RST low for the 8 clocks before now (the transports hold it that long), rising now."""
