@@ -41,8 +41,9 @@ if shutil.which("sigrok-cli") is None:  # pragma: no cover - .ci/run installs it
     pytest.skip("sigrok-cli is not installed (apt-get install sigrok-cli)",
                 allow_module_level=True)
 
-#: the three simulators whose bus is drawn three different ways (the serial link at 1 Mbaud:
-#: the link's speed is not the subject)
+#: the simulators, whose bus is drawn three ways: the model's strobes (sim://, and sim+emu://,
+#: the Python bridge), the firmware's pins in simavr, the emulated FT232H's pins (the serial
+#: links at 1 Mbaud: the link's speed is not the subject)
 SIMS = ["sim://", "sim+emu://?baud=1000000", "sim+avr://?baud=1000000", "sim+ftdi://"]
 #: a short move: 4 counts/sample at most, 0.03 counts/sample^2 (16.16 words), 300 counts
 MOVE = {"velocity": 4 * 65536, "acceleration": 2000}
@@ -257,6 +258,9 @@ def test_vcd_option_checked_before_anything_runs(tmp_path):
         lm629_host.open(f"sim://?vcd={tmp_path / 'x.vcd'}&vcd_timescale=7")
     with pytest.raises(ValueError, match="vcd_timescale= without vcd"):
         lm629_host.open("sim://?vcd_timescale=10")
+    for base in ("sim://", "sim+emu://", "sim+ftdi://"):
+        with pytest.raises(ValueError, match="the directory .* does not exist"):
+            lm629_host.open(f"{base}?vcd={tmp_path / 'missing' / 'bus.vcd'}")
 
 
 def test_only_sigrok_bug_1671_abort_is_forgiven(tmp_path):

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import atexit
 import weakref
+from pathlib import Path
 from collections.abc import Sequence
 from typing import IO, Any, cast
 
@@ -67,6 +68,10 @@ def vcd_of(url: str) -> tuple[str, int] | None:
     if opts["vcd_timescale"] not in _TIMESCALES:
         raise ValueError(f"{url}: vcd_timescale={opts['vcd_timescale']}: a VCD time unit is "
                          f"1, 10, 100 or 1000 ns")
+    folder = Path(opts["vcd"]).parent
+    if not folder.is_dir():
+        raise ValueError(f"{url}: vcd={opts['vcd']}: the directory {str(folder)!r} does not "
+                         "exist")
     return opts["vcd"], opts["vcd_timescale"]
 
 

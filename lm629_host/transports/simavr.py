@@ -76,8 +76,8 @@ class SimAvrTransport(ModelChips, LinkTransport):
         model = build_bus(url, allowed=OWN_PARAMS, limit=len(CHIP_SELECTS))
         if hasattr(model, "lines"):
             model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
-        sim = AvrSim(model, firmware, wiring=wiring_of(url))
         vcd = vcd_of(url)
+        sim = AvrSim(model, firmware, wiring=wiring_of(url))
         if vcd is not None:
             sim.write_vcd(*vcd)
         t = cls(sim, url, trace=trace, baud=baud)
