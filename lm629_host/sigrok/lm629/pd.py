@@ -151,7 +151,7 @@ class Decoder(srd.Decoder):
             return
         name, direction, words = info
         self.cmd = {"op": op, "name": name, "dir": direction, "need": words, "words": [],
-                    "ss": ss, "spans": []}
+                    "ss": ss}
         if direction == "none":
             self.complete(es)
 
