@@ -388,6 +388,9 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
                    "accelerations in rev/s^2.")
 @click.option("-v", "--verbose", count=True, help="-v: info, -vv: debug with the bus hex trace.")
 @click.option("--trace", is_flag=True, help="Print every bus cycle on stderr.")
+@click.option("--vcd", "vcd_path", default=None, metavar="FILE",
+              help="Write a simulated port's bus pins to FILE (VCD, for PulseView and the "
+                   "lm629 sigrok decoder; the URL's vcd=).")
 @click.option("--stats", is_flag=True, help="Print the transport's counters at exit.")
 @click.option("--axis", "axis_text", default=None, metavar="N|N,M|all",
               help="Which chip on a multi-axis board (its chip select; default 0, or every "
@@ -400,7 +403,7 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
 @click.version_option(lm629_host.__version__, prog_name="lm629")
 @click.pass_context
 def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines: int | None,
-         verbose: int, trace: bool, stats: bool, axis_text: str | None,
+         verbose: int, trace: bool, stats: bool, vcd_path: str | None, axis_text: str | None,
          profile_path: str | None) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
     profile = None
@@ -432,6 +435,12 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
         raise click.BadParameter(str(exc), param_hint=hint) from None
     chip_name = spec.chip
     clock_hz = spec.clock_hz or clock_hz
+    if vcd_path is not None:
+        if not spec.simulated:
+            raise click.BadParameter(f"{url} is hardware: --vcd writes a simulator's bus; "
+                                     "capture a bench with a logic analyzer (docs/debugging.md)",
+                                     param_hint="--vcd")
+        url = with_query(url, {"vcd": vcd_path})
     _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
     session = Session(url, port is not None, chip_name, clock_hz,
                       lines, verbose, trace, stats, spec)

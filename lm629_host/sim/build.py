@@ -9,6 +9,7 @@ import os
 from ..errors import AxisError
 from ..urls import Option, dataclass_options, parse_options, query_params
 from .model import ChipBus, ChipModel, ChipParams, MotorParams
+from .vcd import NAMES as VCD_OPTIONS
 from .wiring import wiring_of
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
@@ -50,7 +51,8 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
     # checks would blame the host for the wire
     chip.strict = strict_default() and wiring_of(url) is None
     values = parse_options(url, _CHIP_OPTIONS + _MOTOR_OPTIONS, what="simulator",
-                           ignore=allowed | {"wiring"}, aliases=_ALIASES, given_only=True)
+                           ignore=allowed | {"wiring"} | VCD_OPTIONS, aliases=_ALIASES,
+                           given_only=True)
     for name, value in values.items():
         if name == "clock_hz":
             value = round(value)

@@ -42,6 +42,7 @@ from ..bridge.protocol import (
 from ..program import Op
 from .bridge import BridgeEmulator, EmuPipe
 from .build import build_bus
+from .vcd import vcd_of
 from .wiring import Miswiring, wiring_of
 from .model import ChipBus, ChipModel, chips_of
 from .usb import OPTION_NAMES as USB_OPTIONS
@@ -254,6 +255,10 @@ class SimServer:
         self.link = Path(link) if link is not None else None
         self.tcp = tcp
         self.url = url
+        if vcd_of(url) is not None:
+            raise ValueError(f"{url}: vcd= draws the bus of a simulator a script opens (or "
+                             "`lm629 --vcd FILE <command>`); a served bench runs until Ctrl-C "
+                             "and writes none: run the script on sim:// or sim+avr:// with vcd= instead")
         if far_end is None:
             far_end = firmware_far_end(url) if firmware else emulator_far_end(url)
         self.far = far_end

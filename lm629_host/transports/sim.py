@@ -20,6 +20,7 @@ from ..program import BusOp, Op, Program, ProgramResult, TraceCallback
 from ..sim.build import build_bus
 from ..sim.clock import SimClock
 from ..sim.model import ChipBus, ChipModel, chips_of
+from ..sim.vcd import close_probe, probe, vcd_of
 from ..sim.wiring import BentChip, Miswiring, wiring_of
 from .base import CycleTransport, PortInfo
 
@@ -225,7 +226,16 @@ class SimTransport(ModelChips, CycleTransport):
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
-        return cls(build_bus(url), url, trace=trace, wiring=wiring_of(url))
+        model = build_bus(url)
+        vcd = vcd_of(url)
+        if vcd is not None:  # the bus drawn into a VCD: every busy poll made, as on a bench
+            model = probe(model, *vcd, cycle_clocks=max(1, round(CYCLE_S * model.clock_hz)))
+        t = cls(model, url, trace=trace, wiring=wiring_of(url))
+        t.skip_known_busy = t.skip_known_busy and vcd is None
+        return t
+
+    def close(self) -> None:
+        close_probe(self.model)
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:

@@ -29,6 +29,7 @@ from ..clock import Clock
 from ..errors import ProtocolViolation
 from ..program import Program, ProgramResult, TraceCallback
 from ..sim.build import build_bus
+from ..sim.vcd import vcd_of
 from ..sim.wiring import wiring_of
 from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
 from ..sim.model import ChipBus, ChipModel, chips_of
@@ -82,6 +83,9 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
                                 busy_pin=busy_pin is not None, live_status=live,
                                 wiring=wiring_of(url))
+        vcd = vcd_of(url)
+        if vcd is not None:
+            device.write_vcd(*vcd)
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
         ftdi = open_mpsse(url, latency, frequency, device=usb_dev)
@@ -105,6 +109,10 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
     @classmethod
     def doctor(cls, port: str | None = None) -> list[Check]:
         return []
+
+    def close(self) -> None:
+        super().close()
+        self.device.close_vcd()
 
     def describe(self) -> str:
         chips = self.models[0].describe(len(self.models))
