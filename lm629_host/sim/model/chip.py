@@ -57,6 +57,7 @@ from ...opcodes import (
     lfil_word_count,
     ltrj_word_count,
     s32,
+    s32_words,
 )
 from .fastloop import py_loop, run_fast
 from .motion import Motion
@@ -586,7 +587,7 @@ class ChipModel:
         elif cmd is Cmd.LTRJ:
             self._load_trajectory(words)
         elif cmd in (Cmd.SBPA, Cmd.SBPR):
-            value = s32((words[0] << 16) | words[1])
+            value = s32_words(words[0], words[1])
             if cmd is Cmd.SBPR:
                 value = s32(m.target_position + value)
             self.breakpoint = value
