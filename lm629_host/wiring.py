@@ -34,7 +34,6 @@ that does not follow the interrupt flags.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -45,6 +44,7 @@ from .miswiring import Miswiring
 from .opcodes import Cmd
 from .pinout import pin_of
 from .program import Op, Program
+from .wiring_reference import READINGS, WHAT
 
 if TYPE_CHECKING:
     from .lm629 import LM629
@@ -474,18 +474,12 @@ def _control_suspects(adapter: str, readings: list[Reading], hi: list[bool],
     return out
 
 
-def _got(readings: Sequence[Reading]) -> tuple[int | None, ...]:
-    return tuple(r.got for r in readings)
-
-
-@functools.cache
-def _fingerprint(name: str, variant: str) -> tuple[int | None, ...]:
-    """What the experiments read on a simulated bench (``sim://``) wired with ``name``."""
-    from .lm629 import LM629  # the typed layer imports nothing of this module
-    from .transports import open_transport
-
-    with LM629(open_transport(f"sim://?chip={variant}&wiring={name}"), chip=variant) as chip:
-        return _got(run_experiments(chip)[0])
+def _alike(fault: str, variant: str, readings: Sequence[Reading]) -> int:
+    """How many of ``readings`` a simulated bench wired with ``fault`` reads the same
+    (:mod:`.wiring_reference`, made from the chip model; matched by what was read, so that a
+    bench without a /RST line, which skips a reading, is compared reading for reading)."""
+    ref = dict(zip(WHAT, READINGS.get(variant, READINGS["lm629"])[fault]))
+    return sum(r.what in ref and ref[r.what] == r.got for r in readings)
 
 
 def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Experiment],
@@ -502,8 +496,7 @@ def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Exper
     # model's reaction to the commands the fault made of others) reads most like this one;
     # then the ones that explain the most readings (a stuck line that turns every command
     # into another is consistent with anything, and explains little)
-    seen = _got(readings)
-    alike = {n: sum(a == b for a, b in zip(_fingerprint(n, variant), seen)) for n, _ in possible}
+    alike = {n: _alike(n, variant, readings) for n, _ in possible}
     top = max(alike.values(), default=0)
     found = [(n, k) for n, k in possible if alike[n] == top]
     best = max((k for _, k in found), default=None)

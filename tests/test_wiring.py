@@ -22,7 +22,9 @@ from lm629_host.connections import adapter_pin, connections, markdown
 from lm629_host.miswiring import Miswiring
 from lm629_host.opcodes import Cmd
 from lm629_host.sim.avr import toolchain_missing
-from lm629_host.wiring import check_wiring, suspects_of_data_bus
+from lm629_host.transports.base import Transport
+from lm629_host.wiring import check_wiring, diagnose, run_experiments, suspects_of_data_bus
+from lm629_host.wiring_reference import READINGS, WHAT
 from lm629_host.wiring_svg import render
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -197,6 +199,36 @@ def test_a_suspect_wire_stops_nothing_from_moving_under_a_gain():
 def test_every_single_suspect_is_considered():
     names = [n for n, _ in suspects_of_data_bus()]
     assert len(names) == 8 + 8 + 28 and len(set(names)) == len(names)
+
+
+@pytest.mark.parametrize("fault", ["d0-d1", "d0-d4", "d1-d3"])
+def test_diagnosis_opens_no_simulator(fault, monkeypatch):
+    """Faults that the spec-based rules alone leave ambiguous (d0-d1 reads like d3-low;
+    d1-d3 like d2-d6 or d2-d7) are told apart by the reference readings, which are data: with
+    every transport refused, the readings of a miswired bench still name the fault, also
+    without the reading a bench lacking the /RST line cannot take."""
+    with lm629_host.open(f"sim://?wiring={fault}") as chip:
+        readings, exps, hi, _ = run_experiments(chip)
+
+    def refused(*args, **kw):
+        raise AssertionError("the diagnosis opened a transport")
+    monkeypatch.setattr(Transport, "__init__", refused)
+    for rs in (readings, [r for r in readings if r.what != "status at once after /RST"]):
+        report = diagnose("uno", rs, exps, hi)
+        assert {s.line for s in report.suspects} == _lines(fault), report.lines()
+
+
+def test_the_wiring_reference_is_current():
+    """lm629_host/wiring_reference.py is what tools/gen_wiring_reference.py reads from the
+    chip model today, for every single fault and both chips (run it after changing the model
+    or the experiments)."""
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_wiring_reference.py"),
+                        "--check"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    faults = {n for n, _ in suspects_of_data_bus()}
+    assert set(READINGS) == {"lm628", "lm629"}
+    assert all(set(READINGS[v]) == faults for v in READINGS)
+    assert all(len(row) == len(WHAT) for v in READINGS for row in READINGS[v].values())
 
 
 # ---------------------------------------------------------------------- table and drawing
