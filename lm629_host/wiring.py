@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from .connections import MAX_AXES, adapter_name, adapter_pin, connections
-from .errors import LM629Error
+from .errors import BusyTimeout, LM629Error
 from .miswiring import Miswiring
 from .opcodes import Cmd
 from .pinout import pin_of
@@ -111,6 +111,8 @@ class Reading:
     error: str = ""
     experiment: str = ""
     size: int = 1  #: bytes: 1 (a status), 2 (RDSIGS), 4 (a position)
+    #: the exception that ended the program before the reading (``error`` is its first line)
+    exception: LM629Error | None = None
 
     def ok(self) -> bool:
         """Read, and as expected (an empty ``expected``: any value)."""
@@ -334,12 +336,15 @@ def _unhurried(program: Program) -> Program:
     return out
 
 
-def _run(chip: LM629, program: Program) -> tuple[tuple[int, ...], tuple[int, ...], bool | None, str]:
+def _run(chip: LM629, program: Program
+         ) -> tuple[tuple[int, ...], tuple[int, ...], bool | None, LM629Error | None]:
+    """Run one experiment: (statuses, words, HI, None), or empty results and the error that
+    ended it (a bent wire may fail any program: that is a reading too)."""
     try:
         r = chip.run(_unhurried(program))
     except LM629Error as exc:
-        return (), (), None, f"{type(exc).__name__}: {exc}".split("\n")[0]
-    return r.statuses, r.words, r.hi, ""
+        return (), (), None, exc
+    return r.statuses, r.words, r.hi, None
 
 
 def _ltrj(p: Program, target: int) -> Program:
@@ -357,9 +362,10 @@ def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], 
     exps: dict[str, Experiment] = {}
     travel: list[int] = []
 
-    def add(exp_name: str, what: str, expected: frozenset[int], got: int | None, error: str,
-            size: int = 1) -> None:
-        readings.append(Reading(what, expected, got, error, exp_name, size))
+    def add(exp_name: str, what: str, expected: frozenset[int], got: int | None,
+            error: LM629Error | None, size: int = 1) -> None:
+        text = f"{type(error).__name__}: {error}".split("\n")[0] if error is not None else ""
+        readings.append(Reading(what, expected, got, text, exp_name, size, error))
 
     # 1. the read path: /RST, status at once, 1.5 ms later, twice
     st, _, h, err = _run(chip, _reset(chip, chip.program()).status().wait(RESET_WAIT_US)
@@ -449,7 +455,7 @@ def _control_suspects(adapter: str, readings: list[Reading], hi: list[bool],
         out.append(Suspect("/RST", f"the status after /RST reads {first.got:02X}, not 00: the "
                            f"pulse does not reach the chip: check /RST (pin {pin_of('/RST')}) to "
                            f"{adapter_pin(adapter, '/RST')}"))
-    if any(r.error and "Busy" in r.error for r in readings):
+    if any(isinstance(r.exception, BusyTimeout) for r in readings):
         out.append(Suspect("busy", "busy never clears (status bit 0 stays 1): check the chip's "
                            f"clock (CLK pin {pin_of('CLK')}) and LM629 D0 (pin {pin_of('D0')}) "
                            f"to {adapter_pin(adapter, 'D0')}"))

@@ -10,6 +10,7 @@ on LM629 D5 is "pin 9 ... Uno D7".
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import subprocess
 import sys
@@ -18,6 +19,7 @@ from pathlib import Path
 import pytest
 
 import lm629_host
+from lm629_host.errors import BusyTimeout, TransportError
 from lm629_host.connections import adapter_pin, connections, markdown
 from lm629_host.miswiring import Miswiring
 from lm629_host.opcodes import Cmd
@@ -374,3 +376,21 @@ def test_control_line_faults_are_named(fault, says):
     assert not report.passed and says in " ".join(report.lines())
     if fault == "busy":
         assert "CLK pin 26" in report.lines()[0]
+
+
+@pytest.mark.parametrize(("error", "busy"), [
+    (BusyTimeout("RDDP", 5e-3, status=0xC5), True),
+    (TransportError("Busy line from the bridge: no answer"), False),  # text says Busy, type not
+])
+def test_busy_that_never_clears_is_told_by_the_error_type(error, busy):
+    """A program ended by a BusyTimeout (and nothing a data wire explains: the chip stays in
+    reset) names the busy line too; any other error does not, whatever its text says."""
+    with lm629_host.open("sim://?fault=reset") as chip:
+        readings, exps, hi, _ = run_experiments(chip)
+    # the /RST statuses read 00; every program with a command fails with ``error``
+    readings = readings[:3] + [dataclasses.replace(r, got=None, error=str(error), exception=error)
+                               for r in readings[3:]]
+    report = diagnose("uno", readings, exps, hi)
+    lines = " ".join(report.lines())
+    assert "the chip stays in reset" in lines
+    assert ("busy never clears" in lines) is busy, lines
