@@ -243,7 +243,7 @@ def far_snapshots(chip: RecordingChip, period_s: float, rows: int = 0,
                   ) -> Generator[Snapshot, None, None] | None:
     """Snapshots every ``period_s`` (``rows`` of them, 0: until closed) recorded on the far
     side, for the CLI's ``watch`` and ``step`` and the tuner; None when the transport does not
-    record on its far side or cannot carry the rate (the caller then polls as before).  Their
+    record on its far side or cannot carry the rate (the caller then polls from the host).  Their
     times are the transport clock when the recording began plus each row's far-side time."""
     transport = chip.transport
     if not transport.records_on_far_side:

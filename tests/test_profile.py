@@ -277,7 +277,7 @@ def test_tuning_on_a_capped_axis_ramps_within_the_caps_and_predicts_the_ramp(tmp
         result = autotune(x, travel=2000)
     assert result.ok
     steps = [w for w in words if w[0] is not None and w[1] is not None]
-    # the experiments' steps at the caps; the trapezoid test move (issue 20) at its own words,
+    # the experiments' steps at the caps; the trapezoid test move at its own words,
     # inside the caps (0x40000 and 0x2000 on this axis)
     move = (result.profile.velocity, result.profile.acceleration)
     assert move == (0x40000, 0x2000) and move[0] <= 3355443 and move[1] <= 17179

@@ -1,4 +1,4 @@
-"""Recording on the far side (issue 19, item 2): ``LM629.record`` -> ``Trace``.
+"""Recording on the far side: ``LM629.record`` -> ``Trace``.
 
 The figures: the chip samples every 2048 clocks (256 us at 8 MHz), so 1 ms holds 3.906 samples:
 a move at 4 counts/sample advances the desired position by 3 or 4 samples' worth, 12 or 16
@@ -271,7 +271,10 @@ def test_a_record_refused_with_an_error_reply_says_so():
     chip = LM629(t)
     chip.reset()
     emu = t.emulator
-    emu._start_recording = lambda frame: emu._error(frame.seq, Result.BAD_REQUEST)  # type: ignore[method-assign]
+
+    def refuse(frame):
+        return emu._error(frame.seq, Result.BAD_REQUEST)
+    emu._start_recording = refuse  # type: ignore[method-assign]  # a bridge that refuses RECORD
     with pytest.raises(TransportError, match=rf"refused RECORD \(ERROR_REPLY, code {int(Result.BAD_REQUEST)}\)"):
         chip.record(1e-3, 0.01)
     assert t.stats.retries == 0

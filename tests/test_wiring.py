@@ -1,10 +1,10 @@
-"""Issue 23: the wiring drawn and printed from the pin maps, miswired simulated benches
+"""The wiring drawn and printed from the pin maps, miswired simulated benches
 (``wiring=`` on every simulated URL), and ``lm629 wiring --check`` naming the wrong wire.
 
 Numbers worked out from the spec: after /RST and 1.5 ms the status is 84 or C4 (the model:
 C4, breakpoint latched); with D2 and D3 swapped the host reads C4 with bits 2 and 3
 exchanged, C8.  With D5 stuck low a target of 1000 (03E8) reaches the chip as 03C8 = 968 (the
-issue's example).  The LM629's D0-D7 are DIP pins 4-11 and land on the Uno's D2-D9, so a fault
+example the check's message is built on).  The LM629's D0-D7 are DIP pins 4-11 and land on the Uno's D2-D9, so a fault
 on LM629 D5 is "pin 9 ... Uno D7".
 """
 

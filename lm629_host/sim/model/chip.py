@@ -102,7 +102,7 @@ class CommandRecord(list):
     It keeps at least the latest ``window`` commands (``record_window``) and drops the oldest
     in blocks of ``window // 8`` (so an append stays O(1) amortised and memory stays bounded
     in a long run: a plain list grew by ~137 bytes a command); ``dropped`` counts them.  It is
-    a list, so slices and comparisons work as before."""
+    a list, so that code reading the record slices and compares it as one."""
 
     def __init__(self, window: int) -> None:
         super().__init__()
