@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from .errors import ArgumentError, AxisError, CommandError, MotionError
-from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, reset_chips, snapshot_of
+from .lm629 import LM629, Snapshot, check_int, reset_chips
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
     FIXED_ONE,
@@ -46,6 +46,7 @@ from .opcodes import (
 from .plan import plan
 from .program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
 from .safety import emergency_stop
+from .snapshot import add_snapshot, snapshot_at
 from .ports import resolve_port
 from .transports import DEFAULT_URL
 from .clock import Clock
@@ -472,14 +473,10 @@ class Board:
         chosen = self._pick(axes)
         p = self.program()
         for a in chosen:
-            p.on(a.chip_select).status()
-            for cmd, n in SNAPSHOT_READS:
-                p.command(cmd).read(n)
+            add_snapshot(p.on(a.chip_select))
         r = self.transport.execute(p)
         now = self.clock.now()
-        per = sum(n for _, n in SNAPSHOT_READS)
-        return [snapshot_of(r.statuses[k], r.words[k * per:(k + 1) * per], now)
-                for k in range(len(chosen))]
+        return [snapshot_at(r, k, now) for k in range(len(chosen))]
 
 
 class _BoardProgram(Program):

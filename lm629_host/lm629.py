@@ -41,10 +41,10 @@ from .opcodes import (
     s16,
     lfil_control,
     lfil_interval,
-    s32,
+    s32_words,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
-from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
+from .snapshot import Snapshot, add_snapshot, snapshot_at
 from .transports.base import Transport
 
 if TYPE_CHECKING:
@@ -64,12 +64,6 @@ _STOPS = {
     "abrupt": TrajectoryFlags.STOP_ABRUPT,
     "off": TrajectoryFlags.MOTOR_OFF,
 }
-
-
-def _s32(words: Iterable[int]) -> int:
-    """Two words read high first, as one signed 32-bit value."""
-    hi, lo = words
-    return s32((hi << 16) | lo)
 
 
 def _check_flags(name: str, flags: object) -> Status:
@@ -261,15 +255,12 @@ class LM629:
 
     def snapshot_program(self) -> Program:
         """The bus program of :meth:`snapshot` (status, then :data:`SNAPSHOT_READS`)."""
-        p = self.program().status()
-        for cmd, n in SNAPSHOT_READS:
-            p.command(cmd).read(n)
-        return p
+        return add_snapshot(self.program())
 
     def snapshot(self) -> Snapshot:
         """Status, signals, positions, velocities and integration sum in one bus program."""
         r = self.run(self.snapshot_program())
-        return snapshot_of(r.statuses[0], r.words, self.clock.now())
+        return snapshot_at(r, 0, self.clock.now())
 
     # ------------------------------------------------------------------ interrupts
     def mask_interrupts(self, flags: Status | int) -> None:
@@ -504,9 +495,7 @@ class LM629:
                                                     POSITION_MAX, hex_digits=8))
         head = self.snapshot_program() if first is None else None
         _, r = self._start_run(program, clear=MOVE_FLAGS, head=head)
-        n = sum(w for _, w in SNAPSHOT_READS)
-        start = first if first is not None else snapshot_of(r.statuses[0], r.words[:n],
-                                                            self.clock.now())
+        start = first if first is not None else snapshot_at(r, 0, self.clock.now())
         if acceleration is not None:
             self._move_acceleration = acceleration
         move = Move(self, target, velocity,
@@ -538,19 +527,19 @@ class LM629:
     # ------------------------------------------------------------------ data reporting
     def read_desired_position(self) -> int:
         """RDDP: desired position, counts (signed 32-bit)."""
-        return _s32(self._read(Cmd.RDDP, 2))
+        return s32_words(*self._read(Cmd.RDDP, 2))
 
     def read_real_position(self) -> int:
         """RDRP: real (encoder) position, counts (signed 32-bit)."""
-        return _s32(self._read(Cmd.RDRP, 2))
+        return s32_words(*self._read(Cmd.RDRP, 2))
 
     def read_index_position(self) -> int:
         """RDIP: position latched at the index pulse after SIP."""
-        return _s32(self._read(Cmd.RDIP, 2))
+        return s32_words(*self._read(Cmd.RDIP, 2))
 
     def read_desired_velocity(self) -> int:
         """RDDV: desired velocity, signed 16.16 (65536 = 1 count/sample)."""
-        return _s32(self._read(Cmd.RDDV, 2))
+        return s32_words(*self._read(Cmd.RDDV, 2))
 
     def read_real_velocity(self) -> int:
         """RDRV: real velocity, integer counts/sample (signed 16-bit)."""

@@ -158,6 +158,12 @@ def s32(value: int) -> int:
     return value - (1 << 32) if value & 0x80000000 else value
 
 
+def s32_words(hi: int, lo: int) -> int:
+    """A 32-bit register read as two words, high first (RDDP, RDRP, RDIP, RDDV), as the chip's
+    two's complement."""
+    return s32((hi << 16) | lo)
+
+
 class TrajectoryFlags(enum.IntFlag):
     """The LTRJ control word."""
 

@@ -33,7 +33,6 @@ from __future__ import annotations
 import collections
 import enum
 import signal
-import threading
 import warnings
 from collections.abc import Generator, Iterator
 from dataclasses import dataclass
@@ -47,7 +46,7 @@ import lm629_host
 from .errors import LM629Error
 from .opcodes import STOP_FLAGS, Cmd, Status
 from .program import STATUS_OPS, BusOp, Op, Program, ProgramResult
-from .safety import emergency_stop
+from .safety import StopSignals, emergency_stop
 from .transports import DEFAULT_URL, transport_class
 from .transports.base import Transport
 from .ports import PortSpec, resolve_port
@@ -55,8 +54,6 @@ from .urls import query_params, with_query
 
 #: the fixtures that open the port (a collected test using one makes the run check the port)
 FIXTURES = ("lm629", "lm629_board")
-#: the signals that end a run on a real port as an interrupted one (the motor stopped first)
-_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: how many bus programs (one line each in the failure report) a test keeps
 TRACE_PROGRAMS = 40
 
@@ -121,8 +118,7 @@ class Session:
         self.url: str = port or DEFAULT_URL
         self.allow_motion: bool = bool(config.getoption("lm629_allow_motion", False))
         self._transport: Transport | None = None
-        self._old_handlers: dict[int, Any] = {}
-        self._pending: int | None = None  #: a stop signal held until the bus program ends
+        self._signals = StopSignals(_interrupted)
         self._checked = False
         try:
             self.simulated = transport_class(self.url).simulated
@@ -156,37 +152,24 @@ class Session:
         """Ctrl-C, SIGTERM and SIGHUP (a CI job's timeout, a closed terminal) end the run as
         an interrupted one, so that the fixtures' teardown stops a moving motor (without this
         SIGTERM and SIGHUP would kill pytest where it stands).  A signal that arrives during a
-        bus program is held until the program has ended (the transport's ``program_depth`` and
-        ``after_program``, as the CLI does), so that the stop starts on a clean bus."""
-        if threading.current_thread() is not threading.main_thread():
-            return
-
-        def on_signal(signum: int, frame: object) -> None:
-            if transport.program_depth:
-                self._pending = signum
-            else:
-                raise KeyboardInterrupt(f"{signal.Signals(signum).name}: the lm629 fixtures stop the motor")
-
-        def deliver() -> None:
-            if self._pending is not None:
-                signum, self._pending = self._pending, None
-                raise KeyboardInterrupt(f"{signal.Signals(signum).name}: the lm629 fixtures stop the motor")
-
-        self._pending = None
-        transport.after_program = deliver
-        for sig in _STOP_SIGNALS:
-            self._old_handlers[sig] = signal.signal(sig, on_signal)
+        bus program is held until the program has ended, as the CLI does
+        (:class:`~lm629_host.safety.StopSignals`), so that the stop starts on a clean bus."""
+        self._signals.guard(transport)
+        self._signals.install()
 
     def close(self) -> None:
-        for sig, handler in self._old_handlers.items():
-            signal.signal(sig, handler)
-        self._old_handlers.clear()
+        self._signals.restore()
         if self._transport is not None:
             self._transport.close()
             self._transport = None
 
 
 _SESSION = pytest.StashKey[Session]()
+
+
+def _interrupted(signum: int) -> KeyboardInterrupt:
+    """A stop signal as pytest's interrupted run, naming the signal."""
+    return KeyboardInterrupt(f"{signal.Signals(signum).name}: the lm629 fixtures stop the motor")
 
 
 def _load_profile(path: Path) -> Any:

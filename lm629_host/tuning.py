@@ -377,8 +377,8 @@ class _Session:
         self.check(first)
 
     def _far_period(self, chip: LM629) -> float | None:
-        """The period of far-side recordings (issue 20: the transport's own clock times the
-        rows, host latency only delays them), or None where the host polls: a whole number of
+        """The period of far-side recordings (the transport's own clock times the rows, host
+        latency only delays them), or None where the host polls: a whole number of
         chip samples, at least ``poll_s`` and what the line carries.  Whole samples: a row
         period of 1 ms is 3.906 samples at 8 MHz, so rows would fall at every phase of the
         chip's sample and a fit that puts each row on its sample would be up to half a sample
@@ -1042,7 +1042,7 @@ def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
 
 
 # ---------------------------------------------------------------------------------- design
-#: the trapezoid move candidates are judged on when the user names none (issue 20): 4 counts
+#: the trapezoid move candidates are judged on when the user names none: 4 counts
 #: per sample, 1/8 count per sample^2 (the default motor reaches 4 counts/sample in 32
 #: samples, an eighth of its acceleration at full output)
 MOVE_VELOCITY = 0x40000

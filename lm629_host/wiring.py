@@ -34,18 +34,18 @@ that does not follow the interrupt flags.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from .connections import MAX_AXES, adapter_name, adapter_pin, connections
-from .errors import LM629Error
+from .errors import BusyTimeout, LM629Error
 from .miswiring import Miswiring
 from .opcodes import NOMINAL_CLOCK_HZ, RESET_CLEARED_STATUSES, RESET_DONE_STATUSES, RESET_WAIT_S, Cmd
 from .pinout import pin_of
 from .plan import plan
 from .program import Op, Program
+from .wiring_reference import READINGS, WHAT
 
 if TYPE_CHECKING:
     from .lm629 import LM629
@@ -104,6 +104,8 @@ class Reading:
     error: str = ""
     experiment: str = ""
     size: int = 1  #: bytes: 1 (a status), 2 (RDSIGS), 4 (a position)
+    #: the exception that ended the program before the reading (``error`` is its first line)
+    exception: LM629Error | None = None
 
     def ok(self) -> bool:
         """Read, and as expected (an empty ``expected``: any value)."""
@@ -329,12 +331,15 @@ def _unhurried(program: Program) -> Program:
     return out
 
 
-def _run(chip: LM629, program: Program) -> tuple[tuple[int, ...], tuple[int, ...], bool | None, str]:
+def _run(chip: LM629, program: Program
+         ) -> tuple[tuple[int, ...], tuple[int, ...], bool | None, LM629Error | None]:
+    """Run one experiment: (statuses, words, HI, None), or empty results and the error that
+    ended it (a bent wire may fail any program: that is a reading too)."""
     try:
         r = chip.run(_unhurried(program))
     except LM629Error as exc:
-        return (), (), None, f"{type(exc).__name__}: {exc}".split("\n")[0]
-    return r.statuses, r.words, r.hi, ""
+        return (), (), None, exc
+    return r.statuses, r.words, r.hi, None
 
 
 def _ltrj(p: Program, target: int) -> Program:
@@ -352,9 +357,10 @@ def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], 
     exps: dict[str, Experiment] = {}
     travel: list[int] = []
 
-    def add(exp_name: str, what: str, expected: frozenset[int], got: int | None, error: str,
-            size: int = 1) -> None:
-        readings.append(Reading(what, expected, got, error, exp_name, size))
+    def add(exp_name: str, what: str, expected: frozenset[int], got: int | None,
+            error: LM629Error | None, size: int = 1) -> None:
+        text = f"{type(error).__name__}: {error}".split("\n")[0] if error is not None else ""
+        readings.append(Reading(what, expected, got, text, exp_name, size, error))
 
     # 1. the read path: /RST, status at once, 1.5 ms later, twice
     st, _, h, err = _run(chip, _reset(chip, chip.program()).status().wait(RESET_WAIT_US)
@@ -444,7 +450,7 @@ def _control_suspects(adapter: str, readings: list[Reading], hi: list[bool],
         out.append(Suspect("/RST", f"the status after /RST reads {first.got:02X}, not 00: the "
                            f"pulse does not reach the chip: check /RST (pin {pin_of('/RST')}) to "
                            f"{adapter_pin(adapter, '/RST')}"))
-    if any(r.error and "Busy" in r.error for r in readings):
+    if any(isinstance(r.exception, BusyTimeout) for r in readings):
         out.append(Suspect("busy", "busy never clears (status bit 0 stays 1): check the chip's "
                            f"clock (CLK pin {pin_of('CLK')}) and LM629 D0 (pin {pin_of('D0')}) "
                            f"to {adapter_pin(adapter, 'D0')}"))
@@ -469,18 +475,12 @@ def _control_suspects(adapter: str, readings: list[Reading], hi: list[bool],
     return out
 
 
-def _got(readings: Sequence[Reading]) -> tuple[int | None, ...]:
-    return tuple(r.got for r in readings)
-
-
-@functools.cache
-def _fingerprint(name: str, variant: str) -> tuple[int | None, ...]:
-    """What the experiments read on a simulated bench (``sim://``) wired with ``name``."""
-    from .lm629 import LM629  # the typed layer imports nothing of this module
-    from .transports import open_transport
-
-    with LM629(open_transport(f"sim://?chip={variant}&wiring={name}"), chip=variant) as chip:
-        return _got(run_experiments(chip)[0])
+def _alike(fault: str, variant: str, readings: Sequence[Reading]) -> int:
+    """How many of ``readings`` a simulated bench wired with ``fault`` reads the same
+    (:mod:`.wiring_reference`, made from the chip model; matched by what was read, so that a
+    bench without a /RST line, which skips a reading, is compared reading for reading)."""
+    ref = dict(zip(WHAT, READINGS.get(variant, READINGS["lm629"])[fault]))
+    return sum(r.what in ref and ref[r.what] == r.got for r in readings)
 
 
 def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Experiment],
@@ -497,8 +497,7 @@ def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Exper
     # model's reaction to the commands the fault made of others) reads most like this one;
     # then the ones that explain the most readings (a stuck line that turns every command
     # into another is consistent with anything, and explains little)
-    seen = _got(readings)
-    alike = {n: sum(a == b for a, b in zip(_fingerprint(n, variant), seen)) for n, _ in possible}
+    alike = {n: _alike(n, variant, readings) for n, _ in possible}
     top = max(alike.values(), default=0)
     found = [(n, k) for n, k in possible if alike[n] == top]
     best = max((k for _, k in found), default=None)

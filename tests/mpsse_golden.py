@@ -72,8 +72,8 @@ def compiled() -> dict[str, Any]:
     from lm629_host.transports.ftdi import COMMAND_S
     try:
         from lm629_host.transports.mpsse import StreamCompiler, chips_of_units, streams_of
-    except ImportError:  # before the move (how the file checked in was written)
-        from lm629_host.transports.ftdi import (  # type: ignore[attr-defined, no-redef]  # the old home
+    except ImportError:  # commit 2728094, which wrote the golden file, has them in ftdi.py
+        from lm629_host.transports.ftdi import (  # type: ignore[attr-defined, no-redef]  # there at 2728094
             StreamCompiler, chips_of_units, streams_of)
     from lm629_host.ftdi_pins import FIFO_BYTES
     setups: dict[str, Callable[[], Any]] = {

@@ -1,4 +1,4 @@
-"""``LM629.batch()`` and the one-exchange ``move_to`` (issue 19, item 3): exchanges counted in
+"""``LM629.batch()`` and the one-exchange ``move_to``: exchanges counted in
 ``transport.stats.round_trips`` on the Python far end and on the compiled firmware."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Several axes on one bus (issue 11): chip selects, one reset, synchronized start, straight
+"""Several axes on one bus: chip selects, one reset, synchronized start, straight
 lines.  Each behaviour runs on every simulated transport (``fast_transport_url``) with two
 chips; the numbers checked are the chip's own (every desired position at every sample, the
 sample a trajectory completes), read from the chip models behind the transport."""
@@ -192,7 +192,7 @@ def test_axis_beyond_the_board_is_one_clear_error():
 
 # ------------------------------------------------------------------------------ old bridges
 def test_a_one_chip_bridge_works_with_this_host_and_axis_1_is_one_clear_error():
-    # the bridge of before issue 11: one chip select, no SELECT operation
+    # a one-chip bridge (firmware 1.0): one chip select, no SELECT operation
     with lm629_host.open("sim+emu://?bridge=1&baud=1000000") as chip:
         assert chip.transport.info.chip_selects == 1
         assert not chip.transport.info.capabilities & 0x10

@@ -153,7 +153,7 @@ def test_a_fault_in_the_small_move_is_the_move_steps_verdict_with_the_motor_off(
 
 
 def test_a_failed_reset_names_the_wire(open_chip):
-    """Issue 23: the reset step runs the wiring check and names the wire: D2/D3 swapped make
+    """The reset step runs the wiring check and names the wire: D2/D3 swapped make
     the reset's C4 read C8 (bits 2 and 3 exchanged)."""
     report = run_bringup(open_chip("sim://?wiring=d2-d3"))
     step = report.steps[0]

@@ -87,6 +87,18 @@ def test_a_good_profile_reads_back_every_key(tmp_path):
     (("[axis.y]\ncs = 1\n", "[axis.y]\n"), 19, "[axis.y]: has no cs"),
     (("[board]", "[boards]"), 2, "[boards]: unknown table"),
     (("note = \"belt drive\"", "note = \"belt drive"), 17, "not TOML"),
+    # a value nested 5000 deep (tomllib: a RecursionError), an array left open at the end, a
+    # table declared twice (tomlkit would place it at the table's end), a TOML 1.1 escape
+    # (tomlkit takes it, tomllib does not): each placed where tomllib stops taking the text
+    (("kd = 0", "kd = 0\nstop = " + "[" * 5000), 11, "not TOML: a value nested too deep"),
+    (("kp = 30", "kp = [30,"), 21, "not TOML"),
+    (("[axis.y]", "[axis.x]"), 19, "not TOML"),
+    (("note = \"belt drive\"", "note = \"belt\\edrive\""), 17, "not TOML"),
+    # a valid multi-line string does not hide an error after it
+    (("note = \"belt drive\"", 'note = """belt\n\ndrive"""\nkq = =1'), 20, "not TOML"),
+    # tables made by a key, not a header: the key's line
+    (("[axis.y]\ncs = 1\nkp = 30\n", "[axis]\ny = 1\n"), 20, "[axis.y]: must be a table"),
+    (("kd = 0", "kd = 0\nlimits.min = 1"), 11, "[axis.x] limits: unknown key"),
 ])
 def test_a_bad_profile_is_one_line_naming_the_file_the_line_and_the_key(tmp_path, edit, line,
                                                                            words):
@@ -211,6 +223,14 @@ def test_cli_bad_profile_and_unknown_axis_exit_2_in_one_line(tmp_path):
                                 f"20000 counts ({good}:13: [axis.x] max)")
 
 
+def test_cli_a_profile_nested_too_deep_is_one_line_and_exit_2(tmp_path):
+    deep = _write(tmp_path, "a = " + "[" * 5000 + "\n", "deep.toml")
+    r = CliRunner().invoke(main, ["--profile", str(deep), "status"])
+    assert r.exit_code == 2
+    assert r.stderr.strip().splitlines() == [
+        f"lm629: bad value: {deep}:1: not TOML: a value nested too deep (arrays or inline tables)"]
+
+
 def test_cli_profile_init_writes_a_template_from_the_options(tmp_path):
     runner = CliRunner()
     path = tmp_path / "new.toml"
@@ -257,7 +277,7 @@ def test_tuning_on_a_capped_axis_ramps_within_the_caps_and_predicts_the_ramp(tmp
         result = autotune(x, travel=2000)
     assert result.ok
     steps = [w for w in words if w[0] is not None and w[1] is not None]
-    # the experiments' steps at the caps; the trapezoid test move (issue 20) at its own words,
+    # the experiments' steps at the caps; the trapezoid test move at its own words,
     # inside the caps (0x40000 and 0x2000 on this axis)
     move = (result.profile.velocity, result.profile.acceleration)
     assert move == (0x40000, 0x2000) and move[0] <= 3355443 and move[1] <= 17179

@@ -1,15 +1,16 @@
-"""Issue 23: the wiring drawn and printed from the pin maps, miswired simulated benches
+"""The wiring drawn and printed from the pin maps, miswired simulated benches
 (``wiring=`` on every simulated URL), and ``lm629 wiring --check`` naming the wrong wire.
 
 Numbers worked out from the spec: after /RST and 1.5 ms the status is 84 or C4 (the model:
 C4, breakpoint latched); with D2 and D3 swapped the host reads C4 with bits 2 and 3
 exchanged, C8.  With D5 stuck low a target of 1000 (03E8) reaches the chip as 03C8 = 968 (the
-issue's example).  The LM629's D7..D0 are DIP pins 4..11 (D0 on pin 11) and land on the Uno's
-D9..D2, so a fault on LM629 D5 is "pin 6 ... Uno D7".
+example the check's message is built on).  The LM629's D7..D0 are DIP pins 4..11 (D0 on pin
+11) and land on the Uno's D9..D2, so a fault on LM629 D5 is "pin 6 ... Uno D7".
 """
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import subprocess
 import sys
@@ -18,11 +19,14 @@ from pathlib import Path
 import pytest
 
 import lm629_host
+from lm629_host.errors import BusyTimeout, TransportError
 from lm629_host.connections import adapter_pin, connections, markdown
 from lm629_host.miswiring import Miswiring
 from lm629_host.opcodes import Cmd
 from lm629_host.sim.avr import toolchain_missing
-from lm629_host.wiring import check_wiring, suspects_of_data_bus
+from lm629_host.transports.base import Transport
+from lm629_host.wiring import check_wiring, diagnose, run_experiments, suspects_of_data_bus
+from lm629_host.wiring_reference import READINGS, WHAT
 from lm629_host.wiring_svg import render
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -199,6 +203,36 @@ def test_every_single_suspect_is_considered():
     assert len(names) == 8 + 8 + 28 and len(set(names)) == len(names)
 
 
+@pytest.mark.parametrize("fault", ["d0-d1", "d0-d4", "d1-d3"])
+def test_diagnosis_opens_no_simulator(fault, monkeypatch):
+    """Faults that the spec-based rules alone leave ambiguous (d0-d1 reads like d3-low;
+    d1-d3 like d2-d6 or d2-d7) are told apart by the reference readings, which are data: with
+    every transport refused, the readings of a miswired bench still name the fault, also
+    without the reading a bench lacking the /RST line cannot take."""
+    with lm629_host.open(f"sim://?wiring={fault}") as chip:
+        readings, exps, hi, _ = run_experiments(chip)
+
+    def refused(*args, **kw):
+        raise AssertionError("the diagnosis opened a transport")
+    monkeypatch.setattr(Transport, "__init__", refused)
+    for rs in (readings, [r for r in readings if r.what != "status at once after /RST"]):
+        report = diagnose("uno", rs, exps, hi)
+        assert {s.line for s in report.suspects} == _lines(fault), report.lines()
+
+
+def test_the_wiring_reference_is_current():
+    """lm629_host/wiring_reference.py is what tools/gen_wiring_reference.py reads from the
+    chip model today, for every single fault and both chips (run it after changing the model
+    or the experiments)."""
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_wiring_reference.py"),
+                        "--check"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    faults = {n for n, _ in suspects_of_data_bus()}
+    assert set(READINGS) == {"lm628", "lm629"}
+    assert all(set(READINGS[v]) == faults for v in READINGS)
+    assert all(len(row) == len(WHAT) for v in READINGS for row in READINGS[v].values())
+
+
 # ---------------------------------------------------------------------- table and drawing
 def test_docs_tables_and_drawings_are_current():
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_wiring.py"), "--check"],
@@ -343,3 +377,21 @@ def test_control_line_faults_are_named(fault, says):
     assert not report.passed and says in " ".join(report.lines())
     if fault == "busy":
         assert "CLK pin 26" in report.lines()[0]
+
+
+@pytest.mark.parametrize(("error", "busy"), [
+    (BusyTimeout("RDDP", 5e-3, status=0xC5), True),
+    (TransportError("Busy line from the bridge: no answer"), False),  # text says Busy, type not
+])
+def test_busy_that_never_clears_is_told_by_the_error_type(error, busy):
+    """A program ended by a BusyTimeout (and nothing a data wire explains: the chip stays in
+    reset) names the busy line too; any other error does not, whatever its text says."""
+    with lm629_host.open("sim://?fault=reset") as chip:
+        readings, exps, hi, _ = run_experiments(chip)
+    # the /RST statuses read 00; every program with a command fails with ``error``
+    readings = readings[:3] + [dataclasses.replace(r, got=None, error=str(error), exception=error)
+                               for r in readings[3:]]
+    report = diagnose("uno", readings, exps, hi)
+    lines = " ".join(report.lines())
+    assert "the chip stays in reset" in lines
+    assert ("busy never clears" in lines) is busy, lines

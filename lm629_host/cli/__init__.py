@@ -12,7 +12,8 @@ A new command is a function in its family's module decorated with ``@main.comman
 from __future__ import annotations
 
 from . import bench, chip, motion, profile, scope, shell, wiring  # noqa: F401 - importing them registers their commands
-from .app import EXIT_CODES, Session, Terminated, main
+from ..safety import Terminated
+from .app import EXIT_CODES, Session, main
 from .bridge import bridge
 from .calc import calc
 from .common import snapshot_dict

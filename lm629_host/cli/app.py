@@ -26,10 +26,9 @@ import logging
 import os
 import signal
 import sys
-import threading
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
 import click
@@ -52,7 +51,7 @@ from ..move import MoveRules
 from ..pid import sample_period_s
 from ..ports import PortSpec, resolve_port
 from ..program import BusCycle
-from ..safety import STOP_NOTE
+from ..safety import STOP_NOTE, StopSignals
 from ..units import Scale
 from ..urls import parse_hz, query_params, with_query
 
@@ -82,18 +81,10 @@ _ERROR_EXITS: tuple[tuple[type[BaseException], int], ...] = (
     (CommandError, 6), (WaitTimeout, 7), (MotionError, 9), (LM629Error, 8),
 )
 
-#: the signals that end a command like Ctrl-C does: the motor is stopped, then exit 128 + N
+#: what ended a command, by the stop signal (safety.STOP_SIGNALS): the motor is stopped, then
+#: exit 128 + N
 _STOP_SIGNALS = {signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)",
                  signal.SIGHUP: "hang-up (SIGHUP)"}
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised like Ctrl-C's KeyboardInterrupt so that every ``except
-    KeyboardInterrupt`` that stops the motor handles it too; ``signum`` picks the exit code."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signum)
-        self.signum = signum
 
 
 
@@ -125,9 +116,8 @@ class Session:
     axis_spec: tuple[int, ...] | str | None = None  #: --axis (see cli.axes)
     _board: Any = None
     _prepare: bool = True
-    _old_handlers: dict[int, Any] | None = None
-    _guarded: Any = None  #: the transport whose programs a stop signal waits for
-    _pending: int | None = None
+    #: Ctrl-C, SIGTERM and SIGHUP, held during the opened chip's bus programs
+    signals: StopSignals = field(default_factory=StopSignals)
     profile: Any = None  #: the bench profile (--profile), see cli.profile
 
     @property
@@ -158,37 +148,17 @@ class Session:
             values["clock"] = str(int(self.clock_hz))
         return with_query(self.port, values) if values else self.port
 
-    @staticmethod
-    def _raise_signal(signum: int) -> None:
-        raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
-
     def install_signals(self) -> None:
         """Ctrl-C, SIGTERM and SIGHUP end a command the same way: raised as
         KeyboardInterrupt (Terminated for the last two) so that a moving motor is stopped,
         then the exit code says which.  A signal during a bus program is held until the
-        program has finished, so that the safety stop starts on a clean bus."""
-        if threading.current_thread() is not threading.main_thread() or self._old_handlers:
-            return
-
-        def on_signal(signum: int, frame: Any) -> None:
-            if self._guarded is not None and self._guarded.program_depth:
-                self._pending = signum
-            else:
-                self._raise_signal(signum)
-
-        self._old_handlers = {sig: signal.signal(sig, on_signal) for sig in _STOP_SIGNALS}
+        program has finished (:class:`~lm629_host.safety.StopSignals`), so that the safety
+        stop starts on a clean bus."""
+        self.signals.install()
 
     def _guard_programs(self, chip: LM629) -> None:
-        """Run every bus program of ``chip`` whole: a stop signal that comes during one is held
-        (the handler reads the transport's ``program_depth``) and raised when it has ended
-        (the transport's ``after_program`` hook)."""
-        self._guarded = chip.transport
-        chip.transport.after_program = self._deliver_pending
-
-    def _deliver_pending(self) -> None:
-        if self._pending is not None:
-            signum, self._pending = self._pending, None
-            self._raise_signal(signum)
+        """Hold a stop signal while a bus program of ``chip`` runs."""
+        self.signals.guard(chip.transport)
 
     def _trace(self, cycle: BusCycle) -> None:
         if self.trace:
@@ -228,10 +198,7 @@ class Session:
                 click.echo(f"stats: {self._chip.transport.stats}", err=True)
             self._chip.close()
             self._chip = None
-        if self._old_handlers:
-            for sig, handler in self._old_handlers.items():
-                signal.signal(sig, handler)
-            self._old_handlers = None
+        self.signals.restore()
 
 
 # ---------------------------------------------------------------------- the session's axes

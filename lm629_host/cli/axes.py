@@ -7,7 +7,8 @@ gets the one axis it names.  All the axes of a command share one transport (one
 :class:`~lm629_host.board.Board`), so a status of every axis is one bus program.
 
 Which axes: ``--axis`` as given; without it, every chip of the port URL's ``axes=`` (a
-simulator ``sim://?axes=2``, or a bridge URL ``...?axes=2``), else axis 0 alone, as before.
+simulator ``sim://?axes=2``, or a bridge URL ``...?axes=2``), else axis 0 alone (a one-chip
+board).
 """
 
 from __future__ import annotations

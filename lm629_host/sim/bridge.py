@@ -89,7 +89,7 @@ MULTI_AXIS_INFO = HelloInfo(
     capabilities=int(Capability.RESET_LINE | Capability.HI_LINE | Capability.BUSY_ON_BRIDGE
                      | Capability.WAIT_STATUS | Capability.SELECT | Capability.COMPACT_RUN
                      | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH | Capability.RECORD))
-#: a bridge of before issue 11 (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
+#: a one-chip bridge (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
 #: WAIT_STATUS: firmware 1.0's capabilities)
 ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
 

@@ -98,6 +98,10 @@ class LinkError(TransportError):
 
 
 _BUSY_CHECKED = (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC)
+#: requests sent after a lone delimiter from their first attempt on (a retry always is): the
+#: first contact, when the far end may hold half a frame of whoever had the port before, and
+#: RECORD, which starts where a recording may still be streaming (a byte ends it)
+_DELIMITED = frozenset({FrameType.HELLO, FrameType.RECORD})
 #: results by which the bridge refuses a program before running any of it
 _REFUSALS = (Result.BAD_PROGRAM, Result.PROGRAM_TOO_LONG, Result.BAD_CHIP_SELECT)
 
@@ -235,12 +239,19 @@ class LinkTransport(Transport):
 
     # ------------------------------------------------------------------ exchanges
     def _exchange(self, ftype: FrameType, payload: bytes, timeout_s: float, what: str,
-                  retries: int, check: Callable[[Frame], object] | None = None) -> Frame:
-        """Send one request and return its reply, retrying with the same frame.
+                  retries: int, check: Callable[[Frame], object] | None = None,
+                  pending: deque[Frame] | None = None) -> Frame:
+        """Send one request and return its (first) reply, retrying with the same frame.
 
         ``check(frame)`` may raise :class:`FrameError` for a reply that passed its CRC but
         cannot be the answer (wrong length for the program): that is line damage the CRC
-        missed, and the request is sent again (the bridge answers from its cache)."""
+        missed, and the request is sent again (the bridge answers from its cache).
+
+        RECORD is never answered from the cache: each attempt is a new request with a new
+        ``seq`` (the reply's ``seq`` says which), so that rows of an attempt the bridge did
+        start are told apart and ignored; its further replies (rows that came in the same
+        read) wait in ``pending``."""
+        fresh = ftype is FrameType.RECORD
         seq = self._next_seq()
         wire = encode_frame(ftype, seq, payload)
         want = REPLY_TO[ftype]
@@ -251,15 +262,21 @@ class LinkTransport(Transport):
         for attempt in range(retries + 1):
             if attempt:
                 stats.retries += 1
+                if fresh:
+                    seq = self._next_seq()
+                    wire = encode_frame(ftype, seq, payload)
                 log.info("%s: retry %d of %s seq %d", self.url, attempt, what, seq)
             attempts += 1
-            # before a retry, a lone delimiter ends whatever half frame the far end holds
-            out = b"\x00" + wire if attempt or ftype is FrameType.HELLO else wire
+            # before a retry, a lone delimiter ends whatever half frame the far end holds (and
+            # a recording under way: any byte from the host ends one)
+            out = b"\x00" + wire if attempt or ftype in _DELIMITED else wire
             self.pipe.write(out)
             stats.bytes_out += len(out)
             stats.round_trips += 1
             deadline = clock.now() + timeout_s
-            frame = self._await(seq, deadline)
+            if pending is not None:
+                pending.clear()
+            frame = self._await(seq, deadline, pending)
             if frame is None:
                 self._attempt(True)
                 continue
@@ -288,6 +305,9 @@ class LinkTransport(Transport):
         if ftype is FrameType.HELLO:
             raise self._no_answer(what, attempts)
         self._need_resync = True  # the bridge may hold this seq in its cache
+        if fresh:  # the bridge answered HELLO: the line, not the firmware, is the suspect
+            raise LinkError(f"no answer to {what} after {attempts} attempt(s): "
+                            f"{self._quality()}", port=self.url, may_have_run=True)
         if ftype not in RUN_TYPES:
             raise self._no_answer(what, attempts)
         raise LinkError(
@@ -296,9 +316,16 @@ class LinkTransport(Transport):
             f"have run on the chip; {self._quality()}; then reset the chip (LM629.reset) "
             "before going on.", port=self.url, may_have_run=True)
 
-    def _await(self, seq: int, deadline: float) -> Frame | None:
-        """The reply with ``seq``, or None on timeout or on a bad frame (which calls for a
-        retry at once: the far end does not answer frames it could not read)."""
+    def _await(self, seq: int, deadline: float, pending: deque[Frame] | None = None, *,
+               bad_ends_wait: bool = True) -> Frame | None:
+        """The next reply with ``seq``, or None at ``deadline`` (a timeout) or, with
+        ``bad_ends_wait``, on a bad frame: the far end does not answer a request it could not
+        read, so a request calls for a retry at once.  A recording's rows come several in one
+        read: the ones after the first wait in ``pending`` (taken first by the next call);
+        without ``pending`` a request has one reply and the rest are dropped."""
+        if pending:
+            return pending.popleft()
+        queue: deque[Frame] = pending if pending is not None else deque()
         clock = self.clock
         while True:
             left = deadline - clock.now()
@@ -310,7 +337,6 @@ class LinkTransport(Transport):
                 self.timeouts += 1
                 return None
             self.stats.bytes_in += len(data)
-            found: Frame | None = None
             bad = False
             for item in self._reader.feed(data):
                 if isinstance(item, FrameError):
@@ -321,11 +347,11 @@ class LinkTransport(Transport):
                     self.stale_replies += 1
                     log.debug("%s: ignored frame type %02X seq %d (waiting for %d)",
                               self.url, item.type, item.seq, seq)
-                elif found is None:
-                    found = item
-            if found is not None:
-                return found
-            if bad:
+                else:
+                    queue.append(item)
+            if queue:
+                return queue.popleft()
+            if bad and bad_ends_wait:
                 return None
 
     def _resync(self) -> None:
@@ -746,28 +772,12 @@ class LinkTransport(Transport):
             self._resync()
             stats.programs += 1
             pending: deque[Frame] = deque()
-            seq = -1
-            first: Frame | None = None
-            for attempt in range(self.retries + 1):
-                if attempt:
-                    stats.retries += 1
-                    log.info("%s: retry %d of RECORD", self.url, attempt)
-                seq = self._next_seq()
-                wire = b"\x00" + encode_frame(FrameType.RECORD, seq, payload)
-                self.pipe.write(wire)
-                stats.bytes_out += len(wire)
-                stats.round_trips += 1
-                pending.clear()
-                deadline = clock.now() + period + self.reply_timeout(
-                    wire_size(len(payload) + 4), row_wire, ops, FIRMWARE_DEFAULT_BUSY_TIMEOUT_US * 1e-6)
-                first = self._next_frame(seq, deadline, pending)
-                self._attempt(first is None)
-                if first is not None:
-                    break
-            if first is None:
-                self._need_resync = True
-                raise LinkError(f"no answer to RECORD after {self.retries + 1} attempt(s): "
-                                f"{self._quality()}", port=self.url, may_have_run=True)
+            first = self._exchange(
+                FrameType.RECORD, payload,
+                period + self.reply_timeout(wire_size(len(payload) + 4), row_wire, ops,
+                                            FIRMWARE_DEFAULT_BUSY_TIMEOUT_US * 1e-6),
+                "RECORD", self.retries, pending=pending)
+            seq = first.seq
             ended = False
             try:
                 last_index = -1
@@ -817,26 +827,9 @@ class LinkTransport(Transport):
                     self._stop_recording(seq, pending, period)
 
     def _next_frame(self, seq: int, deadline: float, pending: deque[Frame]) -> Frame | None:
-        """The next frame with ``seq`` from the bridge (rows may come several in one read:
-        the rest wait in ``pending``), or None at ``deadline``.  Bad frames are counted (a
-        lost row is a gap)."""
-        clock = self.clock
-        while not pending:
-            left = deadline - clock.now()
-            if left <= 0:
-                return None
-            data = self.pipe.read(left)
-            if not data:
-                return None
-            self.stats.bytes_in += len(data)
-            for item in self._reader.feed(data):
-                if isinstance(item, FrameError):
-                    self.bad_frames += 1
-                elif item.seq != seq or item.type & 0x80 == 0:
-                    self.stale_replies += 1
-                else:
-                    pending.append(item)
-        return pending.popleft()
+        """The next frame of the recording ``seq``, or None at ``deadline``.  A bad frame
+        does not end the wait: it was a row, and a lost row is a gap."""
+        return self._await(seq, deadline, pending, bad_ends_wait=False)
 
     def _decode_row(self, payload: bytes, ops: Sequence[BusOp]
                     ) -> tuple[int, int, tuple[int, ...], tuple[int, ...]] | None:

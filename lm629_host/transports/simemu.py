@@ -63,7 +63,7 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     opts = parse_options(url, own, ignore=set(query_params(url)) - {o.name for o in own})
     if baud is None:
         baud = opts["baud"]
-    # bridge=1: a one-chip bridge of before issue 11; else the multi-axis firmware's HELLO
+    # bridge=1: a one-chip bridge (firmware 1.0: no chip selects); else the multi-axis HELLO
     info = ONE_CHIP_INFO if opts["bridge"] == "1" else MULTI_AXIS_INFO
     model = build_bus(url, allowed=frozenset(names), limit=info.chip_selects)
     vcd = vcd_of(url)

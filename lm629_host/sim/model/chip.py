@@ -58,6 +58,7 @@ from ...opcodes import (
     lfil_word_count,
     ltrj_word_count,
     s32,
+    s32_words,
 )
 from .fastloop import py_loop, run_fast
 from .motion import Motion
@@ -102,7 +103,7 @@ class CommandRecord(list):
     It keeps at least the latest ``window`` commands (``record_window``) and drops the oldest
     in blocks of ``window // 8`` (so an append stays O(1) amortised and memory stays bounded
     in a long run: a plain list grew by ~137 bytes a command); ``dropped`` counts them.  It is
-    a list, so slices and comparisons work as before."""
+    a list, so that code reading the record slices and compares it as one."""
 
     def __init__(self, window: int) -> None:
         super().__init__()
@@ -587,7 +588,7 @@ class ChipModel:
         elif cmd is Cmd.LTRJ:
             self._load_trajectory(words)
         elif cmd in (Cmd.SBPA, Cmd.SBPR):
-            value = s32((words[0] << 16) | words[1])
+            value = s32_words(words[0], words[1])
             if cmd is Cmd.SBPR:
                 value = s32(m.target_position + value)
             self.breakpoint = value
