@@ -137,7 +137,8 @@ class BusObserver:
 
     def program_starting(self, transport: Transport, program: Program) -> None:
         """Before any bus cycle of ``program``, under the transport's lock; raising refuses
-        the program (nothing is sent, the exception reaches the caller)."""
+        the program (nothing is sent, the exception reaches the caller, and no observer is
+        told the program ended: it never started)."""
 
     def program_ended(self, transport: Transport, program: Program,
                       result: ProgramResult | None, error: BaseException | None) -> None:

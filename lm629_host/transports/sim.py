@@ -182,7 +182,7 @@ class SimTransport(ModelChips, CycleTransport):
                     cycles += 1
                     statuses.append(status)
                 elif op is _SELECT:
-                    cast(ChipBus, m).select(o.arg)  # SELECT only reaches a bus (chip_selects)
+                    self._select_chip(o.arg)  # one chip: select 0 is no change
                 else:  # RESET, WAIT, WAIT_STATUS: rare, not on the hot path
                     stats.bus_cycles += cycles
                     stats.busy_polls += polls
