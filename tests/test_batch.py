@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import sys
 import threading
 
 import pytest
@@ -142,6 +143,16 @@ def _at_rest_on(url: str, target: int):
     return chip
 
 
+@pytest.fixture
+def switch_often():
+    """Threads switch every 10 us instead of every 5 ms, so that the calls of two threads
+    interleave within a few hundred calls (as on a loaded machine) instead of by chance."""
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(1e-5)
+    yield
+    sys.setswitchinterval(before)
+
+
 def _batches_in_a_thread(chip, stop: threading.Event, errors: list[BaseException]) -> threading.Thread:
     def loop() -> None:
         try:
@@ -156,7 +167,7 @@ def _batches_in_a_thread(chip, stop: threading.Event, errors: list[BaseException
 
 
 @pytest.mark.parametrize("url", BOTH)
-def test_a_batch_captures_only_its_own_threads_calls(url):
+def test_a_batch_captures_only_its_own_threads_calls(url, switch_often):
     """Thread A runs batches back to back while the main thread reads the position directly
     3000 times: every read reaches the bus and returns the resting position (never a queued
     call's dummy 0), and the main thread's 2000 DFH all reach the chip."""
@@ -181,26 +192,31 @@ def test_a_batch_captures_only_its_own_threads_calls(url):
         assert model.history.dropped == 0
 
 
-def test_a_stop_from_another_thread_reaches_the_chip_during_batches():
-    """A move runs; thread A runs batches back to back; the main thread (a safety stop) sends
-    the abrupt stop, then motor off: both reach the chip, which ends with the motor off short of
-    the target."""
+def test_a_stop_from_another_thread_reaches_the_chip_during_batches(switch_often):
+    """A move runs; thread A runs batches back to back; the main thread (a safety loop) sends
+    an abrupt stop 300 times, then the emergency stop: every one reaches the chip, which ends
+    with the motor off short of the target."""
     from lm629_host.safety import emergency_stop
     with _at_rest_on("sim+emu://", 0) as chip:
+        model = chip.transport.model
         chip.move_to(400000, velocity=4 * 65536, acceleration=6553)
+        chip.clock.sleep(0.05)
+        sent = len(model.history)
         stop, errors = threading.Event(), []
         th = _batches_in_a_thread(chip, stop, errors)
         try:
-            chip.clock.sleep(0.05)
+            for _ in range(300):
+                chip.load_trajectory(stop="abrupt", start=True)
             ok, note = emergency_stop(chip)
         finally:
             stop.set()
             th.join()
         assert not errors and ok, note
-        model = chip.transport.model
-        ltrj = [w[0] for c, w in model.history if c == Cmd.LTRJ][-2:]
-        assert ltrj == [int(TrajectoryFlags.STOP_ABRUPT), int(TrajectoryFlags.MOTOR_OFF)]
+        ltrj = [w[0] for c, w in model.history[sent:] if c == Cmd.LTRJ]
+        abrupt, off = int(TrajectoryFlags.STOP_ABRUPT), int(TrajectoryFlags.MOTOR_OFF)
+        assert ltrj == [abrupt] * 301 + [off]  # the emergency stop: abrupt, then motor off
         assert model.motor_off and 0 < chip.read_desired_position() < 400000
+        assert model.history.dropped == 0
 
 
 @pytest.mark.parametrize("url", BOTH)
