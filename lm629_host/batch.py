@@ -148,12 +148,19 @@ class _Queue:
         return queue
 
 
+class _OpenBatches(threading.local):
+    """Per thread: the transports with a batch open in a ``with`` block."""
+
+    def __init__(self) -> None:
+        self.transports: list[Transport] = []
+
+
 class Batch:
     """Typed calls queued on one chip, or on the axes of one bus (``b[axis].read_status()``),
     run as one bus program (see the module doc); use it as a context manager."""
 
-    #: per thread: the transports with a batch open in a ``with`` block (nesting is refused)
-    _open = threading.local()
+    #: nesting is refused per thread and bus
+    _open = _OpenBatches()
 
     def __init__(self, transport: Transport, chip: BatchChip | None = None,
                  axis_of: Callable[[Any], BatchChip] | None = None) -> None:
@@ -261,7 +268,7 @@ class Batch:
             call.handle._value, call.handle._done = value, True
 
     def __enter__(self) -> Batch:
-        open_here: list[Transport] = self._open.__dict__.setdefault("transports", [])
+        open_here = self._open.transports
         if any(t is self.transport for t in open_here):
             raise RuntimeError(
                 f"a batch is already open on {self.transport.describe()} in this thread: queue "
@@ -273,8 +280,7 @@ class Batch:
 
     def __exit__(self, exc_type: object, *exc: object) -> None:
         if self._entered:
-            open_here: list[Transport] = self._open.__dict__["transports"]
-            open_here.remove(self.transport)
+            self._open.transports.remove(self.transport)
             self._entered = False
         if exc_type is None:
             self.run()
