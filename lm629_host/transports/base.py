@@ -226,41 +226,28 @@ class Transport(abc.ABC):
         the observers cannot be left out."""
         with self.lock:
             self.program_depth += 1
+            observers = self._observers  # the ones subscribed when the program starts
             try:
-                if self._observers:
-                    result = self._execute_observed(program)
-                else:
+                for obs in observers:
+                    obs.program_starting(self, program)
+                try:
                     n = self.chip_selects
                     for o in program.ops:
                         if o.op is _SELECT_OP and o.arg >= n:
                             raise AxisError(o.arg, n, self.describe())
                     self.stats.programs += 1
                     result = self._execute(program)
+                except BaseException as exc:
+                    for obs in observers:
+                        obs.program_ended(self, program, None, exc)
+                    raise
+                for obs in observers:
+                    obs.program_ended(self, program, result, None)
             finally:
                 self.program_depth -= 1
         hook = self.after_program
         if hook is not None and not self.program_depth:
             hook()
-        return result
-
-    def _execute_observed(self, program: Program) -> ProgramResult:
-        """:meth:`execute`'s body with observers subscribed (under the lock)."""
-        observers = self._observers
-        for obs in observers:
-            obs.program_starting(self, program)
-        try:
-            n = self.chip_selects
-            for o in program.ops:
-                if o.op is _SELECT_OP and o.arg >= n:
-                    raise AxisError(o.arg, n, self.describe())
-            self.stats.programs += 1
-            result = self._execute(program)
-        except BaseException as exc:
-            for obs in observers:
-                obs.program_ended(self, program, None, exc)
-            raise
-        for obs in observers:
-            obs.program_ended(self, program, result, None)
         return result
 
     def add_observer(self, observer: BusObserver) -> None:
