@@ -295,7 +295,8 @@ class ProgramLog:
             self.dropped += runs.pop(gone).count
 
     def text_lines(self) -> list[str]:
-        out = [f"  ({self.dropped} older program(s) that only read the chip not shown)"] \
+        out = [f"  ({self.dropped} older program(s) not shown: those that only read the chip "
+               "go first)"] \
             if self.dropped else []
         for r in self.runs:
             line = f"  {r.time * 1e3:12.4f}  {_program_text(r)}"

@@ -343,7 +343,7 @@ def test_the_report_folds_repeated_programs_and_keeps_those_that_changed_the_chi
     lines = log.text_lines()
     # 44 lines: the RDRP at 2 ms and the 100 polls went (101 programs), then the loop's first
     # two RDRPs
-    assert lines[0] == "  (103 older program(s) that only read the chip not shown)"
+    assert lines[0] == "  (103 older program(s) not shown: those that only read the chip go first)"
     assert re.fullmatch(r" +1\.0000  cs0: LFIL 0008 001E  \[status 80 \(MOTOR_OFF\)\]", lines[1])
     assert re.fullmatch(r" +3\.0000  cs0: LTRJ 0002 0000 2328; sync 80 \(MOTOR_OFF\); STT; "
                         r"sync 80 \(MOTOR_OFF\)", lines[2])
