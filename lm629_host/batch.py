@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from contextlib import AbstractContextManager
+from contextlib import AbstractContextManager, ExitStack
 from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -55,7 +55,7 @@ class BatchChip(Protocol):
 
     def intercept(self, runner: Callable[[Program], ProgramResult]) -> AbstractContextManager[None]: ...
 
-    def shadow(self) -> BatchChip: ...
+    def shadow(self, runner: Callable[[Program], ProgramResult]) -> BatchChip: ...
 
 
 #: the typed calls a batch takes: each is exactly one bus program
@@ -113,21 +113,42 @@ def _name_call(exc: LM629Error, where: str) -> None:
         exc.args = (f"{where}: {exc.args[0]}",) + exc.args[1:]
 
 
-def _program_of(shadow: BatchChip, call: _Call) -> Program:
-    """The one program ``call`` makes on ``shadow`` (answered as by a chip with no flag up)."""
-    programs: list[Program] = []
+class _Collector:
+    """The runner of a batch's shadows: keeps each program and answers it as a chip that
+    raised no flag would."""
 
-    def collect(program: Program) -> ProgramResult:
-        programs.append(program)
+    def __init__(self) -> None:
+        self.programs: list[Program] = []
+
+    def __call__(self, program: Program) -> ProgramResult:
+        self.programs.append(program)
         return _dummy(program)
-    with shadow.intercept(collect):
+
+    def program_of(self, shadow: BatchChip, call: _Call) -> Program:
+        """The one program ``call`` makes on ``shadow`` (whose runner this is)."""
+        programs = self.programs
+        programs.clear()
         try:
             getattr(shadow, call.name)(*call.args, **call.kwargs)
         except LM629Error:
             pass  # an error from the dummy answer: the real one will tell
-    if len(programs) != 1:
-        raise TypeError(f"{call.label} ran {len(programs)} bus programs: a batch takes one each")
-    return programs[0]
+        if len(programs) != 1:
+            raise TypeError(f"{call.label} ran {len(programs)} bus programs: a batch takes "
+                            "one each")
+        return programs[0]
+
+
+class _Answers:
+    """The runner of the chips while a batch decodes: each call's share of the results, and
+    the programs the call made (to check that they are the one sent)."""
+
+    def __init__(self) -> None:
+        self.share = ProgramResult()
+        self.seen: list[Program] = []
+
+    def __call__(self, program: Program) -> ProgramResult:
+        self.seen.append(program)
+        return self.share
 
 
 class _Queue:
@@ -170,6 +191,7 @@ class Batch:
         self._axis_of = axis_of
         #: per chip: the shadow its queued calls are checked on (their effects accumulate)
         self._shadows: dict[int, BatchChip] = {}
+        self._collector = _Collector()
         self._ran = False
         self._entered = False
 
@@ -201,8 +223,9 @@ class Batch:
         call = _Call(label, chip, name, args, kwargs, Handle(label))
         shadow = self._shadows.get(id(chip))
         if shadow is None:
-            shadow = self._shadows[id(chip)] = chip.shadow()
-        _program_of(shadow, call)  # ValueError for bad arguments: raised here, nothing queued
+            shadow = self._shadows[id(chip)] = chip.shadow(self._collector)
+        # ValueError for bad arguments: raised here, nothing queued
+        self._collector.program_of(shadow, call)
         self.calls.append(call)
         return call.handle
 
@@ -220,13 +243,14 @@ class Batch:
     def _run_locked(self) -> None:
         calls, n = self.calls, len(self.calls)
         shadows: dict[int, BatchChip] = {}
+        collector = _Collector()
         whole = Program(busy_timeout_s=max(c.chip.busy_timeout for c in calls))
         at = 0  # a program starts on chip select 0
         for call in calls:
             shadow = shadows.get(id(call.chip))
             if shadow is None:
-                shadow = shadows[id(call.chip)] = call.chip.shadow()
-            call.program = _program_of(shadow, call)
+                shadow = shadows[id(call.chip)] = call.chip.shadow(collector)
+            call.program = collector.program_of(shadow, call)
             call.first = len(whole.ops)
             ops = call.program.ops
             if call.chip.chip_select != at and not (ops and ops[0].op is Op.SELECT):
@@ -243,29 +267,27 @@ class Batch:
                 _name_call(exc, f"batch call {which + 1} of {n}, {calls[which].label}")
             raise
         words, statuses = iter(result.words), iter(result.statuses)
-        for i, call in enumerate(calls):
-            ops = call.program.ops
-            w = tuple(next(words) for o in ops if o.op is Op.READ)
-            st = tuple(next(statuses) for o in ops if o.op in STATUS_OPS)
-            share = ProgramResult(w, st, st[-1] if st else result.status, result.hi)
-            seen: list[Program] = []
-
-            def answer(program: Program, share: ProgramResult = share,
-                       seen: list[Program] = seen) -> ProgramResult:
-                seen.append(program)
-                return share
-            with call.chip.intercept(answer):
+        answers = _Answers()
+        with ExitStack() as intercepted:
+            for chip in {id(c.chip): c.chip for c in calls}.values():
+                intercepted.enter_context(chip.intercept(answers))
+            for i, call in enumerate(calls):
+                ops = call.program.ops
+                w = tuple(next(words) for o in ops if o.op is Op.READ)
+                st = tuple(next(statuses) for o in ops if o.op in STATUS_OPS)
+                answers.share = ProgramResult(w, st, st[-1] if st else result.status, result.hi)
+                answers.seen = []
                 try:
                     value = getattr(call.chip, call.name)(*call.args, **call.kwargs)
                 except LM629Error as exc:
                     _name_call(exc, f"batch call {i + 1} of {n}, {call.label}")
                     raise
-            if [p.ops for p in seen] != [ops]:
-                raise RuntimeError(f"batch call {i + 1} of {n}, {call.label}: its program came "
-                                   "out otherwise from the results of the calls before it "
-                                   "(the program sent was the first one); run it outside a "
-                                   "batch")
-            call.handle._value, call.handle._done = value, True
+                if [p.ops for p in answers.seen] != [ops]:
+                    raise RuntimeError(f"batch call {i + 1} of {n}, {call.label}: its program "
+                                       "came out otherwise from the results of the calls "
+                                       "before it (the program sent was the first one); run "
+                                       "it outside a batch")
+                call.handle._value, call.handle._done = value, True
 
     def __enter__(self) -> Batch:
         open_here = self._open.transports

@@ -184,14 +184,14 @@ class LM629:
         finally:
             here.runner = before
 
-    def shadow(self) -> LM629:
-        """A copy of this object: the same transport, chip select and settings, and the
-        host-side state this object keeps of the chip (the derivative interval last sent,
-        whether the command-error flag is known clear...) as it is now, its own from then on.
-        A batch builds its programs on one (through :meth:`intercept`), so that building
-        changes nothing here."""
+    def shadow(self, runner: Callable[[Program], ProgramResult]) -> LM629:
+        """A copy of this object whose bus programs all go to ``runner`` (never to the
+        transport): the same transport, chip select and settings, and the host-side state this
+        object keeps of the chip (the derivative interval last sent, whether the command-error
+        flag is known clear...) as it is now, its own from then on.  A batch builds its
+        programs on one, so that building changes nothing here."""
         twin = copy.copy(self)
-        twin._this_thread = _ThisThread()
+        twin._this_thread = _ThisThread(runner)
         return twin
 
     def batch(self) -> Batch:
@@ -670,9 +670,11 @@ class LM629:
 
 
 class _ThisThread(threading.local):
-    """Per thread: where an LM629's bus programs go (None: its transport; see intercept)."""
+    """Per thread: where an LM629's bus programs go (None: its transport; see intercept).
+    ``runner`` is every thread's start (a threading.local runs ``__init__`` in each)."""
 
-    runner: Callable[[Program], ProgramResult] | None = None
+    def __init__(self, runner: Callable[[Program], ProgramResult] | None = None) -> None:
+        self.runner = runner
 
 
 def reset_chips(chips: Sequence[LM629], *, pulse: bool,
