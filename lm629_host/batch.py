@@ -6,11 +6,12 @@ adapter makes it cost (4.096 ms on an Uno), so ten calls cost ten exchanges.  A 
 the calls and sends their programs as one when the ``with`` block ends: one exchange.
 
 How, without a second copy of each command's encoding: everything goes through the chip's
-public interception point, :meth:`LM629.intercept <lm629_host.LM629.intercept>`, which reroutes
-this thread's bus programs of one chip object.  A call queued is made at once on a
-:meth:`~lm629_host.LM629.shadow` of the chip (a copy with its own host-side state), its bus
-answered as a chip that raised no flag would (words 0, status 00): bad arguments raise there,
-nothing is sent and the chip object is untouched.  When the block ends, under the transport's
+public interception points, :meth:`LM629.shadow <lm629_host.LM629.shadow>` (a copy with its own
+host-side state, whose programs all go to a runner) and :meth:`LM629.intercept
+<lm629_host.LM629.intercept>` (this thread's programs of the chip itself to a runner).  A call
+queued is made at once on a shadow of the chip, its bus answered as a chip that raised no flag
+would (words 0, status 00): bad arguments raise there, nothing is sent and the chip object is
+untouched.  When the block ends, under the transport's
 lock: every call is made again on fresh shadows, in order, from the chip's state at that moment
 (what direct calls inside the block left), to build the programs; they run as one; then every
 call is made on the chip itself, its bus answered with its own share of the real results, so
