@@ -53,6 +53,7 @@ from .clock import Clock
 from .transports.base import Transport
 
 if TYPE_CHECKING:
+    from .batch import Batch
     from .profile import Profile
 
 log = logging.getLogger("lm629_host")
@@ -329,6 +330,23 @@ class Board:
 
     def program(self) -> _BoardProgram:
         return _BoardProgram(busy_timeout_s=self.busy_timeout)
+
+    def batch(self) -> Batch:
+        """Typed calls on several axes queued into one bus program, run when the ``with``
+        block ends: one exchange on a bridge, the axes switched by SELECT inside it.  Each
+        call names its axis as ``board[...]`` does::
+
+            with board.batch() as b:
+                px = b["x"].read_real_position()
+                py = b["y"].read_real_position()
+            print(px.value, py.value)
+
+        The rules are :meth:`LM629.batch`'s (:mod:`lm629_host.batch`)."""
+        from .batch import Batch
+        return Batch(self.transport, axis_of=self._axis_named)
+
+    def _axis_named(self, which: LM629 | str | int) -> LM629:
+        return self.axis(which) if isinstance(which, LM629) else self[which]
 
     # ------------------------------------------------------------------ reset
     def reset(self) -> list[Status]:

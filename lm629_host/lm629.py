@@ -11,9 +11,12 @@ word first, positions in two's complement (spec "Bus cycles").
 
 from __future__ import annotations
 
+import contextlib
+import copy
 import logging
 import math
-from collections.abc import Callable, Iterable, Sequence
+import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
 from .clock import Clock, WallClock
@@ -118,6 +121,7 @@ class LM629:
         # STT); otherwise start() clears it first, so that it can tell whether its own STT was
         # refused instead of missing it behind a stale flag.
         self._ce_clear = False
+        self._this_thread = _ThisThread()
 
     # ------------------------------------------------------------------ plumbing
     @property
@@ -155,15 +159,36 @@ class LM629:
         default timeouts, expected move times and the sample period of tuning."""
         return self.transport.clock_hz or self._clock_hz or NOMINAL_CLOCK_HZ
 
-    #: set by :meth:`batch` while it collects calls: programs go there instead of the bus
-    _run_hook: Callable[[Program], ProgramResult] | None = None
-
     def run(self, program: Program) -> ProgramResult:
-        """Run a bus program (for experts and for composite operations)."""
-        hook = self._run_hook
-        if hook is not None:
-            return hook(program)
+        """Run a bus program (for experts and for composite operations).  Every typed call
+        goes through here: the one point :meth:`intercept` reroutes."""
+        runner = self._this_thread.runner
+        if runner is not None:
+            return runner(program)
         return self.transport.execute(program)
+
+    @contextlib.contextmanager
+    def intercept(self, runner: Callable[[Program], ProgramResult]) -> Iterator[None]:
+        """While the block runs, this thread's bus programs of this object go to
+        ``runner(program)`` instead of the transport, which answers them as the chip would;
+        other threads' calls still reach the bus.  A batch builds and decodes its calls
+        through here (:mod:`lm629_host.batch`).  Nested: the inner runner until it ends."""
+        here = self._this_thread
+        before, here.runner = here.runner, runner
+        try:
+            yield
+        finally:
+            here.runner = before
+
+    def shadow(self, runner: Callable[[Program], ProgramResult]) -> LM629:
+        """A copy of this object whose bus programs all go to ``runner`` (never to the
+        transport): the same transport, chip select and settings, and the host-side state this
+        object keeps of the chip (the derivative interval last sent, whether the command-error
+        flag is known clear...) as it is now, its own from then on.  A batch builds its
+        programs on one, so that building changes nothing here."""
+        twin = copy.copy(self)
+        twin._this_thread = _ThisThread(runner)
+        return twin
 
     def batch(self) -> Batch:
         """Queue typed calls into one bus program, run when the ``with`` block ends (one
@@ -175,10 +200,12 @@ class LM629:
                 b.update_filter()
             print(p.value)
 
-        A command error (or a busy timeout) inside it names the call.  See
+        A command error (or a busy timeout) inside it names the call.  It captures this
+        thread's calls on ``b`` only: direct calls on the chip inside the block run at once,
+        and a second batch on the same bus inside the block is refused.  See
         :mod:`lm629_host.batch`."""
         from .batch import Batch
-        return Batch(self)
+        return Batch(self.transport, self)
 
     def close(self) -> None:
         self.transport.close()
@@ -631,6 +658,14 @@ class LM629:
             p.write(w)
         self._ce_clear = False  # any byte may provoke a command error
         return self.run(p.read(read)).words
+
+
+class _ThisThread(threading.local):
+    """Per thread: where an LM629's bus programs go (None: its transport; see intercept).
+    ``runner`` is every thread's start (a threading.local runs ``__init__`` in each)."""
+
+    def __init__(self, runner: Callable[[Program], ProgramResult] | None = None) -> None:
+        self.runner = runner
 
 
 def reset_chips(chips: Sequence[LM629], *, pulse: bool,

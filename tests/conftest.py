@@ -157,7 +157,8 @@ def signal_on_row(monkeypatch):
             n = [0]
 
             def signalling(cycle):
-                trace(cycle)
+                if trace is not None:  # --trace given
+                    trace(cycle)
                 if cycle.kind == "command" and cycle.value == Cmd.RDSIGS:
                     n[0] += 1
                     if n[0] == row:

@@ -169,15 +169,14 @@ def test_every_transport_is_in_transports():
 def test_the_driver_asks_the_transport_not_its_model():
     """Outside sim/ and the simulator transports nothing reads a transport's ``model`` or
     ``models`` (the chip model is the simulator's business): Transport.clock_hz and
-    Transport.chip_count say what the driver needs."""
+    Transport.chip_count say what the driver needs, and the simulators' strict, set_strict and
+    take_violations what the pytest plugin needs."""
     import re
     pattern = re.compile(r"transport\.models?\b|[\"']models?[\"']")
     found = []
     for name, path in _modules().items():
         if name.startswith("lm629_host.sim") or name.startswith("lm629_host.transports.sim"):
             continue
-        if name == "lm629_host.pytest_plugin":  # a test tool: it reports the simulated chips'
-            continue  # protocol violations (Bench.models), a door to the simulator by design
         found += [f"{path.name}:{n}" for n, line in enumerate(path.read_text().splitlines(), 1)
                   if pattern.search(line)]
     assert found == []

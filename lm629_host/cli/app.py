@@ -160,9 +160,14 @@ class Session:
         """Hold a stop signal while a bus program of ``chip`` runs."""
         self.signals.guard(chip.transport)
 
-    def _trace(self, cycle: BusCycle) -> None:
-        if self.trace:
-            click.echo(f"bus {cycle}", err=True)
+    def cycle_trace(self) -> Callable[[BusCycle], None] | None:
+        """What ``--trace`` subscribes to the transport's bus cycles: None without it, so that
+        a simulator keeps its fast path (no cycle is made for nobody to see)."""
+        return self._trace if self.trace else None
+
+    @staticmethod
+    def _trace(cycle: BusCycle) -> None:
+        click.echo(f"bus {cycle}", err=True)
 
     def open(self, *, prepare: bool = True) -> LM629:
         """The chip.  On an in-process simulator: reset it and load kp = 20 (``prepare``)."""
@@ -175,7 +180,7 @@ class Session:
                            "simulated chip for this command only; for one that keeps its state "
                            "run `lm629 sim serve --pty /tmp/lm629` and pass --port /tmp/lm629)",
                            err=True)
-            self._chip = _open(self.url(), self.chip_name, self._trace)
+            self._chip = _open(self.url(), self.chip_name, self.cycle_trace())
             self._guard_programs(self._chip)
             self._chip.move_rules = MoveRules(clock_hz=self.clock_hz)
             log.info("opened %s", self._chip.transport.describe())
@@ -248,7 +253,7 @@ def board(s: Session) -> Board:
         if want is not None and s.is_sim and s.spec.axes is None and want > 1:
             # a simulator builds the chips named, unless its URL says how many it has
             url = with_query(url, {"axes": str(want)})
-        b = lm629_host.open_board(url, chip=s.chip_name, trace=s._trace)
+        b = lm629_host.open_board(url, chip=s.chip_name, trace=s.cycle_trace())
         if want is not None and len(b.axes) < want:
             b.close()
             raise AxisError(want - 1, len(b.axes), s.port)

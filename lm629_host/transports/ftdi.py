@@ -120,7 +120,7 @@ from urllib.parse import urlsplit, urlunsplit
 from .. import data
 from .. import ftdi_pins as pins
 from ..clock import Clock, WallClock
-from ..errors import AxisError, BusyTimeout, TransportError
+from ..errors import BusyTimeout, TransportError
 from ..opcodes import BUSY_BIT
 from ..pinout import pin_of
 from ..program import BusCycle, Op, Program, ProgramResult, TraceCallback
@@ -497,7 +497,7 @@ class FtdiTransport(Transport):
         return {k: max(0.0, v - gone) for k, v in self._owed.items() if v > gone}
 
     def _emit_stream(self, stream: Stream, answer: bytes) -> None:
-        if self.trace is None and not log.isEnabledFor(logging.DEBUG):
+        if not self._tracing():
             return
         for kind, value in stream.events:
             if kind == "status":
@@ -525,11 +525,8 @@ class FtdiTransport(Transport):
                                   index, words)
 
     # ------------------------------------------------------------------ programs
-    def execute(self, program: Program) -> ProgramResult:
+    def _execute(self, program: Program) -> ProgramResult:
         ops = program.ops
-        for o in ops:
-            if o.op is Op.SELECT and o.arg >= self.chip_selects:
-                raise AxisError(o.arg, self.chip_selects, f"the FT232H wiring of {self.url}")
         if self._calibrate or self._check_pin:
             opening = self.calibrate_busy if self._calibrate else self.check_busy_pin
             self._calibrate = self._check_pin = False
@@ -539,7 +536,6 @@ class FtdiTransport(Transport):
             finally:  # its exchanges are not the program's: counted apart
                 for name, value in saved.items():
                     setattr(self.stats, name, value)
-        self.stats.programs += 1
         chip_at = chips_of_units(ops)
         statuses: dict[int, int] = {}
         reads: dict[int, int] = {}

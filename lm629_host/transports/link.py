@@ -535,16 +535,11 @@ class LinkTransport(Transport):
         if chunk or first == 0:
             yield first, cs, chunk
 
-    def execute(self, program: Program) -> ProgramResult:
+    def _execute(self, program: Program) -> ProgramResult:
         if self._closed:
             raise TransportError("the port is closed", port=self.url)
         timeout_us = busy_timeout_us(program)
-        n_cs = self.chip_selects
-        for o in program.ops:
-            if o.op is Op.SELECT and o.arg >= n_cs:
-                raise AxisError(o.arg, n_cs, f"the bridge at {self.url}")
         self._resync()
-        self.stats.programs += 1
         words: list[int] = []
         statuses: list[int] = []
         status: int | None = None
@@ -680,7 +675,7 @@ class LinkTransport(Transport):
 
     def _emit_cycles(self, ops: Sequence[BusOp], words: Sequence[int],
                      statuses: Sequence[int]) -> None:
-        if self.trace is None and not logging.getLogger("lm629_host.bus").isEnabledFor(logging.DEBUG):
+        if not self._tracing():
             return
         for cycle in cycles_of(ops, ProgramResult(tuple(words), tuple(statuses))):
             self._emit(cycle)

@@ -32,7 +32,7 @@ from ..sim.build import build_bus
 from ..sim.vcd import vcd_of
 from ..sim.wiring import wiring_of
 from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
-from ..sim.model import ChipBus, ChipModel, chips_of
+from ..sim.model import ChipBus, ChipModel, Violation, chips_of
 from ..urls import Option, parse_options, query_params
 from .base import Check, PortInfo
 from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, busy_pin_of, open_mpsse
@@ -93,14 +93,34 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
         t = cls(ftdi, url, trace=trace, clock=EmulatedClock(device),
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
                 latency_ms=latency, busy_pin=busy_pin)
-        t.model, t.device, t.strict = model, device, strict
+        t.model, t.device, t._strict, t._violations = model, device, strict, []
         t.models = chips_of(model)
         return t
 
     model: ChipModel | ChipBus
     models: list[ChipModel]  #: the chips on the emulated adapter's chip selects
     device: EmulatedFT232H
-    strict: bool
+    #: strict mode, applied here after each program (the module doc says why)
+    _strict: bool
+    #: the violations strict mode counts (those of a program that saw no busy), not yet taken
+    _violations: list[Violation]
+
+    @property
+    def strict(self) -> bool:
+        return self._strict
+
+    def set_strict(self, strict: bool) -> bool:
+        with self.lock:
+            before, self._strict = self._strict, strict
+            return before
+
+    def take_violations(self) -> list[Violation]:
+        """The violations strict mode counts, strict or not (a transfer the transport saw
+        busy before and repeated is the FT232H design at work, not one of them)."""
+        with self.lock:
+            taken, self._violations = self._violations, []
+            del self.model.violations[:]
+            return taken
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:
@@ -118,19 +138,20 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
         chips = self.models[0].describe(len(self.models))
         return f"{self.url} (FT232H transport on an emulated FT232H, {chips})"
 
-    def execute(self, program: Program) -> ProgramResult:
+    def _execute(self, program: Program) -> ProgramResult:
         violations = self.model.violations
         mark, tmark, hits = len(violations), len(self.device.timing_violations), self.busy_hits
         try:
-            return super().execute(program)
+            return super()._execute(program)
         finally:
-            if self.strict:
+            new = violations[mark:] if self.busy_hits == hits else []
+            self._violations += new
+            if self._strict:
                 timing = self.device.timing_violations[tmark:]
                 if timing:
                     raise ProtocolViolation("FT232H stream broke the chip's bus timing: "
                                             + "; ".join(timing))
-                new = violations[mark:]
-                if new and self.busy_hits == hits:
+                if new:
                     raise ProtocolViolation("host protocol violation: " + "; ".join(new))
 
 
