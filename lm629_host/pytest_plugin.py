@@ -98,11 +98,11 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 def pytest_configure(config: pytest.Config) -> None:
     for text in MARKERS.values():
         config.addinivalue_line("markers", text)
-    config.stash[_SESSION] = Session(config)
+    config.stash[_SESSION] = PortSession(config)
 
 
 # ---------------------------------------------------------------------------- the run
-class Session:
+class PortSession:
     """The run's port: what it is, whether it is simulated, and the open transport of a real
     one (kept for the run)."""
 
@@ -168,7 +168,7 @@ class Session:
             self._transport = None
 
 
-_SESSION = pytest.StashKey[Session]()
+_SESSION = pytest.StashKey[PortSession]()
 
 
 def _interrupted(signum: int) -> KeyboardInterrupt:
@@ -293,7 +293,7 @@ class Bench(BusObserver):
     """What one test uses: its transport (a fresh simulator, or the run's real port), its last
     bus programs (for the failure report), the motion guard, and the chips handed out."""
 
-    def __init__(self, session: Session, request: pytest.FixtureRequest) -> None:
+    def __init__(self, session: PortSession, request: pytest.FixtureRequest) -> None:
         self.session = session
         self.item = request.node
         self.simulated = session.simulated
@@ -669,4 +669,4 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
         rep.sections.append(("lm629: last bus programs and chip snapshot", text))
 
 
-__all__ = ["Bench", "FIXTURES", "MARKERS", "MotionNotAllowed", "PortError", "Session"]
+__all__ = ["Bench", "FIXTURES", "MARKERS", "MotionNotAllowed", "PortError", "PortSession"]

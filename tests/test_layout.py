@@ -11,7 +11,6 @@ import sys
 import tokenize
 from pathlib import Path
 
-import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 PKG = ROOT / "lm629_host"
@@ -319,16 +318,12 @@ def test_the_grep_rules_find_what_they_look_for():
     assert found == [True, True, True, True, False, False, False, False, False]
 
 
-@pytest.mark.xfail(strict=True, reason="batch.py copies and restores LM629's private fields "
-                   "through vars()/setattr: the Batch rework on its own branch removes it")
 def test_no_class_reaches_into_another_objects_private_fields():
     found = [f"{path.relative_to(ROOT)}:{n}" for path, tree in _trees().values()
              for n in _private_reach(tree)]
     assert found == []
 
 
-@pytest.mark.xfail(strict=True, reason="the pytest plugin replaces transport.execute: the "
-                   "transport observers on their own branch replace that")
 def test_only_transports_assign_execute():
     found = [f"{path.relative_to(ROOT)}:{n}" for name, (path, tree) in _trees().items()
              if not name.startswith("lm629_host.transports.") for n in _execute_assigned(tree)]
@@ -343,9 +338,6 @@ def test_only_the_simulator_opens_a_simulator_url():
     assert found == []
 
 
-@pytest.mark.xfail(strict=True, reason="Profile (profile.py, tuning.py), Trace (recording.py, "
-                   "scope.py) and Session (cli/app.py, pytest_plugin.py) are renamed by the "
-                   "engineers who own those modules, on their own branches")
 def test_no_class_name_is_defined_twice():
     seen: dict[str, list[str]] = {}
     for path, tree in _trees().values():

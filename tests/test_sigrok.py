@@ -19,6 +19,7 @@ import pytest
 from sim_urls import available
 
 import lm629_host
+from lm629_host.transports.base import BusObserver
 from lm629_host import opcodes
 from lm629_host.opcodes import Cmd, Status
 from lm629_host.program import BusCycle
@@ -169,12 +170,10 @@ def test_two_axes_each_chip_decoded_on_its_own_chip_select(base, tmp_path):
     url = _url(base, vcd) + "&axes=2"
     with lm629_host.open_board(url, trace=cycles.append) as board:
         # a bus program starts on chip 0 (Op.SELECT) without a select in the trace: mark it
-        run = board.transport.execute
-
-        def execute(program):
-            cycles.append(BusCycle("select", 0))
-            return run(program)
-        board.transport.execute = execute
+        class ProgramStarts(BusObserver):
+            def program_starting(self, transport, program):
+                cycles.append(BusCycle("select", 0))
+        board.transport.add_observer(ProgramStarts())
         board.reset()
         x, y = board.axes
         for axis in (x, y):
