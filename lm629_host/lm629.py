@@ -43,6 +43,7 @@ from .opcodes import (
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
 from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
+from .wraparound import PositionTracker, check_register_position, short_way
 from .transports.base import Transport
 
 if TYPE_CHECKING:
@@ -122,6 +123,9 @@ class LM629:
         # STT); otherwise start() clears it first, so that it can tell whether its own STT was
         # refused instead of missing it behind a stale flag.
         self._ce_clear = False
+        #: the extended positions (AN-706 6.5.2): every position this object reads goes
+        #: through it, so that a wraparound of the register is no jump (:mod:`.wraparound`)
+        self.positions = PositionTracker()
 
     # ------------------------------------------------------------------ plumbing
     @property
@@ -233,6 +237,8 @@ class LM629:
         one sample, the command-error flag clear."""
         self._ds = 0
         self._ce_clear = True
+        self.positions.restart()
+        self.positions.pending = False  # the reset cleared the bit
 
     @property
     def port12_selected(self) -> bool:
@@ -265,9 +271,34 @@ class LM629:
         return p
 
     def snapshot(self) -> Snapshot:
-        """Status, signals, positions, velocities and integration sum in one bus program."""
-        r = self.run(self.snapshot_program())
-        return snapshot_of(r.statuses[0], r.words, self.clock.now())
+        """Status, signals, positions, velocities and integration sum in one bus program; the
+        positions extended past the register's wraparound (:meth:`extended`)."""
+        r = self.run(self._clearing_wrap(self.snapshot_program()))
+        return self.extended(snapshot_of(r.statuses[0], r.words, self.clock.now()))
+
+    def extended(self, s: Snapshot) -> Snapshot:
+        """``s`` (just read from this chip) with its positions extended past the register's
+        wraparound (:class:`~lm629_host.wraparound.PositionTracker`); a wraparound bit in its
+        status is cleared by this object's next position read."""
+        self.positions.saw(s.status)
+        return self.positions.snapshot(s)
+
+    def _clearing_wrap(self, program: Program) -> Program:
+        """``program`` with an RSTI of the wraparound bit in front when a read has seen it
+        (AN-706 6.5.2: the host notes the wrap and resets the bit), in the same exchange."""
+        if not self.positions.pending:
+            return program
+        self.positions.pending = False
+        return self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~Status.WRAPAROUND)) \
+            .extend(program)
+
+    def _read_position(self, cmd: Cmd, name: str) -> int:
+        """RDDP or RDRP, extended; the status its busy checks read shows a wraparound."""
+        r = self.run(self._clearing_wrap(self.program().command(cmd).read(2)))
+        if r.status is not None:
+            self.positions.saw(r.status)
+        near = "desired" if name == "real" else None
+        return self.positions.extend(name, _s32(r.words), near=near)
 
     # ------------------------------------------------------------------ interrupts
     def mask_interrupts(self, flags: Status | int) -> None:
@@ -285,8 +316,9 @@ class LM629:
 
     # ------------------------------------------------------------------ homing, index, limits
     def define_home(self) -> None:
-        """DFH: the current position becomes 0."""
+        """DFH: the current position becomes 0 (the extended positions restart there)."""
         self._command(Cmd.DFH)
+        self.positions.restart()
 
     def set_index_position(self) -> None:
         """SIP: latch the position at the next index pulse (read it with read_index_position)."""
@@ -363,7 +395,7 @@ class LM629:
         if velocity is not None:
             velocity = check_int("velocity", velocity, vel_lo, VELOCITY_MAX, hex_digits=8)
         if position is not None:
-            position = check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+            position = check_register_position("position", position)
         if velocity_mode and position is not None:
             raise ValueError("position cannot be given with velocity_mode=True: a velocity-mode "
                              "move has no target position")
@@ -374,8 +406,12 @@ class LM629:
                 "chip would not move (spec: stop bits only stop an ongoing move). Send the stop, "
                 "then load the next move")
         if self.limits is not None and stop is None:  # a stop is never refused
+            # the limits are extended counts: the target the chip reaches the short way round
             self.limits.check_trajectory(
-                acceleration, velocity, position, acceleration_relative=acceleration_relative,
+                acceleration, velocity,
+                position if position is None or position_relative
+                else self.positions.near_register(position),
+                acceleration_relative=acceleration_relative,
                 velocity_relative=velocity_relative, position_relative=position_relative,
                 velocity_mode=velocity_mode)
         control = _STOPS[stop]
@@ -488,23 +524,30 @@ class LM629:
         can never end this one's wait.  Arguments are checked before any bus traffic
         (``ValueError``).
         """
-        check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        check_register_position("position", position)
         velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
         if acceleration is not None:
             acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX,
                                      hex_digits=8)
         if self.limits is not None:  # before the first read: a refused move costs no exchange
-            self.limits.check_trajectory(acceleration, velocity, None if relative else position)
+            self.limits.check_trajectory(acceleration, velocity, None if relative
+                                         else self.positions.near_register(position))
         first = self.snapshot() if relative else None
-        target = first.desired_position + position if first is not None else position
-        program = self.trajectory_program(acceleration, velocity,
-                                          check_int("target position", target, POSITION_MIN,
-                                                    POSITION_MAX, hex_digits=8))
+        if first is not None:
+            # the target in the register's terms: the chip goes the short way round to it
+            register = self.positions.to_register(first.desired_position + position)
+        else:
+            register = position
+        program = self.trajectory_program(acceleration, velocity, register)
         head = self.snapshot_program() if first is None else None
-        _, r = self._start_run(program, clear=MOVE_FLAGS, head=head)
+        _, r = self._start_run(program, clear=MOVE_FLAGS, head=self._clearing_wrap(head)
+                               if head is not None else None)
         n = sum(w for _, w in SNAPSHOT_READS)
-        start = first if first is not None else snapshot_of(r.statuses[0], r.words[:n],
-                                                            self.clock.now())
+        start = first if first is not None else self.extended(
+            snapshot_of(r.statuses[0], r.words[:n], self.clock.now()))
+        # the target extended as the chip will reach it: the short way from the start
+        target = start.desired_position + short_way(register - self.positions.to_register(
+            start.desired_position))
         if acceleration is not None:
             self._move_acceleration = acceleration
         move = Move(self, target, velocity,
@@ -535,16 +578,18 @@ class LM629:
 
     # ------------------------------------------------------------------ data reporting
     def read_desired_position(self) -> int:
-        """RDDP: desired position, counts (signed 32-bit)."""
-        return _s32(self._read(Cmd.RDDP, 2))
+        """RDDP: desired position, counts, extended past the register's wraparound (a Python
+        int; the register itself reads C0000000..3FFFFFFF: :mod:`lm629_host.wraparound`)."""
+        return self._read_position(Cmd.RDDP, "desired")
 
     def read_real_position(self) -> int:
-        """RDRP: real (encoder) position, counts (signed 32-bit)."""
-        return _s32(self._read(Cmd.RDRP, 2))
+        """RDRP: real (encoder) position, counts, extended past the register's wraparound."""
+        return self._read_position(Cmd.RDRP, "real")
 
     def read_index_position(self) -> int:
-        """RDIP: position latched at the index pulse after SIP."""
-        return _s32(self._read(Cmd.RDIP, 2))
+        """RDIP: position latched at the index pulse after SIP, extended as the real position
+        nearest to it."""
+        return self.positions.near_register(_s32(self._read(Cmd.RDIP, 2)), "real")
 
     def read_desired_velocity(self) -> int:
         """RDDV: desired velocity, signed 16.16 (65536 = 1 count/sample)."""

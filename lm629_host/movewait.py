@@ -52,6 +52,8 @@ class FarWaitChip(Protocol):
 
     def run(self, program: Program) -> ProgramResult: ...
 
+    def extended(self, s: Snapshot) -> Snapshot: ...
+
 
 def _snapshot_ops(p: Program) -> Program:
     p.status()
@@ -63,9 +65,10 @@ def _snapshot_ops(p: Program) -> Program:
 _WORDS = sum(n for _, n in SNAPSHOT_READS)
 
 
-def _snap(result: ProgramResult, k: int, status_at: int, time: float) -> Snapshot:
-    return snapshot_of(result.statuses[status_at], result.words[k * _WORDS:(k + 1) * _WORDS],
-                       time)
+def _snap(chip: FarWaitChip, result: ProgramResult, k: int, status_at: int,
+          time: float) -> Snapshot:
+    return chip.extended(snapshot_of(result.statuses[status_at],
+                                     result.words[k * _WORDS:(k + 1) * _WORDS], time))
 
 
 def wait_far(move: Move, watch: MoveWatch,
@@ -83,7 +86,7 @@ def wait_far(move: Move, watch: MoveWatch,
         if watch.complete_at is None or not settle:
             p = chip.program().wait_status(int(END_MASK), chunk_ms)
             r = chip.run(_snapshot_ops(p))
-            snaps = [_snap(r, 0, 1, clock.now())]
+            snaps = [_snap(chip, r, 0, 1, clock.now())]
             first_of_check = False
         else:
             # as many snapshots as the settle rule still needs: all of them, or (the shaft at
@@ -98,7 +101,7 @@ def wait_far(move: Move, watch: MoveWatch,
                 _snapshot_ops(p.wait(poll_us))
             r = chip.run(p)
             now = clock.now()
-            snaps = [_snap(r, k, k, now - (k_n - 1 - k) * rules.poll) for k in range(k_n)]
+            snaps = [_snap(chip, r, k, k, now - (k_n - 1 - k) * rules.poll) for k in range(k_n)]
             # a link whose exchanges leave more than COARSE_POLLS polls between the last
             # snapshot of one check and the first of the next (115200 baud, long programs:
             # ~24 ms) cannot show a shaft at rest across them (a shaft turning round reads the

@@ -110,7 +110,9 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)
     chip.trajectory_program(acceleration=a, velocity=v, position=None if relative else counts)
     if relative:
-        chip.trajectory_program(position=chip.read_desired_position() + counts)
+        # the goal in the register's terms (extended positions wrap back into it)
+        chip.trajectory_program(position=chip.positions.to_register(
+            chip.read_desired_position() + counts))
     acceleration = _acceleration_unless_moving(chip, a, acc is not None)
     scale = None if raw else s.scale
     with stop_on_error(chip):

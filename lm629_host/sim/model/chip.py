@@ -312,7 +312,7 @@ class ChipModel:
         self._abort_transfer()
         self._io_word = 0
         self._busy_until = 0
-        self.motion.reset()
+        self.motion.reset(self.params.reset_position)
 
     def _abort_transfer(self) -> None:
         self._cmd: int | None = None
