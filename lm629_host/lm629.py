@@ -17,7 +17,15 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
 from .clock import Clock, WallClock
-from .errors import ArgumentError, AxisError, CommandError, ResetError, WaitTimeout, check_int
+from .errors import (
+    ArgumentError,
+    AxisError,
+    CommandError,
+    ResetError,
+    UpdateTooSoon,
+    WaitTimeout,
+    check_int,
+)
 from .limits import SoftLimits
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
@@ -32,6 +40,7 @@ from .opcodes import (
     RESET_CLEARED_STATUSES,
     RESET_DONE_STATUSES,
     RESET_WAIT_S,
+    UPDATE_INTERVAL_S,
     VELOCITY_MAX,
     Cmd,
     FilterFlags,
@@ -97,6 +106,16 @@ class LM629:
     #: the axis's soft limits (a profile sets them): every trajectory is checked against them
     #: in :meth:`trajectory_program`, before any bus cycle (:mod:`lm629_host.limits`)
     limits: SoftLimits | None = None
+    #: the shortest time between two trajectory updates (STT) on this chip, seconds: AN-706
+    #: 4.6.2 (a new STT aborts the chip's trajectory calculation and holds its output) asks for
+    #: 10 ms.  0 turns the rule off, for a chip measured to keep up (settable per object)
+    update_interval: float = UPDATE_INTERVAL_S
+    #: what an update sooner than ``update_interval`` does: ``"wait"`` until it is due, on the
+    #: transport's clock (the simulated one on ``sim://``), or ``"raise"`` :class:`UpdateTooSoon`
+    #: before any bus cycle.  A stop (LTRJ stop bits) is never held back
+    update_rule: str = "wait"
+    #: the transport clock just after this object's last STT went out (None: none yet)
+    _last_update: float | None = None
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
                  busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None,
@@ -239,6 +258,7 @@ class LM629:
         self._ce_clear = True
         self.positions.restart()
         self.positions.pending = False  # the reset cleared the bit
+        self._last_update = None  # and aborted nothing: the next update may go at once
 
     @property
     def port12_selected(self) -> bool:
@@ -446,7 +466,7 @@ class LM629:
             velocity_relative=velocity_relative, position_relative=position_relative,
             velocity_mode=velocity_mode, forward=forward, stop=stop)
         if start:
-            self._start(p)
+            self._start_run(p, update=stop is None)
         else:
             self.run(p)
 
@@ -460,7 +480,9 @@ class LM629:
     def start_checked(self, before: int, after: int) -> bool:
         """Take the status read just before this chip's STT (busy clear) and the one after it;
         return True when the chip refused that STT (the caller raises :class:`CommandError`).
-        Every STT, this object's or a board's, goes through here."""
+        Every STT, this object's or a board's, goes through here (and is the last update the
+        next one is spaced from: the clock now is after it)."""
+        self._last_update = self.clock.now()
         if not after & Status.COMMAND_ERROR:
             self._ce_clear = True
             return False
@@ -477,10 +499,34 @@ class LM629:
                head: Program | None = None) -> Status:
         return self._start_run(program, clear, head)[0]
 
+    def update_due(self) -> float:
+        """Seconds until the next trajectory update may go out (``update_interval`` after the
+        last STT), 0 when it may now."""
+        if self._last_update is None or self.update_interval <= 0:
+            return 0.0
+        return max(0.0, self._last_update + self.update_interval - self.clock.now())
+
+    def _space_update(self) -> None:
+        """Hold a trajectory update back to ``update_interval`` after the last STT (AN-706
+        4.6.2), or raise :class:`UpdateTooSoon` under ``update_rule = "raise"``."""
+        if self.update_rule not in ("wait", "raise"):
+            raise ValueError(f"update_rule={self.update_rule!r} must be 'wait' or 'raise'")
+        due = self.update_due()
+        if due <= 0:
+            return
+        if self.update_rule == "raise":
+            assert self._last_update is not None
+            raise UpdateTooSoon(self.clock.now() - self._last_update, self.update_interval)
+        self.clock.sleep(due)
+
     def _start_run(self, program: Program, clear: Status | int = 0,
-                   head: Program | None = None) -> tuple[Status, ProgramResult]:
+                   head: Program | None = None, *,
+                   update: bool = True) -> tuple[Status, ProgramResult]:
         """:meth:`_start` that also returns the program's result; ``head`` runs first, in the
-        same program (move_to's snapshot: one exchange)."""
+        same program (move_to's snapshot: one exchange).  ``update``: the STT is a trajectory
+        update, spaced by ``update_interval`` (a stop is not: it goes out at once)."""
+        if update:
+            self._space_update()
         flags = self.start_flags(clear)
         if flags:  # RSTI: a 0 bit clears
             program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~flags)) \
@@ -504,8 +550,9 @@ class LM629:
         i.e. before busy clears: see the model's choice list).  When the command-error flag may
         already be set (after
         an earlier refusal, a ``raw`` command, or on a chip not reset by this object) an RSTI
-        that clears only that flag goes first, so that a refusal is never hidden by a stale flag.  Do not issue STT more often
-        than every 10 ms (AN-706 4.6.2).
+        that clears only that flag goes first, so that a refusal is never hidden by a stale flag.
+        Spaced ``update_interval`` (10 ms) after the last STT (AN-706 4.6.2): it waits on the
+        transport's clock, or raises :class:`UpdateTooSoon` under ``update_rule = "raise"``.
         """
         return self._start(self.program())
 

@@ -195,10 +195,10 @@ Test aids and update rate
     calculation; the model takes the 10 ms it recommends (``ChipParams.update_s``): an STT
     executed less than ``update_s`` after the last executed one aborts the calculation in
     progress, and the output word at the next sample stays at the previous sample's value (the
-    filter is not run for that sample; the trajectory generator takes the new parameters as
-    usual).  Under ``strict`` such an STT is a host protocol violation, unless it carries a
-    stop or motor-off bit: stopping must always be possible, and a one-sample hold does not
-    delay a stop.
+    filter is not run for that sample; the trajectory generator steps with the new parameters
+    as usual, since the note names only the output).  Under ``strict`` such an STT is a host
+    protocol violation, unless it carries a stop or motor-off bit: stopping must always be
+    possible, and a one-sample hold does not delay a stop.
 """
 
 from .bus import ChipBus, chips_of

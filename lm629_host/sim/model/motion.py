@@ -87,6 +87,9 @@ class Motion:
         self.output = 0
         self._resume = False  # a move was interrupted by motor off
         self._started = False  # no STT since reset: not "on target" (signals 01C0 after reset)
+        #: an STT came too soon after the last one [model choice 34]: the next sample does not
+        #: run the filter, so the output stays at the last sample's value
+        self.abort_pending = False
         self.traj.position = position << 16
         self.traj.target = position
 
@@ -243,6 +246,10 @@ class Motion:
             events |= Status.TRAJECTORY_COMPLETE
         if wrapped:
             events |= Status.WRAPAROUND
+        if self.abort_pending:
+            # [model choice 34] the calculation was aborted by a new STT: the output stays
+            self.abort_pending = False
+            return events
         # 4. the filter
         f = chip.filter
         e = wrap_counts((t.position >> 16) - self.real_position)

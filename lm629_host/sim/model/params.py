@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ...opcodes import UPDATE_INTERVAL_S
+
 
 @dataclass
 class ChipParams:
@@ -31,7 +33,7 @@ class ChipParams:
     reset_position: int = 0
     #: [model choice 34] an STT this soon after the last executed one aborts the trajectory
     #: calculation (AN-706 4.6.2's 10 ms)
-    update_s: float = 10e-3
+    update_s: float = UPDATE_INTERVAL_S
 
 
 @dataclass
