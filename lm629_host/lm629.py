@@ -51,6 +51,9 @@ from .opcodes import (
     s32,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
+from .pid import sample_period_s
+from .profile_shapes import Points, SCurve, Shape, ShapedMove, check_piece_s
+from .profile_shapes import plan as plan_shape
 from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
 from .wraparound import PositionTracker, check_register_position, short_way
 from .transports.base import Transport
@@ -607,6 +610,35 @@ class LM629:
 
     #: the last acceleration word move_to loaded (for the default timeout)
     _move_acceleration: int | None = None
+
+    def move_profile(self, position: int, shape: Shape, *, relative: bool = False,
+                     piece_s: float = 2 * UPDATE_INTERVAL_S) -> ShapedMove:
+        """Start a move to ``position`` (counts, a register value as for :meth:`move_to`, or
+        from the desired position with ``relative=True``) along ``shape``
+        (:class:`~lm629_host.profile_shapes.SCurve`: jerk-limited;
+        :class:`~lm629_host.profile_shapes.Points`: your own (time, velocity) list), in
+        pieces ``piece_s`` apart (AN-706 4.5.3; at least 10 ms, 4.6.2).  Returns a
+        :class:`~lm629_host.profile_shapes.ShapedMove`: its ``wait()`` issues the pieces on the
+        transport's clock and supervises the move as :meth:`Move.wait` does; the chip's own
+        deceleration lands it exactly on the target.  Reads a snapshot first (the distance
+        sets the plan); the plan is checked (``ArgumentError``) before anything moves."""
+        check_register_position("position", position)
+        if not isinstance(shape, (SCurve, Points)):
+            raise ArgumentError("shape", shape, f"shape={shape!r}: expected "
+                                "profile_shapes.SCurve or profile_shapes.Points")
+        check_piece_s(piece_s)
+        sample_s = sample_period_s(self.clock_hz)
+        plan = plan_shape(shape, position, sample_s, piece_s) if relative else None
+        desired = self.snapshot().desired_position
+        register = self.positions.to_register(desired + position) if relative else position
+        if plan is None:
+            distance = short_way(register - self.positions.to_register(desired))
+            plan = plan_shape(shape, distance, sample_s, piece_s)
+        if self.limits is not None:  # the fastest piece, before anything moves
+            self.limits.check_velocity(plan.peak_velocity)
+        move = self.move_to(register, velocity=plan.pieces[0].velocity,
+                            acceleration=plan.acceleration)
+        return ShapedMove(move, plan)
 
     # ------------------------------------------------------------------ output port
     def port8(self) -> None:

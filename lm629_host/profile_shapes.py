@@ -27,14 +27,18 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from .errors import ArgumentError
-from .opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX
+from .move import Move, MoveResult, MoveWatch
+from .opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX, Status
+from .snapshot import Snapshot
 
 #: 16.16 fixed point of the trajectory words
 _ONE = 1 << 16
-#: the share of a piece within which the chip must reach the piece's velocity
-RAMP_SHARE = 0.5
+#: the share of a piece within which the chip must reach the piece's velocity: the whole piece,
+#: so that the chip's acceleration at the steepest piece is the plan's peak, not more
+RAMP_SHARE = 1.0
 #: the longest a piece may be (the plan stays a fair approximation of the shape)
 PIECE_MAX_S = 0.25
 #: the most pieces one move takes (a far side holds them all; 2.5 min at 10 ms)
@@ -201,6 +205,17 @@ def _linear(points: Sequence[tuple[float, float]]
     return points[-1][0], position, velocity
 
 
+def check_piece_s(piece_s: object) -> float:
+    """``piece_s`` when it is a number of seconds from 10 ms (AN-706 4.6.2) to
+    :data:`PIECE_MAX_S`, else an :class:`ArgumentError` naming that range."""
+    if isinstance(piece_s, bool) or not isinstance(piece_s, (int, float)) or \
+            not UPDATE_INTERVAL_S <= piece_s <= PIECE_MAX_S:
+        raise ArgumentError("piece_s", piece_s, f"piece_s={piece_s!r} must be "
+                            f"{UPDATE_INTERVAL_S:g}..{PIECE_MAX_S:g} s (AN-706 4.6.2: at most one "
+                            "trajectory update per 10 ms)", lo=UPDATE_INTERVAL_S, hi=PIECE_MAX_S)
+    return float(piece_s)
+
+
 def plan(shape: Shape, distance: int, sample_s: float,
          piece_s: float = 2 * UPDATE_INTERVAL_S) -> ProfilePlan:
     """The pieces of ``shape`` over ``distance`` counts (its sign the direction) at a sample
@@ -209,11 +224,7 @@ def plan(shape: Shape, distance: int, sample_s: float,
     if isinstance(distance, bool) or not isinstance(distance, int) or distance == 0:
         raise ArgumentError("distance", distance, f"distance={distance!r}: a shaped move needs a "
                                                   "whole number of counts to travel, not 0")
-    if isinstance(piece_s, bool) or not isinstance(piece_s, (int, float)) or \
-            not UPDATE_INTERVAL_S <= piece_s <= PIECE_MAX_S:
-        raise ArgumentError("piece_s", piece_s, f"piece_s={piece_s!r} must be "
-                            f"{UPDATE_INTERVAL_S:g}..{PIECE_MAX_S:g} s (AN-706 4.6.2: at most one "
-                            "trajectory update per 10 ms)", lo=UPDATE_INTERVAL_S, hi=PIECE_MAX_S)
+    check_piece_s(piece_s)
     span = abs(distance)
     if isinstance(shape, SCurve):
         duration, position, velocity = _integrals(shape.segments(span))
@@ -243,7 +254,8 @@ def plan(shape: Shape, distance: int, sample_s: float,
         raise ArgumentError("velocity", top, f"the profile's top velocity word {top} is above "
                             f"{VELOCITY_MAX} (0x3FFFFFFF)", hi=VELOCITY_MAX)
     steps = [words[0]] + [abs(b - a) for a, b in zip(words, words[1:])] + [words[-1]]
-    samples = piece_s / sample_s * RAMP_SHARE
+    # whole samples of a piece after its STT (the first may come up to a sample late)
+    samples = max(1, math.floor(piece_s / sample_s * RAMP_SHARE) - 1)
     acceleration = min(ACCELERATION_MAX, max(1, math.ceil(max(steps) / samples)))
     pieces = tuple(Piece(k * piece_s, w) for k, w in enumerate(words))
     sign = 1 if distance > 0 else -1
@@ -251,5 +263,60 @@ def plan(shape: Shape, distance: int, sample_s: float,
                        lambda x: sign * position(x), lambda x: sign * velocity(x))
 
 
+
+
+# ---------------------------------------------------------------------------------- running
+class ShapedMove(Move):
+    """A move whose maximum velocity the host changes piece by piece (:meth:`LM629.move_profile
+    <lm629_host.LM629.move_profile>`).  :meth:`wait` issues the pieces at their times on the
+    transport's clock (a snapshot between two pieces judges the move as any move's wait does),
+    then waits for the end; ``piece_times`` are when each piece's STT had gone out (seconds
+    from the first), and ``jitter`` their lateness against the plan."""
+
+    def __init__(self, move: Move, plan: ProfilePlan) -> None:
+        super().__init__(move.chip, move.target, plan.peak_velocity, plan.acceleration,
+                         move.start, move.t0)
+        self.plan = plan
+        self.inner = move.waiter  #: the end's waiter (the far side's, or None: polling)
+        self.waiter = _wait_pieces
+        self.piece_times: list[float] = [0.0]
+
+    def profile_s(self, clock_hz: float) -> float | None:
+        return self.plan.duration
+
+    @property
+    def jitter(self) -> list[float]:
+        """Each issued piece's lateness against its planned time, seconds."""
+        return [t - p.t for t, p in zip(self.piece_times, self.plan.pieces)]
+
+
+def _wait_pieces(move: Move, watch: MoveWatch,
+                 progress: Callable[[Snapshot], None] | None) -> MoveResult:
+    """The loop of :meth:`ShapedMove.wait` (host-timed pieces)."""
+    assert isinstance(move, ShapedMove)
+    chip: Any = move.chip  # an LM629: load_trajectory spaces every update by 10 ms itself
+    clock = chip.clock
+    pieces = move.plan.pieces
+    while len(move.piece_times) < len(pieces):
+        piece = pieces[len(move.piece_times)]
+        due = move.t0 + piece.t
+        now = clock.now()
+        if now < due:
+            clock.sleep(due - now)
+        chip.load_trajectory(velocity=piece.velocity, start=True)
+        move.piece_times.append(clock.now() - move.t0)
+        s = chip.snapshot()
+        if progress is not None:
+            progress(s)
+        result = watch.check(s)
+        if result is not None:
+            return result
+        if s.status & Status.TRAJECTORY_COMPLETE:
+            break  # the chip landed on the target: the rest of the pieces have nothing to do
+    if move.inner is not None:
+        return move.inner(move, watch, progress)
+    return move.poll(watch, progress)
+
+
 __all__ = ["PIECES_MAX", "PIECE_MAX_S", "Piece", "Points", "ProfilePlan", "RAMP_SHARE",
-           "SCurve", "Shape", "plan"]
+           "SCurve", "Shape", "ShapedMove", "check_piece_s", "plan"]
