@@ -36,12 +36,12 @@ def run(inertia: float, shaped: bool) -> tuple[list[float], list[float], list[in
         chip.reset()
         chip.load_filter(kp=20, kd=KD)
         chip.update_filter()
-        model = chip.transport.model
+        model = chip.transport.model  # type: ignore[attr-defined]  # sim://'s chip model
         rows: list[tuple[float, float, int]] = []
         sample = model._sample
         t_s = sample_period_s(chip.clock_hz)
 
-        def observed(motion) -> None:  # type: ignore[no-untyped-def]
+        def observed(motion: object) -> None:
             sample(motion)
             rows.append((model.now(), motion.desired_velocity / 65536 / t_s,
                          motion.position_error()))

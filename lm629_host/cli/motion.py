@@ -6,7 +6,7 @@ from __future__ import annotations
 import click
 
 from ..lm629 import LM629, Snapshot
-from ..move import MoveRules
+from ..move import Move, MoveRules
 from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX
 from ..pid import sample_period_s
 from ..profile_shapes import SCurve
@@ -148,12 +148,15 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     acceleration = _acceleration_unless_moving(chip, a, acc is not None)
     scale = None if raw else s.scale
     with stop_on_error(chip):
+        m: Move
         if curve is not None:
-            m = chip.move_profile(counts, curve, relative=relative)
-            click.echo(f"moving to {_show_position(s, m.target)} along an S-curve: "
-                       f"{len(m.plan.pieces)} pieces {m.plan.piece_s * 1e3:g} ms apart, "
-                       f"{m.plan.duration:.3f} s planned (top velocity word "
-                       f"{m.plan.peak_velocity}, acceleration word {m.plan.acceleration})")
+            shaped = chip.move_profile(counts, curve, relative=relative)
+            p = shaped.plan
+            click.echo(f"moving to {_show_position(s, shaped.target)} along an S-curve: "
+                       f"{len(p.pieces)} pieces {p.piece_s * 1e3:g} ms apart, "
+                       f"{p.duration:.3f} s planned (top velocity word "
+                       f"{p.peak_velocity}, acceleration word {p.acceleration})")
+            m = shaped
         else:
             m = chip.move_to(counts, velocity=v, acceleration=acceleration, relative=relative)
             click.echo(f"moving to {_show_position(s, m.target)} (velocity word {v}, "
