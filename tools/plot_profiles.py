@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -41,7 +42,7 @@ def run(inertia: float, shaped: bool) -> tuple[list[float], list[float], list[in
         sample = model._sample
         t_s = sample_period_s(chip.clock_hz)
 
-        def observed(motion: object) -> None:
+        def observed(motion: Any) -> None:  # the model's Motion
             sample(motion)
             rows.append((model.now(), motion.desired_velocity / 65536 / t_s,
                          motion.position_error()))
