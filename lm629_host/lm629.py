@@ -54,6 +54,7 @@ from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, Progra
 from .pid import sample_period_s
 from .profile_shapes import Points, SCurve, Shape, ShapedMove, check_piece_s
 from .profile_shapes import plan as plan_shape
+from .safety import stop_on_error
 from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
 from .wraparound import PositionTracker, check_register_position, short_way
 from .transports.base import Transport
@@ -618,8 +619,9 @@ class LM629:
         (:class:`~lm629_host.profile_shapes.SCurve`: jerk-limited;
         :class:`~lm629_host.profile_shapes.Points`: your own (time, velocity) list), in
         pieces ``piece_s`` apart (AN-706 4.5.3; at least 10 ms, 4.6.2).  Returns a
-        :class:`~lm629_host.profile_shapes.ShapedMove`: its ``wait()`` issues the pieces on the
-        transport's clock and supervises the move as :meth:`Move.wait` does; the chip's own
+        :class:`~lm629_host.profile_shapes.ShapedMove`: on a bridge that has PROFILE its timer
+        issues the pieces (handed over at once), elsewhere ``wait()`` issues them on the
+        transport's clock; ``wait()`` supervises the move as :meth:`Move.wait` does; the chip's own
         deceleration lands it exactly on the target.  Reads a snapshot first (the distance
         sets the plan); the plan is checked (``ArgumentError``) before anything moves."""
         check_register_position("position", position)
@@ -638,7 +640,13 @@ class LM629:
             self.limits.check_velocity(plan.peak_velocity)
         move = self.move_to(register, velocity=plan.pieces[0].velocity,
                             acceleration=plan.acceleration)
-        return ShapedMove(move, plan)
+        far = self.transport.far_profiles
+        shaped = ShapedMove(move, plan, far=far)
+        if far:  # the bridge's timer issues the rest; the next update waits for the last
+            with stop_on_error(self):
+                shaped.schedule_far(self.axis, self.update_interval)
+            self._last_update = shaped.t0 + max(plan.pieces[-1].t, self.update_interval)
+        return shaped
 
     # ------------------------------------------------------------------ output port
     def port8(self) -> None:

@@ -33,6 +33,7 @@ from .errors import ArgumentError
 from .move import Move, MoveResult, MoveWatch
 from .opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX, Status
 from .snapshot import Snapshot
+from .transports.base import ProfileState
 
 #: 16.16 fixed point of the trajectory words
 _ONE = 1 << 16
@@ -273,21 +274,35 @@ class ShapedMove(Move):
     then waits for the end; ``piece_times`` are when each piece's STT had gone out (seconds
     from the first), and ``jitter`` their lateness against the plan."""
 
-    def __init__(self, move: Move, plan: ProfilePlan) -> None:
+    def __init__(self, move: Move, plan: ProfilePlan, far: bool = False) -> None:
         super().__init__(move.chip, move.target, plan.peak_velocity, plan.acceleration,
                          move.start, move.t0)
         self.plan = plan
         self.inner = move.waiter  #: the end's waiter (the far side's, or None: polling)
         self.waiter = _wait_pieces
         self.piece_times: list[float] = [0.0]
+        #: True when the transport's far side issues the pieces on its own timer; then
+        #: ``far_state`` is what it reported at the end (its pieces' lateness on its clock)
+        self.far = far
+        self.far_state: ProfileState | None = None
 
     def profile_s(self, clock_hz: float) -> float | None:
         return self.plan.duration
 
     @property
     def jitter(self) -> list[float]:
-        """Each issued piece's lateness against its planned time, seconds."""
+        """Each host-issued piece's lateness against its planned time, seconds (a far-side
+        schedule reports only its largest: ``far_state.late_max_s``)."""
         return [t - p.t for t, p in zip(self.piece_times, self.plan.pieces)]
+
+    def schedule_far(self, axis: int | None, update_s: float) -> None:
+        """Hand the pieces after the first to the transport's far side: their times from now,
+        the first no sooner than ``update_s`` (AN-706 4.6.2) after the move's STT."""
+        clock = self.chip.clock
+        elapsed = clock.now() - self.t0
+        pieces = [(max(p.t - elapsed, update_s), p.velocity) for p in self.plan.pieces[1:]]
+        chip: Any = self.chip  # an LM629
+        chip.transport.profile(axis, pieces, new=True)
 
 
 def _wait_pieces(move: Move, watch: MoveWatch,
@@ -297,6 +312,11 @@ def _wait_pieces(move: Move, watch: MoveWatch,
     chip: Any = move.chip  # an LM629: load_trajectory spaces every update by 10 ms itself
     clock = chip.clock
     pieces = move.plan.pieces
+    if move.far:
+        done = (move.inner(move, watch, progress) if move.inner is not None
+                else move.poll(watch, progress))
+        move.far_state = chip.transport.profile(chip.axis, [], new=False)
+        return done
     while len(move.piece_times) < len(pieces):
         piece = pieces[len(move.piece_times)]
         due = move.t0 + piece.t
