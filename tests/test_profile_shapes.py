@@ -97,3 +97,66 @@ def test_s_curve_move_ends_on_target_and_follows_its_pieces():
             end = start_tick + round(move.piece_times[k + 1] * 8e6)  # the next piece's STT
             at = max(t for t in ticks if t < end)
             assert by_tick[at] == piece.velocity, (k, by_tick[at], piece.velocity)
+
+
+# ---------------------------------------------------------------------------------- on a bridge
+UNO_EMU = "sim+emu://?usb=uno&fast_baud=1000000"
+
+
+def _chip(url: str) -> lm629_host.LM629:
+    chip = lm629_host.open(url)
+    chip.reset()
+    chip.load_filter(kp=20, kd=100)
+    chip.update_filter()
+    return chip
+
+
+def test_behind_an_uno_the_bridge_times_the_pieces_not_usb():
+    """PROFILE on the Python far end behind an Uno's 16U2 (4.096 ms flush tick): every piece
+    goes out within a bus program of its time on the bridge's clock (< 1 ms); timed from the
+    host instead, a piece is late by up to the USB tick."""
+    with _chip(UNO_EMU) as chip:
+        move = chip.move_profile(D, SCurve(V, A, J))
+        assert move.far and chip.transport.far_profiles
+        result = move.wait()
+        assert chip.read_desired_position() == D
+        assert abs(result.error) <= chip.move_rules.tolerance
+        state = move.far_state
+        assert state is not None and not state.cancelled
+        assert (state.issued, state.pending) == (len(move.plan.pieces) - 1, 0)
+        assert chip.transport.emulator.stats.pieces == state.issued
+        far_late = state.late_max_s
+    with _chip(UNO_EMU) as chip:
+        chip.transport.far_profiles = False  # the same move, pieces timed from the host
+        move = chip.move_profile(D, SCurve(V, A, J))
+        move.wait()
+        host_late = max(move.jitter)
+    assert far_late < 1e-3
+    assert host_late > 3e-3  # about one 4.096 ms flush tick
+
+
+def test_a_stop_drops_the_pieces_still_pending():
+    """An emergency stop (LTRJ) reaches the chip in the middle of the S-curve: the bridge drops
+    what it still holds (PROFILE_CANCELLED), so no later piece restarts the stopped motor."""
+    from lm629_host import emergency_stop
+    with _chip(UNO_EMU) as chip:
+        move = chip.move_profile(D, SCurve(V, A, J))
+        chip.clock.sleep(0.3)
+        emergency_stop(chip)
+        chip.clock.sleep(move.plan.duration)  # past every piece's time
+        state = chip.transport.profile(None, [], new=False)
+        assert state.cancelled and state.pending == 0
+        assert 0 < state.issued < len(move.plan.pieces) - 1
+        assert chip.snapshot().desired_velocity == 0
+
+
+def test_the_bridge_refuses_pieces_closer_than_10_ms():
+    from lm629_host.errors import TransportError
+    with _chip("sim+emu://?fast_baud=1000000") as chip:
+        before = chip.transport.emulator.stats.pieces
+        with pytest.raises(TransportError, match="BAD_PROFILE"):
+            chip.transport.profile(None, [(0.02, 65536), (0.025, 65536)], new=True)
+        state = chip.transport.profile(None, [], new=False)
+        assert state.pending == 0
+        chip.clock.sleep(0.05)
+        assert chip.transport.emulator.stats.pieces == before
