@@ -77,6 +77,7 @@
 #define LINK_PROFILE_NEW 1u  /* PROFILE flags: a new schedule */
 #define LINK_PROFILE_MAX_PIECES 30u  /* PROFILE: pieces in one frame */
 #define LINK_PROFILE_MAX_SCHEDULE 64u  /* PROFILE: pieces in a schedule */
+#define LINK_PROFILE_LTRJ_CONTROL 8u  /* PROFILE: a piece's LTRJ control word (velocity only) */
 #define LINK_CRC_POLY 4129u  /* CRC-16/GENIBUS polynomial */
 #define LINK_CRC_INIT 65535u  /* CRC-16/GENIBUS initial value */
 #define LINK_CRC_XOROUT 65535u  /* CRC-16/GENIBUS final xor */

@@ -620,7 +620,8 @@ class LM629:
         :class:`~lm629_host.profile_shapes.Points`: your own (time, velocity) list), in
         pieces ``piece_s`` apart (AN-706 4.5.3; at least 10 ms, 4.6.2).  Returns a
         :class:`~lm629_host.profile_shapes.ShapedMove`: on a bridge that has PROFILE its timer
-        issues the pieces (handed over at once), elsewhere ``wait()`` issues them on the
+        issues the pieces (handed over at once; a move of more pieces than it holds, 64, is
+        timed from the host), elsewhere ``wait()`` issues them on the
         transport's clock; ``wait()`` supervises the move as :meth:`Move.wait` does; the chip's own
         deceleration lands it exactly on the target.  Reads a snapshot first (the distance
         sets the plan); the plan is checked (``ArgumentError``) before anything moves."""
@@ -640,7 +641,8 @@ class LM629:
             self.limits.check_velocity(plan.peak_velocity)
         move = self.move_to(register, velocity=plan.pieces[0].velocity,
                             acceleration=plan.acceleration)
-        far = self.transport.far_profiles
+        far = (self.transport.far_profiles
+               and len(plan.pieces) - 1 <= self.transport.profile_capacity)
         shaped = ShapedMove(move, plan, far=far)
         if far:  # the bridge's timer issues the rest; the next update waits for the last
             with stop_on_error(self):

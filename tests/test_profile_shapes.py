@@ -18,6 +18,8 @@ from lm629_host.errors import ArgumentError
 from lm629_host.pid import sample_period_s
 from lm629_host.profile_shapes import Points, SCurve, ShapedMove, plan
 
+from sim_urls import UNO, available
+
 T = sample_period_s(8e6)
 #: 20000 counts at up to 20000 counts/s, 150000 counts/s^2, 3e6 counts/s^3
 D, V, A, J = 20000, 20000.0, 150000.0, 3e6
@@ -100,7 +102,7 @@ def test_s_curve_move_ends_on_target_and_follows_its_pieces():
 
 
 # ---------------------------------------------------------------------------------- on a bridge
-UNO_EMU = "sim+emu://?usb=uno&fast_baud=1000000"
+UNO_EMU = f"sim+emu://?{UNO}"
 
 
 def _chip(url: str) -> lm629_host.LM629:
@@ -111,11 +113,14 @@ def _chip(url: str) -> lm629_host.LM629:
     return chip
 
 
-def test_behind_an_uno_the_bridge_times_the_pieces_not_usb():
-    """PROFILE on the Python far end behind an Uno's 16U2 (4.096 ms flush tick): every piece
-    goes out within a bus program of its time on the bridge's clock (< 1 ms); timed from the
-    host instead, a piece is late by up to the USB tick."""
-    with _chip(UNO_EMU) as chip:
+@pytest.mark.parametrize("url", [UNO_EMU, f"sim+avr://?{UNO}"])
+def test_behind_an_uno_the_bridge_times_the_pieces_not_usb(url):
+    """PROFILE on the Python far end and on the firmware in simavr, behind an Uno's 16U2 (4.096
+    ms flush tick): every piece goes out within a bus program of its time on the bridge's clock
+    (< 1 ms); timed from the host instead, a piece is late by up to the USB tick."""
+    if not available(url):
+        pytest.skip(f"{url}: not available here")
+    with _chip(url) as chip:
         move = chip.move_profile(D, SCurve(V, A, J))
         assert move.far and chip.transport.far_profiles
         result = move.wait()
@@ -124,9 +129,8 @@ def test_behind_an_uno_the_bridge_times_the_pieces_not_usb():
         state = move.far_state
         assert state is not None and not state.cancelled
         assert (state.issued, state.pending) == (len(move.plan.pieces) - 1, 0)
-        assert chip.transport.emulator.stats.pieces == state.issued
         far_late = state.late_max_s
-    with _chip(UNO_EMU) as chip:
+    with _chip(url) as chip:
         chip.transport.far_profiles = False  # the same move, pieces timed from the host
         move = chip.move_profile(D, SCurve(V, A, J))
         move.wait()
@@ -160,3 +164,4 @@ def test_the_bridge_refuses_pieces_closer_than_10_ms():
         assert state.pending == 0
         chip.clock.sleep(0.05)
         assert chip.transport.emulator.stats.pieces == before
+        assert chip.transport.profile(None, [], new=False).issued == 0

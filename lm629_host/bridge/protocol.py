@@ -191,6 +191,8 @@ def c_defines() -> list[tuple[str, int, str]]:
         ("LINK_PROFILE_NEW", PROFILE_NEW, "PROFILE flags: a new schedule"),
         ("LINK_PROFILE_MAX_PIECES", PROFILE_MAX_PIECES, "PROFILE: pieces in one frame"),
         ("LINK_PROFILE_MAX_SCHEDULE", PROFILE_MAX_SCHEDULE, "PROFILE: pieces in a schedule"),
+        ("LINK_PROFILE_LTRJ_CONTROL", int(TrajectoryFlags.VELOCITY),
+         "PROFILE: a piece's LTRJ control word (velocity only)"),
         ("LINK_CRC_POLY", 0x1021, "CRC-16/GENIBUS polynomial"),
         ("LINK_CRC_INIT", 0xFFFF, "CRC-16/GENIBUS initial value"),
         ("LINK_CRC_XOROUT", 0xFFFF, "CRC-16/GENIBUS final xor"),

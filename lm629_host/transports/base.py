@@ -182,6 +182,8 @@ class Transport(abc.ABC):
     #: True when the far side issues a shaped move's pieces on its own timer
     #: (:meth:`profile`); otherwise the host times them on ``clock``
     far_profiles: bool = False
+    #: the most pieces the far side holds (a longer shaped move is timed from the host)
+    profile_capacity: int = 0
 
     def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
         self.url = url

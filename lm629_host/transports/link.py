@@ -36,6 +36,7 @@ from ..bridge.protocol import (
     MAX_PING,
     NONE_BYTE,
     PROFILE_MAX_PIECES,
+    PROFILE_MAX_SCHEDULE,
     PROFILE_REPLY_PAYLOAD,
     PROTOCOL_VERSION,
     REPLY_TO,
@@ -389,6 +390,7 @@ class LinkTransport(Transport):
                                   and bool(info.capabilities & Capability.PROGRAM_CODES))
         self.has_record = bool(info.capabilities & Capability.RECORD)
         self.far_profiles = bool(info.capabilities & Capability.PROFILE)
+        self.profile_capacity = PROFILE_MAX_SCHEDULE if self.far_profiles else 0
         # a WAIT_STATUS may stand anywhere in a program (Move.wait's one-exchange end check)
         self.far_waits = self.has_wait_status
         self._forget_codes()  # HELLO empties the bridge's codes
