@@ -637,7 +637,8 @@ static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t 
                 break;
             if (link_rx_pending())
                 goto stop;
-            profile_poll(0);
+            if (l->prof_n) /* only then: the loop stays within a 4 us tick */
+                profile_poll(0);
         }
         if (link_rx_pending())
             break;
