@@ -73,6 +73,11 @@
 #define LINK_RECORD_TICK_US 4u  /* RECORD: the bridge clock's tick */
 #define LINK_RECORD_CMD_FIRST 7u  /* RECORD: first data-reporting command */
 #define LINK_RECORD_CMD_LAST 13u  /* RECORD: last data-reporting command */
+#define LINK_PROFILE_MIN_SPACING_US 10000u  /* PROFILE: pieces this far apart */
+#define LINK_PROFILE_NEW 1u  /* PROFILE flags: a new schedule */
+#define LINK_PROFILE_MAX_PIECES 30u  /* PROFILE: pieces in one frame */
+#define LINK_PROFILE_MAX_SCHEDULE 64u  /* PROFILE: pieces in a schedule */
+#define LINK_PROFILE_LTRJ_CONTROL 8u  /* PROFILE: a piece's LTRJ control word (velocity only) */
 #define LINK_CRC_POLY 4129u  /* CRC-16/GENIBUS polynomial */
 #define LINK_CRC_INIT 65535u  /* CRC-16/GENIBUS initial value */
 #define LINK_CRC_XOROUT 65535u  /* CRC-16/GENIBUS final xor */
@@ -84,6 +89,7 @@
 #define FRAME_RUN_CODE 6u  /* frame type */
 #define FRAME_SET_BAUD 7u  /* frame type */
 #define FRAME_RECORD 8u  /* frame type */
+#define FRAME_PROFILE 10u  /* frame type */
 #define FRAME_HELLO_REPLY 129u  /* frame type */
 #define FRAME_RUN_REPLY 130u  /* frame type */
 #define FRAME_PONG 131u  /* frame type */
@@ -91,6 +97,7 @@
 #define FRAME_BAUD_REPLY 135u  /* frame type */
 #define FRAME_RECORD_ROW 136u  /* frame type */
 #define FRAME_RECORD_END 137u  /* frame type */
+#define FRAME_PROFILE_REPLY 139u  /* frame type */
 #define FRAME_ERROR_REPLY 255u  /* frame type */
 #define RESULT_OK 0u  /* result code */
 #define RESULT_BUSY_TIMEOUT 1u  /* result code */
@@ -101,6 +108,8 @@
 #define RESULT_UNKNOWN_CODE 6u  /* result code */
 #define RESULT_BAD_BAUD 7u  /* result code */
 #define RESULT_BAD_RATE 8u  /* result code */
+#define RESULT_BAD_PROFILE 11u  /* result code */
+#define RESULT_PROFILE_CANCELLED 12u  /* result code */
 #define CAP_RESET_LINE 1u  /* HELLO_REPLY capability bit */
 #define CAP_HI_LINE 2u  /* HELLO_REPLY capability bit */
 #define CAP_BUSY_ON_BRIDGE 4u  /* HELLO_REPLY capability bit */
@@ -110,6 +119,7 @@
 #define CAP_PROGRAM_CODES 64u  /* HELLO_REPLY capability bit */
 #define CAP_BAUD_SWITCH 128u  /* HELLO_REPLY capability bit */
 #define CAP_RECORD 256u  /* HELLO_REPLY capability bit */
+#define CAP_PROFILE 1024u  /* HELLO_REPLY capability bit */
 
 /* CRC-16/GENIBUS table (lm629_host.bridge.protocol._CRC_TABLE): 256 high bytes, then 256 low bytes */
 #define LINK_CRC_TABLE_INIT { \

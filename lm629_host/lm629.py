@@ -20,7 +20,15 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
 from .clock import Clock, WallClock
-from .errors import ArgumentError, AxisError, CommandError, ResetError, WaitTimeout, check_int
+from .errors import (
+    ArgumentError,
+    AxisError,
+    CommandError,
+    ResetError,
+    UpdateTooSoon,
+    WaitTimeout,
+    check_int,
+)
 from .limits import SoftLimits
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
@@ -35,6 +43,7 @@ from .opcodes import (
     RESET_CLEARED_STATUSES,
     RESET_DONE_STATUSES,
     RESET_WAIT_S,
+    UPDATE_INTERVAL_S,
     VELOCITY_MAX,
     Cmd,
     FilterFlags,
@@ -47,7 +56,12 @@ from .opcodes import (
     s32_words,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
+from .pid import sample_period_s
+from .profile_shapes import Points, SCurve, Shape, ShapedMove, check_piece_s
+from .profile_shapes import plan as plan_shape
+from .safety import stop_on_error
 from .snapshot import Snapshot, add_snapshot, snapshot_at
+from .wraparound import PositionTracker, check_register_position, short_way
 from .transports.base import Transport
 
 if TYPE_CHECKING:
@@ -95,6 +109,16 @@ class LM629:
     #: the axis's soft limits (a profile sets them): every trajectory is checked against them
     #: in :meth:`trajectory_program`, before any bus cycle (:mod:`lm629_host.limits`)
     limits: SoftLimits | None = None
+    #: the shortest time between two trajectory updates (STT) on this chip, seconds: AN-706
+    #: 4.6.2 (a new STT aborts the chip's trajectory calculation and holds its output) asks for
+    #: 10 ms.  0 turns the rule off, for a chip measured to keep up (settable per object)
+    update_interval: float = UPDATE_INTERVAL_S
+    #: what an update sooner than ``update_interval`` does: ``"wait"`` until it is due, on the
+    #: transport's clock (the simulated one on ``sim://``), or ``"raise"`` :class:`UpdateTooSoon`
+    #: before any bus cycle.  A stop (LTRJ stop bits) is never held back
+    update_rule: str = "wait"
+    #: the transport clock just after this object's last STT went out (None: none yet)
+    _last_update: float | None = None
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
                  busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None,
@@ -122,6 +146,9 @@ class LM629:
         # refused instead of missing it behind a stale flag.
         self._ce_clear = False
         self._this_thread = _ThisThread()
+        #: the extended positions (AN-706 6.5.2): every position this object reads goes
+        #: through it, so that a wraparound of the register is no jump (:mod:`.wraparound`)
+        self.positions = PositionTracker()
 
     # ------------------------------------------------------------------ plumbing
     @property
@@ -256,6 +283,9 @@ class LM629:
         one sample, the command-error flag clear."""
         self._ds = 1
         self._ce_clear = True
+        self.positions.restart()
+        self.positions.pending = False  # the reset cleared the bit
+        self._last_update = None  # and aborted nothing: the next update may go at once
 
     @property
     def port12_selected(self) -> bool:
@@ -285,9 +315,34 @@ class LM629:
         return add_snapshot(self.program())
 
     def snapshot(self) -> Snapshot:
-        """Status, signals, positions, velocities and integration sum in one bus program."""
-        r = self.run(self.snapshot_program())
-        return snapshot_at(r, 0, self.clock.now())
+        """Status, signals, positions, velocities and integration sum in one bus program; the
+        positions extended past the register's wraparound (:meth:`extended`)."""
+        r = self.run(self._clearing_wrap(self.snapshot_program()))
+        return self.extended(snapshot_at(r, 0, self.clock.now()))
+
+    def extended(self, s: Snapshot) -> Snapshot:
+        """``s`` (just read from this chip) with its positions extended past the register's
+        wraparound (:class:`~lm629_host.wraparound.PositionTracker`); a wraparound bit in its
+        status is cleared by this object's next position read."""
+        self.positions.saw(s.status)
+        return self.positions.snapshot(s)
+
+    def _clearing_wrap(self, program: Program) -> Program:
+        """``program`` with an RSTI of the wraparound bit in front when a read has seen it
+        (AN-706 6.5.2: the host notes the wrap and resets the bit), in the same exchange."""
+        if not self.positions.pending:
+            return program
+        self.positions.pending = False
+        return self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~Status.WRAPAROUND)) \
+            .extend(program)
+
+    def _read_position(self, cmd: Cmd, name: str) -> int:
+        """RDDP or RDRP, extended; the status its busy checks read shows a wraparound."""
+        r = self.run(self._clearing_wrap(self.program().command(cmd).read(2)))
+        if r.status is not None:
+            self.positions.saw(r.status)
+        near = "desired" if name == "real" else None
+        return self.positions.extend(name, s32_words(*r.words), near=near)
 
     # ------------------------------------------------------------------ interrupts
     def mask_interrupts(self, flags: Status | int) -> None:
@@ -305,8 +360,9 @@ class LM629:
 
     # ------------------------------------------------------------------ homing, index, limits
     def define_home(self) -> None:
-        """DFH: the current position becomes 0."""
+        """DFH: the current position becomes 0 (the extended positions restart there)."""
         self._command(Cmd.DFH)
+        self.positions.restart()
 
     def set_index_position(self) -> None:
         """SIP: latch the position at the next index pulse (read it with read_index_position)."""
@@ -383,7 +439,7 @@ class LM629:
         if velocity is not None:
             velocity = check_int("velocity", velocity, vel_lo, VELOCITY_MAX, hex_digits=8)
         if position is not None:
-            position = check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+            position = check_register_position("position", position)
         if velocity_mode and position is not None:
             raise ValueError("position cannot be given with velocity_mode=True: a velocity-mode "
                              "move has no target position")
@@ -394,8 +450,12 @@ class LM629:
                 "chip would not move (spec: stop bits only stop an ongoing move). Send the stop, "
                 "then load the next move")
         if self.limits is not None and stop is None:  # a stop is never refused
+            # the limits are extended counts: the target the chip reaches the short way round
             self.limits.check_trajectory(
-                acceleration, velocity, position, acceleration_relative=acceleration_relative,
+                acceleration, velocity,
+                position if position is None or position_relative
+                else self.positions.near_register(position),
+                acceleration_relative=acceleration_relative,
                 velocity_relative=velocity_relative, position_relative=position_relative,
                 velocity_mode=velocity_mode)
         control = _STOPS[stop]
@@ -430,7 +490,7 @@ class LM629:
             velocity_relative=velocity_relative, position_relative=position_relative,
             velocity_mode=velocity_mode, forward=forward, stop=stop)
         if start:
-            self._start(p)
+            self._start_run(p, update=stop is None)
         else:
             self.run(p)
 
@@ -444,7 +504,9 @@ class LM629:
     def start_checked(self, before: int, after: int) -> bool:
         """Take the status read just before this chip's STT (busy clear) and the one after it;
         return True when the chip refused that STT (the caller raises :class:`CommandError`).
-        Every STT, this object's or a board's, goes through here."""
+        Every STT, this object's or a board's, goes through here (and is the last update the
+        next one is spaced from: the clock now is after it)."""
+        self._last_update = self.clock.now()
         if not after & Status.COMMAND_ERROR:
             self._ce_clear = True
             return False
@@ -461,10 +523,34 @@ class LM629:
                head: Program | None = None) -> Status:
         return self._start_run(program, clear, head)[0]
 
+    def update_due(self) -> float:
+        """Seconds until the next trajectory update may go out (``update_interval`` after the
+        last STT), 0 when it may now."""
+        if self._last_update is None or self.update_interval <= 0:
+            return 0.0
+        return max(0.0, self._last_update + self.update_interval - self.clock.now())
+
+    def _space_update(self) -> None:
+        """Hold a trajectory update back to ``update_interval`` after the last STT (AN-706
+        4.6.2), or raise :class:`UpdateTooSoon` under ``update_rule = "raise"``."""
+        if self.update_rule not in ("wait", "raise"):
+            raise ValueError(f"update_rule={self.update_rule!r} must be 'wait' or 'raise'")
+        due = self.update_due()
+        if due <= 0:
+            return
+        if self.update_rule == "raise":
+            assert self._last_update is not None
+            raise UpdateTooSoon(self.clock.now() - self._last_update, self.update_interval)
+        self.clock.sleep(due)
+
     def _start_run(self, program: Program, clear: Status | int = 0,
-                   head: Program | None = None) -> tuple[Status, ProgramResult]:
+                   head: Program | None = None, *,
+                   update: bool = True) -> tuple[Status, ProgramResult]:
         """:meth:`_start` that also returns the program's result; ``head`` runs first, in the
-        same program (move_to's snapshot: one exchange)."""
+        same program (move_to's snapshot: one exchange).  ``update``: the STT is a trajectory
+        update, spaced by ``update_interval`` (a stop is not: it goes out at once)."""
+        if update:
+            self._space_update()
         flags = self.start_flags(clear)
         if flags:  # RSTI: a 0 bit clears
             program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~flags)) \
@@ -488,8 +574,9 @@ class LM629:
         i.e. before busy clears: see the model's choice list).  When the command-error flag may
         already be set (after
         an earlier refusal, a ``raw`` command, or on a chip not reset by this object) an RSTI
-        that clears only that flag goes first, so that a refusal is never hidden by a stale flag.  Do not issue STT more often
-        than every 10 ms (AN-706 4.6.2).
+        that clears only that flag goes first, so that a refusal is never hidden by a stale flag.
+        Spaced ``update_interval`` (10 ms) after the last STT (AN-706 4.6.2): it waits on the
+        transport's clock, or raises :class:`UpdateTooSoon` under ``update_rule = "raise"``.
         """
         return self._start(self.program())
 
@@ -508,21 +595,28 @@ class LM629:
         can never end this one's wait.  Arguments are checked before any bus traffic
         (``ValueError``).
         """
-        check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        check_register_position("position", position)
         velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
         if acceleration is not None:
             acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX,
                                      hex_digits=8)
         if self.limits is not None:  # before the first read: a refused move costs no exchange
-            self.limits.check_trajectory(acceleration, velocity, None if relative else position)
+            self.limits.check_trajectory(acceleration, velocity, None if relative
+                                         else self.positions.near_register(position))
         first = self.snapshot() if relative else None
-        target = first.desired_position + position if first is not None else position
-        program = self.trajectory_program(acceleration, velocity,
-                                          check_int("target position", target, POSITION_MIN,
-                                                    POSITION_MAX, hex_digits=8))
+        if first is not None:
+            # the target in the register's terms: the chip goes the short way round to it
+            register = self.positions.to_register(first.desired_position + position)
+        else:
+            register = position
+        program = self.trajectory_program(acceleration, velocity, register)
         head = self.snapshot_program() if first is None else None
-        _, r = self._start_run(program, clear=MOVE_FLAGS, head=head)
-        start = first if first is not None else snapshot_at(r, 0, self.clock.now())
+        _, r = self._start_run(program, clear=MOVE_FLAGS, head=self._clearing_wrap(head)
+                               if head is not None else None)
+        start = first if first is not None else self.extended(snapshot_at(r, 0, self.clock.now()))
+        # the target extended as the chip will reach it: the short way from the start
+        target = start.desired_position + short_way(register - self.positions.to_register(
+            start.desired_position))
         if acceleration is not None:
             self._move_acceleration = acceleration
         move = Move(self, target, velocity,
@@ -535,6 +629,44 @@ class LM629:
 
     #: the last acceleration word move_to loaded (for the default timeout)
     _move_acceleration: int | None = None
+
+    def move_profile(self, position: int, shape: Shape, *, relative: bool = False,
+                     piece_s: float = 2 * UPDATE_INTERVAL_S) -> ShapedMove:
+        """Start a move to ``position`` (counts, a register value as for :meth:`move_to`, or
+        from the desired position with ``relative=True``) along ``shape``
+        (:class:`~lm629_host.profile_shapes.SCurve`: jerk-limited;
+        :class:`~lm629_host.profile_shapes.Points`: your own (time, velocity) list), in
+        pieces ``piece_s`` apart (AN-706 4.5.3; at least 10 ms, 4.6.2).  Returns a
+        :class:`~lm629_host.profile_shapes.ShapedMove`: on a bridge that has PROFILE its timer
+        issues the pieces (handed over at once; a move of more pieces than it holds, 64, is
+        timed from the host), elsewhere ``wait()`` issues them on the
+        transport's clock; ``wait()`` supervises the move as :meth:`Move.wait` does; the chip's own
+        deceleration lands it exactly on the target.  Reads a snapshot first (the distance
+        sets the plan); the plan is checked (``ArgumentError``) before anything moves."""
+        check_register_position("position", position)
+        if not isinstance(shape, (SCurve, Points)):
+            raise ArgumentError("shape", shape, f"shape={shape!r}: expected "
+                                "profile_shapes.SCurve or profile_shapes.Points")
+        check_piece_s(piece_s)
+        sample_s = sample_period_s(self.clock_hz)
+        plan = plan_shape(shape, position, sample_s, piece_s) if relative else None
+        desired = self.snapshot().desired_position
+        register = self.positions.to_register(desired + position) if relative else position
+        if plan is None:
+            distance = short_way(register - self.positions.to_register(desired))
+            plan = plan_shape(shape, distance, sample_s, piece_s)
+        if self.limits is not None:  # the fastest piece, before anything moves
+            self.limits.check_velocity(plan.peak_velocity)
+        move = self.move_to(register, velocity=plan.pieces[0].velocity,
+                            acceleration=plan.acceleration)
+        far = (self.transport.far_profiles
+               and len(plan.pieces) - 1 <= self.transport.profile_capacity)
+        shaped = ShapedMove(move, plan, far=far)
+        if far:  # the bridge's timer issues the rest; the next update waits for the last
+            with stop_on_error(self):
+                shaped.schedule_far(self.axis, self.update_interval)
+            self._last_update = shaped.t0 + max(plan.pieces[-1].t, self.update_interval)
+        return shaped
 
     # ------------------------------------------------------------------ output port
     def port8(self) -> None:
@@ -553,16 +685,18 @@ class LM629:
 
     # ------------------------------------------------------------------ data reporting
     def read_desired_position(self) -> int:
-        """RDDP: desired position, counts (signed 32-bit)."""
-        return s32_words(*self._read(Cmd.RDDP, 2))
+        """RDDP: desired position, counts, extended past the register's wraparound (a Python
+        int; the register itself reads C0000000..3FFFFFFF: :mod:`lm629_host.wraparound`)."""
+        return self._read_position(Cmd.RDDP, "desired")
 
     def read_real_position(self) -> int:
-        """RDRP: real (encoder) position, counts (signed 32-bit)."""
-        return s32_words(*self._read(Cmd.RDRP, 2))
+        """RDRP: real (encoder) position, counts, extended past the register's wraparound."""
+        return self._read_position(Cmd.RDRP, "real")
 
     def read_index_position(self) -> int:
-        """RDIP: position latched at the index pulse after SIP."""
-        return s32_words(*self._read(Cmd.RDIP, 2))
+        """RDIP: position latched at the index pulse after SIP, extended as the real position
+        nearest to it."""
+        return self.positions.near_register(s32_words(*self._read(Cmd.RDIP, 2)), "real")
 
     def read_desired_velocity(self) -> int:
         """RDDV: desired velocity, signed 16.16 (65536 = 1 count/sample)."""

@@ -157,9 +157,13 @@ class Move:
     def _wait(self, timeout: float | None, tolerance: int | None, rules: MoveRules | None,
               progress: Callable[[Snapshot], None] | None) -> MoveResult:
         watch = self.watch(timeout, tolerance, rules)
-        chip, clock = self.chip, self.chip.clock
         if self.waiter is not None:  # the far side waits (lm629_host.movewait)
             return self.waiter(self, watch, progress)
+        return self.poll(watch, progress)
+
+    def poll(self, watch: MoveWatch, progress: Callable[[Snapshot], None] | None) -> MoveResult:
+        """The host's loop of :meth:`wait`: a snapshot every ``poll``, each judged by ``watch``."""
+        chip, clock = self.chip, self.chip.clock
         while True:
             s = chip.snapshot()
             if progress is not None:

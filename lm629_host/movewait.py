@@ -52,6 +52,8 @@ class FarWaitChip(Protocol):
 
     def run(self, program: Program) -> ProgramResult: ...
 
+    def extended(self, s: Snapshot) -> Snapshot: ...
+
 
 def wait_far(move: Move, watch: MoveWatch,
              progress: Callable[[Snapshot], None] | None) -> MoveResult:
@@ -68,7 +70,7 @@ def wait_far(move: Move, watch: MoveWatch,
         if watch.complete_at is None or not settle:
             p = chip.program().wait_status(int(END_MASK), chunk_ms)
             r = chip.run(add_snapshot(p))
-            snaps = [snapshot_at(r, 0, clock.now(), status_at=1)]
+            snaps = [chip.extended(snapshot_at(r, 0, clock.now(), status_at=1))]
             first_of_check = False
         else:
             # as many snapshots as the settle rule still needs: all of them, or (the shaft at
@@ -83,7 +85,8 @@ def wait_far(move: Move, watch: MoveWatch,
                 add_snapshot(p.wait(poll_us))
             r = chip.run(p)
             now = clock.now()
-            snaps = [snapshot_at(r, k, now - (k_n - 1 - k) * rules.poll) for k in range(k_n)]
+            snaps = [chip.extended(snapshot_at(r, k, now - (k_n - 1 - k) * rules.poll))
+                     for k in range(k_n)]
             # a link whose exchanges leave more than COARSE_POLLS polls between the last
             # snapshot of one check and the first of the next (115200 baud, long programs:
             # ~24 ms) cannot show a shaft at rest across them (a shaft turning round reads the

@@ -224,6 +224,9 @@ FIXED_ONE = 1 << 16
 BUSY_WORST_CASE_S = 100e-6  #: the chip never holds busy longer than this after a transfer
 RESET_WAIT_S = 1.5e-3  #: after /RST, status is 84/C4 within this time
 SAMPLE_CLOCKS = 2048  #: one sample every 2048 chip clocks
+#: AN-706 4.6.2: a new STT aborts the chip's trajectory calculation (its output stays at the
+#: last sample's value), so "trajectory is not updated at a greater rate than once every 10 ms"
+UPDATE_INTERVAL_S = 10e-3
 #: the clock assumed where the transport cannot say (hardware): the 8 MHz parts' rate
 NOMINAL_CLOCK_HZ = 8_000_000
 RESET_DONE_STATUSES = (0x84, 0xC4)

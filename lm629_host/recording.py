@@ -17,8 +17,8 @@ A row lost on a faulty link is a *gap*: its index is missing from :attr:`Trace.r
 from __future__ import annotations
 
 import math
-from collections.abc import Generator, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Generator, Iterator
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 from .errors import ArgumentError
@@ -158,6 +158,9 @@ class RecordStream:
         self._transport = transport
         self._t0: float | None = None
         self.rows: list[Row] = []
+        # the chip's extended positions (AN-706 6.5.2): a recording across the register's
+        # wraparound shows no jump; None for a chip without them
+        self._extend: Callable[[Snapshot], Snapshot] | None = getattr(chip, "extended", None)
 
     def __iter__(self) -> Iterator[Row]:
         if self._raw is None:
@@ -166,6 +169,9 @@ class RecordStream:
             if self._t0 is None:
                 self._t0 = raw.t
             row = _row(raw, raw.t - self._t0, self.full)
+            if self._extend is not None:
+                s = self._extend(row.snapshot())
+                row = replace(row, desired=s.desired_position, real=s.real_position)
             self.rows.append(row)
             yield row
 

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING
 from .connections import MAX_AXES, adapter_name, adapter_pin, connections
 from .errors import BusyTimeout, LM629Error
 from .miswiring import Miswiring
-from .opcodes import NOMINAL_CLOCK_HZ, RESET_CLEARED_STATUSES, RESET_DONE_STATUSES, RESET_WAIT_S, Cmd
+from .opcodes import NOMINAL_CLOCK_HZ, RESET_CLEARED_STATUSES, RESET_DONE_STATUSES, RESET_WAIT_S, UPDATE_INTERVAL_S, Cmd
 from .pinout import pin_of
 from .plan import plan
 from .program import Op, Program
@@ -79,6 +79,8 @@ POSITION_ERROR_THRESHOLD = 0x7FFF
 #: how long a move is given: 16 samples at the slowest clock the chip runs (1 MHz: 2 ms a
 #: sample) would be 32 ms; at 6-8 MHz a pattern is reached in 3-4 samples (1.4 ms)
 MOVE_WAIT_US = 4000
+#: two STTs at least this far apart (AN-706 4.6.2: a new STT aborts the trajectory calculation)
+UPDATE_WAIT_US = round(UPDATE_INTERVAL_S * 1e6)
 #: the wait before every transfer (the datasheet's longest busy is 100 us)
 UNHURRIED_US = 150
 #: the reset wait in the microseconds a bus program's wait takes
@@ -410,6 +412,8 @@ def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], 
         exps[name] = Experiment(name, cmds, words, target, relative)
         p = _ltrj(_reset(chip, chip.program()).wait(RESET_WAIT_US), target)
         if relative is not None:
+            # the second STT no sooner than AN-706 4.6.2's 10 ms after the first
+            p.wait(UPDATE_WAIT_US - MOVE_WAIT_US)
             p.command(Cmd.LTRJ).write(LTRJ_RELATIVE).write32(relative).command(Cmd.STT) \
                 .wait(MOVE_WAIT_US)
         p.status().command(Cmd.RDDP).read(2).command(Cmd.RDRP).read(2)

@@ -464,12 +464,56 @@ static void test_record(void)
            "byte; a writing program refused\n");
 }
 
+/* PROFILE: the golden request (a new schedule, pieces at 20 and 40 ms) is answered with the
+ * golden reply (nothing issued, two pending); link_idle issues each piece once the bridge's
+ * clock (one tick a look in the fake) reaches it: LTRJ 0008 and the velocity, then STT; a
+ * program with LTRJ (a stop) drops what is pending, and the next reply says so. */
+static void test_profile(void)
+{
+    uint8_t out[320], wire[64], *p;
+    link_init(&L);
+    fake_reset();
+    fake.status = 0xC0;
+    expect_reply("profile_two", "profile_reply_two");
+    CHECK(fake.log_len == 0, "profile: a piece issued at once");
+    while (L.prof_n == 2 && fake.ticks < 100000)
+        link_idle(&L);
+    CHECK(L.prof_n == 1 && fake.ticks >= 5000 && fake.ticks <= 5010,
+          "profile: first piece at tick %u", (unsigned)fake.ticks);
+    const uint8_t want[] = {'C', 0x1F, 'W', 0x00, 'W', 0x08, 'W', 0x00, 'W', 0x01, 'W', 0x40,
+                            'W', 0x00, 'C', 0x01};
+    int at = 0, ok = 1;
+    for (int i = 0; i + 1 < fake.log_len && at < (int)sizeof want; i += 2)
+        if (fake.log[i] == 'C' || fake.log[i] == 'W') {
+            ok &= fake.log[i] == want[at] && fake.log[i + 1] == want[at + 1];
+            at += 2;
+        }
+    CHECK(ok && at == (int)sizeof want, "profile: the piece's bus cycles");
+    /* a stop (LTRJ 0100 abrupt, STT) before the second piece: the schedule is dropped */
+    uint8_t stop[] = {0x00, 0x00, 0x00, OP_COMMAND, 0x1F, OP_WRITE, 0x02, 0x00, OP_COMMAND, 0x01};
+    feed(wire, frame(FRAME_RUN, 0x41, stop, sizeof stop, wire), out);
+    CHECK(L.prof_n == 0, "profile: a stop left %u pieces", L.prof_n);
+    uint8_t ask[] = {0x00, 0x00};
+    int n = feed(wire, frame(FRAME_PROFILE, 0x42, ask, sizeof ask, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x42, &p) == 9
+          && p[0] == RESULT_PROFILE_CANCELLED && ((p[1] << 8) | p[2]) == 1 && p[4] == 0,
+          "profile: the reply after a stop");
+    /* pieces closer than 10 ms: refused, nothing kept */
+    uint8_t close[] = {0x01, 0x00, 0, 0, 0x4E, 0x20, 0, 1, 0, 0, 0, 0, 0x55, 0xF0, 0, 1, 0, 0};
+    n = feed(wire, frame(FRAME_PROFILE, 0x43, close, sizeof close, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x43, &p) == 9 && p[0] == RESULT_BAD_PROFILE
+          && p[4] == 0, "profile: pieces 2 ms apart not refused");
+    printf("profile: the golden schedule, a piece at its tick (LTRJ 0008 + velocity, STT), "
+           "dropped by a stop; pieces 2 ms apart refused\n");
+}
+
 int main(int argc, char **argv)
 {
     load(argc > 1 ? argv[1] : "golden_frames.txt");
     test_codec();
     test_select();
     test_record();
+    test_profile();
     test_golden_requests();
     test_exactly_once();
     test_wait_status();

@@ -29,7 +29,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ..bridge.protocol import CODE_BYTES, CODE_SLOTS
+from ..bridge.protocol import CODE_BYTES, CODE_SLOTS, PROFILE_MAX_SCHEDULE
 from ..clock import Clock
 from ..errors import ProtocolViolation, TransportError
 from .wiring import Miswiring
@@ -412,9 +412,11 @@ class AvrPipe:
 
 #: ``link_t`` of firmware_bridge/link.h on the AVR: 15 bytes of state, then four 16-bit
 #: counters (frames, bad_frames, runs, cache_hits, little-endian), 6 bytes of the RUN_SHORT
-#: check, the programs kept for RUN_CODE (3 bytes and CODE_BYTES each), then the three buffers
+#: check, the programs kept for RUN_CODE (3 bytes and CODE_BYTES each), the three buffers, then
+#: PROFILE's schedule (4 bytes, two 16-bit and four 32-bit fields, 6 bytes a piece)
 _LINK_COUNTERS_AT = 15
-_LINK_T_SIZE = 15 + 4 * 2 + 6 + CODE_SLOTS * (3 + CODE_BYTES) + 252 + 250 + 252
+_LINK_T_SIZE = (15 + 4 * 2 + 6 + CODE_SLOTS * (3 + CODE_BYTES) + 252 + 250 + 252
+                + 4 + 2 * 2 + 4 * 4 + 6 * PROFILE_MAX_SCHEDULE)
 _link_addresses: dict[Path, int | None] = {}
 
 

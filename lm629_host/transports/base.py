@@ -19,7 +19,7 @@ wait, ``LM629.wait_for``) waits on the right time base.
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 import logging
 import threading
 from dataclasses import asdict, dataclass
@@ -88,6 +88,19 @@ HOST_POLLED_NOTE = (
     "rows are read by the host, one exchange each, and stamped with the host's clock when the "
     "exchange starts: the spacing jitters by what an exchange takes (USB latency included), a "
     "row is never faster than one exchange, and a period the host could not keep is a gap")
+
+
+@dataclass(frozen=True)
+class ProfileState:
+    """What a far side reports of a shaped move's pieces it issues on its own timer
+    (:meth:`Transport.profile`): pieces issued and still pending, the largest lateness of an
+    issued piece against its time on the far side's clock, and whether the schedule was
+    cancelled (a stop reached the chip before its last piece)."""
+
+    issued: int
+    pending: int
+    late_max_s: float
+    cancelled: bool = False
 
 
 @dataclass(frozen=True)
@@ -204,6 +217,11 @@ class Transport(abc.ABC):
     #: True when one program may carry a far-side wait between its commands (a WAIT_STATUS
     #: inside a longer program): then ``Move.wait`` finds a move's end in one exchange
     far_waits: bool = False
+    #: True when the far side issues a shaped move's pieces on its own timer
+    #: (:meth:`profile`); otherwise the host times them on ``clock``
+    far_profiles: bool = False
+    #: the most pieces the far side holds (a longer shaped move is timed from the host)
+    profile_capacity: int = 0
 
     #: the subscribed observers, and those of them that want bus cycles (tuples, replaced
     #: whole on a change, so that a program in another thread iterates a stable one)
@@ -366,6 +384,14 @@ class Transport(abc.ABC):
         """The highest rate (rows/s) at which ``program`` can be recorded, or None when the
         transport cannot tell before it tries (the host-polled default on hardware)."""
         return None
+
+    def profile(self, axis: int | None, pieces: Sequence[tuple[float, int]], *,
+                new: bool) -> ProfileState:
+        """Hand a shaped move's pieces to the far side (``far_profiles``): each (seconds from
+        now, velocity word) is an LTRJ of that maximum velocity and an STT on chip ``axis``
+        (None: the transport's own), issued on the far side's timer; ``new`` drops what an
+        older schedule still holds.  No pieces and ``new=False``: what the schedule did."""
+        raise NotImplementedError(f"{type(self).__name__} issues no pieces on its far side")
 
     def record_rows(self, program: Program, period_s: float, rows: int) -> Iterator[RawRow]:
         """Run ``program`` every ``period_s`` for ``rows`` rows (0: until the iterator is

@@ -35,6 +35,9 @@ from ..bridge.protocol import (
     MAX_FRAME,
     MAX_PING,
     NONE_BYTE,
+    PROFILE_MAX_PIECES,
+    PROFILE_MAX_SCHEDULE,
+    PROFILE_REPLY_PAYLOAD,
     PROTOCOL_VERSION,
     REPLY_TO,
     RUN_OVERHEAD,
@@ -52,6 +55,7 @@ from ..bridge.protocol import (
     busy_timeout_us,
     check_record_program,
     encode_frame,
+    profile_payload,
     record_payload,
     row_wire_bytes,
     reply_size,
@@ -69,7 +73,7 @@ from ..program import (
     TraceCallback,
     cycles_of,
 )
-from .base import RawRow, Transport
+from .base import ProfileState, RawRow, Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
 
@@ -411,6 +415,8 @@ class LinkTransport(Transport):
         self.has_program_codes = (self.has_compact_run
                                   and bool(info.capabilities & Capability.PROGRAM_CODES))
         self.has_record = bool(info.capabilities & Capability.RECORD)
+        self.far_profiles = bool(info.capabilities & Capability.PROFILE)
+        self.profile_capacity = PROFILE_MAX_SCHEDULE if self.far_profiles else 0
         # a WAIT_STATUS may stand anywhere in a program (Move.wait's one-exchange end check)
         self.far_waits = self.has_wait_status
         self._forget_codes()  # HELLO empties the bridge's codes
@@ -700,6 +706,39 @@ class LinkTransport(Transport):
             "Host and firmware disagree on the program format or limits; reflash the firmware "
             "that matches this host (lm629 bridge flash).", port=self.url,
             may_have_run=base > 0)
+
+    # ------------------------------------------------------------------ shaped moves (PROFILE)
+    def profile(self, axis: int | None, pieces: Sequence[tuple[float, int]], *,
+                new: bool) -> ProfileState:
+        """PROFILE frames (PROFILE_MAX_PIECES pieces each, the first one ``new``): the bridge
+        issues each piece on its own timer, its times counted from the first frame's arrival
+        (so the link's latency shifts them all alike and jitters none).  A schedule the bridge
+        refuses is a :class:`TransportError` naming why."""
+        if not self.far_profiles:
+            return super().profile(axis, pieces, new=new)
+        cs = self.cs if axis is None else axis
+        times = [(round(t * 1e6), v) for t, v in pieces]
+        chunks = [times[k:k + PROFILE_MAX_PIECES]
+                  for k in range(0, len(times), PROFILE_MAX_PIECES)] or [[]]
+        state = ProfileState(0, 0, 0.0)
+        for k, chunk in enumerate(chunks):
+            payload = profile_payload(new and k == 0, cs, chunk)
+            frame = self._exchange(FrameType.PROFILE, payload,
+                                   self.reply_timeout(wire_size(len(payload) + 4),
+                                                      wire_size(PROFILE_REPLY_PAYLOAD.size + 4)),
+                                   f"PROFILE of {len(chunk)} piece(s)", self.retries)
+            if len(frame.payload) != PROFILE_REPLY_PAYLOAD.size:
+                raise TransportError("the bridge's PROFILE_REPLY has the wrong length: reflash "
+                                     "the firmware that matches this host", port=self.url)
+            result, issued, pending, late_us = PROFILE_REPLY_PAYLOAD.unpack(frame.payload)
+            if result == Result.BAD_PROFILE:
+                raise TransportError(
+                    f"the bridge refused the shaped move's pieces (BAD_PROFILE): pieces out of "
+                    f"order or closer than 10 ms, a velocity above 3FFFFFFF, chip select {cs} "
+                    "or more pieces than it holds; nothing was scheduled", port=self.url)
+            state = ProfileState(issued, pending, late_us * 1e-6,
+                                 result == Result.PROFILE_CANCELLED)
+        return state
 
     # ------------------------------------------------------------------ recording (RECORD)
     @property

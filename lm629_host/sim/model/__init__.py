@@ -179,6 +179,23 @@ Several chips on one bus (:mod:`.bus`)
     strobe on a /CS line with no chip on it reaches nothing, and a read there finds the data
     bus floating: it reads FF (busy set), so a host's busy check times out on an unwired axis,
     as it would on a bench with pull-ups on the data bus.
+
+Test aids and update rate
+
+33. ``ChipParams.reset_position`` (``sim://?reset_position=0x3FFFF000``, default 0): the
+    position registers (desired, real, target) read this after every reset instead of 0, so
+    that a test reaches the wraparound (AN-706 6.5.2) without minutes of simulated travel.  A
+    real chip always resets them to 0; DFH still makes them 0.
+34. The command update rate (AN-706 4.6.2: "aborts the current trajectory calculation when it
+    receives a new STT command, resulting in the output staying at the value of the previous
+    sample ... not ... more than once every 10 ms").  The note gives no duration for the
+    calculation; the model takes the 10 ms it recommends (``ChipParams.update_s``): an STT
+    executed less than ``update_s`` after the last executed one aborts the calculation in
+    progress, and the output word at the next sample stays at the previous sample's value (the
+    filter is not run for that sample; the trajectory generator steps with the new parameters
+    as usual, since the note names only the output).  Under ``strict`` such an STT is a host
+    protocol violation, unless it carries a stop or motor-off bit: stopping must always be
+    possible, and a one-sample hold does not delay a stop.
 """
 
 from .bus import ChipBus, chips_of

@@ -228,7 +228,7 @@ class ChipModel:
         motion = self.motion
         while n > 0:
             if self.fast and not (self._in_hw_reset or self._reset_done_at is not None
-                                  or self._udf_pending
+                                  or self._udf_pending or motion.abort_pending
                                   or self.signals_extra & Signals.FILTER_UPDATED):
                 ran = run_fast(self, n, self.fast)
                 n -= ran
@@ -314,7 +314,8 @@ class ChipModel:
         self._abort_transfer()
         self._io_word = 0
         self._busy_until = 0
-        self.motion.reset()
+        self._last_stt: int | None = None  # chip tick of the last executed STT
+        self.motion.reset(self.params.reset_position)
 
     def _abort_transfer(self) -> None:
         self._cmd: int | None = None
@@ -547,6 +548,7 @@ class ChipModel:
                     self.signals_extra &= ~Signals.ACCELERATION_LOADED
                 return
             stop = buf.stop
+            self._update_rate(stop)
             buf.loaded = 0
             buf.stop = 0  # [model choice 13] a stop bit acts once
             self.signals_extra &= ~Signals.ACCELERATION_LOADED
@@ -592,6 +594,20 @@ class ChipModel:
             if cmd is Cmd.SBPR:
                 value = s32(m.target_position + value)
             self.breakpoint = value
+
+    def _update_rate(self, stop: int) -> None:
+        """An executed STT [model choice 34]: one within ``update_s`` of the last aborts the
+        trajectory calculation in progress (the next sample keeps the output), and is a host
+        protocol violation unless it stops the motor (AN-706 4.6.2)."""
+        last, self._last_stt = self._last_stt, self.tick
+        window = round(self.params.update_s * self.clock_hz)
+        if last is None or self.tick - last >= window:
+            return
+        self.motion.abort_pending = True
+        if not stop:
+            self._violation(f"STT {(self.tick - last) / self.clock_hz * 1e3:.2f} ms after the "
+                            f"last one: the chip aborts the trajectory calculation (AN-706 4.6.2:"
+                            f" at most one update per {self.params.update_s * 1e3:g} ms)")
 
     def _command_error_silent(self) -> None:
         """A command error that a correct host can provoke (not a protocol violation)."""
