@@ -39,7 +39,7 @@ GOOD = textwrap.dedent("""\
     [axis.x]                     # the long axis
     cs = 0
     kp = 20                      # hand-tuned
-    kd = 800
+    kd = 0
     ds = 1
     min = -20000                 # end stop at -21000
     max = 20000
@@ -47,13 +47,16 @@ GOOD = textwrap.dedent("""\
     max_acceleration = 4000000   # counts/s^2
     following_error = 2000
     note = "belt drive"
-    ki = 4                       # every gain non-zero and unlike the others: one dropped
-    il = 500                     # on the way to the chip leaves the reset value 0 there
 
     [axis.y]
     cs = 1
     kp = 30
     """)
+
+
+#: GOOD with every gain of [axis.x] non-zero and unlike the others (kp 20, ki 4, kd 800, il
+#: 500): none is the reset value 0, so a gain dropped on its way to the chip shows there
+GAINED = GOOD.replace("kd = 0\n", "ki = 4\nkd = 800\nil = 500\n")
 
 
 def _write(tmp_path, text: str = GOOD, name: str = "bench.toml"):
@@ -66,8 +69,8 @@ def test_a_good_profile_reads_back_every_key(tmp_path):
     prof = load_profile(_write(tmp_path))
     x, y = prof.axis("x"), prof.axis("y")
     assert (prof.port, prof.chip, prof.clock_hz) == ("sim://", "lm629", 8e6)
-    assert (x.cs, x.kp, x.ki, x.kd, x.il, x.ds, x.min, x.max, x.following_error, x.note) == (
-        0, 20, 4, 800, 500, 1, -20000, 20000, 2000, "belt drive")
+    assert (x.cs, x.kp, x.kd, x.ds, x.min, x.max, x.following_error, x.note) == (
+        0, 20, 0, 1, -20000, 20000, 2000, "belt drive")
     assert (y.cs, y.kp, y.ds, y.min, y.threshold) == (1, 30, 1, None, 0x7FFF)
     assert x.key_lines["max"] == 13 and x.key_lines["kp"] == 9
     # the URL opened: the simulator gets the chip, clock and a chip per chip select
@@ -75,18 +78,18 @@ def test_a_good_profile_reads_back_every_key(tmp_path):
 
 
 @pytest.mark.parametrize("edit, line, words", [
-    (("kd = 800", "kd = 800\nkq = 3"), 11, "[axis.x] kq: unknown key"),
+    (("kd = 0", "kd = 0\nkq = 3"), 11, "[axis.x] kq: unknown key"),
     (("kp = 20 ", "kp = \"20\" "), 9, "[axis.x] kp: '20' must be a whole number"),
     (("max = 20000", "max = 20000.5"), 13, "[axis.x] max: 20000.5 must be a whole number"),
     (("min = -20000", "min = 30000"), 12, "[axis.x] min: 30000 is above max = 20000"),
-    (("cs = 1", "cs = 0"), 22, "[axis.y] cs: 0 is also the chip select of [axis.x]"),
-    (("kp = 30", "kp = 40000"), 23, "[axis.y] kp: 40000 is outside 0..32767"),
+    (("cs = 1", "cs = 0"), 20, "[axis.y] cs: 0 is also the chip select of [axis.x]"),
+    (("kp = 30", "kp = 40000"), 21, "[axis.y] kp: 40000 is outside 0..32767"),
     (("ds = 1", "ds = 0"), 11, "[axis.x] ds: 0 is outside 1..256"),
     (("following_error = 2000", "following_error = -1"), 16,
      "[axis.x] following_error: -1 is outside 0..32767"),
     (("chip = \"lm629\"", "chip = \"lm630\""), 4, "[board] chip: 'lm630' must be one of"),
     (("clock = \"8MHz\"", "clock = \"12MHz\""), 5, "[board] clock: '12MHz' is outside"),
-    (("[axis.y]\ncs = 1\n", "[axis.y]\n"), 21, "[axis.y]: has no cs"),
+    (("[axis.y]\ncs = 1\n", "[axis.y]\n"), 19, "[axis.y]: has no cs"),
     (("[board]", "[boards]"), 2, "[boards]: unknown table"),
     (("note = \"belt drive\"", "note = \"belt drive"), 17, "not TOML"),
 ])
@@ -143,7 +146,7 @@ def test_travel_limits_hold_at_exactly_min_and_max_and_refuse_one_count_past(tar
 def test_a_profiles_axis_moves_to_its_limits_and_not_one_count_past(tmp_path, target, inside):
     """The same boundaries through open_board(profile=...): a move to the limit runs, one
     count past it is refused before any exchange."""
-    with lm629_host.open_board(profile=_write(tmp_path)) as board:
+    with lm629_host.open_board(profile=_write(tmp_path, GAINED)) as board:
         x = board["x"]
         x.define_home()
         stats = x.transport.stats
@@ -212,7 +215,7 @@ def _working_filter(chip) -> tuple[int, int, int, int, int]:
 def test_the_profile_is_applied_and_a_reset_reads_as_lost(tmp_path):
     """Every gain of [axis.x] (kp 20, ki 4, kd 800, il 500: none the reset value 0) is in the
     chip's working filter after open and again after a reset; a reset clears them all."""
-    prof = load_profile(_write(tmp_path))
+    prof = load_profile(_write(tmp_path, GAINED))
     with lm629_host.open_board(profile=prof) as board:
         x = board["x"]
         sig = x.read_signals()
@@ -236,23 +239,18 @@ def test_the_profile_is_applied_and_a_reset_reads_as_lost(tmp_path):
 
 def test_save_gains_keeps_the_comments_and_everything_else(tmp_path):
     p = _write(tmp_path)
-    save_gains(p, "x", {"kp": 231, "ki": 3, "kd": 773, "il": 600, "ds": 8})
+    save_gains(p, "x", {"kp": 231, "ki": 0, "kd": 773, "il": 0, "ds": 8})
     text = p.read_text()
     old = GOOD.splitlines()
-    changed = [(a, b) for a, b in zip(old, text.splitlines()) if a != b]
-    assert len(text.splitlines()) == len(old)
+    new = [ln for ln in text.splitlines() if ln not in ("ki = 0", "il = 0")]
+    changed = [(a, b) for a, b in zip(old, new) if a != b]
     assert changed == [("kp = 20                      # hand-tuned",
                         "kp = 231                      # hand-tuned"),
-                       ("kd = 800", "kd = 773"), ("ds = 1", "ds = 8"),
-                       (old[17], old[17].replace("ki = 4", "ki = 3")),
-                       (old[18], old[18].replace("il = 500", "il = 600"))]
+                       ("kd = 0", "kd = 773"), ("ds = 1", "ds = 8")]
+    assert "ki = 0" in text and "il = 0" in text  # keys the table lacked, added to it
     x = load_profile(p).axis("x")
-    assert (x.kp, x.ki, x.kd, x.il, x.ds) == (231, 3, 773, 600, 8)
-    # keys the table lacked (y has kp only) are added to it, the other table left as it was
-    save_gains(p, "y", {"kp": 30, "ki": 0, "kd": 90, "il": 0, "ds": 1})
-    y = load_profile(p).axis("y")
-    assert (y.kp, y.ki, y.kd, y.il, y.ds) == (30, 0, 90, 0, 1)
-    assert load_profile(p).axis("x") == x
+    assert (x.kp, x.ki, x.kd, x.il, x.ds) == (231, 0, 773, 0, 8)
+    assert load_profile(p).axis("y").kp == 30
     with pytest.raises(ValueError, match="no axis 'w'"):
         save_gains(p, "w", {"kp": 1})
     with pytest.raises(ProfileError, match="kp: 40000 is outside"):
@@ -272,7 +270,7 @@ def test_cli_bad_profile_and_unknown_axis_exit_2_in_one_line(tmp_path):
     r = runner.invoke(main, ["--profile", str(bad), "status"])
     assert r.exit_code == 2
     assert r.stderr.strip().splitlines() == [
-        f"lm629: bad value: {bad}:23: [axis.y] kp: 40000 is outside 0..32767"]
+        f"lm629: bad value: {bad}:21: [axis.y] kp: 40000 is outside 0..32767"]
     good = _write(tmp_path)
     r = runner.invoke(main, ["--profile", str(good), "--axis", "w", "status"])
     assert r.exit_code == 2 and "'w' is no axis of" in r.stderr
