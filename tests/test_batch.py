@@ -287,3 +287,39 @@ def test_a_board_batch_reads_several_axes_in_one_exchange():
             board.batch()["x"]
         with pytest.raises(AttributeError, match=r"b\[axis\]\.read_status"):
             board.batch().read_status()
+
+
+def _value_or_error(handle):
+    """A handle's value, or the error reading it raises (a call the batch never ran): a
+    value to compare, so that a missing one fails the assertion that lists them all."""
+    try:
+        return handle.value
+    except RuntimeError as exc:
+        return exc
+
+
+@pytest.mark.parametrize("url", URLS)
+def test_every_call_of_a_batch_reaches_the_chip_the_last_one_included(url, request):
+    """Four calls, the last a write whose only trace is on the bus and in the chip: each
+    command is on the chip's bus once, in call order, with the words written (LFIL: control
+    word 000F, ds byte 0 and the four gains loaded, then kp ki kd il; SBPA 200: 0000 00C8;
+    the chip logs a read without its words); every handle has its value; the filter loaded
+    and updated is the chip's working filter."""
+    with _chip(url, request) as chip:
+        model = chip.transport.model
+        model.record_clear()
+        raised = None
+        try:  # kept, so that a call gone missing fails on what reached the bus, whatever
+            # the batch then says about it
+            with chip.batch() as b:
+                handles = [b.read_real_position(), b.load_filter(kp=30, ki=2, kd=100, il=50),
+                           b.update_filter(), b.set_breakpoint(200)]
+        except Exception as exc:  # noqa: BLE001 - reported by the assertions below
+            raised = exc
+        assert list(model.history) == [(Cmd.RDRP, ()), (Cmd.LFIL, (0x000F, 30, 2, 100, 50)),
+                                       (Cmd.UDF, ()), (Cmd.SBPA, (0, 200))]
+        assert raised is None
+        assert [_value_or_error(h) for h in handles] == [0, None, None, None]
+        chip.clock.sleep(1e-3)  # UDF takes effect at the next sample
+        f = model.filter
+        assert (f.kp, f.ki, f.kd, f.il) == (30, 2, 100, 50)

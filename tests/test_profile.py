@@ -54,6 +54,11 @@ GOOD = textwrap.dedent("""\
     """)
 
 
+#: GOOD with every gain of [axis.x] non-zero and unlike the others (kp 20, ki 4, kd 800, il
+#: 500): none is the reset value 0, so a gain dropped on its way to the chip shows there
+GAINED = GOOD.replace("kd = 0\n", "ki = 4\nkd = 800\nil = 500\n")
+
+
 def _write(tmp_path, text: str = GOOD, name: str = "bench.toml"):
     p = tmp_path / name
     p.write_text(text)
@@ -121,35 +126,85 @@ def test_limit_words_at_the_chips_clock():
         lim.check_velocity(3355444)
     with pytest.raises(ValueError, match="max_acceleration"):
         lim.check_acceleration(17180)
-    # at 6 MHz a sample is longer: the same counts/s are a larger word
-    assert SoftLimits(max_velocity=200000, clock_hz=6e6).velocity_word == int(
-        200000 * 2048 / 6e6 * 65536)
+    # at 6 MHz a sample is longer, 2048 / 6e6 = 341.33 us: 200000 counts/s are 68.267
+    # counts/sample, the word 68.267 x 65536 = 4473924.27 -> 4473924
+    assert SoftLimits(max_velocity=200000, clock_hz=6e6).velocity_word == 4473924
+
+
+@pytest.mark.parametrize("target, refused", [
+    (-20001, "target -20001 is below the soft limit min = -20000 counts"),
+    (-20000, None), (20000, None),
+    (20001, "target 20001 is above the soft limit max = 20000 counts"),
+])
+def test_travel_limits_hold_at_exactly_min_and_max_and_refuse_one_count_past(target, refused):
+    """min and max are the last counts allowed: the limit itself is inside, one count past
+    it is refused, on either side."""
+    lim = SoftLimits(-20000, 20000, where="bench.toml", table="axis.x",
+                     lines=(("min", 12), ("max", 13)))
+    if refused is None:
+        lim.check_position(target)
+        lim.check_trajectory(None, None, target)
+        return
+    key, line = ("min", 12) if target < 0 else ("max", 13)
+    for call in (lambda: lim.check_position(target),
+                 lambda: lim.check_trajectory(None, None, target)):
+        with pytest.raises(ValueError) as err:
+            call()
+        assert str(err.value) == f"{refused} (bench.toml:{line}: [axis.x] {key})"
+
+
+@pytest.mark.parametrize("target, inside", [(-20001, False), (-20000, True), (20000, True),
+                                            (20001, False)])
+def test_a_profiles_axis_moves_to_its_limits_and_not_one_count_past(tmp_path, target, inside):
+    """The same boundaries through open_board(profile=...): a move to the limit runs, one
+    count past it is refused before any exchange."""
+    with lm629_host.open_board(profile=_write(tmp_path, GAINED)) as board:
+        x = board["x"]
+        x.define_home()
+        stats = x.transport.stats
+        before = (stats.programs, stats.bus_cycles)
+        if not inside:
+            with pytest.raises(ValueError, match=f"target {target} is (above|below)"):
+                x.move_to(target, velocity=3355443, acceleration=17179)
+            assert (stats.programs, stats.bus_cycles) == before
+            return
+        r = x.move_to(target, velocity=8 * 65536, acceleration=6553).wait()
+        assert abs(r.position - target) <= 20
 
 
 def test_open_board_with_a_profile_refuses_a_move_outside_before_any_exchange(tmp_path):
-    with lm629_host.open_board(profile=_write(tmp_path)) as board:
+    """Each refusal ends naming the line of the limit it hit in GOOD: min on 12, max on 13,
+    max_velocity on 14, max_acceleration on 15."""
+    path = _write(tmp_path)
+    with lm629_host.open_board(profile=path) as board:
         x = board["x"]
         assert x is board.axes[0] and board["y"] is board.axes[1]
         stats = x.transport.stats
         before = (stats.programs, stats.bus_cycles)
-        for call, words in [
+        for call, words, where in [
             (lambda: x.move_to(45000, velocity=65536, acceleration=655),
-             "target 45000 is above the soft limit max = 20000 counts"),
+             "target 45000 is above the soft limit max = 20000 counts", "13: [axis.x] max"),
             (lambda: x.move_to(-20001, velocity=65536),
-             "target -20001 is below the soft limit min = -20000"),
-            (lambda: x.move_to(1000, velocity=3355444, acceleration=655), "max_velocity"),
-            (lambda: x.move_to(1000, velocity=65536, acceleration=17180), "max_acceleration"),
+             "target -20001 is below the soft limit min = -20000", "12: [axis.x] min"),
+            (lambda: x.move_to(1000, velocity=3355444, acceleration=655),
+             "velocity word 3355444 is 200000 counts/s, above max_velocity = 200000 counts/s "
+             "(word 3355443)", "14: [axis.x] max_velocity"),
+            (lambda: x.move_to(1000, velocity=65536, acceleration=17180),
+             "above max_acceleration = 4e+06 counts/s^2 (word 17179)",
+             "15: [axis.x] max_acceleration"),
             (lambda: x.load_trajectory(velocity=100, velocity_mode=True, start=True),
-             "velocity mode runs until it is stopped"),
+             "velocity mode runs until it is stopped", "12: [axis.x] min"),
             (lambda: x.load_trajectory(position=10, position_relative=True, start=True),
-             "a relative position cannot be checked"),
-            (lambda: board.move({x: 30000}, velocity=65536, acceleration=655), "max = 20000"),
-            (lambda: board.move_linear({0: 25000}, velocity=65536, acceleration=655), "max = 20000"),
+             "a relative position cannot be checked", "12: [axis.x] min"),
+            (lambda: board.move({x: 30000}, velocity=65536, acceleration=655), "max = 20000",
+             "13: [axis.x] max"),
+            (lambda: board.move_linear({0: 25000}, velocity=65536, acceleration=655),
+             "max = 20000", "13: [axis.x] max"),
         ]:
             with pytest.raises(ValueError) as err:
                 call()
             assert words in str(err.value)
-            assert "bench.toml:1" in str(err.value) and "[axis.x]" in str(err.value)
+            assert str(err.value).endswith(f" ({path}:{where})"), str(err.value)
         assert (stats.programs, stats.bus_cycles) == before  # not one exchange
         # inside the limits it moves, and a stop is never refused
         r = x.move_to(1000, velocity=65536, acceleration=655).wait()
@@ -161,21 +216,35 @@ def test_open_board_with_a_profile_refuses_a_move_outside_before_any_exchange(tm
             board["z"]
 
 
+def _working_filter(chip) -> tuple[int, int, int, int, int]:
+    """The filter the chip's model runs: kp, ki, kd, il, ds (a sample later, when a UDF
+    just sent has taken effect)."""
+    chip.clock.sleep(1e-3)
+    f = chip.transport.models[chip.chip_select].filter
+    return (f.kp, f.ki, f.kd, f.il, f.ds)
+
+
 def test_the_profile_is_applied_and_a_reset_reads_as_lost(tmp_path):
-    prof = load_profile(_write(tmp_path))
+    """Every gain of [axis.x] (kp 20, ki 4, kd 800, il 500: none the reset value 0) is in the
+    chip's working filter after open and again after a reset; a reset clears them all."""
+    prof = load_profile(_write(tmp_path, GAINED))
     with lm629_host.open_board(profile=prof) as board:
         x = board["x"]
         sig = x.read_signals()
         assert sig & Signals.STOP_ON_ERROR  # applied at open: LPES armed
+        assert _working_filter(x) == (20, 4, 800, 500, 1)
         assert settings_lost(x) is None
         said: list[str] = []
         assert ensure_applied({"x": x}, prof, said.append) == [] and said == []
         board.reset()  # as after a power cycle: LPES's bit cleared with everything else
         assert settings_lost(x) is not None
+        assert _working_filter(x) == (0, 0, 0, 0, 1)
         assert ensure_applied({"x": x, "y": board["y"]}, prof, said.append) == ["x", "y"]
         assert len(said) == 2 and "axis x (cs 0) had lost its settings" in said[0]
-        assert "LPES 2000" in said[0] and "kp=20 kd=0 ds=1" in said[0]
+        assert "LPES 2000" in said[0] and "kp=20 ki=4 kd=800 il=500 ds=1" in said[0]
         assert settings_lost(x) is None
+        assert _working_filter(x) == (20, 4, 800, 500, 1)
+        assert _working_filter(board["y"]) == (30, 0, 0, 0, 1)
         x.load_position_error(100)  # LPEI by another program: reads as lost too
         assert settings_lost(x) is not None
 

@@ -16,8 +16,11 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
+from xml.etree import ElementTree
 
 import pytest
 
@@ -78,31 +81,87 @@ def test_installing_the_package_registers_the_plugin():
     assert any(p.name == "lm629" and p.value == "lm629_host.pytest_plugin" for p in points)
 
 
-def test_user_file_on_the_simulator(user_dir):
-    user_dir.makepyfile(test_failures=FAILURES)
-    r = user_dir.runpytest_subprocess("-p", "no:cacheprovider", "-rs", "-s",
-                                      "--junitxml=report.xml")
-    out = r.stdout.str()
-    r.assert_outcomes(passed=7, failed=3, skipped=1, warnings=1)
-    # a 60000-count move: its trapezoid's time on the simulated clock, less on the wall clock
-    m = re.search(r"60000 counts in ([\d.]+) s of simulated time", out)
-    assert m, out
+@dataclass(frozen=True)
+class UserRun:
+    """One plain ``python -m pytest`` run of the user's files (examples/lab and FAILURES) on
+    the simulator: its output, and each test's outcome and wall time from its JUnit XML."""
+
+    out: str
+    outcomes: dict[str, str]
+    wall_s: dict[str, float]
+
+
+@pytest.fixture(scope="module")
+def user_run(tmp_path_factory) -> UserRun:
+    """The run the tests below read, once for all of them (a pytest subprocess takes seconds);
+    like ``user_dir``, in a fresh directory outside the checkout, without the suite's own
+    LM629_* settings."""
+    where = tmp_path_factory.mktemp("user")
+    assert not str(where).startswith(str(EXAMPLE.parent.parent))
+    for name in ("rig.py", "test_rig.py"):
+        shutil.copy(EXAMPLE / name, where / name)
+    (where / "test_failures.py").write_text(FAILURES)
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("LM629_SIM_STRICT", "LM629_PORT", "PYTEST_ADDOPTS")}
+    p = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-rs", "-s",
+                        "--junitxml=report.xml"], cwd=where, env=env, capture_output=True,
+                       text=True, timeout=300)
+    outcomes, wall = {}, {}
+    for case in ElementTree.parse(where / "report.xml").iter("testcase"):
+        kinds = [child.tag for child in case if child.tag in ("failure", "error", "skipped")]
+        outcomes[case.get("name")] = kinds[0] if kinds else "passed"
+        wall[case.get("name")] = float(case.get("time"))
+    return UserRun(p.stdout, outcomes, wall)
+
+
+def test_user_file_outcomes_on_the_simulator(user_run):
+    """Every test of examples/lab passes on the simulator but the hardware one, skipped; the
+    three deliberate failures fail; the unmarked move passes, with one warning for the run."""
+    assert user_run.outcomes == {
+        "test_reset_leaves_the_motor_off": "passed",
+        "test_a_long_move_takes_the_time_of_its_trapezoid": "passed",
+        "test_shuttle_ends_every_move_on_target": "passed",
+        "test_a_free_shaft_stays_put": "passed",
+        "test_a_hanging_load_pulls_the_free_shaft": "passed",
+        "test_both_axes_of_a_two_axis_board": "passed",
+        "test_the_bench_answers": "skipped",
+        "test_ltrj_velocity_word_above_3fffffff": "failure",
+        "test_a_caught_violation_still_fails": "failure",
+        "test_deliberate_failure": "failure",
+        "test_unmarked_move_is_a_warning_here": "passed",
+    }
+    assert re.search(r"= 3 failed, 7 passed, 1 skipped, 1 warning in ", user_run.out), \
+        user_run.out[-500:]
+
+
+def test_a_long_move_runs_on_the_simulated_clock(user_run):
+    """60000 counts at 4 counts/sample with 0.05 counts/sample^2: 80 samples up, 80 down,
+    (60000 - 320) / 4 = 14920 samples at speed, 15080 x 256 us = 3.860 s of simulated time;
+    the wall clock takes less."""
+    m = re.search(r"60000 counts in ([\d.]+) s of simulated time", user_run.out)
+    assert m, user_run.out
     simulated = float(m.group(1))
-    assert simulated > 3.86
-    wall = float(re.search(r'name="test_a_long_move_takes_the_time_of_its_trapezoid" time="([\d.]+)"',
-                           (user_dir.path / "report.xml").read_text()).group(1))
+    assert 3.860 <= simulated <= 3.860 + 0.3
+    wall = user_run.wall_s["test_a_long_move_takes_the_time_of_its_trapezoid"]
     print(f"60000-count move: {simulated:.3f} s simulated in {wall:.3f} s of wall time")
     assert wall < simulated
-    # the violation fails the test, with its text and simulated time
-    v = _section(out, "test_ltrj_velocity_word_above_3fffffff")
+
+
+def test_a_protocol_violation_fails_the_test_with_its_text_and_time(user_run):
+    v = _section(user_run.out, "test_ltrj_velocity_word_above_3fffffff")
     assert re.search(r"ProtocolViolation: host protocol violation at [\d.]+ us: LTRJ velocity word "
                      r"40000000 is above 3FFFFFFF", v)
     assert re.search(r"cs0: LTRJ 0008 4000 0000  !! ProtocolViolation: host protocol violation", v)
-    c = _section(out, "test_a_caught_violation_still_fails")
+
+
+def test_a_violation_the_test_catches_still_fails_it(user_run):
+    c = _section(user_run.out, "test_a_caught_violation_still_fails")
     assert re.search(r"lm629 host protocol violation at [\d.]+ us of simulated time: LTRJ velocity "
                      r"word FFFFFFFF is above 3FFFFFFF", c)
-    # the deliberate failure: the last bus cycles, decoded, and the chip's snapshot
-    d = _section(out, "test_deliberate_failure")
+
+
+def test_a_failure_shows_the_last_bus_programs_and_the_chips_snapshot(user_run):
+    d = _section(user_run.out, "test_deliberate_failure")
     assert "lm629: last bus programs and chip snapshot" in d
     programs = d[d.index("last bus programs on sim://?strict=1"):].splitlines()
     # the reset (AN-706 4.4.1: 00 at once, C4 after 1.5 ms, C0 after MSKI/RSTI), then the RDRP
@@ -115,10 +174,15 @@ def test_user_file_on_the_simulator(user_dir):
     assert re.search(r"chip snapshot cs0 at t=[\d.]+ ms: status C[01] \((BUSY\|)?BREAKPOINT\|MOTOR_OFF\), "
                      r"signals 01C0 .* real position 0, following error 0", d)
     assert "after the failure: cs0: motor stopped (abrupt stop, then motor off)" in d
-    # the hardware test is skipped, with why
-    assert "lm629_hardware: needs a real board (--lm629-port is sim://, simulated)" in out
-    # an unmarked move on the simulator: a warning that names the marker
-    assert "starts a trajectory (chip 0) but is not marked @pytest.mark.lm629_motion" in out
+
+
+def test_the_hardware_test_is_skipped_on_the_simulator_saying_why(user_run):
+    assert "lm629_hardware: needs a real board (--lm629-port is sim://, simulated)" in user_run.out
+
+
+def test_an_unmarked_move_on_the_simulator_is_a_warning_naming_the_marker(user_run):
+    assert user_run.outcomes["test_unmarked_move_is_a_warning_here"] == "passed"
+    assert "starts a trajectory (chip 0) but is not marked @pytest.mark.lm629_motion" in user_run.out
 
 
 def test_unknown_lm629_sim_parameter_names_the_known_ones(pytester):

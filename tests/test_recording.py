@@ -75,13 +75,24 @@ def test_record_during_a_move_on_the_firmware(firmware_built):
 
 
 def test_full_rows_hold_a_snapshot():
+    """At full speed (4 counts/sample, the 16.16 word 262144) rows 2 ms apart are 7.8125
+    samples apart: the desired position advances 7 or 8 samples' worth, 28 or 32 counts; ki is
+    0, so the integration sum stays 0; the motor follows behind, the following error positive.
+    A row's snapshot holds each of the row's registers in its own field."""
     chip = _moving("sim+emu://?fast_baud=1000000")
     with chip:
         tr = chip.record(2e-3, 0.02, full=True)
         assert len(tr) == 10
-        r = tr.rows[-1]
-        assert r.real_velocity in (3, 4, 5) and r.desired_velocity == FULL_SPEED
-        assert r.snapshot().following_error == r.following_error
+        assert {b - a for a, b in zip(tr.desired, tr.desired[1:])} <= {28, 32}
+        for r in tr:
+            assert r.real_velocity in (3, 4, 5) and r.desired_velocity == FULL_SPEED
+            assert r.integration_sum == 0 and r.signals is not None
+            s = r.snapshot(t0=10.0)
+            assert (s.status, s.signals, s.desired_position, s.real_position,
+                    s.desired_velocity, s.real_velocity, s.integration_sum) == (
+                r.status, r.signals, r.desired, r.real, FULL_SPEED, r.real_velocity, 0)
+            assert s.time == pytest.approx(10.0 + r.t)
+            assert s.following_error == r.desired - r.real > 0
 
 
 def test_a_rate_the_line_cannot_carry_names_the_highest(firmware_built):
@@ -166,6 +177,42 @@ def test_a_lost_row_is_a_gap_never_a_value():
             (r.desired, r.real)
         assert r.t == pytest.approx((r.index - first) * 1e-3, abs=4e-6)
     assert sum(n for _, n in tr.gaps) == len(tr.missing)
+
+
+def test_rows_lost_at_the_end_are_missing_up_to_the_rows_asked():
+    """The line towards the host breaks after row 399 of a 500-row recording (every byte from
+    the bridge lost from then on; the bridge records on): the trace ends with row 399 when the
+    recording's time is up, and rows 400..499 -- asked for, never received -- are missing, one
+    gap of 100."""
+    t = open_emulated("sim://", baud=1_000_000)
+    chip = LM629(t)
+    chip.reset()
+    fp = FaultPipe(t.pipe, seed=1, to_bridge=False)  # a line towards the host, healthy so far
+    t.pipe = fp
+    with chip.record_stream(1e-3, 0.5) as stream:
+        for row in stream:
+            if row.index == 399:
+                fp.into.rates.drop = 1.0  # the cable breaks
+    tr = stream.trace()
+    assert tr.asked == 500
+    assert [r.index for r in tr] == list(range(400))
+    assert tr.missing == list(range(400, 500)) and tr.gaps == [(400, 100)]
+
+
+def test_rows_lost_anywhere_are_missing_counted_from_row_0():
+    """A noisy line towards the host (1 % of the bytes lost, ten seeds): whatever a seed's
+    losses hit, the trace's missing rows are exactly the indices 0..19 it does not hold --
+    counted from row 0, the first rows included when they are lost -- and ``t`` counts from
+    the first row held."""
+    for seed in range(10):
+        t = open_emulated("sim://", baud=1_000_000)
+        chip = LM629(t)
+        chip.reset()
+        t.pipe = FaultPipe(t.pipe, drop=0.01, seed=seed, to_bridge=False)
+        tr = chip.record(1e-3, 0.02)
+        got = [r.index for r in tr]
+        assert tr.missing == [k for k in range(20) if k not in got], seed
+        assert all(r.t == pytest.approx((r.index - got[0]) * 1e-3, abs=4e-6) for r in tr)
 
 
 def test_gaps_on_the_firmware(firmware_built):
