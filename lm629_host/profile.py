@@ -358,16 +358,20 @@ def attach(chip: Any, profile: Profile, axis: AxisProfile) -> None:
     chip.profile_axis = axis.name
 
 
-def name_axes(board: Any, profile: Profile) -> dict[str, Any]:
+def name_axes(board: Any, profile: Profile, only: Iterable[int] | None = None) -> dict[str, Any]:
     """Give each axis of ``board`` (a :class:`~lm629_host.Board`) the profile's name, soft
     limits, chip variant and clock, and the board the profile (``board["x"]``); nothing is
     sent.  The profile's axes by name; :class:`~lm629_host.AxisError` for an axis whose chip
-    select the board does not have."""
+    select the board does not have, among the chip selects ``only`` (default: every axis of
+    the profile): a command that drives x need not find y's chip."""
     from dataclasses import replace
 
     from .errors import AxisError
+    wanted = None if only is None else set(only)
     named = {}
     for name, ax in profile.axes.items():
+        if ax.cs >= len(board.axes) and wanted is not None and ax.cs not in wanted:
+            continue
         if ax.cs >= len(board.axes):
             raise AxisError(ax.cs, len(board.axes), f"{board.transport.describe()} (axis "
                                                     f"{name} of {profile.path})")

@@ -453,3 +453,13 @@ def test_step_refuses_a_moving_motor():
     with pytest.raises(ValueError, match="the motor is moving"):
         capture_move(chip, 200, duration_s=0.1, interval_s=0.01, velocity=65536,
                      acceleration=500)
+
+
+def test_doctor_without_the_optional_pyftdi_or_an_ft232h_finds_no_problem(run, monkeypatch):
+    """pyftdi is an extra and an FT232H one adapter of two: neither missing is a problem on a
+    bench that uses a serial bridge, as a bridge not found is not one either."""
+    monkeypatch.setitem(sys.modules, "pyftdi", None)  # import pyftdi -> ImportError
+    r = run("doctor")
+    assert "[!!]" not in r.output, r.output
+    assert "pyftdi: not installed (only ftdi:// needs it" in r.output
+    assert r.output.rstrip().endswith("no problems found") and r.exit_code == 0

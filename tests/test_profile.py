@@ -373,3 +373,24 @@ def test_the_profiles_port_is_settled_by_the_one_resolver(tmp_path):
     msg = str(err.value)
     assert msg.startswith(f"{tmp_path / 'bad.toml'}:3: [board] port: ") and "lm628" in msg
     assert "lm629" in msg and "\n" not in msg
+
+
+def test_a_profile_from_init_drives_one_named_axis_and_decides_the_simulators_chips(tmp_path):
+    """`profile init --axis 0,1` on the default simulator, then `--axis x`: the default
+    simulator has the profile's two chips, and a command that drives x checks x alone (a
+    one-chip bench is enough for it)."""
+    runner = CliRunner()
+    path = tmp_path / "p.toml"
+    r = runner.invoke(main, ["--axis", "0,1", "--profile", str(path), "profile", "init"])
+    assert r.exit_code == 0, r.output
+    for args in (["move", "1000"], ["status"]):
+        r = runner.invoke(main, ["--profile", str(path), "--axis", "x", *args])
+        assert r.exit_code == 0, r.output
+    r = runner.invoke(main, ["--profile", str(path), "status", "--json"])
+    assert r.exit_code == 0, r.output
+    assert r.stdout.count('"status"') == 2  # both axes of the profile: two simulated chips
+    one_chip = "sim://?axes=1"
+    r = runner.invoke(main, ["--profile", str(path), "--port", one_chip, "--axis", "x", "status"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(main, ["--profile", str(path), "--port", one_chip, "--axis", "y", "status"])
+    assert r.exit_code == 2 and "axis 1 does not exist" in r.stderr

@@ -278,9 +278,12 @@ def board(s: Session) -> Board:
         spec = s.axis_spec
         want = max(spec) + 1 if isinstance(spec, tuple) else None
         url = s.url()
-        if want is not None and s.is_sim and s.spec.axes is None and want > 1:
+        chips = want or 1
+        if s.profile is not None and s.profile.axes:  # the bench the profile describes
+            chips = max(chips, 1 + max(ax.cs for ax in s.profile.axes.values()))
+        if s.is_sim and s.spec.axes is None and chips > 1:
             # a simulator builds the chips named, unless its URL says how many it has
-            url = with_query(url, {"axes": str(want)})
+            url = with_query(url, {"axes": str(chips)})
         b = lm629_host.open_board(url, chip=s.chip_name, trace=s._trace)
         if want is not None and len(b.axes) < want:
             b.close()

@@ -111,11 +111,13 @@ def profile_opened(s: Session, b: Board) -> None:
     lost its settings gets the profile (one line each), unless the command says not to
     (``reset``, ``profile show``, ``profile apply``)."""
     prof: Profile = s.profile
-    name_axes(b, prof)  # limits, variants, board["x"] in the shell
+    only = s.axis_spec if isinstance(s.axis_spec, tuple) else None  # --axis: those alone
+    name_axes(b, prof, only)  # limits, variants, board["x"] in the shell
     if s._prepare and getattr(s, "reapply", True):
         # an in-process simulator is a fresh chip for every command (and says so): applying
         # the profile to it is the rule, not news
-        ensure_applied(named_axes(s, b), prof, log.info if s.is_sim else _say)
+        chips = {n: c for n, c in named_axes(s, b).items() if only is None or prof.axes[n].cs in only}
+        ensure_applied(chips, prof, log.info if s.is_sim else _say)
 
 
 HOOKS["profile_options"] = profile_options
