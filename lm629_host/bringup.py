@@ -124,6 +124,7 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
     announce("reset check (AN-706 4.4.1)")
     if not done(reset_step(chip)):
         return out
+    check_room(chip, o)  # before anything turns: the whole sequence inside the soft limits
     if not confirm("The motor will now turn (a slow move at kp = 1). Is the shaft free to turn?"):
         done(StepResult("phasing", None, "skipped at your request: nothing moved"))
         return out
@@ -157,6 +158,32 @@ def reset_step(chip: LM629) -> StepResult:
                       data={"statuses": seen, "status": int(status)})
 
 
+def check_room(chip: LM629, o: BringupOptions) -> None:
+    """The bring-up's targets, as absolute positions from where the desired position is now,
+    against the axis's soft limits (``chip.limits``): the phasing move's end, then the small
+    move from anywhere between its start and that end.  ValueError naming the limit and the
+    room left, before anything moves."""
+    limits = getattr(chip, "limits", None)
+    if limits is None or not limits.has_travel:
+        return
+    origin = chip.read_desired_position()
+    phased = origin + o.phasing_distance
+    points = [phased, origin + o.move_distance, phased + o.move_distance]
+    for point in (min(points), max(points)):
+        try:
+            limits.check_position(point, what="bring-up goes to")
+        except ValueError as exc:
+            lo, hi = limits.min, limits.max
+            room = (f"{hi - origin:+d} counts up to max" if hi is not None else "") + \
+                (", " if hi is not None and lo is not None else "") + \
+                (f"{lo - origin:+d} down to min" if lo is not None else "")
+            raise ValueError(
+                f"{exc}: from {origin} it needs {o.phasing_distance:+d} counts of phasing and "
+                f"then a {o.move_distance:+d}-count move; room left from {origin}: {room}. "
+                "Move the axis so that the room is there, or give a smaller move "
+                "(`lm629 bringup --move N`)") from None
+
+
 def phasing_step(chip: LM629, o: BringupOptions) -> StepResult:
     """2. A slow move at kp = 1 for ``phasing_time_s``: the shaft must follow the desired
     position.  Reversed leads send it backwards ever faster (a load pulls it back at first
@@ -164,8 +191,9 @@ def phasing_step(chip: LM629, o: BringupOptions) -> StepResult:
     chip.load_filter(kp=o.phasing_kp, ki=0, kd=0, il=0)
     chip.update_filter()
     start = chip.snapshot()
+    # an absolute target, so that the soft limits check the point the shaft is sent to
     chip.load_trajectory(acceleration=o.phasing_acceleration, velocity=o.phasing_velocity,
-                         position=o.phasing_distance, position_relative=True, start=True)
+                         position=start.desired_position + o.phasing_distance, start=True)
     t_end = start.time + o.phasing_time_s
     snap = start
     trail = [start]  # the last 50 ms: where is the shaft heading now?

@@ -269,7 +269,7 @@ def _python(st: DocState, block: Block, namespace: dict) -> None:
     sys.path.insert(0, str(ROOT / "examples" / "lab"))  # a test's own modules beside it
     try:
         os.environ.pop("LM629_PORT", None)
-        exec(code, namespace)  # noqa: S102 - the doc's own example
+        exec(code, namespace)
     finally:
         os.chdir(cwd)
         os.environ.clear()

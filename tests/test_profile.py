@@ -314,7 +314,7 @@ def test_a_straight_line_is_held_to_each_axis_share_of_the_path_words(tmp_path):
     r = runner.invoke(main, ["--profile", str(two), "--axis", "x,y", "move", "1000", "3000",
                              "--linear", "--vel", "4000000", "--acc", "10000"])
     assert r.exit_code == 0, r.output
-    assert "done: axis 0 at" in r.output and "done: axis 1 at" in r.output
+    assert "done: axis x at" in r.output and "done: axis y at" in r.output  # the names
     r = runner.invoke(main, ["--profile", str(two), "--axis", "x,y", "move", "1000", "3000",
                              "--vel", "4000000", "--acc", "10000"])
     assert r.exit_code == 2 and r.stdout == ""
@@ -394,3 +394,39 @@ def test_a_profile_from_init_drives_one_named_axis_and_decides_the_simulators_ch
     assert r.exit_code == 0, r.output
     r = runner.invoke(main, ["--profile", str(path), "--port", one_chip, "--axis", "y", "status"])
     assert r.exit_code == 2 and "axis 1 does not exist" in r.stderr
+
+
+def test_output_names_the_profiles_axes_where_it_printed_numbers(tmp_path):
+    prof = _write(tmp_path)
+    runner = CliRunner()
+    r = runner.invoke(main, ["--profile", str(prof), "status"])
+    assert r.exit_code == 0, r.output
+    assert [ln.split(":")[0] for ln in r.stdout.splitlines()] == ["axis x", "axis y"]
+    r = runner.invoke(main, ["--profile", str(prof), "--axis", "y", "status"])
+    assert r.stdout.splitlines()[0] == "axis     y (cs 1)"
+    r = runner.invoke(main, ["--profile", str(prof), "move", "1000", "-1000"])
+    assert r.exit_code == 0, r.output
+    assert r.stdout.startswith("moving axes x, y to [1000, -1000]")
+    assert "done: axis y at" in r.stdout
+    r = runner.invoke(main, ["--profile", str(prof), "move", "1000"])
+    assert r.exit_code == 2 and "1 target(s) for 2 axis/axes (x, y)" in r.stderr
+    r = runner.invoke(main, ["--profile", str(prof), "watch", "--count", "1"])
+    assert [ln.split()[1] for ln in r.stdout.splitlines()[1:]] == ["x", "y"]
+
+
+def test_the_shell_touches_only_the_boards_own_axes_and_refuses_a_shadowing_name(tmp_path):
+    """A two-axis profile on a bench whose bridge has four chip selects (the Python bridge
+    over two chips): a failing script stops x and says nothing of chip selects 2 and 3."""
+    from lm629_host.sim.serve import SimServer
+    with SimServer(tmp_path / "bench", "sim://?axes=2").start() as srv:
+        prof = _write(tmp_path, GOOD.replace('port = "sim://"', f'port = "{srv.client_url}"'))
+        r = CliRunner().invoke(main, ["--profile", str(prof), "shell"],
+                               input="x.move_to(15000, velocity=65536, acceleration=655)\n"
+                                     "raise RuntimeError('boom')\n")
+    assert r.exit_code == 1, r.output
+    assert "lm629: x was moving: motor stopped" in r.stderr
+    assert "axis2" not in r.stderr and "axis3" not in r.stderr and "busy" not in r.stderr
+    bad = _write(tmp_path, GOOD.replace("[axis.y]", "[axis.board]"), "bad.toml")
+    r = CliRunner().invoke(main, ["--profile", str(bad), "shell"], input="print(1)\n")
+    assert r.exit_code == 2 and r.stdout == ""
+    assert "axis 'board' of" in r.stderr and "would hide the shell's own `board`" in r.stderr

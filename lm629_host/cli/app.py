@@ -267,6 +267,12 @@ def axes_of(s: Session) -> tuple[int, ...]:
     return spec
 
 
+def axis_name(s: Session, cs: int) -> str:
+    """How output names the axis on chip select ``cs``: the profile's name, else the number."""
+    ax = s.profile.by_cs(cs) if s.profile is not None else None
+    return ax.name if ax is not None else str(cs)
+
+
 def several(s: Session) -> bool:
     return len(axes_of(s)) > 1
 

@@ -27,11 +27,16 @@ def status(as_json: bool) -> None:
     from . import axes
     if axes.several(s):
         return axes.status(s, as_json, snapshot_dict)
-    snap = s.open().snapshot()
+    chip = s.open()
+    snap = chip.snapshot()
     d = snapshot_dict(snap, s.scale)
+    name = axes.axis_name(s, chip.chip_select) if s.profile is not None else None
     if as_json:
-        click.echo(json.dumps(d, indent=2))
+        click.echo(json.dumps(d if name is None else {"axis": chip.chip_select, "name": name, **d},
+                              indent=2))
         return
+    if name is not None:  # the profile names it: say which axis this is
+        click.echo(f"axis     {name} (cs {chip.chip_select})")
     click.echo(f"status   {d['status']}  {' '.join(d['status_flags']) or '-'}")
     click.echo(f"signals  {d['signals']}  {' '.join(d['signals_flags']) or '-'}")
     click.echo(f"position desired {snap.desired_position}  actual {snap.real_position}  "
