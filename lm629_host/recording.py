@@ -21,8 +21,9 @@ from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from .errors import ArgumentError
+from .errors import ArgumentError, LM629Error, TransportError
 from .opcodes import Cmd, Signals, Status, s16, s32
+from .pid import sample_period_s
 from .program import Program
 from .snapshot import SNAPSHOT_READS, Snapshot
 from .transports.base import RawRow, Transport
@@ -36,6 +37,7 @@ class RecordingChip(Protocol):
     """What a recording needs of its chip (an :class:`~lm629_host.LM629`)."""
 
     transport: Transport
+    clock_hz: float  #: the chip's clock: one sample every 2048 clocks
 
     def program(self) -> Program: ...
 
@@ -234,6 +236,15 @@ def open_stream(chip: RecordingChip, period_s: float, duration_s: float | None =
     """Check the request (:class:`ArgumentError`, a ``ValueError``, before any traffic) and
     make the stream."""
     rows = rows_for(period_s, duration_s)
+    sample = sample_period_s(chip.clock_hz)
+    if period_s < sample * (1 - 1e-9):
+        # the chip's registers change once a sample: a shorter period would repeat rows, and
+        # the rows that a sample boundary skips would read as lost
+        raise ArgumentError("period_s", period_s,
+                            f"period_s={period_s:g} is below the chip's sample time "
+                            f"{sample * 1e6:g} us (2048 clocks at {chip.clock_hz / 1e6:g} MHz): "
+                            "its positions change once a sample, so record at least that "
+                            "far apart", lo=sample)
     program = sample_program(chip, full)
     top = chip.transport.record_max_rate(program)
     if top is not None and 1.0 / period_s > top:
@@ -269,12 +280,33 @@ def far_snapshots(chip: RecordingChip, period_s: float, rows: int = 0,
 
 def record(chip: RecordingChip, period_s: float, duration_s: float, *,
            full: bool = False) -> Trace:
-    """Record for ``duration_s`` (see :meth:`LM629.record <lm629_host.LM629.record>`)."""
+    """Record for ``duration_s`` (see :meth:`LM629.record <lm629_host.LM629.record>`): a
+    finite duration (ArgumentError else: :meth:`LM629.record_stream` runs until closed).  A
+    link that fails or goes silent before the last row raises, with the rows that came
+    attached as the error's ``.trace``."""
+    if duration_s is None:  # a number that is not finite: rows_for names the range
+        raise ArgumentError("duration_s", duration_s,
+                            f"duration_s={duration_s!r} must be a finite number of seconds "
+                            "(record_stream(period_s) records until it is closed)")
     stream = open_stream(chip, period_s, duration_s, full=full)
-    with stream:
-        for _ in stream:
-            pass
-    return stream.trace()
+    try:
+        with stream:
+            for _ in stream:
+                pass
+    except LM629Error as exc:
+        setattr(exc, "trace", stream.trace())  # the rows so far, for the caller to keep
+        raise
+    trace = stream.trace()
+    last = trace.rows[-1].index if trace.rows else -1
+    if last < stream.asked - 1:
+        transport = chip.transport
+        exc = TransportError(
+            f"the recording ended after row {last} of {stream.asked}: nothing more came from "
+            f"{transport.describe()} (the link failed or went silent); the {len(trace.rows)} "
+            "rows that came are in this error's .trace", port=getattr(transport, "url", None))
+        setattr(exc, "trace", trace)
+        raise exc
+    return trace
 
 
 __all__ = ["BASIC_READS", "FULL_READS", "MAX_ROWS", "RecordStream", "Row", "Trace",
