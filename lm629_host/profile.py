@@ -190,10 +190,16 @@ class Profile:
         if not self.port:
             raise ProfileError(f"{self.path}: [board] has no port = \"...\": give --port or "
                                "write the port URL into the profile")
+        line = f":{self.lines['port']}" if "port" in self.lines else ""
+        if "spy://" in self.port and "file" in query_params(self.port):
+            # a file that any command would create or truncate, read-only ones included: a
+            # file a profile names could be anything the user may write
+            raise ProfileError(f"{self.path}{line}: [board] port: {self.port!r} writes its "
+                               "traffic to a file (spy://...?file=): a profile never names a "
+                               "file to write; give that port with --port on the command line")
         try:
             spec = resolve_port(self.port, chip=self.chip, clock=self.clock_hz)
         except ValueError as exc:
-            line = f":{self.lines['port']}" if "port" in self.lines else ""
             raise ProfileError(f"{self.path}{line}: [board] port: {exc}") from None
         have = query_params(self.port)
         add = {"chip": self.chip, "clock": str(round(self.clock_hz))}

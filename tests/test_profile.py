@@ -430,3 +430,23 @@ def test_the_shell_touches_only_the_boards_own_axes_and_refuses_a_shadowing_name
     r = CliRunner().invoke(main, ["--profile", str(bad), "shell"], input="print(1)\n")
     assert r.exit_code == 2 and r.stdout == ""
     assert "axis 'board' of" in r.stderr and "would hide the shell's own `board`" in r.stderr
+
+
+def test_a_port_that_writes_a_file_is_taken_from_the_command_line_only(tmp_path):
+    """`port = "spy://loop://?file=..."` in a profile would truncate that file on any
+    command, `status` included: refused (exit 2, the file untouched); the same URL typed
+    with --port is honoured."""
+    victim = tmp_path / "precious.txt"
+    victim.write_text("keep me\n")
+    prof = _write(tmp_path, f'[board]\nport = "spy://loop://?file={victim}"\n[axis.x]\ncs = 0\n')
+    runner = CliRunner()
+    r = runner.invoke(main, ["--profile", str(prof), "status"])
+    assert r.exit_code == 2 and victim.read_text() == "keep me\n"
+    assert r.stderr.startswith(f"lm629: bad value: {prof}:2: [board] port:")
+    assert "give that port with --port on the command line" in r.stderr
+    with pytest.raises(ValueError, match="a profile never names a file to write"):
+        lm629_host.open_board(profile=str(prof))
+    log = tmp_path / "spy.txt"
+    r = runner.invoke(main, ["--profile", str(prof), "--port", f"spy://loop://?file={log}",
+                             "status"])
+    assert log.exists()  # typed on the command line: pyserial's spy writes it
