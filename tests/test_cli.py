@@ -463,3 +463,41 @@ def test_doctor_without_the_optional_pyftdi_or_an_ft232h_finds_no_problem(run, m
     assert "[!!]" not in r.output, r.output
     assert "pyftdi: not installed (only ftdi:// needs it" in r.output
     assert r.output.rstrip().endswith("no problems found") and r.exit_code == 0
+
+
+def _commands(group, path=()):
+    import click
+    for name, cmd in group.commands.items():
+        yield (*path, name), cmd
+        if isinstance(cmd, click.Group):
+            yield from _commands(cmd, (*path, name))
+
+
+def test_every_option_has_help_and_every_summary_ends_where_it_should(run):
+    import click
+    missing = [f"{' '.join(p)} {opt.opts[0]}" for p, cmd in _commands(cli.main)
+               for opt in cmd.params if isinstance(opt, click.Option) and not opt.help]
+    assert not missing, f"options without help: {missing}"
+    out = run("--help").output
+    commands = out.split("Commands:")[1]
+    assert "..." not in commands  # no summary cut mid-sentence
+    assert "socket://" in out and "sim+emu://" in out  # every kind of port in --port's help
+
+
+@pytest.mark.parametrize("command", [["move", "100"], ["step", "100", "--no-png"]])
+def test_velocity_and_acceleration_are_spelt_alike_everywhere(run, command, tmp_path):
+    """--velocity/--acceleration on every command that takes them, the short forms as
+    aliases: the same words in the move's line either way."""
+    lines = []
+    for v, a in (("--velocity", "--acceleration"), ("--vel", "--acc"), ("--vel", "--accel")):
+        r = run("--port", "sim://", *command, v, "65536", a, "600",
+                *(["--csv", str(tmp_path / "s.csv")] if command[0] == "step" else []))
+        assert r.exit_code == 0, r.output
+        lines.append(r.stdout.splitlines()[0])
+    assert len(set(lines)) == 1
+
+
+def test_tune_distances_are_revolutions_with_lines_as_move_s(run):
+    r = run("--port", "sim://", "--lines", "500", "tune", "--travel", "0.01", "--yes")
+    assert r.exit_code == 2
+    assert "--travel=0.01 is 20 counts: it must be at least 100 counts" in r.stderr

@@ -335,6 +335,18 @@ def _help_epilog() -> str:
 class LM629Group(click.Group):
     """A click group that turns exceptions into one stderr line and an exit code."""
 
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """Each command's first sentence whole (click cuts it at 45 characters with "..."):
+        the formatter wraps it instead."""
+        rows = []
+        for name in self.list_commands(ctx):
+            cmd = self.get_command(ctx, name)
+            if cmd is not None and not cmd.hidden:
+                rows.append((name, cmd.get_short_help_str(limit=1000)))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
     def invoke(self, ctx: click.Context) -> Any:
         try:
             result = super().invoke(ctx)
@@ -384,7 +396,8 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
 @click.group(cls=LM629Group, epilog=_help_epilog(),
              context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--port", "-p", envvar="LM629_PORT", default=None, metavar="URL",
-              help="sim://, serial://PATH or a device path, ftdi://..., sim+avr:// "
+              help="sim://, serial://PATH or a device path, socket://HOST:PORT (ser2net, "
+                   "`lm629 sim serve --tcp`), ftdi://..., sim+emu://, sim+avr://, sim+ftdi:// "
                    "(env LM629_PORT; default sim://).")
 @click.option("--chip", "chip_name", type=click.Choice(["lm628", "lm629"]), default="lm629",
               show_default=True, help="Which chip is on the board (a simulator URL's chip= "

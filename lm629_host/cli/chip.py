@@ -59,10 +59,10 @@ def reset() -> None:
 
 
 @main.command("filter")
-@click.option("--kp", type=INT)
-@click.option("--ki", type=INT)
-@click.option("--kd", type=INT)
-@click.option("--il", type=INT, help="Integration limit.")
+@click.option("--kp", type=INT, help="Proportional gain, 0..32767.")
+@click.option("--ki", type=INT, help="Integral gain, 0..32767.")
+@click.option("--kd", type=INT, help="Derivative gain, 0..32767.")
+@click.option("--il", type=INT, help="Integration limit, 0..32767.")
 @click.option("--ds", type=int, help="Derivative sampling interval, 1..256 samples.")
 @click.option("--no-update", is_flag=True, help="Load only (LFIL), no UDF.")
 def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, ds: int | None,
