@@ -294,7 +294,9 @@ def record(chip: RecordingChip, period_s: float, duration_s: float, *,
             for _ in stream:
                 pass
     except LM629Error as exc:
-        setattr(exc, "trace", stream.trace())  # the rows so far, for the caller to keep
+        # the rows so far ride on whichever error ended the recording (no error class has a
+        # field for them, and mypy would refuse the plain attribute)
+        setattr(exc, "trace", stream.trace())  # noqa: B010 - see above
         raise
     trace = stream.trace()
     last = trace.rows[-1].index if trace.rows else -1
@@ -304,7 +306,7 @@ def record(chip: RecordingChip, period_s: float, duration_s: float, *,
             f"the recording ended after row {last} of {stream.asked}: nothing more came from "
             f"{transport.describe()} (the link failed or went silent); the {len(trace.rows)} "
             "rows that came are in this error's .trace", port=getattr(transport, "url", None))
-        setattr(exc, "trace", trace)
+        setattr(exc, "trace", trace)  # noqa: B010 - as above: TransportError has no trace field
         raise exc
     return trace
 

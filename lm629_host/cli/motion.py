@@ -71,10 +71,12 @@ def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
 @click.option("--linear", is_flag=True, help="With one target per --axis: a straight line, "
                                              "the words scaled by each axis's share.")
 @click.option("--relative", "-r", is_flag=True, help="TARGET is a distance from where it is.")
-@click.option("--velocity", "--vel", "vel", type=FINITE, help="Velocity: rpm with --lines (default 60), else raw "
-                                          "16.16 counts/sample (default 65536).")
-@click.option("--acceleration", "--acc", "--accel", "acc", type=FINITE, help="Acceleration: rev/s^2 with --lines (default 10), else "
-                                          "raw 16.16 counts/sample^2 (default 655).")
+@click.option("--velocity", "--vel", "vel", type=FINITE,
+              help="Velocity: rpm with --lines (default 60), else raw 16.16 counts/sample "
+                   "(default 65536).")
+@click.option("--acceleration", "--acc", "--accel", "acc", type=FINITE,
+              help="Acceleration: rev/s^2 with --lines (default 10), else raw 16.16 "
+                   "counts/sample^2 (default 655).")
 @click.option("--raw", is_flag=True, help="Counts and raw words even with --lines.")
 @click.option("--tolerance", type=FINITE, default=None,
               help=f"Done when the shaft rests this close to the target (counts; revolutions "
