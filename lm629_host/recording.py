@@ -37,7 +37,9 @@ class RecordingChip(Protocol):
     """What a recording needs of its chip (an :class:`~lm629_host.LM629`)."""
 
     transport: Transport
-    clock_hz: float  #: the chip's clock: one sample every 2048 clocks
+
+    @property
+    def clock_hz(self) -> float: ...  # the chip's clock: one sample every 2048 clocks
 
     def program(self) -> Program: ...
 
@@ -302,12 +304,12 @@ def record(chip: RecordingChip, period_s: float, duration_s: float, *,
     last = trace.rows[-1].index if trace.rows else -1
     if last < stream.asked - 1:
         transport = chip.transport
-        exc = TransportError(
+        lost = TransportError(
             f"the recording ended after row {last} of {stream.asked}: nothing more came from "
             f"{transport.describe()} (the link failed or went silent); the {len(trace.rows)} "
             "rows that came are in this error's .trace", port=getattr(transport, "url", None))
-        setattr(exc, "trace", trace)  # noqa: B010 - as above: TransportError has no trace field
-        raise exc
+        setattr(lost, "trace", trace)  # noqa: B010 - as above: TransportError has no trace field
+        raise lost
     return trace
 
 
