@@ -159,7 +159,7 @@ def limit(threshold: int, stop_motor: bool) -> None:
 
 @main.command()
 @click.option("--rate", type=FINITE, default=10.0, show_default=True, help="Rows per second.")
-@click.option("--count", type=int, default=None, help="Stop after this many rows.")
+@click.option("--count", type=int, default=None, help="Stop after this many readings (a row per axis each).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default=None,
               help="Also log every row to this CSV file.")
 def watch(rate: float, count: int | None, csv_path: str | None) -> None:
