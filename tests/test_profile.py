@@ -450,3 +450,16 @@ def test_a_port_that_writes_a_file_is_taken_from_the_command_line_only(tmp_path)
     r = runner.invoke(main, ["--profile", str(prof), "--port", f"spy://loop://?file={log}",
                              "status"])
     assert log.exists()  # typed on the command line: pyserial's spy writes it
+
+
+def test_a_profile_axis_without_a_chip_names_the_axis_the_cs_and_the_fix(tmp_path):
+    """A two-axis profile on a served bench of one chip (the bridge has four chip selects,
+    nothing answers on cs 1): one line naming axis y, cs 1 and the fix, exit 4."""
+    from lm629_host.sim.serve import SimServer
+    with SimServer(tmp_path / "bench", "sim://").start() as srv:
+        prof = _write(tmp_path, GOOD.replace('port = "sim://"', f'port = "{srv.client_url}"'))
+        r = CliRunner().invoke(main, ["--profile", str(prof), "status"])
+    assert r.exit_code == 4, r.output
+    line = r.stderr.strip().splitlines()[-1]  # after x's "had lost its settings" line
+    assert line.startswith(f"lm629: error: axis y (cs 1) of {prof} does not answer: ")
+    assert "--url 'sim://?axes=2'" in line and "the /CS wire of that chip" in line

@@ -21,6 +21,7 @@ from typing import Any
 import click
 
 from ..board import Board
+from ..errors import BusyTimeout, ResetError
 from ..lm629 import LM629
 from ..opcodes import Signals
 from ..profile import (
@@ -117,7 +118,22 @@ def profile_opened(s: Session, b: Board) -> None:
         # an in-process simulator is a fresh chip for every command (and says so): applying
         # the profile to it is the rule, not news
         chips = {n: c for n, c in named_axes(s, b).items() if only is None or prof.axes[n].cs in only}
-        ensure_applied(chips, prof, log.info if s.is_sim else _say)
+        for name, chip in chips.items():  # one at a time: an error names its axis
+            try:
+                ensure_applied({name: chip}, prof, log.info if s.is_sim else _say)
+            except (BusyTimeout, ResetError) as exc:
+                raise _on_axis(exc, name, prof) from exc
+
+
+def _on_axis(exc: BusyTimeout | ResetError, name: str, prof: Profile) -> BusyTimeout | ResetError:
+    """``exc`` (the same class: the same exit code) saying which axis of the profile and chip
+    select it came from, and the likely fix."""
+    cs = prof.axes[name].cs
+    exc.args = (f"axis {name} (cs {cs}) of {prof.path} does not answer: {exc.args[0] if exc.args else exc} "
+                f"Likely fix: a chip on chip select {cs} (on `lm629 sim serve`, serve the "
+                f"profile's chips: --url 'sim://?axes={cs + 1}'; on a board, check the /CS wire "
+                "of that chip and its power), or remove the axis from the profile",)
+    return exc
 
 
 HOOKS["profile_options"] = profile_options
