@@ -463,3 +463,13 @@ def test_a_profile_axis_without_a_chip_names_the_axis_the_cs_and_the_fix(tmp_pat
     line = r.stderr.strip().splitlines()[-1]  # after x's "had lost its settings" line
     assert line.startswith(f"lm629: error: axis y (cs 1) of {prof} does not answer: ")
     assert "--url 'sim://?axes=2'" in line and "the /CS wire of that chip" in line
+
+
+def test_profile_show_reads_the_status_as_status_does_and_says_which_port(tmp_path):
+    prof = _write(tmp_path, '[axis.x]\ncs = 0\nkp = 20\n')
+    runner = CliRunner()
+    show = runner.invoke(main, ["--port", "sim://", "--profile", str(prof), "profile", "show"])
+    assert show.exit_code == 0, show.output
+    assert show.stdout.splitlines()[0].startswith(
+        f"profile {prof}: port none in the file (this command: sim://")
+    assert "status C0 breakpoint,motor_off" in show.stdout  # as `status` reads it: not busy

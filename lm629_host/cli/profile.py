@@ -317,7 +317,8 @@ def show_cmd() -> None:
     s = _session()
     prof = _need_profile(s)
     s.reapply = False  # type: ignore[attr-defined]  # read by profile_opened
-    click.echo(f"profile {prof.path}: port {prof.port or '(none: --port)'}, chip {prof.chip}, "
+    port = prof.port or f"none in the file (this command: {s.port})"
+    click.echo(f"profile {prof.path}: port {port}, chip {prof.chip}, "
                f"clock {prof.clock_hz / 1e6:g} MHz" + (f"  # {prof.note}" if prof.note else ""))
     b = board(s)
     chips = named_axes(s, b)
@@ -330,6 +331,7 @@ def show_cmd() -> None:
             click.echo(f"  not on this board ({len(b.axes)} chip selects)")
             continue
         lost = settings_lost(chip)
+        chip.sync()  # RDSIGS's busy over: the status reads as `lm629 status` reads it
         snap = chip.snapshot()
         state = ("settings LOST (signals bit 9 clear: reset or powered up since applied; the "
                  "next command applies the profile)" if lost is not None
