@@ -50,7 +50,7 @@ def render(window: ScopeWindow, width: int, height: int, title: str) -> str:
         figure.clear()
         figure.subplots(2, 1)
         top, low = figure.subplot(1, 1), figure.subplot(2, 1)
-        for name, tr in window.traces.items():
+        for tr in window.traces.values():
             t = list(tr.time) or [0.0]
             top.draw(top.signal(t, list(tr.desired) or [0]))
             top.draw(top.signal(t, list(tr.actual) or [0]))
@@ -64,13 +64,13 @@ def render(window: ScopeWindow, width: int, height: int, title: str) -> str:
     plt.clf()  # plotext 5
     plt.subplots(2, 1)
     plt.subplot(1, 1)
-    for name, tr in window.traces.items():
+    for tr in window.traces.values():
         plt.plot(list(tr.time), list(tr.desired))
         plt.plot(list(tr.time), list(tr.actual))
     plt.xlim(lo, hi)
     plt.title(title)
     plt.subplot(2, 1)
-    for name, tr in window.traces.items():
+    for tr in window.traces.values():
         plt.plot(list(tr.time), tr.error)
     plt.xlim(lo, hi)
     plt.title("following error, counts")
@@ -118,7 +118,7 @@ def scope(duration: float | None, png_path: str | None, rate: float, window_s: f
     win = ScopeWindow(names, window_s)
     live = sys.stdout.isatty()
     size = shutil.get_terminal_size((100, 30))
-    width, height = max(40, size.columns), max(12, size.lines - 4)  # room for 3 lines below
+    width, height = max(40, size.columns), max(12, size.lines - 5)  # the key and 3 lines below
     where = s.port
 
     def title() -> str:
