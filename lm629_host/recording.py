@@ -21,6 +21,7 @@ from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from .bridge.protocol import FAST_BAUD
 from .errors import ArgumentError, LM629Error, TransportError
 from .opcodes import Cmd, Signals, Status, s16, s32
 from .pid import sample_period_s
@@ -250,11 +251,13 @@ def open_stream(chip: RecordingChip, period_s: float, duration_s: float | None =
     program = sample_program(chip, full)
     top = chip.transport.record_max_rate(program)
     if top is not None and 1.0 / period_s > top:
+        # a faster line is advice only where the line is not already at the fastest rate
+        baud = getattr(chip.transport, "baud", None)
+        faster = "a faster line (fast_baud=1000000) or " if baud is None or baud < FAST_BAUD else ""
         raise ValueError(
             f"period_s={period_s:g}: {1 / period_s:g} rows/s is more than "
             f"{chip.transport.describe()} carries; the highest rate is {math.floor(top)} rows/s "
-            f"(period_s >= {1 / math.floor(top):.6g}); a faster line (fast_baud=1000000) or "
-            "fewer columns carry more")
+            f"(period_s >= {1 / math.floor(top):.6g}); {faster}fewer columns carry more")
     return RecordStream(chip, period_s, rows, full)
 
 

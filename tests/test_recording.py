@@ -328,3 +328,16 @@ def test_a_link_that_dies_during_a_recording_raises_with_the_rows_so_far(tmp_pat
         srv.close()
     rows = info.value.trace.rows
     assert 0 < len(rows) < 2000 and rows[-1].index < 1999
+
+
+@pytest.mark.parametrize("url, advice", [("sim+emu://?fast_baud=115200", True),
+                                         ("sim+emu://?fast_baud=1000000&usb=uno", False)])
+def test_a_rate_the_line_cannot_carry_suggests_a_faster_line_only_where_there_is_one(url, advice):
+    """3333 rows/s of the three columns: above 433 rows/s at 115200 baud and 2990 at 1 Mbaud
+    (docs/python.md): refused either way; fast_baud=1000000 is advice only below it."""
+    with lm629_host.open(url) as chip:
+        chip.reset()
+        with pytest.raises(ValueError) as info:
+            chip.record(300e-6, 0.05)
+    assert "the highest rate is" in str(info.value)
+    assert ("a faster line (fast_baud=1000000)" in str(info.value)) == advice
