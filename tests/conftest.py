@@ -54,8 +54,8 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
     docs = sys.modules.get("test_docs")
     if docs is not None and any(docs.COUNTS.values()):  # tests/test_docs.py ran
         terminalreporter.write_sep(
-            "-", f"docs examples: {docs.COUNTS['ran']} ran, {docs.COUNTS['skipped']} marked "
-            "not run (README.md, docs/*.md)")
+            "-", f"docs examples: {docs.COUNTS['ran']} ran, {docs.COUNTS['skipped']} not run "
+            "(marked so, or a tool missing here) (README.md, docs/*.md)")
     missing = _avr_missing()
     if not missing:
         return
