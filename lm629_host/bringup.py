@@ -123,6 +123,7 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
     announce("reset check (AN-706 4.4.1)")
     if not done(reset_step(chip)):
         return out
+    check_room(chip, o)  # before anything turns: the whole sequence inside the soft limits
     if not confirm(f"The motor will now turn (gentle steps of +/-{o.phasing_travel // 8} counts). "
                    "Is the shaft free to turn?"):
         done(StepResult("phasing", None, "skipped at your request: nothing moved"))
@@ -155,6 +156,31 @@ def reset_step(chip: LM629) -> StepResult:
     expected = "00, 84/C4, 80/C0" if chip.uses_reset_line else "84/C4, 80/C0"
     return StepResult("reset", True, f"status bytes seen: {_hex(seen)} (expected {expected})",
                       data={"statuses": seen, "status": int(status)})
+
+
+def check_room(chip: LM629, o: BringupOptions) -> None:
+    """The bring-up's targets, as absolute positions from where the desired position is now,
+    against the axis's soft limits (``chip.limits``): the phasing steps' reach either way,
+    then the small move.  ValueError naming the limit and the
+    room left, before anything moves."""
+    limits = getattr(chip, "limits", None)
+    if limits is None or not limits.has_travel:
+        return
+    origin = chip.read_desired_position()
+    points = [origin - o.phasing_travel, origin + o.phasing_travel, origin + o.move_distance]
+    for point in (min(points), max(points)):
+        try:
+            limits.check_position(point, what="bring-up goes to")
+        except ValueError as exc:
+            lo, hi = limits.min, limits.max
+            room = (f"{hi - origin:+d} counts up to max" if hi is not None else "") + \
+                (", " if hi is not None and lo is not None else "") + \
+                (f"{lo - origin:+d} down to min" if lo is not None else "")
+            raise ValueError(
+                f"{exc}: from {origin} it needs +/-{o.phasing_travel} counts of phasing and "
+                f"then a {o.move_distance:+d}-count move; room left from {origin}: {room}. "
+                "Move the axis so that the room is there, or give a smaller move "
+                "(`lm629 bringup --move N`)") from None
 
 
 def phasing_step(chip: LM629, o: BringupOptions) -> StepResult:

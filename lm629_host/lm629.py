@@ -67,6 +67,7 @@ from .transports.base import Transport
 if TYPE_CHECKING:
     from .batch import Batch
     from .recording import RecordStream, Trace
+    from .supervise import VelocityRun
 
 log = logging.getLogger("lm629_host")
 
@@ -760,6 +761,18 @@ class LM629:
                 clock.sleep(min(step, deadline - now))
 
     # ------------------------------------------------------------------ recording
+    def run_velocity(self, velocity: int, acceleration: int | None = None) -> VelocityRun:
+        """Start velocity mode at ``velocity``, 16.16 counts/sample with its sign the
+        direction (negative: backwards), as :meth:`move_to` starts a move; ``acceleration``
+        (16.16 counts/sample^2) is loaded too unless None (leave it out to change the speed of
+        a running motor: the chip refuses a new one then, AN-706 4.6.1).  Returns the
+        :class:`~lm629_host.supervise.VelocityRun` (``.check()`` for a stall or runaway,
+        ``.stop()`` to end it smoothly).  On an axis with soft limits it is a ValueError:
+        velocity mode runs past them."""
+        from . import supervise
+        speed = check_int("velocity", velocity, -VELOCITY_MAX, VELOCITY_MAX)
+        return supervise.run_velocity(self, abs(speed), acceleration, forward=speed >= 0)
+
     def record(self, period_s: float, duration_s: float, *, full: bool = False) -> Trace:
         """Sample status, desired (RDDP) and real (RDRP) position every ``period_s`` for
         ``duration_s``, timed where the chip is: the bridge's own timer (rows stamped with its

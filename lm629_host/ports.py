@@ -39,14 +39,12 @@ from .opcodes import NOMINAL_CLOCK_HZ
 from .program import TraceCallback
 from .transports import DEFAULT_URL, URL_SCHEMES, registry, transport_class
 from .transports.base import Transport
-from .urls import parse_hz, query_params, scheme_of, split_params, with_query
+from .urls import BOARD_OPTIONS, parse_hz, query_params, scheme_of, split_params, with_query
 
 #: the chips the driver knows
 CHIPS = ("lm628", "lm629")
 #: the chip's clock range (datasheets: 1 to 8 MHz parts)
 CLOCK_MIN_HZ, CLOCK_MAX_HZ = 1_000_000, NOMINAL_CLOCK_HZ
-#: the options this module takes out of a URL (a hardware transport never sees them)
-BOARD_OPTIONS = frozenset({"chip", "clock", "axes", "cs"})
 
 
 @dataclass(frozen=True)

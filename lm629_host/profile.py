@@ -190,10 +190,16 @@ class Profile:
         if not self.port:
             raise ProfileError(f"{self.path}: [board] has no port = \"...\": give --port or "
                                "write the port URL into the profile")
+        line = f":{self.lines['port']}" if "port" in self.lines else ""
+        if "spy://" in self.port and "file" in query_params(self.port):
+            # a file that any command would create or truncate, read-only ones included: a
+            # file a profile names could be anything the user may write
+            raise ProfileError(f"{self.path}{line}: [board] port: {self.port!r} writes its "
+                               "traffic to a file (spy://...?file=): a profile never names a "
+                               "file to write; give that port with --port on the command line")
         try:
             spec = resolve_port(self.port, chip=self.chip, clock=self.clock_hz)
         except ValueError as exc:
-            line = f":{self.lines['port']}" if "port" in self.lines else ""
             raise ProfileError(f"{self.path}{line}: [board] port: {exc}") from None
         have = query_params(self.port)
         add = {"chip": self.chip, "clock": str(round(self.clock_hz))}
@@ -405,16 +411,20 @@ def attach(chip: Any, profile: Profile, axis: AxisProfile) -> None:
     chip.profile_axis = axis.name
 
 
-def name_axes(board: Any, profile: Profile) -> dict[str, Any]:
+def name_axes(board: Any, profile: Profile, only: Iterable[int] | None = None) -> dict[str, Any]:
     """Give each axis of ``board`` (a :class:`~lm629_host.Board`) the profile's name, soft
     limits, chip variant and clock, and the board the profile (``board["x"]``); nothing is
     sent.  The profile's axes by name; :class:`~lm629_host.AxisError` for an axis whose chip
-    select the board does not have."""
+    select the board does not have, among the chip selects ``only`` (default: every axis of
+    the profile): a command that drives x need not find y's chip."""
     from dataclasses import replace
 
     from .errors import AxisError
+    wanted = None if only is None else set(only)
     named = {}
     for name, ax in profile.axes.items():
+        if ax.cs >= len(board.axes) and wanted is not None and ax.cs not in wanted:
+            continue
         if ax.cs >= len(board.axes):
             raise AxisError(ax.cs, len(board.axes), f"{board.transport.describe()} (axis "
                                                     f"{name} of {profile.path})")

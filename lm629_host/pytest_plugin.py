@@ -405,8 +405,13 @@ class Bench(BusObserver):
 
     def open_board(self) -> lm629_host.Board:
         spec = self._spec()
-        n = spec.axes if spec.axes is not None else self.transport.chip_count
         prof = self.session.profile_data
+        n = spec.axes if spec.axes is not None else self.transport.chip_count
+        if spec.axes is None and prof is not None and prof.axes:
+            # the chips the profile names, not every chip select the bridge has: an unwired
+            # select fails a reset
+            need = 1 + max(ax.cs for ax in prof.axes.values())
+            n = need if n is None else min(n, need)
         board = lm629_host.Board(self.transport, n, chip=prof.chip if prof is not None else spec.chip,
                                  clock_hz=spec.clock_hz)
         self.board = board

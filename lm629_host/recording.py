@@ -21,8 +21,10 @@ from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
-from .errors import ArgumentError
+from .bridge.protocol import FAST_BAUD
+from .errors import ArgumentError, LM629Error, TransportError
 from .opcodes import Cmd, Signals, Status, s32_words
+from .pid import sample_period_s
 from .program import Program
 from .snapshot import SNAPSHOT_READS, Snapshot, add_snapshot, snapshot_of
 from .transports.base import RawRow, Transport
@@ -36,6 +38,9 @@ class RecordingChip(Protocol):
     """What a recording needs of its chip (an :class:`~lm629_host.LM629`)."""
 
     transport: Transport
+
+    @property
+    def clock_hz(self) -> float: ...  # the chip's clock: one sample every 2048 clocks
 
     def program(self) -> Program: ...
 
@@ -234,14 +239,25 @@ def open_stream(chip: RecordingChip, period_s: float, duration_s: float | None =
     """Check the request (:class:`ArgumentError`, a ``ValueError``, before any traffic) and
     make the stream."""
     rows = rows_for(period_s, duration_s)
+    sample = sample_period_s(chip.clock_hz)
+    if period_s < sample * (1 - 1e-9):
+        # the chip's registers change once a sample: a shorter period would repeat rows, and
+        # the rows that a sample boundary skips would read as lost
+        raise ArgumentError("period_s", period_s,
+                            f"period_s={period_s:g} is below the chip's sample time "
+                            f"{sample * 1e6:g} us (2048 clocks at {chip.clock_hz / 1e6:g} MHz): "
+                            "its positions change once a sample, so record at least that "
+                            "far apart", lo=sample)
     program = sample_program(chip, full)
     top = chip.transport.record_max_rate(program)
     if top is not None and 1.0 / period_s > top:
+        # a faster line is advice only where the line is not already at the fastest rate
+        baud = getattr(chip.transport, "baud", None)
+        faster = "a faster line (fast_baud=1000000) or " if baud is None or baud < FAST_BAUD else ""
         raise ValueError(
             f"period_s={period_s:g}: {1 / period_s:g} rows/s is more than "
             f"{chip.transport.describe()} carries; the highest rate is {math.floor(top)} rows/s "
-            f"(period_s >= {1 / math.floor(top):.6g}); a faster line (fast_baud=1000000) or "
-            "fewer columns carry more")
+            f"(period_s >= {1 / math.floor(top):.6g}); {faster}fewer columns carry more")
     return RecordStream(chip, period_s, rows, full)
 
 
@@ -269,12 +285,35 @@ def far_snapshots(chip: RecordingChip, period_s: float, rows: int = 0,
 
 def record(chip: RecordingChip, period_s: float, duration_s: float, *,
            full: bool = False) -> Trace:
-    """Record for ``duration_s`` (see :meth:`LM629.record <lm629_host.LM629.record>`)."""
+    """Record for ``duration_s`` (see :meth:`LM629.record <lm629_host.LM629.record>`): a
+    finite duration (ArgumentError else: :meth:`LM629.record_stream` runs until closed).  A
+    link that fails or goes silent before the last row raises, with the rows that came
+    attached as the error's ``.trace``."""
+    if duration_s is None:  # a number that is not finite: rows_for names the range
+        raise ArgumentError("duration_s", duration_s,
+                            f"duration_s={duration_s!r} must be a finite number of seconds "
+                            "(record_stream(period_s) records until it is closed)")
     stream = open_stream(chip, period_s, duration_s, full=full)
-    with stream:
-        for _ in stream:
-            pass
-    return stream.trace()
+    try:
+        with stream:
+            for _ in stream:
+                pass
+    except LM629Error as exc:
+        # the rows so far ride on whichever error ended the recording (no error class has a
+        # field for them, and mypy would refuse the plain attribute)
+        setattr(exc, "trace", stream.trace())  # noqa: B010 - see above
+        raise
+    trace = stream.trace()
+    last = trace.rows[-1].index if trace.rows else -1
+    if last < stream.asked - 1:
+        transport = chip.transport
+        lost = TransportError(
+            f"the recording ended after row {last} of {stream.asked}: nothing more came from "
+            f"{transport.describe()} (the link failed or went silent); the {len(trace.rows)} "
+            "rows that came are in this error's .trace", port=getattr(transport, "url", None))
+        setattr(lost, "trace", trace)  # noqa: B010 - as above: TransportError has no trace field
+        raise lost
+    return trace
 
 
 __all__ = ["BASIC_READS", "FULL_READS", "MAX_ROWS", "RecordStream", "Row", "Trace",

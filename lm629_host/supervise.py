@@ -13,13 +13,50 @@ raised (:func:`~lm629_host.safety.motion_fault`), as a move's does.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from .clock import Clock
 from .errors import MotionError, MotionFault, WaitTimeout
-from .lm629 import LM629
+from .limits import SoftLimits
+from .move import MoveRules
 from .opcodes import FIXED_ONE, SAMPLE_CLOCKS, Status
 from .safety import motion_fault, stop_on_error
 from .snapshot import Snapshot
 
-#: one count per sample in the chip's 16.16 velocity words
+
+class LM629(Protocol):
+    """What supervision needs of its chip (an :class:`~lm629_host.LM629` is one), declared
+    here because the driver offers :meth:`LM629.run_velocity <lm629_host.LM629.run_velocity>`
+    from this module and must not be imported back."""
+
+    @property
+    def clock(self) -> Clock: ...
+    @property
+    def clock_hz(self) -> float: ...
+    @property
+    def limits(self) -> SoftLimits | None: ...
+    @property
+    def move_rules(self) -> MoveRules: ...
+
+    # the commands, as read-only members (the chip's methods, whatever their keywords)
+    @property
+    def snapshot(self) -> Callable[[], Snapshot]: ...
+    @property
+    def load_trajectory(self) -> Callable[..., Any]: ...
+    @property
+    def trajectory_program(self) -> Callable[..., Any]: ...
+    @property
+    def move_to(self) -> Callable[..., Any]: ...
+    @property
+    def reset_interrupts(self) -> Callable[..., Any]: ...
+    @property
+    def wait_for(self) -> Callable[..., Any]: ...
+    @property
+    def read_index_position(self) -> Callable[[], int]: ...
+    @property
+    def set_index_position(self) -> Callable[[], Any]: ...
+
 #: the acceleration word of an index search (AN-706's slow turn: 0.01 count/sample^2)
 INDEX_SEARCH_ACCELERATION = 655
 

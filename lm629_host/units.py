@@ -70,7 +70,10 @@ class Trapezoid:
 
 @dataclass(frozen=True)
 class Scale:
-    """Conversions for one axis: encoder lines and the chip's clock."""
+    """Conversions for one axis between the units a user thinks in and the chip's words:
+    positions in revolutions <-> counts (4 per encoder line), velocities in rpm <-> 16.16
+    counts/sample words, accelerations in rev/s^2 <-> 16.16 counts/sample^2 words, times in
+    seconds <-> samples (2048 clocks each: 256 us at the default 8 MHz)."""
 
     encoder_lines: int
     clock_hz: float = NOMINAL_CLOCK_HZ
@@ -109,19 +112,24 @@ class Scale:
 
     # -- from raw words ----------------------------------------------------------------------
     def revolutions(self, counts: int) -> float:
+        """Counts -> revolutions."""
         return counts / self.counts_per_rev
 
     def rpm(self, velocity_word: int) -> float:
+        """16.16 counts/sample -> rpm."""
         return velocity_word / FIXED_ONE / self.sample_period / self.counts_per_rev * 60
 
     def rev_per_s2(self, acceleration_word: int) -> float:
+        """16.16 counts/sample^2 -> rev/s^2."""
         t = self.sample_period
         return acceleration_word / FIXED_ONE / (t * t) / self.counts_per_rev
 
     def seconds(self, samples: float) -> float:
+        """Samples -> seconds."""
         return samples * self.sample_period
 
     def samples(self, seconds: float) -> float:
+        """Seconds -> samples."""
         return seconds / self.sample_period
 
     # -- moves -------------------------------------------------------------------------------

@@ -12,12 +12,13 @@ for a bad value and for an unknown name alike.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import parse_qs, parse_qsl, urlencode, urlsplit
 
-__all__ = ["Option", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
+__all__ = ["BOARD_OPTIONS", "Option", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
            "query_params", "scheme_of", "split_params", "with_query"]
 
 #: the words a boolean option takes (an empty value, ``?strict``, means true)
@@ -182,6 +183,11 @@ def _fmt(v: float | None) -> str:
     return str(int(v)) if float(v).is_integer() and abs(v) < 1e12 else f"{v:g}"
 
 
+#: the options that describe the board, taken on any URL (lm629_host.ports takes them out
+#: before a transport sees the rest)
+BOARD_OPTIONS = frozenset({"chip", "clock", "axes", "cs"})
+
+
 def parse_options(url: str, options: Iterable[Option], *, what: str = "",
                   ignore: Iterable[str] = (), aliases: Mapping[str, str] | None = None,
                   given_only: bool = False) -> dict[str, Any]:
@@ -200,9 +206,17 @@ def parse_options(url: str, options: Iterable[Option], *, what: str = "",
     skip = set(ignore)
     unknown = set(q) - set(specs) - skip
     if unknown:
-        known = sorted([*(o.describe() for o in specs.values()), *aliases])
+        # every name the URL may carry: this layer's, its aliases, the other layers' (skip)
+        # and the board's, so that the list is the scheme's whole list
+        others = (skip | BOARD_OPTIONS) - set(specs) - set(aliases)
+        known = sorted([*(o.describe() for o in specs.values()), *aliases, *others])
+        names = [*specs, *aliases, *others]
+        hints = []
+        for name in sorted(unknown):
+            close = difflib.get_close_matches(name, names, n=1, cutoff=0.6)
+            hints.append(f"{name} (did you mean {close[0]}?)" if close else name)
         label = f"{what} " if what else ""
-        raise ValueError(f"{url}: unknown {label}parameter(s) {', '.join(sorted(unknown))}; "
+        raise ValueError(f"{url}: unknown {label}parameter(s) {', '.join(hints)}; "
                          f"known: {', '.join(known)}")
     out: dict[str, Any] = {}
     for name, spec in specs.items():

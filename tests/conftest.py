@@ -12,6 +12,7 @@ skip, and the run says so in a red line at its end (and at its start); with
 from __future__ import annotations
 
 import os
+import sys
 
 os.environ.setdefault("LM629_SIM_STRICT", "1")
 
@@ -75,6 +76,11 @@ def pytest_report_header(config: pytest.Config) -> str | None:
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    docs = sys.modules.get("test_docs")
+    if docs is not None and any(docs.COUNTS.values()):  # tests/test_docs.py ran
+        terminalreporter.write_sep(
+            "-", f"docs examples: {docs.COUNTS['ran']} ran, {docs.COUNTS['skipped']} not run "
+            "(marked so, or a tool missing here) (README.md, docs/*.md)")
     missing = _avr_missing()
     if not missing:
         return

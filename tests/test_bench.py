@@ -226,3 +226,15 @@ def test_sim_serve_refuses_a_path_in_use_and_keeps_files_it_did_not_make(tmp_pat
     p = subprocess.run([exe, "sim", "serve", "--pty", str(tmp_path / "missing" / "p")],
                        capture_output=True, text=True, timeout=30, env=_env())
     assert p.returncode == 2 and "does not exist" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_a_move_on_a_chip_without_gains_says_so(tmp_path):
+    """A served bench as from power-up has kp = 0: `move 2000` stalls with the shaft at 0, and
+    the line names the cause and the fix, not the amplifier (exit 9, the motor off)."""
+    with serve(tmp_path, "python") as b:
+        p = b.run("move", "2000")
+        assert p.returncode == 9, p.stderr
+        assert "no gains loaded: run `lm629 profile apply` or `lm629 filter --kp N`" in p.stderr
+        b.ready()  # kp = 20: the same move then ends on its target
+        p = b.run("move", "2000")
+        assert p.returncode == 0, p.stderr

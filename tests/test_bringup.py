@@ -161,3 +161,30 @@ def test_a_failed_reset_names_the_wire(open_chip):
     assert "C8" in step.summary
     assert step.details[0].startswith("wiring check: LM629 D2 (pin 9) carries D3's bit")
     assert "Uno D4" in step.details[0] and "Uno D5" in step.details[1]
+
+
+def _limited_profile(tmp_path, lo: int, hi: int):
+    path = tmp_path / "bench.toml"
+    path.write_text(f'[board]\nport = "sim://"\n[axis.x]\ncs = 0\nkp = 20\nmin = {lo}\nmax = {hi}\n')
+    return path
+
+
+def test_bringup_on_an_axis_with_soft_limits_checks_its_absolute_targets(tmp_path):
+    """From 0 the sequence goes to +4000 (phasing at kp = 1) and then 1000 further: inside
+    -3000..6000 it runs; with max = 4500 it is refused before anything turns, naming the limit
+    and the room left (+4500 counts up to max)."""
+    from click.testing import CliRunner
+
+    from lm629_host.cli import main
+    runner = CliRunner()
+    ok = _limited_profile(tmp_path, -3000, 6000)
+    r = runner.invoke(main, ["--profile", str(ok), "--axis", "x", "bringup", "--yes"])
+    assert r.exit_code == 0, r.output
+    tight = _limited_profile(tmp_path, -3000, 4500)
+    r = runner.invoke(main, ["--profile", str(tight), "--axis", "x", "bringup", "--yes"])
+    assert r.exit_code == 2, r.output
+    line = r.stderr.strip().splitlines()[-1]
+    assert "bring-up goes to 5000 is above the soft limit max = 4500 counts" in line
+    assert f"{tight}:7: [axis.x] max" in line
+    assert "room left from 0: +4500 counts up to max, -3000 down to min" in line
+    assert "[PASS] phasing" not in r.stdout and "relative" not in r.stderr

@@ -12,6 +12,7 @@ import os
 import shutil
 import signal
 import subprocess
+import re
 import sys
 
 import pytest
@@ -474,3 +475,85 @@ def test_step_refuses_a_moving_motor():
     with pytest.raises(ValueError, match="the motor is moving"):
         capture_move(chip, 200, duration_s=0.1, interval_s=0.01, velocity=65536,
                      acceleration=500)
+
+
+def test_doctor_without_the_optional_pyftdi_or_an_ft232h_finds_no_problem(run, monkeypatch):
+    """pyftdi is an extra and an FT232H one adapter of two: neither missing is a problem on a
+    bench that uses a serial bridge, as a bridge not found is not one either."""
+    monkeypatch.setitem(sys.modules, "pyftdi", None)  # import pyftdi -> ImportError
+    r = run("doctor")
+    assert "[!!]" not in r.output, r.output
+    assert "pyftdi: not installed (only ftdi:// needs it" in r.output
+    assert r.output.rstrip().endswith("no problems found") and r.exit_code == 0
+
+
+def _commands(group, path=()):
+    import click
+    for name, cmd in group.commands.items():
+        yield (*path, name), cmd
+        if isinstance(cmd, click.Group):
+            yield from _commands(cmd, (*path, name))
+
+
+def test_every_option_has_help_and_every_summary_ends_where_it_should(run):
+    import click
+    missing = [f"{' '.join(p)} {opt.opts[0]}" for p, cmd in _commands(cli.main)
+               for opt in cmd.params if isinstance(opt, click.Option) and not opt.help]
+    assert not missing, f"options without help: {missing}"
+    out = run("--help").output
+    commands = out.split("Commands:")[1]
+    assert "..." not in commands  # no summary cut mid-sentence
+    assert "socket://" in out and "sim+emu://" in out  # every kind of port in --port's help
+
+
+@pytest.mark.parametrize("command", [["move", "100"], ["step", "100", "--no-png"]])
+def test_velocity_and_acceleration_are_spelt_alike_everywhere(run, command, tmp_path):
+    """--velocity/--acceleration on every command that takes them, the short forms as
+    aliases: the same words in the move's line either way."""
+    lines = []
+    for v, a in (("--velocity", "--acceleration"), ("--vel", "--acc"), ("--vel", "--accel")):
+        r = run("--port", "sim://", *command, v, "65536", a, "600",
+                *(["--csv", str(tmp_path / "s.csv")] if command[0] == "step" else []))
+        assert r.exit_code == 0, r.output
+        lines.append(r.stdout.splitlines()[0])
+    assert len(set(lines)) == 1
+
+
+def test_tune_distances_are_revolutions_with_lines_as_move_s(run):
+    r = run("--port", "sim://", "--lines", "500", "tune", "--travel", "0.01", "--yes")
+    assert r.exit_code == 2
+    assert "--travel=0.01 is 20 counts: it must be at least 100 counts" in r.stderr
+
+
+def test_scope_keeps_its_key_off_the_data_and_one_time_axis_for_both_panes():
+    """A 3 s ramp seen through a 2 s window: the plot shows 1.0 to 3.0 s in both panes (the
+    same tick labels), no label inside either canvas (a legend there hid the ramp's start),
+    and the key on a line of its own below."""
+    from types import SimpleNamespace
+
+    from lm629_host.cli.scope import render
+    from lm629_host.scope import ScopeWindow
+    win = ScopeWindow(["x"], 2.0)
+    for i in range(301):  # 10 ms apart: desired 0..30000, actual lagging 50 counts
+        win.add([SimpleNamespace(time=i * 0.01, desired_position=100 * i,
+                                 real_position=100 * i - 50)])
+    text = click_unstyle(render(win, 90, 30, "desired / actual"))
+    lines = text.splitlines()
+    ticks = [ln.split() for ln in lines if re.fullmatch(r"\s*[\d.]+(\s+[\d.]+)+\s*", ln)]
+    assert len(ticks) == 2 and ticks[0] == ticks[1], ticks
+    assert float(ticks[0][0]) == pytest.approx(1.0, abs=0.02) and float(ticks[0][-1]) == 3.0
+    canvas = [ln for ln in lines if "│" in ln]
+    assert canvas and not any("desired" in ln or "error" in ln for ln in canvas)
+    assert lines[-1] == "top: x desired, x actual; bottom: x error (in colour order)"
+
+
+def test_scope_without_plotext_is_a_usage_error(run, monkeypatch):
+    monkeypatch.setitem(sys.modules, "plotext", None)
+    r = run("--port", "sim://", "scope", "--duration", "0.1")
+    assert r.exit_code == 2
+    assert r.stderr.startswith("lm629: the terminal plot needs plotext: pip install "
+                               "'lm629-host[scope]'")
+
+
+def click_unstyle(text: str) -> str:
+    return re.sub(r"\x1b\[[0-9;]*m", "", text)

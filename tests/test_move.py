@@ -158,3 +158,23 @@ def test_ctrl_c_while_waiting_stops_the_motor(open_chip):
         move.wait(progress=progress)
     assert e.value.lm629_stop_note == "motor stopped (abrupt stop, then motor off)"
     assert chip.read_status() & Status.MOTOR_OFF and chip.read_desired_velocity() == 0
+
+
+def test_velocity_mode_is_a_method_with_a_signed_speed():
+    """chip.run_velocity(v) like chip.move_to(...): -65536 turns backwards at 1 count/sample,
+    so after 0.5 s (1953 samples at 256 us) the desired position is about -1953 + the ramp."""
+    import lm629_host
+    from lm629_host.opcodes import Signals
+    with lm629_host.open("sim://") as chip:
+        chip.reset()
+        chip.load_filter(kp=20, kd=100)
+        chip.update_filter()
+        run = chip.run_velocity(-65536, 655)
+        chip.clock.sleep(0.5)
+        run.check()
+        assert not chip.read_signals() & Signals.FORWARD
+        desired = chip.read_desired_position()
+        assert -1953 <= desired <= -1953 + 110  # 100 samples of ramp lose at most 50 counts
+        run.stop()
+        with pytest.raises(ValueError):
+            chip.run_velocity(2**30)

@@ -403,7 +403,7 @@ def test_a_straight_line_is_held_to_each_axis_share_of_the_path_words(tmp_path):
     r = runner.invoke(main, ["--profile", str(two), "--axis", "x,y", "move", "1000", "3000",
                              "--linear", "--vel", "4000000", "--acc", "10000"])
     assert r.exit_code == 0, r.output
-    assert "done: axis 0 at" in r.output and "done: axis 1 at" in r.output
+    assert "done: axis x at" in r.output and "done: axis y at" in r.output  # the names
     r = runner.invoke(main, ["--profile", str(two), "--axis", "x,y", "move", "1000", "3000",
                              "--vel", "4000000", "--acc", "10000"])
     assert r.exit_code == 2 and r.stdout == ""
@@ -519,3 +519,101 @@ def test_ds_is_the_interval_from_tune_to_the_lfil_word(tmp_path, open_chip, reco
     recorder.clear()
     other.load_filter(kp=232)
     assert _lfil_words(recorder) == [[0x0608, 232]]
+def test_a_profile_from_init_drives_one_named_axis_and_decides_the_simulators_chips(tmp_path):
+    """`profile init --axis 0,1` on the default simulator, then `--axis x`: the default
+    simulator has the profile's two chips, and a command that drives x checks x alone (a
+    one-chip bench is enough for it)."""
+    runner = CliRunner()
+    path = tmp_path / "p.toml"
+    r = runner.invoke(main, ["--axis", "0,1", "--profile", str(path), "profile", "init"])
+    assert r.exit_code == 0, r.output
+    for args in (["move", "1000"], ["status"]):
+        r = runner.invoke(main, ["--profile", str(path), "--axis", "x", *args])
+        assert r.exit_code == 0, r.output
+    r = runner.invoke(main, ["--profile", str(path), "status", "--json"])
+    assert r.exit_code == 0, r.output
+    assert r.stdout.count('"status"') == 2  # both axes of the profile: two simulated chips
+    one_chip = "sim://?axes=1"
+    r = runner.invoke(main, ["--profile", str(path), "--port", one_chip, "--axis", "x", "status"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(main, ["--profile", str(path), "--port", one_chip, "--axis", "y", "status"])
+    assert r.exit_code == 2 and "axis 1 does not exist" in r.stderr
+
+
+def test_output_names_the_profiles_axes_where_it_printed_numbers(tmp_path):
+    prof = _write(tmp_path)
+    runner = CliRunner()
+    r = runner.invoke(main, ["--profile", str(prof), "status"])
+    assert r.exit_code == 0, r.output
+    assert [ln.split(":")[0] for ln in r.stdout.splitlines()] == ["axis x", "axis y"]
+    r = runner.invoke(main, ["--profile", str(prof), "--axis", "y", "status"])
+    assert r.stdout.splitlines()[0] == "axis     y (cs 1)"
+    r = runner.invoke(main, ["--profile", str(prof), "move", "1000", "-1000"])
+    assert r.exit_code == 0, r.output
+    assert r.stdout.startswith("moving axes x, y to [1000, -1000]")
+    assert "done: axis y at" in r.stdout
+    r = runner.invoke(main, ["--profile", str(prof), "move", "1000"])
+    assert r.exit_code == 2 and "1 target(s) for 2 axis/axes (x, y)" in r.stderr
+    r = runner.invoke(main, ["--profile", str(prof), "watch", "--count", "1"])
+    assert [ln.split()[1] for ln in r.stdout.splitlines()[1:]] == ["x", "y"]
+
+
+def test_the_shell_touches_only_the_boards_own_axes_and_refuses_a_shadowing_name(tmp_path):
+    """A two-axis profile on a bench whose bridge has four chip selects (the Python bridge
+    over two chips): a failing script stops x and says nothing of chip selects 2 and 3."""
+    from lm629_host.sim.serve import SimServer
+    with SimServer(tmp_path / "bench", "sim://?axes=2").start() as srv:
+        prof = _write(tmp_path, GOOD.replace('port = "sim://"', f'port = "{srv.client_url}"'))
+        r = CliRunner().invoke(main, ["--profile", str(prof), "shell"],
+                               input="x.move_to(15000, velocity=65536, acceleration=655)\n"
+                                     "raise RuntimeError('boom')\n")
+    assert r.exit_code == 1, r.output
+    assert "lm629: x was moving: motor stopped" in r.stderr
+    assert "axis2" not in r.stderr and "axis3" not in r.stderr and "busy" not in r.stderr
+    bad = _write(tmp_path, GOOD.replace("[axis.y]", "[axis.board]"), "bad.toml")
+    r = CliRunner().invoke(main, ["--profile", str(bad), "shell"], input="print(1)\n")
+    assert r.exit_code == 2 and r.stdout == ""
+    assert "axis 'board' of" in r.stderr and "would hide the shell's own `board`" in r.stderr
+
+
+def test_a_port_that_writes_a_file_is_taken_from_the_command_line_only(tmp_path):
+    """`port = "spy://loop://?file=..."` in a profile would truncate that file on any
+    command, `status` included: refused (exit 2, the file untouched); the same URL typed
+    with --port is honoured."""
+    victim = tmp_path / "precious.txt"
+    victim.write_text("keep me\n")
+    prof = _write(tmp_path, f'[board]\nport = "spy://loop://?file={victim}"\n[axis.x]\ncs = 0\n')
+    runner = CliRunner()
+    r = runner.invoke(main, ["--profile", str(prof), "status"])
+    assert r.exit_code == 2 and victim.read_text() == "keep me\n"
+    assert r.stderr.startswith(f"lm629: bad value: {prof}:2: [board] port:")
+    assert "give that port with --port on the command line" in r.stderr
+    with pytest.raises(ValueError, match="a profile never names a file to write"):
+        lm629_host.open_board(profile=str(prof))
+    log = tmp_path / "spy.txt"
+    r = runner.invoke(main, ["--profile", str(prof), "--port", f"spy://loop://?file={log}",
+                             "status"])
+    assert log.exists()  # typed on the command line: pyserial's spy writes it
+
+
+def test_a_profile_axis_without_a_chip_names_the_axis_the_cs_and_the_fix(tmp_path):
+    """A two-axis profile on a served bench of one chip (the bridge has four chip selects,
+    nothing answers on cs 1): one line naming axis y, cs 1 and the fix, exit 4."""
+    from lm629_host.sim.serve import SimServer
+    with SimServer(tmp_path / "bench", "sim://").start() as srv:
+        prof = _write(tmp_path, GOOD.replace('port = "sim://"', f'port = "{srv.client_url}"'))
+        r = CliRunner().invoke(main, ["--profile", str(prof), "status"])
+    assert r.exit_code == 4, r.output
+    line = r.stderr.strip().splitlines()[-1]  # after x's "had lost its settings" line
+    assert line.startswith(f"lm629: error: axis y (cs 1) of {prof} does not answer: ")
+    assert "--url 'sim://?axes=2'" in line and "the /CS wire of that chip" in line
+
+
+def test_profile_show_reads_the_status_as_status_does_and_says_which_port(tmp_path):
+    prof = _write(tmp_path, '[axis.x]\ncs = 0\nkp = 20\n')
+    runner = CliRunner()
+    show = runner.invoke(main, ["--port", "sim://", "--profile", str(prof), "profile", "show"])
+    assert show.exit_code == 0, show.output
+    assert show.stdout.splitlines()[0].startswith(
+        f"profile {prof}: port none in the file (this command: sim://")
+    assert "status C0 breakpoint,motor_off" in show.stdout  # as `status` reads it: not busy

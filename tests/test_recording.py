@@ -415,3 +415,54 @@ def test_the_ft232h_polls_from_the_host_and_says_so():
         assert "one exchange each" in t.record_note() and "gap" in t.record_note()
         tr = chip.record(1e-3, 0.02)
         assert not tr.far_side and len(tr) + len(tr.missing) == 20
+
+
+def test_a_recording_without_a_finite_duration_or_below_one_sample_is_refused():
+    """record() ends by itself: None or inf is an ArgumentError (record_stream runs until
+    closed).  The chip's registers change once a sample, 2048 / 8 MHz = 256 us: a period below
+    it is an ArgumentError whose lower bound is that sample time."""
+    with lm629_host.open("sim://") as chip:
+        chip.reset()
+        for duration in (None, math.inf):
+            with pytest.raises(ArgumentError) as info:
+                chip.record(1e-3, duration)
+            assert info.value.argument == "duration_s"
+        with pytest.raises(ArgumentError) as info:
+            chip.record(100e-6, 0.01)
+        assert info.value.argument == "period_s" and info.value.lo == pytest.approx(256e-6)
+        assert "below the chip's sample time 256 us" in str(info.value)
+        tr = chip.record(256e-6, 0.0256)  # exactly one sample apart: 100 rows, none missing
+        assert len(tr) == 100 and tr.missing == []
+
+
+def test_a_link_that_dies_during_a_recording_raises_with_the_rows_so_far(tmp_path):
+    """A served bench stopped 0.3 s into a 2 s recording at 1 ms: record() raises a
+    TransportError, and the rows that came (some, fewer than the 2000 asked) are its .trace."""
+    import threading
+
+    from lm629_host.errors import TransportError
+    from lm629_host.sim.serve import SimServer
+    srv = SimServer(tmp_path / "bench", "sim://").start()
+    try:
+        with lm629_host.open(srv.client_url) as chip:
+            chip.reset()
+            threading.Timer(0.3, srv.close).start()
+            with pytest.raises(TransportError) as info:
+                chip.record(1e-3, 2.0)
+    finally:
+        srv.close()
+    rows = info.value.trace.rows
+    assert 0 < len(rows) < 2000 and rows[-1].index < 1999
+
+
+@pytest.mark.parametrize("url, advice", [("sim+emu://?fast_baud=115200", True),
+                                         ("sim+emu://?fast_baud=1000000&usb=uno", False)])
+def test_a_rate_the_line_cannot_carry_suggests_a_faster_line_only_where_there_is_one(url, advice):
+    """3333 rows/s of the three columns: above 433 rows/s at 115200 baud and 2990 at 1 Mbaud
+    (docs/python.md): refused either way; fast_baud=1000000 is advice only below it."""
+    with lm629_host.open(url) as chip:
+        chip.reset()
+        with pytest.raises(ValueError) as info:
+            chip.record(300e-6, 0.05)
+    assert "the highest rate is" in str(info.value)
+    assert ("a faster line (fast_baud=1000000)" in str(info.value)) == advice

@@ -40,6 +40,22 @@ def test_socket_url_reaches_a_bridge_on_a_tcp_port(tcp_server):
         three_commands_once(chip, tcp_server.model)
 
 
+def test_a_second_tcp_client_is_refused_while_one_is_connected(tcp_server):
+    """ser2net and a pty serve one client: so does a served TCP bench.  The second client
+    gets a TransportError that says why, and the first keeps its link and its chip."""
+    url = tcp_server.client_url
+    with lm629_host.open(url) as first:
+        first.reset()
+        first.define_home()
+        with pytest.raises(TransportError) as info:
+            lm629_host.open(url)
+        assert "take one client at a time" in str(info.value)
+        assert first.read_desired_position() == 0  # the running client's link still works
+        assert first.read_status() & Status.MOTOR_OFF
+    with lm629_host.open(url) as later:  # once the first has gone, the next one is served
+        assert later.read_real_position() == 0
+
+
 def test_the_chip_keeps_its_state_between_tcp_clients(tcp_server):
     url = tcp_server.client_url
     assert url == f"socket://127.0.0.1:{tcp_server.address[1]}"  # no serial:// in front

@@ -31,8 +31,8 @@ def test_types_units_and_defaults():
     ("x://?clock=nan", "clock='nan' is not a frequency (8MHz, 6e6)"),
     ("x://?strict=maybe", "strict='maybe': expected a boolean (1/0), got 'maybe'"),
     ("x://?fault=smoke", "fault='smoke': expected one of reset, busy"),
-    ("x://?speed=9600", "unknown demo parameter(s) speed; known: baud (baud), boot (s), "
-                        "clock (Hz), fault (reset|busy), strict"),
+    ("x://?speed=9600", "unknown demo parameter(s) speed; known: axes, baud (baud), boot (s), "
+                        "chip, clock (Hz), cs, fault (reset|busy), strict"),  # + the board's
 ])
 def test_errors_name_the_url_the_option_and_what_is_allowed(url, message):
     with pytest.raises(ValueError) as info:
@@ -76,3 +76,19 @@ def test_strict_is_decided_in_one_place(monkeypatch, env, url, strict):
         assert t.strict is strict and not t.model.params.strict  # applied after each exchange
     finally:
         t.close()
+
+
+@pytest.mark.parametrize("url, typo, meant, also", [
+    ("sim://?axis=2", "axis", "axes", ["cs", "chip", "clock", "wiring"]),
+    ("sim+emu://?fast_bud=1", "fast_bud", "fast_baud", ["axes", "cs", "usb", "baud"]),
+    ("serial:///dev/null?bau=9600", "bau", "baud", ["axes", "cs", "fast_baud", "retries"]),
+])
+def test_an_unknown_url_option_lists_every_option_of_the_scheme_and_the_closest(url, typo, meant, also):
+    import lm629_host
+    with pytest.raises(ValueError) as info:
+        lm629_host.open(url)
+    text = str(info.value)
+    assert f"unknown {text.split('unknown ')[1].split(' parameter')[0]} parameter(s) {typo} " \
+           f"(did you mean {meant}?)" in text
+    known = text.split("; known: ")[1].split(", ")
+    assert {k.split(" ")[0] for k in known} >= {meant, *also}

@@ -239,6 +239,12 @@ def axes_of(s: Session) -> tuple[int, ...]:
     return spec
 
 
+def axis_name(s: Session, cs: int) -> str:
+    """How output names the axis on chip select ``cs``: the profile's name, else the number."""
+    ax = s.profile.by_cs(cs) if s.profile is not None else None
+    return ax.name if ax is not None else str(cs)
+
+
 def several(s: Session) -> bool:
     return len(axes_of(s)) > 1
 
@@ -250,9 +256,12 @@ def board(s: Session) -> Board:
         spec = s.axis_spec
         want = max(spec) + 1 if isinstance(spec, tuple) else None
         url = s.url()
-        if want is not None and s.is_sim and s.spec.axes is None and want > 1:
+        chips = want or 1
+        if s.profile is not None and s.profile.axes:  # the bench the profile describes
+            chips = max(chips, 1 + max(ax.cs for ax in s.profile.axes.values()))
+        if s.is_sim and s.spec.axes is None and chips > 1:
             # a simulator builds the chips named, unless its URL says how many it has
-            url = with_query(url, {"axes": str(want)})
+            url = with_query(url, {"axes": str(chips)})
         b = lm629_host.open_board(url, chip=s.chip_name, trace=s.cycle_trace())
         if want is not None and len(b.axes) < want:
             b.close()
@@ -297,6 +306,18 @@ def _help_epilog() -> str:
 
 class LM629Group(click.Group):
     """A click group that turns exceptions into one stderr line and an exit code."""
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """Each command's first sentence whole (click cuts it at 45 characters with "..."):
+        the formatter wraps it instead."""
+        rows = []
+        for name in self.list_commands(ctx):
+            cmd = self.get_command(ctx, name)
+            if cmd is not None and not cmd.hidden:
+                rows.append((name, cmd.get_short_help_str(limit=1000)))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
@@ -347,7 +368,8 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
 @click.group(cls=LM629Group, epilog=_help_epilog(),
              context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--port", "-p", envvar="LM629_PORT", default=None, metavar="URL",
-              help="sim://, serial://PATH or a device path, ftdi://..., sim+avr:// "
+              help="sim://, serial://PATH or a device path, socket://HOST:PORT (ser2net, "
+                   "`lm629 sim serve --tcp`), ftdi://..., sim+emu://, sim+avr://, sim+ftdi:// "
                    "(env LM629_PORT; default sim://).")
 @click.option("--chip", "chip_name", type=click.Choice(["lm628", "lm629"]), default="lm629",
               show_default=True, help="Which chip is on the board (a simulator URL's chip= "

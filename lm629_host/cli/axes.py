@@ -22,21 +22,22 @@ import click
 
 from ..lm629 import LM629
 from ..opcodes import FIXED_ONE
-from .app import MAX_AXIS, Session, axes_of, board, open_axis, parse_axes, several
+from .app import MAX_AXIS, Session, axes_of, axis_name, board, open_axis, parse_axes, several
 
-__all__ = ["MAX_AXIS", "axes_of", "board", "check_targets", "move_many", "open_axis",
+__all__ = ["MAX_AXIS", "axes_of", "axis_name", "board", "check_targets", "move_many", "open_axis",
            "parse_axes", "several", "status", "watch_rows"]
 
 def status(s: Session, as_json: bool, snapshot_dict: Any) -> None:
     b = board(s)
     axes = axes_of(s)
     snaps = b.snapshots(list(axes))
-    rows = [dict(axis=k, **snapshot_dict(snap, s.scale)) for k, snap in zip(axes, snaps)]
+    rows = [dict(axis=k, **({"name": axis_name(s, k)} if s.profile is not None else {}),
+                 **snapshot_dict(snap, s.scale)) for k, snap in zip(axes, snaps)]
     if as_json:
         click.echo(json.dumps({"axes": rows}, indent=2))
         return
     for k, snap, d in zip(axes, snaps, rows):
-        click.echo(f"axis {k}: status {d['status']} {' '.join(d['status_flags']) or '-'}  "
+        click.echo(f"axis {axis_name(s, k)}: status {d['status']} {' '.join(d['status_flags']) or '-'}  "
                    f"signals {d['signals']}  desired {snap.desired_position}  actual "
                    f"{snap.real_position}  error {snap.following_error:+d}  velocity "
                    f"{snap.desired_velocity / FIXED_ONE:.5f}/{snap.real_velocity}")
@@ -50,12 +51,14 @@ def watch_rows(s: Session, count: int | None, rate: float, flags: Any,
 
     b = board(s)
     axes = list(axes_of(s))
+    names = {k: axis_name(s, k) for k in axes}
+    width = max(4, *(len(n) for n in names.values()))
     f = open(csv_path, "w", newline="") if csv_path else None  # noqa: SIM115 - closed in finally
     writer = csv.writer(f) if f else None
     if writer:
         writer.writerow(("t_s", "axis", "desired_position", "real_position", "following_error",
                          "desired_velocity", "real_velocity", "status", "flags"))
-    click.echo(f"{'t_s':>9} {'axis':>4} {'desired':>10} {'actual':>10} {'error':>7} "
+    click.echo(f"{'t_s':>9} {'axis':>{width}} {'desired':>10} {'actual':>10} {'error':>7} "
                f"{'rv':>6} {'st':>3} flags")
     n = 0
     start = b.clock.now()
@@ -66,12 +69,12 @@ def watch_rows(s: Session, count: int | None, rate: float, flags: Any,
                 if t0 is None:
                     t0 = snap.time
                 t = snap.time - t0
-                click.echo(f"{t:9.4f} {k:>4} {snap.desired_position:>10} "
+                click.echo(f"{t:9.4f} {names[k]:>{width}} {snap.desired_position:>10} "
                            f"{snap.real_position:>10} {snap.following_error:>+7} "
                            f"{snap.real_velocity:>+6} {int(snap.status):02X} "
                            f"{flags(snap.status)}")
                 if writer:
-                    writer.writerow((f"{t:.4f}", k, snap.desired_position,
+                    writer.writerow((f"{t:.4f}", names[k], snap.desired_position,
                                      snap.real_position, snap.following_error,
                                      f"{snap.desired_velocity / FIXED_ONE:.4f}", snap.real_velocity,
                                      f"{int(snap.status):02X}", flags(snap.status)))
@@ -88,7 +91,8 @@ def check_targets(s: Session, targets: list[int]) -> None:
     axes = axes_of(s)
     if len(targets) != len(axes):
         raise click.UsageError(f"{len(targets)} target(s) for {len(axes)} axis/axes "
-                               f"({', '.join(map(str, axes))}): give one target per axis")
+                               f"({', '.join(axis_name(s, k) for k in axes)}): give one target "
+                               "per axis")
 
 
 def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, linear: bool,
@@ -100,13 +104,13 @@ def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, 
     try:
         if linear:
             m = b.move_linear(goal, velocity=velocity, acceleration=acceleration)
-            words = ", ".join(f"axis {p.axis}: v {p.velocity} a {p.acceleration}"
+            words = ", ".join(f"axis {axis_name(s, p.axis)}: v {p.velocity} a {p.acceleration}"
                               for p in m.plan.axes if p.distance)  # type: ignore[union-attr]  # a linear move has a plan
             if words:
                 click.echo(f"straight line to {targets} ({words})")
         else:
             m = b.move(goal, velocity=velocity, acceleration=acceleration)
-            click.echo(f"moving axes {list(axes)} to {targets} (velocity word {velocity}, "
+            click.echo(f"moving axes {', '.join(axis_name(s, k) for k in axes)} to {targets} (velocity word {velocity}, "
                        f"acceleration word {acceleration}), started together")
         if no_wait:
             return
@@ -115,8 +119,9 @@ def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, 
         b.stop(list(axes))
         raise
     if not m.moves:  # every axis already on its target: a straight line of length 0
-        click.echo(f"done: axes {list(axes)} already at {targets}, nothing moved")
+        click.echo(f"done: axes {', '.join(axis_name(s, k) for k in axes)} already at {targets}, "
+                   "nothing moved")
     for k, r in zip((mv.chip.chip_select for mv in m.moves), results):
-        click.echo(f"done: axis {k} at {r.position}, {r.error:+d} counts from {r.target}, "
+        click.echo(f"done: axis {axis_name(s, k)} at {r.position}, {r.error:+d} counts from {r.target}, "
                    f"at rest {r.duration:.3f} s after the start")
 

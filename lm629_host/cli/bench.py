@@ -38,7 +38,7 @@ def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
         for k in axes.axes_of(s):
             s._prepare = False
             chip = axes.board(s).axis(k)
-            click.echo(f"bring-up of axis {k}")
+            click.echo(f"bring-up of axis {axes.axis_name(s, k)}")
             codes.append(_bringup_one(s, chip, options, yes))
         click.get_current_context().exit(max(codes))
     chip = s.open(prepare=False)

@@ -24,7 +24,8 @@ def _word(value: int, digits: int = 8) -> str:
               help="Chip clock in Hz (else the global --clock).")
 @click.option("--rpm", type=FINITE, multiple=True, help="Velocity in rpm -> raw word.")
 @click.option("--rev", type=FINITE, multiple=True, help="Revolutions -> counts.")
-@click.option("--accel", type=FINITE, multiple=True, help="rev/s^2 -> raw word.")
+@click.option("--acceleration", "--acc", "--accel", "accel", type=FINITE, multiple=True,
+              help="rev/s^2 -> raw word.")
 @click.option("--velocity-word", type=str, multiple=True, help="Raw velocity word -> rpm.")
 @click.option("--acceleration-word", type=str, multiple=True, help="Raw acceleration -> rev/s^2.")
 @click.option("--counts", type=str, multiple=True, help="Counts -> revolutions.")

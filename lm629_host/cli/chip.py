@@ -27,11 +27,16 @@ def status(as_json: bool) -> None:
     from . import axes
     if axes.several(s):
         return axes.status(s, as_json, snapshot_dict)
-    snap = s.open().snapshot()
+    chip = s.open()
+    snap = chip.snapshot()
     d = snapshot_dict(snap, s.scale)
+    name = axes.axis_name(s, chip.chip_select) if s.profile is not None else None
     if as_json:
-        click.echo(json.dumps(d, indent=2))
+        click.echo(json.dumps(d if name is None else {"axis": chip.chip_select, "name": name, **d},
+                              indent=2))
         return
+    if name is not None:  # the profile names it: say which axis this is
+        click.echo(f"axis     {name} (cs {chip.chip_select})")
     click.echo(f"status   {d['status']}  {' '.join(d['status_flags']) or '-'}")
     click.echo(f"signals  {d['signals']}  {' '.join(d['signals_flags']) or '-'}")
     click.echo(f"position desired {snap.desired_position}  actual {snap.real_position}  "
@@ -54,10 +59,10 @@ def reset() -> None:
 
 
 @main.command("filter")
-@click.option("--kp", type=INT)
-@click.option("--ki", type=INT)
-@click.option("--kd", type=INT)
-@click.option("--il", type=INT, help="Integration limit.")
+@click.option("--kp", type=INT, help="Proportional gain, 0..32767.")
+@click.option("--ki", type=INT, help="Integral gain, 0..32767.")
+@click.option("--kd", type=INT, help="Derivative gain, 0..32767.")
+@click.option("--il", type=INT, help="Integration limit, 0..32767.")
 @click.option("--ds", type=int, help="Derivative sampling interval, 1..256 samples.")
 @click.option("--no-update", is_flag=True, help="Load only (LFIL), no UDF.")
 def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, ds: int | None,
@@ -154,7 +159,7 @@ def limit(threshold: int, stop_motor: bool) -> None:
 
 @main.command()
 @click.option("--rate", type=FINITE, default=10.0, show_default=True, help="Rows per second.")
-@click.option("--count", type=int, default=None, help="Stop after this many rows.")
+@click.option("--count", type=int, default=None, help="Stop after this many readings (a row per axis each).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default=None,
               help="Also log every row to this CSV file.")
 def watch(rate: float, count: int | None, csv_path: str | None) -> None:

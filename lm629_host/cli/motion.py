@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import click
 
+from ..errors import MotionError, MotionFault
 from ..lm629 import LM629, Snapshot
 from ..move import Move, MoveRules
-from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX
+from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status
 from ..pid import sample_period_s
 from ..profile_shapes import SCurve
 from ..safety import stop_on_error
@@ -94,10 +95,12 @@ def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
 @click.option("--linear", is_flag=True, help="With one target per --axis: a straight line, "
                                              "the words scaled by each axis's share.")
 @click.option("--relative", "-r", is_flag=True, help="TARGET is a distance from where it is.")
-@click.option("--vel", type=FINITE, help="Velocity: rpm with --lines (default 60), else raw "
-                                          "16.16 counts/sample (default 65536).")
-@click.option("--acc", type=FINITE, help="Acceleration: rev/s^2 with --lines (default 10), else "
-                                          "raw 16.16 counts/sample^2 (default 655).")
+@click.option("--velocity", "--vel", "vel", type=FINITE,
+              help="Velocity: rpm with --lines (default 60), else raw 16.16 counts/sample "
+                   "(default 65536).")
+@click.option("--acceleration", "--acc", "--accel", "acc", type=FINITE,
+              help="Acceleration: rev/s^2 with --lines (default 10), else raw 16.16 "
+                   "counts/sample^2 (default 655).")
 @click.option("--raw", is_flag=True, help="Counts and raw words even with --lines.")
 @click.option("--tolerance", type=FINITE, default=None,
               help=f"Done when the shaft rests this close to the target (counts; revolutions "
@@ -171,15 +174,32 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
                 if snap.time - shown[0] >= 0.05:  # 20 updates a second of the chip's clock
                     shown[0] = snap.time
                     show(_progress_line(snap, m.target, scale))
-            r = m.wait(timeout=timeout, tolerance=tol, progress=progress)
+            try:
+                r = m.wait(timeout=timeout, tolerance=tol, progress=progress)
+            except MotionError as exc:
+                raise _no_gains(m, exc) or exc from None
     click.echo(f"done: at {_show_position(s, r.position)}, {r.error:+d} counts from the target "
                f"{m.target} (tolerance {tol if tol is not None else chip.move_rules.tolerance}), "
                f"at rest {r.duration:.3f} s after the start")
 
 
+def _no_gains(m: Move, exc: MotionError) -> MotionError | None:
+    """The stall of a chip that has no gains, said as that: the motor was off before the move
+    (as after a reset or power-up, which leave kp = ki = kd = 0: no register reads the gains
+    back) and the shaft never moved a count, so the filter drove nothing.  None otherwise."""
+    if exc.reason is not MotionFault.STALL or not m.start.status & Status.MOTOR_OFF \
+            or exc.position != m.start.real_position:
+        return None
+    return MotionError(exc.reason, "no gains loaded: run `lm629 profile apply` or `lm629 filter "
+                       "--kp N` (the motor was off before this move, as after a reset or power-up, "
+                       "which leave kp = 0, and the shaft never moved a count; if gains are loaded: "
+                       f"{exc.detail})", axis=exc.axis, position=exc.position, error=exc.error)
+
+
 @main.command(context_settings=SIGNED_ARGS)
 @click.argument("speed", type=FINITE)
-@click.option("--acc", type=FINITE, help="rev/s^2 with --lines, else raw (default 655).")
+@click.option("--acceleration", "--acc", "--accel", "acc", type=FINITE,
+              help="rev/s^2 with --lines, else raw (default 655).")
 @click.option("--reverse", is_flag=True, help="Turn backwards.")
 @click.option("--raw", is_flag=True, help="Raw words even with --lines.")
 @click.option("--time", "run_s", type=FINITE, default=None,

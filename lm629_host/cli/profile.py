@@ -21,6 +21,7 @@ from typing import Any
 import click
 
 from ..board import Board
+from ..errors import BusyTimeout, ResetError
 from ..lm629 import LM629
 from ..opcodes import Signals
 from ..profile import (
@@ -113,11 +114,28 @@ def profile_opened(s: Session, b: Board) -> None:
     lost its settings gets the profile (one line each), unless the command says not to
     (``reset``, ``profile show``, ``profile apply``)."""
     prof: Profile = s.profile
-    name_axes(b, prof)  # limits, variants, board["x"] in the shell
+    only = s.axis_spec if isinstance(s.axis_spec, tuple) else None  # --axis: those alone
+    name_axes(b, prof, only)  # limits, variants, board["x"] in the shell
     if s._prepare and getattr(s, "reapply", True):
         # an in-process simulator is a fresh chip for every command (and says so): applying
         # the profile to it is the rule, not news
-        ensure_applied(named_axes(s, b), prof, log.info if s.is_sim else _say)
+        chips = {n: c for n, c in named_axes(s, b).items() if only is None or prof.axes[n].cs in only}
+        for name, chip in chips.items():  # one at a time: an error names its axis
+            try:
+                ensure_applied({name: chip}, prof, log.info if s.is_sim else _say)
+            except (BusyTimeout, ResetError) as exc:
+                raise _on_axis(exc, name, prof) from exc
+
+
+def _on_axis(exc: BusyTimeout | ResetError, name: str, prof: Profile) -> BusyTimeout | ResetError:
+    """``exc`` (the same class: the same exit code) saying which axis of the profile and chip
+    select it came from, and the likely fix."""
+    cs = prof.axes[name].cs
+    exc.args = (f"axis {name} (cs {cs}) of {prof.path} does not answer: {exc.args[0] if exc.args else exc} "
+                f"Likely fix: a chip on chip select {cs} (on `lm629 sim serve`, serve the "
+                f"profile's chips: --url 'sim://?axes={cs + 1}'; on a board, check the /CS wire "
+                "of that chip and its power), or remove the axis from the profile",)
+    return exc
 
 
 HOOKS["profile_options"] = profile_options
@@ -301,7 +319,8 @@ def show_cmd() -> None:
     s = _session()
     prof = _need_profile(s)
     s.reapply = False  # type: ignore[attr-defined]  # read by profile_opened
-    click.echo(f"profile {prof.path}: port {prof.port or '(none: --port)'}, chip {prof.chip}, "
+    port = prof.port or f"none in the file (this command: {s.port})"
+    click.echo(f"profile {prof.path}: port {port}, chip {prof.chip}, "
                f"clock {prof.clock_hz / 1e6:g} MHz" + (f"  # {prof.note}" if prof.note else ""))
     b = board(s)
     chips = named_axes(s, b)
@@ -314,6 +333,7 @@ def show_cmd() -> None:
             click.echo(f"  not on this board ({len(b.axes)} chip selects)")
             continue
         lost = settings_lost(chip)
+        chip.sync()  # RDSIGS's busy over: the status reads as `lm629 status` reads it
         snap = chip.snapshot()
         state = ("settings LOST (signals bit 9 clear: reset or powered up since applied; the "
                  "next command applies the profile)" if lost is not None

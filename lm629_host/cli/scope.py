@@ -23,42 +23,59 @@ from .types import FINITE, check_writable, positive
 def _plotext() -> Any:
     try:
         import plotext
-    except ImportError:
-        raise click.ClickException("the terminal plot needs plotext: pip install "
-                                   "'lm629-host[scope]'") from None
+    except ImportError:  # an extra not installed: bad usage (exit 2), as a missing renderer is
+        raise click.UsageError("the terminal plot needs plotext: pip install "
+                               "'lm629-host[scope]'") from None
     return plotext
 
 
+def _key(window: ScopeWindow) -> str:
+    """The lines of each pane, in the order drawn (so in plotext's colour order): a legend
+    inside the canvas would hide the data under it."""
+    names = list(window.traces)
+    top = ", ".join(f"{n} desired, {n} actual" for n in names)
+    return f"top: {top}; bottom: {', '.join(f'{n} error' for n in names)} (in colour order)"
+
+
 def render(window: ScopeWindow, width: int, height: int, title: str) -> str:
-    """The window as text: positions above, following errors below (plotext 6, or 5)."""
+    """The window as text: positions above, following errors below, on one time axis (the
+    same limits in both panes), with the key under the plot, never over the data (plotext
+    6, or 5)."""
     plt = _plotext()
+    times = [t for tr in window.traces.values() for t in (tr.time[0], tr.time[-1]) if tr.time]
+    lo, hi = (min(times), max(times)) if times else (0.0, 1.0)
+    hi = hi if hi > lo else lo + 1e-3  # one sample: a range plotext can scale
     figure = getattr(plt, "figure", None)
     if figure is not None and hasattr(figure, "signal"):  # plotext 6
         figure.clear()
         figure.subplots(2, 1)
         top, low = figure.subplot(1, 1), figure.subplot(2, 1)
-        for name, tr in window.traces.items():
+        for tr in window.traces.values():
             t = list(tr.time) or [0.0]
-            top.draw(top.signal(t, list(tr.desired) or [0]).label(f"{name} desired"))
-            top.draw(top.signal(t, list(tr.actual) or [0]).label(f"{name} actual"))
-            low.draw(low.signal(t, tr.error or [0]).label(f"{name} error"))
+            top.draw(top.signal(t, list(tr.desired) or [0]))
+            top.draw(top.signal(t, list(tr.actual) or [0]))
+            low.draw(low.signal(t, tr.error or [0]))
+        for pane in (top, low):
+            pane.ruler("x").lim(lo, hi)
         top.title(title)
         low.title("following error, counts")
         figure.plot_size(width, height)
-        return str(figure.build().string())
+        return str(figure.build().string()) + "\n" + _key(window)
     plt.clf()  # plotext 5
     plt.subplots(2, 1)
     plt.subplot(1, 1)
-    for name, tr in window.traces.items():
-        plt.plot(list(tr.time), list(tr.desired), label=f"{name} desired")
-        plt.plot(list(tr.time), list(tr.actual), label=f"{name} actual")
+    for tr in window.traces.values():
+        plt.plot(list(tr.time), list(tr.desired))
+        plt.plot(list(tr.time), list(tr.actual))
+    plt.xlim(lo, hi)
     plt.title(title)
     plt.subplot(2, 1)
-    for name, tr in window.traces.items():
-        plt.plot(list(tr.time), tr.error, label=f"{name} error")
+    for tr in window.traces.values():
+        plt.plot(list(tr.time), tr.error)
+    plt.xlim(lo, hi)
     plt.title("following error, counts")
     plt.plotsize(width, height)
-    return str(plt.build())
+    return str(plt.build()) + "\n" + _key(window)
 
 
 def _names(s: Any) -> list[str]:
@@ -101,7 +118,7 @@ def scope(duration: float | None, png_path: str | None, rate: float, window_s: f
     win = ScopeWindow(names, window_s)
     live = sys.stdout.isatty()
     size = shutil.get_terminal_size((100, 30))
-    width, height = max(40, size.columns), max(12, size.lines - 4)  # room for 3 lines below
+    width, height = max(40, size.columns), max(12, size.lines - 5)  # the key and 3 lines below
     where = s.port
 
     def title() -> str:

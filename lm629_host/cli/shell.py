@@ -27,24 +27,35 @@ from ..safety import emergency_stop
 from .app import _ERROR_EXITS, _session, axes_of, board, main
 
 
+#: the names the shell binds besides the axes: a profile axis may not take one of them
+SHELL_NAMES = ("board", "chip", "lm629_host", "Status", "Signals")
+
+
 def namespace(s: Any, b: Any) -> dict[str, Any]:
-    """The names the shell binds."""
+    """The names the shell binds: the command's axes (the profile's, ``--axis``, the URL's
+    ``axes=``; else axis 0, as every command), never a chip select the board has but no chip
+    is known on.  click.BadParameter for a profile axis that would hide a shell name."""
     ns: dict[str, Any] = {"board": b, "lm629_host": lm629_host, "Status": Status,
                           "Signals": Signals}
     prof = s.profile
     chosen = list(axes_of(s))
-    for cs in range(len(b.axes)):
+    for cs in chosen:
         ax = prof.by_cs(cs) if prof is not None else None
-        ns[ax.name if ax is not None else f"axis{cs}"] = b.axes[cs]
+        name = ax.name if ax is not None else f"axis{cs}"
+        if name in SHELL_NAMES:
+            raise click.BadParameter(
+                f"axis {name!r} of {prof.path} would hide the shell's own `{name}` "
+                f"({', '.join(SHELL_NAMES)}): rename the axis in the profile", param_hint="--profile")
+        ns[name] = b.axes[cs]
     ns["chip"] = b.axes[chosen[0]] if chosen else b.axes[0]
     return ns
 
 
 def _stop_moving(b: Any, names: dict[int, str]) -> None:
-    """Stop the axes whose trajectory runs with the drive on (a holding servo is left on),
-    one line each on stderr."""
-    for a in b.axes:
-        name = names.get(a.chip_select, f"axis{a.chip_select}")
+    """Stop the shell's axes (``names``: chip select -> name) whose trajectory runs with the
+    drive on (a holding servo is left on), one line each on stderr."""
+    for cs, name in names.items():
+        a = b.axes[cs]
         try:
             moving = a.is_moving()
         except Exception as exc:  # noqa: BLE001 - the link may be what failed: try the others
@@ -90,4 +101,4 @@ def shell() -> None:
     start_ipython(argv=["--no-banner"], user_ns=ns)
 
 
-__all__ = ["namespace", "shell"]
+__all__ = ["SHELL_NAMES", "namespace", "shell"]

@@ -3,6 +3,7 @@ keeps its state between clients like a board on the bench (:mod:`lm629_host.sim.
 
 from __future__ import annotations
 
+import os
 import signal
 from pathlib import Path
 
@@ -40,7 +41,9 @@ def _tcp_address(text: str) -> tuple[str, int]:
 def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) -> None:
     """Serve a simulated bridge and chip on a pseudo-terminal (or a TCP port) until Ctrl-C.
 
-    Then, from other shells: lm629 --port serial://PATH ...   (or pyserial, a terminal)
+    Then, from other shells: lm629 --port serial://PATH ...   (or pyserial, a terminal).
+    One client at a time (a second is refused while one is connected, as ser2net does);
+    SIGUSR1 cycles the board's power: every chip as from power-on, the bridge stays up.
     """
     from ..sim.serve import SimServer
 
@@ -62,8 +65,10 @@ def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) 
         server.far.close()
         raise click.BadParameter(str(exc), param_hint="--tcp" if tcp else "--pty") from None
     click.echo(f"serving {server.describe()}")
-    click.echo(f"connect with: lm629 --port {server.client_url} ...   (Ctrl-C stops)")
+    click.echo(f"connect with: lm629 --port {server.client_url} ...   (Ctrl-C stops; "
+               f"`kill -USR1 {os.getpid()}` cycles the board's power)")
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    signal.signal(signal.SIGUSR1, lambda *_: server.power_cycle())
     try:
         server.serve_forever()
     except KeyboardInterrupt:

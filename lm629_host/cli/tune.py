@@ -68,24 +68,26 @@ def _plot(result: TuneResult, path: str, lines: int | None) -> str:
 
 
 @click.command("tune")
-@click.option("--travel", type=int, required=True, metavar="COUNTS",
-              help="How far the shaft may go either way from where it is now (counts); "
-                   "tuning stays inside this band.")
-@click.option("--distance", type=int, default=None, metavar="COUNTS",
-              help="The test move, a step out and back (default: 2000 or travel/2).")
-@click.option("--tolerance", type=int, default=2, show_default=True,
-              help="Counts a move must end within.")
+@click.option("--travel", "travel_typed", type=FINITE, required=True, metavar="DISTANCE",
+              help="How far the shaft may go either way from where it is now (counts; "
+                   "revolutions with --lines); tuning stays inside this band.")
+@click.option("--distance", "distance_typed", type=FINITE, default=None, metavar="DISTANCE",
+              help="The test move, a step out and back (counts; revolutions with --lines; "
+                   "default: 2000 counts or travel/2).")
+@click.option("--tolerance", "tolerance_typed", type=FINITE, default=None,
+              help="The test moves must end within this of their targets (counts; "
+                   "revolutions with --lines; default 2 counts).")
 @click.option("--before", "before_text", default="kp=20", show_default=True, metavar="GAINS",
               help="Gains to measure the test move with first, for comparison "
                    "('kp=40,kd=300', ds in samples), or 'none'.")
 @click.option("--interval", type=float, default=0.001, show_default=True,
               help="Seconds between snapshots (timed by the bridge where it records; "
                    "host-polled elsewhere, at least one round trip).")
-@click.option("--velocity", type=FINITE, default=None,
+@click.option("--velocity", "--vel", "velocity", type=FINITE, default=None,
               help="The trapezoid move the gains are judged and checked on besides the step "
                    "(--distance out and back): its velocity, a raw word (rpm with --lines); "
                    "default 0x40000 where the axis can follow it.")
-@click.option("--acceleration", type=FINITE, default=None,
+@click.option("--acceleration", "--acc", "--accel", "acceleration", type=FINITE, default=None,
               help="... and its acceleration, a raw word (rev/s^2 with --lines); default "
                    "0x2000 where the axis can follow it.")
 @click.option("--yes", "-y", is_flag=True, help="Do not ask before the motor turns (scripts).")
@@ -94,20 +96,27 @@ def _plot(result: TuneResult, path: str, lines: int | None) -> str:
 @click.option("--save", "save_path", is_flag=False, flag_value="", default=None,
               metavar="[FILE]", help="Write the gains into the profile (FILE, else --profile's), "
                                      "keeping its comments.")
-def tune(travel: int, distance: int | None, tolerance: int, before_text: str, interval: float,
-         velocity: float | None, acceleration: float | None, yes: bool,
-         plot_path: str | None, save_path: str | None) -> None:
+def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: float | None,
+         before_text: str, interval: float, velocity: float | None,
+         acceleration: float | None, yes: bool, plot_path: str | None,
+         save_path: str | None) -> None:
     """Find PID gains for this axis (phasing check, identification, design, a checked test
     move), leave them loaded and applied, and print the `lm629 filter` line that sets them."""
     from .app import _session  # the CLI's session: port, options, safety
+    s = _session()
+    travel = _position(s, travel_typed, "--travel")  # counts, as every distance below
     if travel < 100:
-        raise ValueError(f"--travel={travel} must be at least 100 counts")
+        raise ValueError(f"--travel={travel_typed:g} is {travel} counts: it must be at least "
+                         "100 counts")
+    distance = None if distance_typed is None else _position(s, distance_typed, "--distance")
     if distance is not None and not 10 <= distance <= travel * 3 // 4:
-        raise ValueError(f"--distance={distance} must be 10..{travel * 3 // 4} (3/4 of --travel)")
+        raise ValueError(f"--distance={distance_typed:g} is {distance} counts: it must be "
+                         f"10..{travel * 3 // 4} counts (3/4 of --travel)")
+    tol = _tolerance(s, tolerance_typed, raw=False)
+    tolerance = 2 if tol is None else tol
     if not 0 < interval <= 0.05:
         raise ValueError(f"--interval={interval} must be > 0 and at most 0.05 seconds")
     before = parse_gains(before_text)
-    s = _session()
     # the move's words, validated before anything is opened (None: the tuner's default)
     words = _motion_words(s, velocity, acceleration, raw=False)
     v_word = None if velocity is None else words[0]
@@ -165,14 +174,15 @@ __all__ = ["tune", "parse_gains"]
 
 @main.command(context_settings=SIGNED_ARGS)
 @click.argument("distance", type=FINITE, default=200)
-@click.option("--kp", type=INT)
-@click.option("--ki", type=INT)
-@click.option("--kd", type=INT)
-@click.option("--il", type=INT)
+@click.option("--kp", type=INT, help="Proportional gain to load first (0..32767; default: "
+                                      "the chip's as it is).")
+@click.option("--ki", type=INT, help="Integral gain to load first (0..32767).")
+@click.option("--kd", type=INT, help="Derivative gain to load first (0..32767).")
+@click.option("--il", type=INT, help="Integration limit to load first (0..32767).")
 @click.option("--ds", type=int, help="Derivative sampling interval, samples.")
-@click.option("--vel", type=FINITE, default=None,
+@click.option("--velocity", "--vel", "vel", type=FINITE, default=None,
               help="Velocity: rpm with --lines, else a raw word (default: a step).")
-@click.option("--acc", type=FINITE, default=None,
+@click.option("--acceleration", "--acc", "--accel", "acc", type=FINITE, default=None,
               help="Acceleration: rev/s^2 with --lines, else a raw word (default: a step).")
 @click.option("--raw", is_flag=True, help="Counts and raw words even with --lines.")
 @click.option("--tolerance", type=FINITE, default=None,
@@ -184,7 +194,7 @@ __all__ = ["tune", "parse_gains"]
               help="Seconds between snapshots (timed by the bridge where it records; "
                    "host-polled elsewhere, at least one round trip).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), default="step.csv",
-              show_default=True)
+              show_default=True, help="Where to write the recorded rows (CSV).")
 @click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None,
               help="Plot file (default: the CSV name with .png).")
 @click.option("--no-png", is_flag=True, help="CSV only.")

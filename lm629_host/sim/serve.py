@@ -244,8 +244,10 @@ def firmware_far_end(url: str) -> FarEnd:
 class SimServer:
     """A far end served on a pseudo-terminal linked at ``link``, or on a TCP port (``tcp=(host,
     port)``, port 0: any free one) for ``socket://host:port`` clients, as a bridge
-    behind ser2net would be.  On TCP one client is served at a time; a new connection takes
-    over from the previous one (the chip keeps its state, as a board does between programs)."""
+    behind ser2net would be.  On TCP one client is served at a time, as ser2net and a pty
+    do: a second connection is refused (closed at once) while one is connected, so that it
+    never ends a running client's link; the chip keeps its state between clients, as a board
+    does.  :meth:`power_cycle` cycles the chips' supply (``lm629 sim serve``: SIGUSR1)."""
 
     def __init__(self, link: str | os.PathLike | None = None, url: str = "sim://", *,
                  firmware: bool = False, far_end: FarEnd | None = None,
@@ -271,6 +273,7 @@ class SimServer:
         #: (host, port) the TCP server listens on, once open
         self.address: tuple[str, int] | None = None
         self._stop = threading.Event()
+        self._power_cycle = threading.Event()
         self._thread: threading.Thread | None = None
         self.bytes_in = 0
         self.bytes_out = 0
@@ -387,8 +390,10 @@ class SimServer:
         if self._listener in ready:
             with contextlib.suppress(BlockingIOError):
                 client, peer = self._listener.accept()
-                if self._client is not None:
-                    self._client.close()
+                if self._client is not None:  # busy: the running client keeps the link
+                    log.info("client %s:%s refused: another client is connected", *peer[:2])
+                    client.close()
+                    return b""
                 client.setblocking(True)
                 client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 self._client = client
@@ -424,6 +429,9 @@ class SimServer:
             on_ready()
         while not self._stop.is_set():
             ready, _, _ = select.select(self._fds(), [], [], IDLE_TICK_S)
+            if self._power_cycle.is_set():
+                self._power_cycle.clear()
+                self._cycle_power()
             stray = far.advance_to(sim0 + time.monotonic() - wall0)
             replies = [stray] if stray else []
             if ready:
@@ -439,6 +447,17 @@ class SimServer:
             for r in replies:
                 self._write(r)
                 self.bytes_out += len(r)
+
+    def power_cycle(self) -> None:
+        """Cycle the chips' supply, as a bench's switch would: every chip comes back as from
+        power-on (filter, LPES and output mode gone, positions 0, motor off); the bridge and
+        the link stay up (the Uno is powered by USB).  Safe from a signal handler: the serving
+        loop does it between two exchanges."""
+        self._power_cycle.set()
+
+    def _cycle_power(self) -> None:
+        self.model.reset_pulse()  # /RST is what power-on does to every register the host set
+        log.info("power cycled: every chip as from power-on")
 
     def start(self) -> SimServer:
         """Serve in a background thread (tests, scripts)."""

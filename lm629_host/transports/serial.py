@@ -146,6 +146,14 @@ def options_of(url: str) -> SerialOptions:
                          fast=opts["fast_baud"])
 
 
+def _lost_hint(device: str | None) -> str:
+    """What a link that failed mid-use most likely means on this kind of port."""
+    if device and device.split("://", 1)[0] in ("socket", "rfc2217"):
+        return ("the server closed the connection: a served bench (`lm629 sim serve --tcp`) "
+                "and ser2net take one client at a time; is another one connected?")
+    return "was the board unplugged?"
+
+
 class SerialPipe:
     """A :class:`~lm629_host.bridge.protocol.Pipe` over an open pyserial port, in real time."""
 
@@ -163,7 +171,7 @@ class SerialPipe:
         try:
             self.port.write(data)
         except Exception as exc:
-            raise TransportError(f"write failed ({exc}): was the board unplugged?",
+            raise TransportError(f"write failed ({exc}): {_lost_hint(self.port.port)}",
                                  port=self.port.port) from exc
 
     def read(self, timeout_s: float) -> bytes:
@@ -182,7 +190,7 @@ class SerialPipe:
                 data += port.read(port.in_waiting)
             return bytes(data)
         except Exception as exc:
-            raise TransportError(f"read failed ({exc}): was the board unplugged?",
+            raise TransportError(f"read failed ({exc}): {_lost_hint(port.port)}",
                                  port=port.port) from exc
 
     def set_baud(self, baud: int) -> None:

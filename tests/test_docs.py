@@ -1,0 +1,344 @@
+"""The docs are executed: every Python block and every command line of README.md and docs/*.md.
+
+Python blocks (```python) run through sybil, one namespace per document, in a working
+directory of the document's own.  Command lines are transcripts in ```console blocks::
+
+    $ lm629 --lines 500 calc --rpm 3000      # a comment is the shell's
+    velocity ... {n} ...                     # expected output, optional; {n} is any number,
+    ...                                      # `...` alone any lines, inside a line any text
+    [exit 1]                                 # the exit code, when it is not 0
+
+A command whose comment says ``not run by the tests: REASON`` is counted as skipped, with
+that reason; so is a block below a line ``*Not run by the tests: REASON.*``.  A ```toml block
+is a bench profile and is loaded with :func:`lm629_host.profile.load_profile`.
+
+Ports stand in for the bench the block names: ``/dev/ttyACM0`` (and ``/dev/ttyUSB0``) is one
+``lm629 sim serve`` for the whole document (two axes, the Python far end), ``socket://H:P`` and
+``--tcp P`` a free port (the block starts its own server, as the docs say), ``ftdi://...``
+``sim+ftdi://``, ``/tmp/lm629`` a path in the document's directory.  ``sudo``, ``udevadm`` and
+``usermod`` are stand-ins that print what they were asked, and /etc/udev/rules.d/ is a
+directory of the test's: the docs' udev lines run without changing this machine.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import shutil
+import socket
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+from sybil import Sybil
+from sybil.parsers.markdown import CodeBlockParser
+
+from lm629_host.sim.avr import toolchain_missing
+from test_cli import _console_script
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+NOT_RUN = re.compile(r"not run by the tests: ([^*]+?)\.?\*?\s*$", re.IGNORECASE)
+STANDINS = {"sudo": 'exec "$@"', "udevadm": 'echo "udevadm $*"', "usermod": 'echo "usermod $*"'}
+
+
+@dataclass
+class DocState:
+    """One document's bench: its directory, environment, served board and background jobs."""
+
+    path: Path
+    tmp: Path
+    env: dict[str, str]
+    bench: subprocess.Popen | None = None
+    link: Path | None = None
+    ports: dict[str, str] = field(default_factory=dict)
+    jobs: list[subprocess.Popen] = field(default_factory=list)
+
+    def serial(self) -> str:
+        """The served two-axis bench standing in for /dev/ttyACM0 (started on first use)."""
+        if self.bench is None:
+            self.link = self.tmp / "bench"
+            self.bench = subprocess.Popen(
+                [_console_script(), "sim", "serve", "--pty", str(self.link), "--url", "sim://?axes=2"],
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=self.env)
+            banner = self.bench.stdout.readline()
+            assert banner.startswith("serving "), banner + self.bench.stderr.read()
+        return f"serial://{self.link}"
+
+    def tcp_port(self, number: str) -> str:
+        if number not in self.ports:
+            with socket.socket() as s:
+                s.bind(("127.0.0.1", 0))
+                self.ports[number] = str(s.getsockname()[1])
+        return self.ports[number]
+
+    def rewrite(self, text: str) -> str:
+        """The block's text with this machine's stand-ins for the ports it names."""
+        if re.search(r"/dev/tty(ACM|USB)0", text):
+            text = re.sub(r"(serial://)?/dev/tty(ACM|USB)0", self.serial(), text)
+        text = re.sub(r"ftdi://ftdi:232h[^\s'\")]*", "sim+ftdi://", text)
+        text = re.sub(r"(socket://[\w.]+:|--tcp )(\d+)", lambda m: m[1] + self.tcp_port(m[2]), text)
+        text = text.replace("/tmp/lm629", str(self.tmp / "lm629"))
+        return text.replace("/etc/udev/rules.d/", str(self.tmp / "rules.d") + "/")
+
+    def close(self) -> None:
+        for p in [*self.jobs, *([self.bench] if self.bench else [])]:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+            try:
+                p.communicate(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.communicate()
+
+
+_STATES: dict[Path, DocState] = {}
+COUNTS = {"ran": 0, "skipped": 0}
+
+
+def _state(path: Path, tmp_factory: pytest.TempPathFactory) -> DocState:
+    if path not in _STATES:
+        tmp = tmp_factory.mktemp(path.stem)
+        bin_dir = tmp / "bin"
+        bin_dir.mkdir()
+        for name, body in STANDINS.items():
+            (bin_dir / name).write_text(f"#!/bin/sh\n{body}\n")
+            (bin_dir / name).chmod(0o755)
+        (tmp / "rules.d").mkdir()
+        for name in ("examples", "firmware_bridge"):
+            (tmp / name).symlink_to(ROOT / name)
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("LM629_", "PYTEST_"))}
+        env.update(PATH=f"{bin_dir}:{Path(_console_script()).parent}:{env.get('PATH', '')}",
+                   EDITOR="true", HOME=str(tmp), PYTEST_ADDOPTS="-p no:cacheprovider",
+                   MPLBACKEND="Agg", COLUMNS="100")
+        env["LM629_DOCS_TEST"] = "1"
+        _STATES[path] = DocState(path, tmp, env)
+    return _STATES[path]
+
+
+# ------------------------------------------------------------------ transcripts
+def _line_pattern(expected: str) -> re.Pattern[str]:
+    out = re.escape(expected.rstrip())
+    out = out.replace(r"\{n\}", r"[-+]?\d[\d.,]*(e[-+]?\d+)?").replace(r"\.\.\.", ".*")
+    return re.compile(out + r"\s*$")
+
+
+def _matches(expected: list[str], actual: list[str]) -> bool:
+    """``expected`` (``...`` alone: any lines) against every line of ``actual``."""
+    if not expected:
+        return not actual
+    head, rest = expected[0], expected[1:]
+    if head.strip() == "...":
+        return any(_matches(rest, actual[i:]) for i in range(len(actual) + 1))
+    return bool(actual) and bool(_line_pattern(head).match(actual[0])) and _matches(rest, actual[1:])
+
+
+@dataclass
+class Command:
+    line: int
+    text: str
+    expected: list[str]
+    exit: int = 0
+    skip: str | None = None
+
+
+def parse_transcript(text: str, first_line: int) -> list[Command]:
+    commands: list[Command] = []
+    for i, raw in enumerate(text.splitlines()):
+        if raw.startswith("$ "):
+            cmd = raw[2:]
+            while cmd.endswith("\\"):
+                raise AssertionError(f"line {first_line + i}: join continued lines into one command")
+            m = NOT_RUN.search(cmd)
+            commands.append(Command(first_line + i, cmd, [], skip=m[1] if m else None))
+        elif m := re.fullmatch(r"\[exit (\d+)\]\s*", raw):
+            commands[-1].exit = int(m[1])
+        elif commands:
+            commands[-1].expected.append(raw)
+        elif raw.strip():
+            raise AssertionError(f"line {first_line + i}: a console block starts with `$ `")
+    return commands
+
+
+def _cannot_run(text: str) -> str | None:
+    """Why a command cannot run on this machine (tools the docs name as needed), else None."""
+    if text.startswith("make ") or "--firmware" in text or "sim+avr://" in text:
+        missing = toolchain_missing()
+        if missing:
+            return f"the AVR toolchain is missing ({', '.join(missing)})"
+    if "--lg-env" in text and not os.environ.get("LM629_LABGRID_PYTHON"):
+        return "labgrid needs its own venv (LM629_LABGRID_PYTHON, built by .ci/run)"
+    return None
+
+
+def run_command(st: DocState, cmd: Command) -> None:
+    if re.search(r"#\s*run by CI \(\.ci/run\)\s*$", cmd.text):  # CI runs this very line
+        ci = re.sub(r"\\\n\s*", "", (ROOT / ".ci" / "run").read_text())
+        line = cmd.text.split("#")[0].strip()
+        assert line in ci, f"{st.path.name}:{cmd.line}: .ci/run no longer runs `{line}`"
+        return
+    text = st.rewrite(cmd.text)
+    if "--lg-env" in text:  # labgrid's pytest, in its venv; the example's port is this bench's
+        lab = st.tmp / "labgrid"
+        if not lab.exists():
+            shutil.copytree(ROOT / "examples" / "labgrid", lab)
+            env_file = lab / "env-sim.yaml"
+            env_file.write_text(env_file.read_text().replace("5629", st.tcp_port("5629")))
+        text = text.replace("cd examples/labgrid", f"cd {lab}").replace(
+            "pytest ", f"{os.environ['LM629_LABGRID_PYTHON']} -m pytest ")
+    if m := re.fullmatch(r"export (\w+)=(\S+)(\s+#.*)?", text.strip()):
+        st.env[m[1]] = m[2]
+        return
+    argv = ["bash", "-o", "pipefail", "-c", text]
+    if text.rstrip().split("#")[0].rstrip().endswith("&"):  # a server the next lines use
+        if any(job.args[-1] == "exec " + text.split("&")[0] for job in st.jobs):
+            return  # still serving from an earlier block, as in the reader's shell
+        job = subprocess.Popen(["bash", "-c", "exec " + text.split("&")[0]], cwd=st.tmp, env=st.env,
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        banner = job.stdout.readline()
+        assert banner.startswith("serving "), f"{cmd.text}: {banner}{job.stdout.read()}"
+        st.jobs.append(job)
+        return
+    if re.search(r"\bsim serve\b", text):  # serves until Ctrl-C: its banner, then Ctrl-C
+        job = subprocess.Popen(argv, cwd=st.tmp, env=st.env, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        banner = job.stdout.readline()
+        os.killpg(job.pid, signal.SIGINT)
+        rest, _ = job.communicate(timeout=20)
+        out, code = banner + rest, 0 if banner.startswith("serving ") else job.returncode
+    else:
+        p = subprocess.run(argv, cwd=st.tmp, env=st.env, input="y\n" * 8, capture_output=True,
+                           text=True, timeout=120)
+        out, code = p.stdout + p.stderr, p.returncode
+    where = f"{st.path.name}:{cmd.line}: $ {cmd.text}"
+    assert code == cmd.exit, f"{where}\nexit {code}, the doc says {cmd.exit}:\n{out}"
+    if cmd.expected:
+        actual = [ln for ln in out.splitlines() if not ln.startswith("lm629: no --port")]
+        expected = [ln for ln in cmd.expected]
+        assert _matches(expected, actual), (f"{where}\nthe output differs from the doc's:\n"
+                                            + "\n".join(expected) + "\n---- got:\n" + out)
+
+
+# ------------------------------------------------------------------ the blocks
+@dataclass
+class Block:
+    doc: Path
+    line: int
+    kind: str  # python | console | toml
+    text: str
+    skip: str | None
+
+    @property
+    def id(self) -> str:
+        return f"{self.doc.relative_to(ROOT)}:{self.line}"
+
+
+def _collect() -> list[Block]:
+    blocks: list[Block] = []
+    parsers = [CodeBlockParser(language=k) for k in ("python", "console", "toml")]
+    for doc in DOCS:
+        document = Sybil(parsers=parsers).parse(doc)
+        lines = document.text.splitlines()
+        for example in document:
+            header = lines[example.line - 1]
+            kind = header.strip("`").strip()
+            before = next((ln for ln in reversed(lines[:example.line - 1]) if ln.strip()), "")
+            m = NOT_RUN.search(before) if before.startswith("*") else None
+            blocks.append(Block(doc, example.line + 1, kind, example.parsed, m[1] if m else None))
+    return blocks
+
+
+BLOCKS = _collect()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _teardown(request):
+    yield
+    for st in _STATES.values():
+        st.close()
+
+
+def _python(st: DocState, block: Block, namespace: dict) -> None:
+    code = compile(st.rewrite(block.text), f"{block.id}", "exec")
+    cwd = os.getcwd()
+    os.chdir(st.tmp)
+    old_env, old_path = dict(os.environ), list(sys.path)
+    sys.path.insert(0, str(ROOT / "examples" / "lab"))  # a test's own modules beside it
+    try:
+        os.environ.pop("LM629_PORT", None)
+        exec(code, namespace)
+    finally:
+        os.chdir(cwd)
+        os.environ.clear()
+        os.environ.update(old_env)
+        sys.path[:] = old_path
+
+
+_NAMESPACES: dict[Path, dict] = {}
+
+
+@pytest.mark.parametrize("block", BLOCKS, ids=[b.id for b in BLOCKS])
+def test_doc_block(block: Block, tmp_path_factory) -> None:
+    st = _state(block.doc, tmp_path_factory)
+    if block.skip:
+        COUNTS["skipped"] += 1
+        pytest.skip(f"{block.id}: {block.skip}")
+    if block.kind == "python":
+        _python(st, block, _NAMESPACES.setdefault(block.doc, {"__name__": "__doc_example__"}))
+        COUNTS["ran"] += 1
+    elif block.kind == "toml":
+        from lm629_host.profile import load_profile
+        path = st.tmp / f"block{block.line}.toml"
+        path.write_text(block.text)
+        load_profile(path)
+        COUNTS["ran"] += 1
+    else:
+        skipped = []
+        for cmd in parse_transcript(block.text, block.line):
+            reason = cmd.skip or _cannot_run(cmd.text)
+            if reason:
+                COUNTS["skipped"] += 1
+                skipped.append(f"{cmd.line}: {reason}")
+                continue
+            run_command(st, cmd)
+            COUNTS["ran"] += 1
+        if skipped:
+            pytest.skip("; ".join(skipped))
+
+
+def test_every_command_line_is_in_a_transcript() -> None:
+    """A command shown outside a ```console block (an indented or a bare fenced one) is not
+    run: the docs put every command where the tests run it."""
+    stray = []
+    for doc in DOCS:
+        fence = None
+        for n, line in enumerate(doc.read_text().splitlines(), 1):
+            if line.lstrip().startswith("```"):
+                fence = None if fence is not None else line.strip("` ")
+                continue
+            if fence in ("console", "python", "toml", "yaml"):
+                continue
+            if re.match(r"\s*(\$ )?(lm629 (?!\()|python3? -m |pytest |make -C |sudo |labgrid-)", line):
+                stray.append(f"{doc.relative_to(ROOT)}:{n}: {line.strip()}")
+    assert not stray, "commands outside a ```console transcript:\n" + "\n".join(stray)
+
+
+def test_at_most_a_tenth_of_the_examples_is_not_run() -> None:
+    total = skipped = 0
+    for block in BLOCKS:
+        if block.kind == "console":
+            commands = parse_transcript(block.text, block.line)
+            total += len(commands)
+            skipped += len(commands) if block.skip else sum(1 for c in commands if c.skip)
+        else:
+            total += 1
+            skipped += bool(block.skip)
+    assert skipped <= total // 10, f"{skipped} of {total} docs examples are marked not run"
+    assert total >= 60, f"only {total} docs examples found: the parser lost some"
+
+
+if sys.platform != "linux":  # the served bench is a pseudo-terminal
+    pytestmark = pytest.mark.skip("the docs' bench stand-ins need Linux ptys")
