@@ -386,6 +386,8 @@ class Board:
         """STT on every axis (or on ``axes``) in one bus program; raises
         :class:`CommandError` naming the axis whose chip refused its STT."""
         p, chosen = self.start_program(axes, prefix, clear)
+        for a in chosen:  # AN-706 4.6.2: no axis updated sooner than 10 ms after its last STT
+            a.hold_update()
         statuses = self.transport.execute(p).statuses
         n = len(chosen)
         before, after = statuses[-2 * n:-n], statuses[-n:]

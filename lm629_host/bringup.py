@@ -160,14 +160,15 @@ def reset_step(chip: LM629) -> StepResult:
 
 def check_room(chip: LM629, o: BringupOptions) -> None:
     """The bring-up's targets, as absolute positions from where the desired position is now,
-    against the axis's soft limits (``chip.limits``): the phasing steps' reach either way,
+    against the axis's soft limits (``chip.limits``): the phasing steps' targets either way,
     then the small move.  ValueError naming the limit and the
     room left, before anything moves."""
     limits = getattr(chip, "limits", None)
     if limits is None or not limits.has_travel:
         return
     origin = chip.read_desired_position()
-    points = [origin - o.phasing_travel, origin + o.phasing_travel, origin + o.move_distance]
+    step = max(8, o.phasing_travel // 8)  # the phasing steps' targets (tuning.check_phasing)
+    points = [origin - step, origin + step, origin + o.move_distance]
     for point in (min(points), max(points)):
         try:
             limits.check_position(point, what="bring-up goes to")
@@ -177,7 +178,7 @@ def check_room(chip: LM629, o: BringupOptions) -> None:
                 (", " if hi is not None and lo is not None else "") + \
                 (f"{lo - origin:+d} down to min" if lo is not None else "")
             raise ValueError(
-                f"{exc}: from {origin} it needs +/-{o.phasing_travel} counts of phasing and "
+                f"{exc}: from {origin} it needs phasing steps of +/-{step} counts and "
                 f"then a {o.move_distance:+d}-count move; room left from {origin}: {room}. "
                 "Move the axis so that the room is there, or give a smaller move "
                 "(`lm629 bringup --move N`)") from None

@@ -531,9 +531,10 @@ class LM629:
             return 0.0
         return max(0.0, self._last_update + self.update_interval - self.clock.now())
 
-    def _space_update(self) -> None:
+    def hold_update(self) -> None:
         """Hold a trajectory update back to ``update_interval`` after the last STT (AN-706
-        4.6.2), or raise :class:`UpdateTooSoon` under ``update_rule = "raise"``."""
+        4.6.2), or raise :class:`UpdateTooSoon` under ``update_rule = "raise"``.  Every STT
+        that is an update passes here: this chip's own, and a board's (:meth:`Board.start`)."""
         if self.update_rule not in ("wait", "raise"):
             raise ValueError(f"update_rule={self.update_rule!r} must be 'wait' or 'raise'")
         due = self.update_due()
@@ -551,7 +552,7 @@ class LM629:
         same program (move_to's snapshot: one exchange).  ``update``: the STT is a trajectory
         update, spaced by ``update_interval`` (a stop is not: it goes out at once)."""
         if update:
-            self._space_update()
+            self.hold_update()
         flags = self.start_flags(clear)
         if flags:  # RSTI: a 0 bit clears
             program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~flags)) \

@@ -170,9 +170,10 @@ def _limited_profile(tmp_path, lo: int, hi: int):
 
 
 def test_bringup_on_an_axis_with_soft_limits_checks_its_absolute_targets(tmp_path):
-    """From 0 the sequence goes to +4000 (phasing at kp = 1) and then 1000 further: inside
-    -3000..6000 it runs; with max = 4500 it is refused before anything turns, naming the limit
-    and the room left (+4500 counts up to max)."""
+    """From 0 the phasing steps go to +500 and -500 (an eighth of the default 4000-count
+    phasing travel) and the small move to +1000: inside -3000..6000 it runs; with max = 800 it
+    is refused before anything turns, naming the limit and the room left (+800 counts up to
+    max), and with min = -400 the phasing step down is."""
     from click.testing import CliRunner
 
     from lm629_host.cli import main
@@ -180,11 +181,15 @@ def test_bringup_on_an_axis_with_soft_limits_checks_its_absolute_targets(tmp_pat
     ok = _limited_profile(tmp_path, -3000, 6000)
     r = runner.invoke(main, ["--profile", str(ok), "--axis", "x", "bringup", "--yes"])
     assert r.exit_code == 0, r.output
-    tight = _limited_profile(tmp_path, -3000, 4500)
+    tight = _limited_profile(tmp_path, -3000, 800)
     r = runner.invoke(main, ["--profile", str(tight), "--axis", "x", "bringup", "--yes"])
     assert r.exit_code == 2, r.output
     line = r.stderr.strip().splitlines()[-1]
-    assert "bring-up goes to 5000 is above the soft limit max = 4500 counts" in line
+    assert "bring-up goes to 1000 is above the soft limit max = 800 counts" in line
     assert f"{tight}:7: [axis.x] max" in line
-    assert "room left from 0: +4500 counts up to max, -3000 down to min" in line
+    assert "room left from 0: +800 counts up to max, -3000 down to min" in line
+    low = _limited_profile(tmp_path, -400, 6000)
+    r = runner.invoke(main, ["--profile", str(low), "--axis", "x", "bringup", "--yes"])
+    assert r.exit_code == 2, r.output
+    assert "bring-up goes to -500 is below the soft limit min = -400 counts" in r.stderr
     assert "[PASS] phasing" not in r.stdout and "relative" not in r.stderr
