@@ -63,6 +63,9 @@ RECORD_ROW_OVERHEAD = 10
 #: the chip's data-reporting commands (RDDV 07h .. RDSUM 0Dh): the only commands a sample
 #: program may send, so that a recording never changes the chip (and may be repeated)
 RECORD_CMD_FIRST, RECORD_CMD_LAST = 0x07, 0x0D
+#: FAILSAFE: the range of the bridge's link timer (a host slower than 10 s is not alive)
+FAILSAFE_MIN_MS = 50
+FAILSAFE_MAX_MS = 10_000
 _STATUS_BUSY = int(Status.BUSY)
 
 
@@ -77,6 +80,10 @@ class FrameType(enum.IntEnum):
     #: period_us (4), rows (2; 0: until stopped), a sample program: the bridge runs it on its
     #: own timer and streams one RECORD_ROW per run, then RECORD_END (RECORD only)
     RECORD = 0x08
+    #: empty: report the failsafe's state (FAILSAFE_REPLY); or a FailsafeCmd and its
+    #: arguments (FAILSAFE only).  Every good frame feeds the failsafe; during a recording
+    #: the exact bytes of :data:`FAILSAFE_FEED` feed it without ending the recording
+    FAILSAFE = 0x09
     HELLO_REPLY = 0x81
     RUN_REPLY = 0x82
     PONG = 0x83
@@ -84,6 +91,7 @@ class FrameType(enum.IntEnum):
     BAUD_REPLY = 0x87  #: result (1), the rate the bridge switches to (4)
     RECORD_ROW = 0x88  #: row (2), t_us (4), the bytes the sample program read, in order
     RECORD_END = 0x89  #: result (1), index (1), rows sent (2): the recording is over
+    FAILSAFE_REPLY = 0x8A  #: result (1) then the failsafe's state (:class:`FailsafeState`)
     ERROR_REPLY = 0xFF
 
 
@@ -92,7 +100,7 @@ REPLY_TO = {FrameType.HELLO: FrameType.HELLO_REPLY, FrameType.RUN: FrameType.RUN
             FrameType.PING: FrameType.PONG, FrameType.RUN_SHORT: FrameType.RUN_SHORT_REPLY,
             FrameType.RUN_STORE: FrameType.RUN_SHORT_REPLY,
             FrameType.RUN_CODE: FrameType.RUN_SHORT_REPLY, FrameType.SET_BAUD: FrameType.BAUD_REPLY,
-            FrameType.RECORD: FrameType.RECORD_ROW}
+            FrameType.RECORD: FrameType.RECORD_ROW, FrameType.FAILSAFE: FrameType.FAILSAFE_REPLY}
 #: other reply types a request may get: a compact RUN that failed is answered as a RUN
 ALSO_REPLY_TO = {FrameType.RUN_SHORT: FrameType.RUN_REPLY, FrameType.RUN_STORE: FrameType.RUN_REPLY,
                  FrameType.RUN_CODE: FrameType.RUN_REPLY, FrameType.RECORD: FrameType.RECORD_END}
@@ -110,6 +118,11 @@ class Result(enum.IntEnum):
     UNKNOWN_CODE = 6  #: RUN_CODE for a code the bridge keeps no program under (nothing ran)
     BAD_BAUD = 7  #: SET_BAUD to a rate the bridge cannot make within 2 % (it stays as it is)
     BAD_RATE = 8  #: RECORD with a period below RECORD_MIN_PERIOD_US (nothing recorded)
+    #: a program with STT while a failsafe trip is latched and not acknowledged (nothing ran)
+    FAILSAFE_TRIPPED = 9
+    #: FAILSAFE with a timeout outside FAILSAFE_MIN_MS..FAILSAFE_MAX_MS, an unknown action or
+    #: command (nothing changed)
+    BAD_FAILSAFE = 10
 
 
 class Capability(enum.IntFlag):
@@ -129,6 +142,25 @@ class Capability(enum.IntFlag):
     BAUD_SWITCH = 0x80
     #: the bridge records on its own timer (RECORD): rows stamped with its clock, streamed
     RECORD = 0x100
+    #: the bridge keeps a link failsafe (FAILSAFE): silent host -> every chip stopped, latched
+    FAILSAFE = 0x200
+
+
+class FailsafeCmd(enum.IntEnum):
+    """The first payload byte of a FAILSAFE request (an empty payload only reports)."""
+
+    DISARM = 0
+    ARM = 1  #: timeout_ms (2), action (1)
+    ACKNOWLEDGE = 2  #: forget the latched trip: trajectory commands are taken again
+
+
+class FailsafeAction(enum.IntEnum):
+    """What the bridge does to every chip when the failsafe expires: LTRJ with this stop bit,
+    then STT, each with the busy discipline."""
+
+    ABRUPT = 0  #: the PID brakes at full torque and holds: a loaded axis does not fall
+    SMOOTH = 1  #: decelerates at the loaded acceleration
+    OFF = 2  #: motor off (the drive output goes to zero: a loaded axis may fall)
 
 
 #: "index of the failing operation" and "last status byte" when there is none
@@ -160,6 +192,9 @@ def c_defines() -> list[tuple[str, int, str]]:
         ("LINK_RECORD_TICK_US", RECORD_TICK_US, "RECORD: the bridge clock's tick"),
         ("LINK_RECORD_CMD_FIRST", RECORD_CMD_FIRST, "RECORD: first data-reporting command"),
         ("LINK_RECORD_CMD_LAST", RECORD_CMD_LAST, "RECORD: last data-reporting command"),
+        ("LINK_FAILSAFE_MIN_MS", FAILSAFE_MIN_MS, "FAILSAFE: shortest timeout"),
+        ("LINK_FAILSAFE_MAX_MS", FAILSAFE_MAX_MS, "FAILSAFE: longest timeout"),
+        ("LINK_FAILSAFE_REPLY_SIZE", FailsafeState.SIZE, "FAILSAFE_REPLY payload bytes"),
         ("LINK_CRC_POLY", 0x1021, "CRC-16/GENIBUS polynomial"),
         ("LINK_CRC_INIT", 0xFFFF, "CRC-16/GENIBUS initial value"),
         ("LINK_CRC_XOROUT", 0xFFFF, "CRC-16/GENIBUS final xor"),
@@ -167,6 +202,8 @@ def c_defines() -> list[tuple[str, int, str]]:
     out += [(f"FRAME_{t.name}", int(t), "frame type") for t in FrameType]
     out += [(f"RESULT_{r.name}", int(r), "result code") for r in Result]
     out += [(f"CAP_{c.name}", int(c), "HELLO_REPLY capability bit") for c in Capability]
+    out += [(f"FAILSAFE_CMD_{c.name}", int(c), "FAILSAFE command") for c in FailsafeCmd]
+    out += [(f"FAILSAFE_ACTION_{a.name}", int(a), "FAILSAFE action") for a in FailsafeAction]
     return out
 
 
@@ -569,6 +606,61 @@ def row_wire_bytes(read: int) -> int:
     return RECORD_ROW_OVERHEAD + read + 2
 
 
+# ---------------------------------------------------------------------------------- FAILSAFE
+@dataclass(frozen=True)
+class FailsafeState:
+    """FAILSAFE_REPLY's payload: the request's result, the timer as armed (``timeout_ms`` 0:
+    disarmed) and its action, and the latched trip: whether there is one, which chip selects
+    it stopped (bit k: chip select k), how long the host had been silent and the bridge's
+    clock at the trip (ms since the bridge started)."""
+
+    result: int = Result.OK
+    timeout_ms: int = 0
+    action: int = FailsafeAction.ABRUPT
+    tripped: bool = False
+    chips: int = 0
+    silent_ms: int = 0
+    at_ms: int = 0
+
+    LAYOUT = struct.Struct(">BHBBBII")
+    SIZE = LAYOUT.size
+
+    def encode(self) -> bytes:
+        return self.LAYOUT.pack(self.result, self.timeout_ms, self.action, int(self.tripped),
+                                self.chips, self.silent_ms & 0xFFFFFFFF, self.at_ms & 0xFFFFFFFF)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> FailsafeState:
+        if len(payload) != cls.SIZE:
+            raise FrameError(f"FAILSAFE_REPLY of {len(payload)} bytes, expected {cls.SIZE}")
+        result, ms, action, tripped, chips, silent, at = cls.LAYOUT.unpack(payload)
+        return cls(result, ms, action, bool(tripped), chips, silent, at)
+
+    @property
+    def stopped(self) -> list[int]:
+        """The chip selects the trip stopped."""
+        return [k for k in range(8) if self.chips >> k & 1]
+
+    def describe(self, names: dict[int, str] | None = None) -> str:
+        """One sentence on the latched trip (``names``: axis names by chip select)."""
+        if not self.tripped:
+            return "no failsafe trip latched"
+        names = names or {}
+        who = ", ".join(f"axis {names[k]} (cs {k})" if k in names else f"cs {k}"
+                        for k in self.stopped) or "no chip (none answered)"
+        try:
+            how = FailsafeAction(self.action).name.lower()
+        except ValueError:
+            how = f"action {self.action}"
+        return (f"the bridge stopped {who} ({how} stop) after the host was silent for "
+                f"{self.silent_ms / 1e3:.2f} s (at bridge time {self.at_ms / 1e3:.1f} s)")
+
+
+#: the one FAILSAFE frame a recording takes without ending: seq 0, empty payload, always the
+#: same bytes, so that the bridge matches it byte by byte while it samples
+FAILSAFE_FEED = encode_frame(FrameType.FAILSAFE, 0)
+
+
 # ---------------------------------------------------------------------------------- the pipe
 @runtime_checkable
 class Pipe(Protocol):
@@ -591,6 +683,12 @@ class Pipe(Protocol):
 
 __all__ = [
     "ALSO_REPLY_TO",
+    "FAILSAFE_FEED",
+    "FAILSAFE_MAX_MS",
+    "FAILSAFE_MIN_MS",
+    "FailsafeAction",
+    "FailsafeCmd",
+    "FailsafeState",
     "END_PAYLOAD",
     "RECORD_CMD_FIRST",
     "RECORD_CMD_LAST",

@@ -22,8 +22,12 @@ import functools
 import logging
 import threading
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 from ..clock import Clock, WallClock
+
+if TYPE_CHECKING:
+    from ..bridge.protocol import FailsafeState
 from ..errors import BusyTimeout, TransportError
 from ..opcodes import BUSY_BIT
 from ..program import (
@@ -166,6 +170,9 @@ class Transport(abc.ABC):
     #: True when one program may carry a far-side wait between its commands (a WAIT_STATUS
     #: inside a longer program): then ``Move.wait`` finds a move's end in one exchange
     far_waits: bool = False
+    #: the longest far-side wait one exchange may hold, seconds (None: no limit): a bridge
+    #: whose failsafe is armed counts a wait as the host alive only up to its timeout
+    far_wait_limit_s: float | None = None
 
     def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
         self.url = url
@@ -254,6 +261,19 @@ class Transport(abc.ABC):
 
     def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
         """Release the port.  Idempotent."""
+
+    # ------------------------------------------------------------------ the link failsafe
+    # A bridge keeps a timer on its side of the link and stops every chip when the host falls
+    # silent (transports/link.py).  Transports without one report None.
+
+    def failsafe_state(self) -> FailsafeState | None:
+        """The far side's failsafe (armed timeout, action, a latched trip), or None when the
+        far side keeps none (the FT232H, ``sim://``)."""
+        return None
+
+    def clear_failsafe(self) -> FailsafeState | None:
+        """Acknowledge a latched failsafe trip; returns it (None: none, or no failsafe)."""
+        return None
 
     # ------------------------------------------------------------------ recording
     # The contract of LM629.record (lm629_host.recording): a transport delivers rows of a

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import random
+import threading
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator, Sequence
 from typing import cast
@@ -25,6 +26,9 @@ from ..bridge.protocol import (
     CODE_BYTES,
     CODE_SLOTS,
     END_PAYLOAD,
+    FAILSAFE_FEED,
+    FAILSAFE_MAX_MS,
+    FAILSAFE_MIN_MS,
     FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
     RECORD_MIN_PERIOD_US,
     RECORD_TICK_US,
@@ -44,6 +48,9 @@ from ..bridge.protocol import (
     FrameError,
     FrameReader,
     FrameType,
+    FailsafeAction,
+    FailsafeCmd,
+    FailsafeState,
     HelloInfo,
     Pipe,
     Result,
@@ -69,6 +76,8 @@ from ..program import (
     TraceCallback,
     cycles_of,
 )
+from ..clock import Clock, WallClock
+from ..urls import Option, parse_options, query_params
 from .base import RawRow, Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
@@ -85,6 +94,63 @@ BAD_LINK_RATE = 0.2
 #: above this error rate (over a full window) the link logs one warning per window, even while
 #: the retries still hide every failure: 5 % of exchanges failing is a cable to look at
 WARN_LINK_RATE = 0.05
+
+
+#: the failsafe's URL options, taken by every bridge port (``failsafe=0``: disarmed)
+FAILSAFE_DEFAULT_S = 0.5
+FAILSAFE_OPTIONS = (
+    Option("failsafe", "float", FAILSAFE_DEFAULT_S, 0, FAILSAFE_MAX_MS / 1e3, "s"),
+    Option("failsafe_action", "str", "abrupt", choices=tuple(a.name.lower() for a in FailsafeAction)))
+FAILSAFE_OPTION_NAMES = frozenset(o.name for o in FAILSAFE_OPTIONS)
+#: the feeder sends when the link has been idle this fraction of the failsafe's timeout: three
+#: feeds may be lost on the line before the bridge trips
+FEED_FRACTION = 0.25
+
+
+def failsafe_options(url: str) -> tuple[float, FailsafeAction]:
+    """``failsafe=SECONDS`` (0: off, else 0.05..10) and ``failsafe_action=abrupt|smooth|off``
+    of a bridge port's URL; ValueError naming the option (the other options are not looked at)."""
+    opts = parse_options(url, FAILSAFE_OPTIONS,
+                         ignore=set(query_params(url)) - FAILSAFE_OPTION_NAMES)
+    seconds = opts["failsafe"]
+    if seconds and round(seconds * 1e3) < FAILSAFE_MIN_MS:
+        raise ValueError(f"{url}: failsafe={seconds:g} is outside 0 (off) or "
+                         f"{FAILSAFE_MIN_MS / 1e3:g}..{FAILSAFE_MAX_MS / 1e3:g} s")
+    return seconds, FailsafeAction[opts["failsafe_action"].upper()]
+
+
+class FailsafeTripped(TransportError):
+    """The bridge refused a trajectory command: its failsafe tripped (the host was silent past
+    the timeout) and no host acknowledged it yet.  ``state``: the latched trip."""
+
+    def __init__(self, message: str, *, port: str, state: FailsafeState | None) -> None:
+        super().__init__(message, port=port)
+        self.state = state
+
+
+class _FeedingClock(Clock):
+    """A simulated pipe's clock whose ``sleep`` feeds the failsafe on the way: time passes on
+    the far side only while the host sleeps on this clock or waits for a reply, so the feeder
+    of a simulated link lives here instead of in a thread."""
+
+    def __init__(self, clock: Clock, transport: LinkTransport) -> None:
+        self._clock = clock
+        self._transport = transport
+        self.now = clock.now  # type: ignore[method-assign]  # no wrapper on the hot path
+
+    def now(self) -> float:
+        return self._clock.now()
+
+    def sleep(self, seconds: float) -> None:
+        t = self._transport
+        end = self._clock.now() + seconds
+        while (left := end - self._clock.now()) > 0:
+            self._clock.sleep(min(left, t.feed_period_s or left))
+            if self._clock.now() < end:
+                t._feed_if_due()
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._clock, name)
 
 
 class LinkError(TransportError):
@@ -163,9 +229,22 @@ class LinkTransport(Transport):
         #: request is preceded by a HELLO (which empties that cache) -- see :meth:`_resync`
         self._need_resync = False
         self._since_warning = 0  #: attempts since the last link-quality warning
+        #: the failsafe asked for by the URL (seconds, 0: off) and its action
+        self.failsafe_s, self.failsafe_action = failsafe_options(url)
+        self.has_failsafe = False
+        #: the trip this open found latched (and acknowledged), or one the feeder saw
+        self.failsafe_report: FailsafeState | None = None
+        #: the feeder sends after the link was idle this long (0: no feeder)
+        self.feed_period_s = 0.0
+        self._last_tx = self.clock.now()
+        self._feeder: threading.Thread | None = None
+        self._feeder_stop = threading.Event()
+        self._tx_lock = threading.Lock()  # the feeder writes a recording's feed from its thread
+        self._recording = False
         if handshake:
             try:
                 self.hello()
+                self._failsafe_open()
             except BaseException:
                 self.close()
                 raise
@@ -255,6 +334,7 @@ class LinkTransport(Transport):
             attempts += 1
             # before a retry, a lone delimiter ends whatever half frame the far end holds
             out = b"\x00" + wire if attempt or ftype is FrameType.HELLO else wire
+            self._last_tx = clock.now()
             self.pipe.write(out)
             stats.bytes_out += len(out)
             stats.round_trips += 1
@@ -385,6 +465,7 @@ class LinkTransport(Transport):
         self.has_program_codes = (self.has_compact_run
                                   and bool(info.capabilities & Capability.PROGRAM_CODES))
         self.has_record = bool(info.capabilities & Capability.RECORD)
+        self.has_failsafe = bool(info.capabilities & Capability.FAILSAFE)
         # a WAIT_STATUS may stand anywhere in a program (Move.wait's one-exchange end check)
         self.far_waits = self.has_wait_status
         self._forget_codes()  # HELLO empties the bridge's codes
@@ -468,6 +549,131 @@ class LinkTransport(Transport):
             return True
         log.warning("%s: staying at %d baud: %s", self.url, old, why)
         return False
+
+    # ------------------------------------------------------------------ the failsafe
+    def _failsafe(self, payload: bytes, what: str, retries: int | None = None) -> FailsafeState:
+        """One FAILSAFE exchange; its reply's state (TransportError when it is refused)."""
+        self._resync()
+        frame = self._exchange(FrameType.FAILSAFE, payload, self.reply_timeout(
+            wire_size(4 + len(payload)), wire_size(4 + FailsafeState.SIZE)), what,
+            self.retries if retries is None else retries)
+        try:
+            state = FailsafeState.decode(frame.payload)
+        except FrameError as exc:
+            raise TransportError(f"malformed FAILSAFE_REPLY ({exc}): reflash the bridge "
+                                 "firmware (lm629 bridge flash)", port=self.url) from None
+        if state.result != Result.OK:
+            raise TransportError(f"the bridge refused {what} (result {state.result}): reflash "
+                                 "the firmware that matches this host (lm629 bridge flash)",
+                                 port=self.url)
+        return state
+
+    def _failsafe_open(self) -> None:
+        """On open: report a latched trip (a warning) and acknowledge it, as reopening a
+        channel does; then arm the failsafe as the URL says (or disarm it)."""
+        if not self.has_failsafe:
+            return
+        with self.lock:
+            state = self._failsafe(b"", "FAILSAFE (report)")
+            if state.tripped:
+                self.failsafe_report = state
+                log.warning("%s: %s; acknowledged by this open", self.url, state.describe())
+                self._failsafe(bytes((FailsafeCmd.ACKNOWLEDGE,)), "FAILSAFE (acknowledge)")
+            self._arm()
+
+    def _arm(self) -> None:
+        if not self.failsafe_s:
+            self._failsafe(bytes((FailsafeCmd.DISARM,)), "FAILSAFE (disarm)")
+            return
+        ms = round(self.failsafe_s * 1e3)
+        self._failsafe(bytes((FailsafeCmd.ARM,)) + ms.to_bytes(2, "big")
+                       + bytes((self.failsafe_action,)), f"FAILSAFE (arm {ms} ms)")
+        self.feed_period_s = self.failsafe_s * FEED_FRACTION
+        # a far-side wait feeds only when it ends: each one shorter than the timeout
+        self.far_wait_limit_s = self.failsafe_s / 2
+        if isinstance(self._inner_clock, WallClock):
+            if self._feeder is None:
+                self._feeder = threading.Thread(target=self._feed_loop, daemon=True,
+                                                name=f"lm629 failsafe feeder {self.url}")
+                self._feeder.start()
+        elif not isinstance(self._inner_clock, _FeedingClock):
+            inner = self._inner_clock
+            self.clock = _FeedingClock(inner, self)
+            self._inner_clock = inner
+
+    def _feed_if_due(self) -> None:
+        """Feed the failsafe when the link has been idle for :attr:`feed_period_s` (any
+        exchange feeds it: busy links pay nothing).  A trip seen here is kept in
+        :attr:`failsafe_report` and logged once."""
+        if not self.feed_period_s or self._closed or self._recording:
+            return
+        if self.clock.now() - self._last_tx < self.feed_period_s:
+            return
+        try:
+            state = self._failsafe(b"", "FAILSAFE (feed)", retries=1)
+        except TransportError as exc:
+            log.debug("%s: failsafe feed failed: %s", self.url, exc)
+            return
+        if state.tripped and self.failsafe_report != state:
+            self.failsafe_report = state
+            log.warning("%s: %s; acknowledge it (lm629 clear, or clear_failsafe()) before "
+                        "moving again", self.url, state.describe())
+
+    def _feed_loop(self) -> None:
+        """The feeder thread (wall-clock links): while the process lives, feed whenever the
+        link is idle; never waits for the lock (a program under way feeds by itself)."""
+        while not self._feeder_stop.wait(self.feed_period_s / 2):
+            if self._closed:
+                return
+            if self._recording:
+                self._feed_recording()
+                continue
+            if not self.lock.acquire(blocking=False):
+                continue
+            try:
+                self._feed_if_due()
+            except Exception as exc:  # noqa: BLE001 - a feeder must never kill the process
+                log.debug("%s: failsafe feeder: %s", self.url, exc)
+            finally:
+                self.lock.release()
+
+    def _feed_recording(self) -> None:
+        """During a recording: FAILSAFE_FEED, the one frame a recording takes without
+        ending, when the link has been quiet for a feed period."""
+        if not self.feed_period_s or self.clock.now() - self._last_tx < self.feed_period_s:
+            return
+        with self._tx_lock:
+            if not self._recording:
+                return
+            self._last_tx = self.clock.now()
+            try:
+                self.pipe.write(FAILSAFE_FEED)
+            except OSError:
+                return
+            self.stats.bytes_out += len(FAILSAFE_FEED)
+
+    def failsafe_state(self) -> FailsafeState | None:
+        """The bridge's failsafe now (armed timeout, action, a latched trip), or None when
+        the bridge has no failsafe."""
+        if not self.has_failsafe:
+            return None
+        with self.lock:
+            return self._failsafe(b"", "FAILSAFE (report)")
+
+    def clear_failsafe(self) -> FailsafeState | None:
+        """Acknowledge a latched trip (the bridge takes trajectory commands again) and arm
+        the failsafe again.  Returns the trip acknowledged (the one this open already
+        acknowledged, if any), or None when there was none."""
+        if not self.has_failsafe:
+            return None
+        with self.lock:
+            state = self._failsafe(b"", "FAILSAFE (report)")
+            found = state if state.tripped else self.failsafe_report
+            if state.tripped:
+                self._failsafe(bytes((FailsafeCmd.ACKNOWLEDGE,)), "FAILSAFE (acknowledge)")
+            self.failsafe_report = None
+            self._arm()
+            return found
 
     # ------------------------------------------------------------------ programs
     def _chunks(self, program: Program) -> Iterator[tuple[int, int, list[BusOp]]]:
@@ -664,6 +870,16 @@ class LinkTransport(Transport):
         index = reply.index
         op = ops[index].describe() if index < len(ops) else f"operation {index}"
         where = f" at operation {base + index} ({op})" if index < len(ops) else ""
+        if reply.result == Result.FAILSAFE_TRIPPED:
+            try:
+                state: FailsafeState | None = self._failsafe(b"", "FAILSAFE (report)")
+            except TransportError:
+                state = None
+            what = state.describe() if state is not None else "the bridge's failsafe tripped"
+            raise FailsafeTripped(
+                f"{what}; nothing of this program ran. The host was silent (suspended, "
+                "hung?): acknowledge the trip with `lm629 clear` (Python: clear_failsafe()) "
+                "before moving again", port=self.url, state=state)
         if reply.result == Result.BUSY_TIMEOUT:
             # a busy timeout always read the status, so FF here is a status (a bus no chip
             # drives), not the "no status" byte
@@ -769,6 +985,7 @@ class LinkTransport(Transport):
                 raise LinkError(f"no answer to RECORD after {self.retries + 1} attempt(s): "
                                 f"{self._quality()}", port=self.url, may_have_run=True)
             ended = False
+            self._recording = True  # from now on the feeds are FAILSAFE_FEED
             try:
                 last_index = -1
                 last_us = None
@@ -813,6 +1030,8 @@ class LinkTransport(Transport):
                         wait = max(wait, end_at - clock.now() + silence)
                     frame = self._next_frame(seq, clock.now() + wait, pending)
             finally:
+                with self._tx_lock:
+                    self._recording = False
                 if not ended:
                     self._stop_recording(seq, pending, period)
 
@@ -822,11 +1041,16 @@ class LinkTransport(Transport):
         lost row is a gap)."""
         clock = self.clock
         while not pending:
+            feeding = self._recording and self.feed_period_s
+            if feeding:  # a recording counts as alive only while the host sends
+                self._feed_recording()
             left = deadline - clock.now()
             if left <= 0:
                 return None
-            data = self.pipe.read(left)
+            data = self.pipe.read(min(left, self.feed_period_s) if feeding else left)
             if not data:
+                if feeding and clock.now() < deadline:
+                    continue
                 return None
             self.stats.bytes_in += len(data)
             for item in self._reader.feed(data):
@@ -876,7 +1100,8 @@ class LinkTransport(Transport):
         """End a recording early: one byte stops the bridge; its RECORD_END (or a row already
         on its way) is read and dropped, so that the next request starts on a quiet line."""
         try:
-            self.pipe.write(b"\x00")
+            with self._tx_lock:
+                self.pipe.write(b"\x00")
             self.stats.bytes_out += 1
             deadline = self.clock.now() + 2 * period + self.reply_timeout(
                 wire_size(64), wire_size(64))
@@ -894,10 +1119,23 @@ class LinkTransport(Transport):
         return f"{self.url} ({self.info.describe()})"
 
     def close(self) -> None:
+        """Disarm the failsafe (a clean close: an axis left moving on purpose keeps moving),
+        then release the port."""
         if not self._closed:
+            self._feeder_stop.set()
+            if self.feed_period_s:
+                try:
+                    with self.lock:
+                        self._failsafe(bytes((FailsafeCmd.DISARM,)), "FAILSAFE (disarm)",
+                                       retries=1)
+                except (TransportError, OSError) as exc:
+                    log.debug("%s: failsafe not disarmed: %s", self.url, exc)
+                self.feed_period_s = 0.0
             self._closed = True
             self.pipe.close()
 
 
-__all__ = ["BAD_LINK_RATE", "DEFAULT_RETRIES", "ERROR_WINDOW", "LinkError", "LinkTransport", "Pipe",
+__all__ = ["BAD_LINK_RATE", "DEFAULT_RETRIES", "ERROR_WINDOW", "FAILSAFE_OPTIONS",
+           "FAILSAFE_OPTION_NAMES", "FailsafeTripped", "LinkError", "LinkTransport", "Pipe",
+           "failsafe_options",
            "WARN_LINK_RATE"]

@@ -42,7 +42,7 @@ from ..errors import TransportError
 from ..program import TraceCallback
 from ..urls import Option, parse_options, query_params, with_query
 from .base import Check, PortInfo
-from .link import DEFAULT_RETRIES, LinkTransport
+from .link import DEFAULT_RETRIES, FAILSAFE_OPTIONS, LinkTransport
 
 log = logging.getLogger("lm629_host.serial")
 
@@ -73,6 +73,7 @@ OPTIONS = (
     Option("low_latency", "bool", True),
     Option("cs", "int", 0, 0, 255),
     Option("fast_baud", "int", FAST_BAUD, 0, 4_000_000, "baud"),  # 0: stay at baud
+    *FAILSAFE_OPTIONS,  # read by LinkTransport
 )
 _OPTION_NAMES = frozenset(o.name for o in OPTIONS)
 
