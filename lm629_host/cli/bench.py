@@ -161,6 +161,9 @@ def doctor() -> None:
                                           f"per round trip (wall clock){stuck}")
             if busy == n:
                 click.echo(WIRING_HINT)
+            from .common import failsafe_info
+            fs, fs_line = failsafe_info(chip.transport)
+            line("failsafe", fs is None or (not fs["tripped"] and fs["trip"] is None), fs_line)
         except LM629Error as exc:
             line("open", False, str(exc))
             if isinstance(exc, (BusyTimeout, ResetError)):

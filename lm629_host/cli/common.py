@@ -43,6 +43,29 @@ def snapshot_dict(s: Snapshot, scale: Scale | None = None) -> dict[str, Any]:
     return d
 
 
+def failsafe_info(transport: Any) -> tuple[dict[str, Any] | None, str]:
+    """The link failsafe for ``status`` and ``doctor``: a JSON-able dict (None when the port
+    has no far-side failsafe) and one line.  A trip this open found (and acknowledged) is
+    reported with it: the process that opens after a dead host is the one told."""
+    state = transport.failsafe_state()
+    if state is None:
+        return None, ("none on this port: a host that dies mid-move leaves the axis moving "
+                      "(only a bridge keeps a timer on its side of the link)")
+    found = transport.failsafe_report
+    d: dict[str, Any] = {"armed_s": state.timeout_ms / 1e3,
+                         "action": ("abrupt", "smooth", "off")[state.action]
+                         if state.action < 3 else state.action,
+                         "tripped": state.tripped,
+                         "trip": found.describe() if found is not None else None}
+    line = (f"armed, {state.timeout_ms / 1e3:g} s, {d['action']} stop" if state.timeout_ms
+            else "disarmed (failsafe=0)")
+    if state.tripped:
+        line += f"; TRIPPED: {state.describe()} (acknowledge: lm629 clear)"
+    elif found is not None:
+        line += f"; {found.describe()} (acknowledged by this open)"
+    return d, line
+
+
 def _progress_line(s: Snapshot, target: int | None = None, scale: Scale | None = None) -> str:
     if scale is not None:
         tgt = f" -> {scale.revolutions(target):.4f}" if target is not None else ""
