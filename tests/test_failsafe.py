@@ -17,13 +17,13 @@ from lm629_host.board import Board
 from lm629_host.bridge.protocol import FAILSAFE_FEED, FailsafeAction, Result
 from lm629_host.opcodes import Status
 from lm629_host.transports.link import FailsafeTripped, LinkTransport
-from lm629_host.transports.simemu import open_emulated
+from lm629_host.transports.simemu import EmuLinkTransport, open_emulated
 
 SPEED = 131072  # 2 counts/sample
 ACC = 655
 
 
-def _board(url: str = "sim+emu://?axes=2") -> tuple[Board, LinkTransport]:
+def _board(url: str = "sim+emu://?axes=2") -> tuple[Board, EmuLinkTransport]:
     t = open_emulated(url)
     b = Board(t, axes=2)
     b.reset()
@@ -40,14 +40,14 @@ def _run(b: Board) -> None:
     assert all(ax.read_real_velocity() == 2 for ax in b.axes)
 
 
-def _silent_until_rest(t: LinkTransport, span: float = 2.0) -> list[float]:
+def _silent_until_rest(t: EmuLinkTransport, span: float = 2.0) -> list[float]:
     """Send nothing for ``span`` s (the far end runs on); returns, per chip, when its shaft
     last moved (model seconds)."""
-    models = t.models  # type: ignore[attr-defined]
+    models = t.models
     pos = [c.motion.real_position for c in models]
-    moved = [t.model.now()] * len(models)  # type: ignore[attr-defined]
-    end = t.model.now() + span  # type: ignore[attr-defined]
-    while t.model.now() < end:  # type: ignore[attr-defined]
+    moved = [t.model.now()] * len(models)
+    end = t.model.now() + span
+    while t.model.now() < end:
         t.pipe.read(0.001)
         for k, c in enumerate(models):
             if c.motion.real_position != pos[k]:
@@ -59,11 +59,11 @@ def _host_stop_s(stop: str) -> float:
     """The same stop sent by a live host at the same speed: its start to the shaft at rest."""
     b, t = _board()
     _run(b)
-    t0 = t.model.now()  # type: ignore[attr-defined]
+    t0 = t.model.now()
     for ax in b.axes:
         ax.load_trajectory(stop=stop, start=True)
     t.feed_period_s = 0.0  # stop feeding: the clock below runs the model only
-    t.emulator._fs_ms = 0  # type: ignore[attr-defined]  # nor trip: this is the reference
+    t.emulator._fs_ms = 0  # nor trip: this is the reference
     return max(_silent_until_rest(t, 1.0)) - t0
 
 
@@ -74,13 +74,13 @@ def test_a_silent_host_has_every_axis_at_rest_within_failsafe_plus_the_stop(acti
     _run(b)
     last = t._last_tx
     moved = _silent_until_rest(t)
-    fs = t.emulator.failsafe  # type: ignore[attr-defined]
+    fs = t.emulator.failsafe
     assert fs.tripped and fs.chips == 0b11 and fs.action == FailsafeAction[action.upper()]
     assert fs.silent_ms == 500 and abs(fs.at_ms / 1e3 - (last + 0.5)) < 2e-3
     bound = 0.5 + _host_stop_s(stop) + 0.020
     assert all(m - last <= bound for m in moved), (moved, last, bound)
     assert all(m - last >= 0.5 for m in moved)  # nothing stopped it before the timeout
-    for c in t.models:  # type: ignore[attr-defined]
+    for c in t.models:
         assert bool(c.read_status() & Status.MOTOR_OFF) == (action == "off")
 
 
@@ -98,7 +98,7 @@ def test_after_a_trip_motion_is_refused_until_acknowledged_and_a_new_open_is_tol
     t2 = LinkTransport(t.pipe, "sim+emu://", baud=115200)
     assert t2.failsafe_report is not None and t2.failsafe_report.chips == 0b11
     assert "the bridge stopped cs 0, cs 1" in caplog.text
-    assert not t.emulator.failsafe.tripped  # type: ignore[attr-defined]
+    assert not t.emulator.failsafe.tripped
     assert t2.failsafe_state().timeout_ms == 500  # armed again
     assert t2.clear_failsafe() is not None  # the one this open acknowledged
     assert t2.clear_failsafe() is None
@@ -113,13 +113,13 @@ def test_explicit_acknowledge_lets_the_same_host_move_again():
     b.axes[0].load_trajectory(acceleration=ACC, velocity=SPEED, velocity_mode=True, start=True)
     b.clock.sleep(0.3)
     assert b.axes[0].read_real_velocity() == 2
-    assert t.emulator.failsafe.timeout_ms == 500  # type: ignore[attr-defined]
+    assert t.emulator.failsafe.timeout_ms == 500
 
 
 def test_an_idle_host_a_long_far_side_wait_and_a_recording_are_not_tripped():
     b, t = _board()
     _run(b)
-    emu = t.emulator  # type: ignore[attr-defined]
+    emu = t.emulator
     frames = emu.stats.frames
     b.clock.sleep(3.0)  # idle in Python: the feeder sends every 0.125 s of silence
     assert not emu.failsafe.tripped
@@ -137,22 +137,22 @@ def test_an_idle_host_a_long_far_side_wait_and_a_recording_are_not_tripped():
 
 def test_a_feed_during_a_recording_does_not_end_it_and_other_bytes_do():
     b, t = _board()
-    emu = t.emulator  # type: ignore[attr-defined]
+    emu = t.emulator
     stream = b.axes[0].record_stream(0.01)
     rows = iter(stream)
     next(rows)
-    assert emu._rec is not None  # type: ignore[attr-defined]
+    assert emu._rec is not None
     emu.receive(FAILSAFE_FEED)
-    assert emu._rec is not None and emu.stats.feeds >= 1  # type: ignore[attr-defined]
+    assert emu._rec is not None and emu.stats.feeds >= 1
     emu.receive(FAILSAFE_FEED[:3] + b"\x00")  # a damaged feed: ends it, as any byte does
-    assert emu._rec is None  # type: ignore[attr-defined]
+    assert emu._rec is None
     stream.close()
 
 
 def test_a_clean_close_disarms_and_leaves_the_axis_moving():
     b, t = _board()
     _run(b)
-    emu, models = t.emulator, t.models  # type: ignore[attr-defined]
+    emu, models = t.emulator, t.models
     pipe = t.pipe
     b.close()
     assert emu.failsafe.timeout_ms == 0
@@ -163,7 +163,7 @@ def test_a_clean_close_disarms_and_leaves_the_axis_moving():
 def test_a_with_block_left_by_an_exception_stops_a_moving_axis():
     b, t = _board()
     _run(b)
-    models, pipe = t.models, t.pipe  # type: ignore[attr-defined]
+    models, pipe = t.models, t.pipe
     with pytest.raises(ZeroDivisionError):
         with b:
             b.clock.sleep(0.1)
@@ -171,13 +171,13 @@ def test_a_with_block_left_by_an_exception_stops_a_moving_axis():
     pipe.read(0.5)
     for c in models:
         assert c.motion.real_velocity == 0 and not c.read_status() & Status.MOTOR_OFF  # holds
-    assert not t.emulator.failsafe.tripped  # type: ignore[attr-defined]  # it was the host
+    assert not t.emulator.failsafe.tripped  # it was the host
 
 
 def test_a_with_block_left_normally_leaves_the_axis_moving():
     b, t = _board()
     _run(b)
-    models, pipe = t.models, t.pipe  # type: ignore[attr-defined]
+    models, pipe = t.models, t.pipe
     with b:
         pass
     pipe.read(0.5)
@@ -187,7 +187,7 @@ def test_a_with_block_left_normally_leaves_the_axis_moving():
 def test_failsafe_zero_disarms_and_bad_values_fail_before_any_traffic():
     b, t = _board("sim+emu://?axes=2&failsafe=0")
     _run(b)
-    assert t.emulator.failsafe.timeout_ms == 0 and t.feed_period_s == 0  # type: ignore[attr-defined]
+    assert t.emulator.failsafe.timeout_ms == 0 and t.feed_period_s == 0
     for bad, words in [("failsafe=0.01", "0 (off) or 0.05..10 s"),
                        ("failsafe=11", "outside 0..10 s"),
                        ("failsafe_action=brake", "expected one of abrupt, smooth, off")]:
@@ -199,4 +199,4 @@ def test_the_bridge_refuses_a_timeout_outside_its_range():
     b, t = _board()
     with pytest.raises(TransportError, match=f"result {int(Result.BAD_FAILSAFE)}"):
         t._failsafe(bytes((1,)) + (49).to_bytes(2, "big") + b"\x00", "FAILSAFE (arm 49 ms)")
-    assert t.emulator.failsafe.timeout_ms == 500  # type: ignore[attr-defined]  # unchanged
+    assert t.emulator.failsafe.timeout_ms == 500  # unchanged

@@ -56,7 +56,9 @@ def failsafe_info(transport: Any) -> tuple[dict[str, Any] | None, str]:
                          "action": ("abrupt", "smooth", "off")[state.action]
                          if state.action < 3 else state.action,
                          "tripped": state.tripped,
-                         "trip": found.describe() if found is not None else None}
+                         "trip": None if found is None else {
+                             "text": found.describe(), "cs": found.stopped,
+                             "silent_s": found.silent_ms / 1e3, "at_s": found.at_ms / 1e3}}
     line = (f"armed, {state.timeout_ms / 1e3:g} s, {d['action']} stop" if state.timeout_ms
             else "disarmed (failsafe=0)")
     if state.tripped:
