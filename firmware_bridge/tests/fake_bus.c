@@ -60,6 +60,9 @@ uint8_t link_rx_pending(void)
     fake.rx_polls++;
     return fake.rx_polls > fake.rx_pending_after;
 }
+/* the byte waiting: a lone delimiter (any byte but FAILSAFE_FEED's first ends a recording) */
+uint8_t link_rx_peek(void) { return 0; }
+void link_rx_skip(void) {}
 uint8_t bus_timer_elapsed(uint16_t us) { return fake.elapsed_us > us; }
 
 uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t *status)

@@ -134,6 +134,11 @@ static void test_golden_requests(void)
     fake_reset();
     expect_reply("hello", "hello_reply");
     expect_reply("ping", "pong");
+    expect_reply("failsafe_arm", "failsafe_reply_armed");
+    vec_t *fw = get("failsafe_feed");
+    static const uint8_t feed_wire[] = LINK_FAILSAFE_FEED_INIT;
+    CHECK(fw->nenc == LINK_FAILSAFE_FEED_LEN && !memcmp(fw->enc, feed_wire, LINK_FAILSAFE_FEED_LEN),
+          "failsafe_feed: the table's FAILSAFE_FEED differs from the golden frame");
     fake_reset();
     fake.status = 0xC0;
     expect_reply("run_an693_filter", "run_reply_an693_filter");

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 from ..clock import Clock
-from ..opcodes import Status
+from ..opcodes import Status, TrajectoryFlags
 from ..program import OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program
 
 # ---------------------------------------------------------------------------------- constants
@@ -163,6 +163,12 @@ class FailsafeAction(enum.IntEnum):
     OFF = 2  #: motor off (the drive output goes to zero: a loaded axis may fall)
 
 
+#: LTRJ's stop bit for each failsafe action
+FAILSAFE_STOP_BITS = {FailsafeAction.ABRUPT: int(TrajectoryFlags.STOP_ABRUPT),
+                      FailsafeAction.SMOOTH: int(TrajectoryFlags.STOP_SMOOTH),
+                      FailsafeAction.OFF: int(TrajectoryFlags.MOTOR_OFF)}
+
+
 #: "index of the failing operation" and "last status byte" when there is none
 NONE_BYTE = 0xFF
 
@@ -204,6 +210,9 @@ def c_defines() -> list[tuple[str, int, str]]:
     out += [(f"CAP_{c.name}", int(c), "HELLO_REPLY capability bit") for c in Capability]
     out += [(f"FAILSAFE_CMD_{c.name}", int(c), "FAILSAFE command") for c in FailsafeCmd]
     out += [(f"FAILSAFE_ACTION_{a.name}", int(a), "FAILSAFE action") for a in FailsafeAction]
+    out += [(f"FAILSAFE_STOP_{a.name}", FAILSAFE_STOP_BITS[a], "FAILSAFE: LTRJ word")
+            for a in FailsafeAction]
+    out += [("LINK_FAILSAFE_FEED_LEN", len(FAILSAFE_FEED), "FAILSAFE_FEED wire bytes")]
     return out
 
 
@@ -686,6 +695,7 @@ __all__ = [
     "FAILSAFE_FEED",
     "FAILSAFE_MAX_MS",
     "FAILSAFE_MIN_MS",
+    "FAILSAFE_STOP_BITS",
     "FailsafeAction",
     "FailsafeCmd",
     "FailsafeState",

@@ -31,6 +31,7 @@ from ..bridge.protocol import (
     FAILSAFE_FEED,
     FAILSAFE_MAX_MS,
     FAILSAFE_MIN_MS,
+    FAILSAFE_STOP_BITS,
     MAX_FRAME,
     MAX_PING,
     RUN_OVERHEAD,
@@ -57,18 +58,13 @@ from ..bridge.protocol import (
     encode_frame,
     short_reply_payload,
 )
-from ..opcodes import BUSY_BIT, Cmd, TrajectoryFlags
+from ..opcodes import BUSY_BIT, Cmd
 from ..program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
 from .clock import SimClock
 from .wiring import BentChip, Miswiring
 from .model import ChipBus, ChipModel, chips_of
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
-
-#: LTRJ's stop bit for each failsafe action
-FAILSAFE_STOP_BITS = {FailsafeAction.ABRUPT: int(TrajectoryFlags.STOP_ABRUPT),
-                      FailsafeAction.SMOOTH: int(TrajectoryFlags.STOP_SMOOTH),
-                      FailsafeAction.OFF: int(TrajectoryFlags.MOTOR_OFF)}
 
 #: the emulator's firmware version (HELLO_REPLY); 0.x marks "not the AVR firmware"
 EMU_FIRMWARE = (0, 9, 0)
