@@ -130,7 +130,8 @@ uint16_t link_failsafe_wake(void) { return (uint16_t)(fs_last + (uint32_t)fs_ms 
 
 static uint8_t failsafe_expired(void)
 {
-    return fs_ms && !fs_tripped && link_clock() - fs_last >= (uint32_t)fs_ms * TICKS_PER_MS;
+    uint32_t now = link_clock(); /* every time: the clock keeps counting, armed or not */
+    return fs_ms && !fs_tripped && now - fs_last >= (uint32_t)fs_ms * TICKS_PER_MS;
 }
 
 /* stop every chip select that answers (a status of FF is a bus no chip drives), latch the
