@@ -113,26 +113,31 @@ void link_init(link_t *l)
  * each with the busy discipline) and the trip is latched: programs with STT are refused until
  * a host acknowledges it.  Plain statics: there is one link. */
 #define TICKS_PER_MS (1000u / LINK_RECORD_TICK_US)
-static uint32_t clock_now, fs_last, fs_silent, fs_at;
+static uint32_t clock_now, fs_last, fs_silent, fs_at, fs_ticks; /* fs_ticks: fs_ms in ticks */
 static uint16_t clock_last, fs_ms; /* fs_ms 0: disarmed */
 static uint8_t fs_action, fs_tripped, fs_chips, feed_at;
 static const uint8_t feed_frame[LINK_FAILSAFE_FEED_LEN] = LINK_FAILSAFE_FEED_INIT;
 
-uint32_t link_clock(void)
+/* fold a reading of the 16-bit timer into the 32-bit clock */
+static uint32_t clock_fold(uint16_t t)
 {
-    uint16_t t = bus_ticks();
     clock_now += (uint16_t)(t - clock_last);
     clock_last = t;
     return clock_now;
 }
 
-uint16_t link_failsafe_wake(void) { return (uint16_t)(fs_last + (uint32_t)fs_ms * TICKS_PER_MS); }
+uint32_t link_clock(void) { return clock_fold(bus_ticks()); }
 
-static uint8_t failsafe_expired(void)
+uint16_t link_failsafe_wake(void) { return (uint16_t)(fs_last + fs_ticks); }
+
+/* expired at clock `now` */
+static uint8_t failsafe_due(uint32_t now)
 {
-    uint32_t now = link_clock(); /* every time: the clock keeps counting, armed or not */
-    return fs_ms && !fs_tripped && now - fs_last >= (uint32_t)fs_ms * TICKS_PER_MS;
+    return fs_ms && !fs_tripped && now - fs_last >= fs_ticks;
 }
+
+/* every time: the clock keeps counting, armed or not */
+static uint8_t failsafe_expired(void) { return failsafe_due(link_clock()); }
 
 /* stop every chip select that answers (a status of FF is a bus no chip drives), latch the
  * trip, select `chip` again (a program under way goes on with it) */
@@ -217,6 +222,7 @@ static uint16_t failsafe_request(uint8_t *r, const uint8_t *payload, uint16_t pl
         if (cmd == FAILSAFE_CMD_ARM && plen == 4 && ms >= LINK_FAILSAFE_MIN_MS
             && ms <= LINK_FAILSAFE_MAX_MS && payload[3] <= FAILSAFE_ACTION_OFF) {
             fs_ms = ms;
+            fs_ticks = (uint32_t)ms * TICKS_PER_MS;
             fs_action = payload[3];
         } else if (cmd == FAILSAFE_CMD_DISARM && plen == 1) {
             fs_ms = 0;
@@ -704,11 +710,12 @@ static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t 
             uint16_t t = bus_ticks();
             now += (uint16_t)(t - last);
             last = t;
+            if (failsafe_due(clock_fold(t))) /* a recording is the host alive while it feeds */
+                failsafe_trip(0);
             if ((int32_t)(now - due) >= 0)
                 break;
             if (!take_feed())
                 goto stop;
-            link_poll(); /* a recording is the host alive only while it feeds */
         }
         if (!take_feed())
             break;

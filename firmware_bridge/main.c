@@ -68,8 +68,10 @@ int main(void)
     for (;;) {
         if (on_probation)
             probation();
-        link_poll();
-        OCR1B = link_failsafe_wake(); /* wakes at the expiry (or earlier: harmless) */
+        if (!link_rx_pending()) { /* between bursts: the bytes of a frame go first */
+            link_poll();
+            OCR1B = link_failsafe_wake(); /* wakes at the expiry (or earlier: harmless) */
+        }
         cli();
         if (!link_rx_pending()) {
             if (on_probation) { /* the window is timed by polling Timer1: no sleep */
@@ -91,6 +93,8 @@ int main(void)
         uint8_t b = uart_rx_take();
         const uint8_t *out;
         link_feed(&link, b, &out); /* a reply goes out from inside, byte by byte */
+        if (!b)
+            link_poll(); /* at every delimiter too: a line that never goes quiet */
         if (link.baud_div) {
             uint16_t div = link.baud_div;
             link.baud_div = 0;

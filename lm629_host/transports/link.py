@@ -14,6 +14,7 @@ and says so.
 from __future__ import annotations
 
 import logging
+import math
 import random
 import threading
 from collections import OrderedDict, deque
@@ -143,11 +144,11 @@ class _FeedingClock(Clock):
 
     def sleep(self, seconds: float) -> None:
         t = self._transport
-        end = self._clock.now() + seconds
-        while (left := end - self._clock.now()) > 0:
-            self._clock.sleep(min(left, t.feed_period_s or left))
-            if self._clock.now() < end:
-                t._feed_if_due()
+        period = t.feed_period_s
+        n = max(1, math.ceil(seconds / period - 1e-9)) if period and seconds > 0 else 1
+        for _ in range(n):  # whole steps: a clock that rounds may stop short of an end time
+            self._clock.sleep(seconds / n)
+            t._feed_if_due()
 
     def __getattr__(self, name: str) -> object:
         return getattr(self._clock, name)
