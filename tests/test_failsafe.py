@@ -5,10 +5,14 @@ end (and its timer) forward without a byte from the host.  Numbers: the failsafe
 default; the feeder sends after FEED_FRACTION (a quarter) of it idle.  The shaft runs at
 2 counts/sample (velocity word 131072) after a 0.01 counts/sample^2 ramp (word 655); "the
 stop's deceleration" is measured on the same model with the host's own stop of the same kind
-at the same speed, so the bound is failsafe + that + 20 ms.
+at the same speed (tools/bench_failsafe.py, reference_stop_s), so the bound is failsafe + that
++ 20 ms.
 """
 
 from __future__ import annotations
+
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -19,8 +23,8 @@ from lm629_host.opcodes import Status
 from lm629_host.transports.link import FailsafeTripped, LinkTransport
 from lm629_host.transports.simemu import EmuLinkTransport, open_emulated
 
-SPEED = 131072  # 2 counts/sample
-ACC = 655
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+from bench_failsafe import ACC, SPEED, reference_stop_s  # noqa: E402 - after sys.path.insert
 
 
 def _board(url: str = "sim+emu://?axes=2") -> tuple[Board, EmuLinkTransport]:
@@ -55,18 +59,6 @@ def _silent_until_rest(t: EmuLinkTransport, span: float = 2.0) -> list[float]:
     return moved
 
 
-def _host_stop_s(stop: str) -> float:
-    """The same stop sent by a live host at the same speed: its start to the shaft at rest."""
-    b, t = _board()
-    _run(b)
-    t0 = t.model.now()
-    for ax in b.axes:
-        ax.load_trajectory(stop=stop, start=True)
-    t.feed_period_s = 0.0  # stop feeding: the clock below runs the model only
-    t.emulator._fs_ms = 0  # nor trip: this is the reference
-    return max(_silent_until_rest(t, 1.0)) - t0
-
-
 @pytest.mark.parametrize("action, stop", [("abrupt", "abrupt"), ("smooth", "smooth"),
                                           ("off", "off")])
 def test_a_silent_host_has_every_axis_at_rest_within_failsafe_plus_the_stop(action, stop):
@@ -77,7 +69,7 @@ def test_a_silent_host_has_every_axis_at_rest_within_failsafe_plus_the_stop(acti
     fs = t.emulator.failsafe
     assert fs.tripped and fs.chips == 0b11 and fs.action == FailsafeAction[action.upper()]
     assert fs.silent_ms == 500 and abs(fs.at_ms / 1e3 - (last + 0.5)) < 2e-3
-    bound = 0.5 + _host_stop_s(stop) + 0.020
+    bound = 0.5 + reference_stop_s(stop) + 0.020
     assert all(m - last <= bound for m in moved), (moved, last, bound)
     assert all(m - last >= 0.5 for m in moved)  # nothing stopped it before the timeout
     for c in t.models:
