@@ -710,14 +710,17 @@ static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t 
             uint16_t t = bus_ticks();
             now += (uint16_t)(t - last);
             last = t;
-            if (failsafe_due(clock_fold(t))) /* a recording is the host alive while it feeds */
-                failsafe_trip(0);
-            if ((int32_t)(now - due) >= 0)
+            int32_t early = (int32_t)(due - now);
+            if (early <= 0)
                 break;
-            if (!take_feed())
-                goto stop;
+            if (early > 64) { /* more than 256 us to go: room for the rest, off the row's edge */
+                if (failsafe_due(clock_fold(t))) /* a recording: alive while the host feeds */
+                    failsafe_trip(0);
+                if (!take_feed())
+                    goto stop;
+            }
         }
-        if (!take_feed())
+        if (link_rx_pending() && !take_feed())
             break;
         if (!sent) /* the first row: the clock and the due times count from here */
             due = base = now;
@@ -738,6 +741,8 @@ static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t 
             break;
         }
         finish(r, (uint16_t)(8u + x.ns + x.nw), l->cache, 0);
+        if (failsafe_due(link_clock())) /* once a row too: periods shorter than 256 us */
+            failsafe_trip(0);
         sent++;
         due += period;
         if (rows && sent == rows)

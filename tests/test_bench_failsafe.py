@@ -23,7 +23,7 @@ from lm629_host.sim.avr import toolchain_missing
 from test_bench import _env
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
-from bench_failsafe import (  # noqa: E402 - after sys.path.insert
+from bench_failsafe import (
     FAR_ENDS,
     client,
     death_to_rest,

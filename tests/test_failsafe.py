@@ -24,7 +24,7 @@ from lm629_host.transports.link import FailsafeTripped, LinkTransport
 from lm629_host.transports.simemu import EmuLinkTransport, open_emulated
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
-from bench_failsafe import ACC, SPEED, reference_stop_s  # noqa: E402 - after sys.path.insert
+from bench_failsafe import ACC, SPEED, reference_stop_s
 
 
 def _board(url: str = "sim+emu://?axes=2") -> tuple[Board, EmuLinkTransport]:

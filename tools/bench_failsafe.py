@@ -30,9 +30,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from lm629_host.board import Board  # noqa: E402 - after sys.path.insert
-from lm629_host.sim.model import chips_of  # noqa: E402 - after sys.path.insert
-from lm629_host.sim.serve import SimServer  # noqa: E402 - after sys.path.insert
+from lm629_host.board import Board
+from lm629_host.sim.model import chips_of
+from lm629_host.sim.serve import SimServer
 
 #: the far ends measured ("+uno": behind an Arduino Uno R3's USB chip)
 FAR_ENDS = ["python", "python+uno", "firmware", "firmware+uno"]

@@ -80,7 +80,7 @@ uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t *status)
 
 /* the transmitter: link.c sends every reply byte through link_tx_byte; fake_tx_verify checks
  * that exactly the frame link_feed returned went out, in order */
-static uint8_t tx_sent[1024];
+static uint8_t tx_sent[8192];
 static uint16_t tx_n;
 
 void link_tx_byte(uint8_t b)

@@ -194,7 +194,7 @@ class LinkTransport(Transport):
 
     def __init__(self, pipe: Pipe, url: str, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = None, cs: int = 0,
-                 handshake: bool = True, compact: bool = True) -> None:
+                 handshake: bool = True, compact: bool = True, arm: bool = True) -> None:
         super().__init__(url, trace=trace)
         if retries < 0:
             raise ValueError(f"retries={retries} must be >= 0")
@@ -245,7 +245,8 @@ class LinkTransport(Transport):
         if handshake:
             try:
                 self.hello()
-                self._failsafe_open()
+                if arm:  # else the subclass arms once its own opening steps are done
+                    self._failsafe_open()
             except BaseException:
                 self.close()
                 raise

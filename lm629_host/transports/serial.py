@@ -271,7 +271,7 @@ class SerialTransport(LinkTransport):
         self.hello_total_s = max(boot_s, self.hello_interval_s)
         self.low_latency = low_latency
         self.rtt_s: float | None = None
-        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs)
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs, arm=False)
         if fast and fast != baud:
             try:
                 self.switch_baud(fast)  # a bridge that cannot: a notice, and the link stays
@@ -288,6 +288,11 @@ class SerialTransport(LinkTransport):
             self.stats.reset()
             log.info("%s: round trip %.2f ms, low latency %s", url, self.rtt_s * 1e3,
                      low_latency or "n/a")
+        try:  # last: the switch of rate and the PINGs above are not timed by the failsafe
+            self._failsafe_open()
+        except BaseException:
+            self.close()
+            raise
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SerialTransport:
