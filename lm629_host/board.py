@@ -50,6 +50,7 @@ from .clock import Clock
 from .transports.base import Transport
 
 if TYPE_CHECKING:
+    from .bridge.protocol import FailsafeState
     from .profile import Profile
 
 log = logging.getLogger("lm629_host")
@@ -306,7 +307,7 @@ class Board:
                 stop_if_moving(ax)
         self.close()
 
-    def clear_failsafe(self) -> object:
+    def clear_failsafe(self) -> FailsafeState | None:
         """Acknowledge the bridge's latched failsafe trip; returns the trip (a
         :class:`~lm629_host.bridge.protocol.FailsafeState`) or None."""
         return self.transport.clear_failsafe()

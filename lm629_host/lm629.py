@@ -46,6 +46,7 @@ from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
 from .transports.base import Transport
 
 if TYPE_CHECKING:
+    from .bridge.protocol import FailsafeState
     from .batch import Batch
     from .recording import RecordStream, Trace
 
@@ -198,7 +199,7 @@ class LM629:
             stop_if_moving(self)
         self.close()
 
-    def clear_failsafe(self) -> object:
+    def clear_failsafe(self) -> FailsafeState | None:
         """Acknowledge the bridge's latched failsafe trip (its transport's); returns the trip
         (a :class:`~lm629_host.bridge.protocol.FailsafeState`) or None."""
         return self.transport.clear_failsafe()

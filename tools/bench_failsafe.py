@@ -80,7 +80,8 @@ class RestWatch:
         self.moved = [0.0] * len(self.chips)
         self.watching = False
         for k, c in enumerate(self.chips):
-            c.advance_to = self._stepper(k, c, c.advance_to)
+            # the server's far end runs the model through advance_to: watched in 1 ms steps
+            c.advance_to = self._stepper(k, c, c.advance_to)  # type: ignore[method-assign]  # a watch
 
     def _stepper(self, k, chip, advance):
         def advance_to(tick: int) -> None:
@@ -160,6 +161,7 @@ def death_to_rest(tmp: Path, far_end: str, query: str = "",
     last frame to the last shaft at rest (simulator seconds; None: still turning NEVER_S after
     the kill), the next process's status and its stderr."""
     with served(tmp, far_end) as (server, watch):
+        assert server.link is not None
         proc = client(server.link, "kill", query, env)
         watch.start()
         killed = watch.chips[0].now()
