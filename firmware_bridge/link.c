@@ -702,6 +702,7 @@ static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t 
         return record_end(r, seq, c.result, c.index, 0, l->cache);
     if (period_us < LINK_RECORD_MIN_PERIOD_US)
         return record_end(r, seq, RESULT_BAD_RATE, LINK_NONE_BYTE, 0, l->cache);
+    feed_at = 0; /* a feed's start left by an earlier recording is not this one's */
     uint32_t period = period_us / LINK_RECORD_TICK_US, now = 0, due = 0, base = 0;
     uint16_t last = bus_ticks(), sent = 0;
     uint8_t result = RESULT_OK, index = LINK_NONE_BYTE;

@@ -392,6 +392,7 @@ class BridgeEmulator:
         if period_us < RECORD_MIN_PERIOD_US:
             return self._end(frame.seq, Result.BAD_RATE, NONE_BYTE, 0)
         self.stats.recordings += 1
+        self._feed_matched = 0
         period = period_us // RECORD_TICK_US * RECORD_TICK_US * 1e-6
         self._rec = _Recording(frame.seq, ops, period, rows, self.model.now())
         return None
