@@ -192,3 +192,35 @@ def test_the_bridge_refuses_a_timeout_outside_its_range():
     with pytest.raises(TransportError, match=f"result {int(Result.BAD_FAILSAFE)}"):
         t._failsafe(bytes((1,)) + (49).to_bytes(2, "big") + b"\x00", "FAILSAFE (arm 49 ms)")
     assert t.emulator.failsafe.timeout_ms == 500  # unchanged
+
+
+@pytest.mark.parametrize("url", ["sim+avr://?axes=2", "sim+avr://?axes=2&usb=uno"])
+def test_the_firmware_is_not_tripped_by_an_idle_host_a_far_wait_or_a_recording(url):
+    """The same three on the compiled firmware (in simavr, simulated time), then silence:
+    the firmware trips 0.5 s after the host's last frame and stops both chips."""
+    from sim_urls import available
+
+    from lm629_host.transports import open_transport
+    if not available("sim+avr://"):
+        pytest.skip("sim+avr:// not available here")
+    t = open_transport(url)
+    b = Board(t, axes=2)
+    b.reset()
+    for ax in b.axes:
+        ax.load_filter(kp=20, kd=100)
+        ax.update_filter()
+    _run(b)
+    b.clock.sleep(3.0)
+    chip = b.axes[0]
+    with pytest.raises(Exception, match="waited 10 s"):
+        chip.wait_for(Status.TRAJECTORY_COMPLETE, timeout=10.0)
+    trace = chip.record(0.01, 5.0)
+    assert len(trace.rows) == 500 and not trace.missing
+    state = t.failsafe_state()
+    assert state.timeout_ms == 500 and not state.tripped
+    last = t._last_tx
+    moved = _silent_until_rest(t, 1.5)  # type: ignore[arg-type]  # a sim+avr transport has the same models
+    state = t.failsafe_state()
+    assert state.tripped and state.chips == 0b11 and state.silent_ms == 500
+    assert abs((state.at_ms - state.silent_ms) / 1e3 - last) < 2e-3
+    assert all(m - last <= 0.5 + reference_stop_s("abrupt") + 0.020 for m in moved)
