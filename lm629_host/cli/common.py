@@ -49,8 +49,13 @@ def failsafe_info(transport: Any) -> tuple[dict[str, Any] | None, str]:
     reported with it: the process that opens after a dead host is the one told."""
     state = transport.failsafe_state()
     if state is None:
+        beat = getattr(transport, "heartbeat", None)
+        if beat is not None:
+            return None, (f"none on this port (no timer on its side of the link); the heartbeat "
+                          f"on {beat.upper()} feeds an external watchdog while this process lives")
         return None, ("none on this port: a host that dies mid-move leaves the axis moving "
-                      "(only a bridge keeps a timer on its side of the link)")
+                      "(only a bridge keeps a timer on its side of the link; on the FT232H, "
+                      "?heartbeat=adbus7 feeds an external watchdog)")
     found = transport.failsafe_report
     d: dict[str, Any] = {"armed_s": state.timeout_ms / 1e3,
                          "action": ("abrupt", "smooth", "off")[state.action]

@@ -20,9 +20,10 @@ import abc
 from collections.abc import Callable, Iterator
 import functools
 import logging
+import math
 import threading
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..clock import Clock, WallClock
 
@@ -126,6 +127,33 @@ class LockedClock(Clock):
     def sleep(self, seconds: float) -> None:
         with self._lock:
             self._clock.sleep(seconds)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._clock, name)
+
+
+class FeedingClock(Clock):
+    """A simulated clock whose ``sleep`` feeds a far-side watchdog on the way (a bridge's link
+    failsafe, the FT232H's heartbeat pin): time passes on the far side only while the host
+    sleeps on this clock or waits for an answer, so the feeder of a simulated link lives here
+    instead of in a thread.  The transport gives ``feed_period_s`` (0: nothing to feed) and
+    ``_feed_if_due()``, which sends only when the link has been idle that long."""
+
+    def __init__(self, clock: Clock, transport: Any) -> None:
+        self._clock = clock
+        self._transport = transport
+        self.now = clock.now  # type: ignore[method-assign]  # no wrapper on the hot path
+
+    def now(self) -> float:
+        return self._clock.now()
+
+    def sleep(self, seconds: float) -> None:
+        t = self._transport
+        period = t.feed_period_s
+        n = max(1, math.ceil(seconds / period - 1e-9)) if period and seconds > 0 else 1
+        for _ in range(n):  # whole steps: a clock that rounds may stop short of an end time
+            self._clock.sleep(seconds / n)
+            t._feed_if_due()
 
     def __getattr__(self, name: str) -> object:
         return getattr(self._clock, name)

@@ -14,7 +14,6 @@ and says so.
 from __future__ import annotations
 
 import logging
-import math
 import random
 import threading
 from collections import OrderedDict, deque
@@ -77,9 +76,9 @@ from ..program import (
     TraceCallback,
     cycles_of,
 )
-from ..clock import Clock, WallClock
+from ..clock import WallClock
 from ..urls import Option, parse_options, query_params
-from .base import RawRow, Transport
+from .base import FeedingClock, RawRow, Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
 
@@ -127,31 +126,6 @@ class FailsafeTripped(TransportError):
     def __init__(self, message: str, *, port: str, state: FailsafeState | None) -> None:
         super().__init__(message, port=port)
         self.state = state
-
-
-class _FeedingClock(Clock):
-    """A simulated pipe's clock whose ``sleep`` feeds the failsafe on the way: time passes on
-    the far side only while the host sleeps on this clock or waits for a reply, so the feeder
-    of a simulated link lives here instead of in a thread."""
-
-    def __init__(self, clock: Clock, transport: LinkTransport) -> None:
-        self._clock = clock
-        self._transport = transport
-        self.now = clock.now  # type: ignore[method-assign]  # no wrapper on the hot path
-
-    def now(self) -> float:
-        return self._clock.now()
-
-    def sleep(self, seconds: float) -> None:
-        t = self._transport
-        period = t.feed_period_s
-        n = max(1, math.ceil(seconds / period - 1e-9)) if period and seconds > 0 else 1
-        for _ in range(n):  # whole steps: a clock that rounds may stop short of an end time
-            self._clock.sleep(seconds / n)
-            t._feed_if_due()
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self._clock, name)
 
 
 class LinkError(TransportError):
@@ -598,9 +572,9 @@ class LinkTransport(Transport):
                 self._feeder = threading.Thread(target=self._feed_loop, daemon=True,
                                                 name=f"lm629 failsafe feeder {self.url}")
                 self._feeder.start()
-        elif not isinstance(self._inner_clock, _FeedingClock):
+        elif not isinstance(self._inner_clock, FeedingClock):
             inner = self._inner_clock
-            self.clock = _FeedingClock(inner, self)
+            self.clock = FeedingClock(inner, self)
             self._inner_clock = inner
 
     def _feed_if_due(self) -> None:
