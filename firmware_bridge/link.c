@@ -97,8 +97,74 @@ static void rx_restart(link_t *l)
     l->chk_args = l->chk_ops = l->chk_reads = l->chk_status = l->chk_bad = l->chk_select = 0;
 }
 
+/* ---------------------------------------------------------------- PROFILE: the pieces */
+/* The link whose schedule the program loops look at (a WAIT_STATUS, a WAIT, a recording's
+ * wait between rows), so that a piece goes out at its time while a program waits. */
+static link_t *prof_link;
+
+static uint8_t piece_command(uint8_t cmd)
+{
+    uint8_t last;
+    if (!bus_wait_not_busy(LINK_DEFAULT_BUSY_TIMEOUT_US, &last))
+        return 0;
+    bus_write_command(cmd);
+    return 1;
+}
+
+static uint8_t piece_word(uint16_t w)
+{
+    uint8_t last;
+    if (!bus_wait_not_busy(LINK_DEFAULT_BUSY_TIMEOUT_US, &last))
+        return 0;
+    bus_write_data((uint8_t)(w >> 8));
+    bus_write_data((uint8_t)w);
+    return 1;
+}
+
+/* Issue every piece that is due: LTRJ (velocity only) and STT on the schedule's chip; `chip`
+ * is the chip selected now, selected again after.  A busy timeout drops the rest. */
+static __attribute__((noinline)) void profile_poll(uint8_t chip)
+{
+    link_t *l = prof_link;
+    if (!l || !l->prof_n)
+        return;
+    uint16_t t = bus_ticks();
+    l->prof_now += (uint16_t)(t - l->prof_last);
+    l->prof_last = t;
+    while (l->prof_n && (int32_t)(l->prof_now - l->prof_due) >= 0) {
+        uint32_t late = l->prof_now - l->prof_due, v = l->prof_v[l->prof_head];
+        if (late > l->prof_late)
+            l->prof_late = late;
+        l->prof_head = (uint8_t)((l->prof_head + 1u) % LINK_PROFILE_MAX_SCHEDULE);
+        l->prof_n--;
+        l->prof_due += l->prof_dt[l->prof_head]; /* the next one's (unused when none) */
+        l->prof_issued++;
+        if (l->prof_cs != chip)
+            bus_select(l->prof_cs);
+        uint8_t ok = piece_command(CMD_LTRJ) && piece_word(LINK_PROFILE_LTRJ_CONTROL)
+            && piece_word((uint16_t)(v >> 16)) && piece_word((uint16_t)v) && piece_command(CMD_STT);
+        if (l->prof_cs != chip)
+            bus_select(chip);
+        if (!ok) {
+            l->prof_n = 0;
+            l->prof_result = RESULT_BUSY_TIMEOUT;
+        }
+    }
+}
+
+void link_idle(link_t *l)
+{
+    (void)l;
+    profile_poll(0);
+}
+
 void link_init(link_t *l)
 {
+    prof_link = l;
+    l->prof_n = l->prof_head = 0;
+    l->prof_issued = 0;
+    l->prof_late = 0;
+    l->prof_result = RESULT_OK;
     rx_restart(l);
     l->cache_len = 0;
     l->baud_div = 0;
@@ -140,9 +206,14 @@ static uint8_t failsafe_due(uint32_t now)
 static uint8_t failsafe_expired(void) { return failsafe_due(link_clock()); }
 
 /* stop every chip select that answers (a status of FF is a bus no chip drives), latch the
- * trip, select `chip` again (a program under way goes on with it) */
+ * trip, select `chip` again (a program under way goes on with it); a shaped move's pending
+ * pieces are dropped first: none may restart a motor the trip stopped */
 static __attribute__((noinline)) void failsafe_trip(uint8_t chip)
 {
+    if (prof_link && prof_link->prof_n) {
+        prof_link->prof_n = 0;
+        prof_link->prof_result = RESULT_PROFILE_CANCELLED;
+    }
     uint16_t word = fs_action == FAILSAFE_ACTION_SMOOTH ? FAILSAFE_STOP_SMOOTH
         : fs_action == FAILSAFE_ACTION_OFF ? FAILSAFE_STOP_OFF : FAILSAFE_STOP_ABRUPT;
     uint8_t chips = 0, st;
@@ -387,15 +458,22 @@ static inline __attribute__((always_inline)) ran_t exec_program(const uint8_t *p
                     break;
                 }
                 bus_wait_us(WAIT_STATUS_POLL_US);
+                profile_poll(chip); /* a piece due meanwhile goes out at its time */
             }
             *st++ = last;
             HEAD_CRC();
             if (order)
                 c = crc_step(c, last);
             r.ns++;
-        } else { /* OP_WAIT */
-            bus_wait_us((uint16_t)((p[0] << 8) | p[1]));
+        } else { /* OP_WAIT, in steps of at most 1 ms: a piece due meanwhile goes out */
+            uint16_t us = (uint16_t)((p[0] << 8) | p[1]);
             p += 2;
+            while (us > 1000u && prof_link && prof_link->prof_n) { /* one go without a schedule */
+                bus_wait_us(1000u);
+                us -= 1000u;
+                profile_poll(chip);
+            }
+            bus_wait_us(us);
         }
     }
     HEAD_CRC();
@@ -720,6 +798,8 @@ static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t 
                 if (!take_feed())
                     goto stop;
             }
+            if (l->prof_n) /* only then: the loop stays within a 4 us tick */
+                profile_poll(0);
         }
         if (link_rx_pending() && !take_feed())
             break;
@@ -753,6 +833,91 @@ stop:
     return record_end(r, seq, result, index, sent, l->cache);
 }
 
+/* A program the schedule is dropped for (PROTOCOL.md, PROFILE): one with an LTRJ command (a
+ * stop, a new move) or a /RST pulse, so that no later piece restarts what it stopped. */
+static uint8_t ends_profile(const uint8_t *prog, uint16_t n)
+{
+    for (const uint8_t *p = prog, *end = prog + n; p < end;) {
+        uint8_t op = *p;
+        if (op == OP_RESET || (op == OP_COMMAND && p + 1 < end && p[1] == CMD_LTRJ))
+            return 1;
+        uint8_t a = op <= OP_MAX ? op_args[op] : 0xFF;
+        if (a == 0xFF)
+            return 0;
+        p += a + 1u;
+    }
+    return 0;
+}
+
+static uint32_t be32(const uint8_t *p)
+{
+    return ((uint32_t)p[0] << 24) | ((uint32_t)p[1] << 16) | ((uint32_t)p[2] << 8) | p[3];
+}
+
+/* PROFILE: flags, cs, pieces (t_us, velocity); every piece checked before any is kept (a
+ * refusal keeps nothing), NEW starts the schedule's clock now.  PROFILE_REPLY: result, pieces
+ * issued, pending, the largest lateness in us.  Cached as a RUN's reply: a repeat is answered
+ * from the cache and schedules nothing twice. */
+static uint16_t profile(link_t *l, const uint8_t *payload, uint16_t plen, uint8_t *r)
+{
+    profile_poll(0); /* the clock up to date, the pieces due issued */
+    uint8_t flags = payload[0], cs = payload[1];
+    uint8_t n = (uint8_t)((plen - 2u) / 8u), fresh = flags & LINK_PROFILE_NEW;
+    uint8_t result = l->prof_result;
+    if (n || fresh) {
+        uint8_t held = fresh ? 0 : l->prof_n;
+        uint8_t have_last = held != 0;
+        /* the last piece kept (ticks from the start): appended pieces count from it */
+        uint32_t tail = fresh ? 0 : l->prof_tail, last = tail * LINK_RECORD_TICK_US;
+        result = RESULT_OK;
+        if (cs >= LINK_CHIP_SELECTS || held + n > LINK_PROFILE_MAX_SCHEDULE)
+            result = RESULT_BAD_PROFILE;
+        for (uint8_t k = 0; k < n; k++) {
+            uint32_t t = be32(payload + 2 + 8u * k), v = be32(payload + 6 + 8u * k);
+            if (v > 0x3FFFFFFFUL || (have_last && t < last + LINK_PROFILE_MIN_SPACING_US)
+                || t / LINK_RECORD_TICK_US - tail > 0xFFFFu || t / LINK_RECORD_TICK_US < tail)
+                result = RESULT_BAD_PROFILE;
+            tail = t / LINK_RECORD_TICK_US;
+            last = t;
+            have_last = 1;
+        }
+        if (result == RESULT_OK && n && fs_tripped) /* pieces carry STT: refused as a RUN's */
+            result = RESULT_FAILSAFE_TRIPPED;
+        if (result == RESULT_OK) {
+            if (fresh) {
+                l->prof_n = l->prof_head = 0;
+                l->prof_issued = 0;
+                l->prof_late = l->prof_now = l->prof_tail = 0;
+                l->prof_last = bus_ticks();
+                l->prof_cs = cs;
+            }
+            l->prof_result = RESULT_OK;
+            for (uint8_t k = 0; k < n; k++) {
+                uint8_t at = (uint8_t)((l->prof_head + l->prof_n) % LINK_PROFILE_MAX_SCHEDULE);
+                uint32_t t = be32(payload + 2 + 8u * k) / LINK_RECORD_TICK_US;
+                l->prof_dt[at] = (uint16_t)(t - l->prof_tail);
+                if (!l->prof_n)
+                    l->prof_due = t; /* the head: due at its own time */
+                l->prof_tail = t;
+                l->prof_v[at] = be32(payload + 6 + 8u * k);
+                l->prof_n++;
+            }
+        }
+    }
+    uint32_t late_us = l->prof_late * LINK_RECORD_TICK_US;
+    r[0] = FRAME_PROFILE_REPLY;
+    r[2] = result;
+    r[3] = (uint8_t)(l->prof_issued >> 8);
+    r[4] = (uint8_t)l->prof_issued;
+    r[5] = 0;
+    r[6] = l->prof_n;
+    r[7] = (uint8_t)(late_us >> 24);
+    r[8] = (uint8_t)(late_us >> 16);
+    r[9] = (uint8_t)(late_us >> 8);
+    r[10] = (uint8_t)late_us;
+    return 11;
+}
+
 static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
 {
     uint8_t *f = l->rx, *r = l->reply;
@@ -770,7 +935,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_MAJOR;
         r[len++] = FIRMWARE_MINOR;
         r[len++] = FIRMWARE_PATCH;
-        r[len++] = (uint8_t)((CAP_RECORD | CAP_FAILSAFE) >> 8);
+        r[len++] = (uint8_t)((CAP_RECORD | CAP_FAILSAFE | CAP_PROFILE) >> 8);
         r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS | CAP_SELECT
             | CAP_COMPACT_RUN | CAP_PROGRAM_CODES | CAP_BAUD_SWITCH;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
@@ -810,6 +975,21 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
                 link_tx_byte(l->cache[k]);
             *out = l->cache;
             return l->cache_len;
+        }
+        if (l->prof_n) { /* a stop or a new move drops the pieces still pending */
+            const uint8_t *prog = type == FRAME_RUN ? payload + 3 : type == FRAME_RUN_SHORT
+                ? payload : payload + 1;
+            uint16_t size = type == FRAME_RUN ? plen - 3u : type == FRAME_RUN_SHORT ? plen
+                : plen - 1u;
+            if (type == FRAME_RUN_CODE) {
+                uint8_t slot = payload[0];
+                size = slot < LINK_CODE_SLOTS && l->code_len[slot] ? l->code_len[slot] - 1u : 0;
+                prog = slot < LINK_CODE_SLOTS ? l->codes[slot] : payload;
+            }
+            if (ends_profile(prog, size)) {
+                l->prof_n = 0;
+                l->prof_result = RESULT_PROFILE_CANCELLED;
+            }
         }
         l->runs++;
         uint8_t crc_done = 0;
@@ -858,6 +1038,19 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         return record(l, seq, payload, plen, out);
     } else if (type == FRAME_FAILSAFE) {
         len = failsafe_request(r, payload, plen);
+    } else if (type == FRAME_PROFILE && plen >= 2 && (plen - 2u) % 8u == 0) {
+        if (l->cache_len && l->cache_seq == seq && l->cache_crc == crc) {
+            l->cache_hits++;
+            for (uint16_t k = 0; k < l->cache_len; k++)
+                link_tx_byte(l->cache[k]);
+            *out = l->cache;
+            return l->cache_len;
+        }
+        l->cache_len = finish(r, profile(l, payload, plen, r), l->cache, 0);
+        l->cache_seq = seq;
+        l->cache_crc = crc;
+        *out = l->cache;
+        return l->cache_len;
     } else if (type & 0x80) {
         return 0; /* a reply type: not a request, no answer */
     } else {

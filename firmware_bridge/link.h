@@ -9,7 +9,8 @@
 #define FIRMWARE_MAJOR 1
 #define FIRMWARE_MINOR 4 /* 1.1: several chips (Op.SELECT, four chip selects); 1.2: the compact RUN,
                           * programs kept by code, SET_BAUD; 1.3: RECORD (rows on the bridge's timer);
-                          * 1.4: the link failsafe (FAILSAFE) */
+                          * 1.4: the link failsafe (FAILSAFE), PROFILE (a shaped move's pieces
+                          * on the bridge's timer) */
 #define FIRMWARE_PATCH 0
 #ifdef LINK_ONE_CHIP /* build/lm629_bridge_1chip: a bridge that reports one chip select */
 #define LINK_CHIP_SELECTS 1
@@ -51,6 +52,15 @@ typedef struct {
                                            arrive; non-RUN replies are encoded here too */
     uint8_t reply[LINK_MAX_FRAME];      /* decoded reply being built */
     uint8_t cache[LINK_MAX_WIRE_FRAME]; /* encoded reply to the last RUN (exactly once) */
+    /* PROFILE: the pieces still to issue, a ring from prof_head (each piece's Timer1 ticks
+     * after the one before it, the first's after the start: 6 bytes a piece, RAM is short),
+     * the chip they go to, what the schedule did, its clock and the head's due time */
+    uint8_t prof_cs, prof_head, prof_n, prof_result;
+    uint16_t prof_issued, prof_last;    /* pieces issued; bus_ticks() at the last look */
+    uint32_t prof_now, prof_late;       /* ticks since the start; largest lateness (ticks) */
+    uint32_t prof_due, prof_tail;       /* the head's ticks from the start; the last piece's */
+    uint16_t prof_dt[LINK_PROFILE_MAX_SCHEDULE];
+    uint32_t prof_v[LINK_PROFILE_MAX_SCHEDULE];
 } link_t;
 
 uint16_t link_crc16(const uint8_t *data, uint16_t len);
@@ -86,7 +96,9 @@ void link_poll(void);
 /* The low 16 bits of the clock at which the failsafe expires (a compare interrupt wakes the
  * CPU there); anything when it is disarmed. */
 uint16_t link_failsafe_wake(void);
-
+/* Between frames: issue the pieces of a shaped move (PROFILE) that are due.  While a schedule
+ * holds pieces (l->prof_n) the main loop calls this instead of sleeping. */
+void link_idle(link_t *l);
 /* Run a RUN payload (cs, timeout, program) and build RUN_REPLY's payload in `reply`;
  * returns its size. */
 uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply);

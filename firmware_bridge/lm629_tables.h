@@ -76,6 +76,11 @@
 #define LINK_FAILSAFE_MIN_MS 50u  /* FAILSAFE: shortest timeout */
 #define LINK_FAILSAFE_MAX_MS 10000u  /* FAILSAFE: longest timeout */
 #define LINK_FAILSAFE_REPLY_SIZE 14u  /* FAILSAFE_REPLY payload bytes */
+#define LINK_PROFILE_MIN_SPACING_US 10000u  /* PROFILE: pieces this far apart */
+#define LINK_PROFILE_NEW 1u  /* PROFILE flags: a new schedule */
+#define LINK_PROFILE_MAX_PIECES 30u  /* PROFILE: pieces in one frame */
+#define LINK_PROFILE_MAX_SCHEDULE 64u  /* PROFILE: pieces in a schedule */
+#define LINK_PROFILE_LTRJ_CONTROL 8u  /* PROFILE: a piece's LTRJ control word (velocity only) */
 #define LINK_CRC_POLY 4129u  /* CRC-16/GENIBUS polynomial */
 #define LINK_CRC_INIT 65535u  /* CRC-16/GENIBUS initial value */
 #define LINK_CRC_XOROUT 65535u  /* CRC-16/GENIBUS final xor */
@@ -88,6 +93,7 @@
 #define FRAME_SET_BAUD 7u  /* frame type */
 #define FRAME_RECORD 8u  /* frame type */
 #define FRAME_FAILSAFE 9u  /* frame type */
+#define FRAME_PROFILE 10u  /* frame type */
 #define FRAME_HELLO_REPLY 129u  /* frame type */
 #define FRAME_RUN_REPLY 130u  /* frame type */
 #define FRAME_PONG 131u  /* frame type */
@@ -96,6 +102,7 @@
 #define FRAME_RECORD_ROW 136u  /* frame type */
 #define FRAME_RECORD_END 137u  /* frame type */
 #define FRAME_FAILSAFE_REPLY 138u  /* frame type */
+#define FRAME_PROFILE_REPLY 139u  /* frame type */
 #define FRAME_ERROR_REPLY 255u  /* frame type */
 #define RESULT_OK 0u  /* result code */
 #define RESULT_BUSY_TIMEOUT 1u  /* result code */
@@ -108,6 +115,8 @@
 #define RESULT_BAD_RATE 8u  /* result code */
 #define RESULT_FAILSAFE_TRIPPED 9u  /* result code */
 #define RESULT_BAD_FAILSAFE 10u  /* result code */
+#define RESULT_BAD_PROFILE 11u  /* result code */
+#define RESULT_PROFILE_CANCELLED 12u  /* result code */
 #define CAP_RESET_LINE 1u  /* HELLO_REPLY capability bit */
 #define CAP_HI_LINE 2u  /* HELLO_REPLY capability bit */
 #define CAP_BUSY_ON_BRIDGE 4u  /* HELLO_REPLY capability bit */
@@ -118,6 +127,7 @@
 #define CAP_BAUD_SWITCH 128u  /* HELLO_REPLY capability bit */
 #define CAP_RECORD 256u  /* HELLO_REPLY capability bit */
 #define CAP_FAILSAFE 512u  /* HELLO_REPLY capability bit */
+#define CAP_PROFILE 1024u  /* HELLO_REPLY capability bit */
 #define FAILSAFE_CMD_DISARM 0u  /* FAILSAFE command */
 #define FAILSAFE_CMD_ARM 1u  /* FAILSAFE command */
 #define FAILSAFE_CMD_ACKNOWLEDGE 2u  /* FAILSAFE command */

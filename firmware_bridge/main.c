@@ -74,6 +74,11 @@ int main(void)
         }
         cli();
         if (!link_rx_pending()) {
+            if (link.prof_n) { /* a shaped move's pieces are timed by polling Timer1 */
+                sei();
+                link_idle(&link);
+                continue;
+            }
             if (on_probation) { /* the window is timed by polling Timer1: no sleep */
                 sei();
                 continue;

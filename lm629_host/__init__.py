@@ -27,6 +27,7 @@ from .errors import (
     ResetError,
     SchemeError,
     TransportError,
+    UpdateTooSoon,
     WaitTimeout,
 )
 from .lm629 import LM629, Snapshot
@@ -92,7 +93,7 @@ __all__ = [
     "run_velocity", "VelocityRun", "search_index", "wait_still",
     # errors
     "LM629Error", "ArgumentError", "AxisError", "SchemeError", "TransportError", "BusyTimeout",
-    "ResetError", "CommandError", "WaitTimeout", "MotionError", "MotionFault",
+    "ResetError", "CommandError", "WaitTimeout", "UpdateTooSoon", "MotionError", "MotionFault",
     "ProtocolViolation",
     # flags and commands
     "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",

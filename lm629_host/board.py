@@ -31,9 +31,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from .errors import ArgumentError, AxisError, CommandError, MotionError
-from .lm629 import LM629, SNAPSHOT_READS, Snapshot, check_int, reset_chips, snapshot_of
+from .lm629 import LM629, Snapshot, check_int, reset_chips
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
+    FIXED_ONE,
     ACCELERATION_MAX,
     INTERRUPTS,
     POSITION_MAX,
@@ -42,36 +43,23 @@ from .opcodes import (
     Cmd,
     Status,
 )
+from .plan import plan
 from .program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
 from .safety import emergency_stop, stop_if_moving
+from .snapshot import add_snapshot, snapshot_at
 from .ports import resolve_port
 from .transports import DEFAULT_URL
 from .clock import Clock
 from .transports.base import Transport
 
 if TYPE_CHECKING:
+    from .batch import Batch
     from .bridge.protocol import FailsafeState
     from .profile import Profile
 
 log = logging.getLogger("lm629_host")
 
-ONE = 1 << 16  #: one count (per sample, per sample^2) in the chip's 16.16 words
-
-
 # ---------------------------------------------------------------------------- planning
-def trapezoid_samples(distance: int, velocity: float, acceleration: float) -> float:
-    """Duration in samples of a move of ``distance`` counts with 16.16 ``velocity`` and
-    ``acceleration`` words, in continuous arithmetic: ``d/v + v/a`` for a trapezoid,
-    ``2 sqrt(d/a)`` for a triangle (the velocity never reached)."""
-    d = abs(distance)
-    if d == 0:
-        return 0.0
-    v, a = velocity / ONE, acceleration / ONE
-    if v * v <= d * a:
-        return d / v + v / a
-    return 2.0 * math.sqrt(d / a)
-
-
 @dataclass(frozen=True)
 class AxisPlan:
     """One axis of a straight-line move: the LTRJ words and the predicted duration."""
@@ -102,17 +90,17 @@ class LinearPlan:
 
 def _solve_velocity(d: int, acc: int, total: float) -> list[int]:
     """Velocity words near the root of d/v + v/a = total (trapezoid), floor and ceil."""
-    a_c = acc / ONE
+    a_c = acc / FIXED_ONE
     disc = (total * a_c) ** 2 - 4 * d * a_c
     if disc < 0:
         return []
-    exact = (total * a_c - math.sqrt(disc)) / 2 * ONE
+    exact = (total * a_c - math.sqrt(disc)) / 2 * FIXED_ONE
     return [c for c in (math.floor(exact), math.ceil(exact)) if 1 <= c <= VELOCITY_MAX]
 
 
 def _solve_acceleration(d: int, total: float) -> list[int]:
     """Acceleration words near the root of 2 sqrt(d/a) = total (triangle)."""
-    exact = 4 * d / (total * total) * ONE
+    exact = 4 * d / (total * total) * FIXED_ONE
     return [c for c in (math.floor(exact), math.ceil(exact)) if 1 <= c <= ACCELERATION_MAX]
 
 
@@ -145,9 +133,9 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
     length = math.sqrt(sum(d * d for d in dist.values()))
     if not length:
         return LinearPlan(tuple(AxisPlan(k, s, t, 0, 0, 0.0) for k, (s, t) in moves.items()), 0.0)
-    v, a = velocity / ONE, acceleration / ONE
-    total = length / v + v / a if v * v <= length * a else 2.0 * math.sqrt(length / a)
-    trapezoid = v * v <= length * a
+    path = plan(length, velocity, acceleration)
+    total = path.samples
+    trapezoid = not path.triangle
     moving = [k for k in moves if dist[k]]
     for k in moving:
         if acceleration * dist[k] / length < 0.5:
@@ -184,8 +172,8 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
     best: tuple[float, int, dict[int, tuple[int, int]]] | None = None
     for cand in range(ideal, max(1, ideal - width) - 1, -1):
         words = {lead: (cand, acc0[lead]) if trapezoid
-                 else (max(vel0[lead], math.isqrt(dist[lead] * cand * ONE) + 2), cand)}
-        t_lead = trapezoid_samples(dist[lead], *words[lead])
+                 else (max(vel0[lead], math.isqrt(dist[lead] * cand * FIXED_ONE) + 2), cand)}
+        t_lead = plan(dist[lead], *words[lead]).samples
         worst = 0.0
         for k in moving:
             if k == lead:
@@ -193,12 +181,12 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
             if trapezoid:
                 options = [(c, acc0[k]) for c in _solve_velocity(dist[k], acc0[k], t_lead)]
             else:
-                options = [(max(vel0[k], math.isqrt(dist[k] * c * ONE) + 2), c)
+                options = [(max(vel0[k], math.isqrt(dist[k] * c * FIXED_ONE) + 2), c)
                            for c in _solve_acceleration(dist[k], t_lead)]
             if not options:
                 options = [(vel0[k], acc0[k])]
-            words[k] = min(options, key=lambda w: abs(trapezoid_samples(dist[k], *w) - t_lead))
-            worst = max(worst, abs(trapezoid_samples(dist[k], *words[k]) - t_lead))
+            words[k] = min(options, key=lambda w: abs(plan(dist[k], *w).samples - t_lead))
+            worst = max(worst, abs(plan(dist[k], *words[k]).samples - t_lead))
         key = (worst, abs(cand - ideal))
         if best is None or key < best[:2]:
             best = (worst, abs(cand - ideal), words)
@@ -213,7 +201,7 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
             continue
         vel, acc = chosen[axis]
         plans.append(AxisPlan(axis, start, target, min(vel, VELOCITY_MAX), acc,
-                              trapezoid_samples(dist[axis], vel, acc)))
+                              plan(dist[axis], vel, acc).samples))
     return LinearPlan(tuple(plans), total)
 
 
@@ -353,6 +341,23 @@ class Board:
 
     def program(self) -> _BoardProgram:
         return _BoardProgram(busy_timeout_s=self.busy_timeout)
+
+    def batch(self) -> Batch:
+        """Typed calls on several axes queued into one bus program, run when the ``with``
+        block ends: one exchange on a bridge, the axes switched by SELECT inside it.  Each
+        call names its axis as ``board[...]`` does::
+
+            with board.batch() as b:
+                px = b["x"].read_real_position()
+                py = b["y"].read_real_position()
+            print(px.value, py.value)
+
+        The rules are :meth:`LM629.batch`'s (:mod:`lm629_host.batch`)."""
+        from .batch import Batch
+        return Batch(self.transport, axis_of=self._axis_named)
+
+    def _axis_named(self, which: LM629 | str | int) -> LM629:
+        return self.axis(which) if isinstance(which, LM629) else self[which]
 
     # ------------------------------------------------------------------ reset
     def reset(self) -> list[Status]:
@@ -497,14 +502,10 @@ class Board:
         chosen = self._pick(axes)
         p = self.program()
         for a in chosen:
-            p.on(a.chip_select).status()
-            for cmd, n in SNAPSHOT_READS:
-                p.command(cmd).read(n)
+            add_snapshot(p.on(a.chip_select))
         r = self.transport.execute(p)
         now = self.clock.now()
-        per = sum(n for _, n in SNAPSHOT_READS)
-        return [snapshot_of(r.statuses[k], r.words[k * per:(k + 1) * per], now)
-                for k in range(len(chosen))]
+        return [snapshot_at(r, k, now) for k in range(len(chosen))]
 
 
 class _BoardProgram(Program):
@@ -607,4 +608,4 @@ def _open_board(url: str, axes: int | None, chip: str | None, clock: float | str
 
 
 __all__ = ["Board", "BoardMove", "AxisPlan", "LinearPlan",
-           "open_board", "plan_linear", "trapezoid_samples"]
+           "open_board", "plan_linear"]

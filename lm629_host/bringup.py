@@ -1,9 +1,11 @@
 """The first hour with a new board, as one function: the bring-up of AN-706 2.12 and AN-868.
 
 1. reset check (AN-706 4.4.1): status 00 at once, 84/C4 after 1.5 ms, 80/C0 after MSKI/RSTI;
-2. loop phasing at kp = 1: a slow move; the shaft must follow the desired position.  With the
-   motor leads (or the encoder channels) the wrong way round the loop is positive feedback and
-   the shaft runs away the other way: "swap the motor leads";
+2. loop phasing, the tuner's check (:func:`lm629_host.tuning.check_phasing`): gentle P-only
+   steps up and down; the shaft must follow them.  With the motor leads (or the encoder
+   channels) the wrong way round the loop is positive feedback and the shaft heads away:
+   "swap the motor leads"; a load that pulls the shaft away is told apart from that by
+   watching it coast with the drive off, and the gain raised until the loop holds it;
 3. kp = 20 hold: the shaft must come to rest inside the P-only dead band, 256 / kp counts
    (8-bit output: the drive is the top byte of kp x error, AN-706 5.2.4);
 4. a small move (1000 counts by default);
@@ -29,8 +31,9 @@ from dataclasses import dataclass, field, replace
 from .errors import MotionError, ResetError
 from .lm629 import LM629
 from .opcodes import Status
+from .plan import plan
 from .safety import STOP_NOTE, emergency_stop, stop_on_error
-from .units import FIXED_ONE, Scale
+from .units import FIXED_ONE
 from .wiring import wiring_suspects
 
 
@@ -38,13 +41,9 @@ from .wiring import wiring_suspects
 class BringupOptions:
     """The numbers of the sequence (raw chip words and counts, AN-706 2.12 by default)."""
 
-    phasing_kp: int = 1
-    phasing_distance: int = 4000  #: counts; a slow move at kp = 1
-    phasing_velocity: int = 2 * FIXED_ONE  #: 2 counts/sample: e = 256 (one output step) in ~130 samples
-    phasing_acceleration: int = FIXED_ONE // 8
-    phasing_time_s: float = 0.3
-    #: the shaft moving this many counts against the desired direction is a runaway
-    runaway_counts: int = 50
+    #: counts the phasing may take the shaft either way (its steps are an eighth of it)
+    phasing_travel: int = 4000
+    phasing_time_s: float = 0.3  #: seconds each phasing step is watched at most
     hold_kp: int = 20
     hold_time_s: float = 0.5
     move_distance: int = 1000  #: counts
@@ -124,11 +123,12 @@ def run_bringup(chip: LM629, options: BringupOptions = BringupOptions(), *,
     announce("reset check (AN-706 4.4.1)")
     if not done(reset_step(chip)):
         return out
-    if not confirm("The motor will now turn (a slow move at kp = 1). Is the shaft free to turn?"):
+    if not confirm(f"The motor will now turn (gentle steps of +/-{o.phasing_travel // 8} counts). "
+                   "Is the shaft free to turn?"):
         done(StepResult("phasing", None, "skipped at your request: nothing moved"))
         return out
     with stop_on_error(chip):
-        announce(f"loop phasing at kp = {o.phasing_kp} (AN-706 2.12)")
+        announce(f"loop phasing: P-only steps of +/-{o.phasing_travel // 8} counts (AN-706 2.12)")
         if not done(phasing_step(chip, o)):
             return out
         announce(f"hold at kp = {o.hold_kp}")
@@ -158,49 +158,43 @@ def reset_step(chip: LM629) -> StepResult:
 
 
 def phasing_step(chip: LM629, o: BringupOptions) -> StepResult:
-    """2. A slow move at kp = 1 for ``phasing_time_s``: the shaft must follow the desired
-    position.  Reversed leads send it backwards ever faster (a load pulls it back at first
-    too, but as the error grows the loop wins and it turns forwards: the last 50 ms tell)."""
-    chip.load_filter(kp=o.phasing_kp, ki=0, kd=0, il=0)
-    chip.update_filter()
+    """2. The tuner's phasing check inside ``+/- phasing_travel`` counts
+    (:func:`lm629_host.tuning.check_phasing`, the one set of phasing rules): P-only steps of
+    an eighth of it up and down, from a gain whose first output is 1/8 of full scale.  Its
+    fault (RUNAWAY: reversed leads; STALL: a shaft that does not turn, or a load the drive
+    cannot hold) has stopped the motor already; a load it saw and held is said so."""
+    from .tuning import check_phasing  # the tuner loads on first use
     start = chip.snapshot()
-    chip.load_trajectory(acceleration=o.phasing_acceleration, velocity=o.phasing_velocity,
-                         position=o.phasing_distance, position_relative=True, start=True)
-    t_end = start.time + o.phasing_time_s
-    snap = start
-    trail = [start]  # the last 50 ms: where is the shaft heading now?
-    while chip.clock.now() < t_end:
-        chip.clock.sleep(o.poll_s)
-        snap = chip.snapshot()
-        trail.append(snap)
-        while trail[0].time < snap.time - 0.05:
-            trail.pop(0)
-        if snap.real_position - start.real_position < -10 * o.runaway_counts:
-            break  # running away: no need to watch any longer
-    moved = snap.real_position - start.real_position
-    wanted = snap.desired_position - start.desired_position
-    heading = snap.real_position - trail[0].real_position
-    data = {"desired_moved": wanted, "real_moved": moved, "last_50ms": heading,
-            "seconds": round(snap.time - start.time, 4)}
-    if moved < -o.runaway_counts and heading < 0:
-        _ok, note = emergency_stop(chip)
-        return StepResult(
-            "phasing", False,
-            f"RUNAWAY: desired went {wanted:+d} counts, the shaft went {moved:+d}: the loop "
-            "pushes the wrong way. Swap the motor leads (or the encoder's A and B channels); "
-            "if a load pulls the shaft back (gravity on an arm), support it and run this again",
-            [note], data)
-    if moved < 2 and heading <= 0:
-        _ok, note = emergency_stop(chip)
-        return StepResult(
-            "phasing", False,
-            f"the shaft did not turn: desired went {wanted:+d} counts, the shaft {moved:+d}. "
-            "Check the amplifier's supply, the PWM/sign (or DAC) wiring to it, the motor and "
-            "the encoder connection", [note], data)
-    sagged = " (a load pulled it back first; the loop is winning)" if moved < 2 else ""
+    step = max(8, o.phasing_travel // 8)
+    try:
+        found = check_phasing(chip, travel=o.phasing_travel, time_s=o.phasing_time_s,
+                              poll_s=o.poll_s)
+    except MotionError as exc:
+        note = getattr(exc, STOP_NOTE, None) or ""
+        text = exc.detail
+        if note and text.endswith(f"; {note}"):
+            text = text[:-len(note) - 2]
+        text = text.removeprefix("phasing: ")
+        moved = None if exc.position is None else exc.position - start.real_position
+        data: dict[str, object] = {"desired_moved": step, "real_moved": moved,
+                                   "reason": str(exc.reason),
+                "seconds": round(chip.clock.now() - start.time, 4)}
+        if exc.reason is MotionError.RUNAWAY:
+            return StepResult("phasing", False, f"RUNAWAY: {text}", [note], data)
+        if exc.reason is MotionError.STALL and "did not turn" not in text:
+            text = f"STALL: {text}"
+        return StepResult("phasing", False, text, [note], data)
+    way = "up" if found.pulled > 0 else "down"
+    sagged = (f" (a load pulled it back first, {way}; the loop holds it at kp={found.kp})"
+              if found.pulled else "")
+    data = {
+        "desired_moved": found.step, "real_moved": found.first_moved, "kp": found.kp,
+        "followed": found.followed, "load": found.pulled,
+        "seconds": round(chip.clock.now() - start.time, 4)}
     return StepResult("phasing", True,
-                      f"the shaft follows: desired {wanted:+d}, shaft {moved:+d} counts in "
-                      f"{snap.time - start.time:.2f} s{sagged}", data=data)
+                      f"the shaft follows: steps of {found.step:+d} and {-found.step:+d} counts "
+                      f"at kp={found.kp}, the shaft followed {found.followed[0]:+d} and "
+                      f"{found.followed[1]:+d}{sagged}", data=data)
 
 
 def hold_step(chip: LM629, o: BringupOptions) -> StepResult:
@@ -239,8 +233,8 @@ def move_steps(chip: LM629, o: BringupOptions, clock_hz: float,
     start of the final rest inside the dead band."""
     origin = chip.snapshot().desired_position
     target = origin + o.move_distance
-    ramp_s, move_s = Scale(1, clock_hz).profile_times(abs(o.move_distance), o.move_velocity,
-                                                      o.move_acceleration)
+    p = plan(o.move_distance, o.move_velocity, o.move_acceleration)
+    ramp_s, move_s = p.accel_seconds(clock_hz), p.seconds(clock_hz)
     rules = replace(chip.move_rules, tolerance=o.dead_band, settle_time=o.still_s,
                     settle_timeout=o.settle_timeout_s, poll=o.poll_s)
     # absolute: a relative position counts from the last target (the phasing move's), not

@@ -49,7 +49,7 @@ class Connection:
 
     @property
     def chip_label(self) -> str:
-        """``D5 (pin 9)``, ``/CS (pin 12) of chip 1``."""
+        """``D5 (pin 6)``, ``/CS (pin 12) of chip 1``."""
         where = f" of chip {self.chip}" if self.chip else ""
         return f"{self.chip_line} (pin {self.chip_pin}){where}"
 
@@ -133,7 +133,8 @@ def extras(adapter: str) -> list[tuple[str, str, str]]:
     if adapter.lower() == "ft232h":
         rows.append(("ADBUS0 (D0)", "-", "TCK: toggled by the delays, leave unconnected"))
     rows.append(("+5 V", "/CS, /RD, /WR, /RST of every chip", "10 kOhm pull-up each"))
-    rows.append(("+5 V (optional)", f"D0-D7 (pins {pin_of('D0')}-{pin_of('D7')})",
+    data = sorted(pin_of(f"D{i}") for i in range(8))  # a range of pins: D7 is the lowest
+    rows.append(("+5 V (optional)", f"D0-D7 (pins {data[0]}-{data[-1]})",
                  "10 kOhm pull-ups: an open data wire then reads 1, which the wiring check finds"))
     return rows
 

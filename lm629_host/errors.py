@@ -130,6 +130,21 @@ class WaitTimeout(LM629Error):
         )
 
 
+class UpdateTooSoon(LM629Error):
+    """A trajectory update (STT) asked sooner after the last one than ``chip.update_interval``
+    allows, on a chip told to raise instead of waiting (``chip.update_rule = "raise"``).
+    ``since_s``: seconds since the last STT; ``interval_s``: the rule (AN-706 4.6.2: the chip
+    aborts its trajectory calculation at a new STT, so at most one update per 10 ms)."""
+
+    def __init__(self, since_s: float, interval_s: float):
+        self.since_s = since_s
+        self.interval_s = interval_s
+        super().__init__(
+            f"trajectory update {since_s * 1e3:.2f} ms after the last STT: AN-706 4.6.2 allows "
+            f"one per {interval_s * 1e3:g} ms (the chip aborts the calculation in progress and "
+            "holds its output); nothing was sent. Wait, or set chip.update_rule = 'wait'")
+
+
 class ProtocolViolation(LM629Error):
     """Raised by ``sim://?strict=1`` the moment the host breaks the chip's bus protocol."""
 

@@ -16,7 +16,7 @@ Why this layout:
   (0x8E/0x8F), which toggle TCK, so ADBUS0 is left unconnected (it is a handy scope trigger);
 * HI is on ADBUS5, which the FT232H calls GPIOL1: the one line the MPSSE wait-on-I/O
   commands (0x88/0x89) can watch.  With ``busy_pin=gpiol1`` (:data:`BUSY_PINS`) that line
-  watches D0 instead: D0 (pin 4, ACBUS0) is wired to ADBUS5 too, and HI is left unconnected
+  watches D0 instead: D0 (ACBUS0) is wired to ADBUS5 too, and HI is left unconnected
   (its flags are bits 1-6 of the status byte, which the driver reads anyway;
   ``connections.connections("ft232h", busy_pin=True)`` is that wiring).  During a status read
   held with /CS, /PS and /RD low, D0 is the busy bit, so a stream can wait in the adapter
@@ -25,8 +25,11 @@ Why this layout:
   set-low-byte command can ever pulse it.
 
 Put 10 kOhm pull-ups on /CS, /RD, /WR and /RST: until the transport has configured the FT232H
-(and after it closes it) its lines are inputs, and the pull-ups keep the chip deselected and
-out of reset.
+its lines are inputs, and the pull-ups keep the chip deselected and out of reset.  Closing
+(pyftdi's ``close``: a bit-mode reset, ``set_bitmode(0, RESET)``) returns the FT232H to the mode
+its EEPROM selects, UART by default: then ADBUS0, ADBUS2 and ADBUS4 are the UART's TXD, RTS#
+and DTR# outputs, driven high while idle and deasserted, so /RD and /PS stay driven high, and
+every other line (/CS, /WR, /RST, the data bus) is an input again, held by the pull-ups.
 """
 
 from __future__ import annotations

@@ -11,13 +11,24 @@ word first, positions in two's complement (spec "Bus cycles").
 
 from __future__ import annotations
 
+import contextlib
+import copy
 import logging
 import math
-from collections.abc import Callable, Iterable, Sequence
+import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
 from .clock import Clock, WallClock
-from .errors import ArgumentError, AxisError, CommandError, ResetError, WaitTimeout, check_int
+from .errors import (
+    ArgumentError,
+    AxisError,
+    CommandError,
+    ResetError,
+    UpdateTooSoon,
+    WaitTimeout,
+    check_int,
+)
 from .limits import SoftLimits
 from .move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from .opcodes import (
@@ -32,6 +43,7 @@ from .opcodes import (
     RESET_CLEARED_STATUSES,
     RESET_DONE_STATUSES,
     RESET_WAIT_S,
+    UPDATE_INTERVAL_S,
     VELOCITY_MAX,
     Cmd,
     FilterFlags,
@@ -39,10 +51,17 @@ from .opcodes import (
     Status,
     TrajectoryFlags,
     s16,
-    s32,
+    lfil_control,
+    lfil_interval,
+    s32_words,
 )
 from .program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
-from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
+from .pid import sample_period_s
+from .profile_shapes import Points, SCurve, Shape, ShapedMove, check_piece_s
+from .profile_shapes import plan as plan_shape
+from .safety import stop_on_error
+from .snapshot import Snapshot, add_snapshot, snapshot_at
+from .wraparound import PositionTracker, check_register_position, short_way
 from .transports.base import Transport
 
 if TYPE_CHECKING:
@@ -63,12 +82,6 @@ _STOPS = {
     "abrupt": TrajectoryFlags.STOP_ABRUPT,
     "off": TrajectoryFlags.MOTOR_OFF,
 }
-
-
-def _s32(words: Iterable[int]) -> int:
-    """Two words read high first, as one signed 32-bit value."""
-    hi, lo = words
-    return s32((hi << 16) | lo)
 
 
 def _check_flags(name: str, flags: object) -> Status:
@@ -97,6 +110,16 @@ class LM629:
     #: the axis's soft limits (a profile sets them): every trajectory is checked against them
     #: in :meth:`trajectory_program`, before any bus cycle (:mod:`lm629_host.limits`)
     limits: SoftLimits | None = None
+    #: the shortest time between two trajectory updates (STT) on this chip, seconds: AN-706
+    #: 4.6.2 (a new STT aborts the chip's trajectory calculation and holds its output) asks for
+    #: 10 ms.  0 turns the rule off, for a chip measured to keep up (settable per object)
+    update_interval: float = UPDATE_INTERVAL_S
+    #: what an update sooner than ``update_interval`` does: ``"wait"`` until it is due, on the
+    #: transport's clock (the simulated one on ``sim://``), or ``"raise"`` :class:`UpdateTooSoon`
+    #: before any bus cycle.  A stop (LTRJ stop bits) is never held back
+    update_rule: str = "wait"
+    #: the transport clock just after this object's last STT went out (None: none yet)
+    _last_update: float | None = None
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
                  busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None,
@@ -117,12 +140,16 @@ class LM629:
         self.variant = chip
         self.reset_attempts = reset_attempts
         self._clock_hz = clock_hz  # the clock said by the caller (a URL's clock=, --clock)
-        self._ds = 0  # derivative sampling byte, re-sent with every LFIL (AN-706 4.5.1)
+        self._ds = 1  # derivative interval, samples, re-sent with every LFIL (AN-706 4.5.1)
         self._port12 = False  # re-issued after every reset (LM628 with a 12-bit DAC)
         # True while the command-error flag is known to be clear (after reset(), after a good
         # STT); otherwise start() clears it first, so that it can tell whether its own STT was
         # refused instead of missing it behind a stale flag.
         self._ce_clear = False
+        self._this_thread = _ThisThread()
+        #: the extended positions (AN-706 6.5.2): every position this object reads goes
+        #: through it, so that a wraparound of the register is no jump (:mod:`.wraparound`)
+        self.positions = PositionTracker()
 
     # ------------------------------------------------------------------ plumbing
     @property
@@ -160,15 +187,36 @@ class LM629:
         default timeouts, expected move times and the sample period of tuning."""
         return self.transport.clock_hz or self._clock_hz or NOMINAL_CLOCK_HZ
 
-    #: set by :meth:`batch` while it collects calls: programs go there instead of the bus
-    _run_hook: Callable[[Program], ProgramResult] | None = None
-
     def run(self, program: Program) -> ProgramResult:
-        """Run a bus program (for experts and for composite operations)."""
-        hook = self._run_hook
-        if hook is not None:
-            return hook(program)
+        """Run a bus program (for experts and for composite operations).  Every typed call
+        goes through here: the one point :meth:`intercept` reroutes."""
+        runner = self._this_thread.runner
+        if runner is not None:
+            return runner(program)
         return self.transport.execute(program)
+
+    @contextlib.contextmanager
+    def intercept(self, runner: Callable[[Program], ProgramResult]) -> Iterator[None]:
+        """While the block runs, this thread's bus programs of this object go to
+        ``runner(program)`` instead of the transport, which answers them as the chip would;
+        other threads' calls still reach the bus.  A batch builds and decodes its calls
+        through here (:mod:`lm629_host.batch`).  Nested: the inner runner until it ends."""
+        here = self._this_thread
+        before, here.runner = here.runner, runner
+        try:
+            yield
+        finally:
+            here.runner = before
+
+    def shadow(self, runner: Callable[[Program], ProgramResult]) -> LM629:
+        """A copy of this object whose bus programs all go to ``runner`` (never to the
+        transport): the same transport, chip select and settings, and the host-side state this
+        object keeps of the chip (the derivative interval last sent, whether the command-error
+        flag is known clear...) as it is now, its own from then on.  A batch builds its
+        programs on one, so that building changes nothing here."""
+        twin = copy.copy(self)
+        twin._this_thread = _ThisThread(runner)
+        return twin
 
     def batch(self) -> Batch:
         """Queue typed calls into one bus program, run when the ``with`` block ends (one
@@ -180,10 +228,12 @@ class LM629:
                 b.update_filter()
             print(p.value)
 
-        A command error (or a busy timeout) inside it names the call.  See
+        A command error (or a busy timeout) inside it names the call.  It captures this
+        thread's calls on ``b`` only: direct calls on the chip inside the block run at once,
+        and a second batch on the same bus inside the block is refused.  See
         :mod:`lm629_host.batch`."""
         from .batch import Batch
-        return Batch(self)
+        return Batch(self.transport, self)
 
     def close(self) -> None:
         self.transport.close()
@@ -242,8 +292,11 @@ class LM629:
     def reset_done(self) -> None:
         """What a reset (this object's or a board's) leaves: the derivative interval back to
         one sample, the command-error flag clear."""
-        self._ds = 0
+        self._ds = 1
         self._ce_clear = True
+        self.positions.restart()
+        self.positions.pending = False  # the reset cleared the bit
+        self._last_update = None  # and aborted nothing: the next update may go at once
 
     @property
     def port12_selected(self) -> bool:
@@ -270,15 +323,37 @@ class LM629:
 
     def snapshot_program(self) -> Program:
         """The bus program of :meth:`snapshot` (status, then :data:`SNAPSHOT_READS`)."""
-        p = self.program().status()
-        for cmd, n in SNAPSHOT_READS:
-            p.command(cmd).read(n)
-        return p
+        return add_snapshot(self.program())
 
     def snapshot(self) -> Snapshot:
-        """Status, signals, positions, velocities and integration sum in one bus program."""
-        r = self.run(self.snapshot_program())
-        return snapshot_of(r.statuses[0], r.words, self.clock.now())
+        """Status, signals, positions, velocities and integration sum in one bus program; the
+        positions extended past the register's wraparound (:meth:`extended`)."""
+        r = self.run(self._clearing_wrap(self.snapshot_program()))
+        return self.extended(snapshot_at(r, 0, self.clock.now()))
+
+    def extended(self, s: Snapshot) -> Snapshot:
+        """``s`` (just read from this chip) with its positions extended past the register's
+        wraparound (:class:`~lm629_host.wraparound.PositionTracker`); a wraparound bit in its
+        status is cleared by this object's next position read."""
+        self.positions.saw(s.status)
+        return self.positions.snapshot(s)
+
+    def _clearing_wrap(self, program: Program) -> Program:
+        """``program`` with an RSTI of the wraparound bit in front when a read has seen it
+        (AN-706 6.5.2: the host notes the wrap and resets the bit), in the same exchange."""
+        if not self.positions.pending:
+            return program
+        self.positions.pending = False
+        return self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~Status.WRAPAROUND)) \
+            .extend(program)
+
+    def _read_position(self, cmd: Cmd, name: str) -> int:
+        """RDDP or RDRP, extended; the status its busy checks read shows a wraparound."""
+        r = self.run(self._clearing_wrap(self.program().command(cmd).read(2)))
+        if r.status is not None:
+            self.positions.saw(r.status)
+        near = "desired" if name == "real" else None
+        return self.positions.extend(name, s32_words(*r.words), near=near)
 
     # ------------------------------------------------------------------ interrupts
     def mask_interrupts(self, flags: Status | int) -> None:
@@ -296,8 +371,9 @@ class LM629:
 
     # ------------------------------------------------------------------ homing, index, limits
     def define_home(self) -> None:
-        """DFH: the current position becomes 0."""
+        """DFH: the current position becomes 0 (the extended positions restart there)."""
         self._command(Cmd.DFH)
+        self.positions.restart()
 
     def set_index_position(self) -> None:
         """SIP: latch the position at the next index pulse (read it with read_index_position)."""
@@ -316,8 +392,8 @@ class LM629:
     # ------------------------------------------------------------------ filter
     def filter_program(self, kp: int | None = None, ki: int | None = None, kd: int | None = None,
                        il: int | None = None, derivative_interval: int | None = None) -> Program:
-        """Validate and build LFIL without running it (the derivative byte is not remembered
-        until the program has run)."""
+        """Validate and build LFIL without running it (the derivative interval is not
+        remembered until the program has run)."""
         values = {"kp": kp, "ki": ki, "kd": kd, "il": il}
         for name, v in values.items():
             if v is not None:
@@ -325,8 +401,8 @@ class LM629:
         ds = self._ds
         if derivative_interval is not None:
             ds = check_int("derivative_interval", derivative_interval, 1,
-                           DERIVATIVE_INTERVAL_MAX) - 1
-        control = ds << 8
+                           DERIVATIVE_INTERVAL_MAX)
+        control = lfil_control(ds)
         for flag in FILTER_ORDER:
             if values[(flag.name or "").lower()] is not None:
                 control |= flag
@@ -346,7 +422,7 @@ class LM629:
         """
         p = self.filter_program(kp, ki, kd, il, derivative_interval)
         self.run(p)
-        self._ds = p.ops[1].arg >> 8
+        self._ds = lfil_interval(p.ops[1].arg)
 
     def update_filter(self) -> None:
         """UDF: input buffers -> working filter registers at the next sample."""
@@ -355,7 +431,7 @@ class LM629:
     @property
     def derivative_interval(self) -> int:
         """The derivative interval (samples) last sent with LFIL."""
-        return self._ds + 1
+        return self._ds
 
     # ------------------------------------------------------------------ trajectory
     def trajectory_program(self, acceleration: int | None = None, velocity: int | None = None,
@@ -374,7 +450,7 @@ class LM629:
         if velocity is not None:
             velocity = check_int("velocity", velocity, vel_lo, VELOCITY_MAX, hex_digits=8)
         if position is not None:
-            position = check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+            position = check_register_position("position", position)
         if velocity_mode and position is not None:
             raise ValueError("position cannot be given with velocity_mode=True: a velocity-mode "
                              "move has no target position")
@@ -385,8 +461,12 @@ class LM629:
                 "chip would not move (spec: stop bits only stop an ongoing move). Send the stop, "
                 "then load the next move")
         if self.limits is not None and stop is None:  # a stop is never refused
+            # the limits are extended counts: the target the chip reaches the short way round
             self.limits.check_trajectory(
-                acceleration, velocity, position, acceleration_relative=acceleration_relative,
+                acceleration, velocity,
+                position if position is None or position_relative
+                else self.positions.near_register(position),
+                acceleration_relative=acceleration_relative,
                 velocity_relative=velocity_relative, position_relative=position_relative,
                 velocity_mode=velocity_mode)
         control = _STOPS[stop]
@@ -421,7 +501,7 @@ class LM629:
             velocity_relative=velocity_relative, position_relative=position_relative,
             velocity_mode=velocity_mode, forward=forward, stop=stop)
         if start:
-            self._start(p)
+            self._start_run(p, update=stop is None)
         else:
             self.run(p)
 
@@ -435,7 +515,9 @@ class LM629:
     def start_checked(self, before: int, after: int) -> bool:
         """Take the status read just before this chip's STT (busy clear) and the one after it;
         return True when the chip refused that STT (the caller raises :class:`CommandError`).
-        Every STT, this object's or a board's, goes through here."""
+        Every STT, this object's or a board's, goes through here (and is the last update the
+        next one is spaced from: the clock now is after it)."""
+        self._last_update = self.clock.now()
         if not after & Status.COMMAND_ERROR:
             self._ce_clear = True
             return False
@@ -452,10 +534,34 @@ class LM629:
                head: Program | None = None) -> Status:
         return self._start_run(program, clear, head)[0]
 
+    def update_due(self) -> float:
+        """Seconds until the next trajectory update may go out (``update_interval`` after the
+        last STT), 0 when it may now."""
+        if self._last_update is None or self.update_interval <= 0:
+            return 0.0
+        return max(0.0, self._last_update + self.update_interval - self.clock.now())
+
+    def _space_update(self) -> None:
+        """Hold a trajectory update back to ``update_interval`` after the last STT (AN-706
+        4.6.2), or raise :class:`UpdateTooSoon` under ``update_rule = "raise"``."""
+        if self.update_rule not in ("wait", "raise"):
+            raise ValueError(f"update_rule={self.update_rule!r} must be 'wait' or 'raise'")
+        due = self.update_due()
+        if due <= 0:
+            return
+        if self.update_rule == "raise":
+            assert self._last_update is not None
+            raise UpdateTooSoon(self.clock.now() - self._last_update, self.update_interval)
+        self.clock.sleep(due)
+
     def _start_run(self, program: Program, clear: Status | int = 0,
-                   head: Program | None = None) -> tuple[Status, ProgramResult]:
+                   head: Program | None = None, *,
+                   update: bool = True) -> tuple[Status, ProgramResult]:
         """:meth:`_start` that also returns the program's result; ``head`` runs first, in the
-        same program (move_to's snapshot: one exchange)."""
+        same program (move_to's snapshot: one exchange).  ``update``: the STT is a trajectory
+        update, spaced by ``update_interval`` (a stop is not: it goes out at once)."""
+        if update:
+            self._space_update()
         flags = self.start_flags(clear)
         if flags:  # RSTI: a 0 bit clears
             program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~flags)) \
@@ -479,8 +585,9 @@ class LM629:
         i.e. before busy clears: see the model's choice list).  When the command-error flag may
         already be set (after
         an earlier refusal, a ``raw`` command, or on a chip not reset by this object) an RSTI
-        that clears only that flag goes first, so that a refusal is never hidden by a stale flag.  Do not issue STT more often
-        than every 10 ms (AN-706 4.6.2).
+        that clears only that flag goes first, so that a refusal is never hidden by a stale flag.
+        Spaced ``update_interval`` (10 ms) after the last STT (AN-706 4.6.2): it waits on the
+        transport's clock, or raises :class:`UpdateTooSoon` under ``update_rule = "raise"``.
         """
         return self._start(self.program())
 
@@ -499,23 +606,28 @@ class LM629:
         can never end this one's wait.  Arguments are checked before any bus traffic
         (``ValueError``).
         """
-        check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        check_register_position("position", position)
         velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
         if acceleration is not None:
             acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX,
                                      hex_digits=8)
         if self.limits is not None:  # before the first read: a refused move costs no exchange
-            self.limits.check_trajectory(acceleration, velocity, None if relative else position)
+            self.limits.check_trajectory(acceleration, velocity, None if relative
+                                         else self.positions.near_register(position))
         first = self.snapshot() if relative else None
-        target = first.desired_position + position if first is not None else position
-        program = self.trajectory_program(acceleration, velocity,
-                                          check_int("target position", target, POSITION_MIN,
-                                                    POSITION_MAX, hex_digits=8))
+        if first is not None:
+            # the target in the register's terms: the chip goes the short way round to it
+            register = self.positions.to_register(first.desired_position + position)
+        else:
+            register = position
+        program = self.trajectory_program(acceleration, velocity, register)
         head = self.snapshot_program() if first is None else None
-        _, r = self._start_run(program, clear=MOVE_FLAGS, head=head)
-        n = sum(w for _, w in SNAPSHOT_READS)
-        start = first if first is not None else snapshot_of(r.statuses[0], r.words[:n],
-                                                            self.clock.now())
+        _, r = self._start_run(program, clear=MOVE_FLAGS, head=self._clearing_wrap(head)
+                               if head is not None else None)
+        start = first if first is not None else self.extended(snapshot_at(r, 0, self.clock.now()))
+        # the target extended as the chip will reach it: the short way from the start
+        target = start.desired_position + short_way(register - self.positions.to_register(
+            start.desired_position))
         if acceleration is not None:
             self._move_acceleration = acceleration
         move = Move(self, target, velocity,
@@ -528,6 +640,44 @@ class LM629:
 
     #: the last acceleration word move_to loaded (for the default timeout)
     _move_acceleration: int | None = None
+
+    def move_profile(self, position: int, shape: Shape, *, relative: bool = False,
+                     piece_s: float = 2 * UPDATE_INTERVAL_S) -> ShapedMove:
+        """Start a move to ``position`` (counts, a register value as for :meth:`move_to`, or
+        from the desired position with ``relative=True``) along ``shape``
+        (:class:`~lm629_host.profile_shapes.SCurve`: jerk-limited;
+        :class:`~lm629_host.profile_shapes.Points`: your own (time, velocity) list), in
+        pieces ``piece_s`` apart (AN-706 4.5.3; at least 10 ms, 4.6.2).  Returns a
+        :class:`~lm629_host.profile_shapes.ShapedMove`: on a bridge that has PROFILE its timer
+        issues the pieces (handed over at once; a move of more pieces than it holds, 64, is
+        timed from the host), elsewhere ``wait()`` issues them on the
+        transport's clock; ``wait()`` supervises the move as :meth:`Move.wait` does; the chip's own
+        deceleration lands it exactly on the target.  Reads a snapshot first (the distance
+        sets the plan); the plan is checked (``ArgumentError``) before anything moves."""
+        check_register_position("position", position)
+        if not isinstance(shape, (SCurve, Points)):
+            raise ArgumentError("shape", shape, f"shape={shape!r}: expected "
+                                "profile_shapes.SCurve or profile_shapes.Points")
+        check_piece_s(piece_s)
+        sample_s = sample_period_s(self.clock_hz)
+        plan = plan_shape(shape, position, sample_s, piece_s) if relative else None
+        desired = self.snapshot().desired_position
+        register = self.positions.to_register(desired + position) if relative else position
+        if plan is None:
+            distance = short_way(register - self.positions.to_register(desired))
+            plan = plan_shape(shape, distance, sample_s, piece_s)
+        if self.limits is not None:  # the fastest piece, before anything moves
+            self.limits.check_velocity(plan.peak_velocity)
+        move = self.move_to(register, velocity=plan.pieces[0].velocity,
+                            acceleration=plan.acceleration)
+        far = (self.transport.far_profiles
+               and len(plan.pieces) - 1 <= self.transport.profile_capacity)
+        shaped = ShapedMove(move, plan, far=far)
+        if far:  # the bridge's timer issues the rest; the next update waits for the last
+            with stop_on_error(self):
+                shaped.schedule_far(self.axis, self.update_interval)
+            self._last_update = shaped.t0 + max(plan.pieces[-1].t, self.update_interval)
+        return shaped
 
     # ------------------------------------------------------------------ output port
     def port8(self) -> None:
@@ -546,20 +696,22 @@ class LM629:
 
     # ------------------------------------------------------------------ data reporting
     def read_desired_position(self) -> int:
-        """RDDP: desired position, counts (signed 32-bit)."""
-        return _s32(self._read(Cmd.RDDP, 2))
+        """RDDP: desired position, counts, extended past the register's wraparound (a Python
+        int; the register itself reads C0000000..3FFFFFFF: :mod:`lm629_host.wraparound`)."""
+        return self._read_position(Cmd.RDDP, "desired")
 
     def read_real_position(self) -> int:
-        """RDRP: real (encoder) position, counts (signed 32-bit)."""
-        return _s32(self._read(Cmd.RDRP, 2))
+        """RDRP: real (encoder) position, counts, extended past the register's wraparound."""
+        return self._read_position(Cmd.RDRP, "real")
 
     def read_index_position(self) -> int:
-        """RDIP: position latched at the index pulse after SIP."""
-        return _s32(self._read(Cmd.RDIP, 2))
+        """RDIP: position latched at the index pulse after SIP, extended as the real position
+        nearest to it."""
+        return self.positions.near_register(s32_words(*self._read(Cmd.RDIP, 2)), "real")
 
     def read_desired_velocity(self) -> int:
         """RDDV: desired velocity, signed 16.16 (65536 = 1 count/sample)."""
-        return _s32(self._read(Cmd.RDDV, 2))
+        return s32_words(*self._read(Cmd.RDDV, 2))
 
     def read_real_velocity(self) -> int:
         """RDRV: real velocity, integer counts/sample (signed 16-bit)."""
@@ -654,6 +806,14 @@ class LM629:
             p.write(w)
         self._ce_clear = False  # any byte may provoke a command error
         return self.run(p.read(read)).words
+
+
+class _ThisThread(threading.local):
+    """Per thread: where an LM629's bus programs go (None: its transport; see intercept).
+    ``runner`` is every thread's start (a threading.local runs ``__init__`` in each)."""
+
+    def __init__(self, runner: Callable[[Program], ProgramResult] | None = None) -> None:
+        self.runner = runner
 
 
 def reset_chips(chips: Sequence[LM629], *, pulse: bool,

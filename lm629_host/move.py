@@ -42,6 +42,7 @@ from typing import NoReturn, Protocol
 from .clock import Clock
 from .errors import ArgumentError, MotionError, MotionFault
 from .opcodes import Signals, Status
+from .plan import plan
 from .safety import STOP_NOTE, Stoppable, emergency_stop, motion_fault
 from .snapshot import Snapshot
 
@@ -126,11 +127,10 @@ class Move:
 
     def profile_s(self, clock_hz: float) -> float | None:
         """The trajectory's duration, or None when the acceleration is not known here."""
-        from .units import Scale
         if not self.acceleration:
             return None
-        distance = abs(self.target - self.start.desired_position)
-        return Scale(1, clock_hz).profile_times(distance, self.velocity, self.acceleration)[1]
+        return plan(self.target - self.start.desired_position, self.velocity,
+                    self.acceleration).seconds(clock_hz)
 
     def _clock_hz(self, rules: MoveRules) -> float:
         if rules.clock_hz:
@@ -157,9 +157,13 @@ class Move:
     def _wait(self, timeout: float | None, tolerance: int | None, rules: MoveRules | None,
               progress: Callable[[Snapshot], None] | None) -> MoveResult:
         watch = self.watch(timeout, tolerance, rules)
-        chip, clock = self.chip, self.chip.clock
         if self.waiter is not None:  # the far side waits (lm629_host.movewait)
             return self.waiter(self, watch, progress)
+        return self.poll(watch, progress)
+
+    def poll(self, watch: MoveWatch, progress: Callable[[Snapshot], None] | None) -> MoveResult:
+        """The host's loop of :meth:`wait`: a snapshot every ``poll``, each judged by ``watch``."""
+        chip, clock = self.chip, self.chip.clock
         while True:
             s = chip.snapshot()
             if progress is not None:

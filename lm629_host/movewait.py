@@ -32,7 +32,7 @@ from typing import Protocol
 from .move import Move, MoveResult, MoveWatch
 from .opcodes import Status
 from .program import Program, ProgramResult
-from .snapshot import SNAPSHOT_READS, Snapshot, snapshot_of
+from .snapshot import Snapshot, add_snapshot, snapshot_at
 
 #: what ends a far-side wait early: the move's end, or a fault the chip flags
 END_MASK = Status.TRAJECTORY_COMPLETE | Status.POSITION_ERROR | Status.MOTOR_OFF
@@ -52,20 +52,7 @@ class FarWaitChip(Protocol):
 
     def run(self, program: Program) -> ProgramResult: ...
 
-
-def _snapshot_ops(p: Program) -> Program:
-    p.status()
-    for cmd, n in SNAPSHOT_READS:
-        p.command(cmd).read(n)
-    return p
-
-
-_WORDS = sum(n for _, n in SNAPSHOT_READS)
-
-
-def _snap(result: ProgramResult, k: int, status_at: int, time: float) -> Snapshot:
-    return snapshot_of(result.statuses[status_at], result.words[k * _WORDS:(k + 1) * _WORDS],
-                       time)
+    def extended(self, s: Snapshot) -> Snapshot: ...
 
 
 def wait_far(move: Move, watch: MoveWatch,
@@ -82,8 +69,8 @@ def wait_far(move: Move, watch: MoveWatch,
     while True:
         if watch.complete_at is None or not settle:
             p = chip.program().wait_status(int(END_MASK), chunk_ms)
-            r = chip.run(_snapshot_ops(p))
-            snaps = [_snap(r, 0, 1, clock.now())]
+            r = chip.run(add_snapshot(p))
+            snaps = [chip.extended(snapshot_at(r, 0, clock.now(), status_at=1))]
             first_of_check = False
         else:
             # as many snapshots as the settle rule still needs: all of them, or (the shaft at
@@ -93,12 +80,13 @@ def wait_far(move: Move, watch: MoveWatch,
             left = rules.settle_time - (watch.prev.time - since)
             k_n = n if coarse else max(1, min(n, math.ceil(left / rules.poll - 1e-9)))
             p = chip.program().wait(poll_us)
-            _snapshot_ops(p)
+            add_snapshot(p)
             for _ in range(k_n - 1):
-                _snapshot_ops(p.wait(poll_us))
+                add_snapshot(p.wait(poll_us))
             r = chip.run(p)
             now = clock.now()
-            snaps = [_snap(r, k, k, now - (k_n - 1 - k) * rules.poll) for k in range(k_n)]
+            snaps = [chip.extended(snapshot_at(r, k, now - (k_n - 1 - k) * rules.poll))
+                     for k in range(k_n)]
             # a link whose exchanges leave more than COARSE_POLLS polls between the last
             # snapshot of one check and the first of the next (115200 baud, long programs:
             # ~24 ms) cannot show a shaft at rest across them (a shaft turning round reads the

@@ -158,6 +158,12 @@ def s32(value: int) -> int:
     return value - (1 << 32) if value & 0x80000000 else value
 
 
+def s32_words(hi: int, lo: int) -> int:
+    """A 32-bit register read as two words, high first (RDDP, RDRP, RDIP, RDDV), as the chip's
+    two's complement."""
+    return s32((hi << 16) | lo)
+
+
 class TrajectoryFlags(enum.IntFlag):
     """The LTRJ control word."""
 
@@ -175,6 +181,18 @@ class TrajectoryFlags(enum.IntFlag):
 
 
 STOP_FLAGS = TrajectoryFlags.MOTOR_OFF | TrajectoryFlags.STOP_ABRUPT | TrajectoryFlags.STOP_SMOOTH
+
+
+def lfil_control(interval: int) -> int:
+    """The LFIL control word's high byte for a derivative interval of ``interval`` samples
+    (1..256): the chip takes the derivative every (byte + 1) samples.  Everywhere else
+    ``ds`` is the interval; this and :func:`lfil_interval` are the only crossings."""
+    return (interval - 1) << 8
+
+
+def lfil_interval(control: int) -> int:
+    """The derivative interval, samples, an LFIL control word sets."""
+    return ((control >> 8) & 0xFF) + 1
 
 
 def lfil_word_count(control: int) -> int:
@@ -197,12 +215,18 @@ POSITION_MIN = -0x40000000  #: C0000000 as signed
 POSITION_MAX = 0x3FFFFFFF
 VELOCITY_MAX = 0x3FFFFFFF  #: unsigned 16.16
 ACCELERATION_MAX = 0x3FFFFFFF  #: unsigned 16.16
-DERIVATIVE_INTERVAL_MAX = 256  #: samples; the ds byte holds interval - 1
+DERIVATIVE_INTERVAL_MAX = 256  #: samples; the LFIL word's high byte holds interval - 1
+#: 1.0 in the chip's unsigned 16.16 fixed point: one count per sample (velocity words), per
+#: sample^2 (acceleration words), and the 16 fraction bits below the position register
+FIXED_ONE = 1 << 16
 
 # --- timing (datasheet, AN-706) -------------------------------------------------------------
 BUSY_WORST_CASE_S = 100e-6  #: the chip never holds busy longer than this after a transfer
 RESET_WAIT_S = 1.5e-3  #: after /RST, status is 84/C4 within this time
 SAMPLE_CLOCKS = 2048  #: one sample every 2048 chip clocks
+#: AN-706 4.6.2: a new STT aborts the chip's trajectory calculation (its output stays at the
+#: last sample's value), so "trajectory is not updated at a greater rate than once every 10 ms"
+UPDATE_INTERVAL_S = 10e-3
 #: the clock assumed where the transport cannot say (hardware): the 8 MHz parts' rate
 NOMINAL_CLOCK_HZ = 8_000_000
 RESET_DONE_STATUSES = (0x84, 0xC4)

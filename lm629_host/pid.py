@@ -16,7 +16,7 @@ u(n) = kp e(n) + ki sum(e) + kd [e(n') - e(n'-1)], computed as the chip computes
 * the error sum is kept to 24 bits (saturating), its top 16 bits multiply ki, and the term is
   limited to +/- il; once the term has reached the limit, an error that would push the sum
   further is not summed (AN-706 4.5.2; "reached" includes il = 0);
-* the derivative difference is taken every ds + 1 samples; kd x difference is held and added
+* the derivative difference is taken every ``ds`` samples (the derivative interval); kd x difference is held and added
   at every sample;
 * the three 16-bit terms add into a 16-bit result, saturated on overflow.
 
@@ -103,13 +103,13 @@ def pid_step(s: PIDState, e: int, kp: int, ki: int, kd: int, il: int, ds: int) -
     term = ki * (total >> 8)
     term = il if term > il else (-il if term < -il else term)
     s.integral = term
-    # derivative: sampled every ds + 1 samples, held in between
+    # derivative: sampled every ds samples, held in between
     if s.countdown == 0:
         d = e - s.last_error
         d = kd * (U_MAX if d > U_MAX else (U_MIN if d < U_MIN else d))
         s.derivative = U_MAX if d > U_MAX else (U_MIN if d < U_MIN else d)
         s.last_error = e
-        s.countdown = ds
+        s.countdown = ds - 1
     else:
         s.countdown -= 1
     u = kp * e
@@ -135,7 +135,7 @@ def skip_held(s: PIDState, n: int, e: int, il: int, ds: int) -> None:
     il > 0: it is summed, never held) and the derivative's phase change."""
     if e and il > 0:
         s.error_sum = max(SUM_MIN, min(SUM_MAX, s.error_sum + n * e))
-    s.countdown = (s.countdown - n) % (ds + 1)
+    s.countdown = (s.countdown - n) % ds
 
 
 def output_code(u: int, twelve_bit: bool) -> int:

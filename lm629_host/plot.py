@@ -51,7 +51,7 @@ class Response:
 def rebuilt_output(s: Snapshot, g: Gains, twelve_bit: bool = False) -> int:
     """The output code the filter computes for the state in snapshot ``s`` (see module doc)."""
     e = sat16(s.following_error)
-    diff = round((s.desired_velocity / FIXED_ONE - s.real_velocity) * (g.ds + 1))
+    diff = round((s.desired_velocity / FIXED_ONE - s.real_velocity) * g.ds)
     u = filter_sum(g.kp, e, s.integration_sum, derivative_term(g.kd, diff))
     return output_code(u, twelve_bit)
 
@@ -63,7 +63,7 @@ def response_from_capture(cap: Capture, label: str = "response") -> Response:
     gains = None
     if "kp" in f:
         gains = Gains(f["kp"], f.get("ki", 0), f.get("kd", 0), f.get("il", 0),
-                      f.get("derivative_interval", 1) - 1)
+                      f.get("derivative_interval", 1))
     start = cap.rows[0].desired_position if cap.rows else cap.target
     return Response(label, cap.times(), cap.rows, start, cap.target, gains)
 

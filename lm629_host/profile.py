@@ -206,7 +206,8 @@ class Profile:
 
 # ---------------------------------------------------------------------------- loading
 _HEADER = re.compile(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$")
-_KEY = re.compile(r"""^\s*("[^"]*"|'[^']*'|[A-Za-z0-9_-]+)\s*=""")
+_PART = r"""(?:"[^"]*"|'[^']*'|[A-Za-z0-9_-]+)"""
+_KEY = re.compile(rf"^\s*({_PART}(?:\s*\.\s*{_PART})*)\s*=")
 
 
 def _unquote_path(text: str) -> str:
@@ -214,9 +215,18 @@ def _unquote_path(text: str) -> str:
     return ".".join(p.strip("\"'") for p in parts)
 
 
+def _place(out: dict[tuple[str, str], int], table: str, path: str, n: int) -> None:
+    """Line ``n`` for each part of the dotted ``path`` within ``table``, as a key of the table
+    before it (first seen wins)."""
+    parts = path.split(".")
+    for i, part in enumerate(parts):
+        out.setdefault((".".join(p for p in (table, *parts[:i]) if p), part), n)
+
+
 def key_lines(text: str) -> dict[tuple[str, str], int]:
     """(table, key) -> line number, and (table, "") -> its header's line, read from the text
-    (tomllib keeps no positions).  Enough for the plain tables a profile uses."""
+    (tomllib keeps no positions).  Enough for the plain tables and dotted keys a profile
+    uses."""
     out: dict[tuple[str, str], int] = {}
     table = ""
     for n, line in enumerate(text.splitlines(), 1):
@@ -224,11 +234,39 @@ def key_lines(text: str) -> dict[tuple[str, str], int]:
         if h:
             table = _unquote_path(h.group(1))
             out.setdefault((table, ""), n)
+            _place(out, "", table, n)  # [axis.x] also makes [axis]
             continue
         k = _KEY.match(line)
-        if k:
-            out.setdefault((table, k.group(1).strip("\"'")), n)
+        if k:  # a dotted key (axis.x.cs = 0) also places the tables it makes
+            _place(out, table, _unquote_path(k.group(1)), n)
     return out
+
+
+def _parses(text: str) -> bool:
+    try:
+        tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, RecursionError):
+        return False
+    return True
+
+
+def _toml_error(text: str, exc: Exception) -> tuple[int, str]:
+    """(line, what is wrong) of a text tomllib refused.  Its error carries the line as an
+    attribute only from Python 3.14 (tomli 2.1 before 3.11), and a value nested too deep is a
+    bare RecursionError.  Otherwise tomllib itself is asked: the line is the one after the
+    longest run of leading lines it takes.  A later line cannot make an earlier error good, so
+    that is where the text stops being TOML for the parser that reads it (an unclosed string
+    or array: the line that opens it).  tomlkit's ParseError has a line too, but that parser
+    takes some texts tomllib refuses (TOML 1.1 escapes) and places others elsewhere (a table
+    declared twice: at the end of the second)."""
+    why = ("a value nested too deep (arrays or inline tables)" if isinstance(exc, RecursionError)
+           else getattr(exc, "msg", str(exc)))
+    line = getattr(exc, "lineno", None)
+    if isinstance(line, int):
+        return line, why
+    lines = text.splitlines(keepends=True)
+    good = next(n for n in range(len(lines), -1, -1) if _parses("".join(lines[:n])))
+    return good + 1, why
 
 
 class _Checker:
@@ -236,8 +274,18 @@ class _Checker:
         self.path = path
         self.lines = lines
 
+    def line(self, table: str, key: str) -> int:
+        """The line of ``key`` in ``table``, else of the table's header, else of the key that
+        made the table in its parent (``x = 1`` under ``[axis]`` for ``[axis.x]``), and so on
+        up; 0 when the text shows none."""
+        found = self.lines.get((table, key)) or self.lines.get((table, ""))
+        while not found and table:
+            table, _, key = table.rpartition(".")
+            found = self.lines.get((table, key)) or self.lines.get((table, ""))
+        return found or 0
+
     def fail(self, table: str, key: str, text: str) -> ProfileError:
-        line = self.lines.get((table, key)) or self.lines.get((table, "")) or 0
+        line = self.line(table, key)
         where = f"{self.path}:{line}" if line else str(self.path)
         what = f"[{table}] {key}" if key else f"[{table}]"
         return ProfileError(f"{where}: {what}: {text}")
@@ -292,10 +340,9 @@ def parse_profile(text: str, path: str | os.PathLike[str] = "<profile>") -> Prof
     path = Path(path)
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
-        msg = re.sub(r"\s*\(at line \d+, column \d+\)", "", str(exc))
-        raise ProfileError(f"{path}:{m.group(1) if m else '?'}: not TOML: {msg}") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:  # RecursionError: nested deep
+        line, why = _toml_error(text, exc)
+        raise ProfileError(f"{path}:{line}: not TOML: {why}") from None
     chk = _Checker(path, key_lines(text))
     for top in data:
         if top not in ("board", "axis"):

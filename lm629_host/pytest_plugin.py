@@ -30,10 +30,8 @@ Why the choices (docs/testing.md has the user's side):
 
 from __future__ import annotations
 
-import collections
 import enum
 import signal
-import threading
 import warnings
 from collections.abc import Generator, Iterator
 from dataclasses import dataclass
@@ -45,20 +43,23 @@ import pytest
 import lm629_host
 
 from .errors import LM629Error
-from .opcodes import STOP_FLAGS, Cmd, Status
+from .opcodes import COMMANDS, STOP_FLAGS, Cmd, Direction, Status
 from .program import STATUS_OPS, BusOp, Op, Program, ProgramResult
-from .safety import emergency_stop
+from .safety import StopSignals, emergency_stop
 from .transports import DEFAULT_URL, transport_class
-from .transports.base import Transport
+from .transports.base import BusObserver, Transport
+from .transports.sim import ModelChips
 from .ports import PortSpec, resolve_port
 from .urls import query_params, with_query
 
 #: the fixtures that open the port (a collected test using one makes the run check the port)
 FIXTURES = ("lm629", "lm629_board")
-#: the signals that end a run on a real port as an interrupted one (the motor stopped first)
-_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-#: how many bus programs (one line each in the failure report) a test keeps
+#: how many lines of bus programs the failure report keeps (a run of identical programs is
+#: one line)
 TRACE_PROGRAMS = 40
+#: the commands that only read the chip: a program of these alone changes nothing in it
+_READ_COMMANDS = frozenset(int(c) for c, info in COMMANDS.items()
+                           if info.direction is Direction.READ)
 
 MARKERS = {
     "lm629_sim": "lm629_sim(params='inertia=4e-5&load_torque=0.002&axes=2', **params): this "
@@ -97,11 +98,11 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 def pytest_configure(config: pytest.Config) -> None:
     for text in MARKERS.values():
         config.addinivalue_line("markers", text)
-    config.stash[_SESSION] = Session(config)
+    config.stash[_SESSION] = PortSession(config)
 
 
 # ---------------------------------------------------------------------------- the run
-class Session:
+class PortSession:
     """The run's port: what it is, whether it is simulated, and the open transport of a real
     one (kept for the run)."""
 
@@ -121,8 +122,7 @@ class Session:
         self.url: str = port or DEFAULT_URL
         self.allow_motion: bool = bool(config.getoption("lm629_allow_motion", False))
         self._transport: Transport | None = None
-        self._old_handlers: dict[int, Any] = {}
-        self._pending: int | None = None  #: a stop signal held until the bus program ends
+        self._signals = StopSignals(_interrupted)
         self._checked = False
         try:
             self.simulated = transport_class(self.url).simulated
@@ -156,37 +156,24 @@ class Session:
         """Ctrl-C, SIGTERM and SIGHUP (a CI job's timeout, a closed terminal) end the run as
         an interrupted one, so that the fixtures' teardown stops a moving motor (without this
         SIGTERM and SIGHUP would kill pytest where it stands).  A signal that arrives during a
-        bus program is held until the program has ended (the transport's ``program_depth`` and
-        ``after_program``, as the CLI does), so that the stop starts on a clean bus."""
-        if threading.current_thread() is not threading.main_thread():
-            return
-
-        def on_signal(signum: int, frame: object) -> None:
-            if transport.program_depth:
-                self._pending = signum
-            else:
-                raise KeyboardInterrupt(f"{signal.Signals(signum).name}: the lm629 fixtures stop the motor")
-
-        def deliver() -> None:
-            if self._pending is not None:
-                signum, self._pending = self._pending, None
-                raise KeyboardInterrupt(f"{signal.Signals(signum).name}: the lm629 fixtures stop the motor")
-
-        self._pending = None
-        transport.after_program = deliver
-        for sig in _STOP_SIGNALS:
-            self._old_handlers[sig] = signal.signal(sig, on_signal)
+        bus program is held until the program has ended, as the CLI does
+        (:class:`~lm629_host.safety.StopSignals`), so that the stop starts on a clean bus."""
+        self._signals.guard(transport)
+        self._signals.install()
 
     def close(self) -> None:
-        for sig, handler in self._old_handlers.items():
-            signal.signal(sig, handler)
-        self._old_handlers.clear()
+        self._signals.restore()
         if self._transport is not None:
             self._transport.close()
             self._transport = None
 
 
-_SESSION = pytest.StashKey[Session]()
+_SESSION = pytest.StashKey[PortSession]()
+
+
+def _interrupted(signum: int) -> KeyboardInterrupt:
+    """A stop signal as pytest's interrupted run, naming the signal."""
+    return KeyboardInterrupt(f"{signal.Signals(signum).name}: the lm629 fixtures stop the motor")
 
 
 def _load_profile(path: Path) -> Any:
@@ -248,30 +235,75 @@ def pytest_report_header(config: pytest.Config) -> str | None:
 # ---------------------------------------------------------------------------- one test's bench
 @dataclass
 class _Run:
-    """One bus program of the test, as the failure report shows it."""
+    """One bus program of the test, as the failure report shows it, or a run of identical
+    ones (``count``: from ``time`` to ``last``)."""
 
     time: float  #: the transport's clock when it ended
     ops: tuple[BusOp, ...]
     result: ProgramResult | None  #: None: it raised
     error: str = ""
+    count: int = 1
+    last: float = 0.0
+
+    @property
+    def changes_chip(self) -> bool:
+        """True when the program may have changed the chip (anything but status reads and
+        data-reporting commands: LFIL, LTRJ, STT, a reset...)."""
+        return any(o.op is Op.RESET or (o.op is Op.COMMAND and o.arg not in _READ_COMMANDS)
+                   for o in self.ops)
 
 
-class Bench:
+class ProgramLog:
+    """The last bus programs of a test, for its failure report: a program identical to the one
+    before it (same operations, same answers) is counted on that line, and when the log is
+    full the oldest program that only read the chip goes first, so that the commands that
+    set a move up (LFIL, LTRJ, STT) stay in view behind any number of wait polls."""
+
+    def __init__(self, lines: int = TRACE_PROGRAMS) -> None:
+        self.lines = lines
+        self.runs: list[_Run] = []
+        self.dropped = 0  #: programs no longer shown
+
+    def add(self, run: _Run) -> None:
+        runs = self.runs
+        if runs:
+            prev = runs[-1]
+            if prev.ops == run.ops and prev.result == run.result and prev.error == run.error:
+                prev.count += 1
+                prev.last = run.time
+                return
+        runs.append(run)
+        if len(runs) > self.lines:
+            gone = next((k for k, r in enumerate(runs) if not r.changes_chip), 0)
+            self.dropped += runs.pop(gone).count
+
+    def text_lines(self) -> list[str]:
+        out = [f"  ({self.dropped} older program(s) not shown: those that only read the chip "
+               "go first)"] \
+            if self.dropped else []
+        for r in self.runs:
+            line = f"  {r.time * 1e3:12.4f}  {_program_text(r)}"
+            if r.count > 1:
+                line += f"  (x{r.count}, the last at {r.last * 1e3:.4f})"
+            out.append(line)
+        return out
+
+
+class Bench(BusObserver):
     """What one test uses: its transport (a fresh simulator, or the run's real port), its last
     bus programs (for the failure report), the motion guard, and the chips handed out."""
 
-    def __init__(self, session: Session, request: pytest.FixtureRequest) -> None:
+    def __init__(self, session: PortSession, request: pytest.FixtureRequest) -> None:
         self.session = session
         self.item = request.node
         self.simulated = session.simulated
         self.moving_allowed = (self.simulated or session.allow_motion
                                or self.item.get_closest_marker("lm629_motion") is not None)
         self.motion_marked = self.item.get_closest_marker("lm629_motion") is not None
-        self.runs: collections.deque[_Run] = collections.deque(maxlen=TRACE_PROGRAMS)
+        self.log = ProgramLog()
         self.chips: list[lm629_host.LM629] = []
         self.board: lm629_host.Board | None = None
         self.outcome: str | None = None  #: the call phase's outcome, None while not known
-        self.violations_seen = 0
         self._last_ltrj: dict[int, int | None] = {}
         self._warned = False
         if self.simulated:
@@ -297,28 +329,25 @@ class Bench:
         self._attach()
 
     def _attach(self) -> None:
-        self._execute = self.transport.execute
-        self.transport.execute = self._guarded  # type: ignore[method-assign]  # this test only
+        self.transport.add_observer(self)
 
     def _detach(self) -> None:
-        self.transport.execute = self._execute  # type: ignore[method-assign]  # as it was
+        self.transport.remove_observer(self)
 
-    # -- the trace and the guard
-    def _guarded(self, program: Program) -> ProgramResult:
-        """Every bus program of the test: checked for an unmarked start, then run and kept
-        for the report (commands, words, status bytes: what the program itself carries and
-        read, so the simulator keeps its fast path; busy polls are not listed)."""
+    # -- the trace and the guard: every bus program of the test, as an observer of the
+    # transport (programs only, not cycles, so the simulator keeps its fast path)
+    def program_starting(self, transport: Transport, program: Program) -> None:
+        """Refuse an unmarked start (nothing is sent), or warn about it on a simulator."""
         starts = self._starts(program)
         if starts and not self.motion_marked:
             self._unmarked_start(starts)
-        ops = tuple(program.ops)
-        try:
-            result = self._execute(program)
-        except BaseException as exc:
-            self.runs.append(_Run(self.transport.clock.now(), ops, None, f"{type(exc).__name__}: {exc}"))
-            raise
-        self.runs.append(_Run(self.transport.clock.now(), ops, result))
-        return result
+
+    def program_ended(self, transport: Transport, program: Program,
+                      result: ProgramResult | None, error: BaseException | None) -> None:
+        """Keep the program for the report: commands, words, status bytes (what the program
+        itself carries and read; busy polls are not listed)."""
+        text = "" if error is None else f"{type(error).__name__}: {error}"
+        self.log.add(_Run(transport.clock.now(), tuple(program.ops), result, text))
 
     def _starts(self, program: Program) -> list[int]:
         """The chips on which ``program`` starts a trajectory that is not a stop: an STT after
@@ -404,24 +433,19 @@ class Bench:
             return True  # cannot tell: stop to be safe
 
     # -- the report
-    def models(self) -> list[Any]:
-        # the simulated chips, for their protocol violations: a test tool's door to the
-        # simulator, like the sim transports (test_layout names it)
-        return list(getattr(self.transport, "models", ()))
-
     def new_violations(self) -> list[Any]:
-        """Protocol violations recorded by a strict simulated chip since the last look."""
-        found = [v for m in self.models() if m.params.strict for v in m.violations]
-        new, self.violations_seen = found[self.violations_seen:], len(found)
-        return new
+        """Protocol violations recorded by a strict simulator since the last look."""
+        t = self.transport
+        if not isinstance(t, ModelChips):
+            return []
+        found = t.take_violations()
+        return found if t.strict else []
 
     def trace_text(self) -> str:
         clock = "simulated" if self.simulated else "wall"
         lines = [f"last bus programs on {self.url}, oldest first, one a line (t: {clock} time in ms "
                  "when it ended; words in hex; <- read; [status] the last one its busy checks read):"]
-        if not self.runs:
-            lines.append("  (no bus program)")
-        lines += [f"  {r.time * 1e3:12.4f}  {_program_text(r)}" for r in self.runs]
+        lines += self.log.text_lines() or ["  (no bus program)"]
         return "\n".join(lines)
 
     def snapshot_text(self) -> str:
@@ -458,21 +482,21 @@ class Bench:
     class _LenientCm:
         def __init__(self, bench: Bench) -> None:
             self.bench = bench
-            self.saved: list[tuple[Any, bool]] = []
+            self.strict: bool | None = None
 
         def __enter__(self) -> None:
             # the report's own reads and the stop must not trip strict mode again (a violation
-            # may have left a command half written): the simulated chips are lenient meanwhile
-            self.saved = [(m, m.params.strict) for m in self.bench.models()]
-            for m, _ in self.saved:
-                m.params.strict = False
+            # may have left a command half written): the simulator is lenient meanwhile
+            t = self.bench.transport
+            if isinstance(t, ModelChips):
+                self.strict = t.set_strict(False)
             self.bench.motion_marked = True  # the plugin's own stop is no unmarked start
 
         def __exit__(self, *exc: object) -> None:
-            for m, strict in self.saved:
-                m.params.strict = strict
-                del m.violations[:]
-            self.bench.violations_seen = 0
+            t = self.bench.transport
+            if isinstance(t, ModelChips) and self.strict is not None:
+                t.set_strict(self.strict)
+                t.take_violations()  # the report's own: not the test's
 
     def _lenient(self) -> Bench._LenientCm:
         return Bench._LenientCm(self)
@@ -645,4 +669,4 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
         rep.sections.append(("lm629: last bus programs and chip snapshot", text))
 
 
-__all__ = ["Bench", "FIXTURES", "MARKERS", "MotionNotAllowed", "PortError", "Session"]
+__all__ = ["Bench", "FIXTURES", "MARKERS", "MotionNotAllowed", "PortError", "PortSession"]

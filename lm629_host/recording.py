@@ -17,14 +17,14 @@ A row lost on a faulty link is a *gap*: its index is missing from :attr:`Trace.r
 from __future__ import annotations
 
 import math
-from collections.abc import Generator, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Generator, Iterator
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 from .errors import ArgumentError
-from .opcodes import Cmd, Signals, Status, s16, s32
+from .opcodes import Cmd, Signals, Status, s32_words
 from .program import Program
-from .snapshot import SNAPSHOT_READS, Snapshot
+from .snapshot import SNAPSHOT_READS, Snapshot, add_snapshot, snapshot_of
 from .transports.base import RawRow, Transport
 
 #: the columns of a row: the basic ones (status, RDDP, RDRP), or a whole snapshot's
@@ -43,14 +43,7 @@ class RecordingChip(Protocol):
 def sample_program(chip: RecordingChip, full: bool = False) -> Program:
     """The program run for each row: the status byte, then RDDP and RDRP (``full``: every
     register a :class:`~lm629_host.snapshot.Snapshot` holds)."""
-    p = chip.program().status()
-    for cmd, n in (FULL_READS if full else BASIC_READS):
-        p.command(cmd).read(n)
-    return p
-
-
-def _s32(hi: int, lo: int) -> int:
-    return s32((hi << 16) | lo)
+    return add_snapshot(chip.program(), FULL_READS if full else BASIC_READS)
 
 
 @dataclass(frozen=True)
@@ -83,9 +76,10 @@ class Row:
 def _row(raw: RawRow, t: float, full: bool) -> Row:
     w, st = raw.words, raw.statuses
     if full:
-        return Row(raw.index, t, Status(st[0]), _s32(w[1], w[2]), _s32(w[3], w[4]),
-                   Signals(w[0]), _s32(w[5], w[6]), s16(w[7]), s16(w[8]))
-    return Row(raw.index, t, Status(st[0]), _s32(w[0], w[1]), _s32(w[2], w[3]))
+        s = snapshot_of(st[0], w, t)
+        return Row(raw.index, t, s.status, s.desired_position, s.real_position, s.signals,
+                   s.desired_velocity, s.real_velocity, s.integration_sum)
+    return Row(raw.index, t, Status(st[0]), s32_words(w[0], w[1]), s32_words(w[2], w[3]))
 
 
 @dataclass
@@ -164,6 +158,9 @@ class RecordStream:
         self._transport = transport
         self._t0: float | None = None
         self.rows: list[Row] = []
+        # the chip's extended positions (AN-706 6.5.2): a recording across the register's
+        # wraparound shows no jump; None for a chip without them
+        self._extend: Callable[[Snapshot], Snapshot] | None = getattr(chip, "extended", None)
 
     def __iter__(self) -> Iterator[Row]:
         if self._raw is None:
@@ -172,6 +169,9 @@ class RecordStream:
             if self._t0 is None:
                 self._t0 = raw.t
             row = _row(raw, raw.t - self._t0, self.full)
+            if self._extend is not None:
+                s = self._extend(row.snapshot())
+                row = replace(row, desired=s.desired_position, real=s.real_position)
             self.rows.append(row)
             yield row
 
@@ -249,7 +249,7 @@ def far_snapshots(chip: RecordingChip, period_s: float, rows: int = 0,
                   ) -> Generator[Snapshot, None, None] | None:
     """Snapshots every ``period_s`` (``rows`` of them, 0: until closed) recorded on the far
     side, for the CLI's ``watch`` and ``step`` and the tuner; None when the transport does not
-    record on its far side or cannot carry the rate (the caller then polls as before).  Their
+    record on its far side or cannot carry the rate (the caller then polls from the host).  Their
     times are the transport clock when the recording began plus each row's far-side time."""
     transport = chip.transport
     if not transport.records_on_far_side:

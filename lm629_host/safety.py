@@ -9,14 +9,21 @@ handler, which prints what happened and how the motor was left.
 A library module (no click): :mod:`lm629_host.move`, :mod:`lm629_host.supervise`,
 :mod:`lm629_host.bringup`, :mod:`lm629_host.tuning`, :mod:`lm629_host.capture` and the CLI all
 stop the motor through it, and :func:`motion_fault` is the one way a motion fault is raised.
+
+A stop signal (Ctrl-C, SIGTERM, SIGHUP) must reach that stop without cutting a bus program in
+half: a chip left between a command byte and its data words takes the stop's LTRJ as data.
+:class:`StopSignals` raises it as a KeyboardInterrupt, held until the program under way has
+ended; the CLI and the pytest plugin both install it.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+import signal
+import threading
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Protocol
+from typing import Any, Protocol
 
 from .errors import MotionError, MotionFault
 from .opcodes import Status
@@ -120,5 +127,82 @@ def stop_on_error(chip: Stoppable) -> Iterator[None]:
         raise
 
 
-__all__ = ["emergency_stop", "motion_fault", "stop_if_moving", "stop_on_error", "STOP_NOTE",
-           "Stoppable"]
+#: the signals that end a run as Ctrl-C does: a user's kill, a CI job's timeout (SIGTERM), a
+#: closed terminal (SIGHUP); without a handler the last two kill Python where it stands, motor on
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised like Ctrl-C's KeyboardInterrupt so that every ``except
+    KeyboardInterrupt`` that stops the motor handles it too; ``signum`` says which (the CLI's
+    exit code is 128 + ``signum``)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def signal_exception(signum: int) -> KeyboardInterrupt:
+    """Ctrl-C as Python's own KeyboardInterrupt, SIGTERM and SIGHUP as :class:`Terminated`."""
+    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
+class ProgramRunner(Protocol):
+    """What holding a signal needs of a transport: whether a bus program is under way, and a
+    hook run when the outermost one has ended (:class:`~lm629_host.transports.base.Transport`
+    has both)."""
+
+    program_depth: int
+    after_program: Callable[[], None] | None
+
+
+class StopSignals:
+    """Turns :data:`STOP_SIGNALS` into an exception (``exception(signum)``: by default
+    :func:`signal_exception`) raised in the main thread, so that the code that stops the motor
+    (:func:`stop_on_error`, a fixture's teardown) runs.  A signal that comes while the guarded
+    transport runs a bus program is held and raised when the program has ended (its
+    ``after_program`` hook), so that the stop starts on a clean bus.
+
+    :meth:`install` does nothing outside the main thread (Python delivers signals only there)
+    or when already installed; :meth:`restore` puts the previous handlers back."""
+
+    def __init__(self, exception: Callable[[int], BaseException] = signal_exception) -> None:
+        self._exception = exception
+        self._old: dict[int, Any] = {}
+        self._guarded: ProgramRunner | None = None
+        self.pending: int | None = None  #: the signal held until the program ends
+
+    @property
+    def installed(self) -> bool:
+        return bool(self._old)
+
+    def install(self) -> None:
+        if threading.current_thread() is not threading.main_thread() or self._old:
+            return
+        self._old = {sig: signal.signal(sig, self._on_signal) for sig in STOP_SIGNALS}
+
+    def guard(self, transport: ProgramRunner) -> None:
+        """Hold signals during ``transport``'s bus programs (the last transport guarded)."""
+        self._guarded = transport
+        self.pending = None
+        transport.after_program = self._deliver
+
+    def restore(self) -> None:
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+        self._old = {}
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        if self._guarded is not None and self._guarded.program_depth:
+            self.pending = signum
+        else:
+            raise self._exception(signum)
+
+    def _deliver(self) -> None:
+        if self.pending is not None:
+            signum, self.pending = self.pending, None
+            raise self._exception(signum)
+
+
+__all__ = ["emergency_stop", "motion_fault", "stop_if_moving", "stop_on_error", "STOP_NOTE", "STOP_SIGNALS",
+           "Stoppable", "StopSignals", "Terminated", "signal_exception"]

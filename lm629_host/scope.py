@@ -62,7 +62,7 @@ def feed(board: Any, axes: Sequence[int], rate_hz: float,
 
 
 @dataclass
-class Trace:
+class ScopeTrace:
     """One axis's samples in the window."""
 
     time: deque[float] = field(default_factory=deque)
@@ -82,7 +82,7 @@ class ScopeWindow:
             raise ValueError(f"window_s={window_s} must be positive (seconds)")
         self.names = list(names)
         self.window_s = window_s
-        self.traces = {n: Trace() for n in self.names}
+        self.traces = {n: ScopeTrace() for n in self.names}
         self.t0: float | None = None
         self.samples = 0
 
@@ -139,4 +139,4 @@ def save_png(window: ScopeWindow, path: str | Path, title: str = "") -> Path:
     return path
 
 
-__all__ = ["ScopeWindow", "Trace", "feed", "save_png"]
+__all__ = ["ScopeWindow", "ScopeTrace", "feed", "save_png"]

@@ -3,9 +3,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
-from .opcodes import Cmd, Signals, Status, s16, s32
+from .opcodes import Cmd, Signals, Status, s16, s32_words
+from .program import Program, ProgramResult
+
+P = TypeVar("P", bound=Program)
 
 
 @dataclass(frozen=True)
@@ -26,18 +31,37 @@ class Snapshot:
         return self.desired_position - self.real_position
 
 
-
-
 #: the reads of a snapshot after its status byte: (command, words)
 SNAPSHOT_READS = ((Cmd.RDSIGS, 1), (Cmd.RDDP, 2), (Cmd.RDRP, 2), (Cmd.RDDV, 2), (Cmd.RDRV, 1),
                   (Cmd.RDSUM, 1))
+#: the words one snapshot reads (after its status byte)
+SNAPSHOT_WORDS = sum(n for _, n in SNAPSHOT_READS)
 
 
-def snapshot_of(status: int, w: tuple[int, ...], time: float) -> Snapshot:
+def add_snapshot(p: P, reads: Sequence[tuple[Cmd, int]] = SNAPSHOT_READS) -> P:
+    """Append a snapshot's bus operations to ``p``: a status read, then ``reads`` (a recording's
+    basic rows read fewer registers, in the same shape).  Every program that reads a snapshot
+    builds it here, so that :func:`snapshot_of` decodes them all."""
+    p.status()
+    for cmd, n in reads:
+        p.command(cmd).read(n)
+    return p
+
+
+def snapshot_of(status: int, w: Sequence[int], time: float) -> Snapshot:
     """A :class:`Snapshot` from its status byte and the words of :data:`SNAPSHOT_READS`."""
-    return Snapshot(Status(status), Signals(w[0]), s32((w[1] << 16) | w[2]),
-                    s32((w[3] << 16) | w[4]), s32((w[5] << 16) | w[6]), s16(w[7]), s16(w[8]),
-                    time)
+    return Snapshot(Status(status), Signals(w[0]), s32_words(w[1], w[2]), s32_words(w[3], w[4]),
+                    s32_words(w[5], w[6]), s16(w[7]), s16(w[8]), time)
 
 
-__all__ = ["SNAPSHOT_READS", "Snapshot", "snapshot_of"]
+def snapshot_at(result: ProgramResult, k: int, time: float, status_at: int | None = None
+                ) -> Snapshot:
+    """The ``k``-th snapshot a program of several read (its words are the ``k``-th
+    :data:`SNAPSHOT_WORDS`); its status byte is ``result.statuses[status_at]`` (default ``k``:
+    a program whose only status reads are its snapshots')."""
+    return snapshot_of(result.statuses[k if status_at is None else status_at],
+                       result.words[k * SNAPSHOT_WORDS:(k + 1) * SNAPSHOT_WORDS], time)
+
+
+__all__ = ["SNAPSHOT_READS", "SNAPSHOT_WORDS", "Snapshot", "add_snapshot", "snapshot_at",
+           "snapshot_of"]

@@ -15,12 +15,11 @@ from __future__ import annotations
 
 from .errors import MotionError, MotionFault, WaitTimeout
 from .lm629 import LM629
-from .opcodes import SAMPLE_CLOCKS, Status
+from .opcodes import FIXED_ONE, SAMPLE_CLOCKS, Status
 from .safety import motion_fault, stop_on_error
 from .snapshot import Snapshot
 
 #: one count per sample in the chip's 16.16 velocity words
-_ONE = 1 << 16
 #: the acceleration word of an index search (AN-706's slow turn: 0.01 count/sample^2)
 INDEX_SEARCH_ACCELERATION = 655
 
@@ -67,16 +66,16 @@ class VelocityRun:
         sample, is too coarse) the shaft must turn the desired way (else a RUNAWAY) at least at
         half the desired speed (else a STALL); either stops the motor and raises MotionError."""
         s = self.chip.snapshot() if snap is None else snap
-        want, got = s.desired_velocity, s.real_velocity * _ONE
-        if abs(want) >= _ONE:
+        want, got = s.desired_velocity, s.real_velocity * FIXED_ONE
+        if abs(want) >= FIXED_ONE:
             if got * want < 0:
                 raise self._fault(MotionFault.RUNAWAY, s,
                                   "the shaft turns the wrong way: swap the motor leads or the "
                                   "encoder's A and B channels")
             if abs(got) < abs(want) // 2:
                 raise self._fault(MotionFault.STALL, s,
-                                  f"the shaft turns at {got / _ONE:.4f} counts/sample, not "
-                                  f"{want / _ONE:.4f}: check the amplifier, the motor and the "
+                                  f"the shaft turns at {got / FIXED_ONE:.4f} counts/sample, not "
+                                  f"{want / FIXED_ONE:.4f}: check the amplifier, the motor and the "
                                   "encoder, or lower the speed")
         return s
 

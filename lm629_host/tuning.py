@@ -43,7 +43,7 @@ from dataclasses import dataclass, field, replace
 from .errors import MotionError, MotionFault
 from .limits import clip_step
 from .lm629 import LM629, Snapshot, check_int
-from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
+from .opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, FIXED_ONE, VELOCITY_MAX, Signals, Status
 from .recording import far_snapshots, sample_program
 from .pid import (
     STEP_ACCELERATION,
@@ -59,6 +59,9 @@ from .pid import (
     skip_held,
 )
 from .safety import motion_fault, stop_on_error
+from .plan import plan
+from .plant import decay_and_gain, motor_step
+from .units import to_fixed
 
 
 Progress = Callable[[str], None]
@@ -67,26 +70,26 @@ Progress = Callable[[str], None]
 # ---------------------------------------------------------------------------------- gains
 @dataclass(frozen=True)
 class Gains:
-    """The filter words (LFIL): ``ds`` is the derivative sampling byte, interval ds + 1."""
+    """The filter's gains (LFIL) and ``ds``, the derivative interval in samples (1..256)."""
 
     kp: int
     ki: int = 0
     kd: int = 0
     il: int = 0
-    ds: int = 0
+    ds: int = 1
 
     def as_filter(self) -> dict[str, int]:
         """Keyword arguments of :meth:`LM629.load_filter`."""
         return dict(kp=self.kp, ki=self.ki, kd=self.kd, il=self.il,
-                    derivative_interval=self.ds + 1)
+                    derivative_interval=self.ds)
 
     def cli(self) -> str:
         """The ``lm629 filter`` line that sets these gains."""
         return (f"lm629 filter --kp {self.kp} --ki {self.ki} --kd {self.kd} --il {self.il} "
-                f"--ds {self.ds + 1}")
+                f"--ds {self.ds}")
 
     def __str__(self) -> str:
-        return f"kp={self.kp} ki={self.ki} kd={self.kd} il={self.il} ds={self.ds + 1}"
+        return f"kp={self.kp} ki={self.ki} kd={self.kd} il={self.il} ds={self.ds}"
 
 
 # ---------------------------------------------------------------------------------- model
@@ -142,7 +145,7 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
     Each sample in the chip's order: the motor runs one sample on the output held since the
     last one, the encoder is read, the filter computes the next output from
     ``desired[n] - count`` (AN-706 5.2.3-5.2.5: 16-bit error, 16-bit products saturating,
-    24-bit sum whose top 16 bits multiply ki, limited to il, derivative every ds + 1 samples
+    24-bit sum whose top 16 bits multiply ki, limited to il, derivative every ds samples
     and held, 16-bit sum, top 8 or 12 bits out).  ``tests/test_tuning.py`` checks this
     arithmetic against the chip model's filter.  ``skip_ahead``: while the shaft is stuck and
     nothing in the filter can change, jump to the next change of the desired position.
@@ -153,8 +156,8 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
     g = model.accel / model.full_scale
     a = max(model.rate, 1e-12)
     c, d = model.coulomb, model.load
-    decay = math.exp(-a)
-    gain = (1.0 - decay) / a
+    decay, gain = decay_and_gain(a, 1.0)
+    step = motor_step
     x, w = x0, w0
     out = st.output >> shift
     counts: list[int] = []
@@ -171,25 +174,9 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
         while changes[next_change] <= i:
             next_change += 1
         # motor, one sample (as a DC motor with dry friction: exact between sticking points)
-        drive = out * g - d
-        stuck = False
-        if w == 0.0:
-            if -c <= drive <= c:
-                force = None
-                stuck = True
-            else:
-                force = drive - c if drive > 0 else drive + c
-        else:
-            force = drive - c if w > 0 else drive + c
-        if force is not None:
-            w_inf = force / a
-            w1 = w_inf + (w - w_inf) * decay
-            if w != 0.0 and (w1 > 0) != (w > 0):
-                x += w_inf * (-math.log(-w_inf / (w - w_inf)) / a) + w / a
-                w = 0.0
-            else:
-                x += w_inf + (w - w_inf) * gain
-                w = w1
+        was_still = w == 0.0
+        x, w = step(x, w, out * g - d, c, a, decay, gain, 1.0)
+        stuck = was_still and w == 0.0
         n = floor(x)
         counts.append(n)
         # the filter: the chip's own arithmetic
@@ -316,8 +303,8 @@ class Record:
 
 @dataclass
 class TuneResult:
-    """What :func:`autotune` found, measured and predicted.  ``kp ki kd il ds`` are the chip's
-    words (``ds`` the derivative sampling byte: interval ``ds + 1`` samples)."""
+    """What :func:`autotune` found, measured and predicted.  ``kp ki kd il`` are the chip's
+    words, ``ds`` the derivative interval in samples (as in :class:`Gains`)."""
 
     kp: int
     ki: int
@@ -337,7 +324,7 @@ class TuneResult:
     fit_rms: float = 0.0  #: counts, model vs the identification steps
     #: every real position read during tuning (the travel-band check is on all of them)
     positions: list[int] = field(default_factory=list)
-    profile: Profile | None = None  #: the trapezoid move judged and checked
+    profile: MoveProfile | None = None  #: the trapezoid move judged and checked
     predicted_move: MoveMetrics | None = None  #: the trapezoid move on the model
     measured_move: MoveMetrics | None = None  #: ... and on the axis (settle after the profile)
 
@@ -390,8 +377,8 @@ class _Session:
         self.check(first)
 
     def _far_period(self, chip: LM629) -> float | None:
-        """The period of far-side recordings (issue 20: the transport's own clock times the
-        rows, host latency only delays them), or None where the host polls: a whole number of
+        """The period of far-side recordings (the transport's own clock times the rows, host
+        latency only delays them), or None where the host polls: a whole number of
         chip samples, at least ``poll_s`` and what the line carries.  Whole samples: a row
         period of 1 ms is 3.906 samples at 8 MHz, so rows would fall at every phase of the
         chip's sample and a fit that puts each row on its sample would be up to half a sample
@@ -452,7 +439,7 @@ class _Session:
         self.chip.load_filter(**g.as_filter())
         self.chip.update_filter()
 
-    def step_to(self, rec: Record, target: int, profile: Profile | None = None) -> None:
+    def step_to(self, rec: Record, target: int, profile: MoveProfile | None = None) -> None:
         """A step to ``target`` (or a trapezoid move with ``profile``), STT now."""
         self.chip.reset_interrupts(Status.TRAJECTORY_COMPLETE)
         v, a = (profile.velocity, profile.acceleration) if profile else (STEP_VELOCITY,
@@ -625,7 +612,36 @@ def _load_way_step(ses: _Session, rec: Record, target: int, way: int, away: int,
     return c
 
 
-def _phasing(ses: _Session, step: int, time_s: float) -> Record:
+@dataclass(frozen=True)
+class Phasing:
+    """What the phasing check found: the loop pulls the shaft towards its target."""
+
+    kp: int  #: the P-only gain at which the shaft followed both steps
+    step: int  #: counts of each step, up then down from where the shaft was
+    followed: tuple[int, int]  #: counts the shaft followed the step up and the step down
+    #: the way a load was seen pulling the shaft (+1 towards more counts, -1 fewer), 0: none
+    pulled: int
+    first_moved: int  #: counts the shaft went on the very first step (a load: against it)
+
+
+def check_phasing(chip: LM629, *, travel: int, time_s: float = 0.3, poll_s: float = 1e-3,
+                  progress: Progress | None = None) -> Phasing:
+    """The tuner's phasing check on its own (AN-706 2.12): P-only steps of ``travel / 8``
+    counts up and down inside ``+/- travel`` counts of where the shaft is (:func:`_phasing`),
+    with the chip's following-error stop armed at ``travel`` meanwhile (put back to the reset
+    value, 7FFF flag only, after).  Leaves the shaft held at the starting point at the
+    phasing gain.  Raises :class:`MotionError` (motor stopped) RUNAWAY for reversed leads,
+    STALL for a shaft that does not turn or a load the drive cannot hold."""
+    travel = check_int("travel", travel, 100, 1 << 28)
+    ses = _Session(chip, travel, poll_s, progress or (lambda text: None))
+    with stop_on_error(chip):
+        chip.load_position_error(min(COEFFICIENT_MAX, travel), stop=True)
+        found = _phasing(ses, max(8, travel // 8), time_s)
+    chip.load_position_error(COEFFICIENT_MAX)
+    return found
+
+
+def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
     """Gentle P-only steps, ``+step`` then ``-step`` from the origin, at a gain whose first
     output is 1/8 of full scale, doubled until the shaft follows both.
 
@@ -647,6 +663,7 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
     kp = max(1, round(16 * 256 / step))  # first output 1/8 of full scale
     away = max(4, step // 10)
     pulled_speed: float | None = None  # counts/s the shaft headed away at, previous gain
+    first_moved: int | None = None
     while True:
         ses.phasing_kp = kp
         g = Gains(kp)
@@ -675,6 +692,8 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
             ses.step_to(rec, ses.origin + sign * step)
             last = ses.record(rec, time_s, watch)
             moved[sign] = last.real_position - start
+            if first_moved is None:
+                first_moved = moved[sign]
             if sign * moved[sign] <= -away:
                 seen = ", then ".join(
                     f"the desired position went {k * step:+d} counts and the shaft "
@@ -713,7 +732,8 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Record:
             ses.step_to(rec, ses.origin)  # back to the origin and rest there
             ses.settle(rec, 1.0)
             ses.phasing_kp = None
-            return rec
+            return Phasing(kp, step, (moved[1], moved[-1]), ses.pulled,
+                           moved[1] if first_moved is None else first_moved)
         if headed is not None:
             way, speed = headed
             if ses.pulled == way and pulled_speed is not None and speed > 1.25 * pulled_speed:
@@ -760,23 +780,13 @@ def _identify_run(ses: _Session, step: int, hold_s: float) -> Record:
     return rec
 
 
-def _ramp(distance: int, words: tuple[int, int], k: int) -> float:
-    """Counts travelled ``k`` samples after the start of a trapezoid (or triangle) of
-    ``distance`` counts with 16.16 (velocity, acceleration) words, in continuous arithmetic
-    (the chip's own is within a count of it)."""
-    d = abs(distance)
-    v, a = words[0] / 65536, words[1] / 65536
-    if v * v > d * a:  # a triangle: the velocity is never reached
-        v = math.sqrt(d * a)
-    t1 = v / a
-    t2 = t1 + (d - v * t1) / v
-    if k <= t1:
-        x = a * k * k / 2
-    elif k <= t2:
-        x = v * t1 / 2 + v * (k - t1)
-    else:
-        x = d - a * max(0.0, t1 + t2 - k) ** 2 / 2
-    return math.copysign(min(d, x), distance)
+def _ramp(start: int, target: int, words: tuple[int, int], n: int) -> list[int]:
+    """The desired position at each of the ``n`` samples after the start of a move from
+    ``start`` to ``target`` with 16.16 (velocity, acceleration) words: the continuous plan
+    (the chip's own arithmetic is within a count of it)."""
+    p = plan(target - start, *words)
+    sign = 1 if target >= start else -1
+    return [round(start + sign * p.travelled(k + 1)) for k in range(n)]
 
 
 def _desired_samples(rec: Record, n: int, sample_s: float) -> list[int]:
@@ -785,9 +795,10 @@ def _desired_samples(rec: Record, n: int, sample_s: float) -> list[int]:
     for t, target in rec.steps:
         k = max(0, math.ceil((t - rec.t0) / sample_s - 0.5))
         origin = out[k] if k < n else start
-        for i in range(k, n):
-            out[i] = target if rec.words is None else round(
-                origin + _ramp(target - origin, rec.words, i - k + 1))
+        if rec.words is None:
+            out[k:] = [target] * (n - k)
+        else:
+            out[k:] = _ramp(origin, target, rec.words, n - k)
     return out
 
 
@@ -1031,7 +1042,7 @@ def fit_model(rec: Record, sample_s: float, twelve_bit: bool = False,
 
 
 # ---------------------------------------------------------------------------------- design
-#: the trapezoid move candidates are judged on when the user names none (issue 20): 4 counts
+#: the trapezoid move candidates are judged on when the user names none: 4 counts
 #: per sample, 1/8 count per sample^2 (the default motor reaches 4 counts/sample in 32
 #: samples, an eighth of its acceleration at full output)
 MOVE_VELOCITY = 0x40000
@@ -1039,7 +1050,7 @@ MOVE_ACCELERATION = 0x2000
 
 
 @dataclass(frozen=True)
-class Profile:
+class MoveProfile:
     """A trapezoid move's limits, the chip's 16.16 words (counts/sample, counts/sample^2)."""
 
     velocity: int
@@ -1050,20 +1061,7 @@ class Profile:
         ``distance``: accelerate by ``acceleration`` up to ``velocity``, brake by it so as to
         land on the target (the chip's generator to within a count; AN-706 5.3)."""
         sign = 1 if distance >= 0 else -1
-        target = abs(distance) << 16
-        a, vmax = self.acceleration, self.velocity
-        p = v = 0
-        out: list[int] = []
-        while p < target:
-            left = target - p
-            if v * v // (2 * a) + v >= left:
-                v = max(v - a, min(a, left))  # braking; the last steps land on the target
-            else:
-                v = min(v + a, vmax)
-            v = min(v, left)
-            p += v
-            out.append(sign * (p >> 16))
-        return out
+        return [sign * x for x in plan(distance, self.velocity, self.acceleration).desired()]
 
     def samples(self, distance: int) -> int:
         return len(self.desired(distance))
@@ -1073,7 +1071,7 @@ class Profile:
 
 
 def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
-                 tolerance: int, profile: Profile | None = None,
+                 tolerance: int, profile: MoveProfile | None = None,
                  words: tuple[int, int] | None = None) -> MoveMetrics:
     """The test move (out by ``distance``, then back) on the model, from rest at 0: a step
     (with ``words``, an axis's capped velocity and acceleration, the trapezoid they make), or
@@ -1083,8 +1081,7 @@ def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
     for start, target in ((0, distance), (distance, 0)):
         sign = 1 if target >= start else -1
         if words is not None and profile is None:
-            desired = [round(start + _ramp(target - start, words, k + 1))
-                       for k in range(horizon)]
+            desired = _ramp(start, target, words, horizon)
         else:
             desired = [start + sign * abs(d) for d in ramp][:horizon]
             desired += [target] * (horizon - len(desired))
@@ -1101,17 +1098,17 @@ def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
 
 def _pd_candidates(model: AxisModel) -> list[Gains]:
     """Pole placement for x'' = k u - a x' (k per filter unit): kp = wn^2 / k and
-    kd (ds + 1) = (2 zeta wn - a) / k, over a grid of wn, zeta and derivative intervals."""
+    kd ds = (2 zeta wn - a) / k, over a grid of wn, zeta and derivative intervals ds."""
     k = model.per_filter_unit
     out: list[Gains] = []
     wn = math.sqrt(k * 8)  # kp = 8 at the low end
     while wn <= 0.5:
         for zeta in (0.8, 1.1):
-            for ds in (0, 1, 3, 7):
-                if wn * (ds + 1) > 0.6:
+            for ds in (1, 2, 4, 8):
+                if wn * ds > 0.6:
                     continue  # the held derivative's delay would eat the phase margin
                 kp = round(wn * wn / k)
-                kd = round((2 * zeta * wn - model.rate) / k / (ds + 1))
+                kd = round((2 * zeta * wn - model.rate) / k / ds)
                 if 1 <= kp <= COEFFICIENT_MAX and 0 <= kd <= COEFFICIENT_MAX:
                     out.append(Gains(kp, 0, kd, 0, ds))
         wn *= 1.4
@@ -1133,15 +1130,15 @@ def _with_integral(model: AxisModel, g: Gains) -> list[Gains]:
     return out
 
 
-def test_duration(model: AxisModel, distance: int, sample_s: float, at_least: float) -> float:
+def record_duration(model: AxisModel, distance: int, sample_s: float, at_least: float) -> float:
     """Seconds to record after each step: six times the fastest possible move (full drive
     to the middle, full braking after it), at least ``at_least``, at most 2 s."""
-    t_min = 2 * math.sqrt(abs(distance) / max(model.accel, 1e-12)) * sample_s
+    t_min = plan(distance, VELOCITY_MAX, max(model.accel, 1e-12) * FIXED_ONE).samples * sample_s
     return min(2.0, max(at_least, 6 * t_min + 0.05))
 
 
 def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
-           sample_s: float, profile: Profile | None = None,
+           sample_s: float, profile: MoveProfile | None = None,
            words: tuple[int, int] | None = None
            ) -> tuple[Gains, MoveMetrics, MoveMetrics | None]:
     """Gains for the test moves: PD candidates by pole placement screened on the model (the
@@ -1190,14 +1187,14 @@ def _in_seconds(m: MoveMetrics, sample_s: float) -> MoveMetrics:
 
 
 # ---------------------------------------------------------------------------------- test move
-def _since_stt(profile: Profile, distance: int, t: list[float], des: list[int], start: int,
+def _since_stt(profile: MoveProfile, distance: int, t: list[float], des: list[int], start: int,
                sample_s: float) -> list[float]:
     """A far-side recording's times of a trapezoid move, counted from its STT on the chip's
     clock: the first row whose desired position is part-way says how many samples the
     profile has run (to within one), where the host's stamp of the STT is late by the reply's
     trip (behind an Uno up to a flush tick, 4.096 ms: a move's settle after the profile's end
     is a few milliseconds).  Unchanged when no row is part-way."""
-    plan = profile.desired(abs(distance))
+    path = profile.desired(abs(distance))
     sign = 1 if distance >= 0 else -1
     # counts the profile has gone at each row; going down the chip's position is floored
     # below the start at once (2000 - 1/65536 reads 1999): one count less than the plan's
@@ -1206,13 +1203,13 @@ def _since_stt(profile: Profile, distance: int, t: list[float], des: list[int], 
     if not part:
         return t
     j = part[len(part) // 2]  # mid-move, where the desired position changes every sample
-    k = bisect.bisect_left(plan, moved[j])  # the first sample at or past it
+    k = bisect.bisect_left(path, moved[j])  # the first sample at or past it
     shift = (k + 0.5) * sample_s - t[j]
     return [x + shift for x in t]
 
 
 def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, duration_s: float,
-               tolerance: int, profile: Profile | None = None) -> tuple[MoveMetrics, Record]:
+               tolerance: int, profile: MoveProfile | None = None) -> tuple[MoveMetrics, Record]:
     """The step (or with ``profile`` the trapezoid move) out by ``distance`` and back, each
     recorded for ``duration_s`` after the profile's end (the settle time counted from there)."""
     if gains is not None:
@@ -1241,7 +1238,7 @@ def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, dur
 
 def measure_move(chip: LM629, gains: Gains | None, *, distance: int, travel: int,
                  duration_s: float = 0.4, tolerance: int = 2, poll_s: float = 1e-3,
-                 profile: Profile | None = None) -> tuple[MoveMetrics, Record]:
+                 profile: MoveProfile | None = None) -> tuple[MoveMetrics, Record]:
     """The tuner's test move (a step of ``distance`` counts out and back, or with ``profile``
     the trapezoid move) with ``gains`` (None: as loaded), guarded like the tuning experiments;
     the worse of the two moves."""
@@ -1251,16 +1248,16 @@ def measure_move(chip: LM629, gains: Gains | None, *, distance: int, travel: int
 
 
 def default_profile(model: AxisModel, velocity: int | None = None,
-                    acceleration: int | None = None) -> Profile:
+                    acceleration: int | None = None) -> MoveProfile:
     """The trapezoid move to judge gains on: the words given, else :data:`MOVE_VELOCITY` and
     :data:`MOVE_ACCELERATION` where the identified axis can follow them with drive to spare
     (at most a quarter of its top speed, a third of its acceleration at full output)."""
     if velocity is None:
         top = model.accel / max(model.rate, 1e-12)
-        velocity = max(1, min(MOVE_VELOCITY, round(top / 4 * 65536)))
+        velocity = max(1, min(MOVE_VELOCITY, to_fixed(top / 4)))
     if acceleration is None:
-        acceleration = max(1, min(MOVE_ACCELERATION, round(model.accel / 3 * 65536)))
-    return Profile(velocity, acceleration)
+        acceleration = max(1, min(MOVE_ACCELERATION, to_fixed(model.accel / 3)))
+    return MoveProfile(velocity, acceleration)
 
 
 # ---------------------------------------------------------------------------------- autotune
@@ -1324,7 +1321,7 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
         ses.model = model
         say(f"model: {model.describe(ses.sample_s)} (fit {rms:.1f} counts rms)")
         # 4 design
-        duration_s = test_duration(model, distance, ses.sample_s, duration_s)
+        duration_s = record_duration(model, distance, ses.sample_s, duration_s)
         profile = default_profile(model, velocity, acceleration)
         gains, predicted, predicted_move = design(model, distance, tolerance, duration_s,
                                                   ses.sample_s, profile,
@@ -1350,4 +1347,4 @@ def _twelve_bit(chip: LM629) -> bool:
 
 __all__ = ["autotune", "measure_move", "TuneResult", "Gains", "AxisModel", "MoveMetrics",
            "PIDState", "simulate", "fit_model", "design", "predict_move", "step_metrics",
-           "score", "Record", "Profile", "default_profile", "MOVE_VELOCITY", "MOVE_ACCELERATION"]
+           "score", "Record", "MoveProfile", "Phasing", "check_phasing", "default_profile", "MOVE_VELOCITY", "MOVE_ACCELERATION"]

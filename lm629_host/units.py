@@ -19,17 +19,17 @@ from dataclasses import dataclass
 
 from .errors import ArgumentError, check_int
 from .pid import sample_period_s
+from .plan import plan
 from .opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
     DERIVATIVE_INTERVAL_MAX,
+    FIXED_ONE,
     POSITION_MAX,
     NOMINAL_CLOCK_HZ,
     POSITION_MIN,
     VELOCITY_MAX,
 )
-
-FIXED_ONE = 1 << 16  #: 1.0 in the chip's 16.16 fixed point
 
 
 def to_fixed(value: float) -> int:
@@ -149,15 +149,10 @@ class Scale:
                          *self.profile_times(abs(position), velocity, acceleration))
 
     def profile_times(self, distance: int, velocity: int, acceleration: int) -> tuple[float, float]:
-        """(ramp time, whole move time) in seconds of a symmetric move with these raw words."""
-        v, a = velocity / FIXED_ONE, acceleration / FIXED_ONE
-        if a <= 0 or v <= 0:
-            return math.inf, math.inf
-        ramp = v / a
-        if v * ramp >= distance:  # triangle: the velocity is never reached
-            ramp = math.sqrt(distance / a)
-            return self.seconds(ramp), self.seconds(2 * ramp)
-        return self.seconds(ramp), self.seconds(ramp + distance / v)
+        """(ramp time, whole move time) in seconds of a symmetric move with these raw words
+        (:func:`lm629_host.plan.plan`: a triangle when the velocity is never reached)."""
+        p = plan(distance, velocity, acceleration)
+        return self.seconds(p.accel_samples), self.seconds(p.samples)
 
     # -- PID scaling (AN-706 5.2) --------------------------------------------------------------
     def pid_to_chip(self, Kp: float = 0.0, Ki: float = 0.0, Kd: float = 0.0, *,  # noqa: N803 - Kp, Ki, Kd as in AN-706's formulas

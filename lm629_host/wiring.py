@@ -34,29 +34,30 @@ that does not follow the interrupt flags.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from .connections import MAX_AXES, adapter_name, adapter_pin, connections
-from .errors import LM629Error
+from .errors import BusyTimeout, LM629Error
 from .miswiring import Miswiring
-from .opcodes import Cmd
+from .opcodes import NOMINAL_CLOCK_HZ, RESET_CLEARED_STATUSES, RESET_DONE_STATUSES, RESET_WAIT_S, UPDATE_INTERVAL_S, Cmd
 from .pinout import pin_of
+from .plan import plan
 from .program import Op, Program
+from .wiring_reference import READINGS, WHAT
 
 if TYPE_CHECKING:
     from .lm629 import LM629
 
 #: the AN-706 statuses: at once after /RST, 1.5 ms later, after RSTI 0000
 AT_RESET = frozenset({0x00})
-RESET_DONE = frozenset({0x84, 0xC4})
-CLEARED = frozenset({0x80, 0xC0})
+RESET_DONE = frozenset(RESET_DONE_STATUSES)
+CLEARED = frozenset(RESET_CLEARED_STATUSES)
 #: RDSIGS after /RST: the 8-bit output mode (bit 8), the status byte's bits (busy apart), the
 #: host interrupt (bit 15) set or not (a published run reads 01C0; the chip model 81C4: HI high
 #: while trajectory complete is an unmasked flag)
-SIGNALS_AFTER_RESET = frozenset(hi | 0x0100 | s for hi in (0, 0x8000) for s in (0x84, 0xC4, 0x80, 0xC0))
+SIGNALS_AFTER_RESET = frozenset(hi | 0x0100 | s for hi in (0, 0x8000) for s in RESET_DONE | CLEARED)
 #: after a move with the drive on (zero gain): trajectory complete, breakpoint latched or not,
 #: position error (bit 5) set or not: the patterns stay within the threshold /RST sets, but a
 #: load that turns the shaft while the drive is zero (an arm under gravity) can add to it
@@ -78,18 +79,12 @@ POSITION_ERROR_THRESHOLD = 0x7FFF
 #: how long a move is given: 16 samples at the slowest clock the chip runs (1 MHz: 2 ms a
 #: sample) would be 32 ms; at 6-8 MHz a pattern is reached in 3-4 samples (1.4 ms)
 MOVE_WAIT_US = 4000
+#: two STTs at least this far apart (AN-706 4.6.2: a new STT aborts the trajectory calculation)
+UPDATE_WAIT_US = round(UPDATE_INTERVAL_S * 1e6)
 #: the wait before every transfer (the datasheet's longest busy is 100 us)
 UNHURRIED_US = 150
-#: AN-706: wait 1.5 ms after /RST
-RESET_WAIT_US = 1500
-
-
-def _samples(velocity: int, accel: int, distance: int) -> float:
-    """Samples a trapezoid of ``velocity``/``accel`` (16.16) takes over ``distance`` counts."""
-    v, a = velocity / 65536, accel / 65536
-    if v <= 0 or a <= 0:
-        return float("inf")
-    return abs(distance) / v + v / a + 2
+#: the reset wait in the microseconds a bus program's wait takes
+RESET_WAIT_US = round(RESET_WAIT_S * 1e6)
 
 
 def _signed32(v: int) -> int:
@@ -111,6 +106,8 @@ class Reading:
     error: str = ""
     experiment: str = ""
     size: int = 1  #: bytes: 1 (a status), 2 (RDSIGS), 4 (a position)
+    #: the exception that ended the program before the reading (``error`` is its first line)
+    exception: LM629Error | None = None
 
     def ok(self) -> bool:
         """Read, and as expected (an empty ``expected``: any value)."""
@@ -254,14 +251,16 @@ def _target(bend: Miswiring, exp: Experiment) -> int:
 
 def _completes(bend: Miswiring, exp: Experiment) -> bool:
     """The experiment's move (if any) ends within its wait with the bent acceleration,
-    velocity and target (judged at 8 MHz, with a factor 2 of margin); False also when STT
-    would refuse them."""
+    velocity and target (judged at 8 MHz, with a factor 2 of margin, and two samples: the
+    STT's wait for the next sample boundary, and one of slack, since the generator completes
+    within the plan's continuous time); False also when STT would refuse them."""
     if exp.target is None:
         return True
     v, a = _bend32(VELOCITY, bend.to_chip), _bend32(ACCEL, bend.to_chip)
     target = _target(bend, exp)
     return not (v > 0x3FFFFFFF or a > 0x3FFFFFFF or abs(target) > 0x3FFFFFFF
-                or _samples(v, a, target) * 256 > MOVE_WAIT_US / 2)
+                or plan(target, v, a).seconds(NOMINAL_CLOCK_HZ, margin_samples=2) * 1e6
+                > MOVE_WAIT_US / 2)
 
 
 def _explains(bend: Miswiring, readings: Sequence[Reading],
@@ -334,12 +333,15 @@ def _unhurried(program: Program) -> Program:
     return out
 
 
-def _run(chip: LM629, program: Program) -> tuple[tuple[int, ...], tuple[int, ...], bool | None, str]:
+def _run(chip: LM629, program: Program
+         ) -> tuple[tuple[int, ...], tuple[int, ...], bool | None, LM629Error | None]:
+    """Run one experiment: (statuses, words, HI, None), or empty results and the error that
+    ended it (a bent wire may fail any program: that is a reading too)."""
     try:
         r = chip.run(_unhurried(program))
     except LM629Error as exc:
-        return (), (), None, f"{type(exc).__name__}: {exc}".split("\n")[0]
-    return r.statuses, r.words, r.hi, ""
+        return (), (), None, exc
+    return r.statuses, r.words, r.hi, None
 
 
 def _ltrj(p: Program, target: int) -> Program:
@@ -357,9 +359,10 @@ def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], 
     exps: dict[str, Experiment] = {}
     travel: list[int] = []
 
-    def add(exp_name: str, what: str, expected: frozenset[int], got: int | None, error: str,
-            size: int = 1) -> None:
-        readings.append(Reading(what, expected, got, error, exp_name, size))
+    def add(exp_name: str, what: str, expected: frozenset[int], got: int | None,
+            error: LM629Error | None, size: int = 1) -> None:
+        text = f"{type(error).__name__}: {error}".split("\n")[0] if error is not None else ""
+        readings.append(Reading(what, expected, got, text, exp_name, size, error))
 
     # 1. the read path: /RST, status at once, 1.5 ms later, twice
     st, _, h, err = _run(chip, _reset(chip, chip.program()).status().wait(RESET_WAIT_US)
@@ -409,6 +412,8 @@ def run_experiments(chip: LM629) -> tuple[list[Reading], dict[str, Experiment], 
         exps[name] = Experiment(name, cmds, words, target, relative)
         p = _ltrj(_reset(chip, chip.program()).wait(RESET_WAIT_US), target)
         if relative is not None:
+            # the second STT no sooner than AN-706 4.6.2's 10 ms after the first
+            p.wait(UPDATE_WAIT_US - MOVE_WAIT_US)
             p.command(Cmd.LTRJ).write(LTRJ_RELATIVE).write32(relative).command(Cmd.STT) \
                 .wait(MOVE_WAIT_US)
         p.status().command(Cmd.RDDP).read(2).command(Cmd.RDRP).read(2)
@@ -449,7 +454,7 @@ def _control_suspects(adapter: str, readings: list[Reading], hi: list[bool],
         out.append(Suspect("/RST", f"the status after /RST reads {first.got:02X}, not 00: the "
                            f"pulse does not reach the chip: check /RST (pin {pin_of('/RST')}) to "
                            f"{adapter_pin(adapter, '/RST')}"))
-    if any(r.error and "Busy" in r.error for r in readings):
+    if any(isinstance(r.exception, BusyTimeout) for r in readings):
         out.append(Suspect("busy", "busy never clears (status bit 0 stays 1): check the chip's "
                            f"clock (CLK pin {pin_of('CLK')}) and LM629 D0 (pin {pin_of('D0')}) "
                            f"to {adapter_pin(adapter, 'D0')}"))
@@ -474,18 +479,12 @@ def _control_suspects(adapter: str, readings: list[Reading], hi: list[bool],
     return out
 
 
-def _got(readings: Sequence[Reading]) -> tuple[int | None, ...]:
-    return tuple(r.got for r in readings)
-
-
-@functools.cache
-def _fingerprint(name: str, variant: str) -> tuple[int | None, ...]:
-    """What the experiments read on a simulated bench (``sim://``) wired with ``name``."""
-    from .lm629 import LM629  # the typed layer imports nothing of this module
-    from .transports import open_transport
-
-    with LM629(open_transport(f"sim://?chip={variant}&wiring={name}"), chip=variant) as chip:
-        return _got(run_experiments(chip)[0])
+def _alike(fault: str, variant: str, readings: Sequence[Reading]) -> int:
+    """How many of ``readings`` a simulated bench wired with ``fault`` reads the same
+    (:mod:`.wiring_reference`, made from the chip model; matched by what was read, so that a
+    bench without a /RST line, which skips a reading, is compared reading for reading)."""
+    ref = dict(zip(WHAT, READINGS.get(variant, READINGS["lm629"])[fault]))
+    return sum(r.what in ref and ref[r.what] == r.got for r in readings)
 
 
 def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Experiment],
@@ -502,8 +501,7 @@ def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Exper
     # model's reaction to the commands the fault made of others) reads most like this one;
     # then the ones that explain the most readings (a stuck line that turns every command
     # into another is consistent with anything, and explains little)
-    seen = _got(readings)
-    alike = {n: sum(a == b for a, b in zip(_fingerprint(n, variant), seen)) for n, _ in possible}
+    alike = {n: _alike(n, variant, readings) for n, _ in possible}
     top = max(alike.values(), default=0)
     found = [(n, k) for n, k in possible if alike[n] == top]
     best = max((k for _, k in found), default=None)

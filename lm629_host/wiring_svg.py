@@ -7,11 +7,14 @@ writes into docs/.  Every position comes from :mod:`lm629_host.connections` and
 :mod:`lm629_host.pinout`: nothing here knows which pin is which.
 
 Layout: the adapter's pins on the left, one row per wire; the DIP on the right with pins 1-14
-down its left side and 15-28 up its right side, as seen from above.  The rows are ordered so
-that no two wires cross: the lines to the DIP's left side in pin order, each a straight line
-level with its pin; then those to its right side in pin order, each passing under the chip and
-up to its pin; then the lines of the other chips, as labelled stubs.  A pulled-up line has a
-dot and a 10 kOhm resistor to a +5 V flag in its own row.
+down its left side and 15-28 up its right side, as seen from above.  The rows: the lines to
+the DIP's left side in pin order, each a straight line level with its pin, except the data
+bus, which keeps the adapter's bit order (D0 at the top, as the adapter's port runs) in the
+band of the data pins, so that its wires cross over in a band of their own between the
+adapter and the chip (the DIP numbers its data pins the other way); then the lines to its
+right side in pin order, each passing under the chip and up to its pin; then the lines of the
+other chips, as labelled stubs.  A pulled-up line has a dot and a 10 kOhm resistor to a +5 V
+flag in its own row.
 """
 
 from __future__ import annotations
@@ -28,13 +31,22 @@ ROW = 30  #: vertical pitch of the adapter's rows and of the DIP's pins
 TOP = 150  #: y of the first row and of pin 1
 ADAPTER_X, ADAPTER_W = 40, 230
 CHIP_X, CHIP_W = 690, 130
+#: where data wires that change rows cross over (first slant's start, each slant's width, the
+#: step between rows): clear of the labels at both ends, the line's name after the adapter and
+#: the adapter's pin before the chip
+CROSS_X0, CROSS_W, CROSS_STEP = ADAPTER_X + ADAPTER_W + 100, 160, 6
 
 COLORS = {"data": "#1f5fbf", "strobe": "#c0392b", "cs": "#d35400", "rst": "#8e44ad",
           "hi": "#1e8449", "gnd": "#222222"}
 
 
+def _is_data(c: Connection) -> bool:
+    """A data bus line (D0-D7)."""
+    return c.chip_line[:1] == "D" and c.chip_line[1:].isdigit()
+
+
 def _color(c: Connection) -> str:
-    if c.chip_line.startswith("D"):
+    if _is_data(c):
         return COLORS["data"]
     if c.chip_line == "/CS":
         return COLORS["cs"]
@@ -80,9 +92,13 @@ def render(adapter: str, axes: int = 1) -> str:
     # the lines of the other chips
     left = sorted((w for w in mine if pin_of(w.chip_line) <= 14), key=lambda w: pin_of(w.chip_line))
     right = sorted((w for w in mine if pin_of(w.chip_line) > 14), key=lambda w: pin_of(w.chip_line))
+    first = pin_of(left[0].chip_line)
+    # the data bus in bit order within the rows of its pins, wherever the DIP puts each bit
+    slots = [k for k, w in enumerate(left) if _is_data(w)]
+    for k, w in zip(slots, sorted((left[k] for k in slots), key=lambda w: int(w.chip_line[1:]))):
+        left[k] = w
     others = [w for w in wires if w.chip != 0]
     rows = left + right + others
-    first = pin_of(left[0].chip_line)
     row_y = [TOP + (first - 1 + i) * ROW for i in range(len(rows))]
     name = adapter_name(adapter)
     ft = adapter.lower() == "ft232h"
@@ -142,8 +158,12 @@ def render(adapter: str, axes: int = 1) -> str:
             continue
         n = pin_of(w.chip_line)
         px, py, side = _pin_xy(n)
-        if side < 0:
+        if side < 0 and y == py:  # level with its pin
             pts = [(ax, y), (px, py)]
+        elif side < 0:  # across the band where the bus turns over, each row's slant a step
+            # further right, so that the crossings spread out instead of meeting in one point
+            x0 = CROSS_X0 + (y - row_y[0]) / ROW * CROSS_STEP
+            pts = [(ax, y), (x0, y), (x0 + CROSS_W, py), (px, py)]
         else:
             ux = ux0 + k_right * 18
             k_right += 1

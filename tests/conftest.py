@@ -39,6 +39,31 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     if missing and os.environ.get(_REQUIRE_AVR) == "1":
         pytest.exit(f"{_REQUIRE_AVR}=1 but the AVR toolchain is missing ({', '.join(missing)}):"
                     f" apt-get install {avrsim.PACKAGES}", returncode=1)
+    # the firmware and the simavr harness are built once, by the process that starts the run,
+    # before any xdist worker exists: two workers running make in one build directory could
+    # load a half-written image (a failed build is reported by the tests that need it)
+    if not missing and not hasattr(session.config, "workerinput"):
+        try:
+            avrsim.ensure_built()
+        except avrsim.HarnessError:
+            pass
+
+
+#: test modules that start processes (a served bench, the installed script, a wheel, sigrok-cli,
+#: labgrid) or tune a motor: ``-m "not slow"`` leaves them out (docs/testing.md, the quick loop)
+SLOW_MODULES = frozenset({
+    "test_served_bench", "test_served_bench_profile", "test_bench", "test_bench_profile",
+    "test_pytest_plugin", "test_labgrid", "test_wheel", "test_ci_guard", "test_tuning",
+    "test_firmware_build", "test_firmware_bundle", "test_sigrok", "test_journey", "test_docs",
+    "test_bench_failsafe", "test_twin", "test_faults_link"})
+#: parameters that run the compiled firmware in simavr, or wait on a USB adapter in real time
+SLOW_PARAMS = ("sim+avr", "firmware", "usb=")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.stem in SLOW_MODULES or any(p in item.nodeid for p in SLOW_PARAMS):
+            item.add_marker(pytest.mark.slow)
 
 
 def pytest_report_header(config: pytest.Config) -> str | None:
@@ -157,7 +182,8 @@ def signal_on_row(monkeypatch):
             n = [0]
 
             def signalling(cycle):
-                trace(cycle)
+                if trace is not None:  # --trace given
+                    trace(cycle)
                 if cycle.kind == "command" and cycle.value == Cmd.RDSIGS:
                     n[0] += 1
                     if n[0] == row:

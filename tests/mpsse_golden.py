@@ -3,7 +3,9 @@
 Run as a script to write ``tests/data/mpsse_streams.json`` (``python tests/mpsse_golden.py``).
 The file checked in was written by the code *before* the compiler moved out of
 ``transports/ftdi.py`` into ``transports/mpsse.py`` (branch ftdi, commit 2728094), so that
-``tests/test_mpsse_golden.py`` proves the move changed no byte.  Two levels are captured:
+``tests/test_mpsse_golden.py`` proves the move changed no byte; the two calibrated sessions
+with a busy repeat (``sim+ftdi://`` and ``?axes=2``) are written by the code that doubles the
+wait after a repeat, the rest as the move left them.  Two levels are captured:
 
 * the pure compiler: each program below through ``StreamCompiler.compile`` with the
   arguments the transport uses (the 1 KiB cut, owed leads, per-chip waits, skips, command
@@ -70,8 +72,8 @@ def compiled() -> dict[str, Any]:
     from lm629_host.transports.ftdi import COMMAND_S
     try:
         from lm629_host.transports.mpsse import StreamCompiler, chips_of_units, streams_of
-    except ImportError:  # before the move (how the file checked in was written)
-        from lm629_host.transports.ftdi import (  # type: ignore[attr-defined, no-redef]  # the old home
+    except ImportError:  # commit 2728094, which wrote the golden file, has them in ftdi.py
+        from lm629_host.transports.ftdi import (  # type: ignore[attr-defined, no-redef]  # there at 2728094
             StreamCompiler, chips_of_units, streams_of)
     from lm629_host.ftdi_pins import FIFO_BYTES
     setups: dict[str, Callable[[], Any]] = {

@@ -1,4 +1,4 @@
-"""Issue 21 on the persistent bench: one ``lm629 sim serve`` (restarted for a power cycle),
+"""Bench profiles on the persistent bench: one ``lm629 sim serve`` (restarted for a power cycle),
 each ``lm629 --profile FILE ...`` a process of its own, the profile's port that server.
 
 Numbers: the profile's travel is -20000..20000 counts, max_velocity 200000 counts/s (word

@@ -1,4 +1,4 @@
-"""Several axes on one bus (issue 11): chip selects, one reset, synchronized start, straight
+"""Several axes on one bus: chip selects, one reset, synchronized start, straight
 lines.  Each behaviour runs on every simulated transport (``fast_transport_url``) with two
 chips; the numbers checked are the chip's own (every desired position at every sample, the
 sample a trajectory completes), read from the chip models behind the transport."""
@@ -11,7 +11,8 @@ import pytest
 
 import lm629_host
 from lm629_host import AxisError, ResetError
-from lm629_host.board import plan_linear, trapezoid_samples
+from lm629_host.board import plan_linear
+from lm629_host.plan import plan as plan_move
 from lm629_host.sim.model import chips_of
 from lm629_host.sim.model.chip import SAMPLE_CLOCKS
 from lm629_host.opcodes import Status
@@ -64,7 +65,7 @@ def test_plan_shares_the_words_by_distance():
     assert abs(x.acceleration - 894) <= 2 and y.acceleration * 2 == x.acceleration
     # the duration each pair of words gives, exactly, is the same within a tenth of a sample
     assert plan.spread < 0.1
-    assert abs(trapezoid_samples(12000, x.velocity, x.acceleration) / plan.samples - 1) < 0.005
+    assert abs(plan_move(12000, x.velocity, x.acceleration).samples / plan.samples - 1) < 0.005
 
 
 def test_plan_rejects_what_the_chip_cannot_do():
@@ -191,7 +192,7 @@ def test_axis_beyond_the_board_is_one_clear_error():
 
 # ------------------------------------------------------------------------------ old bridges
 def test_a_one_chip_bridge_works_with_this_host_and_axis_1_is_one_clear_error():
-    # the bridge of before issue 11: one chip select, no SELECT operation
+    # a one-chip bridge (firmware 1.0): one chip select, no SELECT operation
     with lm629_host.open("sim+emu://?bridge=1&baud=1000000") as chip:
         assert chip.transport.info.chip_selects == 1
         assert not chip.transport.info.capabilities & 0x10

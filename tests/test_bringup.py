@@ -28,8 +28,12 @@ def test_default_simulator_passes_every_step(open_chip):
     first, done, cleared = reset.data["statuses"]
     assert first == 0x00 and done in (0x84, 0xC4) and cleared in (0x80, 0xC0)
     assert "00 " in reset.summary
+    # phasing (the tuner's check, travel 4000): steps of 4000 / 8 = 500 counts at
+    # kp = 16 x 256 / 500 = 8 (first output 1/8 of full scale), followed both ways
     phasing = report.step("phasing").data
+    assert (phasing["desired_moved"], phasing["kp"], phasing["load"]) == (500, 8, 0)
     assert 0 < phasing["real_moved"] < phasing["desired_moved"]
+    assert phasing["followed"][0] >= 250 and phasing["followed"][1] <= -250
     assert report.step("hold").data["dead_band"] == 14
     assert abs(report.step("hold").data["following_error"]) <= 14
     move = report.step("move").data
@@ -51,7 +55,9 @@ def test_reversed_leads_fail_phasing_and_stop_the_motor(open_chip):
     assert [s.name for s in report.steps] == ["reset", "phasing"]
     step = report.step("phasing")
     assert step.ok is False and "swap the motor leads" in step.summary.lower()
-    assert step.data["real_moved"] < -50 < 0 < step.data["desired_moved"]
+    assert step.summary.startswith("RUNAWAY: ") and step.data["reason"] == "runaway"
+    # away from the +500 step by a tenth of it: the drive turned off and the shaft slowing
+    assert step.data["real_moved"] <= -50 < 0 < step.data["desired_moved"] == 500
     assert not report.passed and not report.reset_failed
     model = chip.transport.model
     assert model.motor_off
@@ -99,15 +105,17 @@ def test_a_load_torque_fails_the_hold_with_advice_and_stops_the_motor(open_chip)
     assert chip.read_status() & Status.MOTOR_OFF
 
 
-def test_a_heavy_load_sags_at_kp1_but_is_not_called_a_runaway(open_chip):
-    """3 mN m of load (gravity on an arm) pulls the shaft back at kp = 1 until the error is
-    large enough -- 3e-3 / 0.025 x 4 ohm = 0.48 V = 5.1 output steps = 1300 counts at kp = 1 --
-    then the loop drives it forwards.  Reversed leads would keep it going backwards ever
-    faster; this must not be reported as "swap the motor leads"."""
-    report = run_bringup(open_chip("sim://?load_torque=0.003"))
+def test_a_heavy_load_pulls_the_shaft_away_but_is_not_called_a_runaway(open_chip):
+    """12 mN m of load (gravity on an arm) needs 12e-3 / 0.025 x 4 ohm = 1.92 V, 20.5 output
+    steps of 12 V / 128: more than the phasing's first output (1/8 of full scale, 16 steps at
+    kp = 8 on a 500-count step), so the shaft heads away from the step up.  It keeps going
+    with the drive off (a load, not reversed leads, which slow down), follows the step down,
+    and at kp = 16 (32 steps) the loop holds it.  This must not be "swap the motor leads"."""
+    report = run_bringup(open_chip("sim://?load_torque=0.012"))
     step = report.step("phasing")
-    assert step.ok is True and "load pulled it back" in step.summary
-    assert step.data["real_moved"] < 0 < step.data["last_50ms"]
+    assert step.ok is True and "load pulled it back first, down" in step.summary
+    assert (step.data["load"], step.data["kp"]) == (-1, 16)
+    assert step.data["real_moved"] <= -50  # a tenth of the step, the wrong way, at first
     assert report.step("hold").ok is False  # and kp = 20 cannot hold such a load in its band
 
 
@@ -145,11 +153,11 @@ def test_a_fault_in_the_small_move_is_the_move_steps_verdict_with_the_motor_off(
 
 
 def test_a_failed_reset_names_the_wire(open_chip):
-    """Issue 23: the reset step runs the wiring check and names the wire: D2/D3 swapped make
+    """The reset step runs the wiring check and names the wire: D2/D3 swapped make
     the reset's C4 read C8 (bits 2 and 3 exchanged)."""
     report = run_bringup(open_chip("sim://?wiring=d2-d3"))
     step = report.steps[0]
     assert step.ok is False and report.reset_failed  # exit 5 in the CLI
     assert "C8" in step.summary
-    assert step.details[0].startswith("wiring check: LM629 D2 (pin 6) carries D3's bit")
+    assert step.details[0].startswith("wiring check: LM629 D2 (pin 9) carries D3's bit")
     assert "Uno D4" in step.details[0] and "Uno D5" in step.details[1]

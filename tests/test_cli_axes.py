@@ -1,4 +1,4 @@
-"""The command line on a multi-axis board (issue 11): --axis N, a list, status/watch of every
+"""The command line on a multi-axis board: --axis N, a list, status/watch of every
 axis, move with one target per axis (--linear), bringup per axis, clear errors."""
 
 from __future__ import annotations

@@ -224,3 +224,44 @@ def test_the_firmware_is_not_tripped_by_an_idle_host_a_far_wait_or_a_recording(u
     assert state.tripped and state.chips == 0b11 and state.silent_ms == 500
     assert abs((state.at_ms - state.silent_ms) / 1e3 - last) < 2e-3
     assert all(m - last <= 0.5 + reference_stop_s("abrupt") + 0.020 for m in moved)
+
+
+def test_a_trip_drops_a_shaped_moves_pending_pieces_so_none_restarts_the_axis():
+    """A host that dies in the middle of a shaped move handed to the bridge (PROFILE): the trip
+    drops the pieces still pending before it stops the chip, so the axis comes to rest and
+    stays there while the rest of the pieces' times pass (none is issued after the trip); the
+    schedule then says cancelled, and new pieces are refused until the trip is acknowledged."""
+    import lm629_host
+    from lm629_host.profile_shapes import SCurve
+    chip = lm629_host.open("sim+emu://")
+    t = chip.transport
+    assert isinstance(t, EmuLinkTransport)
+    chip.reset()
+    chip.load_filter(kp=20, kd=100)
+    chip.update_filter()
+    # 20000 counts at up to 20000 counts/s: about 1.2 s of pieces 20 ms apart
+    move = chip.move_profile(20000, SCurve(20000.0, 150000.0, 3e6))
+    assert move.far
+    chip.clock.sleep(0.05)
+    sched = t.emulator._profile
+    issued_before = sched.issued
+    due = [sched.start + t_us * 1e-6 for t_us, _ in sched.pending]
+    # the timer counts from the last good frame's arrival (the PROFILE frames take ~22 ms each
+    # on the 115200 baud line): the far end's own record of it
+    last = t.emulator._fs_last
+    trip_at = last + 0.5
+    assert sum(d > trip_at + 0.2 for d in due) >= 5  # pieces left well after the trip
+    moved = _silent_until_rest(t, due[-1] - t.model.now() + 0.2)  # past the last piece's time
+    fs = t.emulator.failsafe
+    assert fs.tripped and fs.chips == 0b1 and abs(fs.at_ms / 1e3 - trip_at) < 2e-3
+    # at rest after the trip's stop, and still at rest while the pieces it dropped fell due
+    assert trip_at < moved[0] and sum(d > moved[0] for d in due) >= 5, (moved, trip_at, due)
+    assert t.emulator.stats.pieces == issued_before + sum(d <= trip_at for d in due)
+    state = t.profile(None, [], new=False)
+    assert state.cancelled and state.pending == 0
+    assert state.issued == issued_before + sum(d <= trip_at for d in due)
+    with pytest.raises(FailsafeTripped, match="nothing of the shaped move was scheduled"):
+        t.profile(None, [(0.02, 65536), (0.04, 65536)], new=True)
+    assert t.profile(None, [], new=False).pending == 0
+    assert chip.snapshot().desired_velocity == 0
+    chip.close()

@@ -106,9 +106,9 @@ def test_exactly_once_over_a_lossy_link(far, profile, n, seed, compact):
         assert r.typed_errors > 0  # retries run out now and then and the caller is told
 
 
-# The soak of tools/fault_soak.py at the rates of issue 16, seeded, a few seconds each: 4 % of
-# bytes faulty (each kind at 1 %, delays of 10 ms) over 5000 commands is where the first
-# checker reported its false "lost" (run 0, call ~4717) and where retries run out often;
+# The soak of tools/fault_soak.py at its hardest rates, seeded, a few seconds each: 4 % of
+# bytes faulty (each kind at 1 %, delays of 10 ms) over 5000 commands is where a greedy
+# checker reports a false "lost" (run 0, call ~4717) and where retries run out often;
 # 1 % of bytes faulty is the rate at which >= 99.9 % of commands must succeed.
 SOAK = dict(delay_s=0.01)
 

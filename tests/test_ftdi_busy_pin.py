@@ -39,7 +39,7 @@ def load_ltrj(chip, start=False):
 def test_wired_ltrj_stt_is_one_stream_of_held_checks_without_timed_waits():
     ops = ltrj_stt().ops
     assert len(streams_of(ops, cut_actions=False)) == 1
-    assert len(streams_of(ops)) == 2  # unwired: cut before STT, as before
+    assert len(streams_of(ops)) == 2  # unwired: two streams, cut before the STT
     s = StreamCompiler(6e6, 100e-6, busy_pin=True).compile(ops)
     data = bytes(s.data)
     assert pins.CLK_BYTES not in data  # no 100 us idle-clock waits
@@ -79,7 +79,7 @@ def test_wired_ltrj_stt_is_one_exchange_and_lands_once(open_chip):
     assert model.history == [(Cmd.LTRJ, LTRJ_WORDS), (Cmd.STT, ())]
     assert not model.violations
     # two 125 us transfers, 8 transfers x 20 us of busy (waited on the pin), the commands;
-    # the unwired transport needs two exchanges (> 750 us); issue 19's bound is 1.5 x 478 us
+    # the unwired transport needs two exchanges (> 750 us); this one stays under 1.5 x 478 us
     assert 250e-6 + 8 * 20e-6 < took < 1.5 * 478e-6
     assert t.device.wait_ns >= 8 * 20_000 - 8 * 3_000  # the engine stood still on busy
 
@@ -165,7 +165,7 @@ def test_busy_pin_option_is_checked():
         lm629_host.open("sim+ftdi://?busy_pin=gpiol2")
     with pytest.raises(ValueError, match="busy_us=50 and busy_pin=gpiol1"):
         lm629_host.open("sim+ftdi://?busy_pin=gpiol1&busy_us=50")
-    lm629_host.open("sim+ftdi://?busy_pin=none&busy_us=50").close()  # unwired: as before
+    lm629_host.open("sim+ftdi://?busy_pin=none&busy_us=50").close()  # unwired: busy_us is taken
 
 
 def test_busy_pin_wiring_moves_hi_off_gpiol1_and_puts_d0_there():

@@ -135,5 +135,5 @@ def test_documented_wiring_table_is_the_pin_map():
                        (p.PS, "/PS (pin 16)"), (p.HI, "HI (pin 17)"), (p.RST, "/RST (pin 27)")):
         n = mask.bit_length() - 1
         assert f"| ADBUS{n} | D{n} | {line} |" in section, line
-    for i in range(8):
-        assert f"| ACBUS{i} | C{i} | D{i} (pin {4 + i}) |" in section
+    for i in range(8):  # D0 on pin 11 ... D7 on pin 4 (tests/test_pinout.py has the sources)
+        assert f"| ACBUS{i} | C{i} | D{i} (pin {11 - i}) |" in section

@@ -76,6 +76,22 @@ def test_sim_ftdi_open_drives_no_bus_line_low():
         assert falls(chip.transport.device) == []
 
 
+def test_close_returns_the_ft232h_to_uart_mode():
+    """pyftdi's close is a bit-mode reset: the FT232H goes back to UART mode, where TXD, RTS#
+    and DTR# (ADBUS0, 2, 4: TCK, /RD, /PS here) are outputs driven high and every other line
+    is an input.  No bus line falls on the way (so /RST does not reset the chip)."""
+    from lm629_host.sim.ftdi.device import UART_OUTPUTS
+    chip = lm629_host.open("sim+ftdi://")
+    chip.read_status()
+    device = chip.transport.device
+    n = len(device.ctrl_log)
+    chip.close()
+    assert UART_OUTPUTS == pins.TCK | pins.RD | pins.PS
+    assert device._low_dir == UART_OUTPUTS and device._high_dir == 0
+    assert device._ctrl == 0xFF  # /RD, /PS driven high; /CS, /WR, /RST pulled up
+    assert all(level & pins.CTRL_IDLE == pins.CTRL_IDLE for _, level in device.ctrl_log[n:])
+
+
 # ------------------------------------------------------------------ clock modes
 def test_clock_modes_left_on_by_another_tool_are_switched_off_at_open():
     """Adaptive clocking on: the emulator's idle clocks wait for RTCK, so a stream never ends;

@@ -112,11 +112,66 @@ def test_a_chip_slower_than_measured_is_repeated_and_the_wait_learns(open_chip, 
     assert model.history.count((Cmd.LTRJ, LTRJ_WORDS)) == 1 and model.history[-1] == \
         (Cmd.LTRJ, LTRJ_WORDS)
     assert t.stats.retries == 1 and "longer than measured" in caplog.text
-    assert t.busy_s >= 35e-6
+    assert 35e-6 <= t.busy_s <= 2 * t.calibrated_wait_s  # doubled: 22.2 -> 44.3 us, not the cap
     hits = t.busy_hits
     for _ in range(3):
         load_ltrj(chip)
     assert t.busy_hits == hits and t.stats.retries == 1
+
+
+def test_one_retry_at_most_doubles_the_wait_and_retry_free_commands_bring_it_back(open_chip):
+    """Busy held 10 us (the model's ``busy_s``): the calibration measures it within one status
+    read (3.5 us).  One transfer held 25 us is repeated, and the wait doubles: at most twice
+    the wait before, never the 100 us cap (the host's time around the USB exchange, >= 250
+    us, plays no part).  Each later transfer whose check passes adds (wait - calibrated wait)
+    of extra waiting; once that reaches REPEAT_COST_S (500 us) the wait halves back to the
+    calibrated one.  One LTRJ is 8 checks (command byte and 7 words), about 81 us of extra
+    waiting each at a doubled 20.3 us: the repeated LTRJ and the next 5 keep the doubled wait
+    (6 x 81 = 488 us), the 7th brings it back."""
+    import math
+
+    from lm629_host.transports.ftdi import REPEAT_COST_S
+    chip = open_chip("sim+ftdi://?busy_s=10e-6&record=1&strict=0")
+    chip.reset()
+    t, device = chip.transport, chip.transport.device
+    before = t.busy_s
+    assert 10e-6 <= t.calibrated_busy_s <= 13.5e-6 and before == pytest.approx(t.calibrated_wait_s)
+    device.stretch_busy(1, 25e-6, skip=2)
+    load_ltrj(chip)
+    assert t.stats.retries == 1
+    assert t.busy_s == pytest.approx(2 * before) and t.busy_s < 100e-6
+    back_at = math.ceil(REPEAT_COST_S / (8 * before))  # loads, the repeated one included
+    assert back_at == 7
+    for n in range(2, back_at + 1):
+        load_ltrj(chip)
+        assert t.busy_s == pytest.approx(before if n == back_at else 2 * before), n
+    assert t.stats.retries == 1
+    hist = t.model.history
+    assert hist[-1] == (Cmd.LTRJ, LTRJ_WORDS) and hist.count((Cmd.LTRJ, LTRJ_WORDS)) == back_at
+
+
+def test_a_bus_that_never_shows_busy_keeps_the_default_and_says_why(open_chip):
+    """D0 stuck low: no status read after the calibration's RDSIGS shows busy, which is no
+    measure (the first read's 1.2 us is not a busy time).  The documented 100 us is kept, the
+    calibration runs again before the next program, and doctor shows the reason."""
+    from click.testing import CliRunner
+
+    from lm629_host.cli import main
+    chip = open_chip("sim+ftdi://?wiring=d0-low")
+    t = chip.transport
+    chip.read_status()
+    assert t.calibrated_busy_s is None and t.busy_s == pytest.approx(100e-6)
+    assert "no status read after RDSIGS showed busy" in t.calibration_note
+    assert [c.ok for c in t.port_checks()] == [False]
+    exchanges = t.stats.round_trips
+    chip.read_status()  # measured again first: its exchanges are counted apart
+    assert t.calibration_exchanges == 2 and t.stats.round_trips == exchanges + 1
+    assert t.calibrated_busy_s is None and t.busy_s == pytest.approx(100e-6)
+    r = CliRunner().invoke(main, ["--port", "sim+ftdi://?wiring=d0-low", "doctor"])
+    assert r.exit_code == 1
+    assert "busy wait: not measured: no status read after RDSIGS showed busy" in r.output
+    r = CliRunner().invoke(main, ["--port", "sim+ftdi://", "doctor"])
+    assert "busy wait: measured: the chip holds busy <= 22.2 us" in r.output
 
 
 # ---------------------------------------------------------------------- injected long busy

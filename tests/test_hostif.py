@@ -121,12 +121,12 @@ def test_lfil_is_double_buffered_until_udf_at_the_next_sample():
     settle(m)
     write_word(m, 25)
     settle(m)
-    assert m.filter_buffer.kp == 25 and m.filter_buffer.ds == 3
+    assert m.filter_buffer.kp == 25 and m.filter_buffer.ds == 4  # high byte 3: 4 samples
     assert m.filter.kp == 0
     m.write_command(Cmd.UDF)
     assert m.filter.kp == 0  # not before the sample boundary
     m.advance_to(m.next_sample)
-    assert m.filter.kp == 25 and m.filter.ds == 3
+    assert m.filter.kp == 25 and m.filter.ds == 4
     assert m.signals & Signals.FILTER_UPDATED  # for one sample
     m.advance_to(m.next_sample)
     assert not m.signals & Signals.FILTER_UPDATED

@@ -4,9 +4,13 @@ the simulated parts (lm629_host/sim/) reached by the driver only through the sim
 from __future__ import annotations
 
 import ast
+import io
+import re
 import subprocess
 import sys
+import tokenize
 from pathlib import Path
+
 
 ROOT = Path(__file__).resolve().parent.parent
 PKG = ROOT / "lm629_host"
@@ -146,6 +150,8 @@ def test_every_transport_is_in_transports():
             continue
         if info.name == "lm629_host.labgrid_driver" and importlib.util.find_spec("labgrid") is None:
             continue  # the optional extra, in a venv of its own (tests/test_labgrid.py)
+        if info.name.startswith("lm629_host.sigrok.lm629"):
+            continue  # the sigrok decoder runs inside libsigrokdecode, which provides its import
         importlib.import_module(info.name)
     seen, todo = set(), [Transport]
     while todo:
@@ -162,15 +168,14 @@ def test_every_transport_is_in_transports():
 def test_the_driver_asks_the_transport_not_its_model():
     """Outside sim/ and the simulator transports nothing reads a transport's ``model`` or
     ``models`` (the chip model is the simulator's business): Transport.clock_hz and
-    Transport.chip_count say what the driver needs."""
+    Transport.chip_count say what the driver needs, and the simulators' strict, set_strict and
+    take_violations what the pytest plugin needs."""
     import re
     pattern = re.compile(r"transport\.models?\b|[\"']models?[\"']")
     found = []
     for name, path in _modules().items():
         if name.startswith("lm629_host.sim") or name.startswith("lm629_host.transports.sim"):
             continue
-        if name == "lm629_host.pytest_plugin":  # a test tool: it reports the simulated chips'
-            continue  # protocol violations (Bench.models), a door to the simulator by design
         found += [f"{path.name}:{n}" for n, line in enumerate(path.read_text().splitlines(), 1)
                   if pattern.search(line)]
     assert found == []
@@ -212,3 +217,140 @@ def test_the_package_root_is_what_a_lab_script_needs():
     doc = (ROOT / "docs" / "python.md").read_text()
     missing = [n for n in lm629_host.__all__ if f"`{n}`" not in doc and n != "__version__"]
     assert missing == []
+
+
+# ---------------------------------------------------------------------- grep-level rules
+#: the modules that may open a simulator URL: the simulator transports, sim/ and `lm629 sim`
+SIM_OPENERS = ("lm629_host.transports.sim", "lm629_host.sim", "lm629_host.cli.sim")
+#: a URL of a simulated bench at the start of a string: ``sim://``, ``sim+emu://``...
+SIM_URL = re.compile(r"sim(\+\w+)?://")
+#: an issue number: the word issue (or issues) and a number, or a hash sign and a number
+ISSUE_NUMBER = re.compile(r"\bissues?\s+#?\d+|(?<![\w&/])#\d+\b", re.IGNORECASE)
+
+
+def _trees() -> dict[str, tuple[Path, ast.Module]]:
+    return {name: (path, ast.parse(path.read_text())) for name, path in _modules().items()}
+
+
+def _is_self(node: ast.AST) -> bool:
+    return isinstance(node, ast.Name) and node.id in ("self", "cls")
+
+
+def _private_reach(tree: ast.Module) -> list[int]:
+    """Lines where code reads another object's whole state (``vars(x)``, ``x.__dict__``) or
+    sets one of its private fields by name (``setattr(x, "_f", v)``): either makes that
+    object's private fields the caller's business."""
+    lines = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.args:
+            target, name = node.args[0], node.args[1] if len(node.args) > 1 else None
+            if node.func.id == "vars" and not _is_self(target):
+                lines.append(node.lineno)
+            elif node.func.id in ("setattr", "delattr") and not _is_self(target) and (
+                    isinstance(name, ast.Constant) and str(name.value).startswith("_")):
+                lines.append(node.lineno)
+        elif isinstance(node, ast.Attribute) and node.attr == "__dict__" and not _is_self(node.value):
+            lines.append(node.lineno)
+    return lines
+
+
+def _execute_assigned(tree: ast.Module) -> list[int]:
+    """Lines that replace a transport's ``execute`` (an assignment, or setattr by name)."""
+    lines = []
+    for node in ast.walk(tree):
+        targets: list[ast.expr] = []
+        if isinstance(node, ast.Assign):
+            targets = node.targets
+        elif isinstance(node, (ast.AugAssign, ast.AnnAssign)):
+            targets = [node.target]
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and \
+                node.func.id == "setattr" and len(node.args) > 1 and \
+                isinstance(node.args[1], ast.Constant) and node.args[1].value == "execute":
+            lines.append(node.lineno)
+        lines += [node.lineno for t in targets for a in ast.walk(t)
+                  if isinstance(a, ast.Attribute) and a.attr == "execute"]
+    return lines
+
+
+def _sim_opened(tree: ast.Module) -> list[int]:
+    """Lines that pass a simulator URL (a string or f-string starting ``sim://``, ``sim+x://``)
+    to a call: ``open_transport("sim://...")``, ``lm629_host.open(f"sim://?wiring={w}")``."""
+    lines = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Call):
+            continue
+        for arg in node.args:
+            text = arg.value if isinstance(arg, ast.Constant) else (
+                arg.values[0].value if isinstance(arg, ast.JoinedStr) and arg.values
+                and isinstance(arg.values[0], ast.Constant) else None)
+            if isinstance(text, str) and SIM_URL.match(text):
+                lines.append(node.lineno)
+    return lines
+
+
+def _comments_and_docstrings(path: Path) -> list[tuple[int, str]]:
+    """(line, text) of every comment and docstring of a file."""
+    source = path.read_text()
+    out = [(t.start[0], t.string) for t in tokenize.generate_tokens(io.StringIO(source).readline)
+           if t.type == tokenize.COMMENT]
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            doc = ast.get_docstring(node, clean=False)
+            if doc is not None:
+                first = node.body[0].lineno
+                out += [(first + k, line) for k, line in enumerate(doc.splitlines())]
+    return out
+
+
+def test_the_grep_rules_find_what_they_look_for():
+    """Each rule below, on a few lines that break it and a few that do not."""
+    tree = ast.parse("vars(chip)\nvars(self)\nsetattr(chip, '_ds', 4)\nsetattr(chip, 'limits', x)\n"
+                     "setattr(self, '_x', 1)\nx = other.__dict__\n")
+    assert _private_reach(tree) == [1, 3, 6]
+    tree = ast.parse("t.execute = hook\nt.execute(p)\nsetattr(t, 'execute', hook)\nx = t.executed\n")
+    assert _execute_assigned(tree) == [1, 3]
+    tree = ast.parse("open_transport(f'sim://?wiring={w}')\nlm629_host.open('sim+emu://')\n"
+                     "DEFAULT = 'sim://'\nopen(url)\nclick.echo('use sim:// for a simulator')\n")
+    assert _sim_opened(tree) == [1, 2]
+    found = [bool(ISSUE_NUMBER.search(t)) for t in (
+        "see issue 12", "issues 3 and 4", "(changed, #15)", "Issue 20's tuner", "#: a field",
+        "# no" + "qa: E402", "colour #1f77b4", "the 2nd issue of a series", "url#15")]
+    assert found == [True, True, True, True, False, False, False, False, False]
+
+
+def test_no_class_reaches_into_another_objects_private_fields():
+    found = [f"{path.relative_to(ROOT)}:{n}" for path, tree in _trees().values()
+             for n in _private_reach(tree)]
+    assert found == []
+
+
+def test_only_transports_assign_execute():
+    found = [f"{path.relative_to(ROOT)}:{n}" for name, (path, tree) in _trees().items()
+             if not name.startswith("lm629_host.transports.") for n in _execute_assigned(tree)]
+    assert found == []
+
+
+def test_only_the_simulator_opens_a_simulator_url():
+    """Library code that diagnoses or drives a bench never opens a simulated one: only the
+    simulator transports, sim/ and `lm629 sim` pass a simulator URL to anything."""
+    found = [f"{path.relative_to(ROOT)}:{n}" for name, (path, tree) in _trees().items()
+             if not name.startswith(SIM_OPENERS) for n in _sim_opened(tree)]
+    assert found == []
+
+
+def test_no_class_name_is_defined_twice():
+    seen: dict[str, list[str]] = {}
+    for path, tree in _trees().values():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                seen.setdefault(node.name, []).append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert {k: v for k, v in seen.items() if len(v) > 1} == {}
+
+
+def test_no_issue_number_in_a_comment_or_docstring():
+    """Comments and docstrings say why; which issue asked for something is the commit
+    message's business (and means nothing to a reader of the code)."""
+    paths = [p for p in _modules().values()] + sorted((ROOT / "tests").glob("*.py"))
+    found = [f"{path.relative_to(ROOT)}:{n}: {text.strip()[:60]}" for path in paths
+             for n, text in _comments_and_docstrings(path) if ISSUE_NUMBER.search(text)]
+    assert found == []

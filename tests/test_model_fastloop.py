@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 import lm629_host
-from lm629_host.sim.model.trajectory import ONE
+from lm629_host.opcodes import FIXED_ONE as ONE
 
 T = 2048 / 8e6  # one sample at 8 MHz
 
@@ -213,8 +213,8 @@ def test_the_loops_take_their_status_bits_from_opcodes():
         assert not literal, f"{name}: a literal status bit"
 
 
-# ---------------------------------------------------------------- issue 15 scenarios
-# The round-2 behaviours (tests/test_model_scenarios.py, on every transport) under all three
+# ---------------------------------------------------------------- the model's scenarios
+# The behaviours of tests/test_model_scenarios.py (there on every transport) under all three
 # loops, register by register: restarts after stops and motor off, the hold after a completed move, the plant
 # through /RST and RESET, RSTI after reset, the default index, buffered and relative values,
 # an out-of-range word.

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import pytest
 
+from lm629_host.opcodes import FIXED_ONE as ONE
 from lm629_host.sim.model.trajectory import (
-    ONE,
     Trajectory,
     landing_velocity,
     stop_distance,

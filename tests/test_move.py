@@ -54,7 +54,7 @@ def test_flags_are_cleared_in_the_program_that_starts_the_move(usb_transport_url
     recorder.clear()
     programs = chip.transport.stats.programs
     move = chip.move_to(600, velocity=65536, acceleration=655)
-    # one program (one exchange on a bridge, issue 19): the snapshot the move starts from,
+    # one program (one exchange on a bridge): the snapshot the move starts from,
     # then RSTI, LTRJ with its words, STT
     assert chip.transport.stats.programs - programs == 1
     data = recorder.data()

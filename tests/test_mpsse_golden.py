@@ -1,10 +1,10 @@
-"""The MPSSE stream compiler's move out of transports/ftdi.py changed no byte.
+"""The MPSSE stream compiler's bytes are pinned: a refactor of it must change none.
 
 ``tests/data/mpsse_streams.json`` holds the streams of representative programs (every bus
 operation, every stream cut, both chips, the 1 KiB cut, owed leads, skips, the measured
 wait's command cost) and every bulk OUT of typed-command sessions on the emulated FT232H
 (calibration and a busy repeat included), written by ``tests/mpsse_golden.py`` from the code
-as it was before the move (commit 2728094).  Here the same generator runs on today's code.
+at commit 2728094.  Here the same generator runs on today's code.
 A deliberate change of the streams regenerates the file (``python tests/mpsse_golden.py``)
 and says why in its commit.
 """

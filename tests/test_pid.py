@@ -29,7 +29,7 @@ from lm629_host.pid import (
 from filter_helpers import LOOPS, loop_filter
 
 
-def run(errors, kp=0, ki=0, kd=0, il=0, ds=0):
+def run(errors, kp=0, ki=0, kd=0, il=0, ds=1):
     s = PIDState()
     return s, [pid_step(s, e, kp, ki, kd, il, ds) for e in errors]
 
@@ -40,7 +40,7 @@ def test_proportional_term_and_8_bit_output_is_the_top_byte():
     assert us == [260, 240]
     assert [output_code(u, False) for u in us] == [1, 0]
     # negative: e = -1 -> u = -20 = FFECh -> top byte FF = -1 (arithmetic shift)
-    assert output_code(pid_step(s, -1, 20, 0, 0, 0, 0), False) == -1
+    assert output_code(pid_step(s, -1, 20, 0, 0, 0, 1), False) == -1
     # 12-bit mode (LM628 PORT12): top 12 bits, 260 -> 0010h
     assert output_code(260, True) == 16
 
@@ -71,10 +71,10 @@ def test_integral_uses_top_16_of_24_bits_and_the_limit():
     s, us = run([256], ki=0x7FFF, il=1000)
     assert us == [1000] and s.integral == 1000
     # once at the limit, further errors of the same sign are not summed ...
-    pid_step(s, 256, 0, 0x7FFF, 0, 1000, 0)
+    pid_step(s, 256, 0, 0x7FFF, 0, 1000, 1)
     assert s.error_sum == 256
     # ... but errors of the other sign are
-    pid_step(s, -100, 0, 0x7FFF, 0, 1000, 0)
+    pid_step(s, -100, 0, 0x7FFF, 0, 1000, 1)
     assert s.error_sum == 156 and s.integral == 0
 
 
@@ -89,12 +89,13 @@ def test_error_sum_is_24_bits():
     assert s.error_sum == (1 << 23) - 1
 
 
-def test_derivative_sampled_every_ds_plus_1_samples_and_held():
-    # ds = 2: derivative samples at n = 0, 3, 6; e = 0, 1, 2, ... kd = 10
-    s, us = run([0, 1, 2, 3, 4, 5, 6], kd=10, ds=2)
+def test_derivative_sampled_every_ds_samples_and_held():
+    # ds = 3 (an interval of 3 samples, LFIL byte 2): derivative samples at n = 0, 3, 6;
+    # e = 0, 1, 2, ... kd = 10
+    s, us = run([0, 1, 2, 3, 4, 5, 6], kd=10, ds=3)
     # n=0: 10*(0-0) = 0; n=3: 10*(3-0) = 30 held for n=3..5; n=6: 10*(6-3) = 30
     assert us == [0, 0, 0, 30, 30, 30, 30]
-    s, us = run([0, 5, 5, 5], kd=100, ds=0)
+    s, us = run([0, 5, 5, 5], kd=100, ds=1)
     assert us == [0, 500, 0, 0]
 
 
@@ -125,14 +126,14 @@ def test_filter_sum_and_derivative_term_saturate_like_the_filter():
 
 def test_holds_and_skip_held_match_stepping_sample_by_sample():
     # ki = 0, il = 500, e = 7 held: the sum grows by 7 a sample, nothing else changes but the
-    # derivative's countdown (ds = 3)
+    # derivative's countdown (ds = 4)
     s = PIDState()
-    pid_step(s, 7, 40, 0, 0, 500, 3)
+    pid_step(s, 7, 40, 0, 0, 500, 4)
     assert holds(s, 7, 0, 500)
     stepped = PIDState(s.error_sum, s.last_error, s.derivative, s.countdown, s.integral, s.output)
     for _ in range(10):
-        pid_step(stepped, 7, 40, 0, 0, 500, 3)
-    skip_held(s, 10, 7, 500, 3)
+        pid_step(stepped, 7, 40, 0, 0, 500, 4)
+    skip_held(s, 10, 7, 500, 4)
     assert s == stepped and s.error_sum == 77
     # a held derivative term, a last error that differs or integral action: not held
     assert not holds(PIDState(derivative=5), 0, 0, 0)
@@ -147,7 +148,7 @@ GAIN = st.integers(0, 0x7FFF)
 
 
 @settings(max_examples=300, deadline=None)
-@given(kp=GAIN, ki=GAIN, kd=GAIN, il=GAIN, ds=st.integers(0, 255), twelve=st.booleans(),
+@given(kp=GAIN, ki=GAIN, kd=GAIN, il=GAIN, ds=st.integers(1, 256), twelve=st.booleans(),
        errors=st.lists(st.one_of(st.integers(-300, 300), st.integers(-40000, 40000),
                                  st.integers(-(1 << 30), (1 << 30) - 1)),
                        min_size=1, max_size=40))

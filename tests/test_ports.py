@@ -59,7 +59,7 @@ def test_an_unknown_scheme_is_bad_usage_and_a_transport_error():
 
 def test_a_simulator_builds_the_chip_it_is_told_of():
     """The arguments go into a simulator's URL: open("sim://", chip="lm628") is an LM628
-    model (it used to be an LM628 object over an LM629 model)."""
+    model, not an LM628 driver over an LM629 model."""
     spec = resolve_port("sim://?cs=1&lines=500", chip="LM628", clock="6MHz", axes=2)
     assert spec.transport is SimTransport and spec.simulated
     assert (spec.chip, spec.clock_hz, spec.axes, spec.cs) == ("lm628", 6e6, 2, 1)

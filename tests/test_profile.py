@@ -87,6 +87,18 @@ def test_a_good_profile_reads_back_every_key(tmp_path):
     (("[axis.y]\ncs = 1\n", "[axis.y]\n"), 19, "[axis.y]: has no cs"),
     (("[board]", "[boards]"), 2, "[boards]: unknown table"),
     (("note = \"belt drive\"", "note = \"belt drive"), 17, "not TOML"),
+    # a value nested 5000 deep (tomllib: a RecursionError), an array left open at the end, a
+    # table declared twice (tomlkit would place it at the table's end), a TOML 1.1 escape
+    # (tomlkit takes it, tomllib does not): each placed where tomllib stops taking the text
+    (("kd = 0", "kd = 0\nstop = " + "[" * 5000), 11, "not TOML: a value nested too deep"),
+    (("kp = 30", "kp = [30,"), 21, "not TOML"),
+    (("[axis.y]", "[axis.x]"), 19, "not TOML"),
+    (("note = \"belt drive\"", "note = \"belt\\edrive\""), 17, "not TOML"),
+    # a valid multi-line string does not hide an error after it
+    (("note = \"belt drive\"", 'note = """belt\n\ndrive"""\nkq = =1'), 20, "not TOML"),
+    # tables made by a key, not a header: the key's line
+    (("[axis.y]\ncs = 1\nkp = 30\n", "[axis]\ny = 1\n"), 20, "[axis.y]: must be a table"),
+    (("kd = 0", "kd = 0\nlimits.min = 1"), 11, "[axis.x] limits: unknown key"),
 ])
 def test_a_bad_profile_is_one_line_naming_the_file_the_line_and_the_key(tmp_path, edit, line,
                                                                            words):
@@ -211,6 +223,14 @@ def test_cli_bad_profile_and_unknown_axis_exit_2_in_one_line(tmp_path):
                                 f"20000 counts ({good}:13: [axis.x] max)")
 
 
+def test_cli_a_profile_nested_too_deep_is_one_line_and_exit_2(tmp_path):
+    deep = _write(tmp_path, "a = " + "[" * 5000 + "\n", "deep.toml")
+    r = CliRunner().invoke(main, ["--profile", str(deep), "status"])
+    assert r.exit_code == 2
+    assert r.stderr.strip().splitlines() == [
+        f"lm629: bad value: {deep}:1: not TOML: a value nested too deep (arrays or inline tables)"]
+
+
 def test_cli_profile_init_writes_a_template_from_the_options(tmp_path):
     runner = CliRunner()
     path = tmp_path / "new.toml"
@@ -257,7 +277,7 @@ def test_tuning_on_a_capped_axis_ramps_within_the_caps_and_predicts_the_ramp(tmp
         result = autotune(x, travel=2000)
     assert result.ok
     steps = [w for w in words if w[0] is not None and w[1] is not None]
-    # the experiments' steps at the caps; the trapezoid test move (issue 20) at its own words,
+    # the experiments' steps at the caps; the trapezoid test move at its own words,
     # inside the caps (0x40000 and 0x2000 on this axis)
     move = (result.profile.velocity, result.profile.acceleration)
     assert move == (0x40000, 0x2000) and move[0] <= 3355443 and move[1] <= 17179
@@ -373,3 +393,60 @@ def test_the_profiles_port_is_settled_by_the_one_resolver(tmp_path):
     msg = str(err.value)
     assert msg.startswith(f"{tmp_path / 'bad.toml'}:3: [board] port: ") and "lm628" in msg
     assert "lm629" in msg and "\n" not in msg
+
+
+def _lfil_words(recorder):
+    """Each LFIL on the bus: its control word and the coefficient words after it."""
+    data = recorder.data()
+    out = []
+    for i, (kind, value) in enumerate(data):
+        if kind == "command" and value == 0x1E:
+            words = []
+            for k, v in data[i + 1:]:
+                if k != "write":
+                    break
+                words.append(v)
+            out.append(words)
+    return out
+
+
+def test_ds_is_the_interval_from_tune_to_the_lfil_word(tmp_path, open_chip, recorder):
+    """ds = 7 samples everywhere -- the tuner's gains, their CLI line, a TuneResult, the profile
+    saved after `tune`, the profile applied -- and only on the bus the LFIL control word's
+    high byte holds 7 - 1 = 6 (AN-706 4.5.1: the derivative is sampled every byte + 1
+    samples); kp 231 and kd 773 differ from the reset values (0)."""
+    from lm629_host.cli.profile import after_tune
+    from lm629_host.cli.tune import parse_gains
+    from lm629_host.tuning import Gains, TuneResult
+
+    g = Gains(kp=231, kd=773, ds=7)
+    assert parse_gains("kp=231,kd=773,ds=7") == g
+    assert "--ds 7" in g.cli() and str(g).endswith("ds=7")
+    result = TuneResult(g.kp, g.ki, g.kd, g.il, g.ds, *([None] * 9))
+    assert result.gains == g
+    # the tuner loads its gains as the session does
+    chip = open_chip("sim://")
+    chip.reset()
+    recorder.clear()
+    chip.load_filter(**result.gains.as_filter())
+    chip.update_filter()
+    assert _lfil_words(recorder) == [[0x060F, 231, 0, 773, 0]]
+    assert chip.derivative_interval == 7
+    model = chip.transport.model
+    chip.clock.sleep(1e-3)
+    assert model.filter.ds == 7 and model.filter.kd == 773
+    # saved by `tune --save`, read back, applied to a fresh chip
+    path = _write(tmp_path)  # x: kp 20, kd 0, ds 1
+    after_tune(None, None, result.gains, (path, "x"), True)
+    prof = load_profile(path)
+    assert (prof.axes["x"].kp, prof.axes["x"].kd, prof.axes["x"].ds) == (231, 773, 7)
+    other = open_chip("sim://")
+    other.reset()
+    recorder.clear()
+    ensure_applied({"x": other}, prof, lambda text: None)
+    assert _lfil_words(recorder) == [[0x060F, 231, 0, 773, 0]]
+    assert other.derivative_interval == 7
+    # a later LFIL without an interval sends the same byte again
+    recorder.clear()
+    other.load_filter(kp=232)
+    assert _lfil_words(recorder) == [[0x0608, 232]]

@@ -315,3 +315,66 @@ def test_the_same_file_on_a_persistent_bench(user_dir):
     assert "MOTOR_OFF" in first["status_flags"]
     assert 0 < first["real_position"] < 400000 // 2
     assert abs(second["real_position"] - first["real_position"]) <= 2
+
+
+def _run(t: float, program, words=(), statuses=()):
+    from lm629_host.program import ProgramResult
+    from lm629_host.pytest_plugin import _Run
+    return _Run(t, tuple(program.ops), ProgramResult(tuple(words), tuple(statuses), 0x80))
+
+
+def test_the_report_folds_repeated_programs_and_keeps_those_that_changed_the_chip():
+    """40 lines: identical programs one after the other are one line with their count; when
+    the log is full the oldest program that only read the chip is dropped first, so the
+    LFIL / LTRJ + STT that set up a move stay in view."""
+    from lm629_host import Cmd
+    from lm629_host.program import Program
+    from lm629_host.pytest_plugin import TRACE_PROGRAMS, ProgramLog
+    log = ProgramLog()
+    log.add(_run(0.001, Program().command(Cmd.LFIL).write(0x0008).write(30)))
+    log.add(_run(0.002, Program().command(Cmd.RDRP).read(2), (0, 5)))
+    log.add(_run(0.003, Program().command(Cmd.LTRJ).write(0x0002).write(0).write(9000)
+                 .sync().command(Cmd.STT).sync(), statuses=(0x80, 0x80)))
+    for k in range(100):  # a wait's polls: the same status each time
+        log.add(_run(0.004 + k * 1e-4, Program().status(), statuses=(0x80,)))
+    assert len(log.runs) == 4 and log.runs[-1].count == 100
+    for k in range(TRACE_PROGRAMS):  # positions that differ: one line each
+        log.add(_run(0.02 + k * 1e-3, Program().command(Cmd.RDRP).read(2), (0, 10 + k)))
+    lines = log.text_lines()
+    # 44 lines: the RDRP at 2 ms and the 100 polls went (101 programs), then the loop's first
+    # two RDRPs
+    assert lines[0] == "  (103 older program(s) not shown: those that only read the chip go first)"
+    assert re.fullmatch(r" +1\.0000  cs0: LFIL 0008 001E  \[status 80 \(MOTOR_OFF\)\]", lines[1])
+    assert re.fullmatch(r" +3\.0000  cs0: LTRJ 0002 0000 2328; sync 80 \(MOTOR_OFF\); STT; "
+                        r"sync 80 \(MOTOR_OFF\)", lines[2])
+    assert re.fullmatch(r" +22\.0000  cs0: RDRP <- 0000 000C  \[status 80 \(MOTOR_OFF\)\]",
+                        lines[3])
+    assert len(lines) == 1 + TRACE_PROGRAMS and len(log.runs) == TRACE_PROGRAMS
+
+
+def test_a_failure_report_shows_the_move_behind_its_wait_polls(pytester, monkeypatch):
+    monkeypatch.delenv("LM629_SIM_STRICT", raising=False)
+    pytester.makepyfile(test_polls='''
+import pytest
+from lm629_host import Cmd
+
+
+@pytest.mark.lm629_motion
+def test_waits_then_fails(lm629):
+    lm629.load_filter(kp=20)
+    lm629.update_filter()
+    lm629.load_trajectory(acceleration=100, velocity=65536, position=50000, start=True)
+    for _ in range(60):
+        lm629.read_status()
+    assert False, "deliberate"
+''')
+    out = pytester.runpytest_subprocess("-p", "no:cacheprovider").stdout.str()
+    d = _section(out, "test_waits_then_fails")
+    programs = d[d.index("last bus programs on sim://?strict=1"):].splitlines()
+    # acceleration 100 (0000 0064), velocity 65536 (0001 0000), position 50000 (0000 C350)
+    assert re.search(r"\n +[\d.]+  cs0: LTRJ 002A 0000 0064 0001 0000 0000 C350; sync C0 "
+                     r"\(BREAKPOINT\|MOTOR_OFF\); STT; sync 40 \(BREAKPOINT\)\n", d)
+    polls = [p for p in programs if re.search(r"cs0: status [0-9A-F]{2} ", p)]
+    # 60 status reads in a row, all the same byte while the move runs: one line
+    assert len(polls) == 1 and polls[0].endswith(re.search(r"\(x60, the last at [\d.]+\)$",
+                                                           polls[0]).group(0))

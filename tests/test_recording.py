@@ -1,4 +1,4 @@
-"""Recording on the far side (issue 19, item 2): ``LM629.record`` -> ``Trace``.
+"""Recording on the far side: ``LM629.record`` -> ``Trace``.
 
 The figures: the chip samples every 2048 clocks (256 us at 8 MHz), so 1 ms holds 3.906 samples:
 a move at 4 counts/sample advances the desired position by 3 or 4 samples' worth, 12 or 16
@@ -14,11 +14,12 @@ import pytest
 
 import lm629_host
 from lm629_host import LM629
-from lm629_host.errors import ArgumentError
-from lm629_host.bridge.protocol import Capability, FrameType, HelloInfo, decode_frame
+from lm629_host.errors import ArgumentError, TransportError
+from lm629_host.bridge.protocol import Capability, FrameType, HelloInfo, Result, decode_frame
 from lm629_host.opcodes import Cmd, s32
 from lm629_host.sim.bridge import MULTI_AXIS_INFO
 from lm629_host.sim.faults import FaultPipe
+from lm629_host.transports.link import LinkError
 from lm629_host.transports.simemu import open_emulated
 
 #: 4 counts per sample (16.16)
@@ -200,6 +201,83 @@ def test_a_lost_request_is_sent_again():
     t.pipe.write = write_then_heal  # type: ignore[method-assign]  # heal the line after one write
     tr = chip.record(1e-3, 0.01)
     assert len(tr) == 10 and t.stats.retries == 1 and t.emulator.stats.recordings == 1
+
+
+def test_a_damaged_first_row_sends_the_record_again_with_a_new_seq():
+    """The first row of a RECORD arrives damaged: like any request whose reply was bad, it is
+    sent again at once, with a new seq (RECORD is never answered from the cache); the new
+    frame's first byte stops the first recording, whose rows (the old seq) are ignored.  The
+    trace is the second recording's, whole."""
+    t = open_emulated("sim://", baud=1_000_000)
+    chip = LM629(t)
+    chip.reset()
+    emu = t.emulator
+    step = emu.record_step
+    seqs: list[int] = []  # the seq of every row the bridge sent, in order
+    sent: dict[int, bytes] = {}  # row number -> the last RECORD_ROW payload sent under it
+
+    def damage_the_first_row():
+        out = step()
+        f = decode_frame(out[0])
+        if f.type == FrameType.RECORD_ROW:
+            seqs.append(f.seq)
+            sent[int.from_bytes(f.payload[:2], "big")] = f.payload
+            if len(seqs) == 1:
+                frame = bytearray(out[0])
+                k = len(frame) // 2
+                frame[k] ^= 0x40 if frame[k] != 0x40 else 0x20  # a COBS byte, never 0
+                out[0] = bytes(frame)
+        return out
+    emu.record_step = damage_the_first_row  # type: ignore[method-assign]  # the line's damage
+    bad = t.bad_frames
+    tr = chip.record(1e-3, 0.01)
+    assert [r.index for r in tr] == list(range(10)) and not tr.missing
+    assert t.stats.retries == 1 and emu.stats.recordings == 2 and t.bad_frames == bad + 1
+    second = seqs[-1]
+    assert seqs[0] == (second - 1) & 0xFF  # one new seq for the one retry
+    assert seqs.count(second) == 10  # every row kept is the second recording's
+    for r in tr:
+        assert s32(int.from_bytes(sent[r.index][7:11], "big")) == r.desired
+
+
+def test_an_unanswered_record_gives_up_then_resynchronises():
+    """RECORD lost every time: one LinkError after ``retries + 1`` attempts, each a new seq,
+    saying the line is the suspect; the next call first resynchronises (HELLO), then runs."""
+    t = open_emulated("sim://", baud=1_000_000)
+    chip = LM629(t)
+    chip.reset()
+    fp = FaultPipe(t.pipe, seed=1, to_host=False)
+    t.pipe = fp
+    fp.out.rates.drop = 1.0
+    seq0 = t._seq
+    with pytest.raises(LinkError) as e:
+        chip.record(1e-3, 0.01)
+    assert e.value.may_have_run
+    assert f"no answer to RECORD after {t.retries + 1} attempt(s)" in str(e.value)
+    assert f"{t.retries + 1} of the last" in str(e.value) and "Check the USB cable" in str(e.value)
+    assert t.stats.retries == t.retries and (t._seq - seq0) & 0xFF == t.retries + 1
+    emu = t.emulator
+    assert emu.stats.recordings == 0
+    fp.out.rates.drop = 0.0
+    frames, runs = emu.stats.frames, emu.stats.runs
+    assert chip.read_desired_position() == 0
+    assert (emu.stats.frames - frames, emu.stats.runs - runs) == (2, 1)  # HELLO, then the RUN
+
+
+def test_a_record_refused_with_an_error_reply_says_so():
+    """A bridge that answers RECORD with ERROR_REPLY (host and firmware disagree): one
+    TransportError naming RECORD and the code, no retry."""
+    t = open_emulated("sim://", baud=1_000_000)
+    chip = LM629(t)
+    chip.reset()
+    emu = t.emulator
+
+    def refuse(frame):
+        return emu._error(frame.seq, Result.BAD_REQUEST)
+    emu._start_recording = refuse  # type: ignore[method-assign]  # a bridge that refuses RECORD
+    with pytest.raises(TransportError, match=rf"refused RECORD \(ERROR_REPLY, code {int(Result.BAD_REQUEST)}\)"):
+        chip.record(1e-3, 0.01)
+    assert t.stats.retries == 0
 
 
 def test_a_stream_closed_early_stops_the_bridge():

@@ -1,10 +1,10 @@
 """The exactly-once checker of the fault soak (``sim.faults.check_record``) decides exactly.
 
-The record from issue 16 (run 0 of ``tools/fault_soak.py --runs 2 --n 5000 --rate 0.01``,
+A record the soak made (run 0 of ``tools/fault_soak.py --runs 2 --n 5000 --rate 0.01``,
 Python far end): calls SBPA 5805 (returned), RDRP (raised), SBPA 5807 (raised), RDRP (returned),
 SBPA 5809 (returned); the chip's record SBPA 5805, RDRP, SBPA 5809.  That is consistent (the
-failed RDRP and SBPA 5807 never ran, the returned RDRP did); the first checker matched greedily,
-gave the one RDRP to the failed call and reported the returned one lost.
+failed RDRP and SBPA 5807 never ran, the returned RDRP did); a checker that matches greedily
+gives the one RDRP to the failed call and reports the returned one lost.
 """
 
 from __future__ import annotations

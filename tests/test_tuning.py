@@ -94,7 +94,7 @@ def test_predictor_filter_is_the_chips_arithmetic():
     stuck = AxisModel(accel=1e-3, rate=0.01, coulomb=1.0)  # never breaks away
     for _ in range(20):
         g = Gains(rng.randint(0, 3000), rng.randint(0, 300), rng.randint(0, 20000),
-                  rng.randint(0, 32767), rng.randint(0, 7))
+                  rng.randint(0, 32767), rng.randint(1, 8))
         desired = [rng.randint(-300, 300) for _ in range(60)] + [rng.randint(-40000, 40000)
                                                                 for _ in range(5)]
         _counts, outs = simulate(stuck, g, desired, x0=0.5, state=PIDState())
@@ -142,7 +142,7 @@ UNO_EMU, UNO_AVR = BEHIND_USB_URLS
 
 
 @pytest.mark.parametrize("base, name", [("sim://", name) for name in MOTORS] + [
-    # issue 20's tuner (tuning.py) meets the Uno's latency here: it identifies and judges on
+    # the tuner (tuning.py) meets the Uno's latency here: it identifies and judges on
     # rows the bridge records on its own timer (host-polled, the 4.096 ms flush tick put the
     # acceleration 11-15 % high)
     (UNO_EMU, "default"),
@@ -161,7 +161,7 @@ def test_autotune_ends_on_target_inside_the_band(base, name):
     assert r.ok and abs(r.measured.final_error) <= 2
     assert r.measured.overshoot <= DISTANCE // 50
     assert (r.kp, r.ki, r.kd, r.il, r.ds) == tuple(r.gains.__dict__.values())
-    # the trapezoid move judged and checked besides the step (issue 20): 0x40000 and 0x2000
+    # the trapezoid move judged and checked besides the step: 0x40000 and 0x2000
     # where the axis follows them with drive to spare (a quarter of its top speed, a third of
     # its acceleration at full output), and then within 2 counts, overshoot under 20 counts
     # (1 % of the move), the model's prediction within a few counts of the measurement
@@ -194,8 +194,8 @@ def test_autotune_ends_on_target_inside_the_band(base, name):
 
 
 def test_autotune_polls_from_the_host_where_the_transport_cannot_record():
-    """The FT232H records nothing on its far side: the tuner polls as before (issue 20's
-    fallback) and still ends on target."""
+    """The FT232H records nothing on its far side: the tuner polls from the host instead
+    and still ends on target."""
     w = Watched("sim+ftdi://")
     assert not w.chip.transport.records_on_far_side
     r = autotune(w.chip, travel=2000)
@@ -237,7 +237,7 @@ HOLDING_LOAD = "load_torque=0.005"
 @pytest.mark.parametrize("travel", [2000, TRAVEL])
 @pytest.mark.parametrize("base", ["sim://", "sim+emu://?baud=115200", "sim+avr://?baud=115200"])
 def test_a_holding_load_is_not_reversed_leads(base, travel):
-    """Issue 20: the load pulls the shaft down whichever way phasing steps it; that is a load,
+    """The load pulls the shaft down whichever way phasing steps it; that is a load,
     not reversed leads: the tuner raises the gain and tunes the axis."""
     if base.startswith("sim+avr"):
         from lm629_host.sim.avr import toolchain_missing
@@ -372,7 +372,7 @@ def test_rebuilt_output_is_the_chips_output(kd):
     from lm629_host.plot import rebuilt_output
     chip = lm629_host.open("sim://?load_torque=0.004")
     chip.reset()
-    g = Gains(kp=300, ki=40, kd=kd, il=5000, ds=0)
+    g = Gains(kp=300, ki=40, kd=kd, il=5000, ds=1)
     chip.load_filter(**g.as_filter())
     chip.update_filter()
     chip.load_trajectory(acceleration=655, velocity=65536, velocity_mode=True, start=True)
@@ -420,7 +420,7 @@ def test_predictor_skip_ahead_changes_nothing():
     outputs, including the derivative's phase after the skip (interval 4)."""
     m = AxisModel(accel=0.09, rate=0.0101, coulomb=0.002, load=0.0005)
     plan = [0] * 50 + [300] * 1500 + [-200] * 1500 + [-190] * 300
-    for g in (Gains(kp=60, kd=900, ds=3), Gains(kp=150, ki=30, kd=2000, il=3000, ds=1)):
+    for g in (Gains(kp=60, kd=900, ds=4), Gains(kp=150, ki=30, kd=2000, il=3000, ds=2)):
         fast = simulate(m, g, plan, x0=0.5, state=PIDState())
         slow = simulate(m, g, plan, x0=0.5, state=PIDState(), skip_ahead=False)
         assert fast == slow

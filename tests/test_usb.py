@@ -157,7 +157,7 @@ def test_bad_usb_options_are_refused_before_anything_opens(url, message):
 def test_uno_move_costs_at_most_two_flush_ticks():
     """A 4000-count move_to(...).wait() behind the Uno, mean of 3 moves at different timer
     phases, takes at most 2 flush ticks longer than without USB (move_to is one exchange and
-    Move.wait sees the end on the bridge, issue 19 item 3; before: 2.46 flush ticks)."""
+    Move.wait sees the end on the bridge)."""
     def mean_move(usb: str) -> float:
         out = []
         for i in range(3):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import pytest
 
 from lm629_host import Status
+from lm629_host.profile_shapes import Points, SCurve
 
 BAD_CALLS = [
     # (method, args, kwargs, words that must appear in the message)
@@ -51,6 +52,13 @@ BAD_CALLS = [
     ("move_to", (1000,), {"velocity": 65536, "acceleration": 0}, ["acceleration=0"]),
     ("move_to", (1000,), {"velocity": float("inf")}, ["velocity=inf"]),
     ("move_to", (0x40000000,), {"velocity": 65536}, ["position=1073741824"]),
+    ("move_profile", (0x40000000, SCurve(1e4, 1e5, 1e6)), {}, ["position=1073741824",
+                                                               "0xC0000000..0x3FFFFFFF"]),
+    ("move_profile", (1000, "s-curve"), {}, ["shape='s-curve'", "SCurve"]),
+    ("move_profile", (1000, SCurve(1e4, 1e5, 1e6)), {"piece_s": 0.005},
+     ["piece_s=0.005", "0.01..0.25"]),
+    ("move_profile", (2000, Points([(0, 0), (0.1, 1e4), (0.2, 0)])), {"relative": True},
+     ["points cover 1000 counts but the move is 2000 counts", "the area"]),
     ("wait_for", (0,), {}, ["flags=0"]),
     ("wait_for", (Status.TRAJECTORY_COMPLETE,), {"timeout": 0}, ["timeout=0"]),
     ("raw", (0x100,), {}, ["command=256"]),
@@ -100,8 +108,10 @@ def test_every_method_has_a_validated_argument_or_none():
     takes_args = {
         name for name, fn in inspect.getmembers(LM629, inspect.isfunction)
         if not name.startswith("_") and len(inspect.signature(fn).parameters) > 1
-        and name not in ("run", "filter_program", "trajectory_program", "start",
-                         "start_checked")  # the status bytes a board's STT program read
+        # run, intercept and shadow take a program or a runner; start_checked the status
+        # bytes a board's STT program read; extended a snapshot this chip read
+        and name not in ("run", "intercept", "shadow", "filter_program", "trajectory_program",
+                         "start", "start_checked", "extended")
     }
     assert takes_args - covered == set()
 

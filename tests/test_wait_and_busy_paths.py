@@ -1,4 +1,4 @@
-"""The fast paths of issue 12 against the slow ones they replace.
+"""The fast paths against the slow ones they stand for: each must give the same result.
 
 * ``sim://`` skips the busy polls whose answer the model's busy deadline already gives: every
   counter, the simulated clock and the chip's state must be those of the full poll loop (a

@@ -106,3 +106,36 @@ def test_a_lab_test_file_runs_under_plain_pytest(installed):
     r = subprocess.run([str(py), "-c", "import lm629_host.pytest_plugin as p; print(p.__file__)"],
                        capture_output=True, text=True, cwd=lab, check=True)
     assert Path(r.stdout.strip()).is_relative_to(site)
+
+
+@pytest.mark.skipif(__import__("shutil").which("sigrok-cli") is None,
+                    reason="sigrok-cli is not installed (.ci/run installs it)")
+@pytest.mark.parametrize("where", ["default", "--dir"])
+def test_sigrok_install_then_sigrok_cli_decodes_the_simulators_vcd(installed, where):
+    """``lm629 --vcd`` writes the simulated bus, ``lm629 sigrok install`` puts the wheel's
+    decoder where sigrok looks (the user's decoders directory under HOME, or ``--dir``), and
+    sigrok's own tool decodes the reset's MSKI and RSTI from it."""
+    from lm629_host.sigrok import FILES, failed
+
+    _, site, away = installed
+    vcd = away / f"reset-{where}.vcd"
+    r = run(installed, "--vcd", str(vcd), "reset")
+    assert r.returncode == 0, r.stdout + r.stderr
+    args = ("sigrok", "install") + (("--dir", str(away / "decoders")) if where == "--dir" else ())
+    r = run(installed, *args)
+    assert r.returncode == 0, r.stdout + r.stderr
+    target = (away / "decoders" if where == "--dir"
+              else away / ".local" / "share" / "libsigrokdecode" / "decoders") / "lm629"
+    assert f"installed the lm629 decoder in {target}" in r.stdout
+    for name in FILES:
+        assert (target / name).read_bytes() == (site / "lm629_host" / "sigrok" / "lm629" /
+                                                name).read_bytes()
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(away)}
+    if where == "--dir":
+        env["SIGROKDECODE_DIR"] = str(target.parent)
+    r = subprocess.run(["sigrok-cli", "-I", "vcd", "-i", str(vcd), "-P", "lm629",
+                        "-A", "lm629=commands"], capture_output=True, text=True, cwd=away,
+                       env=env, timeout=120)
+    assert not failed(r.returncode, r.stderr), r.stderr
+    assert r.stdout.splitlines() == ["lm629-1: MSKI 0000: enable none",
+                                     "lm629-1: RSTI 0000: keep none"]

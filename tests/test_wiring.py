@@ -1,15 +1,16 @@
-"""Issue 23: the wiring drawn and printed from the pin maps, miswired simulated benches
+"""The wiring drawn and printed from the pin maps, miswired simulated benches
 (``wiring=`` on every simulated URL), and ``lm629 wiring --check`` naming the wrong wire.
 
 Numbers worked out from the spec: after /RST and 1.5 ms the status is 84 or C4 (the model:
 C4, breakpoint latched); with D2 and D3 swapped the host reads C4 with bits 2 and 3
 exchanged, C8.  With D5 stuck low a target of 1000 (03E8) reaches the chip as 03C8 = 968 (the
-issue's example).  The LM629's D0-D7 are DIP pins 4-11 and land on the Uno's D2-D9, so a fault
-on LM629 D5 is "pin 9 ... Uno D7".
+example the check's message is built on).  The LM629's D7..D0 are DIP pins 4..11 (D0 on pin
+11) and land on the Uno's D9..D2, so a fault on LM629 D5 is "pin 6 ... Uno D7".
 """
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import subprocess
 import sys
@@ -18,11 +19,14 @@ from pathlib import Path
 import pytest
 
 import lm629_host
+from lm629_host.errors import BusyTimeout, TransportError
 from lm629_host.connections import adapter_pin, connections, markdown
 from lm629_host.miswiring import Miswiring
 from lm629_host.opcodes import Cmd
 from lm629_host.sim.avr import toolchain_missing
-from lm629_host.wiring import check_wiring, suspects_of_data_bus
+from lm629_host.transports.base import Transport
+from lm629_host.wiring import check_wiring, diagnose, run_experiments, suspects_of_data_bus
+from lm629_host.wiring_reference import READINGS, WHAT
 from lm629_host.wiring_svg import render
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -32,7 +36,7 @@ REQUIRED = ([f"d{i}-low" for i in range(8)] + [f"d{i}-high" for i in range(8)]
             + ["d3-open", "d2-d3", "d6-d7"])
 #: every single swap (on sim:// in full)
 SWAPS = [f"d{i}-d{j}" for i in range(8) for j in range(i + 1, 8)]
-PINS = {f"D{i}": 4 + i for i in range(8)}
+PINS = {f"D{i}": 11 - i for i in range(8)}  # D0 on pin 11 ... D7 on pin 4 (test_pinout.py)
 UNO = {f"D{i}": f"D{i + 2}" for i in range(8)}
 
 
@@ -117,7 +121,7 @@ def test_each_single_fault_is_named_on_sim(fault):
 def test_the_message_of_the_issue():
     report = _check("sim://?wiring=d5-low")
     assert report.lines()[0].startswith(
-        "LM629 D5 (pin 9) reads 0 always: check the wire to Uno D7")
+        "LM629 D5 (pin 6) reads 0 always: check the wire to Uno D7")
 
 
 @pytest.mark.parametrize("url", ["sim+emu://", "sim+avr://",
@@ -152,7 +156,7 @@ def test_the_fault_list_on_the_ft232h():
 def test_the_ft232h_names_its_own_pins():
     report = _check("sim+ftdi://?wiring=d5-high")
     assert report.lines() == [
-        "LM629 D5 (pin 9) reads 1 always: check the wire to FT232H ACBUS5 (breakout C5) "
+        "LM629 D5 (pin 6) reads 1 always: check the wire to FT232H ACBUS5 (breakout C5) "
         "(missing or broken: the line floats high; or a short to +5 V)"]
 
 
@@ -199,6 +203,36 @@ def test_every_single_suspect_is_considered():
     assert len(names) == 8 + 8 + 28 and len(set(names)) == len(names)
 
 
+@pytest.mark.parametrize("fault", ["d0-d1", "d0-d4", "d1-d3"])
+def test_diagnosis_opens_no_simulator(fault, monkeypatch):
+    """Faults that the spec-based rules alone leave ambiguous (d0-d1 reads like d3-low;
+    d1-d3 like d2-d6 or d2-d7) are told apart by the reference readings, which are data: with
+    every transport refused, the readings of a miswired bench still name the fault, also
+    without the reading a bench lacking the /RST line cannot take."""
+    with lm629_host.open(f"sim://?wiring={fault}") as chip:
+        readings, exps, hi, _ = run_experiments(chip)
+
+    def refused(*args, **kw):
+        raise AssertionError("the diagnosis opened a transport")
+    monkeypatch.setattr(Transport, "__init__", refused)
+    for rs in (readings, [r for r in readings if r.what != "status at once after /RST"]):
+        report = diagnose("uno", rs, exps, hi)
+        assert {s.line for s in report.suspects} == _lines(fault), report.lines()
+
+
+def test_the_wiring_reference_is_current():
+    """lm629_host/wiring_reference.py is what tools/gen_wiring_reference.py reads from the
+    chip model today, for every single fault and both chips (run it after changing the model
+    or the experiments)."""
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_wiring_reference.py"),
+                        "--check"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    faults = {n for n, _ in suspects_of_data_bus()}
+    assert set(READINGS) == {"lm628", "lm629"}
+    assert all(set(READINGS[v]) == faults for v in READINGS)
+    assert all(len(row) == len(WHAT) for v in READINGS for row in READINGS[v].values())
+
+
 # ---------------------------------------------------------------------- table and drawing
 def test_docs_tables_and_drawings_are_current():
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_wiring.py"), "--check"],
@@ -210,7 +244,7 @@ def test_docs_tables_and_drawings_are_current():
 
 def test_table_has_the_pins_on_both_sides():
     rows = {c.chip_line: c for c in connections("uno") if c.chip == 0}
-    assert (rows["D5"].adapter_pin, rows["D5"].adapter_detail, rows["D5"].chip_pin) == ("D7", "PD7", 9)
+    assert (rows["D5"].adapter_pin, rows["D5"].adapter_detail, rows["D5"].chip_pin) == ("D7", "PD7", 6)
     assert (rows["/RST"].adapter_pin, rows["/RST"].chip_pin) == ("A4", 27)
     assert adapter_pin("ft232h", "/WR") == "FT232H ADBUS3 (breakout D3)"
     assert len(connections("uno", 4)) == 8 + 4 + 4 + 2  # 4 /CS, HI of chips 0 and 1
@@ -239,16 +273,17 @@ def test_cli_wiring_table_svg_and_check(tmp_path):
     runner = CliRunner()
     r = runner.invoke(main, ["wiring", "--svg", str(tmp_path / "w.svg")])
     assert r.exit_code == 0, r.output
-    assert "D7               PD7                  D5 (pin 9)" in r.output
+    assert "D7               PD7                  D5 (pin 6)" in r.output
+    assert "D0-D7 (pins 4-11)" in r.output  # the pull-ups: a range of pins, not D0 on pin 4
     assert (tmp_path / "w.svg").read_text().startswith("<svg")
     r = runner.invoke(main, ["--port", "sim+ftdi://", "wiring"])
     assert r.exit_code == 0, r.output
-    # the FT232H row for LM629 D5: ACBUS5, breakout label C5, DIP pin 9 (D0-D7 are pins 4-11)
+    # the FT232H row for LM629 D5: ACBUS5, breakout label C5, DIP pin 6 (D7..D0 are pins 4..11)
     rows = [ln.split() for ln in r.output.splitlines()]
-    assert ["ACBUS5", "C5", "D5", "(pin", "9)", "in/out"] in rows
+    assert ["ACBUS5", "C5", "D5", "(pin", "6)", "in/out"] in rows
     r = runner.invoke(main, ["--port", "sim://?wiring=d6-d7", "wiring", "--check"])
     assert r.exit_code == 1
-    assert "LM629 D6 (pin 10)" in r.output and "Uno D9" in r.output
+    assert "LM629 D6 (pin 5)" in r.output and "Uno D9" in r.output
     r = runner.invoke(main, ["--port", "sim://", "wiring", "--check"])
     assert r.exit_code == 0 and "every data line passed" in r.output
     r = runner.invoke(main, ["wiring", "--axes", "3", "--adapter", "ft232h"])
@@ -289,7 +324,7 @@ def test_cli_check_with_svg_still_draws(tmp_path):
     out = tmp_path / "w.svg"
     r = CliRunner().invoke(main, ["--port", "sim://?wiring=d5-low", "wiring", "--check",
                                   "--svg", str(out)])
-    assert r.exit_code == 1 and "LM629 D5 (pin 9)" in r.output
+    assert r.exit_code == 1 and "LM629 D5 (pin 6)" in r.output
     assert out.read_text().startswith("<svg")
 
 
@@ -317,8 +352,8 @@ def test_a_miswired_persistent_bench(tmp_path, far_end):
     with serve(tmp_path, far_end, "sim://?wiring=d6-d7") as bench:
         p = bench.run("wiring", "--check")
         assert p.returncode == 1
-        assert "LM629 D6 (pin 10)" in p.stdout and "Uno D8" in p.stdout
-        assert "LM629 D7 (pin 11)" in p.stdout and "Uno D9" in p.stdout
+        assert "LM629 D6 (pin 5)" in p.stdout and "Uno D8" in p.stdout
+        assert "LM629 D7 (pin 4)" in p.stdout and "Uno D9" in p.stdout
 
 
 def test_doctor_suggests_the_check_when_busy_is_stuck():
@@ -335,10 +370,28 @@ def test_doctor_suggests_the_check_when_busy_is_stuck():
 @pytest.mark.parametrize("fault,says", [
     ("rst", "the pulse does not reach the chip: check /RST (pin 27) to Uno A4"),
     ("reset", "the chip stays in reset (status 00 1.5 ms after /RST)"),
-    ("busy", "LM629 D0 (pin 4) reads 1 always"),
+    ("busy", "LM629 D0 (pin 11) reads 1 always"),
 ])
 def test_control_line_faults_are_named(fault, says):
     report = _check(f"sim://?fault={fault}")
     assert not report.passed and says in " ".join(report.lines())
     if fault == "busy":
         assert "CLK pin 26" in report.lines()[0]
+
+
+@pytest.mark.parametrize(("error", "busy"), [
+    (BusyTimeout("RDDP", 5e-3, status=0xC5), True),
+    (TransportError("Busy line from the bridge: no answer"), False),  # text says Busy, type not
+])
+def test_busy_that_never_clears_is_told_by_the_error_type(error, busy):
+    """A program ended by a BusyTimeout (and nothing a data wire explains: the chip stays in
+    reset) names the busy line too; any other error does not, whatever its text says."""
+    with lm629_host.open("sim://?fault=reset") as chip:
+        readings, exps, hi, _ = run_experiments(chip)
+    # the /RST statuses read 00; every program with a command fails with ``error``
+    readings = readings[:3] + [dataclasses.replace(r, got=None, error=str(error), exception=error)
+                               for r in readings[3:]]
+    report = diagnose("uno", readings, exps, hi)
+    lines = " ".join(report.lines())
+    assert "the chip stays in reset" in lines
+    assert ("busy never clears" in lines) is busy, lines

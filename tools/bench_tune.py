@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
 from lm629_host.errors import MotionError
-from lm629_host.tuning import Gains, MoveMetrics, Profile, autotune, measure_move, score
+from lm629_host.tuning import Gains, MoveMetrics, MoveProfile, autotune, measure_move, score
 
 MOTORS = (
     ("default", ""),
@@ -72,7 +72,7 @@ def fresh(url: str) -> lm629_host.LM629:
 Measured = tuple[MoveMetrics, MoveMetrics] | None  #: (step, move), None: a fault
 
 
-def measure(url: str, g: Gains, profile: Profile) -> Measured:
+def measure(url: str, g: Gains, profile: MoveProfile) -> Measured:
     out = []
     for p in (None, profile):
         with fresh(url) as chip:
@@ -183,7 +183,7 @@ def main() -> None:
         faults = 0
         t = time.perf_counter()
         for kp, ki, kd in grid:
-            g = Gains(kp, ki, kd, 4000 if ki else 0, 0)
+            g = Gains(kp, ki, kd, 4000 if ki else 0)
             m = measure(url, g, result.profile)
             faults += m is None
             if best is None or cost(m) < cost(best[1]):

@@ -19,6 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from lm629_host.bridge.protocol import (
     END_PAYLOAD,
+    PROFILE_REPLY_PAYLOAD,
     ROW_HEADER,
     FrameType,
     HelloInfo,
@@ -30,6 +31,7 @@ from lm629_host.bridge.protocol import (
     FailsafeAction,
     FailsafeCmd,
     FailsafeState,
+    profile_payload,
     record_payload,
     run_payload,
     short_reply_payload,
@@ -53,7 +55,7 @@ def frames() -> list[tuple[str, bytes]]:
     biggest = Program()
     for i in range(81):
         biggest.write((i * 0x0101) & 0xFF00)  # 0000, 0100, 0200...: zeros in every op
-    info = HelloInfo(firmware=(1, 4, 0), capabilities=0x03FF, max_program=243, max_reads=120,
+    info = HelloInfo(firmware=(1, 4, 0), capabilities=0x07FF, max_program=243, max_reads=120,
                      chip_selects=4, cpu_hz=16_000_000)
     return [
         ("hello", frame_body(FrameType.HELLO, 0x01)),
@@ -116,6 +118,12 @@ def frames() -> list[tuple[str, bytes]]:
                                   END_PAYLOAD.pack(Result.OK, 0xFF, 3))),
         ("record_end_bad_program", frame_body(FrameType.RECORD_END, 0x31,
                                               END_PAYLOAD.pack(Result.BAD_PROGRAM, 1, 0))),
+        # PROFILE (capability PROFILE): a new schedule on chip 0, two pieces 20 ms apart
+        # (1.25 and 0.64 counts/sample); its reply: nothing issued yet, two pending
+        ("profile_two", frame_body(FrameType.PROFILE, 0x40, profile_payload(
+            True, 0, [(20000, 0x00014000), (40000, 0x0000A3D7)]))),
+        ("profile_reply_two", frame_body(FrameType.PROFILE_REPLY, 0x40,
+                                         PROFILE_REPLY_PAYLOAD.pack(Result.OK, 0, 2, 0))),
     ]
 
 

@@ -13,7 +13,13 @@
  * port, chips 1-3 on the data-high port) say which chip a strobe reaches; the callback's kind
  * carries it (kind | chip << 4), and its answer carries every chip's HI (bit 8 + chip), which is
  * driven onto the HI pins of HI_*_MASKS_INIT.  Two chips selected during a strobe is a
- * violation; a strobe with no /CS low reaches no chip. */
+ * violation; a strobe with no /CS low reaches no chip.
+ *
+ * Pin log (for a VCD of the bus, lm629_host/sim/vcd.py): when switched on, every change of a bus
+ * line's level is kept as (AVR cycle, levels) until Python takes it; off, it costs one test per
+ * port hook.  Levels: bits 0-7 D0-D7 (the AVR's where it drives them, the chip's while it
+ * answers a read, else 1: the pull-ups), 8 /RD, 9 /WR, 10 /PS, 11 /RST, 12-15 /CS of chips 0-3,
+ * 16-19 HI of chips 0-3. */
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -67,6 +73,13 @@ typedef struct {
     char first_violation[256];
     uint64_t bus_cycles;
     uint64_t xon_events, xoff_events, bytes_in;
+    int pins_on;                        /* pin log switched on */
+    uint64_t *log_cycle;                /* the pin log: cycle and levels of each change */
+    uint32_t *log_levels;
+    uint32_t log_len, log_cap, log_last;
+    int chip_drives;                    /* the chip drives D0-D7 (a read strobe is low) */
+    uint8_t driven;                     /* the byte the chip drives */
+    uint8_t hi_levels;                  /* HI of each chip, bit k */
 } fitl_t;
 
 static char last_error[256];
@@ -89,12 +102,16 @@ static void violation(fitl_t *h, const char *what)
                  (unsigned long long)h->avr->cycle);
 }
 
+static void log_pins(fitl_t *h);
+
 static void drive_data(fitl_t *h, uint8_t b)
 {
+    h->driven = b;
     for (int i = 0; i < 8; i++) {
         avr_irq_t *irq = i < 6 ? h->data_lo_pin[i] : h->data_hi_pin[i - 6];
         avr_raise_irq(irq, (b >> i) & 1);
     }
+    log_pins(h);
 }
 
 static avr_cycle_count_t access_done(avr_t *avr, avr_cycle_count_t when, void *param)
@@ -139,6 +156,7 @@ static int call(fitl_t *h, int kind, int value)
     for (int k = 0; k < (int)CHIP_SELECTS; k++)
         if (h->hi_pins[k])
             avr_raise_irq(h->hi_pins[k], (r >> (8 + k)) & 1);
+    h->hi_levels = (uint8_t)((r >> 8) & 0x0F);
     return r & 0xFF;
 }
 
@@ -146,6 +164,46 @@ static uint8_t data_byte(fitl_t *h)
 {
     return (uint8_t)(((h->lo_port & DATA_LO_MASK) >> DATA_LO_SHIFT)
                      | ((h->hi_port & DATA_HI_MASK) << DATA_HI_SHIFT));
+}
+
+/* D0-D7 as the AVR drives them: which lines are outputs */
+static uint8_t data_ddr(fitl_t *h)
+{
+    return (uint8_t)(((h->lo_ddr & DATA_LO_MASK) >> DATA_LO_SHIFT)
+                     | ((h->hi_ddr & DATA_HI_MASK) << DATA_HI_SHIFT));
+}
+
+static void log_pins(fitl_t *h)
+{
+    if (!h->pins_on)
+        return;
+    uint8_t out = data_ddr(h);
+    uint8_t undriven = h->chip_drives ? h->driven : 0xFF;
+    uint32_t v = (uint8_t)((data_byte(h) & out) | (undriven & ~out));
+    v |= (h->ctrl & PIN_RD ? 1u : 0u) << 8 | (h->ctrl & PIN_WR ? 1u : 0u) << 9
+         | (h->ctrl & PIN_PS ? 1u : 0u) << 10 | (h->ctrl & PIN_RST ? 1u : 0u) << 11;
+    uint8_t dhi = dhi_level(h, h->hi_port);
+    for (int k = 0; k < (int)CHIP_SELECTS; k++) {
+        int high = cs_ctrl[k] ? !!(h->ctrl & cs_ctrl[k]) : cs_dhi[k] ? !!(dhi & cs_dhi[k]) : 1;
+        v |= (uint32_t)high << (12 + k);
+    }
+    v |= (uint32_t)h->hi_levels << 16;
+    if (h->log_len && v == h->log_last)
+        return;
+    if (h->log_len == h->log_cap) {
+        uint32_t cap = h->log_cap ? 2 * h->log_cap : 4096;
+        uint64_t *c = realloc(h->log_cycle, cap * sizeof *c);
+        uint32_t *l = c ? realloc(h->log_levels, cap * sizeof *l) : NULL;
+        if (c)
+            h->log_cycle = c;
+        if (!l)
+            return; /* out of memory: the log misses changes, the simulation goes on */
+        h->log_levels = l;
+        h->log_cap = cap;
+    }
+    h->log_cycle[h->log_len] = h->avr->cycle;
+    h->log_levels[h->log_len++] = v;
+    h->log_last = v;
 }
 
 static void ctrl_hook(avr_irq_t *irq, uint32_t value, void *param)
@@ -184,6 +242,7 @@ static void ctrl_hook(avr_irq_t *irq, uint32_t value, void *param)
             violation(h, "read strobe while the AVR drives the data bus");
         int b = call(h, (v & PIN_PS) ? FITL_READ : FITL_STATUS, 0);
         h->pending = (uint8_t)b;
+        h->chip_drives = 1;
         drive_data(h, (uint8_t)~b);
         avr_cycle_timer_register(h->avr, h->access_cycles, access_done, h);
     }
@@ -204,6 +263,9 @@ static void ctrl_hook(avr_irq_t *irq, uint32_t value, void *param)
         h->strobe_rise = h->wr_rise = now;
         call(h, (v & PIN_PS) ? FITL_WRITE : FITL_COMMAND, data_byte(h));
     }
+    if (rose & PIN_RD)
+        h->chip_drives = 0;
+    log_pins(h);
 }
 
 static void data_changed(fitl_t *h)
@@ -226,6 +288,7 @@ static void lo_port_hook(avr_irq_t *irq, uint32_t value, void *param)
         data_changed(h);
     }
     h->lo_port = v;
+    log_pins(h);
 }
 
 static void hi_port_hook(avr_irq_t *irq, uint32_t value, void *param)
@@ -244,6 +307,7 @@ static void hi_port_hook(avr_irq_t *irq, uint32_t value, void *param)
         data_changed(h);
     }
     h->hi_port = v;
+    log_pins(h);
 }
 
 static void lo_ddr_hook(avr_irq_t *irq, uint32_t value, void *param)
@@ -255,6 +319,7 @@ static void lo_ddr_hook(avr_irq_t *irq, uint32_t value, void *param)
         data_changed(h);
     }
     h->lo_ddr = (uint8_t)value;
+    log_pins(h);
 }
 
 static void hi_ddr_hook(avr_irq_t *irq, uint32_t value, void *param)
@@ -275,6 +340,7 @@ static void hi_ddr_hook(avr_irq_t *irq, uint32_t value, void *param)
         data_changed(h);
     }
     h->hi_ddr = (uint8_t)value;
+    log_pins(h);
 }
 
 static void pump(fitl_t *h)
@@ -398,6 +464,8 @@ void fitl_free(fitl_t *h)
         return;
     avr_terminate(h->avr);
     free(h->avr);
+    free(h->log_cycle);
+    free(h->log_levels);
     free(h);
 }
 
@@ -483,3 +551,23 @@ void fitl_uart_counts(fitl_t *h, uint64_t *out)
 uint8_t fitl_peek(fitl_t *h, uint16_t addr) { return h->avr->data[addr]; }
 /* the AVR's program counter (byte address), for profiling */
 uint32_t fitl_pc(fitl_t *h) { return h->avr->pc; }
+
+/* The pin log (see the top of this file): switch it on (logging the levels now) or off. */
+void fitl_pin_log(fitl_t *h, int on)
+{
+    h->pins_on = on;
+    h->log_len = 0;
+    log_pins(h);
+}
+
+/* Take up to `max` entries of the pin log, oldest first; returns how many. */
+uint32_t fitl_pin_log_take(fitl_t *h, uint64_t *cycles, uint32_t *levels, uint32_t max)
+{
+    uint32_t n = h->log_len < max ? h->log_len : max;
+    memcpy(cycles, h->log_cycle, n * sizeof *cycles);
+    memcpy(levels, h->log_levels, n * sizeof *levels);
+    memmove(h->log_cycle, h->log_cycle + n, (h->log_len - n) * sizeof *cycles);
+    memmove(h->log_levels, h->log_levels + n, (h->log_len - n) * sizeof *levels);
+    h->log_len -= n;
+    return n;
+}

@@ -79,8 +79,10 @@ uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t *status)
 }
 
 /* the transmitter: link.c sends every reply byte through link_tx_byte; fake_tx_verify checks
- * that exactly the frame link_feed returned went out, in order */
-static uint8_t tx_sent[8192];
+ * that exactly the frame link_feed returned went out, in order.  Room for a recording the fuzz
+ * run stops only after rx_pending_after polls: a row may take one poll, so 300 rows of up to
+ * ~100 bytes come before its RECORD_END */
+static uint8_t tx_sent[32768];
 static uint16_t tx_n;
 
 void link_tx_byte(uint8_t b)

@@ -469,12 +469,118 @@ static void test_record(void)
            "byte; a writing program refused\n");
 }
 
+/* PROFILE: the golden request (a new schedule, pieces at 20 and 40 ms) is answered with the
+ * golden reply (nothing issued, two pending); link_idle issues each piece once the bridge's
+ * clock (one tick a look in the fake) reaches it: LTRJ 0008 and the velocity, then STT; a
+ * program with LTRJ (a stop) drops what is pending, and the next reply says so. */
+static void test_profile(void)
+{
+    uint8_t out[320], wire[64], *p;
+    link_init(&L);
+    fake_reset();
+    fake.status = 0xC0;
+    expect_reply("profile_two", "profile_reply_two");
+    CHECK(fake.log_len == 0, "profile: a piece issued at once");
+    while (L.prof_n == 2 && fake.ticks < 100000)
+        link_idle(&L);
+    CHECK(L.prof_n == 1 && fake.ticks >= 5000 && fake.ticks <= 5010,
+          "profile: first piece at tick %u", (unsigned)fake.ticks);
+    const uint8_t want[] = {'C', 0x1F, 'W', 0x00, 'W', 0x08, 'W', 0x00, 'W', 0x01, 'W', 0x40,
+                            'W', 0x00, 'C', 0x01};
+    int at = 0, ok = 1;
+    for (int i = 0; i + 1 < fake.log_len && at < (int)sizeof want; i += 2)
+        if (fake.log[i] == 'C' || fake.log[i] == 'W') {
+            ok &= fake.log[i] == want[at] && fake.log[i + 1] == want[at + 1];
+            at += 2;
+        }
+    CHECK(ok && at == (int)sizeof want, "profile: the piece's bus cycles");
+    /* a stop (LTRJ 0100 abrupt, STT) before the second piece: the schedule is dropped */
+    uint8_t stop[] = {0x00, 0x00, 0x00, OP_COMMAND, 0x1F, OP_WRITE, 0x02, 0x00, OP_COMMAND, 0x01};
+    feed(wire, frame(FRAME_RUN, 0x41, stop, sizeof stop, wire), out);
+    CHECK(L.prof_n == 0, "profile: a stop left %u pieces", L.prof_n);
+    uint8_t ask[] = {0x00, 0x00};
+    int n = feed(wire, frame(FRAME_PROFILE, 0x42, ask, sizeof ask, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x42, &p) == 9
+          && p[0] == RESULT_PROFILE_CANCELLED && ((p[1] << 8) | p[2]) == 1 && p[4] == 0,
+          "profile: the reply after a stop");
+    /* pieces closer than 10 ms: refused, nothing kept */
+    uint8_t close[] = {0x01, 0x00, 0, 0, 0x4E, 0x20, 0, 1, 0, 0, 0, 0, 0x55, 0xF0, 0, 1, 0, 0};
+    n = feed(wire, frame(FRAME_PROFILE, 0x43, close, sizeof close, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x43, &p) == 9 && p[0] == RESULT_BAD_PROFILE
+          && p[4] == 0, "profile: pieces 2 ms apart not refused");
+    printf("profile: the golden schedule, a piece at its tick (LTRJ 0008 + velocity, STT), "
+           "dropped by a stop; pieces 2 ms apart refused\n");
+}
+
+/* A failsafe trip while a shaped move's pieces are pending: the schedule is dropped before the
+ * chips are stopped, no piece goes out after (not even at its time), and new pieces are
+ * refused until the trip is acknowledged. */
+static void test_failsafe_drops_profile(void)
+{
+    uint8_t out[320], wire[64], *p;
+    link_init(&L);
+    fake_reset();
+    fake.status = 0xC0;
+    uint8_t arm[] = {FAILSAFE_CMD_ARM, 0x00, 0x32, FAILSAFE_ACTION_ABRUPT}; /* 50 ms */
+    int n = feed(wire, frame(FRAME_FAILSAFE, 0x50, arm, sizeof arm, wire), out);
+    CHECK(reply_payload(out, n, FRAME_FAILSAFE_REPLY, 0x50, &p) == LINK_FAILSAFE_REPLY_SIZE
+          && p[0] == RESULT_OK, "failsafe+profile: armed");
+    /* two pieces at 100 ms and 120 ms: both after the failsafe's 50 ms */
+    uint8_t two[] = {LINK_PROFILE_NEW, 0x00, 0, 0x01, 0x86, 0xA0, 0, 1, 0, 0,
+                     0, 0x01, 0xD4, 0xC0, 0, 2, 0, 0};
+    n = feed(wire, frame(FRAME_PROFILE, 0x51, two, sizeof two, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x51, &p) == 9 && p[0] == RESULT_OK
+          && p[4] == 2, "failsafe+profile: two pieces scheduled");
+    uint32_t start = fake.ticks, tripped_at = 0;
+    fake.log_len = 0;
+    while (fake.ticks - start < 60000u) { /* 240 ms of main loop: link_poll, then the pieces */
+        link_poll();
+        if (!tripped_at && !L.prof_n)
+            tripped_at = fake.ticks - start;
+        link_idle(&L);
+    }
+    CHECK(tripped_at >= 12400u && tripped_at < 12600u,
+          "failsafe+profile: the trip (schedule dropped) at tick %u, expected 12500",
+          (unsigned)tripped_at);
+    int stops = 0, pieces = 0;
+    for (int i = 0; i + 5 < fake.log_len; i += 2)
+        if (fake.log[i] == 'C' && fake.log[i + 1] == 0x1F && fake.log[i + 2] == 'W') {
+            stops += fake.log[i + 3] == (FAILSAFE_STOP_ABRUPT >> 8);
+            pieces += fake.log[i + 3] == (LINK_PROFILE_LTRJ_CONTROL >> 8)
+                && fake.log[i + 5] == (uint8_t)LINK_PROFILE_LTRJ_CONTROL;
+        }
+    CHECK(stops == LINK_CHIP_SELECTS && pieces == 0,
+          "failsafe+profile: %d abrupt stops, %d pieces issued after the trip", stops, pieces);
+    uint8_t ask[] = {0x00, 0x00};
+    n = feed(wire, frame(FRAME_PROFILE, 0x52, ask, sizeof ask, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x52, &p) == 9
+          && p[0] == RESULT_PROFILE_CANCELLED && ((p[1] << 8) | p[2]) == 0 && p[4] == 0,
+          "failsafe+profile: the schedule's reply after the trip");
+    n = feed(wire, frame(FRAME_PROFILE, 0x53, two, sizeof two, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x53, &p) == 9
+          && p[0] == RESULT_FAILSAFE_TRIPPED && p[4] == 0,
+          "failsafe+profile: pieces taken while the trip is latched");
+    uint8_t ack[] = {FAILSAFE_CMD_ACKNOWLEDGE}, off[] = {FAILSAFE_CMD_DISARM};
+    feed(wire, frame(FRAME_FAILSAFE, 0x54, ack, sizeof ack, wire), out);
+    n = feed(wire, frame(FRAME_FAILSAFE, 0x55, off, sizeof off, wire), out);
+    CHECK(reply_payload(out, n, FRAME_FAILSAFE_REPLY, 0x55, &p) == LINK_FAILSAFE_REPLY_SIZE
+          && p[0] == RESULT_OK && p[4] == 0 && p[5] == 0, "failsafe+profile: acknowledged, off");
+    n = feed(wire, frame(FRAME_PROFILE, 0x56, two, sizeof two, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x56, &p) == 9 && p[0] == RESULT_OK
+          && p[4] == 2, "failsafe+profile: pieces taken again after the acknowledgement");
+    link_init(&L);
+    printf("failsafe+profile: a trip drops the pending pieces (none issued after, even at their "
+           "time), PROFILE_CANCELLED, pieces refused until acknowledged\n");
+}
+
 int main(int argc, char **argv)
 {
     load(argc > 1 ? argv[1] : "golden_frames.txt");
     test_codec();
     test_select();
     test_record();
+    test_profile();
+    test_failsafe_drops_profile();
     test_golden_requests();
     test_exactly_once();
     test_wait_status();

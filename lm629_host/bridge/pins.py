@@ -18,7 +18,7 @@ Why this layout:
 
 Several chips (a multi-axis board): they share D0-D7, /PS, /RD, /WR and /RST; each has its own
 /CS.  The pins left over are PB2-PB5 (Uno D10-D13), so chip 0 keeps /CS on A0 (a one-chip
-board is wired as before) and chips 1-3 take /CS on D10, D11, D12 (``/CS1``..``/CS3`` in the
+board is wired the same either way) and chips 1-3 take /CS on D10, D11, D12 (``/CS1``..``/CS3`` in the
 table: the /CS pin of that chip); D13 takes HI of chip 1.  Chips 2 and 3 have no HI line (the
 host reads their status instead).  Four chip selects on an Uno/Nano.  D11-D13 are also the
 ISP header's MOSI/MISO/SCK: disconnect the chips (or hold them in reset) while flashing over

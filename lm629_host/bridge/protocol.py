@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 from ..clock import Clock
-from ..opcodes import Status, TrajectoryFlags
+from ..opcodes import UPDATE_INTERVAL_S, Cmd, Status, TrajectoryFlags
 from ..program import OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program
 
 # ---------------------------------------------------------------------------------- constants
@@ -66,6 +66,20 @@ RECORD_CMD_FIRST, RECORD_CMD_LAST = 0x07, 0x0D
 #: FAILSAFE: the range of the bridge's link timer (a host slower than 10 s is not alive)
 FAILSAFE_MIN_MS = 50
 FAILSAFE_MAX_MS = 10_000
+#: PROFILE: the pieces of a shaped move (AN-706 4.5.3) the bridge issues on its own timer: at
+#: least 10 ms apart (AN-706 4.6.2, the host's UPDATE_INTERVAL_S), as many as a frame carries
+PROFILE_MIN_SPACING_US = round(UPDATE_INTERVAL_S * 1e6)
+#: PROFILE's flags: a new schedule (its clock starts when the frame arrives; pending pieces of
+#: an older one are dropped), else the pieces are appended (none: a query of the schedule)
+PROFILE_NEW = 0x01
+#: bytes of a piece: its time from the schedule's start (us), its velocity word
+PROFILE_PIECE = struct.Struct(">II")
+#: PROFILE's payload header: flags, chip select
+PROFILE_HEADER = struct.Struct(">BB")
+#: the most pieces one PROFILE frame carries (type, seq and CRC around the payload)
+PROFILE_MAX_PIECES = (MAX_FRAME - 4 - PROFILE_HEADER.size) // PROFILE_PIECE.size
+#: the most pieces a schedule holds (the firmware's table)
+PROFILE_MAX_SCHEDULE = 64
 _STATUS_BUSY = int(Status.BUSY)
 
 
@@ -84,6 +98,9 @@ class FrameType(enum.IntEnum):
     #: arguments (FAILSAFE only).  Every good frame feeds the failsafe; during a recording
     #: the exact bytes of :data:`FAILSAFE_FEED` feed it without ending the recording
     FAILSAFE = 0x09
+    #: flags (1), cs (1), pieces (t_us (4), velocity (4)): the bridge issues each piece (LTRJ
+    #: velocity + STT on cs) at its time on its own timer between requests (PROFILE only)
+    PROFILE = 0x0A
     HELLO_REPLY = 0x81
     RUN_REPLY = 0x82
     PONG = 0x83
@@ -92,6 +109,8 @@ class FrameType(enum.IntEnum):
     RECORD_ROW = 0x88  #: row (2), t_us (4), the bytes the sample program read, in order
     RECORD_END = 0x89  #: result (1), index (1), rows sent (2): the recording is over
     FAILSAFE_REPLY = 0x8A  #: result (1) then the failsafe's state (:class:`FailsafeState`)
+    #: result (1), pieces issued (2), pieces pending (2), largest lateness of a piece (4, us)
+    PROFILE_REPLY = 0x8B
     ERROR_REPLY = 0xFF
 
 
@@ -100,7 +119,8 @@ REPLY_TO = {FrameType.HELLO: FrameType.HELLO_REPLY, FrameType.RUN: FrameType.RUN
             FrameType.PING: FrameType.PONG, FrameType.RUN_SHORT: FrameType.RUN_SHORT_REPLY,
             FrameType.RUN_STORE: FrameType.RUN_SHORT_REPLY,
             FrameType.RUN_CODE: FrameType.RUN_SHORT_REPLY, FrameType.SET_BAUD: FrameType.BAUD_REPLY,
-            FrameType.RECORD: FrameType.RECORD_ROW, FrameType.FAILSAFE: FrameType.FAILSAFE_REPLY}
+            FrameType.RECORD: FrameType.RECORD_ROW, FrameType.FAILSAFE: FrameType.FAILSAFE_REPLY,
+            FrameType.PROFILE: FrameType.PROFILE_REPLY}
 #: other reply types a request may get: a compact RUN that failed is answered as a RUN
 ALSO_REPLY_TO = {FrameType.RUN_SHORT: FrameType.RUN_REPLY, FrameType.RUN_STORE: FrameType.RUN_REPLY,
                  FrameType.RUN_CODE: FrameType.RUN_REPLY, FrameType.RECORD: FrameType.RECORD_END}
@@ -123,6 +143,13 @@ class Result(enum.IntEnum):
     #: FAILSAFE with a timeout outside FAILSAFE_MIN_MS..FAILSAFE_MAX_MS, an unknown action or
     #: command (nothing changed)
     BAD_FAILSAFE = 10
+    #: PROFILE with pieces out of order, closer than PROFILE_MIN_SPACING_US, a velocity above
+    #: 3FFFFFFF, more than PROFILE_MAX_SCHEDULE or a chip select it has not (nothing scheduled)
+    BAD_PROFILE = 11
+    #: the schedule was dropped before its last piece: a program that loads a trajectory
+    #: (LTRJ: a stop) or pulses /RST ended it, or a failsafe trip stopped the chips, so that
+    #: nothing restarts a stopped motor
+    PROFILE_CANCELLED = 12
 
 
 class Capability(enum.IntFlag):
@@ -144,6 +171,8 @@ class Capability(enum.IntFlag):
     RECORD = 0x100
     #: the bridge keeps a link failsafe (FAILSAFE): silent host -> every chip stopped, latched
     FAILSAFE = 0x200
+    #: the bridge issues a shaped move's pieces on its own timer (PROFILE)
+    PROFILE = 0x400
 
 
 class FailsafeCmd(enum.IntEnum):
@@ -201,6 +230,12 @@ def c_defines() -> list[tuple[str, int, str]]:
         ("LINK_FAILSAFE_MIN_MS", FAILSAFE_MIN_MS, "FAILSAFE: shortest timeout"),
         ("LINK_FAILSAFE_MAX_MS", FAILSAFE_MAX_MS, "FAILSAFE: longest timeout"),
         ("LINK_FAILSAFE_REPLY_SIZE", FailsafeState.SIZE, "FAILSAFE_REPLY payload bytes"),
+        ("LINK_PROFILE_MIN_SPACING_US", PROFILE_MIN_SPACING_US, "PROFILE: pieces this far apart"),
+        ("LINK_PROFILE_NEW", PROFILE_NEW, "PROFILE flags: a new schedule"),
+        ("LINK_PROFILE_MAX_PIECES", PROFILE_MAX_PIECES, "PROFILE: pieces in one frame"),
+        ("LINK_PROFILE_MAX_SCHEDULE", PROFILE_MAX_SCHEDULE, "PROFILE: pieces in a schedule"),
+        ("LINK_PROFILE_LTRJ_CONTROL", int(TrajectoryFlags.VELOCITY),
+         "PROFILE: a piece's LTRJ control word (velocity only)"),
         ("LINK_CRC_POLY", 0x1021, "CRC-16/GENIBUS polynomial"),
         ("LINK_CRC_INIT", 0xFFFF, "CRC-16/GENIBUS initial value"),
         ("LINK_CRC_XOROUT", 0xFFFF, "CRC-16/GENIBUS final xor"),
@@ -670,6 +705,33 @@ class FailsafeState:
 FAILSAFE_FEED = encode_frame(FrameType.FAILSAFE, 0)
 
 
+# ---------------------------------------------------------------------------------- PROFILE
+#: PROFILE_REPLY's payload: result, pieces issued, pieces pending, largest lateness (us)
+PROFILE_REPLY_PAYLOAD = struct.Struct(">BHHI")
+
+
+def profile_payload(new: bool, cs: int, pieces: Sequence[tuple[int, int]]) -> bytes:
+    """PROFILE's payload: ``pieces`` as (us from the schedule's start, velocity word)."""
+    if len(pieces) > PROFILE_MAX_PIECES:
+        raise ValueError(f"{len(pieces)} pieces: a PROFILE frame carries {PROFILE_MAX_PIECES}")
+    return PROFILE_HEADER.pack(PROFILE_NEW if new else 0, cs) + b"".join(
+        PROFILE_PIECE.pack(t, v) for t, v in pieces)
+
+
+def profile_piece_ops(velocity: int) -> list[BusOp]:
+    """The bus program of one piece: LTRJ with a new maximum velocity only, then STT (a
+    velocity may change on the fly, AN-706 4.6.1)."""
+    return [BusOp(Op.COMMAND, int(Cmd.LTRJ)), BusOp(Op.WRITE, int(TrajectoryFlags.VELOCITY)),
+            BusOp(Op.WRITE, velocity >> 16), BusOp(Op.WRITE, velocity & 0xFFFF),
+            BusOp(Op.COMMAND, int(Cmd.STT))]
+
+
+def ends_a_profile(ops: Sequence[BusOp]) -> bool:
+    """A program the bridge drops a schedule for: one that loads a trajectory (a stop, a new
+    move) or pulses /RST: no later piece may restart what it stopped."""
+    return any((o.op is Op.COMMAND and o.arg == Cmd.LTRJ) or o.op is Op.RESET for o in ops)
+
+
 # ---------------------------------------------------------------------------------- the pipe
 @runtime_checkable
 class Pipe(Protocol):
@@ -691,6 +753,16 @@ class Pipe(Protocol):
 
 
 __all__ = [
+    "PROFILE_HEADER",
+    "PROFILE_MAX_PIECES",
+    "PROFILE_MAX_SCHEDULE",
+    "PROFILE_MIN_SPACING_US",
+    "PROFILE_NEW",
+    "PROFILE_PIECE",
+    "PROFILE_REPLY_PAYLOAD",
+    "ends_a_profile",
+    "profile_payload",
+    "profile_piece_ops",
     "ALSO_REPLY_TO",
     "FAILSAFE_FEED",
     "FAILSAFE_MAX_MS",

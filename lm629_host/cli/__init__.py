@@ -2,7 +2,7 @@
 module per family: :mod:`.bench` (bringup, list, doctor, udev), :mod:`.chip` (status, reset,
 filter, index, breakpoint, limit, watch, raw), :mod:`.motion` (move, velocity, stop, home),
 :mod:`.tune` (step, tune), :mod:`.wiring` (wiring, wiring --check), :mod:`.calc`,
-:mod:`.bridge` (bridge list|flash), :mod:`.sim` (sim serve), :mod:`.profile` (--profile,
+:mod:`.bridge` (bridge list|flash), :mod:`.sim` (sim serve), :mod:`.sigrok` (sigrok install), :mod:`.profile` (--profile,
 profile init|apply|show), :mod:`.scope`, :mod:`.shell`; :mod:`.types` holds the parameter
 types and checks they share.
 
@@ -12,10 +12,12 @@ A new command is a function in its family's module decorated with ``@main.comman
 from __future__ import annotations
 
 from . import bench, chip, motion, profile, scope, shell, wiring  # noqa: F401 - importing them registers their commands
-from .app import EXIT_CODES, Session, Terminated, main
+from ..safety import Terminated
+from .app import EXIT_CODES, Session, main
 from .bridge import bridge
 from .calc import calc
 from .common import snapshot_dict
+from .sigrok import sigrok
 from .sim import sim
 from .tune import tune
 from .types import parse_int
@@ -24,5 +26,6 @@ main.add_command(calc)
 main.add_command(tune)
 main.add_command(bridge)
 main.add_command(sim)
+main.add_command(sigrok)
 
 __all__ = ["main", "EXIT_CODES", "Session", "Terminated", "parse_int", "snapshot_dict"]

@@ -26,10 +26,9 @@ import logging
 import os
 import signal
 import sys
-import threading
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
 import click
@@ -52,7 +51,7 @@ from ..move import MoveRules
 from ..pid import sample_period_s
 from ..ports import PortSpec, resolve_port
 from ..program import BusCycle
-from ..safety import STOP_NOTE
+from ..safety import STOP_NOTE, StopSignals
 from ..units import Scale
 from ..urls import parse_hz, query_params, with_query
 
@@ -82,18 +81,10 @@ _ERROR_EXITS: tuple[tuple[type[BaseException], int], ...] = (
     (CommandError, 6), (WaitTimeout, 7), (MotionError, 9), (LM629Error, 8),
 )
 
-#: the signals that end a command like Ctrl-C does: the motor is stopped, then exit 128 + N
+#: what ended a command, by the stop signal (safety.STOP_SIGNALS): the motor is stopped, then
+#: exit 128 + N
 _STOP_SIGNALS = {signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)",
                  signal.SIGHUP: "hang-up (SIGHUP)"}
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised like Ctrl-C's KeyboardInterrupt so that every ``except
-    KeyboardInterrupt`` that stops the motor handles it too; ``signum`` picks the exit code."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signum)
-        self.signum = signum
 
 
 
@@ -125,9 +116,8 @@ class Session:
     axis_spec: tuple[int, ...] | str | None = None  #: --axis (see cli.axes)
     _board: Any = None
     _prepare: bool = True
-    _old_handlers: dict[int, Any] | None = None
-    _guarded: Any = None  #: the transport whose programs a stop signal waits for
-    _pending: int | None = None
+    #: Ctrl-C, SIGTERM and SIGHUP, held during the opened chip's bus programs
+    signals: StopSignals = field(default_factory=StopSignals)
     profile: Any = None  #: the bench profile (--profile), see cli.profile
 
     @property
@@ -158,41 +148,26 @@ class Session:
             values["clock"] = str(int(self.clock_hz))
         return with_query(self.port, values) if values else self.port
 
-    @staticmethod
-    def _raise_signal(signum: int) -> None:
-        raise KeyboardInterrupt if signum == signal.SIGINT else Terminated(signum)
-
     def install_signals(self) -> None:
         """Ctrl-C, SIGTERM and SIGHUP end a command the same way: raised as
         KeyboardInterrupt (Terminated for the last two) so that a moving motor is stopped,
         then the exit code says which.  A signal during a bus program is held until the
-        program has finished, so that the safety stop starts on a clean bus."""
-        if threading.current_thread() is not threading.main_thread() or self._old_handlers:
-            return
-
-        def on_signal(signum: int, frame: Any) -> None:
-            if self._guarded is not None and self._guarded.program_depth:
-                self._pending = signum
-            else:
-                self._raise_signal(signum)
-
-        self._old_handlers = {sig: signal.signal(sig, on_signal) for sig in _STOP_SIGNALS}
+        program has finished (:class:`~lm629_host.safety.StopSignals`), so that the safety
+        stop starts on a clean bus."""
+        self.signals.install()
 
     def _guard_programs(self, chip: LM629) -> None:
-        """Run every bus program of ``chip`` whole: a stop signal that comes during one is held
-        (the handler reads the transport's ``program_depth``) and raised when it has ended
-        (the transport's ``after_program`` hook)."""
-        self._guarded = chip.transport
-        chip.transport.after_program = self._deliver_pending
+        """Hold a stop signal while a bus program of ``chip`` runs."""
+        self.signals.guard(chip.transport)
 
-    def _deliver_pending(self) -> None:
-        if self._pending is not None:
-            signum, self._pending = self._pending, None
-            self._raise_signal(signum)
+    def cycle_trace(self) -> Callable[[BusCycle], None] | None:
+        """What ``--trace`` subscribes to the transport's bus cycles: None without it, so that
+        a simulator keeps its fast path (no cycle is made for nobody to see)."""
+        return self._trace if self.trace else None
 
-    def _trace(self, cycle: BusCycle) -> None:
-        if self.trace:
-            click.echo(f"bus {cycle}", err=True)
+    @staticmethod
+    def _trace(cycle: BusCycle) -> None:
+        click.echo(f"bus {cycle}", err=True)
 
     def open(self, *, prepare: bool = True) -> LM629:
         """The chip.  On an in-process simulator: reset it and load kp = 20 (``prepare``)."""
@@ -205,7 +180,7 @@ class Session:
                            "simulated chip for this command only; for one that keeps its state "
                            "run `lm629 sim serve --pty /tmp/lm629` and pass --port /tmp/lm629)",
                            err=True)
-            self._chip = _open(self.url(), self.chip_name, self._trace)
+            self._chip = _open(self.url(), self.chip_name, self.cycle_trace())
             self._guard_programs(self._chip)
             self._chip.move_rules = MoveRules(clock_hz=self.clock_hz)
             log.info("opened %s", self._chip.transport.describe())
@@ -228,10 +203,7 @@ class Session:
                 click.echo(f"stats: {self._chip.transport.stats}", err=True)
             self._chip.close()
             self._chip = None
-        if self._old_handlers:
-            for sig, handler in self._old_handlers.items():
-                signal.signal(sig, handler)
-            self._old_handlers = None
+        self.signals.restore()
 
 
 # ---------------------------------------------------------------------- the session's axes
@@ -281,7 +253,7 @@ def board(s: Session) -> Board:
         if want is not None and s.is_sim and s.spec.axes is None and want > 1:
             # a simulator builds the chips named, unless its URL says how many it has
             url = with_query(url, {"axes": str(want)})
-        b = lm629_host.open_board(url, chip=s.chip_name, trace=s._trace)
+        b = lm629_host.open_board(url, chip=s.chip_name, trace=s.cycle_trace())
         if want is not None and len(b.axes) < want:
             b.close()
             raise AxisError(want - 1, len(b.axes), s.port)
@@ -388,6 +360,9 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
                    "accelerations in rev/s^2.")
 @click.option("-v", "--verbose", count=True, help="-v: info, -vv: debug with the bus hex trace.")
 @click.option("--trace", is_flag=True, help="Print every bus cycle on stderr.")
+@click.option("--vcd", "vcd_path", default=None, metavar="FILE",
+              help="Write a simulated port's bus pins to FILE (VCD, for PulseView and the "
+                   "lm629 sigrok decoder; the URL's vcd=).")
 @click.option("--stats", is_flag=True, help="Print the transport's counters at exit.")
 @click.option("--axis", "axis_text", default=None, metavar="N|N,M|all",
               help="Which chip on a multi-axis board (its chip select; default 0, or every "
@@ -400,7 +375,7 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
 @click.version_option(lm629_host.__version__, prog_name="lm629")
 @click.pass_context
 def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines: int | None,
-         verbose: int, trace: bool, stats: bool, axis_text: str | None,
+         verbose: int, trace: bool, stats: bool, vcd_path: str | None, axis_text: str | None,
          profile_path: str | None) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
     profile = None
@@ -432,6 +407,12 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
         raise click.BadParameter(str(exc), param_hint=hint) from None
     chip_name = spec.chip
     clock_hz = spec.clock_hz or clock_hz
+    if vcd_path is not None:
+        if not spec.simulated:
+            raise click.BadParameter(f"{url} is hardware: --vcd writes a simulator's bus; "
+                                     "capture a bench with a logic analyzer (docs/debugging.md)",
+                                     param_hint="--vcd")
+        url = with_query(url, {"vcd": vcd_path})
     _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
     session = Session(url, port is not None, chip_name, clock_hz,
                       lines, verbose, trace, stats, spec)

@@ -7,7 +7,8 @@ gets the one axis it names.  All the axes of a command share one transport (one
 :class:`~lm629_host.board.Board`), so a status of every axis is one bus program.
 
 Which axes: ``--axis`` as given; without it, every chip of the port URL's ``axes=`` (a
-simulator ``sim://?axes=2``, or a bridge URL ``...?axes=2``), else axis 0 alone, as before.
+simulator ``sim://?axes=2``, or a bridge URL ``...?axes=2``), else axis 0 alone (a one-chip
+board).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import click
 
 
 from ..lm629 import LM629
+from ..opcodes import FIXED_ONE
 from .app import MAX_AXIS, Session, axes_of, board, open_axis, parse_axes, several
 
 __all__ = ["MAX_AXIS", "axes_of", "board", "check_targets", "move_many", "open_axis",
@@ -39,7 +41,7 @@ def status(s: Session, as_json: bool, snapshot_dict: Any) -> None:
         click.echo(f"axis {k}: status {d['status']} {' '.join(d['status_flags']) or '-'}  "
                    f"signals {d['signals']}  desired {snap.desired_position}  actual "
                    f"{snap.real_position}  error {snap.following_error:+d}  velocity "
-                   f"{snap.desired_velocity / 65536:.5f}/{snap.real_velocity}")
+                   f"{snap.desired_velocity / FIXED_ONE:.5f}/{snap.real_velocity}")
     click.echo(f"failsafe {fs_line}")
 
 
@@ -74,7 +76,7 @@ def watch_rows(s: Session, count: int | None, rate: float, flags: Any,
                 if writer:
                     writer.writerow((f"{t:.4f}", k, snap.desired_position,
                                      snap.real_position, snap.following_error,
-                                     f"{snap.desired_velocity / 65536:.4f}", snap.real_velocity,
+                                     f"{snap.desired_velocity / FIXED_ONE:.4f}", snap.real_velocity,
                                      f"{int(snap.status):02X}", flags(snap.status)))
             n += 1
             if count is None or n < count:

@@ -24,7 +24,7 @@ from .types import FINITE
               help="The small move: counts (default 1000), revolutions with --lines.")
 @click.option("--hold-kp", type=int, default=20, show_default=True, help="kp of the hold step.")
 def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
-    """The AN-706 2.12 bring-up: reset, phasing at kp = 1, kp = 20 hold, a small move,
+    """The AN-706 2.12 bring-up: reset, phasing (the tuner's P-only steps), kp = 20 hold, a small move,
     following error and settle time, next steps.  A prompt ended by Ctrl-C or end of input
     exits 130 with nothing moved."""
     s = _session()
@@ -159,6 +159,10 @@ def doctor() -> None:
                      "its clock input, its supply and /RST)") if busy == n else ""
             line("status read", busy < n, f"{int(st):02X} ({_flags(st)}), {dt * 1e3:.3f} ms "
                                           f"per round trip (wall clock){stuck}")
+            for c in chip.transport.port_checks():
+                line(c.name, c.ok, c.message)
+                if not c.ok and busy < n:
+                    click.echo(WIRING_HINT)
             if busy == n:
                 click.echo(WIRING_HINT)
             from .common import failsafe_info

@@ -17,7 +17,7 @@ DEFAULT_HEX = firmware_image()
 
 
 @dataclass(frozen=True)
-class Board:
+class Bootloader:
     """avrdude settings of one board's bootloader."""
 
     name: str
@@ -28,13 +28,13 @@ class Board:
 
 
 BOARDS = {
-    "uno": Board("Arduino Uno (optiboot)", "atmega328p", "arduino", 115200,
-                 "the Uno's USB chip resets the board when avrdude opens the port"),
-    "nano": Board("Arduino Nano (new bootloader, optiboot)", "atmega328p", "arduino", 115200,
-                  "Nanos sold since 2018 (and most clones flashed recently)"),
-    "nano-old": Board("Arduino Nano (old bootloader)", "atmega328p", "arduino", 57600,
-                      "older Nanos and many CH340 clones: try this when 'nano' says "
-                      "'not in sync'"),
+    "uno": Bootloader("Arduino Uno (optiboot)", "atmega328p", "arduino", 115200,
+                      "the Uno's USB chip resets the board when avrdude opens the port"),
+    "nano": Bootloader("Arduino Nano (new bootloader, optiboot)", "atmega328p", "arduino", 115200,
+                       "Nanos sold since 2018 (and most clones flashed recently)"),
+    "nano-old": Bootloader("Arduino Nano (old bootloader)", "atmega328p", "arduino", 57600,
+                           "older Nanos and many CH340 clones: try this when 'nano' says "
+                           "'not in sync'"),
 }
 
 

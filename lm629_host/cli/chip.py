@@ -209,7 +209,7 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
     n = 0
     start = chip.clock.now()
     # rows timed on the far side where the transport records there (lm629_host.recording:
-    # the bridge's timer, the simulator's clock); else polled, as before
+    # the bridge's timer, the simulator's clock); else polled from the host
     from ..recording import far_snapshots
     recorded = far_snapshots(chip, 1.0 / rate, count or 0)
     t0: float | None = None

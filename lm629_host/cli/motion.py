@@ -6,8 +6,10 @@ from __future__ import annotations
 import click
 
 from ..lm629 import LM629, Snapshot
-from ..move import MoveRules
+from ..move import Move, MoveRules
 from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX
+from ..pid import sample_period_s
+from ..profile_shapes import SCurve
 from ..safety import stop_on_error
 from ..supervise import run_velocity
 from ..units import FIXED_ONE
@@ -21,7 +23,7 @@ def _motion_words(s: Session, velocity: float | None, acceleration: float | None
     """(velocity, acceleration) raw words from the options: rpm and rev/s^2 with --lines."""
     scale = None if raw else s.scale
     if scale is None:
-        v = 65536 if velocity is None else velocity
+        v = FIXED_ONE if velocity is None else velocity  # 1 count/sample
         a = 655 if acceleration is None else acceleration
         for name, x in (("--vel", v), ("--acc", a)):
             if float(x) != int(x):
@@ -43,6 +45,27 @@ def _motion_words(s: Session, velocity: float | None, acceleration: float | None
             raise click.BadParameter(f"gives the word {word}, above the chip's {hi}",
                                      param_hint=name)
     return v, a
+
+
+def _s_curve(s: Session, shape: str, jerk: float | None, velocity: int, acceleration: int,
+             raw: bool) -> SCurve | None:
+    """The S-curve of ``--shape s-curve`` in counts and seconds (its limits the --vel and
+    --acc words, ``--jerk`` in rev/s^3 with --lines, else counts/s^3), or None."""
+    if shape != "s-curve":
+        if jerk is not None:
+            raise click.BadParameter("needs --shape s-curve", param_hint="--jerk")
+        return None
+    if jerk is None:
+        raise click.BadParameter("--shape s-curve needs --jerk", param_hint="--jerk")
+    positive("--jerk", jerk)
+    sample_s = s.scale.sample_period if s.scale is not None else sample_period_s(
+        s.open().clock_hz)
+    per_count = 1.0 if raw or s.scale is None else s.scale.counts_per_rev
+    try:
+        return SCurve(velocity / FIXED_ONE / sample_s, acceleration / FIXED_ONE / sample_s ** 2,
+                      jerk * per_count)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--jerk") from None
 
 
 def _acceleration_unless_moving(chip: LM629, acceleration: int, given: bool) -> int | None:
@@ -82,9 +105,14 @@ def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
 @click.option("--no-wait", is_flag=True, help="Start the move and return (it keeps running).")
 @click.option("--timeout", type=FINITE, default=None,
               help="Seconds to wait (default: 1.5 x the profile + 2 s).")
+@click.option("--shape", type=click.Choice(["trapezoid", "s-curve"]), default="trapezoid",
+              show_default=True, help="s-curve: jerk-limited, in pieces the host times "
+                                      "(AN-706 4.5.3); --vel and --acc are its limits.")
+@click.option("--jerk", type=FINITE, default=None,
+              help="With --shape s-curve: rev/s^3 with --lines, else counts/s^3 (required).")
 def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | None,
          acc: float | None, raw: bool, tolerance: float | None, no_wait: bool,
-         timeout: float | None) -> None:
+         timeout: float | None, shape: str, jerk: float | None) -> None:
     """Move to TARGET (counts; revolutions with --lines; negative as typed: move -5000) and
     wait until the shaft rests on it.  A move that does not end on target is a motion fault:
     the motor is stopped and the exit code is 9."""
@@ -92,6 +120,10 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     v, a = _motion_words(s, vel, acc, raw)
     tol = _tolerance(s, tolerance, raw)
     positive("--timeout", timeout)
+    curve = _s_curve(s, shape, jerk, v, a, raw)
+    if curve is not None and (len(targets) > 1 or linear or no_wait):
+        raise click.UsageError("--shape s-curve moves one axis to one target and waits (the "
+                               "host times its pieces): no --linear, --no-wait or more targets")
     from . import axes, profile
     profile.check_move(s, [_position(s, t, "TARGET", raw) for t in targets], v, a, relative,
                        linear)
@@ -110,13 +142,26 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     # refuse a new acceleration because the motor is still moving (AN-706 4.6.1)
     chip.trajectory_program(acceleration=a, velocity=v, position=None if relative else counts)
     if relative:
-        chip.trajectory_program(position=chip.read_desired_position() + counts)
+        # the goal in the register's terms (extended positions wrap back into it)
+        chip.trajectory_program(position=chip.positions.to_register(
+            chip.read_desired_position() + counts))
     acceleration = _acceleration_unless_moving(chip, a, acc is not None)
     scale = None if raw else s.scale
     with stop_on_error(chip):
-        m = chip.move_to(counts, velocity=v, acceleration=acceleration, relative=relative)
-        click.echo(f"moving to {_show_position(s, m.target)} (velocity word {v}, acceleration "
-                   f"word {a if acceleration is not None else 'as loaded (moving)'})")
+        m: Move
+        if curve is not None:
+            shaped = chip.move_profile(counts, curve, relative=relative)
+            p = shaped.plan
+            click.echo(f"moving to {_show_position(s, shaped.target)} along an S-curve: "
+                       f"{len(p.pieces)} pieces {p.piece_s * 1e3:g} ms apart, "
+                       f"{p.duration:.3f} s planned (top velocity word "
+                       f"{p.peak_velocity}, acceleration word {p.acceleration})")
+            m = shaped
+        else:
+            m = chip.move_to(counts, velocity=v, acceleration=acceleration, relative=relative)
+            click.echo(f"moving to {_show_position(s, m.target)} (velocity word {v}, "
+                       f"acceleration word "
+                       f"{a if acceleration is not None else 'as loaded (moving)'})")
         if no_wait:
             return
         with _live(_isatty()) as show:

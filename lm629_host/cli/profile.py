@@ -35,6 +35,8 @@ from ..profile import (
     settings_lost,
     template,
 )
+from ..pid import sample_period_s
+from ..units import to_fixed
 from ..urls import query_params, with_query
 from .app import HOOKS, Session, _session, axes_of, board, main
 from .common import _flags
@@ -169,7 +171,7 @@ def index_search(s: Session, word: int | None) -> tuple[int | None, bool]:
         if speed is None:
             raise click.BadParameter("give a velocity WORD (no index_velocity in a profile for "
                                      "this axis)", param_hint="--search")
-        word = max(1, round(abs(speed) * (2048 / s.clock_hz) * 65536))
+        word = max(1, to_fixed(abs(speed) * sample_period_s(s.clock_hz)))
     return word, forward
 
 
@@ -236,9 +238,9 @@ def after_tune(s: Session, chip: LM629, gains: Any, target: tuple[Path, str] | N
                    err=True)
         return
     save_gains(path, name, {"kp": gains.kp, "ki": gains.ki, "kd": gains.kd, "il": gains.il,
-                            "ds": gains.ds + 1})
+                            "ds": gains.ds})
     click.echo(f"saved kp={gains.kp} ki={gains.ki} kd={gains.kd} il={gains.il} "
-               f"ds={gains.ds + 1} into [axis.{name}] of {path}")
+               f"ds={gains.ds} into [axis.{name}] of {path}")
 
 
 # ---------------------------------------------------------------------------- commands

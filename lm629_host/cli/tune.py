@@ -40,7 +40,7 @@ def parse_gains(text: str) -> Gains | None:
         values[name] = parse_int(value)
     if not 1 <= values["ds"] <= 256:
         raise ValueError(f"--before ds={values['ds']} must be 1..256 samples")
-    g = Gains(values["kp"], values["ki"], values["kd"], values["il"], values["ds"] - 1)
+    g = Gains(values["kp"], values["ki"], values["kd"], values["il"], values["ds"])
     for name in ("kp", "ki", "kd", "il"):
         if not 0 <= getattr(g, name) <= 0x7FFF:
             raise ValueError(f"--before {name}={getattr(g, name)} is outside 0..32767")

@@ -29,11 +29,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ..bridge.protocol import CODE_BYTES, CODE_SLOTS
+from ..bridge.protocol import CODE_BYTES, CODE_SLOTS, PROFILE_MAX_SCHEDULE
 from ..clock import Clock
 from ..errors import ProtocolViolation, TransportError
 from .wiring import Miswiring
-from .model import ChipBus, ChipModel
+from .model import ChipBus, ChipModel, chips_of
+from .vcd import DATA as VCD_DATA
+from .vcd import BusVcd, cs_name, hi_name
 
 ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = ROOT / "firmware_bridge"
@@ -140,6 +142,10 @@ def load_library(path: Path = LIBRARY) -> ctypes.CDLL:
     lib.fitl_uart_counts.restype = None
     lib.fitl_violations.argtypes = [p, ctypes.c_char_p, ctypes.c_uint32]
     lib.fitl_violations.restype = ctypes.c_uint32
+    lib.fitl_pin_log.argtypes, lib.fitl_pin_log.restype = [p, ctypes.c_int], None
+    lib.fitl_pin_log_take.argtypes = [p, ctypes.POINTER(ctypes.c_uint64),
+                                      ctypes.POINTER(ctypes.c_uint32), ctypes.c_uint32]
+    lib.fitl_pin_log_take.restype = ctypes.c_uint32
     _lib = lib
     return lib
 
@@ -173,6 +179,8 @@ class AvrSim:
         self.reset_low_clocks: list[int] = []
         #: set to a list to record every bus cycle as (kind, value, AVR cycle)
         self.bus_log: list[tuple[int, int, int]] | None = None
+        #: the VCD the port pins go to (:meth:`write_vcd`), None: the harness logs no pins
+        self.vcd: BusVcd | None = None
 
     # ------------------------------------------------------------------ bus (from C)
     def _on_bus(self, kind: int, value: int, cycle: int) -> int:
@@ -254,8 +262,40 @@ class AvrSim:
         """Run the AVR up to ``cycle``; with ``frames`` stop early when the firmware has sent
         a frame delimiter (True then)."""
         rc = self._lib.fitl_run(self._h, cycle, 1 if frames else 0)
+        if self.vcd is not None:
+            self._drain_pins()
         self._check(rc)
         return rc == 1
+
+    # ------------------------------------------------------------------ the pins as a VCD
+    def write_vcd(self, path: str, timescale_ns: int = 10) -> None:
+        """From now on, every level the bus lines take goes to the VCD ``path``, at the AVR's
+        cycle resolution: D0-D7, /RD, /WR, /PS, /RST, the /CS and HI lines of the chips."""
+        chips = len(chips_of(self.model))
+        self.vcd = BusVcd(path, chips=chips, timescale_ns=timescale_ns,
+                          comment=f"lm629-host: bridge firmware {self.firmware.name} in simavr")
+        self._pin_cycles = (ctypes.c_uint64 * 4096)()
+        self._pin_levels = (ctypes.c_uint32 * 4096)()
+        self._lib.fitl_pin_log(self._h, 1)
+        self._drain_pins()
+
+    def _drain_pins(self) -> None:
+        vcd, cycles, levels = self.vcd, self._pin_cycles, self._pin_levels
+        assert vcd is not None
+        chips = len(chips_of(self.model))
+        ns_per_cycle = 1e9 / CPU_HZ
+        while True:
+            n = self._lib.fitl_pin_log_take(self._h, cycles, levels, len(cycles))
+            for i in range(n):
+                v = levels[i]
+                lines = {name: (v >> bit) & 1 for bit, name in enumerate(VCD_DATA)}
+                lines.update(rd=(v >> 8) & 1, wr=(v >> 9) & 1, ps=(v >> 10) & 1, rst=(v >> 11) & 1)
+                for k in range(chips):
+                    lines[cs_name(k)] = (v >> (12 + k)) & 1
+                    lines[hi_name(k)] = (v >> (16 + k)) & 1
+                vcd.set(cycles[i] * ns_per_cycle, lines)
+            if n < len(cycles):
+                return
 
     def run_for(self, seconds: float) -> None:
         self.run_until(self.cycle + max(0, math.ceil(seconds * CPU_HZ)))
@@ -313,6 +353,9 @@ class AvrSim:
 
     def close(self) -> None:
         if self._h:
+            if self.vcd is not None:
+                self._drain_pins()
+                self.vcd.close(self.cycle * 1e9 / CPU_HZ)
             self._lib.fitl_free(self._h)
             self._h = None
 
@@ -369,9 +412,11 @@ class AvrPipe:
 
 #: ``link_t`` of firmware_bridge/link.h on the AVR: 15 bytes of state, then four 16-bit
 #: counters (frames, bad_frames, runs, cache_hits, little-endian), 6 bytes of the RUN_SHORT
-#: check, the programs kept for RUN_CODE (3 bytes and CODE_BYTES each), then the three buffers
+#: check, the programs kept for RUN_CODE (3 bytes and CODE_BYTES each), the three buffers, then
+#: PROFILE's schedule (4 bytes, two 16-bit and four 32-bit fields, 6 bytes a piece)
 _LINK_COUNTERS_AT = 15
-_LINK_T_SIZE = 15 + 4 * 2 + 6 + CODE_SLOTS * (3 + CODE_BYTES) + 252 + 250 + 252
+_LINK_T_SIZE = (15 + 4 * 2 + 6 + CODE_SLOTS * (3 + CODE_BYTES) + 252 + 250 + 252
+                + 4 + 2 * 2 + 4 * 4 + 6 * PROFILE_MAX_SCHEDULE)
 _link_addresses: dict[Path, int | None] = {}
 
 

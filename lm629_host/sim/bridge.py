@@ -36,6 +36,12 @@ from ..bridge.protocol import (
     MAX_PING,
     RUN_OVERHEAD,
     NONE_BYTE,
+    PROFILE_HEADER,
+    PROFILE_MAX_SCHEDULE,
+    PROFILE_MIN_SPACING_US,
+    PROFILE_NEW,
+    PROFILE_PIECE,
+    PROFILE_REPLY_PAYLOAD,
     RECORD_HEADER,
     RECORD_MIN_PERIOD_US,
     RECORD_TICK_US,
@@ -56,6 +62,8 @@ from ..bridge.protocol import (
     check_record_program,
     decode_program,
     encode_frame,
+    ends_a_profile,
+    profile_piece_ops,
     short_reply_payload,
 )
 from ..opcodes import BUSY_BIT, Cmd
@@ -84,6 +92,7 @@ class EmuStats:
     runs: int = 0  #: RUN programs executed
     recordings: int = 0  #: RECORD requests that started recording
     rows: int = 0  #: RECORD_ROW frames sent
+    pieces: int = 0  #: PROFILE pieces issued
     cache_hits: int = 0  #: RUN repeats answered from the cache
     trips: int = 0  #: failsafe trips
     feeds: int = 0  #: FAILSAFE_FEED frames taken during a recording
@@ -98,8 +107,8 @@ MULTI_AXIS_INFO = HelloInfo(
     capabilities=int(Capability.RESET_LINE | Capability.HI_LINE | Capability.BUSY_ON_BRIDGE
                      | Capability.WAIT_STATUS | Capability.SELECT | Capability.COMPACT_RUN
                      | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH | Capability.RECORD
-                     | Capability.FAILSAFE))
-#: a bridge of before issue 11 (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
+                     | Capability.FAILSAFE | Capability.PROFILE))
+#: a one-chip bridge (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
 #: WAIT_STATUS: firmware 1.0's capabilities)
 ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
 
@@ -144,6 +153,7 @@ class BridgeEmulator:
         self._codes: dict[int, bytes] = {}  # programs kept for RUN_CODE
         self._cycle_ticks = max(1, round(BUS_CYCLE_S * self.model.clock_hz))
         self._rec: _Recording | None = None
+        self._profile = _Schedule()
         self._no_chip = _NO_CHIP if self.wiring is None else BentChip(_NO_CHIP, self.wiring)
         #: the failsafe: timeout (0: disarmed), action, when the host last sent a good frame
         #: (model seconds), the latched trip (None: none), bytes of FAILSAFE_FEED matched
@@ -220,6 +230,7 @@ class BridgeEmulator:
         bits = FAILSAFE_STOP_BITS[FailsafeAction(self._fs_action)]
         stop = [BusOp(Op.STATUS), BusOp(Op.COMMAND, int(Cmd.LTRJ)), BusOp(Op.WRITE, bits),
                 BusOp(Op.COMMAND, int(Cmd.STT))]
+        self._cancel_profile(stop)  # first: no pending piece may restart a motor stopped here
         chips = 0
         cs = self._cs
         for k in range(self.info.chip_selects):
@@ -255,20 +266,6 @@ class BridgeEmulator:
                 result = Result.BAD_FAILSAFE
         return encode_frame(FrameType.FAILSAFE_REPLY, frame.seq,
                             replace(self.failsafe, result=result).encode())
-
-    @property
-    def event_due(self) -> float | None:
-        """The next thing the far end does by itself: a recording's row or the failsafe."""
-        times = [t for t in (self.record_due, self.failsafe_due) if t is not None]
-        return min(times) if times else None
-
-    def event_step(self) -> list[bytes]:
-        """Do what is due at :attr:`event_due` (the caller advanced the model to it)."""
-        fs = self.failsafe_due
-        if fs is not None and (self.record_due is None or fs <= self.record_due):
-            self.failsafe_trip()
-            return []
-        return self.record_step()
 
     #: the line's rate at the far end (EmuPipe sets it), the rate it goes back to and until
     #: when (after SET_BAUD, until a good frame comes at the new rate), a switch answered
@@ -363,6 +360,8 @@ class BridgeEmulator:
             return self._start_recording(frame)
         if t == FrameType.FAILSAFE and caps & Capability.FAILSAFE:
             return self._failsafe_request(frame)
+        if t == FrameType.PROFILE and caps & Capability.PROFILE:
+            return self._profile_frame(frame)
         if t & 0x80:
             return None  # a reply type from the host: not a request, ignore it
         return self._error(frame.seq, Result.BAD_REQUEST)
@@ -435,6 +434,98 @@ class BridgeEmulator:
     def _error(self, seq: int, code: Result) -> bytes:
         return encode_frame(FrameType.ERROR_REPLY, seq, bytes((code,)))
 
+    # ------------------------------------------------------------------ PROFILE
+    @property
+    def profile_due(self) -> float | None:
+        """When the next piece of a shaped move is due (model seconds), None when none is."""
+        sched = self._profile
+        return sched.start + sched.pending[0][0] * 1e-6 if sched.pending else None
+
+    def _profile_frame(self, frame: Frame) -> bytes:
+        """PROFILE, as the firmware takes it: every piece checked before any is scheduled
+        (a refusal schedules nothing); NEW starts the schedule's clock now; the reply says
+        what the schedule has done.  Answered again for a repeat (the reply cache)."""
+        cache = self._cache
+        if cache is not None and cache[0] == frame.seq and cache[1] == frame.crc:
+            self.stats.cache_hits += 1
+            return cache[2]
+        p = frame.payload
+        sched = self._profile
+        body = p[PROFILE_HEADER.size:]
+        if len(p) < PROFILE_HEADER.size or len(body) % PROFILE_PIECE.size:
+            return self._error(frame.seq, Result.BAD_REQUEST)
+        flags, cs = PROFILE_HEADER.unpack_from(p)
+        pieces = [PROFILE_PIECE.unpack_from(body, k) for k in range(0, len(body),
+                                                                    PROFILE_PIECE.size)]
+        new = bool(flags & PROFILE_NEW)
+        last = None if new or not sched.pending else sched.pending[-1][0]
+        if not new and not pieces:
+            result = sched.result
+        else:
+            result = Result.OK
+            held = 0 if new else len(sched.pending)
+            if cs >= self.info.chip_selects or held + len(pieces) > PROFILE_MAX_SCHEDULE:
+                result = Result.BAD_PROFILE
+            for t_us, velocity in pieces:
+                if velocity > 0x3FFFFFFF or (last is not None
+                                             and t_us < last + PROFILE_MIN_SPACING_US):
+                    result = Result.BAD_PROFILE
+                last = t_us
+            if result == Result.OK and pieces and self._fs_trip is not None:
+                result = Result.FAILSAFE_TRIPPED  # pieces carry STT: refused as a RUN's are
+            if result == Result.OK:
+                if new:
+                    self._profile = sched = _Schedule(cs=cs, start=self.model.now())
+                sched.pending.extend(pieces)
+        reply = encode_frame(FrameType.PROFILE_REPLY, frame.seq, PROFILE_REPLY_PAYLOAD.pack(
+            result, sched.issued & 0xFFFF, len(sched.pending), sched.late_us & 0xFFFFFFFF))
+        self._cache = (frame.seq, frame.crc, reply)
+        return reply
+
+    def profile_step(self) -> None:
+        """Issue the piece due now on its chip select (the caller has advanced the model to
+        :attr:`profile_due`); a piece that fails (busy timeout) drops the schedule."""
+        sched = self._profile
+        t_us, velocity = sched.pending.popleft()
+        late = max(0, round((self.model.now() - sched.start) * 1e6) - t_us)
+        sched.late_us = max(sched.late_us, late)
+        cs, self._cs = self._cs, sched.cs
+        reply = self.run_ops(profile_piece_ops(velocity), FIRMWARE_BUSY_TIMEOUT_S)
+        self._cs = cs
+        sched.issued += 1
+        self.stats.pieces += 1
+        if reply.result != Result.OK:
+            sched.pending.clear()
+            sched.result = Result(reply.result)
+
+    def _cancel_profile(self, ops: Sequence[BusOp]) -> None:
+        """A program that stops or restarts the chip ends the schedule (PROFILE_CANCELLED)."""
+        sched = self._profile
+        if sched.pending and ends_a_profile(ops):
+            sched.pending.clear()
+            sched.result = Result.PROFILE_CANCELLED
+
+    @property
+    def far_due(self) -> float | None:
+        """The next thing the bridge does by itself: a row, a piece or the failsafe's expiry
+        (model seconds)."""
+        dues = [d for d in (self.record_due, self.profile_due, self.failsafe_due)
+                if d is not None]
+        return min(dues) if dues else None
+
+    def far_step(self) -> list[bytes]:
+        """Do what is due now (:attr:`far_due`): the failsafe's trip first (it drops the
+        pieces, as the firmware's main loop checks the failsafe before the schedule), else a
+        piece, else a row; the frames it sends."""
+        fs, due, row = self.failsafe_due, self.profile_due, self.record_due
+        if fs is not None and all(d is None or fs <= d for d in (due, row)):
+            self.failsafe_trip()
+            return []
+        if due is not None and (row is None or due <= row):
+            self.profile_step()
+            return []
+        return self.record_step()
+
     # ------------------------------------------------------------------ programs
     def _run(self, payload: bytes) -> RunReply:
         cs = payload[0]
@@ -455,6 +546,7 @@ class BridgeEmulator:
             for i, o in enumerate(ops):
                 if o.op is Op.COMMAND and o.arg == Cmd.STT:
                     return RunReply(Result.FAILSAFE_TRIPPED, i)
+        self._cancel_profile(ops)
         self._cs = cs
         self.stats.runs += 1
         return self.run_ops(ops, timeout_us * 1e-6)
@@ -516,9 +608,28 @@ class BridgeEmulator:
             t = m.now()
             if status & mask or t >= end:
                 return status
-            clock.advance_until_status(mask, end)
+            # a piece of a shaped move falls due while the bridge waits: issued at its time
+            due = self.profile_due
+            stop = end if due is None else min(end, due)
+            clock.advance_until_status(mask, stop)
+            if due is not None and m.now() >= stop and due <= end:
+                clock.advance_to(due)
+                self.profile_step()
+                continue
             j = max(1, math.ceil((m.now() - t) / (period + BUS_CYCLE_S) - 1e-9))
             clock.advance_to(min(end, t + j * period + (j - 1) * BUS_CYCLE_S))
+
+    def _wait(self, seconds: float) -> None:
+        """Op.WAIT: the pieces of a shaped move that fall due meanwhile go out at their time."""
+        m = self.model
+        end = m.tick + max(0, round(seconds * m.clock_hz))  # as ChipModel.advance rounds
+        while True:
+            due = self.profile_due
+            if due is None or due * m.clock_hz > end:
+                break
+            SimClock(m).advance_to(due)
+            self.profile_step()
+        m.advance_to(end)
 
     def run_ops(self, ops: list[BusOp], timeout_s: float) -> RunReply:
         """Run decoded operations with the busy discipline; stop at a busy timeout."""
@@ -551,7 +662,7 @@ class BridgeEmulator:
                 m.reset_pulse()
                 self.stats.bus_cycles += 1
             elif op is Op.WAIT:
-                m.advance(o.arg * 1e-6)
+                self._wait(o.arg * 1e-6)
             elif op is Op.SELECT:
                 self._cs = o.arg
             elif op is Op.WAIT_STATUS:
@@ -581,8 +692,35 @@ class _Recording:
         self.start = self.due  #: the first row's time: the stamps count from it
 
 
+@dataclass
+class _Schedule:
+    """A shaped move's pieces on the bridge: its chip select, the schedule's start (model
+    seconds), the pieces still to issue (us from the start, velocity word), how many went out,
+    the largest lateness of one (us) and how the schedule ended."""
+
+    cs: int = 0
+    start: float = 0.0
+    pending: deque[tuple[int, int]] = field(default_factory=deque)
+    issued: int = 0
+    late_us: int = 0
+    result: Result = Result.OK
+
+
 #: the far end runs on the chip model's simulated clock (the one ``sim://`` uses)
 ModelClock = SimClock
+
+
+class _PipeClock(SimClock):
+    """The model's clock seen from the host end of an :class:`EmuPipe`: ``sleep`` also runs
+    what the bridge does on its own timer meanwhile (the pieces of a shaped move, rows, the
+    bytes on the wire), as a real bridge goes on while the host sleeps."""
+
+    def __init__(self, pipe: EmuPipe) -> None:
+        super().__init__(pipe.emulator.model)
+        self._pipe = pipe
+
+    def sleep(self, seconds: float) -> None:
+        self._pipe.run_far(self.now() + max(0.0, seconds))
 
 
 def _last_due(queue: Sequence[tuple[Any, ...]], deadline: float) -> float:
@@ -609,7 +747,7 @@ class EmuPipe:
     def __init__(self, emulator: BridgeEmulator, *, baud: int | None = 115200,
                  max_baud: int | None = None) -> None:
         self.emulator = emulator
-        self.clock = ModelClock(emulator.model)
+        self.clock = _PipeClock(self)
         self.byte_s = 10.0 / baud if baud else 0.0
         self._timed = bool(baud)
         #: the host side's rate; a byte sent at another rate than the receiver's is lost (as
@@ -669,6 +807,30 @@ class EmuPipe:
             self._rx_free = t
             emu.switch_after_reply(t)
 
+    def run_far(self, until: float) -> None:
+        """Run the far end up to ``until`` without reading: the bytes that arrive there, what
+        falls due on its timer; the replies wait for the host's next read."""
+        clock = self.clock
+        emu = self.emulator
+        while True:
+            q = self._to_far
+            due = emu.far_due
+            arrive = q[0][0] if q else None
+            if due is not None and due <= until and (arrive is None or due < arrive):
+                if due > clock.now():
+                    clock.advance_to(due)
+                self._queue_replies(emu.far_step())
+                continue
+            if arrive is not None and arrive <= until:
+                t = _last_due(q, until if due is None else min(until, due))
+                if t > clock.now():
+                    clock.advance_to(t)
+                self._deliver_far(max(t, clock.now()))
+                continue
+            if until > clock.now():
+                clock.advance_to(until)
+            return
+
     def read(self, timeout_s: float) -> bytes:
         clock = self.clock
         deadline = clock.now() + max(0.0, timeout_s)
@@ -677,14 +839,14 @@ class EmuPipe:
             now = clock.now()
             h = self._to_host
             q = self._to_far
-            due = emu.event_due
-            # a row of a recording (or the failsafe) falls due before the next byte moves:
-            # run it at its time
+            due = emu.far_due
+            # a row of a recording, a piece or the failsafe's expiry falls due before the next
+            # byte moves: at its time
             if due is not None and due <= deadline and (not q or due < q[0][0]) \
                     and (not h or due < h[0][0]):
                 if due > now:
                     clock.advance_to(due)
-                self._queue_replies(emu.event_step())
+                self._queue_replies(emu.far_step())
                 continue
             limit = deadline if due is None else min(deadline, due)
             if h and h[0][0] <= limit:

@@ -7,8 +7,10 @@ from __future__ import annotations
 import os
 
 from ..errors import AxisError
+from ..opcodes import POSITION_MAX, POSITION_MIN
 from ..urls import Option, dataclass_options, parse_options, query_params
 from .model import ChipBus, ChipModel, ChipParams, MotorParams
+from .vcd import NAMES as VCD_OPTIONS
 from .wiring import wiring_of
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
@@ -33,7 +35,9 @@ FAULTS = (None, "reset", "busy", "rst")
 #: the URL options of the simulated chip: every field of ChipParams and MotorParams
 _CHIP_OPTIONS = dataclass_options(ChipParams, [
     Option("clock_hz", "hz", unit="Hz"),  # the model checks the range
-    Option("fault", "str", choices=tuple(f for f in FAULTS if f), optional=True)])
+    Option("fault", "str", choices=tuple(f for f in FAULTS if f), optional=True),
+    Option("reset_position", "int", lo=POSITION_MIN, hi=POSITION_MAX),
+    Option("update_s", "float", lo=0.0, hi=1.0, unit="s")])
 _MOTOR_OPTIONS = dataclass_options(MotorParams)
 
 
@@ -50,7 +54,8 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
     # checks would blame the host for the wire
     chip.strict = strict_default() and wiring_of(url) is None
     values = parse_options(url, _CHIP_OPTIONS + _MOTOR_OPTIONS, what="simulator",
-                           ignore=allowed | {"wiring"}, aliases=_ALIASES, given_only=True)
+                           ignore=allowed | {"wiring"} | VCD_OPTIONS, aliases=_ALIASES,
+                           given_only=True)
     for name, value in values.items():
         if name == "clock_hz":
             value = round(value)

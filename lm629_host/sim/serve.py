@@ -42,6 +42,7 @@ from ..bridge.protocol import (
 from ..program import Op
 from .bridge import BridgeEmulator, EmuPipe
 from .build import build_bus
+from .vcd import vcd_of
 from .wiring import Miswiring, wiring_of
 from .model import ChipBus, ChipModel, chips_of
 from .usb import OPTION_NAMES as USB_OPTIONS
@@ -90,13 +91,13 @@ class EmuFarEnd(FarEnd):
         return self.model.now()
 
     def advance_to(self, t: float) -> bytes:
-        """Up to ``t``, with the rows of a recording (RECORD) and the failsafe's expiry that
-        fall due on the way, each run at its time: rows go out together, stamped with the
-        bridge's clock."""
+        """Up to ``t``, with the rows of a recording (RECORD), the pieces of a shaped move
+        (PROFILE) and the failsafe's expiry that fall due on the way, each run at its time:
+        rows go out together, stamped with the bridge's clock."""
         emu, out = self.emulator, bytearray()
-        while (due := emu.event_due) is not None and due <= t:
+        while (due := emu.far_due) is not None and due <= t:
             self.model.advance_to(max(self.model.tick, math.ceil(due * self.model.clock_hz - 1e-6)))
-            out += b"".join(emu.event_step())
+            out += b"".join(emu.far_step())
         self.model.advance_to(max(self.model.tick, int(t * self.model.clock_hz)))
         return bytes(out)
 
@@ -255,6 +256,10 @@ class SimServer:
         self.link = Path(link) if link is not None else None
         self.tcp = tcp
         self.url = url
+        if vcd_of(url) is not None:
+            raise ValueError(f"{url}: vcd= draws the bus of a simulator a script opens (or "
+                             "`lm629 --vcd FILE <command>`); a served bench runs until Ctrl-C "
+                             "and writes none: run the script on sim:// or sim+avr:// with vcd= instead")
         if far_end is None:
             far_end = firmware_far_end(url) if firmware else emulator_far_end(url)
         self.far = far_end

@@ -61,7 +61,7 @@ BUILTIN: dict[str, str] = {
 #: Not transports of their own (``lm629 list`` and ``doctor`` walk :data:`BUILTIN` once).
 URL_SCHEMES: dict[str, str] = {"socket": "serial", "rfc2217": "serial", "spy": "serial",
                                "loop": "serial"}
-#: the old name of :data:`BUILTIN`
+#: :data:`BUILTIN` by the name lab scripts and plug-ins import it under
 SCHEMES = BUILTIN
 
 DEFAULT_URL = "sim://"

@@ -1,6 +1,8 @@
 """The transport interface: run a bus program on one chip, count the work, keep the clock.
 
-A transport has one job, :meth:`Transport.execute`.  Two shapes exist:
+A transport has one job, :meth:`Transport.execute`: the lock, the nesting depth, the chip-select
+range check, the program count and the observers are done there, once; each transport runs the
+program itself in ``_execute``.  Two shapes exist:
 
 * a transport whose far side can poll busy itself (the serial bridge) sends the whole program
   and gets the results back in one round trip: it subclasses :class:`Transport` directly;
@@ -17,19 +19,15 @@ wait, ``LM629.wait_for``) waits on the right time base.
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable, Iterator
-import functools
+from collections.abc import Callable, Iterator, Sequence
 import logging
 import math
 import threading
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, final
 
 from ..clock import Clock, WallClock
-
-if TYPE_CHECKING:
-    from ..bridge.protocol import FailsafeState
-from ..errors import BusyTimeout, TransportError
+from ..errors import AxisError, BusyTimeout, TransportError
 from ..opcodes import BUSY_BIT
 from ..program import (
     WAIT_STATUS_POLL_US,
@@ -40,12 +38,16 @@ from ..program import (
     TraceCallback,
 )
 
+if TYPE_CHECKING:
+    from ..bridge.protocol import FailsafeState
+
 log = logging.getLogger("lm629_host.bus")
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 _STATUS, _COMMAND, _WRITE, _READ = int(Op.STATUS), int(Op.COMMAND), int(Op.WRITE), int(Op.READ)
 _RESET, _WAIT, _SYNC, _WAIT_STATUS = int(Op.RESET), int(Op.WAIT), int(Op.SYNC), int(Op.WAIT_STATUS)
 _SELECT = int(Op.SELECT)
+_SELECT_OP = Op.SELECT
 
 
 @dataclass
@@ -90,6 +92,19 @@ HOST_POLLED_NOTE = (
     "rows are read by the host, one exchange each, and stamped with the host's clock when the "
     "exchange starts: the spacing jitters by what an exchange takes (USB latency included), a "
     "row is never faster than one exchange, and a period the host could not keep is a gap")
+
+
+@dataclass(frozen=True)
+class ProfileState:
+    """What a far side reports of a shaped move's pieces it issues on its own timer
+    (:meth:`Transport.profile`): pieces issued and still pending, the largest lateness of an
+    issued piece against its time on the far side's clock, and whether the schedule was
+    cancelled (a stop reached the chip before its last piece)."""
+
+    issued: int
+    pending: int
+    late_max_s: float
+    cancelled: bool = False
 
 
 @dataclass(frozen=True)
@@ -159,6 +174,37 @@ class FeedingClock(Clock):
         return getattr(self._clock, name)
 
 
+class BusObserver:
+    """Sees what a transport runs: subscribe with :meth:`Transport.add_observer`.  Override
+    what you need; the defaults do nothing.  The pytest plugin (its failure report and motion
+    guard) and ``--trace`` are observers; nothing else hooks into :meth:`Transport.execute`."""
+
+    def program_starting(self, transport: Transport, program: Program) -> None:
+        """Before any bus cycle of ``program``, under the transport's lock; raising refuses
+        the program (nothing is sent, the exception reaches the caller, and no observer is
+        told the program ended: it never started)."""
+
+    def program_ended(self, transport: Transport, program: Program,
+                      result: ProgramResult | None, error: BaseException | None) -> None:
+        """After ``program``, still under the lock: its ``result``, or the ``error`` it
+        raised (``result`` None)."""
+
+    def bus_cycle(self, cycle: BusCycle) -> None:
+        """Every bus cycle, busy polls included.  Only an observer that overrides this gets
+        them: while one is subscribed the simulators take their general loop, which makes
+        every poll (slower), so a program-level observer costs nothing of the kind."""
+
+
+class _CycleCallback(BusObserver):
+    """The ``trace=`` callable of a transport, as an observer of bus cycles."""
+
+    def __init__(self, callback: TraceCallback) -> None:
+        self.callback = callback
+
+    def bus_cycle(self, cycle: BusCycle) -> None:
+        self.callback(cycle)
+
+
 class Transport(abc.ABC):
     """Runs bus programs on one chip.  Subclasses set ``url``, ``clock`` and ``has_reset_line``.
 
@@ -167,7 +213,8 @@ class Transport(abc.ABC):
 
     * ``scheme``: the URL scheme it is registered under;
     * ``simulated``: True when no hardware is behind it (the CLI prepares a fresh chip);
-    * :meth:`from_url` opens one; :meth:`execute` runs a bus program; :meth:`close`;
+    * :meth:`from_url` opens one; :meth:`execute` runs a bus program (final: a subclass
+      implements ``_execute``); :meth:`close`;
     * :meth:`list_ports` and :meth:`doctor` (class methods, empty by default) say what this
       machine has for this kind of port and what is wrong with it;
     * :meth:`describe` and ``repr()`` say what an open one is connected to.
@@ -176,6 +223,9 @@ class Transport(abc.ABC):
     transport, so shared by every :class:`~lm629_host.LM629` on it): threads sharing a chip
     never interleave bus cycles.  A simulated clock (anything but :class:`WallClock`) is
     wrapped so that its ``sleep``, which runs the simulation, takes the same lock.
+
+    Observers (:class:`BusObserver`, :meth:`add_observer`) see every program and, when they
+    ask for them, every bus cycle; ``trace=`` is one that sees the cycles.
     """
 
     #: the scheme this transport is registered under (``sim``, ``serial``...)
@@ -201,6 +251,17 @@ class Transport(abc.ABC):
     #: the longest far-side wait one exchange may hold, seconds (None: no limit): a bridge
     #: whose failsafe is armed counts a wait as the host alive only up to its timeout
     far_wait_limit_s: float | None = None
+    #: True when the far side issues a shaped move's pieces on its own timer
+    #: (:meth:`profile`); otherwise the host times them on ``clock``
+    far_profiles: bool = False
+    #: the most pieces the far side holds (a longer shaped move is timed from the host)
+    profile_capacity: int = 0
+
+    #: the subscribed observers, and those of them that want bus cycles (tuples, replaced
+    #: whole on a change, so that a program in another thread iterates a stable one)
+    _observers: tuple[BusObserver, ...] = ()
+    _cycle_observers: tuple[BusObserver, ...] = ()
+    _trace_observer: _CycleCallback | None = None
 
     def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
         self.url = url
@@ -208,27 +269,66 @@ class Transport(abc.ABC):
         self.stats = Stats()
         self.clock = WallClock()
 
-    def __init_subclass__(cls, **kwargs: object) -> None:
-        super().__init_subclass__(**kwargs)
-        fn = cls.__dict__.get("execute")
-        if fn is None or getattr(fn, "_runs_locked", False) or getattr(
-                fn, "__isabstractmethod__", False):
-            return
-
-        @functools.wraps(fn)
-        def execute(self: Transport, program: Program) -> ProgramResult:
-            with self.lock:
-                self.program_depth += 1
+    @final
+    def execute(self, program: Program) -> ProgramResult:
+        """Run ``program`` whole under :attr:`lock`; return its results or raise an
+        :class:`~lm629_host.LM629Error` subclass that names the failing operation.  A chip
+        select the transport does not have is an :class:`AxisError` before any bus cycle.
+        Final: a transport runs the program in ``_execute``, so that the lock, the count and
+        the observers cannot be left out."""
+        with self.lock:
+            self.program_depth += 1
+            observers = self._observers  # the ones subscribed when the program starts
+            try:
+                for obs in observers:
+                    obs.program_starting(self, program)
                 try:
-                    result = fn(self, program)
-                finally:
-                    self.program_depth -= 1
-            hook = self.after_program
-            if hook is not None and not self.program_depth:
-                hook()
-            return result
-        execute._runs_locked = True  # type: ignore[attr-defined]  # marks the wrapper
-        cls.execute = execute  # type: ignore[method-assign]  # every execute runs locked
+                    n = self.chip_selects
+                    for o in program.ops:
+                        if o.op is _SELECT_OP and o.arg >= n:
+                            raise AxisError(o.arg, n, self.describe())
+                    self.stats.programs += 1
+                    result = self._execute(program)
+                except BaseException as exc:
+                    for obs in observers:
+                        obs.program_ended(self, program, None, exc)
+                    raise
+                for obs in observers:
+                    obs.program_ended(self, program, result, None)
+            finally:
+                self.program_depth -= 1
+        hook = self.after_program
+        if hook is not None and not self.program_depth:
+            hook()
+        return result
+
+    def add_observer(self, observer: BusObserver) -> None:
+        """Show ``observer`` every bus program from now on (and every bus cycle when it
+        overrides :meth:`BusObserver.bus_cycle`), in the order observers were added."""
+        with self.lock:
+            self._observers = (*self._observers, observer)
+            if type(observer).bus_cycle is not BusObserver.bus_cycle:
+                self._cycle_observers = (*self._cycle_observers, observer)
+
+    def remove_observer(self, observer: BusObserver) -> None:
+        """Stop showing ``observer`` anything (nothing happens when it was not subscribed)."""
+        with self.lock:
+            self._observers = tuple(o for o in self._observers if o is not observer)
+            self._cycle_observers = tuple(o for o in self._cycle_observers if o is not observer)
+
+    @property
+    def trace(self) -> TraceCallback | None:
+        """A callable given every bus cycle (``trace=`` at open), or None; setting it replaces
+        the previous one (an observer of cycles, see :meth:`add_observer`)."""
+        return self._trace_observer.callback if self._trace_observer is not None else None
+
+    @trace.setter
+    def trace(self, callback: TraceCallback | None) -> None:
+        if self._trace_observer is not None:
+            self.remove_observer(self._trace_observer)
+        self._trace_observer = None if callback is None else _CycleCallback(callback)
+        if self._trace_observer is not None:
+            self.add_observer(self._trace_observer)
 
     @property
     def clock_hz(self) -> float | None:
@@ -283,9 +383,10 @@ class Transport(abc.ABC):
         return []
 
     @abc.abstractmethod
-    def execute(self, program: Program) -> ProgramResult:
-        """Run ``program``; return its results or raise an :class:`~lm629_host.LM629Error`
-        subclass that names the failing operation."""
+    def _execute(self, program: Program) -> ProgramResult:
+        """Run ``program`` (called by :meth:`execute`, which holds the lock, counted the
+        program and checked its chip selects); return its results or raise an
+        :class:`~lm629_host.LM629Error` subclass that names the failing operation."""
 
     def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
         """Release the port.  Idempotent."""
@@ -331,6 +432,14 @@ class Transport(abc.ABC):
         transport cannot tell before it tries (the host-polled default on hardware)."""
         return None
 
+    def profile(self, axis: int | None, pieces: Sequence[tuple[float, int]], *,
+                new: bool) -> ProfileState:
+        """Hand a shaped move's pieces to the far side (``far_profiles``): each (seconds from
+        now, velocity word) is an LTRJ of that maximum velocity and an STT on chip ``axis``
+        (None: the transport's own), issued on the far side's timer; ``new`` drops what an
+        older schedule still holds.  No pieces and ``new=False``: what the schedule did."""
+        raise NotImplementedError(f"{type(self).__name__} issues no pieces on its far side")
+
     def record_rows(self, program: Program, period_s: float, rows: int) -> Iterator[RawRow]:
         """Run ``program`` every ``period_s`` for ``rows`` rows (0: until the iterator is
         closed), yielding each row as it comes.  The default polls from the host: each row is
@@ -357,12 +466,21 @@ class Transport(abc.ABC):
         """One line for the CLI and error messages: what this transport is connected to."""
         return self.url
 
+    def port_checks(self) -> list[Check]:
+        """What ``lm629 doctor`` shows about this open port once programs have run on it (how
+        the transport fitted itself to the chip); none by default."""
+        return []
+
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.url!r}>"
 
+    def _tracing(self) -> bool:
+        """True when someone looks at single bus cycles (an observer of cycles, debug log)."""
+        return bool(self._cycle_observers) or log.isEnabledFor(logging.DEBUG)
+
     def _emit(self, cycle: BusCycle) -> None:
-        if self.trace is not None:
-            self.trace(cycle)
+        for obs in self._cycle_observers:
+            obs.bus_cycle(cycle)
         if log.isEnabledFor(logging.DEBUG):
             log.debug("%s %s", self.scheme or "bus", cycle)
 
@@ -408,9 +526,8 @@ class CycleTransport(Transport):
         return None
 
     def _select_chip(self, chip: int) -> None:
-        """/CS of ``chip`` for the following cycles (a program starts on chip 0)."""
-        if chip != 0:
-            raise ValueError(f"chip select {chip}: {self.url} drives one chip (0)")
+        """/CS of ``chip`` for the following cycles (a program starts on chip 0); one chip:
+        nothing to switch (:meth:`execute` refused any other chip select)."""
 
     def _skip_busy_polls(self, deadline: float) -> int:
         """Hook for a transport that knows when busy will clear (the chip model does): advance
@@ -440,9 +557,6 @@ class CycleTransport(Transport):
                 return status
             self._sleep_until_status(mask, deadline)
 
-    def _tracing(self) -> bool:
-        return self.trace is not None or log.isEnabledFor(logging.DEBUG)
-
     def _wait_not_busy(self, program: Program, index: int, words: list[int],
                        tracing: bool = True) -> int:
         clock = self._inner_clock  # execute holds the lock
@@ -465,9 +579,8 @@ class CycleTransport(Transport):
                                   status, index, words)
             clock.sleep(self.poll_interval_s)
 
-    def execute(self, program: Program) -> ProgramResult:
+    def _execute(self, program: Program) -> ProgramResult:
         stats = self.stats
-        stats.programs += 1
         stats.round_trips += 1
         words: list[int] = []
         statuses: list[int] = []

@@ -41,9 +41,9 @@ reads.  So the stream does what a polling host would do, but open-loop, and chec
    every transfer lands.  Between programs the same wait is kept: a stream starts with
    whatever is left of it since the previous stream ended.  After a RESET command byte the
    wait is 1.5 ms (busy stays set until the reset is done).  Only speed rests on the measure:
-   a check that sees busy is the repeat below, which also lengthens the wait (twice, or what
-   was seen, at most 100 us), so a chip slower than measured costs one repeat, not a lost
-   command.
+   a check that sees busy is the repeat below, which also doubles the wait (at most 100 us;
+   :meth:`FtdiTransport._learn_busy`, brought back down by :meth:`FtdiTransport._relax`), so
+   a chip slower than measured costs one repeat, not a lost command.
 2. When the answer comes back, every status byte read before a transfer is checked.  If one
    shows busy, the chip ignored that transfer (a write while busy is ignored; a read while
    busy returns stale bytes) and nothing else tells.  The transport then polls the status in
@@ -121,8 +121,9 @@ from urllib.parse import urlsplit, urlunsplit
 from .. import data
 from .. import ftdi_pins as pins
 from ..clock import Clock, WallClock
-from ..errors import AxisError, BusyTimeout, TransportError
+from ..errors import BusyTimeout, TransportError
 from ..opcodes import BUSY_BIT
+from ..pinout import pin_of
 from ..program import BusCycle, Op, Program, ProgramResult, TraceCallback
 from ..urls import Option, parse_options
 from .base import Check, FeedingClock, PortInfo, Transport
@@ -151,6 +152,12 @@ CALIBRATION_POLLS = 40
 #: differs between commands (the datasheet gives 15-25 us typical) shows it at a check, which
 #: repeats the command and lengthens the wait (:meth:`FtdiTransport._learn_busy`)
 CALIBRATION_MARGIN = 1.0
+#: what one busy repeat costs, about: a poll exchange and the repeat's exchange, each a USB
+#: write and read (at least one 125 us high-speed microframe each way).  A wait raised after a
+#: repeat comes back down (halved, never below the calibrated wait) once the extra waiting it
+#: has cost since the last repeat adds up to this: a chip that really needs the longer wait
+#: then costs one repeat per this much waiting, never more than staying raised would
+REPEAT_COST_S = 4 * 125e-6
 
 UDEV_RULE = f"{data.UDEV_RULES_DIR}/{data.UDEV_RULE}"  #: where the installed rule lives
 
@@ -195,6 +202,12 @@ class FtdiTransport(Transport):
         #: the chip's busy time measured at open (None: not measured, the fixed wait is used)
         self.calibrated_busy_s: float | None = None
         self.calibration_exchanges = 0  #: USB write+read pairs the calibration took
+        #: what the last calibration found, or why there is none (``lm629 doctor`` shows it)
+        self.calibration_note = ("not measured yet: it runs before the first program"
+                                 if busy_s is None and busy_pin is None else
+                                 "not measured: " + ("waiting on the busy pin" if busy_pin
+                                                     else f"busy_us={self.busy_s * 1e6:g} fixed"))
+        self._extra_s = 0.0  # waiting above the calibrated wait since the last repeat
         # before the first program; with a busy pin there is no timed wait to measure, but
         # what the pin relies on is checked instead (check_busy_pin)
         self._calibrate = busy_s is None and busy_pin is None
@@ -331,6 +344,13 @@ class FtdiTransport(Transport):
     def describe(self) -> str:
         return f"{self.url} (FT232H, MPSSE, TCK {self.compiler.tck_hz / 1e6:g} MHz)"
 
+    def port_checks(self) -> list[Check]:
+        """The busy wait: what the calibration found or why it has none, and the wait now.  A
+        calibration that ran and is still pending saw no busy: a problem to show."""
+        never_busy = self._calibrate and self.calibration_exchanges > 0
+        return [Check("busy wait", not never_busy, f"{self.calibration_note}; now "
+                                                   f"{self.busy_s * 1e6:.1f} us")]
+
     # ------------------------------------------------------------------ calibration
     def calibrate_busy(self) -> float | None:
         """Measure how long the chip holds busy after a transfer, and wait that long (not the
@@ -351,6 +371,8 @@ class FtdiTransport(Transport):
         first = c.status_stream(0, "status", 0)
         self.calibration_exchanges = 1
         if self._exchange(first)[0] & _BUSY:
+            self.calibration_note = (f"not measured: the chip was busy at open; waiting the "
+                                     f"documented {self.busy_s * 1e6:g} us")
             log.info("%s: the chip is busy at open: keeping the documented %g us busy wait",
                      self.url, self.busy_s * 1e6)
             return None
@@ -361,13 +383,33 @@ class FtdiTransport(Transport):
         clear = next((j for j, b in enumerate(polls) if not b & _BUSY), None)
         self._owed = {0: self.busy_s}  # after RDSIGS's word
         if answer[0] & _BUSY or clear is None:
+            self.calibration_note = (f"not measured: busy did not clear within "
+                                     f"{CALIBRATION_POLLS} status reads; waiting the documented "
+                                     f"{self.busy_s * 1e6:g} us")
             log.info("%s: no busy time measured at open: keeping the documented %g us wait",
                      self.url, self.busy_s * 1e6)
             return None
+        if clear == 0:
+            # no read saw busy: the chip took no command (in reset, unclocked, D0 stuck low),
+            # so nothing was measured; the first read's time is not a busy time.  Measured
+            # again before the next program, as check_busy_pin does
+            self._calibrate = True
+            self.calibration_note = (f"not measured: no status read after RDSIGS showed busy "
+                                     f"(a chip that took no command, or D0 stuck low); waiting "
+                                     f"the documented {self.busy_s * 1e6:g} us, measured again "
+                                     "before the next program")
+            log.info("%s: the chip showed no busy after RDSIGS: keeping the documented %g us "
+                     "wait, measured again before the next program", self.url, self.busy_s * 1e6)
+            return None
+        # ``clear`` reads saw busy: the busy time, on the MPSSE clock, is at most the time of
+        # the first read that saw it clear
         busy = min(times[clear] * CALIBRATION_MARGIN, DEFAULT_BUSY_US * 1e-6)
         self.calibrated_busy_s = times[clear]
         self._set_busy(busy)
         self._owed = {0: busy}
+        self.calibration_note = (f"measured: the chip holds busy <= {times[clear] * 1e6:.1f} us "
+                                 f"({clear} of {CALIBRATION_POLLS} status reads saw it); waiting "
+                                 f"{busy * 1e6:.1f} us after each transfer")
         log.info("%s: the chip holds busy <= %.1f us: waiting %.1f us after each transfer",
                  self.url, times[clear] * 1e6, busy * 1e6)
         return times[clear]
@@ -393,7 +435,8 @@ class FtdiTransport(Transport):
             return False
         seen = [(d & _BUSY, bool(p & pins.BUSY_PINS[self.busy_pin or ""]))
                 for d, p in ((d_on, p_on), (d_off, p_off))]
-        where = "the wire from D0 (C0, LM629 pin 4) to ADBUS5 (D5), and that HI is off ADBUS5"
+        where = (f"the wire from D0 (C0, LM629 pin {pin_of('D0')}) to ADBUS5 (D5), and that HI is "
+                 "off ADBUS5")
         if any(bool(d) != p for d, p in seen):
             raise TransportError(
                 f"busy_pin={self.busy_pin}: GPIOL1 does not follow D0 during a status read "
@@ -424,15 +467,43 @@ class FtdiTransport(Transport):
                                        busy_pin=self.busy_pin is not None)
         self.compiler.keep, self.compiler.keep_level = old.keep, old.keep_level
 
-    def _learn_busy(self, seen_s: float) -> None:
-        """A check saw busy after a calibrated wait: wait longer from now on (twice as long, or
-        what was seen, at most the documented worst case)."""
+    @property
+    def calibrated_wait_s(self) -> float | None:
+        """The wait the calibration set (None: not calibrated): the floor of :meth:`_relax`."""
+        if self.calibrated_busy_s is None:
+            return None
+        return min(self.calibrated_busy_s * CALIBRATION_MARGIN, DEFAULT_BUSY_US * 1e-6)
+
+    def _learn_busy(self) -> None:
+        """A check saw busy after a calibrated wait: wait twice as long from now on, at most
+        the documented worst case.  What the chip showed is that one status read, run on the
+        MPSSE clock the wait after its transfer, still saw busy: its busy time exceeded the
+        wait, by an unknown amount.  The host's time around the exchange says nothing about
+        it (a USB transfer alone is longer than the chip's busy time), so it is not used."""
+        self._extra_s = 0.0
         if self.calibrated_busy_s is None or self.busy_s >= DEFAULT_BUSY_US * 1e-6:
             return
-        busy = min(DEFAULT_BUSY_US * 1e-6, max(2 * self.busy_s, seen_s))
+        busy = min(DEFAULT_BUSY_US * 1e-6, 2 * self.busy_s)
         log.warning("%s: the chip held busy longer than measured at open: waiting %.1f us "
                     "after each transfer from now on (was %.1f us)", self.url, busy * 1e6,
                     self.busy_s * 1e6)
+        self._set_busy(busy)
+
+    def _relax(self, checks: int) -> None:
+        """``checks`` transfers passed their busy check: once the waiting above the calibrated
+        wait since the last repeat adds up to :data:`REPEAT_COST_S`, halve the wait (never
+        below the calibrated one)."""
+        floor = self.calibrated_wait_s
+        if floor is None or self.busy_s <= floor:
+            return
+        self._extra_s += checks * (self.busy_s - floor)
+        if self._extra_s < REPEAT_COST_S:
+            return
+        busy = max(floor, self.busy_s / 2)
+        log.info("%s: no busy repeat for %.0f us of extra waiting: waiting %.1f us after each "
+                 "transfer (was %.1f us)", self.url, self._extra_s * 1e6, busy * 1e6,
+                 self.busy_s * 1e6)
+        self._extra_s = 0.0
         self._set_busy(busy)
 
     # ------------------------------------------------------------------ one exchange
@@ -481,7 +552,7 @@ class FtdiTransport(Transport):
         return {k: max(0.0, v - gone) for k, v in self._owed.items() if v > gone}
 
     def _emit_stream(self, stream: Stream, answer: bytes) -> None:
-        if self.trace is None and not log.isEnabledFor(logging.DEBUG):
+        if not self._tracing():
             return
         for kind, value in stream.events:
             if kind == "status":
@@ -509,11 +580,8 @@ class FtdiTransport(Transport):
                                   index, words)
 
     # ------------------------------------------------------------------ programs
-    def execute(self, program: Program) -> ProgramResult:
+    def _execute(self, program: Program) -> ProgramResult:
         ops = program.ops
-        for o in ops:
-            if o.op is Op.SELECT and o.arg >= self.chip_selects:
-                raise AxisError(o.arg, self.chip_selects, f"the FT232H wiring of {self.url}")
         if self._calibrate or self._check_pin:
             opening = self.calibrate_busy if self._calibrate else self.check_busy_pin
             self._calibrate = self._check_pin = False
@@ -523,7 +591,6 @@ class FtdiTransport(Transport):
             finally:  # its exchanges are not the program's: counted apart
                 for name, value in saved.items():
                     setattr(self.stats, name, value)
-        self.stats.programs += 1
         chip_at = chips_of_units(ops)
         statuses: dict[int, int] = {}
         reads: dict[int, int] = {}
@@ -582,6 +649,7 @@ class FtdiTransport(Transport):
                         statuses[slot.op] = last_status = self._poll_until_clear(
                             program, slot.op, t0 + program.busy_timeout_s, words)
                 if failed is None:
+                    self._relax(sum(1 for sl in stream.slots if sl.kind == "check"))
                     pos = stop
                     continue
                 skip |= {k for a, b in units if a in taken for k in range(a, b)}
@@ -601,7 +669,7 @@ class FtdiTransport(Transport):
                 words = [reads[j] for j in sorted(reads) if j < unit_start]
                 last_status = self._poll_until_clear(program, op_index,
                                                      first + program.busy_timeout_s, words)
-                self._learn_busy(self.clock.now() - t0)
+                self._learn_busy()
                 pos = unit_start
         return ProgramResult(tuple(reads[k] for k in sorted(reads)),
                              tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
@@ -610,8 +678,9 @@ class FtdiTransport(Transport):
                  reads: dict[int, int]) -> BusyTimeout:
         """A stream stopped at a wait on the busy pin (MPSSE waits for ever; the read gave up):
         purge both buffers, leave MPSSE and enter it again (the engine drops the command it
-        waits at; every line is an input for that moment, held high by the pull-ups, so the
-        held status read ends), set the lines idle as at open, read the status once.  The
+        waits at; for that moment the FT232H is in UART mode: /RD and /PS driven high by RTS#
+        and DTR#, the other lines inputs held high by the pull-ups, so the held status read
+        ends, see :mod:`..ftdi_pins`), set the lines idle as at open, read the status once.  The
         operation whose check never came is the one the chip did not take; those before it
         were taken.  Returns the BusyTimeout to raise."""
         self.stalls += 1

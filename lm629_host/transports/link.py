@@ -39,6 +39,9 @@ from ..bridge.protocol import (
     MAX_FRAME,
     MAX_PING,
     NONE_BYTE,
+    PROFILE_MAX_PIECES,
+    PROFILE_MAX_SCHEDULE,
+    PROFILE_REPLY_PAYLOAD,
     PROTOCOL_VERSION,
     REPLY_TO,
     RUN_OVERHEAD,
@@ -59,6 +62,7 @@ from ..bridge.protocol import (
     busy_timeout_us,
     check_record_program,
     encode_frame,
+    profile_payload,
     record_payload,
     row_wire_bytes,
     reply_size,
@@ -78,7 +82,7 @@ from ..program import (
 )
 from ..clock import WallClock
 from ..urls import Option, parse_options, query_params
-from .base import FeedingClock, RawRow, Transport
+from .base import FeedingClock, ProfileState, RawRow, Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
 
@@ -139,6 +143,10 @@ class LinkError(TransportError):
 
 
 _BUSY_CHECKED = (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC)
+#: requests sent after a lone delimiter from their first attempt on (a retry always is): the
+#: first contact, when the far end may hold half a frame of whoever had the port before, and
+#: RECORD, which starts where a recording may still be streaming (a byte ends it)
+_DELIMITED = frozenset({FrameType.HELLO, FrameType.RECORD})
 #: results by which the bridge refuses a program before running any of it
 _REFUSALS = (Result.BAD_PROGRAM, Result.PROGRAM_TOO_LONG, Result.BAD_CHIP_SELECT)
 
@@ -290,12 +298,19 @@ class LinkTransport(Transport):
 
     # ------------------------------------------------------------------ exchanges
     def _exchange(self, ftype: FrameType, payload: bytes, timeout_s: float, what: str,
-                  retries: int, check: Callable[[Frame], object] | None = None) -> Frame:
-        """Send one request and return its reply, retrying with the same frame.
+                  retries: int, check: Callable[[Frame], object] | None = None,
+                  pending: deque[Frame] | None = None) -> Frame:
+        """Send one request and return its (first) reply, retrying with the same frame.
 
         ``check(frame)`` may raise :class:`FrameError` for a reply that passed its CRC but
         cannot be the answer (wrong length for the program): that is line damage the CRC
-        missed, and the request is sent again (the bridge answers from its cache)."""
+        missed, and the request is sent again (the bridge answers from its cache).
+
+        RECORD is never answered from the cache: each attempt is a new request with a new
+        ``seq`` (the reply's ``seq`` says which), so that rows of an attempt the bridge did
+        start are told apart and ignored; its further replies (rows that came in the same
+        read) wait in ``pending``."""
+        fresh = ftype is FrameType.RECORD
         seq = self._next_seq()
         wire = encode_frame(ftype, seq, payload)
         want = REPLY_TO[ftype]
@@ -306,16 +321,22 @@ class LinkTransport(Transport):
         for attempt in range(retries + 1):
             if attempt:
                 stats.retries += 1
+                if fresh:
+                    seq = self._next_seq()
+                    wire = encode_frame(ftype, seq, payload)
                 log.info("%s: retry %d of %s seq %d", self.url, attempt, what, seq)
             attempts += 1
-            # before a retry, a lone delimiter ends whatever half frame the far end holds
-            out = b"\x00" + wire if attempt or ftype is FrameType.HELLO else wire
+            # before a retry, a lone delimiter ends whatever half frame the far end holds (and
+            # a recording under way: any byte from the host ends one)
+            out = b"\x00" + wire if attempt or ftype in _DELIMITED else wire
             self._last_tx = clock.now()
             self.pipe.write(out)
             stats.bytes_out += len(out)
             stats.round_trips += 1
             deadline = clock.now() + timeout_s
-            frame = self._await(seq, deadline)
+            if pending is not None:
+                pending.clear()
+            frame = self._await(seq, deadline, pending)
             if frame is None:
                 self._attempt(True)
                 continue
@@ -344,6 +365,9 @@ class LinkTransport(Transport):
         if ftype is FrameType.HELLO:
             raise self._no_answer(what, attempts)
         self._need_resync = True  # the bridge may hold this seq in its cache
+        if fresh:  # the bridge answered HELLO: the line, not the firmware, is the suspect
+            raise LinkError(f"no answer to {what} after {attempts} attempt(s): "
+                            f"{self._quality()}", port=self.url, may_have_run=True)
         if ftype not in RUN_TYPES:
             raise self._no_answer(what, attempts)
         raise LinkError(
@@ -352,21 +376,33 @@ class LinkTransport(Transport):
             f"have run on the chip; {self._quality()}; then reset the chip (LM629.reset) "
             "before going on.", port=self.url, may_have_run=True)
 
-    def _await(self, seq: int, deadline: float) -> Frame | None:
-        """The reply with ``seq``, or None on timeout or on a bad frame (which calls for a
-        retry at once: the far end does not answer frames it could not read)."""
+    def _await(self, seq: int, deadline: float, pending: deque[Frame] | None = None, *,
+               bad_ends_wait: bool = True, feed: bool = False) -> Frame | None:
+        """The next reply with ``seq``, or None at ``deadline`` (a timeout) or, with
+        ``bad_ends_wait``, on a bad frame: the far end does not answer a request it could not
+        read, so a request calls for a retry at once.  A recording's rows come several in one
+        read: the ones after the first wait in ``pending`` (taken first by the next call);
+        without ``pending`` a request has one reply and the rest are dropped.  With ``feed``
+        (a recording with the failsafe armed) the wait is read in feed periods, each begun
+        with a FAILSAFE_FEED when one is due."""
+        if pending:
+            return pending.popleft()
+        queue: deque[Frame] = pending if pending is not None else deque()
         clock = self.clock
         while True:
+            if feed:
+                self._feed_recording()
             left = deadline - clock.now()
             if left <= 0:
                 self.timeouts += 1
                 return None
-            data = self.pipe.read(left)
+            data = self.pipe.read(min(left, self.feed_period_s) if feed else left)
             if not data:
+                if feed and clock.now() < deadline:
+                    continue
                 self.timeouts += 1
                 return None
             self.stats.bytes_in += len(data)
-            found: Frame | None = None
             bad = False
             for item in self._reader.feed(data):
                 if isinstance(item, FrameError):
@@ -377,11 +413,11 @@ class LinkTransport(Transport):
                     self.stale_replies += 1
                     log.debug("%s: ignored frame type %02X seq %d (waiting for %d)",
                               self.url, item.type, item.seq, seq)
-                elif found is None:
-                    found = item
-            if found is not None:
-                return found
-            if bad:
+                else:
+                    queue.append(item)
+            if queue:
+                return queue.popleft()
+            if bad and bad_ends_wait:
                 return None
 
     def _resync(self) -> None:
@@ -442,6 +478,8 @@ class LinkTransport(Transport):
                                   and bool(info.capabilities & Capability.PROGRAM_CODES))
         self.has_record = bool(info.capabilities & Capability.RECORD)
         self.has_failsafe = bool(info.capabilities & Capability.FAILSAFE)
+        self.far_profiles = bool(info.capabilities & Capability.PROFILE)
+        self.profile_capacity = PROFILE_MAX_SCHEDULE if self.far_profiles else 0
         # a WAIT_STATUS may stand anywhere in a program (Move.wait's one-exchange end check)
         self.far_waits = self.has_wait_status
         self._forget_codes()  # HELLO empties the bridge's codes
@@ -691,16 +729,11 @@ class LinkTransport(Transport):
         if chunk or first == 0:
             yield first, cs, chunk
 
-    def execute(self, program: Program) -> ProgramResult:
+    def _execute(self, program: Program) -> ProgramResult:
         if self._closed:
             raise TransportError("the port is closed", port=self.url)
         timeout_us = busy_timeout_us(program)
-        n_cs = self.chip_selects
-        for o in program.ops:
-            if o.op is Op.SELECT and o.arg >= n_cs:
-                raise AxisError(o.arg, n_cs, f"the bridge at {self.url}")
         self._resync()
-        self.stats.programs += 1
         words: list[int] = []
         statuses: list[int] = []
         status: int | None = None
@@ -836,10 +869,23 @@ class LinkTransport(Transport):
 
     def _emit_cycles(self, ops: Sequence[BusOp], words: Sequence[int],
                      statuses: Sequence[int]) -> None:
-        if self.trace is None and not logging.getLogger("lm629_host.bus").isEnabledFor(logging.DEBUG):
+        if not self._tracing():
             return
         for cycle in cycles_of(ops, ProgramResult(tuple(words), tuple(statuses))):
             self._emit(cycle)
+
+    def _failsafe_tripped(self, nothing: str) -> FailsafeTripped:
+        """The error for a request the bridge refused because its failsafe trip is latched
+        (FAILSAFE_TRIPPED), with the trip it reports; ``nothing``: what did not happen."""
+        try:
+            state: FailsafeState | None = self._failsafe(b"", "FAILSAFE (report)")
+        except TransportError:
+            state = None
+        what = state.describe() if state is not None else "the bridge's failsafe tripped"
+        return FailsafeTripped(
+            f"{what}; {nothing}. The host was silent (suspended, hung?): acknowledge the trip "
+            "with `lm629 clear` (Python: clear_failsafe()) before moving again", port=self.url,
+            state=state)
 
     def _raise_result(self, reply: RunReply, ops: list[BusOp], base: int, program: Program,
                       words: list[int]) -> None:
@@ -847,15 +893,7 @@ class LinkTransport(Transport):
         op = ops[index].describe() if index < len(ops) else f"operation {index}"
         where = f" at operation {base + index} ({op})" if index < len(ops) else ""
         if reply.result == Result.FAILSAFE_TRIPPED:
-            try:
-                state: FailsafeState | None = self._failsafe(b"", "FAILSAFE (report)")
-            except TransportError:
-                state = None
-            what = state.describe() if state is not None else "the bridge's failsafe tripped"
-            raise FailsafeTripped(
-                f"{what}; nothing of this program ran. The host was silent (suspended, "
-                "hung?): acknowledge the trip with `lm629 clear` (Python: clear_failsafe()) "
-                "before moving again", port=self.url, state=state)
+            raise self._failsafe_tripped("nothing of this program ran")
         if reply.result == Result.BUSY_TIMEOUT:
             # a busy timeout always read the status, so FF here is a status (a bus no chip
             # drives), not the "no status" byte
@@ -871,6 +909,41 @@ class LinkTransport(Transport):
             "Host and firmware disagree on the program format or limits; reflash the firmware "
             "that matches this host (lm629 bridge flash).", port=self.url,
             may_have_run=base > 0)
+
+    # ------------------------------------------------------------------ shaped moves (PROFILE)
+    def profile(self, axis: int | None, pieces: Sequence[tuple[float, int]], *,
+                new: bool) -> ProfileState:
+        """PROFILE frames (PROFILE_MAX_PIECES pieces each, the first one ``new``): the bridge
+        issues each piece on its own timer, its times counted from the first frame's arrival
+        (so the link's latency shifts them all alike and jitters none).  A schedule the bridge
+        refuses is a :class:`TransportError` naming why."""
+        if not self.far_profiles:
+            return super().profile(axis, pieces, new=new)
+        cs = self.cs if axis is None else axis
+        times = [(round(t * 1e6), v) for t, v in pieces]
+        chunks = [times[k:k + PROFILE_MAX_PIECES]
+                  for k in range(0, len(times), PROFILE_MAX_PIECES)] or [[]]
+        state = ProfileState(0, 0, 0.0)
+        for k, chunk in enumerate(chunks):
+            payload = profile_payload(new and k == 0, cs, chunk)
+            frame = self._exchange(FrameType.PROFILE, payload,
+                                   self.reply_timeout(wire_size(len(payload) + 4),
+                                                      wire_size(PROFILE_REPLY_PAYLOAD.size + 4)),
+                                   f"PROFILE of {len(chunk)} piece(s)", self.retries)
+            if len(frame.payload) != PROFILE_REPLY_PAYLOAD.size:
+                raise TransportError("the bridge's PROFILE_REPLY has the wrong length: reflash "
+                                     "the firmware that matches this host", port=self.url)
+            result, issued, pending, late_us = PROFILE_REPLY_PAYLOAD.unpack(frame.payload)
+            if result == Result.FAILSAFE_TRIPPED:
+                raise self._failsafe_tripped("nothing of the shaped move was scheduled")
+            if result == Result.BAD_PROFILE:
+                raise TransportError(
+                    f"the bridge refused the shaped move's pieces (BAD_PROFILE): pieces out of "
+                    f"order or closer than 10 ms, a velocity above 3FFFFFFF, chip select {cs} "
+                    "or more pieces than it holds; nothing was scheduled", port=self.url)
+            state = ProfileState(issued, pending, late_us * 1e-6,
+                                 result == Result.PROFILE_CANCELLED)
+        return state
 
     # ------------------------------------------------------------------ recording (RECORD)
     @property
@@ -938,28 +1011,12 @@ class LinkTransport(Transport):
             self._resync()
             stats.programs += 1
             pending: deque[Frame] = deque()
-            seq = -1
-            first: Frame | None = None
-            for attempt in range(self.retries + 1):
-                if attempt:
-                    stats.retries += 1
-                    log.info("%s: retry %d of RECORD", self.url, attempt)
-                seq = self._next_seq()
-                wire = b"\x00" + encode_frame(FrameType.RECORD, seq, payload)
-                self.pipe.write(wire)
-                stats.bytes_out += len(wire)
-                stats.round_trips += 1
-                pending.clear()
-                deadline = clock.now() + period + self.reply_timeout(
-                    wire_size(len(payload) + 4), row_wire, ops, FIRMWARE_DEFAULT_BUSY_TIMEOUT_US * 1e-6)
-                first = self._next_frame(seq, deadline, pending)
-                self._attempt(first is None)
-                if first is not None:
-                    break
-            if first is None:
-                self._need_resync = True
-                raise LinkError(f"no answer to RECORD after {self.retries + 1} attempt(s): "
-                                f"{self._quality()}", port=self.url, may_have_run=True)
+            first = self._exchange(
+                FrameType.RECORD, payload,
+                period + self.reply_timeout(wire_size(len(payload) + 4), row_wire, ops,
+                                            FIRMWARE_DEFAULT_BUSY_TIMEOUT_US * 1e-6),
+                "RECORD", self.retries, pending=pending)
+            seq = first.seq
             ended = False
             self._recording = True  # from now on the feeds are FAILSAFE_FEED
             try:
@@ -1012,31 +1069,11 @@ class LinkTransport(Transport):
                     self._stop_recording(seq, pending, period)
 
     def _next_frame(self, seq: int, deadline: float, pending: deque[Frame]) -> Frame | None:
-        """The next frame with ``seq`` from the bridge (rows may come several in one read:
-        the rest wait in ``pending``), or None at ``deadline``.  Bad frames are counted (a
-        lost row is a gap)."""
-        clock = self.clock
-        while not pending:
-            feeding = self._recording and self.feed_period_s
-            if feeding:  # a recording counts as alive only while the host sends
-                self._feed_recording()
-            left = deadline - clock.now()
-            if left <= 0:
-                return None
-            data = self.pipe.read(min(left, self.feed_period_s) if feeding else left)
-            if not data:
-                if feeding and clock.now() < deadline:
-                    continue
-                return None
-            self.stats.bytes_in += len(data)
-            for item in self._reader.feed(data):
-                if isinstance(item, FrameError):
-                    self.bad_frames += 1
-                elif item.seq != seq or item.type & 0x80 == 0:
-                    self.stale_replies += 1
-                else:
-                    pending.append(item)
-        return pending.popleft()
+        """The next frame of the recording ``seq``, or None at ``deadline``.  A bad frame
+        does not end the wait: it was a row, and a lost row is a gap.  With the failsafe armed
+        the host feeds it while it waits (a recording counts as alive only while it sends)."""
+        return self._await(seq, deadline, pending, bad_ends_wait=False,
+                           feed=bool(self._recording and self.feed_period_s))
 
     def _decode_row(self, payload: bytes, ops: Sequence[BusOp]
                     ) -> tuple[int, int, tuple[int, ...], tuple[int, ...]] | None:

@@ -13,13 +13,15 @@ is busy, the busy check polls every ``poll_interval_s``.  ``chip.clock`` is the 
 
 from __future__ import annotations
 
+import threading
 from typing import cast
 
 from ..errors import BusyTimeout
 from ..program import BusOp, Op, Program, ProgramResult, TraceCallback
 from ..sim.build import build_bus
 from ..sim.clock import SimClock
-from ..sim.model import ChipBus, ChipModel, chips_of
+from ..sim.model import ChipBus, ChipModel, Violation, chips_of
+from ..sim.vcd import close_probe, probe, vcd_of
 from ..sim.wiring import BentChip, Miswiring, wiring_of
 from .base import CycleTransport, PortInfo
 
@@ -34,11 +36,14 @@ _SELECT = Op.SELECT
 class ModelChips:
     """What every simulator transport (``sim``, ``sim+avr``, ``sim+emu``, ``sim+ftdi``) tells
     the driver about its chip model, so that nothing above the transports looks at the model:
-    the chip's clock (:attr:`Transport.clock_hz`) and how many chips were built
-    (:attr:`Transport.chip_count`).  Put before the transport class in the bases."""
+    the chip's clock (:attr:`Transport.clock_hz`), how many chips were built
+    (:attr:`Transport.chip_count`), and strict mode: whether a host protocol violation raises
+    (:attr:`strict`, :meth:`set_strict`) and the violations recorded (:meth:`take_violations`),
+    for a test harness (the pytest plugin).  Put before the transport class in the bases."""
 
     model: ChipModel | ChipBus  #: the chip (or the chips) on the simulated bus
     models: list[ChipModel]  #: the chips on chip selects 0, 1, ...
+    lock: threading.RLock  #: the transport's (Transport.lock)
 
     @property
     def clock_hz(self) -> float:
@@ -47,6 +52,30 @@ class ModelChips:
     @property
     def chip_count(self) -> int:
         return len(self.models)
+
+    @property
+    def strict(self) -> bool:
+        """True when a host protocol violation raises :class:`ProtocolViolation` (the URL's
+        ``strict=``); either way it is recorded for :meth:`take_violations`."""
+        return self.models[0].params.strict
+
+    def set_strict(self, strict: bool) -> bool:
+        """Make host protocol violations raise (True) or only be recorded (False); returns
+        the setting before, to put back."""
+        with self.lock:
+            before = self.strict
+            for m in self.models:
+                m.params.strict = strict
+            return before
+
+    def take_violations(self) -> list[Violation]:
+        """The host protocol violations the simulated chips recorded since the last call
+        (strict or not), oldest first, each with its simulated time; forgotten once taken."""
+        with self.lock:
+            recorded = self.model.violations  # one list for every chip of a bus
+            taken = list(recorded)
+            del recorded[:]
+            return taken
 
 
 class SimTransport(ModelChips, CycleTransport):
@@ -72,8 +101,8 @@ class SimTransport(ModelChips, CycleTransport):
         #: skipped through miswired lines (the skip reads the chip's own busy, not the pins')
         self.skip_known_busy = self.bent is None
 
-    def execute(self, program: Program) -> ProgramResult:
-        """:meth:`CycleTransport.execute` fused with this transport's strobes and busy skip.
+    def _execute(self, program: Program) -> ProgramResult:
+        """:meth:`CycleTransport._execute` fused with this transport's strobes and busy skip.
 
         The same strobes at the same ticks, the same counters, the same errors: only the
         layers of calls between them are gone (most of a command's host cost; the chip model
@@ -83,9 +112,8 @@ class SimTransport(ModelChips, CycleTransport):
         m = self.model
         if (not self.skip_known_busy or self._tracing() or m.busy_deadline() is None
                 or self.bent is not None):
-            return super().execute(program)
+            return super()._execute(program)
         stats = self.stats
-        stats.programs += 1
         stats.round_trips += 1
         if isinstance(m, ChipBus):
             m.select(0)  # a program starts on chip 0
@@ -155,7 +183,7 @@ class SimTransport(ModelChips, CycleTransport):
                     cycles += 1
                     statuses.append(status)
                 elif op is _SELECT:
-                    cast(ChipBus, m).select(o.arg)  # SELECT only reaches a bus (chip_selects)
+                    self._select_chip(o.arg)  # one chip: select 0 is no change
                 else:  # RESET, WAIT, WAIT_STATUS: rare, not on the hot path
                     stats.bus_cycles += cycles
                     stats.busy_polls += polls
@@ -186,7 +214,7 @@ class SimTransport(ModelChips, CycleTransport):
                 return status
 
     def _run_rare(self, o: BusOp) -> int | None:
-        """RESET, WAIT and WAIT_STATUS as CycleTransport.execute runs them."""
+        """RESET, WAIT and WAIT_STATUS as CycleTransport._execute runs them."""
         if o.op is _RESET:
             self._pulse_reset()
             self.stats.bus_cycles += 1
@@ -225,7 +253,16 @@ class SimTransport(ModelChips, CycleTransport):
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
-        return cls(build_bus(url), url, trace=trace, wiring=wiring_of(url))
+        model = build_bus(url)
+        vcd = vcd_of(url)
+        if vcd is not None:  # the bus drawn into a VCD: every busy poll made, as on a bench
+            model = probe(model, *vcd, cycle_clocks=max(1, round(CYCLE_S * model.clock_hz)))
+        t = cls(model, url, trace=trace, wiring=wiring_of(url))
+        t.skip_known_busy = t.skip_known_busy and vcd is None
+        return t
+
+    def close(self) -> None:
+        close_probe(self.model)
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:

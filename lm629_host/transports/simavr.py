@@ -23,6 +23,7 @@ from ..bridge.pins import CHIP_SELECTS
 from ..program import TraceCallback
 from ..sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
 from ..sim.build import build_bus
+from ..sim.vcd import vcd_of
 from ..sim.wiring import wiring_of
 from ..sim.model import chips_of
 from ..sim.usb import OPTION_NAMES as USB_OPTIONS
@@ -75,7 +76,11 @@ class SimAvrTransport(ModelChips, LinkTransport):
         model = build_bus(url, allowed=OWN_PARAMS, limit=len(CHIP_SELECTS))
         if hasattr(model, "lines"):
             model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
-        t = cls(AvrSim(model, firmware, wiring=wiring_of(url)), url, trace=trace, baud=baud)
+        vcd = vcd_of(url)
+        sim = AvrSim(model, firmware, wiring=wiring_of(url))
+        if vcd is not None:
+            sim.write_vcd(*vcd)
+        t = cls(sim, url, trace=trace, baud=baud)
         fast_baud = opts["fast_baud"]
         if fast_baud and fast_baud != baud:
             t.switch_baud(fast_baud)  # SET_BAUD: the firmware switches its UART

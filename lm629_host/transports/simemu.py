@@ -6,8 +6,9 @@ toolchain."""
 from __future__ import annotations
 
 from ..bridge.pins import CHIP_SELECTS
-from ..sim.bridge import MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
+from ..sim.bridge import BUS_CYCLE_S, MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
 from ..sim.build import build_bus
+from ..sim.vcd import close_probe, probe, vcd_of
 from ..sim.wiring import wiring_of
 from ..sim.model import ChipBus, ChipModel, chips_of
 from ..sim.usb import OPTION_NAMES as USB_OPTIONS
@@ -34,6 +35,10 @@ class EmuLinkTransport(ModelChips, LinkTransport):
     def from_url(cls, url: str, *, trace=None) -> EmuLinkTransport:
         return open_emulated(url, trace=trace)
 
+    def close(self) -> None:
+        super().close()
+        close_probe(self.model)
+
 
 def open_emulated(url: str = "sim://", *, baud: int | None = None,
                   retries: int = DEFAULT_RETRIES, wrap=None, trace=None, margin_s: float = 1e-3) -> EmuLinkTransport:
@@ -58,9 +63,12 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
     opts = parse_options(url, own, ignore=set(query_params(url)) - {o.name for o in own})
     if baud is None:
         baud = opts["baud"]
-    # bridge=1: a one-chip bridge of before issue 11; else the multi-axis firmware's HELLO
+    # bridge=1: a one-chip bridge (firmware 1.0: no chip selects); else the multi-axis HELLO
     info = ONE_CHIP_INFO if opts["bridge"] == "1" else MULTI_AXIS_INFO
     model = build_bus(url, allowed=frozenset(names), limit=info.chip_selects)
+    vcd = vcd_of(url)
+    if vcd is not None:  # the bridge's strobes drawn into a VCD, one bus cycle each
+        model = probe(model, *vcd, cycle_clocks=max(1, round(BUS_CYCLE_S * model.clock_hz)))
     emu = BridgeEmulator(model, info, wiring=wiring_of(url))
     pipe = EmuPipe(emu, baud=baud or None, max_baud=opts["max_baud"] or None)
     outer = wrap_usb(wrap(pipe) if wrap is not None else pipe, url)

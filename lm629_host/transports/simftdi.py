@@ -29,9 +29,10 @@ from ..clock import Clock
 from ..errors import ProtocolViolation
 from ..program import Program, ProgramResult, TraceCallback
 from ..sim.build import build_bus
+from ..sim.vcd import vcd_of
 from ..sim.wiring import wiring_of
 from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
-from ..sim.model import ChipBus, ChipModel, chips_of
+from ..sim.model import ChipBus, ChipModel, Violation, chips_of
 from ..urls import Option, parse_options, query_params
 from .base import Check, PortInfo
 from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, busy_pin_of, open_mpsse
@@ -82,6 +83,9 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
                                 busy_pin=busy_pin is not None, live_status=live,
                                 wiring=wiring_of(url))
+        vcd = vcd_of(url)
+        if vcd is not None:
+            device.write_vcd(*vcd)
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
         ftdi = open_mpsse(url, latency, frequency, device=usb_dev)
@@ -92,14 +96,34 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
                 latency_ms=latency, busy_pin=busy_pin, heartbeat=opts["heartbeat"],
                 heartbeat_hz=opts["heartbeat_hz"])
-        t.model, t.device, t.strict = model, device, strict
+        t.model, t.device, t._strict, t._violations = model, device, strict, []
         t.models = chips_of(model)
         return t
 
     model: ChipModel | ChipBus
     models: list[ChipModel]  #: the chips on the emulated adapter's chip selects
     device: EmulatedFT232H
-    strict: bool
+    #: strict mode, applied here after each program (the module doc says why)
+    _strict: bool
+    #: the violations strict mode counts (those of a program that saw no busy), not yet taken
+    _violations: list[Violation]
+
+    @property
+    def strict(self) -> bool:
+        return self._strict
+
+    def set_strict(self, strict: bool) -> bool:
+        with self.lock:
+            before, self._strict = self._strict, strict
+            return before
+
+    def take_violations(self) -> list[Violation]:
+        """The violations strict mode counts, strict or not (a transfer the transport saw
+        busy before and repeated is the FT232H design at work, not one of them)."""
+        with self.lock:
+            taken, self._violations = self._violations, []
+            del self.model.violations[:]
+            return taken
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:
@@ -109,23 +133,28 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
     def doctor(cls, port: str | None = None) -> list[Check]:
         return []
 
+    def close(self) -> None:
+        super().close()
+        self.device.close_vcd()
+
     def describe(self) -> str:
         chips = self.models[0].describe(len(self.models))
         return f"{self.url} (FT232H transport on an emulated FT232H, {chips})"
 
-    def execute(self, program: Program) -> ProgramResult:
+    def _execute(self, program: Program) -> ProgramResult:
         violations = self.model.violations
         mark, tmark, hits = len(violations), len(self.device.timing_violations), self.busy_hits
         try:
-            return super().execute(program)
+            return super()._execute(program)
         finally:
-            if self.strict:
+            new = violations[mark:] if self.busy_hits == hits else []
+            self._violations += new
+            if self._strict:
                 timing = self.device.timing_violations[tmark:]
                 if timing:
                     raise ProtocolViolation("FT232H stream broke the chip's bus timing: "
                                             + "; ".join(timing))
-                new = violations[mark:]
-                if new and self.busy_hits == hits:
+                if new:
                     raise ProtocolViolation("host protocol violation: " + "; ".join(new))
 
 

@@ -78,6 +78,7 @@ from dataclasses import dataclass
 from ... import ftdi_pins as pins
 from ..wiring import Miswiring
 from ..model import ChipBus, ChipModel, chips_of
+from ..vcd import BusVcd, cs_name
 
 # FTDI vendor requests (the ones pyftdi sends; FTDI AN_232B-series numbering)
 REQ_RESET = 0x00
@@ -95,6 +96,10 @@ REQ_READ_PINS = 0x0C
 REQ_READ_EEPROM = 0x90
 
 BITMODE_RESET = 0x00
+#: the ADBUS lines the UART drives once a bit-mode reset has returned the FT232H to UART mode:
+#: TXD (ADBUS0), RTS# (ADBUS2), DTR# (ADBUS4) (FT232H datasheet FT_000288, UART pin table;
+#: pyftdi's pinout table gives ADBUS0/2/4 the same UART functions)
+UART_OUTPUTS = 0x01 | 0x04 | 0x10
 BITMODE_MPSSE = 0x02
 
 PURGE_HOST_TO_CHIP = 1  #: SIO_RESET_PURGE_RX: commands not yet executed
@@ -191,6 +196,8 @@ class EmulatedFT232H:
         self._stretch_skip = 0
         self._stretch_clocks = 0
         self.busy_stretched = 0  #: transfers whose busy the hook stretched
+        #: the VCD the pins go to (:meth:`write_vcd`); None: no pin is logged
+        self.vcd: BusVcd | None = None
 
     # ------------------------------------------------------------------ time
     def _sync_model_epoch(self) -> None:
@@ -216,6 +223,37 @@ class EmulatedFT232H:
 
     def _clocks_ns(self, clocks: int) -> int:
         return round(clocks * (1.5 if self.three_phase else 1.0) * 1e9 / self.tck_hz)
+
+    # ------------------------------------------------------------------ the pins as a VCD
+    def write_vcd(self, path: str, timescale_ns: int = 10) -> None:
+        """From now on, every level the chip's bus lines take goes to the VCD ``path`` on the
+        emulated clock: D0-D7 (ACBUS as driven, the chip's byte while it answers a read, else
+        the pull-ups), /CS of each chip, /RD, /WR, /PS, /RST and HI (ADBUS)."""
+        chips = len(chips_of(self.model))
+        self.vcd = BusVcd(path, chips=chips, his=1, timescale_ns=timescale_ns,
+                          comment="lm629-host: the emulated FT232H's pins")
+        self._log_pins()
+
+    def _log_pins(self) -> None:
+        vcd = self.vcd
+        if vcd is None:
+            return
+        out = self._high_dir
+        chip = self._drive if self._drive is not None else 0xFF
+        data = (self._high_val & out) | (chip & ~out & 0xFF)
+        ctrl = self._ctrl
+        lines = {"rd": int(bool(ctrl & pins.RD)), "wr": int(bool(ctrl & pins.WR)),
+                 "ps": int(bool(ctrl & pins.PS)), "rst": int(bool(ctrl & pins.RST)),
+                 "hi": int(chips_of(self.model)[0].hi)}
+        for k in range(len(chips_of(self.model))):
+            lines[cs_name(k)] = int(bool(ctrl & pins.CHIP_SELECTS[k]))
+        vcd.data(self.ns, data)
+        vcd.set(self.ns, lines)
+
+    def close_vcd(self) -> None:
+        if self.vcd is not None:
+            self._log_pins()
+            self.vcd.close(self.ns)
 
     # ------------------------------------------------------------------ test hook
     def stretch_busy(self, transfers: int, seconds: float, skip: int = 0) -> None:
@@ -287,8 +325,15 @@ class EmulatedFT232H:
         self._pending.clear()
         self.waiting = None
         self.stalled = False
-        if mode != BITMODE_MPSSE:
-            # leaving MPSSE releases every line: all inputs, pulled up
+        if mode == BITMODE_RESET:
+            # back to the mode the EEPROM selects, UART on a blank one: TXD, RTS# and DTR#
+            # (ADBUS0/2/4, which carry TCK, /RD and /PS here) are the UART's outputs, driven
+            # high (idle, deasserted: nothing here asserts them); every other line an input,
+            # pulled up.  So the chip sees /RD and /PS high, as when the lines were idle
+            self._set_low(0xFF, UART_OUTPUTS)
+            self._set_high(0xFF, 0x00)
+        elif mode != BITMODE_MPSSE:
+            # another bit-bang mode (not used here): every line released, pulled up
             self._set_low(0xFF, 0x00)
             self._set_high(0xFF, 0x00)
         else:
@@ -475,6 +520,8 @@ class EmulatedFT232H:
                 self._drive = self.model.read_status()
                 if self.wiring is not None:
                     self._drive = self.wiring.to_host(self._drive)
+                if self.vcd is not None:
+                    self._log_pins()
             if not check:
                 return self._drive
             rd_fell = self._edge_ns.get("RD_fall", 0)
@@ -500,8 +547,17 @@ class EmulatedFT232H:
             if wr_rose is not None and self.ns - wr_rose < WR_HOLD_NS and before[1]:
                 self._timing(f"data changed {self.ns - wr_rose} ns after /WR rose "
                              f"(hold {WR_HOLD_NS} ns)")
+            if self.vcd is not None:
+                self._log_pins()
 
     def _set_low(self, value: int, direction: int) -> None:
+        try:
+            self._set_low_lines(value, direction)
+        finally:
+            if self.vcd is not None:
+                self._log_pins()
+
+    def _set_low_lines(self, value: int, direction: int) -> None:
         self._low_val, self._low_dir = value & 0xFF, direction & 0xFF
         level = (self._low_val & self._low_dir) | (~self._low_dir & 0xFF)  # inputs pulled up
         old, self._ctrl = self._ctrl, level

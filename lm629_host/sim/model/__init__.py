@@ -14,8 +14,7 @@ Every place where the datasheet and the notes (``shared/spec/lm628-lm629-referen
 silent and the model had to choose, in this one list; ``[model choice N]`` in the code and in
 the other modules' docstrings refers to item N here.  A choice that is a number keeps its
 number in :mod:`.params` (the field is named here), so that it can be changed in one place
-when someone measures a real chip.  Items marked *(changed, #15)* were revised by issue 15
-("Chip model, round 2"); 27-31 are new there.
+when someone measures a real chip.
 
 Host interface (:mod:`.chip`)
 
@@ -57,7 +56,7 @@ Trajectory generator (:mod:`.motion`, :mod:`.trajectory`)
 12. Stop abruptly: velocity 0 at once, the desired position held where it is; stop smoothly:
     ramp down at the acceleration.  Both report on-target (trajectory complete) when stopped;
     the original target, mode, direction and parameters are kept, so a plain STT resumes the
-    move, in velocity mode too (AN-706 6.3.1; see 27).  *(changed, #15)*
+    move, in velocity mode too (AN-706 6.3.1; see 27).
 13. STT refused (command error): acceleration loaded since the last accepted
     STT while the generator is moving and the drive is on (see 28); a velocity or acceleration
     that would come out negative or above 3FFFFFFF (see 30).  The refused STT is ignored: the
@@ -67,11 +66,11 @@ Trajectory generator (:mod:`.motion`, :mod:`.trajectory`)
     is turned off"; the double-buffered input registers, and "the command ignored", leave
     nothing to drop).  The one exception is the value that came out of range: AN-706 6.6.6
     puts that error "when loading" the value, so it counts as never loaded (otherwise one bad
-    relative velocity would get every later STT, even a stop, refused).  *(changed, #15: all
-    the loaded values used to be dropped.)*  So while an acceleration change is pending during
-    a move, every STT but a motor-off one is refused until the move completes.  A stop bit
-    acts once.  The refusal (command-error bit) is raised while the chip processes the STT
-    byte, so it is visible once busy clears (``LM629.start`` reads it there).
+    relative velocity would get every later STT, even a stop, refused).  So while an
+    acceleration change is pending during a move, every STT but a motor-off one is refused
+    until the move completes.  A stop bit acts once.  The refusal (command-error bit) is
+    raised while the chip processes the STT byte, so it is visible once busy clears
+    (``LM629.start`` reads it there).
 14. A stop bit with other parameters in the same LTRJ: the stop wins and the parameters are
     loaded into the working registers for the next STT (no movement now).
 15. DFH: the desired position's whole counts and the real position both become 0 at once; the
@@ -88,7 +87,6 @@ Motor off and the chip's events (:mod:`.motion`, ``ChipModel._sample``)
     the real one each sample (AN-706 6.3.2) and the filter's memory (error sum, derivative) is
     cleared.  The next STT starts from the real position with velocity 0; a plain STT resumes
     an interrupted trajectory or holds the shaft where it is (AN-706 6.3.3; see 27).
-    *(changed, #15)*
 18. Turning the motor off (LTRJ bit 8, LPES) raises trajectory complete at once (status bit 2 =
     motor off OR on target).
 19. Breakpoint: set at every sample where the desired position has reached the breakpoint,
@@ -98,7 +96,6 @@ Motor off and the chip's events (:mod:`.motion`, ``ChipModel._sample``)
     that clears bit 6 while the desired position sits on the breakpoint leaves it reading 1 at
     once (a real LM629 read C0, three reads of three, ~78 us after RSTI 0000 following a reset;
     with the bit back only at the next sample that would read 80 about 70 % of the time).
-    *(changed, #15)*
 20. Index: A, B and IN are all low together at exactly one count per revolution,
     ``MotorParams.index_offset`` counts past a multiple of 4 x lines; the index is seen if the
     encoder stood on that count at either sample or passed it in between
@@ -106,8 +103,8 @@ Motor off and the chip's events (:mod:`.motion`, ``ChipModel._sample``)
     register at that count, INDEX_PULSE is raised and signals bit 0 cleared at that sample.
     By default (``index_offset`` unset) the index is half a revolution (2 x lines counts) from
     where the shaft powers up: reachable within half a turn either way, never under the shaft
-    at start, so a SIP without motion latches nothing.  *(changed, #15: it was at count 0,
-    under the shaft, and SIP latched at the first sample.)*
+    at start, so a SIP without motion latches nothing (an index under the shaft would latch
+    at the first sample, which no real index search sees).
 
 Filter, output and registers (:mod:`lm629_host.pid`, :mod:`.motion`)
 
@@ -123,8 +120,7 @@ Filter, output and registers (:mod:`lm629_host.pid`, :mod:`.motion`)
     target) still drives down at 1/128, a positive one below 256/kp does not drive at all.  So
     a P-only loop at kp = 20 rests with the real position 0..12 counts *below* its target
     whichever way it came: short of it after a move up, up to 12 counts past it after a move
-    down (a move from 1000 down to 0 rests at -11, e = +11).  *(changed, #15: it said "never
-    past it".)*
+    down (a move from 1000 down to 0 rests at -11, e = +11).
 23. RDRV is the change of the real position over the last sample (whole counts).
 
 Motor, amplifier and encoder (:mod:`.motor`, ``MotorParams``)
@@ -140,7 +136,7 @@ Motor, amplifier and encoder (:mod:`.motor`, ``MotorParams``)
 26. The encoder's 1 M counts/s limit is not modelled; the motor cannot get near it with the
     default parameters.
 
-Restarts, buffered parameters, ranges, reset (new in issue 15)
+Restarts, buffered parameters, ranges, reset
 
 27. Mode of a restart.  An LTRJ with a stop bit only stops: its bits 11/12 do not replace the
     running trajectory's mode; any LTRJ without a stop bit sets the mode (and cancels a stop
@@ -160,7 +156,7 @@ Restarts, buffered parameters, ranges, reset (new in issue 15)
 29. Relative values are relative to "those previously loaded" (AN-706 3.3): to the value
     loaded by an earlier LTRJ not yet started, else to the working value (relative position:
     to the current target).  Two relative LTRJs before one STT therefore add up (velocity
-    V + X1 + X2, where the model used to apply only X2; positions likewise); absolute then
+    V + X1 + X2, not X2 alone; positions likewise); absolute then
     relative gives the absolute plus the relative.  The reading "loaded" = written by LTRJ (not yet executed)
     follows 3.3's own use of the word ("can be loaded with LTRJ ... but cannot be executed").
 30. Velocity and acceleration words are 30-bit unsigned (AN-706 2.7: bit 31 would be the sign,
@@ -169,19 +165,37 @@ Restarts, buffered parameters, ranges, reset (new in issue 15)
     value that would make the velocity negative (6.5.1: "a negative absolute velocity which is
     not allowed"; FDF0A3D8, what AN-868's program sends when its clock scalar overflows, is
     negative as a 32-bit word).  The same for a relative sum outside 0..3FFFFFFF.  The word itself is a host
-    protocol violation (``strict`` raises at the LTRJ).  The model used to clamp it silently.
+    protocol violation (``strict`` raises at the LTRJ); it is not clamped, which would hide
+    the host's mistake.
 31. Through /RST and the RESET command the motor and encoder go on: the output is zero drive
     from the moment the reset begins and the shaft coasts (or is driven by its load); only the
     chip's registers, trajectory and filter wait.  When the reset completes, wherever the
     shaft then is becomes real position 0.
 
-Several chips on one bus (:mod:`.bus`, new in issue 11)
+Several chips on one bus (:mod:`.bus`)
 
 32. The chips of one :class:`ChipBus` share one clock and one /RST, so they sample at the same
     ticks (a real board shares the oscillator; after one /RST their sample counts agree).  A
     strobe on a /CS line with no chip on it reaches nothing, and a read there finds the data
     bus floating: it reads FF (busy set), so a host's busy check times out on an unwired axis,
     as it would on a bench with pull-ups on the data bus.
+
+Test aids and update rate
+
+33. ``ChipParams.reset_position`` (``sim://?reset_position=0x3FFFF000``, default 0): the
+    position registers (desired, real, target) read this after every reset instead of 0, so
+    that a test reaches the wraparound (AN-706 6.5.2) without minutes of simulated travel.  A
+    real chip always resets them to 0; DFH still makes them 0.
+34. The command update rate (AN-706 4.6.2: "aborts the current trajectory calculation when it
+    receives a new STT command, resulting in the output staying at the value of the previous
+    sample ... not ... more than once every 10 ms").  The note gives no duration for the
+    calculation; the model takes the 10 ms it recommends (``ChipParams.update_s``): an STT
+    executed less than ``update_s`` after the last executed one aborts the calculation in
+    progress, and the output word at the next sample stays at the previous sample's value (the
+    filter is not run for that sample; the trajectory generator steps with the new parameters
+    as usual, since the note names only the output).  Under ``strict`` such an STT is a host
+    protocol violation, unless it carries a stop or motor-off bit: stopping must always be
+    possible, and a one-sample hold does not delay a stop.
 """
 
 from .bus import ChipBus, chips_of

@@ -147,7 +147,7 @@ static PyObject *run(PyObject *self, PyObject *args) {
             if (countdown == 0) {
                 dterm = sat16(kd * sat16(e - elast));
                 elast = e;
-                countdown = ds;
+                countdown = ds - 1;
             } else {
                 countdown--;
             }

@@ -41,6 +41,7 @@ from collections.abc import Callable
 
 from ...errors import ProtocolViolation
 from ...opcodes import (
+    lfil_interval,
     BUSY_BIT,
     COEFFICIENT_MAX,
     COMMANDS,
@@ -57,6 +58,7 @@ from ...opcodes import (
     lfil_word_count,
     ltrj_word_count,
     s32,
+    s32_words,
 )
 from .fastloop import py_loop, run_fast
 from .motion import Motion
@@ -101,7 +103,7 @@ class CommandRecord(list):
     It keeps at least the latest ``window`` commands (``record_window``) and drops the oldest
     in blocks of ``window // 8`` (so an append stays O(1) amortised and memory stays bounded
     in a long run: a plain list grew by ~137 bytes a command); ``dropped`` counts them.  It is
-    a list, so slices and comparisons work as before."""
+    a list, so that code reading the record slices and compares it as one."""
 
     def __init__(self, window: int) -> None:
         super().__init__()
@@ -226,7 +228,7 @@ class ChipModel:
         motion = self.motion
         while n > 0:
             if self.fast and not (self._in_hw_reset or self._reset_done_at is not None
-                                  or self._udf_pending
+                                  or self._udf_pending or motion.abort_pending
                                   or self.signals_extra & Signals.FILTER_UPDATED):
                 ran = run_fast(self, n, self.fast)
                 n -= ran
@@ -312,7 +314,8 @@ class ChipModel:
         self._abort_transfer()
         self._io_word = 0
         self._busy_until = 0
-        self.motion.reset()
+        self._last_stt: int | None = None  # chip tick of the last executed STT
+        self.motion.reset(self.params.reset_position)
 
     def _abort_transfer(self) -> None:
         self._cmd: int | None = None
@@ -545,6 +548,7 @@ class ChipModel:
                     self.signals_extra &= ~Signals.ACCELERATION_LOADED
                 return
             stop = buf.stop
+            self._update_rate(stop)
             buf.loaded = 0
             buf.stop = 0  # [model choice 13] a stop bit acts once
             self.signals_extra &= ~Signals.ACCELERATION_LOADED
@@ -586,10 +590,24 @@ class ChipModel:
         elif cmd is Cmd.LTRJ:
             self._load_trajectory(words)
         elif cmd in (Cmd.SBPA, Cmd.SBPR):
-            value = s32((words[0] << 16) | words[1])
+            value = s32_words(words[0], words[1])
             if cmd is Cmd.SBPR:
                 value = s32(m.target_position + value)
             self.breakpoint = value
+
+    def _update_rate(self, stop: int) -> None:
+        """An executed STT [model choice 34]: one within ``update_s`` of the last aborts the
+        trajectory calculation in progress (the next sample keeps the output), and is a host
+        protocol violation unless it stops the motor (AN-706 4.6.2)."""
+        last, self._last_stt = self._last_stt, self.tick
+        window = round(self.params.update_s * self.clock_hz)
+        if last is None or self.tick - last >= window:
+            return
+        self.motion.abort_pending = True
+        if not stop:
+            self._violation(f"STT {(self.tick - last) / self.clock_hz * 1e3:.2f} ms after the "
+                            f"last one: the chip aborts the trajectory calculation (AN-706 4.6.2:"
+                            f" at most one update per {self.params.update_s * 1e3:g} ms)")
 
     def _command_error_silent(self) -> None:
         """A command error that a correct host can provoke (not a protocol violation)."""
@@ -598,7 +616,7 @@ class ChipModel:
     def _load_filter(self, words: list[int]) -> None:
         control, values = words[0], iter(words[1:])
         buf = self.filter_buffer
-        buf.ds = control >> 8
+        buf.ds = lfil_interval(control)
         for flag in FILTER_ORDER:
             if control & flag:
                 setattr(buf, (flag.name or "").lower(), next(values))

@@ -196,7 +196,7 @@ def py_loop(ints: tuple, floats: tuple) -> tuple:
                 d *= kd
                 dterm = 32767 if d > 32767 else (-32768 if d < -32768 else d)
                 elast = e
-                countdown = ds
+                countdown = ds - 1
             else:
                 countdown -= 1
             u = kp * e

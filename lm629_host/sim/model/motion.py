@@ -72,21 +72,26 @@ class Motion:
         self.reset()
 
     # ------------------------------------------------------------------ registers
-    def reset(self) -> None:
-        """Any reset: registers 0, drive off.  The shaft stays where it is."""
+    def reset(self, position: int = 0) -> None:
+        """Any reset: registers 0 (``position`` [model choice 33]), drive off.  The shaft stays
+        where it is."""
         self.traj.reset()
         self.pid = PIDState()
         #: the encoder count where real position is 0, and the count at the last sample: the
         #: sample loop's state, which the flattened loop (fastloop.py) reads and writes too
-        self.home_count = self.motor.count
+        self.home_count = self.motor.count - position
         self.encoder_count = self.motor.count
-        self.real_position = 0
+        self.real_position = position
         self.real_velocity = 0
         self.index_position = 0
         self.output = 0
         self._resume = False  # a move was interrupted by motor off
         self._started = False  # no STT since reset: not "on target" (signals 01C0 after reset)
-        self.traj.position = 0
+        #: an STT came too soon after the last one [model choice 34]: the next sample does not
+        #: run the filter, so the output stays at the last sample's value
+        self.abort_pending = False
+        self.traj.position = position << 16
+        self.traj.target = position
 
     @property
     def desired_position(self) -> int:
@@ -241,6 +246,10 @@ class Motion:
             events |= Status.TRAJECTORY_COMPLETE
         if wrapped:
             events |= Status.WRAPAROUND
+        if self.abort_pending:
+            # [model choice 34] the calculation was aborted by a new STT: the output stays
+            self.abort_pending = False
+            return events
         # 4. the filter
         f = chip.filter
         e = wrap_counts((t.position >> 16) - self.real_position)

@@ -7,14 +7,16 @@ the armature inductance neglected the shaft obeys
     J dw/dt = kt (V - kt w) / R - b w - Tc sign(w) - T_load
 
 which is linear between the sticking points of the dry friction, so each sample is integrated
-exactly (exponential solution) rather than stepped: the model is stable at any sample time.
+exactly (:func:`lm629_host.plant.motor_step`) rather than stepped: the model is stable at
+any sample time.
 Internally the shaft angle is in encoder counts (float) and the speed in counts/s.
 """
 
 from __future__ import annotations
 
-from math import exp, floor, log, pi
+from math import floor, pi
 
+from ...plant import decay_and_gain, motor_step
 from .params import MotorParams
 
 
@@ -38,8 +40,7 @@ class Motor:
             self.accel_per_volt = -self.accel_per_volt
         self.coulomb_accel = p.coulomb / p.inertia * counts_per_rad
         self.load_accel = p.load_torque / p.inertia * counts_per_rad
-        self.decay = exp(-self.rate * sample_s)
-        self.gain = (1.0 - self.decay) / self.rate  # integral of the decay over one sample
+        self.decay, self.gain = decay_and_gain(self.rate, sample_s)
         self.reset()
 
     def reset(self) -> None:
@@ -51,25 +52,9 @@ class Motor:
         if self.params.stall:
             self.speed = 0.0
             return
-        w0 = self.speed
-        drive = volts * self.accel_per_volt - self.load_accel
-        if w0 == 0.0:
-            if -self.coulomb_accel <= drive <= self.coulomb_accel:
-                return  # stuck: the drive does not break the dry friction
-            force = drive - self.coulomb_accel if drive > 0 else drive + self.coulomb_accel
-        else:
-            force = drive - self.coulomb_accel if w0 > 0 else drive + self.coulomb_accel
-        rate = self.rate
-        w_inf = force / rate
-        w1 = w_inf + (w0 - w_inf) * self.decay
-        if w0 != 0.0 and (w1 > 0) != (w0 > 0):
-            # the dry friction stops the shaft within this sample: it sticks there
-            t0 = -log(-w_inf / (w0 - w_inf)) / rate
-            self.angle += w_inf * t0 + w0 / rate
-            self.speed = 0.0
-            return
-        self.angle += w_inf * self.sample_s + (w0 - w_inf) * self.gain
-        self.speed = w1
+        self.angle, self.speed = motor_step(
+            self.angle, self.speed, volts * self.accel_per_volt - self.load_accel,
+            self.coulomb_accel, self.rate, self.decay, self.gain, self.sample_s)
 
     @property
     def count(self) -> int:

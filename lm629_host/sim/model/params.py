@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ...opcodes import UPDATE_INTERVAL_S
+
 
 @dataclass
 class ChipParams:
@@ -27,6 +29,11 @@ class ChipParams:
     #: the sample loop: "auto" (the C loop if it was built, else "py"), "c", "py" (the
     #: flattened loop of sim/model/fastloop.py) or "0" (only the readable per-sample code)
     fast: str = "auto"
+    #: [model choice 33] the position registers after a reset (counts; a test near the wrap)
+    reset_position: int = 0
+    #: [model choice 34] an STT this soon after the last executed one aborts the trajectory
+    #: calculation (AN-706 4.6.2's 10 ms)
+    update_s: float = UPDATE_INTERVAL_S
 
 
 @dataclass

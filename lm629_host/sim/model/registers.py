@@ -18,7 +18,7 @@ class FilterRegisters:
     ki: int = 0
     kd: int = 0
     il: int = 0
-    ds: int = 0  #: derivative sampling byte: interval = ds + 1 samples
+    ds: int = 1  #: derivative interval, samples (the LFIL word's high byte + 1)
 
     def copy(self) -> FilterRegisters:
         return FilterRegisters(self.kp, self.ki, self.kd, self.il, self.ds)

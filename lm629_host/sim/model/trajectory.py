@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from math import isqrt
 
-ONE = 1 << 16  #: one count in the generator's fixed point
 #: the position register holds C0000000..3FFFFFFF (bit 30 is the wraparound bit, AN-706 6.5.2):
 #: positions are kept modulo 2^31 counts in [-2^30, 2^30)
 SPAN = 1 << 47  #: 2^31 counts in fixed point
