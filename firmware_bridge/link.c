@@ -173,6 +173,139 @@ void link_init(link_t *l)
         l->code_len[k] = 0;
 }
 
+/* ---------------------------------------------------------------- the failsafe */
+/* A timer on this side of the link: every good frame feeds it; when the host has been silent
+ * for fs_ms, every chip select that answers is stopped (LTRJ with the action's stop bit, STT,
+ * each with the busy discipline) and the trip is latched: programs with STT are refused until
+ * a host acknowledges it.  Plain statics: there is one link. */
+#define TICKS_PER_MS (1000u / LINK_RECORD_TICK_US)
+static uint32_t clock_now, fs_last, fs_silent, fs_at, fs_ticks; /* fs_ticks: fs_ms in ticks */
+static uint16_t clock_last, fs_ms; /* fs_ms 0: disarmed */
+static uint8_t fs_action, fs_tripped, fs_chips, feed_at;
+static const uint8_t feed_frame[LINK_FAILSAFE_FEED_LEN] = LINK_FAILSAFE_FEED_INIT;
+
+/* fold a reading of the 16-bit timer into the 32-bit clock */
+static uint32_t clock_fold(uint16_t t)
+{
+    clock_now += (uint16_t)(t - clock_last);
+    clock_last = t;
+    return clock_now;
+}
+
+uint32_t link_clock(void) { return clock_fold(bus_ticks()); }
+
+uint16_t link_failsafe_wake(void) { return (uint16_t)(fs_last + fs_ticks); }
+
+/* expired at clock `now` */
+static uint8_t failsafe_due(uint32_t now)
+{
+    return fs_ms && !fs_tripped && now - fs_last >= fs_ticks;
+}
+
+/* every time: the clock keeps counting, armed or not */
+static uint8_t failsafe_expired(void) { return failsafe_due(link_clock()); }
+
+/* stop every chip select that answers (a status of FF is a bus no chip drives), latch the
+ * trip, select `chip` again (a program under way goes on with it); a shaped move's pending
+ * pieces are dropped first: none may restart a motor the trip stopped */
+static __attribute__((noinline)) void failsafe_trip(uint8_t chip)
+{
+    if (prof_link && prof_link->prof_n) {
+        prof_link->prof_n = 0;
+        prof_link->prof_result = RESULT_PROFILE_CANCELLED;
+    }
+    uint16_t word = fs_action == FAILSAFE_ACTION_SMOOTH ? FAILSAFE_STOP_SMOOTH
+        : fs_action == FAILSAFE_ACTION_OFF ? FAILSAFE_STOP_OFF : FAILSAFE_STOP_ABRUPT;
+    uint8_t chips = 0, st;
+    for (uint8_t k = 0; k < LINK_CHIP_SELECTS; k++) {
+        bus_select(k);
+        if (bus_read_status() == 0xFF)
+            continue;
+        if (!bus_wait_not_busy(LINK_DEFAULT_BUSY_TIMEOUT_US, &st))
+            continue;
+        bus_write_command(CMD_LTRJ);
+        if (!bus_wait_not_busy(LINK_DEFAULT_BUSY_TIMEOUT_US, &st))
+            continue;
+        bus_write_data((uint8_t)(word >> 8));
+        bus_write_data((uint8_t)word);
+        if (!bus_wait_not_busy(LINK_DEFAULT_BUSY_TIMEOUT_US, &st))
+            continue;
+        bus_write_command(CMD_STT);
+        chips |= (uint8_t)(1u << k);
+    }
+    bus_select(chip);
+    fs_tripped = 1;
+    fs_chips = chips;
+    fs_silent = clock_now - fs_last;
+    fs_at = clock_now;
+}
+
+void link_poll(void)
+{
+    if (failsafe_expired())
+        failsafe_trip(0);
+}
+
+/* During a recording: take FAILSAFE_FEED as it comes (each whole one feeds the failsafe);
+ * returns 0 at the first byte that is not the feed's next one (it stays in the buffer and ends
+ * the recording; a feed's start matched before it is dropped). */
+static uint8_t take_feed(void)
+{
+    while (link_rx_pending()) {
+        if (link_rx_peek() != feed_frame[feed_at]) {
+            feed_at = 0;
+            return 0;
+        }
+        link_rx_skip();
+        if (++feed_at == LINK_FAILSAFE_FEED_LEN) {
+            feed_at = 0;
+            fs_last = link_clock();
+        }
+    }
+    return 1;
+}
+
+/* FAILSAFE_REPLY's payload after the result: timeout, action, the latched trip */
+static uint16_t failsafe_reply(uint8_t *r, uint8_t result)
+{
+    uint32_t silent = fs_tripped ? fs_silent / TICKS_PER_MS : 0;
+    uint32_t at = fs_tripped ? fs_at / TICKS_PER_MS : 0;
+    r[0] = FRAME_FAILSAFE_REPLY;
+    r[2] = result;
+    r[3] = (uint8_t)(fs_ms >> 8);
+    r[4] = (uint8_t)fs_ms;
+    r[5] = fs_action;
+    r[6] = fs_tripped;
+    r[7] = fs_tripped ? fs_chips : 0;
+    for (uint8_t k = 0; k < 4; k++) {
+        r[8 + k] = (uint8_t)(silent >> (24 - 8 * k));
+        r[12 + k] = (uint8_t)(at >> (24 - 8 * k));
+    }
+    return 16;
+}
+
+static uint16_t failsafe_request(uint8_t *r, const uint8_t *payload, uint16_t plen)
+{
+    uint8_t result = RESULT_OK;
+    if (plen) {
+        uint8_t cmd = payload[0];
+        uint16_t ms = plen == 4 ? (uint16_t)((payload[1] << 8) | payload[2]) : 0;
+        if (cmd == FAILSAFE_CMD_ARM && plen == 4 && ms >= LINK_FAILSAFE_MIN_MS
+            && ms <= LINK_FAILSAFE_MAX_MS && payload[3] <= FAILSAFE_ACTION_OFF) {
+            fs_ms = ms;
+            fs_ticks = (uint32_t)ms * TICKS_PER_MS;
+            fs_action = payload[3];
+        } else if (cmd == FAILSAFE_CMD_DISARM && plen == 1) {
+            fs_ms = 0;
+        } else if (cmd == FAILSAFE_CMD_ACKNOWLEDGE && plen == 1) {
+            fs_tripped = 0;
+        } else {
+            result = RESULT_BAD_FAILSAFE;
+        }
+    }
+    return failsafe_reply(r, result);
+}
+
 /* ---------------------------------------------------------------- programs */
 static const uint8_t op_args[] = OP_ARG_BYTES_INIT;
 
@@ -213,6 +346,24 @@ static inline __attribute__((always_inline)) check_t check_program(const uint8_t
     }
     if (c.reads > LINK_MAX_READS || LINK_RUN_REPLY_OVERHEAD + c.n_status + 2u * c.reads > LINK_MAX_FRAME)
         c.result = RESULT_PROGRAM_TOO_LONG;
+    return c;
+}
+
+/* A checked program with STT while a failsafe trip is latched: refused (nothing runs) until a
+ * host acknowledges the trip. */
+static check_t refuse_motion(check_t c, const uint8_t *prog, uint8_t left)
+{
+    if (!fs_tripped || c.result != RESULT_OK)
+        return c;
+    uint8_t i = 0;
+    for (const uint8_t *p = prog, *end = prog + left; p != end; i++) {
+        if (*p == OP_COMMAND && p[1] == CMD_STT) {
+            c.result = RESULT_FAILSAFE_TRIPPED;
+            c.index = i;
+            return c;
+        }
+        p += 1u + op_args[*p];
+    }
     return c;
 }
 
@@ -302,6 +453,10 @@ static inline __attribute__((always_inline)) ran_t exec_program(const uint8_t *p
                 last = bus_read_status();
                 if ((last & mask) || !polls--)
                     break;
+                if (failsafe_expired()) { /* a wait is the host alive only up to the timeout */
+                    failsafe_trip(chip);
+                    break;
+                }
                 bus_wait_us(WAIT_STATUS_POLL_US);
                 profile_poll(chip); /* a piece due meanwhile goes out at its time */
             }
@@ -380,7 +535,7 @@ uint16_t link_run(const uint8_t *payload, uint16_t len, uint8_t *reply)
         return run_header(reply, RESULT_BAD_CHIP_SELECT, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
     if (plen > LINK_MAX_PROGRAM)
         return run_header(reply, RESULT_PROGRAM_TOO_LONG, LINK_NONE_BYTE, LINK_NONE_BYTE, 0);
-    check_t c = check_program(prog, (uint8_t)plen);
+    check_t c = refuse_motion(check_program(prog, (uint8_t)plen), prog, (uint8_t)plen);
     if (c.result != RESULT_OK)
         return run_header(reply, c.result, c.index, LINK_NONE_BYTE, 0);
     return run_long(prog, prog + plen, cs, timeout_us, c, reply);
@@ -625,6 +780,7 @@ static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t 
         return record_end(r, seq, c.result, c.index, 0, l->cache);
     if (period_us < LINK_RECORD_MIN_PERIOD_US)
         return record_end(r, seq, RESULT_BAD_RATE, LINK_NONE_BYTE, 0, l->cache);
+    feed_at = 0; /* a feed's start left by an earlier recording is not this one's */
     uint32_t period = period_us / LINK_RECORD_TICK_US, now = 0, due = 0, base = 0;
     uint16_t last = bus_ticks(), sent = 0;
     uint8_t result = RESULT_OK, index = LINK_NONE_BYTE;
@@ -633,14 +789,19 @@ static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t 
             uint16_t t = bus_ticks();
             now += (uint16_t)(t - last);
             last = t;
-            if ((int32_t)(now - due) >= 0)
+            int32_t early = (int32_t)(due - now);
+            if (early <= 0)
                 break;
-            if (link_rx_pending())
-                goto stop;
+            if (early > 64) { /* more than 256 us to go: room for the rest, off the row's edge */
+                if (failsafe_due(clock_fold(t))) /* a recording: alive while the host feeds */
+                    failsafe_trip(0);
+                if (!take_feed())
+                    goto stop;
+            }
             if (l->prof_n) /* only then: the loop stays within a 4 us tick */
                 profile_poll(0);
         }
-        if (link_rx_pending())
+        if (link_rx_pending() && !take_feed())
             break;
         if (!sent) /* the first row: the clock and the due times count from here */
             due = base = now;
@@ -661,6 +822,8 @@ static uint16_t record(link_t *l, uint8_t seq, const uint8_t *payload, uint16_t 
             break;
         }
         finish(r, (uint16_t)(8u + x.ns + x.nw), l->cache, 0);
+        if (failsafe_due(link_clock())) /* once a row too: periods shorter than 256 us */
+            failsafe_trip(0);
         sent++;
         due += period;
         if (rows && sent == rows)
@@ -718,6 +881,8 @@ static uint16_t profile(link_t *l, const uint8_t *payload, uint16_t plen, uint8_
             last = t;
             have_last = 1;
         }
+        if (result == RESULT_OK && n && fs_tripped) /* pieces carry STT: refused as a RUN's */
+            result = RESULT_FAILSAFE_TRIPPED;
         if (result == RESULT_OK) {
             if (fresh) {
                 l->prof_n = l->prof_head = 0;
@@ -770,7 +935,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         r[len++] = FIRMWARE_MAJOR;
         r[len++] = FIRMWARE_MINOR;
         r[len++] = FIRMWARE_PATCH;
-        r[len++] = (uint8_t)((CAP_RECORD | CAP_PROFILE) >> 8);
+        r[len++] = (uint8_t)((CAP_RECORD | CAP_FAILSAFE | CAP_PROFILE) >> 8);
         r[len++] = CAP_RESET_LINE | CAP_HI_LINE | CAP_BUSY_ON_BRIDGE | CAP_WAIT_STATUS | CAP_SELECT
             | CAP_COMPACT_RUN | CAP_PROGRAM_CODES | CAP_BAUD_SWITCH;
         r[len++] = (uint8_t)(LINK_MAX_PROGRAM >> 8);
@@ -832,7 +997,8 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
             r[0] = FRAME_RUN_REPLY;
             len += link_run(payload, plen, r + 2);
         } else if (type == FRAME_RUN_SHORT) {
-            len = run_short(arrived_check(l, plen), payload, plen, r, &crc_done);
+            len = run_short(refuse_motion(arrived_check(l, plen), payload, (uint8_t)plen),
+                            payload, plen, r, &crc_done);
         } else {
             /* RUN_STORE keeps a good program under its code, then runs it as RUN_SHORT;
              * RUN_CODE runs the program kept (checked when it was stored) */
@@ -860,7 +1026,7 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
                                   l->code_status[slot]};
                 }
             }
-            len = run_short(c, prog, n, r, &crc_done);
+            len = run_short(refuse_motion(c, prog, n), prog, n, r, &crc_done);
         }
         l->cache_len = crc_done ? send_ready(r, (uint8_t)len, l->cache)
                                 : finish(r, len, l->cache, crc_done);
@@ -870,6 +1036,8 @@ static uint16_t handle(link_t *l, uint16_t n, const uint8_t **out)
         return l->cache_len;
     } else if (type == FRAME_RECORD && plen >= 6) {
         return record(l, seq, payload, plen, out);
+    } else if (type == FRAME_FAILSAFE) {
+        len = failsafe_request(r, payload, plen);
     } else if (type == FRAME_PROFILE && plen >= 2 && (plen - 2u) % 8u == 0) {
         if (l->cache_len && l->cache_seq == seq && l->cache_crc == crc) {
             l->cache_hits++;
@@ -965,6 +1133,7 @@ uint16_t link_frame_end(link_t *l, const uint8_t **out)
         return 0; /* back-to-back delimiters: nothing to count */
     }
     l->frames++;
+    fs_last = link_clock(); /* every good frame feeds the failsafe */
     uint16_t size = handle(l, n, out); /* uses the checks made while the frame came in */
     rx_restart(l);
     return size;

@@ -9,7 +9,8 @@
 #define FIRMWARE_MAJOR 1
 #define FIRMWARE_MINOR 4 /* 1.1: several chips (Op.SELECT, four chip selects); 1.2: the compact RUN,
                           * programs kept by code, SET_BAUD; 1.3: RECORD (rows on the bridge's timer);
-                          * 1.4: PROFILE (a shaped move's pieces on the bridge's timer) */
+                          * 1.4: the link failsafe (FAILSAFE), PROFILE (a shaped move's pieces
+                          * on the bridge's timer) */
 #define FIRMWARE_PATCH 0
 #ifdef LINK_ONE_CHIP /* build/lm629_bridge_1chip: a bridge that reports one chip select */
 #define LINK_CHIP_SELECTS 1
@@ -87,6 +88,14 @@ static inline uint16_t link_feed(link_t *l, uint8_t byte, const uint8_t **out)
     }
     return link_frame_end(l, out);
 }
+/* The bridge's clock in 4 us ticks since start (Timer1, folded into 32 bits: call it at least
+ * once per 65536 ticks, 262 ms; main.c's Timer1 interrupts wake the CPU twice per wrap). */
+uint32_t link_clock(void);
+/* The failsafe: stop every chip when it has expired (the host silent past its timeout). */
+void link_poll(void);
+/* The low 16 bits of the clock at which the failsafe expires (a compare interrupt wakes the
+ * CPU there); anything when it is disarmed. */
+uint16_t link_failsafe_wake(void);
 /* Between frames: issue the pieces of a shaped move (PROFILE) that are due.  While a schedule
  * holds pieces (l->prof_n) the main loop calls this instead of sleeping. */
 void link_idle(link_t *l);

@@ -73,6 +73,9 @@
 #define LINK_RECORD_TICK_US 4u  /* RECORD: the bridge clock's tick */
 #define LINK_RECORD_CMD_FIRST 7u  /* RECORD: first data-reporting command */
 #define LINK_RECORD_CMD_LAST 13u  /* RECORD: last data-reporting command */
+#define LINK_FAILSAFE_MIN_MS 50u  /* FAILSAFE: shortest timeout */
+#define LINK_FAILSAFE_MAX_MS 10000u  /* FAILSAFE: longest timeout */
+#define LINK_FAILSAFE_REPLY_SIZE 14u  /* FAILSAFE_REPLY payload bytes */
 #define LINK_PROFILE_MIN_SPACING_US 10000u  /* PROFILE: pieces this far apart */
 #define LINK_PROFILE_NEW 1u  /* PROFILE flags: a new schedule */
 #define LINK_PROFILE_MAX_PIECES 30u  /* PROFILE: pieces in one frame */
@@ -89,6 +92,7 @@
 #define FRAME_RUN_CODE 6u  /* frame type */
 #define FRAME_SET_BAUD 7u  /* frame type */
 #define FRAME_RECORD 8u  /* frame type */
+#define FRAME_FAILSAFE 9u  /* frame type */
 #define FRAME_PROFILE 10u  /* frame type */
 #define FRAME_HELLO_REPLY 129u  /* frame type */
 #define FRAME_RUN_REPLY 130u  /* frame type */
@@ -97,6 +101,7 @@
 #define FRAME_BAUD_REPLY 135u  /* frame type */
 #define FRAME_RECORD_ROW 136u  /* frame type */
 #define FRAME_RECORD_END 137u  /* frame type */
+#define FRAME_FAILSAFE_REPLY 138u  /* frame type */
 #define FRAME_PROFILE_REPLY 139u  /* frame type */
 #define FRAME_ERROR_REPLY 255u  /* frame type */
 #define RESULT_OK 0u  /* result code */
@@ -108,6 +113,8 @@
 #define RESULT_UNKNOWN_CODE 6u  /* result code */
 #define RESULT_BAD_BAUD 7u  /* result code */
 #define RESULT_BAD_RATE 8u  /* result code */
+#define RESULT_FAILSAFE_TRIPPED 9u  /* result code */
+#define RESULT_BAD_FAILSAFE 10u  /* result code */
 #define RESULT_BAD_PROFILE 11u  /* result code */
 #define RESULT_PROFILE_CANCELLED 12u  /* result code */
 #define CAP_RESET_LINE 1u  /* HELLO_REPLY capability bit */
@@ -119,7 +126,20 @@
 #define CAP_PROGRAM_CODES 64u  /* HELLO_REPLY capability bit */
 #define CAP_BAUD_SWITCH 128u  /* HELLO_REPLY capability bit */
 #define CAP_RECORD 256u  /* HELLO_REPLY capability bit */
+#define CAP_FAILSAFE 512u  /* HELLO_REPLY capability bit */
 #define CAP_PROFILE 1024u  /* HELLO_REPLY capability bit */
+#define FAILSAFE_CMD_DISARM 0u  /* FAILSAFE command */
+#define FAILSAFE_CMD_ARM 1u  /* FAILSAFE command */
+#define FAILSAFE_CMD_ACKNOWLEDGE 2u  /* FAILSAFE command */
+#define FAILSAFE_ACTION_ABRUPT 0u  /* FAILSAFE action */
+#define FAILSAFE_ACTION_SMOOTH 1u  /* FAILSAFE action */
+#define FAILSAFE_ACTION_OFF 2u  /* FAILSAFE action */
+#define FAILSAFE_STOP_ABRUPT 512u  /* FAILSAFE: LTRJ word */
+#define FAILSAFE_STOP_SMOOTH 1024u  /* FAILSAFE: LTRJ word */
+#define FAILSAFE_STOP_OFF 256u  /* FAILSAFE: LTRJ word */
+#define LINK_FAILSAFE_FEED_LEN 6u  /* FAILSAFE_FEED wire bytes */
+/* FAILSAFE_FEED: the one frame a recording takes without ending */
+#define LINK_FAILSAFE_FEED_INIT { 0x02, 0x09, 0x03, 0x58, 0x68, 0x00 }
 
 /* CRC-16/GENIBUS table (lm629_host.bridge.protocol._CRC_TABLE): 256 high bytes, then 256 low bytes */
 #define LINK_CRC_TABLE_INIT { \

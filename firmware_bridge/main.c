@@ -4,7 +4,9 @@
  * loop feeds them to the link layer (link.c), which answers each good request with one reply
  * frame, sent byte by byte through link_tx_byte (transmitter polled) while it is still being
  * encoded.  The CPU sleeps (idle mode) while no byte is waiting: the receive
- * interrupt wakes it. */
+ * interrupt wakes it, and so do Timer1's (twice per wrap, for the clock link_clock folds into
+ * 32 bits, and at the failsafe's expiry).  Timer1 keeps counting as it did (clk/64, never
+ * written): RECORD's samples read it as before, the interrupts only wake. */
 #include <avr/interrupt.h>
 #include <avr/io.h>
 #include <avr/sleep.h>
@@ -50,16 +52,26 @@ static void probation(void)
     }
 }
 
+EMPTY_INTERRUPT(TIMER1_OVF_vect)
+EMPTY_INTERRUPT(TIMER1_COMPA_vect)
+EMPTY_INTERRUPT(TIMER1_COMPB_vect)
+
 int main(void)
 {
     bus_init();
     link_init(&link);
     uart_init();
+    OCR1A = 0x8000; /* with the overflow: a wake every half wrap, 131 ms */
+    TIMSK1 = (1 << TOIE1) | (1 << OCIE1A) | (1 << OCIE1B);
     set_sleep_mode(SLEEP_MODE_IDLE);
     sei();
     for (;;) {
         if (on_probation)
             probation();
+        if (!link_rx_pending()) { /* between bursts: the bytes of a frame go first */
+            link_poll();
+            OCR1B = link_failsafe_wake(); /* wakes at the expiry (or earlier: harmless) */
+        }
         cli();
         if (!link_rx_pending()) {
             if (link.prof_n) { /* a shaped move's pieces are timed by polling Timer1 */
@@ -86,6 +98,8 @@ int main(void)
         uint8_t b = uart_rx_take();
         const uint8_t *out;
         link_feed(&link, b, &out); /* a reply goes out from inside, byte by byte */
+        if (!b)
+            link_poll(); /* at every delimiter too: a line that never goes quiet */
         if (link.baud_div) {
             uint16_t div = link.baud_div;
             link.baud_div = 0;

@@ -12,6 +12,10 @@ void link_tx_byte(uint8_t b);
 
 /* 1 when a byte from the host waits in the receive buffer (it ends a recording). */
 uint8_t link_rx_pending(void);
+/* The oldest waiting byte, left in the buffer / taken out (a recording matches FAILSAFE_FEED
+ * byte by byte: a byte that does not match stays to be read as usual); only when pending. */
+uint8_t link_rx_peek(void);
+void link_rx_skip(void);
 
 /* Firmware only (uart_avr.c). */
 void uart_init(void);          /* 8N1 at BAUD, double speed, receive interrupt on */

@@ -30,6 +30,10 @@ ISR(USART_RX_vect)
 
 uint8_t link_rx_pending(void) { return rx_head != rx_tail; }
 
+uint8_t link_rx_peek(void) { return rx_buf[rx_tail]; }
+
+void link_rx_skip(void) { rx_tail = (uint8_t)((rx_tail + 1u) & (RX_SIZE - 1u)); }
+
 uint8_t uart_rx_take(void)
 {
     uint8_t b = rx_buf[rx_tail];

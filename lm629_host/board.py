@@ -45,7 +45,7 @@ from .opcodes import (
 )
 from .plan import plan
 from .program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
-from .safety import emergency_stop
+from .safety import emergency_stop, stop_if_moving
 from .snapshot import add_snapshot, snapshot_at
 from .ports import resolve_port
 from .transports import DEFAULT_URL
@@ -54,6 +54,7 @@ from .transports.base import Transport
 
 if TYPE_CHECKING:
     from .batch import Batch
+    from .bridge.protocol import FailsafeState
     from .profile import Profile
 
 log = logging.getLogger("lm629_host")
@@ -286,8 +287,18 @@ class Board:
     def __enter__(self) -> Board:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        """Left by an exception: stop every axis that moves (abrupt stop, the PID holding)
+        before the link closes; left normally: the axes stay as the block left them."""
+        if exc_type is not None:
+            for ax in self.axes:
+                stop_if_moving(ax)
         self.close()
+
+    def clear_failsafe(self) -> FailsafeState | None:
+        """Acknowledge the bridge's latched failsafe trip; returns the trip (a
+        :class:`~lm629_host.bridge.protocol.FailsafeState`) or None."""
+        return self.transport.clear_failsafe()
 
     def __len__(self) -> int:
         return len(self.axes)

@@ -48,6 +48,15 @@ BUSY_PINS = {"gpiol1": GPIOL1}
 RST = 1 << 6  #: ADBUS6 -> /RST (active low)
 CS1 = 1 << 7  #: ADBUS7 -> /CS of a second chip (active low), the one free line left
 
+#: the URL option ``heartbeat``: a line the wiring may leave free, toggled while the host lives
+#: (the charge pump of an external monostable on the amplifier's enable: the FT232H has no
+#: timer of its own).  ADBUS7 is free on a one-chip bench; the transport then has one /CS.
+HEARTBEAT_PINS = {"adbus7": CS1}
+#: what the bus uses each other line for (why ``heartbeat=`` refuses it)
+LINE_USES = {"adbus0": "the MPSSE clock TCK", "adbus1": "/CS", "adbus2": "/RD",
+             "adbus3": "/WR", "adbus4": "/PS", "adbus5": "HI (GPIOL1)", "adbus6": "/RST",
+             **{f"acbus{k}": f"data line D{k}" for k in range(8)}}
+
 #: /CS of chip 0 and chip 1 (``Op.SELECT`` indexes this): two axes on one FT232H.  The chips
 #: share D0-D7, /RD, /WR, /PS and /RST; the second has no HI line (no free pin: its status is
 #: read instead).  ACBUS8/9 are not MPSSE lines, ADBUS0 is TCK: two is what the FT232H allows.
@@ -93,5 +102,5 @@ DISABLE_CLK_ADAPTIVE = 0x97
 
 
 __all__ = ["TCK", "CS", "CS1", "CHIP_SELECTS", "HI_LINES", "CS_ALL", "RD", "WR", "PS", "HI",
-           "GPIOL1", "BUSY_PINS", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
+           "GPIOL1", "BUSY_PINS", "HEARTBEAT_PINS", "LINE_USES", "RST", "CTRL_DIRECTION", "CTRL_IDLE", "DATA_OUT",
            "DATA_IN", "FIFO_BYTES"]

@@ -65,6 +65,7 @@ from .wraparound import PositionTracker, check_register_position, short_way
 from .transports.base import Transport
 
 if TYPE_CHECKING:
+    from .bridge.protocol import FailsafeState
     from .batch import Batch
     from .recording import RecordStream, Trace
     from .supervise import VelocityRun
@@ -241,8 +242,18 @@ class LM629:
     def __enter__(self) -> LM629:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        """Left by an exception: stop the axis if it moves (abrupt stop, the PID holding)
+        before the link closes; left normally: the axis stays as the block left it."""
+        if exc_type is not None:
+            from .safety import stop_if_moving
+            stop_if_moving(self)
         self.close()
+
+    def clear_failsafe(self) -> FailsafeState | None:
+        """Acknowledge the bridge's latched failsafe trip (its transport's); returns the trip
+        (a :class:`~lm629_host.bridge.protocol.FailsafeState`) or None."""
+        return self.transport.clear_failsafe()
 
     def __repr__(self) -> str:
         where = f" axis {self.axis}" if self.axis is not None else ""
@@ -746,6 +757,9 @@ class LM629:
         far = self.transport.has_wait_status
         chunk_ms = (WAIT_STATUS_WALL_CHUNK_MS if isinstance(clock, WallClock)
                     else WAIT_STATUS_MAX_MS)
+        limit = self.transport.far_wait_limit_s
+        if limit is not None:  # a bridge's failsafe: each wait shorter than its timeout
+            chunk_ms = min(chunk_ms, max(1, int(limit * 1e3)))
         while True:
             if far:
                 ms = min(chunk_ms, max(0, math.ceil((deadline - clock.now()) * 1e3)))

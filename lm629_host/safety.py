@@ -26,6 +26,7 @@ from contextlib import contextmanager
 from typing import Any, Protocol
 
 from .errors import MotionError, MotionFault
+from .opcodes import Status
 
 
 class Stoppable(Protocol):
@@ -34,6 +35,12 @@ class Stoppable(Protocol):
     :mod:`.move`, is not imported back."""
 
     def load_trajectory(self, *, stop: str | None = None, start: bool = False) -> object: ...
+
+class Watched(Stoppable, Protocol):
+    """A chip whose status says whether it moves (an :class:`~lm629_host.LM629`)."""
+
+    def read_status(self) -> int: ...
+
 
 log = logging.getLogger("lm629_host.safety")
 
@@ -83,6 +90,25 @@ def motion_fault(chip: Stoppable, reason: MotionFault, detail: str, *,
     exc = MotionError(reason, f"{detail}; {note}", position=position, error=error)
     setattr(exc, STOP_NOTE, note)
     return exc
+
+
+def stop_if_moving(chip: Watched) -> bool:
+    """Abrupt stop (the PID holds where it stopped) when the status says the chip is carrying
+    out a trajectory (motor on, trajectory not complete); returns True when it stopped one.
+    A ``with lm629_host.open(...)`` or ``open_board(...)`` block left by an exception runs it
+    before the link closes: a clean close disarms the bridge's failsafe, so nothing else would
+    stop a velocity-mode move the script's error cut short.  Never raises: the block's own
+    exception is the one to see (a stop that fails is logged)."""
+    moving = int(Status.MOTOR_OFF | Status.TRAJECTORY_COMPLETE)
+    try:
+        if int(chip.read_status()) & moving:
+            return False
+        chip.load_trajectory(stop="abrupt", start=True)
+    except BaseException as exc:  # noqa: BLE001 - the link may be what failed
+        log.warning("could not stop %r after the error: %s", chip, exc)
+        return False
+    log.info("%r: stopped (abrupt stop, holding) after the error", chip)
+    return True
 
 
 @contextmanager
@@ -178,5 +204,5 @@ class StopSignals:
             raise self._exception(signum)
 
 
-__all__ = ["emergency_stop", "motion_fault", "stop_on_error", "STOP_NOTE", "STOP_SIGNALS",
+__all__ = ["emergency_stop", "motion_fault", "stop_if_moving", "stop_on_error", "STOP_NOTE", "STOP_SIGNALS",
            "Stoppable", "StopSignals", "Terminated", "signal_exception"]

@@ -36,18 +36,19 @@ from lm629_host.sim.faults import FaultPipe, check_record, soak
 from lm629_host.opcodes import Cmd
 
 
-def open_faulty(far: str, rates: dict, seed: int, baud: int, compact: bool = True):
+def open_faulty(far: str, rates: dict, seed: int, baud: int, compact: bool = True,
+                query: str = ""):
     """A chip behind a LinkTransport whose pipe, after a clean handshake and reset, is wrapped
     in a FaultPipe.  ``far``: "emu" (the Python bridge) or "avr" (the compiled firmware in
     simavr, through the firmware colleague's sim+avr:// transport)."""
     if far == "emu":
-        t = open_emulated("sim://?record=1", baud=baud)
+        t = open_emulated(f"sim://?record=1{query}", baud=baud)
         model, far_stats = t.model, t.emulator.stats
     else:
         from firmware_helpers import require_firmware
         from lm629_host.transports import open_transport
         require_firmware()  # skips only without the toolchain; a broken build fails
-        t = open_transport(f"sim+avr://?record=1&baud={baud}")
+        t = open_transport(f"sim+avr://?record=1&baud={baud}{query}")
         model = getattr(t, "model", None) or getattr(t.pipe, "model", None)
         far_stats = t.sim.link_counters()  # the firmware's own counters (None without avr-nm)
     t.compact = t.has_compact_run = compact and t.has_compact_run  # False: RUN frames only
@@ -204,7 +205,9 @@ def test_seq_wrap_after_a_give_up_cannot_hit_the_cache():
     unanswered it sends nothing: those failures say so (``may_have_run`` False)."""
     from lm629_host.transports.link import LinkError
 
-    chip, model, fp, far_stats = open_faulty("emu", {}, 0, baud=1_000_000)
+    # the cable is out for seconds: the failsafe would (rightly) stop the chip, and this test
+    # reads the chip's record for the cache alone
+    chip, model, fp, far_stats = open_faulty("emu", {}, 0, baud=1_000_000, query="&failsafe=0")
     t = chip.transport
     t.retries = 0  # one attempt each: the 255 failures stay quick
     chip.define_home()
@@ -260,7 +263,9 @@ def test_request_arriving_after_the_host_gave_up_runs_once_and_in_order():
     next command runs after it and returns its own answer."""
     from lm629_host.transports.link import LinkError
 
-    chip, model, fp, far_stats = open_faulty("emu", {}, 0, baud=115200)
+    # a line this slow is silent past the failsafe's timeout (which would rightly stop the
+    # chip): this test reads the chip's record for the order alone
+    chip, model, fp, far_stats = open_faulty("emu", {}, 0, baud=115200, query="&failsafe=0")
     fp.out.rates.delay, fp.out.rates.delay_s = 1.0, 0.05  # every byte stalls the line 50 ms
     with pytest.raises(LinkError) as e:
         chip.set_breakpoint(0x12345)

@@ -122,7 +122,7 @@ def test_replies_decode_to_their_fields():
     g = golden()
     info = HelloInfo.decode(decode_frame(g["hello_reply"][1]).payload)
     assert (info.protocol, info.firmware, info.capabilities, info.max_program, info.max_reads,
-            info.chip_selects, info.cpu_hz) == (1, (1, 4, 0), 0x5FF, 243, 120, 4, 16_000_000)
+            info.chip_selects, info.cpu_hz) == (1, (1, 4, 0), 0x7FF, 243, 120, 4, 16_000_000)
     r = RunReply.decode(decode_frame(g["run_reply_busy_timeout"][1]).payload)
     assert (r.result, r.index, r.last_status, r.hi, r.statuses, r.words) == \
         (Result.BUSY_TIMEOUT, 3, 0x81, 0, (0xC4,), (0x1234,))

@@ -102,11 +102,14 @@ def test_spy_url_hex_dumps_the_traffic(tmp_path):
     sent = [f.type for f in FrameReader().feed(bytes(wire["TX"]))]
     got = [f.type for f in FrameReader().feed(bytes(wire["RX"]))]
     # the handshake, the switch to 1 Mbaud (SET_BAUD, then HELLO at the new rate), the five
-    # PINGs that time the round trip (RTT_PINGS), then reset's programs in the compact form
+    # PINGs that time the round trip (RTT_PINGS), the failsafe's report and arm, then reset's
+    # programs in the compact form, and the failsafe's disarm at the close (and any feed)
     head = [FrameType.HELLO, FrameType.SET_BAUD, FrameType.HELLO]
-    assert sent[:len(head) + RTT_PINGS] == head + [FrameType.PING] * RTT_PINGS
-    assert set(sent[len(head) + RTT_PINGS:]) <= {FrameType.RUN_SHORT, FrameType.RUN_STORE,
-                                                 FrameType.RUN_CODE}
+    n = len(head) + RTT_PINGS
+    assert sent[:n + 2] == head + [FrameType.PING] * RTT_PINGS + [FrameType.FAILSAFE] * 2
+    assert set(sent[n + 2:-1]) <= {FrameType.RUN_SHORT, FrameType.RUN_STORE,
+                                   FrameType.RUN_CODE, FrameType.FAILSAFE}
+    assert sent[-1] == FrameType.FAILSAFE
     assert got == [REPLY_TO[FrameType(t)] for t in sent]
 
 

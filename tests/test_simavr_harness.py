@@ -239,7 +239,7 @@ def test_firmware_switches_its_uart_on_set_baud_and_goes_back_when_nothing_comes
     from lm629_host.bridge.protocol import FrameType
     from lm629_host.transports import open_transport
 
-    t = open_transport("sim+avr://?baud=115200")
+    t = open_transport("sim+avr://?baud=115200&failsafe=0")  # nothing sent: no feeds either
     UBRR0L = 0xC4
     assert t.sim.peek(UBRR0L) == 16
     frame = t._exchange(FrameType.SET_BAUD, (1_000_000).to_bytes(4, "big"), 0.05, "SET_BAUD", 0)

@@ -6,6 +6,7 @@
     python3 tools/bench_all.py --baseline REF   # "before" = another commit (default below)
     python3 tools/bench_all.py --write-readme --fresh-clone   # also a fresh clone's test run
     python3 tools/bench_all.py --write-readme --only-usb      # only the per-adapter table
+    python3 tools/bench_all.py --write-readme --only-failsafe # only the failsafe's table
 
 "Before" is measured, not remembered: the baseline commit's ``lm629_host`` is unpacked from git
 into a temporary directory (its C sample loop built there) and the same probes run against it
@@ -48,6 +49,8 @@ USB_BEGIN, USB_END = "<!-- bench_all.py usb: begin -->", "<!-- bench_all.py usb:
 SUMMARY_BEGIN = "<!-- bench_all.py usb summary: begin -->"
 SUMMARY_END = "<!-- bench_all.py usb summary: end -->"
 README = ROOT / "README.md"
+FAILSAFE_BEGIN = "<!-- bench_all.py failsafe: begin -->"
+FAILSAFE_END = "<!-- bench_all.py failsafe: end -->"
 
 
 # ------------------------------------------------------------------ probes (run in a subprocess)
@@ -383,6 +386,55 @@ def write_usb(block: str, summary: str) -> None:
     path.write_text(text)
 
 
+def measure_failsafe() -> dict:
+    """tools/bench_failsafe.py's figures (a served bench in real time: seconds per far end)."""
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_failsafe.py"), "--json"],
+                       capture_output=True, text=True, cwd=ROOT)
+    if r.returncode:
+        raise RuntimeError(f"bench_failsafe.py failed:\n{r.stderr[-3000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def render_failsafe(figures: dict, date: str) -> str:
+    """The failsafe's table: host death to shaft at rest, per far end, armed and disarmed."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    from bench_failsafe import describe
+    ref = figures["reference_stop_s"]
+
+    def fig(v: float | None) -> str:
+        return "never" if v is None else f"{v * 1e3:.1f} ms"
+
+    lines = [
+        FAILSAFE_BEGIN,
+        f"Measured {date} by `{COMMAND}` (or `--only-failsafe`; the figures are "
+        "`python3 tools/bench_failsafe.py`'s), on the simulator's clock: a served bench "
+        "(`lm629 sim serve`'s code) with two chips, a client process that started both in "
+        "velocity mode (2 counts/sample) and was killed with SIGKILL. From the client's last "
+        "frame (the trip report: the bridge's time of the trip minus the silence it saw) to "
+        "the last moment either shaft moved. The failsafe is 0.5 s, abrupt stop; the same "
+        f"abrupt stop sent by a live host comes to rest {ref * 1e3:.1f} ms after it. With "
+        "`failsafe=0` (the bridge disarmed, as a host without the failsafe leaves it) the "
+        "shafts still turn 2 s later: never.",
+        "",
+        "| far end | host death to shaft at rest | `failsafe=0` |",
+        "|---|---|---|",
+    ]
+    for fe, f in figures["far_ends"].items():
+        lines.append(f"| {describe(fe)} | {fig(f['armed'])} | {fig(f['disarmed'])} |")
+    lines.append(FAILSAFE_END)
+    return "\n".join(lines)
+
+
+def write_failsafe(block: str) -> None:
+    path = PERFORMANCE_DOC
+    text = path.read_text()
+    if FAILSAFE_BEGIN in text:
+        text = replace_block(text, FAILSAFE_BEGIN, FAILSAFE_END, block)
+    else:
+        text = text.rstrip("\n") + "\n\n## Link failsafe\n\n" + block + "\n"
+    path.write_text(text)
+
+
 def probe_after() -> dict:
     """The figures only measured now: the other transports, the variants of waiting."""
     import lm629_host
@@ -696,6 +748,8 @@ def main() -> int:
                     help="also time the test run of a fresh clone, before and after (minutes)")
     ap.add_argument("--only-usb", action="store_true",
                     help="only the per-adapter table (docs/usb.md's links; about a minute)")
+    ap.add_argument("--only-failsafe", action="store_true",
+                    help="only the failsafe's table (a served bench in real time; ~15 s)")
     ap.add_argument("--probe", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.probe:
@@ -704,6 +758,13 @@ def main() -> int:
         return 0
 
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    print("the link failsafe ...", file=sys.stderr)
+    failsafe_block = render_failsafe(measure_failsafe(), date)
+    print(failsafe_block)
+    if args.write_readme:
+        write_failsafe(failsafe_block)
+    if args.only_failsafe:
+        return 0
     print("per USB adapter ...", file=sys.stderr)
     usb = run_probe("usb", ROOT)
     usb_block, summary = render_usb(usb, date), render_usb_summary(usb)

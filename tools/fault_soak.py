@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Long fault soak of the bridge link: many seeded runs of typed commands over a lossy pipe
 (drop / corrupt / duplicate / delay per byte, both directions), each checked against the chip
-model's own record: no command twice, none lost, every unhidden failure a typed error.
+model's own record: no command twice, none lost, every unhidden failure a typed error, and
+the bridge's link failsafe never tripped under the live host (every good frame feeds it).
 Prints the counts; exits 1 on the first violation.  In simulated time (no wall-clock waits).
 
 Run:  python3 tools/fault_soak.py [--runs 10] [--n 5000] [--rate 0.002] [--baud 1000000]
@@ -48,7 +49,7 @@ def main() -> int:
     ap.add_argument("--retries", type=int, default=None, help="the transport's default if unset")
     args = ap.parse_args()
     total = dict(calls=0, ok=0, errors=0, ran=0, lost=0, not_sent=0, retries=0, cache_hits=0,
-                 faults=0)
+                 faults=0, trips=0)
     t0 = time.perf_counter()
     for run in range(args.runs):
         t, model, far_stats = open_far(args.far, args.baud, args.n)
@@ -73,6 +74,11 @@ def main() -> int:
             print(f"run {run}: VIOLATION: the far end ran {far_stats.runs - runs0} programs, "
                   f"the chip's record holds {len(model.history)} commands")
             return 1
+        fp.enabled = False  # the failsafe's state read on a clean line
+        state = t.failsafe_state()
+        if state is None or state.tripped or not state.timeout_ms:
+            print(f"run {run}: VIOLATION: the failsafe under a live host: {state}")
+            return 1
         faults = sum(c.dropped + c.corrupted + c.duplicated + c.delayed
                      for c in (fp.out.counts, fp.into.counts))
         hits = (far_stats.cache_hits - hits0) if far_stats else 0
@@ -80,7 +86,7 @@ def main() -> int:
               f"{r.typed_errors} typed errors ({ran} ran, {lost} did not, {r.not_sent} not "
               f"sent), {t.stats.retries} retries, {hits if far_stats else 'n/a'} cache hits, "
               f"{faults} byte faults, "
-              f"link error rate {100 * t.error_rate:.1f} %", flush=True)
+              f"link error rate {100 * t.error_rate:.1f} %, failsafe not tripped", flush=True)
         for k, v in dict(calls=r.calls, ok=r.ok, errors=r.typed_errors, ran=ran, lost=lost,
                          not_sent=r.not_sent, retries=t.stats.retries, cache_hits=hits,
                          faults=faults).items():
@@ -92,7 +98,8 @@ def main() -> int:
           f"{total['retries']} retries, "
           f"{total['cache_hits']} answered from "
           f"the bridge's cache, {total['faults']} byte "
-          f"faults; no command lost or run twice ({time.perf_counter() - t0:.1f} s wall)")
+          f"faults; no command lost or run twice, the failsafe never tripped "
+          f"({time.perf_counter() - t0:.1f} s wall)")
     return 0
 
 

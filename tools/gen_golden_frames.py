@@ -28,6 +28,9 @@ from lm629_host.bridge.protocol import (
     cobs_encode,
     encode_program,
     frame_body,
+    FailsafeAction,
+    FailsafeCmd,
+    FailsafeState,
     profile_payload,
     record_payload,
     run_payload,
@@ -52,12 +55,19 @@ def frames() -> list[tuple[str, bytes]]:
     biggest = Program()
     for i in range(81):
         biggest.write((i * 0x0101) & 0xFF00)  # 0000, 0100, 0200...: zeros in every op
-    info = HelloInfo(firmware=(1, 4, 0), capabilities=0x05FF, max_program=243, max_reads=120,
+    info = HelloInfo(firmware=(1, 4, 0), capabilities=0x07FF, max_program=243, max_reads=120,
                      chip_selects=4, cpu_hz=16_000_000)
     return [
         ("hello", frame_body(FrameType.HELLO, 0x01)),
         ("hello_reply", frame_body(FrameType.HELLO_REPLY, 0x01, info.encode())),
         ("ping", frame_body(FrameType.PING, 0x02, b"\x00\x01\xfe\xff")),
+        # FAILSAFE (capability FAILSAFE): arm 500 ms, abrupt; its reply (armed, no trip); the
+        # feed a recording takes without ending (seq 0, no payload)
+        ("failsafe_arm", frame_body(FrameType.FAILSAFE, 0x07, bytes((FailsafeCmd.ARM,))
+                                    + (500).to_bytes(2, "big") + bytes((FailsafeAction.ABRUPT,)))),
+        ("failsafe_reply_armed", frame_body(FrameType.FAILSAFE_REPLY, 0x07,
+                                            FailsafeState(timeout_ms=500).encode())),
+        ("failsafe_feed", frame_body(FrameType.FAILSAFE, 0x00)),
         ("pong", frame_body(FrameType.PONG, 0x02, b"\x00\x01\xfe\xff")),
         ("run_an693_filter", frame_body(FrameType.RUN, 0x2A, run_payload(an693.ops, 5000))),
         ("run_reply_an693_filter", frame_body(

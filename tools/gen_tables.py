@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from lm629_host.bridge import pins  # noqa: E402 - after sys.path.insert
-from lm629_host.bridge.protocol import _CRC_TABLE, c_defines  # noqa: E402 - after sys.path.insert
+from lm629_host.bridge.protocol import _CRC_TABLE, FAILSAFE_FEED, c_defines  # noqa: E402 - after sys.path.insert
 from lm629_host.opcodes import Cmd, Status  # noqa: E402 - after sys.path.insert
 from lm629_host.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, WAIT_STATUS_POLL_US, Op  # noqa: E402 - after sys.path.insert
 from generated import write_or_check  # noqa: E402 - after sys.path.insert
@@ -55,6 +55,8 @@ def render() -> str:
     lines += ["", "/* link protocol (lm629_host.bridge.protocol, firmware_bridge/PROTOCOL.md) */"]
     for name, value, comment in c_defines():
         lines.append(f"#define {name} {value}u  /* {comment} */")
+    lines.append("/* FAILSAFE_FEED: the one frame a recording takes without ending */")
+    lines.append(f"#define LINK_FAILSAFE_FEED_INIT {{ {', '.join(f'0x{b:02X}' for b in FAILSAFE_FEED)} }}")
     # The CRC table as literal bytes (high bytes of the 256 entries, then the low bytes): made
     # by the preprocessor from LINK_CRC_POLY it cost 18 s and 3 GB per compile of link.c.
     hi = [e >> 8 for e in _CRC_TABLE]

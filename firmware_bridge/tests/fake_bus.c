@@ -60,6 +60,9 @@ uint8_t link_rx_pending(void)
     fake.rx_polls++;
     return fake.rx_polls > fake.rx_pending_after;
 }
+/* the byte waiting: a lone delimiter (any byte but FAILSAFE_FEED's first ends a recording) */
+uint8_t link_rx_peek(void) { return 0; }
+void link_rx_skip(void) {}
 uint8_t bus_timer_elapsed(uint16_t us) { return fake.elapsed_us > us; }
 
 uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t *status)
@@ -76,8 +79,10 @@ uint8_t bus_wait_not_busy(uint16_t timeout_us, uint8_t *status)
 }
 
 /* the transmitter: link.c sends every reply byte through link_tx_byte; fake_tx_verify checks
- * that exactly the frame link_feed returned went out, in order */
-static uint8_t tx_sent[1024];
+ * that exactly the frame link_feed returned went out, in order.  Room for a recording the fuzz
+ * run stops only after rx_pending_after polls: a row may take one poll, so 300 rows of up to
+ * ~100 bytes come before its RECORD_END */
+static uint8_t tx_sent[32768];
 static uint16_t tx_n;
 
 void link_tx_byte(uint8_t b)

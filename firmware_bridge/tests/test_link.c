@@ -134,6 +134,11 @@ static void test_golden_requests(void)
     fake_reset();
     expect_reply("hello", "hello_reply");
     expect_reply("ping", "pong");
+    expect_reply("failsafe_arm", "failsafe_reply_armed");
+    vec_t *fw = get("failsafe_feed");
+    static const uint8_t feed_wire[] = LINK_FAILSAFE_FEED_INIT;
+    CHECK(fw->nenc == LINK_FAILSAFE_FEED_LEN && !memcmp(fw->enc, feed_wire, LINK_FAILSAFE_FEED_LEN),
+          "failsafe_feed: the table's FAILSAFE_FEED differs from the golden frame");
     fake_reset();
     fake.status = 0xC0;
     expect_reply("run_an693_filter", "run_reply_an693_filter");
@@ -507,6 +512,67 @@ static void test_profile(void)
            "dropped by a stop; pieces 2 ms apart refused\n");
 }
 
+/* A failsafe trip while a shaped move's pieces are pending: the schedule is dropped before the
+ * chips are stopped, no piece goes out after (not even at its time), and new pieces are
+ * refused until the trip is acknowledged. */
+static void test_failsafe_drops_profile(void)
+{
+    uint8_t out[320], wire[64], *p;
+    link_init(&L);
+    fake_reset();
+    fake.status = 0xC0;
+    uint8_t arm[] = {FAILSAFE_CMD_ARM, 0x00, 0x32, FAILSAFE_ACTION_ABRUPT}; /* 50 ms */
+    int n = feed(wire, frame(FRAME_FAILSAFE, 0x50, arm, sizeof arm, wire), out);
+    CHECK(reply_payload(out, n, FRAME_FAILSAFE_REPLY, 0x50, &p) == LINK_FAILSAFE_REPLY_SIZE
+          && p[0] == RESULT_OK, "failsafe+profile: armed");
+    /* two pieces at 100 ms and 120 ms: both after the failsafe's 50 ms */
+    uint8_t two[] = {LINK_PROFILE_NEW, 0x00, 0, 0x01, 0x86, 0xA0, 0, 1, 0, 0,
+                     0, 0x01, 0xD4, 0xC0, 0, 2, 0, 0};
+    n = feed(wire, frame(FRAME_PROFILE, 0x51, two, sizeof two, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x51, &p) == 9 && p[0] == RESULT_OK
+          && p[4] == 2, "failsafe+profile: two pieces scheduled");
+    uint32_t start = fake.ticks, tripped_at = 0;
+    fake.log_len = 0;
+    while (fake.ticks - start < 60000u) { /* 240 ms of main loop: link_poll, then the pieces */
+        link_poll();
+        if (!tripped_at && !L.prof_n)
+            tripped_at = fake.ticks - start;
+        link_idle(&L);
+    }
+    CHECK(tripped_at >= 12400u && tripped_at < 12600u,
+          "failsafe+profile: the trip (schedule dropped) at tick %u, expected 12500",
+          (unsigned)tripped_at);
+    int stops = 0, pieces = 0;
+    for (int i = 0; i + 5 < fake.log_len; i += 2)
+        if (fake.log[i] == 'C' && fake.log[i + 1] == 0x1F && fake.log[i + 2] == 'W') {
+            stops += fake.log[i + 3] == (FAILSAFE_STOP_ABRUPT >> 8);
+            pieces += fake.log[i + 3] == (LINK_PROFILE_LTRJ_CONTROL >> 8)
+                && fake.log[i + 5] == (uint8_t)LINK_PROFILE_LTRJ_CONTROL;
+        }
+    CHECK(stops == LINK_CHIP_SELECTS && pieces == 0,
+          "failsafe+profile: %d abrupt stops, %d pieces issued after the trip", stops, pieces);
+    uint8_t ask[] = {0x00, 0x00};
+    n = feed(wire, frame(FRAME_PROFILE, 0x52, ask, sizeof ask, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x52, &p) == 9
+          && p[0] == RESULT_PROFILE_CANCELLED && ((p[1] << 8) | p[2]) == 0 && p[4] == 0,
+          "failsafe+profile: the schedule's reply after the trip");
+    n = feed(wire, frame(FRAME_PROFILE, 0x53, two, sizeof two, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x53, &p) == 9
+          && p[0] == RESULT_FAILSAFE_TRIPPED && p[4] == 0,
+          "failsafe+profile: pieces taken while the trip is latched");
+    uint8_t ack[] = {FAILSAFE_CMD_ACKNOWLEDGE}, off[] = {FAILSAFE_CMD_DISARM};
+    feed(wire, frame(FRAME_FAILSAFE, 0x54, ack, sizeof ack, wire), out);
+    n = feed(wire, frame(FRAME_FAILSAFE, 0x55, off, sizeof off, wire), out);
+    CHECK(reply_payload(out, n, FRAME_FAILSAFE_REPLY, 0x55, &p) == LINK_FAILSAFE_REPLY_SIZE
+          && p[0] == RESULT_OK && p[4] == 0 && p[5] == 0, "failsafe+profile: acknowledged, off");
+    n = feed(wire, frame(FRAME_PROFILE, 0x56, two, sizeof two, wire), out);
+    CHECK(reply_payload(out, n, FRAME_PROFILE_REPLY, 0x56, &p) == 9 && p[0] == RESULT_OK
+          && p[4] == 2, "failsafe+profile: pieces taken again after the acknowledgement");
+    link_init(&L);
+    printf("failsafe+profile: a trip drops the pending pieces (none issued after, even at their "
+           "time), PROFILE_CANCELLED, pieces refused until acknowledged\n");
+}
+
 int main(int argc, char **argv)
 {
     load(argc > 1 ? argv[1] : "golden_frames.txt");
@@ -514,6 +580,7 @@ int main(int argc, char **argv)
     test_select();
     test_record();
     test_profile();
+    test_failsafe_drops_profile();
     test_golden_requests();
     test_exactly_once();
     test_wait_status();

@@ -63,6 +63,9 @@ RECORD_ROW_OVERHEAD = 10
 #: the chip's data-reporting commands (RDDV 07h .. RDSUM 0Dh): the only commands a sample
 #: program may send, so that a recording never changes the chip (and may be repeated)
 RECORD_CMD_FIRST, RECORD_CMD_LAST = 0x07, 0x0D
+#: FAILSAFE: the range of the bridge's link timer (a host slower than 10 s is not alive)
+FAILSAFE_MIN_MS = 50
+FAILSAFE_MAX_MS = 10_000
 #: PROFILE: the pieces of a shaped move (AN-706 4.5.3) the bridge issues on its own timer: at
 #: least 10 ms apart (AN-706 4.6.2, the host's UPDATE_INTERVAL_S), as many as a frame carries
 PROFILE_MIN_SPACING_US = round(UPDATE_INTERVAL_S * 1e6)
@@ -91,6 +94,10 @@ class FrameType(enum.IntEnum):
     #: period_us (4), rows (2; 0: until stopped), a sample program: the bridge runs it on its
     #: own timer and streams one RECORD_ROW per run, then RECORD_END (RECORD only)
     RECORD = 0x08
+    #: empty: report the failsafe's state (FAILSAFE_REPLY); or a FailsafeCmd and its
+    #: arguments (FAILSAFE only).  Every good frame feeds the failsafe; during a recording
+    #: the exact bytes of :data:`FAILSAFE_FEED` feed it without ending the recording
+    FAILSAFE = 0x09
     #: flags (1), cs (1), pieces (t_us (4), velocity (4)): the bridge issues each piece (LTRJ
     #: velocity + STT on cs) at its time on its own timer between requests (PROFILE only)
     PROFILE = 0x0A
@@ -101,6 +108,7 @@ class FrameType(enum.IntEnum):
     BAUD_REPLY = 0x87  #: result (1), the rate the bridge switches to (4)
     RECORD_ROW = 0x88  #: row (2), t_us (4), the bytes the sample program read, in order
     RECORD_END = 0x89  #: result (1), index (1), rows sent (2): the recording is over
+    FAILSAFE_REPLY = 0x8A  #: result (1) then the failsafe's state (:class:`FailsafeState`)
     #: result (1), pieces issued (2), pieces pending (2), largest lateness of a piece (4, us)
     PROFILE_REPLY = 0x8B
     ERROR_REPLY = 0xFF
@@ -111,7 +119,8 @@ REPLY_TO = {FrameType.HELLO: FrameType.HELLO_REPLY, FrameType.RUN: FrameType.RUN
             FrameType.PING: FrameType.PONG, FrameType.RUN_SHORT: FrameType.RUN_SHORT_REPLY,
             FrameType.RUN_STORE: FrameType.RUN_SHORT_REPLY,
             FrameType.RUN_CODE: FrameType.RUN_SHORT_REPLY, FrameType.SET_BAUD: FrameType.BAUD_REPLY,
-            FrameType.RECORD: FrameType.RECORD_ROW, FrameType.PROFILE: FrameType.PROFILE_REPLY}
+            FrameType.RECORD: FrameType.RECORD_ROW, FrameType.FAILSAFE: FrameType.FAILSAFE_REPLY,
+            FrameType.PROFILE: FrameType.PROFILE_REPLY}
 #: other reply types a request may get: a compact RUN that failed is answered as a RUN
 ALSO_REPLY_TO = {FrameType.RUN_SHORT: FrameType.RUN_REPLY, FrameType.RUN_STORE: FrameType.RUN_REPLY,
                  FrameType.RUN_CODE: FrameType.RUN_REPLY, FrameType.RECORD: FrameType.RECORD_END}
@@ -129,11 +138,17 @@ class Result(enum.IntEnum):
     UNKNOWN_CODE = 6  #: RUN_CODE for a code the bridge keeps no program under (nothing ran)
     BAD_BAUD = 7  #: SET_BAUD to a rate the bridge cannot make within 2 % (it stays as it is)
     BAD_RATE = 8  #: RECORD with a period below RECORD_MIN_PERIOD_US (nothing recorded)
+    #: a program with STT while a failsafe trip is latched and not acknowledged (nothing ran)
+    FAILSAFE_TRIPPED = 9
+    #: FAILSAFE with a timeout outside FAILSAFE_MIN_MS..FAILSAFE_MAX_MS, an unknown action or
+    #: command (nothing changed)
+    BAD_FAILSAFE = 10
     #: PROFILE with pieces out of order, closer than PROFILE_MIN_SPACING_US, a velocity above
     #: 3FFFFFFF, more than PROFILE_MAX_SCHEDULE or a chip select it has not (nothing scheduled)
     BAD_PROFILE = 11
     #: the schedule was dropped before its last piece: a program that loads a trajectory
-    #: (LTRJ: a stop) or pulses /RST ended it, so that nothing restarts a stopped motor
+    #: (LTRJ: a stop) or pulses /RST ended it, or a failsafe trip stopped the chips, so that
+    #: nothing restarts a stopped motor
     PROFILE_CANCELLED = 12
 
 
@@ -154,8 +169,33 @@ class Capability(enum.IntFlag):
     BAUD_SWITCH = 0x80
     #: the bridge records on its own timer (RECORD): rows stamped with its clock, streamed
     RECORD = 0x100
+    #: the bridge keeps a link failsafe (FAILSAFE): silent host -> every chip stopped, latched
+    FAILSAFE = 0x200
     #: the bridge issues a shaped move's pieces on its own timer (PROFILE)
     PROFILE = 0x400
+
+
+class FailsafeCmd(enum.IntEnum):
+    """The first payload byte of a FAILSAFE request (an empty payload only reports)."""
+
+    DISARM = 0
+    ARM = 1  #: timeout_ms (2), action (1)
+    ACKNOWLEDGE = 2  #: forget the latched trip: trajectory commands are taken again
+
+
+class FailsafeAction(enum.IntEnum):
+    """What the bridge does to every chip when the failsafe expires: LTRJ with this stop bit,
+    then STT, each with the busy discipline."""
+
+    ABRUPT = 0  #: the PID brakes at full torque and holds: a loaded axis does not fall
+    SMOOTH = 1  #: decelerates at the loaded acceleration
+    OFF = 2  #: motor off (the drive output goes to zero: a loaded axis may fall)
+
+
+#: LTRJ's stop bit for each failsafe action
+FAILSAFE_STOP_BITS = {FailsafeAction.ABRUPT: int(TrajectoryFlags.STOP_ABRUPT),
+                      FailsafeAction.SMOOTH: int(TrajectoryFlags.STOP_SMOOTH),
+                      FailsafeAction.OFF: int(TrajectoryFlags.MOTOR_OFF)}
 
 
 #: "index of the failing operation" and "last status byte" when there is none
@@ -187,6 +227,9 @@ def c_defines() -> list[tuple[str, int, str]]:
         ("LINK_RECORD_TICK_US", RECORD_TICK_US, "RECORD: the bridge clock's tick"),
         ("LINK_RECORD_CMD_FIRST", RECORD_CMD_FIRST, "RECORD: first data-reporting command"),
         ("LINK_RECORD_CMD_LAST", RECORD_CMD_LAST, "RECORD: last data-reporting command"),
+        ("LINK_FAILSAFE_MIN_MS", FAILSAFE_MIN_MS, "FAILSAFE: shortest timeout"),
+        ("LINK_FAILSAFE_MAX_MS", FAILSAFE_MAX_MS, "FAILSAFE: longest timeout"),
+        ("LINK_FAILSAFE_REPLY_SIZE", FailsafeState.SIZE, "FAILSAFE_REPLY payload bytes"),
         ("LINK_PROFILE_MIN_SPACING_US", PROFILE_MIN_SPACING_US, "PROFILE: pieces this far apart"),
         ("LINK_PROFILE_NEW", PROFILE_NEW, "PROFILE flags: a new schedule"),
         ("LINK_PROFILE_MAX_PIECES", PROFILE_MAX_PIECES, "PROFILE: pieces in one frame"),
@@ -200,6 +243,11 @@ def c_defines() -> list[tuple[str, int, str]]:
     out += [(f"FRAME_{t.name}", int(t), "frame type") for t in FrameType]
     out += [(f"RESULT_{r.name}", int(r), "result code") for r in Result]
     out += [(f"CAP_{c.name}", int(c), "HELLO_REPLY capability bit") for c in Capability]
+    out += [(f"FAILSAFE_CMD_{c.name}", int(c), "FAILSAFE command") for c in FailsafeCmd]
+    out += [(f"FAILSAFE_ACTION_{a.name}", int(a), "FAILSAFE action") for a in FailsafeAction]
+    out += [(f"FAILSAFE_STOP_{a.name}", FAILSAFE_STOP_BITS[a], "FAILSAFE: LTRJ word")
+            for a in FailsafeAction]
+    out += [("LINK_FAILSAFE_FEED_LEN", len(FAILSAFE_FEED), "FAILSAFE_FEED wire bytes")]
     return out
 
 
@@ -602,6 +650,61 @@ def row_wire_bytes(read: int) -> int:
     return RECORD_ROW_OVERHEAD + read + 2
 
 
+# ---------------------------------------------------------------------------------- FAILSAFE
+@dataclass(frozen=True)
+class FailsafeState:
+    """FAILSAFE_REPLY's payload: the request's result, the timer as armed (``timeout_ms`` 0:
+    disarmed) and its action, and the latched trip: whether there is one, which chip selects
+    it stopped (bit k: chip select k), how long the host had been silent and the bridge's
+    clock at the trip (ms since the bridge started)."""
+
+    result: int = Result.OK
+    timeout_ms: int = 0
+    action: int = FailsafeAction.ABRUPT
+    tripped: bool = False
+    chips: int = 0
+    silent_ms: int = 0
+    at_ms: int = 0
+
+    LAYOUT = struct.Struct(">BHBBBII")
+    SIZE = LAYOUT.size
+
+    def encode(self) -> bytes:
+        return self.LAYOUT.pack(self.result, self.timeout_ms, self.action, int(self.tripped),
+                                self.chips, self.silent_ms & 0xFFFFFFFF, self.at_ms & 0xFFFFFFFF)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> FailsafeState:
+        if len(payload) != cls.SIZE:
+            raise FrameError(f"FAILSAFE_REPLY of {len(payload)} bytes, expected {cls.SIZE}")
+        result, ms, action, tripped, chips, silent, at = cls.LAYOUT.unpack(payload)
+        return cls(result, ms, action, bool(tripped), chips, silent, at)
+
+    @property
+    def stopped(self) -> list[int]:
+        """The chip selects the trip stopped."""
+        return [k for k in range(8) if self.chips >> k & 1]
+
+    def describe(self, names: dict[int, str] | None = None) -> str:
+        """One sentence on the latched trip (``names``: axis names by chip select)."""
+        if not self.tripped:
+            return "no failsafe trip latched"
+        names = names or {}
+        who = ", ".join(f"axis {names[k]} (cs {k})" if k in names else f"cs {k}"
+                        for k in self.stopped) or "no chip (none answered)"
+        try:
+            how = FailsafeAction(self.action).name.lower()
+        except ValueError:
+            how = f"action {self.action}"
+        return (f"the bridge stopped {who} ({how} stop) after the host was silent for "
+                f"{self.silent_ms / 1e3:.2f} s (at bridge time {self.at_ms / 1e3:.1f} s)")
+
+
+#: the one FAILSAFE frame a recording takes without ending: seq 0, empty payload, always the
+#: same bytes, so that the bridge matches it byte by byte while it samples
+FAILSAFE_FEED = encode_frame(FrameType.FAILSAFE, 0)
+
+
 # ---------------------------------------------------------------------------------- PROFILE
 #: PROFILE_REPLY's payload: result, pieces issued, pieces pending, largest lateness (us)
 PROFILE_REPLY_PAYLOAD = struct.Struct(">BHHI")
@@ -661,6 +764,13 @@ __all__ = [
     "profile_payload",
     "profile_piece_ops",
     "ALSO_REPLY_TO",
+    "FAILSAFE_FEED",
+    "FAILSAFE_MAX_MS",
+    "FAILSAFE_MIN_MS",
+    "FAILSAFE_STOP_BITS",
+    "FailsafeAction",
+    "FailsafeCmd",
+    "FailsafeState",
     "END_PAYLOAD",
     "RECORD_CMD_FIRST",
     "RECORD_CMD_LAST",

@@ -33,14 +33,17 @@ def status(s: Session, as_json: bool, snapshot_dict: Any) -> None:
     snaps = b.snapshots(list(axes))
     rows = [dict(axis=k, **({"name": axis_name(s, k)} if s.profile is not None else {}),
                  **snapshot_dict(snap, s.scale)) for k, snap in zip(axes, snaps)]
+    from .common import failsafe_info
+    fs, fs_line = failsafe_info(b.transport)
     if as_json:
-        click.echo(json.dumps({"axes": rows}, indent=2))
+        click.echo(json.dumps({"axes": rows, "failsafe": fs}, indent=2))
         return
     for k, snap, d in zip(axes, snaps, rows):
         click.echo(f"axis {axis_name(s, k)}: status {d['status']} {' '.join(d['status_flags']) or '-'}  "
                    f"signals {d['signals']}  desired {snap.desired_position}  actual "
                    f"{snap.real_position}  error {snap.following_error:+d}  velocity "
                    f"{snap.desired_velocity / FIXED_ONE:.5f}/{snap.real_velocity}")
+    click.echo(f"failsafe {fs_line}")
 
 
 def watch_rows(s: Session, count: int | None, rate: float, flags: Any,

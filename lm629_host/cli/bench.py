@@ -165,6 +165,9 @@ def doctor() -> None:
                     click.echo(WIRING_HINT)
             if busy == n:
                 click.echo(WIRING_HINT)
+            from .common import failsafe_info
+            fs, fs_line = failsafe_info(chip.transport)
+            line("failsafe", fs is None or (not fs["tripped"] and fs["trip"] is None), fs_line)
         except LM629Error as exc:
             line("open", False, str(exc))
             if isinstance(exc, (BusyTimeout, ResetError)):

@@ -15,7 +15,7 @@ from ..opcodes import VELOCITY_MAX, Status
 from ..supervise import search_index
 from ..units import FIXED_ONE
 from .app import _session, main
-from .common import _flags, _position, _show_position, _wait_flag, snapshot_dict
+from .common import _flags, _position, _show_position, _wait_flag, failsafe_info, snapshot_dict
 from .types import FINITE, INT, SIGNED_ARGS, check_writable, positive
 
 
@@ -31,6 +31,8 @@ def status(as_json: bool) -> None:
     snap = chip.snapshot()
     d = snapshot_dict(snap, s.scale)
     name = axes.axis_name(s, chip.chip_select) if s.profile is not None else None
+    fs, fs_line = failsafe_info(chip.transport)
+    d["failsafe"] = fs
     if as_json:
         click.echo(json.dumps(d if name is None else {"axis": chip.chip_select, "name": name, **d},
                               indent=2))
@@ -47,6 +49,22 @@ def status(as_json: bool) -> None:
         click.echo(f"         actual {d['real_position_rev']:.4f} rev, "
                    f"{d['real_velocity_rpm']:.1f} rpm (desired {d['desired_velocity_rpm']:.1f})")
     click.echo(f"integration sum {snap.integration_sum}")
+    click.echo(f"failsafe {fs_line}")
+
+
+@main.command()
+def clear() -> None:
+    """Acknowledge the bridge's failsafe trip (after a host fell silent mid-move, the bridge
+    stopped every chip and refuses trajectory commands until a host acknowledges); say what
+    it was, and arm the failsafe again."""
+    chip = _session().open(prepare=False)
+    t = chip.transport
+    if t.failsafe_state() is None:
+        click.echo("this port has no far-side failsafe: nothing to acknowledge")
+        return
+    trip = chip.clear_failsafe()
+    click.echo(f"acknowledged: {trip.describe()}" if trip is not None
+               else "no failsafe trip latched")
 
 
 @main.command()

@@ -43,6 +43,36 @@ def snapshot_dict(s: Snapshot, scale: Scale | None = None) -> dict[str, Any]:
     return d
 
 
+def failsafe_info(transport: Any) -> tuple[dict[str, Any] | None, str]:
+    """The link failsafe for ``status`` and ``doctor``: a JSON-able dict (None when the port
+    has no far-side failsafe) and one line.  A trip this open found (and acknowledged) is
+    reported with it: the process that opens after a dead host is the one told."""
+    state = transport.failsafe_state()
+    if state is None:
+        beat = getattr(transport, "heartbeat", None)
+        if beat is not None:
+            return None, (f"none on this port (no timer on its side of the link); the heartbeat "
+                          f"on {beat.upper()} feeds an external watchdog while this process lives")
+        return None, ("none on this port: a host that dies mid-move leaves the axis moving "
+                      "(only a bridge keeps a timer on its side of the link; on the FT232H, "
+                      "?heartbeat=adbus7 feeds an external watchdog)")
+    found = transport.failsafe_report
+    d: dict[str, Any] = {"armed_s": state.timeout_ms / 1e3,
+                         "action": ("abrupt", "smooth", "off")[state.action]
+                         if state.action < 3 else state.action,
+                         "tripped": state.tripped,
+                         "trip": None if found is None else {
+                             "text": found.describe(), "cs": found.stopped,
+                             "silent_s": found.silent_ms / 1e3, "at_s": found.at_ms / 1e3}}
+    line = (f"armed, {state.timeout_ms / 1e3:g} s, {d['action']} stop" if state.timeout_ms
+            else "disarmed (failsafe=0)")
+    if state.tripped:
+        line += f"; TRIPPED: {state.describe()} (acknowledge: lm629 clear)"
+    elif found is not None:
+        line += f"; {found.describe()} (acknowledged by this open)"
+    return d, line
+
+
 def _progress_line(s: Snapshot, target: int | None = None, scale: Scale | None = None) -> str:
     if scale is not None:
         tgt = f" -> {scale.revolutions(target):.4f}" if target is not None else ""

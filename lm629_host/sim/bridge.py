@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ..bridge import pins as bridge_pins
@@ -28,6 +28,10 @@ from ..bridge.protocol import (
     CODE_BYTES,
     CODE_SLOTS,
     END_PAYLOAD,
+    FAILSAFE_FEED,
+    FAILSAFE_MAX_MS,
+    FAILSAFE_MIN_MS,
+    FAILSAFE_STOP_BITS,
     MAX_FRAME,
     MAX_PING,
     RUN_OVERHEAD,
@@ -49,6 +53,9 @@ from ..bridge.protocol import (
     FrameError,
     FrameReader,
     FrameType,
+    FailsafeAction,
+    FailsafeCmd,
+    FailsafeState,
     HelloInfo,
     Result,
     RunReply,
@@ -59,7 +66,7 @@ from ..bridge.protocol import (
     profile_piece_ops,
     short_reply_payload,
 )
-from ..opcodes import BUSY_BIT
+from ..opcodes import BUSY_BIT, Cmd
 from ..program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
 from .clock import SimClock
 from .wiring import BentChip, Miswiring
@@ -87,6 +94,8 @@ class EmuStats:
     rows: int = 0  #: RECORD_ROW frames sent
     pieces: int = 0  #: PROFILE pieces issued
     cache_hits: int = 0  #: RUN repeats answered from the cache
+    trips: int = 0  #: failsafe trips
+    feeds: int = 0  #: FAILSAFE_FEED frames taken during a recording
     replies: int = 0  #: frames sent
     busy_polls: int = 0  #: status reads made only for the busy check
     bus_cycles: int = 0  #: strobes and /RST pulses
@@ -98,7 +107,7 @@ MULTI_AXIS_INFO = HelloInfo(
     capabilities=int(Capability.RESET_LINE | Capability.HI_LINE | Capability.BUSY_ON_BRIDGE
                      | Capability.WAIT_STATUS | Capability.SELECT | Capability.COMPACT_RUN
                      | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH | Capability.RECORD
-                     | Capability.PROFILE))
+                     | Capability.FAILSAFE | Capability.PROFILE))
 #: a one-chip bridge (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
 #: WAIT_STATUS: firmware 1.0's capabilities)
 ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
@@ -146,6 +155,14 @@ class BridgeEmulator:
         self._rec: _Recording | None = None
         self._profile = _Schedule()
         self._no_chip = _NO_CHIP if self.wiring is None else BentChip(_NO_CHIP, self.wiring)
+        #: the failsafe: timeout (0: disarmed), action, when the host last sent a good frame
+        #: (model seconds), the latched trip (None: none), bytes of FAILSAFE_FEED matched
+        #: during a recording
+        self._fs_ms = 0
+        self._fs_action = FailsafeAction.ABRUPT
+        self._fs_last = 0.0
+        self._fs_trip: FailsafeState | None = None
+        self._feed_matched = 0
         if self.info.max_program > MAX_FRAME - RUN_OVERHEAD:
             raise ValueError(f"max_program={self.info.max_program} does not fit MAX_FRAME")
 
@@ -154,19 +171,101 @@ class BridgeEmulator:
         """Bytes from the host; returns the encoded reply frames, in order.  Programs run on
         the model at its current time (the caller advances it to the arrival of the bytes)."""
         out: list[bytes] = []
-        if data and self._rec is not None:  # any byte from the host ends a recording
-            out.append(self._end_recording(Result.OK))
-            self.stats.replies += 1
+        if data and self._rec is not None:
+            data = self._feed_during_recording(data)
+            if data:  # any other byte from the host ends a recording
+                out.append(self._end_recording(Result.OK))
+                self.stats.replies += 1
         for item in self._reader.feed(data):
             if isinstance(item, FrameError):
                 self.stats.bad_frames += 1  # never answered: the host's retry covers it
                 continue
             self.stats.frames += 1
+            self._fs_last = self.model.now()  # every good frame feeds the failsafe
             reply = self._handle(item)
             if reply is not None:
                 self.stats.replies += 1
                 out.append(reply)
         return out
+
+    def _feed_during_recording(self, data: bytes) -> bytes:
+        """During a recording, take FAILSAFE_FEED byte by byte (each whole one feeds the
+        failsafe); return the bytes from the first one that does not match on (they end the
+        recording and are read as usual; a feed's matched start before them is dropped, as
+        the firmware drops it)."""
+        for i, b in enumerate(data):
+            if b != FAILSAFE_FEED[self._feed_matched]:
+                self._feed_matched = 0
+                return data[i:]
+            self._feed_matched += 1
+            if self._feed_matched == len(FAILSAFE_FEED):
+                self._feed_matched = 0
+                self._fs_last = self.model.now()
+                self.stats.feeds += 1
+        return b""
+
+    # ------------------------------------------------------------------ the failsafe
+    @property
+    def failsafe_due(self) -> float | None:
+        """When the failsafe expires (model seconds), None when it is disarmed or tripped."""
+        if not self._fs_ms or self._fs_trip is not None:
+            return None
+        return self._fs_last + self._fs_ms * 1e-3
+
+    @property
+    def failsafe(self) -> FailsafeState:
+        """The failsafe's state as FAILSAFE_REPLY reports it."""
+        trip = self._fs_trip
+        return FailsafeState(Result.OK, self._fs_ms, self._fs_action, trip is not None,
+                             trip.chips if trip else 0, trip.silent_ms if trip else 0,
+                             trip.at_ms if trip else 0)
+
+    def failsafe_trip(self) -> None:
+        """The host has been silent past the timeout (the caller advanced the model to
+        :attr:`failsafe_due`): stop every chip select that answers (a status read of FF is
+        a bus no chip drives) with LTRJ <action's stop bit>, STT, each with the busy
+        discipline, and latch the trip."""
+        m = self.model
+        now = m.now()
+        bits = FAILSAFE_STOP_BITS[FailsafeAction(self._fs_action)]
+        stop = [BusOp(Op.STATUS), BusOp(Op.COMMAND, int(Cmd.LTRJ)), BusOp(Op.WRITE, bits),
+                BusOp(Op.COMMAND, int(Cmd.STT))]
+        self._cancel_profile(stop)  # first: no pending piece may restart a motor stopped here
+        chips = 0
+        cs = self._cs
+        for k in range(self.info.chip_selects):
+            self._cs = k
+            if self._strobe().read_status() == 0xFF:
+                continue
+            if self.run_ops(stop[1:], FIRMWARE_BUSY_TIMEOUT_S).result == Result.OK:
+                chips |= 1 << k
+        self._cs = cs
+        self.stats.trips += 1
+        self._fs_trip = FailsafeState(tripped=True, chips=chips,
+                                      silent_ms=round((now - self._fs_last) * 1e3),
+                                      at_ms=round(now * 1e3))
+
+    def _failsafe_request(self, frame: Frame) -> bytes:
+        """FAILSAFE: report (empty payload), arm, disarm or acknowledge; never cached (each
+        is idempotent, so a repeat does no harm)."""
+        p = frame.payload
+        result = Result.OK
+        if p:
+            cmd = p[0]
+            if cmd == FailsafeCmd.ARM and len(p) == 4:
+                ms, action = int.from_bytes(p[1:3], "big"), p[3]
+                if FAILSAFE_MIN_MS <= ms <= FAILSAFE_MAX_MS and action in FAILSAFE_STOP_BITS:
+                    self._fs_ms, self._fs_action = ms, FailsafeAction(action)
+                else:
+                    result = Result.BAD_FAILSAFE
+            elif cmd == FailsafeCmd.DISARM and len(p) == 1:
+                self._fs_ms = 0
+            elif cmd == FailsafeCmd.ACKNOWLEDGE and len(p) == 1:
+                self._fs_trip = None
+            else:
+                result = Result.BAD_FAILSAFE
+        return encode_frame(FrameType.FAILSAFE_REPLY, frame.seq,
+                            replace(self.failsafe, result=result).encode())
 
     #: the line's rate at the far end (EmuPipe sets it), the rate it goes back to and until
     #: when (after SET_BAUD, until a good frame comes at the new rate), a switch answered
@@ -259,6 +358,8 @@ class BridgeEmulator:
             return reply
         if t == FrameType.RECORD and caps & Capability.RECORD:
             return self._start_recording(frame)
+        if t == FrameType.FAILSAFE and caps & Capability.FAILSAFE:
+            return self._failsafe_request(frame)
         if t == FrameType.PROFILE and caps & Capability.PROFILE:
             return self._profile_frame(frame)
         if t & 0x80:
@@ -290,6 +391,7 @@ class BridgeEmulator:
         if period_us < RECORD_MIN_PERIOD_US:
             return self._end(frame.seq, Result.BAD_RATE, NONE_BYTE, 0)
         self.stats.recordings += 1
+        self._feed_matched = 0
         period = period_us // RECORD_TICK_US * RECORD_TICK_US * 1e-6
         self._rec = _Recording(frame.seq, ops, period, rows, self.model.now())
         return None
@@ -369,6 +471,8 @@ class BridgeEmulator:
                                              and t_us < last + PROFILE_MIN_SPACING_US):
                     result = Result.BAD_PROFILE
                 last = t_us
+            if result == Result.OK and pieces and self._fs_trip is not None:
+                result = Result.FAILSAFE_TRIPPED  # pieces carry STT: refused as a RUN's are
             if result == Result.OK:
                 if new:
                     self._profile = sched = _Schedule(cs=cs, start=self.model.now())
@@ -403,14 +507,21 @@ class BridgeEmulator:
 
     @property
     def far_due(self) -> float | None:
-        """The next thing the bridge does on its own timer: a row or a piece (model seconds)."""
-        dues = [d for d in (self.record_due, self.profile_due) if d is not None]
+        """The next thing the bridge does by itself: a row, a piece or the failsafe's expiry
+        (model seconds)."""
+        dues = [d for d in (self.record_due, self.profile_due, self.failsafe_due)
+                if d is not None]
         return min(dues) if dues else None
 
     def far_step(self) -> list[bytes]:
-        """Do what is due now (:attr:`far_due`): a piece, else a row; the frames it sends."""
-        due = self.profile_due
-        if due is not None and (self.record_due is None or due <= self.record_due):
+        """Do what is due now (:attr:`far_due`): the failsafe's trip first (it drops the
+        pieces, as the firmware's main loop checks the failsafe before the schedule), else a
+        piece, else a row; the frames it sends."""
+        fs, due, row = self.failsafe_due, self.profile_due, self.record_due
+        if fs is not None and all(d is None or fs <= d for d in (due, row)):
+            self.failsafe_trip()
+            return []
+        if due is not None and (row is None or due <= row):
             self.profile_step()
             return []
         return self.record_step()
@@ -431,6 +542,10 @@ class BridgeEmulator:
         refused = self._check(ops)
         if refused is not None:
             return refused
+        if self._fs_trip is not None:  # no motion until a host acknowledges the trip
+            for i, o in enumerate(ops):
+                if o.op is Op.COMMAND and o.arg == Cmd.STT:
+                    return RunReply(Result.FAILSAFE_TRIPPED, i)
         self._cancel_profile(ops)
         self._cs = cs
         self.stats.runs += 1
@@ -472,7 +587,7 @@ class BridgeEmulator:
             if m.tick >= deadline:
                 return False, status
 
-    def _wait_status(self, mask: int, timeout_s: float) -> int:
+    def _wait_status(self, mask: int, timeout_s: float, capped: bool = False) -> int:
         """Op.WAIT_STATUS as the firmware runs it: a status read every WAIT_STATUS_POLL_US
         until one has a bit of ``mask`` or ``timeout_s`` has passed.  The reads that would find
         nothing are skipped: the clock goes to the status change (SimClock), then on to the
@@ -481,6 +596,13 @@ class BridgeEmulator:
         clock = SimClock(m)
         period = WAIT_STATUS_POLL_US * 1e-6
         end = m.now() + timeout_s
+        due = self.failsafe_due
+        if not capped and due is not None and due < end:
+            # the wait counts as the host alive only up to the failsafe's timeout
+            status = self._wait_status(mask, max(0.0, due - m.now()), capped=True)
+            if not status & mask:
+                self.failsafe_trip()
+            return status
         while True:
             status = self._strobe().read_status()
             t = m.now()
@@ -718,7 +840,8 @@ class EmuPipe:
             h = self._to_host
             q = self._to_far
             due = emu.far_due
-            # a row of a recording or a piece falls due before the next byte moves: at its time
+            # a row of a recording, a piece or the failsafe's expiry falls due before the next
+            # byte moves: at its time
             if due is not None and due <= deadline and (not q or due < q[0][0]) \
                     and (not h or due < h[0][0]):
                 if due > now:

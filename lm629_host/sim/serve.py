@@ -91,12 +91,13 @@ class EmuFarEnd(FarEnd):
         return self.model.now()
 
     def advance_to(self, t: float) -> bytes:
-        """Up to ``t``, with the rows of a recording (RECORD) that fall due on the way, each
-        run at its time: they go out together, stamped with the bridge's clock."""
+        """Up to ``t``, with the rows of a recording (RECORD), the pieces of a shaped move
+        (PROFILE) and the failsafe's expiry that fall due on the way, each run at its time:
+        rows go out together, stamped with the bridge's clock."""
         emu, out = self.emulator, bytearray()
-        while (due := emu.record_due) is not None and due <= t:
+        while (due := emu.far_due) is not None and due <= t:
             self.model.advance_to(max(self.model.tick, math.ceil(due * self.model.clock_hz - 1e-6)))
-            out += b"".join(emu.record_step())
+            out += b"".join(emu.far_step())
         self.model.advance_to(max(self.model.tick, int(t * self.model.clock_hz)))
         return bytes(out)
 

@@ -21,9 +21,10 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Iterator, Sequence
 import logging
+import math
 import threading
 from dataclasses import asdict, dataclass
-from typing import final
+from typing import TYPE_CHECKING, Any, final
 
 from ..clock import Clock, WallClock
 from ..errors import AxisError, BusyTimeout, TransportError
@@ -36,6 +37,9 @@ from ..program import (
     ProgramResult,
     TraceCallback,
 )
+
+if TYPE_CHECKING:
+    from ..bridge.protocol import FailsafeState
 
 log = logging.getLogger("lm629_host.bus")
 
@@ -143,6 +147,33 @@ class LockedClock(Clock):
         return getattr(self._clock, name)
 
 
+class FeedingClock(Clock):
+    """A simulated clock whose ``sleep`` feeds a far-side watchdog on the way (a bridge's link
+    failsafe, the FT232H's heartbeat pin): time passes on the far side only while the host
+    sleeps on this clock or waits for an answer, so the feeder of a simulated link lives here
+    instead of in a thread.  The transport gives ``feed_period_s`` (0: nothing to feed) and
+    ``_feed_if_due()``, which sends only when the link has been idle that long."""
+
+    def __init__(self, clock: Clock, transport: Any) -> None:
+        self._clock = clock
+        self._transport = transport
+        self.now = clock.now  # type: ignore[method-assign]  # no wrapper on the hot path
+
+    def now(self) -> float:
+        return self._clock.now()
+
+    def sleep(self, seconds: float) -> None:
+        t = self._transport
+        period = t.feed_period_s
+        n = max(1, math.ceil(seconds / period - 1e-9)) if period and seconds > 0 else 1
+        for _ in range(n):  # whole steps: a clock that rounds may stop short of an end time
+            self._clock.sleep(seconds / n)
+            t._feed_if_due()
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._clock, name)
+
+
 class BusObserver:
     """Sees what a transport runs: subscribe with :meth:`Transport.add_observer`.  Override
     what you need; the defaults do nothing.  The pytest plugin (its failure report and motion
@@ -217,6 +248,9 @@ class Transport(abc.ABC):
     #: True when one program may carry a far-side wait between its commands (a WAIT_STATUS
     #: inside a longer program): then ``Move.wait`` finds a move's end in one exchange
     far_waits: bool = False
+    #: the longest far-side wait one exchange may hold, seconds (None: no limit): a bridge
+    #: whose failsafe is armed counts a wait as the host alive only up to its timeout
+    far_wait_limit_s: float | None = None
     #: True when the far side issues a shaped move's pieces on its own timer
     #: (:meth:`profile`); otherwise the host times them on ``clock``
     far_profiles: bool = False
@@ -356,6 +390,19 @@ class Transport(abc.ABC):
 
     def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
         """Release the port.  Idempotent."""
+
+    # ------------------------------------------------------------------ the link failsafe
+    # A bridge keeps a timer on its side of the link and stops every chip when the host falls
+    # silent (transports/link.py).  Transports without one report None.
+
+    def failsafe_state(self) -> FailsafeState | None:
+        """The far side's failsafe (armed timeout, action, a latched trip), or None when the
+        far side keeps none (the FT232H, ``sim://``)."""
+        return None
+
+    def clear_failsafe(self) -> FailsafeState | None:
+        """Acknowledge a latched failsafe trip; returns it (None: none, or no failsafe)."""
+        return None
 
     # ------------------------------------------------------------------ recording
     # The contract of LM629.record (lm629_host.recording): a transport delivers rows of a

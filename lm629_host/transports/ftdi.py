@@ -114,6 +114,7 @@ import errno as _errno
 import logging
 import os
 import re
+import threading
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
@@ -125,7 +126,7 @@ from ..opcodes import BUSY_BIT
 from ..pinout import pin_of
 from ..program import BusCycle, Op, Program, ProgramResult, TraceCallback
 from ..urls import Option, parse_options
-from .base import Check, PortInfo, Transport
+from .base import Check, FeedingClock, PortInfo, Transport
 from .mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, chips_of_units,
                     streams_of)
 
@@ -173,8 +174,12 @@ class FtdiTransport(Transport):
     def __init__(self, ftdi: Any, url: str, *, trace: TraceCallback | None = None,
                  clock: Clock | None = None, busy_s: float | None = DEFAULT_BUSY_US * 1e-6,
                  tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS,
-                 busy_pin: str | None = None) -> None:
-        """``busy_s``: the wait after each transfer; None: measured on the chip before the first
+                 busy_pin: str | None = None, heartbeat: str | None = None,
+                 heartbeat_hz: float = 50.0) -> None:
+        """``heartbeat``: a line the wiring leaves free (``ftdi_pins.HEARTBEAT_PINS``) that the
+        transport toggles at ``heartbeat_hz`` while the process lives, whenever no program
+        runs: the charge pump of an external monostable on the amplifier's enable, since the
+        FT232H has no timer of its own.  ``busy_s``: the wait after each transfer; None: measured on the chip before the first
         program (:meth:`calibrate_busy`; opening itself never touches the bus), the documented
         100 us when it cannot be.  ``busy_pin``: "gpiol1" when D0 is wired to ADBUS5
         (``connections("ft232h", busy_pin=True)``): every busy check then waits in the adapter on the pin
@@ -208,6 +213,23 @@ class FtdiTransport(Transport):
         self._calibrate = busy_s is None and busy_pin is None
         self._check_pin = busy_pin is not None
         self.stalls = 0  #: streams that stopped at a wait on the busy pin and were purged
+        self.heartbeat = heartbeat
+        #: the heartbeat's half period (0: none): the feeder toggles after this long idle
+        self.feed_period_s = 0.0
+        self._last_toggle = self.clock.now()
+        if heartbeat is not None:
+            line = pins.HEARTBEAT_PINS[heartbeat]
+            self.chip_selects = 1  # its line is the second chip's /CS otherwise
+            self.compiler.keep = self.compiler.keep_level = line
+            self.feed_period_s = 0.5 / heartbeat_hz
+            if isinstance(self.clock, WallClock):
+                self._beat_stop = threading.Event()
+                threading.Thread(target=self._beat_loop, daemon=True,
+                                 name=f"lm629 heartbeat {url}").start()
+            else:
+                inner = self._inner_clock
+                self.clock = FeedingClock(inner, self)
+                self._inner_clock = inner
 
     # ------------------------------------------------------------------ opening
     @classmethod
@@ -217,7 +239,8 @@ class FtdiTransport(Transport):
         busy = opts["busy_us"]
         return cls(ftdi, url, trace=trace, busy_s=None if busy is None else busy * 1e-6,
                    tck_hz=opts["frequency"], latency_ms=opts["latency"],
-                   busy_pin=busy_pin_of(opts, url))
+                   busy_pin=busy_pin_of(opts, url), heartbeat=opts["heartbeat"],
+                   heartbeat_hz=opts["heartbeat_hz"])
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:
@@ -283,7 +306,37 @@ class FtdiTransport(Transport):
                                                   "see the 'device busy' advice"))
         return checks
 
+    # ------------------------------------------------------------------ the heartbeat
+    def _feed_if_due(self) -> None:
+        """Toggle the heartbeat line when no program has run for half its period (the lines
+        are idle between programs: one set-low-byte command)."""
+        if not self.feed_period_s or self.ftdi is None:
+            return
+        now = self.clock.now()
+        if now - self._last_toggle < self.feed_period_s:
+            return
+        c = self.compiler
+        c.keep_level ^= c.keep
+        self._last_toggle = now
+        self.ftdi.write_data(bytes((SET_LOW, c.low_byte(pins.CTRL_IDLE), pins.CTRL_DIRECTION)))
+
+    def _beat_loop(self) -> None:
+        """The heartbeat thread (real adapters): while the process lives; never waits for the
+        lock (a program under way keeps the line where it is)."""
+        while not self._beat_stop.wait(self.feed_period_s / 4):
+            if self.ftdi is None:
+                return
+            if not self.lock.acquire(blocking=False):
+                continue
+            try:
+                self._feed_if_due()
+            except Exception as exc:  # noqa: BLE001 - a heartbeat must never kill the process
+                log.debug("%s: heartbeat: %s", self.url, exc)
+            finally:
+                self.lock.release()
+
     def close(self) -> None:
+        self.feed_period_s = 0.0
         ftdi, self.ftdi = self.ftdi, None
         if ftdi is not None:
             try:
@@ -412,8 +465,10 @@ class FtdiTransport(Transport):
 
     def _set_busy(self, busy_s: float) -> None:
         self.busy_s = busy_s
+        old = self.compiler
         self.compiler = StreamCompiler(self.compiler.tck_hz, busy_s, COMMAND_S,
                                        busy_pin=self.busy_pin is not None)
+        self.compiler.keep, self.compiler.keep_level = old.keep, old.keep_level
 
     @property
     def calibrated_wait_s(self) -> float | None:
@@ -707,7 +762,25 @@ OPTIONS = (
     Option("busy_us", "float", None, 0, 65535, "us", optional=True),
     Option("frequency", "hz", DEFAULT_TCK_HZ, 1e5, 30e6, "Hz"),
     Option("busy_pin", "str", "none", choices=("none", *pins.BUSY_PINS)),
+    Option("heartbeat", "str", None, parse=lambda text: heartbeat_pin(text)),
+    Option("heartbeat_hz", "float", 50.0, 1, 1000, "Hz"),
 )
+
+
+def heartbeat_pin(text: str) -> str | None:
+    """The ``heartbeat`` option: a line the bus leaves free, or none; a line the bus uses is
+    refused with what it carries."""
+    name = text.strip().lower()
+    if name in ("", "none"):
+        return None
+    if name in pins.HEARTBEAT_PINS:
+        return name
+    free = ", ".join(pins.HEARTBEAT_PINS)
+    use = pins.LINE_USES.get(name)
+    if use is not None:
+        raise ValueError(f"{name.upper()} carries {use}: the heartbeat needs a line the wiring "
+                         f"leaves free ({free}: the second chip's /CS, free on a one-chip bench)")
+    raise ValueError(f"expected {free} or none")
 
 
 def busy_pin_of(opts: dict[str, Any], url: str) -> str | None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import random
+import threading
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator, Sequence
 from typing import cast
@@ -25,6 +26,9 @@ from ..bridge.protocol import (
     CODE_BYTES,
     CODE_SLOTS,
     END_PAYLOAD,
+    FAILSAFE_FEED,
+    FAILSAFE_MAX_MS,
+    FAILSAFE_MIN_MS,
     FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
     RECORD_MIN_PERIOD_US,
     RECORD_TICK_US,
@@ -47,6 +51,9 @@ from ..bridge.protocol import (
     FrameError,
     FrameReader,
     FrameType,
+    FailsafeAction,
+    FailsafeCmd,
+    FailsafeState,
     HelloInfo,
     Pipe,
     Result,
@@ -73,7 +80,9 @@ from ..program import (
     TraceCallback,
     cycles_of,
 )
-from .base import ProfileState, RawRow, Transport
+from ..clock import WallClock
+from ..urls import Option, parse_options, query_params
+from .base import FeedingClock, ProfileState, RawRow, Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
 
@@ -89,6 +98,38 @@ BAD_LINK_RATE = 0.2
 #: above this error rate (over a full window) the link logs one warning per window, even while
 #: the retries still hide every failure: 5 % of exchanges failing is a cable to look at
 WARN_LINK_RATE = 0.05
+
+
+#: the failsafe's URL options, taken by every bridge port (``failsafe=0``: disarmed)
+FAILSAFE_DEFAULT_S = 0.5
+FAILSAFE_OPTIONS = (
+    Option("failsafe", "float", FAILSAFE_DEFAULT_S, 0, FAILSAFE_MAX_MS / 1e3, "s"),
+    Option("failsafe_action", "str", "abrupt", choices=tuple(a.name.lower() for a in FailsafeAction)))
+FAILSAFE_OPTION_NAMES = frozenset(o.name for o in FAILSAFE_OPTIONS)
+#: the feeder sends when the link has been idle this fraction of the failsafe's timeout: three
+#: feeds may be lost on the line before the bridge trips
+FEED_FRACTION = 0.25
+
+
+def failsafe_options(url: str) -> tuple[float, FailsafeAction]:
+    """``failsafe=SECONDS`` (0: off, else 0.05..10) and ``failsafe_action=abrupt|smooth|off``
+    of a bridge port's URL; ValueError naming the option (the other options are not looked at)."""
+    opts = parse_options(url, FAILSAFE_OPTIONS,
+                         ignore=set(query_params(url)) - FAILSAFE_OPTION_NAMES)
+    seconds = opts["failsafe"]
+    if seconds and round(seconds * 1e3) < FAILSAFE_MIN_MS:
+        raise ValueError(f"{url}: failsafe={seconds:g} is outside 0 (off) or "
+                         f"{FAILSAFE_MIN_MS / 1e3:g}..{FAILSAFE_MAX_MS / 1e3:g} s")
+    return seconds, FailsafeAction[opts["failsafe_action"].upper()]
+
+
+class FailsafeTripped(TransportError):
+    """The bridge refused a trajectory command: its failsafe tripped (the host was silent past
+    the timeout) and no host acknowledged it yet.  ``state``: the latched trip."""
+
+    def __init__(self, message: str, *, port: str, state: FailsafeState | None) -> None:
+        super().__init__(message, port=port)
+        self.state = state
 
 
 class LinkError(TransportError):
@@ -135,7 +176,7 @@ class LinkTransport(Transport):
 
     def __init__(self, pipe: Pipe, url: str, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = None, cs: int = 0,
-                 handshake: bool = True, compact: bool = True) -> None:
+                 handshake: bool = True, compact: bool = True, arm: bool = True) -> None:
         super().__init__(url, trace=trace)
         if retries < 0:
             raise ValueError(f"retries={retries} must be >= 0")
@@ -171,9 +212,23 @@ class LinkTransport(Transport):
         #: request is preceded by a HELLO (which empties that cache) -- see :meth:`_resync`
         self._need_resync = False
         self._since_warning = 0  #: attempts since the last link-quality warning
+        #: the failsafe asked for by the URL (seconds, 0: off) and its action
+        self.failsafe_s, self.failsafe_action = failsafe_options(url)
+        self.has_failsafe = False
+        #: the trip this open found latched (and acknowledged), or one the feeder saw
+        self.failsafe_report: FailsafeState | None = None
+        #: the feeder sends after the link was idle this long (0: no feeder)
+        self.feed_period_s = 0.0
+        self._last_tx = self.clock.now()
+        self._feeder: threading.Thread | None = None
+        self._feeder_stop = threading.Event()
+        self._tx_lock = threading.Lock()  # the feeder writes a recording's feed from its thread
+        self._recording = False
         if handshake:
             try:
                 self.hello()
+                if arm:  # else the subclass arms once its own opening steps are done
+                    self._failsafe_open()
             except BaseException:
                 self.close()
                 raise
@@ -274,6 +329,7 @@ class LinkTransport(Transport):
             # before a retry, a lone delimiter ends whatever half frame the far end holds (and
             # a recording under way: any byte from the host ends one)
             out = b"\x00" + wire if attempt or ftype in _DELIMITED else wire
+            self._last_tx = clock.now()
             self.pipe.write(out)
             stats.bytes_out += len(out)
             stats.round_trips += 1
@@ -321,23 +377,29 @@ class LinkTransport(Transport):
             "before going on.", port=self.url, may_have_run=True)
 
     def _await(self, seq: int, deadline: float, pending: deque[Frame] | None = None, *,
-               bad_ends_wait: bool = True) -> Frame | None:
+               bad_ends_wait: bool = True, feed: bool = False) -> Frame | None:
         """The next reply with ``seq``, or None at ``deadline`` (a timeout) or, with
         ``bad_ends_wait``, on a bad frame: the far end does not answer a request it could not
         read, so a request calls for a retry at once.  A recording's rows come several in one
         read: the ones after the first wait in ``pending`` (taken first by the next call);
-        without ``pending`` a request has one reply and the rest are dropped."""
+        without ``pending`` a request has one reply and the rest are dropped.  With ``feed``
+        (a recording with the failsafe armed) the wait is read in feed periods, each begun
+        with a FAILSAFE_FEED when one is due."""
         if pending:
             return pending.popleft()
         queue: deque[Frame] = pending if pending is not None else deque()
         clock = self.clock
         while True:
+            if feed:
+                self._feed_recording()
             left = deadline - clock.now()
             if left <= 0:
                 self.timeouts += 1
                 return None
-            data = self.pipe.read(left)
+            data = self.pipe.read(min(left, self.feed_period_s) if feed else left)
             if not data:
+                if feed and clock.now() < deadline:
+                    continue
                 self.timeouts += 1
                 return None
             self.stats.bytes_in += len(data)
@@ -415,6 +477,7 @@ class LinkTransport(Transport):
         self.has_program_codes = (self.has_compact_run
                                   and bool(info.capabilities & Capability.PROGRAM_CODES))
         self.has_record = bool(info.capabilities & Capability.RECORD)
+        self.has_failsafe = bool(info.capabilities & Capability.FAILSAFE)
         self.far_profiles = bool(info.capabilities & Capability.PROFILE)
         self.profile_capacity = PROFILE_MAX_SCHEDULE if self.far_profiles else 0
         # a WAIT_STATUS may stand anywhere in a program (Move.wait's one-exchange end check)
@@ -500,6 +563,131 @@ class LinkTransport(Transport):
             return True
         log.warning("%s: staying at %d baud: %s", self.url, old, why)
         return False
+
+    # ------------------------------------------------------------------ the failsafe
+    def _failsafe(self, payload: bytes, what: str, retries: int | None = None) -> FailsafeState:
+        """One FAILSAFE exchange; its reply's state (TransportError when it is refused)."""
+        self._resync()
+        frame = self._exchange(FrameType.FAILSAFE, payload, self.reply_timeout(
+            wire_size(4 + len(payload)), wire_size(4 + FailsafeState.SIZE)), what,
+            self.retries if retries is None else retries)
+        try:
+            state = FailsafeState.decode(frame.payload)
+        except FrameError as exc:
+            raise TransportError(f"malformed FAILSAFE_REPLY ({exc}): reflash the bridge "
+                                 "firmware (lm629 bridge flash)", port=self.url) from None
+        if state.result != Result.OK:
+            raise TransportError(f"the bridge refused {what} (result {state.result}): reflash "
+                                 "the firmware that matches this host (lm629 bridge flash)",
+                                 port=self.url)
+        return state
+
+    def _failsafe_open(self) -> None:
+        """On open: report a latched trip (a warning) and acknowledge it, as reopening a
+        channel does; then arm the failsafe as the URL says (or disarm it)."""
+        if not self.has_failsafe:
+            return
+        with self.lock:
+            state = self._failsafe(b"", "FAILSAFE (report)")
+            if state.tripped:
+                self.failsafe_report = state
+                log.warning("%s: %s; acknowledged by this open", self.url, state.describe())
+                self._failsafe(bytes((FailsafeCmd.ACKNOWLEDGE,)), "FAILSAFE (acknowledge)")
+            self._arm()
+
+    def _arm(self) -> None:
+        if not self.failsafe_s:
+            self._failsafe(bytes((FailsafeCmd.DISARM,)), "FAILSAFE (disarm)")
+            return
+        ms = round(self.failsafe_s * 1e3)
+        self._failsafe(bytes((FailsafeCmd.ARM,)) + ms.to_bytes(2, "big")
+                       + bytes((self.failsafe_action,)), f"FAILSAFE (arm {ms} ms)")
+        self.feed_period_s = self.failsafe_s * FEED_FRACTION
+        # a far-side wait feeds only when it ends: each one shorter than the timeout
+        self.far_wait_limit_s = self.failsafe_s / 2
+        if isinstance(self._inner_clock, WallClock):
+            if self._feeder is None:
+                self._feeder = threading.Thread(target=self._feed_loop, daemon=True,
+                                                name=f"lm629 failsafe feeder {self.url}")
+                self._feeder.start()
+        elif not isinstance(self._inner_clock, FeedingClock):
+            inner = self._inner_clock
+            self.clock = FeedingClock(inner, self)
+            self._inner_clock = inner
+
+    def _feed_if_due(self) -> None:
+        """Feed the failsafe when the link has been idle for :attr:`feed_period_s` (any
+        exchange feeds it: busy links pay nothing).  A trip seen here is kept in
+        :attr:`failsafe_report` and logged once."""
+        if not self.feed_period_s or self._closed or self._recording:
+            return
+        if self.clock.now() - self._last_tx < self.feed_period_s:
+            return
+        try:
+            state = self._failsafe(b"", "FAILSAFE (feed)", retries=1)
+        except TransportError as exc:
+            log.debug("%s: failsafe feed failed: %s", self.url, exc)
+            return
+        if state.tripped and self.failsafe_report != state:
+            self.failsafe_report = state
+            log.warning("%s: %s; acknowledge it (lm629 clear, or clear_failsafe()) before "
+                        "moving again", self.url, state.describe())
+
+    def _feed_loop(self) -> None:
+        """The feeder thread (wall-clock links): while the process lives, feed whenever the
+        link is idle; never waits for the lock (a program under way feeds by itself)."""
+        while not self._feeder_stop.wait(self.feed_period_s / 2):
+            if self._closed:
+                return
+            if self._recording:
+                self._feed_recording()
+                continue
+            if not self.lock.acquire(blocking=False):
+                continue
+            try:
+                self._feed_if_due()
+            except Exception as exc:  # noqa: BLE001 - a feeder must never kill the process
+                log.debug("%s: failsafe feeder: %s", self.url, exc)
+            finally:
+                self.lock.release()
+
+    def _feed_recording(self) -> None:
+        """During a recording: FAILSAFE_FEED, the one frame a recording takes without
+        ending, when the link has been quiet for a feed period."""
+        if not self.feed_period_s or self.clock.now() - self._last_tx < self.feed_period_s:
+            return
+        with self._tx_lock:
+            if not self._recording:
+                return
+            self._last_tx = self.clock.now()
+            try:
+                self.pipe.write(FAILSAFE_FEED)
+            except OSError:
+                return
+            self.stats.bytes_out += len(FAILSAFE_FEED)
+
+    def failsafe_state(self) -> FailsafeState | None:
+        """The bridge's failsafe now (armed timeout, action, a latched trip), or None when
+        the bridge has no failsafe."""
+        if not self.has_failsafe:
+            return None
+        with self.lock:
+            return self._failsafe(b"", "FAILSAFE (report)")
+
+    def clear_failsafe(self) -> FailsafeState | None:
+        """Acknowledge a latched trip (the bridge takes trajectory commands again) and arm
+        the failsafe again.  Returns the trip acknowledged (the one this open already
+        acknowledged, if any), or None when there was none."""
+        if not self.has_failsafe:
+            return None
+        with self.lock:
+            state = self._failsafe(b"", "FAILSAFE (report)")
+            found = state if state.tripped else self.failsafe_report
+            if state.tripped:
+                self._failsafe(bytes((FailsafeCmd.ACKNOWLEDGE,)), "FAILSAFE (acknowledge)")
+            self.failsafe_report = None
+            self._arm()
+            return found
 
     # ------------------------------------------------------------------ programs
     def _chunks(self, program: Program) -> Iterator[tuple[int, int, list[BusOp]]]:
@@ -686,11 +874,26 @@ class LinkTransport(Transport):
         for cycle in cycles_of(ops, ProgramResult(tuple(words), tuple(statuses))):
             self._emit(cycle)
 
+    def _failsafe_tripped(self, nothing: str) -> FailsafeTripped:
+        """The error for a request the bridge refused because its failsafe trip is latched
+        (FAILSAFE_TRIPPED), with the trip it reports; ``nothing``: what did not happen."""
+        try:
+            state: FailsafeState | None = self._failsafe(b"", "FAILSAFE (report)")
+        except TransportError:
+            state = None
+        what = state.describe() if state is not None else "the bridge's failsafe tripped"
+        return FailsafeTripped(
+            f"{what}; {nothing}. The host was silent (suspended, hung?): acknowledge the trip "
+            "with `lm629 clear` (Python: clear_failsafe()) before moving again", port=self.url,
+            state=state)
+
     def _raise_result(self, reply: RunReply, ops: list[BusOp], base: int, program: Program,
                       words: list[int]) -> None:
         index = reply.index
         op = ops[index].describe() if index < len(ops) else f"operation {index}"
         where = f" at operation {base + index} ({op})" if index < len(ops) else ""
+        if reply.result == Result.FAILSAFE_TRIPPED:
+            raise self._failsafe_tripped("nothing of this program ran")
         if reply.result == Result.BUSY_TIMEOUT:
             # a busy timeout always read the status, so FF here is a status (a bus no chip
             # drives), not the "no status" byte
@@ -731,6 +934,8 @@ class LinkTransport(Transport):
                 raise TransportError("the bridge's PROFILE_REPLY has the wrong length: reflash "
                                      "the firmware that matches this host", port=self.url)
             result, issued, pending, late_us = PROFILE_REPLY_PAYLOAD.unpack(frame.payload)
+            if result == Result.FAILSAFE_TRIPPED:
+                raise self._failsafe_tripped("nothing of the shaped move was scheduled")
             if result == Result.BAD_PROFILE:
                 raise TransportError(
                     f"the bridge refused the shaped move's pieces (BAD_PROFILE): pieces out of "
@@ -813,6 +1018,7 @@ class LinkTransport(Transport):
                 "RECORD", self.retries, pending=pending)
             seq = first.seq
             ended = False
+            self._recording = True  # from now on the feeds are FAILSAFE_FEED
             try:
                 last_index = -1
                 last_us = None
@@ -857,13 +1063,17 @@ class LinkTransport(Transport):
                         wait = max(wait, end_at - clock.now() + silence)
                     frame = self._next_frame(seq, clock.now() + wait, pending)
             finally:
+                with self._tx_lock:
+                    self._recording = False
                 if not ended:
                     self._stop_recording(seq, pending, period)
 
     def _next_frame(self, seq: int, deadline: float, pending: deque[Frame]) -> Frame | None:
         """The next frame of the recording ``seq``, or None at ``deadline``.  A bad frame
-        does not end the wait: it was a row, and a lost row is a gap."""
-        return self._await(seq, deadline, pending, bad_ends_wait=False)
+        does not end the wait: it was a row, and a lost row is a gap.  With the failsafe armed
+        the host feeds it while it waits (a recording counts as alive only while it sends)."""
+        return self._await(seq, deadline, pending, bad_ends_wait=False,
+                           feed=bool(self._recording and self.feed_period_s))
 
     def _decode_row(self, payload: bytes, ops: Sequence[BusOp]
                     ) -> tuple[int, int, tuple[int, ...], tuple[int, ...]] | None:
@@ -903,7 +1113,8 @@ class LinkTransport(Transport):
         """End a recording early: one byte stops the bridge; its RECORD_END (or a row already
         on its way) is read and dropped, so that the next request starts on a quiet line."""
         try:
-            self.pipe.write(b"\x00")
+            with self._tx_lock:
+                self.pipe.write(b"\x00")
             self.stats.bytes_out += 1
             deadline = self.clock.now() + 2 * period + self.reply_timeout(
                 wire_size(64), wire_size(64))
@@ -921,10 +1132,23 @@ class LinkTransport(Transport):
         return f"{self.url} ({self.info.describe()})"
 
     def close(self) -> None:
+        """Disarm the failsafe (a clean close: an axis left moving on purpose keeps moving),
+        then release the port."""
         if not self._closed:
+            self._feeder_stop.set()
+            if self.feed_period_s:
+                try:
+                    with self.lock:
+                        self._failsafe(bytes((FailsafeCmd.DISARM,)), "FAILSAFE (disarm)",
+                                       retries=1)
+                except (TransportError, OSError) as exc:
+                    log.debug("%s: failsafe not disarmed: %s", self.url, exc)
+                self.feed_period_s = 0.0
             self._closed = True
             self.pipe.close()
 
 
-__all__ = ["BAD_LINK_RATE", "DEFAULT_RETRIES", "ERROR_WINDOW", "LinkError", "LinkTransport", "Pipe",
+__all__ = ["BAD_LINK_RATE", "DEFAULT_RETRIES", "ERROR_WINDOW", "FAILSAFE_OPTIONS",
+           "FAILSAFE_OPTION_NAMES", "FailsafeTripped", "LinkError", "LinkTransport", "Pipe",
+           "failsafe_options",
            "WARN_LINK_RATE"]

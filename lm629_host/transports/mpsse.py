@@ -135,8 +135,16 @@ class StreamCompiler:
         return Stream()
 
     # primitives
+    #: ADBUS lines the streams leave as they are (a heartbeat pin) and their level now
+    keep: int = 0
+    keep_level: int = 0
+
+    def low_byte(self, value: int) -> int:
+        """``value`` for the ADBUS latch, with the kept lines at their level."""
+        return (value & ~self.keep) | self.keep_level
+
     def _low(self, s: Stream, value: int) -> None:
-        s.data += bytes((SET_LOW, value, pins.CTRL_DIRECTION))
+        s.data += bytes((SET_LOW, self.low_byte(value), pins.CTRL_DIRECTION))
         self.state.ctrl = value
         self.state.t += self.command_s
 

@@ -42,7 +42,7 @@ from ..errors import TransportError
 from ..program import TraceCallback
 from ..urls import Option, parse_options, query_params, with_query
 from .base import Check, PortInfo
-from .link import DEFAULT_RETRIES, LinkTransport
+from .link import DEFAULT_RETRIES, FAILSAFE_OPTIONS, LinkTransport
 
 log = logging.getLogger("lm629_host.serial")
 
@@ -73,6 +73,7 @@ OPTIONS = (
     Option("low_latency", "bool", True),
     Option("cs", "int", 0, 0, 255),
     Option("fast_baud", "int", FAST_BAUD, 0, 4_000_000, "baud"),  # 0: stay at baud
+    *FAILSAFE_OPTIONS,  # read by LinkTransport
 )
 _OPTION_NAMES = frozenset(o.name for o in OPTIONS)
 
@@ -278,7 +279,7 @@ class SerialTransport(LinkTransport):
         self.hello_total_s = max(boot_s, self.hello_interval_s)
         self.low_latency = low_latency
         self.rtt_s: float | None = None
-        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs)
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs, arm=False)
         if fast and fast != baud:
             try:
                 self.switch_baud(fast)  # a bridge that cannot: a notice, and the link stays
@@ -295,6 +296,11 @@ class SerialTransport(LinkTransport):
             self.stats.reset()
             log.info("%s: round trip %.2f ms, low latency %s", url, self.rtt_s * 1e3,
                      low_latency or "n/a")
+        try:  # last: the switch of rate and the PINGs above are not timed by the failsafe
+            self._failsafe_open()
+        except BaseException:
+            self.close()
+            raise
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SerialTransport:

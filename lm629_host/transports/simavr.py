@@ -29,14 +29,14 @@ from ..sim.model import chips_of
 from ..sim.usb import OPTION_NAMES as USB_OPTIONS
 from ..sim.usb import wrap_usb
 from ..urls import Option, parse_options, query_params
-from .link import DEFAULT_RETRIES, LinkTransport
+from .link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
 from .sim import ModelChips
 
 #: URL options of this transport (the others are the chip model's)
 OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
            Option("firmware", "str", ""),
            Option("fast_baud", "int", 0, 0, 4_000_000, "baud"))  # 0: stay at baud
-OWN_PARAMS = frozenset(o.name for o in OPTIONS) | USB_OPTIONS
+OWN_PARAMS = frozenset(o.name for o in OPTIONS) | USB_OPTIONS | FAILSAFE_OPTION_NAMES
 
 
 class SimAvrTransport(ModelChips, LinkTransport):

@@ -14,7 +14,7 @@ from ..sim.model import ChipBus, ChipModel, chips_of
 from ..sim.usb import OPTION_NAMES as USB_OPTIONS
 from ..sim.usb import wrap_usb
 from ..urls import Option, parse_options, query_params
-from .link import DEFAULT_RETRIES, LinkTransport
+from .link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
 from .sim import ModelChips
 
 
@@ -59,7 +59,7 @@ def open_emulated(url: str = "sim://", *, baud: int | None = None,
            Option("bridge", "str", "", choices=("", "1", str(len(CHIP_SELECTS)))),
            Option("fast_baud", "int", 0, 0, 4_000_000, "baud (0: stay at baud)"),
            Option("max_baud", "int", 0, 0, 4_000_000, "baud (0: any)"))
-    names = {"baud", "bridge", "fast_baud", "max_baud"} | USB_OPTIONS
+    names = {"baud", "bridge", "fast_baud", "max_baud"} | USB_OPTIONS | FAILSAFE_OPTION_NAMES
     opts = parse_options(url, own, ignore=set(query_params(url)) - {o.name for o in own})
     if baud is None:
         baud = opts["baud"]

@@ -90,9 +90,12 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
         ftdi = open_mpsse(url, latency, frequency, device=usb_dev)
         # busy_us None: measured at open on the chip model, through the emulated adapter
+        if opts["heartbeat"] is not None:  # ADBUS7 is the heartbeat, not a second /CS
+            device.chip_select_lines = ftdi_pins.CHIP_SELECTS[:1]
         t = cls(ftdi, url, trace=trace, clock=EmulatedClock(device),
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
-                latency_ms=latency, busy_pin=busy_pin)
+                latency_ms=latency, busy_pin=busy_pin, heartbeat=opts["heartbeat"],
+                heartbeat_hz=opts["heartbeat_hz"])
         t.model, t.device, t._strict, t._violations = model, device, strict, []
         t.models = chips_of(model)
         return t

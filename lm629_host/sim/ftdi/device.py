@@ -149,6 +149,8 @@ class EmulatedFT232H:
                  busy_pin: bool = False, live_status: bool | None = None,
                  wiring: Miswiring | None = None) -> None:
         self.model = model
+        #: the /CS lines wired (a heartbeat on ADBUS7 leaves the first alone)
+        self.chip_select_lines: tuple[int, ...] = pins.CHIP_SELECTS
         #: ``wiring=``: the wires between ACBUS0-7 and the chip's D0-D7 (None: correct); a
         #: byte is bent where the chip latches it and where it drives the bus
         self.wiring = wiring
@@ -498,7 +500,7 @@ class EmulatedFT232H:
 
     def _selected_chip(self) -> ChipModel | None:
         """The chip whose /CS is low (one only), or None."""
-        low = [k for k, cs in enumerate(pins.CHIP_SELECTS) if not self._ctrl & cs]
+        low = [k for k, cs in enumerate(self.chip_select_lines) if not self._ctrl & cs]
         chips = chips_of(self.model)
         if len(low) != 1 or low[0] >= len(chips) or (len(chips) == 1 and low[0] != 0):
             return None
@@ -570,7 +572,7 @@ class EmulatedFT232H:
                           ("RST", pins.RST), ("CS1", pins.CS1)):
             if changed & bit:
                 self._edge_ns[name + ("_rise" if level & bit else "_fall")] = now
-        low = [k for k, cs in enumerate(pins.CHIP_SELECTS) if not level & cs]
+        low = [k for k, cs in enumerate(self.chip_select_lines) if not level & cs]
         selected = len(low) == 1
         if len(low) > 1 and changed & (pins.RD | pins.WR) and not level & (pins.RD | pins.WR):
             self._timing("two chips selected during a strobe")
