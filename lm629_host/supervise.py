@@ -25,7 +25,7 @@ from .safety import motion_fault, stop_on_error
 from .snapshot import Snapshot
 
 
-class LM629(Protocol):
+class SupervisedChip(Protocol):
     """What supervision needs of its chip (an :class:`~lm629_host.LM629` is one), declared
     here because the driver offers :meth:`LM629.run_velocity <lm629_host.LM629.run_velocity>`
     from this module and must not be imported back."""
@@ -61,7 +61,7 @@ class LM629(Protocol):
 INDEX_SEARCH_ACCELERATION = 655
 
 
-def wait_still(chip: LM629, limit_s: float = 1.0, *, poll: float = 0.01,
+def wait_still(chip: SupervisedChip, limit_s: float = 1.0, *, poll: float = 0.01,
                still_s: float = 0.05) -> Snapshot:
     """Read snapshots every ``poll`` seconds until the shaft has not moved (same position,
     zero velocity) for ``still_s`` seconds of the chip's clock, or ``limit_s`` have passed;
@@ -86,7 +86,7 @@ class VelocityRun:
     """A velocity-mode run (from :func:`run_velocity`): :meth:`check` that the shaft turns the
     way and at the speed asked, :meth:`stop` smoothly until it rests."""
 
-    def __init__(self, chip: LM629, velocity: int, acceleration: int | None, forward: bool,
+    def __init__(self, chip: SupervisedChip, velocity: int, acceleration: int | None, forward: bool,
                  t0: float) -> None:
         self.chip = chip
         self.velocity = velocity  #: the 16.16 word asked for
@@ -142,7 +142,7 @@ class VelocityRun:
                             error=s.following_error)
 
 
-def run_velocity(chip: LM629, velocity: int, acceleration: int | None = None, *,
+def run_velocity(chip: SupervisedChip, velocity: int, acceleration: int | None = None, *,
                  forward: bool = True) -> VelocityRun:
     """Start velocity mode at ``velocity`` (16.16 counts/sample), with ``acceleration`` loaded
     too unless None (the chip refuses a new acceleration while the motor moves with the drive
@@ -154,7 +154,7 @@ def run_velocity(chip: LM629, velocity: int, acceleration: int | None = None, *,
     return VelocityRun(chip, velocity, acceleration, forward, chip.clock.now())
 
 
-def search_index(chip: LM629, velocity: int, *, timeout: float = 10.0, forward: bool = True,
+def search_index(chip: SupervisedChip, velocity: int, *, timeout: float = 10.0, forward: bool = True,
                  acceleration: int = INDEX_SEARCH_ACCELERATION) -> int:
     """Turn slowly in velocity mode until the encoder's index pulse is latched, then stop
     (abrupt: the index position is the point, not where the shaft ends) and wait until it
