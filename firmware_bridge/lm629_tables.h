@@ -3,7 +3,7 @@
 #ifndef LM629_TABLES_H
 #define LM629_TABLES_H
 
-/* bus operations (lm629_host.program.Op) and their argument bytes (OP_ARG_BYTES) */
+/* bus operations (lm629_host.bus.program.Op) and their argument bytes (OP_ARG_BYTES) */
 #define OP_STATUS 0x01u  /* 0 argument byte(s) */
 #define OP_COMMAND 0x02u  /* 1 argument byte(s) */
 #define OP_WRITE 0x03u  /* 2 argument byte(s) */
@@ -19,7 +19,7 @@
 #define DEFAULT_BUSY_TIMEOUT_US 5000u
 #define WAIT_STATUS_POLL_US 125u  /* OP_WAIT_STATUS status read period */
 
-/* LM628/LM629 commands (lm629_host.opcodes.Cmd) */
+/* LM628/LM629 commands (lm629_host.bus.opcodes.Cmd) */
 #define CMD_RESET 0x00u
 #define CMD_STT 0x01u
 #define CMD_DFH 0x02u
@@ -43,7 +43,7 @@
 #define CMD_SBPA 0x20u
 #define CMD_SBPR 0x21u
 
-/* status byte bits (lm629_host.opcodes.Status) */
+/* status byte bits (lm629_host.bus.opcodes.Status) */
 #define STATUS_BUSY 0x01u
 #define STATUS_COMMAND_ERROR 0x02u
 #define STATUS_TRAJECTORY_COMPLETE 0x04u
@@ -177,7 +177,7 @@
     0x1F, 0x3E, 0x5D, 0x7C, 0x9B, 0xBA, 0xD9, 0xF8, 0x17, 0x36, 0x55, 0x74, 0x93, 0xB2, 0xD1, 0xF0, \
 }
 
-/* pin map (lm629_host.bridge.pins): Uno pin, port bit, LM629 pin */
+/* pin map (lm629_host.wiring.uno): Uno pin, port bit, LM629 pin */
 /*    D2 = PD2 -> D0 (io) */
 /*    D3 = PD3 -> D1 (io) */
 /*    D4 = PD4 -> D2 (io) */

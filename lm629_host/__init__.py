@@ -9,13 +9,13 @@
 The names here (``__all__``) are what a lab script needs: opening a chip or a board, moves and
 their results, the errors, the status flags, units, stopping, planning and tuning
 (docs/python.md lists them).  Everything else lives in its module (``lm629_host.urls``,
-``lm629_host.program``...).  :func:`autotune` is imported on first use (the tuner is the
+``lm629_host.bus.program``...).  :func:`autotune` is imported on first use (the tuner is the
 largest module and most scripts never call it); nothing here imports the simulator.
 """
 
 import typing as _typing
 
-from .errors import (
+from lm629_host.errors import (
     ArgumentError,
     AxisError,
     BusyTimeout,
@@ -30,26 +30,26 @@ from .errors import (
     UpdateTooSoon,
     WaitTimeout,
 )
-from .lm629 import LM629, Snapshot
-from .move import Move, MoveResult, MoveRules
-from .opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
-from .ports import resolve_port as _resolve_port
-from .program import DEFAULT_BUSY_TIMEOUT_S as _DEFAULT_BUSY_TIMEOUT_S
-from .program import BusCycle, Program, ProgramResult
-from .safety import emergency_stop, stop_on_error
-from .supervise import VelocityRun, run_velocity, search_index, wait_still
-from .transports import DEFAULT_URL
-from .units import Scale
+from lm629_host.chip.lm629 import LM629, Snapshot
+from lm629_host.chip.move import Move, MoveResult, MoveRules
+from lm629_host.bus.opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
+from lm629_host.transports.ports import resolve_port as _resolve_port
+from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S as _DEFAULT_BUSY_TIMEOUT_S
+from lm629_host.bus.program import BusCycle, Program, ProgramResult
+from lm629_host.chip.safety import emergency_stop, stop_on_error
+from lm629_host.chip.supervise import VelocityRun, run_velocity, search_index, wait_still
+from lm629_host.transports import DEFAULT_URL
+from lm629_host.physics.units import Scale
 
 __version__ = "0.1.0"
 
-from .board import Board, BoardMove, LinearPlan, open_board, plan_linear
+from lm629_host.motion.board import Board, BoardMove, LinearPlan, open_board, plan_linear
 
 if _typing.TYPE_CHECKING:
-    from .tuning import TuneResult, autotune
+    from lm629_host.bench.tuning import TuneResult, autotune
 
 #: names imported on first use: name -> module
-_LAZY = {"autotune": ".tuning", "TuneResult": ".tuning"}
+_LAZY = {"autotune": ".bench.tuning", "TuneResult": ".bench.tuning"}
 
 
 def __getattr__(name: str) -> _typing.Any:
@@ -69,7 +69,7 @@ def open(url: str = DEFAULT_URL, *, chip: str | None = None,  # noqa: A001 - lm6
 
     ``chip`` is "lm628" or "lm629" and ``clock`` the chip's clock (Hz, or ``"6MHz"``); either
     may be said in the URL instead (``?chip=lm628&clock=6MHz``), and where both say it they
-    must agree (:func:`lm629_host.ports.resolve_port`).  ``trace`` is called with a
+    must agree (:func:`lm629_host.transports.ports.resolve_port`).  ``trace`` is called with a
     :class:`BusCycle` for every bus cycle.  ``busy_timeout`` (s) bounds every busy check (0.2
     to 65.5 ms; default 5 ms).  On a multi-axis board ``?cs=k`` opens the chip on chip select
     ``k`` (default 0); :func:`open_board` opens them all.

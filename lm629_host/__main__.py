@@ -1,3 +1,3 @@
-from .cli import main
+from lm629_host.cli import main
 
 main()

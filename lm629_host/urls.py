@@ -183,7 +183,7 @@ def _fmt(v: float | None) -> str:
     return str(int(v)) if float(v).is_integer() and abs(v) < 1e12 else f"{v:g}"
 
 
-#: the options that describe the board, taken on any URL (lm629_host.ports takes them out
+#: the options that describe the board, taken on any URL (lm629_host.transports.ports takes them out
 #: before a transport sees the rest)
 BOARD_OPTIONS = frozenset({"chip", "clock", "axes", "cs"})
 

@@ -20,14 +20,14 @@ import pytest
 
 import lm629_host
 from lm629_host.sim import avr as avrsim
-from lm629_host.program import BusCycle
+from lm629_host.bus.program import BusCycle
 
 from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
 
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"
 
 #: the ``firmware_built`` fixture, for every test module that asks for it by name; pytester
-#: runs the lm629 pytest plugin (tests/test_pytest_plugin.py)
+#: runs the lm629 pytest plugin (tests/integrations/test_pytest_plugin.py)
 pytest_plugins = ("firmware_helpers", "pytester")
 
 
@@ -178,7 +178,7 @@ def signal_on_row(monkeypatch):
     or a ``kill`` would arrive mid-program; returns the list of chips opened."""
     import os
     from lm629_host.cli import app as cli_app
-    from lm629_host.opcodes import Cmd
+    from lm629_host.bus.opcodes import Cmd
 
     def arm(signum: int, row: int = 3) -> list:
         chips = []

@@ -1,10 +1,10 @@
 """The chip model's flattened sample loops as a bare filter, for the tests that check other
-code (:mod:`lm629_host.pid`, the tuner's predictor) against them: the loops are the model's
-fast path, written apart from :mod:`lm629_host.pid`, so they are an independent reference."""
+code (:mod:`lm629_host.physics.pid`, the tuner's predictor) against them: the loops are the model's
+fast path, written apart from :mod:`lm629_host.physics.pid`, so they are an independent reference."""
 
 from __future__ import annotations
 
-from lm629_host.pid import output_shift
+from lm629_host.physics.pid import output_shift
 from lm629_host.sim.model import fastloop
 
 try:

@@ -3,7 +3,7 @@
 Run as a script to write ``tests/data/mpsse_streams.json`` (``python tests/mpsse_golden.py``).
 The file checked in was written by the code *before* the compiler moved out of
 ``transports/ftdi.py`` into ``transports/mpsse.py`` (branch ftdi, commit 2728094), so that
-``tests/test_mpsse_golden.py`` proves the move changed no byte; the two calibrated sessions
+``tests/transports/test_mpsse_streams.py`` proves the move changed no byte; the two calibrated sessions
 with a busy repeat (``sim+ftdi://`` and ``?axes=2``) are written by the code that doubles the
 wait after a repeat, the rest as the move left them.  Two levels are captured:
 
@@ -75,7 +75,7 @@ def compiled() -> dict[str, Any]:
     except ImportError:  # commit 2728094, which wrote the golden file, has them in ftdi.py
         from lm629_host.transports.ftdi import (  # type: ignore[attr-defined, no-redef]  # there at 2728094
             StreamCompiler, chips_of_units, streams_of)
-    from lm629_host.ftdi_pins import FIFO_BYTES
+    from lm629_host.wiring.ft232h import FIFO_BYTES
     setups: dict[str, Callable[[], Any]] = {
         "fixed100": lambda: StreamCompiler(6e6, 100e-6),
         "measured22": lambda: StreamCompiler(6e6, 22e-6, COMMAND_S),

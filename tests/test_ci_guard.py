@@ -17,7 +17,7 @@ def _pytest(env_extra: dict[str, str]) -> subprocess.CompletedProcess:
     env["PATH"] = str(Path(sys.executable).parent)
     env.update(env_extra)
     return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                           "tests/test_soak_checker.py"], cwd=ROOT, env=env,
+                           "tests/sim/test_soak_checker.py"], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=120)
 
 

@@ -110,7 +110,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def test_no_import_circles():
     graph = _graph()
-    assert "lm629_host.lm629" in graph and graph["lm629_host.cli"]  # the walk sees the package
+    assert "lm629_host.chip.lm629" in graph and graph["lm629_host.cli"]  # the walk sees the package
     assert _cycles(graph) == []
 
 
@@ -148,8 +148,8 @@ def test_every_transport_is_in_transports():
     for info in pkgutil.walk_packages(lm629_host.__path__, "lm629_host."):
         if info.name.endswith("__main__"):  # that one runs the CLI
             continue
-        if info.name == "lm629_host.labgrid_driver" and importlib.util.find_spec("labgrid") is None:
-            continue  # the optional extra, in a venv of its own (tests/test_labgrid.py)
+        if info.name == "lm629_host.integrations.labgrid_driver" and importlib.util.find_spec("labgrid") is None:
+            continue  # the optional extra, in a venv of its own (tests/integrations/test_labgrid.py)
         if info.name.startswith("lm629_host.sigrok.lm629"):
             continue  # the sigrok decoder runs inside libsigrokdecode, which provides its import
         importlib.import_module(info.name)
@@ -198,9 +198,9 @@ def test_the_package_root_is_what_a_lab_script_needs():
     code = (
         "import sys, types\n"
         "import lm629_host\n"
-        "assert 'lm629_host.tuning' not in sys.modules, 'tuning imported eagerly'\n"
+        "assert 'lm629_host.bench.tuning' not in sys.modules, 'tuning imported eagerly'\n"
         "from lm629_host import Scale, autotune, emergency_stop, MotionError, MotionFault\n"
-        "assert 'lm629_host.tuning' in sys.modules and autotune.__module__ == 'lm629_host.tuning'\n"
+        "assert 'lm629_host.bench.tuning' in sys.modules and autotune.__module__ == 'lm629_host.bench.tuning'\n"
         "public = [n for n in dir(lm629_host) if (not n.startswith('_') or n == '__version__')\n"
         "          and not isinstance(getattr(lm629_host, n), types.ModuleType)]\n"
         "lazy = {'autotune', 'TuneResult'}\n"
@@ -354,3 +354,53 @@ def test_no_issue_number_in_a_comment_or_docstring():
     found = [f"{path.relative_to(ROOT)}:{n}: {text.strip()[:60]}" for path in paths
              for n, text in _comments_and_docstrings(path) if ISSUE_NUMBER.search(text)]
     assert found == []
+
+
+#: the layers, bottom first: a module imports only from its own layer and those below it.
+#: The foundations (errors, clock, urls) are top-level modules every layer uses; ``units`` and
+#: ``tuning`` are the two kept module paths (re-exports) and the package root is the top.
+LAYERS: list[tuple[str, ...]] = [
+    ("errors", "clock", "urls", "data"),
+    ("bus",),  # the chip's bus: opcodes, pins, bus programs, the snapshot
+    ("physics",),  # PID, motor, plans, units: arithmetic, no I/O
+    ("wiring",),  # pin maps of the adapters and the wiring-fault vocabulary
+    ("bridge",),  # the serial bridge's link protocol, shared with the firmware and far end
+    ("sim",),  # the simulated chip, motor, far ends and adapters
+    ("transports",),  # the ports, and what settles a URL into one
+    ("chip",),  # the typed command layer: LM629, moves, waits, recordings, batches
+    ("motion",),  # boards, supervised runs, bench profiles
+    ("bench",),  # bring-up, tuning, capture, scope, wiring check and drawing
+    # the doors, the sigrok decoder (loaded by libsigrokdecode, imports nothing of ours), and
+    # the root
+    ("cli", "integrations", "sigrok", "units", "tuning", "__main__", ""),
+]
+
+
+def _layer_of(module: str) -> int:
+    part = module.split(".")[1] if "." in module else ""
+    for i, names in enumerate(LAYERS):
+        if part in names:
+            return i
+    raise AssertionError(f"{module} is in no layer of tests/test_layout.py's LAYERS")
+
+
+def test_every_import_points_down_the_layers():
+    """``bus`` <- ``physics`` <- ``wiring`` <- ``bridge`` <- ``sim`` <- ``transports`` <-
+    ``chip`` <- ``motion`` <- ``bench`` <- ``cli``: no module imports from a layer above its
+    own, type-checking imports included."""
+    graph = _graph()
+    up = sorted(f"{m} -> {d}" for m, deps in graph.items() for d in deps
+                if _layer_of(d) > _layer_of(m))
+    assert up == []
+
+
+def test_the_layer_rule_sees_an_upward_import():
+    assert _layer_of("lm629_host.chip.lm629") > _layer_of("lm629_host.transports.base")
+    assert _layer_of("lm629_host.bus.opcodes") < _layer_of("lm629_host.sim.model.chip")
+
+
+def test_at_most_eight_modules_at_the_top():
+    """The package's top level holds its subpackages, ``__init__``/``__main__``, the
+    foundations and the two kept module paths: a new module goes in the layer it belongs to."""
+    top = sorted(p.stem for p in PKG.glob("*.py") if p.stem not in ("__init__", "__main__"))
+    assert len(top) <= 8, top

@@ -103,7 +103,7 @@ def test_a_lab_test_file_runs_under_plain_pytest(installed):
     assert r.returncode == 0, r.stdout + r.stderr
     assert "6 passed, 1 skipped" in r.stdout
     assert "lm629_hardware: needs a real board (--lm629-port is sim://, simulated)" in r.stdout
-    r = subprocess.run([str(py), "-c", "import lm629_host.pytest_plugin as p; print(p.__file__)"],
+    r = subprocess.run([str(py), "-c", "import lm629_host.integrations.pytest_plugin as p; print(p.__file__)"],
                        capture_output=True, text=True, cwd=lab, check=True)
     assert Path(r.stdout.strip()).is_relative_to(site)
 

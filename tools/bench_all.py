@@ -92,7 +92,7 @@ def probe_cost() -> dict:
     baseline and on this tree in turn, three times, and takes the medians (the machine's load
     drifts: interleaving keeps "before" and "after" under the same load)."""
     from lm629_host import Status
-    from lm629_host.opcodes import Cmd
+    from lm629_host.bus.opcodes import Cmd
 
     out: dict = {}
     chip = _chip()
@@ -120,7 +120,7 @@ def probe_core() -> dict:
     import tracemalloc
 
     import lm629_host
-    from lm629_host.opcodes import Cmd
+    from lm629_host.bus.opcodes import Cmd
 
     out: dict = {"module": lm629_host.__file__}
     chip = _chip()
@@ -235,7 +235,7 @@ def probe_usb() -> dict:
     snapshot rows, on the bridge where it records there, else host-polled).  Three runs at
     different phases (usb_seed 0-2, the move started i/3 of a flush tick later) are averaged."""
     import lm629_host
-    from lm629_host.recording import sample_program
+    from lm629_host.chip.recording import sample_program
     from lm629_host.sim.usb import UNO_FLUSH_S
 
     out: dict = {}
@@ -438,7 +438,7 @@ def write_failsafe(block: str) -> None:
 def probe_after() -> dict:
     """The figures only measured now: the other transports, the variants of waiting."""
     import lm629_host
-    import lm629_host.lm629 as lm
+    import lm629_host.chip.lm629 as lm
     from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
     from lm629_host.transports.simemu import EmuLinkTransport
     from lm629_host.bridge.protocol import HelloInfo
@@ -481,7 +481,7 @@ def probe_after() -> dict:
     # the chip model alone (tools/bench_model.py's measure), bring-up end to end
     sys.path.insert(0, str(ROOT / "tools"))
     import bench_model
-    from lm629_host.bringup import run_bringup
+    from lm629_host.bench.bringup import run_bringup
 
     out["model_move_x"] = _median3(lambda: bench_model.measure("move", "auto", 10.0, 0.1)[0])
 

@@ -1,7 +1,7 @@
 """How long the bench commands take: ``lm629 bringup`` per transport, ``lm629 step``, start-up.
 
 Prints, for each simulated transport, the wall time of the whole bring-up sequence
-(:func:`lm629_host.bringup.run_bringup`, in-process), the simulated time it covered and the
+(:func:`lm629_host.bench.bringup.run_bringup`, in-process), the simulated time it covered and the
 ratio, plus the bus programs and round trips it needed; then the wall time of a 0.5 s step
 capture (CSV only) and of starting the ``lm629`` console script (``--help``) in a subprocess.
 
@@ -18,8 +18,8 @@ import tempfile
 import time
 
 import lm629_host
-from lm629_host.bringup import run_bringup
-from lm629_host.capture import capture_move, write_csv
+from lm629_host.bench.bringup import run_bringup
+from lm629_host.bench.capture import capture_move, write_csv
 
 
 def bench_bringup(url: str, repeats: int) -> None:

@@ -19,7 +19,7 @@ import time
 
 import lm629_host
 from lm629_host.sim.model import ChipModel, ChipParams
-from lm629_host.opcodes import Cmd
+from lm629_host.bus.opcodes import Cmd
 
 
 def per_call_us(fn, n: int) -> float:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from lm629_host.board import Board
+from lm629_host.motion.board import Board
 from lm629_host.sim.model import chips_of
 from lm629_host.sim.serve import SimServer
 
@@ -43,7 +43,7 @@ NEVER_S = 2.0
 
 CLIENT = textwrap.dedent(f"""\
     import os, sys, time
-    from lm629_host.board import open_board
+    from lm629_host.motion.board import open_board
     url, how = sys.argv[1], sys.argv[2]
     b = open_board(url, axes=2)
     b.reset()

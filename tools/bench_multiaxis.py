@@ -21,7 +21,7 @@ import statistics
 
 import lm629_host
 from lm629_host.sim.model import chips_of
-from lm629_host.opcodes import Cmd
+from lm629_host.bus.opcodes import Cmd
 
 TRANSPORTS = [
     ("sim://", "sim://"),

@@ -18,7 +18,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
-from lm629_host.profile_shapes import SCurve
+from lm629_host.chip.shapes import SCurve
 
 URLS = ("sim+avr://?usb=uno&fast_baud=1000000", "sim+emu://?usb=uno&fast_baud=1000000", "sim://")
 

@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
 from lm629_host.errors import MotionError
-from lm629_host.tuning import Gains, MoveMetrics, MoveProfile, autotune, measure_move, score
+from lm629_host.bench.tuning import Gains, MoveMetrics, MoveProfile, autotune, measure_move, score
 
 MOTORS = (
     ("default", ""),

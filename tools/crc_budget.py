@@ -43,8 +43,8 @@ from lm629_host.bridge.protocol import (
     run_payload,
     short_reply_payload,
 )
-from lm629_host.opcodes import Cmd
-from lm629_host.program import BusOp, Op
+from lm629_host.bus.opcodes import Cmd
+from lm629_host.bus.program import BusOp, Op
 
 
 def frames() -> list[tuple[str, bytes]]:

@@ -3,7 +3,7 @@
 
 One line per frame: ``name<TAB>decoded-hex<TAB>encoded-hex`` (decoded = type, seq, payload,
 CRC; encoded = COBS of it plus the 0x00 delimiter).  The Python tests
-(``tests/test_link_golden.py``) and the firmware's C tests read the same file; this script
+(``tests/transports/test_link_golden.py``) and the firmware's C tests read the same file; this script
 makes it from the Python codec, and the Python test fails when file and codec drift apart.
 
     python3 tools/gen_golden_frames.py          # rewrite the file
@@ -36,8 +36,8 @@ from lm629_host.bridge.protocol import (
     run_payload,
     short_reply_payload,
 )
-from lm629_host.opcodes import Cmd
-from lm629_host.program import Program
+from lm629_host.bus.opcodes import Cmd
+from lm629_host.bus.program import Program
 from generated import write_or_check
 
 OUT = Path(__file__).resolve().parent.parent / "firmware_bridge" / "golden_frames.txt"
@@ -129,7 +129,7 @@ def frames() -> list[tuple[str, bytes]]:
 
 def render() -> str:
     lines = ["# name<TAB>decoded-hex<TAB>encoded-hex  (made by tools/gen_golden_frames.py; "
-             "read by tests/test_link_golden.py and the firmware's C tests)"]
+             "read by tests/transports/test_link_golden.py and the firmware's C tests)"]
     for name, body in frames():
         lines.append(f"{name}\t{body.hex()}\t{(cobs_encode(body) + bytes(1)).hex()}")
     return "\n".join(lines) + "\n"

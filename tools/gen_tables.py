@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Write ``firmware_bridge/lm629_tables.h``: the facts the firmware shares with the host.
 
-Bus operation codes and their argument sizes (``lm629_host/program.py``), the chip's opcodes
-and status bits (``lm629_host/opcodes.py``), the link protocol constants
-(``lm629_host/bridge/protocol.py:c_defines``) and the pin map (``lm629_host/bridge/pins.py``) each have one
+Bus operation codes and their argument sizes (``lm629_host/bus/program.py``), the chip's opcodes
+and status bits (``lm629_host/bus/opcodes.py``), the link protocol constants
+(``lm629_host/bridge/protocol.py:c_defines``) and the pin map (``lm629_host/wiring/uno.py``) each have one
 definition in Python; the firmware includes this generated header instead of a second copy.
 ``tests/test_firmware_tables.py`` fails when the committed header is stale.
 
@@ -19,10 +19,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lm629_host.bridge import pins  # noqa: E402 - after sys.path.insert
+from lm629_host.wiring import uno as pins  # noqa: E402 - after sys.path.insert
 from lm629_host.bridge.protocol import _CRC_TABLE, FAILSAFE_FEED, c_defines  # noqa: E402 - after sys.path.insert
-from lm629_host.opcodes import Cmd, Status  # noqa: E402 - after sys.path.insert
-from lm629_host.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, WAIT_STATUS_POLL_US, Op  # noqa: E402 - after sys.path.insert
+from lm629_host.bus.opcodes import Cmd, Status  # noqa: E402 - after sys.path.insert
+from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, WAIT_STATUS_POLL_US, Op  # noqa: E402 - after sys.path.insert
 from generated import write_or_check  # noqa: E402 - after sys.path.insert
 
 OUT = ROOT / "firmware_bridge" / "lm629_tables.h"
@@ -35,7 +35,7 @@ def render() -> str:
         "#ifndef LM629_TABLES_H",
         "#define LM629_TABLES_H",
         "",
-        "/* bus operations (lm629_host.program.Op) and their argument bytes (OP_ARG_BYTES) */",
+        "/* bus operations (lm629_host.bus.program.Op) and their argument bytes (OP_ARG_BYTES) */",
     ]
     for op in Op:
         lines.append(f"#define OP_{op.name} 0x{int(op):02X}u  /* {OP_ARG_BYTES[op]} argument byte(s) */")
@@ -46,10 +46,10 @@ def render() -> str:
     lines.append(f"#define OP_ARG_BYTES_INIT {{ {table} }}")
     lines.append(f"#define DEFAULT_BUSY_TIMEOUT_US {round(DEFAULT_BUSY_TIMEOUT_S * 1e6)}u")
     lines.append(f"#define WAIT_STATUS_POLL_US {WAIT_STATUS_POLL_US}u  /* OP_WAIT_STATUS status read period */")
-    lines += ["", "/* LM628/LM629 commands (lm629_host.opcodes.Cmd) */"]
+    lines += ["", "/* LM628/LM629 commands (lm629_host.bus.opcodes.Cmd) */"]
     for c in Cmd:
         lines.append(f"#define CMD_{c.name} 0x{int(c):02X}u")
-    lines += ["", "/* status byte bits (lm629_host.opcodes.Status) */"]
+    lines += ["", "/* status byte bits (lm629_host.bus.opcodes.Status) */"]
     for s in Status:
         lines.append(f"#define STATUS_{s.name} 0x{int(s):02X}u")
     lines += ["", "/* link protocol (lm629_host.bridge.protocol, firmware_bridge/PROTOCOL.md) */"]
@@ -67,7 +67,7 @@ def render() -> str:
         chunk = (hi + lo)[row:row + 16]
         lines.append("    " + ", ".join(f"0x{b:02X}" for b in chunk) + ", \\")
     lines.append("}")
-    lines += ["", "/* pin map (lm629_host.bridge.pins): Uno pin, port bit, LM629 pin */"]
+    lines += ["", "/* pin map (lm629_host.wiring.uno): Uno pin, port bit, LM629 pin */"]
     for w in pins.WIRING:
         lines.append(f"/*   {w.board_pin:>3} = P{w.port}{w.bit} -> {w.chip_pin} ({w.direction}) */")
     lines += [

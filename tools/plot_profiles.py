@@ -5,7 +5,7 @@ error at every sample, plotted for docs/python.md (AN-706 4.5.3).
 
 The move: 20000 counts, 20000 counts/s, kp 20 kd 800 (kd 100, the bring-up gains, leaves the
 10x inertia ringing into a following-error fault for both shapes).  The S-curve
-(`lm629_host.profile_shapes.SCurve`, 150000 counts/s^2, 3e6 counts/s^3) is run by
+(`lm629_host.chip.shapes.SCurve`, 150000 counts/s^2, 3e6 counts/s^3) is run by
 `chip.move_profile` in 20 ms pieces; the trapezoid takes the same velocity and the acceleration
 that gives it the S-curve's planned duration.  The chip's registers are read at every sample
 (the model's readable sample loop, `fast=0`): this is the simulator's view, not a bus
@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
 from lm629_host.errors import MotionError
-from lm629_host.pid import sample_period_s
-from lm629_host.profile_shapes import SCurve, plan
+from lm629_host.physics.pid import sample_period_s
+from lm629_host.chip.shapes import SCurve, plan
 
 D, V, A, J = 20000, 20000.0, 150000.0, 3e6
 KD = 800

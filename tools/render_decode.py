@@ -18,7 +18,7 @@ import tempfile
 from pathlib import Path
 
 import lm629_host
-from lm629_host.opcodes import Cmd
+from lm629_host.bus.opcodes import Cmd
 from lm629_host.sigrok import Annotation, decode
 
 #: the decoder's rows, top to bottom, and their colours

@@ -21,8 +21,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
-from lm629_host.connections import adapter_pin
-from lm629_host.wiring import adapter_for, check_wiring, suspects_of_data_bus
+from lm629_host.wiring.connections import adapter_pin
+from lm629_host.bench.wiring_check import adapter_for, check_wiring, suspects_of_data_bus
 
 URLS = ["sim://", "sim+emu://", "sim+avr://", "sim+ftdi://"]
 

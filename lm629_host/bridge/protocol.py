@@ -20,9 +20,9 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-from ..clock import Clock
-from ..opcodes import UPDATE_INTERVAL_S, Cmd, Status, TrajectoryFlags
-from ..program import OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program
+from lm629_host.clock import Clock
+from lm629_host.bus.opcodes import UPDATE_INTERVAL_S, Cmd, Status, TrajectoryFlags
+from lm629_host.bus.program import OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program
 
 # ---------------------------------------------------------------------------------- constants
 #: version of PROTOCOL.md implemented here; HELLO_REPLY must carry the same

@@ -11,16 +11,16 @@ A new command is a function in its family's module decorated with ``@main.comman
 
 from __future__ import annotations
 
-from . import bench, chip, motion, profile, scope, shell, wiring  # noqa: F401 - importing them registers their commands
-from ..safety import Terminated
-from .app import EXIT_CODES, Session, main
-from .bridge import bridge
-from .calc import calc
-from .common import snapshot_dict
-from .sigrok import sigrok
-from .sim import sim
-from .tune import tune
-from .types import parse_int
+from lm629_host.cli import bench, chip, motion, profile, scope, shell, wiring  # noqa: F401 - importing them registers their commands
+from lm629_host.chip.safety import Terminated
+from lm629_host.cli.app import EXIT_CODES, Session, main
+from lm629_host.cli.bridge import bridge
+from lm629_host.cli.calc import calc
+from lm629_host.cli.common import snapshot_dict
+from lm629_host.cli.sigrok import sigrok
+from lm629_host.cli.sim import sim
+from lm629_host.cli.tune import tune
+from lm629_host.cli.types import parse_int
 
 main.add_command(calc)
 main.add_command(tune)

@@ -7,7 +7,7 @@ Each command opens the port (``--port``, else ``$LM629_PORT``, else the simulato
 job through :class:`lm629_host.LM629` and closes it.  Every number is checked before anything
 moves (:mod:`lm629_host.cli.types`).  Moves go through :meth:`LM629.move_to`: done means the
 shaft rests on the target, anything else is a motion fault (exit 9).  Commands that start a
-move run inside :func:`lm629_host.safety.stop_on_error`: Ctrl-C, SIGTERM, SIGHUP (all
+move run inside :func:`lm629_host.chip.safety.stop_on_error`: Ctrl-C, SIGTERM, SIGHUP (all
 raised as KeyboardInterrupt, after the bus program under way), a closed pipe or any error
 stops the motor (abrupt stop, then motor off) before the program exits; commands that only
 read or wait never stop anything.  Errors are one line on stderr (a traceback with ``-v``) and
@@ -35,8 +35,8 @@ import click
 
 import lm629_host
 
-from ..board import Board
-from ..errors import (
+from lm629_host.motion.board import Board
+from lm629_host.errors import (
     AxisError,
     BusyTimeout,
     CommandError,
@@ -46,14 +46,14 @@ from ..errors import (
     TransportError,
     WaitTimeout,
 )
-from ..lm629 import LM629
-from ..move import MoveRules
-from ..pid import sample_period_s
-from ..ports import PortSpec, resolve_port
-from ..program import BusCycle
-from ..safety import STOP_NOTE, StopSignals
-from ..units import Scale
-from ..urls import parse_hz, query_params, with_query
+from lm629_host.chip.lm629 import LM629
+from lm629_host.chip.move import MoveRules
+from lm629_host.physics.pid import sample_period_s
+from lm629_host.transports.ports import PortSpec, resolve_port
+from lm629_host.bus.program import BusCycle
+from lm629_host.chip.safety import STOP_NOTE, StopSignals
+from lm629_host.physics.units import Scale
+from lm629_host.urls import parse_hz, query_params, with_query
 
 log = logging.getLogger("lm629_host.cli")
 
@@ -111,7 +111,7 @@ class Session:
     verbose: int
     trace: bool
     stats: bool
-    spec: PortSpec  #: the port, settled (lm629_host.ports.resolve_port)
+    spec: PortSpec  #: the port, settled (lm629_host.transports.ports.resolve_port)
     _chip: LM629 | None = None
     axis_spec: tuple[int, ...] | str | None = None  #: --axis (see cli.axes)
     _board: Any = None
@@ -135,7 +135,7 @@ class Session:
     def url(self) -> str:
         """The port URL; a simulator URL gets the global --chip/--clock/--lines unless it
         names them itself, so that the simulated chip matches the options (the conflict
-        rule is :func:`~lm629_host.ports.resolve_port`'s, applied in :func:`main`), and
+        rule is :func:`~lm629_host.transports.ports.resolve_port`'s, applied in :func:`main`), and
         ``clock=8MHz`` is written in Hz."""
         if not self.is_sim:
             return self.port
@@ -152,7 +152,7 @@ class Session:
         """Ctrl-C, SIGTERM and SIGHUP end a command the same way: raised as
         KeyboardInterrupt (Terminated for the last two) so that a moving motor is stopped,
         then the exit code says which.  A signal during a bus program is held until the
-        program has finished (:class:`~lm629_host.safety.StopSignals`), so that the safety
+        program has finished (:class:`~lm629_host.chip.safety.StopSignals`), so that the safety
         stop starts on a clean bus."""
         self.signals.install()
 
@@ -415,7 +415,7 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
         raise click.BadParameter("is empty (an unset variable in `--port \"$BOARD\"`?); "
                                  "leave --port out to use the simulator", param_hint="--port")
     url = port or lm629_host.DEFAULT_URL
-    # the rule (lm629_host.ports): a URL's chip= / clock= describe the chip; --chip and --clock
+    # the rule (lm629_host.transports.ports): a URL's chip= / clock= describe the chip; --chip and --clock
     # given on the command line must agree with them, and when not given, the URL's are used
     given = {name: ctx.get_parameter_source(name) not in (
         click.core.ParameterSource.DEFAULT, None) for name in ("chip_name", "clock")}

@@ -4,7 +4,7 @@ Why a module of its own: the commands in :mod:`lm629_host.cli` drive one chip; t
 make sense on several (``status``, ``watch``, ``move`` with several targets, ``bringup`` one
 axis after the other) call in here when more than one axis is named, and every other command
 gets the one axis it names.  All the axes of a command share one transport (one
-:class:`~lm629_host.board.Board`), so a status of every axis is one bus program.
+:class:`~lm629_host.motion.board.Board`), so a status of every axis is one bus program.
 
 Which axes: ``--axis`` as given; without it, every chip of the port URL's ``axes=`` (a
 simulator ``sim://?axes=2``, or a bridge URL ``...?axes=2``), else axis 0 alone (a one-chip
@@ -20,9 +20,9 @@ import click
 
 
 
-from ..lm629 import LM629
-from ..opcodes import FIXED_ONE
-from .app import MAX_AXIS, Session, axes_of, axis_name, board, open_axis, parse_axes, several
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bus.opcodes import FIXED_ONE
+from lm629_host.cli.app import MAX_AXIS, Session, axes_of, axis_name, board, open_axis, parse_axes, several
 
 __all__ = ["MAX_AXIS", "axes_of", "axis_name", "board", "check_targets", "move_many", "open_axis",
            "parse_axes", "several", "status", "watch_rows"]
@@ -33,7 +33,7 @@ def status(s: Session, as_json: bool, snapshot_dict: Any) -> None:
     snaps = b.snapshots(list(axes))
     rows = [dict(axis=k, **({"name": axis_name(s, k)} if s.profile is not None else {}),
                  **snapshot_dict(snap, s.scale)) for k, snap in zip(axes, snaps)]
-    from .common import failsafe_info
+    from lm629_host.cli.common import failsafe_info
     fs, fs_line = failsafe_info(b.transport)
     if as_json:
         click.echo(json.dumps({"axes": rows, "failsafe": fs}, indent=2))

@@ -9,13 +9,13 @@ import click
 
 import lm629_host
 
-from ..bringup import BringupOptions, StepResult, run_bringup
-from ..errors import BusyTimeout, LM629Error, ResetError
-from ..lm629 import LM629, check_int
-from ..opcodes import Status
-from .app import Session, _session, log, main
-from .common import _abort_is_interrupt, _flags, _position
-from .types import FINITE
+from lm629_host.bench.bringup import BringupOptions, StepResult, run_bringup
+from lm629_host.errors import BusyTimeout, LM629Error, ResetError
+from lm629_host.chip.lm629 import LM629, check_int
+from lm629_host.bus.opcodes import Status
+from lm629_host.cli.app import Session, _session, log, main
+from lm629_host.cli.common import _abort_is_interrupt, _flags, _position
+from lm629_host.cli.types import FINITE
 
 
 @main.command()
@@ -32,7 +32,7 @@ def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
     check_int("--move", move_distance, -100_000, 100_000)
     check_int("--hold-kp", hold_kp, 1, 0x7FFF)
     options = BringupOptions(hold_kp=hold_kp, move_distance=move_distance)
-    from . import axes
+    from lm629_host.cli import axes
     if axes.several(s):  # one axis after the other; the exit code is the worst
         codes = []
         for k in axes.axes_of(s):
@@ -68,7 +68,7 @@ def _bringup_one(s: Session, chip: LM629, options: BringupOptions, yes: bool) ->
 @main.command("list")
 def list_cmd() -> None:
     """Ports that can be found: simulators, serial bridges, FT232H adapters."""
-    from ..transports import transport_classes
+    from lm629_host.transports import transport_classes
     for scheme, cls, problem in transport_classes():
         if cls is None:
             click.echo(f"{scheme}://  not available: {problem}")
@@ -88,7 +88,7 @@ def list_cmd() -> None:
 def udev(path_only: bool) -> None:
     """The udev rule that lets your user open FT232H adapters (ftdi://) without root: where
     this installation keeps it, and the commands that install it."""
-    from .. import data
+    from lm629_host import data
     if path_only:
         click.echo(str(data.udev_rule()))
         return
@@ -127,7 +127,7 @@ def doctor() -> None:
     except ImportError:
         line("matplotlib", False, "missing: lm629 step writes CSV only; "
                                   "pip install 'lm629-host[plot]'")
-    from ..transports import transport_classes
+    from lm629_host.transports import transport_classes
     for scheme, cls, problem in transport_classes():
         if cls is None:
             click.echo(f"{scheme}://")
@@ -165,7 +165,7 @@ def doctor() -> None:
                     click.echo(WIRING_HINT)
             if busy == n:
                 click.echo(WIRING_HINT)
-            from .common import failsafe_info
+            from lm629_host.cli.common import failsafe_info
             fs, fs_line = failsafe_info(chip.transport)
             line("failsafe", fs is None or (not fs["tripped"] and fs["trip"] is None), fs_line)
         except LM629Error as exc:

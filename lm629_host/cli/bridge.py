@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from ..data import firmware_image
+from lm629_host.data import firmware_image
 
 #: the image shipped inside the package (``make -C firmware_bridge bundle`` made it)
 DEFAULT_HEX = firmware_image()
@@ -61,7 +61,7 @@ def bridge() -> None:
 def list_cmd(no_probe: bool, boot: float) -> None:
     """Find serial ports of usual bridge boards (Arduino Uno/Nano, CH340, FTDI) and probe
     each with the bridge handshake."""
-    from ..transports.serial import KNOWN_USB_IDS, list_ports
+    from lm629_host.transports.serial import KNOWN_USB_IDS, list_ports
 
     ports = list_ports(probe=not no_probe, boot_s=boot)
     if not ports:
@@ -93,7 +93,7 @@ def flash_cmd(port: str, board: str, hex_file: Path, avrdude: str, dry_run: bool
     No programmer hardware is needed: the board's bootloader takes the image over the same
     USB cable.  Close every program that holds the port first (serial monitor, Arduino IDE).
     """
-    from ..transports.serial import device_of
+    from lm629_host.transports.serial import device_of
 
     dev = device_of(port)
     cmd = avrdude_command(dev, hex_file, board, avrdude, verbose)

@@ -1,7 +1,7 @@
 """``lm629 calc``: the units calculator (no port is opened).
 
 rpm, revolutions and rev/s^2 <-> the chip's raw words (AN-868's formulas, in
-:class:`lm629_host.units.Scale`), and the trapezoid of AN-706 5.3 from distance, time and ramp
+:class:`lm629_host.physics.units.Scale`), and the trapezoid of AN-706 5.3 from distance, time and ramp
 time.  Raw words are printed in decimal and hex, with what the chip really runs with them (the
 words are rounded, the inverse is exact).
 """
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import click
 
-from ..units import Scale
-from .types import FINITE
+from lm629_host.physics.units import Scale
+from lm629_host.cli.types import FINITE
 
 
 def _word(value: int, digits: int = 8) -> str:
@@ -38,7 +38,7 @@ def calc(ctx: click.Context, lines: int | None, clock_hz: float | None, rpm: tup
          acceleration_word: tuple[str, ...], counts: tuple[str, ...],
          trapezoid: tuple[float, float, float] | None) -> None:
     """Units calculator: physical units <-> raw words (decimal and hex)."""
-    from .types import parse_int  # the one integer parser of the CLI
+    from lm629_host.cli.types import parse_int  # the one integer parser of the CLI
     session = ctx.find_object(object)  # the global options, when run under `lm629`
     lines = lines or getattr(session, "lines", None)
     if clock_hz is None:

@@ -9,14 +9,14 @@ from typing import Any
 
 import click
 
-from ..errors import ArgumentError, CommandError
-from ..lm629 import check_int
-from ..opcodes import VELOCITY_MAX, Status
-from ..supervise import search_index
-from ..units import FIXED_ONE
-from .app import _session, main
-from .common import _flags, _position, _show_position, _wait_flag, failsafe_info, snapshot_dict
-from .types import FINITE, INT, SIGNED_ARGS, check_writable, positive
+from lm629_host.errors import ArgumentError, CommandError
+from lm629_host.chip.lm629 import check_int
+from lm629_host.bus.opcodes import VELOCITY_MAX, Status
+from lm629_host.chip.supervise import search_index
+from lm629_host.physics.units import FIXED_ONE
+from lm629_host.cli.app import _session, main
+from lm629_host.cli.common import _flags, _position, _show_position, _wait_flag, failsafe_info, snapshot_dict
+from lm629_host.cli.types import FINITE, INT, SIGNED_ARGS, check_writable, positive
 
 
 @main.command()
@@ -24,7 +24,7 @@ from .types import FINITE, INT, SIGNED_ARGS, check_writable, positive
 def status(as_json: bool) -> None:
     """Status byte and signals register decoded, positions, velocities, integration sum."""
     s = _session()
-    from . import axes
+    from lm629_host.cli import axes
     if axes.several(s):
         return axes.status(s, as_json, snapshot_dict)
     chip = s.open()
@@ -70,7 +70,7 @@ def clear() -> None:
 @main.command()
 def reset() -> None:
     """Reset the chip and check it came back (AN-706 4.4.1)."""
-    from ..bringup import reset_with_statuses
+    from lm629_host.bench.bringup import reset_with_statuses
     chip = _session().open(prepare=False)
     st, seen = reset_with_statuses(chip)
     click.echo(f"reset ok: status bytes {' '.join(f'{x:02X}' for x in seen)}, now {int(st):02X}")
@@ -124,7 +124,7 @@ def index(wait_s: float | None, search: int | None) -> None:
         raise click.BadParameter(f"{search} must be a velocity word 1..{VELOCITY_MAX}",
                                  param_hint="--search")
     s = _session()
-    from . import profile
+    from lm629_host.cli import profile
     search, forward = profile.index_search(s, search)
     chip = s.open()
     if search is not None:  # the library's search: armed, turned, stopped, at rest; on an
@@ -196,7 +196,7 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
         check_writable(csv_path, "--csv")
     s = _session()
     scale = s.scale
-    from . import axes
+    from lm629_host.cli import axes
     if axes.several(s):
         return axes.watch_rows(s, count, rate, _flags, csv_path)
     chip = s.open()
@@ -212,9 +212,9 @@ def watch(rate: float, count: int | None, csv_path: str | None) -> None:
                + (f"{'rev':>10} {'rpm':>8} " if scale is not None else "") + f"{'st':>3} flags")
     n = 0
     start = chip.clock.now()
-    # rows timed on the far side where the transport records there (lm629_host.recording:
+    # rows timed on the far side where the transport records there (lm629_host.chip.recording:
     # the bridge's timer, the simulator's clock); else polled from the host
-    from ..recording import far_snapshots
+    from lm629_host.chip.recording import far_snapshots
     recorded = far_snapshots(chip, 1.0 / rate, count or 0)
     t0: float | None = None
     try:

@@ -10,10 +10,10 @@ from typing import Any
 
 import click
 
-from ..lm629 import LM629, Snapshot
-from ..opcodes import POSITION_MAX, POSITION_MIN, Signals, Status
-from ..units import FIXED_ONE, Scale
-from .app import Session
+from lm629_host.chip.lm629 import LM629, Snapshot
+from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Signals, Status
+from lm629_host.physics.units import FIXED_ONE, Scale
+from lm629_host.cli.app import Session
 
 
 def _flags(status: int) -> str:

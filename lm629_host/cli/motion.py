@@ -1,22 +1,22 @@
 """Commands that move the motor: ``move``, ``velocity``, ``stop``, ``home``.  Each runs inside
-:func:`lm629_host.safety.stop_on_error`: any way it ends stops the motor first."""
+:func:`lm629_host.chip.safety.stop_on_error`: any way it ends stops the motor first."""
 
 from __future__ import annotations
 
 import click
 
-from ..errors import MotionError, MotionFault
-from ..lm629 import LM629, Snapshot
-from ..move import Move, MoveRules
-from ..opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status
-from ..pid import sample_period_s
-from ..profile_shapes import SCurve
-from ..safety import stop_on_error
-from ..supervise import run_velocity
-from ..units import FIXED_ONE
-from .app import Session, _session, main
-from .common import _isatty, _live, _position, _progress_line, _show_position
-from .types import FINITE, SIGNED_ARGS, positive
+from lm629_host.errors import MotionError, MotionFault
+from lm629_host.chip.lm629 import LM629, Snapshot
+from lm629_host.chip.move import Move, MoveRules
+from lm629_host.bus.opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status
+from lm629_host.physics.pid import sample_period_s
+from lm629_host.chip.shapes import SCurve
+from lm629_host.chip.safety import stop_on_error
+from lm629_host.chip.supervise import run_velocity
+from lm629_host.physics.units import FIXED_ONE
+from lm629_host.cli.app import Session, _session, main
+from lm629_host.cli.common import _isatty, _live, _position, _progress_line, _show_position
+from lm629_host.cli.types import FINITE, SIGNED_ARGS, positive
 
 
 def _motion_words(s: Session, velocity: float | None, acceleration: float | None,
@@ -127,7 +127,7 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     if curve is not None and (len(targets) > 1 or linear or no_wait):
         raise click.UsageError("--shape s-curve moves one axis to one target and waits (the "
                                "host times its pieces): no --linear, --no-wait or more targets")
-    from . import axes, profile
+    from lm629_host.cli import axes, profile
     profile.check_move(s, [_position(s, t, "TARGET", raw) for t in targets], v, a, relative,
                        linear)
     if len(targets) > 1 or linear or axes.several(s):
@@ -214,7 +214,7 @@ def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
                                  param_hint="SPEED")
     v, a = _motion_words(s, speed, acc, raw)
     positive("--time", run_s)
-    from . import profile
+    from lm629_host.cli import profile
     profile.check_velocity_mode(s, v, a)
     scale = None if raw else s.scale
 

@@ -1,11 +1,11 @@
 """``lm629 --profile FILE`` and ``lm629 profile init|apply|show``: the bench profile on the
-command line (the file, its checks and what is sent: :mod:`lm629_host.profile`).
+command line (the file, its checks and what is sent: :mod:`lm629_host.motion.profile`).
 
 With ``--profile`` (or ``$LM629_PROFILE``) every command gets the profile's port, chip and
 clock unless the command line gives them, the encoder lines of the axis it drives (``--lines``
 unless given), axis names (``--axis x``, ``--axis x,y``; without ``--axis``, every axis of the
 profile), and once the port is open: each axis's soft limits, and the profile applied to a chip
-that has lost its settings, in one line on stderr (:func:`lm629_host.profile.ensure_applied`).
+that has lost its settings, in one line on stderr (:func:`lm629_host.motion.profile.ensure_applied`).
 Plugged into :mod:`.app` through its ``HOOKS`` (app.py does not import this module).
 """
 
@@ -20,11 +20,11 @@ from typing import Any
 
 import click
 
-from ..board import Board
-from ..errors import BusyTimeout, ResetError
-from ..lm629 import LM629
-from ..opcodes import Signals
-from ..profile import (
+from lm629_host.motion.board import Board
+from lm629_host.errors import BusyTimeout, ResetError
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bus.opcodes import Signals
+from lm629_host.motion.profile import (
     AXIS_KEYS,
     Profile,
     ProfileError,
@@ -36,11 +36,11 @@ from ..profile import (
     settings_lost,
     template,
 )
-from ..pid import sample_period_s
-from ..units import to_fixed
-from ..urls import query_params, with_query
-from .app import HOOKS, Session, _session, axes_of, board, main
-from .common import _flags
+from lm629_host.physics.pid import sample_period_s
+from lm629_host.physics.units import to_fixed
+from lm629_host.urls import query_params, with_query
+from lm629_host.cli.app import HOOKS, Session, _session, axes_of, board, main
+from lm629_host.cli.common import _flags
 
 log = logging.getLogger("lm629_host.cli")
 

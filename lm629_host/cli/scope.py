@@ -1,7 +1,7 @@
 """``lm629 scope``: a live terminal plot of desired and actual position and following error
 (plotext, the optional extra ``lm629-host[scope]``), so that it works over SSH.
 
-Read-only (:mod:`lm629_host.scope`): Ctrl-C, ``--duration`` or a closed terminal end it and
+Read-only (:mod:`lm629_host.bench.scope`): Ctrl-C, ``--duration`` or a closed terminal end it and
 leave every motor as it was.  On a terminal the plot is redrawn ``--refresh`` times a second;
 otherwise (a pipe, a log) only the last window is printed once at the end.
 """
@@ -14,10 +14,10 @@ from typing import Any
 
 import click
 
-from ..capture import PlotUnavailable
-from ..scope import ScopeWindow, feed, save_png
-from .app import _session, axes_of, board, main
-from .types import FINITE, check_writable, positive
+from lm629_host.bench.capture import PlotUnavailable
+from lm629_host.bench.scope import ScopeWindow, feed, save_png
+from lm629_host.cli.app import _session, axes_of, board, main
+from lm629_host.cli.types import FINITE, check_writable, positive
 
 
 def _plotext() -> Any:

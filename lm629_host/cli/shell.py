@@ -22,9 +22,9 @@ import click
 
 import lm629_host
 
-from ..opcodes import Signals, Status
-from ..safety import emergency_stop
-from .app import _ERROR_EXITS, _session, axes_of, board, main
+from lm629_host.bus.opcodes import Signals, Status
+from lm629_host.chip.safety import emergency_stop
+from lm629_host.cli.app import _ERROR_EXITS, _session, axes_of, board, main
 
 
 #: the names the shell binds besides the axes: a profile axis may not take one of them

@@ -19,7 +19,7 @@ def sigrok() -> None:
                    "~/.local/share/libsigrokdecode/decoders, where PulseView and sigrok-cli look).")
 def install_cmd(directory: Path | None) -> None:
     """Copy the lm629 decoder to where sigrok looks for decoders."""
-    from ..sigrok import install
+    from lm629_host.sigrok import install
 
     try:
         target = install(directory)

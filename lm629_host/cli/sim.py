@@ -45,7 +45,7 @@ def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) 
     One client at a time (a second is refused while one is connected, as ser2net does);
     SIGUSR1 cycles the board's power: every chip as from power-on, the bridge stays up.
     """
-    from ..sim.serve import SimServer
+    from lm629_host.sim.serve import SimServer
 
     if (pty_path is None) == (tcp is None):
         raise click.UsageError("give --pty PATH or --tcp [HOST:]PORT (one of them)")

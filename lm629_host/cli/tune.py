@@ -1,6 +1,6 @@
 """``lm629 tune``: PID gains for the axis on the bench, in one command.
 
-A thin front end to :func:`lm629_host.tuning.autotune`: it asks before the motor turns
+A thin front end to :func:`lm629_host.bench.tuning.autotune`: it asks before the motor turns
 (unless ``--yes``), prints progress, the gains, the ``lm629 filter`` line that sets them, and
 the test move measured before (with ``--before`` gains) and after; ``--plot`` draws both.
 Registered in :mod:`lm629_host.cli` with one ``add_command`` line; the CLI's error handler
@@ -13,13 +13,13 @@ import os
 
 import click
 
-from ..capture import PlotUnavailable, capture_move, summary, write_csv
-from ..safety import stop_on_error
-from ..tuning import Gains, TuneResult, autotune
-from .app import _session, main
-from .common import _position
-from .motion import _motion_words, _tolerance
-from .types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
+from lm629_host.bench.capture import PlotUnavailable, capture_move, summary, write_csv
+from lm629_host.chip.safety import stop_on_error
+from lm629_host.bench.tuning import Gains, TuneResult, autotune
+from lm629_host.cli.app import _session, main
+from lm629_host.cli.common import _position
+from lm629_host.cli.motion import _motion_words, _tolerance
+from lm629_host.cli.types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
 
 #: exit code when tuning ran but the test move did not end within the tolerance
 EXIT_NOT_MET = 1
@@ -48,7 +48,7 @@ def parse_gains(text: str) -> Gains | None:
 
 
 def _plot(result: TuneResult, path: str, lines: int | None) -> str:
-    from ..plot import Response, plot_responses
+    from lm629_host.bench.plot import Response, plot_responses
     responses, texts = [], []
     for name, label in (("before", "before"), ("after", "tuned")):
         rec = result.record(name)
@@ -102,7 +102,7 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
          save_path: str | None) -> None:
     """Find PID gains for this axis (phasing check, identification, design, a checked test
     move), leave them loaded and applied, and print the `lm629 filter` line that sets them."""
-    from .app import _session  # the CLI's session: port, options, safety
+    from lm629_host.cli.app import _session  # the CLI's session: port, options, safety
     s = _session()
     travel = _position(s, travel_typed, "--travel")  # counts, as every distance below
     if travel < 100:
@@ -122,7 +122,7 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
     v_word = None if velocity is None else words[0]
     a_word = None if acceleration is None else words[1]
     chip = s.open()
-    from . import profile
+    from lm629_host.cli import profile
     save_to = profile.save_target(s, chip, save_path)
     profile.tune_band(chip, travel)
     click.echo(f"tuning {chip.variant.upper()} on {chip.transport.describe()}, inside "
@@ -206,7 +206,7 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
     --lines): CSV and PNG of desired and actual position over time, for tuning (AN-706
     figure 11).  Then wait until the shaft rests on the target (else a motion fault, exit 9;
     the files are written either way)."""
-    from ..pid import STEP_ACCELERATION, STEP_VELOCITY
+    from lm629_host.physics.pid import STEP_ACCELERATION, STEP_VELOCITY
     s = _session()
     counts = _position(s, distance, "DISTANCE", raw)
     v, a = _motion_words(s, vel, acc, raw)
@@ -222,11 +222,11 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
     png = None if no_png else png_path or os.path.splitext(csv_path)[0] + ".png"
     if png:
         check_writable(png, "--png")
-    from ..plot import plot_capture
+    from lm629_host.bench.plot import plot_capture
     filt = {k: v for k, v in dict(kp=kp, ki=ki, kd=kd, il=il,
                                   derivative_interval=ds).items() if v is not None}
     chip = s.open()
-    from ..limits import clip_step
+    from lm629_host.chip.limits import clip_step
     if vel is None and acc is None and chip.limits is not None:  # a step in the caps
         v, a = clip_step(chip, v, a)
         if (v, a) != (STEP_VELOCITY, STEP_ACCELERATION):

@@ -1,17 +1,17 @@
 """``lm629 wiring``: the connections for the adapter in use, as a table with the pin numbers on
 both sides (``--svg``/``--png``: drawn), and ``--check``: find the wrong wire, moving nothing
-(:mod:`lm629_host.wiring`; this module only prints)."""
+(:mod:`lm629_host.bench.wiring_check`; this module only prints)."""
 
 from __future__ import annotations
 
 import click
 
-from ..connections import ADAPTERS, MAX_AXES, text_table
-from ..wiring import adapter_for, check_wiring
-from .. import wiring_svg
-from ..wiring_svg import write_png, write_svg
-from .app import _session, main
-from .types import check_writable
+from lm629_host.wiring.connections import ADAPTERS, MAX_AXES, text_table
+from lm629_host.bench.wiring_check import adapter_for, check_wiring
+from lm629_host.bench import wiring_draw as wiring_svg
+from lm629_host.bench.wiring_draw import write_png, write_svg
+from lm629_host.cli.app import _session, main
+from lm629_host.cli.types import check_writable
 
 
 @main.command()

@@ -2,7 +2,7 @@
 
 The decoder itself is the ``lm629/`` directory beside this module: a libsigrokdecode decoder
 (API 3), plain Python that runs inside sigrok's own interpreter and imports nothing of
-``lm629_host`` (its chip facts are checked against :mod:`lm629_host.opcodes` by the tests).
+``lm629_host`` (its chip facts are checked against :mod:`lm629_host.bus.opcodes` by the tests).
 This module finds it, copies it where sigrok looks (``lm629 sigrok install``), and runs it
 with sigrok's own tool over a VCD (:func:`decode`: the tests, ``tools/render_decode.py``).
 """

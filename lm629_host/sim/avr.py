@@ -29,13 +29,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ..bridge.protocol import CODE_BYTES, CODE_SLOTS, PROFILE_MAX_SCHEDULE
-from ..clock import Clock
-from ..errors import ProtocolViolation, TransportError
-from .wiring import Miswiring
-from .model import ChipBus, ChipModel, chips_of
-from .vcd import DATA as VCD_DATA
-from .vcd import BusVcd, cs_name, hi_name
+from lm629_host.bridge.protocol import CODE_BYTES, CODE_SLOTS, PROFILE_MAX_SCHEDULE
+from lm629_host.clock import Clock
+from lm629_host.errors import ProtocolViolation, TransportError
+from lm629_host.sim.wiring import Miswiring
+from lm629_host.sim.model import ChipBus, ChipModel, chips_of
+from lm629_host.sim.vcd import DATA as VCD_DATA
+from lm629_host.sim.vcd import BusVcd, cs_name, hi_name
 
 ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = ROOT / "firmware_bridge"

@@ -22,8 +22,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from ..bridge import pins as bridge_pins
-from ..bridge.protocol import (
+from lm629_host.wiring import uno as bridge_pins
+from lm629_host.bridge.protocol import (
     BAUD_WINDOW_MS,
     CODE_BYTES,
     CODE_SLOTS,
@@ -66,11 +66,11 @@ from ..bridge.protocol import (
     profile_piece_ops,
     short_reply_payload,
 )
-from ..opcodes import BUSY_BIT, Cmd
-from ..program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
-from .clock import SimClock
-from .wiring import BentChip, Miswiring
-from .model import ChipBus, ChipModel, chips_of
+from lm629_host.bus.opcodes import BUSY_BIT, Cmd
+from lm629_host.bus.program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
+from lm629_host.sim.clock import SimClock
+from lm629_host.sim.wiring import BentChip, Miswiring
+from lm629_host.sim.model import ChipBus, ChipModel, chips_of
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import os
 
-from ..errors import AxisError
-from ..opcodes import POSITION_MAX, POSITION_MIN
-from ..urls import Option, dataclass_options, parse_options, query_params
-from .model import ChipBus, ChipModel, ChipParams, MotorParams
-from .vcd import NAMES as VCD_OPTIONS
-from .wiring import wiring_of
+from lm629_host.errors import AxisError
+from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN
+from lm629_host.urls import Option, dataclass_options, parse_options, query_params
+from lm629_host.sim.model import ChipBus, ChipModel, ChipParams, MotorParams
+from lm629_host.sim.vcd import NAMES as VCD_OPTIONS
+from lm629_host.sim.wiring import wiring_of
 
 _ALIASES = {"chip": "variant", "clock": "clock_hz"}
 

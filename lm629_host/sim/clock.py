@@ -7,9 +7,9 @@ from __future__ import annotations
 import copy
 import math
 
-from ..clock import Clock
-from ..program import WAIT_STATUS_POLL_US
-from .model import ChipBus, ChipModel
+from lm629_host.clock import Clock
+from lm629_host.bus.program import WAIT_STATUS_POLL_US
+from lm629_host.sim.model import ChipBus, ChipModel
 
 
 class SimClock(Clock):

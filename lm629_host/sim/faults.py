@@ -15,7 +15,7 @@ import random
 from collections import deque
 from dataclasses import dataclass, field
 
-from ..bridge.protocol import Pipe
+from lm629_host.bridge.protocol import Pipe
 
 
 @dataclass
@@ -196,8 +196,8 @@ def soak(chip, n: int) -> SoakResult:
     """``n`` typed commands on ``chip`` (an :class:`~lm629_host.LM629`), alternately a unique
     SBPA breakpoint (its two words identify the call) and a real-position read that must read
     0 (the motor is at rest).  Typed errors are counted; any other exception propagates."""
-    from ..errors import LM629Error
-    from ..opcodes import Cmd
+    from lm629_host.errors import LM629Error
+    from lm629_host.bus.opcodes import Cmd
 
     r = SoakResult()
     for i in range(n):

@@ -31,7 +31,7 @@ import tty
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from ..bridge.protocol import (
+from lm629_host.bridge.protocol import (
     MAX_WIRE_FRAME,
     BadProgram,
     Frame,
@@ -39,14 +39,14 @@ from ..bridge.protocol import (
     FrameType,
     decode_program,
 )
-from ..program import Op
-from .bridge import BridgeEmulator, EmuPipe
-from .build import build_bus
-from .vcd import vcd_of
-from .wiring import Miswiring, wiring_of
-from .model import ChipBus, ChipModel, chips_of
-from .usb import OPTION_NAMES as USB_OPTIONS
-from .usb import UsbPipe, adapter_of, wrap_usb
+from lm629_host.bus.program import Op
+from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+from lm629_host.sim.build import build_bus
+from lm629_host.sim.vcd import vcd_of
+from lm629_host.sim.wiring import Miswiring, wiring_of
+from lm629_host.sim.model import ChipBus, ChipModel, chips_of
+from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
+from lm629_host.sim.usb import UsbPipe, adapter_of, wrap_usb
 
 log = logging.getLogger("lm629_host.sim.serve")
 
@@ -225,8 +225,8 @@ def firmware_far_end(url: str) -> FarEnd:
     chip model built from the simulator options of ``url`` (with ``usb=``: behind that USB
     adapter).  Raises RuntimeError saying what is missing when the firmware or the harness
     cannot run."""
-    from ..bridge.pins import CHIP_SELECTS
-    from .avr import DEFAULT_BAUD, AvrPipe, AvrSim, HarnessError
+    from lm629_host.wiring.uno import CHIP_SELECTS
+    from lm629_host.sim.avr import DEFAULT_BAUD, AvrPipe, AvrSim, HarnessError
 
     adapter = adapter_of(url)  # a bad usb= before the firmware is built
     model = build_bus(url, allowed=USB_OPTIONS, limit=len(CHIP_SELECTS))

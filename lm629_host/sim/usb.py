@@ -41,8 +41,8 @@ import random
 from collections import deque
 from typing import Any
 
-from ..clock import Clock
-from ..urls import Option, parse_options, query_params
+from lm629_host.clock import Clock
+from lm629_host.urls import Option, parse_options, query_params
 
 #: full-speed USB frame (USB 2.0, 8.4.3: a SOF every 1.000 ms)
 FRAME_S = 1e-3

@@ -34,8 +34,8 @@ from pathlib import Path
 from collections.abc import Sequence
 from typing import IO, Any, cast
 
-from ..urls import Option, parse_options, query_params
-from .model import ChipBus, ChipModel
+from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.sim.model import ChipBus, ChipModel
 
 #: the URL options (any simulated URL): the file, and the VCD's time unit in ns
 OPTIONS = (Option("vcd", "str", ""),

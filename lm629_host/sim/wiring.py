@@ -33,8 +33,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..miswiring import FORMS, Miswiring
-from ..urls import Option, parse_options, query_params
+from lm629_host.wiring.faults import FORMS, Miswiring
+from lm629_host.urls import Option, parse_options, query_params
 
 def _parse(text: str) -> Miswiring | None:
     return Miswiring.parse(text) if text.strip() else None

@@ -36,11 +36,11 @@ import logging
 from collections.abc import Iterator
 from importlib.metadata import entry_points
 
-from ..clock import Clock, WallClock
-from ..errors import SchemeError, TransportError
-from ..program import TraceCallback
-from ..urls import query_params, scheme_of, split_params
-from .base import Check, CycleTransport, PortInfo, Stats, Transport
+from lm629_host.clock import Clock, WallClock
+from lm629_host.errors import SchemeError, TransportError
+from lm629_host.bus.program import TraceCallback
+from lm629_host.urls import query_params, scheme_of, split_params
+from lm629_host.transports.base import Check, CycleTransport, PortInfo, Stats, Transport
 
 log = logging.getLogger("lm629_host.transports")
 

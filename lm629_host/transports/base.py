@@ -26,10 +26,10 @@ import threading
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any, final
 
-from ..clock import Clock, WallClock
-from ..errors import AxisError, BusyTimeout, TransportError
-from ..opcodes import BUSY_BIT
-from ..program import (
+from lm629_host.clock import Clock, WallClock
+from lm629_host.errors import AxisError, BusyTimeout, TransportError
+from lm629_host.bus.opcodes import BUSY_BIT
+from lm629_host.bus.program import (
     WAIT_STATUS_POLL_US,
     BusCycle,
     Op,
@@ -39,7 +39,7 @@ from ..program import (
 )
 
 if TYPE_CHECKING:
-    from ..bridge.protocol import FailsafeState
+    from lm629_host.bridge.protocol import FailsafeState
 
 log = logging.getLogger("lm629_host.bus")
 
@@ -405,7 +405,7 @@ class Transport(abc.ABC):
         return None
 
     # ------------------------------------------------------------------ recording
-    # The contract of LM629.record (lm629_host.recording): a transport delivers rows of a
+    # The contract of LM629.record (lm629_host.chip.recording): a transport delivers rows of a
     # sample program (status reads, data-reporting commands, READs) run every period.  The
     # default below polls from the host on the transport's clock: exact where that clock is
     # the chip's own (the simulators), host-timed on hardware (HOST_POLLED_NOTE).  A transport

@@ -100,7 +100,7 @@ What the FT232H itself asks for
 
 * Opening must not glitch the bus: see :func:`open_mpsse` (bit-mode mask 0, clock modes off,
   levels and directions in one 0x80).
-* Its buffers hold 1 KiB each way (:data:`~lm629_host.ftdi_pins.FIFO_BYTES`).  A stream is
+* Its buffers hold 1 KiB each way (:data:`~lm629_host.wiring.ft232h.FIFO_BYTES`).  A stream is
   written whole before its answer is read; if its answers fill the chip->host buffer while
   more than 1 KiB of it is still unwritten, the MPSSE engine stops and the write times out.
   So a program is cut into streams of at most 1 KiB (``StreamCompiler.compile(max_bytes=)``),
@@ -118,16 +118,16 @@ import threading
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
-from .. import data
-from .. import ftdi_pins as pins
-from ..clock import Clock, WallClock
-from ..errors import BusyTimeout, TransportError
-from ..opcodes import BUSY_BIT
-from ..pinout import pin_of
-from ..program import BusCycle, Op, Program, ProgramResult, TraceCallback
-from ..urls import Option, parse_options
-from .base import Check, FeedingClock, PortInfo, Transport
-from .mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, chips_of_units,
+from lm629_host import data
+from lm629_host.wiring import ft232h as pins
+from lm629_host.clock import Clock, WallClock
+from lm629_host.errors import BusyTimeout, TransportError
+from lm629_host.bus.opcodes import BUSY_BIT
+from lm629_host.bus.pinout import pin_of
+from lm629_host.bus.program import BusCycle, Op, Program, ProgramResult, TraceCallback
+from lm629_host.urls import Option, parse_options
+from lm629_host.transports.base import Check, FeedingClock, PortInfo, Transport
+from lm629_host.transports.mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, chips_of_units,
                     streams_of)
 
 log = logging.getLogger("lm629_host.ftdi")

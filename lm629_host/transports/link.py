@@ -20,7 +20,7 @@ from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator, Sequence
 from typing import cast
 
-from ..bridge.protocol import (
+from lm629_host.bridge.protocol import (
     ALSO_REPLY_TO,
     BAUD_WINDOW_MS,
     CODE_BYTES,
@@ -69,8 +69,8 @@ from ..bridge.protocol import (
     run_payload,
     wire_size,
 )
-from ..errors import AxisError, BusyTimeout, TransportError
-from ..program import (
+from lm629_host.errors import AxisError, BusyTimeout, TransportError
+from lm629_host.bus.program import (
     OP_ARG_BYTES,
     STATUS_OPS,
     BusOp,
@@ -80,9 +80,9 @@ from ..program import (
     TraceCallback,
     cycles_of,
 )
-from ..clock import WallClock
-from ..urls import Option, parse_options, query_params
-from .base import FeedingClock, ProfileState, RawRow, Transport
+from lm629_host.clock import WallClock
+from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.transports.base import FeedingClock, ProfileState, RawRow, Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
 

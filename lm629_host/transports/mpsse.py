@@ -1,7 +1,7 @@
 """Bus programs -> MPSSE command streams for the FT232H adapter: pure, no pyftdi, no USB.
 
 The compiler turns bus operations into the bytes of one MPSSE stream with the pin map of
-:mod:`lm629_host.ftdi_pins`, and says what each answer byte will be (:class:`Slot`), the bus
+:mod:`lm629_host.wiring.ft232h`, and says what each answer byte will be (:class:`Slot`), the bus
 events in order, and how long the stream's delays last.  It runs nothing: the transport
 (:mod:`.ftdi`) sends the bytes, reads the answer and judges the busy checks.  Why the stream
 looks as it does (timing minimums met by idle clocks alone, the busy discipline, the cuts
@@ -19,9 +19,9 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
-from .. import ftdi_pins as pins
-from ..opcodes import RESET_WAIT_S, Cmd
-from ..program import BusOp, Op
+from lm629_host.wiring import ft232h as pins
+from lm629_host.bus.opcodes import RESET_WAIT_S, Cmd
+from lm629_host.bus.program import BusOp, Op
 
 # the MPSSE commands the streams use (FTDI AN_108; defined in ftdi_pins)
 SET_LOW, GET_LOW, SET_HIGH, GET_HIGH = pins.SET_LOW, pins.GET_LOW, pins.SET_HIGH, pins.GET_HIGH
@@ -109,7 +109,7 @@ class Mark:
 
 
 class StreamCompiler:
-    """Bus operations -> MPSSE bytes, with the pin map of :mod:`lm629_host.ftdi_pins`."""
+    """Bus operations -> MPSSE bytes, with the pin map of :mod:`lm629_host.wiring.ft232h`."""
 
     def __init__(self, tck_hz: float = DEFAULT_TCK_HZ, busy_s: float = DEFAULT_BUSY_US * 1e-6,
                  command_s: float = 0.0, busy_pin: bool = False):

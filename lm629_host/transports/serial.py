@@ -36,13 +36,13 @@ try:  # POSIX only; imported early so that the advice works even where modules c
 except ImportError:  # pragma: no cover - Windows
     grp = None  # type: ignore[assignment]  # Windows has no grp module
 
-from ..bridge.protocol import FAST_BAUD
-from ..clock import Clock, WallClock
-from ..errors import TransportError
-from ..program import TraceCallback
-from ..urls import Option, parse_options, query_params, with_query
-from .base import Check, PortInfo
-from .link import DEFAULT_RETRIES, FAILSAFE_OPTIONS, LinkTransport
+from lm629_host.bridge.protocol import FAST_BAUD
+from lm629_host.clock import Clock, WallClock
+from lm629_host.errors import TransportError
+from lm629_host.bus.program import TraceCallback
+from lm629_host.urls import Option, parse_options, query_params, with_query
+from lm629_host.transports.base import Check, PortInfo
+from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTIONS, LinkTransport
 
 log = logging.getLogger("lm629_host.serial")
 

@@ -16,14 +16,14 @@ from __future__ import annotations
 import threading
 from typing import cast
 
-from ..errors import BusyTimeout
-from ..program import BusOp, Op, Program, ProgramResult, TraceCallback
-from ..sim.build import build_bus
-from ..sim.clock import SimClock
-from ..sim.model import ChipBus, ChipModel, Violation, chips_of
-from ..sim.vcd import close_probe, probe, vcd_of
-from ..sim.wiring import BentChip, Miswiring, wiring_of
-from .base import CycleTransport, PortInfo
+from lm629_host.errors import BusyTimeout
+from lm629_host.bus.program import BusOp, Op, Program, ProgramResult, TraceCallback
+from lm629_host.sim.build import build_bus
+from lm629_host.sim.clock import SimClock
+from lm629_host.sim.model import ChipBus, ChipModel, Violation, chips_of
+from lm629_host.sim.vcd import close_probe, probe, vcd_of
+from lm629_host.sim.wiring import BentChip, Miswiring, wiring_of
+from lm629_host.transports.base import CycleTransport, PortInfo
 
 #: simulated duration of one /RD or /WR strobe cycle, recovery included
 CYCLE_S = 0.5e-6
@@ -108,7 +108,7 @@ class SimTransport(ModelChips, CycleTransport):
         layers of calls between them are gone (most of a command's host cost; the chip model
         is the rest).  With a trace (every poll shown), with ``skip_known_busy`` off, or when
         busy has no known end (``fault=busy``), the general loop runs instead; the tests
-        compare the two (tests/test_wait_and_busy_paths.py)."""
+        compare the two (tests/chip/test_waits_and_busy_checks.py)."""
         m = self.model
         if (not self.skip_known_busy or self._tracing() or m.busy_deadline() is None
                 or self.bent is not None):

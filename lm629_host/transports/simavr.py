@@ -19,18 +19,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..bridge.pins import CHIP_SELECTS
-from ..program import TraceCallback
-from ..sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
-from ..sim.build import build_bus
-from ..sim.vcd import vcd_of
-from ..sim.wiring import wiring_of
-from ..sim.model import chips_of
-from ..sim.usb import OPTION_NAMES as USB_OPTIONS
-from ..sim.usb import wrap_usb
-from ..urls import Option, parse_options, query_params
-from .link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
-from .sim import ModelChips
+from lm629_host.wiring.uno import CHIP_SELECTS
+from lm629_host.bus.program import TraceCallback
+from lm629_host.sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
+from lm629_host.sim.build import build_bus
+from lm629_host.sim.vcd import vcd_of
+from lm629_host.sim.wiring import wiring_of
+from lm629_host.sim.model import chips_of
+from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
+from lm629_host.sim.usb import wrap_usb
+from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
+from lm629_host.transports.sim import ModelChips
 
 #: URL options of this transport (the others are the chip model's)
 OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),

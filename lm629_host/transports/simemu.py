@@ -5,17 +5,17 @@ toolchain."""
 
 from __future__ import annotations
 
-from ..bridge.pins import CHIP_SELECTS
-from ..sim.bridge import BUS_CYCLE_S, MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
-from ..sim.build import build_bus
-from ..sim.vcd import close_probe, probe, vcd_of
-from ..sim.wiring import wiring_of
-from ..sim.model import ChipBus, ChipModel, chips_of
-from ..sim.usb import OPTION_NAMES as USB_OPTIONS
-from ..sim.usb import wrap_usb
-from ..urls import Option, parse_options, query_params
-from .link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
-from .sim import ModelChips
+from lm629_host.wiring.uno import CHIP_SELECTS
+from lm629_host.sim.bridge import BUS_CYCLE_S, MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
+from lm629_host.sim.build import build_bus
+from lm629_host.sim.vcd import close_probe, probe, vcd_of
+from lm629_host.sim.wiring import wiring_of
+from lm629_host.sim.model import ChipBus, ChipModel, chips_of
+from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
+from lm629_host.sim.usb import wrap_usb
+from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
+from lm629_host.transports.sim import ModelChips
 
 
 class EmuLinkTransport(ModelChips, LinkTransport):

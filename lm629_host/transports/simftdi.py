@@ -24,20 +24,20 @@ from __future__ import annotations
 
 import usb.core
 
-from .. import ftdi_pins
-from ..clock import Clock
-from ..errors import ProtocolViolation
-from ..program import Program, ProgramResult, TraceCallback
-from ..sim.build import build_bus
-from ..sim.vcd import vcd_of
-from ..sim.wiring import wiring_of
-from ..sim.ftdi import EmulatedBackend, EmulatedFT232H
-from ..sim.model import ChipBus, ChipModel, Violation, chips_of
-from ..urls import Option, parse_options, query_params
-from .base import Check, PortInfo
-from .ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, busy_pin_of, open_mpsse
-from .ftdi import OPTIONS as FTDI_OPTIONS
-from .sim import ModelChips
+from lm629_host.wiring import ft232h as ftdi_pins
+from lm629_host.clock import Clock
+from lm629_host.errors import ProtocolViolation
+from lm629_host.bus.program import Program, ProgramResult, TraceCallback
+from lm629_host.sim.build import build_bus
+from lm629_host.sim.vcd import vcd_of
+from lm629_host.sim.wiring import wiring_of
+from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
+from lm629_host.sim.model import ChipBus, ChipModel, Violation, chips_of
+from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.transports.base import Check, PortInfo
+from lm629_host.transports.ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, busy_pin_of, open_mpsse
+from lm629_host.transports.ftdi import OPTIONS as FTDI_OPTIONS
+from lm629_host.transports.sim import ModelChips
 
 #: URL options that belong to this transport rather than to the chip model: the FT232H
 #: transport's and the emulation's costs

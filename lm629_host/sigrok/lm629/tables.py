@@ -1,8 +1,9 @@
 """The LM628/LM629 facts the decoder needs, as plain literals.
 
 The decoder runs inside libsigrokdecode's interpreter, where ``lm629_host`` is not installed,
-so it carries its own copy of these numbers; ``tests/test_sigrok.py`` checks every one of them
-against ``lm629_host.opcodes``, the project's one definition, so that the two cannot drift.
+so it carries its own copy of these numbers; ``tests/integrations/test_sigrok.py`` checks
+every one of them against ``lm629_host.bus.opcodes``, the project's one definition, so that
+the two cannot drift.
 """
 
 #: opcode -> (name, direction of its data words, words: the minimum for LFIL and LTRJ)

@@ -4,7 +4,7 @@ Used by ``sim+ftdi://`` and the FTDI tests to run the real FT232H transport and 
 against the chip model, with no hardware.
 """
 
-from .backend import SHARED, EmulatedBackend
-from .device import Counters, EmulatedFT232H
+from lm629_host.sim.ftdi.backend import SHARED, EmulatedBackend
+from lm629_host.sim.ftdi.device import Counters, EmulatedFT232H
 
 __all__ = ["EmulatedBackend", "EmulatedFT232H", "Counters", "SHARED"]

@@ -32,7 +32,7 @@ import usb.backend
 import usb.core
 from usb.core import USBError
 
-from .device import BufferFull, EmulatedFT232H
+from lm629_host.sim.ftdi.device import BufferFull, EmulatedFT232H
 
 #: endpoint addresses of the FT232H's one interface
 EP_IN = 0x81

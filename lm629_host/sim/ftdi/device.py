@@ -6,7 +6,7 @@ answers on bulk IN (two modem-status bytes, then the bytes the read commands pro
 pyusb side of it (descriptors, endpoints) is :mod:`.backend`.
 
 Pins.  ADBUS and ACBUS are wired to an LM628/LM629 :class:`~lm629_host.sim.model.ChipModel` with the
-pin map of :mod:`lm629_host.ftdi_pins`; every edge that matters is turned into one model call,
+pin map of :mod:`lm629_host.wiring.ft232h`; every edge that matters is turned into one model call,
 strobe by strobe, as the chip's pins would see it: /WR rising with /CS low latches D0-D7 into
 ``write_command`` or ``write_data`` (by /PS); /RD falling with /CS low makes the chip drive the
 bus with ``read_status`` or ``read_data``; /RST rising is ``reset_pulse``.  The emulator also
@@ -34,7 +34,7 @@ What the silicon does that a careless host gets wrong, modelled so that tests ca
   at once, driving the MPSSE low-byte latch, which entering MPSSE leaves at 0: a host that
   passes its direction there (pyftdi's ``open_mpsse`` does) pulls /CS, /RD, /WR and /RST low
   until its first 0x80 (``ctrl_log`` records every level of the control lines, with its time);
-* the 1 KiB buffers each way (:data:`~lm629_host.ftdi_pins.FIFO_BYTES`): the engine stops at a
+* the 1 KiB buffers each way (:data:`~lm629_host.wiring.ft232h.FIFO_BYTES`): the engine stops at a
   read command while its answer buffer is full and takes no more command bytes once its
   command buffer is full; a bulk OUT that then cannot be taken times out (USB NAKs it);
 * clock modes that survive a change of bit mode: adaptive clocking (0x96) makes idle clocks
@@ -75,10 +75,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ... import ftdi_pins as pins
-from ..wiring import Miswiring
-from ..model import ChipBus, ChipModel, chips_of
-from ..vcd import BusVcd, cs_name
+from lm629_host.wiring import ft232h as pins
+from lm629_host.sim.wiring import Miswiring
+from lm629_host.sim.model import ChipBus, ChipModel, chips_of
+from lm629_host.sim.vcd import BusVcd, cs_name
 
 # FTDI vendor requests (the ones pyftdi sends; FTDI AN_232B-series numbering)
 REQ_RESET = 0x00

@@ -6,7 +6,7 @@ The model knows nothing of the driver: it is driven one bus cycle at a time thro
 Modules: :mod:`.chip` (host interface and command decoder), :mod:`.motion` (what happens at
 each sample), :mod:`.trajectory`, :mod:`.motor`, :mod:`.params` (every number), :mod:`.fastloop`
 and ``_fastloop.c`` (the same sample loop flattened, for speed).  The PID filter's arithmetic is
-the driver's :mod:`lm629_host.pid` (the tuner and the step plot use it too).
+the driver's :mod:`lm629_host.physics.pid` (the tuner and the step plot use it too).
 
 Model choices
 =============
@@ -106,7 +106,7 @@ Motor off and the chip's events (:mod:`.motion`, ``ChipModel._sample``)
     at start, so a SIP without motion latches nothing (an index under the shaft would latch
     at the first sample, which no real index search sees).
 
-Filter, output and registers (:mod:`lm629_host.pid`, :mod:`.motion`)
+Filter, output and registers (:mod:`lm629_host.physics.pid`, :mod:`.motion`)
 
 21. PID arithmetic: a 16 x 16 product that overflows 16 bits saturates to 7FFF / 8000 (AN-706
     5.2.5's "all the lower bits are set ... a predictable saturated output", read as signed
@@ -198,8 +198,8 @@ Test aids and update rate
     possible, and a one-sample hold does not delay a stop.
 """
 
-from .bus import ChipBus, chips_of
-from .chip import ChipModel, Violation
-from .params import ChipParams, MotorParams
+from lm629_host.sim.model.bus import ChipBus, chips_of
+from lm629_host.sim.model.chip import ChipModel, Violation
+from lm629_host.sim.model.params import ChipParams, MotorParams
 
 __all__ = ["ChipBus", "chips_of", "ChipModel", "ChipParams", "MotorParams", "Violation"]

@@ -17,7 +17,7 @@ typedef int64_t i64;
 #define SUM_MAX (((i64)1 << 23) - 1)
 #define SUM_MIN (-((i64)1 << 23))
 
-/* The status bits the loop raises.  Their one definition is lm629_host/opcodes.py (Status);
+/* The status bits the loop raises.  Their one definition is lm629_host/bus/opcodes.py (Status);
  * PyInit__fastloop reads them from there, so this file holds no copy of them. */
 static i64 B_COMPLETE, B_INDEX, B_WRAP, B_PERR, B_BP;
 
@@ -186,7 +186,7 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastloop",
                                     "The chip model's sample loop in C (see fastloop.py).", -1,
                                     methods};
 
-/* *out = int(lm629_host.opcodes.Status.<name>); -1 with an exception set on failure */
+/* *out = int(lm629_host.bus.opcodes.Status.<name>); -1 with an exception set on failure */
 static int status_bit(PyObject *status, const char *name, i64 *out) {
     PyObject *bit = PyObject_GetAttrString(status, name);
     if (!bit) return -1;
@@ -198,7 +198,7 @@ static int status_bit(PyObject *status, const char *name, i64 *out) {
 }
 
 PyMODINIT_FUNC PyInit__fastloop(void) {
-    PyObject *opcodes = PyImport_ImportModule("lm629_host.opcodes");
+    PyObject *opcodes = PyImport_ImportModule("lm629_host.bus.opcodes");
     if (!opcodes) return NULL;
     PyObject *status = PyObject_GetAttrString(opcodes, "Status");
     Py_DECREF(opcodes);

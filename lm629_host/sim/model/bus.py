@@ -21,8 +21,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from .chip import ChipModel, Violation
-from .params import ChipParams
+from lm629_host.sim.model.chip import ChipModel, Violation
+from lm629_host.sim.model.params import ChipParams
 
 
 class ChipBus:

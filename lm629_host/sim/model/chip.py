@@ -39,8 +39,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from ...errors import ProtocolViolation
-from ...opcodes import (
+from lm629_host.errors import ProtocolViolation
+from lm629_host.bus.opcodes import (
     lfil_interval,
     BUSY_BIT,
     COEFFICIENT_MAX,
@@ -60,11 +60,11 @@ from ...opcodes import (
     s32,
     s32_words,
 )
-from .fastloop import py_loop, run_fast
-from .motion import Motion
-from .params import ChipParams, MotorParams
-from .registers import FilterRegisters, TrajectoryBuffer
-from .trajectory import wrap_counts
+from lm629_host.sim.model.fastloop import py_loop, run_fast
+from lm629_host.sim.model.motion import Motion
+from lm629_host.sim.model.params import ChipParams, MotorParams
+from lm629_host.sim.model.registers import FilterRegisters, TrajectoryBuffer
+from lm629_host.sim.model.trajectory import wrap_counts
 
 # Plain ints of the status bits: IntFlag arithmetic costs microseconds per operation and the
 # status byte is computed for every busy poll, so ``flags`` is always kept as a plain int.
@@ -135,7 +135,7 @@ def _sample_loop(choice: str) -> Callable[[tuple, tuple], tuple] | None:
     if choice not in ("auto", "1", "true", "c"):
         raise ValueError(f"fast={choice!r}: expected auto, c, py or 0")
     try:
-        from ._fastloop import run
+        from lm629_host.sim.model._fastloop import run
     except ImportError:
         if choice == "c":
             raise ValueError("fast=c: the C sample loop lm629_host/sim/model/_fastloop.c is not built "
@@ -172,7 +172,7 @@ class ChipModel:
         #: every host protocol violation, in order, each with its simulated time (``.time``)
         self.violations: list[Violation] = []
         #: run steady-state samples through :func:`.fastloop.run_fast` (False: only the readable
-        #: per-sample code; the two are cross-checked by tests/test_model_fastloop.py)
+        #: per-sample code; the two are cross-checked by tests/sim/test_model_fastloop.py)
         self.fast = _sample_loop(self.params.fast)
         self.motion = Motion(self, self.motor_params)
         # power-on: as if /RST had been pulsed long ago and the reset had completed

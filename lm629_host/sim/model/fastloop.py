@@ -1,10 +1,10 @@
 """The sample loop again, flattened into one function of local variables, for speed.
 
 Every test waits on the model, and a move at 8 MHz is 3906 samples per simulated second.
-:meth:`.motion.Motion.sample` (with :mod:`.trajectory`, :mod:`lm629_host.pid`, :mod:`.motor` and
+:meth:`.motion.Motion.sample` (with :mod:`.trajectory`, :mod:`lm629_host.physics.pid`, :mod:`.motor` and
 ``ChipModel._sample``) is the readable source of truth; this function computes exactly the
 same thing, bit for bit and float for float, without attribute look-ups, enum arithmetic or
-calls on the common path.  ``tests/test_model_fastloop.py`` runs both side by side over
+calls on the common path.  ``tests/sim/test_model_fastloop.py`` runs both side by side over
 moves, stops, wraparound, index and LPES and compares every register at every sample.
 
 It runs only in the steady state: no UDF in flight, no reset.  It stops early (returning the
@@ -17,13 +17,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from math import floor, log
 
-from ...opcodes import Signals, Status
-from ...pid import SUM_MAX, SUM_MIN, full_scale, output_shift
-from .registers import ChipState
-from .trajectory import HALF, SPAN, landing_velocity, stop_distance
+from lm629_host.bus.opcodes import Signals, Status
+from lm629_host.physics.pid import SUM_MAX, SUM_MIN, full_scale, output_shift
+from lm629_host.sim.model.registers import ChipState
+from lm629_host.sim.model.trajectory import HALF, SPAN, landing_velocity, stop_distance
 
 # plain ints of the opcodes.py bits (IntFlag arithmetic is slow); _fastloop.c reads the same
-# Status bits from lm629_host.opcodes when it is imported
+# Status bits from lm629_host.bus.opcodes when it is imported
 _COMPLETE = int(Status.TRAJECTORY_COMPLETE)
 _INDEX = int(Status.INDEX_PULSE)
 _WRAP = int(Status.WRAPAROUND)

@@ -35,9 +35,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ...opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags
-from .motor import Motor
-from ...pid import (
+from lm629_host.bus.opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags
+from lm629_host.sim.model.motor import Motor
+from lm629_host.physics.pid import (
     PIDState,
     full_scale,
     holds,
@@ -48,11 +48,11 @@ from ...pid import (
     sat16,
     skip_held,
 )
-from .registers import ChipState, TrajectoryBuffer
-from .trajectory import Trajectory, wrap_counts
+from lm629_host.sim.model.registers import ChipState, TrajectoryBuffer
+from lm629_host.sim.model.trajectory import Trajectory, wrap_counts
 
 if TYPE_CHECKING:
-    from .params import MotorParams
+    from lm629_host.sim.model.params import MotorParams
 
 _ACC = TrajectoryFlags.ACCELERATION
 _ACC_REL = TrajectoryFlags.ACCELERATION_RELATIVE

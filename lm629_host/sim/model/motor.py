@@ -7,7 +7,7 @@ the armature inductance neglected the shaft obeys
     J dw/dt = kt (V - kt w) / R - b w - Tc sign(w) - T_load
 
 which is linear between the sticking points of the dry friction, so each sample is integrated
-exactly (:func:`lm629_host.plant.motor_step`) rather than stepped: the model is stable at
+exactly (:func:`lm629_host.physics.plant.motor_step`) rather than stepped: the model is stable at
 any sample time.
 Internally the shaft angle is in encoder counts (float) and the speed in counts/s.
 """
@@ -16,8 +16,8 @@ from __future__ import annotations
 
 from math import floor, pi
 
-from ...plant import decay_and_gain, motor_step
-from .params import MotorParams
+from lm629_host.physics.plant import decay_and_gain, motor_step
+from lm629_host.sim.model.params import MotorParams
 
 
 class Motor:

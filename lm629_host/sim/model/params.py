@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ...opcodes import UPDATE_INTERVAL_S
+from lm629_host.bus.opcodes import UPDATE_INTERVAL_S
 
 
 @dataclass

@@ -1,0 +1,915 @@
+"""The typed command layer: one method per LM628/LM629 user command.
+
+Each method validates its arguments against the chip's ranges first (``ValueError`` naming the
+argument, the value and the range, and no bus traffic at all), then builds one bus program and
+runs it on the transport.  The busy check before every command byte and every data word is
+part of the program (see :mod:`lm629_host.bus.program`), so it cannot be forgotten here.
+
+Words go most significant byte first, 32-bit values as two words with the most significant
+word first, positions in two's complement (spec "Bus cycles").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import logging
+import math
+import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import TYPE_CHECKING
+
+from lm629_host.clock import Clock, WallClock
+from lm629_host.errors import (
+    ArgumentError,
+    AxisError,
+    CommandError,
+    ResetError,
+    UpdateTooSoon,
+    WaitTimeout,
+    check_int,
+)
+from lm629_host.chip.limits import SoftLimits
+from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules
+from lm629_host.bus.opcodes import (
+    ACCELERATION_MAX,
+    COEFFICIENT_MAX,
+    DERIVATIVE_INTERVAL_MAX,
+    FILTER_ORDER,
+    INTERRUPTS,
+    NOMINAL_CLOCK_HZ,
+    POSITION_MAX,
+    POSITION_MIN,
+    RESET_CLEARED_STATUSES,
+    RESET_DONE_STATUSES,
+    RESET_WAIT_S,
+    UPDATE_INTERVAL_S,
+    VELOCITY_MAX,
+    Cmd,
+    FilterFlags,
+    Signals,
+    Status,
+    TrajectoryFlags,
+    s16,
+    lfil_control,
+    lfil_interval,
+    s32_words,
+)
+from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
+from lm629_host.physics.pid import sample_period_s
+from lm629_host.chip.shapes import Points, SCurve, Shape, ShapedMove, check_piece_s
+from lm629_host.chip.shapes import plan as plan_shape
+from lm629_host.chip.safety import stop_on_error
+from lm629_host.bus.snapshot import Snapshot, add_snapshot, snapshot_at
+from lm629_host.chip.wraparound import PositionTracker, check_register_position, short_way
+from lm629_host.transports.base import Transport
+
+if TYPE_CHECKING:
+    from lm629_host.bridge.protocol import FailsafeState
+    from lm629_host.chip.batch import Batch
+    from lm629_host.chip.recording import RecordStream, Trace
+    from lm629_host.chip.supervise import VelocityRun
+
+log = logging.getLogger("lm629_host")
+
+#: busy timeout bounds: "well above" the chip's 100 us worst case; 65.535 ms is the largest a
+#: bridge RUN request carries (PROTOCOL.md, busy_timeout_us)
+BUSY_TIMEOUT_MIN_S = 200e-6
+BUSY_TIMEOUT_MAX_S = 65.535e-3
+
+_STOPS = {
+    None: TrajectoryFlags(0),
+    "smooth": TrajectoryFlags.STOP_SMOOTH,
+    "abrupt": TrajectoryFlags.STOP_ABRUPT,
+    "off": TrajectoryFlags.MOTOR_OFF,
+}
+
+
+def _check_flags(name: str, flags: object) -> Status:
+    value = check_int(name, int(flags) if isinstance(flags, Status) else flags, 0, 0xFF)
+    extra = value & ~INTERRUPTS
+    if extra:
+        raise ArgumentError(
+            name, value,
+            f"{name}={value:#04x} has bits that are not interrupt conditions ({extra:#04x}); "
+            f"allowed: {INTERRUPTS!r} (status bits 1..6)")
+    return Status(value)
+
+
+class LM629:
+    """One LM628 or LM629 behind a transport.  Use :func:`lm629_host.open` to make one.
+
+    Threads may share one object: every bus program runs whole under the transport's lock
+    (:attr:`Transport.lock <lm629_host.transports.base.Transport.lock>`), so calls from
+    several threads never interleave on the bus.  A sequence of calls (load, then start) is
+    not atomic: hold ``chip.transport.lock`` around it when another thread might move the
+    motor in between.
+    """
+
+    #: when :meth:`move_to`'s moves are done or a motion fault (settable per object)
+    move_rules: MoveRules = MoveRules()
+    #: the axis's soft limits (a profile sets them): every trajectory is checked against them
+    #: in :meth:`trajectory_program`, before any bus cycle (:mod:`lm629_host.chip.limits`)
+    limits: SoftLimits | None = None
+    #: the shortest time between two trajectory updates (STT) on this chip, seconds: AN-706
+    #: 4.6.2 (a new STT aborts the chip's trajectory calculation and holds its output) asks for
+    #: 10 ms.  0 turns the rule off, for a chip measured to keep up (settable per object)
+    update_interval: float = UPDATE_INTERVAL_S
+    #: what an update sooner than ``update_interval`` does: ``"wait"`` until it is due, on the
+    #: transport's clock (the simulated one on ``sim://``), or ``"raise"`` :class:`UpdateTooSoon`
+    #: before any bus cycle.  A stop (LTRJ stop bits) is never held back
+    update_rule: str = "wait"
+    #: the transport clock just after this object's last STT went out (None: none yet)
+    _last_update: float | None = None
+
+    def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
+                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None,
+                 clock_hz: float | None = None):
+        chip = chip.lower()
+        if chip not in ("lm628", "lm629"):
+            raise ValueError(f"chip={chip!r}: expected 'lm628' or 'lm629'")
+        if axis is not None and (isinstance(axis, bool) or not isinstance(axis, int)
+                                 or not 0 <= axis < transport.chip_selects):
+            raise AxisError(axis, transport.chip_selects, transport.describe())
+        #: the chip select this object addresses on a multi-axis board (None: the only chip);
+        #: every program it builds starts with ``select(axis)`` (a program starts on chip 0)
+        self.axis = axis
+        #: the chip select its programs address (``axis``, or 0 for the only chip)
+        self.chip_select: int = axis or 0
+        self.busy_timeout = busy_timeout
+        self.transport = transport
+        self.variant = chip
+        self.reset_attempts = reset_attempts
+        self._clock_hz = clock_hz  # the clock said by the caller (a URL's clock=, --clock)
+        self._ds = 1  # derivative interval, samples, re-sent with every LFIL (AN-706 4.5.1)
+        self._port12 = False  # re-issued after every reset (LM628 with a 12-bit DAC)
+        # True while the command-error flag is known to be clear (after reset(), after a good
+        # STT); otherwise start() clears it first, so that it can tell whether its own STT was
+        # refused instead of missing it behind a stale flag.
+        self._ce_clear = False
+        self._this_thread = _ThisThread()
+        #: the extended positions (AN-706 6.5.2): every position this object reads goes
+        #: through it, so that a wraparound of the register is no jump (:mod:`.wraparound`)
+        self.positions = PositionTracker()
+
+    # ------------------------------------------------------------------ plumbing
+    @property
+    def busy_timeout(self) -> float:
+        """Seconds a busy check may wait before :class:`BusyTimeout` (default 5 ms)."""
+        return self._busy_timeout
+
+    @busy_timeout.setter
+    def busy_timeout(self, seconds: float) -> None:
+        if not isinstance(seconds, (int, float)) or not BUSY_TIMEOUT_MIN_S <= seconds <= \
+                BUSY_TIMEOUT_MAX_S:
+            raise ArgumentError(
+                "busy_timeout", seconds, f"busy_timeout={seconds!r} s is outside {BUSY_TIMEOUT_MIN_S * 1e3:g}.."
+                f"{BUSY_TIMEOUT_MAX_S * 1e3:g} ms (well above the chip's 100 us worst case, "
+                "within what the bridge protocol carries)", lo=BUSY_TIMEOUT_MIN_S,
+                hi=BUSY_TIMEOUT_MAX_S)
+        self._busy_timeout = float(seconds)
+
+    def program(self) -> Program:
+        """A new, empty bus program with this chip's busy timeout (and its chip select)."""
+        p = Program(busy_timeout_s=self._busy_timeout)
+        if self.axis:
+            p.select(self.axis)
+        return p
+
+    @property
+    def clock(self) -> Clock:
+        """The transport's clock: simulated on ``sim://``, the wall clock on hardware."""
+        return self.transport.clock
+
+    @property
+    def clock_hz(self) -> float:
+        """The chip's clock input (Hz): the transport's when it knows it (a simulator's model),
+        else the one given when it was opened (``clock=``), else the nominal 8 MHz.  Used for
+        default timeouts, expected move times and the sample period of tuning."""
+        return self.transport.clock_hz or self._clock_hz or NOMINAL_CLOCK_HZ
+
+    def run(self, program: Program) -> ProgramResult:
+        """Run a bus program (for experts and for composite operations).  Every typed call
+        goes through here: the one point :meth:`intercept` reroutes."""
+        runner = self._this_thread.runner
+        if runner is not None:
+            return runner(program)
+        return self.transport.execute(program)
+
+    @contextlib.contextmanager
+    def intercept(self, runner: Callable[[Program], ProgramResult]) -> Iterator[None]:
+        """While the block runs, this thread's bus programs of this object go to
+        ``runner(program)`` instead of the transport, which answers them as the chip would;
+        other threads' calls still reach the bus.  A batch builds and decodes its calls
+        through here (:mod:`lm629_host.chip.batch`).  Nested: the inner runner until it ends."""
+        here = self._this_thread
+        before, here.runner = here.runner, runner
+        try:
+            yield
+        finally:
+            here.runner = before
+
+    def shadow(self, runner: Callable[[Program], ProgramResult]) -> LM629:
+        """A copy of this object whose bus programs all go to ``runner`` (never to the
+        transport): the same transport, chip select and settings, and the host-side state this
+        object keeps of the chip (the derivative interval last sent, whether the command-error
+        flag is known clear...) as it is now, its own from then on.  A batch builds its
+        programs on one, so that building changes nothing here."""
+        twin = copy.copy(self)
+        twin._this_thread = _ThisThread(runner)
+        return twin
+
+    def batch(self) -> Batch:
+        """Queue typed calls into one bus program, run when the ``with`` block ends (one
+        exchange on a bridge); reads return handles whose ``.value`` is set then::
+
+            with chip.batch() as b:
+                p = b.read_real_position()
+                b.load_filter(kp=20)
+                b.update_filter()
+            print(p.value)
+
+        A command error (or a busy timeout) inside it names the call.  It captures this
+        thread's calls on ``b`` only: direct calls on the chip inside the block run at once,
+        and a second batch on the same bus inside the block is refused.  See
+        :mod:`lm629_host.chip.batch`."""
+        from lm629_host.chip.batch import Batch
+        return Batch(self.transport, self)
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def __enter__(self) -> LM629:
+        return self
+
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        """Left by an exception: stop the axis if it moves (abrupt stop, the PID holding)
+        before the link closes; left normally: the axis stays as the block left it."""
+        if exc_type is not None:
+            from lm629_host.chip.safety import stop_if_moving
+            stop_if_moving(self)
+        self.close()
+
+    def clear_failsafe(self) -> FailsafeState | None:
+        """Acknowledge the bridge's latched failsafe trip (its transport's); returns the trip
+        (a :class:`~lm629_host.bridge.protocol.FailsafeState`) or None."""
+        return self.transport.clear_failsafe()
+
+    def __repr__(self) -> str:
+        where = f" axis {self.axis}" if self.axis is not None else ""
+        return f"<LM629 {self.variant}{where} on {self.transport.describe()}>"
+
+    def _command(self, cmd: Cmd) -> None:
+        self.run(self.program().command(cmd))
+
+    def _read(self, cmd: Cmd, words: int) -> tuple[int, ...]:
+        return self.run(self.program().command(cmd).read(words)).words
+
+    # ------------------------------------------------------------------ reset
+    @property
+    def uses_reset_line(self) -> bool:
+        """True when :meth:`reset` pulses /RST.  An axis of a multi-axis board sends the
+        RESET command instead: /RST is shared and would reset every chip on the bus
+        (:meth:`Board.reset <lm629_host.motion.board.Board.reset>` pulses it for all of them)."""
+        return self.transport.has_reset_line and self.axis is None
+
+    def reset(self) -> Status:
+        """Reset the chip and check that it came back, as AN-706 4.4.1 prescribes.
+
+        Pulses /RST (or sends the RESET command when the transport has no reset line), checks
+        status 00 at once (hardware reset only: a chip that does not read 00 did not see /RST),
+        84 or C4 after 1.5 ms, then masks and clears all interrupts and checks 80 or C0.
+        Retries ``reset_attempts`` times in all, then raises :class:`ResetError` with every
+        status byte seen (:func:`reset_chips`, shared with a board's reset).
+        """
+        return self.reset_statuses()[0]
+
+    def reset_statuses(self) -> tuple[Status, list[int]]:
+        """:meth:`reset`, also returning every status byte its programs read (bring-up)."""
+        statuses, seen = reset_chips([self], pulse=self.uses_reset_line,
+                                     attempts=self.reset_attempts)
+        return statuses[0], seen[self.chip_select]
+
+    def reset_done(self) -> None:
+        """What a reset (this object's or a board's) leaves: the derivative interval back to
+        one sample, the command-error flag clear."""
+        self._ds = 1
+        self._ce_clear = True
+        self.positions.restart()
+        self.positions.pending = False  # the reset cleared the bit
+        self._last_update = None  # and aborted nothing: the next update may go at once
+
+    @property
+    def port12_selected(self) -> bool:
+        """True after :meth:`port12`: every reset issues PORT12 again."""
+        return self._port12
+
+    # ------------------------------------------------------------------ status
+    def read_status(self) -> Status:
+        """RDSTAT: the status byte (no busy check; valid at any time)."""
+        return Status(self.run(self.program().status()).statuses[0])
+
+    def sync(self) -> Status:
+        """Wait until the busy bit is clear (bounded by ``busy_timeout``); return the status."""
+        return Status(self.run(self.program().sync()).statuses[0])
+
+    def is_moving(self) -> bool:
+        """True while the trajectory generator runs with the drive on (RDSIGS: neither on
+        target nor motor off).  The chip refuses a new acceleration then (AN-706 4.6.1)."""
+        return not self.read_signals() & (Signals.ON_TARGET | Signals.MOTOR_OFF)
+
+    def read_signals(self) -> Signals:
+        """RDSIGS: the 16-bit signals register."""
+        return Signals(self._read(Cmd.RDSIGS, 1)[0])
+
+    def snapshot_program(self) -> Program:
+        """The bus program of :meth:`snapshot` (status, then :data:`SNAPSHOT_READS`)."""
+        return add_snapshot(self.program())
+
+    def snapshot(self) -> Snapshot:
+        """Status, signals, positions, velocities and integration sum in one bus program; the
+        positions extended past the register's wraparound (:meth:`extended`)."""
+        r = self.run(self._clearing_wrap(self.snapshot_program()))
+        return self.extended(snapshot_at(r, 0, self.clock.now()))
+
+    def extended(self, s: Snapshot) -> Snapshot:
+        """``s`` (just read from this chip) with its positions extended past the register's
+        wraparound (:class:`~lm629_host.chip.wraparound.PositionTracker`); a wraparound bit in its
+        status is cleared by this object's next position read."""
+        self.positions.saw(s.status)
+        return self.positions.snapshot(s)
+
+    def _clearing_wrap(self, program: Program) -> Program:
+        """``program`` with an RSTI of the wraparound bit in front when a read has seen it
+        (AN-706 6.5.2: the host notes the wrap and resets the bit), in the same exchange."""
+        if not self.positions.pending:
+            return program
+        self.positions.pending = False
+        return self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~Status.WRAPAROUND)) \
+            .extend(program)
+
+    def _read_position(self, cmd: Cmd, name: str) -> int:
+        """RDDP or RDRP, extended; the status its busy checks read shows a wraparound."""
+        r = self.run(self._clearing_wrap(self.program().command(cmd).read(2)))
+        if r.status is not None:
+            self.positions.saw(r.status)
+        near = "desired" if name == "real" else None
+        return self.positions.extend(name, s32_words(*r.words), near=near)
+
+    # ------------------------------------------------------------------ interrupts
+    def mask_interrupts(self, flags: Status | int) -> None:
+        """MSKI: the interrupt conditions (status bits 1..6) that drive HI."""
+        value = _check_flags("flags", flags)
+        self.run(self.program().command(Cmd.MSKI).write(int(value)))
+
+    def reset_interrupts(self, flags: Status | int = INTERRUPTS) -> None:
+        """RSTI: clear exactly ``flags`` (default: all six) and, with them, HI (RSTI resets the
+        HI line; it rises again at once if another enabled flag is still set)."""
+        value = _check_flags("flags", flags)
+        self.run(self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~value)))
+        if value & Status.COMMAND_ERROR:
+            self._ce_clear = True
+
+    # ------------------------------------------------------------------ homing, index, limits
+    def define_home(self) -> None:
+        """DFH: the current position becomes 0 (the extended positions restart there)."""
+        self._command(Cmd.DFH)
+        self.positions.restart()
+
+    def set_index_position(self) -> None:
+        """SIP: latch the position at the next index pulse (read it with read_index_position)."""
+        self._command(Cmd.SIP)
+
+    def load_position_error(self, threshold: int, stop: bool = False) -> None:
+        """LPEI (flag only) or, with ``stop=True``, LPES (flag and motor off)."""
+        value = check_int("threshold", threshold, 0, COEFFICIENT_MAX, hex_digits=4)
+        self.run(self.program().command(Cmd.LPES if stop else Cmd.LPEI).write(value))
+
+    def set_breakpoint(self, position: int, relative: bool = False) -> None:
+        """SBPA, or SBPR (relative to the current target position) with ``relative=True``."""
+        value = check_int("position", position, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        self.run(self.program().command(Cmd.SBPR if relative else Cmd.SBPA).write32(value))
+
+    # ------------------------------------------------------------------ filter
+    def filter_program(self, kp: int | None = None, ki: int | None = None, kd: int | None = None,
+                       il: int | None = None, derivative_interval: int | None = None) -> Program:
+        """Validate and build LFIL without running it (the derivative interval is not
+        remembered until the program has run)."""
+        values = {"kp": kp, "ki": ki, "kd": kd, "il": il}
+        for name, v in values.items():
+            if v is not None:
+                values[name] = check_int(name, v, 0, COEFFICIENT_MAX, hex_digits=4)
+        ds = self._ds
+        if derivative_interval is not None:
+            ds = check_int("derivative_interval", derivative_interval, 1,
+                           DERIVATIVE_INTERVAL_MAX)
+        control = lfil_control(ds)
+        for flag in FILTER_ORDER:
+            if values[(flag.name or "").lower()] is not None:
+                control |= flag
+        p = self.program().command(Cmd.LFIL).write(control)
+        for flag in FILTER_ORDER:
+            v = values[(flag.name or "").lower()]
+            if v is not None:
+                p.write(v)
+        return p
+
+    def load_filter(self, kp: int | None = None, ki: int | None = None, kd: int | None = None,
+                    il: int | None = None, derivative_interval: int | None = None) -> None:
+        """LFIL: load the given coefficients into the filter's input buffers (UDF applies them).
+
+        ``derivative_interval`` is in samples, 1..256; when omitted the last value sent is sent
+        again (the chip takes it from every LFIL control word, AN-706 4.5.1).
+        """
+        p = self.filter_program(kp, ki, kd, il, derivative_interval)
+        self.run(p)
+        self._ds = lfil_interval(p.ops[1].arg)
+
+    def update_filter(self) -> None:
+        """UDF: input buffers -> working filter registers at the next sample."""
+        self._command(Cmd.UDF)
+
+    @property
+    def derivative_interval(self) -> int:
+        """The derivative interval (samples) last sent with LFIL."""
+        return self._ds
+
+    # ------------------------------------------------------------------ trajectory
+    def trajectory_program(self, acceleration: int | None = None, velocity: int | None = None,
+                           position: int | None = None, *, acceleration_relative: bool = False,
+                           velocity_relative: bool = False, position_relative: bool = False,
+                           velocity_mode: bool = False, forward: bool = True,
+                           stop: str | None = None) -> Program:
+        """Validate and build LTRJ without running it."""
+        if stop not in _STOPS:
+            raise ValueError(f"stop={stop!r} must be one of None, 'smooth', 'abrupt', 'off'")
+        acc_lo = -ACCELERATION_MAX - 1 if acceleration_relative else 0
+        vel_lo = -VELOCITY_MAX - 1 if velocity_relative else 0
+        if acceleration is not None:
+            acceleration = check_int("acceleration", acceleration, acc_lo, ACCELERATION_MAX,
+                                     hex_digits=8)
+        if velocity is not None:
+            velocity = check_int("velocity", velocity, vel_lo, VELOCITY_MAX, hex_digits=8)
+        if position is not None:
+            position = check_register_position("position", position)
+        if velocity_mode and position is not None:
+            raise ValueError("position cannot be given with velocity_mode=True: a velocity-mode "
+                             "move has no target position")
+        if stop is not None and (position is not None or velocity is not None
+                                 or acceleration is not None):
+            raise ValueError(
+                f"stop={stop!r} cannot be combined with new acceleration/velocity/position: the "
+                "chip would not move (spec: stop bits only stop an ongoing move). Send the stop, "
+                "then load the next move")
+        if self.limits is not None and stop is None:  # a stop is never refused
+            # the limits are extended counts: the target the chip reaches the short way round
+            self.limits.check_trajectory(
+                acceleration, velocity,
+                position if position is None or position_relative
+                else self.positions.near_register(position),
+                acceleration_relative=acceleration_relative,
+                velocity_relative=velocity_relative, position_relative=position_relative,
+                velocity_mode=velocity_mode)
+        control = _STOPS[stop]
+        if velocity_mode:
+            control |= TrajectoryFlags.VELOCITY_MODE
+            if forward:
+                control |= TrajectoryFlags.FORWARD
+        p = self.program().command(Cmd.LTRJ)
+        words = self.program()
+        for value, flag, rel_flag, relative in (
+                (acceleration, TrajectoryFlags.ACCELERATION, TrajectoryFlags.ACCELERATION_RELATIVE,
+                 acceleration_relative),
+                (velocity, TrajectoryFlags.VELOCITY, TrajectoryFlags.VELOCITY_RELATIVE,
+                 velocity_relative),
+                (position, TrajectoryFlags.POSITION, TrajectoryFlags.POSITION_RELATIVE,
+                 position_relative)):
+            if value is not None:
+                control |= flag | (rel_flag if relative else 0)
+                words.write32(value)
+        return p.write(int(control)).extend(words)
+
+    def load_trajectory(self, acceleration: int | None = None, velocity: int | None = None,
+                        position: int | None = None, *, acceleration_relative: bool = False,
+                        velocity_relative: bool = False, position_relative: bool = False,
+                        velocity_mode: bool = False, forward: bool = True,
+                        stop: str | None = None, start: bool = False) -> None:
+        """LTRJ: load trajectory parameters (raw 16.16 words for acceleration and velocity,
+        counts for position).  Nothing moves until STT; ``start=True`` appends the STT to the
+        same bus program (one round trip on a bridge) and checks it like :meth:`start`."""
+        p = self.trajectory_program(
+            acceleration, velocity, position, acceleration_relative=acceleration_relative,
+            velocity_relative=velocity_relative, position_relative=position_relative,
+            velocity_mode=velocity_mode, forward=forward, stop=stop)
+        if start:
+            self._start_run(p, update=stop is None)
+        else:
+            self.run(p)
+
+    def start_flags(self, clear: Status | int = 0) -> Status:
+        """The flags a program must clear (RSTI) before its STT on this chip: ``clear``, and
+        the command-error flag unless it is known to be clear, so that a refusal of this STT
+        is never hidden by a stale flag."""
+        clear = _check_flags("clear", clear)
+        return clear if self._ce_clear else clear | Status.COMMAND_ERROR
+
+    def start_checked(self, before: int, after: int) -> bool:
+        """Take the status read just before this chip's STT (busy clear) and the one after it;
+        return True when the chip refused that STT (the caller raises :class:`CommandError`).
+        Every STT, this object's or a board's, goes through here (and is the last update the
+        next one is spaced from: the clock now is after it)."""
+        self._last_update = self.clock.now()
+        if not after & Status.COMMAND_ERROR:
+            self._ce_clear = True
+            return False
+        self._ce_clear = False
+        if not before & Status.COMMAND_ERROR:
+            return True
+        # the flag was set again inside this program, before the STT: only a transport that
+        # had to repeat a damaged transfer does that (it says so in its stats and log)
+        log.warning("command-error flag set before STT in the same program (status %02X): "
+                    "cannot tell whether STT was refused; check transport.stats.retries", before)
+        return False
+
+    def _start(self, program: Program, clear: Status | int = 0,
+               head: Program | None = None) -> Status:
+        return self._start_run(program, clear, head)[0]
+
+    def update_due(self) -> float:
+        """Seconds until the next trajectory update may go out (``update_interval`` after the
+        last STT), 0 when it may now."""
+        if self._last_update is None or self.update_interval <= 0:
+            return 0.0
+        return max(0.0, self._last_update + self.update_interval - self.clock.now())
+
+    def hold_update(self) -> None:
+        """Hold a trajectory update back to ``update_interval`` after the last STT (AN-706
+        4.6.2), or raise :class:`UpdateTooSoon` under ``update_rule = "raise"``.  Every STT
+        that is an update passes here: this chip's own, and a board's (:meth:`Board.start`)."""
+        if self.update_rule not in ("wait", "raise"):
+            raise ValueError(f"update_rule={self.update_rule!r} must be 'wait' or 'raise'")
+        due = self.update_due()
+        if due <= 0:
+            return
+        if self.update_rule == "raise":
+            assert self._last_update is not None
+            raise UpdateTooSoon(self.clock.now() - self._last_update, self.update_interval)
+        self.clock.sleep(due)
+
+    def _start_run(self, program: Program, clear: Status | int = 0,
+                   head: Program | None = None, *,
+                   update: bool = True) -> tuple[Status, ProgramResult]:
+        """:meth:`_start` that also returns the program's result; ``head`` runs first, in the
+        same program (move_to's snapshot: one exchange).  ``update``: the STT is a trajectory
+        update, spaced by ``update_interval`` (a stop is not: it goes out at once)."""
+        if update:
+            self.hold_update()
+        flags = self.start_flags(clear)
+        if flags:  # RSTI: a 0 bit clears
+            program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~flags)) \
+                .extend(program)
+        if head is not None:
+            program = head.extend(program)
+        program.sync().command(Cmd.STT).sync()
+        result = self.run(program)
+        before, after = result.statuses[-2:]
+        if self.start_checked(before, after):
+            raise CommandError("STT", after)
+        return Status(after), result
+
+    def start(self) -> Status:
+        """STT: trajectory input buffers -> working registers; the move begins.
+
+        Raises :class:`CommandError` when the chip refuses it (acceleration changed while
+        moving with the drive on, relative velocity below zero): the status after the STT is
+        checked in the same bus program, once busy has cleared after the STT (the documents do
+        not say when the chip raises the flag; the model raises it while it processes the STT,
+        i.e. before busy clears: see the model's choice list).  When the command-error flag may
+        already be set (after
+        an earlier refusal, a ``raw`` command, or on a chip not reset by this object) an RSTI
+        that clears only that flag goes first, so that a refusal is never hidden by a stale flag.
+        Spaced ``update_interval`` (10 ms) after the last STT (AN-706 4.6.2): it waits on the
+        transport's clock, or raises :class:`UpdateTooSoon` under ``update_rule = "raise"``.
+        """
+        return self._start(self.program())
+
+    def move_to(self, position: int, *, velocity: int, acceleration: int | None = None,
+                relative: bool = False) -> Move:
+        """Start a move to ``position`` (counts) and return a :class:`Move`; ``move.wait()``
+        returns when the shaft is at rest on the target or raises :class:`MotionError`.
+
+        ``velocity`` and ``acceleration`` are raw 16.16 words (1..); ``acceleration=None``
+        keeps the one loaded (the chip refuses a new acceleration while the motor moves with
+        the drive on: leave it out to change a running move).  ``relative=True``: ``position``
+        counts from the desired position now (one more round trip, a snapshot first).  One
+        bus program (one round trip on a bridge) reads the snapshot the move starts from,
+        clears the flags a move reports (trajectory complete, breakpoint, position error,
+        command error), loads the trajectory and starts it, so a flag left by an earlier move
+        can never end this one's wait.  Arguments are checked before any bus traffic
+        (``ValueError``).
+        """
+        check_register_position("position", position)
+        velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
+        if acceleration is not None:
+            acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX,
+                                     hex_digits=8)
+        if self.limits is not None:  # before the first read: a refused move costs no exchange
+            self.limits.check_trajectory(acceleration, velocity, None if relative
+                                         else self.positions.near_register(position))
+        first = self.snapshot() if relative else None
+        if first is not None:
+            # the target in the register's terms: the chip goes the short way round to it
+            register = self.positions.to_register(first.desired_position + position)
+        else:
+            register = position
+        program = self.trajectory_program(acceleration, velocity, register)
+        head = self.snapshot_program() if first is None else None
+        _, r = self._start_run(program, clear=MOVE_FLAGS, head=self._clearing_wrap(head)
+                               if head is not None else None)
+        start = first if first is not None else self.extended(snapshot_at(r, 0, self.clock.now()))
+        # the target extended as the chip will reach it: the short way from the start
+        target = start.desired_position + short_way(register - self.positions.to_register(
+            start.desired_position))
+        if acceleration is not None:
+            self._move_acceleration = acceleration
+        move = Move(self, target, velocity,
+                    acceleration if acceleration is not None else self._move_acceleration,
+                    start, self.clock.now())
+        if self.transport.far_waits:  # the end seen on the far side (WAIT_STATUS)
+            from lm629_host.chip.movewait import wait_far
+            move.waiter = wait_far
+        return move
+
+    #: the last acceleration word move_to loaded (for the default timeout)
+    _move_acceleration: int | None = None
+
+    def move_profile(self, position: int, shape: Shape, *, relative: bool = False,
+                     piece_s: float = 2 * UPDATE_INTERVAL_S) -> ShapedMove:
+        """Start a move to ``position`` (counts, a register value as for :meth:`move_to`, or
+        from the desired position with ``relative=True``) along ``shape``
+        (:class:`~lm629_host.chip.shapes.SCurve`: jerk-limited;
+        :class:`~lm629_host.chip.shapes.Points`: your own (time, velocity) list), in
+        pieces ``piece_s`` apart (AN-706 4.5.3; at least 10 ms, 4.6.2).  Returns a
+        :class:`~lm629_host.chip.shapes.ShapedMove`: on a bridge that has PROFILE its timer
+        issues the pieces (handed over at once; a move of more pieces than it holds, 64, is
+        timed from the host), elsewhere ``wait()`` issues them on the
+        transport's clock; ``wait()`` supervises the move as :meth:`Move.wait` does; the chip's own
+        deceleration lands it exactly on the target.  Reads a snapshot first (the distance
+        sets the plan); the plan is checked (``ArgumentError``) before anything moves."""
+        check_register_position("position", position)
+        if not isinstance(shape, (SCurve, Points)):
+            raise ArgumentError("shape", shape, f"shape={shape!r}: expected "
+                                "profile_shapes.SCurve or profile_shapes.Points")
+        check_piece_s(piece_s)
+        sample_s = sample_period_s(self.clock_hz)
+        plan = plan_shape(shape, position, sample_s, piece_s) if relative else None
+        desired = self.snapshot().desired_position
+        register = self.positions.to_register(desired + position) if relative else position
+        if plan is None:
+            distance = short_way(register - self.positions.to_register(desired))
+            plan = plan_shape(shape, distance, sample_s, piece_s)
+        if self.limits is not None:  # the fastest piece, before anything moves
+            self.limits.check_velocity(plan.peak_velocity)
+        move = self.move_to(register, velocity=plan.pieces[0].velocity,
+                            acceleration=plan.acceleration)
+        far = (self.transport.far_profiles
+               and len(plan.pieces) - 1 <= self.transport.profile_capacity)
+        shaped = ShapedMove(move, plan, far=far)
+        if far:  # the bridge's timer issues the rest; the next update waits for the last
+            with stop_on_error(self):
+                shaped.schedule_far(self.axis, self.update_interval)
+            self._last_update = shaped.t0 + max(plan.pieces[-1].t, self.update_interval)
+        return shaped
+
+    # ------------------------------------------------------------------ output port
+    def port8(self) -> None:
+        """PORT8: 8-bit output (the reset default; required setting on the LM629)."""
+        self._command(Cmd.PORT8)
+        self._port12 = False
+
+    def port12(self) -> None:
+        """PORT12: 12-bit DAC output, LM628 only; re-issued by :meth:`reset`."""
+        if self.variant != "lm628":
+            raise ValueError(
+                f"port12() is for an LM628 with a 12-bit DAC; this chip is an {self.variant.upper()}"
+                " (open it with chip='lm628' if it really is an LM628)")
+        self._command(Cmd.PORT12)
+        self._port12 = True
+
+    # ------------------------------------------------------------------ data reporting
+    def read_desired_position(self) -> int:
+        """RDDP: desired position, counts, extended past the register's wraparound (a Python
+        int; the register itself reads C0000000..3FFFFFFF: :mod:`lm629_host.chip.wraparound`)."""
+        return self._read_position(Cmd.RDDP, "desired")
+
+    def read_real_position(self) -> int:
+        """RDRP: real (encoder) position, counts, extended past the register's wraparound."""
+        return self._read_position(Cmd.RDRP, "real")
+
+    def read_index_position(self) -> int:
+        """RDIP: position latched at the index pulse after SIP, extended as the real position
+        nearest to it."""
+        return self.positions.near_register(s32_words(*self._read(Cmd.RDIP, 2)), "real")
+
+    def read_desired_velocity(self) -> int:
+        """RDDV: desired velocity, signed 16.16 (65536 = 1 count/sample)."""
+        return s32_words(*self._read(Cmd.RDDV, 2))
+
+    def read_real_velocity(self) -> int:
+        """RDRV: real velocity, integer counts/sample (signed 16-bit)."""
+        return s16(self._read(Cmd.RDRV, 1)[0])
+
+    def read_integration_sum(self) -> int:
+        """RDSUM: the integration term (signed 16-bit)."""
+        return s16(self._read(Cmd.RDSUM, 1)[0])
+
+    # ------------------------------------------------------------------ waiting
+    def wait_for(self, flags: Status | int, timeout: float = 10.0,
+                 poll: float | None = None, *, what: str | None = None) -> Status:
+        """Wait until any of ``flags`` is set in the status byte; return the status.
+
+        Waits on the transport's clock (simulated time on ``sim://``).  Raises
+        :class:`WaitTimeout` after ``timeout`` seconds (its ``what``: ``what`` when given, the
+        words a person reads, else the flags' names).
+
+        A flag raised *earlier* satisfies it at once: the chip keeps its flags until RSTI
+        clears them.  After a first move, ``load_trajectory(..., start=True)`` then
+        ``wait_for(Status.TRAJECTORY_COMPLETE)`` returns immediately while the second move
+        runs.  Clear the flag first (:meth:`reset_interrupts`), or better, move with
+        :meth:`move_to` and ``Move.wait()``, which clear the move's flags in the program that
+        starts it and wait until the shaft is at rest on the target.
+
+        Where the transport runs the wait on its far side (``Op.WAIT_STATUS``: the simulators,
+        a bridge whose HELLO says so), the wait is one exchange: up to 65 s at a time on a
+        simulator, which goes straight to the status change and reads it for real; 0.25 s at a
+        time on hardware, so that Ctrl-C (held while a program runs) still stops a motor
+        promptly.  Otherwise the host polls: every ``poll`` seconds when given, else at a rate
+        set by the wait itself (:func:`_poll_interval`), not a fixed 1 ms across the link.
+        """
+        value = Status(check_int("flags", int(flags), 1, 0xFF))
+        if not timeout > 0:
+            raise ArgumentError("timeout", timeout, f"timeout={timeout} must be positive (seconds)")
+        if poll is not None and not poll > 0:
+            raise ArgumentError("poll", poll, f"poll={poll} must be positive (seconds)")
+        clock = self.clock
+        start = clock.now()
+        deadline = start + timeout
+        far = self.transport.has_wait_status
+        chunk_ms = (WAIT_STATUS_WALL_CHUNK_MS if isinstance(clock, WallClock)
+                    else WAIT_STATUS_MAX_MS)
+        limit = self.transport.far_wait_limit_s
+        if limit is not None:  # a bridge's failsafe: each wait shorter than its timeout
+            chunk_ms = min(chunk_ms, max(1, int(limit * 1e3)))
+        while True:
+            if far:
+                ms = min(chunk_ms, max(0, math.ceil((deadline - clock.now()) * 1e3)))
+                status = Status(self.run(self.program().wait_status(int(value), ms)).statuses[-1])
+            else:
+                status = self.read_status()
+            if status & value:
+                return status
+            now = clock.now()
+            if now >= deadline:
+                raise WaitTimeout(value, timeout, int(status), what=what)
+            if not far:
+                step = poll if poll is not None else _poll_interval(now - start)
+                clock.sleep(min(step, deadline - now))
+
+    # ------------------------------------------------------------------ recording
+    def run_velocity(self, velocity: int, acceleration: int | None = None) -> VelocityRun:
+        """Start velocity mode at ``velocity``, 16.16 counts/sample with its sign the
+        direction (negative: backwards), as :meth:`move_to` starts a move; ``acceleration``
+        (16.16 counts/sample^2) is loaded too unless None (leave it out to change the speed of
+        a running motor: the chip refuses a new one then, AN-706 4.6.1).  Returns the
+        :class:`~lm629_host.chip.supervise.VelocityRun` (``.check()`` for a stall or runaway,
+        ``.stop()`` to end it smoothly).  On an axis with soft limits it is a ValueError:
+        velocity mode runs past them."""
+        from lm629_host.chip import supervise
+        speed = check_int("velocity", velocity, -VELOCITY_MAX, VELOCITY_MAX)
+        return supervise.run_velocity(self, abs(speed), acceleration, forward=speed >= 0)
+
+    def record(self, period_s: float, duration_s: float, *, full: bool = False) -> Trace:
+        """Sample status, desired (RDDP) and real (RDRP) position every ``period_s`` for
+        ``duration_s``, timed where the chip is: the bridge's own timer (rows stamped with its
+        clock and streamed, so the link's latency changes nothing but when they arrive), the
+        simulator's clock on ``sim://``; elsewhere the host polls
+        (``transport.record_note()`` says which).  ``full``: every register of a snapshot.
+        A rate the line cannot carry is a ``ValueError`` naming the highest it can, before
+        any traffic.  A row lost on the link is a gap (``trace.missing``), never made up.
+        See :mod:`lm629_host.chip.recording`."""
+        from lm629_host.chip import recording
+        return recording.record(self, period_s, duration_s, full=full)
+
+    def record_stream(self, period_s: float, duration_s: float | None = None, *,
+                      full: bool = False) -> RecordStream:
+        """The rows of :meth:`record` as they arrive (``duration_s=None``: until closed), for
+        live views: ``with chip.record_stream(1e-3) as rows: for row in rows: ...``."""
+        from lm629_host.chip import recording
+        return recording.open_stream(self, period_s, duration_s, full=full)
+
+    # ------------------------------------------------------------------ experts
+    def raw(self, command: int, write: Iterable[int] = (), read: int = 0) -> tuple[int, ...]:
+        """Send any command byte with data words to write, or a count of words to read."""
+        command = check_int("command", command, 0, 0xFF, hex_digits=2)
+        words = [check_int("word", w, 0, 0xFFFF, hex_digits=4) for w in write]
+        read = check_int("read", read, 0, 16)
+        if words and read:
+            raise ValueError("a command either writes words or reads them, not both")
+        p = self.program().command(command)
+        for w in words:
+            p.write(w)
+        self._ce_clear = False  # any byte may provoke a command error
+        return self.run(p.read(read)).words
+
+
+class _ThisThread(threading.local):
+    """Per thread: where an LM629's bus programs go (None: its transport; see intercept).
+    ``runner`` is every thread's start (a threading.local runs ``__init__`` in each)."""
+
+    def __init__(self, runner: Callable[[Program], ProgramResult] | None = None) -> None:
+        self.runner = runner
+
+
+def reset_chips(chips: Sequence[LM629], *, pulse: bool,
+                attempts: int) -> tuple[list[Status], dict[int, list[int]]]:
+    """The AN-706 3.7 / 4.4.1 initialisation of one chip or of every chip of a board, in two
+    programs per attempt: /RST once (``pulse``; the line is shared) or the RESET command on
+    each chip, each chip's status (00 expected at once after /RST), 1.5 ms, each status (84 or
+    C4); then, only once every chip checked out, so that nothing is ever written into a chip
+    still in reset, MSKI 0000 and RSTI 0000 on each, its status once busy is clear (80 or C0),
+    and PORT12 where it was selected.  ``attempts`` in all, then :class:`ResetError` naming
+    the first chip that failed (its axis on a board of several) with its status bytes.
+
+    Returns each chip's status after the reset and every status byte read, per chip select.
+    """
+    transport = chips[0].transport
+    seen: dict[int, list[int]] = {c.chip_select: [] for c in chips}
+    failed = chips[0]
+
+    def program() -> tuple[Program, Callable[[LM629], Program]]:
+        p = Program(busy_timeout_s=chips[0].busy_timeout)
+        at = [0]  # a program starts on chip select 0
+
+        def on(chip: LM629) -> Program:
+            if chip.chip_select != at[0]:
+                p.select(chip.chip_select)
+                at[0] = chip.chip_select
+            return p
+        return p, on
+
+    for _ in range(attempts):
+        p, on = program()
+        if pulse:
+            p.reset()
+        else:
+            for c in chips:
+                on(c).command(Cmd.RESET)
+        for c in chips:
+            on(c).status()
+        p.wait(round(RESET_WAIT_S * 1e6))
+        for c in chips:
+            on(c).status()
+        st = transport.execute(p).statuses
+        n = len(chips)
+        bad = None
+        for k, c in enumerate(chips):
+            first, done = st[k], st[n + k]
+            seen[c.chip_select] += (first, done)
+            if bad is None and ((pulse and first != 0) or done not in RESET_DONE_STATUSES):
+                bad = c
+        if bad is not None:
+            failed = bad
+            continue
+        q, on = program()
+        for c in chips:
+            on(c).command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
+            if c.port12_selected:
+                q.command(Cmd.PORT12)
+        cleared = transport.execute(q).statuses
+        for c, s in zip(chips, cleared):
+            seen[c.chip_select].append(s)
+        bad = next((c for c, s in zip(chips, cleared) if s not in RESET_CLEARED_STATUSES), None)
+        if bad is None:
+            for c in chips:
+                c.reset_done()
+            return [Status(s) for s in cleared], seen
+        failed = bad
+    expected = ("00 at once, 84 or C4 after 1.5 ms, 80 or C0 after MSKI/RSTI 0000" if pulse
+                else "84 or C4 after the RESET command, 80 or C0 after MSKI/RSTI 0000")
+    raise ResetError(seen[failed.chip_select], expected, attempts,
+                     axis=failed.chip_select if len(chips) > 1 else None)
+
+
+#: the longest far-side wait per exchange on a wall clock (Ctrl-C is held while a program runs)
+WAIT_STATUS_WALL_CHUNK_MS = 250
+#: host polling of a wait: from 1 ms, then this fraction of the time waited so far, at most
+#: POLL_MAX_S: a change is seen at most ~5 % late, and a 10 s wait costs ~280 reads, not 10,000
+POLL_MIN_S, POLL_FRACTION, POLL_MAX_S = 1e-3, 0.05, 0.05
+
+
+def _poll_interval(waited_s: float) -> float:
+    """The host's status poll period after ``waited_s`` of a wait (no far-side wait)."""
+    return min(POLL_MAX_S, max(POLL_MIN_S, waited_s * POLL_FRACTION))
+
+
+__all__ = ["LM629", "Snapshot", "FilterFlags", "check_int", "Move", "MoveResult", "MoveRules"]

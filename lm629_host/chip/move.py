@@ -1,0 +1,281 @@
+"""Moves that wait for their own completion: :meth:`LM629.move_to` -> :class:`Move`.
+
+Why this exists: the chip's status flags stay set until RSTI clears them.  A second
+``load_trajectory(..., start=True)`` followed by ``wait_for(TRAJECTORY_COMPLETE)`` returns at
+once, satisfied by the flag the *first* move raised, while the motor is still moving.
+:meth:`LM629.move_to` clears the flags a move reports (trajectory complete, breakpoint,
+position error, and the command error that STT is checked by) in the same bus program as its
+LTRJ and STT (one round trip on the bridge), and :meth:`Move.wait` watches the move until the
+shaft is at rest on the target, or raises :class:`~lm629_host.MotionError` with the motor
+stopped (abrupt stop, then motor off).
+
+The rules (:class:`MoveRules`, ``chip.move_rules``; every field settable):
+
+* **done** = the trajectory generator reported trajectory complete with the desired position on
+  the target, then the shaft stayed within ``tolerance`` counts of the target with zero
+  velocity for ``settle_time`` seconds (the *settle rule*).  Default tolerance: 20 counts,
+  above the P-only dead band of kp >= 20 on the 8-bit output (256 / kp + 1 = 13.8 counts at
+  kp = 20, AN-706 5.2.4).  A loop with a wider dead band (kp < 14) needs a larger tolerance.
+* **stall**: the following error is above the tolerance and the shaft has not moved
+  ``stall_counts`` for ``stall_time`` seconds while the trajectory is still running.
+* **runaway**: the shaft moves away from the desired position (the error grows) for
+  ``runaway_counts`` counts while speeding up, and the error has reached ``runaway_counts``:
+  positive feedback (motor leads or encoder channels swapped).  An overshoot slows down as it
+  goes and a lagging deceleration keeps the error small, so neither is a runaway.
+* **position error** / **motor off**: the chip's own flag (LPEI / LPES), or the drive found off.
+* **following error**: the trajectory completed but the shaft came to rest outside the
+  tolerance, or did not come to rest within ``settle_timeout`` seconds.
+* **timeout**: not done within ``timeout`` (default: the profile's duration at ``clock_hz``
+  times 1.5, plus ``settle_timeout``, plus one second).
+
+All waiting is on the transport's clock (simulated time on a simulator) and every check is a
+public status read (:meth:`LM629.snapshot`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import NoReturn, Protocol
+
+from lm629_host.clock import Clock
+from lm629_host.errors import ArgumentError, MotionError, MotionFault
+from lm629_host.bus.opcodes import Signals, Status
+from lm629_host.physics.plan import plan
+from lm629_host.chip.safety import STOP_NOTE, Stoppable, emergency_stop, motion_fault
+from lm629_host.bus.snapshot import Snapshot
+
+
+class MovingChip(Stoppable, Protocol):
+    """What a move needs of its chip (an :class:`~lm629_host.LM629` is one, and makes its
+    moves): its rules and clock, snapshots, and a way to stop.  Declared here so that this
+    module does not import the typed layer back."""
+
+    move_rules: MoveRules
+    chip_select: int  #: which chip of a multi-axis board
+
+    @property
+    def clock_hz(self) -> float:
+        """The chip's clock (Hz), for the default timeout."""
+
+    @property
+    def clock(self) -> Clock: ...
+
+    def snapshot(self) -> Snapshot: ...
+
+
+#: the flags a move reports, cleared in the program that starts it
+MOVE_FLAGS = Status.TRAJECTORY_COMPLETE | Status.BREAKPOINT | Status.POSITION_ERROR
+
+
+@dataclass(frozen=True)
+class MoveRules:
+    """When a move is done, and when it is a motion fault (see the module docstring)."""
+
+    tolerance: int = 20  #: counts from the target at rest
+    settle_time: float = 0.02  #: seconds at rest inside the tolerance
+    settle_timeout: float = 1.0  #: seconds after trajectory complete to settle
+    stall_time: float = 0.25  #: seconds without shaft progress while the error is large
+    stall_counts: int = 4  #: shaft motion that counts as progress
+    runaway_counts: int = 200  #: shaft motion away from the desired position
+    poll: float = 0.005  #: seconds between status reads
+    clock_hz: float | None = None  #: the chip's clock for the default timeout (None: the
+    #: chip's own ``clock_hz``: the simulator's, else 8 MHz)
+
+    def __post_init__(self) -> None:
+        for name in ("settle_time", "settle_timeout", "stall_time", "poll"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ArgumentError(name, v, f"{name}={v!r} must be a positive number of seconds")
+        for name in ("tolerance", "stall_counts", "runaway_counts"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ArgumentError(name, v, f"{name}={v!r} must be a whole number of counts >= 0",
+                                    lo=0)
+
+
+@dataclass(frozen=True)
+class MoveResult:
+    """A move that ended on target."""
+
+    target: int  #: counts
+    position: int  #: real position at rest, counts
+    error: int  #: target - position, counts
+    duration: float  #: seconds from the STT to settled, on the transport's clock
+
+
+class Move:
+    """A started move (from :meth:`LM629.move_to`).  :meth:`wait` until it is done."""
+
+    #: the loop of :meth:`wait` when the far side can wait for the move's end (set by the
+    #: chip that made the move: :func:`lm629_host.chip.movewait.wait_far`); None: host polling
+    waiter: Callable[[Move, MoveWatch, Callable[[Snapshot], None] | None], MoveResult] | None = None
+
+    def __init__(self, chip: MovingChip, target: int, velocity: int, acceleration: int | None,
+                 start: Snapshot, t0: float) -> None:
+        self.chip = chip
+        self.target = target
+        self.velocity = velocity
+        self.acceleration = acceleration
+        self.start = start  #: the snapshot read just before the move was started
+        self.t0 = t0  #: transport clock at the STT
+        self.result: MoveResult | None = None
+
+    def __repr__(self) -> str:
+        return f"<Move to {self.target} counts, {'done' if self.result else 'started'}>"
+
+    def profile_s(self, clock_hz: float) -> float | None:
+        """The trajectory's duration, or None when the acceleration is not known here."""
+        if not self.acceleration:
+            return None
+        return plan(self.target - self.start.desired_position, self.velocity,
+                    self.acceleration).seconds(clock_hz)
+
+    def _clock_hz(self, rules: MoveRules) -> float:
+        if rules.clock_hz:
+            return rules.clock_hz
+        return self.chip.clock_hz
+
+    def wait(self, timeout: float | None = None, tolerance: int | None = None, *,
+             rules: MoveRules | None = None,
+             progress: Callable[[Snapshot], None] | None = None) -> MoveResult:
+        """Watch the move until the shaft is at rest within ``tolerance`` counts of the target
+        (default ``chip.move_rules``); return a :class:`MoveResult`.  On a fault stop the motor
+        (abrupt stop, then off) and raise :class:`MotionError` naming the reason.  Ctrl-C
+        (KeyboardInterrupt) while waiting stops the motor the same way before it goes on.
+        ``progress`` is called with every snapshot read."""
+        if self.result is not None:
+            return self.result
+        try:
+            return self._wait(timeout, tolerance, rules, progress)
+        except KeyboardInterrupt as exc:
+            if getattr(exc, STOP_NOTE, None) is None:
+                setattr(exc, STOP_NOTE, emergency_stop(self.chip)[1])
+            raise
+
+    def _wait(self, timeout: float | None, tolerance: int | None, rules: MoveRules | None,
+              progress: Callable[[Snapshot], None] | None) -> MoveResult:
+        watch = self.watch(timeout, tolerance, rules)
+        if self.waiter is not None:  # the far side waits (lm629_host.chip.movewait)
+            return self.waiter(self, watch, progress)
+        return self.poll(watch, progress)
+
+    def poll(self, watch: MoveWatch, progress: Callable[[Snapshot], None] | None) -> MoveResult:
+        """The host's loop of :meth:`wait`: a snapshot every ``poll``, each judged by ``watch``."""
+        chip, clock = self.chip, self.chip.clock
+        while True:
+            s = chip.snapshot()
+            if progress is not None:
+                progress(s)
+            result = watch.check(s)
+            if result is not None:
+                return result
+            clock.sleep(watch.rules.poll)
+
+    def watch(self, timeout: float | None = None, tolerance: int | None = None,
+              rules: MoveRules | None = None) -> MoveWatch:
+        """The rules of :meth:`wait` as a checker fed with snapshots read elsewhere (a board
+        reads every axis's snapshot in one program and feeds each move's watch)."""
+        r = rules or self.chip.move_rules
+        if tolerance is not None:
+            r = replace(r, tolerance=tolerance)
+        if timeout is None:
+            profile = self.profile_s(self._clock_hz(r))
+            timeout = (1.5 * profile if profile is not None else 60.0) + r.settle_timeout + 1.0
+        if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
+            raise ArgumentError("timeout", timeout,
+                                f"timeout={timeout!r} must be a positive number of seconds")
+        return MoveWatch(self, r, timeout)
+
+    def _fault(self, reason: MotionFault, s: Snapshot, message: str) -> NoReturn:
+        raise motion_fault(self.chip, reason, message, position=s.real_position,
+                           error=self.target - s.real_position)
+
+
+class MoveWatch:
+    """The done / fault rules of one move (see the module docstring), fed one snapshot at a
+    time: :meth:`check` returns the :class:`MoveResult` once the move is done, None while it
+    goes on, and on a fault stops the motor and raises :class:`MotionError`."""
+
+    def __init__(self, move: Move, rules: MoveRules, timeout: float) -> None:
+        self.move, self.rules, self.timeout = move, rules, timeout
+        self.deadline = move.t0 + timeout
+        self.prev = move.start
+        self.progress_at, self.progress_pos = move.start.time, move.start.real_position
+        self.away, self.away_v0 = 0, 0
+        self.complete_at: float | None = None
+        self.quiet_since: float | None = None
+
+    def check(self, s: Snapshot) -> MoveResult | None:
+        m, r, prev = self.move, self.rules, self.prev
+        target = m.target
+        err = target - s.real_position
+        if s.status & Status.POSITION_ERROR:
+            m._fault(MotionError.POSITION_ERROR, s,
+                     "the chip raised its position-error flag (following error above "
+                     "the LPEI/LPES limit)")
+        if s.status & Status.MOTOR_OFF or s.signals & Signals.MOTOR_OFF:
+            m._fault(MotionError.MOTOR_OFF, s, "the drive was found off during the move")
+        # shaft progress (stall) and motion away from the desired position (runaway)
+        if abs(s.real_position - self.progress_pos) >= r.stall_counts:
+            self.progress_at, self.progress_pos = s.time, s.real_position
+        fe = s.following_error
+        moved = s.real_position - prev.real_position
+        if moved and fe and (moved > 0) != (fe > 0) and abs(fe) > abs(prev.following_error):
+            if not self.away:
+                self.away_v0 = abs(prev.real_velocity)
+            self.away += abs(moved)
+        elif moved:
+            self.away = 0
+        # a runaway leaves the desired position behind: the error grows with the distance run
+        # away (a lagging deceleration or an overshoot keeps it small, and slow moves make the
+        # per-sample velocity 0 or 1, too coarse to tell alone)
+        if (self.away >= r.runaway_counts and abs(fe) >= r.runaway_counts
+                and abs(s.real_velocity) >= self.away_v0):
+            m._fault(MotionError.RUNAWAY, s,
+                     f"the shaft ran {self.away} counts away from the desired position "
+                     f"(following error {fe:+d}): swap the motor leads or the encoder's "
+                     "A and B channels")
+        if self.complete_at is None and s.status & Status.TRAJECTORY_COMPLETE \
+                and s.desired_position == target:
+            self.complete_at = s.time
+        if self.complete_at is None and abs(fe) > r.tolerance \
+                and s.time - self.progress_at >= r.stall_time:
+            m._fault(MotionError.STALL, s,
+                     f"the desired position moved {s.desired_position - m.start.desired_position:+d} "
+                     f"counts, the shaft {s.real_position - m.start.real_position:+d} "
+                     f"(no progress for {s.time - self.progress_at:.2f} s): check the "
+                     "amplifier, its supply, the motor and the encoder")
+        if self.complete_at is not None:
+            at_rest = s.real_velocity == 0 and s.real_position == prev.real_position
+            if at_rest:
+                self.quiet_since = prev.time if self.quiet_since is None else self.quiet_since
+            else:
+                self.quiet_since = None
+            if self.quiet_since is not None and s.time - self.quiet_since >= r.settle_time:
+                if abs(err) <= r.tolerance:
+                    m.result = MoveResult(target, s.real_position, err, s.time - m.t0)
+                    return m.result
+                if abs(s.real_position - m.start.real_position) < r.stall_counts:
+                    m._fault(MotionError.STALL, s,
+                             f"the desired position went to the target, the shaft did "
+                             f"not move ({err:+d} counts from the target): check the "
+                             "amplifier, its supply, the motor and the encoder")
+                m._fault(MotionError.FOLLOWING_ERROR, s,
+                         f"the shaft came to rest {err:+d} counts from the target "
+                         f"(tolerance {r.tolerance}): add ki, raise kp, or check the load")
+            if s.time - self.complete_at >= r.settle_timeout:
+                m._fault(MotionError.FOLLOWING_ERROR, s,
+                         f"the shaft did not settle within {r.tolerance} counts in "
+                         f"{r.settle_timeout:g} s after the trajectory ended (error "
+                         f"{err:+d}): add kd for damping, or lower kp")
+        if s.time >= self.deadline:
+            m._fault(MotionError.TIMEOUT, s,
+                     f"not on target after {self.timeout:g} s (desired {s.desired_position}, "
+                     f"target {target}, shaft {s.real_position})")
+        self.prev = s
+        return None
+
+
+__all__ = ["MOVE_FLAGS", "Move", "MoveResult", "MoveRules", "MoveWatch"]

@@ -1,0 +1,342 @@
+"""Velocity profiles other than the chip's trapezoid, as pieces the host plans (AN-706 4.5.3).
+
+The chip only generates trapezoids.  AN-706 4.5.3 (Figure 16) gives the method for any other
+profile: "breaking the profile into small pieces each of which is part of a small trapezoid.
+A piecewise linear approximation to the required profile can then be achieved by changing the
+maximum velocity before the trapezoid has had time to complete."  So a shaped move is one
+position-mode move to its target, started with the first piece's maximum velocity, and a new
+maximum velocity (LTRJ velocity + STT, allowed on the fly) at the start of every piece.  The
+chip ramps to each piece's velocity at the move's one acceleration (which cannot change on the
+fly, AN-706 4.6.1), and its own deceleration still lands exactly on the target, so the move
+ends on target whatever the pieces' rounding.
+
+Pieces are at least :data:`~lm629_host.bus.opcodes.UPDATE_INTERVAL_S` (10 ms) apart: each is an
+STT, and the chip aborts its trajectory calculation at an STT sooner than that (AN-706 4.6.2).
+Each piece's velocity is the profile's *mean* velocity over the piece, so the pieces cover the
+planned distance in the planned time; the acceleration word is the fastest change between two
+pieces spread over :data:`RAMP_SHARE` of a piece, so that the chip reaches every piece's
+velocity within the piece (the recorded velocity follows the plan within one piece).
+
+A shape is given in counts and seconds (:class:`SCurve`: a jerk-limited move; :class:`Points`:
+the user's own (time, velocity) list, linear between the points); :func:`plan` turns it into a
+:class:`ProfilePlan` of chip words at a chip's sample period.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from lm629_host.errors import ArgumentError
+from lm629_host.chip.move import Move, MoveResult, MoveWatch
+from lm629_host.bus.opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX, Status
+from lm629_host.bus.snapshot import Snapshot
+from lm629_host.transports.base import ProfileState
+
+#: 16.16 fixed point of the trajectory words
+_ONE = 1 << 16
+#: the share of a piece within which the chip must reach the piece's velocity: the whole piece,
+#: so that the chip's acceleration at the steepest piece is the plan's peak, not more
+RAMP_SHARE = 1.0
+#: the longest a piece may be (the plan stays a fair approximation of the shape)
+PIECE_MAX_S = 0.25
+#: the most pieces one move takes (a far side holds them all; 2.5 min at 10 ms)
+PIECES_MAX = 16384
+
+
+@dataclass(frozen=True)
+class Piece:
+    """At ``t`` seconds from the move's start, the maximum velocity becomes ``velocity``."""
+
+    t: float
+    velocity: int  #: 16.16 counts/sample, 1..3FFFFFFF
+
+
+@dataclass(frozen=True)
+class ProfilePlan:
+    """A shaped move as the chip runs it: ``distance`` counts (signed), the pieces, the one
+    acceleration word, and the planned profile (``position_at``/``velocity_at``, counts and
+    counts/s) it approximates."""
+
+    distance: int
+    pieces: tuple[Piece, ...]
+    acceleration: int  #: 16.16 counts/sample^2
+    duration: float  #: the planned profile's duration, s
+    piece_s: float
+    sample_s: float
+    position_at: Callable[[float], float]
+    velocity_at: Callable[[float], float]
+
+    @property
+    def peak_velocity(self) -> int:
+        return max(p.velocity for p in self.pieces)
+
+    def acceleration_at(self, t: float, dt: float = 1e-4) -> float:
+        """The planned acceleration at ``t`` (counts/s^2), by a central difference."""
+        return (self.velocity_at(t + dt) - self.velocity_at(t - dt)) / (2 * dt)
+
+
+@dataclass(frozen=True)
+class SCurve:
+    """A jerk-limited move: the velocity, acceleration and jerk limits (counts/s, counts/s^2,
+    counts/s^3); the acceleration ramps at ``jerk`` instead of stepping as a trapezoid's does."""
+
+    velocity: float
+    acceleration: float
+    jerk: float
+
+    def __post_init__(self) -> None:
+        for name in ("velocity", "acceleration", "jerk"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                    not math.isfinite(value) or value <= 0:
+                raise ArgumentError(name, value, f"{name}={value!r} must be a finite number "
+                                                 "above 0 (counts and seconds)", lo=0)
+
+    def segments(self, distance: float) -> list[tuple[float, float]]:
+        """(duration s, jerk counts/s^3) of the seven segments covering ``distance`` > 0."""
+        j, a_max = self.jerk, self.acceleration
+
+        def ramp(v: float) -> tuple[float, float]:  # (jerk time, constant-acceleration time)
+            if v * j >= a_max * a_max:
+                return a_max / j, v / a_max - a_max / j
+            return math.sqrt(v / j), 0.0
+
+        def ramp_distance(v: float) -> float:
+            tj, ta = ramp(v)
+            return v * (2 * tj + ta) / 2  # symmetric ramp: the mean velocity is v / 2
+
+        v = self.velocity
+        if 2 * ramp_distance(v) > distance:  # never reaches the velocity: find the top
+            lo, hi = 0.0, v
+            for _ in range(100):
+                mid = (lo + hi) / 2
+                lo, hi = (mid, hi) if 2 * ramp_distance(mid) <= distance else (lo, mid)
+            v = lo
+        tj, ta = ramp(v)
+        cruise = (distance - 2 * ramp_distance(v)) / v if v > 0 else 0.0
+        return [(tj, j), (ta, 0.0), (tj, -j), (max(0.0, cruise), 0.0), (tj, -j), (ta, 0.0),
+                (tj, j)]
+
+
+@dataclass(frozen=True)
+class Points:
+    """The user's own profile: (time s, velocity counts/s) points from (0, 0), linear between
+    them, ending at velocity 0; the distance is its area (the target is checked against it)."""
+
+    points: tuple[tuple[float, float], ...]
+
+    def __init__(self, points: Sequence[tuple[float, float]]) -> None:
+        pts = tuple((float(t), float(v)) for t, v in points)
+        if len(pts) < 2:
+            raise ArgumentError("points", points, "points: give at least two (time, velocity) "
+                                                  "points, from (0, 0) to (T, 0)")
+        if pts[0] != (0.0, 0.0) or pts[-1][1] != 0.0:
+            raise ArgumentError("points", points, "points must start at (0, 0) and end at "
+                                                  "velocity 0 (the move starts and ends at rest)")
+        for (t0, _), (t1, v1) in zip(pts, pts[1:]):
+            if not t1 > t0:
+                raise ArgumentError("points", points, f"points: time {t1:g} s does not come "
+                                                      f"after {t0:g} s")
+            if not math.isfinite(v1) or v1 < 0:
+                raise ArgumentError("points", points, f"points: velocity {v1:g} counts/s at "
+                                                      f"{t1:g} s must be finite and >= 0 (the "
+                                                      "target's sign gives the direction)")
+        object.__setattr__(self, "points", pts)
+
+    @property
+    def area(self) -> float:
+        return sum((t1 - t0) * (v0 + v1) / 2 for (t0, v0), (t1, v1)
+                   in zip(self.points, self.points[1:]))
+
+
+Shape = SCurve | Points
+
+
+def _integrals(segments: Sequence[tuple[float, float]]
+               ) -> tuple[float, Callable[[float], float], Callable[[float], float]]:
+    """(duration, position(t), velocity(t)) of piecewise-constant jerk segments from rest."""
+    starts: list[tuple[float, float, float, float, float]] = []  # t, jerk, a, v, p
+    t = a = v = p = 0.0
+    for dt, j in segments:
+        starts.append((t, j, a, v, p))
+        p += v * dt + a * dt * dt / 2 + j * dt ** 3 / 6
+        v += a * dt + j * dt * dt / 2
+        a += j * dt
+        t += dt
+    end = t, p
+
+    def state(x: float) -> tuple[float, float]:
+        if x <= 0:
+            return 0.0, 0.0
+        if x >= end[0]:
+            return end[1], 0.0
+        seg = starts[0]
+        for s in starts:
+            if s[0] <= x:
+                seg = s
+        t0, j, a0, v0, p0 = seg
+        d = x - t0
+        return (p0 + v0 * d + a0 * d * d / 2 + j * d ** 3 / 6, v0 + a0 * d + j * d * d / 2)
+
+    return end[0], (lambda x: state(x)[0]), (lambda x: state(x)[1])
+
+
+def _linear(points: Sequence[tuple[float, float]]
+            ) -> tuple[float, Callable[[float], float], Callable[[float], float]]:
+    """(duration, position(t), velocity(t)) of a piecewise-linear velocity."""
+    def velocity(x: float) -> float:
+        for (t0, v0), (t1, v1) in zip(points, points[1:]):
+            if t0 <= x <= t1:
+                return v0 + (v1 - v0) * (x - t0) / (t1 - t0)
+        return 0.0
+
+    def position(x: float) -> float:
+        total = 0.0
+        for (t0, v0), (t1, v1) in zip(points, points[1:]):
+            if x <= t0:
+                break
+            end = min(x, t1)
+            v_end = v0 + (v1 - v0) * (end - t0) / (t1 - t0)
+            total += (end - t0) * (v0 + v_end) / 2
+        return total
+
+    return points[-1][0], position, velocity
+
+
+def check_piece_s(piece_s: object) -> float:
+    """``piece_s`` when it is a number of seconds from 10 ms (AN-706 4.6.2) to
+    :data:`PIECE_MAX_S`, else an :class:`ArgumentError` naming that range."""
+    if isinstance(piece_s, bool) or not isinstance(piece_s, (int, float)) or \
+            not UPDATE_INTERVAL_S <= piece_s <= PIECE_MAX_S:
+        raise ArgumentError("piece_s", piece_s, f"piece_s={piece_s!r} must be "
+                            f"{UPDATE_INTERVAL_S:g}..{PIECE_MAX_S:g} s (AN-706 4.6.2: at most one "
+                            "trajectory update per 10 ms)", lo=UPDATE_INTERVAL_S, hi=PIECE_MAX_S)
+    return float(piece_s)
+
+
+def plan(shape: Shape, distance: int, sample_s: float,
+         piece_s: float = 2 * UPDATE_INTERVAL_S) -> ProfilePlan:
+    """The pieces of ``shape`` over ``distance`` counts (its sign the direction) at a sample
+    period of ``sample_s``; ``piece_s`` apart (at least the 10 ms of AN-706 4.6.2).  Every
+    argument is checked here, before any bus cycle (:class:`ArgumentError`)."""
+    if isinstance(distance, bool) or not isinstance(distance, int) or distance == 0:
+        raise ArgumentError("distance", distance, f"distance={distance!r}: a shaped move needs a "
+                                                  "whole number of counts to travel, not 0")
+    check_piece_s(piece_s)
+    span = abs(distance)
+    if isinstance(shape, SCurve):
+        duration, position, velocity = _integrals(shape.segments(span))
+    elif isinstance(shape, Points):
+        area = shape.area
+        if abs(area - span) > max(1.0, 1e-3 * span):
+            raise ArgumentError("points", shape.points,
+                                f"points cover {area:.0f} counts but the move is {span} counts: "
+                                "the area under the velocity points is the distance")
+        duration, position, velocity = _linear(shape.points)
+        scale = span / area  # exactly the distance
+        position = (lambda f: lambda x: f(x) * scale)(position)
+        velocity = (lambda f: lambda x: f(x) * scale)(velocity)
+    else:
+        raise ArgumentError("shape", shape, f"shape={shape!r}: expected SCurve or Points")
+    n = max(1, math.ceil(duration / piece_s - 1e-9))
+    if n > PIECES_MAX:
+        raise ArgumentError("piece_s", piece_s, f"the move takes {duration:.1f} s: {n} pieces of "
+                            f"{piece_s:g} s, more than {PIECES_MAX}; use longer pieces")
+    words = []
+    for k in range(n):
+        t0, t1 = k * piece_s, min(duration, (k + 1) * piece_s)
+        mean = (position(t1) - position(t0)) / max(t1 - t0, 1e-12)
+        words.append(max(1, round(mean * sample_s * _ONE)))
+    top = max(words)
+    if top > VELOCITY_MAX:
+        raise ArgumentError("velocity", top, f"the profile's top velocity word {top} is above "
+                            f"{VELOCITY_MAX} (0x3FFFFFFF)", hi=VELOCITY_MAX)
+    steps = [words[0]] + [abs(b - a) for a, b in zip(words, words[1:])] + [words[-1]]
+    # whole samples of a piece after its STT (the first may come up to a sample late)
+    samples = max(1, math.floor(piece_s / sample_s * RAMP_SHARE) - 1)
+    acceleration = min(ACCELERATION_MAX, max(1, math.ceil(max(steps) / samples)))
+    pieces = tuple(Piece(k * piece_s, w) for k, w in enumerate(words))
+    sign = 1 if distance > 0 else -1
+    return ProfilePlan(distance, pieces, acceleration, duration, float(piece_s), sample_s,
+                       lambda x: sign * position(x), lambda x: sign * velocity(x))
+
+
+
+
+# ---------------------------------------------------------------------------------- running
+class ShapedMove(Move):
+    """A move whose maximum velocity the host changes piece by piece (:meth:`LM629.move_profile
+    <lm629_host.LM629.move_profile>`).  :meth:`wait` issues the pieces at their times on the
+    transport's clock (a snapshot between two pieces judges the move as any move's wait does),
+    then waits for the end; ``piece_times`` are when each piece's STT had gone out (seconds
+    from the first), and ``jitter`` their lateness against the plan."""
+
+    def __init__(self, move: Move, plan: ProfilePlan, far: bool = False) -> None:
+        super().__init__(move.chip, move.target, plan.peak_velocity, plan.acceleration,
+                         move.start, move.t0)
+        self.plan = plan
+        self.inner = move.waiter  #: the end's waiter (the far side's, or None: polling)
+        self.waiter = _wait_pieces
+        self.piece_times: list[float] = [0.0]
+        #: True when the transport's far side issues the pieces on its own timer; then
+        #: ``far_state`` is what it reported at the end (its pieces' lateness on its clock)
+        self.far = far
+        self.far_state: ProfileState | None = None
+
+    def profile_s(self, clock_hz: float) -> float | None:
+        return self.plan.duration
+
+    @property
+    def jitter(self) -> list[float]:
+        """Each host-issued piece's lateness against its planned time, seconds (a far-side
+        schedule reports only its largest: ``far_state.late_max_s``)."""
+        return [t - p.t for t, p in zip(self.piece_times, self.plan.pieces)]
+
+    def schedule_far(self, axis: int | None, update_s: float) -> None:
+        """Hand the pieces after the first to the transport's far side: their times from now,
+        the first no sooner than ``update_s`` (AN-706 4.6.2) after the move's STT."""
+        clock = self.chip.clock
+        elapsed = clock.now() - self.t0
+        pieces = [(max(p.t - elapsed, update_s), p.velocity) for p in self.plan.pieces[1:]]
+        chip: Any = self.chip  # an LM629
+        chip.transport.profile(axis, pieces, new=True)
+
+
+def _wait_pieces(move: Move, watch: MoveWatch,
+                 progress: Callable[[Snapshot], None] | None) -> MoveResult:
+    """The loop of :meth:`ShapedMove.wait` (host-timed pieces)."""
+    assert isinstance(move, ShapedMove)
+    chip: Any = move.chip  # an LM629: load_trajectory spaces every update by 10 ms itself
+    clock = chip.clock
+    pieces = move.plan.pieces
+    if move.far:
+        done = (move.inner(move, watch, progress) if move.inner is not None
+                else move.poll(watch, progress))
+        move.far_state = chip.transport.profile(chip.axis, [], new=False)
+        return done
+    while len(move.piece_times) < len(pieces):
+        piece = pieces[len(move.piece_times)]
+        due = move.t0 + piece.t
+        now = clock.now()
+        if now < due:
+            clock.sleep(due - now)
+        chip.load_trajectory(velocity=piece.velocity, start=True)
+        move.piece_times.append(clock.now() - move.t0)
+        s = chip.snapshot()
+        if progress is not None:
+            progress(s)
+        result = watch.check(s)
+        if result is not None:
+            return result
+        if s.status & Status.TRAJECTORY_COMPLETE:
+            break  # the chip landed on the target: the rest of the pieces have nothing to do
+    if move.inner is not None:
+        return move.inner(move, watch, progress)
+    return move.poll(watch, progress)
+
+
+__all__ = ["PIECES_MAX", "PIECE_MAX_S", "Piece", "Points", "ProfilePlan", "RAMP_SHARE",
+           "SCurve", "Shape", "ShapedMove", "check_piece_s", "plan"]

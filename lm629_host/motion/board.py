@@ -1,0 +1,613 @@
+"""Several LM628/LM629 on one bus: a multi-axis board.
+
+The chips share the data bus, the strobes and /RST; each has its own /CS.  A bus program may
+switch chip select (``Program.select``), so work on several axes, above all a synchronized
+start, is one program: one round trip on a bridge, one USB exchange on the FT232H.
+
+    with lm629_host.open_board("sim://?axes=2") as board:
+        board.reset()                 # one /RST, every chip checked (ResetError names the axis)
+        x, y = board.axes             # LM629 objects sharing the board's transport
+        board.start()                 # STT on every axis in one program
+        m = board.move_linear({x: 12000, y: 6000}, velocity=65536, acceleration=1000)
+        m.wait(timeout=10)            # all axes; MotionError names the axis
+
+Straight lines (:func:`plan_linear`).  Each axis's velocity and acceleration are the path's,
+scaled by the axis's share of the path (its distance over the Euclidean length), rounded to
+the chip's 16.16 words.  Rounding alone would let the axes drift apart in time: a word rounded
+by half a unit changes a slow axis's duration by up to ``T * 0.5 / word`` samples, tens of
+samples on a long slow move.  So the acceleration is rounded and then the velocity word is
+chosen (trapezoid) or the acceleration word (triangle) so that the axis's trapezoid lasts, in
+exact arithmetic, as long as the path's; what remains is the chip's own whole-sample
+quantisation of each ramp.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from lm629_host.errors import ArgumentError, AxisError, CommandError, MotionError
+from lm629_host.chip.lm629 import LM629, Snapshot, check_int, reset_chips
+from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules
+from lm629_host.bus.opcodes import (
+    FIXED_ONE,
+    ACCELERATION_MAX,
+    INTERRUPTS,
+    POSITION_MAX,
+    POSITION_MIN,
+    VELOCITY_MAX,
+    Cmd,
+    Status,
+)
+from lm629_host.physics.plan import plan
+from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
+from lm629_host.chip.safety import emergency_stop, stop_if_moving
+from lm629_host.bus.snapshot import add_snapshot, snapshot_at
+from lm629_host.transports.ports import resolve_port
+from lm629_host.transports import DEFAULT_URL
+from lm629_host.clock import Clock
+from lm629_host.transports.base import Transport
+
+if TYPE_CHECKING:
+    from lm629_host.chip.batch import Batch
+    from lm629_host.bridge.protocol import FailsafeState
+    from lm629_host.motion.profile import Profile
+
+log = logging.getLogger("lm629_host")
+
+# ---------------------------------------------------------------------------- planning
+@dataclass(frozen=True)
+class AxisPlan:
+    """One axis of a straight-line move: the LTRJ words and the predicted duration."""
+
+    axis: int
+    start: int
+    target: int
+    velocity: int  #: 16.16 word
+    acceleration: int  #: 16.16 word
+    samples: float  #: predicted duration (continuous trapezoid of the rounded words)
+
+    @property
+    def distance(self) -> int:
+        return self.target - self.start
+
+
+@dataclass(frozen=True)
+class LinearPlan:
+    axes: tuple[AxisPlan, ...]
+    samples: float  #: the path's duration, unrounded
+
+    @property
+    def spread(self) -> float:
+        """Largest difference between two axes' predicted durations, samples."""
+        t = [p.samples for p in self.axes if p.distance]
+        return max(t) - min(t) if t else 0.0
+
+
+def _solve_velocity(d: int, acc: int, total: float) -> list[int]:
+    """Velocity words near the root of d/v + v/a = total (trapezoid), floor and ceil."""
+    a_c = acc / FIXED_ONE
+    disc = (total * a_c) ** 2 - 4 * d * a_c
+    if disc < 0:
+        return []
+    exact = (total * a_c - math.sqrt(disc)) / 2 * FIXED_ONE
+    return [c for c in (math.floor(exact), math.ceil(exact)) if 1 <= c <= VELOCITY_MAX]
+
+
+def _solve_acceleration(d: int, total: float) -> list[int]:
+    """Acceleration words near the root of 2 sqrt(d/a) = total (triangle)."""
+    exact = 4 * d / (total * total) * FIXED_ONE
+    return [c for c in (math.floor(exact), math.ceil(exact)) if 1 <= c <= ACCELERATION_MAX]
+
+
+def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
+                acceleration: int) -> LinearPlan:
+    """Plan a straight line in count space: ``moves`` maps an axis to (start, target) counts;
+    ``velocity`` and ``acceleration`` are the path's 16.16 words (along the Euclidean path).
+
+    Every axis gets its share of both words; the axis with the longest distance leads.  Its
+    acceleration word is lowered (by at most 20 %) to the nearest one whose shares round to
+    the same ratios within 0.1 % (the ramps then keep to the line), and its word that sets
+    the duration (the velocity of a trapezoid, the acceleration of a triangle) is lowered (by
+    at most 10 %) to the nearest value that lets every other axis's rounded words last the
+    same time, within a twentieth of a sample in exact arithmetic (each other axis's word
+    solved from the duration).  Never faster than asked.  What is left is
+    :attr:`LinearPlan.spread`; the 16.16 resolution bounds it: a word of ``v`` changes a
+    cruise of ``T`` samples by ``T / v`` samples, and a small acceleration word (tens) cannot
+    keep the ratio of two long ramps better than a few per mille
+    (``python3 tools/bench_linear.py`` measures both).
+
+    Raises ValueError (before any bus traffic) for words out of range, targets out of range,
+    or an axis whose share of the acceleration is below the chip's resolution of one word.
+    """
+    velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
+    acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX, hex_digits=8)
+    for axis, (start, target) in moves.items():
+        check_int(f"target of axis {axis}", target, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        check_int(f"start of axis {axis}", start, POSITION_MIN, POSITION_MAX, hex_digits=8)
+    dist = {axis: abs(t - s) for axis, (s, t) in moves.items()}
+    length = math.sqrt(sum(d * d for d in dist.values()))
+    if not length:
+        return LinearPlan(tuple(AxisPlan(k, s, t, 0, 0, 0.0) for k, (s, t) in moves.items()), 0.0)
+    path = plan(length, velocity, acceleration)
+    total = path.samples
+    trapezoid = not path.triangle
+    moving = [k for k in moves if dist[k]]
+    for k in moving:
+        if acceleration * dist[k] / length < 0.5:
+            raise ValueError(
+                f"axis {k}: its share of the acceleration ({acceleration} x {dist[k]}/"
+                f"{length:.0f}) is below the chip's resolution of one 16.16 word: raise the "
+                "acceleration or move this axis on its own")
+    lead = max(moving, key=lambda k: dist[k])
+    share = {k: dist[k] / length for k in moving}
+    acc0 = {k: max(1, round(acceleration * share[k])) for k in moving}
+    if trapezoid and len(moving) > 1:
+        # the ramps keep to the line when the acceleration words keep the shares' ratios:
+        # search the lead's word downwards (at most 20 %: never above the acceleration asked
+        # for) for the nearest whose rounded ratios are within 0.1 %, else the best found
+        a_lead = acc0[lead]
+
+        def ratio_error(cand: int) -> float:
+            return max(abs(max(1, round(cand * dist[k] / dist[lead])) * dist[lead]
+                           / (cand * dist[k]) - 1) for k in moving)
+
+        span = max(2, a_lead // 5)
+        best_a = a_lead
+        for cand in range(a_lead, max(1, a_lead - span) - 1, -1):
+            if ratio_error(cand) <= 1e-3:
+                best_a = cand
+                break
+            if ratio_error(cand) < ratio_error(best_a):
+                best_a = cand
+        acc0 = {k: max(1, round(best_a * dist[k] / dist[lead])) for k in moving}
+    vel0 = {k: max(1, round(velocity * share[k])) for k in moving}
+    ideal = vel0[lead] if trapezoid else acc0[lead]
+    # downwards only (never faster than asked for), at most 10 %
+    width = max(16, min(65536, ideal // 10))
+    best: tuple[float, int, dict[int, tuple[int, int]]] | None = None
+    for cand in range(ideal, max(1, ideal - width) - 1, -1):
+        words = {lead: (cand, acc0[lead]) if trapezoid
+                 else (max(vel0[lead], math.isqrt(dist[lead] * cand * FIXED_ONE) + 2), cand)}
+        t_lead = plan(dist[lead], *words[lead]).samples
+        worst = 0.0
+        for k in moving:
+            if k == lead:
+                continue
+            if trapezoid:
+                options = [(c, acc0[k]) for c in _solve_velocity(dist[k], acc0[k], t_lead)]
+            else:
+                options = [(max(vel0[k], math.isqrt(dist[k] * c * FIXED_ONE) + 2), c)
+                           for c in _solve_acceleration(dist[k], t_lead)]
+            if not options:
+                options = [(vel0[k], acc0[k])]
+            words[k] = min(options, key=lambda w: abs(plan(dist[k], *w).samples - t_lead))
+            worst = max(worst, abs(plan(dist[k], *words[k]).samples - t_lead))
+        key = (worst, abs(cand - ideal))
+        if best is None or key < best[:2]:
+            best = (worst, abs(cand - ideal), words)
+        if worst < 0.05:
+            break  # the nearest candidate that matches within a twentieth of a sample
+    assert best is not None
+    chosen = best[2]
+    plans = []
+    for axis, (start, target) in moves.items():
+        if not dist[axis]:
+            plans.append(AxisPlan(axis, start, target, 0, 0, 0.0))
+            continue
+        vel, acc = chosen[axis]
+        plans.append(AxisPlan(axis, start, target, min(vel, VELOCITY_MAX), acc,
+                              plan(dist[axis], vel, acc).samples))
+    return LinearPlan(tuple(plans), total)
+
+
+# ---------------------------------------------------------------------------- the board
+class BoardMove:
+    """Moves started together on several axes (one :class:`~lm629_host.Move` per axis, all
+    with the same start time); :meth:`wait` waits for all of them."""
+
+    def __init__(self, board: Board, moves: Sequence[Move], plan: LinearPlan | None = None) -> None:
+        self.board = board
+        self.moves = tuple(moves)
+        self.plan = plan
+
+    @property
+    def targets(self) -> dict[int, int]:
+        return {m.chip.chip_select: m.target for m in self.moves}
+
+    def wait(self, timeout: float | None = None, tolerance: int | None = None, *,
+             rules: MoveRules | None = None,
+             progress: Callable[[Snapshot], None] | None = None) -> list[MoveResult]:
+        """Like :meth:`Move.wait <lm629_host.Move.wait>` for every axis (same ``timeout``
+        from the common start, same ``tolerance``); returns their results, axis order.
+
+        Every poll reads the snapshot of every axis still moving in one bus program and checks
+        each against its own move's rules (:class:`~lm629_host.chip.move.MoveWatch`): a stall, a
+        runaway, a position-error flag or a drive found off on *any* axis ends the wait at
+        once.  A motion fault on one axis stops every axis and raises :class:`MotionError`
+        naming the axis (``exc.axis``).  ``progress`` is called with every snapshot read."""
+        watches = {m: m.watch(timeout, tolerance, rules) for m in self.moves if m.result is None}
+        clock = self.board.clock
+        try:
+            while watches:
+                pending = list(watches.items())
+                snaps = self.board.snapshots([m.chip.chip_select for m, _ in pending])
+                for (m, w), snap in zip(pending, snaps):
+                    if progress is not None:
+                        progress(snap)
+                    try:
+                        done = w.check(snap)
+                    except MotionError as exc:
+                        self.board._stop_all()
+                        raise exc.on_axis(m.chip.chip_select) from exc
+                    if done is not None:
+                        del watches[m]
+                if watches:
+                    clock.sleep(min(w.rules.poll for w in watches.values()))
+        except MotionError:
+            raise
+        except BaseException:
+            self.board._stop_all()
+            raise
+        return [m.result for m in self.moves if m.result is not None]
+
+
+class Board:
+    """Several chips behind one transport: ``axes`` are :class:`LM629` objects, one per chip
+    select, that share it.  Use :func:`open_board`."""
+
+    def __init__(self, transport: Transport, axes: int | None = None, *, chip: str = "lm629",
+                 busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, reset_attempts: int = 2,
+                 clock_hz: float | None = None) -> None:
+        available = transport.chip_selects
+        n = available if axes is None else axes
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"axes={axes!r} must be a whole number of chips, at least 1")
+        if n > available:
+            raise AxisError(n - 1, available, transport.describe())
+        self.transport = transport
+        self.axes: tuple[LM629, ...] = tuple(
+            LM629(transport, chip=chip, busy_timeout=busy_timeout, axis=k,
+                  reset_attempts=reset_attempts, clock_hz=clock_hz) for k in range(n))
+        self.busy_timeout = busy_timeout
+        self.reset_attempts = reset_attempts
+
+    # ------------------------------------------------------------------ plumbing
+    @property
+    def clock(self) -> Clock:
+        return self.transport.clock
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def __enter__(self) -> Board:
+        return self
+
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        """Left by an exception: stop every axis that moves (abrupt stop, the PID holding)
+        before the link closes; left normally: the axes stay as the block left them."""
+        if exc_type is not None:
+            for ax in self.axes:
+                stop_if_moving(ax)
+        self.close()
+
+    def clear_failsafe(self) -> FailsafeState | None:
+        """Acknowledge the bridge's latched failsafe trip; returns the trip (a
+        :class:`~lm629_host.bridge.protocol.FailsafeState`) or None."""
+        return self.transport.clear_failsafe()
+
+    def __len__(self) -> int:
+        return len(self.axes)
+
+    def __repr__(self) -> str:
+        return f"<Board {len(self.axes)} axes on {self.transport.describe()}>"
+
+    #: the profile the board was opened with (``open_board(profile=...)``), else None
+    profile: Profile | None = None
+
+    def __getitem__(self, which: str | int) -> LM629:
+        """``board["x"]``: the axis of that name in the board's profile; ``board[1]``: the
+        axis on chip select 1."""
+        if isinstance(which, str):
+            if self.profile is None:
+                raise KeyError(f"{which!r}: this board was opened without a profile, so its "
+                               "axes have no names (board[0], or open_board(profile=...))")
+            try:
+                return self.axis(self.profile.axis(which).cs)
+            except ValueError as exc:  # a mapping's missing key
+                raise KeyError(str(exc)) from None
+        return self.axis(which)
+
+    def axis(self, which: LM629 | int) -> LM629:
+        """The axis ``which`` (an index or one of :attr:`axes`); AxisError when it is not
+        one of this board's."""
+        if isinstance(which, LM629):
+            if which not in self.axes:
+                raise AxisError(which.axis, len(self.axes), "this board")
+            return which
+        if isinstance(which, bool) or not isinstance(which, int) or not 0 <= which < len(self.axes):
+            raise AxisError(which, len(self.axes), repr(self))
+        return self.axes[which]
+
+    def _pick(self, axes: Sequence[LM629 | int]) -> list[LM629]:
+        chosen = [self.axis(a) for a in axes] if axes else list(self.axes)
+        if len({a.chip_select for a in chosen}) != len(chosen):
+            raise ValueError(f"an axis is named twice: {[a.chip_select for a in chosen]}")
+        return chosen
+
+    def program(self) -> _BoardProgram:
+        return _BoardProgram(busy_timeout_s=self.busy_timeout)
+
+    def batch(self) -> Batch:
+        """Typed calls on several axes queued into one bus program, run when the ``with``
+        block ends: one exchange on a bridge, the axes switched by SELECT inside it.  Each
+        call names its axis as ``board[...]`` does::
+
+            with board.batch() as b:
+                px = b["x"].read_real_position()
+                py = b["y"].read_real_position()
+            print(px.value, py.value)
+
+        The rules are :meth:`LM629.batch`'s (:mod:`lm629_host.chip.batch`)."""
+        from lm629_host.chip.batch import Batch
+        return Batch(self.transport, axis_of=self._axis_named)
+
+    def _axis_named(self, which: LM629 | str | int) -> LM629:
+        return self.axis(which) if isinstance(which, LM629) else self[which]
+
+    # ------------------------------------------------------------------ reset
+    def reset(self) -> list[Status]:
+        """One /RST for every chip (the line is shared), then AN-706 4.4.1's check on each:
+        00 at once, 84/C4 after 1.5 ms, 80/C0 after MSKI/RSTI 0000.  Two programs in all
+        (:func:`~lm629_host.chip.lm629.reset_chips`, which :meth:`LM629.reset` runs for one chip).
+        Retries ``reset_attempts`` times, then raises :class:`ResetError` naming the first
+        axis that failed, with its status bytes."""
+        return reset_chips(self.axes, pulse=self.transport.has_reset_line,
+                           attempts=self.reset_attempts)[0]
+
+    # ------------------------------------------------------------------ synchronized start
+    def start_program(self, axes: Sequence[LM629 | int] = (), prefix: Program | None = None,
+                      clear: Status | int = 0) -> tuple[_BoardProgram, list[LM629]]:
+        """The program of :meth:`start` (after ``prefix``, e.g. the loads), without running it:
+        RSTI of ``clear`` (and of the command-error flag where it may be set), a busy-clear
+        status of each axis, then the STTs back to back (each a status read and the command
+        byte on its chip), then each axis's status once busy is clear."""
+        chosen = self._pick(axes)
+        p = self.program()
+        if prefix is not None:
+            p.extend(prefix)
+        for a in chosen:
+            flags = a.start_flags(clear)
+            if flags:
+                p.on(a.chip_select).command(Cmd.RSTI).write(int(INTERRUPTS & ~flags))
+        for a in chosen:
+            p.on(a.chip_select).sync()
+        for a in chosen:
+            p.on(a.chip_select).command(Cmd.STT)
+        for a in chosen:
+            p.on(a.chip_select).sync()
+        return p, chosen
+
+    def start(self, *axes: LM629 | int, prefix: Program | None = None,
+              clear: Status | int = 0) -> list[Status]:
+        """STT on every axis (or on ``axes``) in one bus program; raises
+        :class:`CommandError` naming the axis whose chip refused its STT."""
+        p, chosen = self.start_program(axes, prefix, clear)
+        for a in chosen:  # AN-706 4.6.2: no axis updated sooner than 10 ms after its last STT
+            a.hold_update()
+        statuses = self.transport.execute(p).statuses
+        n = len(chosen)
+        before, after = statuses[-2 * n:-n], statuses[-n:]
+        refused = None
+        for a, b, s in zip(chosen, before, after):
+            if a.start_checked(b, s) and refused is None:
+                refused = (a, s)
+        if refused is not None:
+            raise CommandError(f"STT on axis {refused[0].chip_select}", refused[1])
+        return [Status(s) for s in after]
+
+    # ------------------------------------------------------------------ moves
+    def _launch(self, words: Mapping[LM629, tuple[int, int, int]],
+                plan: LinearPlan | None, starts: Mapping[LM629, Snapshot]) -> BoardMove:
+        """Load (acceleration, velocity, target) on each axis and start them together, flags
+        a move reports cleared in the same program (as :meth:`LM629.move_to` does)."""
+        loads = self.program()
+        for a, (acc, vel, target) in words.items():
+            loads.on(a.chip_select).extend(a.trajectory_program(acc, vel, target))
+        self.start(*words, prefix=loads, clear=MOVE_FLAGS)
+        t0 = self.clock.now()
+        return BoardMove(self, [Move(a, target, vel, acc, starts[a], t0)
+                                for a, (acc, vel, target) in words.items()], plan)
+
+    def move(self, targets: Mapping[LM629 | int, int], *,
+             velocity: int | Mapping[LM629 | int, int],
+             acceleration: int | Mapping[LM629 | int, int]) -> BoardMove:
+        """Absolute moves on several axes, each with its own (or a common) velocity and
+        acceleration word, loaded and started in one program (all STTs together)."""
+        resolved = {self.axis(k): v for k, v in targets.items()}
+
+        def per(value: int | Mapping[LM629 | int, int], a: LM629, name: str) -> int:
+            if isinstance(value, Mapping):
+                m = {self.axis(k): v for k, v in value.items()}
+                if a not in m:
+                    raise ValueError(f"{name}: no value for axis {a.chip_select}")
+                value = m[a]
+            hi = VELOCITY_MAX if name == "velocity" else ACCELERATION_MAX
+            return check_int(f"{name} of axis {a.chip_select}", value, 1, hi, hex_digits=8)
+
+        words = {a: (per(acceleration, a, "acceleration"), per(velocity, a, "velocity"),
+                     check_int(f"target of axis {a.chip_select}", t, POSITION_MIN, POSITION_MAX,
+                               hex_digits=8))
+                 for a, t in resolved.items()}
+        for a, (acc, vel, target) in words.items():  # before any read (soft limits)
+            if a.limits is not None:
+                a.limits.check_trajectory(acc, vel, target)
+        starts = {a: a.snapshot() for a in words}
+        return self._launch(words, None, starts)
+
+    def plan_linear(self, targets: Mapping[LM629 | int, int], *, velocity: int,
+                    acceleration: int, starts: Mapping[LM629, Snapshot] | None = None
+                    ) -> LinearPlan:
+        """:func:`plan_linear` from where the axes are now (their desired positions)."""
+        resolved = {self.axis(k): v for k, v in targets.items()}
+        for a, t in resolved.items():
+            check_int(f"target of axis {a.chip_select}", t, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
+        check_int("acceleration", acceleration, 1, ACCELERATION_MAX, hex_digits=8)
+        if starts is None:
+            starts = {a: a.snapshot() for a in resolved}
+        return plan_linear({a.chip_select: (starts[a].desired_position, t) for a, t in resolved.items()},
+                           velocity, acceleration)
+
+    def move_linear(self, targets: Mapping[LM629 | int, int], *, velocity: int,
+                    acceleration: int) -> BoardMove:
+        """A straight line in count space from where the axes are (their desired positions)
+        to ``targets``: each axis's words scaled by its share of the path
+        (:func:`plan_linear`), loaded and started in one program."""
+        resolved = [self.axis(k) for k in targets]
+        for a, t in zip(resolved, targets.values()):  # before any read (soft limits); the
+            if a.limits is not None:                  # words are checked as they are loaded
+                a.limits.check_position(t, f"target of axis {a.chip_select}")
+        starts = {a: a.snapshot() for a in resolved}
+        plan = self.plan_linear(targets, velocity=velocity, acceleration=acceleration,
+                                starts=starts)
+        words = {self.axes[ap.axis]: (ap.acceleration, ap.velocity, ap.target)
+                 for ap in plan.axes if ap.distance}
+        if not words:
+            return BoardMove(self, [], plan)
+        return self._launch(words, plan, starts)
+
+    def stop(self, axes: Sequence[LM629 | int] = ()) -> list[str]:
+        """Abrupt stop, then motor off, on every axis (or ``axes``); each axis's line of how
+        its motor was left (see :func:`~lm629_host.chip.safety.emergency_stop`)."""
+        return [emergency_stop(a)[1] for a in self._pick(axes)]
+
+    def _stop_all(self) -> None:
+        """Every axis: abrupt stop, then motor off (each tried even when another fails)."""
+        for a in self.axes:
+            emergency_stop(a)
+
+    def statuses(self, axes: Sequence[LM629 | int] = ()) -> list[Status]:
+        """The status byte of every axis, one program."""
+        p = self.program()
+        chosen = self._pick(axes)
+        for a in chosen:
+            p.on(a.chip_select).status()
+        return [Status(s) for s in self.transport.execute(p).statuses]
+
+    def snapshots(self, axes: Sequence[LM629 | int] = ()) -> list[Snapshot]:
+        """:meth:`LM629.snapshot` of every axis (or ``axes``), in one bus program."""
+        chosen = self._pick(axes)
+        p = self.program()
+        for a in chosen:
+            add_snapshot(p.on(a.chip_select))
+        r = self.transport.execute(p)
+        now = self.clock.now()
+        return [snapshot_at(r, k, now) for k in range(len(chosen))]
+
+
+class _BoardProgram(Program):
+    """A program that remembers its chip select, so that ``on(k)`` adds a SELECT only when
+    the chip changes (a program starts on chip 0)."""
+
+    def __init__(self, busy_timeout_s: float = DEFAULT_BUSY_TIMEOUT_S) -> None:
+        super().__init__(busy_timeout_s=busy_timeout_s)
+        self._chip = 0
+
+    def on(self, chip: int | None) -> _BoardProgram:
+        chip = chip or 0
+        if chip != self._chip:
+            self.select(chip)
+        return self
+
+    def select(self, chip: int) -> _BoardProgram:
+        super().select(chip)
+        self._chip = chip
+        return self
+
+    def extend(self, other: Program) -> _BoardProgram:
+        # an axis's own program starts with its select (axis > 0): keep track of it
+        for o in other.ops:
+            if o.op is Op.SELECT:
+                if o.arg == self._chip:
+                    continue
+                self._chip = o.arg
+            self.ops.append(o)
+        return self
+
+
+def open_board(url: str | None = None, *, axes: int | None = None, chip: str | None = None,
+               clock: float | str | None = None, trace=None,
+               busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S,
+               profile: str | os.PathLike[str] | Profile | None = None,
+               apply: bool | str = "auto") -> Board:
+    """Open every chip behind ``url``: ``sim://?axes=2``, a multi-axis bridge, an FT232H with
+    two /CS lines.  The number of axes is ``axes`` or the URL's ``axes=`` (both: they must
+    agree, :func:`lm629_host.transports.ports.resolve_port`), else what the transport reports (the
+    simulator's chips, the bridge's chip selects from HELLO, the FT232H's /CS lines).  More
+    axes than the board has chip selects is an :class:`AxisError`; ``cs=`` (one chip) is an
+    error here.
+
+    ``profile``: a bench profile (:mod:`lm629_host.motion.profile`, a path or a loaded one): the port
+    (when ``url`` is None), the chip and clock come from it, ``board["x"]`` is its axis ``x``,
+    every named axis gets its soft limits (``ValueError`` for a move outside them, before any
+    bus cycle), and ``apply`` says what is sent at open: ``"auto"`` (default) applies the
+    profile to each axis that has lost its settings (reset or powered up since: one RDSIGS
+    each; a warning is logged for each one applied), True applies it to every axis, False
+    sends nothing.  A bad profile is a :class:`~lm629_host.motion.profile.ProfileError` (ValueError)
+    before the port is opened."""
+    prof = None
+    if profile is not None:
+        from lm629_host.motion.profile import Profile, load_profile
+        prof = profile if isinstance(profile, Profile) else load_profile(profile)
+        if apply not in (True, False, "auto"):
+            raise ValueError(f"apply={apply!r}: expected True, False or 'auto'")
+        if url is None:
+            url = prof.url()
+        chip = prof.chip if chip is None else chip
+        clock = prof.clock_hz if clock is None else clock
+    if url is None:
+        url = DEFAULT_URL
+    board = _open_board(url, axes, chip, clock, trace, busy_timeout)
+    if prof is not None:
+        try:
+            _with_profile(board, prof, apply)
+        except BaseException:
+            board.close()
+            raise
+    return board
+
+
+def _with_profile(board: Board, prof: Profile, apply: bool | str) -> None:
+    from lm629_host.motion.profile import apply_profile, ensure_applied, name_axes
+    named = name_axes(board, prof)
+    if apply == "auto":
+        ensure_applied(named, prof, log.warning)
+    elif apply:
+        apply_profile(named, prof)
+
+
+def _open_board(url: str, axes: int | None, chip: str | None, clock: float | str | None,
+                trace: Any, busy_timeout: float) -> Board:
+    spec = resolve_port(url, chip=chip, clock=clock, axes=axes)
+    if spec.cs is not None:
+        raise ArgumentError("cs", spec.cs, f"cs={spec.cs} names one chip: open_board opens "
+                                           "every chip of the board (lm629_host.open takes cs=)")
+    transport = spec.open_transport(trace)
+    n = spec.axes
+    if n is None:
+        n = transport.chip_count  # a simulator: the chips it built, not its adapter's selects
+    try:
+        return Board(transport, n, chip=spec.chip, busy_timeout=busy_timeout,
+                     clock_hz=spec.clock_hz)
+    except BaseException:
+        transport.close()
+        raise
+
+
+__all__ = ["Board", "BoardMove", "AxisPlan", "LinearPlan",
+           "open_board", "plan_linear"]

@@ -1,0 +1,212 @@
+"""What a port opens: one place that settles a port URL and the options given beside it.
+
+A port is named by a URL (``sim://?axes=2``, ``serial:///dev/ttyACM0?cs=1``,
+``socket://bench:7000``).  Four things about the chips behind it can be said in the URL's
+query or as arguments (:func:`lm629_host.open`, :func:`lm629_host.open_board`, the CLI's
+``--chip``/``--clock``/``--axis``, a profile):
+
+=========  ==================================================================================
+``chip``   ``lm628`` or ``lm629`` (default ``lm629``)
+``clock``  the chip's clock, 1..8 MHz (``8MHz``, ``6e6``; a number in Hz as an argument)
+``axes``   how many chips a multi-axis board has (chip selects 0..axes-1)
+``cs``     the one chip :func:`lm629_host.open` drives on such a board
+=========  ==================================================================================
+
+The rules, applied by :func:`resolve_port` and nowhere else:
+
+* the same option in the URL and as an argument must agree: a conflict is an
+  :class:`~lm629_host.errors.ArgumentError` naming both sides;
+* a bad value is an ``ArgumentError`` naming the option (``axes='x' in sim://?axes=x is not
+  a whole number of chips``);
+* an unknown scheme is a :class:`~lm629_host.errors.SchemeError` (a ValueError and a
+  TransportError: bad usage, exit 2 in the CLI), except that any scheme pyserial knows is a
+  serial port (``socket://``, ``rfc2217://``, ``spy://``, ``loop://`` through the registry's
+  ``URL_SCHEMES``, any other handler with ``serial://`` put in front);
+* a simulator builds the chips it is told of: its URL gets the arguments (``chip=``,
+  ``clock=``, ``axes=``) so that the model matches what the driver believes; a hardware
+  transport gets none of the four (they describe the board, not the link).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from lm629_host.errors import ArgumentError
+from lm629_host.bus.opcodes import NOMINAL_CLOCK_HZ
+from lm629_host.bus.program import TraceCallback
+from lm629_host.transports import DEFAULT_URL, URL_SCHEMES, registry, transport_class
+from lm629_host.transports.base import Transport
+from lm629_host.urls import BOARD_OPTIONS, parse_hz, query_params, scheme_of, split_params, with_query
+
+#: the chips the driver knows
+CHIPS = ("lm628", "lm629")
+#: the chip's clock range (datasheets: 1 to 8 MHz parts)
+CLOCK_MIN_HZ, CLOCK_MAX_HZ = 1_000_000, NOMINAL_CLOCK_HZ
+
+
+@dataclass(frozen=True)
+class PortSpec:
+    """A port, settled: which transport opens it, with which URL, and what is behind it."""
+
+    url: str  #: the URL as given
+    scheme: str  #: the scheme of the transport that opens it (``serial`` for a device path)
+    transport: type[Transport]  #: its class (module imported)
+    open_url: str  #: the URL handed to ``transport.from_url``
+    chip: str  #: ``lm628`` or ``lm629``
+    clock_hz: float | None  #: the chip's clock when said (URL or argument); None: not said
+    axes: int | None  #: the number of chips when said; None: what the transport reports
+    cs: int | None  #: the one chip to drive (``open``); None: the only chip, or all of them
+
+    @property
+    def simulated(self) -> bool:
+        return self.transport.simulated
+
+    def open_transport(self, trace: TraceCallback | None = None) -> Transport:
+        """Open the transport (its errors are its own: port missing, busy, no answer)."""
+        return self.transport.from_url(self.open_url, trace=trace)
+
+
+def _hz_text(hz: float) -> str:
+    return f"{hz / 1e6:g}MHz" if hz >= 1e6 else f"{hz:g}Hz"
+
+
+# each option: (the argument checked, shown as text) and (the URL's text checked): ArgumentError
+def _chip_argument(value: object) -> tuple[str, str]:
+    if not isinstance(value, str) or value.lower() not in CHIPS:
+        raise ArgumentError("chip", value, f"chip={value!r}: expected 'lm628' or 'lm629'")
+    return value.lower(), f"chip={value.lower()}"
+
+
+def _chip_in_url(text: str, url: str) -> str:
+    if text.lower() not in CHIPS:
+        raise ArgumentError("chip", text, f"chip={text!r} in {url}: expected lm628 or lm629")
+    return text.lower()
+
+
+def _check_clock(hz: float, said: str) -> float:
+    if not CLOCK_MIN_HZ <= hz <= CLOCK_MAX_HZ:
+        raise ArgumentError("clock", hz, f"{said} is outside the chip's 1-8 MHz",
+                            lo=CLOCK_MIN_HZ, hi=CLOCK_MAX_HZ)
+    return float(hz)
+
+
+def _clock_argument(value: object) -> tuple[float, str]:
+    try:
+        hz = parse_hz(value) if isinstance(value, str) else float(value)  # type: ignore[arg-type]  # anything else: the TypeError below
+    except (TypeError, ValueError):
+        raise ArgumentError("clock", value, f"clock={value!r} is not a frequency "
+                                            "(8MHz, 6e6)") from None
+    return _check_clock(hz, f"clock={_hz_text(hz)}"), f"clock={_hz_text(hz)}"
+
+
+def _clock_in_url(text: str, url: str) -> float:
+    try:
+        hz = parse_hz(text)
+    except ValueError:
+        raise ArgumentError("clock", text, f"clock={text!r} in {url} is not a frequency "
+                                           "(8MHz, 6e6)") from None
+    return _check_clock(hz, f"clock={text} in {url}")
+
+
+def _whole_argument(name: str, lo: int, what: str) -> Callable[[object], tuple[int, str]]:
+    def check(value: object) -> tuple[int, str]:
+        if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+            raise ArgumentError(name, value, f"{name}={value!r} must be {what} (at least {lo})",
+                                lo=lo)
+        return value, f"{name}={value}"
+    return check
+
+
+def _whole_in_url(name: str, lo: int, what: str) -> Callable[[str, str], int]:
+    def check(text: str, url: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            raise ArgumentError(name, text, f"{name}={text!r} in {url} is not {what}",
+                                lo=lo) from None
+        if n < lo:
+            raise ArgumentError(name, n, f"{name}={n} in {url}: at least {lo}", lo=lo)
+        return n
+    return check
+
+
+_AXES, _CS = "a whole number of chips", "a chip select number (0, 1, ...)"
+#: option -> (check of an argument, check of the URL's text)
+_OPTIONS: dict[str, tuple[Callable[[Any], tuple[Any, str]], Callable[[str, str], Any]]] = {
+    "chip": (_chip_argument, _chip_in_url),
+    "clock": (_clock_argument, _clock_in_url),
+    "axes": (_whole_argument("axes", 1, _AXES), _whole_in_url("axes", 1, _AXES)),
+    "cs": (_whole_argument("cs", 0, _CS), _whole_in_url("cs", 0, _CS)),
+}
+
+
+def _settle(name: str, given: object, url: str, query: dict[str, str]) -> Any:
+    """One option: the argument and the URL's value, each checked; they must agree."""
+    of_argument, of_url = _OPTIONS[name]
+    value, shown = of_argument(given) if given is not None else (None, "")
+    if name in query:
+        in_url = of_url(query[name], url)
+        if value is not None and value != in_url:
+            raise ArgumentError(name, given, f"{shown} conflicts with {name}={query[name]} in "
+                                              f"{url}: give one of them")
+        value = in_url
+    return value
+
+
+def _pyserial_knows(scheme: str) -> bool:
+    """True when pyserial has a URL handler for ``scheme`` (``socket``, ``rfc2217``, ``spy``,
+    ``loop``, ...): such a URL is a serial port (pyserial's ``serial_for_url`` opens it)."""
+    if not scheme.isidentifier():
+        return False
+    try:
+        return importlib.util.find_spec(f"serial.urlhandler.protocol_{scheme}") is not None
+    except ImportError:  # pyserial missing: then no serial port at all
+        return False
+
+
+def _transport(url: str) -> tuple[str, type[Transport], str]:
+    """(scheme, transport class, URL for it): the registry's (with its :data:`URL_SCHEMES
+    <lm629_host.transports.URL_SCHEMES>`, pyserial's usual handlers opened as they are), else
+    the serial transport, ``serial://`` in front, for any other scheme pyserial has a handler
+    for (``hwgrep://``, ``alt://``...)."""
+    scheme = scheme_of(url)
+    if scheme not in registry() and scheme not in URL_SCHEMES and _pyserial_knows(scheme):
+        return "serial", transport_class("serial://"), "serial://" + url
+    cls = transport_class(url)  # SchemeError for an unknown scheme
+    return cls.scheme or scheme, cls, url
+
+
+def resolve_port(url: str = DEFAULT_URL, *, chip: str | None = None,
+                 clock: float | str | None = None, axes: int | None = None,
+                 cs: int | None = None) -> PortSpec:
+    """Settle ``url`` and the options given beside it (see the module docstring) into a
+    :class:`PortSpec`; nothing is opened.  ``clock``: Hz, or a frequency text (``"6MHz"``).
+
+    Raises :class:`~lm629_host.errors.ArgumentError` (a ValueError naming the option, and
+    both sides of a conflict) or :class:`~lm629_host.errors.SchemeError` (an unknown scheme);
+    a transport's own options are checked when it opens.
+    """
+    if not isinstance(url, str) or not url.strip():
+        raise ArgumentError("port", url, f"port {url!r} is empty: give a URL (sim://, "
+                                         "serial:///dev/ttyACM0, ftdi://...) or a device path")
+    scheme, cls, open_url = _transport(url)
+    q = query_params(url)
+    values = {name: _settle(name, given, url, q)
+              for name, given in (("chip", chip), ("clock", clock), ("axes", axes), ("cs", cs))}
+    if cls.simulated:  # the model is built from its URL: tell it what the arguments say
+        open_url, _cs = split_params(open_url, {"cs"})
+        add = {name: str(round(values[name]) if name == "clock" else values[name])
+               for name in ("chip", "clock", "axes") if values[name] is not None and name not in q}
+        if add:
+            open_url = with_query(open_url, add)
+    else:  # they describe the board, not the link
+        open_url, _taken = split_params(open_url, BOARD_OPTIONS)
+    return PortSpec(url=url, scheme=scheme, transport=cls, open_url=open_url,
+                    chip=values["chip"] or "lm629", clock_hz=values["clock"],
+                    axes=values["axes"], cs=values["cs"])
+
+
+__all__ = ["BOARD_OPTIONS", "CHIPS", "PortSpec", "resolve_port"]

@@ -1,0 +1,180 @@
+"""``LM629.move_to`` / ``Move.wait`` on every simulated transport.
+
+Numbers: 8 MHz, T = 256 us.  velocity 65536 = 1 count/sample, acceleration 655 = 0.01
+count/sample^2: a 1000-count trapezoid is 100 samples of ramp each way (50 counts each) and
+900 samples at speed: 1100 samples = 0.2816 s.  kp = 20 on the 8-bit output leaves a P-only
+dead band of 256 / 20 = 12.8 counts (AN-706 5.2.4), inside the default tolerance of 20.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from lm629_host import Cmd, MotionError, MoveRules, Status
+from lm629_host.errors import MotionFault
+from lm629_host.chip.move import MOVE_FLAGS
+from lm629_host.bus.opcodes import INTERRUPTS
+
+from sim_urls import with_params
+
+T = 2048 / 8e6
+PROFILE_1000 = 1100 * T
+
+
+def _ready(chip, kp: int = 20):
+    chip.reset()
+    chip.load_filter(kp=kp)
+    chip.update_filter()
+    return chip
+
+
+def test_move_to_twice_then_relative(usb_transport_url, open_chip, recorder):
+    chip = _ready(open_chip(usb_transport_url))
+    first = chip.move_to(1000, velocity=65536, acceleration=655).wait()
+    assert first.target == 1000 and abs(first.error) <= 13
+    assert first.error == 1000 - first.position
+    assert PROFILE_1000 <= first.duration <= PROFILE_1000 + MoveRules().settle_timeout
+    # the second move starts with TRAJECTORY_COMPLETE still set by the first: it must not end
+    # its wait (the trap of wait_for); it returns only once RDDP is the new target
+    assert chip.read_status() & Status.TRAJECTORY_COMPLETE
+    second = chip.move_to(5000, velocity=4 * 65536, acceleration=6553).wait()
+    assert chip.read_desired_position() == 5000
+    assert abs(second.error) <= 13 and abs(5000 - chip.read_real_position()) <= 13
+    # 4000 counts at 4 counts/sample, 0.1 c/s^2: 40-sample ramps, 960 samples = 0.2458 s
+    assert second.duration >= 960 * T
+    third = chip.move_to(-3000, velocity=4 * 65536, relative=True).wait()
+    assert third.target == 2000 and chip.read_desired_position() == 2000
+    assert abs(2000 - chip.read_real_position()) <= 13
+
+
+def test_flags_are_cleared_in_the_program_that_starts_the_move(usb_transport_url, open_chip,
+                                                               recorder):
+    chip = _ready(open_chip(usb_transport_url))
+    chip.move_to(300, velocity=65536, acceleration=655).wait()
+    recorder.clear()
+    programs = chip.transport.stats.programs
+    move = chip.move_to(600, velocity=65536, acceleration=655)
+    # one program (one exchange on a bridge): the snapshot the move starts from,
+    # then RSTI, LTRJ with its words, STT
+    assert chip.transport.stats.programs - programs == 1
+    data = recorder.data()
+    assert data.index(("command", int(Cmd.RDSIGS))) < data.index(("command", int(Cmd.RSTI)))
+    rsti = data.index(("command", int(Cmd.RSTI)))
+    assert data[rsti + 1] == ("write", int(INTERRUPTS & ~MOVE_FLAGS))
+    assert data[rsti + 2] == ("command", int(Cmd.LTRJ))
+    assert data[-1] == ("command", int(Cmd.STT))
+    assert not chip.read_status() & Status.TRAJECTORY_COMPLETE  # cleared, the move is running
+    move.wait()
+
+
+def test_stalled_motor_is_a_motion_fault_with_the_motor_stopped(usb_transport_url, open_chip):
+    chip = _ready(open_chip(with_params(usb_transport_url, "stall=1")))
+    with pytest.raises(MotionError) as e:
+        chip.move_to(5000, velocity=65536, acceleration=655).wait()
+    assert e.value.reason == MotionError.STALL
+    assert e.value.reason is MotionFault.STALL and e.value.axis is None
+    assert e.value.position == 0 and e.value.error == 5000
+    assert "motor stopped" in e.value.detail
+    assert str(e.value) == f"motion fault (stall): {e.value.detail}"
+    snap = chip.snapshot()
+    assert snap.status & Status.MOTOR_OFF and snap.desired_velocity == 0
+    chip.clock.sleep(0.05)  # nothing moves any more
+    assert chip.read_real_position() == 0 and chip.read_desired_velocity() == 0
+
+
+def test_reversed_leads_are_a_runaway(open_chip):
+    chip = _ready(open_chip("sim://?reversed=1"))
+    with pytest.raises(MotionError) as e:
+        chip.move_to(5000, velocity=65536, acceleration=655).wait()
+    assert e.value.reason == MotionError.RUNAWAY
+    assert e.value.position < 0  # the shaft went the other way
+    assert chip.read_status() & Status.MOTOR_OFF
+
+
+def test_position_error_flag_is_a_fault(open_chip):
+    chip = _ready(open_chip("sim://"))
+    chip.load_position_error(5)  # LPEI 5 counts: a fast move exceeds it at once
+    with pytest.raises(MotionError) as e:
+        chip.move_to(20000, velocity=20 * 65536, acceleration=65536).wait()
+    assert e.value.reason == MotionError.POSITION_ERROR
+    assert chip.read_status() & Status.MOTOR_OFF
+
+
+def test_following_error_when_the_tolerance_is_below_the_dead_band(open_chip):
+    """kp = 20 (8-bit output: code = 20 e / 256, floor) against a load of 0.0005 N m pulling
+    towards negative counts.  Code c drives c x 12 V / 128 / 4 ohm x 0.025 N m/A = c x 5.86e-4
+    N m; at rest the drive less the load is within the dry friction (2e-4 N m): 0.51 <= c <=
+    1.19, so c = 1 and the shaft rests e = 13..25 counts short of the target (20 e / 256 >= 1,
+    < 2).  A tolerance of 0 cannot be met: a following-error fault naming that error."""
+    chip = _ready(open_chip("sim://?load_torque=0.0005"), kp=20)
+    with pytest.raises(MotionError) as e:
+        chip.move_to(1000, velocity=65536, acceleration=655).wait(tolerance=0)
+    assert e.value.reason == MotionError.FOLLOWING_ERROR
+    assert 13 <= e.value.error <= 25
+    assert e.value.position == 1000 - e.value.error
+
+
+def test_timeout_is_a_motion_fault(open_chip):
+    chip = _ready(open_chip("sim://"))
+    with pytest.raises(MotionError) as e:
+        chip.move_to(20000, velocity=65536, acceleration=655).wait(timeout=0.1)
+    assert e.value.reason == MotionError.TIMEOUT
+    assert chip.read_status() & Status.MOTOR_OFF
+
+
+@pytest.mark.parametrize("kw, name", [
+    (dict(velocity=0), "velocity=0"),
+    (dict(velocity=65536, acceleration=0), "acceleration=0"),
+    (dict(velocity=float("inf")), "velocity=inf"),
+    (dict(velocity=float("nan")), "velocity=nan"),
+    (dict(velocity=1 << 31), "velocity=2147483648"),
+])
+def test_bad_move_arguments_touch_nothing(open_chip, recorder, kw, name):
+    chip = _ready(open_chip("sim://"))
+    recorder.clear()
+    with pytest.raises(ValueError, match=name.replace("[", r"\[")):
+        chip.move_to(1000, **kw)
+    assert recorder.cycles == []
+
+
+def test_move_rules_are_checked():
+    with pytest.raises(ValueError, match="settle_time"):
+        MoveRules(settle_time=float("nan"))
+    with pytest.raises(ValueError, match="tolerance"):
+        MoveRules(tolerance=-1)
+
+
+def test_ctrl_c_while_waiting_stops_the_motor(open_chip):
+    chip = _ready(open_chip("sim://"))
+    move = chip.move_to(20000, velocity=65536, acceleration=655)
+    seen = []
+
+    def progress(snap):
+        seen.append(snap)
+        if len(seen) == 20:  # 0.1 s into the move: the motor is running
+            assert snap.desired_velocity > 0
+            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt) as e:
+        move.wait(progress=progress)
+    assert e.value.lm629_stop_note == "motor stopped (abrupt stop, then motor off)"
+    assert chip.read_status() & Status.MOTOR_OFF and chip.read_desired_velocity() == 0
+
+
+def test_velocity_mode_is_a_method_with_a_signed_speed():
+    """chip.run_velocity(v) like chip.move_to(...): -65536 turns backwards at 1 count/sample,
+    so after 0.5 s (1953 samples at 256 us) the desired position is about -1953 + the ramp."""
+    import lm629_host
+    from lm629_host.bus.opcodes import Signals
+    with lm629_host.open("sim://") as chip:
+        chip.reset()
+        chip.load_filter(kp=20, kd=100)
+        chip.update_filter()
+        run = chip.run_velocity(-65536, 655)
+        chip.clock.sleep(0.5)
+        run.check()
+        assert not chip.read_signals() & Signals.FORWARD
+        desired = chip.read_desired_position()
+        assert -1953 <= desired <= -1953 + 110  # 100 samples of ramp lose at most 50 counts
+        run.stop()
+        with pytest.raises(ValueError):
+            chip.run_velocity(2**30)

@@ -1,0 +1,110 @@
+"""Helpers for the tests that drive the installed ``lm629`` command and a persistent
+``lm629 sim serve`` bench from separate processes (shared by tests/cli, tests/wiring,
+tests/integrations and the others that start a served bench)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import re
+import pytest
+from contextlib import contextmanager
+from pathlib import Path
+from lm629_host.sim.avr import toolchain_missing
+
+
+@contextmanager
+def _sim_serve():
+    """``lm629 sim serve --tcp`` as its own process (a board that keeps its state, real
+    time): yields the port URL the tests pass as --lm629-port."""
+    env = {k: v for k, v in os.environ.items() if k not in ("LM629_PORT", "LM629_SIM_STRICT")}
+    proc = subprocess.Popen([_console_script(), "sim", "serve", "--tcp", "127.0.0.1:0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        banner = proc.stdout.readline()
+        m = re.search(r"on TCP port ([\d.]+:\d+)", banner)
+        assert m, banner + proc.stderr.read()
+        yield f"socket://{m.group(1)}"  # a pyserial URL is a port as it is
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=20)
+
+
+#: the far ends served; "+uno": behind an Arduino Uno R3's USB chip (``usb=uno``: the 16U2's
+#: 4.096 ms flush tick and 1 ms frames, lm629_host/sim/usb.py), in real time as on a bench
+FAR_ENDS = ["python", "firmware", "firmware+uno"]
+
+
+def _env() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k != "LM629_PORT"}
+    env["LM629_SIM_STRICT"] = "1"
+    return env
+
+
+class Bench:
+    def __init__(self, link: Path, proc: subprocess.Popen) -> None:
+        self.link = link
+        self.server = proc
+        self.exe = _console_script()
+
+    def argv(self, *args: str) -> list[str]:
+        return [self.exe, "--port", f"serial://{self.link}", *args]
+
+    def run(self, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+        return subprocess.run(self.argv(*args), capture_output=True, text=True,
+                              timeout=timeout, env=_env())
+
+    def status(self) -> dict:
+        p = self.run("status", "--json")
+        assert p.returncode == 0, p.stderr
+        return json.loads(p.stdout)
+
+    def ready(self, kp: int = 20) -> None:
+        for args in (("reset",), ("filter", "--kp", str(kp), "--ds", "1")):
+            p = self.run(*args)
+            assert p.returncode == 0, p.stderr
+
+
+@contextmanager
+def serve(tmp: Path, far_end: str, url: str = "sim://"):
+    """``lm629 sim serve --pty tmp/bench`` as a process; ready once it printed its banner."""
+    far_end, _, usb = far_end.partition("+")
+    if usb:
+        url += f"{'&' if '?' in url else '?'}usb={usb}"
+    if far_end == "firmware":
+        missing = toolchain_missing()
+        if missing:
+            pytest.skip(f"AVR toolchain missing ({', '.join(missing)})")
+    link = tmp / "bench"
+    argv = [_console_script(), "sim", "serve", "--pty", str(link), "--url", url]
+    if far_end == "firmware":
+        argv.append("--firmware")
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=_env())
+    try:
+        banner = proc.stdout.readline()  # blocks until the server is serving (or died)
+        assert banner.startswith("serving "), banner + proc.stderr.read()
+        assert link.is_symlink()
+        yield Bench(link, proc)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=20)
+    assert not os.path.lexists(link)  # it removed the link it made
+
+
+def err_lines(result) -> list[str]:
+    return [ln for ln in result.stderr.splitlines() if ln.strip()]
+
+
+def _console_script() -> str:
+    """The installed ``lm629`` script: next to this interpreter (a venv, CI) or on PATH.  Its
+    absence is a failure, not a skip: the console script is part of what is tested."""
+    import sysconfig
+
+    for exe in (os.path.join(sysconfig.get_path("scripts"), "lm629"), shutil.which("lm629")):
+        if exe and os.path.exists(exe):
+            return exe
+    pytest.fail("the lm629 console script is not installed (pip install -e .)")
