@@ -1,0 +1,238 @@
+"""A twin of the user's own axis: the plant the tuner identifies, kept in the profile, a
+simulated chip built from it, and a check that the twin still behaves as the bench does.
+
+Why: a lab's scripts are tested hardware-free on a simulated chip, and a script that settles
+in 40 ms on the default motor may take 400 ms on a 10x-inertia axis.  ``lm629 tune`` and
+``lm629 identify`` fit a model of the axis (:class:`~lm629_host.tuning.AxisModel`, in counts
+and samples); :class:`Plant` is that model in units that do not depend on the chip's clock,
+written to ``[axis.NAME.plant]`` (:data:`lm629_host.profile.PLANT_KEYS`), from which
+``sim://?profile=FILE`` builds each axis's motor (the same names are ``MotorParams`` fields;
+their mapping onto the SI parameters is in docs/model.md).
+
+:func:`check_twin` runs the same short step and trapezoid move on the bench and on the twin,
+recorded on the far side, and compares them (:data:`MATCH` is the threshold, documented in
+docs/twin.md).
+"""
+
+from __future__ import annotations
+
+import datetime
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from .lm629 import LM629
+from .tuning import (
+    AxisModel,
+    Gains,
+    MoveMetrics,
+    MoveProfile,
+    Progress,
+    Record,
+    default_profile,
+    measure_move,
+)
+
+
+# ---------------------------------------------------------------------------------- the plant
+@dataclass(frozen=True)
+class Plant:
+    """The axis as identified, in the units of ``[axis.NAME.plant]``."""
+
+    accel: float  #: counts/s^2 at full-scale output, shaft at rest
+    tau: float  #: mechanical time constant, s (1 / the speed's decay rate)
+    dry: float = 0.0  #: dry friction, a fraction of full-scale output
+    load: float = 0.0  #: constant load, a fraction of full-scale output (> 0: towards fewer)
+    reversed: bool = False  #: the motor leads reversed
+
+    @classmethod
+    def from_model(cls, model: AxisModel, sample_s: float) -> Plant:
+        """The tuner's model (counts and samples of ``sample_s``) in clock-free units."""
+        rate = max(model.rate, 1e-12)
+        return cls(model.accel / sample_s ** 2, sample_s / rate, model.coulomb / model.accel,
+                   model.load / model.accel)
+
+    @classmethod
+    def from_values(cls, values: dict[str, Any]) -> Plant:
+        """From a profile's checked ``[axis.NAME.plant]`` table (ValueError: not a plant)."""
+        missing = [k for k in ("accel", "tau") if k not in values]
+        if missing:
+            raise ValueError(f"the plant has no {' and no '.join(missing)}")
+        return cls(float(values["accel"]), float(values["tau"]), float(values.get("dry", 0.0)),
+                   float(values.get("load", 0.0)), bool(values.get("reversed", False)))
+
+    def model(self, sample_s: float, twelve_bit: bool = False) -> AxisModel:
+        """The tuner's model of this plant at a sample period of ``sample_s``."""
+        accel = self.accel * sample_s ** 2
+        return AxisModel(accel, sample_s / self.tau, self.dry * accel, self.load * accel,
+                         twelve_bit)
+
+    def values(self) -> dict[str, Any]:
+        """The plant's keys of ``[axis.NAME.plant]``, rounded to what a fit can tell."""
+        return {"accel": float(f"{self.accel:.5g}"), "tau": float(f"{self.tau:.5g}"),
+                "dry": round(self.dry, 5), "load": round(self.load, 5),
+                "reversed": self.reversed}
+
+
+def plant_record(model: AxisModel, sample_s: float, *, rms: float, steps: int, port: str,
+                 when: datetime.datetime | None = None) -> dict[str, Any]:
+    """``[axis.NAME.plant]`` for :func:`lm629_host.profile.save_gains`: the plant with the
+    date, the port, the fit's rms error and the number of steps it was fitted to."""
+    when = when or datetime.datetime.now(datetime.timezone.utc)
+    out = Plant.from_model(model, sample_s).values()
+    out.update(rms=round(rms, 2), steps=steps, date=when.isoformat(timespec="seconds"),
+               port=port)
+    return out
+
+
+# ---------------------------------------------------------------------------------- the check
+#: the twin matches the bench when, for both test moves, the overshoots differ by at most
+#: 2 counts or 10 % and the settle times by at most 5 ms or 10 % (whichever is larger), and
+#: the rms difference of the positions is at most 1 % of the distance (2 counts at least)
+MATCH_OVERSHOOT = (2, 0.10)
+MATCH_SETTLE = (5e-3, 0.10)
+MATCH_RMS = (2.0, 0.01)
+
+
+def close(a: float, b: float, absolute: float, relative: float) -> bool:
+    """``|a - b|`` within ``absolute`` or ``relative`` of the larger, whichever is larger."""
+    return abs(a - b) <= max(absolute, relative * max(abs(a), abs(b)))
+
+
+@dataclass(frozen=True)
+class Side:
+    """One test move on one side: its figures and the positions recorded."""
+
+    metrics: MoveMetrics
+    times: list[float]  #: seconds after each STT (out, then back)
+    positions: list[int]  #: counts from each step's start
+
+
+@dataclass(frozen=True)
+class Compared:
+    """One test move on the bench and on the twin."""
+
+    name: str
+    bench: Side
+    twin: Side
+    rms: float  #: counts, rms difference of the positions (aligned: :func:`rms_difference`)
+    distance: int
+
+    def settle_ok(self) -> bool:
+        a, b = self.bench.metrics.settle_s, self.twin.metrics.settle_s
+        if a is None or b is None:
+            return a is None and b is None
+        return close(a, b, *MATCH_SETTLE)
+
+    def overshoot_ok(self) -> bool:
+        return close(self.bench.metrics.overshoot, self.twin.metrics.overshoot,
+                     *MATCH_OVERSHOOT)
+
+    def rms_ok(self) -> bool:
+        return self.rms <= max(MATCH_RMS[0], MATCH_RMS[1] * abs(self.distance))
+
+    @property
+    def matches(self) -> bool:
+        return self.settle_ok() and self.overshoot_ok() and self.rms_ok()
+
+
+@dataclass(frozen=True)
+class TwinCheck:
+    moves: list[Compared]
+
+    @property
+    def matches(self) -> bool:
+        return all(m.matches for m in self.moves)
+
+    def lines(self) -> list[str]:
+        """The side-by-side table and the verdict."""
+        def settle(m: MoveMetrics) -> str:
+            return "never" if m.settle_s is None else f"{m.settle_s * 1e3:.1f} ms"
+
+        out = [f"{'move':<10} {'':>6} {'bench':>10} {'twin':>10}  ok"]
+        for c in self.moves:
+            b, t = c.bench.metrics, c.twin.metrics
+            limit = max(MATCH_RMS[0], MATCH_RMS[1] * abs(c.distance))
+            out += [f"{c.name:<10} {'rms':>6} {'':>10} {c.rms:>7.1f} ct  "
+                    f"{'yes' if c.rms_ok() else 'NO'} (limit {limit:.0f})",
+                    f"{'':<10} {'over':>6} {b.overshoot:>7d} ct {t.overshoot:>7d} ct  "
+                    f"{'yes' if c.overshoot_ok() else 'NO'}",
+                    f"{'':<10} {'settle':>6} {settle(b):>10} {settle(t):>10}  "
+                    f"{'yes' if c.settle_ok() else 'NO'}"]
+        out.append("the twin matches the bench" if self.matches else
+                   "the twin differs from the bench: identify the axis again (`lm629 identify "
+                   "--save`) before trusting tests on the twin")
+        return out
+
+
+def _side(metrics: MoveMetrics, rec: Record) -> Side:
+    times: list[float] = []
+    positions: list[int] = []
+    offset = 0.0
+    for k in range(len(rec.steps)):
+        t, real, _des, start, _target = rec.segment(k)
+        times += [offset + x for x in t]
+        positions += [p - start for p in real]
+        offset += (t[-1] if t else 0.0) + 1.0  # the back step's rows after the out step's
+    return Side(metrics, times, positions)
+
+
+def rms_difference(a: Side, b: Side, shift_s: float = 6e-3, step_s: float = 2.5e-4) -> float:
+    """The rms difference of ``b``'s positions from ``a``'s at ``a``'s times (``b``'s
+    interpolated), at the best relative time shift within ``+/- shift_s``: where the host
+    stamps the STT is uncertain by up to a reply's trip (behind an Uno's USB chip a 4.096 ms
+    flush tick), and that is not a difference between bench and twin."""
+    if not a.times or not b.times:
+        return float("inf")
+    best = float("inf")
+    n = round(shift_s / step_s)
+    for k in range(-n, n + 1):
+        d = k * step_s
+        err = [(_at(b.times, b.positions, t + d) - p) ** 2 for t, p in zip(a.times, a.positions)]
+        best = min(best, (sum(err) / len(err)) ** 0.5)
+    return best
+
+
+def _at(times: Sequence[float], values: Sequence[int], t: float) -> float:
+    import bisect
+    i = bisect.bisect_right(times, t)
+    if i == 0:
+        return values[0]
+    if i >= len(times):
+        return values[-1]
+    t0, t1 = times[i - 1], times[i]
+    if t1 <= t0 or t1 - t0 > 0.5:  # the gap between the out and the back step
+        return values[i - 1]
+    return values[i - 1] + (values[i] - values[i - 1]) * (t - t0) / (t1 - t0)
+
+
+def check_twin(bench: LM629, twin: LM629, gains: Gains, *, travel: int, distance: int,
+               profile: MoveProfile, tolerance: int = 2, duration_s: float = 0.4,
+               poll_s: float = 1e-3, progress: Progress | None = None) -> TwinCheck:
+    """The step and the trapezoid move (``distance`` out and back, inside ``+/- travel`` of
+    where each shaft is, guarded as tuning is: :func:`~lm629_host.tuning.measure_move`) with
+    ``gains`` on the bench, then on the twin, compared."""
+    say = progress or (lambda text: None)
+    moves = []
+    for name, p in (("step", None), ("trapezoid", profile)):
+        sides = []
+        for label, chip in (("bench", bench), ("twin", twin)):
+            say(f"{name} of {distance:+d} counts out and back on the {label}")
+            m, rec = measure_move(chip, gains, distance=distance, travel=travel,
+                                  duration_s=duration_s, tolerance=tolerance, poll_s=poll_s,
+                                  profile=p)
+            sides.append(_side(m, rec))
+        moves.append(Compared(name, sides[0], sides[1], rms_difference(sides[0], sides[1]),
+                              distance))
+    return TwinCheck(moves)
+
+
+def twin_profile(plant: Plant, sample_s: float, velocity: int | None = None,
+                 acceleration: int | None = None) -> MoveProfile:
+    """The trapezoid move the check runs: the tuner's (:func:`default_profile`) for this
+    plant, unless the words are given."""
+    return default_profile(plant.model(sample_s), velocity, acceleration)
+
+
+__all__ = ["MATCH_OVERSHOOT", "MATCH_RMS", "MATCH_SETTLE", "Compared", "Plant", "Side",
+           "TwinCheck", "check_twin", "close", "plant_record", "rms_difference", "twin_profile"]
