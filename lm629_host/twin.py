@@ -207,14 +207,18 @@ def _at(times: Sequence[float], values: Sequence[int], t: float) -> float:
 
 
 def check_twin(bench: LM629, twin: LM629, gains: Gains, *, travel: int, distance: int,
-               profile: MoveProfile, tolerance: int = 2, duration_s: float = 0.4,
-               poll_s: float = 1e-3, progress: Progress | None = None) -> TwinCheck:
-    """The step and the trapezoid move (``distance`` out and back, inside ``+/- travel`` of
-    where each shaft is, guarded as tuning is: :func:`~lm629_host.tuning.measure_move`) with
-    ``gains`` on the bench, then on the twin, compared."""
+               profile: MoveProfile, step: int | None = None, tolerance: int = 2,
+               duration_s: float = 0.4, poll_s: float = 1e-3,
+               progress: Progress | None = None) -> TwinCheck:
+    """A short step (``step`` counts, default a tenth of ``distance``: small enough that the
+    drive does not saturate for long) and the trapezoid move (``distance``), each out and
+    back inside ``+/- travel`` of where each shaft is, guarded as tuning is
+    (:func:`~lm629_host.tuning.measure_move`), with ``gains`` on the bench, then on the twin,
+    compared."""
     say = progress or (lambda text: None)
+    step = max(10, distance // 10) if step is None else step
     moves = []
-    for name, p in (("step", None), ("trapezoid", profile)):
+    for name, p, distance in (("step", None, step), ("trapezoid", profile, distance)):
         sides = []
         for label, chip in (("bench", bench), ("twin", twin)):
             say(f"{name} of {distance:+d} counts out and back on the {label}")

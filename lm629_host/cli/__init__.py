@@ -1,7 +1,7 @@
 """``lm629``: the bench command line (the ``main`` group, :mod:`.app`), its commands in one
 module per family: :mod:`.bench` (bringup, list, doctor, udev), :mod:`.chip` (status, reset,
 filter, index, breakpoint, limit, watch, raw), :mod:`.motion` (move, velocity, stop, home),
-:mod:`.tune` (step, tune), :mod:`.wiring` (wiring, wiring --check), :mod:`.calc`,
+:mod:`.tune` (step, tune), :mod:`.twin` (identify, twin check), :mod:`.wiring` (wiring, wiring --check), :mod:`.calc`,
 :mod:`.bridge` (bridge list|flash), :mod:`.sim` (sim serve), :mod:`.profile` (--profile,
 profile init|apply|show), :mod:`.scope`, :mod:`.shell`; :mod:`.types` holds the parameter
 types and checks they share.
@@ -18,11 +18,14 @@ from .calc import calc
 from .common import snapshot_dict
 from .sim import sim
 from .tune import tune
+from .twin import identify_cmd, twin_group
 from .types import parse_int
 
 main.add_command(calc)
 main.add_command(tune)
 main.add_command(bridge)
 main.add_command(sim)
+main.add_command(identify_cmd)
+main.add_command(twin_group)
 
 __all__ = ["main", "EXIT_CODES", "Session", "Terminated", "parse_int", "snapshot_dict"]
