@@ -973,7 +973,7 @@ def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
     for _round in range(POLISH_ROUNDS):
         model = _axis_of(axis, twelve_bit)
         for i, seg in enumerate(segs):
-            def sq(w: float, seg: _Segment = seg) -> float:
+            def sq(w: float, seg: _Segment = seg, model: AxisModel = model) -> float:
                 return seg.residual(model, g, w)[0]
             speeds[i] = _golden(sq, speeds[i] - 1.0, speeds[i] + 1.0)
         start = axis[:4] + speeds

@@ -249,16 +249,16 @@ def check_twin(bench: LM629, twin: LM629, gains: Gains, *, travel: int, distance
     say = progress or (lambda text: None)
     step = max(10, distance // 10) if step is None else step
     moves = []
-    for name, p, distance in (("step", None, step), ("trapezoid", profile, distance)):
+    for name, p, counts in (("step", None, step), ("trapezoid", profile, distance)):
         sides = []
         for label, chip in (("bench", bench), ("twin", twin)):
-            say(f"{name} of {distance:+d} counts out and back on the {label}")
-            m, rec = measure_move(chip, gains, distance=distance, travel=travel,
+            say(f"{name} of {counts:+d} counts out and back on the {label}")
+            m, rec = measure_move(chip, gains, distance=counts, travel=travel,
                                   duration_s=duration_s, tolerance=tolerance, poll_s=poll_s,
                                   profile=p)
             sides.append(judged_side(m, rec, tolerance))
         moves.append(Compared(name, sides[0], sides[1], rms_difference(sides[0], sides[1]),
-                              distance))
+                              counts))
     return TwinCheck(moves)
 
 
