@@ -298,3 +298,15 @@ def test_plugin_runs_a_users_test_file_on_the_twin(tuned, pytester, monkeypatch)
     assert bench.metrics.settle_s is not None and twin["settle_s"] is not None
     assert close(bench.metrics.settle_s, twin["settle_s"], *MATCH_SETTLE), (bench, twin)
     assert close(bench.metrics.overshoot, twin["overshoot"], *MATCH_OVERSHOOT), (bench, twin)
+
+
+def test_twin_check_on_a_served_bench_behind_usb(tuned, tmp_path):
+    """The same hidden bench served by `lm629 sim serve` behind an Uno's USB, in real time,
+    each command its own process: the twin from the profile matches it."""
+    from test_bench import serve
+    with serve(tmp_path, "python+uno", f"sim://?{BENCH}") as b:
+        b.ready()
+        p = b.run("--profile", str(tuned), "twin", "check", "--travel", str(TRAVEL), "--yes",
+                  timeout=120)
+        assert p.returncode == 0, p.stdout + p.stderr
+        assert p.stdout.splitlines()[-1] == "matches"
