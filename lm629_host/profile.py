@@ -222,19 +222,13 @@ class Profile:
         return self.twin_port(with_query(self.port, add) if add else self.port)
 
     def twin_port(self, url: str) -> str:
-        """``url``, and when it names a simulator that says nothing of its motor, with
-        ``profile=`` this file: the simulated chips are then built from each axis's
-        ``[axis.NAME.plant]`` (a twin of the bench, :mod:`lm629_host.twin`).  A simulator URL
-        that names a motor parameter (``inertia=``, ``accel=``...) or a profile is a bench of
-        its own, left as it is."""
-        from dataclasses import fields
-
-        from .sim.model.params import MotorParams
+        """``url``, and when it names a simulator, with ``profile=`` this file unless it names
+        one: the simulated chips are then built from each axis's ``[axis.NAME.plant]`` (a
+        twin of the bench, :mod:`lm629_host.twin`; a URL that gives its own motor keeps it,
+        ``lm629_host.sim.build``)."""
         from .transports import transport_class
         from .urls import query_params, with_query
-        said = set(query_params(url))
-        motor = {f.name for f in fields(MotorParams)}
-        if not transport_class(url).simulated or said & (motor | {"profile"}):
+        if not transport_class(url).simulated or "profile" in query_params(url):
             return url
         return with_query(url, {"profile": str(self.path)})
 

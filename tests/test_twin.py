@@ -171,8 +171,18 @@ def test_profile_with_a_bare_sim_port_is_a_twin_and_a_described_one_a_bench(tmp_
     prof = parse_profile(PROFILE, tmp_path / "rig.toml")
     assert f"profile={tmp_path / 'rig.toml'}" in prof.url()
     assert "profile=" in prof.twin_port("sim+emu://?usb=uno")
-    assert prof.twin_port("sim://?inertia=4e-5") == "sim://?inertia=4e-5"
     assert prof.twin_port("serial:///dev/ttyACM0") == "serial:///dev/ttyACM0"
+    path = tmp_path / "rig.toml"
+    path.write_text(PROFILE)
+    save_gains(path, "x", {}, plant={"accel": 1e6, "tau": 0.05})
+    # a URL that gives its own motor's dynamics is that motor; a fault applies to the twin
+    with lm629_host.open(prof.twin_port("sim://?inertia=4e-5")) as chip:
+        assert len(chip.transport.models) == 2  # the profile's chips, the URL's motor
+        assert chip.transport.models[0].motion.motor.rate == pytest.approx(
+            Motor(MotorParams(inertia=4e-5), SAMPLE_S).rate)
+    with lm629_host.open(prof.twin_port("sim://?axis=x&reversed=1")) as chip:
+        motor = chip.transport.model.motion.motor
+        assert motor.rate == pytest.approx(20.0) and motor.accel_per_volt * 12 == -1e6
 
 
 # ---------------------------------------------------------------------------------- end to end

@@ -82,6 +82,12 @@ def axes_of(url: str, limit: int = MAX_AXES) -> int:
 #: the options that build a twin of a bench from its profile (:func:`build_bus`)
 TWIN_OPTIONS = frozenset({"profile", "axis"})
 
+#: the motor parameters that set how the shaft moves: a URL that names one gives its own
+#: motor, a bench of its own, and the profile's plants are not used (the faults and the
+#: encoder, ``stall=``, ``reversed=``, ``lines=``..., apply to a twin as to any motor)
+DYNAMICS = frozenset({"amp_volts", "resistance", "torque_constant", "inertia", "friction",
+                      "coulomb", "load_torque", "accel", "tau", "dry", "load"})
+
 
 def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
               limit: int = MAX_AXES) -> ChipModel | ChipBus:
@@ -91,7 +97,10 @@ def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
     ``profile=FILE``: a twin of the bench the profile describes: a chip per chip select its
     axes use (or ``axes=``, when more), each axis's motor built from its
     ``[axis.NAME.plant]`` (the other motors the URL's), its chip, lines and the board's clock
-    unless the URL says them; ``axis=NAME``: that axis's chip alone (one chip)."""
+    unless the URL says them; ``axis=NAME``: that axis's chip alone (one chip).  A URL that
+    names a parameter of the motor's dynamics (:data:`DYNAMICS`) keeps its own motor: the
+    profile then gives only the chips, lines and clock (``--profile FILE --port
+    'sim://?inertia=4e-5'`` is a bench of its own, with the profile's axes)."""
     allowed = allowed | {"axes"} | TWIN_OPTIONS
     q = query_params(url)
     if "profile" in q:
@@ -133,7 +142,8 @@ def _twin(url: str, path: str, axis: str | None, allowed: frozenset[str],
                 model.params.variant = ax.chip
             if "clock_hz" not in said:
                 model.params.clock_hz = round(prof.clock_hz)
-            motor = {k: v for k, v in (ax.plant or {}).items()
+            plant = {} if said & DYNAMICS else (ax.plant or {})
+            motor = {k: v for k, v in plant.items()
                      if k in PLANT_KEYS and hasattr(model.motor_params, k) and k not in said}
             if ax.lines is not None and "lines" not in said:
                 motor["lines"] = ax.lines
