@@ -111,8 +111,8 @@ class Side:
     """One test move on one side: its figures and the positions recorded."""
 
     metrics: MoveMetrics
-    times: list[float]  #: seconds after each STT (out, then back)
-    positions: list[int]  #: counts from each step's start
+    #: each step's rows (out, then back): seconds after its STT, counts from its start
+    segments: list[tuple[list[float], list[int]]]
     #: the settle times (s, None: never) with the band a count wider and a count narrower
     settle_range: tuple[float | None, float | None] = (None, None)
 
@@ -189,14 +189,10 @@ class TwinCheck:
 def judged_side(metrics: MoveMetrics, rec: Record, band: int) -> Side:
     """A test move's record (:func:`~lm629_host.tuning.measure_move`) as one side of a
     comparison, its settle time at ``band`` counts given a count either way."""
-    times: list[float] = []
-    positions: list[int] = []
-    offset = 0.0
+    segments = []
     for k in range(len(rec.steps)):
         t, real, _des, start, _target = rec.segment(k)
-        times += [offset + x for x in t]
-        positions += [p - start for p in real]
-        offset += (t[-1] if t else 0.0) + 1.0  # the back step's rows after the out step's
+        segments.append((t, [p - start for p in real]))
     spans = []
     for b in (band + 1, max(0, band - 1)):
         worst: float | None = 0.0
@@ -205,23 +201,26 @@ def judged_side(metrics: MoveMetrics, rec: Record, band: int) -> Side:
             s = None if m.settle_s is None else max(0.0, m.settle_s)
             worst = None if s is None or worst is None else max(worst, s)
         spans.append(worst)
-    return Side(metrics, times, positions, (spans[0], spans[1]))
+    return Side(metrics, segments, (spans[0], spans[1]))
 
 
-def rms_difference(a: Side, b: Side, shift_s: float = 6e-3, step_s: float = 2.5e-4) -> float:
+def rms_difference(a: Side, b: Side, shift_s: float = 10e-3, step_s: float = 2.5e-4) -> float:
     """The rms difference of ``b``'s positions from ``a``'s at ``a``'s times (``b``'s
-    interpolated), at the best relative time shift within ``+/- shift_s``: where the host
-    stamps the STT is uncertain by up to a reply's trip (behind an Uno's USB chip a 4.096 ms
-    flush tick), and that is not a difference between bench and twin."""
-    if not a.times or not b.times:
-        return float("inf")
-    best = float("inf")
-    n = round(shift_s / step_s)
-    for k in range(-n, n + 1):
-        d = k * step_s
-        err = [(_at(b.times, b.positions, t + d) - p) ** 2 for t, p in zip(a.times, a.positions)]
-        best = min(best, (sum(err) / len(err)) ** 0.5)
-    return best
+    interpolated), each step at the best relative time shift within ``+/- shift_s``: each
+    recording's offset from its STT is the host's, uncertain by up to a reply's trip (behind
+    an Uno's USB a 4.096 ms flush tick, a served bench's round trip besides), and that is not
+    a difference between bench and twin."""
+    total, n = 0.0, 0
+    for (ta, pa), (tb, pb) in zip(a.segments, b.segments):
+        if not ta or not tb:
+            return float("inf")
+        best = float("inf")
+        k_max = round(shift_s / step_s)
+        for k in range(-k_max, k_max + 1):
+            d = k * step_s
+            best = min(best, sum((_at(tb, pb, t + d) - p) ** 2 for t, p in zip(ta, pa)))
+        total, n = total + best, n + len(ta)
+    return (total / n) ** 0.5 if n else float("inf")
 
 
 def _at(times: Sequence[float], values: Sequence[int], t: float) -> float:
@@ -232,7 +231,7 @@ def _at(times: Sequence[float], values: Sequence[int], t: float) -> float:
     if i >= len(times):
         return values[-1]
     t0, t1 = times[i - 1], times[i]
-    if t1 <= t0 or t1 - t0 > 0.5:  # the gap between the out and the back step
+    if t1 <= t0:
         return values[i - 1]
     return values[i - 1] + (values[i] - values[i - 1]) * (t - t0) / (t1 - t0)
 

@@ -44,7 +44,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
-from lm629_host.pid import sample_period_s
+from lm629_host.pid import STEP_ACCELERATION, STEP_VELOCITY, sample_period_s
 from lm629_host.profile import load_profile
 from lm629_host.tuning import Gains, measure_move
 from lm629_host.twin import (
@@ -113,10 +113,15 @@ def bench(transport: str, params: str, tmp: Path) -> Iterator[str]:
 
 
 def fresh(url: str) -> lm629_host.LM629:
+    """The bench reset, holding the shaft where it is at kp = 20 (the drive on: on a served
+    bench time passes between commands, and a loaded shaft left with the drive off after the
+    reset would fall meanwhile)."""
     chip = lm629_host.open(url)
     chip.reset()
     chip.load_filter(kp=20)
     chip.update_filter()
+    chip.load_trajectory(acceleration=STEP_ACCELERATION, velocity=STEP_VELOCITY,
+                         position=chip.read_real_position(), start=True)
     return chip
 
 
