@@ -225,7 +225,7 @@ def tuned(tmp_path_factory) -> Path:
                                       "tune", "--travel", str(TRAVEL), "--yes", "--save"],
                            env={"LM629_PORT": "", "LM629_PROFILE": ""}, catch_exceptions=False)
     assert r.exit_code == 0, r.output
-    assert "and the plant into [axis.x]" in r.output
+    assert "saved the plant into [axis.x.plant]" in r.output
     return path
 
 

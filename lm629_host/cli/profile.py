@@ -241,7 +241,9 @@ def after_tune(s: Session, chip: LM629, gains: Any, target: tuple[Path, str] | N
     save_gains(path, name, {"kp": gains.kp, "ki": gains.ki, "kd": gains.kd, "il": gains.il,
                             "ds": gains.ds}, plant=plant)
     click.echo(f"saved kp={gains.kp} ki={gains.ki} kd={gains.kd} il={gains.il} "
-               f"ds={gains.ds}{' and the plant' if plant else ''} into [axis.{name}] of {path}")
+               f"ds={gains.ds} into [axis.{name}] of {path}")
+    if plant:
+        click.echo(f"saved the plant into [axis.{name}.plant] of {path}")
 
 
 # ---------------------------------------------------------------------------- commands
