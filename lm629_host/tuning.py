@@ -960,37 +960,25 @@ def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
     # counts, the axis's parameters barely move the fit)
     best: list[float] = []
     best_val = math.inf
+    # (each start a full ``iters``: behind an Uno's USB a fast axis's first row comes a frame
+    # after its STT, and half as many left the polish in a valley, its acceleration 9 % high
+    # at 4 counts rms where the whole search reaches it within 0.1 % at 0.3)
     for rate0 in (1e-3, 1e-2):
         p, v = _nelder_mead(lambda q: f(q + speeds), [math.log(guess), math.log(rate0), 0.005,
                                                         0.0], [0.5, 1.0, 0.01, 0.02], iters)
         if v < best_val:
             best, best_val = p, v
-    # then each speed alone on that axis and all together, again while a round still improves
-    # the fit by POLISH_GAIN: the speeds and the acceleration trade off along a valley that a
-    # shrunken simplex stops short in (behind an Uno's USB a fast axis's first row comes a
-    # frame after its STT, and one round left its acceleration 10-20 % high at 4 counts rms)
-    axis, best_val = best, math.inf
-    for _round in range(POLISH_ROUNDS):
-        model = _axis_of(axis, twelve_bit)
-        for i, seg in enumerate(segs):
-            def sq(w: float, seg: _Segment = seg, model: AxisModel = model) -> float:
-                return seg.residual(model, g, w)[0]
-            speeds[i] = _golden(sq, speeds[i] - 1.0, speeds[i] + 1.0)
-        start = axis[:4] + speeds
-        p, v = _nelder_mead(f, start, [0.1, 0.3, 0.005, 0.005] + [0.05] * m, iters)
-        if f(start) < v:
-            p, v = start, f(start)
-        improved = v < best_val * (1 - POLISH_GAIN)
-        if v < best_val:
-            axis, best_val, speeds = p[:4], v, p[4:]
-        if not improved:
-            break
-    return _axis_of(axis, twelve_bit), best_val
-
-
-#: rounds of the far-side fit at most, and the improvement a round must make for another
-POLISH_ROUNDS = 4
-POLISH_GAIN = 0.02
+    model = _axis_of(best, twelve_bit)
+    for i, seg in enumerate(segs):
+        def sq(w: float, seg: _Segment = seg) -> float:
+            return seg.residual(model, g, w)[0]
+        speeds[i] = _golden(sq, speeds[i] - 1.0, speeds[i] + 1.0)
+    best = best + speeds
+    best_val = f(best)
+    p, v = _nelder_mead(f, best, [0.1, 0.3, 0.005, 0.005] + [0.05] * m, iters)  # polish
+    if v < best_val:
+        best, best_val = p, v
+    return _axis_of(best, twelve_bit), best_val
 
 
 def _golden(f: Callable[[float], float], a: float, b: float, tol: float = 0.01) -> float:
