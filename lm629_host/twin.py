@@ -88,8 +88,11 @@ def plant_record(model: AxisModel, sample_s: float, *, rms: float, steps: int, p
 
 # ---------------------------------------------------------------------------------- the check
 #: the twin matches the bench when, for both test moves, the overshoots differ by at most
-#: 2 counts or 10 % and the settle times by at most 5 ms or 10 % (whichever is larger), and
-#: the rms difference of the positions is at most 1 % of the distance (2 counts at least)
+#: 2 counts or 10 % and the rms difference of the positions is at most 0.5 % of the move (1
+#: count at least), and the trapezoid move's settle times by at most 5 ms or 10 % (whichever
+#: is larger).  The short step's settle time is shown, not judged: its last counts are a
+#: creep against dry friction, where a count's difference moves the time by 5-10 ms; its rms
+#: difference sees a doubled load (0.5 counts on the same bench, 1.9 with the load doubled)
 MATCH_OVERSHOOT = (2, 0.10)
 #: counts: a comparison's settle time is the last time the shaft is further than this from
 #: its target.  Not the tuner's 2: a shaft at rest against dry friction with an integral term
@@ -98,7 +101,7 @@ MATCH_OVERSHOOT = (2, 0.10)
 #: one move to the next (docs/twin.md)
 SETTLE_BAND = 5
 MATCH_SETTLE = (5e-3, 0.10)
-MATCH_RMS = (2.0, 0.01)
+MATCH_RMS = (1.0, 0.005)
 
 
 def close(a: float, b: float, absolute: float, relative: float) -> bool:
@@ -141,6 +144,7 @@ class Compared:
     twin: Side
     rms: float  #: counts, rms difference of the positions (aligned: :func:`rms_difference`)
     distance: int
+    judge_settle: bool = True  #: the settle times are part of the verdict
 
     def settle_ok(self) -> bool:
         return settle_close(self.bench, self.twin)
@@ -154,7 +158,8 @@ class Compared:
 
     @property
     def matches(self) -> bool:
-        return self.settle_ok() and self.overshoot_ok() and self.rms_ok()
+        return (self.settle_ok() or not self.judge_settle) and self.overshoot_ok() and \
+            self.rms_ok()
 
 
 @dataclass(frozen=True)
@@ -179,7 +184,7 @@ class TwinCheck:
                     f"{'':<10} {'over':>6} {b.overshoot:>7d} ct {t.overshoot:>7d} ct  "
                     f"{'yes' if c.overshoot_ok() else 'NO'}",
                     f"{'':<10} {'settle':>6} {settle(b):>10} {settle(t):>10}  "
-                    f"{'yes' if c.settle_ok() else 'NO'}"]
+                    + (("yes" if c.settle_ok() else "NO") if c.judge_settle else "(shown)")]
         out.append("the twin matches the bench" if self.matches else
                    "the twin differs from the bench: identify the axis again (`lm629 identify "
                    "--save`) before trusting tests on the twin")
@@ -257,7 +262,7 @@ def check_twin(bench: LM629, twin: LM629, gains: Gains, *, travel: int, distance
                                   profile=p)
             sides.append(judged_side(m, rec, tolerance))
         moves.append(Compared(name, sides[0], sides[1], rms_difference(sides[0], sides[1]),
-                              counts))
+                              counts, judge_settle=p is not None))
     return TwinCheck(moves)
 
 
