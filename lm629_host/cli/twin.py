@@ -16,7 +16,7 @@ from ..safety import stop_on_error
 from ..tuning import Gains, identify
 from ..twin import Plant, check_twin, plant_record, twin_profile
 from ..urls import with_query
-from .app import Session, _session
+from .app import Session, _session, axes_of
 from .motion import _motion_words
 from .types import FINITE
 
@@ -129,11 +129,10 @@ def check_cmd(travel: int, distance: int | None, velocity: float | None,
     if s.profile is None:
         raise click.UsageError("twin check needs --profile FILE (the plant and the gains)")
     words = _motion_words(s, velocity, acceleration, raw=False)
-    chip = s.open()
-    ax = s.profile.by_cs(chip.chip_select)
+    cs = axes_of(s)[0] if s.axis_spec != "all" else 0  # the profile checked before the port
+    ax = s.profile.by_cs(cs)
     if ax is None:
-        raise click.UsageError(f"{s.profile.path} has no [axis.NAME] with cs = "
-                               f"{chip.chip_select}")
+        raise click.UsageError(f"{s.profile.path} has no [axis.NAME] with cs = {cs}")
     if not ax.plant:
         raise click.UsageError(f"{s.profile.path}: [axis.{ax.name}] has no plant: "
                                "`lm629 identify --save` (or `tune --save`) first")
@@ -142,6 +141,7 @@ def check_cmd(travel: int, distance: int | None, velocity: float | None,
         raise click.UsageError(f"{s.profile.path}: [axis.{ax.name}] has no kp: the check "
                                "runs the profile's gains on both")
     plant = Plant.from_values(ax.plant)
+    chip = s.open()
     from . import profile
     profile.tune_band(chip, travel)
     move = twin_profile(plant, s.sample_s, None if velocity is None else words[0],
