@@ -176,6 +176,7 @@ def run_bench(transport: str, name: str, params: str, heavier: str, loaded: str 
         assert ax.kp is not None and ax.plant is not None
         gains = Gains(ax.kp, ax.ki or 0, ax.kd or 0, ax.il or 0, ax.ds)
         tuned_plant = Plant.from_values(ax.plant)
+        print(f"{name}: tune's plant {tuned_plant.values()}", file=sys.stderr)
         shutil.copy(path, tmp / "tuned.toml")
         fresh(url).close()
         p = lm629("--profile", str(path), "--port", url, "identify", "--travel", str(TRAVEL),
