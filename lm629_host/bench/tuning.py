@@ -282,6 +282,10 @@ class Record:
     #: the (velocity, acceleration) words of the steps when an axis's soft caps brought them
     #: below a step (:func:`lm629_host.chip.limits.clip_step`): the desired position ramps
     words: tuple[int, int] | None = None
+    #: each step of a test move as it was judged (:func:`measure_move`): times after the
+    #: profile's end (a step: after its STT), real and desired positions, start, target
+    judged: list[tuple[list[float], list[int], list[int], int, int]] = field(
+        default_factory=list)
 
     def times(self) -> list[float]:
         return [s.time - self.t0 for s in self.rows]
@@ -327,6 +331,7 @@ class TuneResult:
     profile: MoveProfile | None = None  #: the trapezoid move judged and checked
     predicted_move: MoveMetrics | None = None  #: the trapezoid move on the model
     measured_move: MoveMetrics | None = None  #: ... and on the axis (settle after the profile)
+    fit_steps: int = 0  #: the identification steps the model was fitted to
 
     @property
     def gains(self) -> Gains:
@@ -955,9 +960,12 @@ def _fit_far(segs: list[_Segment], g: Gains, sample_s: float, twelve_bit: bool,
     # counts, the axis's parameters barely move the fit)
     best: list[float] = []
     best_val = math.inf
+    # (each start a full ``iters``: behind an Uno's USB a fast axis's first row comes a frame
+    # after its STT, and half as many left the polish in a valley, its acceleration 9 % high
+    # at 4 counts rms where the whole search reaches it within 0.1 % at 0.3)
     for rate0 in (1e-3, 1e-2):
         p, v = _nelder_mead(lambda q: f(q + speeds), [math.log(guess), math.log(rate0), 0.005,
-                                                        0.0], [0.5, 1.0, 0.01, 0.02], iters // 2)
+                                                        0.0], [0.5, 1.0, 0.01, 0.02], iters)
         if v < best_val:
             best, best_val = p, v
     model = _axis_of(best, twelve_bit)
@@ -1227,7 +1235,9 @@ def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, dur
                 clip_step(ses.chip, profile.velocity, profile.acceleration) == (
                     profile.velocity, profile.acceleration):
             t = _since_stt(profile, tgt - start, t, des, start, ses.sample_s)
-        m = step_metrics([x - ramp_s for x in t], real, des, start, tgt, tolerance)
+        t = [x - ramp_s for x in t]
+        rec.judged.append((t, real, des, start, tgt))
+        m = step_metrics(t, real, des, start, tgt, tolerance)
         if profile:
             m = replace(m, rise_s=None, settle_s=None if m.settle_s is None
                         else max(0.0, m.settle_s))
@@ -1338,13 +1348,57 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
     chip.load_position_error(COEFFICIENT_MAX)  # the tuning limit off again (reset's value)
     return TuneResult(gains.kp, gains.ki, gains.kd, gains.il, gains.ds, model, ses.sample_s,
                       ses.origin, travel, distance, tolerance, predicted, measured, measured_before,
-                      ses.records, rms, ses.positions, profile, predicted_move, measured_move)
+                      ses.records, rms, ses.positions, profile, predicted_move, measured_move,
+                      len(ident.steps))
+
+
+@dataclass(frozen=True)
+class Identified:
+    """What :func:`identify` found: the axis's model and how well it fits."""
+
+    model: AxisModel
+    sample_s: float
+    fit_rms: float  #: counts, model vs the identification steps
+    fit_steps: int  #: the identification steps fitted
+    record: Record
+
+
+def identify(chip: LM629, *, travel: int, poll_s: float = 1e-3, clock_hz: float | None = None,
+             restore: Gains | None = None, progress: Progress | None = None) -> Identified:
+    """The tuner's phasing check and identification steps alone (1 and 2 of the module's
+    list, with the same guards), and the model fitted to them; no gains are designed.
+
+    The experiments load P-only gains; ``restore`` loads these gains again after (LFIL +
+    UDF: the chip cannot report the ones it had, so they are named), else the filter is left
+    at the identification's P-only gain.  The following-error limit armed meanwhile is put
+    back to the reset value (7FFF, flag only).  Raises as :func:`autotune` does."""
+    travel = check_int("travel", travel, 100, 1 << 28)
+    if not 0 < poll_s <= 0.05:
+        raise ValueError(f"poll_s={poll_s} must be > 0 and at most 0.05 seconds")
+    if restore is not None:
+        chip.filter_program(**restore.as_filter())  # a bad filter: refused before anything
+    say = progress or (lambda text: None)
+    if chip.is_moving():
+        raise ValueError("the motor is moving: identification starts from rest "
+                         "(`lm629 stop` first)")
+    ses = _Session(chip, travel, poll_s, say, clock_hz)
+    with stop_on_error(chip):
+        chip.load_position_error(min(COEFFICIENT_MAX, travel), stop=True)
+        _phasing(ses, max(8, travel // 8), 0.3)
+        ident = _identify_run(ses, max(8, travel // 4), 0.25)
+        model, rms = fit_model(ident, ses.sample_s, twelve_bit=_twelve_bit(chip))
+        say(f"model: {model.describe(ses.sample_s)} (fit {rms:.1f} counts rms)")
+        if restore is not None:
+            ses.load(restore)
+            ses.rest(3.0)
+    chip.load_position_error(COEFFICIENT_MAX)
+    return Identified(model, ses.sample_s, rms, len(ident.steps), ident)
 
 
 def _twelve_bit(chip: LM629) -> bool:
     return not chip.read_signals() & Signals.EIGHT_BIT_OUTPUT
 
 
-__all__ = ["autotune", "measure_move", "TuneResult", "Gains", "AxisModel", "MoveMetrics",
+__all__ = ["autotune", "identify", "Identified", "measure_move", "TuneResult", "Gains", "AxisModel", "MoveMetrics",
            "PIDState", "simulate", "fit_model", "design", "predict_move", "step_metrics",
            "score", "Record", "MoveProfile", "Phasing", "check_phasing", "default_profile", "MOVE_VELOCITY", "MOVE_ACCELERATION"]

@@ -1,8 +1,9 @@
 """``lm629``: the bench command line (the ``main`` group, :mod:`.app`), its commands in one
 module per family: :mod:`.bench` (bringup, list, doctor, udev), :mod:`.chip` (status, reset,
 filter, index, breakpoint, limit, watch, raw), :mod:`.motion` (move, velocity, stop, home),
-:mod:`.tune` (step, tune), :mod:`.wiring` (wiring, wiring --check), :mod:`.calc`,
-:mod:`.bridge` (bridge list|flash), :mod:`.sim` (sim serve), :mod:`.sigrok` (sigrok install), :mod:`.profile` (--profile,
+:mod:`.tune` (step, tune), :mod:`.twin` (identify, twin check), :mod:`.wiring` (wiring,
+wiring --check), :mod:`.calc`, :mod:`.bridge` (bridge list|flash), :mod:`.sim` (sim serve),
+:mod:`.sigrok` (sigrok install), :mod:`.profile` (--profile,
 profile init|apply|show), :mod:`.scope`, :mod:`.shell`; :mod:`.types` holds the parameter
 types and checks they share.
 
@@ -20,6 +21,7 @@ from lm629_host.cli.common import snapshot_dict
 from lm629_host.cli.sigrok import sigrok
 from lm629_host.cli.sim import sim
 from lm629_host.cli.tune import tune
+from lm629_host.cli.twin import identify_cmd, twin_group
 from lm629_host.cli.types import parse_int
 
 main.add_command(calc)
@@ -27,5 +29,7 @@ main.add_command(tune)
 main.add_command(bridge)
 main.add_command(sim)
 main.add_command(sigrok)
+main.add_command(identify_cmd)
+main.add_command(twin_group)
 
 __all__ = ["main", "EXIT_CODES", "Session", "Terminated", "parse_int", "snapshot_dict"]

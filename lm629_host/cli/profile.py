@@ -70,7 +70,7 @@ def profile_options(ctx: click.Context, path: str, port: str | None, chip_name: 
         have = query_params(port)
         add = {k: v for k, v in (("chip", prof.chip), ("clock", str(round(prof.clock_hz))))
                if k not in have and not _given(ctx, "chip_name" if k == "chip" else k)}
-        port = with_query(port, add) if add else port
+        port = prof.twin_port(with_query(port, add) if add else port)
     if not _given(ctx, "chip_name"):
         chip_name = prof.chip
     if not _given(ctx, "clock"):
@@ -246,8 +246,9 @@ def tuning(s: Session, chip: LM629) -> Iterator[None]:
 
 
 def after_tune(s: Session, chip: LM629, gains: Any, target: tuple[Path, str] | None,
-               ok: bool) -> None:
-    """After ``tune``: the gains saved when asked and good."""
+               ok: bool, plant: dict[str, Any] | None = None) -> None:
+    """After ``tune``: the gains, and the plant identified (``[axis.NAME.plant]``), saved
+    when asked and good."""
     if target is None:
         return
     path, name = target
@@ -256,9 +257,11 @@ def after_tune(s: Session, chip: LM629, gains: Any, target: tuple[Path, str] | N
                    err=True)
         return
     save_gains(path, name, {"kp": gains.kp, "ki": gains.ki, "kd": gains.kd, "il": gains.il,
-                            "ds": gains.ds})
+                            "ds": gains.ds}, plant=plant)
     click.echo(f"saved kp={gains.kp} ki={gains.ki} kd={gains.kd} il={gains.il} "
                f"ds={gains.ds} into [axis.{name}] of {path}")
+    if plant:
+        click.echo(f"saved the plant into [axis.{name}.plant] of {path}")
 
 
 # ---------------------------------------------------------------------------- commands

@@ -137,7 +137,10 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
                           before=before, poll_s=interval, clock_hz=s.clock_hz,
                           velocity=v_word, acceleration=a_word,
                           progress=lambda text: click.echo(f"  {text}", err=True))
-    profile.after_tune(s, chip, result.gains, save_to, result.ok)
+    from ..twin import plant_record
+    plant = plant_record(result.model, result.sample_s, rms=result.fit_rms,
+                         steps=result.fit_steps, port=s.port)
+    profile.after_tune(s, chip, result.gains, save_to, result.ok, plant)
     scale = s.scale
     click.echo(f"axis: {result.model.describe(result.sample_s)}")
     d = f"{result.distance:+d}-count step out and back"

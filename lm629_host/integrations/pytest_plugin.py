@@ -128,6 +128,9 @@ class PortSession:
             self.simulated = transport_class(self.url).simulated
         except LM629Error as exc:
             raise pytest.UsageError(f"--lm629-port {self.url}: {exc}") from None
+        if self.simulated and self.profile_data is not None:
+            # a simulated port with a profile: the twin of its bench, built from the plants
+            self.url = self.profile_data.twin_port(self.url)
 
     def check(self) -> None:
         """Open the port once (a simulator: build one chip and drop it), or PortError."""

@@ -109,6 +109,22 @@ AXIS_KEYS: dict[str, Key] = {
 
 GAIN_KEYS = ("kp", "ki", "kd", "il", "ds")
 
+#: ``[axis.NAME.plant]``: the axis as ``lm629 tune`` / ``lm629 identify`` identified it, in the
+#: units a fit of the shaft's motion can tell (:mod:`lm629_host.twin`); ``sim://?profile=FILE``
+#: builds the axis's motor from it (the same names are ``MotorParams`` fields)
+PLANT_KEYS: dict[str, Key] = {
+    "accel": Key("number", 1e-3, 1e15, help="counts/s^2 at full-scale output, shaft at rest"),
+    "tau": Key("number", 1e-6, 1e6, help="mechanical time constant, s"),
+    "dry": Key("number", 0, 1, help="dry friction, a fraction of full-scale output"),
+    "load": Key("number", -1, 1, help="constant load, a fraction of full-scale output "
+                                      "(> 0 pulls towards fewer counts)"),
+    "reversed": Key("bool", help="motor leads reversed (the sign of the drive)"),
+    "rms": Key("number", 0, 1e9, help="the fit's rms error, counts"),
+    "steps": Key("int", 0, 1000, help="identification steps fitted"),
+    "date": Key("str", help="when it was identified (ISO 8601)"),
+    "port": Key("str", help="the port it was identified on"),
+}
+
 
 # ---------------------------------------------------------------------------- the profile
 @dataclass
@@ -133,6 +149,8 @@ class AxisProfile:
     index_velocity: float | None = None
     note: str = ""
     key_lines: dict[str, int] = field(default_factory=dict)  #: key -> line in the file
+    #: ``[axis.NAME.plant]`` checked against :data:`PLANT_KEYS`, None when the file has none
+    plant: dict[str, Any] | None = None
 
     def gains(self) -> dict[str, int]:
         """The filter as :meth:`LM629.load_filter` takes it (the gains given, and ds)."""
@@ -207,7 +225,18 @@ class Profile:
         if spec.transport.simulated and n > 1:
             add["axes"] = str(n)  # the simulator builds the chips the profile names
         add = {k: v for k, v in add.items() if k not in have}
-        return with_query(self.port, add) if add else self.port
+        return self.twin_port(with_query(self.port, add) if add else self.port)
+
+    def twin_port(self, url: str) -> str:
+        """``url``, and when it names a simulator, with ``profile=`` this file unless it names
+        one: the simulated chips are then built from each axis's ``[axis.NAME.plant]`` (a
+        twin of the bench, :mod:`lm629_host.twin`; a URL that gives its own motor keeps it,
+        ``lm629_host.sim.build``)."""
+        from .transports import transport_class
+        from .urls import query_params, with_query
+        if not transport_class(url).simulated or "profile" in query_params(url):
+            return url
+        return with_query(url, {"profile": str(self.path)})
 
 
 # ---------------------------------------------------------------------------- loading
@@ -306,6 +335,10 @@ class _Checker:
             if spec.choices and v.lower() not in spec.choices:
                 raise bad(f"must be one of {', '.join(map(str, spec.choices))}")
             return v.lower() if spec.choices else v
+        if spec.kind == "bool":
+            if not isinstance(v, bool):
+                raise bad("must be true or false")
+            return v
         if spec.kind == "hz":
             if isinstance(v, bool) or not isinstance(v, (str, int, float)):
                 raise bad("must be a frequency (\"8MHz\" or a number of Hz)")
@@ -366,6 +399,10 @@ def parse_profile(text: str, path: str | os.PathLike[str] = "<profile>") -> Prof
         if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_-]*", name) or name.lower() == "all":
             raise chk.fail(table, "", f"{name!r} is not an axis name (a letter, then letters, "
                                       "digits, _ or -; not 'all')")
+        plant = None
+        if isinstance(raw, dict) and "plant" in raw:
+            raw = dict(raw)
+            plant = chk.table(f"{table}.plant", raw.pop("plant"), PLANT_KEYS)
         values = chk.table(table, raw, AXIS_KEYS)
         if "cs" not in values:
             raise chk.fail(table, "", "has no cs = N (the chip select of its chip)")
@@ -376,7 +413,7 @@ def parse_profile(text: str, path: str | os.PathLike[str] = "<profile>") -> Prof
         seen_cs[cs] = name
         values.setdefault("chip", chip)
         lines = {k: chk.lines[(table, k)] for k in values if (table, k) in chk.lines}
-        ax = AxisProfile(name=name, key_lines=lines, **values)
+        ax = AxisProfile(name=name, key_lines=lines, plant=plant, **values)
         if ax.min is not None and ax.max is not None and ax.min > ax.max:
             raise chk.fail(table, "min", f"{ax.min} is above max = {ax.max}")
         if ax.output == 12 and ax.chip != "lm628":
@@ -494,11 +531,13 @@ def ensure_applied(chips: Mapping[str, Any], profile: Profile,
 
 
 # ---------------------------------------------------------------------------- writing
-def save_gains(path: str | os.PathLike[str], axis: str, gains: Mapping[str, int]) -> Path:
+def save_gains(path: str | os.PathLike[str], axis: str, gains: Mapping[str, int],
+               plant: Mapping[str, Any] | None = None) -> Path:
     """Write ``gains`` (kp, ki, kd, il, ds: ds in samples) into ``[axis.NAME]`` of the profile
-    at ``path``, keeping everything else, comments included (tomlkit), by writing a new file
-    beside it and renaming it over the old one.  The result is checked before it replaces the
-    file (ProfileError: the file is left as it was)."""
+    at ``path``, and ``plant`` (:data:`PLANT_KEYS`) into ``[axis.NAME.plant]`` in place of
+    the one there, keeping everything else, comments included (tomlkit), by writing a new
+    file beside it and renaming it over the old one.  The result is checked before it replaces
+    the file (ProfileError: the file is left as it was)."""
     import tomlkit
 
     p = Path(path)
@@ -509,6 +548,16 @@ def save_gains(path: str | os.PathLike[str], axis: str, gains: Mapping[str, int]
     for k in GAIN_KEYS:
         if k in gains:
             table[k] = int(gains[k])
+    if plant is not None:
+        sub = table.get("plant")
+        if sub is None:
+            sub = tomlkit.table()
+            table["plant"] = sub
+        for k in PLANT_KEYS:
+            if k in plant:
+                sub[k] = plant[k]
+            elif k in sub:
+                del sub[k]  # a key of the plant identified before, not measured this time
     new = tomlkit.dumps(doc)
     parse_profile(new, p)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
@@ -556,6 +605,6 @@ def template(*, port: str | None, chip: str = "lm629", clock: str = "8MHz",
     return "\n".join(out)
 
 
-__all__ = ["AXIS_KEYS", "BOARD_KEYS", "AxisProfile", "Profile", "ProfileError", "apply_axis",
+__all__ = ["AXIS_KEYS", "BOARD_KEYS", "PLANT_KEYS", "AxisProfile", "Profile", "ProfileError", "apply_axis",
            "apply_profile", "attach", "ensure_applied", "key_lines", "load_profile", "name_axes",
            "parse_profile", "save_gains", "settings_lost", "template"]

@@ -5,6 +5,7 @@ clock=6MHz&fault=busy...`` into a :class:`~lm629_host.sim.model.ChipModel`."""
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 from lm629_host.errors import AxisError
 from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN
@@ -83,12 +84,74 @@ def axes_of(url: str, limit: int = MAX_AXES) -> int:
     return n
 
 
+#: the options that build a twin of a bench from its profile (:func:`build_bus`)
+TWIN_OPTIONS = frozenset({"profile", "axis"})
+
+#: the motor parameters that set how the shaft moves: a URL that names one gives its own
+#: motor, a bench of its own, and the profile's plants are not used (the faults and the
+#: encoder, ``stall=``, ``reversed=``, ``lines=``..., apply to a twin as to any motor)
+DYNAMICS = frozenset({"amp_volts", "resistance", "torque_constant", "inertia", "friction",
+                      "coulomb", "load_torque", "accel", "tau", "dry", "load"})
+
+
 def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
               limit: int = MAX_AXES) -> ChipModel | ChipBus:
     """The chip (``axes=1``, the default) or the :class:`ChipBus` of ``axes=N`` chips, each
-    with its own motor, all configured from the same URL parameters."""
+    with its own motor, all configured from the same URL parameters.
+
+    ``profile=FILE``: a twin of the bench the profile describes: a chip per chip select its
+    axes use (or ``axes=``, when more), each axis's motor built from its
+    ``[axis.NAME.plant]`` (the other motors the URL's), its chip, lines and the board's clock
+    unless the URL says them; ``axis=NAME``: that axis's chip alone (one chip).  A URL that
+    names a parameter of the motor's dynamics (:data:`DYNAMICS`) keeps its own motor: the
+    profile then gives only the chips, lines and clock (``--profile FILE --port
+    'sim://?inertia=4e-5'`` is a bench of its own, with the profile's axes)."""
+    allowed = allowed | {"axes"} | TWIN_OPTIONS
+    q = query_params(url)
+    if "profile" in q:
+        return _twin(url, q["profile"], q.get("axis"), allowed, limit)
+    if "axis" in q:
+        raise ValueError(f"{url}: axis= names an axis of a profile: give profile=FILE too")
     n = axes_of(url, limit)
-    allowed = allowed | {"axes"}
     if n == 1:
         return build_model(url, allowed=allowed)
     return ChipBus([build_model(url, allowed=allowed) for _ in range(n)])
+
+
+def _twin(url: str, path: str, axis: str | None, allowed: frozenset[str],
+          limit: int) -> ChipModel | ChipBus:
+    from ..profile import PLANT_KEYS, load_profile
+    prof = load_profile(path)
+    if axis is not None:
+        axes = {0: prof.axis(axis)}  # ValueError naming the axes it has
+        if "axes" in query_params(url) and axes_of(url, limit) != 1:
+            raise ValueError(f"{url}: axis={axis} builds one chip: axes= must be 1")
+    else:
+        axes = {a.cs: a for a in prof.axes.values()}
+    n = max(axes, default=0) + 1
+    if "axes" in query_params(url):
+        given = axes_of(url, limit)
+        if given < n:
+            raise ValueError(f"{url}: axes={given}, but {path} has an axis on chip select "
+                             f"{n - 1}")
+        n = given
+    if n > limit:
+        raise AxisError(n - 1, limit, f"the simulated adapter of {url} ({path})")
+    said = {_ALIASES.get(k, k) for k in query_params(url)}
+    chips = []
+    for cs in range(n):
+        model = build_model(url, allowed=allowed)
+        ax = axes.get(cs)
+        if ax is not None:
+            if "variant" not in said:
+                model.params.variant = ax.chip
+            if "clock_hz" not in said:
+                model.params.clock_hz = round(prof.clock_hz)
+            plant = {} if said & DYNAMICS else (ax.plant or {})
+            motor = {k: v for k, v in plant.items()
+                     if k in PLANT_KEYS and hasattr(model.motor_params, k) and k not in said}
+            if ax.lines is not None and "lines" not in said:
+                motor["lines"] = ax.lines
+            model = ChipModel(model.params, replace(model.motor_params, **motor))
+        chips.append(model)
+    return chips[0] if n == 1 else ChipBus(chips)

@@ -73,8 +73,9 @@ def test_a_good_profile_reads_back_every_key(tmp_path):
         0, 20, 0, 1, -20000, 20000, 2000, "belt drive")
     assert (y.cs, y.kp, y.ds, y.min, y.threshold) == (1, 30, 1, None, 0x7FFF)
     assert x.key_lines["max"] == 13 and x.key_lines["kp"] == 9
-    # the URL opened: the simulator gets the chip, clock and a chip per chip select
-    assert prof.url() == "sim://?chip=lm629&clock=8000000&axes=2"
+    # the URL opened: the simulator gets the chip, clock and a chip per chip select, and the
+    # profile, whose axes' plants it builds the motors from (a twin: tests/test_twin.py)
+    assert prof.url() == f"sim://?chip=lm629&clock=8000000&axes=2&profile={prof.path}"
 
 
 @pytest.mark.parametrize("edit, line, words", [

@@ -34,12 +34,23 @@ class Motor:
         self.index_k = (2 * p.lines if p.index_offset is None else p.index_offset) % self.counts_per_rev
         #: decay rate of the speed, 1/s: back-EMF braking through R plus viscous friction
         self.rate = (p.torque_constant ** 2 / p.resistance + p.friction) / p.inertia
-        #: acceleration (counts/s^2) per volt across the armature with the shaft still
-        self.accel_per_volt = (p.torque_constant / p.resistance / p.inertia) * counts_per_rad
-        if p.reversed:
-            self.accel_per_volt = -self.accel_per_volt
+        #: acceleration (counts/s^2) at full-scale output with the shaft still
+        full = p.amp_volts * (p.torque_constant / p.resistance / p.inertia) * counts_per_rad
         self.coulomb_accel = p.coulomb / p.inertia * counts_per_rad
         self.load_accel = p.load_torque / p.inertia * counts_per_rad
+        # the plant as identified, where given, in place of what the SI numbers make of it
+        if p.accel is not None:
+            full = p.accel
+        if p.tau is not None:
+            self.rate = 1.0 / p.tau
+        if p.dry is not None:
+            self.coulomb_accel = p.dry * full
+        if p.load is not None:
+            self.load_accel = p.load * full
+        #: acceleration (counts/s^2) per volt across the armature with the shaft still
+        self.accel_per_volt = full / p.amp_volts
+        if p.reversed:
+            self.accel_per_volt = -self.accel_per_volt
         self.decay, self.gain = decay_and_gain(self.rate, sample_s)
         self.reset()
 

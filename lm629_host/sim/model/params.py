@@ -60,6 +60,18 @@ class MotorParams:
     stall: bool = False  #: rotor locked: the shaft never turns whatever the drive
     #: physical shaft angle at power-on, in counts: mid-count [model choice 25]
     start_position: float = 0.5
+    #: The plant as ``lm629 tune``/``identify`` identify it (``[axis.NAME.plant]`` of a
+    #: profile, :mod:`lm629_host.twin`), in place of the SI numbers above where given: what a
+    #: fit of the shaft's motion can tell, where inertia, torque constant and resistance
+    #: cannot be told apart.  ``accel``: counts/s^2 at full-scale output with the shaft at
+    #: rest; ``tau``: the mechanical time constant, s (the speed's decay, back-EMF and viscous
+    #: friction together); ``dry`` and ``load``: the dry friction and a constant load, as
+    #: fractions of full-scale output (``load`` > 0 pulls towards fewer counts).  Mapping onto
+    #: the SI parameters: docs/model.md.
+    accel: float | None = None
+    tau: float | None = None
+    dry: float | None = None
+    load: float | None = None
 
     def check(self) -> None:
         """ValueError naming any parameter outside its physical range."""
@@ -73,3 +85,11 @@ class MotorParams:
             value = getattr(self, name)
             if value < 0:
                 raise ValueError(f"{name}={value}: must be >= 0")
+        for name in ("accel", "tau"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise ValueError(f"{name}={value}: must be > 0")
+        if self.dry is not None and not 0 <= self.dry < 1:
+            raise ValueError(f"dry={self.dry}: a fraction of full-scale output, 0..1")
+        if self.load is not None and not -1 < self.load < 1:
+            raise ValueError(f"load={self.load}: a fraction of full-scale output, -1..1")
