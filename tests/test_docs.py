@@ -10,7 +10,7 @@ directory of the document's own.  Command lines are transcripts in ```console bl
 
 A command whose comment says ``not run by the tests: REASON`` is counted as skipped, with
 that reason; so is a block below a line ``*Not run by the tests: REASON.*``.  A ```toml block
-is a bench profile and is loaded with :func:`lm629_host.motion.profile.load_profile`.
+is a bench profile and is loaded with :func:`lm629_host.config.profile.load_profile`.
 
 Ports stand in for the bench the block names: ``/dev/ttyACM0`` (and ``/dev/ttyUSB0``) is one
 ``lm629 sim serve`` for the whole document (two axes, the Python far end), ``socket://H:P`` and
@@ -290,7 +290,7 @@ def test_doc_block(block: Block, tmp_path_factory) -> None:
         _python(st, block, _NAMESPACES.setdefault(block.doc, {"__name__": "__doc_example__"}))
         COUNTS["ran"] += 1
     elif block.kind == "toml":
-        from lm629_host.motion.profile import load_profile
+        from lm629_host.config.profile import load_profile
         path = st.tmp / f"block{block.line}.toml"
         path.write_text(block.text)
         load_profile(path)

@@ -221,7 +221,9 @@ def test_the_package_root_is_what_a_lab_script_needs():
 
 # ---------------------------------------------------------------------- grep-level rules
 #: the modules that may open a simulator URL: the simulator transports, sim/ and `lm629 sim`
-SIM_OPENERS = ("lm629_host.transports.sim", "lm629_host.sim", "lm629_host.cli.sim")
+#: ``lm629 twin check`` opens a simulator by design: the twin of the user's axis is one
+SIM_OPENERS = ("lm629_host.transports.sim", "lm629_host.sim", "lm629_host.cli.sim",
+               "lm629_host.cli.twin")
 #: a URL of a simulated bench at the start of a string: ``sim://``, ``sim+emu://``...
 SIM_URL = re.compile(r"sim(\+\w+)?://")
 #: an issue number: the word issue (or issues) and a number, or a hash sign and a number
@@ -362,13 +364,14 @@ def test_no_issue_number_in_a_comment_or_docstring():
 LAYERS: list[tuple[str, ...]] = [
     ("errors", "clock", "urls", "data"),
     ("bus",),  # the chip's bus: opcodes, pins, bus programs, the snapshot
-    ("physics",),  # PID, motor, plans, units: arithmetic, no I/O
+    ("physics",),  # PID, motor, plans, soft limits, units: arithmetic, no I/O
+    ("config",),  # the bench profile as data
     ("wiring",),  # pin maps of the adapters and the wiring-fault vocabulary
     ("bridge",),  # the serial bridge's link protocol, shared with the firmware and far end
     ("sim",),  # the simulated chip, motor, far ends and adapters
     ("transports",),  # the ports, and what settles a URL into one
     ("chip",),  # the typed command layer: LM629, moves, waits, recordings, batches
-    ("motion",),  # boards, supervised runs, bench profiles
+    ("motion",),  # several axes on one bus
     ("bench",),  # bring-up, tuning, capture, scope, wiring check and drawing
     # the doors, the sigrok decoder (loaded by libsigrokdecode, imports nothing of ours), and
     # the root

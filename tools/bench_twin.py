@@ -44,10 +44,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
-from lm629_host.pid import STEP_ACCELERATION, STEP_VELOCITY, sample_period_s
-from lm629_host.profile import load_profile
-from lm629_host.tuning import Gains, measure_move
-from lm629_host.twin import (
+from lm629_host.physics.pid import STEP_ACCELERATION, STEP_VELOCITY, sample_period_s
+from lm629_host.config.profile import load_profile
+from lm629_host.bench.tuning import Gains, measure_move
+from lm629_host.bench.twin import (
     MATCH_OVERSHOOT,
     SETTLE_BAND,
     Plant,
@@ -135,7 +135,7 @@ def trapezoid(url: str, gains: Gains, plant: Plant) -> Side:
 
 def holds(bench: Side, twin: Side) -> bool:
     """Overshoot within 2 counts or 10 %, settle within 5 ms or 10 % (to within a count of
-    the band: :func:`lm629_host.twin.settle_close`)."""
+    the band: :func:`lm629_host.bench.twin.settle_close`)."""
     return settle_close(bench, twin) and close(bench.metrics.overshoot, twin.metrics.overshoot,
                                                *MATCH_OVERSHOOT)
 

@@ -25,10 +25,10 @@ from click.testing import CliRunner
 
 import lm629_host
 from lm629_host import cli
-from lm629_host.pid import sample_period_s
-from lm629_host.profile import load_profile, template
-from lm629_host.tuning import Gains, MoveProfile, measure_move
-from lm629_host.twin import SETTLE_BAND, Plant, twin_profile
+from lm629_host.physics.pid import sample_period_s
+from lm629_host.config.profile import load_profile, template
+from lm629_host.bench.tuning import Gains, MoveProfile, measure_move
+from lm629_host.bench.twin import SETTLE_BAND, Plant, twin_profile
 
 BENCH = "sim+emu://?usb=uno&fast_baud=1000000&inertia=4e-5&load_torque=0.004"
 HEAVIER = "sim+emu://?usb=uno&fast_baud=1000000&inertia=8e-5&load_torque=0.004"

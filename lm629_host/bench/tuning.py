@@ -41,7 +41,7 @@ from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 
 from lm629_host.errors import MotionError, MotionFault
-from lm629_host.chip.limits import clip_step
+from lm629_host.physics.limits import clip_step
 from lm629_host.chip.lm629 import LM629, Snapshot, check_int
 from lm629_host.bus.opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, FIXED_ONE, VELOCITY_MAX, Signals, Status
 from lm629_host.chip.recording import far_snapshots, sample_program
@@ -280,7 +280,7 @@ class Record:
     #: times within a range are the far side's clock (exact), only its offset is the host's
     far_runs: list[tuple[int, int]] = field(default_factory=list)
     #: the (velocity, acceleration) words of the steps when an axis's soft caps brought them
-    #: below a step (:func:`lm629_host.chip.limits.clip_step`): the desired position ramps
+    #: below a step (:func:`lm629_host.physics.limits.clip_step`): the desired position ramps
     words: tuple[int, int] | None = None
     #: each step of a test move as it was judged (:func:`measure_move`): times after the
     #: profile's end (a step: after its STT), real and desired positions, start, target

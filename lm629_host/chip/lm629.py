@@ -29,7 +29,7 @@ from lm629_host.errors import (
     WaitTimeout,
     check_int,
 )
-from lm629_host.chip.limits import SoftLimits
+from lm629_host.physics.limits import SoftLimits
 from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules
 from lm629_host.bus.opcodes import (
     ACCELERATION_MAX,
@@ -109,7 +109,7 @@ class LM629:
     #: when :meth:`move_to`'s moves are done or a motion fault (settable per object)
     move_rules: MoveRules = MoveRules()
     #: the axis's soft limits (a profile sets them): every trajectory is checked against them
-    #: in :meth:`trajectory_program`, before any bus cycle (:mod:`lm629_host.chip.limits`)
+    #: in :meth:`trajectory_program`, before any bus cycle (:mod:`lm629_host.physics.limits`)
     limits: SoftLimits | None = None
     #: the shortest time between two trajectory updates (STT) on this chip, seconds: AN-706
     #: 4.6.2 (a new STT aborts the chip's trajectory calculation and holds its output) asks for

@@ -18,7 +18,7 @@ from typing import Any, Protocol
 
 from lm629_host.clock import Clock
 from lm629_host.errors import MotionError, MotionFault, WaitTimeout
-from lm629_host.chip.limits import SoftLimits
+from lm629_host.physics.limits import SoftLimits
 from lm629_host.chip.move import MoveRules
 from lm629_host.bus.opcodes import FIXED_ONE, SAMPLE_CLOCKS, Status
 from lm629_host.chip.safety import motion_fault, stop_on_error
@@ -162,7 +162,7 @@ def search_index(chip: SupervisedChip, velocity: int, *, timeout: float = 10.0, 
     the words are checked before anything moves.  A :class:`~lm629_host.WaitTimeout` when no
     index comes within ``timeout`` seconds; any error stops the motor first.
 
-    On an axis with soft travel limits (``chip.limits``, :mod:`lm629_host.chip.limits`) the search
+    On an axis with soft travel limits (``chip.limits``, :mod:`lm629_host.physics.limits`) the search
     is a move towards ``max`` (``min`` when not ``forward``) instead, which ends there at the
     latest: velocity mode would run past it.  Reaching the limit without an index is a
     WaitTimeout that says so.  The acceleration is brought down to the axis's cap."""

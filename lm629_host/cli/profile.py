@@ -1,11 +1,11 @@
 """``lm629 --profile FILE`` and ``lm629 profile init|apply|show``: the bench profile on the
-command line (the file, its checks and what is sent: :mod:`lm629_host.motion.profile`).
+command line (the file, its checks and what is sent: :mod:`lm629_host.config.profile`).
 
 With ``--profile`` (or ``$LM629_PROFILE``) every command gets the profile's port, chip and
 clock unless the command line gives them, the encoder lines of the axis it drives (``--lines``
 unless given), axis names (``--axis x``, ``--axis x,y``; without ``--axis``, every axis of the
 profile), and once the port is open: each axis's soft limits, and the profile applied to a chip
-that has lost its settings, in one line on stderr (:func:`lm629_host.motion.profile.ensure_applied`).
+that has lost its settings, in one line on stderr (:func:`lm629_host.config.profile.ensure_applied`).
 Plugged into :mod:`.app` through its ``HOOKS`` (app.py does not import this module).
 """
 
@@ -24,7 +24,7 @@ from lm629_host.motion.board import Board
 from lm629_host.errors import BusyTimeout, ResetError
 from lm629_host.chip.lm629 import LM629
 from lm629_host.bus.opcodes import Signals
-from lm629_host.motion.profile import (
+from lm629_host.config.profile import (
     AXIS_KEYS,
     Profile,
     ProfileError,
@@ -41,6 +41,7 @@ from lm629_host.physics.units import to_fixed
 from lm629_host.urls import query_params, with_query
 from lm629_host.cli.app import HOOKS, Session, _session, axes_of, board, main
 from lm629_host.cli.common import _flags
+from lm629_host.transports.ports import profile_port, twin_port
 
 log = logging.getLogger("lm629_host.cli")
 
@@ -65,12 +66,12 @@ def profile_options(ctx: click.Context, path: str, port: str | None, chip_name: 
         return None, port, chip_name, clock, lines, axis_text  # `profile init` makes it
     prof = load_profile(path)
     if not _given(ctx, "port") and prof.port:
-        port = prof.url()
+        port = profile_port(prof)
     elif port is not None:  # --port: the profile's chip and clock unless it says its own
         have = query_params(port)
         add = {k: v for k, v in (("chip", prof.chip), ("clock", str(round(prof.clock_hz))))
                if k not in have and not _given(ctx, "chip_name" if k == "chip" else k)}
-        port = prof.twin_port(with_query(port, add) if add else port)
+        port = twin_port(prof, with_query(port, add) if add else port)
     if not _given(ctx, "chip_name"):
         chip_name = prof.chip
     if not _given(ctx, "clock"):

@@ -137,7 +137,7 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
                           before=before, poll_s=interval, clock_hz=s.clock_hz,
                           velocity=v_word, acceleration=a_word,
                           progress=lambda text: click.echo(f"  {text}", err=True))
-    from ..twin import plant_record
+    from lm629_host.bench.twin import plant_record
     plant = plant_record(result.model, result.sample_s, rms=result.fit_rms,
                          steps=result.fit_steps, port=s.port)
     profile.after_tune(s, chip, result.gains, save_to, result.ok, plant)
@@ -229,7 +229,7 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
     filt = {k: v for k, v in dict(kp=kp, ki=ki, kd=kd, il=il,
                                   derivative_interval=ds).items() if v is not None}
     chip = s.open()
-    from lm629_host.chip.limits import clip_step
+    from lm629_host.physics.limits import clip_step
     if vel is None and acc is None and chip.limits is not None:  # a step in the caps
         v, a = clip_step(chip, v, a)
         if (v, a) != (STEP_VELOCITY, STEP_ACCELERATION):

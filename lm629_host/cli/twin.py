@@ -1,7 +1,7 @@
 """``lm629 identify`` and ``lm629 twin check``: the axis's plant kept in the profile, and the
 twin built from it checked against the bench.
 
-Thin front ends to :func:`lm629_host.tuning.identify` and :func:`lm629_host.twin.check_twin`
+Thin front ends to :func:`lm629_host.bench.tuning.identify` and :func:`lm629_host.bench.twin.check_twin`
 (docs/twin.md); registered in :mod:`lm629_host.cli` with ``add_command`` lines.  Both ask
 before the motor turns (unless ``--yes``); any fault stops the motor (the CLI's error handler
 gives the exit code and says how the motor was left).
@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import click
 
-from ..profile import AxisProfile, save_gains
-from ..safety import stop_on_error
-from ..tuning import Gains, identify
-from ..twin import Plant, check_twin, plant_record, twin_profile
-from ..urls import with_query
-from .app import Session, _session, axes_of
-from .motion import _motion_words
-from .types import FINITE
+from lm629_host.config.profile import AxisProfile, save_gains
+from lm629_host.chip.safety import stop_on_error
+from lm629_host.bench.tuning import Gains, identify
+from lm629_host.bench.twin import Plant, check_twin, plant_record, twin_profile
+from lm629_host.urls import with_query
+from lm629_host.cli.app import Session, _session, axes_of
+from lm629_host.cli.motion import _motion_words
+from lm629_host.cli.types import FINITE
 
 #: ``twin check``'s exit code when the twin differs from the bench
 EXIT_DIFFERS = 1
@@ -62,7 +62,7 @@ def identify_cmd(travel: int, interval: float, yes: bool, save_path: str | None)
     _travel(travel, interval)
     s = _session()
     chip = s.open()
-    from . import profile
+    from lm629_host.cli import profile
     save_to = profile.save_target(s, chip, save_path)
     profile.tune_band(chip, travel)
     ax = s.profile.by_cs(chip.chip_select) if s.profile is not None else None
@@ -142,7 +142,7 @@ def check_cmd(travel: int, distance: int | None, velocity: float | None,
                                "runs the profile's gains on both")
     plant = Plant.from_values(ax.plant)
     chip = s.open()
-    from . import profile
+    from lm629_host.cli import profile
     profile.tune_band(chip, travel)
     move = twin_profile(plant, s.sample_s, None if velocity is None else words[0],
                         None if acceleration is None else words[1])

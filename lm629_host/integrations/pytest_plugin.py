@@ -49,7 +49,7 @@ from lm629_host.chip.safety import StopSignals, emergency_stop
 from lm629_host.transports import DEFAULT_URL, transport_class
 from lm629_host.transports.base import BusObserver, Transport
 from lm629_host.transports.sim import ModelChips
-from lm629_host.transports.ports import PortSpec, resolve_port
+from lm629_host.transports.ports import PortSpec, profile_port, resolve_port, twin_port
 from lm629_host.urls import query_params, with_query
 
 #: the fixtures that open the port (a collected test using one makes the run check the port)
@@ -108,7 +108,7 @@ class PortSession:
 
     def __init__(self, config: pytest.Config) -> None:
         self.profile: Path | None = None
-        self.profile_data: Any = None  #: the loaded lm629_host.motion.profile.Profile
+        self.profile_data: Any = None  #: the loaded lm629_host.config.profile.Profile
         profile = config.getoption("lm629_profile", None)
         port = config.getoption("lm629_port", None)
         if profile is not None:
@@ -116,7 +116,7 @@ class PortSession:
             self.profile_data = _load_profile(self.profile)
             if port is None:
                 try:
-                    port = self.profile_data.url()
+                    port = profile_port(self.profile_data)
                 except ValueError as exc:
                     raise pytest.UsageError(f"--lm629-profile {profile}: {exc}") from None
         self.url: str = port or DEFAULT_URL
@@ -130,7 +130,7 @@ class PortSession:
             raise pytest.UsageError(f"--lm629-port {self.url}: {exc}") from None
         if self.simulated and self.profile_data is not None:
             # a simulated port with a profile: the twin of its bench, built from the plants
-            self.url = self.profile_data.twin_port(self.url)
+            self.url = twin_port(self.profile_data, self.url)
 
     def check(self) -> None:
         """Open the port once (a simulator: build one chip and drop it), or PortError."""
@@ -180,9 +180,9 @@ def _interrupted(signum: int) -> KeyboardInterrupt:
 
 
 def _load_profile(path: Path) -> Any:
-    """The board profile at ``path`` (:mod:`lm629_host.motion.profile`), or one usage error naming
+    """The board profile at ``path`` (:mod:`lm629_host.config.profile`), or one usage error naming
     the file, the line and the key."""
-    from lm629_host.motion import profile as profiles
+    from lm629_host.config import profile as profiles
     try:
         return profiles.load_profile(path)
     except ValueError as exc:  # ProfileError: file, line and key in one line
@@ -423,7 +423,7 @@ class Bench(BusObserver):
         board.reset()
         if prof is not None:
             # a reset chip has lost every setting: the profile's gains, LPES, PORT12 again
-            from lm629_host.motion import profile as profiles
+            from lm629_host.config import profile as profiles
             profiles.apply_profile(named, prof)
         return board
 
@@ -551,7 +551,7 @@ def _marker_text(item: pytest.Item) -> str:
 def _name_axes(board: lm629_host.Board, prof: Any) -> dict[str, lm629_host.LM629]:
     """Give each axis of ``board`` the profile's name, soft limits, chip variant and clock
     (as ``open_board(profile=...)`` does, on this test's transport); nothing is sent."""
-    from lm629_host.motion import profile as profiles
+    from lm629_host.config import profile as profiles
     return profiles.name_axes(board, prof)
 
 

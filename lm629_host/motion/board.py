@@ -47,7 +47,7 @@ from lm629_host.physics.plan import plan
 from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
 from lm629_host.chip.safety import emergency_stop, stop_if_moving
 from lm629_host.bus.snapshot import add_snapshot, snapshot_at
-from lm629_host.transports.ports import resolve_port
+from lm629_host.transports.ports import profile_port, resolve_port
 from lm629_host.transports import DEFAULT_URL
 from lm629_host.clock import Clock
 from lm629_host.transports.base import Transport
@@ -55,7 +55,7 @@ from lm629_host.transports.base import Transport
 if TYPE_CHECKING:
     from lm629_host.chip.batch import Batch
     from lm629_host.bridge.protocol import FailsafeState
-    from lm629_host.motion.profile import Profile
+    from lm629_host.config.profile import Profile
 
 log = logging.getLogger("lm629_host")
 
@@ -552,22 +552,22 @@ def open_board(url: str | None = None, *, axes: int | None = None, chip: str | N
     axes than the board has chip selects is an :class:`AxisError`; ``cs=`` (one chip) is an
     error here.
 
-    ``profile``: a bench profile (:mod:`lm629_host.motion.profile`, a path or a loaded one): the port
+    ``profile``: a bench profile (:mod:`lm629_host.config.profile`, a path or a loaded one): the port
     (when ``url`` is None), the chip and clock come from it, ``board["x"]`` is its axis ``x``,
     every named axis gets its soft limits (``ValueError`` for a move outside them, before any
     bus cycle), and ``apply`` says what is sent at open: ``"auto"`` (default) applies the
     profile to each axis that has lost its settings (reset or powered up since: one RDSIGS
     each; a warning is logged for each one applied), True applies it to every axis, False
-    sends nothing.  A bad profile is a :class:`~lm629_host.motion.profile.ProfileError` (ValueError)
+    sends nothing.  A bad profile is a :class:`~lm629_host.config.profile.ProfileError` (ValueError)
     before the port is opened."""
     prof = None
     if profile is not None:
-        from lm629_host.motion.profile import Profile, load_profile
+        from lm629_host.config.profile import Profile, load_profile
         prof = profile if isinstance(profile, Profile) else load_profile(profile)
         if apply not in (True, False, "auto"):
             raise ValueError(f"apply={apply!r}: expected True, False or 'auto'")
         if url is None:
-            url = prof.url()
+            url = profile_port(prof)
         chip = prof.chip if chip is None else chip
         clock = prof.clock_hz if clock is None else clock
     if url is None:
@@ -583,7 +583,7 @@ def open_board(url: str | None = None, *, axes: int | None = None, chip: str | N
 
 
 def _with_profile(board: Board, prof: Profile, apply: bool | str) -> None:
-    from lm629_host.motion.profile import apply_profile, ensure_applied, name_axes
+    from lm629_host.config.profile import apply_profile, ensure_applied, name_axes
     named = name_axes(board, prof)
     if apply == "auto":
         ensure_applied(named, prof, log.warning)

@@ -120,7 +120,7 @@ def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
 
 def _twin(url: str, path: str, axis: str | None, allowed: frozenset[str],
           limit: int) -> ChipModel | ChipBus:
-    from ..profile import PLANT_KEYS, load_profile
+    from lm629_host.config.profile import PLANT_KEYS, load_profile
     prof = load_profile(path)
     if axis is not None:
         axes = {0: prof.axis(axis)}  # ValueError naming the axes it has

@@ -34,6 +34,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from lm629_host.config.profile import Profile, ProfileError
 from lm629_host.errors import ArgumentError
 from lm629_host.bus.opcodes import NOMINAL_CLOCK_HZ
 from lm629_host.bus.program import TraceCallback
@@ -209,4 +210,43 @@ def resolve_port(url: str = DEFAULT_URL, *, chip: str | None = None,
                     axes=values["axes"], cs=values["cs"])
 
 
-__all__ = ["BOARD_OPTIONS", "CHIPS", "PortSpec", "resolve_port"]
+# ---------------------------------------------------------------------------- a profile's port
+def profile_port(profile: Profile) -> str:
+    """The port ``profile`` names, with its chip and clock (and, for a simulator, a chip per
+    chip select) said in the URL, settled by :func:`resolve_port`, the one place a port meets
+    ``chip=``/``clock=``/``axes=``: a URL that says otherwise
+    than ``[board]`` is a ProfileError naming both.  ValueError when it names no port."""
+    if not profile.port:
+        raise ProfileError(f"{profile.path}: [board] has no port = \"...\": give --port or "
+                           "write the port URL into the profile")
+    line = f":{profile.lines['port']}" if "port" in profile.lines else ""
+    if "spy://" in profile.port and "file" in query_params(profile.port):
+        # a file that any command would create or truncate, read-only ones included: a
+        # file a profile names could be anything the user may write
+        raise ProfileError(f"{profile.path}{line}: [board] port: {profile.port!r} writes its "
+                           "traffic to a file (spy://...?file=): a profile never names a "
+                           "file to write; give that port with --port on the command line")
+    try:
+        spec = resolve_port(profile.port, chip=profile.chip, clock=profile.clock_hz)
+    except ValueError as exc:
+        raise ProfileError(f"{profile.path}{line}: [board] port: {exc}") from None
+    have = query_params(profile.port)
+    add = {"chip": profile.chip, "clock": str(round(profile.clock_hz))}
+    n = max((a.cs for a in profile.axes.values()), default=0) + 1
+    if spec.transport.simulated and n > 1:
+        add["axes"] = str(n)  # the simulator builds the chips the profile names
+    add = {k: v for k, v in add.items() if k not in have}
+    return twin_port(profile, with_query(profile.port, add) if add else profile.port)
+
+
+def twin_port(profile: Profile, url: str) -> str:
+    """``url``, and when it names a simulator, with ``profile=`` the profile's file unless it
+    names one: the simulated chips are then built from each axis's ``[axis.NAME.plant]`` (a
+    twin of the bench, :mod:`lm629_host.bench.twin`; a URL that gives its own motor keeps it,
+    ``lm629_host.sim.build``)."""
+    if not transport_class(url).simulated or "profile" in query_params(url):
+        return url
+    return with_query(url, {"profile": str(profile.path)})
+
+
+__all__ = ["BOARD_OPTIONS", "CHIPS", "PortSpec", "profile_port", "resolve_port", "twin_port"]

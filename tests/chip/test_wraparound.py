@@ -13,7 +13,7 @@ import pytest
 
 import lm629_host
 from lm629_host.errors import ArgumentError
-from lm629_host.chip.limits import SoftLimits
+from lm629_host.physics.limits import SoftLimits
 from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Status
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.chip.wraparound import PositionTracker, short_way

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from lm629_host.motion.profile import load_profile
+from lm629_host.config.profile import load_profile
 from served import _env, serve
 from served import _console_script
 

@@ -144,7 +144,7 @@ def test_tune_save_rewrites_the_gains_keeping_comments_and_they_survive_a_power_
             if "#" in line:
                 comment = line[line.index("#"):]
                 assert comment in text, comment
-        prof = lm629_host.motion.profile.load_profile(b.profile).axis("x")
+        prof = lm629_host.config.profile.load_profile(b.profile).axis("x")
         assert (prof.kp, prof.ki, prof.kd, prof.il, prof.ds) == (kp, ki, kd, il, ds)
         assert (prof.kp, prof.kd) != (20, 0)
         changed = {a.split("=")[0].strip() for a, c in zip(before.splitlines(),

@@ -79,7 +79,7 @@ def test_strict_is_decided_in_one_place(monkeypatch, env, url, strict):
 
 
 @pytest.mark.parametrize("url, typo, meant, also", [
-    ("sim://?axis=2", "axis", "axes", ["cs", "chip", "clock", "wiring"]),
+    ("sim://?axess=2", "axess", "axes", ["cs", "chip", "clock", "wiring", "axis", "profile"]),
     ("sim+emu://?fast_bud=1", "fast_bud", "fast_baud", ["axes", "cs", "usb", "baud"]),
     ("serial:///dev/null?bau=9600", "bau", "baud", ["axes", "cs", "fast_baud", "retries"]),
 ])

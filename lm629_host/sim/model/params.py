@@ -61,7 +61,7 @@ class MotorParams:
     #: physical shaft angle at power-on, in counts: mid-count [model choice 25]
     start_position: float = 0.5
     #: The plant as ``lm629 tune``/``identify`` identify it (``[axis.NAME.plant]`` of a
-    #: profile, :mod:`lm629_host.twin`), in place of the SI numbers above where given: what a
+    #: profile, :mod:`lm629_host.bench.twin`), in place of the SI numbers above where given: what a
     #: fit of the shaft's motion can tell, where inertia, torque constant and resistance
     #: cannot be told apart.  ``accel``: counts/s^2 at full-scale output with the shaft at
     #: rest; ``tau``: the mechanical time constant, s (the speed's decay, back-EMF and viscous

@@ -1,4 +1,4 @@
-"""Bench profiles (lm629_host.motion.profile) and soft limits (lm629_host.chip.limits), in one process on
+"""Bench profiles (lm629_host.config.profile) and soft limits (lm629_host.physics.limits), in one process on
 the in-process simulator: the checks of a profile, the limit words, the library's one check
 point, the lost-settings signature, writing the gains back with the comments kept.
 
@@ -17,9 +17,9 @@ from click.testing import CliRunner
 
 import lm629_host
 from lm629_host.cli import main
-from lm629_host.chip.limits import SoftLimits
+from lm629_host.physics.limits import SoftLimits
 from lm629_host.bus.opcodes import Signals
-from lm629_host.motion.profile import (
+from lm629_host.config.profile import (
     ProfileError,
     ensure_applied,
     load_profile,
@@ -28,6 +28,7 @@ from lm629_host.motion.profile import (
     settings_lost,
     template,
 )
+from lm629_host.transports.ports import profile_port
 
 GOOD = textwrap.dedent("""\
     # the X-Y stage on bench 3
@@ -75,7 +76,7 @@ def test_a_good_profile_reads_back_every_key(tmp_path):
     assert x.key_lines["max"] == 13 and x.key_lines["kp"] == 9
     # the URL opened: the simulator gets the chip, clock and a chip per chip select, and the
     # profile, whose axes' plants it builds the motors from (a twin: tests/test_twin.py)
-    assert prof.url() == f"sim://?chip=lm629&clock=8000000&axes=2&profile={prof.path}"
+    assert profile_port(prof) == f"sim://?chip=lm629&clock=8000000&axes=2&profile={prof.path}"
 
 
 @pytest.mark.parametrize("edit, line, words", [
@@ -454,12 +455,12 @@ def test_the_profiles_port_is_settled_by_the_one_resolver(tmp_path):
     URL and builds a simulator from them); a URL that says otherwise is one ProfileError."""
     hw = parse_profile(GOOD.replace('port = "sim://"', 'port = "serial:///dev/ttyACM0"')
                        .replace('chip = "lm629"', 'chip = "lm628"'), tmp_path / "hw.toml")
-    assert hw.url() == "serial:///dev/ttyACM0?chip=lm628&clock=8000000"
-    assert lm629_host.transports.ports.resolve_port(hw.url()).chip == "lm628"
+    assert profile_port(hw) == "serial:///dev/ttyACM0?chip=lm628&clock=8000000"
+    assert lm629_host.transports.ports.resolve_port(profile_port(hw)).chip == "lm628"
     bad = parse_profile(GOOD.replace('port = "sim://"', 'port = "sim://?chip=lm628"'),
                         tmp_path / "bad.toml")
     with pytest.raises(ProfileError) as err:
-        bad.url()
+        profile_port(bad)
     msg = str(err.value)
     assert msg.startswith(f"{tmp_path / 'bad.toml'}:3: [board] port: ") and "lm628" in msg
     assert "lm629" in msg and "\n" not in msg

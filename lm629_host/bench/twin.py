@@ -3,9 +3,9 @@ simulated chip built from it, and a check that the twin still behaves as the ben
 
 Why: a lab's scripts are tested hardware-free on a simulated chip, and a script that settles
 in 40 ms on the default motor may take 400 ms on a 10x-inertia axis.  ``lm629 tune`` and
-``lm629 identify`` fit a model of the axis (:class:`~lm629_host.tuning.AxisModel`, in counts
+``lm629 identify`` fit a model of the axis (:class:`~lm629_host.bench.tuning.AxisModel`, in counts
 and samples); :class:`Plant` is that model in units that do not depend on the chip's clock,
-written to ``[axis.NAME.plant]`` (:data:`lm629_host.profile.PLANT_KEYS`), from which
+written to ``[axis.NAME.plant]`` (:data:`lm629_host.config.profile.PLANT_KEYS`), from which
 ``sim://?profile=FILE`` builds each axis's motor (the same names are ``MotorParams`` fields;
 their mapping onto the SI parameters is in docs/model.md).
 
@@ -21,8 +21,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from .lm629 import LM629
-from .tuning import (
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bench.tuning import (
     AxisModel,
     Gains,
     MoveMetrics,
@@ -77,7 +77,7 @@ class Plant:
 
 def plant_record(model: AxisModel, sample_s: float, *, rms: float, steps: int, port: str,
                  when: datetime.datetime | None = None) -> dict[str, Any]:
-    """``[axis.NAME.plant]`` for :func:`lm629_host.profile.save_gains`: the plant with the
+    """``[axis.NAME.plant]`` for :func:`lm629_host.config.profile.save_gains`: the plant with the
     date, the port, the fit's rms error and the number of steps it was fitted to."""
     when = when or datetime.datetime.now(datetime.timezone.utc)
     out = Plant.from_model(model, sample_s).values()
@@ -192,7 +192,7 @@ class TwinCheck:
 
 
 def judged_side(metrics: MoveMetrics, rec: Record, band: int) -> Side:
-    """A test move's record (:func:`~lm629_host.tuning.measure_move`) as one side of a
+    """A test move's record (:func:`~lm629_host.bench.tuning.measure_move`) as one side of a
     comparison, its settle time at ``band`` counts given a count either way."""
     segments = []
     for k in range(len(rec.steps)):
@@ -248,7 +248,7 @@ def check_twin(bench: LM629, twin: LM629, gains: Gains, *, travel: int, distance
     """A short step (``step`` counts, default a tenth of ``distance``: small enough that the
     drive does not saturate for long) and the trapezoid move (``distance``), each out and
     back inside ``+/- travel`` of where each shaft is, guarded as tuning is
-    (:func:`~lm629_host.tuning.measure_move`), with ``gains`` on the bench, then on the twin,
+    (:func:`~lm629_host.bench.tuning.measure_move`), with ``gains`` on the bench, then on the twin,
     compared."""
     say = progress or (lambda text: None)
     step = max(10, distance // 10) if step is None else step

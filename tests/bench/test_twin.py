@@ -4,7 +4,7 @@ and ``lm629 twin check``.
 Benches are ``sim://`` URLs whose motor the host is not told (the tuner finds it); the twin is
 ``sim://?profile=FILE&axis=x``.  The tolerances are the issue's: a twin's trapezoid overshoot
 within 2 counts or 10 % of the bench's, its settle time within 5 ms or 10 %
-(:data:`lm629_host.twin.MATCH_OVERSHOOT`, :data:`~lm629_host.twin.MATCH_SETTLE`).
+(:data:`lm629_host.bench.twin.MATCH_OVERSHOOT`, :data:`~lm629_host.bench.twin.MATCH_SETTLE`).
 """
 
 from __future__ import annotations
@@ -20,12 +20,12 @@ from click.testing import CliRunner
 
 import lm629_host
 from lm629_host import cli
-from lm629_host.pid import sample_period_s
-from lm629_host.profile import ProfileError, load_profile, parse_profile, save_gains, template
+from lm629_host.physics.pid import sample_period_s
+from lm629_host.config.profile import ProfileError, load_profile, parse_profile, save_gains, template
 from lm629_host.sim.model.motor import Motor
 from lm629_host.sim.model.params import MotorParams
-from lm629_host.tuning import AxisModel, Gains, MoveProfile, measure_move
-from lm629_host.twin import (
+from lm629_host.bench.tuning import AxisModel, Gains, MoveProfile, measure_move
+from lm629_host.bench.twin import (
     MATCH_OVERSHOOT,
     MATCH_SETTLE,
     SETTLE_BAND,
@@ -36,6 +36,7 @@ from lm629_host.twin import (
     settle_close,
     twin_profile,
 )
+from lm629_host.transports.ports import profile_port, twin_port
 
 from sim_urls import UNO, with_params
 
@@ -169,18 +170,18 @@ def test_sim_url_builds_each_axis_from_its_plant(tmp_path):
 
 def test_profile_with_a_bare_sim_port_is_a_twin_and_a_described_one_a_bench(tmp_path):
     prof = parse_profile(PROFILE, tmp_path / "rig.toml")
-    assert f"profile={tmp_path / 'rig.toml'}" in prof.url()
-    assert "profile=" in prof.twin_port("sim+emu://?usb=uno")
-    assert prof.twin_port("serial:///dev/ttyACM0") == "serial:///dev/ttyACM0"
+    assert f"profile={tmp_path / 'rig.toml'}" in profile_port(prof)
+    assert "profile=" in twin_port(prof, "sim+emu://?usb=uno")
+    assert twin_port(prof, "serial:///dev/ttyACM0") == "serial:///dev/ttyACM0"
     path = tmp_path / "rig.toml"
     path.write_text(PROFILE)
     save_gains(path, "x", {}, plant={"accel": 1e6, "tau": 0.05})
     # a URL that gives its own motor's dynamics is that motor; a fault applies to the twin
-    with lm629_host.open(prof.twin_port("sim://?inertia=4e-5")) as chip:
+    with lm629_host.open(twin_port(prof, "sim://?inertia=4e-5")) as chip:
         assert len(chip.transport.models) == 2  # the profile's chips, the URL's motor
         assert chip.transport.models[0].motion.motor.rate == pytest.approx(
             Motor(MotorParams(inertia=4e-5), SAMPLE_S).rate)
-    with lm629_host.open(prof.twin_port("sim://?axis=x&reversed=1")) as chip:
+    with lm629_host.open(twin_port(prof, "sim://?axis=x&reversed=1")) as chip:
         motor = chip.transport.model.motion.motor
         assert motor.rate == pytest.approx(20.0) and motor.accel_per_volt * 12 == -1e6
 
@@ -277,7 +278,7 @@ def test_twin_check_needs_a_plant(tmp_path, run):
 USER_TEST = textwrap.dedent('''
     import json, os
     import pytest
-    from lm629_host.tuning import MoveProfile, measure_move
+    from lm629_host.bench.tuning import MoveProfile, measure_move
 
     @pytest.mark.lm629_motion
     def test_settles(lm629_board):
@@ -313,7 +314,7 @@ def test_plugin_runs_a_users_test_file_on_the_twin(tuned, pytester, monkeypatch)
 def test_twin_check_on_a_served_bench_behind_usb(tuned, tmp_path):
     """The same hidden bench served by `lm629 sim serve` behind an Uno's USB, in real time,
     each command its own process: the twin from the profile matches it."""
-    from test_bench import serve
+    from served import serve
     with serve(tmp_path, "python+uno", f"sim://?{BENCH}") as b:
         b.ready()
         p = b.run("--profile", str(tuned), "twin", "check", "--travel", str(TRAVEL), "--yes",

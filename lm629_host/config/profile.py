@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lm629_host.chip.limits import SoftLimits
+from lm629_host.physics.limits import SoftLimits
 from lm629_host.bus.opcodes import COEFFICIENT_MAX, DERIVATIVE_INTERVAL_MAX, POSITION_MAX, POSITION_MIN, Signals
 from lm629_host.urls import parse_hz
 
@@ -110,7 +110,7 @@ AXIS_KEYS: dict[str, Key] = {
 GAIN_KEYS = ("kp", "ki", "kd", "il", "ds")
 
 #: ``[axis.NAME.plant]``: the axis as ``lm629 tune`` / ``lm629 identify`` identified it, in the
-#: units a fit of the shaft's motion can tell (:mod:`lm629_host.twin`); ``sim://?profile=FILE``
+#: units a fit of the shaft's motion can tell (:mod:`lm629_host.bench.twin`); ``sim://?profile=FILE``
 #: builds the axis's motor from it (the same names are ``MotorParams`` fields)
 PLANT_KEYS: dict[str, Key] = {
     "accel": Key("number", 1e-3, 1e15, help="counts/s^2 at full-scale output, shaft at rest"),
@@ -197,46 +197,6 @@ class Profile:
         return SoftLimits(axis.min, axis.max, axis.max_velocity, axis.max_acceleration,
                           self.clock_hz, where=str(self.path), table=f"axis.{axis.name}",
                           lines=tuple(axis.key_lines.items()))
-
-    def url(self) -> str:
-        """The port the profile names, with its chip and clock (and, for a simulator, a chip
-        per chip select) said in the URL, settled by :func:`lm629_host.transports.ports.resolve_port`,
-        the one place a port meets ``chip=``/``clock=``/``axes=``: a URL that says otherwise
-        than ``[board]`` is a ProfileError naming both.  ValueError when it names no port."""
-        from lm629_host.transports.ports import resolve_port
-        from lm629_host.urls import query_params, with_query
-        if not self.port:
-            raise ProfileError(f"{self.path}: [board] has no port = \"...\": give --port or "
-                               "write the port URL into the profile")
-        line = f":{self.lines['port']}" if "port" in self.lines else ""
-        if "spy://" in self.port and "file" in query_params(self.port):
-            # a file that any command would create or truncate, read-only ones included: a
-            # file a profile names could be anything the user may write
-            raise ProfileError(f"{self.path}{line}: [board] port: {self.port!r} writes its "
-                               "traffic to a file (spy://...?file=): a profile never names a "
-                               "file to write; give that port with --port on the command line")
-        try:
-            spec = resolve_port(self.port, chip=self.chip, clock=self.clock_hz)
-        except ValueError as exc:
-            raise ProfileError(f"{self.path}{line}: [board] port: {exc}") from None
-        have = query_params(self.port)
-        add = {"chip": self.chip, "clock": str(round(self.clock_hz))}
-        n = max((a.cs for a in self.axes.values()), default=0) + 1
-        if spec.transport.simulated and n > 1:
-            add["axes"] = str(n)  # the simulator builds the chips the profile names
-        add = {k: v for k, v in add.items() if k not in have}
-        return self.twin_port(with_query(self.port, add) if add else self.port)
-
-    def twin_port(self, url: str) -> str:
-        """``url``, and when it names a simulator, with ``profile=`` this file unless it names
-        one: the simulated chips are then built from each axis's ``[axis.NAME.plant]`` (a
-        twin of the bench, :mod:`lm629_host.twin`; a URL that gives its own motor keeps it,
-        ``lm629_host.sim.build``)."""
-        from .transports import transport_class
-        from .urls import query_params, with_query
-        if not transport_class(url).simulated or "profile" in query_params(url):
-            return url
-        return with_query(url, {"profile": str(self.path)})
 
 
 # ---------------------------------------------------------------------------- loading
