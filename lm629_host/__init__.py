@@ -32,6 +32,7 @@ from lm629_host.errors import (
 )
 from lm629_host.chip.lm629 import LM629, Snapshot
 from lm629_host.chip.move import Move, MoveResult, MoveRules
+from lm629_host.chip.shapes import Points, SCurve
 from lm629_host.bus.opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
 from lm629_host.transports.ports import resolve_port as _resolve_port
 from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S as _DEFAULT_BUSY_TIMEOUT_S
@@ -39,6 +40,7 @@ from lm629_host.bus.program import BusCycle, Program, ProgramResult
 from lm629_host.chip.safety import emergency_stop, stop_on_error
 from lm629_host.chip.supervise import VelocityRun, run_velocity, search_index, wait_still
 from lm629_host.transports import DEFAULT_URL
+from lm629_host.transports.link import FailsafeTripped
 from lm629_host.physics.units import Scale
 
 __version__ = "0.1.0"
@@ -89,12 +91,14 @@ __all__ = [
     "open", "open_board", "DEFAULT_URL", "LM629", "Board", "BoardMove",
     # moves
     "Move", "MoveResult", "MoveRules", "Snapshot", "plan_linear", "LinearPlan",
+    # shaped moves (chip.move_profile)
+    "SCurve", "Points",
     # velocity mode, the index, rest
     "run_velocity", "VelocityRun", "search_index", "wait_still",
     # errors
     "LM629Error", "ArgumentError", "AxisError", "SchemeError", "TransportError", "BusyTimeout",
     "ResetError", "CommandError", "WaitTimeout", "UpdateTooSoon", "MotionError", "MotionFault",
-    "ProtocolViolation",
+    "ProtocolViolation", "FailsafeTripped",
     # flags and commands
     "Status", "Signals", "FilterFlags", "TrajectoryFlags", "Cmd",
     # units, stopping, tuning
