@@ -96,7 +96,9 @@ class DocState:
 
 
 _STATES: dict[Path, DocState] = {}
-COUNTS = {"ran": 0, "skipped": 0}
+#: the user property each block's report carries: (examples run, examples not run); the run's
+#: summary line adds them up from the reports (tests/conftest.py), on every xdist worker's
+DOCS_PROPERTY = "docs_examples"
 
 
 def _state(path: Path, tmp_factory: pytest.TempPathFactory) -> DocState:
@@ -281,30 +283,32 @@ _NAMESPACES: dict[Path, dict] = {}
 
 
 @pytest.mark.parametrize("block", BLOCKS, ids=[b.id for b in BLOCKS])
-def test_doc_block(block: Block, tmp_path_factory) -> None:
+def test_doc_block(block: Block, tmp_path_factory, request: pytest.FixtureRequest) -> None:
     st = _state(block.doc, tmp_path_factory)
+    counts = [0, 0]  # examples run, not run
+    request.node.user_properties.append((DOCS_PROPERTY, counts))
     if block.skip:
-        COUNTS["skipped"] += 1
+        counts[1] += 1
         pytest.skip(f"{block.id}: {block.skip}")
     if block.kind == "python":
         _python(st, block, _NAMESPACES.setdefault(block.doc, {"__name__": "__doc_example__"}))
-        COUNTS["ran"] += 1
+        counts[0] += 1
     elif block.kind == "toml":
         from lm629_host.config.profile import load_profile
         path = st.tmp / f"block{block.line}.toml"
         path.write_text(block.text)
         load_profile(path)
-        COUNTS["ran"] += 1
+        counts[0] += 1
     else:
         skipped = []
         for cmd in parse_transcript(block.text, block.line):
             reason = cmd.skip or _cannot_run(cmd.text)
             if reason:
-                COUNTS["skipped"] += 1
+                counts[1] += 1
                 skipped.append(f"{cmd.line}: {reason}")
                 continue
             run_command(st, cmd)
-            COUNTS["ran"] += 1
+            counts[0] += 1
         if skipped:
             pytest.skip("; ".join(skipped))
 
