@@ -165,10 +165,7 @@ class Move:
         """The host's loop of :meth:`wait`: a snapshot every ``poll``, each judged by ``watch``."""
         chip, clock = self.chip, self.chip.clock
         while True:
-            s = chip.snapshot()
-            if progress is not None:
-                progress(s)
-            result = watch.check(s)
+            _s, result = watch.look(chip, progress)
             if result is not None:
                 return result
             clock.sleep(watch.rules.poll)
@@ -206,6 +203,15 @@ class MoveWatch:
         self.away, self.away_v0 = 0, 0
         self.complete_at: float | None = None
         self.quiet_since: float | None = None
+
+    def look(self, chip: MovingChip, progress: Callable[[Snapshot], None] | None
+             ) -> tuple[Snapshot, MoveResult | None]:
+        """One step of a host-polled wait: a snapshot of ``chip``, shown to ``progress``, then
+        :meth:`check`-ed."""
+        s = chip.snapshot()
+        if progress is not None:
+            progress(s)
+        return s, self.check(s)
 
     def check(self, s: Snapshot) -> MoveResult | None:
         m, r, prev = self.move, self.rules, self.prev

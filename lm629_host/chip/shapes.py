@@ -325,10 +325,7 @@ def _wait_pieces(move: Move, watch: MoveWatch,
             clock.sleep(due - now)
         chip.load_trajectory(velocity=piece.velocity, start=True)
         move.piece_times.append(clock.now() - move.t0)
-        s = chip.snapshot()
-        if progress is not None:
-            progress(s)
-        result = watch.check(s)
+        s, result = watch.look(chip, progress)
         if result is not None:
             return result
         if s.status & Status.TRAJECTORY_COMPLETE:

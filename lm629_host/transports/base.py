@@ -388,6 +388,20 @@ class Transport(abc.ABC):
         program and checked its chip selects); return its results or raise an
         :class:`~lm629_host.LM629Error` subclass that names the failing operation."""
 
+    def keep_alive(self, feed: Callable[[], None], what: str) -> None:
+        """Run ``feed`` (the failsafe's feed frame, the FT232H heartbeat's toggle) only when no
+        bus program holds the lock: a program under way shows the far side the host is alive
+        already, and a keep-alive never waits behind one.  An error is logged, never raised:
+        the thread that keeps the far side fed must not end the process."""
+        if not self.lock.acquire(blocking=False):
+            return
+        try:
+            feed()
+        except Exception as exc:  # noqa: BLE001 - a keep-alive must never kill the process
+            log.debug("%s: %s: %s", self.url, what, exc)
+        finally:
+            self.lock.release()
+
     def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
         """Release the port.  Idempotent."""
 

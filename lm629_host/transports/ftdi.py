@@ -326,14 +326,7 @@ class FtdiTransport(Transport):
         while not self._beat_stop.wait(self.feed_period_s / 4):
             if self.ftdi is None:
                 return
-            if not self.lock.acquire(blocking=False):
-                continue
-            try:
-                self._feed_if_due()
-            except Exception as exc:  # noqa: BLE001 - a heartbeat must never kill the process
-                log.debug("%s: heartbeat: %s", self.url, exc)
-            finally:
-                self.lock.release()
+            self.keep_alive(self._feed_if_due, "heartbeat")
 
     def close(self) -> None:
         self.feed_period_s = 0.0

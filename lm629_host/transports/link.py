@@ -642,14 +642,7 @@ class LinkTransport(Transport):
             if self._recording:
                 self._feed_recording()
                 continue
-            if not self.lock.acquire(blocking=False):
-                continue
-            try:
-                self._feed_if_due()
-            except Exception as exc:  # noqa: BLE001 - a feeder must never kill the process
-                log.debug("%s: failsafe feeder: %s", self.url, exc)
-            finally:
-                self.lock.release()
+            self.keep_alive(self._feed_if_due, "failsafe feeder")
 
     def _feed_recording(self) -> None:
         """During a recording: FAILSAFE_FEED, the one frame a recording takes without
