@@ -51,6 +51,9 @@ def prepare(chip: LM629, name: str) -> None:
         chip.load_trajectory(stop="off", start=True)
     if name == "STT":  # an STT needs a trajectory loaded
         chip.load_trajectory(acceleration=0x1234, velocity=0x56789, position=-1000)
+    # the 10 ms between trajectory updates (AN-706 4.6.2) is the rule's time, not the
+    # exchange's: waited for here, on the chip's clock, before the command is timed
+    chip.clock.sleep(chip.update_due())
 
 
 def measure(url: str, name: str, call: Callable[[LM629], object], repeat: int) -> dict[str, float]:
