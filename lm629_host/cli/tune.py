@@ -140,7 +140,6 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
     from lm629_host.bench.twin import plant_record
     plant = plant_record(result.model, result.sample_s, rms=result.fit_rms,
                          steps=result.fit_steps, port=s.port)
-    profile.after_tune(s, chip, result.gains, save_to, result.ok, plant)
     scale = s.scale
     click.echo(f"axis: {result.model.describe(result.sample_s)}")
     d = f"{result.distance:+d}-count step out and back"
@@ -158,6 +157,8 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
     if scale is not None:
         click.echo(f"({scale.counts_per_rev} counts/rev: travel "
                    f"{travel / scale.counts_per_rev:.3f} rev)")
+    # last, where it is seen: whether the profile now holds these gains
+    profile.after_tune(s, chip, result.gains, save_to, result.ok, plant)
     if plot_path:
         try:
             click.echo(f"wrote {_plot(result, plot_path, s.lines)}")

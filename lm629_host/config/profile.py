@@ -491,6 +491,18 @@ def ensure_applied(chips: Mapping[str, Any], profile: Profile,
 
 
 # ---------------------------------------------------------------------------- writing
+def _set_keeping_column(table: Any, key: str, value: Any) -> None:
+    """``table[key] = value`` in a tomlkit table, the comment after it kept in its column: a
+    value that grows or shrinks takes its width from the spaces before the comment (one at
+    least), so that a file's comments stay aligned as the user wrote them."""
+    old = table.item(key).as_string() if key in table else None
+    table[key] = value
+    trivia = table.item(key).trivia
+    if old is not None and trivia.comment:
+        grow = len(table.item(key).as_string()) - len(old)
+        trivia.comment_ws = " " * max(1, len(trivia.comment_ws) - grow)
+
+
 def save_gains(path: str | os.PathLike[str], axis: str, gains: Mapping[str, int],
                plant: Mapping[str, Any] | None = None) -> Path:
     """Write ``gains`` (kp, ki, kd, il, ds: ds in samples) into ``[axis.NAME]`` of the profile
@@ -507,7 +519,7 @@ def save_gains(path: str | os.PathLike[str], axis: str, gains: Mapping[str, int]
     table = doc["axis"][axis]  # checked above: [axis.NAME] exists
     for k in GAIN_KEYS:
         if k in gains:
-            table[k] = int(gains[k])
+            _set_keeping_column(table, k, int(gains[k]))
     if plant is not None:
         sub = table.get("plant")
         if sub is None:
@@ -515,7 +527,7 @@ def save_gains(path: str | os.PathLike[str], axis: str, gains: Mapping[str, int]
             table["plant"] = sub
         for k in PLANT_KEYS:
             if k in plant:
-                sub[k] = plant[k]
+                _set_keeping_column(sub, k, plant[k])
             elif k in sub:
                 del sub[k]  # a key of the plant identified before, not measured this time
     new = tomlkit.dumps(doc)

@@ -259,7 +259,7 @@ def test_save_gains_keeps_the_comments_and_everything_else(tmp_path):
     new = [ln for ln in text.splitlines() if ln not in ("ki = 0", "il = 0")]
     changed = [(a, b) for a, b in zip(old, new) if a != b]
     assert changed == [("kp = 20                      # hand-tuned",
-                        "kp = 231                      # hand-tuned"),
+                        "kp = 231                     # hand-tuned"),
                        ("kd = 0", "kd = 773"), ("ds = 1", "ds = 8")]
     assert "ki = 0" in text and "il = 0" in text  # keys the table lacked, added to it
     x = load_profile(p).axis("x")
@@ -620,3 +620,29 @@ def test_profile_show_reads_the_status_as_status_does_and_says_which_port(tmp_pa
     assert show.stdout.splitlines()[0].startswith(
         f"profile {prof}: port none in the file (this command: sim://")
     assert "status C0 breakpoint,motor_off" in show.stdout  # as `status` reads it: not busy
+
+
+def test_tune_save_keeps_the_comment_column_and_says_saved_last(tmp_path):
+    """`tune --save` on a profile whose [axis.x] lines carry comments: each comment stays in the
+    column the user put it in whatever the width of the new value (the template's column 30),
+    and the line that says the profile was written is the last one tune prints, under the
+    gains, not buried between the tuner's progress lines."""
+    runner = CliRunner()
+    path = tmp_path / "p.toml"
+    r = runner.invoke(main, ["--port", "sim://", "--axis", "0", "--profile", str(path),
+                             "profile", "init"])
+    assert r.exit_code == 0, r.output
+    before = {ln.split("=")[0].strip(): ln.index("#") for ln in path.read_text().splitlines()
+              if "#" in ln and "=" in ln.split("#")[0] and not ln.startswith("#")}
+    r = runner.invoke(main, ["--profile", str(path), "tune", "--travel", "2000", "--yes",
+                             "--save"])
+    assert r.exit_code == 0, r.output
+    text = path.read_text()
+    kp = int(next(ln for ln in text.splitlines() if ln.startswith("kp")).split("=")[1].split("#")[0])
+    assert kp != 20 and len(str(kp)) > 2  # a wider value than the template's kp = 20
+    after = {ln.split("=")[0].strip(): ln.index("#") for ln in text.splitlines()
+             if "#" in ln and "=" in ln.split("#")[0] and not ln.startswith("#")}
+    assert {k: after[k] for k in before} == before
+    out = r.stdout.strip().splitlines()
+    assert out[-2].startswith(f"saved kp={kp} ") and out[-2].endswith(f"into [axis.x] of {path}")
+    assert out[-1] == f"saved the plant into [axis.x.plant] of {path}"
