@@ -195,3 +195,19 @@ def test_the_readme_exit_code_table_lists_every_code_of_the_cli():
     codes = {int(c) for row in table.splitlines()[2:]
              for cell in row.split("|")[1::2] for c in re.findall(r"\d+", cell)}
     assert codes == set(cli_app.EXIT_CODES)
+
+
+def test_status_into_a_closed_pipe_exits_141_as_the_docs_say():
+    """docs/cli.md: stdout closed (`lm629 status | head -3`) is 141, output lost, as any Unix
+    tool that SIGPIPE ends.  The pipe's read end is closed before the command starts, so its
+    first write fails whatever the timing of a real `head`."""
+    import os
+
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        p = subprocess.run([_console_script(), "--port", "sim://", "status"], stdout=write,
+                           stderr=subprocess.PIPE, text=True, timeout=60)
+    finally:
+        os.close(write)
+    assert p.returncode == 141, p.stderr
