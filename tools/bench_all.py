@@ -34,11 +34,11 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-#: main before issue 12's second round (the CRC table still made by preprocessor macros)
+#: the link before its CRC table was generated (still made by preprocessor macros)
 BASELINE = "26fd81f"
-#: main before issue 12's items 4 and 5 (the serial link, the FT232H): "before" of their rows
+#: the serial link and the FT232H before their compact programs: "before" of their rows
 LINK_BASELINE = "7b12192"
-#: the FT232H's limits (issue 12): two 125 us USB microframes + the chip's own time
+#: the FT232H's limits: two 125 us USB microframes + the chip's own time
 FTDI_LIMIT_US = {"rdrp": 253.0, "ltrj_stt": 478.0}
 #: the FT232H with D0 wired to GPIOL1: the adapter waits on the busy bit (docs/ftdi.md)
 FTDI_BUSY_PIN = "sim+ftdi://?busy_pin=gpiol1"
@@ -472,7 +472,7 @@ def probe_after() -> dict:
     LinkTransport.__init__(t, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
     out["wait_emu_old_bridge"] = _link_wait("", transport=t)
     out["wait_ftdi"] = _link_wait("sim+ftdi://")  # no far-side wait: the host polls
-    # the FT232H waiting on the busy bit in the adapter (issue 19 item 4): no "before"
+    # the FT232H waiting on the busy bit in the adapter: no "before"
     out["ftdi_busy_pin"] = _timed_commands(FTDI_BUSY_PIN)
 
     # exchanges per typed command: bridge round trips (sim+emu://), FT232H USB transfer pairs

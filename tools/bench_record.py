@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Recording on the far side and fewer exchanges (issue 19, items 2 and 3), measured.
+"""Recording on the far side and fewer exchanges (bridge-timed rows; batches and one-program moves), measured.
 
     python3 tools/bench_record.py [--query 'usb=uno&'] [--avr/--no-avr]
 

@@ -14,9 +14,9 @@ gives the step's figures and the move's (its settle counted from the profile's e
     python3 tools/bench_tune.py            # the full grid (a few minutes on one core)
     python3 tools/bench_tune.py --quick    # a coarse grid
     python3 tools/bench_tune.py --url 'sim+avr://'   # through the compiled bridge firmware
-    python3 tools/bench_tune.py --matrix   # issue 20's done-when: 5 transports x 3 motors
+    python3 tools/bench_tune.py --matrix   # the tuner's acceptance: 5 transports x 3 motors
 
-``--matrix``: on each transport of issue 20 (``sim://``, ``sim+emu://``, ``sim+avr://``,
+``--matrix``: on each transport the tuner must hold on (``sim://``, ``sim+emu://``, ``sim+avr://``,
 ``sim+ftdi://``, ``sim+emu://?usb=uno&fast_baud=1000000``) and each of its motors (default,
 10x inertia, a holding load of 0.005 N m), ``autotune(chip, travel=2000)`` from a fresh chip
 holding at kp = 20, then with the gains it leaves loaded the 2000-count step and the
@@ -106,11 +106,11 @@ MATRIX_URLS = ("sim://", "sim+emu://", "sim+avr://", "sim+ftdi://",
                "sim+emu://?usb=uno&fast_baud=1000000")
 MATRIX_MOTORS = (("default", ""), ("10x inertia", "inertia=4e-5"),
                  ("holding load 0.005 N m", "load_torque=0.005"))
-MATRIX_TRAVEL = 2000  #: autotune's travel (issue 20's done-when)
+MATRIX_TRAVEL = 2000  #: autotune's travel in the acceptance matrix
 
 
 def matrix(urls: list[str]) -> int:
-    """Issue 20's done-when table; the number of combinations that hold."""
+    """The acceptance table; the number of combinations that hold."""
     print(f"autotune(chip, travel={MATRIX_TRAVEL}), then {DISTANCE}-count moves out and back "
           f"with the gains loaded (worse of the two); holds: the move within 3 counts, "
           f"overshoot <= {DISTANCE // 100}")
@@ -151,7 +151,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="a coarse grid")
     ap.add_argument("--motor", action="append", help="only these motors (names as listed)")
     ap.add_argument("--matrix", action="store_true",
-                    help="issue 20's done-when: autotune(travel=2000) on 5 transports x 3 "
+                    help="the acceptance matrix: autotune(travel=2000) on 5 transports x 3 "
                          "motors, then 2000-count moves (--url: only that transport)")
     args = ap.parse_args()
     if args.matrix:
