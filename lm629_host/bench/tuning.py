@@ -83,9 +83,11 @@ class Gains:
         return dict(kp=self.kp, ki=self.ki, kd=self.kd, il=self.il,
                     derivative_interval=self.ds)
 
-    def cli(self) -> str:
-        """The ``lm629 filter`` line that sets these gains."""
-        return (f"lm629 filter --kp {self.kp} --ki {self.ki} --kd {self.kd} --il {self.il} "
+    def cli(self, axis: str | None = None) -> str:
+        """The ``lm629 filter`` line that sets these gains (on ``--axis axis``, when given: a
+        profile's command without it means every axis)."""
+        on = f"--axis {axis} " if axis is not None else ""
+        return (f"lm629 {on}filter --kp {self.kp} --ki {self.ki} --kd {self.kd} --il {self.il} "
                 f"--ds {self.ds}")
 
     def __str__(self) -> str:

@@ -103,7 +103,7 @@ def move_many(s: Session, targets: list[int], velocity: int, acceleration: int, 
     """``lm629 --axis 0,1 move X Y [--linear]``: one target per axis, started together."""
     axes = axes_of(s)  # as many as targets: checked by check_targets before anything moves
     b = board(s)
-    goal: dict[LM629 | int, int] = dict(zip(axes, targets))
+    goal: dict[LM629 | int | str, int] = dict(zip(axes, targets))
     try:
         if linear:
             m = b.move_linear(goal, velocity=velocity, acceleration=acceleration)

@@ -15,7 +15,15 @@ from lm629_host.bus.opcodes import VELOCITY_MAX, Status
 from lm629_host.chip.supervise import search_index
 from lm629_host.physics.units import FIXED_ONE
 from lm629_host.cli.app import _session, main
-from lm629_host.cli.common import _flags, _position, _show_position, _wait_flag, failsafe_info, snapshot_dict
+from lm629_host.cli.common import (
+    _flags,
+    _position,
+    _show_position,
+    _wait_flag,
+    check_filter_options,
+    failsafe_info,
+    snapshot_dict,
+)
 from lm629_host.cli.types import FINITE, INT, SIGNED_ARGS, check_writable, positive
 
 
@@ -90,11 +98,7 @@ def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, d
         raise click.UsageError("give at least one of --kp --ki --kd --il --ds")
     s = _session()
     chip = s.open()
-    try:
-        chip.filter_program(kp, ki, kd, il, ds)  # validate before any traffic
-    except ArgumentError as exc:  # the library names its argument; the user typed an option
-        raise click.BadParameter(str(exc), param_hint={"derivative_interval": "--ds"}.get(
-            exc.argument, f"--{exc.argument}")) from None
+    check_filter_options(chip, kp, ki, kd, il, ds)  # before any traffic
     if ds is None and not s.is_sim:
         # the chip cannot report its derivative interval and every LFIL carries it (AN-706
         # 4.5.1): a new process does not know the last one, so say what is sent
@@ -168,7 +172,11 @@ def breakpoint(position: float, relative: bool, raw: bool, wait_s: float | None)
               help="Also turn the motor off when exceeded (LPES); default flag only (LPEI).")
 def limit(threshold: int, stop_motor: bool) -> None:
     """Following-error limit in counts (LPEI, or LPES with --stop)."""
-    check_int("THRESHOLD", threshold, 0, 0x7FFF)
+    try:
+        check_int("THRESHOLD", threshold, 0, 0x7FFF)
+    except ArgumentError:  # the argument the user typed, in its own words
+        raise click.BadParameter(f"{threshold} counts is outside 0..32767",
+                                 param_hint="THRESHOLD") from None
     chip = _session().open()
     chip.load_position_error(threshold, stop=stop_motor)
     click.echo(f"{'LPES' if stop_motor else 'LPEI'} {threshold} counts: status bit 5"

@@ -11,6 +11,7 @@ from typing import Any
 import click
 
 from lm629_host.chip.lm629 import LM629, Snapshot
+from lm629_host.errors import ArgumentError
 from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Signals, Status
 from lm629_host.physics.units import FIXED_ONE, Scale
 from lm629_host.cli.app import Session
@@ -143,3 +144,14 @@ def _isatty() -> bool:
 
 
 # ---------------------------------------------------------------------------------- commands
+
+
+def check_filter_options(chip: LM629, kp: int | None, ki: int | None, kd: int | None,
+                         il: int | None, ds: int | None) -> None:
+    """The filter options against the chip's ranges, before any traffic: an error names the
+    option the user typed (``--kp``, ``--ds``), not the library's argument."""
+    try:
+        chip.filter_program(kp, ki, kd, il, ds)
+    except ArgumentError as exc:
+        raise click.BadParameter(str(exc), param_hint={"derivative_interval": "--ds"}.get(
+            exc.argument, f"--{exc.argument}")) from None

@@ -16,8 +16,8 @@ import click
 from lm629_host.bench.capture import PlotUnavailable, capture_move, summary, write_csv
 from lm629_host.chip.safety import stop_on_error
 from lm629_host.bench.tuning import Gains, TuneResult, autotune
-from lm629_host.cli.app import _session, main
-from lm629_host.cli.common import _position
+from lm629_host.cli.app import _session, axis_name, main
+from lm629_host.cli.common import _position, check_filter_options
 from lm629_host.cli.motion import _motion_words, _tolerance
 from lm629_host.cli.types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
 
@@ -153,7 +153,8 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
         click.echo(f"move, predicted:   {result.predicted_move.line()}")
         click.echo(f"move, measured:    {result.measured_move.line()}  [{m}]")
     click.echo(f"gains: {result.gains} (loaded and applied: LFIL + UDF)")
-    click.echo(f"set them again with:  {result.gains.cli()}")
+    named = axis_name(s, chip.chip_select) if s.profile is not None else None
+    click.echo(f"set them again with:  {result.gains.cli(named)}")
     if scale is not None:
         click.echo(f"({scale.counts_per_rev} counts/rev: travel "
                    f"{travel / scale.counts_per_rev:.3f} rev)")
@@ -230,6 +231,7 @@ def step(distance: float, kp: int | None, ki: int | None, kd: int | None, il: in
     filt = {k: v for k, v in dict(kp=kp, ki=ki, kd=kd, il=il,
                                   derivative_interval=ds).items() if v is not None}
     chip = s.open()
+    check_filter_options(chip, kp, ki, kd, il, ds)  # before anything moves
     from lm629_host.physics.limits import clip_step
     if vel is None and acc is None and chip.limits is not None:  # a step in the caps
         v, a = clip_step(chip, v, a)

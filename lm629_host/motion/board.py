@@ -48,6 +48,7 @@ from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
 from lm629_host.chip.safety import emergency_stop, stop_if_moving
 from lm629_host.bus.snapshot import add_snapshot, snapshot_at
 from lm629_host.transports.ports import profile_port, resolve_port
+from lm629_host.urls import query_params
 from lm629_host.transports import DEFAULT_URL
 from lm629_host.clock import Clock
 from lm629_host.transports.base import Transport
@@ -322,9 +323,12 @@ class Board:
                 raise KeyError(str(exc)) from None
         return self.axis(which)
 
-    def axis(self, which: LM629 | int) -> LM629:
-        """The axis ``which`` (an index or one of :attr:`axes`); AxisError when it is not
-        one of this board's."""
+    def axis(self, which: LM629 | int | str) -> LM629:
+        """The axis ``which`` (an index, one of :attr:`axes`, or a name of the board's profile,
+        as ``board["x"]``); AxisError when it is not one of this board's, KeyError for a name
+        the profile does not have."""
+        if isinstance(which, str):
+            return self[which]
         if isinstance(which, LM629):
             if which not in self.axes:
                 raise AxisError(which.axis, len(self.axes), "this board")
@@ -423,14 +427,14 @@ class Board:
         return BoardMove(self, [Move(a, target, vel, acc, starts[a], t0)
                                 for a, (acc, vel, target) in words.items()], plan)
 
-    def move(self, targets: Mapping[LM629 | int, int], *,
-             velocity: int | Mapping[LM629 | int, int],
-             acceleration: int | Mapping[LM629 | int, int]) -> BoardMove:
+    def move(self, targets: Mapping[LM629 | int | str, int], *,
+             velocity: int | Mapping[LM629 | int | str, int],
+             acceleration: int | Mapping[LM629 | int | str, int]) -> BoardMove:
         """Absolute moves on several axes, each with its own (or a common) velocity and
         acceleration word, loaded and started in one program (all STTs together)."""
         resolved = {self.axis(k): v for k, v in targets.items()}
 
-        def per(value: int | Mapping[LM629 | int, int], a: LM629, name: str) -> int:
+        def per(value: int | Mapping[LM629 | int | str, int], a: LM629, name: str) -> int:
             if isinstance(value, Mapping):
                 m = {self.axis(k): v for k, v in value.items()}
                 if a not in m:
@@ -449,7 +453,7 @@ class Board:
         starts = {a: a.snapshot() for a in words}
         return self._launch(words, None, starts)
 
-    def plan_linear(self, targets: Mapping[LM629 | int, int], *, velocity: int,
+    def plan_linear(self, targets: Mapping[LM629 | int | str, int], *, velocity: int,
                     acceleration: int, starts: Mapping[LM629, Snapshot] | None = None
                     ) -> LinearPlan:
         """:func:`plan_linear` from where the axes are now (their desired positions)."""
@@ -463,7 +467,7 @@ class Board:
         return plan_linear({a.chip_select: (starts[a].desired_position, t) for a, t in resolved.items()},
                            velocity, acceleration)
 
-    def move_linear(self, targets: Mapping[LM629 | int, int], *, velocity: int,
+    def move_linear(self, targets: Mapping[LM629 | int | str, int], *, velocity: int,
                     acceleration: int) -> BoardMove:
         """A straight line in count space from where the axes are (their desired positions)
         to ``targets``: each axis's words scaled by its share of the path
@@ -568,6 +572,10 @@ def open_board(url: str | None = None, *, axes: int | None = None, chip: str | N
             raise ValueError(f"apply={apply!r}: expected True, False or 'auto'")
         if url is None:
             url = profile_port(prof)
+        if axes is None and "axes" not in query_params(url) and prof.axes:
+            # the profile describes the board: its chip selects, not every select the
+            # bridge offers (a four-select bridge with two chips wired has two axes)
+            axes = max(a.cs for a in prof.axes.values()) + 1
         chip = prof.chip if chip is None else chip
         clock = prof.clock_hz if clock is None else clock
     if url is None:

@@ -35,6 +35,8 @@ def _moved(chips) -> bool:
 BAD = [
     (["filter", "--ds", "0"], "--ds"),  # the library's derivative_interval, named as typed
     (["filter", "--kp", "70000"], "--kp"),
+    (["step", "200", "--kp", "99999"], "Invalid value for --kp"),  # the option, not kp=
+    (["limit", "99999", "--stop"], "Invalid value for THRESHOLD"),
     (["move", "inf"], "TARGET"),
     (["move", "nan"], "TARGET"),
     (["move", "1.5"], "whole counts"),
@@ -53,7 +55,7 @@ BAD = [
     (["velocity", "65536", "--time", "inf"], "--time"),
     (["velocity", "-5"], "--reverse"),
     (["velocity", "0"], "--vel: gives the word 0"),
-    (["limit", "-1"], "THRESHOLD=-1"),
+    (["limit", "-1"], "Invalid value for THRESHOLD: -1 counts"),
     (["breakpoint", "inf"], "POSITION"),
     (["index", "--search", "0"], "--search"),
     (["index", "--wait", "nan"], "--wait"),

@@ -644,5 +644,6 @@ def test_tune_save_keeps_the_comment_column_and_says_saved_last(tmp_path):
              if "#" in ln and "=" in ln.split("#")[0] and not ln.startswith("#")}
     assert {k: after[k] for k in before} == before
     out = r.stdout.strip().splitlines()
+    assert f"set them again with:  lm629 --axis x filter --kp {kp} " in r.stdout  # this axis
     assert out[-2].startswith(f"saved kp={kp} ") and out[-2].endswith(f"into [axis.x] of {path}")
     assert out[-1] == f"saved the plant into [axis.x.plant] of {path}"

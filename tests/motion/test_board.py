@@ -501,3 +501,27 @@ def test_a_board_reset_is_the_chips_reset_routine_with_its_bookkeeping():
         assert first.value == Cmd.RESET  # the RESET command: /RST is shared by the board
         assert any(c.kind == "command" and c.value == Cmd.PORT12 for c in cycles)
         assert not any(c.kind == "reset" for c in cycles)
+
+
+def test_a_profile_decides_the_boards_axes_and_its_names_drive_moves(tmp_path):
+    """A bridge offers four chip selects (the Python far end) and the profile wires two: the
+    board opened from the profile has two axes, so ``board.reset()`` checks only chips that
+    exist, and a straight line takes the profile's names as keys, as ``board["x"]`` does."""
+    from lm629_host.sim.serve import SimServer
+
+    with SimServer(tmp_path / "bench", "sim://?axes=2").start() as srv:
+        prof = tmp_path / "p.toml"
+        prof.write_text(f'[board]\nport = "{srv.client_url}"\n[axis.pan]\ncs = 0\nkp = 20\n'
+                        '[axis.tilt]\ncs = 1\nkp = 20\n')
+        with lm629_host.open_board(profile=str(prof)) as board:
+            assert len(board.axes) == 2  # not the bridge's 4 selects
+            board.reset()
+            for ax in board.axes:
+                ax.load_filter(kp=20, kd=100)
+                ax.update_filter()
+            board.move_linear({"pan": 600, "tilt": -300}, velocity=65536,
+                              acceleration=2000).wait(timeout=10)
+            assert abs(board["pan"].read_real_position() - 600) <= 20
+            assert abs(board["tilt"].read_real_position() + 300) <= 20
+            with pytest.raises(KeyError, match="pen"):
+                board.axis("pen")
