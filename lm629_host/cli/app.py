@@ -285,9 +285,10 @@ def open_axis(s: Session, prepare: bool) -> LM629:
     """The one chip a single-axis command drives."""
     axes = axes_of(s) if s.axis_spec is not None else (0,)
     if len(axes) > 1:
-        raise click.UsageError(f"--axis names {len(axes)} axes: this command drives one "
-                               "(status, watch, move with several targets and bringup take "
-                               "several)")
+        names = ", ".join(axis_name(s, k) for k in axes)
+        raise click.UsageError(f"axes {names} are chosen (by --axis, or the profile's axes): "
+                               "this command drives one: give --axis NAME (status, watch, move "
+                               "with several targets and bringup take several)")
     s._prepare = prepare
     return board(s).axis(axes[0])
 

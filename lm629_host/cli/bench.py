@@ -13,7 +13,7 @@ from lm629_host.bench.bringup import BringupOptions, StepResult, run_bringup
 from lm629_host.errors import BusyTimeout, LM629Error, ResetError
 from lm629_host.chip.lm629 import LM629, check_int
 from lm629_host.bus.opcodes import Status
-from lm629_host.cli.app import Session, _session, log, main
+from lm629_host.cli.app import axis_name, log, main, Session, _session
 from lm629_host.cli.common import _abort_is_interrupt, _flags, _position
 from lm629_host.cli.types import FINITE
 
@@ -46,7 +46,9 @@ def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
 
 
 def _bringup_one(s: Session, chip: LM629, options: BringupOptions, yes: bool) -> int:
-    click.echo(f"bring-up of {chip.variant.upper()} on {chip.transport.describe()}")
+    on = (f"axis {axis_name(s, chip.chip_select)} (cs {chip.chip_select}), "
+          if s.profile is not None else "")
+    click.echo(f"bring-up of {on}{chip.variant.upper()} on {chip.transport.describe()}")
 
     def report(step: StepResult) -> None:
         color = {True: "green", False: "red", None: "yellow"}[step.ok]

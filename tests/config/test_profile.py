@@ -647,3 +647,15 @@ def test_tune_save_keeps_the_comment_column_and_says_saved_last(tmp_path):
     assert f"set them again with:  lm629 --axis x filter --kp {kp} " in r.stdout  # this axis
     assert out[-2].startswith(f"saved kp={kp} ") and out[-2].endswith(f"into [axis.x] of {path}")
     assert out[-1] == f"saved the plant into [axis.x.plant] of {path}"
+
+
+def test_one_axis_commands_name_the_profiles_axis_and_ask_for_one(tmp_path):
+    """A two-axis profile: `tune` without --axis is told which axes it chose and how to pick
+    one (not an --axis the user never typed), and a one-axis bring-up says which axis it is."""
+    prof = _write(tmp_path)
+    runner = CliRunner()
+    r = runner.invoke(main, ["--profile", str(prof), "tune", "--travel", "1000", "--yes"])
+    assert r.exit_code == 2
+    assert "axes x, y are chosen" in r.stderr and "give --axis NAME" in r.stderr
+    r = runner.invoke(main, ["--profile", str(prof), "--axis", "y", "bringup", "--yes"])
+    assert r.stdout.startswith("bring-up of axis y (cs 1), LM629 on "), r.stdout[:200]
