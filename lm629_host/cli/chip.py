@@ -14,7 +14,7 @@ from lm629_host.chip.lm629 import check_int
 from lm629_host.bus.opcodes import VELOCITY_MAX, Status
 from lm629_host.chip.supervise import search_index
 from lm629_host.physics.units import FIXED_ONE
-from lm629_host.cli.app import _session, main
+from lm629_host.cli.app import _session, axis_name, main
 from lm629_host.cli.common import (
     _flags,
     _position,
@@ -109,7 +109,8 @@ def filter_cmd(kp: int | None, ki: int | None, kd: int | None, il: int | None, d
         chip.update_filter()
     loaded = ", ".join(f"{k}={v}" for k, v in dict(kp=kp, ki=ki, kd=kd, il=il, ds=ds).items()
                        if v is not None)
-    click.echo(f"filter loaded{'' if no_update else ' and updated'}: {loaded}")
+    on = f" on axis {axis_name(s, chip.chip_select)}" if s.profile is not None else ""
+    click.echo(f"filter loaded{'' if no_update else ' and updated'}{on}: {loaded}")
 
 
 @main.command()

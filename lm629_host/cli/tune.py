@@ -125,7 +125,9 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
     from lm629_host.cli import profile
     save_to = profile.save_target(s, chip, save_path)
     profile.tune_band(chip, travel)
-    click.echo(f"tuning {chip.variant.upper()} on {chip.transport.describe()}, inside "
+    on = (f"axis {axis_name(s, chip.chip_select)} (cs {chip.chip_select}), "
+          if s.profile is not None else "")
+    click.echo(f"tuning {on}{chip.variant.upper()} on {chip.transport.describe()}, inside "
                f"+/-{travel} counts of where the shaft is")
     if not yes and not click.confirm(f"The motor will turn, up to {travel} counts either way "
                                      "from here. Is the axis free to move that far?",

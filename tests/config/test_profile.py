@@ -659,3 +659,5 @@ def test_one_axis_commands_name_the_profiles_axis_and_ask_for_one(tmp_path):
     assert "axes x, y are chosen" in r.stderr and "give --axis NAME" in r.stderr
     r = runner.invoke(main, ["--profile", str(prof), "--axis", "y", "bringup", "--yes"])
     assert r.stdout.startswith("bring-up of axis y (cs 1), LM629 on "), r.stdout[:200]
+    r = runner.invoke(main, ["--profile", str(prof), "--axis", "y", "filter", "--kp", "30"])
+    assert r.exit_code == 0 and "filter loaded and updated on axis y: kp=30" in r.stdout
