@@ -228,6 +228,15 @@ class MoveMetrics:
                 f"rise {rise}, peak following error {self.peak_following_error:+d} counts{hunt}")
 
 
+def _as_move(m: MoveMetrics, profile: object) -> MoveMetrics:
+    """A step's metrics read as a move's when ``profile`` (a trapezoid) drove it: no rise time,
+    and the settle time counted from the profile's end, never before it.  The predicted and
+    the measured move are judged alike through here."""
+    if not profile:
+        return m
+    return replace(m, rise_s=None, settle_s=None if m.settle_s is None else max(0.0, m.settle_s))
+
+
 def step_metrics(times: Sequence[float], positions: Sequence[int], desired: Sequence[int],
                  start: int, target: int, tolerance: int) -> MoveMetrics:
     """Metrics of one response: ``times`` after the STT, real and desired positions."""
@@ -1097,10 +1106,7 @@ def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
             desired += [target] * (horizon - len(desired))
         counts, _ = simulate(model, g, desired, x0=start + 0.5, state=PIDState())
         times = [(k + 1 - len(ramp)) for k in range(horizon)]
-        m = step_metrics(times, counts, desired, start, target, tolerance)
-        if profile:
-            m = replace(m, rise_s=None, settle_s=None if m.settle_s is None
-                        else max(0.0, m.settle_s))
+        m = _as_move(step_metrics(times, counts, desired, start, target, tolerance), profile)
         worst = m if worst is None else worst.worst(m)
     assert worst is not None
     return worst
@@ -1239,10 +1245,7 @@ def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, dur
             t = _since_stt(profile, tgt - start, t, des, start, ses.sample_s)
         t = [x - ramp_s for x in t]
         rec.judged.append((t, real, des, start, tgt))
-        m = step_metrics(t, real, des, start, tgt, tolerance)
-        if profile:
-            m = replace(m, rise_s=None, settle_s=None if m.settle_s is None
-                        else max(0.0, m.settle_s))
+        m = _as_move(step_metrics(t, real, des, start, tgt, tolerance), profile)
         worst = m if worst is None else worst.worst(m)
     assert worst is not None
     return worst, rec
