@@ -25,6 +25,7 @@ from served import _env
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
 from bench_failsafe import (
     FAR_ENDS,
+    SPEED,
     client,
     death_to_rest,
     lm629,
@@ -55,7 +56,10 @@ def test_a_killed_host_has_every_axis_at_rest_and_the_next_process_is_told(tmp_p
 def test_a_killed_host_with_the_failsafe_off_leaves_the_axes_turning(tmp_path):
     took, st, _ = death_to_rest(tmp_path, "python", "?failsafe=0", env=_env())
     assert took is None and st["failsafe"]["trip"] is None
-    assert all(row["real_velocity"] == 2 for row in st["axes"])
+    # still commanded at full speed, and turning: the encoder's count per sample at 2.0
+    # counts/sample reads 1..3 at the moment a real-time status catches it (servo ripple)
+    assert all(row["desired_velocity"] == SPEED and abs(row["real_velocity"] - 2) <= 1
+               for row in st["axes"])
 
 
 @pytest.mark.parametrize("far_end", ["python", "firmware+uno"])
