@@ -504,14 +504,15 @@ class Board:
         return [Status(s) for s in self.transport.execute(p).statuses]
 
     def snapshots(self, axes: Sequence[LM629 | int] = ()) -> list[Snapshot]:
-        """:meth:`LM629.snapshot` of every axis (or ``axes``), in one bus program."""
+        """:meth:`LM629.snapshot` of every axis (or ``axes``), in one bus program, each
+        axis's positions extended past the register's wraparound as its own reads are."""
         chosen = self._pick(axes)
         p = self.program()
         for a in chosen:
             add_snapshot(p.on(a.chip_select))
         r = self.transport.execute(p)
         now = self.clock.now()
-        return [snapshot_at(r, k, now) for k in range(len(chosen))]
+        return [a.extended(snapshot_at(r, k, now)) for k, a in enumerate(chosen)]
 
 
 class _BoardProgram(Program):

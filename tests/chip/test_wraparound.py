@@ -154,3 +154,27 @@ def test_move_across_the_wrap_ends_on_the_extended_target():
         assert move.target == POSITION_MAX
         move.wait()
         assert chip.read_desired_position() == POSITION_MAX
+
+
+def test_a_boards_snapshots_cross_the_wrap_without_a_jump():
+    """Two axes turning from just below 3FFFFFFF: the board's snapshots (one program for both
+    chips) read extended positions past the boundary, each as that axis's own read does, and
+    never step back across it."""
+    with lm629_host.open_board(f"sim://?axes=2&reset_position={NEAR_TOP}") as board:
+        board.reset()
+        for ax in board.axes:
+            ax.load_filter(kp=20, kd=100)
+            ax.update_filter()
+            ax.load_trajectory(acceleration=ACCEL, velocity=SPEED, velocity_mode=True,
+                               start=True)
+        last = [NEAR_TOP, NEAR_TOP]
+        for _ in range(30):  # 0.3 s at 12 counts/sample: about 14000 counts, past the top
+            board.clock.sleep(0.01)
+            snaps = board.snapshots()
+            for k, s in enumerate(snaps):
+                assert s.real_position >= last[k] - 2, (k, last[k], s.real_position)
+                last[k] = s.real_position
+        assert all(p > POSITION_MAX + 5000 for p in last), last  # past 3FFFFFFF: no -2^31
+        for ax, p in zip(board.axes, last):
+            assert 0 <= ax.read_real_position() - p < 2000  # its own read agrees
+            ax.load_trajectory(stop="abrupt", start=True)
