@@ -23,23 +23,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from click.testing import CliRunner
 
-import lm629_host
 from lm629_host import cli
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.config.profile import load_profile, template
 from lm629_host.bench.tuning import Gains, MoveProfile, measure_move
 from lm629_host.bench.twin import SETTLE_BAND, Plant, twin_profile
+from bench_tune import fresh
 
 BENCH = "sim+emu://?usb=uno&fast_baud=1000000&inertia=4e-5&load_torque=0.004"
 HEAVIER = "sim+emu://?usb=uno&fast_baud=1000000&inertia=8e-5&load_torque=0.004"
-
-
-def fresh(url: str) -> lm629_host.LM629:
-    chip = lm629_host.open(url)
-    chip.reset()
-    chip.load_filter(kp=20)
-    chip.update_filter()
-    return chip
 
 
 def trace(url: str, gains: Gains, move: MoveProfile) -> tuple[list[float], list[int], float]:
