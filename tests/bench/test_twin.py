@@ -171,7 +171,8 @@ def test_sim_url_builds_each_axis_from_its_plant(tmp_path):
 def test_profile_with_a_bare_sim_port_is_a_twin_and_a_described_one_a_bench(tmp_path):
     prof = parse_profile(PROFILE, tmp_path / "rig.toml")
     assert f"profile={tmp_path / 'rig.toml'}" in profile_port(prof)
-    assert "profile=" in twin_port(prof, "sim+emu://?usb=uno")
+    emu = twin_port(prof, "sim+emu://?usb=uno")
+    assert f"profile={tmp_path / 'rig.toml'}" in emu and "usb=uno" in emu
     assert twin_port(prof, "serial:///dev/ttyACM0") == "serial:///dev/ttyACM0"
     path = tmp_path / "rig.toml"
     path.write_text(PROFILE)
@@ -239,6 +240,7 @@ def test_twin_of_a_tuned_bench_moves_as_the_bench(tuned, base, tmp_path, run):
     true = _si_to_plant(MotorParams(inertia=4e-5, load_torque=0.004))
     assert plant.accel == pytest.approx(true.accel, rel=0.05)
     assert plant.load == pytest.approx(true.load, abs=0.005)
+    assert plant.tau == pytest.approx(true.tau, rel=0.1)
     path = tmp_path / "bench.toml"
     shutil.copy(tuned, path)
     bench = with_params(base, BENCH)

@@ -99,4 +99,5 @@ def test_a_with_block_raising_mid_move_leaves_the_axes_at_rest(tmp_path, far_end
         st, err = status(server.link, _env())
     assert st["failsafe"]["trip"] is None, err  # the host stopped them, not the bridge
     for row in st["axes"]:
-        assert row["desired_velocity"] == 0 and "MOTOR_OFF" not in row["status_flags"]
+        assert row["desired_velocity"] == 0 and row["real_velocity"] == 0
+        assert "MOTOR_OFF" not in row["status_flags"]  # the PID holds

@@ -85,7 +85,9 @@ def test_after_a_trip_motion_is_refused_until_acknowledged_and_a_new_open_is_tol
         b.axes[0].load_trajectory(acceleration=ACC, velocity=SPEED, velocity_mode=True,
                                   start=True)
     assert e.value.state is not None and e.value.state.chips == 0b11
+    t.pipe.read(0.3)  # the ramp to 2 counts/sample would take 51 ms: well past it
     assert b.axes[0].read_real_velocity() == 0  # nothing of it ran
+    assert t.models[0].motion.desired_velocity == 0
     # a new open on the same bridge reports the trip (a warning) and acknowledges it
     t2 = LinkTransport(t.pipe, "sim+emu://", baud=115200)
     assert t2.failsafe_report is not None and t2.failsafe_report.chips == 0b11
