@@ -152,6 +152,14 @@ def s16(value: int) -> int:
     return value - (1 << 16) if value & 0x8000 else value
 
 
+def wrap_counts(value: int) -> int:
+    """A whole-count position, or a difference of two, folded into the position register's
+    range [-2^30, 2^30) (C0000000..3FFFFFFF): the circle the register runs round, taken the
+    short way (AN-706 6.5.2).  The chip model's registers and the host's extended positions
+    both fold here."""
+    return ((value + (1 << 30)) & 0x7FFFFFFF) - (1 << 30)
+
+
 def s32(value: int) -> int:
     """A 32-bit pattern as the chip's two's complement (positions, 16.16 velocities)."""
     value &= 0xFFFFFFFF

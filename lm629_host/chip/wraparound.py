@@ -25,16 +25,15 @@ from __future__ import annotations
 from dataclasses import replace
 
 from lm629_host.errors import ArgumentError
-from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Status
+from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Status, wrap_counts
 from lm629_host.bus.snapshot import Snapshot
 
 #: counts round the register's circle (C0000000..3FFFFFFF)
 REGISTER_SPAN = POSITION_MAX - POSITION_MIN + 1
 
 
-def short_way(delta: int) -> int:
-    """A register difference taken the short way round the circle, in [-2^30, 2^30)."""
-    return ((delta - POSITION_MIN) % REGISTER_SPAN) + POSITION_MIN
+#: a register difference taken the short way round the circle, in [-2^30, 2^30)
+short_way = wrap_counts
 
 
 def check_register_position(name: str, value: object) -> int:
@@ -73,13 +72,7 @@ class PositionTracker:
         """The extended value of register ``name`` read as ``raw``.  A register never read
         before starts the short way from register ``near`` (the real position next to the
         desired one: their difference is the following error, never half the circle)."""
-        last = self._last.get(name)
-        if last is None and near is not None:
-            last = self._last.get(near)
-        if last is None:
-            value = raw
-        else:
-            value = last[1] + short_way(raw - last[0])
+        value = self.near_register(raw, name if name in self._last or near is None else near)
         self._last[name] = (raw, value)
         return value
 

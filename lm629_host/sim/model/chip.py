@@ -41,6 +41,7 @@ from collections.abc import Callable
 
 from lm629_host.errors import ProtocolViolation
 from lm629_host.bus.opcodes import (
+    wrap_counts,
     lfil_interval,
     BUSY_BIT,
     COEFFICIENT_MAX,
@@ -64,7 +65,6 @@ from lm629_host.sim.model.fastloop import py_loop, run_fast
 from lm629_host.sim.model.motion import Motion
 from lm629_host.sim.model.params import ChipParams, MotorParams
 from lm629_host.sim.model.registers import FilterRegisters, TrajectoryBuffer
-from lm629_host.sim.model.trajectory import wrap_counts
 
 # Plain ints of the status bits: IntFlag arithmetic costs microseconds per operation and the
 # status byte is computed for every busy poll, so ``flags`` is always kept as a plain int.

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from lm629_host.bus.opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags
+from lm629_host.bus.opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags, wrap_counts
 from lm629_host.sim.model.motor import Motor
 from lm629_host.physics.pid import (
     PIDState,
@@ -49,7 +49,7 @@ from lm629_host.physics.pid import (
     skip_held,
 )
 from lm629_host.sim.model.registers import ChipState, TrajectoryBuffer
-from lm629_host.sim.model.trajectory import Trajectory, wrap_counts
+from lm629_host.sim.model.trajectory import Trajectory
 
 if TYPE_CHECKING:
     from lm629_host.sim.model.params import MotorParams

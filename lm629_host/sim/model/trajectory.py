@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from math import isqrt
 
+from lm629_host.bus.opcodes import wrap_counts
+
 #: the position register holds C0000000..3FFFFFFF (bit 30 is the wraparound bit, AN-706 6.5.2):
 #: positions are kept modulo 2^31 counts in [-2^30, 2^30)
 SPAN = 1 << 47  #: 2^31 counts in fixed point
@@ -21,11 +23,6 @@ HALF = 1 << 46
 def wrap_fixed(value: int) -> int:
     """A fixed-point position folded into the register's range [-2^30, 2^30) counts."""
     return ((value + HALF) % SPAN) - HALF
-
-
-def wrap_counts(value: int) -> int:
-    """A whole-count position (or difference) folded into [-2^30, 2^30)."""
-    return ((value + (1 << 30)) & 0x7FFFFFFF) - (1 << 30)
 
 
 def stop_distance(v: int, a: int) -> int:
