@@ -359,12 +359,25 @@ class Transport(abc.ABC):
 
     @clock.setter
     def clock(self, clock: Clock) -> None:
-        inner = clock._clock if isinstance(clock, LockedClock) else clock
+        inner = clock
+        while isinstance(inner, (LockedClock, FeedingClock)):  # the time base under wrappers
+            inner = inner._clock
         if not isinstance(clock, (WallClock, LockedClock)):
             clock = LockedClock(clock, self.lock)
         self._clock = clock
         #: the clock itself, for code that already holds the lock (inside ``execute``)
         self._inner_clock = inner
+
+    #: set once :meth:`feed_on_sleep` wrapped the clock
+    _feeds_on_sleep: bool = False
+
+    def feed_on_sleep(self) -> None:
+        """On a simulated clock, from now on: sleeping on :attr:`clock` feeds the far side's
+        watchdog (:class:`FeedingClock`), as a feeder thread does on the wall clock.  Asked
+        again, it changes nothing."""
+        if not self._feeds_on_sleep:
+            self._feeds_on_sleep = True
+            self.clock = FeedingClock(self._inner_clock, self)
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> Transport:

@@ -126,7 +126,7 @@ from lm629_host.bus.opcodes import BUSY_BIT
 from lm629_host.bus.pinout import pin_of
 from lm629_host.bus.program import BusCycle, Op, Program, ProgramResult, TraceCallback
 from lm629_host.urls import Option, parse_options
-from lm629_host.transports.base import Check, FeedingClock, PortInfo, Transport
+from lm629_host.transports.base import Check, PortInfo, Transport
 from lm629_host.transports.mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, chips_of_units,
                     streams_of)
 
@@ -227,9 +227,7 @@ class FtdiTransport(Transport):
                 threading.Thread(target=self._beat_loop, daemon=True,
                                  name=f"lm629 heartbeat {url}").start()
             else:
-                inner = self._inner_clock
-                self.clock = FeedingClock(inner, self)
-                self._inner_clock = inner
+                self.feed_on_sleep()
 
     # ------------------------------------------------------------------ opening
     @classmethod

@@ -82,7 +82,7 @@ from lm629_host.bus.program import (
 )
 from lm629_host.clock import WallClock
 from lm629_host.urls import Option, parse_options, query_params
-from lm629_host.transports.base import FeedingClock, ProfileState, RawRow, Transport
+from lm629_host.transports.base import ProfileState, RawRow, Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
 
@@ -610,10 +610,8 @@ class LinkTransport(Transport):
                 self._feeder = threading.Thread(target=self._feed_loop, daemon=True,
                                                 name=f"lm629 failsafe feeder {self.url}")
                 self._feeder.start()
-        elif not isinstance(self._inner_clock, FeedingClock):
-            inner = self._inner_clock
-            self.clock = FeedingClock(inner, self)
-            self._inner_clock = inner
+        else:
+            self.feed_on_sleep()
 
     def _feed_if_due(self) -> None:
         """Feed the failsafe when the link has been idle for :attr:`feed_period_s` (any
