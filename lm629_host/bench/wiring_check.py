@@ -332,7 +332,7 @@ def _unhurried(program: Program) -> Program:
     transfer: a fault that hides the busy bit (D0 low, or swapped with a line that reads 0)
     must not make the host write while the chip is busy, or the experiment would read what
     the adapter's timing leaves, not what the wire does."""
-    out = Program(busy_timeout_s=program.busy_timeout_s)
+    out = Program(busy_timeout_s=program.busy_timeout_s, top_select=program.top_select)
     for op in program.ops:
         if op.op in (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC):
             out.wait(UNHURRIED_US)

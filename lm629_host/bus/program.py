@@ -105,6 +105,9 @@ class Program:
 
     ops: list[BusOp] = field(default_factory=list)
     busy_timeout_s: float = DEFAULT_BUSY_TIMEOUT_S
+    #: the highest chip select the program selects (-1: none), kept as it is built, so that
+    #: a transport checks the program's selects against its own in one comparison
+    top_select: int = field(default=-1, compare=False, repr=False)
 
     def command(self, cmd: int) -> Program:
         byte = int(cmd) & 0xFF
@@ -144,6 +147,7 @@ class Program:
         if not 0 <= chip <= 0xFF:
             raise ValueError(f"chip select {chip} is outside 0..255")
         self.ops.append(BusOp(Op.SELECT, chip))
+        self.top_select = max(self.top_select, chip)
         return self
 
     def reset(self) -> Program:
@@ -168,6 +172,7 @@ class Program:
 
     def extend(self, other: Program) -> Program:
         self.ops.extend(other.ops)
+        self.top_select = max(self.top_select, other.top_select)
         return self
 
     def __iter__(self) -> Iterator[BusOp]:

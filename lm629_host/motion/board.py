@@ -542,6 +542,7 @@ class _BoardProgram(Program):
                     continue
                 self._chip = o.arg
             self.ops.append(o)
+        self.top_select = max(self.top_select, other.top_select)
         return self
 
 

@@ -47,7 +47,6 @@ _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 _STATUS, _COMMAND, _WRITE, _READ = int(Op.STATUS), int(Op.COMMAND), int(Op.WRITE), int(Op.READ)
 _RESET, _WAIT, _SYNC, _WAIT_STATUS = int(Op.RESET), int(Op.WAIT), int(Op.SYNC), int(Op.WAIT_STATUS)
 _SELECT = int(Op.SELECT)
-_SELECT_OP = Op.SELECT
 
 
 @dataclass
@@ -283,10 +282,8 @@ class Transport(abc.ABC):
                 for obs in observers:
                     obs.program_starting(self, program)
                 try:
-                    n = self.chip_selects
-                    for o in program.ops:
-                        if o.op is _SELECT_OP and o.arg >= n:
-                            raise AxisError(o.arg, n, self.describe())
+                    if program.top_select >= self.chip_selects:
+                        raise AxisError(program.top_select, self.chip_selects, self.describe())
                     self.stats.programs += 1
                     result = self._execute(program)
                 except BaseException as exc:
