@@ -28,6 +28,10 @@ from lm629_host.errors import ArgumentError
 from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Status, wrap_counts
 from lm629_host.bus.snapshot import Snapshot
 
+#: the status byte's wraparound bit as a plain int: every position read tests it, and an
+#: IntFlag operation costs a Python-level call each time
+_WRAP_BIT = int(Status.WRAPAROUND)
+
 #: counts round the register's circle (C0000000..3FFFFFFF)
 REGISTER_SPAN = POSITION_MAX - POSITION_MIN + 1
 
@@ -91,7 +95,7 @@ class PositionTracker:
         """Note a status byte: a WRAPAROUND bit not seen since it was last cleared is a new
         crossing (``wraps``), and ``pending`` until the owner clears it with RSTI (a
         recording's rows all show the bit until then: one crossing, not one per row)."""
-        if status & Status.WRAPAROUND and not self.pending:
+        if status & _WRAP_BIT and not self.pending:
             self.wraps += 1
             self.pending = True
 
