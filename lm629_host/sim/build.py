@@ -8,13 +8,13 @@ import os
 from dataclasses import replace
 
 from lm629_host.errors import AxisError
-from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN
+from lm629_host.bus.opcodes import BUSY_WORST_CASE_S, POSITION_MAX, POSITION_MIN, Cmd
 from lm629_host.urls import Option, dataclass_options, parse_options, query_params
 from lm629_host.sim.model import ChipBus, ChipModel, ChipParams, MotorParams
 from lm629_host.sim.vcd import NAMES as VCD_OPTIONS
-from lm629_host.sim.wiring import wiring_of
+from lm629_host.sim.wiring import board_lines_of, wiring_of
 
-_ALIASES = {"chip": "variant", "clock": "clock_hz"}
+_ALIASES = {"chip": "variant", "clock": "clock_hz", "busy": "command_busy_s"}
 
 #: the environment variable that makes every simulated chip strict unless its URL says
 #: ``strict=0`` (docs/model.md): how a CI run of lab scripts, or any program that starts
@@ -33,8 +33,32 @@ def strict_default() -> bool:
 #: the /RST line not connected
 FAULTS = (None, "reset", "busy", "rst")
 
+
+def parse_command_busy(text: str) -> dict[int, float]:
+    """``LTRJ:24.5,STT:31`` (microseconds after each command byte) -> {opcode: seconds}: the
+    form ``lm629 selftest`` reports a chip's busy times in; ValueError naming the part."""
+    out: dict[int, float] = {}
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        name, sep, us = part.partition(":")
+        try:
+            cmd = Cmd[name.strip().upper()]
+        except KeyError:
+            raise ValueError(f"{part!r}: {name.strip()!r} is not a command "
+                             f"({', '.join(c.name for c in Cmd)})") from None
+        try:
+            value = float(us) if sep else float("nan")
+        except ValueError:
+            value = float("nan")
+        if not 0 < value <= BUSY_WORST_CASE_S * 1e6:
+            raise ValueError(f"{part!r}: give COMMAND:MICROSECONDS, the busy time 0 < us <= "
+                             f"{BUSY_WORST_CASE_S * 1e6:g} (the datasheet's worst case)")
+        out[int(cmd)] = value * 1e-6
+    return out
+
+
 #: the URL options of the simulated chip: every field of ChipParams and MotorParams
 _CHIP_OPTIONS = dataclass_options(ChipParams, [
+    Option("command_busy_s", "str", parse=parse_command_busy, unit="CMD:us,..."),
     Option("clock_hz", "hz", unit="Hz"),  # the model checks the range
     Option("fault", "str", choices=tuple(f for f in FAULTS if f), optional=True),
     Option("reset_position", "int", lo=POSITION_MIN, hi=POSITION_MAX),
@@ -62,6 +86,8 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
             value = round(value)
         elif name == "variant":
             value = value.lower()
+        setattr(chip if hasattr(chip, name) else motor, name, value)
+    for name, value in board_lines_of(url).items():  # wiring=hi-open, index-open, encoder-open
         setattr(chip if hasattr(chip, name) else motor, name, value)
     return ChipModel(chip, motor)
 

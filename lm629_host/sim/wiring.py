@@ -27,30 +27,78 @@ The forms (the names are the LM629's lines, D0-D7, pins 4-11 of the DIP):
 
 Several faults are separated by commas (``wiring=d5-low,d2-d3``); a line may take part in one
 fault only.
+
+Three more forms name a board line that is not a data wire, and go to the chip model instead
+of the bytes (:func:`board_lines_of`; ``lm629 selftest`` names each, docs/selftest.md):
+
+* ``hi-open``: HI (pin 17) is not connected to the adapter.  **Model choice**: the adapter
+  reads it low (the bridge's HI input has no pull-up; the FT232H's ADBUS5 reads what the
+  chip would not drive), so an interrupt the chip raises is never seen on the pin while the
+  status and signals registers still show it;
+* ``index-open``: the encoder's index (IN, pin 1) is not connected: no index is ever latched;
+* ``encoder-open``: the encoder's A and B (pins 2 and 3) are not connected: the real position
+  never counts, whatever the shaft does.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from lm629_host.wiring.faults import FORMS, Miswiring
+from lm629_host.wiring.faults import FORMS as DATA_FORMS, Miswiring
 from lm629_host.urls import Option, parse_options, query_params
 
-def _parse(text: str) -> Miswiring | None:
-    return Miswiring.parse(text) if text.strip() else None
+#: the board lines a ``wiring=`` value may name besides the data lines, each with the model
+#: parameter it clears (``ChipParams.hi_wired``, ``MotorParams.index_wired`` and
+#: ``encoder_wired``)
+BOARD_LINES = {"hi-open": "hi_wired", "index-open": "index_wired",
+               "encoder-open": "encoder_wired"}
+
+#: every form a ``wiring=`` value takes, for the error message of an unknown one
+FORMS = f"{DATA_FORMS}; or a board line not connected: {', '.join(BOARD_LINES)}"
+
+
+def _split(text: str) -> tuple[str, frozenset[str]]:
+    """``d5-low,hi-open`` -> (``d5-low``, {``hi-open``}): the data-line faults as their text
+    and the board lines named."""
+    parts = [p.strip().lower() for p in text.split(",") if p.strip()]
+    board = frozenset(p for p in parts if p in BOARD_LINES)
+    return ",".join(p for p in parts if p not in BOARD_LINES), board
+
+
+def _parse(text: str) -> tuple[Miswiring | None, frozenset[str]]:
+    data, board = _split(text)
+    try:
+        bend = Miswiring.parse(data) if data else None
+    except ValueError as exc:
+        raise ValueError(f"{exc}; or a board line not connected: "
+                         f"{', '.join(BOARD_LINES)}") from None
+    return bend, board
 
 
 #: the URL option (``urls.Option`` with a parser: a bad value names the URL, the option and
 #: the known forms)
-OPTION = Option("wiring", "str", None, parse=_parse, unit="dN-low|dN-high|dN-open|dN-dM")
+OPTION = Option("wiring", "str", None, parse=_parse,
+                unit="dN-low|dN-high|dN-open|dN-dM|hi-open|index-open|encoder-open")
+
+
+def _wiring(url: str) -> tuple[Miswiring | None, frozenset[str]]:
+    if "wiring" not in query_params(url):
+        return None, frozenset()
+    value: Any = parse_options(url, [OPTION], ignore=set(query_params(url)) - {"wiring"})
+    return value["wiring"]
 
 
 def wiring_of(url: str) -> Miswiring | None:
-    """The URL's ``wiring=`` (None: a correct bench)."""
-    if "wiring" not in query_params(url):
-        return None
-    value: Any = parse_options(url, [OPTION], ignore=set(query_params(url)) - {"wiring"})
-    return value["wiring"]
+    """The URL's miswired data lines (None: a correct data bus), which every far end bends
+    its bytes with."""
+    return _wiring(url)[0]
+
+
+def board_lines_of(url: str) -> dict[str, bool]:
+    """The model parameters the URL's board-line faults set (``{"hi_wired": False}`` for
+    ``wiring=hi-open``; empty: every board line connected): :mod:`lm629_host.sim.build`
+    applies them to the chip and its motor."""
+    return {BOARD_LINES[name]: False for name in _wiring(url)[1]}
 
 
 class BentChip:
@@ -77,4 +125,5 @@ class BentChip:
         return getattr(self.chip, name)
 
 
-__all__ = ["BentChip", "FORMS", "Miswiring", "OPTION", "wiring_of"]
+__all__ = ["BOARD_LINES", "BentChip", "FORMS", "Miswiring", "OPTION", "board_lines_of",
+           "wiring_of"]

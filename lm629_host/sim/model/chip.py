@@ -164,6 +164,9 @@ class ChipModel:
         self.clock_hz = self.params.clock_hz
         self.tick = 0
         self.busy_clocks = max(1, round(self.params.busy_s * self.clock_hz))
+        #: the busy time after each command byte that has its own (``command_busy_s``), clocks
+        self.command_busy_clocks = {int(cmd): max(1, round(s * self.clock_hz))
+                                    for cmd, s in self.params.command_busy_s.items()}
         self.reset_clocks = max(8, round(self.params.reset_s * self.clock_hz))
         self.next_sample = SAMPLE_CLOCKS
         self.samples = 0
@@ -174,6 +177,8 @@ class ChipModel:
         #: run steady-state samples through :func:`.fastloop.run_fast` (False: only the readable
         #: per-sample code; the two are cross-checked by tests/sim/test_model_fastloop.py)
         self.fast = _sample_loop(self.params.fast)
+        if not (self.motor_params.index_wired and self.motor_params.encoder_wired):
+            self.fast = None  # an unwired encoder line is the readable loop's alone (motor.py)
         self.motion = Motion(self, self.motor_params)
         # power-on: as if /RST had been pulsed long ago and the reset had completed
         self._power_on_reset()
@@ -371,15 +376,22 @@ class ChipModel:
         return s
 
     @property
-    def hi(self) -> bool:
-        """The HI pin: any latched interrupt flag that the mask enables."""
+    def interrupt(self) -> bool:
+        """The chip's host interrupt: any latched interrupt flag that the mask enables
+        (signals bit 15, and the HI pin when it is wired)."""
         return not self._in_hw_reset and bool(self.flags & self.mask)
+
+    @property
+    def hi(self) -> bool:
+        """The HI pin as the adapter sees it: the host interrupt, low when HI is not wired
+        (``ChipParams.hi_wired``, ``wiring=hi-open``)."""
+        return self.params.hi_wired and self.interrupt
 
     @property
     def signals(self) -> int:
         m = self.motion
         s = (self.signals_extra & ~_STATUS_IN_SIGNALS) | (self.status & _STATUS_IN_SIGNALS)
-        if self.hi:
+        if self.interrupt:
             s |= Signals.HOST_INTERRUPT
         if m.on_target:
             s |= Signals.ON_TARGET
@@ -451,7 +463,7 @@ class ChipModel:
             self._set_busy(self.reset_clocks)
             self._reset_done_at = None if self.params.fault == "reset" else self.tick + self.reset_clocks
             return
-        self._set_busy()
+        self._set_busy(self.command_busy_clocks.get(byte))
         if info.direction is Direction.READ:
             self._out = self._read_words(cmd)
         elif info.direction is Direction.NONE:

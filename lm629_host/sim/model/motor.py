@@ -69,7 +69,10 @@ class Motor:
 
     @property
     def count(self) -> int:
-        """The encoder's 4x count (whole counts since power-on, unwrapped)."""
+        """The encoder's 4x count (whole counts since power-on, unwrapped); with A and B not
+        connected (``encoder_wired``) the count where the shaft stood at power-on."""
+        if not self.params.encoder_wired:
+            return floor(self.params.start_position)
         return floor(self.angle)
 
     def index_between(self, c0: int, c1: int) -> int | None:
@@ -78,6 +81,8 @@ class Motor:
         [model choice 20] The index count is ``index_offset`` counts past a multiple of
         4 x lines; it is seen if the encoder stood on it at either sample or passed it.
         """
+        if not self.params.index_wired:
+            return None
         n = self.counts_per_rev
         k = self.index_k
         if c1 >= c0:

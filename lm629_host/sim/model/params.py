@@ -7,7 +7,7 @@ place, the docstring of :mod:`lm629_host.sim.model` (``[model choice N]`` below 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from lm629_host.bus.opcodes import UPDATE_INTERVAL_S
 
@@ -18,6 +18,10 @@ class ChipParams:
     clock_hz: int = 8_000_000  #: 1-8 MHz (-8 parts), 1-6 MHz (-6 parts)
     #: [model choice 5] busy time after a command byte or a word
     busy_s: float = 20e-6
+    #: busy time after the command byte of the commands named, seconds, in place of
+    #: ``busy_s`` (``sim://?busy=LTRJ:24.5,STT:31``, in us: a chip's measured busy times, as
+    #: ``lm629 selftest`` reports them); the data words keep ``busy_s``
+    command_busy_s: dict[int, float] = field(default_factory=dict)
     #: [model choice 6] a reset completes this long after /RST rises or RESET is written
     reset_s: float = 1.0e-3
     strict: bool = False  #: raise ProtocolViolation on any host protocol violation
@@ -34,6 +38,9 @@ class ChipParams:
     #: [model choice 34] an STT this soon after the last executed one aborts the trajectory
     #: calculation (AN-706 4.6.2's 10 ms)
     update_s: float = UPDATE_INTERVAL_S
+    #: HI (pin 17) connected to the adapter; False (``wiring=hi-open``): the adapter reads it
+    #: low whatever the chip raises (the registers still show the interrupt)
+    hi_wired: bool = True
 
 
 @dataclass
@@ -48,6 +55,11 @@ class MotorParams:
     #: counts from the zero of the revolution to the index pulse; None: half a revolution
     #: (2 x lines), away from the shaft at power-on but within reach [model choice 20]
     index_offset: int | None = None
+    #: the index channel (IN, pin 1) connected; False (``wiring=index-open``): never latched
+    index_wired: bool = True
+    #: the A and B channels (pins 2, 3) connected; False (``wiring=encoder-open``): the chip's
+    #: count never changes whatever the shaft does
+    encoder_wired: bool = True
     #: amplifier gain: volts across the motor at full-scale output (PWM duty 128/128 or the
     #: DAC's full scale); [model choice 24] linear
     amp_volts: float = 12.0
