@@ -221,9 +221,10 @@ def test_the_package_root_is_what_a_lab_script_needs():
 
 # ---------------------------------------------------------------------- grep-level rules
 #: the modules that may open a simulator URL: the simulator transports, sim/ and `lm629 sim`
-#: ``lm629 twin check`` opens a simulator by design: the twin of the user's axis is one
+#: ``lm629 twin check`` opens a simulator by design: the twin of the user's axis is one; so
+#: does ``lm629 selftest``: the model it compares the chip with is one
 SIM_OPENERS = ("lm629_host.transports.sim", "lm629_host.sim", "lm629_host.cli.sim",
-               "lm629_host.cli.twin")
+               "lm629_host.cli.twin", "lm629_host.bench.selftest")
 #: a URL of a simulated bench at the start of a string: ``sim://``, ``sim+emu://``...
 SIM_URL = re.compile(r"sim(\+\w+)?://")
 #: an issue number: the word issue (or issues) and a number, or a hash sign and a number
