@@ -371,7 +371,8 @@ class Lockstep:
         if self.chip is not None:
             at, got, chip_hi = self._bracketed(self.chip, items)
         else:
-            at = self.replay[f"{name}: RDDP"].at if f"{name}: RDDP" in self.replay else 0
+            saved = self.replay.get(f"{name}: RDDP")
+            at = saved.at if saved is not None and saved.at is not None else 0
         self._run_model_to(at, per_sample)
         at_model, want, model_hi = self._bracketed(self.model, items)
         sample = self._samples() - self._stt_sample

@@ -12,7 +12,7 @@ A new command is a function in its family's module decorated with ``@main.comman
 
 from __future__ import annotations
 
-from lm629_host.cli import bench, chip, motion, profile, scope, shell, wiring  # noqa: F401 - importing them registers their commands
+from lm629_host.cli import bench, chip, motion, profile, scope, selftest, shell, wiring  # noqa: F401 - importing them registers their commands
 from lm629_host.chip.safety import Terminated
 from lm629_host.cli.app import EXIT_CODES, Session, main
 from lm629_host.cli.bridge import bridge
