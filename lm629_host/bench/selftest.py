@@ -494,7 +494,7 @@ def _clock(ls: Lockstep, profile_hz: float) -> Fault | None:
     ls.out.append(m)
     if not m.differs:
         return None
-    return Fault("clock", f"the chip's clock measures {mhz:.3f} MHz (sample period "
+    return Fault("clock", f"the chip's clock measures {mhz:.2f} MHz (sample period "
                           f"{SAMPLE_CLOCKS / mhz:.1f} us); the profile says {expected:g} MHz: "
                           f"every velocity and time is {abs(mhz / expected - 1) * 100:.0f} % off",
                  f"set the profile's clock to \"{mhz:.3g}MHz\" (or --clock {mhz:.3g}MHz) if "

@@ -1,0 +1,172 @@
+"""The selftest (lm629_host.bench.selftest) on every simulated bench: the same model on both
+sides passes; a bench that is not what the profile says is named.
+
+Numbers, from the spec: one sample is 2048 clocks, so a chip clocked at 6 MHz measured by a
+velocity run of one count a sample counts 2929.7 counts/s (6e6 / 2048) where the profile's
+8 MHz predicts 3906.25: the measured clock is 6.00 MHz.  The model holds busy 20 us after a
+command byte (ChipParams.busy_s) unless ``busy=`` says otherwise.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+from pathlib import Path
+
+import pytest
+
+import lm629_host
+from lm629_host.bench import selftest as st
+from lm629_host.bus.program import Program
+from lm629_host.sim.avr import toolchain_missing
+from lm629_host.transports.base import BusObserver, Transport
+
+SIMULATORS = ["sim://", "sim+emu://", "sim+emu://?usb=uno", "sim+ftdi://", "sim+avr://"]
+
+
+def _run(url: str, profile_hz: float = 8e6, **options) -> st.Report:
+    if url.startswith("sim+avr") and toolchain_missing():
+        pytest.skip("AVR toolchain missing")
+    with lm629_host.open(url) as chip:
+        return st.run(chip, st.Options(profile_hz, **options))
+
+
+@pytest.mark.parametrize("url", SIMULATORS)
+def test_passes_on_every_simulator(url):
+    r = _run(url)
+    assert (r.verdict, r.exit_code, r.error, r.faults) == ("PASS", 0, None, [])
+    core = [m for m in r.measurements if m.check == "core"]
+    assert len(core) > 40 and all(m.measured == m.expected for m in core)
+    clock = next(m for m in r.measurements if m.name == "clock: measured")
+    assert clock.measured == pytest.approx(8.0, rel=0.005)
+    hi = next(m for m in r.measurements if m.name == "velocity past the breakpoint: HI pin")
+    assert hi.measured is True and hi.expected is True
+    # the timed reads were taken past the breakpoint (8 counts at 1/16 count a sample)
+    assert hi.at >= st.BREAKPOINT_AT and hi.sample >= 16 * st.BREAKPOINT_AT
+
+
+def test_report_json_follows_its_schema(tmp_path):
+    r = _run("sim://")
+    path = tmp_path / "report.json"
+    md = st.write_report(r, str(path))
+    data = json.loads(path.read_text())
+    assert st.validate(data) == []
+    assert data["verdict"] == "PASS" and data["schema"] == st.SCHEMA_VERSION
+    assert {m["check"] for m in data["measurements"]} == {"core", "clock", "wiring", "busy"}
+    assert st.load_report(str(path)).to_json() == data  # a round trip keeps everything
+    assert "## lm629 selftest: PASS" in Path(md).read_text()
+    # what validate names in a broken report
+    broken = dict(data, motion="no", extra=1)
+    del broken["faults"]
+    broken["measurements"] = [dict(data["measurements"][0], at="3")]
+    problems = st.validate(broken)
+    assert "missing key 'faults'" in problems and "unknown key 'extra'" in problems
+    assert "motion is not bool" in problems
+    assert "measurements[0].at is not int|null" in problems
+    with pytest.raises(ValueError, match="not a selftest report"):
+        st.Report.from_json(broken)
+
+
+def test_a_6mhz_chip_on_an_8mhz_profile_names_the_measured_clock():
+    r = _run("sim://?clock=6MHz")
+    assert (r.verdict, r.exit_code) == ("DIFFERS", 1)
+    clock = next(m for m in r.measurements if m.name == "clock: measured")
+    assert clock.measured == pytest.approx(6.0, rel=0.005) and clock.expected == 8.0
+    (fault,) = r.faults
+    assert fault.line == "clock" and "measures 6.00 MHz" in fault.message
+    assert "25 % off" in fault.message and '"6MHz"' in fault.fix
+    # the core is compared at chip times (its desired position), not host times: no
+    # difference comes from the slower clock
+    assert [m for m in r.measurements if m.check == "core" and m.differs] == []
+
+
+@pytest.mark.parametrize("url", ["sim://?wiring=hi-open", "sim+emu://?wiring=hi-open",
+                                 "sim+ftdi://?wiring=hi-open"])
+def test_hi_not_wired_is_named(url):
+    r = _run(url)
+    assert (r.verdict, r.exit_code) == ("DIFFERS", 1)
+    (fault,) = r.faults
+    assert fault.line == "HI" and "pin 17" in fault.message and "pin 17" in fault.fix
+    # the chip's registers still show the interrupt: the core reads agree
+    assert [m.name for m in r.differences] == ["velocity past the breakpoint: HI pin"]
+
+
+@pytest.mark.parametrize("fault,line", [("index-open", "index"), ("encoder-open", "encoder")])
+def test_index_and_encoder_faults_are_named_with_motion(fault, line):
+    r = _run(f"sim://?wiring={fault}", motion=True)
+    assert (r.verdict, r.exit_code) == ("DIFFERS", 1)
+    assert [f.line for f in r.faults] == [line]
+    # and the motor was left stopped and off (the final reset)
+    with lm629_host.open(f"sim://?wiring={fault}") as chip:
+        assert st.run(chip, st.Options(8e6)).verdict == "PASS"  # motor off: not seen
+
+
+def test_motion_passes_on_a_good_bench():
+    r = _run("sim://", motion=True)
+    assert r.verdict == "PASS"
+    assert {m.name: m.measured for m in r.measurements if m.name.startswith("motion: ")} == {
+        "motion: encoder counts": True, "motion: index seen": True}
+
+
+def test_no_chip_on_a_select_of_the_profile_is_named():
+    r = _run("sim://?axes=2", selects=(0, 1, 2))
+    assert r.exit_code == 1
+    assert [f.line for f in r.faults] == ["cs 2"]
+
+
+class _LateHost(BusObserver):
+    """A host that is late now and then: before some programs it loses 3 to 40 ms (a busy
+    machine, a paused process), on the transport's clock, so that the chip runs on."""
+
+    def __init__(self) -> None:
+        self.rng = random.Random(7)
+        self.count = 0
+
+    def program_starting(self, transport: Transport, program: Program) -> None:
+        self.count += 1
+        if self.count % 3 == 0:
+            transport.clock.sleep(self.rng.uniform(0.003, 0.040))
+
+
+@pytest.mark.parametrize("url", ["sim://", "sim+emu://?usb=uno"])
+def test_a_late_host_makes_no_false_difference(url):
+    with lm629_host.open(url) as chip:
+        late = _LateHost()
+        chip.transport.add_observer(late)
+        r = st.run(chip, st.Options(8e6))
+    assert late.count > 50
+    assert (r.verdict, r.faults, r.differences) == ("PASS", [], [])
+
+
+def test_compare_a_report_with_todays_model(tmp_path):
+    r = _run("sim://")
+    path = tmp_path / "r.json"
+    st.write_report(r, str(path))
+    assert st.compare(st.load_report(str(path))) == []
+    data = json.loads(path.read_text())
+    edited = next(m for m in data["measurements"] if m["name"] == "after reset: RDSIGS")
+    edited["measured"] = 0x01C4
+    path.write_text(json.dumps(data))
+    (line,) = st.compare(st.load_report(str(path)))
+    assert line.startswith("after reset: RDSIGS: the chip read 01C4, today's model gives 01C0")
+
+
+def test_the_model_takes_the_busy_times_a_report_shows():
+    """A chip whose busy times differ from the model's 20 us is measured as such, and the
+    report's ``sim://?busy=`` option makes a model that measures the same."""
+    r = _run("sim://?busy=LTRJ:41,RDSIGS:33")
+    busy = {m.name: (m.measured, m.expected) for m in r.measurements if m.check == "busy"}
+    assert busy["busy: LTRJ"] == (41, 20) and busy["busy: RDSIGS"] == (33, 20)
+    assert busy["busy: MSKI"] == (20, 20)
+    assert r.verdict == "PASS"  # busy times are shown, never judged
+    option = r.busy_option()
+    assert "LTRJ:41" in option and "RDSIGS:33" in option
+    again = _run(f"sim://?busy={option}")
+    assert again.busy_option() == option
+
+
+def test_busy_option_is_checked():
+    with pytest.raises(ValueError, match="'FOO' is not a command"):
+        lm629_host.open("sim://?busy=FOO:20")
+    with pytest.raises(ValueError, match="the datasheet's worst case"):
+        lm629_host.open("sim://?busy=STT:150")
