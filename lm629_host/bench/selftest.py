@@ -29,6 +29,7 @@ against today's model.
 from __future__ import annotations
 
 import json
+import math
 import platform
 import statistics
 from collections.abc import Callable, Sequence
@@ -72,6 +73,9 @@ SLOW = FIXED_ONE // 16
 BREAKPOINT_AT = 8
 #: a position-mode move with a long cruise at SLOW: the reads in its middle are in the cruise
 CRUISE_TO = 40
+#: how many samples of one whole count of the desired position the model is searched for the
+#: chip's reads (four of the 16-sample counts, or as long after the end of a move)
+PLATEAU_SAMPLES = 64
 #: the verdicts and their exit codes
 EXIT = {"PASS": 0, "DIFFERS": 1, "FAIL": 2}
 _READ_SIGNED16 = (Cmd.RDRV, Cmd.RDSUM)
@@ -352,33 +356,65 @@ class Lockstep:
                          "the time base is not slow enough for this adapter")
 
     def _run_model_to(self, at: int, per_sample: float) -> None:
-        """Run the model to the first sample at which its desired position reads ``at``
-        (never past it: at most ``per_sample`` counts a sample)."""
+        """Run the model to the first sample at which its desired position reads ``at``: in
+        strides that end at least a count short (at most ``per_sample`` counts a sample),
+        then a sample at a time."""
         period = SAMPLE_CLOCKS / self.model.clock_hz
         for _ in range(100_000):
-            p = self.model.read_desired_position()
-            gap = at - p
+            gap = at - self.model.read_desired_position()
             if gap <= 0:
                 return
-            self.model.clock.sleep(max(1, int(gap / per_sample) - 1) * period)
+            stride = int((gap - 1) / per_sample)
+            if stride > 1:
+                self.model.clock.sleep(stride * period)
+            else:
+                self._next_sample(period)
         raise LM629Error(f"the model never reached the desired position {at}")
+
+    def _next_sample(self, period: float) -> None:
+        """Run the model just past its next sample (a bracketed read lasts less than a
+        sample, so the next one then reads that sample alone)."""
+        now = self.model.clock.now()
+        self.model.clock.sleep((math.floor(now / period) + 1.05) * period - now)
 
     def timed(self, name: str, items: Sequence[Item], *, per_sample: float,
               hi: bool = False) -> tuple[list[int], bool | None, bool | None]:
         """``items`` at one chip time on both: read on the chip, then on the model run to
-        the same desired position.  Returns the model's values and HI on chip and model."""
-        got, chip_hi = None, None
+        the same desired position.  The chip may have been read at any sample of that whole
+        count (16 of them at 1/16 count a sample, or any time after the end of a move, if
+        the host was late): the model is compared at the first of those samples whose reads
+        are the chip's, else at the first.  Returns the model's values and HI on chip and
+        model."""
+        _unused, labels = _program(self.model, items)
+        got: list[int] | None = None
+        chip_hi: bool | None = None
         if self.chip is not None:
             at, got, chip_hi = self._bracketed(self.chip, items)
         else:
             saved = self.replay.get(f"{name}: RDDP")
             at = saved.at if saved is not None and saved.at is not None else 0
+            kept = [self.replay.get(f"{name}: {label}") for label, _ in labels]
+            got = [m.measured for m in kept if m is not None] if all(kept) else None
         self._run_model_to(at, per_sample)
-        at_model, want, model_hi = self._bracketed(self.model, items)
-        sample = self._samples() - self._stt_sample
-        _program_unused, labels = _program(self.model, items)
+        period = SAMPLE_CLOCKS / self.model.clock_hz
+        plateau: list[tuple[int, list[int], bool | None, int]] = []
+        for _ in range(PLATEAU_SAMPLES):
+            at_model, want, model_hi = self._bracketed(self.model, items)
+            reading = (at_model, want, model_hi, self._samples() - self._stt_sample)
+            if at_model != at:  # the model left (or never reached) the chip's whole count
+                break
+            plateau.append(reading)
+            if got is None or want == got:
+                break
+            self._next_sample(period)
+        if plateau and (got is None or plateau[-1][1] != got):
+            reading = plateau[0]  # no sample matched: the differences are shown at the first
+        elif plateau:
+            reading = plateau[-1]
+        at_model, want, model_hi, sample = reading
         self._record(name, [("RDDP", "RDDP"), *labels],
-                     None if got is None else [at, *got], [at_model, *want], at, sample)
+                     None if got is None or self.chip is None else [at, *got],
+                     [at_model, *want], at, sample)
         if hi:
             self.out.append(Measurement("wiring", f"{name}: HI pin", "HI after the reads",
                                         chip_hi, model_hi, at, sample,

@@ -17,6 +17,7 @@ import pytest
 
 import lm629_host
 from lm629_host.bench import selftest as st
+from lm629_host.bus.opcodes import Cmd
 from lm629_host.bus.program import Program
 from lm629_host.sim.avr import toolchain_missing
 from lm629_host.transports.base import BusObserver, Transport
@@ -170,3 +171,59 @@ def test_busy_option_is_checked():
         lm629_host.open("sim://?busy=FOO:20")
     with pytest.raises(ValueError, match="the datasheet's worst case"):
         lm629_host.open("sim://?busy=STT:150")
+
+
+class _PausedBeforeRead(BusObserver):
+    """A host paused for ``pause_s`` just before its ``nth`` timed read (a program that
+    starts with RDDP and reads more after it): the chip runs on meanwhile."""
+
+    def __init__(self, nth: int, pause_s: float) -> None:
+        self.nth, self.pause_s, self.seen = nth, pause_s, 0
+
+    def program_starting(self, transport: Transport, program: Program) -> None:
+        ops = [o for o in program.ops if o.op.name != "SELECT"]
+        if len(ops) > 8 and ops[0].op.name == "COMMAND" and ops[0].arg == 0x08:
+            self.seen += 1
+            if self.seen == self.nth:
+                transport.clock.sleep(self.pause_s)
+
+
+@pytest.mark.parametrize("nth,pause_s", [(1, 0.05), (3, 0.3)])
+def test_a_host_paused_past_the_event_it_meant_to_read_makes_no_false_difference(nth, pause_s):
+    """Paused past the breakpoint before the read meant for before it (50 ms: 12 counts at
+    1/16 count a sample), or past the end of the position move before its mid-cruise read
+    (300 ms: the move lasts 40 x 16 samples, 164 ms): the chip is read at a later chip time,
+    and the model is compared at that chip time, where the chip's reads are the model's."""
+    with lm629_host.open("sim://") as chip:
+        paused = _PausedBeforeRead(nth, pause_s)
+        chip.transport.add_observer(paused)
+        r = st.run(chip, st.Options(8e6))
+    assert paused.seen >= nth
+    assert (r.verdict, r.faults, r.differences) == ("PASS", [], [])
+    late = [m for m in r.measurements if m.at is not None]
+    if nth == 3:  # read at rest on the target, 40 counts on: the model there too
+        cruise = next(m for m in late if m.name == "position cruising: RDDV")
+        assert cruise.measured == cruise.expected == 0
+
+
+def test_a_timed_read_is_compared_at_the_chips_sample_within_a_whole_count():
+    """An acceleration of 16 (16.16: 1/4096 count/sample^2) ramps RDDV by 16 every sample
+    while RDDP moves one whole count every ~40 samples around sample 200 (n^2 / 8192 counts):
+    a chip read 203 samples into the ramp is on whole count 5, which the model reaches at
+    sample 202 (202 x 203 x 8 >= 5 x 65536), at another RDDV.  The model is compared at the
+    sample whose reads are the chip's (RDDV 16 x n), not at the first of the count."""
+    with lm629_host.open("sim://") as chip, lm629_host.open("sim://") as model:
+        ls = st.Lockstep(chip, model)
+        for side in ls.sides():
+            side.reset()
+        ls.step("gains 0", [("p", lambda c: c.filter_program(kp=0, ki=0, kd=0, il=0)),
+                            ("w", Cmd.UDF)])
+        ls.step("ramp", [("p", lambda c: c.trajectory_program(
+            acceleration=16, velocity=st.SLOW, velocity_mode=True)), ("w", Cmd.STT)])
+        ls.started()
+        chip.clock.sleep(203 * 2048 / 8e6)
+        ls.timed("ramp", [("r", Cmd.RDDV)], per_sample=1 / 16)
+    rddv = next(m for m in ls.out if m.name == "ramp: RDDV")
+    n = rddv.sample  # samples since the STT: the velocity is n x the acceleration
+    assert rddv.measured == rddv.expected == 16 * n and n in (203, 204)
+    assert rddv.at == (16 * n * (n + 1) // 2) >> 16 == 5
