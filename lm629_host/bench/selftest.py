@@ -436,8 +436,11 @@ def _core(ls: Lockstep) -> None:
     ls.step("masks", [("w", Cmd.MSKI, int(Status.BREAKPOINT)), ("w", Cmd.LPEI, 0x7FFF),
                       ("w", Cmd.SBPA, 0, BREAKPOINT_AT), ("w", Cmd.RSTI, 0), ("s",),
                       ("r", Cmd.RDSIGS)])
+    # UDF acts at the next sample, which sets signals bit 13 for that one sample: read once
+    # two samples have surely passed, never right after (on a bench a sample may pass
+    # within the program, on the model it does not)
     ls.step("filter 0", [("p", lambda c: c.filter_program(kp=0, ki=0, kd=0, il=0)),
-                         ("w", Cmd.UDF), ("s",), ("r", Cmd.RDSIGS)])
+                         ("w", Cmd.UDF), ("s",)])
     ls.pause(0.002)
     ls.step("filter updated", [("s",), ("r", Cmd.RDSIGS)])
     # velocity mode at 1/16 count a sample: the breakpoint interrupt, HI, RDDP over time
@@ -454,8 +457,9 @@ def _core(ls: Lockstep) -> None:
     ls.timed("velocity past the breakpoint", reads, per_sample=1 / 16, hi=True)
     ls.step("interrupt reset", [("w", Cmd.RSTI, 0), ("s",), ("r", Cmd.RDSIGS)])
     ls.pause(0.012)
+    # the stop from 1/16 count a sample ends at the next sample: its status is read after
     ls.step("stop smooth", [("p", lambda c: c.trajectory_program(stop="smooth")),
-                            ("w", Cmd.STT), ("s",)])
+                            ("w", Cmd.STT)])
     ls.pause(0.012)
     ls.step("stopped", [("s",), ("r", Cmd.RDSIGS), ("r", Cmd.RDDV)])
     # position mode: a cruise at 1/16 count a sample, read in its middle and at its end

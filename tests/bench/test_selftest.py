@@ -227,3 +227,29 @@ def test_a_timed_read_is_compared_at_the_chips_sample_within_a_whole_count():
     n = rddv.sample  # samples since the STT: the velocity is n x the acceleration
     assert rddv.measured == rddv.expected == 16 * n and n in (203, 204)
     assert rddv.at == (16 * n * (n + 1) // 2) >> 16 == 5
+
+
+class _SlowCycles(BusObserver):
+    """An adapter that takes ``per_cycle_s`` for every bus cycle (simulated: the chip runs on
+    meanwhile), so that a sample boundary falls inside a step's program, as on a bench."""
+
+    def __init__(self, per_cycle_s: float) -> None:
+        self.per_cycle_s = per_cycle_s
+        self.transport: Transport | None = None
+
+    def bus_cycle(self, cycle) -> None:
+        assert self.transport is not None
+        self.transport.clock.sleep(self.per_cycle_s)
+
+
+@pytest.mark.parametrize("per_cycle_us", [30, 70])
+def test_a_slow_adapter_makes_no_false_difference(per_cycle_us):
+    """With 30 or 70 us a bus cycle a step of ten cycles spans one or three samples (256 us):
+    every step's reads are ones that no sample in between changes (a read right after UDF
+    would see signals bit 13, set for the one sample at which the filter is taken)."""
+    with lm629_host.open("sim://") as chip:
+        slow = _SlowCycles(per_cycle_us * 1e-6)
+        slow.transport = chip.transport
+        chip.transport.add_observer(slow)
+        r = st.run(chip, st.Options(8e6))
+    assert (r.verdict, r.faults, r.differences) == ("PASS", [], [])
