@@ -700,20 +700,23 @@ def run(chip: LM629, options: Options,
     model = reference(options)
     ls = Lockstep(chip, model)
     try:
-        progress("core: the chip and the model, command by command")
-        _core(ls)
-        fault = _hi_fault(ls)
-        report.faults += [fault] if fault else []
-        progress("clock: the sample period")
-        fault = _clock(ls, options.profile_hz)
-        report.faults += [fault] if fault else []
-        progress("busy: after each command byte")
-        _busy(ls)
-        report.faults += _selects(chip, options.selects or (chip.chip_select,), ls.out)
-        if options.motion:
-            progress("motion: the encoder and the index")
-            report.faults += _motion(ls, options.lines, options.gains)
-        chip.reset()
+        # the core runs trajectories with the drive on (gains 0), --motion turns the motor:
+        # whatever ends the script (an error, Ctrl-C) stops the motor first
+        with stop_on_error(chip):
+            progress("core: the chip and the model, command by command")
+            _core(ls)
+            fault = _hi_fault(ls)
+            report.faults += [fault] if fault else []
+            progress("clock: the sample period")
+            fault = _clock(ls, options.profile_hz)
+            report.faults += [fault] if fault else []
+            progress("busy: after each command byte")
+            _busy(ls)
+            report.faults += _selects(chip, options.selects or (chip.chip_select,), ls.out)
+            if options.motion:
+                progress("motion: the encoder and the index")
+                report.faults += _motion(ls, options.lines, options.gains)
+            chip.reset()
     except ResetError as exc:
         report.error = str(exc)
         if exc.statuses and all(s == 0xFF for s in exc.statuses):
@@ -721,7 +724,6 @@ def run(chip: LM629, options: Options,
                                        "read FF", "check the chip's /CS, power and clock"))
     except LM629Error as exc:
         report.error = f"{type(exc).__name__}: {exc}"
-        emergency_stop(chip)
     finally:
         report.measurements = ls.out
         model.close()

@@ -103,8 +103,8 @@ def show(report: Report) -> None:
           "seen on the breakpoint interrupt" if hi.measured else "low on the breakpoint interrupt")
     for m in ms:
         if m.check == "wiring" and (m.name.startswith("cs ") or m.name.startswith("motion: ")):
-            _line(not m.differs, m.name.split(":")[0].replace("motion", "motion"),
-                  m.name.split(": ")[1] + ("" if m.measured else ": NO"))
+            what, _, check = m.name.partition(": ")
+            _line(not m.differs, what, check + ("" if m.measured else ": NO"))
     if not report.motion:
         _line(None, "motion", "encoder and index not checked (--motion turns the motor)")
     busy = report.busy_option()

@@ -253,3 +253,32 @@ def test_a_slow_adapter_makes_no_false_difference(per_cycle_us):
         chip.transport.add_observer(slow)
         r = st.run(chip, st.Options(8e6))
     assert (r.verdict, r.faults, r.differences) == ("PASS", [], [])
+
+
+class _CtrlC(BusObserver):
+    """Ctrl-C at the bus program after the ``nth`` STT (between programs, as the CLI delivers
+    it)."""
+
+    def __init__(self, nth: int) -> None:
+        self.nth, self.starts, self.raised = nth, 0, False
+
+    def program_starting(self, transport: Transport, program: Program) -> None:
+        if self.starts >= self.nth and not self.raised:
+            self.raised = True
+            raise KeyboardInterrupt
+        self.starts += sum(1 for o in program.ops if o.op.name == "COMMAND" and o.arg == 0x01)
+
+
+@pytest.mark.parametrize("motion,nth", [(False, 1), (False, 3), (True, 7)])
+def test_ctrl_c_during_the_selftest_stops_the_motor(motion, nth):
+    """After the first STT the core's velocity-mode run is under way (drive on, gains 0),
+    after the third its position-mode move; after the seventh (four in the core, two in the
+    clock run) the --motion run turns the motor.  Each time Ctrl-C leaves the motor off
+    (status bit 7) and is raised on (the CLI's exit 130)."""
+    with lm629_host.open("sim://") as chip:
+        stop = _CtrlC(nth)
+        chip.transport.add_observer(stop)
+        with pytest.raises(KeyboardInterrupt):
+            st.run(chip, st.Options(8e6, motion=motion))
+        chip.transport.remove_observer(stop)
+        assert stop.raised and chip.read_status() & 0x80
