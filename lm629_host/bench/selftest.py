@@ -449,8 +449,8 @@ def _core(ls: Lockstep) -> None:
         ("r", Cmd.RDSIGS)])
     ls.started()
     reads = [("s",), ("r", Cmd.RDSIGS), ("r", Cmd.RDDV), ("r", Cmd.RDRP)]
-    for side in ls.sides()[:1]:
-        side.clock.sleep(0.004)
+    if ls.chip is not None:
+        ls.chip.clock.sleep(0.004)
     ls.timed("velocity before the breakpoint", reads, per_sample=1 / 16, hi=True)
     if ls.chip is not None:
         ls.chip.clock.sleep((BREAKPOINT_AT + 3) * 16 * SAMPLE_CLOCKS / ls.model.clock_hz)
