@@ -194,7 +194,13 @@ class LM629:
         runner = self._this_thread.runner
         if runner is not None:
             return runner(program)
+        if self.before_program is not None:
+            self.before_program(program)
         return self.transport.execute(program)
+
+    #: shown every program :meth:`run` sends to the transport, first: a host-timed shaped
+    #: move issues its pieces that are due there (:class:`~lm629_host.chip.shapes.ShapedMove`)
+    before_program: Callable[[Program], None] | None = None
 
     @contextlib.contextmanager
     def intercept(self, runner: Callable[[Program], ProgramResult]) -> Iterator[None]:

@@ -156,6 +156,8 @@ class RecordStream:
         self.asked = rows
         self.full = full
         transport = chip.transport
+        self._chip = chip
+        self._host_loop = type(transport).record_rows is Transport.record_rows
         self.far_side = transport.records_on_far_side
         self.note = transport.record_note()
         self._program = sample_program(chip, full)
@@ -170,7 +172,7 @@ class RecordStream:
     def __iter__(self) -> Iterator[Row]:
         if self._raw is None:
             self._raw = self._transport.record_rows(self._program, self.period_s, self.asked)
-        for raw in self._raw:
+        for raw in self._rows(self._raw):
             if self._t0 is None:
                 self._t0 = raw.t
             row = _row(raw, raw.t - self._t0, self.full)
@@ -178,6 +180,24 @@ class RecordStream:
                 s = self._extend(row.snapshot())
                 row = replace(row, desired=s.desired_position, real=s.real_position)
             self.rows.append(row)
+            yield row
+
+    def _rows(self, raw: Iterator[RawRow]) -> Iterator[RawRow]:
+        """``raw``; run by the host row by row (the transport's default loop: a bridge's stream
+        would end at any other program), each row's program first passes the chip's
+        ``before_program`` as any of its programs does (a host-timed shaped move issues its
+        pieces during the recording: :class:`~lm629_host.chip.shapes.ShapedMove`)."""
+        if not self._host_loop:
+            yield from raw
+            return
+        while True:
+            hook = getattr(self._chip, "before_program", None)
+            if hook is not None:
+                hook(self._program)
+            try:
+                row = next(raw)
+            except StopIteration:
+                return
             yield row
 
     def close(self) -> None:
