@@ -79,6 +79,40 @@ class ProfilePlan:
         """The planned acceleration at ``t`` (counts/s^2), by a central difference."""
         return (self.velocity_at(t + dt) - self.velocity_at(t - dt)) / (2 * dt)
 
+    def resume_at(self, covered: float, velocity: float) -> float:
+        """The plan time to carry on from for a chip that has covered ``covered`` counts and
+        runs at ``velocity`` counts/s (both along the move) after its caps came late.
+
+        Where the plan is as far as the chip (:meth:`time_at`), unless the plan is faster
+        there: then the chip, ramping up at the move's acceleration, would fall behind by
+        the ramp's shortfall and stay behind, so the plan resumes a little earlier, where the
+        chip is ahead of it by just what the ramp up to the plan's velocity will lose."""
+        t_far = self.time_at(covered)
+        if abs(self.velocity_at(t_far)) <= velocity:
+            return t_far
+        a = self.acceleration / _ONE / self.sample_s ** 2  # counts/s^2
+
+        def ahead(t: float) -> float:  # what the chip will still be ahead after its ramp
+            gap = max(0.0, abs(self.velocity_at(t)) - velocity)
+            return covered - abs(self.position_at(t)) - gap * gap / (2 * a)
+
+        lo, hi = 0.0, t_far  # ahead(lo) >= 0 >= ahead(hi)
+        while hi - lo > 1e-6:
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if ahead(mid) >= 0 else (lo, mid)
+        return lo
+
+    @property
+    def slowing_t(self) -> float:
+        """When the plan's last slowing begins: the first piece from which no piece is faster
+        than the one before.  From there on, the plan's mean velocity over what it has left is
+        at most the next piece's, so a cap that covers what the chip has left in that time
+        holds back only a chip behind the plan."""
+        k = len(self.pieces) - 1
+        while k > 0 and self.pieces[k - 1].velocity >= self.pieces[k].velocity:
+            k -= 1
+        return self.pieces[k].t
+
     def word_at(self, t: float) -> int:
         """The velocity word of a piece that starts at plan time ``t``: the profile's mean
         velocity over ``[t, t + piece_s]`` (cut at the end), as :func:`plan` makes every piece,
@@ -350,8 +384,13 @@ class ShapedMove(Move):
         self._next = plan.piece_s  #: the plan time of the next cap
         self._busy = threading.Lock()
         self._owner: int | None = None  #: the thread issuing a cap now
-        if self.issuing:
-            chip: Any = self.chip  # an LM629: its programs pass by here first
+        #: the last snapshot ``wait()`` looked at (the caps' floor reckons from it)
+        self.seen: Snapshot | None = None
+        chip: Any = self.chip  # an LM629
+        #: the chip's time of its last STT as this move left it: any other STT (a board's, a
+        #: batch's) or a reset changes it, and this move's caps stop
+        self._mark: float | None = getattr(chip, "_last_update", None)
+        if self.issuing:  # its programs pass by here first
             chip.before_program = self._before_program
 
     def profile_s(self, clock_hz: float) -> float | None:
@@ -408,33 +447,46 @@ class ShapedMove(Move):
             return
         t = self._next
         late = now - due > plan.piece_s / 2
-        word = 0
-        if late or t >= plan.duration:  # where is the chip?
+        word = plan.word_at(t)
+        if late or self._final(t):  # where is the chip, exactly?
             if s is None or s.time < due:
                 s = chip.snapshot()
             if s.status & Status.TRAJECTORY_COMPLETE:
                 self._end()
                 return
-            covered = (s.desired_position - self.start.desired_position) * (
-                1 if plan.distance > 0 else -1)
             if late:  # carry on from the plan's piece for the distance covered
-                t = plan.time_at(covered)
+                covered = (s.desired_position - self.start.desired_position) * (
+                    1 if plan.distance > 0 else -1)
+                t = plan.resume_at(covered, abs(s.desired_velocity) / _ONE / plan.sample_s)
                 self.lag = clock.now() - self.t0 - t
                 self.resyncs += 1
-            if t >= plan.duration:  # past the plan: cover what remains within a piece
-                left = abs(self.target - s.desired_position)
-                word = min(plan.peak_velocity, max(
-                    plan.pieces[-1].velocity, math.ceil(left / plan.piece_s * plan.sample_s * _ONE)))
-        if not word:
-            word = plan.word_at(t)
+                word = plan.word_at(t)
+        elif s is None:
+            s = self.seen  # the last snapshot looked at: where the chip was, a piece ago
+        if s is not None and t >= plan.slowing_t:
+            # slowing to the end: no slower than covers what remains in the plan's time left
+            left = abs(self.target - s.desired_position)
+            if s.time < now:  # what the chip has gone since, at its velocity then
+                left -= abs(s.desired_velocity) / _ONE / plan.sample_s * (now - s.time)
+            floor = left / max(plan.piece_s, plan.duration - t) * plan.sample_s * _ONE
+            word = min(plan.peak_velocity, max(word, math.ceil(floor)))
         with chip.transport.lock:  # a stop from another thread goes after this cap, or drops it
+            if getattr(chip, "_last_update", None) != self._mark:
+                self._end(dropped=True)  # another STT, or a reset, came since this move's last
             if not self.issuing:
                 return
             chip.load_trajectory(velocity=word, start=True)
+            self._mark = getattr(chip, "_last_update", None)
         self.piece_times.append(clock.now() - self.t0)
         self.words.append(word)
         self.dues.append(due - self.t0)
         self._next = t + plan.piece_s
+
+    def _final(self, t: float) -> bool:
+        """Whether a cap at plan time ``t`` is the last of the plan: what the plan has left
+        after it is less than half a piece (a cap for a sliver of the plan would be its
+        tail's mean velocity, near 0, and hold a chip that is a little behind to a crawl)."""
+        return t + 1.5 * self.plan.piece_s >= self.plan.duration
 
     def _end(self, dropped: bool = False) -> None:
         """No more caps: the chip completed the trajectory, or (``dropped``) something else
@@ -458,14 +510,18 @@ def _wait_pieces(move: Move, watch: MoveWatch,
                 else move.poll(watch, progress))
         move.far_state = chip.transport.profile(chip.axis, [], new=False)
         return done
+    timeout = watch.deadline - move.t0
     while move.issuing:
         now = clock.now()
         if now < move.next_due:
             clock.sleep(move.next_due - now)
         move.tend()
+        # the host's own lateness stretched the move: the timeout counts without it
+        watch.deadline = move.t0 + timeout + max(0.0, move.lag)
         s, result = watch.look(chip, progress)
         if result is not None:
             return result
+        move.seen = s
         if s.status & Status.TRAJECTORY_COMPLETE:
             move._end()  # the chip landed on the target: no cap has anything left to do
     if move.inner is not None:

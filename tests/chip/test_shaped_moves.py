@@ -87,9 +87,12 @@ def test_s_curve_move_ends_on_target_and_follows_its_pieces():
         assert abs(result.error) <= chip.move_rules.tolerance
         pieces = move.plan.pieces
         # every piece went out as planned, 10 ms or more after the one before, on time on
-        # sim://; the last may find the chip already landed by its own deceleration
-        assert len(pieces) - 1 <= len(move.words) <= len(pieces)
-        assert move.words == [p.velocity for p in pieces[:len(move.words)]]
+        # sim://; the last may find the chip landed by its own deceleration, or be faster
+        # than planned: it covers what the chip has left (a chip slowing behind its caps)
+        n = len(move.words)
+        assert len(pieces) - 1 <= n <= len(pieces)
+        assert move.words[:-1] == [p.velocity for p in pieces[:n - 1]]
+        assert move.words[-1] >= pieces[n - 1].velocity
         assert move.resyncs == 0 and move.lag == 0
         assert all(b - a >= 10e-3 for a, b in zip(move.piece_times, move.piece_times[1:]))
         assert max(abs(j) for j in move.jitter) < 1e-3
