@@ -216,3 +216,27 @@ def test_a_stop_or_a_new_move_takes_the_chip_from_the_pieces():
         result = move.wait()
         assert result.target == 1000 and chip.read_desired_position() == 1000
         assert len(shaped.words) == 1
+
+
+# ---------------------------------------------------------------------------------- a real stall
+@pytest.mark.parametrize("far_end", ["python", "firmware"])
+def test_a_wall_clock_stall_on_a_served_bench(tmp_path, far_end):
+    """``lm629 sim serve`` in its own process, in real time (the bridge keeps its own clock
+    while the host sleeps): the host sleeps 0.2 s 0.1 s into the S-curve's ramp, its cap held
+    low the while; the move carries on from the chip's position and lands."""
+    import time
+
+    from served import serve
+
+    with serve(tmp_path, far_end) as bench:
+        with lm629_host.open(f"serial://{bench.link}") as chip:
+            chip.reset()
+            chip.load_filter(kp=20, kd=100)
+            chip.update_filter()
+            move = chip.move_profile(30000, CURVE)
+            assert not move.far  # 85 pieces: more than the bridge holds, timed from the host
+            progress, stalled = _stall_at(chip, move, 0.1, 0.2, sleep=time.sleep)
+            result = move.wait(progress=progress)
+            # held below the plan's velocity, the chip fell behind it by less than the stall
+            assert stalled and move.resyncs >= 1 and 0.02 < move.lag < 0.2 + 0.05
+            assert chip.read_desired_position() == 30000 and abs(result.error) <= 20
