@@ -347,15 +347,22 @@ class ShapedMove(Move):
     Every piece is only a velocity cap on one position-mode move to the target, so the chip's
     own deceleration lands it whatever the pieces' timing: a late piece can change the shape's
     timing, never where it ends.  What must not happen is a slow cap left in force while the
-    chip is still far from the target (it would crawl).  So, timed from the host, the pieces
-    are issued on the transport's clock by :meth:`tend`, which runs before every bus program
-    of the chip (the user's next ``status()``, ``record()`` on a host-polled recording,
-    ``wait()``...), and a piece found more than half a piece late is not issued as planned:
-    the host reads how far the chip has gone and carries on from the plan's piece for that
-    distance (behind plan: a held slow cap kept it back, the plan's next velocities follow;
-    ahead: the pieces it passed are skipped).  Past the plan's end, until the chip reports its
-    trajectory complete, a cap that covers the remaining distance within a piece keeps it
-    from crawling.  On a bridge with PROFILE (``far``) its own timer issues the pieces instead.
+    chip is still far from the target: it would crawl there.  So, timed from the host:
+
+    * the caps go out on the transport's clock from :meth:`tend`, which runs before every bus
+      program of the chip (``wait()``'s, and the user's next ``status()``, ``snapshot()``, a
+      host-polled ``record()`` between its rows...), not only from ``wait()``;
+    * a cap found more than a whole piece late (the host stalled, or looked late) is not
+      issued as planned: the host reads where the chip is and resumes the plan there
+      (:meth:`ProfilePlan.resume_at`): the pieces a chip ahead has passed are skipped, and a
+      chip held back by a slow cap picks the ramp up where it will be level with the plan;
+    * while the plan slows to its end, no cap is slower than covers what the chip has left in
+      the plan's time left (at least a piece), and past the plan's end a cap covers the rest
+      within a piece, until the chip reports its trajectory complete.
+
+    A host late by less than a piece every time (a slow USB adapter) keeps the planned times:
+    the shape is that much later.  On a bridge with PROFILE (``far``) its own timer issues the
+    pieces instead.
 
     ``piece_times`` are when each cap had gone out (seconds from the move's STT), ``words``
     the caps, ``jitter`` each cap's lateness against when it was due, ``lag`` how far the
@@ -446,7 +453,9 @@ class ShapedMove(Move):
         if now < due - _TICK_S:
             return
         t = self._next
-        late = now - due > plan.piece_s / 2
+        # late by a whole piece: the host missed one (a host late by less every time, a slow
+        # USB adapter, keeps the planned times: the shape is only that much later)
+        late = now - due > plan.piece_s
         word = plan.word_at(t)
         if late or self._final(t):  # where is the chip, exactly?
             if s is None or s.time < due:
