@@ -27,7 +27,8 @@ from lm629_host.physics.pid import sample_period_s
 
 D = 30000
 CURVE = SCurve(20000.0, 150000.0, 3e6)
-#: (label, seconds late before wait(), stall start s from the STT or None; "end-" from the end)
+#: (label, seconds late before wait(), when the stall starts: s from the STT, "half" the plan,
+#: "end" 0.12 s before the plan's end, or None)
 CASES: list[tuple[str, float, float | str | None]] = [
     ("on time", 0.0, None),
     ("wait() 50 ms late", 0.05, None),
@@ -57,7 +58,8 @@ def run(late_s: float, stall: float | str | None
         model._sample = observed
         move = chip.move_profile(D, CURVE)
         plan = move.plan
-        at = {"half": plan.duration / 2, "end": plan.duration - 0.12}.get(stall, stall)  # type: ignore[call-overload]  # str keys, float or None passes through
+        at = (plan.duration / 2 if stall == "half" else plan.duration - 0.12 if stall == "end"
+              else stall if isinstance(stall, float) else None)
         stalled: list[float] = []
 
         def progress(s: Any) -> None:
