@@ -241,3 +241,17 @@ def test_a_wall_clock_stall_on_a_served_bench(tmp_path, far_end):
             # host is late more often, and the shape later still)
             assert stalled and move.resyncs >= 1 and move.lag > 0.02
             assert chip.read_desired_position() == 30000 and abs(result.error) <= 20
+
+
+def test_the_timeout_counts_without_the_hosts_own_lateness():
+    """wait() called 3 s after a 1.68 s S-curve started: the chip crept on its first cap (200
+    counts/s) the while, then the shape ran.  It ends 3 s after the plan's end, past the
+    default timeout (1.5 x 1.68 s + 2 s = 4.5 s from the start), and lands: the timeout
+    counts from the start plus the time the host's lateness added (``lag``)."""
+    chip = _chip("sim://")
+    with chip:
+        move = chip.move_profile(30000, CURVE)
+        chip.clock.sleep(3.0)
+        result = move.wait()
+        assert move.lag > 2.5 and result.duration > 4.5
+        assert chip.read_desired_position() == 30000 and abs(result.error) <= 20
