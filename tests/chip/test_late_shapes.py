@@ -222,8 +222,9 @@ def test_a_stop_or_a_new_move_takes_the_chip_from_the_pieces():
 @pytest.mark.parametrize("far_end", ["python", "firmware"])
 def test_a_wall_clock_stall_on_a_served_bench(tmp_path, far_end):
     """``lm629 sim serve`` in its own process, in real time (the bridge keeps its own clock
-    while the host sleeps): the host sleeps 0.2 s 0.1 s into the S-curve's ramp, its cap held
-    low the while; the move carries on from the chip's position and lands."""
+    while the host sleeps): the host sleeps 0.2 s 0.1 s into a host-timed S-curve's ramp, its
+    cap held low the while; the move carries on from the chip's position and lands.  Then a
+    move the bridge times, the host asleep 0.2 s from its start: it lands too."""
     import time
 
     from served import serve
@@ -241,6 +242,14 @@ def test_a_wall_clock_stall_on_a_served_bench(tmp_path, far_end):
             # host is late more often, and the shape later still)
             assert stalled and move.resyncs >= 1 and move.lag > 0.02
             assert chip.read_desired_position() == 30000 and abs(result.error) <= 20
+            # 60 pieces: the bridge holds them and times them; the host sleeps 0.2 s at once
+            move = chip.move_profile(-20000, CURVE, relative=True)
+            assert move.far
+            time.sleep(0.2)
+            result = move.wait()
+            assert chip.read_desired_position() == 10000 and abs(result.error) <= 20
+            state = move.far_state
+            assert state is not None and state.issued == len(move.plan.pieces) - 1
 
 
 def test_the_timeout_counts_without_the_hosts_own_lateness():
