@@ -58,9 +58,10 @@ def _stall_at(chip: lm629_host.LM629, move: ShapedMove, at_s: float, stall_s: fl
     return progress, stalled
 
 
-def _late_move(chip: lm629_host.LM629, distance: int, how: str):
-    """Start the shaped move, be late ``how``, wait; return (move, result)."""
-    move = chip.move_profile(distance, CURVE)
+def _late_move(chip: lm629_host.LM629, distance: int | ShapedMove, how: str):
+    """Start the shaped move (or take one started), be late ``how``, wait; return (move,
+    result)."""
+    move = distance if isinstance(distance, ShapedMove) else chip.move_profile(distance, CURVE)
     progress = None
     if how == "wait 50 ms late":
         chip.clock.sleep(0.05)
@@ -264,3 +265,17 @@ def test_the_timeout_counts_without_the_hosts_own_lateness():
         result = move.wait()
         assert move.lag > 2.5 and result.duration > 4.5
         assert chip.read_desired_position() == 30000 and abs(result.error) <= 20
+
+
+@pytest.mark.parametrize("how", LATE)
+def test_a_move_backwards_lands_late_too(how):
+    """The host's place in the plan is counted along the move: backwards, from 5000 counts
+    to -25000, the same three ways late."""
+    chip = _chip("sim://")
+    with chip:
+        chip.move_to(5000, velocity=1 << 20, acceleration=1 << 10).wait()
+        move = chip.move_profile(-30000, CURVE, relative=True)
+        assert move.target == -25000 and move.plan.distance == -30000
+        move, result = _late_move(chip, move, how)
+        assert chip.read_desired_position() == -25000 and abs(result.error) <= 20
+        assert move.resyncs == (0 if how == "0.3 s recording first" else 1)
