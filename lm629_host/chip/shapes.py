@@ -28,6 +28,7 @@ import math
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 from lm629_host.errors import ArgumentError
@@ -102,7 +103,7 @@ class ProfilePlan:
             lo, hi = (mid, hi) if ahead(mid) >= 0 else (lo, mid)
         return lo
 
-    @property
+    @cached_property
     def slowing_t(self) -> float:
         """When the plan's last slowing begins: the first piece from which no piece is faster
         than the one before.  From there on, the plan's mean velocity over what it has left is
@@ -470,8 +471,8 @@ class ShapedMove(Move):
                 self.lag = clock.now() - self.t0 - t
                 self.resyncs += 1
                 word = plan.word_at(t)
-        elif s is None:
-            s = self.seen  # the last snapshot looked at: where the chip was, a piece ago
+        elif s is None and self.seen is not None and now - self.seen.time <= 2 * plan.piece_s:
+            s = self.seen  # the last snapshot wait() looked at: where the chip was a piece ago
         if s is not None and t >= plan.slowing_t:
             # slowing to the end: no slower than covers what remains in the plan's time left
             left = abs(self.target - s.desired_position)
