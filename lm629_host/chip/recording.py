@@ -183,17 +183,18 @@ class RecordStream:
             yield row
 
     def _rows(self, raw: Iterator[RawRow]) -> Iterator[RawRow]:
-        """``raw``; run by the host row by row (the transport's default loop: a bridge's stream
-        would end at any other program), each row's program first passes the chip's
-        ``before_program`` as any of its programs does (a host-timed shaped move issues its
-        pieces during the recording: :class:`~lm629_host.chip.shapes.ShapedMove`)."""
-        if not self._host_loop:
-            yield from raw
-            return
+        """``raw``, its program first shown to the chip's ``before_program`` as any of the
+        chip's programs is (a host-timed shaped move issues a piece that is due:
+        :class:`~lm629_host.chip.shapes.ShapedMove`): once, or before every row where the host
+        runs the rows one by one (the transport's default loop; any other program would end a
+        bridge's stream), so the pieces go out during the recording."""
         while True:
             hook = getattr(self._chip, "before_program", None)
             if hook is not None:
                 hook(self._program)
+            if not self._host_loop:
+                yield from raw
+                return
             try:
                 row = next(raw)
             except StopIteration:
