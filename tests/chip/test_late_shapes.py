@@ -21,12 +21,10 @@ import pytest
 import lm629_host
 from lm629_host.bus.opcodes import Status
 from lm629_host.chip.shapes import SCurve, ShapedMove
-from lm629_host.physics.pid import sample_period_s
 from lm629_host.transports.base import Transport
 
 from sim_urls import UNO, available
 
-T = sample_period_s(8e6)
 CURVE = SCurve(20000.0, 150000.0, 3e6)
 URLS = ["sim://", "sim+ftdi://", f"sim+avr://?{UNO}", f"sim+emu://?{UNO}"]
 #: the ways a host is late: wait() 50 ms after the start, a 0.3 s recording before wait(), a
