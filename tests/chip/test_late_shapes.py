@@ -80,9 +80,11 @@ def _late_move(chip: lm629_host.LM629, distance: int | ShapedMove, how: str):
 def test_a_late_host_still_lands_a_host_timed_s_curve(url, distance, how):
     with _chip(url) as chip:
         move, result = _late_move(chip, distance, how)
-        assert not move.far and len(move.plan.pieces) > chip.transport.profile_capacity
         assert chip.read_desired_position() == distance  # the chip's own landing, exactly
         assert abs(result.error) <= 20 and result.target == distance
+        if move.far:  # a bridge that takes a long move's pieces in refills times them itself
+            assert move.far_state is not None and move.far_state.pending == 0
+            return
         host_loop = type(chip.transport).record_rows is Transport.record_rows
         recorded_between = how == "0.3 s recording first" and host_loop
         if recorded_between:
@@ -233,8 +235,9 @@ def test_a_wall_clock_stall_on_a_served_bench(tmp_path, far_end):
             chip.reset()
             chip.load_filter(kp=20, kd=100)
             chip.update_filter()
+            chip.transport.far_profiles = False  # the pieces timed from the host
             move = chip.move_profile(30000, CURVE)
-            assert not move.far  # 85 pieces: more than the bridge holds, timed from the host
+            assert not move.far
             progress, stalled = _stall_at(chip, move, 0.1, 0.2, sleep=time.sleep)
             result = move.wait(progress=progress)
             # held below the plan's velocity, the chip fell behind it (on a busy machine the
@@ -242,6 +245,7 @@ def test_a_wall_clock_stall_on_a_served_bench(tmp_path, far_end):
             assert stalled and move.resyncs >= 1 and move.lag > 0.02
             assert chip.read_desired_position() == 30000 and abs(result.error) <= 20
             # 60 pieces: the bridge holds them and times them; the host sleeps 0.2 s at once
+            chip.transport.far_profiles = True
             move = chip.move_profile(-20000, CURVE, relative=True)
             assert move.far
             time.sleep(0.2)
