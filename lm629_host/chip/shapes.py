@@ -412,8 +412,13 @@ class ShapedMove(Move):
 
     @property
     def next_due(self) -> float:
-        """When the next cap is due, on the transport's clock."""
-        return self.t0 + self.lag + self._next
+        """When the next cap is due, on the transport's clock: its time in the plan, and no
+        sooner than the chip's update interval after its last STT (AN-706 4.6.2: a cap that
+        went out late does not bring the next one closer than that)."""
+        chip: Any = self.chip  # an LM629
+        due = self.t0 + self.lag + self._next
+        last = getattr(chip, "_last_update", None)
+        return due if last is None else max(due, last + chip.update_interval)
 
     def schedule_far(self, axis: int | None, update_s: float) -> None:
         """Hand the pieces after the first to the transport's far side: their times from now,

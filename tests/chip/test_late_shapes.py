@@ -281,3 +281,36 @@ def test_a_move_backwards_lands_late_too(how):
         move, result = _late_move(chip, move, how)
         assert chip.read_desired_position() == -25000 and abs(result.error) <= 20
         assert move.resyncs == (0 if how == "0.3 s recording first" else 1)
+
+
+def test_a_second_thread_reading_the_chip_issues_no_piece_twice():
+    """A logger thread reads snapshots while wait() runs: the pieces go out from whichever
+    thread gets there first, each once (``update_rule = "raise"``: two STTs closer than 10 ms
+    would raise UpdateTooSoon), and the move lands."""
+    import threading
+
+    chip = _chip("sim://")
+    with chip:
+        chip.update_rule = "raise"
+        move = chip.move_profile(30000, CURVE)
+        errors: list[BaseException] = []
+        done = threading.Event()
+
+        def logger() -> None:
+            try:
+                while not done.is_set():
+                    chip.snapshot()
+            except BaseException as exc:  # noqa: BLE001 - handed to the test's thread
+                errors.append(exc)
+
+        thread = threading.Thread(target=logger)
+        thread.start()
+        try:
+            result = move.wait()
+        finally:
+            done.set()
+            thread.join()
+        assert not errors
+        assert chip.read_desired_position() == 30000 and abs(result.error) <= 20
+        assert all(b - a >= 0.01 for a, b in zip(move.piece_times, move.piece_times[1:]))
+        assert len(move.plan.pieces) - 1 <= len(move.words) <= len(move.plan.pieces) + 1
