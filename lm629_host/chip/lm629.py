@@ -660,8 +660,9 @@ class LM629:
         issues the pieces (handed over at once; a move of more pieces than it holds, 64, is
         timed from the host), elsewhere they go out on the transport's clock before the
         chip's next bus program, ``wait()``'s or any other; ``wait()`` supervises the move as
-        :meth:`Move.wait` does; the chip's own deceleration lands it exactly on the target.  Reads a snapshot first (the distance
-        sets the plan); the plan is checked (``ArgumentError``) before anything moves."""
+        :meth:`Move.wait` does; the chip's own deceleration lands it exactly on the target.
+        Reads a snapshot first (the distance sets the plan); the plan is checked
+        (``ArgumentError``) before anything moves."""
         check_register_position("position", position)
         if not isinstance(shape, (SCurve, Points)):
             raise ArgumentError("shape", shape, f"shape={shape!r}: expected "
