@@ -194,7 +194,13 @@ class LM629:
         runner = self._this_thread.runner
         if runner is not None:
             return runner(program)
+        if self.before_program is not None:
+            self.before_program(program)
         return self.transport.execute(program)
+
+    #: shown every program :meth:`run` sends to the transport, first: a host-timed shaped
+    #: move issues its pieces that are due there (:class:`~lm629_host.chip.shapes.ShapedMove`)
+    before_program: Callable[[Program], None] | None = None
 
     @contextlib.contextmanager
     def intercept(self, runner: Callable[[Program], ProgramResult]) -> Iterator[None]:
@@ -652,10 +658,11 @@ class LM629:
         pieces ``piece_s`` apart (AN-706 4.5.3; at least 10 ms, 4.6.2).  Returns a
         :class:`~lm629_host.chip.shapes.ShapedMove`: on a bridge that has PROFILE its timer
         issues the pieces (handed over at once; a move of more pieces than it holds, 64, is
-        timed from the host), elsewhere ``wait()`` issues them on the
-        transport's clock; ``wait()`` supervises the move as :meth:`Move.wait` does; the chip's own
-        deceleration lands it exactly on the target.  Reads a snapshot first (the distance
-        sets the plan); the plan is checked (``ArgumentError``) before anything moves."""
+        timed from the host), elsewhere they go out on the transport's clock before the
+        chip's next bus program, ``wait()``'s or any other; ``wait()`` supervises the move as
+        :meth:`Move.wait` does; the chip's own deceleration lands it exactly on the target.
+        Reads a snapshot first (the distance sets the plan); the plan is checked
+        (``ArgumentError``) before anything moves."""
         check_register_position("position", position)
         if not isinstance(shape, (SCurve, Points)):
             raise ArgumentError("shape", shape, f"shape={shape!r}: expected "

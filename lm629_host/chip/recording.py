@@ -156,6 +156,8 @@ class RecordStream:
         self.asked = rows
         self.full = full
         transport = chip.transport
+        self._chip = chip
+        self._host_loop = type(transport).record_rows is Transport.record_rows
         self.far_side = transport.records_on_far_side
         self.note = transport.record_note()
         self._program = sample_program(chip, full)
@@ -170,7 +172,7 @@ class RecordStream:
     def __iter__(self) -> Iterator[Row]:
         if self._raw is None:
             self._raw = self._transport.record_rows(self._program, self.period_s, self.asked)
-        for raw in self._raw:
+        for raw in self._rows(self._raw):
             if self._t0 is None:
                 self._t0 = raw.t
             row = _row(raw, raw.t - self._t0, self.full)
@@ -178,6 +180,25 @@ class RecordStream:
                 s = self._extend(row.snapshot())
                 row = replace(row, desired=s.desired_position, real=s.real_position)
             self.rows.append(row)
+            yield row
+
+    def _rows(self, raw: Iterator[RawRow]) -> Iterator[RawRow]:
+        """``raw``, its program first shown to the chip's ``before_program`` as any of the
+        chip's programs is (a host-timed shaped move issues a piece that is due:
+        :class:`~lm629_host.chip.shapes.ShapedMove`): once, or before every row where the host
+        runs the rows one by one (the transport's default loop; any other program would end a
+        bridge's stream), so the pieces go out during the recording."""
+        while True:
+            hook = getattr(self._chip, "before_program", None)
+            if hook is not None:
+                hook(self._program)
+            if not self._host_loop:
+                yield from raw
+                return
+            try:
+                row = next(raw)
+            except StopIteration:
+                return
             yield row
 
     def close(self) -> None:

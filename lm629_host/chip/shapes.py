@@ -25,13 +25,16 @@ the user's own (time, velocity) list, linear between the points); :func:`plan` t
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 from lm629_host.errors import ArgumentError
 from lm629_host.chip.move import Move, MoveResult, MoveWatch
-from lm629_host.bus.opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX, Status
+from lm629_host.bus.opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX, Cmd, Status
+from lm629_host.bus.program import Op, Program
 from lm629_host.bus.snapshot import Snapshot
 from lm629_host.transports.base import ProfileState
 
@@ -76,6 +79,63 @@ class ProfilePlan:
     def acceleration_at(self, t: float, dt: float = 1e-4) -> float:
         """The planned acceleration at ``t`` (counts/s^2), by a central difference."""
         return (self.velocity_at(t + dt) - self.velocity_at(t - dt)) / (2 * dt)
+
+    def resume_at(self, covered: float, velocity: float) -> float:
+        """The plan time to carry on from for a chip that has covered ``covered`` counts and
+        runs at ``velocity`` counts/s (both along the move) after its caps came late.
+
+        Where the plan is as far as the chip (:meth:`time_at`), unless the plan is faster
+        there: then the chip, ramping up at the move's acceleration, would fall behind by
+        the ramp's shortfall and stay behind, so the plan resumes a little earlier, where the
+        chip is ahead of it by just what the ramp up to the plan's velocity will lose."""
+        t_far = self.time_at(covered)
+        if abs(self.velocity_at(t_far)) <= velocity:
+            return t_far
+        a = self.acceleration / _ONE / self.sample_s ** 2  # counts/s^2
+
+        def ahead(t: float) -> float:  # what the chip will still be ahead after its ramp
+            gap = max(0.0, abs(self.velocity_at(t)) - velocity)
+            return covered - abs(self.position_at(t)) - gap * gap / (2 * a)
+
+        lo, hi = 0.0, t_far  # ahead(lo) >= 0 >= ahead(hi)
+        while hi - lo > 1e-6:
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if ahead(mid) >= 0 else (lo, mid)
+        return lo
+
+    @cached_property
+    def slowing_t(self) -> float:
+        """When the plan's last slowing begins: the first piece from which no piece is faster
+        than the one before.  From there on, the plan's mean velocity over what it has left is
+        at most the next piece's, so a cap that covers what the chip has left in that time
+        holds back only a chip behind the plan."""
+        k = len(self.pieces) - 1
+        while k > 0 and self.pieces[k - 1].velocity >= self.pieces[k].velocity:
+            k -= 1
+        return self.pieces[k].t
+
+    def word_at(self, t: float) -> int:
+        """The velocity word of a piece that starts at plan time ``t``: the profile's mean
+        velocity over ``[t, t + piece_s]`` (cut at the end), as :func:`plan` makes every piece,
+        so a piece at ``k * piece_s`` is ``pieces[k]``; ``t`` past the end gives 1."""
+        t1 = min(self.duration, t + self.piece_s)
+        if t1 <= t:
+            return 1
+        mean = abs(self.position_at(t1) - self.position_at(t)) / (t1 - t)
+        return max(1, round(mean * self.sample_s * _ONE))
+
+    def time_at(self, covered: float) -> float:
+        """The earliest plan time at which the profile has covered ``covered`` counts (>= 0,
+        along the move's direction): where in the plan a chip that has gone that far is."""
+        if covered <= 0:
+            return 0.0
+        if covered >= abs(self.distance):
+            return self.duration
+        lo, hi = 0.0, self.duration
+        while hi - lo > 1e-7:  # the position is monotonic: bisection, well below a sample
+            mid = (lo + hi) / 2
+            lo, hi = (lo, mid) if abs(self.position_at(mid)) >= covered else (mid, hi)
+        return hi
 
 
 @dataclass(frozen=True)
@@ -267,12 +327,48 @@ def plan(shape: Shape, distance: int, sample_s: float,
 
 
 # ---------------------------------------------------------------------------------- running
+#: commands after which a host-timed shaped move no longer owns the chip's trajectory: the
+#: user's own LTRJ or STT (a new move, a stop) or a reset; its remaining pieces are dropped
+_TAKEOVER = frozenset({int(Cmd.LTRJ), int(Cmd.STT), int(Cmd.RESET)})
+#: how early a cap still counts as due: a clock's own rounding of a sleep to its due time
+#: (a simulated clock counts whole chip clocks) must not put it off to the next look
+_TICK_S = 1e-6
+
+
+def takes_over(program: Program) -> bool:
+    """True when ``program`` loads or starts a trajectory or resets the chip."""
+    return any(op.op is Op.RESET or (op.op is Op.COMMAND and op.arg in _TAKEOVER)
+               for op in program)
+
+
 class ShapedMove(Move):
-    """A move whose maximum velocity the host changes piece by piece (:meth:`LM629.move_profile
-    <lm629_host.LM629.move_profile>`).  :meth:`wait` issues the pieces at their times on the
-    transport's clock (a snapshot between two pieces judges the move as any move's wait does),
-    then waits for the end; ``piece_times`` are when each piece's STT had gone out (seconds
-    from the first), and ``jitter`` their lateness against the plan."""
+    """A move whose maximum velocity changes piece by piece (:meth:`LM629.move_profile
+    <lm629_host.LM629.move_profile>`).
+
+    Every piece is only a velocity cap on one position-mode move to the target, so the chip's
+    own deceleration lands it whatever the pieces' timing: a late piece can change the shape's
+    timing, never where it ends.  What must not happen is a slow cap left in force while the
+    chip is still far from the target: it would crawl there.  So, timed from the host:
+
+    * the caps go out on the transport's clock from :meth:`tend`, which runs before every bus
+      program of the chip (``wait()``'s, and the user's next ``status()``, ``snapshot()``, a
+      host-polled ``record()`` between its rows...), not only from ``wait()``;
+    * a cap found more than a whole piece late (the host stalled, or looked late) is not
+      issued as planned: the host reads where the chip is and resumes the plan there
+      (:meth:`ProfilePlan.resume_at`): the pieces a chip ahead has passed are skipped, and a
+      chip held back by a slow cap picks the ramp up where it will be level with the plan;
+    * while the plan slows to its end, no cap is slower than covers what the chip has left in
+      the plan's time left (at least a piece), and past the plan's end a cap covers the rest
+      within a piece, until the chip reports its trajectory complete.
+
+    A host late by less than a piece every time (a slow USB adapter) keeps the planned times:
+    the shape is that much later.  On a bridge with PROFILE (``far``) its own timer issues the
+    pieces instead.
+
+    ``piece_times`` are when each cap had gone out (seconds from the move's STT), ``words``
+    the caps, ``jitter`` each cap's lateness against when it was due, ``lag`` how far the
+    host's schedule runs behind the plan, ``resyncs`` how often a late host re-found its
+    place from the chip's position."""
 
     def __init__(self, move: Move, plan: ProfilePlan, far: bool = False) -> None:
         super().__init__(move.chip, move.target, plan.peak_velocity, plan.acceleration,
@@ -280,20 +376,49 @@ class ShapedMove(Move):
         self.plan = plan
         self.inner = move.waiter  #: the end's waiter (the far side's, or None: polling)
         self.waiter = _wait_pieces
-        self.piece_times: list[float] = [0.0]
         #: True when the transport's far side issues the pieces on its own timer; then
         #: ``far_state`` is what it reported at the end (its pieces' lateness on its clock)
         self.far = far
         self.far_state: ProfileState | None = None
+        self.piece_times: list[float] = [0.0]
+        self.words: list[int] = [plan.pieces[0].velocity]
+        self.dues: list[float] = [0.0]  #: when each cap was due, seconds from the STT
+        self.lag = 0.0
+        self.resyncs = 0
+        #: True while the host still issues caps; False once the chip reported the trajectory
+        #: complete, or another trajectory command took over (``dropped``)
+        self.issuing = not far
+        self.dropped = False
+        self._next = plan.piece_s  #: the plan time of the next cap
+        self._busy = threading.Lock()
+        self._owner: int | None = None  #: the thread issuing a cap now
+        #: the last snapshot ``wait()`` looked at (the caps' floor reckons from it)
+        self.seen: Snapshot | None = None
+        chip: Any = self.chip  # an LM629
+        #: the chip's time of its last STT as this move left it: any other STT (a board's, a
+        #: batch's) or a reset changes it, and this move's caps stop
+        self._mark: float | None = getattr(chip, "_last_update", None)
+        if self.issuing:  # its programs pass by here first
+            chip.before_program = self._before_program
 
     def profile_s(self, clock_hz: float) -> float | None:
         return self.plan.duration
 
     @property
     def jitter(self) -> list[float]:
-        """Each host-issued piece's lateness against its planned time, seconds (a far-side
+        """Each host-issued cap's lateness against when it was due, seconds (a far-side
         schedule reports only its largest: ``far_state.late_max_s``)."""
-        return [t - p.t for t, p in zip(self.piece_times, self.plan.pieces)]
+        return [t - d for t, d in zip(self.piece_times, self.dues)]
+
+    @property
+    def next_due(self) -> float:
+        """When the next cap is due, on the transport's clock: its time in the plan, and no
+        sooner than the chip's update interval after its last STT (AN-706 4.6.2: a cap that
+        went out late does not bring the next one closer than that)."""
+        chip: Any = self.chip  # an LM629
+        due = self.t0 + self.lag + self._next
+        last = getattr(chip, "_last_update", None)
+        return due if last is None else max(due, last + chip.update_interval)
 
     def schedule_far(self, axis: int | None, update_s: float) -> None:
         """Hand the pieces after the first to the transport's far side: their times from now,
@@ -304,36 +429,120 @@ class ShapedMove(Move):
         chip: Any = self.chip  # an LM629
         chip.transport.profile(axis, pieces, new=True)
 
+    def _before_program(self, program: Program) -> None:
+        """The chip's hook: drop the pieces when ``program`` takes the trajectory over, else
+        issue a cap that is due.  This move's own programs pass straight through."""
+        if self._owner == threading.get_ident():
+            return
+        if takes_over(program):
+            self._end(dropped=True)
+            return
+        self.tend()
+
+    def tend(self, s: Snapshot | None = None) -> None:
+        """Issue the cap that is due now, if any (``s``: a snapshot just read, saving a read
+        when the host must find its place).  Another thread issuing at the moment: nothing."""
+        if not self.issuing or not self._busy.acquire(blocking=False):
+            return
+        self._owner = threading.get_ident()
+        try:
+            self._tend(s)
+        finally:
+            self._owner = None
+            self._busy.release()
+
+    def _tend(self, s: Snapshot | None) -> None:
+        chip: Any = self.chip  # an LM629
+        clock, plan = chip.clock, self.plan
+        now = clock.now()
+        due = self.next_due
+        if now < due - _TICK_S:
+            return
+        t = self._next
+        # late by a whole piece: the host missed one (a host late by less every time, a slow
+        # USB adapter, keeps the planned times: the shape is only that much later)
+        late = now - due > plan.piece_s
+        word = plan.word_at(t)
+        if late or self._final(t):  # where is the chip, exactly?
+            if s is None or s.time < due:
+                s = chip.snapshot()
+            if s.status & Status.TRAJECTORY_COMPLETE:
+                self._end()
+                return
+            if late:  # carry on from the plan's piece for the distance covered
+                covered = (s.desired_position - self.start.desired_position) * (
+                    1 if plan.distance > 0 else -1)
+                t = plan.resume_at(covered, abs(s.desired_velocity) / _ONE / plan.sample_s)
+                self.lag = clock.now() - self.t0 - t
+                self.resyncs += 1
+                word = plan.word_at(t)
+        elif s is None and self.seen is not None and now - self.seen.time <= 2 * plan.piece_s:
+            s = self.seen  # the last snapshot wait() looked at: where the chip was a piece ago
+        if s is not None and t >= plan.slowing_t:
+            # slowing to the end: no slower than covers what remains in the plan's time left
+            left = abs(self.target - s.desired_position)
+            if s.time < now:  # what the chip has gone since, at its velocity then
+                left -= abs(s.desired_velocity) / _ONE / plan.sample_s * (now - s.time)
+            floor = left / max(plan.piece_s, plan.duration - t) * plan.sample_s * _ONE
+            word = min(plan.peak_velocity, max(word, math.ceil(floor)))
+        with chip.transport.lock:  # a stop from another thread goes after this cap, or drops it
+            if getattr(chip, "_last_update", None) != self._mark:
+                self._end(dropped=True)  # another STT, or a reset, came since this move's last
+            if not self.issuing:
+                return
+            chip.load_trajectory(velocity=word, start=True)
+            self._mark = getattr(chip, "_last_update", None)
+        self.piece_times.append(clock.now() - self.t0)
+        self.words.append(word)
+        self.dues.append(due - self.t0)
+        self._next = t + plan.piece_s
+
+    def _final(self, t: float) -> bool:
+        """Whether a cap at plan time ``t`` is the last of the plan: what the plan has left
+        after it is less than half a piece (a cap for a sliver of the plan would be its
+        tail's mean velocity, near 0, and hold a chip that is a little behind to a crawl)."""
+        return t + 1.5 * self.plan.piece_s >= self.plan.duration
+
+    def _end(self, dropped: bool = False) -> None:
+        """No more caps: the chip completed the trajectory, or (``dropped``) something else
+        took it over; the chip's hook is let go."""
+        self.issuing = False
+        self.dropped = self.dropped or dropped
+        chip: Any = self.chip
+        if getattr(chip, "before_program", None) == self._before_program:
+            chip.before_program = None
+
 
 def _wait_pieces(move: Move, watch: MoveWatch,
                  progress: Callable[[Snapshot], None] | None) -> MoveResult:
-    """The loop of :meth:`ShapedMove.wait` (host-timed pieces)."""
+    """The loop of :meth:`ShapedMove.wait`: caps issued when due (a snapshot after each judges
+    the move as any move's wait does), then the end's own wait."""
     assert isinstance(move, ShapedMove)
-    chip: Any = move.chip  # an LM629: load_trajectory spaces every update by 10 ms itself
+    chip: Any = move.chip  # an LM629
     clock = chip.clock
-    pieces = move.plan.pieces
     if move.far:
         done = (move.inner(move, watch, progress) if move.inner is not None
                 else move.poll(watch, progress))
         move.far_state = chip.transport.profile(chip.axis, [], new=False)
         return done
-    while len(move.piece_times) < len(pieces):
-        piece = pieces[len(move.piece_times)]
-        due = move.t0 + piece.t
+    timeout = watch.deadline - move.t0
+    while move.issuing:
         now = clock.now()
-        if now < due:
-            clock.sleep(due - now)
-        chip.load_trajectory(velocity=piece.velocity, start=True)
-        move.piece_times.append(clock.now() - move.t0)
+        if now < move.next_due:
+            clock.sleep(move.next_due - now)
+        move.tend()
+        # the host's own lateness stretched the move: the timeout counts without it
+        watch.deadline = move.t0 + timeout + max(0.0, move.lag)
         s, result = watch.look(chip, progress)
         if result is not None:
             return result
+        move.seen = s
         if s.status & Status.TRAJECTORY_COMPLETE:
-            break  # the chip landed on the target: the rest of the pieces have nothing to do
+            move._end()  # the chip landed on the target: no cap has anything left to do
     if move.inner is not None:
         return move.inner(move, watch, progress)
     return move.poll(watch, progress)
 
 
 __all__ = ["PIECES_MAX", "PIECE_MAX_S", "Piece", "Points", "ProfilePlan", "RAMP_SHARE",
-           "SCurve", "Shape", "ShapedMove", "check_piece_s", "plan"]
+           "SCurve", "Shape", "ShapedMove", "check_piece_s", "plan", "takes_over"]

@@ -86,8 +86,14 @@ def test_s_curve_move_ends_on_target_and_follows_its_pieces():
         assert chip.read_desired_position() == D  # exactly: the chip's own landing
         assert abs(result.error) <= chip.move_rules.tolerance
         pieces = move.plan.pieces
-        # every piece went out, 10 ms or more after the one before, on time on sim://
-        assert len(move.piece_times) == len(pieces)
+        # every piece went out as planned, 10 ms or more after the one before, on time on
+        # sim://; the last may find the chip landed by its own deceleration, or be faster
+        # than planned: it covers what the chip has left (a chip slowing behind its caps)
+        n = len(move.words)
+        assert len(pieces) - 1 <= n <= len(pieces)
+        assert move.words[:-1] == [p.velocity for p in pieces[:n - 1]]
+        assert move.words[-1] >= pieces[n - 1].velocity
+        assert move.resyncs == 0 and move.lag == 0
         assert all(b - a >= 10e-3 for a, b in zip(move.piece_times, move.piece_times[1:]))
         assert max(abs(j) for j in move.jitter) < 1e-3
         # by the end of each piece the chip's velocity is that piece's, but in the last two:
