@@ -167,8 +167,11 @@ class LinkTransport(LinkSession):
     def _failsafe(self, payload: bytes, what: str, retries: int | None = None) -> FailsafeState:
         return self.failsafe.request(payload, what, retries)
 
-    def _feed_if_due(self) -> None:
-        self.failsafe.feed_if_due()
+    def feed(self) -> None:
+        """Feed the bridge's failsafe now.  With ``failsafe_feed=script`` this and the
+        script's own commands are all that feed it; with the default ``process`` a keep-alive
+        feeds it anyway, and this changes nothing (docs/python.md, the failsafe)."""
+        self.failsafe.feed()
 
     # ------------------------------------------------------------------ protocol requests
     def hello(self) -> HelloInfo:
@@ -268,6 +271,7 @@ class LinkTransport(LinkSession):
     def _execute(self, program: Program) -> ProgramResult:
         if self._closed:
             raise TransportError("the port is closed", port=self.url)
+        self.failsafe.check()
         timeout_us = busy_timeout_us(program)
         self._resync()
         words: list[int] = []

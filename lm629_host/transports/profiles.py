@@ -37,6 +37,8 @@ class ProfileScheduler:
         issues each piece on its own timer, its times counted from the first frame's arrival
         (so the link's latency shifts them all alike and jitters none).  A schedule the bridge
         refuses is a :class:`TransportError` naming why."""
+        if pieces:  # a query only reads what the schedule did (a trip's cancel among it)
+            self.failsafe.check()
         cs = self.cs if axis is None else axis
         times = [(round(t * 1e6), v) for t, v in pieces]
         chunks = [times[k:k + PROFILE_MAX_PIECES]

@@ -148,7 +148,7 @@ class LinkRecorder:
                         wait = max(wait, end_at - clock.now() + silence)
                     frame = self._next_frame(seq, clock.now() + wait, pending)
             finally:
-                with self.failsafe._tx_lock:
+                with self.link._tx_lock:
                     self.failsafe.recording = False
                 if not ended:
                     self._stop_recording(seq, pending, period)
@@ -160,7 +160,7 @@ class LinkRecorder:
         fs = self.failsafe
         feeding = fs.recording and fs.feed_period_s
         return self.link._await(seq, deadline, pending, bad_ends_wait=False,
-                                tick=fs.feed_recording if feeding else None,
+                                tick=fs.feed_if_due if feeding else None,
                                 every=fs.feed_period_s)
 
     def _decode_row(self, payload: bytes, ops: Sequence[BusOp]
@@ -201,7 +201,7 @@ class LinkRecorder:
         """End a recording early: one byte stops the bridge; its RECORD_END (or a row already
         on its way) is read and dropped, so that the next request starts on a quiet line."""
         try:
-            with self.failsafe._tx_lock:
+            with self.link._tx_lock:
                 self.link.pipe.write(b"\x00")
             self.link.stats.bytes_out += 1
             deadline = self.link.clock.now() + 2 * period + self.link.reply_timeout(

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import random
+import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 
@@ -48,6 +49,16 @@ BAD_LINK_RATE = 0.2
 WARN_LINK_RATE = 0.05
 
 _BUSY_CHECKED = (Op.COMMAND, Op.WRITE, Op.READ, Op.SYNC)
+#: the ``seq`` no request of the host carries: FAILSAFE_FEED's, so that the bridge's answer to a
+#: feed (a FAILSAFE_REPLY with seq 0) can never be taken for the answer to a request
+FEED_SEQ = 0
+#: a read that returns this much later than asked (seconds, and at least as late again as the
+#: wait it was asked for) means the host itself stalled: suspended, paused, starved of CPU
+HOST_STALL_S = 0.1
+#: what to check when the line fails, for a pipe that does not say what it is (``line_advice``)
+USB_ADVICE = ("Check the USB cable (short, shielded, away from motor and amplifier wiring), "
+              "the ground between the bridge and the LM629 board")
+
 #: requests sent after a lone delimiter from their first attempt on (a retry always is): the
 #: first contact, when the far end may hold half a frame of whoever had the port before, and
 #: RECORD, which starts where a recording may still be streaming (a byte ends it)
@@ -96,6 +107,17 @@ class LinkSession(Transport):
         self._need_resync = False
         self._since_warning = 0  #: attempts since the last link-quality warning
         self._last_tx = self.clock.now()
+        #: the pipe's two directions: ``_tx_lock`` around each write (a frame is never cut by
+        #: another thread's), ``_rx_lock`` around a request and its answer (whoever holds it
+        #: reads); neither is the user-visible :attr:`lock`, so that a keep-alive can send
+        #: between programs while a user thread holds that one around a sequence
+        self._tx_lock = threading.Lock()
+        self._rx_lock = threading.RLock()
+        #: frames the host did not ask for, by type, to their owner (the failsafe's reports)
+        self._events: dict[int, Callable[[Frame], None]] = {}
+        #: the longest the host was seen to stall in a read since the last request that got
+        #: its answer (0: none): a timeout after a stall is the host's, not the line's
+        self.host_late_s = 0.0
         self.info: HelloInfo | None = None  #: the bridge's HELLO_REPLY, once answered
 
     def _bridge_forgot(self) -> None:
@@ -105,7 +127,47 @@ class LinkSession(Transport):
     # ------------------------------------------------------------------ helpers
     def _next_seq(self) -> int:
         self._seq = (self._seq + 1) & 0xFF
+        if self._seq == FEED_SEQ:  # the feed's, never a request's
+            self._seq = FEED_SEQ + 1
         return self._seq
+
+    def send_unsolicited(self, wire: bytes) -> None:
+        """Write a frame that asks no answer (FAILSAFE_FEED) whole, between other writes."""
+        with self._tx_lock:
+            self._last_tx = self.clock.now()
+            self.pipe.write(wire)
+        self.stats.bytes_out += len(wire)
+
+    def poll_events(self) -> None:
+        """Read what is already waiting on the pipe (without waiting) and hand each frame the
+        host did not ask for to its owner; the caller holds ``_rx_lock`` (no request is
+        waiting for an answer)."""
+        data = self.pipe.read(0.0)
+        if not data:
+            return
+        self.stats.bytes_in += len(data)
+        for item in self._reader.feed(data):
+            if isinstance(item, FrameError):
+                self.bad_frames += 1
+            else:
+                self._dispatch(item, None)
+
+    def _dispatch(self, frame: Frame, seq: int | None) -> None:
+        """A frame that is not the answer awaited: to its owner by type, else counted stale."""
+        owner = self._events.get(frame.type)
+        if owner is not None:
+            owner(frame)
+            return
+        self.stale_replies += 1
+        log.debug("%s: ignored frame type %02X seq %d (waiting for %s)", self.url, frame.type,
+                  frame.seq, seq)
+
+    def line_advice(self) -> str:
+        """What to check when the line fails: the pipe says what it is (``line_advice``: a
+        pseudo-terminal, a socket); else it is taken for a USB serial adapter's cable (the
+        simulated lines model one)."""
+        advice = getattr(self.pipe, "line_advice", None)
+        return advice if isinstance(advice, str) else USB_ADVICE
 
     def _byte_s(self) -> float:
         return self.wire_bits / self.baud if self.baud else 0.0
@@ -157,9 +219,8 @@ class LinkSession(Transport):
                    else "link quality: ")
         return (f"{verdict}{failed} of the last {n} exchanges failed ({100 * rate:.0f} %; "
                 f"{self.bad_frames} bad frame(s), {self.timeouts} timeout(s) since open). "
-                "Check the USB cable (short, shielded, away from motor and amplifier wiring), "
-                "the ground between the bridge and the LM629 board, and that the baud rate "
-                f"matches the firmware's ({self.baud or '?'} here)")
+                f"{self.line_advice()}, and that the baud rate matches the firmware's "
+                f"({self.baud or '?'} here)")
 
     # ------------------------------------------------------------------ exchanges
     def _exchange(self, ftype: FrameType, payload: bytes, timeout_s: float, what: str,
@@ -175,14 +236,24 @@ class LinkSession(Transport):
         ``seq`` (the reply's ``seq`` says which), so that rows of an attempt the bridge did
         start are told apart and ignored; its further replies (rows that came in the same
         read) wait in ``pending``."""
+        with self._rx_lock:
+            return self._exchange_locked(ftype, payload, timeout_s, what, retries, check,
+                                         pending)
+
+    def _exchange_locked(self, ftype: FrameType, payload: bytes, timeout_s: float, what: str,
+                         retries: int, check: Callable[[Frame], object] | None,
+                         pending: deque[Frame] | None) -> Frame:
         fresh = ftype is FrameType.RECORD
         seq = self._next_seq()
         wire = encode_frame(ftype, seq, payload)
         want = REPLY_TO[ftype]
+        also = ALSO_REPLY_TO.get(ftype)
+        accept = (want,) if also is None else (want, also)
         stats = self.stats
         clock = self.clock
         attempts = 0
         bad_before = self.bad_frames
+        self.host_late_s = 0.0
         for attempt in range(retries + 1):
             if attempt:
                 stats.retries += 1
@@ -194,14 +265,15 @@ class LinkSession(Transport):
             # before a retry, a lone delimiter ends whatever half frame the far end holds (and
             # a recording under way: any byte from the host ends one)
             out = b"\x00" + wire if attempt or ftype in _DELIMITED else wire
-            self._last_tx = clock.now()
-            self.pipe.write(out)
+            with self._tx_lock:
+                self._last_tx = clock.now()
+                self.pipe.write(out)
             stats.bytes_out += len(out)
             stats.round_trips += 1
             deadline = clock.now() + timeout_s
             if pending is not None:
                 pending.clear()
-            frame = self._await(seq, deadline, pending)
+            frame = self._await(seq, deadline, pending, accept=accept)
             if frame is None:
                 self._attempt(True)
                 continue
@@ -211,7 +283,7 @@ class LinkSession(Transport):
                     f"the bridge refused {what} (ERROR_REPLY, code {code}): the host and the "
                     "firmware disagree on the protocol. Reflash the firmware that matches this "
                     "host (lm629 bridge flash).", port=self.url)
-            if frame.type != want and frame.type != ALSO_REPLY_TO.get(ftype):
+            if frame.type not in accept:
                 raise TransportError(
                     f"the bridge answered {what} with frame type {frame.type:02X}, expected "
                     f"{int(want):02X}: reflash the firmware that matches this host "
@@ -227,9 +299,21 @@ class LinkSession(Transport):
                     continue
             self._attempt(False)
             return frame
+        late = self.host_late_s
+        if ftype is not FrameType.HELLO:
+            self._need_resync = True  # the bridge may hold this seq in its cache
+        if late:
+            # the host's own clock jumped while it waited: its timeouts are not the line's
+            raise LinkError(
+                f"no answer to {what} after {attempts} attempt(s), but this host was late: it "
+                f"stalled for {late:.2f} s while it waited (paused, suspended or starved of "
+                "CPU), so the answers may have come and gone; "
+                + ("the program may or may not have run on the chip; reset the chip "
+                   "(LM629.reset) before going on" if ftype in RUN_TYPES else
+                   "nothing is wrong with the line as far as the host can tell"),
+                port=self.url, may_have_run=ftype is not FrameType.HELLO, host_late_s=late)
         if ftype is FrameType.HELLO:
             raise self._no_answer(what, attempts)
-        self._need_resync = True  # the bridge may hold this seq in its cache
         if fresh:  # the bridge answered HELLO: the line, not the firmware, is the suspect
             raise LinkError(f"no answer to {what} after {attempts} attempt(s): "
                             f"{self._quality()}", port=self.url, may_have_run=True)
@@ -243,14 +327,26 @@ class LinkSession(Transport):
 
     def _await(self, seq: int, deadline: float, pending: deque[Frame] | None = None, *,
                bad_ends_wait: bool = True, tick: Callable[[], None] | None = None,
-               every: float = 0.0) -> Frame | None:
+               every: float = 0.0, accept: tuple[int, ...] | None = None) -> Frame | None:
         """The next reply with ``seq``, or None at ``deadline`` (a timeout) or, with
         ``bad_ends_wait``, on a bad frame: the far end does not answer a request it could not
         read, so a request calls for a retry at once.  A recording's rows come several in one
         read: the ones after the first wait in ``pending`` (taken first by the next call);
         without ``pending`` a request has one reply and the rest are dropped.  With ``tick``
         (a recording's keep-alive) the wait is read in steps of ``every`` seconds, each begun
-        with ``tick()``."""
+        with ``tick()``.
+
+        The answer is a frame with ``seq`` (and of a type in ``accept``, when given); a frame
+        the host did not ask for (a failsafe report, a late row) goes to its owner by type
+        (:meth:`_dispatch`), never taken for the answer.  A read that returns much later than
+        asked is the host's own stall, kept in :attr:`host_late_s`."""
+        with self._rx_lock:
+            return self._await_locked(seq, deadline, pending, bad_ends_wait, tick, every,
+                                      accept)
+
+    def _await_locked(self, seq: int, deadline: float, pending: deque[Frame] | None,
+                      bad_ends_wait: bool, tick: Callable[[], None] | None, every: float,
+                      accept: tuple[int, ...] | None) -> Frame | None:
         if pending:
             return pending.popleft()
         queue: deque[Frame] = pending if pending is not None else deque()
@@ -262,7 +358,12 @@ class LinkSession(Transport):
             if left <= 0:
                 self.timeouts += 1
                 return None
-            data = self.pipe.read(min(left, every) if tick is not None else left)
+            asked = min(left, every) if tick is not None else left
+            t0 = clock.now()
+            data = self.pipe.read(asked)
+            late = clock.now() - t0 - asked
+            if late > HOST_STALL_S and late > asked:
+                self.host_late_s = max(self.host_late_s, late + asked)
             if not data:
                 if tick is not None and clock.now() < deadline:
                     continue
@@ -275,12 +376,12 @@ class LinkSession(Transport):
                     self.bad_frames += 1
                     log.debug("%s: bad frame: %s", self.url, item)
                     bad = True
-                elif item.seq != seq or item.type & 0x80 == 0:
-                    self.stale_replies += 1
-                    log.debug("%s: ignored frame type %02X seq %d (waiting for %d)",
-                              self.url, item.type, item.seq, seq)
+                elif (item.seq == seq and item.type & 0x80
+                      and (accept is None or item.type in accept
+                           or item.type not in self._events)):
+                    queue.append(item)  # the answer (or a wrong one: the caller says so)
                 else:
-                    queue.append(item)
+                    self._dispatch(item, seq)
             if queue:
                 return queue.popleft()
             if bad and bad_ends_wait:
