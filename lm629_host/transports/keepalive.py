@@ -19,6 +19,9 @@ from lm629_host.clock import Clock
 
 log = logging.getLogger("lm629_host.bus")
 
+#: below this a simulated sleep's remainder is rounding, not time (1 ns: a clock of 1 GHz)
+_RESOLUTION_S = 1e-9
+
 
 class KeepAlive:
     """``feed`` every ``period_s`` / 4 while it runs; ``feed`` decides whether a feed is due.
@@ -104,10 +107,11 @@ class FeedingClock(Clock):
         while True:
             ka.tick()
             now = clock.now()
-            if now >= end:
+            if now >= end - _RESOLUTION_S:  # a float sum may stop a hair short of the end
                 return
             due = ka.due_at() if ka.due_at is not None else now + ka.period_s
-            clock.sleep(min(due - now if due > now else ka.period_s, end - now))
+            step = due - now if due > now + _RESOLUTION_S else ka.period_s
+            clock.sleep(min(step, end - now))
 
     def __getattr__(self, name: str) -> object:
         return getattr(self._clock, name)

@@ -1,0 +1,229 @@
+"""A late host: frames it did not ask for, exact simulated sleeps with the failsafe armed, and
+(as separate processes on a served bench, in real time) a held lock, busy CPUs and a paused
+host.
+
+Numbers: the failsafe is 0.5 s by default.  On the wall clock the keep-alive feeds a link quiet
+for a quarter of it (0.125 s), on a simulated clock after three quarters (0.375 s), exactly
+then.  The served moves run at 2 counts/sample (velocity word 131072, 0.01 counts/sample^2
+ramp: word 655) on the default 8 MHz chip (sample 256 us), so 20000 counts take about 2.6 s.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+import lm629_host
+from lm629_host import FailsafeTripped
+from lm629_host.bridge.protocol import FailsafeState, FrameType, encode_frame
+from lm629_host.transports.simemu import open_emulated
+from served import FAR_ENDS, serve
+
+from sim_urls import available
+
+#: a trip as the bridge reports it: cs 0 stopped abruptly after 0.5 s of silence
+TRIP = FailsafeState(timeout_ms=500, tripped=True, chips=0b1, silent_ms=500, at_ms=12_345)
+
+
+def _queue_to_host(t, frame: bytes) -> None:
+    """Put ``frame`` on the line from the far end, ahead of whatever it answers next."""
+    pipe = t.pipe
+    now = t.clock.now()
+    for b in frame:
+        pipe._to_host.append((now, b, pipe.rate))
+
+
+def test_an_unsolicited_failsafe_report_between_request_and_answer_is_an_event():
+    """A FAILSAFE_REPLY with the feed's seq arrives before the answer to a RUN whose seq
+    would be that seq's neighbour: it goes to the failsafe as a trip heard (never read as the
+    RUN's answer, never "reflash"), the RUN gets its own answer, and the next program is told
+    the trip, once, with what the bridge stopped and how."""
+    t = open_emulated("sim://")
+    chip = lm629_host.LM629(t)
+    chip.reset()
+    t._seq = 0xFF  # the next request's seq would come round to the feed's (0)
+    _queue_to_host(t, encode_frame(FrameType.FAILSAFE_REPLY, 0, TRIP.encode()))
+    assert chip.read_real_position() == 0  # the RUN's own answer
+    assert t._seq == 1 and t.stale_replies == 0
+    assert t.failsafe_report == TRIP
+    with pytest.raises(FailsafeTripped) as e:
+        chip.read_real_position()
+    msg = str(e.value)
+    assert "\n" not in msg and "reflash" not in msg
+    assert "the bridge stopped cs 0 (abrupt stop) after the host was silent for 0.50 s" in msg
+    assert "nothing of this program ran" in msg and "lm629 clear" in msg
+    assert e.value.stopped == (0,) and e.value.action == "abrupt"
+    assert chip.read_real_position() == 0  # told once; reads go on
+
+
+def test_a_report_without_a_trip_and_a_feeds_pong_change_nothing():
+    t = open_emulated("sim://")
+    chip = lm629_host.LM629(t)
+    _queue_to_host(t, encode_frame(FrameType.FAILSAFE_REPLY, 0,
+                                   FailsafeState(timeout_ms=500).encode()))
+    _queue_to_host(t, encode_frame(FrameType.PONG, 0))
+    assert chip.read_real_position() == 0
+    assert t.failsafe_report is None and t.stale_replies == 0
+    assert chip.read_real_position() == 0
+
+
+@pytest.mark.parametrize("url", ["sim+emu://", "sim+avr://", "sim+avr://?usb=uno"])
+def test_a_simulated_sleep_is_exact_with_the_failsafe_armed(url):
+    """clock.sleep(10.0) advances the chip by 10.000 s (+- 2 ms), fed all the while: the feeds
+    are written between the steps of the sleep, never added to it (it was 10.19 s)."""
+    if not available(url.split("?")[0]):
+        pytest.skip(f"{url} not available here")
+    chip = lm629_host.open(url)
+    try:
+        t = chip.transport
+        assert t.failsafe_state().timeout_ms == 500
+        model = t.model
+        for seconds in (10.0, 0.3, 1.0):
+            t0 = model.now()
+            chip.clock.sleep(seconds)
+            assert abs(model.now() - t0 - seconds) <= 0.002, (seconds, model.now() - t0)
+        assert not t.failsafe_state().tripped
+    finally:
+        chip.close()
+
+
+def test_script_feed_mode_feeds_only_on_the_scripts_calls():
+    """failsafe_feed=script: a sleep feeds nothing, so a script that stops calling trips the
+    bridge; a script that calls feed() does not."""
+    chip = lm629_host.open("sim+emu://?failsafe_feed=script")
+    t = chip.transport
+    chip.reset()
+    for _ in range(8):
+        chip.clock.sleep(0.3)
+        chip.transport.feed()
+    assert not t.emulator.failsafe.tripped
+    chip.clock.sleep(0.6)
+    assert t.emulator.failsafe.tripped
+    with pytest.raises(FailsafeTripped, match="failsafe_feed=script"):
+        chip.read_real_position()
+
+
+# ---------------------------------------------------------------------- served, in real time
+CLIENT = textwrap.dedent('''
+    import sys, time
+    import lm629_host
+    from lm629_host import FailsafeTripped
+    port, scenario = sys.argv[1], sys.argv[2]
+    chip = lm629_host.open(port)
+    t = chip.transport
+    chip.reset()
+    chip.load_filter(kp=20, kd=100)
+    chip.update_filter()
+    try:
+        if scenario == "lock":
+            with t.lock:
+                time.sleep(2.0)  # a user sequence holding the lock, doing nothing on the bus
+        elif scenario == "idle":
+            time.sleep(3.0)
+        elif scenario == "move":
+            move = chip.move_to(20000, velocity=131072, acceleration=655)
+            print("moving", flush=True)
+            move.wait(timeout=30)
+            print("position", chip.read_real_position(), flush=True)
+        state = t.failsafe_state()
+        ka = getattr(getattr(t, "failsafe", None), "keepalive", None)  # how late the feeder got
+        print("tripped" if state.tripped else "fed", round(getattr(ka, "worst_gap_s", -1), 3),
+              getattr(ka, "gaps", -1), flush=True)
+    except FailsafeTripped as exc:
+        print("FailsafeTripped:", exc, flush=True)
+        sys.exit(3)
+''')
+
+
+def _client(tmp_path, bench, scenario: str) -> subprocess.Popen:
+    script = tmp_path / "client.py"
+    script.write_text(CLIENT)
+    return subprocess.Popen([sys.executable, str(script), f"serial://{bench.link}", scenario],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.parametrize("far_end", FAR_ENDS[:2])
+def test_a_host_holding_the_lock_for_2_s_is_not_tripped(tmp_path, far_end):
+    """The keep-alive sends between programs under the link's own lock, not the user's."""
+    with serve(tmp_path, far_end) as bench:
+        p = _client(tmp_path, bench, "lock")
+        out, err = p.communicate(timeout=60)
+        assert p.returncode == 0, out + err
+        assert out.split()[0] == "fed", out
+
+
+@pytest.fixture
+def cpu_hogs():
+    """Two processes burning CPU beside the test (this machine has two cores)."""
+    hogs = [subprocess.Popen([sys.executable, "-c", "while 1: pass"]) for _ in range(2)]
+    try:
+        yield
+    finally:
+        for h in hogs:
+            h.kill()
+            h.wait()
+
+
+@pytest.mark.parametrize("far_end", FAR_ENDS[:2])
+def test_an_idle_host_beside_two_cpu_hogs_is_not_tripped(tmp_path, far_end, cpu_hogs):
+    with serve(tmp_path, far_end) as bench:
+        p = _client(tmp_path, bench, "idle")
+        out, err = p.communicate(timeout=60)
+        assert p.returncode == 0, out + err
+        verdict, worst, _late = out.split()
+        assert verdict == "fed", out
+        assert float(worst) < 0.5, out  # the feeder's worst turn, well inside the timeout
+
+
+def _pause(p: subprocess.Popen, seconds: float) -> None:
+    line = p.stdout.readline()
+    assert line.startswith("moving"), line + p.stderr.read()
+    time.sleep(0.5)  # mid-move
+    os.kill(p.pid, signal.SIGSTOP)
+    time.sleep(seconds)
+    os.kill(p.pid, signal.SIGCONT)
+
+
+#: the firmware's trip strobes all four chip selects: the served firmware bench is built with
+#: a chip on each (a bench with fewer makes the harness stop at the unwired one's strobe, a far
+#: end matter of its own)
+FULL_BOARD = {"python": "sim://", "firmware": "sim://?axes=4"}
+
+
+@pytest.mark.parametrize("far_end", FAR_ENDS[:2])
+def test_a_host_paused_2_s_mid_move_is_told_the_truth(tmp_path, far_end):
+    """SIGSTOP for 2 s mid-move: the bridge stops the axis after 0.5 s of silence; the host,
+    woken, hears it before its next program: FailsafeTripped, one line, what the bridge
+    stopped and how, and that this host was silent (not a cable, not "reflash")."""
+    with serve(tmp_path, far_end, FULL_BOARD[far_end]) as bench:
+        p = _client(tmp_path, bench, "move")
+        _pause(p, 2.0)
+        out, err = p.communicate(timeout=60)
+        assert p.returncode == 3, out + err
+        line = [ln for ln in out.splitlines() if ln.startswith("FailsafeTripped")]
+        assert len(line) == 1, out + err
+        msg = line[0]
+        assert "the bridge stopped cs 0" in msg
+        assert "(abrupt stop) after the host was silent for 0.50 s" in msg
+        assert "this host sent nothing for" in msg and "paused" in msg
+        for lie in ("COULD NOT STOP", "reflash", "cable"):
+            assert lie not in msg
+        assert bench.status()["failsafe"]["tripped"] is False  # the next open acknowledged it
+
+
+@pytest.mark.parametrize("far_end", FAR_ENDS[:2])
+def test_a_host_paused_0_2_s_mid_move_finishes_it(tmp_path, far_end):
+    with serve(tmp_path, far_end) as bench:
+        p = _client(tmp_path, bench, "move")
+        _pause(p, 0.2)
+        out, err = p.communicate(timeout=60)
+        assert p.returncode == 0, out + err
+        pos = int(out.split("position")[1].split()[0])
+        assert abs(pos - 20000) <= 20, out
+        assert "fed" in out
