@@ -104,6 +104,9 @@ class ProfileState:
     pending: int
     late_max_s: float
     cancelled: bool = False
+    #: pieces the host still holds, to hand over as the far side's schedule empties (a
+    #: schedule longer than the far side holds, streamed)
+    queued: int = 0
 
 
 @dataclass(frozen=True)
@@ -226,8 +229,11 @@ class Transport(abc.ABC):
     #: True when the far side issues a shaped move's pieces on its own timer
     #: (:meth:`profile`); otherwise the host times them on ``clock``
     far_profiles: bool = False
-    #: the most pieces the far side holds (a longer shaped move is timed from the host)
+    #: the most pieces the far side holds at once
     profile_capacity: int = 0
+    #: True when a schedule longer than ``profile_capacity`` is streamed to the far side in
+    #: top-ups (:meth:`profile`), so it stays timed there; False: a longer one is host-timed
+    profile_streams: bool = False
 
     #: the subscribed observers, and those of them that want bus cycles (tuples, replaced
     #: whole on a change, so that a program in another thread iterates a stable one)

@@ -20,6 +20,7 @@ is the URL's ``failsafe_feed``:
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import TYPE_CHECKING, NamedTuple
 
 from lm629_host.bridge.protocol import (
@@ -115,6 +116,8 @@ class LinkFailsafe:
         self.keepalive: KeepAlive | None = None
         #: set while a recording streams: a feed then goes out whatever reads the pipe
         self.recording = False
+        #: called at each turn of the keep-alive before it feeds (the link's PROFILE top-ups)
+        self.on_turn: Callable[[], None] | None = None
         #: what a quiet link is fed with (set when armed: FAILSAFE_FEED on the wall clock)
         self._feed_frame = FAILSAFE_FEED
         link._events[FrameType.FAILSAFE_REPLY] = self._on_report
@@ -181,6 +184,8 @@ class LinkFailsafe:
         link = self.link
         if not self.feed_period_s or link._closed:
             return
+        if self.on_turn is not None:
+            self.on_turn()
         if link.clock.now() - link._last_tx < self.feed_period_s - _DUE_SLACK_S:
             return
         if self.recording:

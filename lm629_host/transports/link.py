@@ -110,6 +110,7 @@ class LinkTransport(LinkSession):
         self.failsafe = LinkFailsafe(self)
         self.recorder = LinkRecorder(self, self.failsafe)
         self.profiles = ProfileScheduler(self, self.failsafe, cs)
+        self.failsafe.on_turn = self._top_up_quietly
         if handshake:
             try:
                 self.hello()
@@ -125,6 +126,18 @@ class LinkTransport(LinkSession):
 
     def _bridge_forgot(self) -> None:
         self.codes.forget()
+
+    def _top_up_quietly(self) -> None:
+        """At a keep-alive's turn: top up a streamed shaped move when no request is under way
+        (a host that only sleeps or holds the lock still hands the bridge its pieces)."""
+        if not self.profiles.streaming or not self._rx_lock.acquire(blocking=False):
+            return
+        try:
+            self.profiles.refill()
+        except (TransportError, OSError) as exc:  # the next program hears it again
+            log.debug("%s: PROFILE top-up failed: %s", self.url, exc)
+        finally:
+            self._rx_lock.release()
 
     # ------------------------------------------------------------------ the parts' state, as before
     @property
@@ -209,6 +222,7 @@ class LinkTransport(LinkSession):
         self.failsafe.available = bool(info.capabilities & Capability.FAILSAFE)
         self.far_profiles = bool(info.capabilities & Capability.PROFILE)
         self.profile_capacity = PROFILE_MAX_SCHEDULE if self.far_profiles else 0
+        self.profile_streams = self.far_profiles
         # a WAIT_STATUS may stand anywhere in a program (Move.wait's one-exchange end check)
         self.far_waits = self.has_wait_status
         self._bridge_forgot()  # HELLO empties the bridge's codes
@@ -272,6 +286,8 @@ class LinkTransport(LinkSession):
         if self._closed:
             raise TransportError("the port is closed", port=self.url)
         self.failsafe.check()
+        if self.profiles.streaming:
+            self.profiles.refill()
         timeout_us = busy_timeout_us(program)
         self._resync()
         words: list[int] = []

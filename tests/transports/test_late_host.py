@@ -227,3 +227,39 @@ def test_a_host_paused_0_2_s_mid_move_finishes_it(tmp_path, far_end):
         pos = int(out.split("position")[1].split()[0])
         assert abs(pos - 20000) <= 20, out
         assert "fed" in out
+
+
+# ---------------------------------------------------------------------- PROFILE in top-ups
+def test_a_schedule_longer_than_the_bridge_holds_is_streamed_in_top_ups():
+    """150 pieces 20 ms apart (3 s; the bridge holds 64): the first 63 go out at once, the
+    rest as the host gets to the link (here: a status read every 0.2 s, and the sleeps'
+    keep-alive turns); every piece is issued by the bridge, none later than one program."""
+    chip = lm629_host.open("sim+emu://")
+    t = chip.transport
+    chip.reset()
+    chip.load_filter(kp=20, kd=100)
+    chip.update_filter()
+    chip.load_trajectory(acceleration=655, velocity=65536, position=10_000_000, start=True)
+    pieces = [(0.02 * (k + 1), 65536 + 655 * (k % 7)) for k in range(150)]
+    state = t.profile(None, pieces, new=True)
+    assert state.queued == 150 - 63 and state.issued + state.pending == 63
+    emu = t.emulator
+    for _ in range(20):
+        chip.clock.sleep(0.2)
+        chip.read_status()
+    state = t.profile(None, [], new=False)
+    assert state.queued == 0 and state.pending == 0 and not state.cancelled
+    assert state.issued == emu.stats.pieces == 150
+    assert state.late_max_s < 0.011
+    assert not t.profiles.streaming
+
+
+def test_a_stream_is_topped_up_by_the_keep_alive_of_a_host_that_only_sleeps():
+    chip = lm629_host.open("sim+emu://")
+    t = chip.transport
+    chip.reset()
+    chip.load_trajectory(acceleration=655, velocity=65536, position=10_000_000, start=True)
+    t.profile(None, [(0.02 * (k + 1), 65536) for k in range(100)], new=True)
+    chip.clock.sleep(2.5)  # no program: the keep-alive's turns (every 0.375 s) top it up
+    state = t.profile(None, [], new=False)
+    assert state.issued == 100 and state.queued == 0 and state.late_max_s < 0.011
