@@ -263,3 +263,60 @@ def test_a_stream_is_topped_up_by_the_keep_alive_of_a_host_that_only_sleeps():
     chip.clock.sleep(2.5)  # no program: the keep-alive's turns (every 0.375 s) top it up
     state = t.profile(None, [], new=False)
     assert state.issued == 100 and state.queued == 0 and state.late_max_s < 0.011
+
+
+class _StalledPipe:
+    """A pipe whose host stalls in every read (the process paused for ``stall`` s): its clock
+    jumps past the read's timeout and nothing has come."""
+
+    def __init__(self, stall: float) -> None:
+        self.stall = stall
+        self.clock = self
+        self.t = 0.0
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, s: float) -> None:
+        self.t += s
+
+    def write(self, data: bytes) -> None:
+        pass
+
+    def read(self, timeout_s: float) -> bytes:
+        self.t += timeout_s + self.stall
+        return b""
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_timeout_after_the_host_stalled_says_the_host_was_late():
+    """Every wait for the answer came back 1.5 s late by the host's own clock: the give-up
+    says this host stalled (paused, starved of CPU), not that the line is noisy."""
+    from lm629_host.errors import LinkError
+    from lm629_host.transports.link import LinkTransport
+
+    t = LinkTransport(_StalledPipe(1.5), "serial:///dev/ttyACM0", handshake=False)
+    with pytest.raises(LinkError) as e:
+        t._exchange(FrameType.RUN_SHORT, b"\x00", 0.05, "RUN of 1 operation(s)", 1)
+    msg = str(e.value)
+    assert "this host was late: it stalled for 1.55 s" in msg
+    assert e.value.host_late_s == pytest.approx(1.55)
+    assert "cable" not in msg and "too noisy" not in msg and "\n" not in msg
+
+
+def test_a_pipe_on_a_pty_or_a_socket_never_says_check_the_usb_cable(tmp_path):
+    from lm629_host.transports.serial import line_advice_of
+
+    master, slave = os.openpty()
+    try:
+        link = tmp_path / "bench"
+        link.symlink_to(os.ttyname(slave))  # as `lm629 sim serve --pty` links it
+        for device in (os.ttyname(slave), str(link)):
+            assert "pseudo-terminal" in line_advice_of(device)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert "network" in line_advice_of("socket://127.0.0.1:5000")
+    assert line_advice_of("/dev/ttyACM0") is None  # a USB serial adapter: the cable advice
