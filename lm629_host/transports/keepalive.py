@@ -110,7 +110,12 @@ class FeedingClock(Clock):
             if now >= end - _RESOLUTION_S:  # a float sum may stop a hair short of the end
                 return
             due = ka.due_at() if ka.due_at is not None else now + ka.period_s
-            step = due - now if due > now + _RESOLUTION_S else ka.period_s
+            if due > now + _RESOLUTION_S:
+                step = due - now
+            elif due > now - ka.period_s:  # due, but a clock that rounds kept it a hair short
+                step = ka.period_s / 1000
+            else:  # long due and not fed (nothing to feed now): do not spin
+                step = ka.period_s
             clock.sleep(min(step, end - now))
 
     def __getattr__(self, name: str) -> object:
