@@ -130,8 +130,9 @@ class LinkTransport(LinkSession):
     def _top_up_quietly(self) -> None:
         """At a keep-alive's turn: top up a streamed shaped move when no request is under way
         (a host that only sleeps or holds the lock still hands the bridge its pieces)."""
-        if not self.profiles.streaming or not self._rx_lock.acquire(blocking=False):
-            return
+        if (not self.profiles.streaming or self.failsafe.recording
+                or not self._rx_lock.acquire(blocking=False)):
+            return  # a recording ends at any byte but a feed: the next program tops up
         try:
             self.profiles.refill()
         except (TransportError, OSError) as exc:  # the next program hears it again

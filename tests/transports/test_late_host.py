@@ -320,3 +320,19 @@ def test_a_pipe_on_a_pty_or_a_socket_never_says_check_the_usb_cable(tmp_path):
         os.close(slave)
     assert "network" in line_advice_of("socket://127.0.0.1:5000")
     assert line_advice_of("/dev/ttyACM0") is None  # a USB serial adapter: the cable advice
+
+
+def test_a_recording_during_a_stream_is_not_cut_by_a_top_up():
+    """The keep-alive's turns during a recording feed it (FAILSAFE_FEED) and never top the
+    stream up (any other byte would end the recording); the next program does."""
+    chip = lm629_host.open("sim+emu://")
+    t = chip.transport
+    chip.reset()
+    chip.load_trajectory(acceleration=655, velocity=65536, position=10_000_000, start=True)
+    t.profile(None, [(0.02 * (k + 1), 65536) for k in range(100)], new=True)
+    trace = chip.record(0.01, 1.0)
+    assert len(trace.rows) == 100 and not trace.missing
+    assert t.profiles.streaming  # the rest waits for the host's next program
+    chip.read_status()
+    chip.clock.sleep(1.5)
+    assert t.profile(None, [], new=False).issued == 100
