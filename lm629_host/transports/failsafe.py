@@ -272,6 +272,14 @@ class LinkFailsafe:
                       "paused, suspended or starved of CPU") + ")")
         elif self.feed_mode == "script":
             why = "the script neither called nor fed (failsafe_feed=script) for that long"
+        elif self.keepalive is not None and self.keepalive.last_stall_s >= self.timeout_s / 2:
+            why = (f"this host's keep-alive was held up for {self.keepalive.last_stall_s:.2f} s "
+                   "(paused, suspended or starved of CPU)")
+        elif self.keepalive is not None:
+            # this host kept feeding as far as it can tell: say so, not that it was silent
+            why = (f"this host's keep-alive kept turning (worst gap "
+                   f"{self.keepalive.worst_gap_s:.2f} s), so its feeds were lost on the line "
+                   "or the far end was itself paused or starved of CPU")
         else:
             why = "the host was silent (paused, suspended, starved of CPU?)"
         stopped = state.stopped if state is not None else []

@@ -43,6 +43,8 @@ class KeepAlive:
         self.due_at = due_at
         self.worst_gap_s = 0.0
         self.gaps = 0
+        #: the latest turn later than the period (s; 0: none yet): how long the host was held
+        self.last_stall_s = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -70,6 +72,7 @@ class KeepAlive:
                 self.worst_gap_s = gap
             if gap > self.period_s:
                 self.gaps += 1
+                self.last_stall_s = gap
             self.tick()
 
     def stop(self) -> None:
