@@ -76,6 +76,52 @@ class TransportError(LM629Error):
         super().__init__(f"{port}: {message}" if port else message)
 
 
+class LinkError(TransportError):
+    """The link to a bridge gave up on a request.  ``may_have_run``: True when the request may
+    have reached the bridge (its program may or may not have run), False when nothing was sent
+    to the chip (the resynchronising HELLO before it got no answer).  ``host_late_s``: how long
+    the host itself stalled during the attempts (its clock jumped: suspended, swapping, a busy
+    machine), 0 when it did not; then the message blames the host, not the line."""
+
+    def __init__(self, message: str, *, port: str, may_have_run: bool,
+                 host_late_s: float = 0.0) -> None:
+        super().__init__(message, port=port)
+        self.may_have_run = may_have_run
+        self.host_late_s = host_late_s
+
+
+class FailsafeTripped(TransportError):
+    """The far side's failsafe tripped: the host was silent past its timeout, and the bridge
+    stopped the chips itself.  Raised for a trajectory command the bridge refused while the trip
+    is latched, and once for the first program after the host learnt of a trip it had not
+    seen happen (a host paused mid-move).
+
+    ``state``: the latched trip as the bridge reports it (a
+    :class:`~lm629_host.bridge.protocol.FailsafeState`, None when it could not be read);
+    ``stopped``: the chip selects the bridge stopped; ``action``: how (``abrupt``, ``smooth``,
+    ``off``); ``host_late_s``: how long this host was seen to stall, when it was.  A caller
+    that must stop a motor reads ``stopped`` (the bridge did it already), never the message."""
+
+    def __init__(self, message: str, *, port: str, state: object = None,
+                 stopped: Sequence[int] = (), action: str = "",
+                 host_late_s: float = 0.0) -> None:
+        super().__init__(message, port=port)
+        self.state = state
+        self.stopped = tuple(stopped)
+        self.action = action
+        self.host_late_s = host_late_s
+
+    def stopped_by_bridge(self, cs: int | None = None) -> bool:
+        """True when the bridge reports it stopped chip select ``cs`` (None: any chip)."""
+        return bool(self.stopped) if cs is None else cs in self.stopped
+
+    @property
+    def stop_note(self) -> str:
+        """One line on how the motors were left, for a caller's report."""
+        who = ", ".join(f"cs {k}" for k in self.stopped) or "no chip"
+        return f"stopped by the bridge's failsafe ({who}, {self.action or '?'} stop)"
+
+
 class SchemeError(TransportError, ArgumentError):
     """A port URL whose scheme no transport is registered for: bad usage (an ArgumentError
     with ``argument`` ``"port"``), and a TransportError for code that catches those."""

@@ -7,6 +7,7 @@
     python3 tools/bench_all.py --write-readme --fresh-clone   # also a fresh clone's test run
     python3 tools/bench_all.py --write-readme --only-usb      # only the per-adapter table
     python3 tools/bench_all.py --write-readme --only-failsafe # only the failsafe's table
+    python3 tools/bench_all.py --write-readme --only-idle     # only the idle simulated time
 
 "Before" is measured, not remembered: the baseline commit's ``lm629_host`` is unpacked from git
 into a temporary directory (its C sample loop built there) and the same probes run against it
@@ -49,6 +50,11 @@ USB_BEGIN, USB_END = "<!-- bench_all.py usb: begin -->", "<!-- bench_all.py usb:
 SUMMARY_BEGIN = "<!-- bench_all.py usb summary: begin -->"
 SUMMARY_END = "<!-- bench_all.py usb summary: end -->"
 README = ROOT / "README.md"
+IDLE_BEGIN, IDLE_END = "<!-- bench_all.py idle: begin -->", "<!-- bench_all.py idle: end -->"
+#: "before" of the idle rows: the link before its simulated sleeps were exact
+IDLE_BASELINE = "c351da8"
+#: the idle probe's far ends, the failsafe armed as the URL leaves it (0.5 s)
+IDLE_URLS = ("sim+avr://", "sim+avr://?usb=uno", "sim+emu://")
 FAILSAFE_BEGIN = "<!-- bench_all.py failsafe: begin -->"
 FAILSAFE_END = "<!-- bench_all.py failsafe: end -->"
 
@@ -553,6 +559,71 @@ def fresh_clone_tests(ref: str) -> tuple[float, float, str]:
         return float(wall), int(kb) / 1024, summary
 
 
+def probe_idle() -> dict:
+    """Per far end: how far ``clock.sleep(10.0)`` moves the chip's clock (simulated s, exact),
+    and how many times real time an idle simulated minute runs (``clock.sleep(60.0)``, wall
+    clock: the failsafe armed, fed all the while)."""
+    import lm629_host
+
+    out = {}
+    for url in IDLE_URLS:
+        chip = lm629_host.open(url)
+        model = getattr(chip.transport, "model")  # noqa: B009 - a simulator's, not typed on Transport
+        t0 = model.now()
+        chip.clock.sleep(10.0)
+        slept = model.now() - t0
+        w = time.perf_counter()
+        chip.clock.sleep(60.0)
+        out[url] = {"sleep10": slept, "speed": 60.0 / (time.perf_counter() - w)}
+        chip.close()
+    return out
+
+
+def render_idle(before: list[dict], after: list[dict], date: str, baseline: str) -> str:
+    """The idle table: medians of the runs, before and after."""
+    lines = [
+        f"Measured {date} by `{COMMAND}` (or `--only-idle`): `chip.clock.sleep(10.0)` on the "
+        "simulated far ends with the failsafe armed (0.5 s), on the chip's clock (exact), and "
+        "an idle simulated minute (`clock.sleep(60.0)`) in times real time (wall clock, "
+        f"median of 3 in turn with the baseline {baseline}, on a shared 2-core machine).",
+        "",
+        "| far end | `sleep(10.0)` before | after | idle minute before | after |",
+        "|---|---|---|---|---|"]
+    for url in IDLE_URLS:
+        b = [r[url] for r in before]
+        a = [r[url] for r in after]
+        lines.append(
+            f"| `{url}` | {statistics.median(x['sleep10'] for x in b):.4f} s "
+            f"| {statistics.median(x['sleep10'] for x in a):.4f} s "
+            f"| {statistics.median(x['speed'] for x in b):.0f}x "
+            f"| {statistics.median(x['speed'] for x in a):.0f}x |")
+    return "\n".join(lines)
+
+
+def write_idle(block: str) -> None:
+    text = PERFORMANCE_DOC.read_text()
+    if IDLE_BEGIN in text:
+        text = replace_block(text, IDLE_BEGIN, IDLE_END, block)
+    else:
+        text = (text.rstrip("\n") + "\n\n## Idle simulated time\n\n"
+                + f"{IDLE_BEGIN}\n{block}\n{IDLE_END}\n")
+    PERFORMANCE_DOC.write_text(text)
+
+
+def measure_idle(baseline: str) -> str:
+    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    with tempfile.TemporaryDirectory() as tmp:
+        old = Path(tmp)
+        unpack(baseline, old)
+        shutil.copytree(ROOT / "firmware_bridge" / "build", old / "firmware_bridge" / "build",
+                        dirs_exist_ok=True)
+        before, after = [], []
+        for _ in range(3):  # in turn, so that both see the same load
+            before.append(run_probe("idle", old))
+            after.append(run_probe("idle", ROOT))
+    return render_idle(before, after, date, baseline)
+
+
 # ------------------------------------------------------------------ the baseline tree
 def unpack(ref: str, dest: Path) -> None:
     """The baseline commit's sources into ``dest``, with its C sample loop built in place."""
@@ -761,11 +832,22 @@ def main() -> int:
                     help="only the per-adapter table (docs/usb.md's links; about a minute)")
     ap.add_argument("--only-failsafe", action="store_true",
                     help="only the failsafe's table (a served bench in real time; ~15 s)")
+    ap.add_argument("--only-idle", action="store_true",
+                    help="only the idle simulated time (sim+avr://, sim+emu://; ~1 minute)")
+    ap.add_argument("--idle-baseline", default=IDLE_BASELINE,
+                    help="'before' of the idle rows (default %(default)s)")
     ap.add_argument("--probe", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.probe:
         print(json.dumps({"core": probe_core, "cost": probe_cost, "after": probe_after,
-                          "transports": probe_transports, "usb": probe_usb}[args.probe]()))
+                          "transports": probe_transports, "usb": probe_usb,
+                          "idle": probe_idle}[args.probe]()))
+        return 0
+    if args.only_idle:
+        block = measure_idle(args.idle_baseline)
+        print(block)
+        if args.write_readme:
+            write_idle(block)
         return 0
 
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")

@@ -21,12 +21,12 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Iterator, Sequence
 import logging
-import math
 import threading
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any, final
+from typing import TYPE_CHECKING, final
 
 from lm629_host.clock import Clock, WallClock
+from lm629_host.transports.keepalive import FeedingClock, KeepAlive
 from lm629_host.errors import AxisError, BusyTimeout, TransportError
 from lm629_host.bus.opcodes import BUSY_BIT
 from lm629_host.bus.program import (
@@ -104,6 +104,9 @@ class ProfileState:
     pending: int
     late_max_s: float
     cancelled: bool = False
+    #: pieces the host still holds, to hand over as the far side's schedule empties (a
+    #: schedule longer than the far side holds, streamed)
+    queued: int = 0
 
 
 @dataclass(frozen=True)
@@ -141,33 +144,6 @@ class LockedClock(Clock):
     def sleep(self, seconds: float) -> None:
         with self._lock:
             self._clock.sleep(seconds)
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self._clock, name)
-
-
-class FeedingClock(Clock):
-    """A simulated clock whose ``sleep`` feeds a far-side watchdog on the way (a bridge's link
-    failsafe, the FT232H's heartbeat pin): time passes on the far side only while the host
-    sleeps on this clock or waits for an answer, so the feeder of a simulated link lives here
-    instead of in a thread.  The transport gives ``feed_period_s`` (0: nothing to feed) and
-    ``_feed_if_due()``, which sends only when the link has been idle that long."""
-
-    def __init__(self, clock: Clock, transport: Any) -> None:
-        self._clock = clock
-        self._transport = transport
-        self.now = clock.now  # type: ignore[method-assign]  # no wrapper on the hot path
-
-    def now(self) -> float:
-        return self._clock.now()
-
-    def sleep(self, seconds: float) -> None:
-        t = self._transport
-        period = t.feed_period_s
-        n = max(1, math.ceil(seconds / period - 1e-9)) if period and seconds > 0 else 1
-        for _ in range(n):  # whole steps: a clock that rounds may stop short of an end time
-            self._clock.sleep(seconds / n)
-            t._feed_if_due()
 
     def __getattr__(self, name: str) -> object:
         return getattr(self._clock, name)
@@ -253,8 +229,11 @@ class Transport(abc.ABC):
     #: True when the far side issues a shaped move's pieces on its own timer
     #: (:meth:`profile`); otherwise the host times them on ``clock``
     far_profiles: bool = False
-    #: the most pieces the far side holds (a longer shaped move is timed from the host)
+    #: the most pieces the far side holds at once
     profile_capacity: int = 0
+    #: True when a schedule longer than ``profile_capacity`` is streamed to the far side in
+    #: top-ups (:meth:`profile`), so it stays timed there; False: a longer one is host-timed
+    profile_streams: bool = False
 
     #: the subscribed observers, and those of them that want bus cycles (tuples, replaced
     #: whole on a change, so that a program in another thread iterates a stable one)
@@ -365,16 +344,14 @@ class Transport(abc.ABC):
         #: the clock itself, for code that already holds the lock (inside ``execute``)
         self._inner_clock = inner
 
-    #: set once :meth:`feed_on_sleep` wrapped the clock
-    _feeds_on_sleep: bool = False
-
-    def feed_on_sleep(self) -> None:
-        """On a simulated clock, from now on: sleeping on :attr:`clock` feeds the far side's
-        watchdog (:class:`FeedingClock`), as a feeder thread does on the wall clock.  Asked
-        again, it changes nothing."""
-        if not self._feeds_on_sleep:
-            self._feeds_on_sleep = True
-            self.clock = FeedingClock(self._inner_clock, self)
+    def run_keep_alive(self, keepalive: KeepAlive) -> None:
+        """Keep the far side's watchdog fed from now on: a thread on the wall clock, the
+        steps of every sleep on :attr:`clock` on a simulated one (:class:`FeedingClock`).  A
+        transport keeps one; asked again, the new one replaces it."""
+        if isinstance(self._inner_clock, WallClock):
+            keepalive.start()
+        else:
+            self.clock = FeedingClock(self._inner_clock, keepalive)
 
     @classmethod
     def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> Transport:
@@ -411,6 +388,10 @@ class Transport(abc.ABC):
             log.debug("%s: %s: %s", self.url, what, exc)
         finally:
             self.lock.release()
+
+    def feed(self) -> None:  # noqa: B027 - optional: most far sides keep no watchdog
+        """Tell the far side's watchdog the host is alive (a bridge's failsafe with
+        ``failsafe_feed=script``); nothing where there is none."""
 
     def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
         """Release the port.  Idempotent."""

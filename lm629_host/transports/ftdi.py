@@ -114,7 +114,6 @@ import errno as _errno
 import logging
 import os
 import re
-import threading
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
@@ -127,6 +126,7 @@ from lm629_host.bus.pinout import pin_of
 from lm629_host.bus.program import BusCycle, Op, Program, ProgramResult, TraceCallback
 from lm629_host.urls import Option, parse_options
 from lm629_host.transports.base import Check, PortInfo, Transport
+from lm629_host.transports.keepalive import KeepAlive
 from lm629_host.transports.mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, chips_of_units,
                     streams_of)
 
@@ -216,18 +216,16 @@ class FtdiTransport(Transport):
         self.heartbeat = heartbeat
         #: the heartbeat's half period (0: none): the feeder toggles after this long idle
         self.feed_period_s = 0.0
+        self.keepalive: KeepAlive | None = None  #: the heartbeat's, when there is one
         self._last_toggle = self.clock.now()
         if heartbeat is not None:
             line = pins.HEARTBEAT_PINS[heartbeat]
             self.chip_selects = 1  # its line is the second chip's /CS otherwise
             self.compiler.keep = self.compiler.keep_level = line
             self.feed_period_s = 0.5 / heartbeat_hz
-            if isinstance(self.clock, WallClock):
-                self._beat_stop = threading.Event()
-                threading.Thread(target=self._beat_loop, daemon=True,
-                                 name=f"lm629 heartbeat {url}").start()
-            else:
-                self.feed_on_sleep()
+            self.keepalive = KeepAlive(self.feed_period_s, self._beat, f"heartbeat {url}",
+                                       lambda: self._last_toggle + self.feed_period_s)
+            self.run_keep_alive(self.keepalive)
 
     # ------------------------------------------------------------------ opening
     @classmethod
@@ -318,16 +316,16 @@ class FtdiTransport(Transport):
         self._last_toggle = now
         self.ftdi.write_data(bytes((SET_LOW, c.low_byte(pins.CTRL_IDLE), pins.CTRL_DIRECTION)))
 
-    def _beat_loop(self) -> None:
-        """The heartbeat thread (real adapters): while the process lives; never waits for the
-        lock (a program under way keeps the line where it is)."""
-        while not self._beat_stop.wait(self.feed_period_s / 4):
-            if self.ftdi is None:
-                return
+    def _beat(self) -> None:
+        """The keep-alive's feed: toggle when due, only while no bus program holds the lock
+        (a program under way keeps the line where it is)."""
+        if self.ftdi is not None:
             self.keep_alive(self._feed_if_due, "heartbeat")
 
     def close(self) -> None:
         self.feed_period_s = 0.0
+        if self.keepalive is not None:
+            self.keepalive.stop()
         ftdi, self.ftdi = self.ftdi, None
         if ftdi is not None:
             try:

@@ -155,11 +155,31 @@ def _lost_hint(device: str | None) -> str:
     return "was the board unplugged?"
 
 
+def line_advice_of(device: str | None) -> str | None:
+    """What to check when the link on ``device`` fails, for a line that is no USB cable (a
+    pseudo-terminal, a network socket); None for a real serial device."""
+    if not device:
+        return None
+    scheme = device.split("://", 1)[0] if "://" in device else ""
+    if scheme in ("socket", "rfc2217"):
+        return ("Check the network path to the server and that the server (ser2net, "
+                "`lm629 sim serve --tcp`) is running and keeps up")
+    if scheme:
+        return None
+    real = os.path.realpath(device)
+    if real.startswith("/dev/pts/") or real == "/dev/ptmx":
+        return ("Check the program at the pseudo-terminal's other end (a served bench: is "
+                "`lm629 sim serve` still running, and not starved of CPU?)")
+    return None
+
+
 class SerialPipe:
-    """A :class:`~lm629_host.bridge.protocol.Pipe` over an open pyserial port, in real time."""
+    """A :class:`~lm629_host.bridge.protocol.Pipe` over an open pyserial port, in real time.
+    ``line_advice``: what to check when the line fails, where it is no USB cable."""
 
     def __init__(self, port, clock: Clock | None = None) -> None:  # port: serial.Serial
         self.port = port
+        self.line_advice = line_advice_of(getattr(port, "port", None))
         self.clock = clock or WallClock()
         try:
             self._fd: int | None = port.fileno()

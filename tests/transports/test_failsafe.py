@@ -115,9 +115,10 @@ def test_an_idle_host_a_long_far_side_wait_and_a_recording_are_not_tripped():
     _run(b)
     emu = t.emulator
     frames = emu.stats.frames
-    b.clock.sleep(3.0)  # idle in Python: the feeder sends every 0.125 s of silence
+    b.clock.sleep(3.0)  # idle in Python: a feed after 0.375 s of silence (simulated clock)
     assert not emu.failsafe.tripped
-    assert 3.0 / 0.125 - 2 <= emu.stats.frames - frames <= 3.0 / 0.125 + 2
+    assert t.feed_period_s == 0.375
+    assert emu.stats.frames - frames == 3.0 // 0.375  # the feeds, exactly on time
     chip = b.axes[0]
     t0 = b.clock.now()
     with pytest.raises(Exception, match="waited 10 s"):
@@ -125,7 +126,7 @@ def test_an_idle_host_a_long_far_side_wait_and_a_recording_are_not_tripped():
     assert b.clock.now() - t0 >= 10.0 and not emu.failsafe.tripped
     trace = chip.record(0.01, 5.0)
     assert len(trace.rows) == 500 and not trace.missing
-    assert emu.stats.feeds >= 5.0 / 0.125 - 2  # FAILSAFE_FEED kept the recording alive
+    assert emu.stats.feeds >= 5.0 / 0.375 - 1  # FAILSAFE_FEED kept the recording alive
     assert not emu.failsafe.tripped and chip.read_real_velocity() == 2
 
 
