@@ -40,7 +40,7 @@ from lm629_host.bus.program import BusCycle, Program, ProgramResult
 from lm629_host.chip.safety import emergency_stop, stop_on_error
 from lm629_host.chip.supervise import VelocityRun, run_velocity, search_index, wait_still
 from lm629_host.transports import DEFAULT_URL
-from lm629_host.transports.link import FailsafeTripped
+from lm629_host.errors import FailsafeTripped
 from lm629_host.physics.units import Scale
 
 __version__ = "0.1.0"

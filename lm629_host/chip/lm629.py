@@ -679,8 +679,10 @@ class LM629:
             self.limits.check_velocity(plan.peak_velocity)
         move = self.move_to(register, velocity=plan.pieces[0].velocity,
                             acceleration=plan.acceleration)
+        # the bridge times the pieces when it holds them all, or takes them in top-ups
         far = (self.transport.far_profiles
-               and len(plan.pieces) - 1 <= self.transport.profile_capacity)
+               and (len(plan.pieces) - 1 <= self.transport.profile_capacity
+                    or self.transport.profile_streams))
         shaped = ShapedMove(move, plan, far=far)
         if far:  # the bridge's timer issues the rest; the next update waits for the last
             with stop_on_error(self):

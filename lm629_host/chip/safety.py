@@ -66,6 +66,10 @@ def emergency_stop(chip: Stoppable) -> tuple[bool, str]:
             except KeyboardInterrupt:
                 continue
             except Exception as exc:  # noqa: BLE001 - the link may be the thing that failed
+                if getattr(exc, "stopped", None):
+                    # the bridge's failsafe already stopped this axis and says how: the truth,
+                    # not "could not stop"
+                    return True, f"motor {exc.stop_note}"  # type: ignore[attr-defined]  # FailsafeTripped
                 problems.append(f"{stop} stop failed: {exc}")
                 break
         else:
