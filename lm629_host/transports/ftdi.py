@@ -291,8 +291,8 @@ class FtdiTransport(Transport):
             checks.append(Check("pyftdi", True, f"pyftdi {pyftdi.__version__}"))
         except ImportError:
             # optional: only an FT232H needs it, so its absence is a note, not a problem
-            return [Check("pyftdi", True, "not installed (only ftdi:// needs it: "
-                                          "pip install 'lm629-host[ftdi]')")]
+            return [Check("pyftdi", True, "not installed, optional: only ftdi:// needs it "
+                                          "(pip install 'lm629-host[ftdi]')")]
         try:
             from pyftdi.usbtools import UsbTools
             UsbTools.find_backend()
