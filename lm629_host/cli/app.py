@@ -306,6 +306,11 @@ def _help_epilog() -> str:
             "simulator is used (a fresh chip per command).\nStart with:  lm629 bringup --yes")
 
 
+#: bare ``lm629``: click shows the help (click 8.2 raises this for it; older clicks print it)
+_NO_ARGS: tuple[type[Exception], ...] = tuple(
+    c for c in (getattr(click.exceptions, "NoArgsIsHelpError", None),) if c is not None)
+
+
 class LM629Group(click.Group):
     """A click group that turns exceptions into one stderr line and an exit code."""
 
@@ -320,6 +325,16 @@ class LM629Group(click.Group):
         if rows:
             with formatter.section("Commands"):
                 formatter.write_dl(rows)
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        """The group's own options (``lm629 --prot sim:// status``): a mistake there is the
+        same one line and exit 2 as a command's, click's suggestion kept."""
+        try:
+            return super().parse_args(ctx, args)
+        except click.UsageError as exc:
+            if ctx.resilient_parsing or isinstance(exc, _NO_ARGS):  # completion; bare `lm629`
+                raise
+            _fail(ctx, f"{exc.format_message()} (see `{ctx.command_path} --help`)", exc, 2)
 
     def invoke(self, ctx: click.Context) -> Any:
         try:

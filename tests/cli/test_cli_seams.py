@@ -175,3 +175,14 @@ def test_twin_check_says_its_verdict_once(run, tmp_path):
     assert r.exit_code == 0, r.output
     lines = r.stdout.splitlines()
     assert lines[-1] == "matches" and sum("matches" in ln for ln in lines) == 1, r.stdout
+
+
+def test_a_misspelt_global_option_is_the_same_line_with_the_suggestion(run):
+    r = run("--prot", "sim://", "status")
+    assert r.exit_code == 2
+    line = _one_line(r)
+    assert "No such option '--prot'" in line and "'--port'" in line and "Usage:" not in r.output
+    r = run("--chip", "lm627", "status")
+    assert r.exit_code == 2 and "'lm627' is not one of" in _one_line(r)
+    r = run()  # bare lm629: the help, as click gives it
+    assert "[OPTIONS] COMMAND" in r.output and "lm629: " not in r.stderr
