@@ -9,6 +9,8 @@ gives the exit code and says how the motor was left).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from lm629_host.config.profile import AxisProfile, save_gains
@@ -102,10 +104,12 @@ _TWIN_KEEPS = frozenset({"profile", "axis", "chip", "clock", "axes", "cs", "line
 def _bench_is_the_twin(s: Session) -> bool:
     """Whether the session's port builds the same simulated axes the twin does (the CLI gives
     a simulator ``profile=`` with ``--profile``): such a check can only say "matches"."""
-    if not s.is_sim:
+    if not s.is_sim or s.profile is None:
         return False
     params = query_params(s.url())
-    return "profile" in params and not set(params) - _TWIN_KEEPS
+    if "profile" not in params or set(params) - _TWIN_KEEPS:
+        return False
+    return Path(params["profile"]).resolve() == Path(s.profile.path).resolve()
 
 
 @click.group("twin")

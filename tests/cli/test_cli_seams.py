@@ -162,6 +162,12 @@ def test_twin_check_refuses_to_compare_the_twin_with_itself(run, tmp_path):
             "--yes")
     assert r.exit_code == 2
     assert "is the twin itself" in _one_line(r) and r.stdout == ""
+    # the twin of another profile is a bench of its own (here the same plant: it matches)
+    other = tmp_path / "other.toml"
+    other.write_text(TWIN_PROFILE)
+    r = run("--profile", str(path), "--port", f"sim://?profile={other}", "twin", "check",
+            "--travel", "4000", "--yes")
+    assert r.exit_code == 0 and r.stdout.splitlines()[-1] == "matches", r.output
 
 
 def test_twin_check_says_its_verdict_once(run, tmp_path):
