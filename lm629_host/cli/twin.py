@@ -148,13 +148,6 @@ def check_cmd(travel: int, distance: int | None, velocity: float | None,
     s = _session()
     if s.profile is None:
         raise click.UsageError("twin check needs --profile FILE (the plant and the gains)")
-    if _bench_is_the_twin(s):
-        raise click.UsageError(
-            f"the bench {s.port} is the twin itself: a simulator given with --profile builds "
-            f"each axis from the profile's plant, so the check would compare the twin with "
-            f"itself. Give the bench's port (--port /dev/ttyACM0, or the profile's port = "
-            f"...), or a simulated bench of its own (--port 'sim://?inertia=4e-5&load_torque="
-            f"0.004': a motor parameter in the URL keeps its own motor)")
     words = _motion_words(s, velocity, acceleration, raw=False)
     cs = axes_of(s)[0] if s.axis_spec != "all" else 0  # the profile checked before the port
     ax = s.profile.by_cs(cs)
@@ -167,6 +160,13 @@ def check_cmd(travel: int, distance: int | None, velocity: float | None,
     if gains is None:
         raise click.UsageError(f"{s.profile.path}: [axis.{ax.name}] has no kp: the check "
                                "runs the profile's gains on both")
+    if _bench_is_the_twin(s):
+        raise click.UsageError(
+            f"the bench {s.port} is the twin itself: a simulator given with --profile builds "
+            f"each axis from the profile's plant, so the check would compare the twin with "
+            f"itself. Give the bench's port (--port /dev/ttyACM0, or the profile's port = "
+            f"...), or a simulated bench of its own (--port 'sim://?inertia=4e-5&load_torque="
+            f"0.004': a motor parameter in the URL keeps its own motor)")
     plant = Plant.from_values(ax.plant)
     chip = s.open()
     from lm629_host.cli import profile
