@@ -192,3 +192,10 @@ def test_a_misspelt_global_option_is_the_same_line_with_the_suggestion(run):
     assert r.exit_code == 2 and "'lm627' is not one of" in _one_line(r)
     r = run()  # bare lm629: the help, as click gives it
     assert "[OPTIONS] COMMAND" in r.output and "lm629: " not in r.stderr
+
+
+def test_sim_serve_suggests_axes_too(run, tmp_path):
+    r = run("sim", "serve", "--pty", str(tmp_path / "bench"), "--url", "sim://?axis=2")
+    assert r.exit_code == 2
+    assert "--url" in _one_line(r) and "did you mean axes=2" in r.stderr
+    assert not (tmp_path / "bench").exists()
