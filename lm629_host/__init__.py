@@ -13,6 +13,8 @@ their results, the errors, the status flags, units, stopping, planning and tunin
 largest module and most scripts never call it); nothing here imports the simulator.
 """
 
+import logging as _logging
+import os as _os
 import typing as _typing
 
 from lm629_host.errors import (
@@ -34,6 +36,7 @@ from lm629_host.chip.lm629 import LM629, Snapshot
 from lm629_host.chip.move import Move, MoveResult, MoveRules
 from lm629_host.chip.shapes import Points, SCurve
 from lm629_host.bus.opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags
+from lm629_host.transports.ports import profile_port as _profile_port
 from lm629_host.transports.ports import resolve_port as _resolve_port
 from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S as _DEFAULT_BUSY_TIMEOUT_S
 from lm629_host.bus.program import BusCycle, Program, ProgramResult
@@ -49,6 +52,9 @@ from lm629_host.motion.board import Board, BoardMove, LinearPlan, open_board, pl
 
 if _typing.TYPE_CHECKING:
     from lm629_host.bench.tuning import TuneResult, autotune
+    from lm629_host.config.profile import Profile as _Profile
+
+_log = _logging.getLogger("lm629_host")
 
 #: names imported on first use: name -> module
 _LAZY = {"autotune": ".bench.tuning", "TuneResult": ".bench.tuning"}
@@ -64,9 +70,11 @@ def __getattr__(name: str) -> _typing.Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def open(url: str = DEFAULT_URL, *, chip: str | None = None,  # noqa: A001 - lm629_host.open, as io.open
+def open(url: str | None = None, *, chip: str | None = None,  # noqa: A001 - lm629_host.open, as io.open
          clock: float | str | None = None, trace=None,
-         busy_timeout: float = _DEFAULT_BUSY_TIMEOUT_S) -> LM629:
+         busy_timeout: float = _DEFAULT_BUSY_TIMEOUT_S,
+         profile: "str | _os.PathLike[str] | _Profile | None" = None,
+         apply: bool | str = "auto") -> LM629:
     """Open the chip behind ``url`` (``sim://`` by default; see :mod:`lm629_host.transports`).
 
     ``chip`` is "lm628" or "lm629" and ``clock`` the chip's clock (Hz, or ``"6MHz"``); either
@@ -75,15 +83,52 @@ def open(url: str = DEFAULT_URL, *, chip: str | None = None,  # noqa: A001 - lm6
     :class:`BusCycle` for every bus cycle.  ``busy_timeout`` (s) bounds every busy check (0.2
     to 65.5 ms; default 5 ms).  On a multi-axis board ``?cs=k`` opens the chip on chip select
     ``k`` (default 0); :func:`open_board` opens them all.
+
+    ``profile``: a bench profile (a path or a loaded one), as :func:`open_board` takes it: the
+    port (when ``url`` is None), the chip and clock come from it, and the profile's axis on
+    this chip select gives the chip its soft limits and its name (``chip.profile_axis``);
+    ``apply`` says what is sent at open ("auto": the axis's settings when the chip has lost
+    them, True: always, False: nothing).  A bad profile is a ProfileError (ValueError) before
+    the port is opened.
     """
-    spec = _resolve_port(url, chip=chip, clock=clock)
+    prof = None
+    if profile is not None:
+        from lm629_host.config.profile import Profile, load_profile
+        prof = profile if isinstance(profile, Profile) else load_profile(profile)
+        if apply not in (True, False, "auto"):
+            raise ArgumentError("apply", apply, f"apply={apply!r}: expected True, False or 'auto'")
+        if url is None:
+            url = _profile_port(prof)
+        chip = prof.chip if chip is None else chip
+        clock = prof.clock_hz if clock is None else clock
+    spec = _resolve_port(DEFAULT_URL if url is None else url, chip=chip, clock=clock)
     transport = spec.open_transport(trace)
     try:
-        return LM629(transport, chip=spec.chip, busy_timeout=busy_timeout, axis=spec.cs,
-                     clock_hz=spec.clock_hz)
-    except Exception:
+        opened = LM629(transport, chip=spec.chip, busy_timeout=busy_timeout, axis=spec.cs,
+                       clock_hz=spec.clock_hz)
+        if prof is not None:
+            _with_profile(opened, prof, apply)
+        return opened
+    except BaseException:
         transport.close()
         raise
+
+
+def _with_profile(chip: LM629, prof: "_Profile", apply: bool | str) -> None:
+    """The profile's axis on ``chip``'s chip select, if it has one: limits, variant and name
+    (as :func:`open_board` gives each axis), then its settings as ``apply`` says."""
+    from dataclasses import replace
+
+    from lm629_host.config.profile import apply_profile, attach, ensure_applied
+    ax = prof.by_cs(chip.chip_select)
+    if ax is None:
+        return
+    attach(chip, prof, ax)
+    chip.move_rules = replace(chip.move_rules, clock_hz=prof.clock_hz)
+    if apply == "auto":
+        ensure_applied({ax.name: chip}, prof, _log.warning)
+    elif apply:
+        apply_profile({ax.name: chip}, prof)
 
 
 __all__ = [

@@ -171,7 +171,8 @@ class TwinCheck:
         return all(m.matches for m in self.moves)
 
     def lines(self) -> list[str]:
-        """The side-by-side table and the verdict."""
+        """The side-by-side table, and what to do when the twin differs (the verdict, one
+        word, is the caller's to print: ``matches`` or ``differs``)."""
         def settle(m: MoveMetrics) -> str:
             return "never" if m.settle_s is None else f"{m.settle_s * 1e3:.1f} ms"
 
@@ -185,9 +186,9 @@ class TwinCheck:
                     f"{'yes' if c.overshoot_ok() else 'NO'}",
                     f"{'':<10} {'settle':>6} {settle(b):>10} {settle(t):>10}  "
                     + (("yes" if c.settle_ok() else "NO") if c.judge_settle else "(shown)")]
-        out.append("the twin matches the bench" if self.matches else
-                   "the twin differs from the bench: identify the axis again (`lm629 identify "
-                   "--save`) before trusting tests on the twin")
+        if not self.matches:  # the verdict itself is the caller's one line (``twin check``)
+            out.append("the twin differs from the bench: identify the axis again (`lm629 "
+                       "identify --save`) before trusting tests on the twin")
         return out
 
 

@@ -398,17 +398,22 @@ class LM629:
 
     # ------------------------------------------------------------------ filter
     def filter_program(self, kp: int | None = None, ki: int | None = None, kd: int | None = None,
-                       il: int | None = None, derivative_interval: int | None = None) -> Program:
+                       il: int | None = None, derivative_interval: int | None = None, *,
+                       ds: int | None = None) -> Program:
         """Validate and build LFIL without running it (the derivative interval is not
-        remembered until the program has run)."""
+        remembered until the program has run).  ``ds`` is the derivative interval by the
+        name a profile and the CLI give it; ``derivative_interval`` is kept for scripts."""
         values = {"kp": kp, "ki": ki, "kd": kd, "il": il}
         for name, v in values.items():
             if v is not None:
                 values[name] = check_int(name, v, 0, COEFFICIENT_MAX, hex_digits=4)
+        if ds is not None and derivative_interval is not None:
+            raise ArgumentError("ds", ds, f"ds={ds!r} and derivative_interval="
+                                          f"{derivative_interval!r} are one setting: give ds alone")
+        given, name = (ds, "ds") if ds is not None else (derivative_interval, "derivative_interval")
         ds = self._ds
-        if derivative_interval is not None:
-            ds = check_int("derivative_interval", derivative_interval, 1,
-                           DERIVATIVE_INTERVAL_MAX)
+        if given is not None:
+            ds = check_int(name, given, 1, DERIVATIVE_INTERVAL_MAX)
         control = lfil_control(ds)
         for flag in FILTER_ORDER:
             if values[(flag.name or "").lower()] is not None:
@@ -421,13 +426,15 @@ class LM629:
         return p
 
     def load_filter(self, kp: int | None = None, ki: int | None = None, kd: int | None = None,
-                    il: int | None = None, derivative_interval: int | None = None) -> None:
+                    il: int | None = None, derivative_interval: int | None = None, *,
+                    ds: int | None = None) -> None:
         """LFIL: load the given coefficients into the filter's input buffers (UDF applies them).
 
-        ``derivative_interval`` is in samples, 1..256; when omitted the last value sent is sent
-        again (the chip takes it from every LFIL control word, AN-706 4.5.1).
+        ``ds``, the derivative interval (``derivative_interval`` is the same, by its older
+        name), is in samples, 1..256; when omitted the last value sent is sent again (the chip
+        takes it from every LFIL control word, AN-706 4.5.1).
         """
-        p = self.filter_program(kp, ki, kd, il, derivative_interval)
+        p = self.filter_program(kp, ki, kd, il, derivative_interval, ds=ds)
         self.run(p)
         self._ds = lfil_interval(p.ops[1].arg)
 

@@ -22,6 +22,7 @@ commands run ``lm629 sim serve --pty /tmp/lm629`` and use ``--port /tmp/lm629``.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import logging
 import os
 import signal
@@ -305,6 +306,11 @@ def _help_epilog() -> str:
             "simulator is used (a fresh chip per command).\nStart with:  lm629 bringup --yes")
 
 
+#: bare ``lm629``: click shows the help (click 8.2 raises this for it; older clicks print it)
+_NO_ARGS: tuple[type[Exception], ...] = tuple(
+    c for c in (getattr(click.exceptions, "NoArgsIsHelpError", None),) if c is not None)
+
+
 class LM629Group(click.Group):
     """A click group that turns exceptions into one stderr line and an exit code."""
 
@@ -320,6 +326,16 @@ class LM629Group(click.Group):
             with formatter.section("Commands"):
                 formatter.write_dl(rows)
 
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        """The group's own options (``lm629 --prot sim:// status``): a mistake there is the
+        same one line and exit 2 as a command's, click's suggestion kept."""
+        try:
+            return super().parse_args(ctx, args)
+        except click.UsageError as exc:
+            if ctx.resilient_parsing or isinstance(exc, _NO_ARGS):  # completion; bare `lm629`
+                raise
+            _fail(ctx, f"{exc.format_message()} (see `{ctx.command_path} --help`)", exc, 2)
+
     def invoke(self, ctx: click.Context) -> Any:
         try:
             result = super().invoke(ctx)
@@ -328,7 +344,9 @@ class LM629Group(click.Group):
         except click.UsageError as exc:  # bad usage or value: one line, exit 2
             sub = exc.ctx.command_path if exc.ctx is not None else "lm629"
             _fail(ctx, f"{exc.format_message()} (see `{sub} --help`)", exc, 2)
-        except (click.exceptions.Exit, click.ClickException, click.exceptions.Abort):
+        except click.ClickException as exc:  # a command's own refusal: the same one line
+            _fail(ctx, exc.format_message(), exc, exc.exit_code)
+        except (click.exceptions.Exit, click.exceptions.Abort):
             raise
         except KeyboardInterrupt as exc:
             signum = getattr(exc, "signum", signal.SIGINT)
@@ -436,6 +454,11 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
                                      "capture a bench with a logic analyzer (docs/debugging.md)",
                                      param_hint="--vcd")
         url = with_query(url, {"vcd": vcd_path})
+    if "vcd" in query_params(url) and importlib.util.find_spec("vcd") is None:
+        # checked here, before the port opens: the simulator would find it missing only once
+        # it builds the chip, as a traceback
+        raise click.BadParameter("writing a VCD needs pyvcd, an optional extra: pip install "
+                                 "'lm629-host[vcd]'", param_hint="--vcd" if vcd_path else "--port")
     _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
     session = Session(url, port is not None, chip_name, clock_hz,
                       lines, verbose, trace, stats, spec)
@@ -458,11 +481,16 @@ class _ClickHandler(logging.Handler):
 
 
 def _log_to_stderr(level: int) -> None:
+    """The package's log lines on stderr at ``level``: prefixed ``lm629:`` as every other line
+    the command prints (a notice is the command's, whichever module logged it), with the
+    logger's name from ``-v`` on (where it helps to find the code)."""
     logger = logging.getLogger("lm629_host")
-    if not any(isinstance(h, _ClickHandler) for h in logger.handlers):
+    handler = next((h for h in logger.handlers if isinstance(h, _ClickHandler)), None)
+    if handler is None:
         handler = _ClickHandler()
-        handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
         logger.addHandler(handler)
+    handler.setFormatter(logging.Formatter("lm629: %(message)s" if level >= logging.WARNING
+                                           else "%(name)s: %(message)s"))
     logger.setLevel(level)
 
 

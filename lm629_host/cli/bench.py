@@ -105,6 +105,44 @@ WIRING_HINT = ("  -> a data or control wire may be wrong: run `lm629 wiring --ch
                "wire, moving nothing) and compare with `lm629 wiring`")
 
 
+#: the optional extras (pyproject's ``[project.optional-dependencies]`` less the developers'
+#: ``test`` and ``lint``; a test holds the two lists together): extra -> the modules it
+#: brings, each with its distribution, and what needs it.  Missing, each is a note, not a
+#: problem: a bench without an FT232H needs no pyftdi
+OPTIONAL_EXTRAS: dict[str, tuple[tuple[tuple[str, str], ...], str]] = {
+    "ftdi": ((("pyftdi", "pyftdi"),), "ftdi://, an FT232H adapter"),
+    "plot": ((("matplotlib", "matplotlib"),), "the PNGs of step, tune and scope --png, CSV "
+                                              "only without it"),
+    "scope": ((("plotext", "plotext"), ("matplotlib", "matplotlib")),
+              "lm629 scope's live terminal plot"),
+    "vcd": ((("vcd", "pyvcd"),), "--vcd and vcd=, a simulated bus for PulseView and sigrok"),
+    "labgrid": ((("labgrid", "labgrid"),), "the labgrid driver, in a venv of its own as it "
+                                           "brings a pyserial fork: docs/testing.md"),
+}
+
+
+def _extras() -> tuple[list[tuple[str, bool, str]], set[str]]:
+    """(extra, installed, what it says) for each optional extra, and the modules missing."""
+    import importlib.util
+    from importlib.metadata import PackageNotFoundError, version
+    rows, missing = [], set()
+    for extra, (modules, needs) in OPTIONAL_EXTRAS.items():
+        absent = [m for m, _dist in modules if importlib.util.find_spec(m) is None]
+        missing.update(absent)
+        if absent:
+            rows.append((extra, False, f"not installed ({', '.join(absent)}), optional for "
+                                       f"{needs}: pip install 'lm629-host[{extra}]'"))
+            continue
+        found = []
+        for _m, dist in modules:
+            try:
+                found.append(f"{dist} {version(dist)}")
+            except PackageNotFoundError:  # importable from elsewhere (a checkout on the path)
+                found.append(dist)
+        rows.append((extra, True, f"{', '.join(found)}: {needs}"))
+    return rows, missing
+
+
 @main.command()
 def doctor() -> None:
     """What is installed, what can be found and what is wrong (backends, permissions, latency,
@@ -114,21 +152,21 @@ def doctor() -> None:
     s = _session()
     problems = 0
 
-    def line(name: str, ok: bool, msg: str) -> None:
+    def line(name: str, ok: bool, msg: str, optional: bool = False) -> None:
+        """``[ok]``, ``[!!]`` (a problem: counted, exit 1), or ``[--]``: an optional part
+        not installed, said as such and not counted."""
         nonlocal problems
         problems += not ok
-        click.echo(f"  [{click.style('ok' if ok else '!!', fg='green' if ok else 'red')}] "
-                   f"{name}: {msg}")
+        mark, colour = ("--", "yellow") if optional else ("ok", "green") if ok else ("!!", "red")
+        click.echo(f"  [{click.style(mark, fg=colour)}] {name}: {msg}")
 
     click.echo("python and packages")
     line("python", sys.version_info >= (3, 10), platform.python_version())
     line("lm629-host", True, lm629_host.__version__)
-    try:
-        import matplotlib
-        line("matplotlib", True, f"{matplotlib.__version__} (lm629 step draws PNGs)")
-    except ImportError:
-        line("matplotlib", False, "missing: lm629 step writes CSV only; "
-                                  "pip install 'lm629-host[plot]'")
+    extras, missing = _extras()
+    click.echo("optional extras ([--]: not installed, not a problem)")
+    for extra, installed, msg in extras:
+        line(extra, True, msg, optional=not installed)
     from lm629_host.transports import transport_classes
     for scheme, cls, problem in transport_classes():
         if cls is None:
@@ -144,7 +182,8 @@ def doctor() -> None:
         if checks:
             click.echo(f"{scheme}://")
         for c in checks:
-            line(c.name, c.ok, c.message)
+            # a transport's note of a module the extras above found missing is that note again
+            line(c.name, c.ok, c.message, optional=c.ok and c.name in missing)
     if s.port_given:
         click.echo(f"port {s.port}")
         try:

@@ -151,7 +151,6 @@ def check_filter_options(chip: LM629, kp: int | None, ki: int | None, kd: int | 
     """The filter options against the chip's ranges, before any traffic: an error names the
     option the user typed (``--kp``, ``--ds``), not the library's argument."""
     try:
-        chip.filter_program(kp, ki, kd, il, ds)
-    except ArgumentError as exc:
-        raise click.BadParameter(str(exc), param_hint={"derivative_interval": "--ds"}.get(
-            exc.argument, f"--{exc.argument}")) from None
+        chip.filter_program(kp, ki, kd, il, ds=ds)
+    except ArgumentError as exc:  # named as the options are: kp, ki, kd, il, ds
+        raise click.BadParameter(str(exc), param_hint=f"--{exc.argument}") from None

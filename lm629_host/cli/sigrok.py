@@ -23,8 +23,9 @@ def install_cmd(directory: Path | None) -> None:
 
     try:
         target = install(directory)
-    except OSError as exc:
-        raise click.ClickException(f"cannot install the decoder: {exc}") from None
+    except OSError as exc:  # the directory given cannot hold it: bad usage, nothing written
+        raise click.BadParameter(f"cannot install the decoder there: {exc.strerror or exc} "
+                                 f"({exc.filename or directory})", param_hint="--dir") from None
     click.echo(f"installed the lm629 decoder in {target}")
     hint = "" if directory is None else f"SIGROKDECODE_DIR={target.parent} "
     click.echo(f"try: {hint}sigrok-cli -I vcd -i bus.vcd -P lm629 -A lm629=commands:warnings")

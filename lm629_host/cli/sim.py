@@ -53,7 +53,9 @@ def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) 
     if pty_path is not None and not pty_path.parent.is_dir():
         raise click.BadParameter(f"{str(pty_path)!r}: the directory {str(pty_path.parent)!r} "
                                  "does not exist", param_hint="--pty")
+    from lm629_host.transports.ports import resolve_port
     try:
+        resolve_port(url)  # the board options and the axis= mistake, said as --port says them
         server = SimServer(pty_path, url, firmware=firmware, tcp=address)
     except ValueError as exc:  # a bad --url parameter (usb=, chip=, ...): a usage error
         raise click.BadParameter(str(exc), param_hint="--url") from None

@@ -9,13 +9,15 @@ gives the exit code and says how the motor was left).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from lm629_host.config.profile import AxisProfile, save_gains
 from lm629_host.chip.safety import stop_on_error
 from lm629_host.bench.tuning import Gains, identify
 from lm629_host.bench.twin import Plant, check_twin, plant_record, twin_profile
-from lm629_host.urls import with_query
+from lm629_host.urls import query_params, with_query
 from lm629_host.cli.app import Session, _session, axes_of
 from lm629_host.cli.motion import _motion_words
 from lm629_host.cli.types import FINITE
@@ -92,6 +94,24 @@ def twin_url(s: Session, ax: AxisProfile) -> str:
     return with_query("sim://", {"profile": str(s.profile.path), "axis": ax.name})
 
 
+#: what a simulator URL may name and still build its axes from the profile's plants alone:
+#: the profile and its axis, the board (chip, clock, axes, cs), the encoder's lines, and what
+#: only records or checks (any other parameter is a motor, a fault or a wiring of its own)
+_TWIN_KEEPS = frozenset({"profile", "axis", "chip", "clock", "axes", "cs", "lines", "vcd",
+                         "record", "strict"})
+
+
+def _bench_is_the_twin(s: Session) -> bool:
+    """Whether the session's port builds the same simulated axes the twin does (the CLI gives
+    a simulator ``profile=`` with ``--profile``): such a check can only say "matches"."""
+    if not s.is_sim or s.profile is None:
+        return False
+    params = query_params(s.url())
+    if "profile" not in params or set(params) - _TWIN_KEEPS:
+        return False
+    return Path(params["profile"]).resolve() == Path(s.profile.path).resolve()
+
+
 @click.group("twin")
 def twin_group() -> None:
     """The twin of the bench built from the profile (sim://?profile=FILE): check it."""
@@ -140,6 +160,13 @@ def check_cmd(travel: int, distance: int | None, velocity: float | None,
     if gains is None:
         raise click.UsageError(f"{s.profile.path}: [axis.{ax.name}] has no kp: the check "
                                "runs the profile's gains on both")
+    if _bench_is_the_twin(s):
+        raise click.UsageError(
+            f"the bench {s.port} is the twin itself: a simulator given with --profile builds "
+            f"each axis from the profile's plant, so the check would compare the twin with "
+            f"itself. Give the bench's port (--port /dev/ttyACM0, or the profile's port = "
+            f"...), or a simulated bench of its own (--port 'sim://?inertia=4e-5&load_torque="
+            f"0.004': a motor parameter in the URL keeps its own motor)")
     plant = Plant.from_values(ax.plant)
     chip = s.open()
     from lm629_host.cli import profile
@@ -159,7 +186,7 @@ def check_cmd(travel: int, distance: int | None, velocity: float | None,
                                 progress=lambda text: click.echo(f"  {text}", err=True))
     for line in result.lines():
         click.echo(line)
-    click.echo("matches" if result.matches else "differs")
+    click.echo("matches" if result.matches else "differs")  # the verdict, once, last
     if not result.matches:
         click.get_current_context().exit(EXIT_DIFFERS)
 

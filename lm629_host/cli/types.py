@@ -25,8 +25,12 @@ _NUMBER = re.compile(r"^[+-]?(\d|\.\d)")
 
 
 def _not_an_option(value: str, param: Any, ctx: Any) -> None:
+    """A stray ``--velo`` that click handed to the arguments: "no such option", with click's
+    own suggestion of the command's closest options (``--vel``), as for any other command."""
     if value.startswith("-") and not _NUMBER.match(value):
-        raise click.NoSuchOption(value.split("=")[0], ctx=ctx)
+        known = ([o for p in ctx.command.get_params(ctx) for o in (*p.opts, *p.secondary_opts)
+                  if o not in ctx.help_option_names] if ctx is not None else None)
+        raise click.NoSuchOption(value.split("=")[0], possibilities=known, ctx=ctx)
 
 
 def parse_int(text: str) -> int:

@@ -33,9 +33,11 @@ reads.  So the stream does what a polling host would do, but open-loop, and chec
 1. Before every transfer (command byte, data word written or read) the stream reads the status
    byte, then makes the transfer.  After every transfer it waits before the next status read:
    by default as long as this chip holds busy, measured before the first program
-   (:meth:`FtdiTransport.calibrate_busy`: a read command, then status reads back to back; the
-   datasheet says 15-25 us typically, 100 us at worst), the wait shortened by the MPSSE
-   commands the stream runs before its check (counted at 0.5 us each, ``COMMAND_S``); with
+   (:meth:`FtdiTransport.calibrate_busy`: a read command, then status reads, at several
+   spacings, which also tell what an MPSSE command costs on this adapter; the datasheet says
+   15-25 us typically, 100 us at worst), the wait shortened by the MPSSE commands the stream
+   runs before its check (counted at the least cost the calibration allows, at most 0.5 us,
+   ``COMMAND_S``); with
    ``busy_us=N`` a fixed N us of idle clocks (100: the documented worst case, the wait before
    this measure existed).  So every one of these status reads normally shows busy clear, and
    every transfer lands.  Between programs the same wait is kept: a stream starts with
@@ -127,8 +129,8 @@ from lm629_host.bus.program import BusCycle, Op, Program, ProgramResult, TraceCa
 from lm629_host.urls import Option, parse_options
 from lm629_host.transports.base import Check, PortInfo, Transport
 from lm629_host.transports.keepalive import KeepAlive
-from lm629_host.transports.mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, chips_of_units,
-                    streams_of)
+from lm629_host.transports.mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, busy_bounds,
+                                        chips_of_units, streams_of)
 
 log = logging.getLogger("lm629_host.ftdi")
 
@@ -142,11 +144,21 @@ FTDI_VID = 0x0403
 FT232H_PID = 0x6014
 
 DEFAULT_LATENCY_MS = 1  #: the FTDI default is 16 ms, the floor of every short read
-#: the cost of one MPSSE command in the busy-wait estimate: pyftdi's figure for two SET_BITS
-#: in a row (``Ftdi.mpsse_bit_delay``, measured on an FT2232H), the emulator's default
+#: the most one MPSSE command is taken to cost in the busy-wait estimate: pyftdi's figure for
+#: two SET_BITS in a row (``Ftdi.mpsse_bit_delay``, measured on an FT2232H), the emulator's
+#: default.  The calibration finds what it costs on the adapter at hand, at most this
+#: (pyftdi's virtual FT232H: nothing)
 COMMAND_S = 500e-9
-#: status reads after the calibration's command (about 3 us each: 120 us, past the worst case)
+#: status reads after each of the calibration's commands (3 bits of idle clocks and 5
+#: commands each, back to back: 20 us with commands that take no time, 120 us at 0.5 us)
 CALIBRATION_POLLS = 40
+#: the idle clocks between the calibration's status reads, one stream each: two paddings or
+#: more tell the chip's busy time and what a command costs apart (:func:`.mpsse.busy_bounds`);
+#: 0 first, so that a chip that shows no busy is found in one stream
+CALIBRATION_PADS = (0.0, 1e-6, 2e-6, 3e-6)
+#: ... and one stream more that idles this share of the least busy time those allow before
+#: its status reads (short of it: its first read must still see busy)
+CALIBRATION_IDLE_SHARE = 0.8
 #: the wait is the busy time measured times this.  The measure is already an upper bound (the
 #: first status read that saw busy clear, up to one read period late); a chip whose busy time
 #: differs between commands (the datasheet gives 15-25 us typical) shows it at a check, which
@@ -201,6 +213,10 @@ class FtdiTransport(Transport):
         self.busy_hits = 0  #: status reads before a transfer that showed busy (all time)
         #: the chip's busy time measured at open (None: not measured, the fixed wait is used)
         self.calibrated_busy_s: float | None = None
+        #: what an MPSSE command is counted at when a wait is shortened by the commands run
+        #: before its check: the most it is taken to cost until the calibration finds the least
+        #: this adapter's can be (:func:`.mpsse.busy_bounds`)
+        self.command_s = COMMAND_S
         self.calibration_exchanges = 0  #: USB write+read pairs the calibration took
         #: what the last calibration found, or why there is none (``lm629 doctor`` shows it)
         self.calibration_note = ("not measured yet: it runs before the first program"
@@ -273,8 +289,8 @@ class FtdiTransport(Transport):
             checks.append(Check("pyftdi", True, f"pyftdi {pyftdi.__version__}"))
         except ImportError:
             # optional: only an FT232H needs it, so its absence is a note, not a problem
-            return [Check("pyftdi", True, "not installed (only ftdi:// needs it: "
-                                          "pip install 'lm629-host[ftdi]')")]
+            return [Check("pyftdi", True, "not installed, optional: only ftdi:// needs it "
+                                          "(pip install 'lm629-host[ftdi]')")]
         try:
             from pyftdi.usbtools import UsbTools
             UsbTools.find_backend()
@@ -350,14 +366,19 @@ class FtdiTransport(Transport):
         program when the adapter was opened without ``busy_us`` (or ``busy_us=auto``).
 
         One status read first: a chip that is busy (or in reset, or not answering: D0 high) is
-        left alone and the documented 100 us kept.  Then one stream: the status check, RDSIGS
-        (a read command: it changes nothing on the chip), status reads back to back, a wait of
-        the documented worst case, and RDSIGS's word (so that no command is left half done).
-        The first status read with busy clear bounds the busy time from above, in the stream
-        time the compiler counts (idle clocks, and :data:`COMMAND_S` per MPSSE command): the
-        same count shortens each later wait by the commands run before its check.  Nothing of
-        the busy discipline changes: every transfer still has its check, and a check that sees
-        busy still repeats the command (and lengthens the wait, :meth:`_learn_busy`).
+        left alone and the documented 100 us kept.  Then one stream per padding of
+        :data:`CALIBRATION_PADS`: the status check, RDSIGS (a read command: it changes nothing
+        on the chip), status reads that many idle clocks apart, a wait of the documented
+        worst case, and RDSIGS's word (so that no command is left half done).  In each, the
+        last read that saw busy and the first that saw it clear bound the busy time; what
+        each read's time is depends on what an MPSSE command costs on this adapter, which
+        only the streams together tell (:func:`.mpsse.busy_bounds`: pyftdi's virtual FT232H
+        runs commands in no time, an FT2232H takes about 0.5 us).  The wait is the longest
+        busy time they allow, shortened before each check by the commands run since the
+        transfer, counted at the lowest cost they allow; one stream more, idle for most of
+        the least busy time they allow before its reads, narrows the cost.  Nothing of the busy discipline
+        changes: every transfer still has its check, and a check that sees busy still repeats
+        the command (and lengthens the wait, :meth:`_learn_busy`).
         Returns the busy time measured, or None (the fixed wait kept)."""
         c = StreamCompiler(self.compiler.tck_hz, self.busy_s, COMMAND_S)
         first = c.status_stream(0, "status", 0)
@@ -368,43 +389,69 @@ class FtdiTransport(Transport):
             log.info("%s: the chip is busy at open: keeping the documented %g us busy wait",
                      self.url, self.busy_s * 1e6)
             return None
-        s, times = c.calibration_stream(CALIBRATION_POLLS)
-        answer = self._exchange(s)
-        self.calibration_exchanges = 2
-        polls = answer[1:1 + CALIBRATION_POLLS]
-        clear = next((j for j, b in enumerate(polls) if not b & _BUSY), None)
-        self._owed = {0: self.busy_s}  # after RDSIGS's word
-        if answer[0] & _BUSY or clear is None:
-            self.calibration_note = (f"not measured: busy did not clear within "
-                                     f"{CALIBRATION_POLLS} status reads; waiting the documented "
+        seen: list[tuple[list[tuple[float, int]], int | None]] = []
+        for pad in CALIBRATION_PADS:
+            s, times = c.calibration_stream(CALIBRATION_POLLS, pad, self._lead().get(0, 0.0))
+            answer = self._exchange(s)
+            self.calibration_exchanges += 1
+            self._owed = {0: self.busy_s}  # after RDSIGS's word
+            if answer[0] & _BUSY:  # busy before RDSIGS: its command byte was ignored
+                break
+            polls = answer[1:1 + CALIBRATION_POLLS]
+            clear = next((j for j, b in enumerate(polls) if not b & _BUSY), None)
+            if clear == 0:
+                # no read saw busy: the chip took no command (in reset, unclocked, D0 stuck
+                # low), so nothing was measured; the first read's time is not a busy time.
+                # Measured again before the next program, as check_busy_pin does
+                self._calibrate = True
+                self.calibration_note = (f"not measured: no status read after RDSIGS showed "
+                                         f"busy (a chip that took no command, or D0 stuck low); "
+                                         f"waiting the documented {self.busy_s * 1e6:g} us, "
+                                         "measured again before the next program")
+                log.info("%s: the chip showed no busy after RDSIGS: keeping the documented %g "
+                         "us wait, measured again before the next program", self.url,
+                         self.busy_s * 1e6)
+                return None
+            seen.append((times, clear))
+        bounds = None
+        if len(seen) < len(CALIBRATION_PADS):
+            why = "the chip was busy before a calibration command"
+        elif all(clear is None for _times, clear in seen):
+            why = f"busy did not clear within {CALIBRATION_POLLS} status reads"
+        else:
+            why = "the chip's busy time changed between the calibration's commands"
+            bounds = busy_bounds(seen, COMMAND_S)
+            if bounds is not None:
+                # one stream more, idle for most of the least busy time the others allow,
+                # then status reads back to back: the reads around busy clearing then follow
+                # few commands where the others followed many, which tells the cost closer
+                s, times = c.calibration_stream(CALIBRATION_POLLS, 0.0, self._lead().get(0, 0.0),
+                                                CALIBRATION_IDLE_SHARE * bounds[2])
+                answer = self._exchange(s)
+                self.calibration_exchanges += 1
+                self._owed = {0: self.busy_s}
+                polls = answer[1:1 + CALIBRATION_POLLS]
+                clear = next((j for j, b in enumerate(polls) if not b & _BUSY), None)
+                if not answer[0] & _BUSY and clear:
+                    bounds = busy_bounds([*seen, (times, clear)], COMMAND_S) or bounds
+        if bounds is None:
+            self.calibration_note = (f"not measured: {why}; waiting the documented "
                                      f"{self.busy_s * 1e6:g} us")
-            log.info("%s: no busy time measured at open: keeping the documented %g us wait",
-                     self.url, self.busy_s * 1e6)
+            log.info("%s: no busy time measured at open (%s): keeping the documented %g us wait",
+                     self.url, why, self.busy_s * 1e6)
             return None
-        if clear == 0:
-            # no read saw busy: the chip took no command (in reset, unclocked, D0 stuck low),
-            # so nothing was measured; the first read's time is not a busy time.  Measured
-            # again before the next program, as check_busy_pin does
-            self._calibrate = True
-            self.calibration_note = (f"not measured: no status read after RDSIGS showed busy "
-                                     f"(a chip that took no command, or D0 stuck low); waiting "
-                                     f"the documented {self.busy_s * 1e6:g} us, measured again "
-                                     "before the next program")
-            log.info("%s: the chip showed no busy after RDSIGS: keeping the documented %g us "
-                     "wait, measured again before the next program", self.url, self.busy_s * 1e6)
-            return None
-        # ``clear`` reads saw busy: the busy time, on the MPSSE clock, is at most the time of
-        # the first read that saw it clear
-        busy = min(times[clear] * CALIBRATION_MARGIN, DEFAULT_BUSY_US * 1e-6)
-        self.calibrated_busy_s = times[clear]
+        measured, self.command_s, _least = bounds
+        busy = min(measured * CALIBRATION_MARGIN, DEFAULT_BUSY_US * 1e-6)
+        self.calibrated_busy_s = measured
         self._set_busy(busy)
         self._owed = {0: busy}
-        self.calibration_note = (f"measured: the chip holds busy <= {times[clear] * 1e6:.1f} us "
-                                 f"({clear} of {CALIBRATION_POLLS} status reads saw it); waiting "
-                                 f"{busy * 1e6:.1f} us after each transfer")
-        log.info("%s: the chip holds busy <= %.1f us: waiting %.1f us after each transfer",
-                 self.url, times[clear] * 1e6, busy * 1e6)
-        return times[clear]
+        self.calibration_note = (f"measured: the chip holds busy <= {measured * 1e6:.1f} us "
+                                 f"(an MPSSE command here takes >= {self.command_s * 1e9:.0f} "
+                                 f"ns); waiting {busy * 1e6:.1f} us after each transfer")
+        log.info("%s: the chip holds busy <= %.1f us, a command takes >= %.0f ns: waiting "
+                 "%.1f us after each transfer", self.url, measured * 1e6, self.command_s * 1e9,
+                 busy * 1e6)
+        return measured
 
     def check_busy_pin(self) -> bool:
         """Before the first program with ``busy_pin``: see on the chip what waiting on the pin
@@ -455,7 +502,7 @@ class FtdiTransport(Transport):
     def _set_busy(self, busy_s: float) -> None:
         self.busy_s = busy_s
         old = self.compiler
-        self.compiler = StreamCompiler(self.compiler.tck_hz, busy_s, COMMAND_S,
+        self.compiler = StreamCompiler(self.compiler.tck_hz, busy_s, self.command_s,
                                        busy_pin=self.busy_pin is not None)
         self.compiler.keep, self.compiler.keep_level = old.keep, old.keep_level
 

@@ -265,17 +265,35 @@ class StreamCompiler:
         self.status(s, kind, op)
         return self.finish(s, read_pins=False)
 
-    def calibration_stream(self, polls: int) -> tuple[Stream, list[float]]:
-        """Check, RDSIGS (a read command: it changes nothing on the chip), ``polls`` status
-        reads back to back, a wait of the documented worst case, and RDSIGS's word (so that no
-        command is left half done), on chip 0.  Also returns, for each poll, the stream time
-        from the end of RDSIGS's /WR strobe to the poll's /RD falling edge."""
+    def calibration_stream(self, polls: int, pad_s: float = 0.0, lead_s: float = 0.0,
+                           first_s: float = 0.0) -> tuple[Stream, list[tuple[float, int]]]:
+        """Idle clocks for ``lead_s`` (the busy wait still owed to the previous stream), a
+        check, RDSIGS (a read command: it changes nothing on the chip), idle clocks for
+        ``first_s``, ``polls`` status reads ``pad_s`` of idle clocks apart (0: back to back),
+        a wait of the documented worst case, and RDSIGS's word (so that no command is left
+        half done), on chip 0.  Also returns, for each poll, what runs from RDSIGS's /WR
+        rising edge to the poll's /RD falling edge: (seconds of idle clocks, MPSSE
+        commands).  The idle clocks last exactly that on the TCK; what a command costs is the
+        adapter's, and :func:`busy_bounds` finds it from polls at two paddings or more."""
+        times = []
+        for cost in (0.0, 1.0):  # a poll's stream time is linear in what a command costs
+            c = StreamCompiler(self.tck_hz, self.busy_s, cost, self.busy_pin)
+            c.keep, c.keep_level = self.keep, self.keep_level
+            s, at = c._calibration(polls, pad_s, lead_s, first_s)
+            times.append(at)
+        return s, [(idle, round(both - idle)) for idle, both in zip(*times)]
+
+    def _calibration(self, polls: int, pad_s: float, lead_s: float,
+                     first_s: float) -> tuple[Stream, list[float]]:
         s = self.begin(0)
+        self.delay(s, lead_s)
         self.status(s, "check", 0)
         self.write_byte(s, int(Cmd.RDSIGS), data_port=False)
-        t0 = self.state.t - 1 / self.tck_hz  # /WR rose one bit before (the hold bit after it)
+        # /WR rose one command and one bit before: the hold bit after it, and its own command
+        t0 = self.state.t - 1 / self.tck_hz - self.command_s
         times = []
-        for _ in range(polls):
+        for k in range(polls):
+            self.delay(s, pad_s if k else first_s)
             self.status(s, "status", 0)
             times.append(self.rd_fell_at - t0)
         self.delay(s, DEFAULT_BUSY_US * 1e-6)
@@ -413,6 +431,52 @@ class StreamCompiler:
         self.owed_after = ({k: max(0.0, v - (st.t - st.owed_from.get(k, 0.0)))
                             for k, v in st.owed.items()} if self.command_s else st.owed)
         return s
+
+
+#: the step at which :func:`busy_bounds` tries the cost of an MPSSE command, s
+COMMAND_STEP_S = 1e-9
+
+
+def busy_bounds(observations: Sequence[tuple[Sequence[tuple[float, int]], int | None]],
+                command_max_s: float) -> tuple[float, float, float] | None:
+    """What calibration polls tell of the chip's busy time and of the adapter's MPSSE command
+    cost, neither known alone: ``observations`` holds, for each calibration stream, its
+    polls' (idle seconds, commands) (:meth:`StreamCompiler.calibration_stream`) and the index
+    of the first poll that saw busy clear (None: none did; at least 1: the one before saw
+    it set).  For a command cost ``c`` a poll's /RD falls ``idle + commands * c`` after the
+    transfer, so each stream bounds the busy time from below (the last poll that saw busy)
+    and above (the first that saw it clear).  Streams with different idle paddings agree
+    only for some costs: those are the costs the adapter may have, from 0 up to
+    ``command_max_s`` (the most a command is taken to cost; a slower adapter shows up as a
+    check that sees busy, which the transport repeats and learns from).
+
+    Returns (the longest busy time any such cost allows, the lowest such cost, the shortest
+    busy time any allows), or None when
+    no cost makes the streams agree (the chip's busy time changed between them).  A wait of
+    the first, shortened by the commands run before a check counted at the second, lasts at
+    least the busy time on any adapter the polls allow: a command costs at least that."""
+    busy_hi: float | None = None
+    busy_lo = math.inf
+    lowest: float | None = None
+    for k in range(int(round(command_max_s / COMMAND_STEP_S)) + 1):
+        c = k * COMMAND_STEP_S
+        lo, hi = 0.0, math.inf
+        for times, clear in observations:
+            if clear is None:  # busy through the last poll
+                idle, n = times[-1]
+                lo = max(lo, idle + n * c)
+                continue
+            idle, n = times[clear - 1]
+            lo = max(lo, idle + n * c)
+            idle, n = times[clear]
+            hi = min(hi, idle + n * c)
+        if lo < hi:
+            lowest = c if lowest is None else lowest
+            busy_hi = hi if busy_hi is None else max(busy_hi, hi)
+            busy_lo = min(busy_lo, lo)
+    if busy_hi is None or lowest is None or math.isinf(busy_hi):
+        return None
+    return busy_hi, lowest, busy_lo
 
 
 def units_of(ops: Sequence[BusOp]) -> list[tuple[int, int]]:

@@ -195,6 +195,16 @@ def resolve_port(url: str = DEFAULT_URL, *, chip: str | None = None,
                                          "serial:///dev/ttyACM0, ftdi://...) or a device path")
     scheme, cls, open_url = _transport(url)
     q = query_params(url)
+    if cls.simulated and "axis" in q and "profile" not in q:
+        # axis= is a simulator's, but only beside profile= (the twin of one of its axes): alone
+        # it is the number of chips misspelt, as an unknown name near axes= would be
+        number = q["axis"].strip().isdigit()
+        raise ArgumentError("axis", q["axis"], f"axis={q['axis']} in {url}: axis= names an axis "
+                                               "of a profile (with profile=FILE); "
+                                               + (f"did you mean axes={q['axis']} ({q['axis']} "
+                                                  "chips on one bus; cs=K opens the one on chip "
+                                                  "select K)?" if number else
+                                                  "did you mean axes=N (N chips on one bus)?"))
     values = {name: _settle(name, given, url, q)
               for name, given in (("chip", chip), ("clock", clock), ("axes", axes), ("cs", cs))}
     if cls.simulated:  # the model is built from its URL: tell it what the arguments say

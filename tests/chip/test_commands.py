@@ -98,3 +98,23 @@ def test_rsti_clears_only_the_flags_asked_for(open_chip, recorder):
     assert st & Status.COMMAND_ERROR and not st & Status.TRAJECTORY_COMPLETE
     chip.reset_interrupts(Status.COMMAND_ERROR)
     assert not chip.read_status() & both
+
+
+def test_the_derivative_interval_is_ds_as_in_the_profile(open_chip):
+    """``load_filter(ds=7)``: the profile's and the CLI's name; ds = 7 is the LFIL control
+    word's high byte 7 - 1 = 06.  ``derivative_interval=`` stays the same setting; both at
+    once, or a ds out of 1..256, is an ArgumentError naming ds before any bus cycle."""
+    from lm629_host import ArgumentError
+    chip = open_chip("sim://?record=1")
+    chip.reset()
+    chip.load_filter(kp=20, ds=7)
+    assert chip.derivative_interval == 7
+    assert chip.transport.model.history[-1] == (Cmd.LFIL, (0x0608, 20))
+    chip.load_filter(kp=20, derivative_interval=3)
+    assert chip.derivative_interval == 3
+    cycles = chip.transport.stats.bus_cycles
+    for kwargs in ({"ds": 0}, {"ds": 257}, {"ds": 2, "derivative_interval": 2}):
+        with pytest.raises(ArgumentError) as info:
+            chip.load_filter(kp=1, **kwargs)
+        assert info.value.argument == "ds"
+    assert chip.transport.stats.bus_cycles == cycles and chip.derivative_interval == 3

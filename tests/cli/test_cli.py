@@ -473,7 +473,7 @@ def test_doctor_without_the_optional_pyftdi_or_an_ft232h_finds_no_problem(run, m
     monkeypatch.setitem(sys.modules, "pyftdi", None)  # import pyftdi -> ImportError
     r = run("doctor")
     assert "[!!]" not in r.output, r.output
-    assert "pyftdi: not installed (only ftdi:// needs it" in r.output
+    assert "[--] pyftdi: not installed, optional: only ftdi:// needs it" in r.output
     assert r.output.rstrip().endswith("no problems found") and r.exit_code == 0
 
 

@@ -661,3 +661,25 @@ def test_one_axis_commands_name_the_profiles_axis_and_ask_for_one(tmp_path):
     assert r.stdout.startswith("bring-up of axis y (cs 1), LM629 on "), r.stdout[:200]
     r = runner.invoke(main, ["--profile", str(prof), "--axis", "y", "filter", "--kp", "30"])
     assert r.exit_code == 0 and "filter loaded and updated on axis y: kp=30" in r.stdout
+
+
+def test_open_takes_a_profile_as_open_board_does(tmp_path, caplog):
+    """``lm629_host.open(profile=...)``: the port, chip and clock from the profile; the chip on
+    chip select 0 is axis x, with its soft limits and its gains applied at open (the fresh
+    simulated chip lost them at power-up: one warning says so); ``?cs=1`` opens axis y."""
+    import logging
+    path = _write(tmp_path, GAINED)
+    with caplog.at_level(logging.WARNING, logger="lm629_host"):
+        chip = lm629_host.open(profile=path)
+    with chip:
+        assert chip.profile_axis == "x" and "axis x (cs 0) had lost its settings" in caplog.text
+        f = chip.transport.models[0].filter_buffer  # the profile's port: sim://?axes=2
+        assert (f.kp, f.ki, f.kd, f.il) == (20, 4, 800, 500)
+        before = chip.transport.stats.programs
+        with pytest.raises(ValueError, match="target 20001 is above the soft limit max = 20000"):
+            chip.move_to(20001, velocity=65536, acceleration=655)
+        assert chip.transport.stats.programs == before
+    with lm629_host.open("sim://?axes=2&cs=1", profile=path, apply=False) as y:
+        assert y.profile_axis == "y" and y.transport.models[1].filter_buffer.kp == 0
+    with pytest.raises(ValueError, match="apply='sometimes'"):
+        lm629_host.open(profile=path, apply="sometimes")

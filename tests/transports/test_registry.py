@@ -105,6 +105,12 @@ def test_a_third_party_transport_through_its_entry_point(plugin, caplog):
     r = CliRunner().invoke(cli, ["list"])
     assert r.exit_code == 0, r.output
     assert "bench://rig-7" in r.output and "the rig in room 7" in r.output
+    # the notice is the command's line, as every other it prints: lm629:, not the logger's
+    # name (that comes with -v, where it helps to find the code)
+    notice = "entry point sim = lm629_bench_plugin:BenchTransport ignored: sim:// is built in"
+    assert f"lm629: {notice}" in r.stderr and "lm629_host.transports:" not in r.stderr
+    r = CliRunner().invoke(cli, ["-v", "list"])
+    assert f"lm629_host.transports: {notice}" in r.stderr
     assert "broken://  not available" in r.output
     r = CliRunner().invoke(cli, ["doctor"])
     assert "bench://" in r.output and "rig 7 answers" in r.output
