@@ -34,7 +34,7 @@ from __future__ import annotations
 from typing import Any
 
 from lm629_host.wiring.faults import FORMS, Miswiring
-from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.urls import Option, PortURL, parse_options, query_params
 
 def _parse(text: str) -> Miswiring | None:
     return Miswiring.parse(text) if text.strip() else None
@@ -45,7 +45,7 @@ def _parse(text: str) -> Miswiring | None:
 OPTION = Option("wiring", "str", None, parse=_parse, unit="dN-low|dN-high|dN-open|dN-dM")
 
 
-def wiring_of(url: str) -> Miswiring | None:
+def wiring_of(url: str | PortURL) -> Miswiring | None:
     """The URL's ``wiring=`` (None: a correct bench)."""
     if "wiring" not in query_params(url):
         return None

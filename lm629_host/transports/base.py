@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any, final
 
 from lm629_host.clock import Clock, WallClock
+from lm629_host.urls import PortURL, port_url
 from lm629_host.errors import AxisError, BusyTimeout, TransportError
 from lm629_host.bus.opcodes import BUSY_BIT
 from lm629_host.bus.program import (
@@ -262,8 +263,11 @@ class Transport(abc.ABC):
     _cycle_observers: tuple[BusObserver, ...] = ()
     _trace_observer: _CycleCallback | None = None
 
-    def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
-        self.url = url
+    def __init__(self, url: str | PortURL, *, trace: TraceCallback | None = None) -> None:
+        #: the port as the user wrote it (messages quote it); the options the CLI or a profile
+        #: added beside it are in :attr:`port_url`
+        self.url = str(url)
+        self.port_url = port_url(url)
         self.trace = trace
         self.stats = Stats()
         self.clock = WallClock()
@@ -377,9 +381,9 @@ class Transport(abc.ABC):
             self.clock = FeedingClock(self._inner_clock, self)
 
     @classmethod
-    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> Transport:
+    def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> Transport:
         """Open the port named by ``url`` (its options after ``?``: see the subclass)."""
-        raise TransportError(f"{cls.__name__} cannot be opened from a URL", port=url)
+        raise TransportError(f"{cls.__name__} cannot be opened from a URL", port=str(url))
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:

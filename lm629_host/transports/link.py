@@ -81,7 +81,7 @@ from lm629_host.bus.program import (
     cycles_of,
 )
 from lm629_host.clock import WallClock
-from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.urls import Option, PortURL, parse_options, query_params
 from lm629_host.transports.base import ProfileState, RawRow, Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
@@ -111,7 +111,7 @@ FAILSAFE_OPTION_NAMES = frozenset(o.name for o in FAILSAFE_OPTIONS)
 FEED_FRACTION = 0.25
 
 
-def failsafe_options(url: str) -> tuple[float, FailsafeAction]:
+def failsafe_options(url: str | PortURL) -> tuple[float, FailsafeAction]:
     """``failsafe=SECONDS`` (0: off, else 0.05..10) and ``failsafe_action=abrupt|smooth|off``
     of a bridge port's URL; ValueError naming the option (the other options are not looked at)."""
     opts = parse_options(url, FAILSAFE_OPTIONS,
@@ -174,7 +174,7 @@ class LinkTransport(Transport):
     #: the wait for one HELLO_REPLY before HELLO is sent again
     hello_interval_s: float = 0.1
 
-    def __init__(self, pipe: Pipe, url: str, *, trace: TraceCallback | None = None,
+    def __init__(self, pipe: Pipe, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = None, cs: int = 0,
                  handshake: bool = True, compact: bool = True, arm: bool = True) -> None:
         super().__init__(url, trace=trace)

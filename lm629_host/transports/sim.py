@@ -16,6 +16,7 @@ from __future__ import annotations
 import threading
 from typing import cast
 
+from lm629_host.urls import PortURL
 from lm629_host.errors import BusyTimeout
 from lm629_host.bus.program import BusOp, Op, Program, ProgramResult, TraceCallback
 from lm629_host.sim.build import build_bus
@@ -85,7 +86,7 @@ class SimTransport(ModelChips, CycleTransport):
     simulated = True
     has_reset_line = True
 
-    def __init__(self, model: ChipModel | ChipBus, url: str = "sim://", *,
+    def __init__(self, model: ChipModel | ChipBus, url: str | PortURL = "sim://", *,
                  trace: TraceCallback | None = None, wiring: Miswiring | None = None) -> None:
         super().__init__(url, trace=trace)
         self.model = model
@@ -252,7 +253,7 @@ class SimTransport(ModelChips, CycleTransport):
         return k
 
     @classmethod
-    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
+    def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimTransport:
         model = build_bus(url)
         vcd = vcd_of(url)
         if vcd is not None:  # the bus drawn into a VCD: every busy poll made, as on a bench
