@@ -30,7 +30,6 @@ from lm629_host.errors import (
     UpdateTooSoon,
     WaitTimeout,
 )
-from lm629_host.urls import PortURL
 from lm629_host.chip.lm629 import LM629, Snapshot
 from lm629_host.chip.move import Move, MoveResult, MoveRules
 from lm629_host.chip.shapes import Points, SCurve
@@ -50,6 +49,7 @@ from lm629_host.motion.board import Board, BoardMove, LinearPlan, open_board, pl
 
 if _typing.TYPE_CHECKING:
     from lm629_host.bench.tuning import TuneResult, autotune
+    from lm629_host.urls import PortURL
 
 #: names imported on first use: name -> module
 _LAZY = {"autotune": ".bench.tuning", "TuneResult": ".bench.tuning"}
@@ -65,7 +65,7 @@ def __getattr__(name: str) -> _typing.Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def open(url: str | PortURL = DEFAULT_URL, *, chip: str | None = None,  # noqa: A001 - lm629_host.open, as io.open
+def open(url: "str | PortURL" = DEFAULT_URL, *, chip: str | None = None,  # noqa: A001 - lm629_host.open, as io.open
          clock: float | str | None = None, trace=None,
          busy_timeout: float = _DEFAULT_BUSY_TIMEOUT_S) -> LM629:
     """Open the chip behind ``url`` (``sim://`` by default; see :mod:`lm629_host.transports`).

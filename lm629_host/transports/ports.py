@@ -38,7 +38,7 @@ from lm629_host.config.profile import Profile, ProfileError
 from lm629_host.errors import ArgumentError
 from lm629_host.bus.opcodes import NOMINAL_CLOCK_HZ
 from lm629_host.bus.program import TraceCallback
-from lm629_host.transports import DEFAULT_URL, URL_SCHEMES, registry, transport_class
+from lm629_host.transports import BUILTIN, DEFAULT_URL, URL_SCHEMES, registry, transport_class
 from lm629_host.transports.base import Transport
 from lm629_host.urls import (BOARD_OPTIONS, PortURL, parse_hz, port_url, scheme_of,
                              split_params, with_query)
@@ -202,7 +202,10 @@ def resolve_port(url: str | PortURL = DEFAULT_URL, *, chip: str | None = None,
         raise ArgumentError("port", str(url), str(exc)) from None
     scheme, cls, open_url = _transport(parsed)
     q = parsed.query()
-    if cls.simulated and (parsed.netloc or parsed.path not in ("", "/")):
+    if (cls.simulated and parsed.scheme in BUILTIN
+            and (parsed.netloc or parsed.path not in ("", "/"))):
+        # the bundled simulators' URLs are a scheme and options: a host or path in one
+        # (``sim:///x``) is a mistake said at once, not silently ignored
         where = parsed.netloc or parsed.path
         raise ArgumentError("port", parsed.given, f"{parsed.given}: a simulator has no host "
                             f"or path ({where!r}): its options go after '?', e.g. "
