@@ -53,6 +53,7 @@ from lm629_host.motion.board import Board, BoardMove, LinearPlan, open_board, pl
 if _typing.TYPE_CHECKING:
     from lm629_host.bench.tuning import TuneResult, autotune
     from lm629_host.config.profile import Profile as _Profile
+    from lm629_host.urls import PortURL
 
 _log = _logging.getLogger("lm629_host")
 
@@ -70,7 +71,7 @@ def __getattr__(name: str) -> _typing.Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def open(url: str | None = None, *, chip: str | None = None,  # noqa: A001 - lm629_host.open, as io.open
+def open(url: "str | PortURL | None" = None, *, chip: str | None = None,  # noqa: A001 - lm629_host.open, as io.open
          clock: float | str | None = None, trace=None,
          busy_timeout: float = _DEFAULT_BUSY_TIMEOUT_S,
          profile: "str | _os.PathLike[str] | _Profile | None" = None,

@@ -15,10 +15,10 @@ import dataclasses
 import difflib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
-from urllib.parse import parse_qs, parse_qsl, urlencode, urlsplit
+from typing import Any, overload
+from urllib.parse import parse_qsl, urlencode, urlsplit
 
-__all__ = ["BOARD_OPTIONS", "Option", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
+__all__ = ["BOARD_OPTIONS", "Option", "PortURL", "port_url", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
            "query_params", "scheme_of", "split_params", "with_query"]
 
 #: the words a boolean option takes (an empty value, ``?strict``, means true)
@@ -26,41 +26,134 @@ _TRUE = ("1", "true", "yes", "on", "")
 _FALSE = ("0", "false", "no", "off")
 
 
-def scheme_of(url: str) -> str:
+@dataclass(frozen=True, eq=False)
+class PortURL:
+    """A port URL, parsed once: what the user wrote, its parts, and its options in order.
+
+    Every layer that reads a port's options (the CLI, :mod:`~lm629_host.transports.ports`,
+    each transport, the simulators) takes a ``PortURL`` or a text; given a text it parses it
+    here, given a ``PortURL`` it reads the parts already split.  What the CLI and a profile add
+    (``chip=``, ``clock=``, ``axes=``, ``vcd=``, ``profile=``) goes into :meth:`with_options`,
+    never into a rewritten string, and ``str()`` is always what the user wrote: every message
+    that quotes the port quotes the user's text.  :attr:`text` is the whole URL with what was
+    added (what a library that takes a URL string, pyserial, is handed).
+
+    A name given twice (``sim://?chip=lm629&chip=lm628``) is refused here, whatever layer owns
+    it: which one was meant cannot be guessed, and pyserial refuses it too.
+    """
+
+    given: str  #: what the user wrote (``str()`` of the URL)
+    scheme: str  #: lower case; ``serial`` for a bare device path
+    netloc: str
+    path: str
+    params: tuple[tuple[str, str], ...]  #: the options in order, the added ones last
+    added: frozenset[str] = frozenset()  #: the names :meth:`with_options` added
+    base: str = ""  #: the URL without its query (``sim://``, ``serial:///dev/ttyACM0``)
+
+    @classmethod
+    def parse(cls, text: str) -> PortURL:
+        """``text`` split once; ValueError for a name given twice."""
+        parts = urlsplit(text)
+        scheme = "serial" if "://" not in text else text.split("://", 1)[0].lower()
+        pairs = tuple(parse_qsl(parts.query, keep_blank_values=True))
+        seen: dict[str, str] = {}
+        for k, v in pairs:
+            if k in seen:
+                raise ValueError(f"{text}: {k}= is given twice ({seen[k]!r} and {v!r}): "
+                                 "give it once")
+            seen[k] = v
+        return cls(text, scheme, parts.netloc, parts.path, pairs, frozenset(),
+                   text.partition("?")[0])
+
+    @property
+    def text(self) -> str:
+        """The whole URL, with the options added to it (for a library that takes a string)."""
+        return self.base + ("?" + urlencode(self.params, safe=":/") if self.params else "")
+
+    def query(self) -> dict[str, str]:
+        """The options by name (each given at most once: :meth:`parse` refused duplicates)."""
+        return dict(self.params)
+
+    def with_options(self, values: Mapping[str, str]) -> PortURL:
+        """These options replaced or added (order kept), not written into :attr:`given`:
+        what the CLI or a profile says beside the user's URL."""
+        values = dict(values)
+        pairs = [(k, values.pop(k) if k in values else v) for k, v in self.params]
+        added = self.added | {k for k in values}
+        pairs += list(values.items())
+        return PortURL(self.given, self.scheme, self.netloc, self.path, tuple(pairs),
+                       frozenset(added), self.base)
+
+    def without(self, names: frozenset[str] | set[str]) -> tuple[PortURL, dict[str, str]]:
+        """This URL without the options ``names``, and their values."""
+        taken = {k: v for k, v in self.params if k in names}
+        if not taken:
+            return self, {}
+        rest = tuple((k, v) for k, v in self.params if k not in names)
+        return (PortURL(self.given, self.scheme, self.netloc, self.path, rest,
+                        self.added - set(names), self.base), taken)
+
+    def __str__(self) -> str:
+        return self.given
+
+    def __repr__(self) -> str:
+        return f"PortURL({self.text!r})"
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, PortURL):
+            return self.text == other.text
+        return NotImplemented
+
+    def __hash__(self) -> int:
+        return hash(self.text)
+
+
+def port_url(url: str | PortURL) -> PortURL:
+    """``url`` as a :class:`PortURL` (parsed now when it is a text)."""
+    return url if isinstance(url, PortURL) else PortURL.parse(url)
+
+
+def scheme_of(url: str | PortURL) -> str:
     """The scheme of ``url``; a bare device path (``/dev/ttyUSB0``, ``COM3``) means serial."""
+    if isinstance(url, PortURL):
+        return url.scheme
     if "://" not in url:
         return "serial"
     return url.split("://", 1)[0].lower()
 
 
-def query_params(url: str) -> dict[str, str]:
-    """``?a=1&b=2`` of a URL as a dict of last values."""
-    q = urlsplit(url).query
-    return {k: v[-1] for k, v in parse_qs(q, keep_blank_values=True).items()}
+def query_params(url: str | PortURL) -> dict[str, str]:
+    """``?a=1&b=2`` of a URL as a dict (a name given twice: ValueError, see :class:`PortURL`)."""
+    return port_url(url).query()
 
 
-def with_query(url: str, values: Mapping[str, str]) -> str:
-    """``url`` with its query options replaced or added (order kept)."""
-    values = dict(values)
-    base, _, query = url.partition("?")
-    pairs = [(k, values.pop(k) if k in values else v)
-             for k, v in parse_qsl(query, keep_blank_values=True)]
-    pairs += list(values.items())
-    return base + ("?" + urlencode(pairs, safe=":/") if pairs else "")
+@overload
+def with_query(url: str, values: Mapping[str, str]) -> str: ...
+@overload
+def with_query(url: PortURL, values: Mapping[str, str]) -> PortURL: ...
+def with_query(url: str | PortURL, values: Mapping[str, str]) -> str | PortURL:
+    """``url`` with its query options replaced or added (order kept): a text for a text, a
+    :class:`PortURL` (its :attr:`~PortURL.given` kept) for a ``PortURL``."""
+    if isinstance(url, PortURL):
+        return url.with_options(values)
+    return PortURL.parse(url).with_options(values).text
 
 
-def split_params(url: str, names: frozenset[str] | set[str]) -> tuple[str, dict[str, str]]:
+@overload
+def split_params(url: str, names: frozenset[str] | set[str]) -> tuple[str, dict[str, str]]: ...
+@overload
+def split_params(url: PortURL, names: frozenset[str] | set[str]
+                 ) -> tuple[PortURL, dict[str, str]]: ...
+def split_params(url: str | PortURL, names: frozenset[str] | set[str]
+                 ) -> tuple[str | PortURL, dict[str, str]]:
     """``url`` without the query parameters ``names``, and their values (e.g. ``cs`` and
     ``axes``, which the board layer reads and a hardware transport does not know)."""
+    if isinstance(url, PortURL):
+        return url.without(names)
     if "?" not in url:
         return url, {}
-    base, query = url.split("?", 1)
-    pairs = parse_qsl(query, keep_blank_values=True)
-    taken = {k: v for k, v in pairs if k in names}
-    if not taken:
-        return url, {}
-    rest = urlencode([(k, v) for k, v in pairs if k not in names], safe=":/")
-    return (base + "?" + rest if rest else base), taken
+    rest, taken = PortURL.parse(url).without(names)
+    return (rest.text if taken else url), taken
 
 
 def parse_hz(text: str) -> float:
@@ -131,14 +224,16 @@ class Option:
     unit: str = ""
     choices: tuple[str, ...] = ()
     optional: bool = False
+    #: words besides ``none`` that stand for None in an optional option (``busy_us=auto``)
+    none_words: tuple[str, ...] = ()
     #: a text option with its own grammar (``wiring=d5-low,d2-d3``): text -> value, ValueError
     #: saying what is allowed; the message gets the URL and the option's name in front
     parse: Callable[[str], Any] | None = None
 
-    def convert(self, text: str, url: str) -> Any:
+    def convert(self, text: str, url: str | PortURL) -> Any:
         """``text`` as this option's value; ValueError naming ``url`` and the option."""
         name = self.name
-        if self.optional and text.strip().lower() == "none":
+        if self.optional and text.strip().lower() in ("none", *self.none_words):
             return None
         if self.kind == "bool":
             try:
@@ -146,6 +241,8 @@ class Option:
             except ValueError as exc:
                 raise ValueError(f"{url}: {name}={text!r}: {exc}") from None
         if self.kind == "str":
+            if not text and self.parse is None and "" not in self.choices:
+                raise ValueError(f"{url}: {name}= is empty: give a value or leave it out")
             if self.parse is not None:
                 try:
                     return self.parse(text)
@@ -188,7 +285,7 @@ def _fmt(v: float | None) -> str:
 BOARD_OPTIONS = frozenset({"chip", "clock", "axes", "cs"})
 
 
-def parse_options(url: str, options: Iterable[Option], *, what: str = "",
+def parse_options(url: str | PortURL, options: Iterable[Option], *, what: str = "",
                   ignore: Iterable[str] = (), aliases: Mapping[str, str] | None = None,
                   given_only: bool = False) -> dict[str, Any]:
     """The options of ``url``, checked and converted: ``{name: value}``.
@@ -200,7 +297,8 @@ def parse_options(url: str, options: Iterable[Option], *, what: str = "",
     """
     specs = {o.name: o for o in options}
     aliases = dict(aliases or {})
-    raw = query_params(url)
+    url = port_url(url)
+    raw = url.query()
     q = {aliases.get(k, k): v for k, v in raw.items()}
     said = {aliases.get(k, k): k for k in raw}  # the name as the URL spells it, for messages
     skip = set(ignore)

@@ -38,6 +38,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from lm629_host.urls import PortURL, scheme_of
 from lm629_host.wiring.connections import MAX_AXES, adapter_name, adapter_pin, connections
 from lm629_host.errors import BusyTimeout, LM629Error
 from lm629_host.wiring.faults import Miswiring
@@ -524,10 +525,10 @@ def diagnose(adapter: str, readings: list[Reading], experiments: dict[str, Exper
     return report
 
 
-def adapter_for(url: str) -> str:
+def adapter_for(url: str | PortURL) -> str:
     """The adapter a port URL drives: the FT232H for ``ftdi://`` and ``sim+ftdi://``, the
     Uno bridge otherwise (``sim://`` models the same bus)."""
-    scheme = url.split("://", 1)[0].lower() if "://" in url else "serial"
+    scheme = scheme_of(url)
     return "ft232h" if scheme in ("ftdi", "sim+ftdi") else "uno"
 
 

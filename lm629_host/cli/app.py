@@ -54,7 +54,7 @@ from lm629_host.transports.ports import PortSpec, resolve_port
 from lm629_host.bus.program import BusCycle
 from lm629_host.chip.safety import STOP_NOTE, StopSignals
 from lm629_host.physics.units import Scale
-from lm629_host.urls import parse_hz, query_params, with_query
+from lm629_host.urls import PortURL, parse_hz, port_url
 
 log = logging.getLogger("lm629_host.cli")
 
@@ -89,7 +89,7 @@ _STOP_SIGNALS = {signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "termina
 
 
 
-def _open(url: str, chip: str, trace: Callable[[BusCycle], None] | None) -> LM629:
+def _open(url: str | PortURL, chip: str, trace: Callable[[BusCycle], None] | None) -> LM629:
     """Open the chip (one seam, so that tests can watch what the CLI opened)."""
     return lm629_host.open(url, chip=chip, trace=trace)
 
@@ -104,7 +104,7 @@ def _check_clock(hz: float, where: str) -> float:
 class Session:
     """The global options and the chip they open (lazily: ``calc`` never opens a port)."""
 
-    port: str
+    port: PortURL  #: the port, parsed once: ``str()`` is what the user (or profile) wrote
     port_given: bool
     chip_name: str
     clock_hz: float
@@ -133,21 +133,21 @@ class Session:
     def sample_s(self) -> float:
         return sample_period_s(self.clock_hz)
 
-    def url(self) -> str:
+    def url(self) -> PortURL:
         """The port URL; a simulator URL gets the global --chip/--clock/--lines unless it
         names them itself, so that the simulated chip matches the options (the conflict
         rule is :func:`~lm629_host.transports.ports.resolve_port`'s, applied in :func:`main`), and
         ``clock=8MHz`` is written in Hz."""
         if not self.is_sim:
             return self.port
-        have = query_params(self.port)
+        have = self.port.query()
         add = {"chip": self.chip_name, "clock": str(int(self.clock_hz))}
         if self.lines:
             add["lines"] = str(self.lines)
         values = {k: v for k, v in add.items() if k not in have}
         if "clock" in have:
             values["clock"] = str(int(self.clock_hz))
-        return with_query(self.port, values) if values else self.port
+        return self.port.with_options(values)
 
     def install_signals(self) -> None:
         """Ctrl-C, SIGTERM and SIGHUP end a command the same way: raised as
@@ -262,11 +262,11 @@ def board(s: Session) -> Board:
             chips = max(chips, 1 + max(ax.cs for ax in s.profile.axes.values()))
         if s.is_sim and s.spec.axes is None and chips > 1:
             # a simulator builds the chips named, unless its URL says how many it has
-            url = with_query(url, {"axes": str(chips)})
+            url = url.with_options({"axes": str(chips)})
         b = lm629_host.open_board(url, chip=s.chip_name, trace=s.cycle_trace())
         if want is not None and len(b.axes) < want:
             b.close()
-            raise AxisError(want - 1, len(b.axes), s.port)
+            raise AxisError(want - 1, len(b.axes), str(s.port))
         s._guard_programs(b.axes[0])
         for a in b.axes:
             a.move_rules = MoveRules(clock_hz=s.clock_hz)
@@ -430,10 +430,13 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
                                  param_hint="--clock") from None
     if lines is not None and lines < 1:
         raise click.BadParameter(f"{lines} must be at least 1", param_hint="--lines")
-    if port is not None and not port.strip():
+    if port is not None and not str(port).strip():
         raise click.BadParameter("is empty (an unset variable in `--port \"$BOARD\"`?); "
                                  "leave --port out to use the simulator", param_hint="--port")
-    url = port or lm629_host.DEFAULT_URL
+    try:  # the one parse of the port's text (a profile's port came parsed)
+        url = port_url(port or lm629_host.DEFAULT_URL)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--port") from None
     # the rule (lm629_host.transports.ports): a URL's chip= / clock= describe the chip; --chip and --clock
     # given on the command line must agree with them, and when not given, the URL's are used
     given = {name: ctx.get_parameter_source(name) not in (
@@ -453,8 +456,8 @@ def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines
             raise click.BadParameter(f"{url} is hardware: --vcd writes a simulator's bus; "
                                      "capture a bench with a logic analyzer (docs/debugging.md)",
                                      param_hint="--vcd")
-        url = with_query(url, {"vcd": vcd_path})
-    if "vcd" in query_params(url) and importlib.util.find_spec("vcd") is None:
+        url = url.with_options({"vcd": vcd_path})
+    if "vcd" in url.query() and importlib.util.find_spec("vcd") is None:
         # checked here, before the port opens: the simulator would find it missing only once
         # it builds the chip, as a traceback
         raise click.BadParameter("writing a VCD needs pyvcd, an optional extra: pip install "

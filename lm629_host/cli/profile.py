@@ -38,7 +38,7 @@ from lm629_host.config.profile import (
 )
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.physics.units import to_fixed
-from lm629_host.urls import query_params, with_query
+from lm629_host.urls import PortURL, port_url
 from lm629_host.cli.app import HOOKS, Session, _session, axes_of, board, main
 from lm629_host.cli.common import _flags
 from lm629_host.transports.ports import profile_port, twin_port
@@ -54,9 +54,10 @@ def _given(ctx: click.Context, name: str) -> bool:
     return ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE
 
 
-def profile_options(ctx: click.Context, path: str, port: str | None, chip_name: str,
+def profile_options(ctx: click.Context, path: str, port: str | PortURL | None, chip_name: str,
                     clock: str, lines: int | None, axis_text: str | None
-                    ) -> tuple[Profile | None, str | None, str, str, int | None, str | None]:
+                    ) -> tuple[Profile | None, str | PortURL | None, str, str, int | None,
+                               str | None]:
     """The global options with the profile's values where the command line gives none (an
     explicit profile beats ``$LM629_PORT``); ``--axis`` names -> chip selects."""
     ctx.meta["lm629.profile_path"] = path
@@ -68,10 +69,14 @@ def profile_options(ctx: click.Context, path: str, port: str | None, chip_name: 
     if not _given(ctx, "port") and prof.port:
         port = profile_port(prof)
     elif port is not None:  # --port: the profile's chip and clock unless it says its own
-        have = query_params(port)
+        try:
+            parsed = port_url(port)  # the one parse of --port
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--port") from None
+        have = parsed.query()
         add = {k: v for k, v in (("chip", prof.chip), ("clock", str(round(prof.clock_hz))))
                if k not in have and not _given(ctx, "chip_name" if k == "chip" else k)}
-        port = twin_port(prof, with_query(port, add) if add else port)
+        port = twin_port(prof, parsed.with_options(add))
     if not _given(ctx, "chip_name"):
         chip_name = prof.chip
     if not _given(ctx, "clock"):
@@ -296,7 +301,7 @@ def init_cmd(file: str | None, force: bool) -> None:
         raise click.BadParameter(f"the directory {path.parent} does not exist", param_hint="FILE")
     spec = s.axis_spec
     axes = spec if isinstance(spec, tuple) else tuple(axes_of(s)) if spec is None else (0,)
-    text = template(port=s.port if s.port_given else None, chip=s.chip_name,
+    text = template(port=str(s.port) if s.port_given else None, chip=s.chip_name,
                     clock=f"{s.clock_hz / 1e6:g}MHz", lines=s.lines, axes=axes)
     path.write_text(text, encoding="utf-8")
     load_profile(path)  # what it wrote reads back

@@ -141,7 +141,7 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
                           progress=lambda text: click.echo(f"  {text}", err=True))
     from lm629_host.bench.twin import plant_record
     plant = plant_record(result.model, result.sample_s, rms=result.fit_rms,
-                         steps=result.fit_steps, port=s.port)
+                         steps=result.fit_steps, port=str(s.port))
     scale = s.scale
     click.echo(f"axis: {result.model.describe(result.sample_s)}")
     d = f"{result.distance:+d}-count step out and back"

@@ -76,7 +76,7 @@ def identify_cmd(travel: int, interval: float, yes: bool, save_path: str | None)
         found = identify(chip, travel=travel, poll_s=interval, clock_hz=s.clock_hz,
                          restore=restore, progress=lambda text: click.echo(f"  {text}", err=True))
     plant = plant_record(found.model, found.sample_s, rms=found.fit_rms,
-                         steps=found.fit_steps, port=s.port)
+                         steps=found.fit_steps, port=str(s.port))
     click.echo(f"axis: {found.model.describe(found.sample_s)}")
     click.echo("plant: " + ", ".join(f"{k} = {v}" for k, v in plant.items()
                                       if k not in ("date", "port")))

@@ -50,7 +50,7 @@ from lm629_host.transports import DEFAULT_URL, transport_class
 from lm629_host.transports.base import BusObserver, Transport
 from lm629_host.transports.sim import ModelChips
 from lm629_host.transports.ports import PortSpec, profile_port, resolve_port, twin_port
-from lm629_host.urls import query_params, with_query
+from lm629_host.urls import PortURL, query_params, with_query
 
 #: the fixtures that open the port (a collected test using one makes the run check the port)
 FIXTURES = ("lm629", "lm629_board")
@@ -119,7 +119,7 @@ class PortSession:
                     port = profile_port(self.profile_data)
                 except ValueError as exc:
                     raise pytest.UsageError(f"--lm629-profile {profile}: {exc}") from None
-        self.url: str = port or DEFAULT_URL
+        self.url: str | PortURL = port or DEFAULT_URL
         self.allow_motion: bool = bool(config.getoption("lm629_allow_motion", False))
         self._transport: Transport | None = None
         self._signals = StopSignals(_interrupted)
@@ -518,7 +518,7 @@ class Bench(BusObserver):
 _BENCH = pytest.StashKey[Bench]()
 
 
-def _sim_url(base: str, params: dict[str, str]) -> str:
+def _sim_url(base: str | PortURL, params: dict[str, str]) -> str | PortURL:
     """The simulator URL of a test: the port's own parameters, the marker's over them, and
     ``strict=1`` unless one of them says otherwise."""
     values = dict(params)

@@ -48,7 +48,7 @@ from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
 from lm629_host.chip.safety import emergency_stop, stop_if_moving
 from lm629_host.bus.snapshot import add_snapshot, snapshot_at
 from lm629_host.transports.ports import profile_port, resolve_port
-from lm629_host.urls import query_params
+from lm629_host.urls import PortURL, query_params
 from lm629_host.transports import DEFAULT_URL
 from lm629_host.clock import Clock
 from lm629_host.transports.base import Transport
@@ -546,7 +546,7 @@ class _BoardProgram(Program):
         return self
 
 
-def open_board(url: str | None = None, *, axes: int | None = None, chip: str | None = None,
+def open_board(url: str | PortURL | None = None, *, axes: int | None = None, chip: str | None = None,
                clock: float | str | None = None, trace=None,
                busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S,
                profile: str | os.PathLike[str] | Profile | None = None,
@@ -601,7 +601,7 @@ def _with_profile(board: Board, prof: Profile, apply: bool | str) -> None:
         apply_profile(named, prof)
 
 
-def _open_board(url: str, axes: int | None, chip: str | None, clock: float | str | None,
+def _open_board(url: str | PortURL, axes: int | None, chip: str | None, clock: float | str | None,
                 trace: Any, busy_timeout: float) -> Board:
     spec = resolve_port(url, chip=chip, clock=clock, axes=axes)
     if spec.cs is not None:

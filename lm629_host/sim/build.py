@@ -9,7 +9,7 @@ from dataclasses import replace
 
 from lm629_host.errors import AxisError
 from lm629_host.bus.opcodes import BUSY_WORST_CASE_S, POSITION_MAX, POSITION_MIN, Cmd
-from lm629_host.urls import Option, dataclass_options, parse_options, query_params
+from lm629_host.urls import Option, PortURL, dataclass_options, parse_options, query_params
 from lm629_host.sim.model import ChipBus, ChipModel, ChipParams, MotorParams
 from lm629_host.sim.vcd import NAMES as VCD_OPTIONS
 from lm629_host.sim.wiring import board_lines_of, wiring_of
@@ -66,7 +66,7 @@ _CHIP_OPTIONS = dataclass_options(ChipParams, [
 _MOTOR_OPTIONS = dataclass_options(MotorParams)
 
 
-def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel:
+def build_model(url: str | PortURL, *, allowed: frozenset[str] = frozenset()) -> ChipModel:
     """A :class:`ChipModel` configured from a simulator URL's query string.
 
     Used by every simulated transport (``sim://``, ``sim+avr://``, ``sim+ftdi://``), so that
@@ -96,7 +96,7 @@ def build_model(url: str, *, allowed: frozenset[str] = frozenset()) -> ChipModel
 MAX_AXES = 8
 
 
-def axes_of(url: str, limit: int = MAX_AXES) -> int:
+def axes_of(url: str | PortURL, limit: int = MAX_AXES) -> int:
     """The URL's ``axes=`` (default 1), checked against ``limit`` chip selects."""
     raw = query_params(url).get("axes", "1")
     try:
@@ -120,7 +120,7 @@ DYNAMICS = frozenset({"amp_volts", "resistance", "torque_constant", "inertia", "
                       "coulomb", "load_torque", "accel", "tau", "dry", "load"})
 
 
-def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
+def build_bus(url: str | PortURL, *, allowed: frozenset[str] = frozenset(),
               limit: int = MAX_AXES) -> ChipModel | ChipBus:
     """The chip (``axes=1``, the default) or the :class:`ChipBus` of ``axes=N`` chips, each
     with its own motor, all configured from the same URL parameters.
@@ -144,7 +144,7 @@ def build_bus(url: str, *, allowed: frozenset[str] = frozenset(),
     return ChipBus([build_model(url, allowed=allowed) for _ in range(n)])
 
 
-def _twin(url: str, path: str, axis: str | None, allowed: frozenset[str],
+def _twin(url: str | PortURL, path: str, axis: str | None, allowed: frozenset[str],
           limit: int) -> ChipModel | ChipBus:
     from lm629_host.config.profile import PLANT_KEYS, load_profile
     prof = load_profile(path)

@@ -31,6 +31,7 @@ import tty
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from lm629_host.urls import PortURL
 from lm629_host.bridge.protocol import (
     MAX_WIRE_FRAME,
     BadProgram,
@@ -208,7 +209,7 @@ class _PtyLine(EmuPipe):
         return True
 
 
-def emulator_far_end(url: str) -> FarEnd:
+def emulator_far_end(url: str | PortURL) -> FarEnd:
     """The Python bridge over a chip model built from ``url``; with ``usb=`` behind that USB
     adapter (:mod:`.usb`)."""
     model = build_bus(url, allowed=USB_OPTIONS)
@@ -220,7 +221,7 @@ def emulator_far_end(url: str) -> FarEnd:
     return PipeFarEnd(pipe, model, f"Python bridge emulator behind USB {adapter.describe()}")
 
 
-def firmware_far_end(url: str) -> FarEnd:
+def firmware_far_end(url: str | PortURL) -> FarEnd:
     """The compiled bridge firmware in simavr (:mod:`.avr`, 115200 baud) as a far end, over a
     chip model built from the simulator options of ``url`` (with ``usb=``: behind that USB
     adapter).  Raises RuntimeError saying what is missing when the firmware or the harness

@@ -42,7 +42,7 @@ from collections import deque
 from typing import Any
 
 from lm629_host.clock import Clock
-from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.urls import Option, PortURL, parse_options, query_params
 
 #: full-speed USB frame (USB 2.0, 8.4.3: a SOF every 1.000 ms)
 FRAME_S = 1e-3
@@ -220,7 +220,7 @@ class Cdc(Adapter):
         return "cdc (native full-speed device)"
 
 
-def adapter_of(url: str) -> Adapter | None:
+def adapter_of(url: str | PortURL) -> Adapter | None:
     """The adapter that ``url``'s ``usb=`` names (None for ``usb=none``); ValueError for a bad
     value.  The URL's other parameters are someone else's."""
     opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - OPTION_NAMES)
@@ -327,7 +327,7 @@ class UsbPipe:
         self.inner.close()
 
 
-def wrap_usb(pipe: Any, url: str) -> Any:
+def wrap_usb(pipe: Any, url: str | PortURL) -> Any:
     """``pipe`` behind the USB adapter that ``url``'s ``usb=`` names (``pipe`` itself for
     ``usb=none``)."""
     adapter = adapter_of(url)

@@ -34,7 +34,7 @@ from pathlib import Path
 from collections.abc import Sequence
 from typing import IO, Any, cast
 
-from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.urls import Option, PortURL, parse_options, query_params
 from lm629_host.sim.model import ChipBus, ChipModel
 
 #: the URL options (any simulated URL): the file, and the VCD's time unit in ns
@@ -57,9 +57,12 @@ def hi_name(chip: int) -> str:
     return "hi" if chip == 0 else f"hi{chip}"
 
 
-def vcd_of(url: str) -> tuple[str, int] | None:
+def vcd_of(url: str | PortURL) -> tuple[str, int] | None:
     """The URL's ``vcd=`` file and ``vcd_timescale=`` (None: no VCD asked for)."""
     q = query_params(url)
+    if "vcd" in q and not q["vcd"].strip():
+        raise ValueError(f"{url}: vcd= is empty: give the file to write (vcd=bus.vcd) or "
+                         "leave vcd= out")
     if not q.get("vcd"):
         if "vcd_timescale" in q:
             raise ValueError(f"{url}: vcd_timescale= without vcd=FILE")

@@ -45,7 +45,7 @@ from __future__ import annotations
 from typing import Any
 
 from lm629_host.wiring.faults import FORMS as DATA_FORMS, Miswiring
-from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.urls import Option, PortURL, parse_options, query_params
 
 #: the board lines a ``wiring=`` value may name besides the data lines, each with the model
 #: parameter it clears (``ChipParams.hi_wired``, ``MotorParams.index_wired`` and
@@ -81,20 +81,20 @@ OPTION = Option("wiring", "str", None, parse=_parse,
                 unit="dN-low|dN-high|dN-open|dN-dM|hi-open|index-open|encoder-open")
 
 
-def _wiring(url: str) -> tuple[Miswiring | None, frozenset[str]]:
+def _wiring(url: str | PortURL) -> tuple[Miswiring | None, frozenset[str]]:
     if "wiring" not in query_params(url):
         return None, frozenset()
     value: Any = parse_options(url, [OPTION], ignore=set(query_params(url)) - {"wiring"})
     return value["wiring"]
 
 
-def wiring_of(url: str) -> Miswiring | None:
+def wiring_of(url: str | PortURL) -> Miswiring | None:
     """The URL's miswired data lines (None: a correct data bus), which every far end bends
     its bytes with."""
     return _wiring(url)[0]
 
 
-def board_lines_of(url: str) -> dict[str, bool]:
+def board_lines_of(url: str | PortURL) -> dict[str, bool]:
     """The model parameters the URL's board-line faults set (``{"hi_wired": False}`` for
     ``wiring=hi-open``; empty: every board line connected): :mod:`lm629_host.sim.build`
     applies them to the chip and its motor."""

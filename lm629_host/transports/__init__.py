@@ -39,7 +39,7 @@ from importlib.metadata import entry_points
 from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import SchemeError, TransportError
 from lm629_host.bus.program import TraceCallback
-from lm629_host.urls import query_params, scheme_of, split_params
+from lm629_host.urls import PortURL, query_params, scheme_of, split_params
 from lm629_host.transports.base import Check, CycleTransport, PortInfo, Stats, Transport
 
 log = logging.getLogger("lm629_host.transports")
@@ -90,7 +90,7 @@ def _load(scheme: str, target: str) -> type[Transport]:
     return cls
 
 
-def transport_class(url: str) -> type[Transport]:
+def transport_class(url: str | PortURL) -> type[Transport]:
     """The transport class for ``url``'s scheme (its module imported now); an unknown scheme
     is a :class:`~lm629_host.errors.SchemeError`."""
     scheme = scheme_of(url)
@@ -100,11 +100,11 @@ def transport_class(url: str) -> type[Transport]:
         names = [*known, *URL_SCHEMES]
         raise SchemeError(
             f"unknown port scheme {scheme!r}; known: {', '.join(s + '://' for s in names)} "
-            "or a serial device path", port=url)
+            "or a serial device path", port=str(url))
     try:
         return _load(scheme, target)
     except (ImportError, AttributeError, TypeError) as exc:
-        raise TransportError(f"the {scheme}:// transport is not available: {exc}", port=url) from exc
+        raise TransportError(f"the {scheme}:// transport is not available: {exc}", port=str(url)) from exc
 
 
 def transport_classes() -> Iterator[tuple[str, type[Transport] | None, str | None]]:
@@ -117,12 +117,12 @@ def transport_classes() -> Iterator[tuple[str, type[Transport] | None, str | Non
             yield scheme, None, f"{type(exc).__name__}: {exc}"
 
 
-def is_simulated(url: str) -> bool:
+def is_simulated(url: str | PortURL) -> bool:
     """True when ``url`` names a simulated port (no hardware behind it)."""
     return transport_class(url).simulated
 
 
-def open_transport(url: str = DEFAULT_URL, *, trace: TraceCallback | None = None) -> Transport:
+def open_transport(url: str | PortURL = DEFAULT_URL, *, trace: TraceCallback | None = None) -> Transport:
     """Open the transport named by ``url``."""
     return transport_class(url).from_url(url, trace=trace)
 

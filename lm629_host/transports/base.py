@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, final
 
 from lm629_host.clock import Clock, WallClock
 from lm629_host.transports.keepalive import FeedingClock, KeepAlive
+from lm629_host.urls import PortURL, port_url
 from lm629_host.errors import AxisError, BusyTimeout, TransportError
 from lm629_host.bus.opcodes import BUSY_BIT
 from lm629_host.bus.program import (
@@ -241,8 +242,11 @@ class Transport(abc.ABC):
     _cycle_observers: tuple[BusObserver, ...] = ()
     _trace_observer: _CycleCallback | None = None
 
-    def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
-        self.url = url
+    def __init__(self, url: str | PortURL, *, trace: TraceCallback | None = None) -> None:
+        #: the port as the user wrote it (messages quote it); the options the CLI or a profile
+        #: added beside it are in :attr:`port_url`
+        self.url = str(url)
+        self.port_url = port_url(url)
         self.trace = trace
         self.stats = Stats()
         self.clock = WallClock()
@@ -354,9 +358,9 @@ class Transport(abc.ABC):
             self.clock = FeedingClock(self._inner_clock, keepalive)
 
     @classmethod
-    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> Transport:
+    def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> Transport:
         """Open the port named by ``url`` (its options after ``?``: see the subclass)."""
-        raise TransportError(f"{cls.__name__} cannot be opened from a URL", port=url)
+        raise TransportError(f"{cls.__name__} cannot be opened from a URL", port=str(url))
 
     @classmethod
     def list_ports(cls) -> list[PortInfo]:
@@ -593,53 +597,59 @@ class CycleTransport(Transport):
         if self.chip_selects > 1:
             self._select_chip(0)
         # plain ints on the hot path, and no BusCycle objects made unless someone looks at them
-        # (SimTransport runs its own fused copy of this loop: keep the two in step)
+        # (the one cycle loop: every cycle-level transport, the simulator's included, runs it
+        # with its own strobes and busy skip)
         tracing = self._tracing()
         emit = self._emit
-        for index, o in enumerate(program.ops):
-            op = int(o.op)
-            if op == _COMMAND or op == _WRITE or op == _READ:
-                status = self._wait_not_busy(program, index, words, tracing)
-                if op == _COMMAND:
-                    stats.bus_cycles += 1
-                    self._write_command(o.arg)
+        wait_not_busy = self._wait_not_busy
+        cycles = 0  # the strobes below, added to the counters once (the busy checks add theirs)
+        try:
+            for index, o in enumerate(program.ops):
+                op = int(o.op)
+                if op == _COMMAND or op == _WRITE or op == _READ:
+                    status = wait_not_busy(program, index, words, tracing)
+                    if op == _COMMAND:
+                        cycles += 1
+                        self._write_command(o.arg)
+                        if tracing:
+                            emit(BusCycle("command", o.arg))
+                    elif op == _WRITE:
+                        cycles += 2
+                        self._write_word(o.arg)
+                        if tracing:
+                            emit(BusCycle("write", o.arg))
+                    else:
+                        cycles += 2
+                        w = self._read_word()
+                        words.append(w)
+                        if tracing:
+                            emit(BusCycle("read", w))
+                elif op == _STATUS:
+                    status = self._read_status()
+                    cycles += 1
+                    statuses.append(status)
                     if tracing:
-                        emit(BusCycle("command", o.arg))
-                elif op == _WRITE:
-                    stats.bus_cycles += 2
-                    self._write_word(o.arg)
+                        emit(BusCycle("status", status))
+                elif op == _SYNC:
+                    status = wait_not_busy(program, index, words, tracing)
+                    statuses.append(status)
+                elif op == _RESET:
+                    self._pulse_reset()
+                    cycles += 1
                     if tracing:
-                        emit(BusCycle("write", o.arg))
-                else:
-                    stats.bus_cycles += 2
-                    w = self._read_word()
-                    words.append(w)
+                        emit(BusCycle("reset", 0))
+                elif op == _WAIT:
+                    self._inner_clock.sleep(o.arg * 1e-6)
+                elif op == _SELECT:
+                    self._select_chip(o.arg)
                     if tracing:
-                        emit(BusCycle("read", w))
-            elif op == _STATUS:
-                status = self._read_status()
-                stats.bus_cycles += 1
-                statuses.append(status)
-                if tracing:
-                    emit(BusCycle("status", status))
-            elif op == _SYNC:
-                status = self._wait_not_busy(program, index, words, tracing)
-                statuses.append(status)
-            elif op == _RESET:
-                self._pulse_reset()
-                stats.bus_cycles += 1
-                if tracing:
-                    emit(BusCycle("reset", 0))
-            elif op == _WAIT:
-                self._inner_clock.sleep(o.arg * 1e-6)
-            elif op == _SELECT:
-                self._select_chip(o.arg)
-                if tracing:
-                    emit(BusCycle("select", o.arg))
-            elif op == _WAIT_STATUS:
-                status = self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3, tracing)
-                statuses.append(status)
-            else:  # pragma: no cover - Op is closed
-                raise AssertionError(op)
+                        emit(BusCycle("select", o.arg))
+                elif op == _WAIT_STATUS:
+                    status = self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3, tracing)
+                    statuses.append(status)
+                else:  # pragma: no cover - Op is closed
+                    raise AssertionError(op)
+        finally:
+            stats.bus_cycles += cycles
         return ProgramResult(tuple(words), tuple(statuses), status, self._hi())
 

@@ -40,7 +40,7 @@ from lm629_host.bridge.protocol import (
 from lm629_host.clock import WallClock
 from lm629_host.errors import FailsafeTripped, TransportError
 from lm629_host.transports.keepalive import KeepAlive
-from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.urls import Option, PortURL, parse_options, query_params
 
 if TYPE_CHECKING:
     from lm629_host.transports.session import LinkSession
@@ -83,7 +83,7 @@ class FailsafeOptions(NamedTuple):
     feed: str  #: who feeds: ``process`` or ``script``
 
 
-def failsafe_options(url: str) -> FailsafeOptions:
+def failsafe_options(url: str | PortURL) -> FailsafeOptions:
     """``failsafe=SECONDS`` (0: off, else 0.05..10), ``failsafe_action=abrupt|smooth|off`` and
     ``failsafe_feed=process|script`` of a bridge port's URL; ValueError naming the option (the
     other options are not looked at)."""

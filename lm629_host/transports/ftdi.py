@@ -115,9 +115,7 @@ from __future__ import annotations
 import errno as _errno
 import logging
 import os
-import re
 from typing import Any
-from urllib.parse import urlsplit, urlunsplit
 
 from lm629_host import data
 from lm629_host.wiring import ft232h as pins
@@ -126,7 +124,7 @@ from lm629_host.errors import BusyTimeout, TransportError
 from lm629_host.bus.opcodes import BUSY_BIT
 from lm629_host.bus.pinout import pin_of
 from lm629_host.bus.program import BusCycle, Op, Program, ProgramResult, TraceCallback
-from lm629_host.urls import Option, parse_options
+from lm629_host.urls import Option, PortURL, parse_options, port_url
 from lm629_host.transports.base import Check, PortInfo, Transport
 from lm629_host.transports.keepalive import KeepAlive
 from lm629_host.transports.mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler, busy_bounds,
@@ -183,7 +181,7 @@ class FtdiTransport(Transport):
     #: /CS lines of the wiring (ftdi_pins.CHIP_SELECTS): two axes
     chip_selects = len(pins.CHIP_SELECTS)
 
-    def __init__(self, ftdi: Any, url: str, *, trace: TraceCallback | None = None,
+    def __init__(self, ftdi: Any, url: str | PortURL, *, trace: TraceCallback | None = None,
                  clock: Clock | None = None, busy_s: float | None = DEFAULT_BUSY_US * 1e-6,
                  tck_hz: float = DEFAULT_TCK_HZ, latency_ms: int = DEFAULT_LATENCY_MS,
                  busy_pin: str | None = None, heartbeat: str | None = None,
@@ -245,7 +243,7 @@ class FtdiTransport(Transport):
 
     # ------------------------------------------------------------------ opening
     @classmethod
-    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> FtdiTransport:
+    def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> FtdiTransport:
         opts = options_of(url)
         ftdi = open_mpsse(pyftdi_url(url), opts["latency"], opts["frequency"])
         busy = opts["busy_us"]
@@ -795,7 +793,7 @@ class _Stalled(Exception):
 #: ``busy_pin`` none, or a line wired to D0: ``ftdi_pins.BUSY_PINS``)
 OPTIONS = (
     Option("latency", "int", DEFAULT_LATENCY_MS, 1, 255, "ms"),
-    Option("busy_us", "float", None, 0, 65535, "us", optional=True),
+    Option("busy_us", "float", None, 0, 65535, "us", optional=True, none_words=("auto",)),
     Option("frequency", "hz", DEFAULT_TCK_HZ, 1e5, 30e6, "Hz"),
     Option("busy_pin", "str", "none", choices=("none", *pins.BUSY_PINS)),
     Option("heartbeat", "str", None, parse=lambda text: heartbeat_pin(text)),
@@ -819,7 +817,7 @@ def heartbeat_pin(text: str) -> str | None:
     raise ValueError(f"expected {free} or none")
 
 
-def busy_pin_of(opts: dict[str, Any], url: str) -> str | None:
+def busy_pin_of(opts: dict[str, Any], url: str | PortURL) -> str | None:
     """The ``busy_pin`` option as the transport takes it (None: not wired).  ``busy_us`` with
     it is a ValueError naming both: with the pin each check waits on the chip itself, so a
     timed wait has no use, and silently dropping what was asked would hide a mistake."""
@@ -833,19 +831,13 @@ def busy_pin_of(opts: dict[str, Any], url: str) -> str | None:
     return pin
 
 
-def auto_as_none(url: str, name: str) -> str:
-    """``url`` with ``name=auto`` spelled ``name=none`` (an optional option's None)."""
-    return re.sub(rf"(?i)([?&]{name}=)auto(?=&|$)", r"\g<1>none", url)
+def options_of(url: str | PortURL) -> dict[str, Any]:
+    return parse_options(url, OPTIONS, what="FT232H")
 
 
-def options_of(url: str) -> dict[str, Any]:
-    return parse_options(auto_as_none(url, "busy_us"), OPTIONS, what="FT232H")
-
-
-def pyftdi_url(url: str) -> str:
+def pyftdi_url(url: str | PortURL) -> str:
     """Our URL without its options: what pyftdi parses."""
-    parts = urlsplit(url)
-    return urlunsplit((parts.scheme, parts.netloc, parts.path, "", ""))
+    return port_url(url).base
 
 
 ADVICE_NO_BACKEND = (
@@ -878,8 +870,9 @@ def _usb_errno(exc: BaseException) -> int | None:
     return None
 
 
-def translate_open_error(url: str, exc: BaseException) -> TransportError:
+def translate_open_error(url: str | PortURL, exc: BaseException) -> TransportError:
     """The exceptions pyftdi and pyusb raise when opening, as errors that say what to do."""
+    url = str(url)
     text = str(exc)
     if isinstance(exc, ValueError) and "backend" in text.lower():
         return TransportError(ADVICE_NO_BACKEND, port=url)
@@ -898,7 +891,7 @@ def translate_open_error(url: str, exc: BaseException) -> TransportError:
     return TransportError(f"cannot open the FT232H ({type(exc).__name__}: {text})", port=url)
 
 
-def open_mpsse(url: str, latency_ms: int = DEFAULT_LATENCY_MS,
+def open_mpsse(url: str | PortURL, latency_ms: int = DEFAULT_LATENCY_MS,
                frequency: float = DEFAULT_TCK_HZ, device: object | None = None) -> object:
     """Open the FT232H at pyftdi ``url`` (or the pyusb ``device``) in MPSSE mode, lines idle
     (chip deselected, strobes and /RST high, D0-D7 released), latency timer ``latency_ms``,
@@ -917,6 +910,7 @@ def open_mpsse(url: str, latency_ms: int = DEFAULT_LATENCY_MS,
     divide-by-5 and the divisor are pyftdi's (0x8A/0x8B, 0x86, set for ``frequency``).
     Purge: pyftdi's ``purge_buffers`` empties both directions (values 1 and 2, libftdi's
     meaning) before MPSSE is entered."""
+    url = str(url)
     try:
         from pyftdi.ftdi import Ftdi
     except ImportError as exc:

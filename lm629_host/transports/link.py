@@ -58,6 +58,7 @@ from lm629_host.bus.program import (
     TraceCallback,
 )
 from lm629_host.errors import AxisError, BusyTimeout, FailsafeTripped, LinkError, TransportError
+from lm629_host.urls import PortURL
 from lm629_host.transports import baud as _baud
 from lm629_host.transports.base import ProfileState, RawRow
 from lm629_host.transports.codes import ProgramCodes
@@ -96,7 +97,7 @@ class LinkTransport(LinkSession):
     #: port opens; subclasses for real ports raise it)
     hello_total_s: float = 0.5
 
-    def __init__(self, pipe: Pipe, url: str, *, trace: TraceCallback | None = None,
+    def __init__(self, pipe: Pipe, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = None, cs: int = 0,
                  handshake: bool = True, compact: bool = True, arm: bool = True) -> None:
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud)

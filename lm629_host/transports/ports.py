@@ -38,9 +38,10 @@ from lm629_host.config.profile import Profile, ProfileError
 from lm629_host.errors import ArgumentError
 from lm629_host.bus.opcodes import NOMINAL_CLOCK_HZ
 from lm629_host.bus.program import TraceCallback
-from lm629_host.transports import DEFAULT_URL, URL_SCHEMES, registry, transport_class
+from lm629_host.transports import BUILTIN, DEFAULT_URL, URL_SCHEMES, registry, transport_class
 from lm629_host.transports.base import Transport
-from lm629_host.urls import BOARD_OPTIONS, parse_hz, query_params, scheme_of, split_params, with_query
+from lm629_host.urls import (BOARD_OPTIONS, PortURL, parse_hz, port_url, scheme_of,
+                             split_params, with_query)
 
 #: the chips the driver knows
 CHIPS = ("lm628", "lm629")
@@ -55,7 +56,9 @@ class PortSpec:
     url: str  #: the URL as given
     scheme: str  #: the scheme of the transport that opens it (``serial`` for a device path)
     transport: type[Transport]  #: its class (module imported)
-    open_url: str  #: the URL handed to ``transport.from_url``
+    #: the URL handed to ``transport.from_url``: the user's, parsed once, with what the
+    #: arguments add for a simulator (``str()`` of it is still what the user wrote)
+    open_url: PortURL
     chip: str  #: ``lm628`` or ``lm629``
     clock_hz: float | None  #: the chip's clock when said (URL or argument); None: not said
     axes: int | None  #: the number of chips when said; None: what the transport reports
@@ -81,7 +84,7 @@ def _chip_argument(value: object) -> tuple[str, str]:
     return value.lower(), f"chip={value.lower()}"
 
 
-def _chip_in_url(text: str, url: str) -> str:
+def _chip_in_url(text: str, url: str | PortURL) -> str:
     if text.lower() not in CHIPS:
         raise ArgumentError("chip", text, f"chip={text!r} in {url}: expected lm628 or lm629")
     return text.lower()
@@ -103,7 +106,7 @@ def _clock_argument(value: object) -> tuple[float, str]:
     return _check_clock(hz, f"clock={_hz_text(hz)}"), f"clock={_hz_text(hz)}"
 
 
-def _clock_in_url(text: str, url: str) -> float:
+def _clock_in_url(text: str, url: str | PortURL) -> float:
     try:
         hz = parse_hz(text)
     except ValueError:
@@ -122,7 +125,7 @@ def _whole_argument(name: str, lo: int, what: str) -> Callable[[object], tuple[i
 
 
 def _whole_in_url(name: str, lo: int, what: str) -> Callable[[str, str], int]:
-    def check(text: str, url: str) -> int:
+    def check(text: str, url: str | PortURL) -> int:
         try:
             n = int(text)
         except ValueError:
@@ -168,19 +171,19 @@ def _pyserial_knows(scheme: str) -> bool:
         return False
 
 
-def _transport(url: str) -> tuple[str, type[Transport], str]:
+def _transport(url: PortURL) -> tuple[str, type[Transport], PortURL]:
     """(scheme, transport class, URL for it): the registry's (with its :data:`URL_SCHEMES
     <lm629_host.transports.URL_SCHEMES>`, pyserial's usual handlers opened as they are), else
     the serial transport, ``serial://`` in front, for any other scheme pyserial has a handler
     for (``hwgrep://``, ``alt://``...)."""
     scheme = scheme_of(url)
     if scheme not in registry() and scheme not in URL_SCHEMES and _pyserial_knows(scheme):
-        return "serial", transport_class("serial://"), "serial://" + url
+        return "serial", transport_class("serial://"), PortURL.parse("serial://" + url.given)
     cls = transport_class(url)  # SchemeError for an unknown scheme
     return cls.scheme or scheme, cls, url
 
 
-def resolve_port(url: str = DEFAULT_URL, *, chip: str | None = None,
+def resolve_port(url: str | PortURL = DEFAULT_URL, *, chip: str | None = None,
                  clock: float | str | None = None, axes: int | None = None,
                  cs: int | None = None) -> PortSpec:
     """Settle ``url`` and the options given beside it (see the module docstring) into a
@@ -190,11 +193,24 @@ def resolve_port(url: str = DEFAULT_URL, *, chip: str | None = None,
     both sides of a conflict) or :class:`~lm629_host.errors.SchemeError` (an unknown scheme);
     a transport's own options are checked when it opens.
     """
-    if not isinstance(url, str) or not url.strip():
+    if not isinstance(url, (str, PortURL)) or not str(url).strip():
         raise ArgumentError("port", url, f"port {url!r} is empty: give a URL (sim://, "
                                          "serial:///dev/ttyACM0, ftdi://...) or a device path")
-    scheme, cls, open_url = _transport(url)
-    q = query_params(url)
+    try:
+        parsed = port_url(url)  # the one parse of the user's text
+    except ValueError as exc:  # a name given twice
+        raise ArgumentError("port", str(url), str(exc)) from None
+    scheme, cls, open_url = _transport(parsed)
+    q = parsed.query()
+    if (cls.simulated and parsed.scheme in BUILTIN
+            and (parsed.netloc or parsed.path not in ("", "/"))):
+        # the bundled simulators' URLs are a scheme and options: a host or path in one
+        # (``sim:///x``) is a mistake said at once, not silently ignored
+        where = parsed.netloc or parsed.path
+        raise ArgumentError("port", parsed.given, f"{parsed.given}: a simulator has no host "
+                            f"or path ({where!r}): its options go after '?', e.g. "
+                            f"{parsed.scheme}://?axes=2")
+    url = parsed.given
     if cls.simulated and "axis" in q and "profile" not in q:
         # axis= is a simulator's, but only beside profile= (the twin of one of its axes): alone
         # it is the number of chips misspelt, as an unknown name near axes= would be
@@ -221,7 +237,7 @@ def resolve_port(url: str = DEFAULT_URL, *, chip: str | None = None,
 
 
 # ---------------------------------------------------------------------------- a profile's port
-def profile_port(profile: Profile) -> str:
+def profile_port(profile: Profile) -> PortURL:
     """The port ``profile`` names, with its chip and clock (and, for a simulator, a chip per
     chip select) said in the URL, settled by :func:`resolve_port`, the one place a port meets
     ``chip=``/``clock=``/``axes=``: a URL that says otherwise
@@ -230,33 +246,38 @@ def profile_port(profile: Profile) -> str:
         raise ProfileError(f"{profile.path}: [board] has no port = \"...\": give --port or "
                            "write the port URL into the profile")
     line = f":{profile.lines['port']}" if "port" in profile.lines else ""
-    if "spy://" in profile.port and "file" in query_params(profile.port):
+    try:
+        port = port_url(profile.port)  # the one parse of the profile's port
+    except ValueError as exc:
+        raise ProfileError(f"{profile.path}{line}: [board] port: {exc}") from None
+    if port.scheme == "spy" and "file" in port.query():
         # a file that any command would create or truncate, read-only ones included: a
         # file a profile names could be anything the user may write
         raise ProfileError(f"{profile.path}{line}: [board] port: {profile.port!r} writes its "
                            "traffic to a file (spy://...?file=): a profile never names a "
                            "file to write; give that port with --port on the command line")
     try:
-        spec = resolve_port(profile.port, chip=profile.chip, clock=profile.clock_hz)
+        spec = resolve_port(port, chip=profile.chip, clock=profile.clock_hz)
     except ValueError as exc:
         raise ProfileError(f"{profile.path}{line}: [board] port: {exc}") from None
-    have = query_params(profile.port)
+    have = port.query()
     add = {"chip": profile.chip, "clock": str(round(profile.clock_hz))}
     n = max((a.cs for a in profile.axes.values()), default=0) + 1
     if spec.transport.simulated and n > 1:
         add["axes"] = str(n)  # the simulator builds the chips the profile names
     add = {k: v for k, v in add.items() if k not in have}
-    return twin_port(profile, with_query(profile.port, add) if add else profile.port)
+    return twin_port(profile, port.with_options(add))
 
 
-def twin_port(profile: Profile, url: str) -> str:
+def twin_port(profile: Profile, url: str | PortURL) -> PortURL:
     """``url``, and when it names a simulator, with ``profile=`` the profile's file unless it
     names one: the simulated chips are then built from each axis's ``[axis.NAME.plant]`` (a
     twin of the bench, :mod:`lm629_host.bench.twin`; a URL that gives its own motor keeps it,
     ``lm629_host.sim.build``)."""
-    if not transport_class(url).simulated or "profile" in query_params(url):
+    url = port_url(url)
+    if not transport_class(url).simulated or "profile" in url.query():
         return url
-    return with_query(url, {"profile": str(profile.path)})
+    return url.with_options({"profile": str(profile.path)})
 
 
 __all__ = ["BOARD_OPTIONS", "CHIPS", "PortSpec", "profile_port", "resolve_port", "twin_port"]

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import errno
 import logging
+from urllib.parse import urlencode
 import os
 import select
 import statistics
@@ -40,7 +41,7 @@ from lm629_host.bridge.protocol import FAST_BAUD
 from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import TransportError
 from lm629_host.bus.program import TraceCallback
-from lm629_host.urls import Option, parse_options, query_params, with_query
+from lm629_host.urls import Option, PortURL, parse_options, port_url
 from lm629_host.transports.base import Check, PortInfo
 from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTIONS, LinkTransport
 
@@ -110,9 +111,11 @@ def advice_missing(path: str) -> str:
             "candidate ports (a Uno is usually /dev/ttyACM0, a Nano clone /dev/ttyUSB0).")
 
 
-def device_of(url: str) -> str:
+def device_of(url: str | PortURL) -> str:
     """The device path of a ``serial://`` URL or a bare path; a pyserial URL given as it is
     (``socket://host:port``) is its own device."""
+    if isinstance(url, PortURL):
+        url = url.base
     if "://" not in url:
         return url.split("?", 1)[0]
     scheme, rest = url.split("://", 1)
@@ -132,15 +135,23 @@ class SerialOptions:
     fast: int = FAST_BAUD
 
 
-def options_of(url: str) -> SerialOptions:
+def options_of(url: str | PortURL) -> SerialOptions:
     """Parse and check a ``serial://`` URL (ValueError naming the parameter)."""
+    url = port_url(url)
     device = device_of(url)
     if not device:
         raise ValueError(f"{url}: no device path (e.g. serial:///dev/ttyACM0)")
     handler = {}
     if is_handler_url(device):  # socket://, rfc2217://, spy://: the other options are its own
-        handler = {k: v for k, v in query_params(url).items() if k not in _OPTION_NAMES}
-        device = with_query(device, handler)
+        scheme, _, rest = device.partition("://")
+        if scheme.lower() in ("socket", "rfc2217"):
+            host, _, port = rest.partition("/")[0].rpartition(":")
+            if not host or not port.isdigit():
+                raise ValueError(f"{url}: {scheme}:// needs a host and a port number "
+                                 f"({scheme}://HOST:PORT, e.g. {scheme}://localhost:7000)")
+        handler = {k: v for k, v in url.params if k not in _OPTION_NAMES}
+        if handler:  # pyserial's own options, handed on as the user wrote them
+            device += "?" + urlencode(list(handler.items()), safe=":/")
     opts = parse_options(url, OPTIONS, what="serial", ignore=handler)
     return SerialOptions(device=device, baud=opts["baud"], retries=opts["retries"],
                          boot_s=opts["boot"], low_latency=opts["low_latency"], cs=opts["cs"],
@@ -291,7 +302,7 @@ class SerialTransport(LinkTransport):
     scheme = "serial"
     hello_interval_s = 0.25
 
-    def __init__(self, pipe: SerialPipe, url: str, *, trace: TraceCallback | None = None,
+    def __init__(self, pipe: SerialPipe, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = DEFAULT_BAUD, cs: int = 0,
                  boot_s: float = DEFAULT_BOOT_S, low_latency: str = "",
                  measure_rtt: bool = True, fast: int = 0) -> None:
@@ -323,7 +334,7 @@ class SerialTransport(LinkTransport):
             raise
 
     @classmethod
-    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SerialTransport:
+    def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SerialTransport:
         opts = options_of(url)
         port = open_port(opts.device, opts.baud)
         low = "off (low_latency=0)"

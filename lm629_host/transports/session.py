@@ -31,6 +31,7 @@ from lm629_host.bridge.protocol import (
 )
 from lm629_host.bus.program import BusOp, Op, ProgramResult, TraceCallback, cycles_of
 from lm629_host.errors import LinkError, TransportError
+from lm629_host.urls import PortURL
 from lm629_host.transports.base import Transport
 
 log = logging.getLogger("lm629_host.bridge.protocol")
@@ -82,7 +83,7 @@ class LinkSession(Transport):
     #: the wait for one HELLO_REPLY before HELLO is sent again
     hello_interval_s: float = 0.1
 
-    def __init__(self, pipe: Pipe, url: str, *, trace: TraceCallback | None = None,
+    def __init__(self, pipe: Pipe, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = None) -> None:
         super().__init__(url, trace=trace)
         if retries < 0:

@@ -16,8 +16,8 @@ from __future__ import annotations
 import threading
 from typing import cast
 
-from lm629_host.errors import BusyTimeout
-from lm629_host.bus.program import BusOp, Op, Program, ProgramResult, TraceCallback
+from lm629_host.urls import PortURL
+from lm629_host.bus.program import Op, Program, TraceCallback
 from lm629_host.sim.build import build_bus
 from lm629_host.sim.clock import SimClock
 from lm629_host.sim.model import ChipBus, ChipModel, Violation, chips_of
@@ -85,7 +85,7 @@ class SimTransport(ModelChips, CycleTransport):
     simulated = True
     has_reset_line = True
 
-    def __init__(self, model: ChipModel | ChipBus, url: str = "sim://", *,
+    def __init__(self, model: ChipModel | ChipBus, url: str | PortURL = "sim://", *,
                  trace: TraceCallback | None = None, wiring: Miswiring | None = None) -> None:
         super().__init__(url, trace=trace)
         self.model = model
@@ -97,134 +97,38 @@ class SimTransport(ModelChips, CycleTransport):
         self.chip_selects = len(self.models)
         self.clock = SimClock(model)
         self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
+        #: the busy loop's sleep between two polls, in the model's clocks
+        self._poll_clocks = max(0, round(self.poll_interval_s * model.clock_hz))
         #: False: make every busy poll (the reference the skip is tested against); never
         #: skipped through miswired lines (the skip reads the chip's own busy, not the pins')
         self.skip_known_busy = self.bent is None
 
-    def _execute(self, program: Program) -> ProgramResult:
-        """:meth:`CycleTransport._execute` fused with this transport's strobes and busy skip.
-
-        The same strobes at the same ticks, the same counters, the same errors: only the
-        layers of calls between them are gone (most of a command's host cost; the chip model
-        is the rest).  With a trace (every poll shown), with ``skip_known_busy`` off, or when
-        busy has no known end (``fault=busy``), the general loop runs instead; the tests
-        compare the two (tests/chip/test_waits_and_busy_checks.py)."""
+    def _wait_not_busy(self, program: Program, index: int, words: list[int],
+                       tracing: bool = True) -> int:
+        """The busy check of the one cycle loop (:meth:`CycleTransport._execute`), with the
+        polls the model's busy deadline already answers skipped (:meth:`_skip_busy_polls`)
+        and the poll that finds busy clear made straight on the model: the same strobes at
+        the same ticks and the same counters as the full poll loop, which runs instead with
+        a trace (every poll shown), through miswired lines, or when a poll still finds the
+        chip busy (tests/chip/test_waits_and_busy_checks.py compares the two)."""
         m = self.model
-        if (not self.skip_known_busy or self._tracing() or m.busy_deadline() is None
-                or self.bent is not None):
-            return super()._execute(program)
+        until = m.busy_deadline()
+        if tracing or self.bent is not None or not self.skip_known_busy or until is None:
+            return super()._wait_not_busy(program, index, words, tracing)
+        t0 = m.tick
+        skipped = self._skip_busy_polls(t0 / m.clock_hz + program.busy_timeout_s)
+        if not skipped and until > t0 + self._cycle_clocks:
+            # the full loop times out before busy ends: let it, with its own message and time
+            return super()._wait_not_busy(program, index, words, tracing)
+        m.advance_to(m.tick + self._cycle_clocks)
+        status = m.read_status()
         stats = self.stats
-        stats.round_trips += 1
-        if isinstance(m, ChipBus):
-            m.select(0)  # a program starts on chip 0
-        c = self._cycle_clocks
-        s = max(0, round(self.poll_interval_s * m.clock_hz))
-        hz = m.clock_hz
-        timeout = program.busy_timeout_s
-        advance_to = m.advance_to
-        words: list[int] = []
-        statuses: list[int] = []
-        status: int | None = None
-        cycles = polls = 0
-        try:
-            for index, o in enumerate(program.ops):
-                op = o.op
-                if op is _COMMAND or op is _WRITE or op is _READ or op is _SYNC:
-                    # the busy check: the polls the busy deadline answers are counted, the
-                    # one that finds busy clear is made (as _skip_busy_polls + the poll loop)
-                    t0 = m.tick
-                    until = m.busy_deadline()
-                    if until is not None and until > t0 + c:
-                        k = -(-(until - t0 - c) // (c + s))
-                        if (t0 + k * c + (k - 1) * s) / hz >= t0 / hz + timeout:
-                            stats.bus_cycles += cycles
-                            stats.busy_polls += polls
-                            cycles = polls = 0
-                            status = self._wait_not_busy(program, index, words, False)
-                            k = -1
-                        else:
-                            advance_to(t0 + k * (c + s))
-                            cycles += k
-                            polls += k
-                    else:
-                        k = 0
-                    if k >= 0:
-                        advance_to(m.tick + c)
-                        status = m.read_status()
-                        cycles += 1
-                        polls += 1
-                        if status & 1:  # busy after all (a reset ended it otherwise): poll on
-                            stats.bus_cycles += cycles
-                            stats.busy_polls += polls
-                            cycles = polls = 0
-                            status = self._poll_on(program, index, words, t0 / hz + timeout,
-                                                   status)
-                    if op is _COMMAND:
-                        advance_to(m.tick + c)
-                        m.write_command(o.arg)
-                        cycles += 1
-                    elif op is _WRITE:
-                        advance_to(m.tick + c)
-                        m.write_data(o.arg >> 8)
-                        advance_to(m.tick + c)
-                        m.write_data(o.arg & 0xFF)
-                        cycles += 2
-                    elif op is _READ:
-                        advance_to(m.tick + c)
-                        hi = m.read_data()
-                        advance_to(m.tick + c)
-                        words.append((hi << 8) | m.read_data())
-                        cycles += 2
-                    else:
-                        statuses.append(status)  # type: ignore[arg-type]  # the busy check set it
-                elif op is _STATUS:
-                    advance_to(m.tick + c)
-                    status = m.read_status()
-                    cycles += 1
-                    statuses.append(status)
-                elif op is _SELECT:
-                    self._select_chip(o.arg)  # one chip: select 0 is no change
-                else:  # RESET, WAIT, WAIT_STATUS: rare, not on the hot path
-                    stats.bus_cycles += cycles
-                    stats.busy_polls += polls
-                    cycles = polls = 0
-                    st = self._run_rare(o)
-                    if st is not None:
-                        status = st
-                        statuses.append(st)
-        finally:
-            stats.bus_cycles += cycles
-            stats.busy_polls += polls
-        return ProgramResult(tuple(words), tuple(statuses), status, m.hi)
-
-    def _poll_on(self, program: Program, index: int, words: list[int], deadline: float,
-                 status: int) -> int:
-        """The rest of the poll loop after a busy ``status``, with its deadline (as
-        CycleTransport._wait_not_busy)."""
-        clock, stats = self._inner_clock, self.stats  # execute holds the lock
-        while True:
-            if clock.now() >= deadline:
-                raise BusyTimeout(program.ops[index].describe(), program.busy_timeout_s,
-                                  status, index, words)
-            clock.sleep(self.poll_interval_s)
-            status = self._read_status()
-            stats.bus_cycles += 1
-            stats.busy_polls += 1
-            if not status & 1:
-                return status
-
-    def _run_rare(self, o: BusOp) -> int | None:
-        """RESET, WAIT and WAIT_STATUS as CycleTransport._execute runs them."""
-        if o.op is _RESET:
-            self._pulse_reset()
-            self.stats.bus_cycles += 1
-        elif o.op is _WAIT:
-            self._inner_clock.sleep(o.arg * 1e-6)
-        elif o.op is _WAIT_STATUS:
-            return self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3, False)
-        else:  # pragma: no cover - Op is closed
-            raise AssertionError(o.op)
-        return None
+        stats.bus_cycles += skipped + 1
+        stats.busy_polls += skipped + 1
+        if status & 1:  # busy after all (a reset moved its end): the full loop goes on
+            m.advance_to(m.tick + self._poll_clocks)
+            return super()._wait_not_busy(program, index, words, tracing)
+        return status
 
     def _skip_busy_polls(self, deadline: float) -> int:
         """Skip the busy polls the model's busy deadline already answers.
@@ -244,7 +148,7 @@ class SimTransport(ModelChips, CycleTransport):
         t0 = m.tick
         if until is None or until <= t0 + c:
             return 0  # busy has no known end (fault=busy), or the first read finds it clear
-        s = max(0, round(self.poll_interval_s * m.clock_hz))
+        s = self._poll_clocks
         k = -(-(until - t0 - c) // (c + s))  # reads before the deadline
         if (t0 + k * c + (k - 1) * s) / m.clock_hz >= deadline:
             return 0  # the full loop would time out: let it, with its own message
@@ -252,7 +156,7 @@ class SimTransport(ModelChips, CycleTransport):
         return k
 
     @classmethod
-    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimTransport:
+    def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimTransport:
         model = build_bus(url)
         vcd = vcd_of(url)
         if vcd is not None:  # the bus drawn into a VCD: every busy poll made, as on a bench
@@ -282,19 +186,33 @@ class SimTransport(ModelChips, CycleTransport):
         m.advance_to(m.tick + self._cycle_clocks)
         return m if self.bent is None else self.bent  # type: ignore[return-value]  # BentChip has the strobes of a chip
 
+    # the strobes: the model's clock one bus cycle on, then the byte (through miswired lines
+    # when ``wiring=`` bends them); written out per strobe, the host cost of every command
     def _read_status(self) -> int:
-        return self._strobe().read_status()
+        m = self.model
+        m.advance_to(m.tick + self._cycle_clocks)
+        return (self.bent or m).read_status()
 
     def _write_command(self, byte: int) -> None:
-        self._strobe().write_command(byte)
+        m = self.model
+        m.advance_to(m.tick + self._cycle_clocks)
+        (self.bent or m).write_command(byte)
 
     def _write_word(self, word: int) -> None:
-        self._strobe().write_data(word >> 8)
-        self._strobe().write_data(word & 0xFF)
+        m, c = self.model, self._cycle_clocks
+        chip = self.bent or m
+        m.advance_to(m.tick + c)
+        chip.write_data(word >> 8)
+        m.advance_to(m.tick + c)
+        chip.write_data(word & 0xFF)
 
     def _read_word(self) -> int:
-        hi = self._strobe().read_data()
-        return (hi << 8) | self._strobe().read_data()
+        m, c = self.model, self._cycle_clocks
+        chip = self.bent or m
+        m.advance_to(m.tick + c)
+        hi = chip.read_data()
+        m.advance_to(m.tick + c)
+        return (hi << 8) | chip.read_data()
 
     def _pulse_reset(self) -> None:
         m = self.model

@@ -28,7 +28,7 @@ from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.model import chips_of
 from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import wrap_usb
-from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.urls import Option, PortURL, parse_options, query_params
 from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
 from lm629_host.transports.sim import ModelChips
 
@@ -48,7 +48,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
     #: that (10% of two 253-byte frames at 115200 baud is 4.8 ms) and the firmware's own time
     margin_s = 0.02
 
-    def __init__(self, sim: AvrSim, url: str, *, trace: TraceCallback | None = None,
+    def __init__(self, sim: AvrSim, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int = DEFAULT_BAUD) -> None:
         self.sim = sim
         self.model = sim.model
@@ -61,7 +61,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud)
 
     @classmethod
-    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimAvrTransport:
+    def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimAvrTransport:
         opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - {o.name for o in OPTIONS})
         baud = opts["baud"]
         if opts["firmware"]:

@@ -13,7 +13,7 @@ from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.model import ChipBus, ChipModel, chips_of
 from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import wrap_usb
-from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.urls import Option, PortURL, parse_options, query_params
 from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
 from lm629_host.transports.sim import ModelChips
 
@@ -32,7 +32,7 @@ class EmuLinkTransport(ModelChips, LinkTransport):
     margin_s = 1e-3
 
     @classmethod
-    def from_url(cls, url: str, *, trace=None) -> EmuLinkTransport:
+    def from_url(cls, url: str | PortURL, *, trace=None) -> EmuLinkTransport:
         return open_emulated(url, trace=trace)
 
     def close(self) -> None:
@@ -40,7 +40,7 @@ class EmuLinkTransport(ModelChips, LinkTransport):
         close_probe(self.model)
 
 
-def open_emulated(url: str = "sim://", *, baud: int | None = None,
+def open_emulated(url: str | PortURL = "sim://", *, baud: int | None = None,
                   retries: int = DEFAULT_RETRIES, wrap=None, trace=None, margin_s: float = 1e-3) -> EmuLinkTransport:
     """A :class:`EmuLinkTransport` to an emulated bridge over a model built from the simulator
     ``url`` (``sim://?record=1`` ...), all in simulated time.

@@ -33,9 +33,9 @@ from lm629_host.sim.vcd import vcd_of
 from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
 from lm629_host.sim.model import ChipBus, ChipModel, Violation, chips_of
-from lm629_host.urls import Option, parse_options, query_params
+from lm629_host.urls import Option, PortURL, parse_options, query_params
 from lm629_host.transports.base import Check, PortInfo
-from lm629_host.transports.ftdi import FT232H_PID, FTDI_VID, FtdiTransport, auto_as_none, busy_pin_of, open_mpsse
+from lm629_host.transports.ftdi import FT232H_PID, FTDI_VID, FtdiTransport, busy_pin_of, open_mpsse
 from lm629_host.transports.ftdi import OPTIONS as FTDI_OPTIONS
 from lm629_host.transports.sim import ModelChips
 
@@ -68,10 +68,10 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
     simulated = True
 
     @classmethod
-    def from_url(cls, url: str, *, trace: TraceCallback | None = None) -> SimFtdiTransport:
+    def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimFtdiTransport:
         model = build_bus(url, allowed=OWN_PARAMS, limit=len(ftdi_pins.CHIP_SELECTS))
         # build_bus checked every other option: they are the chip model's
-        opts = parse_options(auto_as_none(url, "busy_us"), OPTIONS,
+        opts = parse_options(url, OPTIONS,
                              ignore=set(query_params(url)) - OWN_PARAMS)
         latency, busy_us, frequency = opts["latency"], opts["busy_us"], opts["frequency"]
         usb_us, command_ns = opts["usb_us"], opts["command_ns"]

@@ -170,10 +170,10 @@ def test_sim_url_builds_each_axis_from_its_plant(tmp_path):
 
 def test_profile_with_a_bare_sim_port_is_a_twin_and_a_described_one_a_bench(tmp_path):
     prof = parse_profile(PROFILE, tmp_path / "rig.toml")
-    assert f"profile={tmp_path / 'rig.toml'}" in profile_port(prof)
+    assert f"profile={tmp_path / 'rig.toml'}" in profile_port(prof).text
     emu = twin_port(prof, "sim+emu://?usb=uno")
-    assert f"profile={tmp_path / 'rig.toml'}" in emu and "usb=uno" in emu
-    assert twin_port(prof, "serial:///dev/ttyACM0") == "serial:///dev/ttyACM0"
+    assert f"profile={tmp_path / 'rig.toml'}" in emu.text and "usb=uno" in emu.text
+    assert twin_port(prof, "serial:///dev/ttyACM0").text == "serial:///dev/ttyACM0"
     path = tmp_path / "rig.toml"
     path.write_text(PROFILE)
     save_gains(path, "x", {}, plant={"accel": 1e6, "tau": 0.05})

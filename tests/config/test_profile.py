@@ -76,7 +76,7 @@ def test_a_good_profile_reads_back_every_key(tmp_path):
     assert x.key_lines["max"] == 13 and x.key_lines["kp"] == 9
     # the URL opened: the simulator gets the chip, clock and a chip per chip select, and the
     # profile, whose axes' plants it builds the motors from (a twin: tests/test_twin.py)
-    assert profile_port(prof) == f"sim://?chip=lm629&clock=8000000&axes=2&profile={prof.path}"
+    assert profile_port(prof).text == f"sim://?chip=lm629&clock=8000000&axes=2&profile={prof.path}"
 
 
 @pytest.mark.parametrize("edit, line, words", [
@@ -455,7 +455,7 @@ def test_the_profiles_port_is_settled_by_the_one_resolver(tmp_path):
     URL and builds a simulator from them); a URL that says otherwise is one ProfileError."""
     hw = parse_profile(GOOD.replace('port = "sim://"', 'port = "serial:///dev/ttyACM0"')
                        .replace('chip = "lm629"', 'chip = "lm628"'), tmp_path / "hw.toml")
-    assert profile_port(hw) == "serial:///dev/ttyACM0?chip=lm628&clock=8000000"
+    assert profile_port(hw).text == "serial:///dev/ttyACM0?chip=lm628&clock=8000000"
     assert lm629_host.transports.ports.resolve_port(profile_port(hw)).chip == "lm628"
     bad = parse_profile(GOOD.replace('port = "sim://"', 'port = "sim://?chip=lm628"'),
                         tmp_path / "bad.toml")

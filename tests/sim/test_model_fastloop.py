@@ -11,6 +11,7 @@ import pytest
 
 import lm629_host
 from lm629_host.bus.opcodes import FIXED_ONE as ONE
+from lm629_host.urls import query_params, with_query
 
 T = 2048 / 8e6  # one sample at 8 MHz
 
@@ -35,7 +36,9 @@ class Pair:
     """The same chip under every sample loop: readable (0), flattened Python (py), C (c)."""
 
     def __init__(self, params: str) -> None:
-        self.chips = [lm629_host.open(f"sim://?strict=1&fast={f}&{params}") for f in LOOPS]
+        # the test's params over the defaults (a URL names each option once)
+        self.chips = [lm629_host.open(with_query(f"sim://?strict=1&fast={f}", query_params(
+            "sim://?" + params))) for f in LOOPS]
 
     def __getattr__(self, name):
         def call(*args, **kw):

@@ -63,7 +63,7 @@ def test_a_simulator_builds_the_chip_it_is_told_of():
     spec = resolve_port("sim://?cs=1&lines=500", chip="LM628", clock="6MHz", axes=2)
     assert spec.transport is SimTransport and spec.simulated
     assert (spec.chip, spec.clock_hz, spec.axes, spec.cs) == ("lm628", 6e6, 2, 1)
-    assert spec.open_url == "sim://?lines=500&chip=lm628&clock=6000000&axes=2"
+    assert spec.open_url.text == "sim://?lines=500&chip=lm628&clock=6000000&axes=2"
     with lm629_host.open("sim://", chip="lm628", clock=6e6) as chip:
         assert chip.variant == "lm628" and chip.transport.models[0].params.variant == "lm628"
         assert chip.clock_hz == 6e6
@@ -72,7 +72,7 @@ def test_a_simulator_builds_the_chip_it_is_told_of():
 def test_a_hardware_url_keeps_its_own_options_and_gives_up_the_boards():
     spec = resolve_port("/dev/ttyACM0?baud=57600&chip=lm628&clock=6MHz&axes=2&cs=1")
     assert spec.transport is SerialTransport and spec.scheme == "serial" and not spec.simulated
-    assert spec.open_url == "/dev/ttyACM0?baud=57600"
+    assert spec.open_url.text == "/dev/ttyACM0?baud=57600"
     assert (spec.chip, spec.clock_hz, spec.axes, spec.cs) == ("lm628", 6e6, 2, 1)
 
 
@@ -87,7 +87,7 @@ def test_a_hardware_url_keeps_its_own_options_and_gives_up_the_boards():
 def test_a_scheme_pyserial_knows_is_a_serial_port(url, open_url):
     spec = resolve_port(url)
     assert spec.transport is SerialTransport and spec.scheme == "serial"
-    assert spec.open_url == open_url
+    assert spec.open_url.text == open_url
 
 
 def test_a_socket_url_given_directly_reaches_a_bridge():

@@ -49,7 +49,9 @@ def test_ignored_and_aliased_names():
 
 def test_url_helpers():
     assert scheme_of("/dev/ttyUSB0") == "serial" and scheme_of("SIM+AVR://") == "sim+avr"
-    assert query_params("sim://?a=1&a=2&b") == {"a": "2", "b": ""}
+    assert query_params("sim://?a=1&b") == {"a": "1", "b": ""}
+    with pytest.raises(ValueError, match=r"a= is given twice \('1' and '2'\)"):
+        query_params("sim://?a=1&a=2&b")
     assert with_query("sim://?chip=lm628&x=1", {"x": "2", "clock": "6000000"}) == \
         "sim://?chip=lm628&x=2&clock=6000000"
 
