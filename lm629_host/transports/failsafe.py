@@ -103,7 +103,7 @@ class LinkFailsafe:
 
     def __init__(self, link: LinkSession) -> None:
         self.link = link
-        opts = failsafe_options(link.url)
+        opts = failsafe_options(link.port_url)
         #: the failsafe asked for by the URL (seconds, 0: off), its action, who feeds it
         self.timeout_s, self.action, self.feed_mode = opts
         self.available = False  #: the bridge has one (HELLO's capability bit 9)
