@@ -408,3 +408,28 @@ def test_at_most_eight_modules_at_the_top():
     foundations and the two kept module paths: a new module goes in the layer it belongs to."""
     top = sorted(p.stem for p in PKG.glob("*.py") if p.stem not in ("__init__", "__main__"))
     assert len(top) <= 8, top
+
+
+def test_every_command_is_registered_one_way():
+    """A command is a function in its family's module under ``@main.command()`` (or a group
+    under ``@main.group()``): no ``add_command`` lines elsewhere, no top-level ``@click.command``
+    waiting to be added, no hook table standing in for an import."""
+    found = []
+    for path in sorted((PKG / "cli").glob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and node.attr == "add_command":
+                found.append(f"{path.name}:{node.lineno}: add_command")
+            if isinstance(node, ast.Name) and node.id == "HOOKS":
+                found.append(f"{path.name}:{node.lineno}: HOOKS")
+        for node in tree.body:
+            if isinstance(node, ast.FunctionDef):
+                for d in node.decorator_list:
+                    f = d.func if isinstance(d, ast.Call) else d
+                    if (isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name)
+                            and f.value.id == "click" and f.attr in ("command", "group")
+                            and node.name != "main"):  # the group itself
+                        found.append(f"{path.name}:{node.lineno}: @click.{f.attr} on {node.name}")
+    assert not found, found
+    from lm629_host.cli import main
+    assert {"tune", "calc", "bridge", "sim", "sigrok", "identify", "twin", "selftest"} <= set(main.commands)

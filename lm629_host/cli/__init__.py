@@ -12,24 +12,13 @@ A new command is a function in its family's module decorated with ``@main.comman
 
 from __future__ import annotations
 
-from lm629_host.cli import bench, chip, motion, profile, scope, selftest, shell, wiring  # noqa: F401 - importing them registers their commands
+from lm629_host.cli import (  # noqa: F401 - importing a family registers its commands
+    bench, bridge, calc, chip, motion, profile, scope, selftest, shell, sigrok, sim, tune, twin,
+    wiring)
 from lm629_host.chip.safety import Terminated
 from lm629_host.cli.app import EXIT_CODES, Session, main
-from lm629_host.cli.bridge import bridge
-from lm629_host.cli.calc import calc
 from lm629_host.cli.common import snapshot_dict
-from lm629_host.cli.sigrok import sigrok
-from lm629_host.cli.sim import sim
-from lm629_host.cli.tune import tune
-from lm629_host.cli.twin import identify_cmd, twin_group
 from lm629_host.cli.types import parse_int
 
-main.add_command(calc)
-main.add_command(tune)
-main.add_command(bridge)
-main.add_command(sim)
-main.add_command(sigrok)
-main.add_command(identify_cmd)
-main.add_command(twin_group)
 
 __all__ = ["main", "EXIT_CODES", "Session", "Terminated", "parse_int", "snapshot_dict"]

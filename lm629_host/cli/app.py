@@ -55,6 +55,7 @@ from lm629_host.bus.program import BusCycle
 from lm629_host.chip.safety import STOP_NOTE, StopSignals
 from lm629_host.physics.units import Scale
 from lm629_host.urls import PortURL, parse_hz, port_url
+from lm629_host.cli.profile_session import profile_opened, profile_options
 
 log = logging.getLogger("lm629_host.cli")
 
@@ -116,7 +117,12 @@ class Session:
     _chip: LM629 | None = None
     axis_spec: tuple[int, ...] | str | None = None  #: --axis (see cli.axes)
     _board: Any = None
-    _prepare: bool = True
+    #: on an in-process simulator, reset each chip and load kp = 20 when it opens (a fresh
+    #: simulated chip is useless otherwise); bring-up, which does it itself, sets False
+    prepare: bool = True
+    #: apply the profile to a chip that lost its settings once the board opens (the profile
+    #: commands, which send it themselves, set False)
+    reapply: bool = True
     #: Ctrl-C, SIGTERM and SIGHUP, held during the opened chip's bus programs
     signals: StopSignals = field(default_factory=StopSignals)
     profile: Any = None  #: the bench profile (--profile), see cli.profile
@@ -173,7 +179,7 @@ class Session:
     def open(self, *, prepare: bool = True) -> LM629:
         """The chip.  On an in-process simulator: reset it and load kp = 20 (``prepare``)."""
         if self._chip is None and (self.axis_spec is not None or self.spec.axes is not None):
-            self._chip = open_axis(self, prepare)
+            self._chip = self._open_axis(prepare)
             return self._chip
         if self._chip is None:
             if not self.port_given:
@@ -192,6 +198,48 @@ class Session:
                 self._chip.sync()  # UDF's busy over before the command's reads
                 log.info("fresh simulated chip: reset, kp = 20 loaded")
         return self._chip
+
+    def board(self) -> Board:
+        """The board behind the port, with at least the axes named (opened once; on a
+        simulator every axis is reset and given kp = 20, as a single simulated chip is)."""
+        if self._board is None:
+            spec = self.axis_spec
+            want = max(spec) + 1 if isinstance(spec, tuple) else None
+            url = self.url()
+            chips = want or 1
+            if self.profile is not None and self.profile.axes:  # the bench the profile describes
+                chips = max(chips, 1 + max(ax.cs for ax in self.profile.axes.values()))
+            if self.is_sim and self.spec.axes is None and chips > 1:
+                # a simulator builds the chips named, unless its URL says how many it has
+                url = url.with_options({"axes": str(chips)})
+            b = lm629_host.open_board(url, chip=self.chip_name, trace=self.cycle_trace())
+            if want is not None and len(b.axes) < want:
+                b.close()
+                raise AxisError(want - 1, len(b.axes), str(self.port))
+            self._guard_programs(b.axes[0])
+            for a in b.axes:
+                a.move_rules = MoveRules(clock_hz=self.clock_hz)
+            if self.is_sim and self.prepare:
+                b.reset()
+                for a in b.axes:
+                    a.load_filter(kp=20)
+                    a.update_filter()
+                    a.sync()
+            self._board = b
+            if self.profile is not None:
+                profile_opened(self, b)
+        return self._board
+
+    def _open_axis(self, prepare: bool) -> LM629:
+        """The one chip a single-axis command drives."""
+        axes = axes_of(self) if self.axis_spec is not None else (0,)
+        if len(axes) > 1:
+            names = ", ".join(axis_name(self, k) for k in axes)
+            raise click.UsageError(f"axes {names} are chosen (by --axis, or the profile's "
+                                   "axes): this command drives one: give --axis NAME (status, "
+                                   "watch, move with several targets and bringup take several)")
+        self.prepare = prepare
+        return self.board().axis(axes[0])
 
     def close(self) -> None:
         if self._board is not None:
@@ -251,53 +299,8 @@ def several(s: Session) -> bool:
 
 
 def board(s: Session) -> Board:
-    """The board behind the port, with at least the axes named (opened once; on a simulator
-    every axis is reset and given kp = 20, as a single simulated chip is)."""
-    if s._board is None:
-        spec = s.axis_spec
-        want = max(spec) + 1 if isinstance(spec, tuple) else None
-        url = s.url()
-        chips = want or 1
-        if s.profile is not None and s.profile.axes:  # the bench the profile describes
-            chips = max(chips, 1 + max(ax.cs for ax in s.profile.axes.values()))
-        if s.is_sim and s.spec.axes is None and chips > 1:
-            # a simulator builds the chips named, unless its URL says how many it has
-            url = url.with_options({"axes": str(chips)})
-        b = lm629_host.open_board(url, chip=s.chip_name, trace=s.cycle_trace())
-        if want is not None and len(b.axes) < want:
-            b.close()
-            raise AxisError(want - 1, len(b.axes), str(s.port))
-        s._guard_programs(b.axes[0])
-        for a in b.axes:
-            a.move_rules = MoveRules(clock_hz=s.clock_hz)
-        if s.is_sim and s._prepare:
-            b.reset()
-            for a in b.axes:
-                a.load_filter(kp=20)
-                a.update_filter()
-                a.sync()
-        s._board = b
-        if s.profile is not None:
-            HOOKS["profile_opened"](s, b)
-    return s._board
-
-
-def open_axis(s: Session, prepare: bool) -> LM629:
-    """The one chip a single-axis command drives."""
-    axes = axes_of(s) if s.axis_spec is not None else (0,)
-    if len(axes) > 1:
-        names = ", ".join(axis_name(s, k) for k in axes)
-        raise click.UsageError(f"axes {names} are chosen (by --axis, or the profile's axes): "
-                               "this command drives one: give --axis NAME (status, watch, move "
-                               "with several targets and bringup take several)")
-    s._prepare = prepare
-    return board(s).axis(axes[0])
-
-
-#: what other modules plug in without app.py importing them (a circle): cli.profile sets
-#: "profile_options" (--profile -> the other global options) and "profile_opened" (limits and
-#: the re-apply check once the board is open)
-HOOKS: dict[str, Callable[..., Any]] = {}
+    """The board behind the port (:meth:`Session.board`)."""
+    return s.board()
 
 
 def _help_epilog() -> str:
@@ -415,13 +418,13 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
                                    "soft limits, gains re-applied after a power cycle.")
 @click.version_option(lm629_host.__version__, prog_name="lm629")
 @click.pass_context
-def main(ctx: click.Context, port: str | None, chip_name: str, clock: str, lines: int | None,
-         verbose: int, trace: bool, stats: bool, vcd_path: str | None, axis_text: str | None,
+def main(ctx: click.Context, port: str | PortURL | None, chip_name: str, clock: str,
+         lines: int | None, verbose: int, trace: bool, stats: bool, vcd_path: str | None, axis_text: str | None,
          profile_path: str | None) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
     profile = None
     if profile_path is not None:
-        profile, port, chip_name, clock, lines, axis_text = HOOKS["profile_options"](
+        profile, port, chip_name, clock, lines, axis_text = profile_options(
             ctx, profile_path, port, chip_name, clock, lines, axis_text)
     try:
         clock_hz = _check_clock(parse_hz(clock), "--clock")

@@ -22,9 +22,9 @@ import click
 
 from lm629_host.chip.lm629 import LM629
 from lm629_host.bus.opcodes import FIXED_ONE
-from lm629_host.cli.app import MAX_AXIS, Session, axes_of, axis_name, board, open_axis, parse_axes, several
+from lm629_host.cli.app import MAX_AXIS, Session, axes_of, axis_name, board, parse_axes, several
 
-__all__ = ["MAX_AXIS", "axes_of", "axis_name", "board", "check_targets", "move_many", "open_axis",
+__all__ = ["MAX_AXIS", "axes_of", "axis_name", "board", "check_targets", "move_many",
            "parse_axes", "several", "status", "watch_rows"]
 
 def status(s: Session, as_json: bool, snapshot_dict: Any) -> None:

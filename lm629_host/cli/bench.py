@@ -36,7 +36,7 @@ def bringup(yes: bool, move_distance: float | None, hold_kp: int) -> None:
     if axes.several(s):  # one axis after the other; the exit code is the worst
         codes = []
         for k in axes.axes_of(s):
-            s._prepare = False
+            s.prepare = False
             chip = axes.board(s).axis(k)
             click.echo(f"bring-up of axis {axes.axis_name(s, k)}")
             codes.append(_bringup_one(s, chip, options, yes))

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 
+from lm629_host.cli.app import main
 from lm629_host.data import firmware_image
 
 #: the image shipped inside the package (``make -C firmware_bridge bundle`` made it)
@@ -49,7 +50,7 @@ def avrdude_command(port: str, hex_file: Path, board: str = "uno", avrdude: str 
     return cmd
 
 
-@click.group(help="The serial bridge (an Arduino Uno/Nano running firmware_bridge).")
+@main.group(help="The serial bridge (an Arduino Uno/Nano running firmware_bridge).")
 def bridge() -> None:
     pass
 

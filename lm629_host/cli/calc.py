@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import click
 
+from lm629_host.cli.app import main
 from lm629_host.physics.units import Scale
 from lm629_host.cli.types import FINITE
 
@@ -18,7 +19,7 @@ def _word(value: int, digits: int = 8) -> str:
     return f"{value} (0x{value & (16 ** digits - 1):0{digits}X})"
 
 
-@click.command(context_settings={"ignore_unknown_options": True})
+@main.command(context_settings={"ignore_unknown_options": True})
 @click.option("--lines", type=int, default=None, help="Encoder lines (else the global --lines).")
 @click.option("--clock", "clock_hz", type=FINITE, default=None,
               help="Chip clock in Hz (else the global --clock).")

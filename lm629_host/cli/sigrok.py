@@ -7,8 +7,10 @@ from pathlib import Path
 
 import click
 
+from lm629_host.cli.app import main
 
-@click.group(help="The lm629 protocol decoder for sigrok (PulseView, sigrok-cli).")
+
+@main.group(help="The lm629 protocol decoder for sigrok (PulseView, sigrok-cli).")
 def sigrok() -> None:
     pass
 

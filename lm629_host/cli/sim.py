@@ -9,8 +9,10 @@ from pathlib import Path
 
 import click
 
+from lm629_host.cli.app import main
 
-@click.group(help="The simulated bench.")
+
+@main.group(help="The simulated bench.")
 def sim() -> None:
     pass
 

@@ -3,7 +3,7 @@
 A thin front end to :func:`lm629_host.bench.tuning.autotune`: it asks before the motor turns
 (unless ``--yes``), prints progress, the gains, the ``lm629 filter`` line that sets them, and
 the test move measured before (with ``--before`` gains) and after; ``--plot`` draws both.
-Registered in :mod:`lm629_host.cli` with one ``add_command`` line; the CLI's error handler
+Registered with ``@main.command()`` as every command is; the CLI's error handler
 gives the exit code and prints how the motor was left (``autotune`` stops it on any fault).
 """
 
@@ -16,7 +16,7 @@ import click
 from lm629_host.bench.capture import PlotUnavailable, capture_move, summary, write_csv
 from lm629_host.chip.safety import stop_on_error
 from lm629_host.bench.tuning import Gains, TuneResult, autotune
-from lm629_host.cli.app import _session, axis_name, main
+from lm629_host.cli.app import axis_name, main, _session
 from lm629_host.cli.common import _position, check_filter_options
 from lm629_host.cli.motion import _motion_words, _tolerance
 from lm629_host.cli.types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
@@ -67,7 +67,7 @@ def _plot(result: TuneResult, path: str, lines: int | None) -> str:
                               tolerance=result.tolerance, gain_texts=texts))
 
 
-@click.command("tune")
+@main.command("tune")
 @click.option("--travel", "travel_typed", type=FINITE, required=True, metavar="DISTANCE",
               help="How far the shaft may go either way from where it is now (counts; "
                    "revolutions with --lines); tuning stays inside this band.")

@@ -2,7 +2,7 @@
 twin built from it checked against the bench.
 
 Thin front ends to :func:`lm629_host.bench.tuning.identify` and :func:`lm629_host.bench.twin.check_twin`
-(docs/twin.md); registered in :mod:`lm629_host.cli` with ``add_command`` lines.  Both ask
+(docs/twin.md); registered with ``@main.command()`` as every command is.  Both ask
 before the motor turns (unless ``--yes``); any fault stops the motor (the CLI's error handler
 gives the exit code and says how the motor was left).
 """
@@ -18,7 +18,7 @@ from lm629_host.chip.safety import stop_on_error
 from lm629_host.bench.tuning import Gains, identify
 from lm629_host.bench.twin import Plant, check_twin, plant_record, twin_profile
 from lm629_host.urls import query_params, with_query
-from lm629_host.cli.app import Session, _session, axes_of
+from lm629_host.cli.app import axes_of, main, _session, Session
 from lm629_host.cli.motion import _motion_words
 from lm629_host.cli.types import FINITE
 
@@ -48,7 +48,7 @@ def _profile_gains(ax: AxisProfile | None) -> Gains | None:
     return Gains(ax.kp, ax.ki or 0, ax.kd or 0, ax.il or 0, ax.ds)
 
 
-@click.command("identify")
+@main.command("identify")
 @click.option("--travel", type=int, required=True, metavar="COUNTS",
               help="How far the shaft may go either way from where it is now (counts).")
 @click.option("--interval", type=float, default=0.001, show_default=True,
@@ -112,7 +112,7 @@ def _bench_is_the_twin(s: Session) -> bool:
     return Path(params["profile"]).resolve() == Path(s.profile.path).resolve()
 
 
-@click.group("twin")
+@main.group("twin")
 def twin_group() -> None:
     """The twin of the bench built from the profile (sim://?profile=FILE): check it."""
 
