@@ -15,10 +15,11 @@ import click
 
 from lm629_host.bench.capture import PlotUnavailable, capture_move, summary, write_csv
 from lm629_host.chip.safety import stop_on_error
-from lm629_host.bench.tuning import Gains, TuneResult, autotune
+from lm629_host.bench.tuning import TuneResult, autotune
 from lm629_host.cli.app import _session, axis_name, main
 from lm629_host.cli.common import _position, check_filter_options
 from lm629_host.cli.motion import _motion_words, _tolerance
+from lm629_host.physics.axis import Gains
 from lm629_host.cli.types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
 
 #: exit code when tuning ran but the test move did not end within the tolerance
