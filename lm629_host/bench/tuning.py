@@ -51,7 +51,7 @@ from lm629_host.chip.recording import far_snapshots, sample_program
 from lm629_host.chip.safety import motion_fault, stop_on_error
 from lm629_host.errors import MotionError, MotionFault
 from lm629_host.physics.axis import AxisModel, Gains
-from lm629_host.physics.design import default_profile, design, record_duration
+from lm629_host.physics.design import default_profile, design, integral_note, record_duration
 from lm629_host.physics.fit import fit_model, since_stt
 from lm629_host.physics.limits import clip_step
 from lm629_host.physics.metrics import MoveMetrics, as_move, score, step_metrics
@@ -604,7 +604,8 @@ def _identify_run(ses: _Session, step: int, hold_s: float) -> Record:
 
 # ---------------------------------------------------------------------------------- test move
 def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, duration_s: float,
-               tolerance: int, profile: MoveProfile | None = None) -> tuple[MoveMetrics, Record]:
+               tolerance: int, profile: MoveProfile | None = None,
+               rest_s: float = 0.0) -> tuple[MoveMetrics, Record]:
     """The step (or with ``profile`` the trapezoid move) out by ``distance`` and back, each
     recorded for ``duration_s`` after the profile's end (the settle time counted from there)."""
     if gains is not None:
@@ -624,7 +625,7 @@ def _test_move(ses: _Session, name: str, gains: Gains | None, distance: int, dur
             t = since_stt(profile, tgt - start, t, des, start, ses.sample_s)
         t = [x - ramp_s for x in t]
         rec.judged.append((t, real, des, start, tgt))
-        m = as_move(step_metrics(t, real, des, start, tgt, tolerance), profile)
+        m = as_move(step_metrics(t, real, des, start, tgt, tolerance, rest_s), profile)
         worst = m if worst is None else worst.worst(m)
     assert worst is not None
     return worst, rec
@@ -705,18 +706,21 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
         # 4 design
         duration_s = record_duration(model, distance, ses.sample_s, duration_s)
         profile = default_profile(model, velocity, acceleration)
+        # judged as a move's wait() judges it: the shaft standing still within the tolerance
+        rest_s = chip.move_rules.settle_time
         gains, predicted, predicted_move = design(model, distance, tolerance, duration_s,
-                                                  ses.sample_s, profile,
-                                                  ident.words)
+                                                  ses.sample_s, profile, ident.words, rest_s)
         assert predicted_move is not None
         say(f"gains: {gains}; predicted step: {predicted.line()}")
         say(f"predicted move ({profile}): {predicted_move.line()}")
         # 5 check: the step and the trapezoid move
-        measured, _rec = _test_move(ses, "after", gains, distance, duration_s, tolerance)
+        measured, _rec = _test_move(ses, "after", gains, distance, duration_s, tolerance,
+                                    rest_s=rest_s)
         say(f"measured step: {measured.line()}")
         measured_move, _rec = _test_move(ses, "after move", None, distance, duration_s,
-                                         tolerance, profile)
+                                         tolerance, profile, rest_s)
         say(f"measured move: {measured_move.line()}")
+        say(integral_note(model, gains, ses.sample_s))
     chip.load_position_error(COEFFICIENT_MAX)  # the tuning limit off again (reset's value)
     return TuneResult(gains.kp, gains.ki, gains.kd, gains.il, gains.ds, model, ses.sample_s,
                       ses.origin, travel, distance, tolerance, predicted, measured, measured_before,

@@ -67,47 +67,131 @@ def record_duration(model: AxisModel, distance: int, sample_s: float, at_least: 
     return min(2.0, max(at_least, 6 * t_min + 0.05))
 
 
+def holding_need(model: AxisModel) -> float:
+    """Filter units (of the 16-bit result; 256 per output code on the 8-bit port) the loop
+    must supply at rest to hold the axis's load: what the integral term carries at zero
+    error, where a P+D loop can only answer with a standing error."""
+    return abs(model.load) / model.per_filter_unit
+
+
+def needs_holding(model: AxisModel, best_pd: tuple[MoveMetrics, MoveMetrics | None],
+                  tolerance: int) -> bool:
+    """Whether the axis wants integral action to hold its target: a load that outpulls the
+    dry friction (the shaft slides off a zero-output hold), or a best P+D prediction that
+    ends outside the tolerance or never stands still (hunting a count against the load)."""
+    if abs(model.load) > model.coulomb:
+        return True
+    return any(abs(m.final_error) > tolerance or not m.rests for m in best_pd if m is not None)
+
+
+def holding_candidates(model: AxisModel, g: Gains) -> list[Gains]:
+    """Integral variants of the P+D gains ``g`` for an axis with a holding load (AN-706 2.12:
+    ki removes "the position error due to a constant static torque").
+
+    * il: the holding need (:func:`holding_need`) plus the dry friction's share and one
+      output code (the output stage floors), and a looser twice that: a limit just above
+      the hold winds up little while a move saturates the drive (AN-706 4.5.2), so it adds
+      little overshoot.
+    * ki: from the fast end of :func:`with_integral` (an integral time of 6 / wn samples)
+      (at most 2048: eight output codes a count per 256 samples) down by halves to 16: the
+      term grows ki / 256 per sample per count of error
+      (the top 16 of the sum's 24 bits multiply ki, AN-706 5.2.5), and a small ki steps it
+      by less than an output code, so it can find the code that holds the load within the
+      dry friction's window; a large one reaches it sooner from a move's following error."""
+    k = model.per_filter_unit
+    wn = math.sqrt(g.kp * k)
+    need = holding_need(model) + model.coulomb / k
+    out = []
+    for il in (round(need + 256), round(2 * need + 512)):
+        il = min(COEFFICIENT_MAX, max(256, il))
+        ki = min(2048, round(256 * g.kp * wn / 6))
+        while ki >= 16:
+            out.append(replace(g, ki=ki, il=il))
+            ki //= 2
+    return out
+
+
+def integral_note(model: AxisModel, g: Gains, sample_s: float) -> str:
+    """What the integral term of ``g`` does on this axis, in a line of the report."""
+    codes = holding_need(model) / 256
+    dry = model.coulomb / model.per_filter_unit / 256
+    if not g.ki or not g.il:
+        if codes <= dry:
+            return "no integral term: the dry friction holds the load at rest"
+        return (f"no integral term: kp alone holds the load's {codes:.1f} output codes, with a "
+                f"standing error of about {256 * codes / max(g.kp, 1):.1f} counts")
+    if not codes:
+        return (f"integral ki={g.ki} il={g.il}: pulls the last counts of a move onto the "
+                f"target against the dry friction ({dry:.1f} output codes)")
+    per = g.ki / 256  # filter units per sample, per count of error
+    reach = holding_need(model) / per * sample_s if per else math.inf
+    return (f"integral ki={g.ki} il={g.il}: holds the load's {codes:.1f} output codes "
+            f"({model.load / model.accel * 100:+.1f} % of full output) at zero error, the "
+            f"limit {g.il / 256:.1f} codes; from nothing it builds the hold in about "
+            f"{reach * 1e3:,.0f} ms a count off target, sooner from a move's following error")
+
+
 def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
            sample_s: float, profile: MoveProfile | None = None,
-           words: tuple[int, int] | None = None
+           words: tuple[int, int] | None = None, rest_s: float = 0.0
            ) -> tuple[Gains, MoveMetrics, MoveMetrics | None]:
     """Gains for the test moves: PD candidates by pole placement screened on the model (the
     step out and back, two thirds of the horizon); the ten best and integral variants of the
     best four are then judged by their worst score on the model and three variants of it, on
     the step and (with ``profile``) on the trapezoid move too, whose overshoot weighs more: a
     user's move should stop on its target, not past it.  ``words``: the step is a trapezoid
-    of these words (an axis's caps).  Returns (gains, predicted step, predicted trapezoid)."""
+    of these words (an axis's caps).
+
+    ``rest_s``: the time a move's ``wait()`` needs the shaft to stand still
+    (``MoveRules.settle_time``); a candidate whose predicted shaft never does so within the
+    tolerance counts as never settled.  Where the axis needs integral action to hold its
+    target (:func:`needs_holding`), :func:`holding_candidates` of the best four join, screened
+    on the model from a freshly reset filter (as after a power-up: the integral starts at
+    nothing).  The candidates are judged from a fresh filter; the predictions returned are
+    from a loop that has held the start for a while, as the tuner's own test moves start.
+    Returns (gains, predicted step, predicted trapezoid)."""
     horizon = int(horizon_s / sample_s)
     quick = max(200, horizon * 2 // 3)
     ramp = profile.samples(distance) if profile else 0
+    rest = rest_s / sample_s
 
-    def judged(m: AxisModel, g: Gains, horizon: int = horizon
+    def judged(m: AxisModel, g: Gains, horizon: int = horizon, hold: int = 0
                ) -> tuple[float, MoveMetrics, MoveMetrics | None]:
-        step = predict_move(m, g, distance, horizon, tolerance, words=words)
+        step = predict_move(m, g, distance, horizon, tolerance, words=words, hold=hold,
+                            rest=rest)
         total = score(step, horizon, tolerance)
         move = None
         if profile is not None:
-            move = predict_move(m, g, distance, horizon + ramp, tolerance, profile)
+            move = predict_move(m, g, distance, horizon + ramp, tolerance, profile, hold=hold,
+                                rest=rest)
             total += score(move, horizon, tolerance) + horizon * 0.02 * max(
                 0, move.overshoot - tolerance)
         return total, step, move
 
     # screened on the whole horizon when a move is judged too: a stiffer loop that the move
     # favours settles a large step more slowly, and a short screen would drop it unseen
-    pd = sorted(pd_candidates(model),
-                key=lambda g: judged(model, g, quick if profile is None else horizon)[0])
+    screen = quick if profile is None else horizon
+    pd = sorted(pd_candidates(model), key=lambda g: judged(model, g, screen)[0])
     ranked = pd[:10] + [g for p in pd[:4] for g in with_integral(model, p)]
+    if pd and needs_holding(model, judged(model, pd[0])[1:], tolerance):
+        # from the best four, and from the best two whose count of error moves the output by
+        # less than a code (kp < 256): those creep onto the code that holds the load where a
+        # stiffer loop kicks the shaft across it and hunts a count either way
+        soft = [p for p in pd if p.kp < 256][:2]
+        holding = [g for p in pd[:4] + soft for g in holding_candidates(model, p)]
+        ranked += sorted(holding, key=lambda g: judged(model, g, screen)[0])[:6]
     # robustness: 30 % lighter and 40 % heavier, and a fifth of the dry friction (a fit
     # rarely pins friction down; less of it lets the shaft creep to the dead band's edge)
     variants = (model.scaled(0.7), model.scaled(1.4), replace(model, coulomb=model.coulomb / 5))
     best = None
     for g in ranked:
-        total, step, move = judged(model, g)
+        total = judged(model, g)[0]
         total = max([total] + [judged(v, g)[0] for v in variants])
         if best is None or total < best[0]:
-            best = (total, g, step, move)
+            best = (total, g)
     assert best is not None
-    _total, g, step, move = best
+    g = best[1]
+    _total, step, move = judged(model, g, hold=horizon // 2)
     return g, in_seconds(step, sample_s), None if move is None else in_seconds(move, sample_s)
 
 
@@ -125,4 +209,5 @@ def default_profile(model: AxisModel, velocity: int | None = None,
 
 
 
-__all__ = ["default_profile", "design", "pd_candidates", "record_duration", "with_integral"]
+__all__ = ["default_profile", "design", "holding_candidates", "holding_need", "integral_note",
+           "needs_holding", "pd_candidates", "record_duration", "with_integral"]

@@ -120,26 +120,36 @@ def ramp(start: int, target: int, words: tuple[int, int], n: int) -> list[int]:
 
 def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
                  tolerance: int, profile: MoveProfile | None = None,
-                 words: tuple[int, int] | None = None) -> MoveMetrics:
+                 words: tuple[int, int] | None = None, *, hold: int = 0,
+                 rest: float = 0.0) -> MoveMetrics:
     """The test move (out by ``distance``, then back) on the model, from rest at 0: a step
     (with ``words``, an axis's capped velocity and acceleration, the trapezoid they make), or
-    with ``profile`` a trapezoid move (settle then counted from the profile's end)."""
+    with ``profile`` a trapezoid move (settle then counted from the profile's end).
+
+    ``hold``: samples the loop holds the start before the move (the filter's integral built
+    up against a load, as on a bench whose loop has held the shaft; 0: a freshly reset filter,
+    as after a power-up); ``rest``: the rest window judged, in samples
+    (:attr:`MoveMetrics.rest_s`)."""
     worst = None
     path = profile.desired(distance) if profile else []
     for start, target in ((0, distance), (distance, 0)):
         sign = 1 if target >= start else -1
+        state, x = PIDState(), start + 0.5
+        if hold:
+            held, _ = simulate(model, g, [start] * hold, x0=x, state=state)
+            x = held[-1] + 0.5
         if words is not None and profile is None:
             desired = ramp(start, target, words, horizon)
         else:
             desired = [start + sign * abs(d) for d in path][:horizon]
             desired += [target] * (horizon - len(desired))
-        counts, _ = simulate(model, g, desired, x0=start + 0.5, state=PIDState())
+        counts, _ = simulate(model, g, desired, x0=x, state=state)
         times = [(k + 1 - len(path)) for k in range(horizon)]
-        m = as_move(step_metrics(times, counts, desired, start, target, tolerance), profile)
+        m = as_move(step_metrics(times, counts, desired, start, target, tolerance, rest),
+                    profile)
         worst = m if worst is None else worst.worst(m)
     assert worst is not None
     return worst
-
 
 
 __all__ = ["MOVE_ACCELERATION", "MOVE_VELOCITY", "MoveProfile", "predict_move", "ramp",
