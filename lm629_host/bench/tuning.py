@@ -714,8 +714,7 @@ def autotune(chip: LM629, *, travel: int, distance: int | None = None, tolerance
         say(f"gains: {gains}; predicted step: {predicted.line()}")
         say(f"predicted move ({profile}): {predicted_move.line()}")
         # 5 check: the step and the trapezoid move
-        measured, _rec = _test_move(ses, "after", gains, distance, duration_s, tolerance,
-                                    rest_s=rest_s)
+        measured, _rec = _test_move(ses, "after", gains, distance, duration_s, tolerance)
         say(f"measured step: {measured.line()}")
         measured_move, _rec = _test_move(ses, "after move", None, distance, duration_s,
                                          tolerance, profile, rest_s)

@@ -143,8 +143,9 @@ def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
     of these words (an axis's caps).
 
     ``rest_s``: the time a move's ``wait()`` needs the shaft to stand still
-    (``MoveRules.settle_time``); a candidate whose predicted shaft never does so within the
-    tolerance counts as never settled.  Where the axis needs integral action to hold its
+    (``MoveRules.settle_time``); a candidate whose predicted trapezoid move (else the step:
+    a saturating step is a test, the trapezoid is what a lab script runs) never lets the
+    shaft do so within the tolerance counts as never settled.  Where the axis needs integral action to hold its
     target (:func:`needs_holding`), :func:`holding_candidates` of the best four join, screened
     on the model from a freshly reset filter (as after a power-up: the integral starts at
     nothing).  The candidates are judged from a fresh filter; the predictions returned are
@@ -158,14 +159,16 @@ def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
     def judged(m: AxisModel, g: Gains, horizon: int = horizon, hold: int = 0
                ) -> tuple[float, MoveMetrics, MoveMetrics | None]:
         step = predict_move(m, g, distance, horizon, tolerance, words=words, hold=hold,
-                            rest=rest)
+                            rest=0.0 if profile is not None else rest)
         total = score(step, horizon, tolerance)
         move = None
         if profile is not None:
             move = predict_move(m, g, distance, horizon + ramp, tolerance, profile, hold=hold,
                                 rest=rest)
+            # past the target: a little costs, past 1 % of the move as much as a miss
             total += score(move, horizon, tolerance) + horizon * 0.02 * max(
-                0, move.overshoot - tolerance)
+                0, move.overshoot - tolerance) + horizon * max(
+                0, move.overshoot - max(tolerance, abs(distance) // 100))
         return total, step, move
 
     # screened on the whole horizon when a move is judged too: a stiffer loop that the move
