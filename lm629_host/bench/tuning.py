@@ -42,7 +42,7 @@ without a bus; the names a lab script imported from here are still importable fr
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 
 from lm629_host.bus.opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
@@ -363,23 +363,40 @@ class _Session:
 
 
 # ---------------------------------------------------------------------------------- phasing
+def _speed(rows: Sequence[Snapshot], way: int, sample_s: float) -> float:
+    """counts/s along ``way`` over ``rows``, all of ONE recording: their times are one
+    clock's (a far-side recording's are the chip's or the bridge's own; only a recording's
+    offset is the host's, and that is late by whatever kept the host), so a late host can
+    neither shorten nor stretch the time between them.  With fewer than two rows, the chip's
+    own velocity register (counts/sample, measured by the chip)."""
+    if len(rows) >= 2 and rows[-1].time > rows[0].time:
+        return way * (rows[-1].real_position - rows[0].real_position) / (
+            rows[-1].time - rows[0].time)
+    return way * sum(r.real_velocity for r in rows) / max(1, len(rows)) / sample_s
+
+
 def _coast(ses: _Session, rec: Record, time_s: float) -> tuple[float, float]:
     """Turn the drive off (LTRJ motor off + STT) and watch the shaft for ``time_s``: its
-    speed (counts/s, along the way it was going) over the first and the last third."""
+    speed (counts/s, along the way it was going) over the first and the last third of the
+    coast's own rows (never across recordings, never by the rows' times against another
+    recording's: see :func:`_speed`).  Recorded on, up to three times as long, while fewer
+    than four rows came (a host that was late for the recording): too few rows are no
+    evidence, and "it slowed down" must come from what the chip recorded."""
     ses.chip.load_trajectory(stop="off", start=True)
     ses.driving = False  # off on purpose: the session's drive-off check must not fire
     first = rec.rows[-1]
-    ses.record(rec, time_s)
-    rows = [r for r in rec.rows if r.time >= first.time]
-    if len(rows) < 4:
-        return 0.0, 0.0
+    n0 = len(rec.rows)
+    for _ in range(3):
+        ses.record(rec, time_s)
+        if len(rec.rows) - n0 >= 4:
+            break
+    rows = rec.rows[n0:]
+    if len(rows) < 2:
+        return 1.0, 1.0  # nothing recorded to judge by: no verdict (a load, not the leads)
     third = max(1, len(rows) // 3)
     way = 1 if rows[-1].real_position >= first.real_position else -1
-
-    def speed(a: Snapshot, b: Snapshot) -> float:
-        return way * (b.real_position - a.real_position) / max(b.time - a.time, 1e-9)
-
-    return speed(rows[0], rows[third]), speed(rows[-1 - third], rows[-1])
+    return (_speed(rows[:third + 1], way, ses.sample_s),
+            _speed(rows[-1 - third:], way, ses.sample_s))
 
 
 def _load_way_step(ses: _Session, rec: Record, target: int, way: int, away: int, step: int,
@@ -410,7 +427,7 @@ def _load_way_step(ses: _Session, rec: Record, target: int, way: int, away: int,
                         "leads (or the encoder's A and B channels)", s0)
     if not past(s0):
         return s0
-    window = [s0]
+    window: list[Snapshot] = []  # this recording's rows only (see _speed)
 
     def polls(s: Snapshot) -> bool:
         window.append(s)
@@ -419,9 +436,9 @@ def _load_way_step(ses: _Session, rec: Record, target: int, way: int, away: int,
     ses.record(rec, time_s, polls)
     if len(window) < 9:
         return window[-1]
-    a, b, c = window[0], window[4], window[8]
-    early = way * (b.real_position - a.real_position) / max(b.time - a.time, 1e-9)
-    late = way * (c.real_position - b.real_position) / max(c.time - b.time, 1e-9)
+    c = window[8]
+    early, late = (_speed(window[:5], way, ses.sample_s), _speed(window[4:9], way,
+                                                                   ses.sample_s))
     if late > early and late > 0:
         raise ses.fault(MotionError.RUNAWAY,
                         f"phasing: {seen}; a step past its target {target:+d} the shaft sped "
@@ -495,7 +512,6 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
         headed: tuple[int, float] | None = None  # (direction, counts/s) of a shaft heading away
         for sign in (1, -1):
             start = last.real_position
-            t_start = last.time
 
             def watch(s: Snapshot, start: int = start, sign: int = sign) -> bool:
                 along = sign * (s.real_position - start)
@@ -509,6 +525,7 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
                 last, _still = ses.settle(rec, time_s)
                 continue
             ses.step_to(rec, ses.origin + sign * step)
+            n0 = len(rec.rows)
             last = ses.record(rec, time_s, watch)
             moved[sign] = last.real_position - start
             if first_moved is None:
@@ -522,7 +539,9 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
                                     f"phasing: {seen}: the shaft runs away from any target, the "
                                     "loop pushes the wrong way. Swap the motor leads (or the "
                                     "encoder's A and B channels)", last)
-                headed = (-sign, abs(moved[sign]) / max(last.time - t_start, 1e-9))
+                # its speed from this step's own rows (see _speed), never from when the host
+                # stamped the step
+                headed = (-sign, abs(_speed(rec.rows[n0:], 1, ses.sample_s)))
                 early, late = _coast(ses, rec, min(time_s, 0.06))
                 if late < 0.5 * early or late <= 0:
                     raise ses.fault(MotionError.RUNAWAY,

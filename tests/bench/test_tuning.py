@@ -383,3 +383,67 @@ def test_a_shaft_that_never_rests_is_a_timeout():
     assert w.chip.read_signals() & Signals.MOTOR_OFF
     assert w.in_band(2000)
     w.chip.close()
+
+
+# ---------------------------------------------------------------------------------- a late host
+class LateRecordings:
+    """A host that stamps a recording's start and is then late to ask the far side for it
+    (paused, busy, behind a loaded machine): the far side's rows are then timed from that
+    stamp, ``late_s`` earlier than they were taken (``far_snapshots``: the transport clock
+    when the recording began plus each row's far-side time).  On ``sim://`` the chip runs
+    on through the pause, as a served bench does in real time."""
+
+    def __init__(self, chip, late_s: float):
+        self.late = late_s
+        self.recordings = 0
+        inner = chip.transport.record_rows
+
+        def rows(program, period_s, n):
+            self.recordings += 1
+            chip.clock.sleep(self.late)  # the chip moves on while the host is away
+            yield from inner(program, period_s, n)
+        chip.transport.record_rows = rows  # type: ignore[method-assign]  # a late host
+
+
+@pytest.mark.parametrize("late_s", [0.0, 0.02, 0.2])
+def test_a_coast_is_judged_on_its_own_rows_whatever_the_host_stamps(late_s):
+    """The phasing's verdict on a shaft that headed away ("slowed down once the drive was
+    off": reversed leads; "kept going": a load) comes from the coast's own rows.  A shaft
+    falling under a 0.005 N m load with the drive off speeds up: code c drives c x 5.86e-4
+    N m, so the load is 8.5 codes (6.7 % of full output) against 0.34 codes of dry friction,
+    and its speed grows over the coast (towards its top speed, reached within a 0.2 s pause:
+    the time constant is 25 ms) whatever the host's stamps of the recording say.
+    With the rows stamped ``late_s`` early, picking them by comparison with the previous
+    recording's time left none, read as a coast at 0 counts/s: "swap the motor leads"."""
+    from lm629_host.bench.tuning import Record, _coast, _Session
+    chip = lm629_host.open(f"sim://?{HOLDING_LOAD}")
+    chip.reset()
+    chip.clock.sleep(0.01)  # the shaft starts falling (reset leaves the drive off)
+    LateRecordings(chip, late_s)
+    ses = _Session(chip, TRAVEL, 0.002, lambda text: None)
+    rec = Record("coast", None)
+    rec.rows.append(ses.snap())
+    early, late = _coast(ses, rec, 0.06)
+    # the phasing's rule for reversed leads is late < early / 2 or late <= 0: not here (it
+    # falls faster, or at its top speed once a long pause let it reach it)
+    assert early > 0 and late >= 0.9 * early
+    chip.close()
+
+
+@pytest.mark.parametrize("late_s", [0.02])
+def test_a_late_host_is_not_reversed_leads(late_s):
+    """The verdicts come from what the chip recorded: a holding load (the shaft falls after
+    reset, heads away from the first phasing step and keeps going with the drive off) with
+    every recording's rows stamped ``late_s`` early is still a load, never "swap the motor
+    leads", and the axis tunes.  The speeds of the coast are taken within its own rows; the
+    rows were once picked by comparing their times with the previous recording's, and a
+    late host left too few of them to judge (a coast of 0 counts/s: "slowed down")."""
+    chip = lm629_host.open(f"sim://?{HOLDING_LOAD}")
+    chip.reset()
+    late = LateRecordings(chip, late_s)
+    said: list[str] = []
+    r = autotune(chip, travel=TRAVEL, poll_s=0.002, progress=said.append)
+    assert late.recordings > 10
+    assert any("phasing ok" in line for line in said)
+    assert r.ok
+    chip.close()
