@@ -447,3 +447,33 @@ def test_a_late_host_is_not_reversed_leads(late_s):
     assert any("phasing ok" in line for line in said)
     assert r.ok
     chip.close()
+
+
+# ---------------------------------------------------------------------------------- a holding load
+@pytest.mark.parametrize("load", ["load_torque=0.003", "load_torque=0.002&inertia=4e-5"])
+def test_a_tuned_loaded_axis_finishes_a_lab_scripts_move(load):
+    """A holding load of 5.1 output codes (0.003 N m at 5.86e-4 N m per code; 0.34 codes
+    of dry friction): a P+D loop holds it only a count off, kicked back and forth (at kp =
+    889, a count is 3.5 codes), and a move's ``wait()`` never sees the shaft still for its
+    20 ms.  Tuned, the gains carry an integral term sized to the load (il above its 1.3k
+    filter units) and a script's move from a freshly reset chip (the integral at nothing,
+    as after a power-up: ``sim://`` in a new process) completes, out and back, ending
+    within a count (the integral pulls the last counts in)."""
+    url = f"sim://?{load}"
+    chip = lm629_host.open(url)
+    chip.reset()
+    r = autotune(chip, travel=4000, poll_s=0.002)
+    chip.close()
+    assert r.ok and abs(r.measured_move.final_error) <= 1
+    lab = lm629_host.open(url)
+    lab.reset()
+    lab.load_filter(**r.gains.as_filter())
+    lab.update_filter()
+    for target in (4000, 0, 4000):
+        done = lab.move_to(target, velocity=0x40000, acceleration=0x2000).wait()
+        assert abs(done.error) <= 2
+    lab.clock.sleep(0.5)
+    assert abs(lab.read_real_position() - 4000) <= 1
+    lab.close()
+    assert r.measured_move.rests and r.predicted_move.rests
+    assert r.ki > 0 and r.il * r.model.accel / 32768 >= abs(r.model.load)  # il holds the load
