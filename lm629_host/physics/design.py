@@ -175,6 +175,11 @@ def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
     # favours settles a large step more slowly, and a short screen would drop it unseen
     screen = quick if profile is None else horizon
     pd = sorted(pd_candidates(model), key=lambda g: judged(model, g, screen)[0])
+    if not pd:
+        raise ValueError(f"no gain in the chip's range places the poles of this axis "
+                         f"(acceleration {model.accel:.3g} counts/sample^2 at full output, "
+                         f"decay {model.rate:.3g} per sample): not an axis a fit of real "
+                         "steps gives")
     ranked = pd[:10] + [g for p in pd[:4] for g in with_integral(model, p)]
     if pd and needs_holding(model, judged(model, pd[0])[1:], tolerance):
         # from the best four, and from the best two whose count of error moves the output by
