@@ -375,16 +375,15 @@ def _speed(rows: Sequence[Snapshot], way: int, sample_s: float) -> float:
     return way * sum(r.real_velocity for r in rows) / max(1, len(rows)) / sample_s
 
 
-def _coast(ses: _Session, rec: Record, time_s: float) -> tuple[float, float]:
+def _coast(ses: _Session, rec: Record, time_s: float, away: int) -> tuple[float, float]:
     """Turn the drive off (LTRJ motor off + STT) and watch the shaft for ``time_s``: its
-    speed (counts/s, along the way it was going) over the first and the last third of the
-    coast's own rows (never across recordings, never by the rows' times against another
+    speed (counts/s, ``away`` from the step's target: +1 or -1) over the first and the last
+    third of the coast's own rows (never across recordings, never by the rows' times against another
     recording's: see :func:`_speed`).  Recorded on, up to three times as long, while fewer
     than four rows came (a host that was late for the recording): too few rows are no
     evidence, and "it slowed down" must come from what the chip recorded."""
     ses.chip.load_trajectory(stop="off", start=True)
     ses.driving = False  # off on purpose: the session's drive-off check must not fire
-    first = rec.rows[-1]
     n0 = len(rec.rows)
     for _ in range(3):
         ses.record(rec, time_s)
@@ -392,11 +391,10 @@ def _coast(ses: _Session, rec: Record, time_s: float) -> tuple[float, float]:
             break
     rows = rec.rows[n0:]
     if len(rows) < 2:
-        return 1.0, 1.0  # nothing recorded to judge by: no verdict (a load, not the leads)
+        return 0.0, 0.0  # nothing recorded to judge by: no verdict (see _phasing)
     third = max(1, len(rows) // 3)
-    way = 1 if rows[-1].real_position >= first.real_position else -1
-    return (_speed(rows[:third + 1], way, ses.sample_s),
-            _speed(rows[-1 - third:], way, ses.sample_s))
+    return (_speed(rows[:third + 1], away, ses.sample_s),
+            _speed(rows[-1 - third:], away, ses.sample_s))
 
 
 def _load_way_step(ses: _Session, rec: Record, target: int, way: int, away: int, step: int,
@@ -542,8 +540,13 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
                 # its speed from this step's own rows (see _speed), never from when the host
                 # stamped the step
                 headed = (-sign, abs(_speed(rec.rows[n0:], 1, ses.sample_s)))
-                early, late = _coast(ses, rec, min(time_s, 0.06))
-                if late < 0.5 * early or late <= 0:
+                early, late = _coast(ses, rec, min(time_s, 0.06), -sign)
+                # reversed leads: still heading away when the drive went off, then slowing
+                # down by itself.  A shaft already coming back (early <= 0) had been turned
+                # round by the loop before the drive went off (a late host, a shaft that was
+                # falling when the step came): the loop pulls the right way, and what pulled
+                # the shaft away is a load, as below
+                if early > 0 and (late < 0.5 * early or late <= 0):
                     raise ses.fault(MotionError.RUNAWAY,
                                     f"phasing: {seen}: it headed away from the target and "
                                     "slowed down once the drive was off: the loop pushes the "

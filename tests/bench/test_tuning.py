@@ -425,7 +425,7 @@ def test_a_coast_is_judged_on_its_own_rows_whatever_the_host_stamps(late_s):
     ses = _Session(chip, TRAVEL, 0.002, lambda text: None)
     rec = Record("coast", None)
     rec.rows.append(ses.snap())
-    early, late = _coast(ses, rec, 0.06)
+    early, late = _coast(ses, rec, 0.06, -1)  # it falls: away from a step up
     # the phasing's rule for reversed leads is late < early / 2 or late <= 0: not here (it
     # falls faster, or at its top speed once a long pause let it reach it)
     assert early > 0 and late >= 0.9 * early
