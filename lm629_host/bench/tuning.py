@@ -21,8 +21,10 @@ decide whether a move ends within 2 counts or 50.  So the tuner:
 3. **designs** gains by pole placement on that model (natural frequency x damping x derivative
    interval, then integral variants of the best), predicting each candidate's test move on the
    model with the output quantisation and saturation, and keeping the one whose worst score
-   (settle time inside the tolerance, overshoot, end error, hunting) over the model and three
-   variants of it (30 % lighter, 40 % heavier, a fifth of the dry friction) is best
+   (settle time inside the tolerance, overshoot, end error, hunting, and whether the move
+   leaves the shaft standing still as a move's ``wait()`` needs) over the model and three
+   variants of it (30 % lighter, 40 % heavier, a fifth of the dry friction) is best; an
+   axis with a holding load gets integral gains sized to the load besides
    (:mod:`lm629_host.physics.design`, on :mod:`lm629_host.physics.predict`);
 4. **checks** them with the test move (a step of ``distance`` counts out and back) and leaves
    them loaded and applied (LFIL + UDF).
