@@ -489,3 +489,40 @@ def test_a_tuned_loaded_axis_finishes_a_lab_scripts_move(load):
     lab.close()
     assert r.measured_move.rests and r.predicted_move.rests
     assert r.ki > 0 and r.il * r.model.accel / 32768 >= abs(r.model.load)  # il holds the load
+
+
+#: a lab script's moves on a served bench: its own process, the profile's axis, each move
+#: waited for (exit 9 and the motion fault on stderr if a wait() fails)
+LAB_SCRIPT = """
+import sys
+import lm629_host
+with lm629_host.open_board(profile=sys.argv[1]) as board:
+    x = board["x"]
+    for target in (4000, 0, 4000):
+        done = x.move_to(target, velocity=0x40000, acceleration=0x2000).wait()
+        print(target, done.error)
+"""
+
+
+def test_a_served_loaded_axis_tunes_and_a_lab_script_finishes_its_moves(tmp_path):
+    """A served bench in real time (`lm629 sim serve`, its own process) with a holding load
+    and 10x the inertia: `tune --save` into a profile, then a lab script, a process of its
+    own, moves the axis out and back and out again, each move's wait() completing; twice."""
+    import subprocess
+    import sys
+
+    from served import _env, serve
+    with serve(tmp_path, "python", "sim://?load_torque=0.002&inertia=4e-5") as bench:
+        prof = str(tmp_path / "p.toml")
+        p = bench.run("--profile", prof, "profile", "init")
+        assert p.returncode == 0, p.stderr
+        p = bench.run("--profile", prof, "tune", "--travel", "4000", "--yes", "--save",
+                      timeout=300)
+        assert p.returncode == 0, p.stdout + p.stderr
+        assert "Swap" not in p.stderr and "integral ki=" in p.stderr
+        for _ in range(2):
+            lab = subprocess.run([sys.executable, "-c", LAB_SCRIPT, prof], capture_output=True,
+                                 text=True, timeout=120, env=_env())
+            assert lab.returncode == 0, lab.stdout + lab.stderr
+            assert [abs(int(line.split()[1])) <= 2 for line in lab.stdout.splitlines()] == [
+                True] * 3
