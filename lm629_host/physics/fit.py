@@ -134,7 +134,7 @@ def _far_segments(rec: FitExperiment, sample_s: float) -> list[FarSegment] | Non
         if idx[0] < 0 or any(b <= a for a, b in zip(idx, idx[1:])):
             return None
         out.append(FarSegment(target, rows[0], idx, [s.real_position for s in rows[1:]]))
-    return out
+    return out or None
 
 
 def _first_speed(seg: FarSegment) -> float:
