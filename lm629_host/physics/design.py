@@ -165,6 +165,11 @@ def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
         if profile is not None:
             move = predict_move(m, g, distance, horizon + ramp, tolerance, profile, hold=hold,
                                 rest=rest)
+            if rest and not hold and (g.ki and g.il):
+                # an integral term also from a loop that has held the start (as every move
+                # but a power-up's first starts): the term then starts at the hold
+                move = move.worst(predict_move(m, g, distance, horizon + ramp, tolerance,
+                                               profile, hold=horizon // 2, rest=rest))
             # past the target: a little costs, past 1 % of the move as much as a miss
             total += score(move, horizon, tolerance) + horizon * 0.02 * max(
                 0, move.overshoot - tolerance) + horizon * max(
