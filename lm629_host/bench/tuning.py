@@ -500,6 +500,7 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
     away = max(4, step // 10)
     pulled_speed: float | None = None  # counts/s the shaft headed away at, previous gain
     first_moved: int | None = None
+    turned_count = 0  # steps whose coast found the shaft turned round by the loop
     while True:
         ses.phasing_kp = kp
         g = Gains(kp)
@@ -510,6 +511,7 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
         last = rec.rows[-1]
         seen = ""
         headed: tuple[int, float] | None = None  # (direction, counts/s) of a shaft heading away
+        turned = False  # a coast found the shaft already coming back (see below)
         for sign in (1, -1):
             start = last.real_position
 
@@ -554,6 +556,11 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
                                     "slowed down once the drive was off: the loop pushes the "
                                     "wrong way. Swap the motor leads (or the encoder's A and B "
                                     "channels)", last)
+                if early <= 0:
+                    # turned round by the loop: no verdict from this coast (see below)
+                    turned, headed = True, None
+                    last = rec.rows[-1]
+                    break
                 # it kept going with the drive off: a load pulls it; the other step (the load's
                 # way) tells a load from reversed leads under one
                 last = rec.rows[-1]
@@ -566,6 +573,25 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
                 break  # hardly moved: more drive
         seen = ", then ".join(f"the desired position went {sign * step:+d} counts and the shaft "
                               f"{moved[sign]:+d}" for sign in moved)
+        if turned:
+            # the loop pulled the shaft back towards the target: right, but the shaft was
+            # still moving when the step came (falling under a load after a reset), or the
+            # host turned the drive off late; the next step away from the load would meet
+            # that momentum and seem pushed away.  Again at this gain, from a held shaft
+            turned_count += 1
+            if turned_count > 3:
+                raise ses.fault(MotionError.STALL,
+                                f"phasing: {seen}: four times the shaft was still moving away "
+                                "when a step came, and the loop turned it back only after the "
+                                "drive was off: a load pulls it harder than the phasing gain "
+                                "steadies it; support the axis or give a shorter --travel (a "
+                                "stiffer phasing gain)", last)
+            ses.progress(f"phasing: {seen}; with the drive off it was already coming back: the "
+                         "loop had turned it round (it was still moving when the step came, or "
+                         "the host was late to turn the drive off): again, from a held shaft")
+            ses.step_to(rec, ses.origin)  # the loop engaged again, holding the origin
+            ses.settle(rec, 1.0)
+            continue
         if headed is None and len(moved) == 2 and all(
                 sign * moved[sign] >= step // 2 or (sign * moved[sign] >= 2
                                                      and kp * step >= U_FULL_SCALE)

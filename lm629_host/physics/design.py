@@ -145,11 +145,13 @@ def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
     ``rest_s``: the time a move's ``wait()`` needs the shaft to stand still
     (``MoveRules.settle_time``); a candidate whose predicted trapezoid move (else the step:
     a saturating step is a test, the trapezoid is what a lab script runs) never lets the
-    shaft do so within the tolerance counts as never settled.  Where the axis needs integral action to hold its
-    target (:func:`needs_holding`), :func:`holding_candidates` of the best four join, screened
-    on the model from a freshly reset filter (as after a power-up: the integral starts at
-    nothing).  The candidates are judged from a fresh filter; the predictions returned are
-    from a loop that has held the start for a while, as the tuner's own test moves start.
+    shaft do so within the tolerance counts as never settled.  Where the axis needs integral
+    action to hold its target (:func:`needs_holding`), :func:`holding_candidates` of the
+    best four join, screened on the model from a freshly reset filter (as after a power-up:
+    the integral starts at nothing), and only gains with an integral term are kept; their
+    move is judged from a fresh filter and from one that has held the start.  The
+    predictions returned are from a loop that has held the start for a while, as the
+    tuner's own test moves start.
     Returns (gains, predicted step, predicted trapezoid)."""
     horizon = int(horizon_s / sample_s)
     quick = max(200, horizon * 2 // 3)
@@ -192,7 +194,10 @@ def design(model: AxisModel, distance: int, tolerance: int, horizon_s: float,
         # stiffer loop kicks the shaft across it and hunts a count either way
         soft = [p for p in pd if p.kp < 256][:2]
         holding = [g for p in pd[:4] + soft for g in holding_candidates(model, p)]
-        ranked += sorted(holding, key=lambda g: judged(model, g, screen)[0])[:6]
+        # integral gains only: P+D holds such a load a count off at best, kicked back and
+        # forth, and whether a prediction catches it still for a moment is chance
+        ranked = [g for g in ranked if g.ki and g.il] + sorted(
+            holding, key=lambda g: judged(model, g, screen)[0])[:6]
     # robustness: 30 % lighter and 40 % heavier, and a fifth of the dry friction (a fit
     # rarely pins friction down; less of it lets the shaft creep to the dead band's edge)
     variants = (model.scaled(0.7), model.scaled(1.4), replace(model, coulomb=model.coulomb / 5))
