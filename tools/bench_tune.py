@@ -38,7 +38,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
 from lm629_host.errors import MotionError
-from lm629_host.bench.tuning import Gains, MoveMetrics, MoveProfile, autotune, measure_move, score
+from lm629_host.bench.tuning import autotune, measure_move
+from lm629_host.physics.axis import Gains
+from lm629_host.physics.metrics import MoveMetrics, score
+from lm629_host.physics.predict import MoveProfile
 
 MOTORS = (
     ("default", ""),

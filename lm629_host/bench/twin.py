@@ -3,7 +3,7 @@ simulated chip built from it, and a check that the twin still behaves as the ben
 
 Why: a lab's scripts are tested hardware-free on a simulated chip, and a script that settles
 in 40 ms on the default motor may take 400 ms on a 10x-inertia axis.  ``lm629 tune`` and
-``lm629 identify`` fit a model of the axis (:class:`~lm629_host.bench.tuning.AxisModel`, in counts
+``lm629 identify`` fit a model of the axis (:class:`~lm629_host.physics.axis.AxisModel`, in counts
 and samples); :class:`Plant` is that model in units that do not depend on the chip's clock,
 written to ``[axis.NAME.plant]`` (:data:`lm629_host.config.profile.PLANT_KEYS`), from which
 ``sim://?profile=FILE`` builds each axis's motor (the same names are ``MotorParams`` fields;
@@ -21,18 +21,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from lm629_host.bench.tuning import Progress, Record, measure_move
 from lm629_host.chip.lm629 import LM629
-from lm629_host.bench.tuning import (
-    AxisModel,
-    Gains,
-    MoveMetrics,
-    MoveProfile,
-    Progress,
-    Record,
-    default_profile,
-    measure_move,
-    step_metrics,
-)
+from lm629_host.physics.axis import AxisModel, Gains
+from lm629_host.physics.design import default_profile
+from lm629_host.physics.metrics import MoveMetrics, step_metrics
+from lm629_host.physics.predict import MoveProfile
 
 
 # ---------------------------------------------------------------------------------- the plant

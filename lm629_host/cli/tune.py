@@ -15,10 +15,12 @@ import click
 
 from lm629_host.bench.capture import PlotUnavailable, capture_move, summary, write_csv
 from lm629_host.chip.safety import stop_on_error
-from lm629_host.bench.tuning import Gains, TuneResult, autotune
-from lm629_host.cli.app import axis_name, main, _session
+from lm629_host.bench.tuning import TuneResult, autotune
+from lm629_host.cli.app import _session, axis_name, main
 from lm629_host.cli.common import _position, check_filter_options
 from lm629_host.cli.motion import _motion_words, _tolerance
+from lm629_host.physics.axis import Gains
+from lm629_host.physics.design import integral_note
 from lm629_host.cli.types import FINITE, INT, SIGNED_ARGS, check_writable, parse_int, positive
 
 #: exit code when tuning ran but the test move did not end within the tolerance
@@ -155,6 +157,7 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
         click.echo(f"move, predicted:   {result.predicted_move.line()}")
         click.echo(f"move, measured:    {result.measured_move.line()}  [{m}]")
     click.echo(f"gains: {result.gains} (loaded and applied: LFIL + UDF)")
+    click.echo(integral_note(result.model, result.gains, result.sample_s))
     named = axis_name(s, chip.chip_select) if s.profile is not None else None
     click.echo(f"set them again with:  {result.gains.cli(named)}")
     if scale is not None:

@@ -2,7 +2,7 @@
 
 The one home of the filter's arithmetic (AN-706 5.2.3 - 5.2.5) and of the constants that go
 with it.  Three parts of the package need it and use this module: the chip model's readable
-sample loop (``sim/model/motion.py``), the tuner's predictor (:func:`lm629_host.bench.tuning.simulate`)
+sample loop (``sim/model/motion.py``), the tuner's predictor (:func:`lm629_host.physics.predict.simulate`)
 and the step plot's rebuilt output (:func:`lm629_host.bench.plot.rebuilt_output`).  The model's two
 flattened fast loops (``sim/model/fastloop.py`` and ``_fastloop.c``) write the same arithmetic
 inline for speed; ``tests/physics/test_pid.py`` checks them against this module bit for bit.  Nothing
