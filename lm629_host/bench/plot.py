@@ -23,7 +23,8 @@ from pathlib import Path
 from lm629_host.bench.capture import Capture, PlotUnavailable
 from lm629_host.chip.lm629 import Snapshot
 from lm629_host.physics.pid import derivative_term, filter_sum, full_scale, output_code, sat16
-from lm629_host.bench.tuning import Gains, MoveMetrics, step_metrics
+from lm629_host.physics.axis import Gains
+from lm629_host.physics.metrics import MoveMetrics, step_metrics
 from lm629_host.physics.units import FIXED_ONE
 
 COLORS = ("tab:red", "tab:green", "tab:orange", "tab:purple")

@@ -56,7 +56,7 @@ from lm629_host.physics.axis import AxisModel, Gains
 from lm629_host.physics.design import default_profile, design, integral_note, record_duration
 from lm629_host.physics.fit import fit_model, since_stt
 from lm629_host.physics.limits import clip_step
-from lm629_host.physics.metrics import MoveMetrics, as_move, score, step_metrics
+from lm629_host.physics.metrics import MoveMetrics, as_move, step_metrics
 from lm629_host.physics.pid import (
     STEP_ACCELERATION,
     STEP_VELOCITY,
@@ -66,11 +66,7 @@ from lm629_host.physics.pid import (
     sat16,
 )
 from lm629_host.physics.predict import (
-    MOVE_ACCELERATION,
-    MOVE_VELOCITY,
     MoveProfile,
-    predict_move,
-    simulate,
 )
 
 
@@ -865,8 +861,4 @@ __all__ = [
     # the session
     "Identified", "Phasing", "Progress", "Record", "TuneResult", "autotune", "check_phasing",
     "identify", "measure_move",
-    # the arithmetic, re-exported from lm629_host.physics for the callers that import it here
-    "MOVE_ACCELERATION", "MOVE_VELOCITY", "AxisModel", "Gains", "MoveMetrics", "MoveProfile",
-    "PIDState", "default_profile", "design", "fit_model", "predict_move", "score", "simulate",
-    "step_metrics",
 ]

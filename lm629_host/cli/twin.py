@@ -15,7 +15,8 @@ import click
 
 from lm629_host.config.profile import AxisProfile, save_gains
 from lm629_host.chip.safety import stop_on_error
-from lm629_host.bench.tuning import Gains, identify
+from lm629_host.bench.tuning import identify
+from lm629_host.physics.axis import Gains
 from lm629_host.bench.twin import Plant, check_twin, plant_record, twin_profile
 from lm629_host.urls import query_params, with_query
 from lm629_host.cli.app import axes_of, main, _session, Session

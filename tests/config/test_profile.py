@@ -488,7 +488,8 @@ def test_ds_is_the_interval_from_tune_to_the_lfil_word(tmp_path, open_chip, reco
     samples); kp 231 and kd 773 differ from the reset values (0)."""
     from lm629_host.cli.profile import after_tune
     from lm629_host.cli.tune import parse_gains
-    from lm629_host.bench.tuning import Gains, TuneResult
+    from lm629_host.bench.tuning import TuneResult
+    from lm629_host.physics.axis import Gains
 
     g = Gains(kp=231, kd=773, ds=7)
     assert parse_gains("kp=231,kd=773,ds=7") == g
