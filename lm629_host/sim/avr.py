@@ -175,6 +175,8 @@ class AvrSim:
             raise HarnessError(f"simavr cannot run {self.firmware}: "
                                f"{self._lib.fitl_error().decode()}")
         self._ratio = model.clock_hz / CPU_HZ
+        #: chips on /CS 0..n-1; a strobe on another /CS finds a floating bus
+        self._wired = len(chips_of(model))
         self._buf = (ctypes.c_uint8 * 8192)()
         self.reset_low_clocks: list[int] = []
         #: set to a list to record every bus cycle as (kind, value, AVR cycle)
@@ -192,26 +194,10 @@ class AvrSim:
             if tick > m.tick:
                 m.advance_to(tick)
             chip, kind = kind >> 4, kind & 0x0F
-            if isinstance(m, ChipBus):
-                if kind != RESET:
-                    m.select(chip)
-            elif chip:
-                raise ProtocolViolation(f"the firmware strobed chip select {chip}; this "
-                                        "simulation wires one chip (sim+avr://?axes=N)")
             w = self.wiring
             if w is not None and kind in (COMMAND, WRITE):
                 value = w.to_chip(value)
-            if kind == STATUS:
-                r = m.read_status() if w is None else w.to_host(m.read_status())
-            elif kind == READ:
-                r = m.read_data() if w is None else w.to_host(m.read_data())
-            elif kind == COMMAND:
-                m.write_command(value)
-                r = 0
-            elif kind == WRITE:
-                m.write_data(value)
-                r = 0
-            else:
+            if kind == RESET:
                 low = math.floor(value * self._ratio)
                 self.reset_low_clocks.append(low)
                 if low < 8:
@@ -219,6 +205,23 @@ class AvrSim:
                                             "needs at least 8")
                 m.reset_pulse()
                 r = 0
+            elif chip >= self._wired:
+                # a /CS with no chip behind it (the failsafe's scan strobes every select): the
+                # bus floats, as on a board, so reads find the pull-ups and writes go nowhere
+                r = 0 if kind in (COMMAND, WRITE) else 0xFF if w is None else w.to_host(0xFF)
+            else:
+                if isinstance(m, ChipBus):
+                    m.select(chip)
+                if kind == STATUS:
+                    r = m.read_status() if w is None else w.to_host(m.read_status())
+                elif kind == READ:
+                    r = m.read_data() if w is None else w.to_host(m.read_data())
+                elif kind == COMMAND:
+                    m.write_command(value)
+                    r = 0
+                else:
+                    m.write_data(value)
+                    r = 0
             if isinstance(m, ChipBus):
                 his = 0
                 for k, c in enumerate(m.chips):

@@ -32,6 +32,7 @@ from lm629_host.bridge.protocol import (
     FAILSAFE_MAX_MS,
     FAILSAFE_MIN_MS,
     FAILSAFE_STOP_BITS,
+    FIRMWARE_VERSION,
     MAX_FRAME,
     MAX_PING,
     RUN_OVERHEAD,
@@ -74,8 +75,8 @@ from lm629_host.sim.model import ChipBus, ChipModel, chips_of
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 
-#: the emulator's firmware version (HELLO_REPLY); 0.x marks "not the AVR firmware"
-EMU_FIRMWARE = (0, 9, 0)
+#: the firmware release this emulator implements (HELLO_REPLY): the one the firmware reports
+EMU_FIRMWARE = FIRMWARE_VERSION
 #: one /RD or /WR strobe of the emulated bridge, recovery included (an AVR at 16 MHz needs
 #: about 16 instructions per strobe with the data bus split over two ports)
 BUS_CYCLE_S = 1e-6
@@ -109,8 +110,8 @@ MULTI_AXIS_INFO = HelloInfo(
                      | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH | Capability.RECORD
                      | Capability.FAILSAFE | Capability.PROFILE))
 #: a one-chip bridge (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
-#: WAIT_STATUS: firmware 1.0's capabilities)
-ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
+#: WAIT_STATUS): firmware 1.0's capabilities, so it reports 1.0.0
+ONE_CHIP_INFO = HelloInfo(firmware=(1, 0, 0), chip_selects=1)
 
 
 class _NoChip:

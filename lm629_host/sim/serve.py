@@ -433,13 +433,10 @@ class SimServer:
             if self._power_cycle.is_set():
                 self._power_cycle.clear()
                 self._cycle_power()
-            stray = far.advance_to(sim0 + time.monotonic() - wall0)
-            replies = [stray] if stray else []
-            if ready:
-                data = self._read(ready)
-                if data:
-                    self.bytes_in += len(data)
-                    replies += far.receive(data)
+            now = sim0 + time.monotonic() - wall0
+            data = self._read_waiting(ready) if ready else b""
+            self.bytes_in += len(data)
+            replies = self._deliver(data, now)
             if not replies:
                 continue
             ahead = (far.now() - sim0) - (time.monotonic() - wall0)
@@ -448,6 +445,46 @@ class SimServer:
             for r in replies:
                 self._write(r)
                 self.bytes_out += len(r)
+
+    def _read_waiting(self, ready: Sequence[int | socket.socket]) -> bytes:
+        """Every byte the client has written so far (the pty or socket may hold more than one
+        read's worth after the server was paused)."""
+        data = self._read(ready)
+        while data:
+            more, _, _ = select.select(self._fds(), [], [], 0)
+            chunk = self._read(more) if more else b""
+            if not chunk:
+                break
+            data += chunk
+        return data
+
+    def _deliver(self, data: bytes, now: float) -> list[bytes]:
+        """Run the far end up to simulated time ``now`` and hand it ``data``: what it sends.
+
+        The bytes arrived at some time since the far end last ran.  A real bridge's UART and
+        timer keep running while nobody looks, so the host's bytes reached it in time; a
+        server that was itself late (a busy machine, SIGSTOP) must not judge the host silent
+        for the time it did not look.  So the frames waiting are credited across that gap,
+        evenly, the last one now (a single request is taken now, as it always was), and the
+        far end runs to each one's time before it gets it (its failsafe, rows and pieces at
+        their own times in between)."""
+        far = self.far
+        out: list[bytes] = []
+        if data:
+            # frame by frame: each ends with its 0x00 delimiter (a partial tail goes last)
+            parts = [p + b"\0" for p in data.split(b"\0")[:-1]]
+            if not data.endswith(b"\0"):
+                parts.append(data[data.rfind(b"\0") + 1:])
+            start = far.now()
+            for k, part in enumerate(parts):
+                stray = far.advance_to(start + (now - start) * (k + 1) / len(parts))
+                if stray:
+                    out.append(stray)
+                out += far.receive(part)
+        stray = far.advance_to(now)
+        if stray:
+            out.append(stray)
+        return out
 
     def power_cycle(self) -> None:
         """Cycle the chips' supply, as a bench's switch would: every chip comes back as from
