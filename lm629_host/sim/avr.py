@@ -64,6 +64,34 @@ def firmware_path(baud: int = DEFAULT_BAUD) -> Path:
     return BUILD_DIR / f"lm629_bridge_{baud}.elf"
 
 
+#: ELF's e_machine of an AVR image (the ELF specification's EM_AVR)
+EM_AVR = 83
+
+
+def check_firmware(path: Path) -> None:
+    """Refuse anything simavr should not be handed (ValueError naming the file and why),
+    before it starts: libsimavr's loader spins at 100 % CPU on some files that are not ELF
+    images, deaf to Ctrl-C.  An AVR image is a 32-bit little-endian ELF for machine EM_AVR."""
+    advice = ("give the .elf that `make -C firmware_bridge` builds "
+              f"({firmware_path().relative_to(ROOT)}), or leave firmware= out")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(20)
+    except OSError as exc:
+        raise ValueError(f"firmware={path}: cannot read it ({exc.strerror}); {advice}") from None
+    if head[:1] == b":":
+        why = "an Intel HEX file: that is for flashing a board (lm629 bridge flash); simavr runs the ELF"
+    elif head[:4] != b"\x7fELF":
+        why = "not an ELF image"
+    elif len(head) < 20 or head[4] != 1 or head[5] != 1:
+        why = "an ELF image, but not a 32-bit little-endian one as an AVR's is"
+    elif int.from_bytes(head[18:20], "little") != EM_AVR:
+        why = f"an ELF image for machine {int.from_bytes(head[18:20], 'little')}, not the AVR ({EM_AVR})"
+    else:
+        return
+    raise ValueError(f"firmware={path}: {why}; {advice}")
+
+
 _lib: ctypes.CDLL | None = None
 _built = False
 
@@ -167,6 +195,7 @@ class AvrSim:
         if not self.firmware.exists():
             raise HarnessError(f"firmware image {self.firmware} not found: run "
                                "`make -C firmware_bridge`")
+        check_firmware(self.firmware)
         self.strict = model.params.strict if strict is None else strict
         self._error: BaseException | None = None
         self._cb = _CALLBACK(self._on_bus)  # referenced for as long as the simulation lives
@@ -467,5 +496,5 @@ class LinkCounters:
         return (self._raw()[i] - self._base[i]) & 0xFFFF
 
 
-__all__ = ["AvrSim", "LinkCounters", "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
+__all__ = ["AvrSim", "LinkCounters", "check_firmware", "EM_AVR", "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
            "CPU_HZ", "BUILT_BAUDS", "ensure_built", "toolchain_missing", "PACKAGES"]

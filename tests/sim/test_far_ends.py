@@ -4,6 +4,11 @@ and a firmware that a wait for a status bit that never comes cannot leave deaf."
 
 from __future__ import annotations
 
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import pytest
 
 import lm629_host
@@ -169,3 +174,58 @@ def test_a_host_byte_ends_a_wait_that_can_never_match():
     assert [f.type for f in got] == [FrameType.RUN_REPLY, FrameType.HELLO_REPLY]
     assert sim.now - t0 < 0.01
     pipe.close()
+
+
+# ---------------------------------------------------------------------------------- sim+avr://
+_RSS_LOOP = """
+import gc
+from lm629_host.transports import open_transport
+def rss():
+    return int(open("/proc/self/statm").read().split()[1]) * 4096
+for _ in range(20):  # the allocator's pools settle
+    open_transport("sim+avr://").close()
+gc.collect()
+before = rss()
+for _ in range(300):
+    open_transport("sim+avr://").close()
+gc.collect()
+print(rss() - before)
+"""
+
+
+@pytest.mark.usefixtures("firmware_built")
+def test_300_opens_of_sim_avr_grow_resident_memory_by_less_than_1_mb():
+    """The harness freed the AVR but not the sections simavr's ELF loader read for it (the
+    12 KiB flash image and more): 300 open/close cycles grew RSS by about 6 MB."""
+    out = subprocess.run([sys.executable, "-c", _RSS_LOOP], capture_output=True, text=True,
+                         timeout=300, check=True).stdout
+    assert int(out) < 1 << 20, f"RSS grew by {int(out) / 1024:.0f} KiB over 300 cycles"
+
+
+def _not_avr_images(tmp_path: Path) -> list[Path]:
+    text = tmp_path / "notes.txt"
+    text.write_text("not firmware\n" * 100)
+    return [Path("/etc/passwd"), text, Path(lm629_host.__file__).parent / "data" / "lm629_bridge.hex",
+            Path(sys.executable).resolve()]  # an ELF, for this machine's CPU
+
+
+def test_sim_avr_refuses_what_is_not_an_avr_elf_before_simavr_starts(tmp_path):
+    """simavr's loader spun at 100 % CPU on a text file or the shipped .hex, deaf to Ctrl-C:
+    each is refused with a ValueError naming the file and why, before anything is built."""
+    for path in _not_avr_images(tmp_path):
+        with pytest.raises(ValueError, match=f"firmware={path}: .*give the .elf"):
+            open_transport(f"sim+avr://?firmware={path}")
+
+
+@pytest.mark.usefixtures("firmware_built")
+def test_the_command_line_refuses_a_firmware_that_is_not_an_avr_elf_in_one_line(tmp_path):
+    exe = Path(sys.executable).parent / "lm629"
+    for path in _not_avr_images(tmp_path)[1:3]:
+        started = time.monotonic()
+        p = subprocess.run([str(exe), "--port", f"sim+avr://?firmware={path}", "status"],
+                           capture_output=True, text=True, timeout=30)
+        took = time.monotonic() - started
+        assert p.returncode == 2, p.stderr
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and f"firmware={path}" in lines[0], p.stderr
+        assert took < 10, took  # an interpreter's start on a busy machine; it hung before
