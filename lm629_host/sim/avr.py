@@ -496,5 +496,6 @@ class LinkCounters:
         return (self._raw()[i] - self._base[i]) & 0xFFFF
 
 
-__all__ = ["AvrSim", "LinkCounters", "check_firmware", "EM_AVR", "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
+__all__ = ["AvrSim", "LinkCounters", "check_firmware", "EM_AVR",
+            "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
            "CPU_HZ", "BUILT_BAUDS", "ensure_built", "toolchain_missing", "PACKAGES"]
