@@ -497,5 +497,5 @@ class LinkCounters:
 
 
 __all__ = ["AvrSim", "LinkCounters", "check_firmware", "EM_AVR",
-            "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
+           "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
            "CPU_HZ", "BUILT_BAUDS", "ensure_built", "toolchain_missing", "PACKAGES"]
