@@ -52,6 +52,10 @@ log = logging.getLogger("lm629_host.sim.serve")
 
 #: how often the idle server moves the simulation forward
 IDLE_TICK_S = 0.02
+#: how often it does while the far end owes a reply it has not sent yet (a long program),
+#: and how far (simulated seconds) it runs it between two looks at the host's bytes
+OWED_TICK_S = 0.002
+OWED_SLICE_S = 0.02
 
 
 class FarEnd(abc.ABC):
@@ -75,6 +79,11 @@ class FarEnd(abc.ABC):
 
     def close(self) -> None:  # noqa: B027 - optional: a far end may hold nothing
         pass
+
+    @property
+    def owes_reply(self) -> bool:
+        """A request is still running on the far end (its reply comes later, with time)."""
+        return False
 
 
 class EmuFarEnd(FarEnd):
@@ -113,6 +122,10 @@ class PipeFarEnd(FarEnd):
 
     #: added to each per-request wait, simulated seconds
     MARGIN_S = 0.05
+    #: the longest a request's reply is waited for in one go, simulated seconds: a longer
+    #: program (a WAIT_STATUS of seconds) goes on with the wall clock, so that the bytes a
+    #: host sends meanwhile (a new client's HELLO) reach the far end at their time
+    AHEAD_S = 0.1
 
     def __init__(self, pipe, model: ChipModel | ChipBus, name: str, *, baud: int | None = None) -> None:
         self.pipe = pipe
@@ -123,6 +136,8 @@ class PipeFarEnd(FarEnd):
         self._replies = FrameReader()
         #: programs the far end keeps by code (RUN_STORE), to time a RUN_CODE's reply
         self._codes: dict[int, bytes] = {}
+        #: requests whose reply has not come out yet
+        self._owed = 0
 
     def _timeout(self, frame: Frame) -> float:
         t = self.MARGIN_S + (2 * MAX_WIRE_FRAME * 10 / self.baud if self.baud else 0.0)
@@ -162,10 +177,11 @@ class PipeFarEnd(FarEnd):
         self.pipe.write(data)
         waits = [self._timeout(f) for f in self._requests.feed(data)
                  if isinstance(f, Frame) and not f.type & 0x80]
+        self._owed += len(waits)
         out = bytearray()
         for timeout in waits:
-            deadline = self.pipe.clock.now() + timeout
-            while True:
+            deadline = self.pipe.clock.now() + min(timeout, self.AHEAD_S)
+            while self._owed:
                 left = deadline - self.pipe.clock.now()
                 if left <= 0:
                     break
@@ -173,9 +189,18 @@ class PipeFarEnd(FarEnd):
                 if not chunk:
                     break
                 out += chunk
-                if any(isinstance(f, Frame) for f in self._replies.feed(chunk)):
-                    break
+                self._count_replies(chunk)
         return [bytes(out)] if out else []
+
+    def _count_replies(self, data: bytes) -> None:
+        """Settle what is owed with the answers in ``data`` (a recording's rows answer nothing)."""
+        for f in self._replies.feed(data):
+            if isinstance(f, Frame) and f.type != FrameType.RECORD_ROW:
+                self._owed = max(0, self._owed - 1)
+
+    @property
+    def owes_reply(self) -> bool:
+        return self._owed > 0
 
     def now(self) -> float:
         return self.pipe.clock.now()
@@ -188,8 +213,7 @@ class PipeFarEnd(FarEnd):
                 break
             out += data
         if out:
-            for _ in self._replies.feed(bytes(out)):
-                pass
+            self._count_replies(bytes(out))
         return bytes(out)
 
     def describe(self) -> str:
@@ -429,7 +453,8 @@ class SimServer:
         if on_ready is not None:
             on_ready()
         while not self._stop.is_set():
-            ready, _, _ = select.select(self._fds(), [], [], IDLE_TICK_S)
+            ready, _, _ = select.select(self._fds(), [], [],
+                                        OWED_TICK_S if far.owes_reply else IDLE_TICK_S)
             if self._power_cycle.is_set():
                 self._power_cycle.clear()
                 self._cycle_power()
@@ -476,12 +501,18 @@ class SimServer:
             if not data.endswith(b"\0"):
                 parts.append(data[data.rfind(b"\0") + 1:])
             start = far.now()
+            # a far end still running a request (a long WAIT_STATUS in simavr runs slower
+            # than real time, so it falls behind) takes the bytes now, on its own clock: the
+            # firmware ends such a wait when the host sends (a new client's HELLO), which it
+            # must see before it simulates its way through the rest of the wait
+            end = start if far.owes_reply else now
             for k, part in enumerate(parts):
-                stray = far.advance_to(start + (now - start) * (k + 1) / len(parts))
+                stray = far.advance_to(start + (end - start) * (k + 1) / len(parts))
                 if stray:
                     out.append(stray)
                 out += far.receive(part)
-        stray = far.advance_to(now)
+        # while a request runs, in slices, so that the host's next bytes are read between them
+        stray = far.advance_to(min(now, far.now() + OWED_SLICE_S) if far.owes_reply else now)
         if stray:
             out.append(stray)
         return out

@@ -83,3 +83,19 @@ def test_a_far_end_paused_for_1_5_s_does_not_trip_an_idle_client(tmp_path, far_e
         assert client.returncode == 0, err
         assert out.strip() == "not tripped", err
         assert "silent" not in err and "HELLO unanswered" not in err, err
+
+
+def test_a_client_that_gave_up_on_a_long_wait_leaves_the_firmware_answering(tmp_path):
+    """A client's RUN waits 10 s for a status mask no status matches (0), then the client is
+    gone (a burst of random frames with valid CRCs did this): the next client's HELLO ends
+    the wait, so `status` works at once instead of "is the bridge firmware flashed?"."""
+    import serial
+
+    from lm629_host.bridge.protocol import FrameType, encode_frame
+
+    with serve(tmp_path, "firmware") as b:
+        with serial.Serial(str(b.link), 115200, timeout=0.2) as port:
+            port.write(encode_frame(FrameType.RUN, 1, bytes((0, 0, 0, 0x08, 0x00, 0x27, 0x10))))
+            assert port.read(64) == b""  # still waiting
+        p = b.run("status", timeout=30)
+        assert p.returncode == 0, p.stderr
