@@ -193,9 +193,10 @@ class PipeFarEnd(FarEnd):
         return [bytes(out)] if out else []
 
     def _count_replies(self, data: bytes) -> None:
-        """Settle what is owed with the answers in ``data`` (a recording's rows answer nothing)."""
+        """Settle what is owed with the frames in ``data`` (a RECORD's answer is its first
+        row; the rows after it, and a failsafe report, settle nothing that is not owed)."""
         for f in self._replies.feed(data):
-            if isinstance(f, Frame) and f.type != FrameType.RECORD_ROW:
+            if isinstance(f, Frame):
                 self._owed = max(0, self._owed - 1)
 
     @property
