@@ -35,6 +35,10 @@ def _avr_missing() -> list[str]:
     return avrsim.toolchain_missing()
 
 
+#: the CPU hogs of ``--cpu-hogs`` while the session runs
+_HOGS: list = []
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--cpu-hogs", type=int, default=int(os.environ.get(CPU_HOGS_ENV) or 0),
                      metavar="N", help="run N CPU-burning processes beside the whole run (also "
@@ -44,8 +48,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 def pytest_sessionstart(session: pytest.Session) -> None:
     hogs = session.config.getoption("--cpu-hogs")
     if hogs and not hasattr(session.config, "workerinput"):  # once, not per xdist worker
-        session.config._lm629_hogs = cpu_hogs(hogs)  # type: ignore[attr-defined]
-        session.config._lm629_hogs.__enter__()  # type: ignore[attr-defined]
+        _HOGS.append(cpu_hogs(hogs))
+        _HOGS[-1].__enter__()
     missing = _avr_missing()
     if missing and os.environ.get(_REQUIRE_AVR) == "1":
         pytest.exit(f"{_REQUIRE_AVR}=1 but the AVR toolchain is missing ({', '.join(missing)}):"
@@ -72,9 +76,8 @@ SLOW_PARAMS = ("sim+avr", "firmware", "usb=")
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
-    hogs = getattr(session.config, "_lm629_hogs", None)
-    if hogs is not None:
-        hogs.__exit__(None, None, None)
+    while _HOGS:
+        _HOGS.pop().__exit__(None, None, None)
 
 
 @pytest.fixture

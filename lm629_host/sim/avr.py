@@ -77,6 +77,8 @@ def check_firmware(path: Path) -> None:
     try:
         with open(path, "rb") as f:
             head = f.read(20)
+    except FileNotFoundError:
+        raise ValueError(f"firmware={path}: not found; {advice}") from None
     except OSError as exc:
         raise ValueError(f"firmware={path}: cannot read it ({exc.strerror}); {advice}") from None
     if head[:1] == b":":

@@ -28,6 +28,7 @@ import socket
 import threading
 import time
 import tty
+from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -136,8 +137,10 @@ class PipeFarEnd(FarEnd):
         self._replies = FrameReader()
         #: programs the far end keeps by code (RUN_STORE), to time a RUN_CODE's reply
         self._codes: dict[int, bytes] = {}
-        #: requests whose reply has not come out yet
-        self._owed = 0
+        #: when each request whose reply has not come out yet stops being owed (simulated
+        #: seconds: a request lost on the line, at a rate the far end does not speak, is
+        #: never answered)
+        self._owed: deque[float] = deque()
 
     def _timeout(self, frame: Frame) -> float:
         t = self.MARGIN_S + (2 * MAX_WIRE_FRAME * 10 / self.baud if self.baud else 0.0)
@@ -177,7 +180,8 @@ class PipeFarEnd(FarEnd):
         self.pipe.write(data)
         waits = [self._timeout(f) for f in self._requests.feed(data)
                  if isinstance(f, Frame) and not f.type & 0x80]
-        self._owed += len(waits)
+        now = self.pipe.clock.now()
+        self._owed.extend(now + timeout for timeout in waits)
         out = bytearray()
         for timeout in waits:
             deadline = self.pipe.clock.now() + min(timeout, self.AHEAD_S)
@@ -197,11 +201,15 @@ class PipeFarEnd(FarEnd):
         row; the rows after it, and a failsafe report, settle nothing that is not owed)."""
         for f in self._replies.feed(data):
             if isinstance(f, Frame):
-                self._owed = max(0, self._owed - 1)
+                if self._owed:
+                    self._owed.popleft()
 
     @property
     def owes_reply(self) -> bool:
-        return self._owed > 0
+        owed, now = self._owed, self.pipe.clock.now()
+        while owed and owed[0] < now:
+            owed.popleft()
+        return bool(owed)
 
     def now(self) -> float:
         return self.pipe.clock.now()

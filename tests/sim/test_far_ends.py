@@ -103,7 +103,7 @@ def _stt_log(chip: LM629) -> list[int]:
             stts.append(model.tick)
         write(byte)
 
-    model.write_command = logged  # type: ignore[method-assign]
+    model.write_command = logged  # type: ignore[method-assign]  # a spy on the chip's command strobe
     return stts
 
 
