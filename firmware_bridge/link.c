@@ -137,7 +137,6 @@ static __attribute__((noinline)) void profile_poll(uint8_t chip)
             l->prof_late = late;
         l->prof_head = (uint8_t)((l->prof_head + 1u) % LINK_PROFILE_MAX_SCHEDULE);
         l->prof_n--;
-        l->prof_due += l->prof_dt[l->prof_head]; /* the next one's (unused when none) */
         l->prof_issued++;
         if (l->prof_cs != chip)
             bus_select(l->prof_cs);
@@ -145,6 +144,17 @@ static __attribute__((noinline)) void profile_poll(uint8_t chip)
             && piece_word((uint16_t)(v >> 16)) && piece_word((uint16_t)v) && piece_command(CMD_STT);
         if (l->prof_cs != chip)
             bus_select(chip);
+        /* the next one's due time (unused when none), and never sooner than
+         * LINK_PROFILE_MIN_SPACING_US after this one's STT: a piece that went out late (the
+         * bridge was busy with a program) must not bring the next STT within 10 ms of its
+         * own, which would abort the chip's trajectory calculation (AN-706 4.6.2); late
+         * pieces never go out back to back */
+        t = bus_ticks();
+        l->prof_now += (uint16_t)(t - l->prof_last);
+        l->prof_last = t;
+        uint32_t next = l->prof_due + l->prof_dt[l->prof_head];
+        uint32_t soonest = l->prof_now + LINK_PROFILE_MIN_SPACING_US / LINK_RECORD_TICK_US;
+        l->prof_due = (int32_t)(next - soonest) < 0 ? soonest : next;
         if (!ok) {
             l->prof_n = 0;
             l->prof_result = RESULT_BUSY_TIMEOUT;
@@ -444,14 +454,17 @@ static inline __attribute__((always_inline)) ran_t exec_program(const uint8_t *p
         } else if (op == OP_WAIT_STATUS) {
             /* a status read every WAIT_STATUS_POLL_US until a bit of the mask is set or `ms`
              * milliseconds have passed (each period is a little longer than its nominal time,
-             * so the wait never ends early); the host judges which from the status */
+             * so the wait never ends early); the host judges which from the status.  A byte
+             * from the host ends it too: a host waits for the reply before it sends the next
+             * request, so a byte now is one that gave up (a new client's HELLO), and a wait
+             * of up to 65 s for a bit that never comes (mask 0) must not leave it unanswered */
             uint8_t mask = p[0];
             uint16_t ms = (uint16_t)((p[1] << 8) | p[2]);
             p += 3;
             uint32_t polls = (uint32_t)ms * (1000u / WAIT_STATUS_POLL_US);
             for (;;) {
                 last = bus_read_status();
-                if ((last & mask) || !polls--)
+                if ((last & mask) || !polls-- || link_rx_pending())
                     break;
                 if (failsafe_expired()) { /* a wait is the host alive only up to the timeout */
                     failsafe_trip(chip);

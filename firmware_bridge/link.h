@@ -6,12 +6,8 @@
 #include <stdint.h>
 #include "lm629_tables.h"
 
-#define FIRMWARE_MAJOR 1
-#define FIRMWARE_MINOR 4 /* 1.1: several chips (Op.SELECT, four chip selects); 1.2: the compact RUN,
-                          * programs kept by code, SET_BAUD; 1.3: RECORD (rows on the bridge's timer);
-                          * 1.4: the link failsafe (FAILSAFE), PROFILE (a shaped move's pieces
-                          * on the bridge's timer) */
-#define FIRMWARE_PATCH 0
+/* FIRMWARE_MAJOR/MINOR/PATCH: lm629_tables.h, from lm629_host.bridge.protocol.FIRMWARE_VERSION
+ * (the Python far end reports the same release) */
 #ifdef LINK_ONE_CHIP /* build/lm629_bridge_1chip: a bridge that reports one chip select */
 #define LINK_CHIP_SELECTS 1
 #else

@@ -55,6 +55,9 @@
 
 /* link protocol (lm629_host.bridge.protocol, firmware_bridge/PROTOCOL.md) */
 #define LINK_PROTOCOL_VERSION 1u  /* HELLO_REPLY protocol version */
+#define FIRMWARE_MAJOR 1u  /* HELLO_REPLY firmware version */
+#define FIRMWARE_MINOR 4u  /* HELLO_REPLY firmware version */
+#define FIRMWARE_PATCH 0u  /* HELLO_REPLY firmware version */
 #define LINK_MAX_FRAME 250u  /* largest decoded frame, each way */
 #define LINK_MAX_WIRE_FRAME 252u  /* largest encoded frame with its delimiter */
 #define LINK_RUN_OVERHEAD 7u  /* RUN bytes around the program */

@@ -21,6 +21,7 @@ import lm629_host
 from lm629_host.sim import avr as avrsim
 from lm629_host.bus.program import BusCycle
 
+from served import CPU_HOGS_ENV, cpu_hogs, is_served, served_docs
 from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
 
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"
@@ -34,7 +35,21 @@ def _avr_missing() -> list[str]:
     return avrsim.toolchain_missing()
 
 
+#: the CPU hogs of ``--cpu-hogs`` while the session runs
+_HOGS: list = []
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--cpu-hogs", type=int, default=int(os.environ.get(CPU_HOGS_ENV) or 0),
+                     metavar="N", help="run N CPU-burning processes beside the whole run (also "
+                     f"{CPU_HOGS_ENV}=N); with -m served: the busy-machine pass")
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
+    hogs = session.config.getoption("--cpu-hogs")
+    if hogs and not hasattr(session.config, "workerinput"):  # once, not per xdist worker
+        _HOGS.append(cpu_hogs(hogs))
+        _HOGS[-1].__enter__()
     missing = _avr_missing()
     if missing and os.environ.get(_REQUIRE_AVR) == "1":
         pytest.exit(f"{_REQUIRE_AVR}=1 but the AVR toolchain is missing ({', '.join(missing)}):"
@@ -60,10 +75,24 @@ SLOW_MODULES = frozenset({
 SLOW_PARAMS = ("sim+avr", "firmware", "usb=")
 
 
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    while _HOGS:
+        _HOGS.pop().__exit__(None, None, None)
+
+
+@pytest.fixture
+def cpu_hogs_beside():
+    """``with cpu_hogs_beside(2): ...``: CPU-burning processes for part of one test."""
+    return cpu_hogs
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    docs = served_docs(items)
     for item in items:
         if item.path.stem in SLOW_MODULES or any(p in item.nodeid for p in SLOW_PARAMS):
             item.add_marker(pytest.mark.slow)
+        if is_served(item, docs):
+            item.add_marker(pytest.mark.served)
 
 
 

@@ -10,7 +10,9 @@ import shutil
 import signal
 import subprocess
 import re
+import sys
 import pytest
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from lm629_host.sim.avr import toolchain_missing
@@ -108,3 +110,53 @@ def _console_script() -> str:
         if exe and os.path.exists(exe):
             return exe
     pytest.fail("the lm629 console script is not installed (pip install -e .)")
+
+
+#: how many CPU-burning processes run beside the tests (``pytest --cpu-hogs N``, or the
+#: environment variable): a lab PC is not idle, and whatever is timed must hold on a busy one
+CPU_HOGS_ENV = "LM629_CPU_HOGS"
+
+
+@contextmanager
+def cpu_hogs(n: int) -> Iterator[list[subprocess.Popen]]:
+    """``n`` processes that each burn a CPU (``while True: pass``, as two on a 2-core machine
+    leave every other process waiting for a core) for the duration of the block; each is
+    ended by its own pid."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+             for _ in range(max(0, n))]
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            p.kill()
+        for p in procs:
+            p.wait()
+
+
+#: documents whose blocks run against the served bench (tests/test_docs.py starts one per
+#: document on first use; the blocks after it share its state)
+_SERVED_DOC_WORDS = ("/dev/ttyACM0", "/dev/ttyUSB0", "sim serve", "socket://")
+#: test modules that drive a served bench from separate processes
+SERVED_MODULES = frozenset({"test_served_bench", "test_served_bench_failsafe",
+                            "test_served_bench_profile", "test_served_bench_trip", "test_journey"})
+
+
+def is_served(item: pytest.Item, served_docs: set[Path]) -> bool:
+    """Whether ``item`` runs against a ``lm629 sim serve`` far end in real time (the
+    ``served`` marker: the busy-machine pass runs these with CPU hogs beside them)."""
+    if item.path.stem in SERVED_MODULES or "served" in item.name:
+        return True
+    block = getattr(item, "callspec", None) and item.callspec.params.get("block")
+    return block is not None and getattr(block, "doc", None) in served_docs
+
+
+def served_docs(items: list[pytest.Item]) -> set[Path]:
+    """The documents one of whose blocks uses the served bench."""
+    docs: set[Path] = set()
+    for item in items:
+        block = getattr(item, "callspec", None) and item.callspec.params.get("block")
+        text = getattr(block, "text", "")
+        if block is not None and any(w in text for w in _SERVED_DOC_WORDS):
+            docs.add(block.doc)
+    return docs

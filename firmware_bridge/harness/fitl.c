@@ -381,6 +381,23 @@ static void out_hook(avr_irq_t *irq, uint32_t value, void *param)
         h->out_frames++;
 }
 
+/* elf_read_firmware mallocs the image's sections (12 KiB of flash and more per open) and
+ * avr_load_firmware copies them: without this every open/close leaked them */
+static void release_firmware(elf_firmware_t *fw)
+{
+    free(fw->flash);
+    free(fw->eeprom);
+    free(fw->fuse);
+    free(fw->lockbits);
+    if (fw->symbol) {
+        for (uint32_t i = 0; i < fw->symbolcount; i++)
+            free(fw->symbol[i]);
+        free(fw->symbol);
+    }
+    fw->flash = fw->eeprom = fw->fuse = fw->lockbits = NULL;
+    fw->symbol = NULL;
+}
+
 fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
 {
     avr_global_logger_set(quiet_logger);
@@ -392,6 +409,7 @@ fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
     }
     avr_t *avr = avr_make_mcu_by_name("atmega328p");
     if (!avr) {
+        release_firmware(&fw);
         snprintf(last_error, sizeof last_error, "simavr has no atmega328p core");
         return NULL;
     }
@@ -399,6 +417,7 @@ fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
     avr->frequency = CPU_HZ;
     avr->log = 0;
     avr_load_firmware(avr, &fw);
+    release_firmware(&fw); /* copied into the AVR: the loader's buffers are ours to free */
     avr->frequency = CPU_HZ;
     avr->sleep = no_sleep;
     uint32_t flags = 0;

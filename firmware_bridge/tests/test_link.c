@@ -309,6 +309,7 @@ static void test_wait_status(void)
     uint8_t prog[] = {0x00, 0x13, 0x88, OP_WAIT_STATUS, 0x04, 0x00, 0x0A}; /* bit 2, 10 ms */
     link_init(&L);
     fake_reset();
+    fake.rx_pending_after = 0xFFFFFFFFu; /* the host sends nothing during these waits */
     fake.n_script = 4;
     memcpy(fake.script, "\x80\x80\x80\x84", 4);
     int n = feed(wire, frame(0x02, 0x10, prog, sizeof prog, wire), out);
@@ -320,6 +321,7 @@ static void test_wait_status(void)
           3 * WAIT_STATUS_POLL_US);
     /* the timeout: 2 ms of a status that never matches = 1 + 2 * 8 reads, 16 periods */
     fake_reset();
+    fake.rx_pending_after = 0xFFFFFFFFu;
     fake.status = 0x80;
     prog[6] = 0x02;
     n = feed(wire, frame(0x02, 0x11, prog, sizeof prog, wire), out);
@@ -327,7 +329,21 @@ static void test_wait_status(void)
           "wait status timeout reply");
     CHECK(fake.total_polls == 17 && fake.waited_us == 16 * WAIT_STATUS_POLL_US,
           "wait status timeout: %u reads, %u us waited", fake.total_polls, fake.waited_us);
-    printf("wait status: reads until the mask matches, or for the timeout; one status reported\n");
+    /* a wait for a mask no status can match (0), 65.5 s: a byte from the host (a new
+     * client's HELLO) after 5 polls ends it, answered OK with the last status read, instead
+     * of the bridge staying deaf for the whole wait */
+    fake_reset();
+    fake.rx_pending_after = 5;
+    fake.status = 0x80;
+    uint8_t deaf[] = {0x00, 0x13, 0x88, OP_WAIT_STATUS, 0x00, 0xFF, 0xFF};
+    n = feed(wire, frame(0x02, 0x12, deaf, sizeof deaf, wire), out);
+    CHECK(n > 0 && reply_payload(out, n, 0x82, 0x12, &p) == 6 && p[0] == 0 && p[5] == 0x80,
+          "wait status ended by the host: reply");
+    CHECK(fake.total_polls == 6 && fake.waited_us == 5 * WAIT_STATUS_POLL_US,
+          "wait status ended by the host: %u reads, %u us waited (expected 6, %u)",
+          fake.total_polls, fake.waited_us, 5 * WAIT_STATUS_POLL_US);
+    printf("wait status: reads until the mask matches, for the timeout, or until the host sends; "
+           "one status reported\n");
 }
 
 static void test_errors(void)
@@ -512,6 +528,28 @@ static void test_profile(void)
            "dropped by a stop; pieces 2 ms apart refused\n");
 }
 
+/* PROFILE's pieces 20 and 40 ms (ticks 5000 and 10000): the first goes out late, at tick
+ * 9000 (the bridge was busy with a program); the second waits until 10 ms (2500 ticks) after
+ * it instead of following at its own time 1000 ticks later, which would be two STTs 4 ms apart
+ * (the chip aborts its trajectory calculation, AN-706 4.6.2) */
+static void test_profile_spacing(void)
+{
+    link_init(&L);
+    fake_reset();
+    fake.status = 0xC0;
+    expect_reply("profile_two", "profile_reply_two");
+    fake.ticks = 9000;
+    link_idle(&L);
+    CHECK(L.prof_n == 1, "profile spacing: the late first piece not issued");
+    uint32_t first = fake.ticks;
+    while (L.prof_n == 1 && fake.ticks < 100000)
+        link_idle(&L);
+    CHECK(L.prof_n == 0 && fake.ticks >= first + 2500u - 2u,
+          "profile spacing: second piece %u ticks after a late first one (10 ms = 2500)",
+          (unsigned)(fake.ticks - first));
+    printf("profile spacing: a late piece pushes the next to 10 ms after it\n");
+}
+
 /* A failsafe trip while a shaped move's pieces are pending: the schedule is dropped before the
  * chips are stopped, no piece goes out after (not even at its time), and new pieces are
  * refused until the trip is acknowledged. */
@@ -580,6 +618,7 @@ int main(int argc, char **argv)
     test_select();
     test_record();
     test_profile();
+    test_profile_spacing();
     test_failsafe_drops_profile();
     test_golden_requests();
     test_exactly_once();

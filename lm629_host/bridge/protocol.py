@@ -27,6 +27,12 @@ from lm629_host.bus.program import OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program
 # ---------------------------------------------------------------------------------- constants
 #: version of PROTOCOL.md implemented here; HELLO_REPLY must carry the same
 PROTOCOL_VERSION = 1
+#: the bridge firmware's version (HELLO_REPLY), generated into ``lm629_tables.h`` so that the
+#: firmware and the Python far end (``lm629_host/sim/bridge.py``) report the one release they
+#: both implement.  1.1: several chips (Op.SELECT, four chip selects); 1.2: the compact RUN,
+#: programs kept by code, SET_BAUD; 1.3: RECORD (rows on the bridge's timer); 1.4: the link
+#: failsafe (FAILSAFE), PROFILE (a shaped move's pieces on the bridge's timer)
+FIRMWARE_VERSION = (1, 4, 0)
 #: largest decoded frame (type, seq, payload, CRC), each way
 MAX_FRAME = 250
 #: largest encoded frame on the wire: COBS adds one byte per 254 and the delimiter one more
@@ -207,6 +213,9 @@ def c_defines() -> list[tuple[str, int, str]]:
     write into ``firmware_bridge/lm629_tables.h``: the firmware never keeps its own copy."""
     out: list[tuple[str, int, str]] = [
         ("LINK_PROTOCOL_VERSION", PROTOCOL_VERSION, "HELLO_REPLY protocol version"),
+        ("FIRMWARE_MAJOR", FIRMWARE_VERSION[0], "HELLO_REPLY firmware version"),
+        ("FIRMWARE_MINOR", FIRMWARE_VERSION[1], "HELLO_REPLY firmware version"),
+        ("FIRMWARE_PATCH", FIRMWARE_VERSION[2], "HELLO_REPLY firmware version"),
         ("LINK_MAX_FRAME", MAX_FRAME, "largest decoded frame, each way"),
         ("LINK_MAX_WIRE_FRAME", MAX_WIRE_FRAME, "largest encoded frame with its delimiter"),
         ("LINK_RUN_OVERHEAD", RUN_OVERHEAD, "RUN bytes around the program"),
@@ -805,6 +814,7 @@ __all__ = [
     "MAX_FRAME",
     "MAX_WIRE_FRAME",
     "PROTOCOL_VERSION",
+    "FIRMWARE_VERSION",
     "Result",
     "RunReply",
     "busy_timeout_us",

@@ -64,6 +64,36 @@ def firmware_path(baud: int = DEFAULT_BAUD) -> Path:
     return BUILD_DIR / f"lm629_bridge_{baud}.elf"
 
 
+#: ELF's e_machine of an AVR image (the ELF specification's EM_AVR)
+EM_AVR = 83
+
+
+def check_firmware(path: Path) -> None:
+    """Refuse anything simavr should not be handed (ValueError naming the file and why),
+    before it starts: libsimavr's loader spins at 100 % CPU on some files that are not ELF
+    images, deaf to Ctrl-C.  An AVR image is a 32-bit little-endian ELF for machine EM_AVR."""
+    advice = ("give the .elf that `make -C firmware_bridge` builds "
+              f"({firmware_path().relative_to(ROOT)}), or leave firmware= out")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(20)
+    except FileNotFoundError:
+        raise ValueError(f"firmware={path}: not found; {advice}") from None
+    except OSError as exc:
+        raise ValueError(f"firmware={path}: cannot read it ({exc.strerror}); {advice}") from None
+    if head[:1] == b":":
+        why = "an Intel HEX file: that is for flashing a board (lm629 bridge flash); simavr runs the ELF"
+    elif head[:4] != b"\x7fELF":
+        why = "not an ELF image"
+    elif len(head) < 20 or head[4] != 1 or head[5] != 1:
+        why = "an ELF image, but not a 32-bit little-endian one as an AVR's is"
+    elif int.from_bytes(head[18:20], "little") != EM_AVR:
+        why = f"an ELF image for machine {int.from_bytes(head[18:20], 'little')}, not the AVR ({EM_AVR})"
+    else:
+        return
+    raise ValueError(f"firmware={path}: {why}; {advice}")
+
+
 _lib: ctypes.CDLL | None = None
 _built = False
 
@@ -167,6 +197,7 @@ class AvrSim:
         if not self.firmware.exists():
             raise HarnessError(f"firmware image {self.firmware} not found: run "
                                "`make -C firmware_bridge`")
+        check_firmware(self.firmware)
         self.strict = model.params.strict if strict is None else strict
         self._error: BaseException | None = None
         self._cb = _CALLBACK(self._on_bus)  # referenced for as long as the simulation lives
@@ -175,6 +206,8 @@ class AvrSim:
             raise HarnessError(f"simavr cannot run {self.firmware}: "
                                f"{self._lib.fitl_error().decode()}")
         self._ratio = model.clock_hz / CPU_HZ
+        #: chips on /CS 0..n-1; a strobe on another /CS finds a floating bus
+        self._wired = len(chips_of(model))
         self._buf = (ctypes.c_uint8 * 8192)()
         self.reset_low_clocks: list[int] = []
         #: set to a list to record every bus cycle as (kind, value, AVR cycle)
@@ -192,26 +225,10 @@ class AvrSim:
             if tick > m.tick:
                 m.advance_to(tick)
             chip, kind = kind >> 4, kind & 0x0F
-            if isinstance(m, ChipBus):
-                if kind != RESET:
-                    m.select(chip)
-            elif chip:
-                raise ProtocolViolation(f"the firmware strobed chip select {chip}; this "
-                                        "simulation wires one chip (sim+avr://?axes=N)")
             w = self.wiring
             if w is not None and kind in (COMMAND, WRITE):
                 value = w.to_chip(value)
-            if kind == STATUS:
-                r = m.read_status() if w is None else w.to_host(m.read_status())
-            elif kind == READ:
-                r = m.read_data() if w is None else w.to_host(m.read_data())
-            elif kind == COMMAND:
-                m.write_command(value)
-                r = 0
-            elif kind == WRITE:
-                m.write_data(value)
-                r = 0
-            else:
+            if kind == RESET:
                 low = math.floor(value * self._ratio)
                 self.reset_low_clocks.append(low)
                 if low < 8:
@@ -219,6 +236,23 @@ class AvrSim:
                                             "needs at least 8")
                 m.reset_pulse()
                 r = 0
+            elif chip >= self._wired:
+                # a /CS with no chip behind it (the failsafe's scan strobes every select): the
+                # bus floats, as on a board, so reads find the pull-ups and writes go nowhere
+                r = 0 if kind in (COMMAND, WRITE) else 0xFF if w is None else w.to_host(0xFF)
+            else:
+                if isinstance(m, ChipBus):
+                    m.select(chip)
+                if kind == STATUS:
+                    r = m.read_status() if w is None else w.to_host(m.read_status())
+                elif kind == READ:
+                    r = m.read_data() if w is None else w.to_host(m.read_data())
+                elif kind == COMMAND:
+                    m.write_command(value)
+                    r = 0
+                else:
+                    m.write_data(value)
+                    r = 0
             if isinstance(m, ChipBus):
                 his = 0
                 for k, c in enumerate(m.chips):
@@ -464,5 +498,6 @@ class LinkCounters:
         return (self._raw()[i] - self._base[i]) & 0xFFFF
 
 
-__all__ = ["AvrSim", "LinkCounters", "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
+__all__ = ["AvrSim", "LinkCounters", "check_firmware", "EM_AVR",
+           "AvrPipe", "AvrClock", "HarnessError", "firmware_path", "load_library",
            "CPU_HZ", "BUILT_BAUDS", "ensure_built", "toolchain_missing", "PACKAGES"]

@@ -32,6 +32,7 @@ from lm629_host.bridge.protocol import (
     FAILSAFE_MAX_MS,
     FAILSAFE_MIN_MS,
     FAILSAFE_STOP_BITS,
+    FIRMWARE_VERSION,
     MAX_FRAME,
     MAX_PING,
     RUN_OVERHEAD,
@@ -74,8 +75,8 @@ from lm629_host.sim.model import ChipBus, ChipModel, chips_of
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
 
-#: the emulator's firmware version (HELLO_REPLY); 0.x marks "not the AVR firmware"
-EMU_FIRMWARE = (0, 9, 0)
+#: the firmware release this emulator implements (HELLO_REPLY): the one the firmware reports
+EMU_FIRMWARE = FIRMWARE_VERSION
 #: one /RD or /WR strobe of the emulated bridge, recovery included (an AVR at 16 MHz needs
 #: about 16 instructions per strobe with the data bus split over two ports)
 BUS_CYCLE_S = 1e-6
@@ -109,8 +110,8 @@ MULTI_AXIS_INFO = HelloInfo(
                      | Capability.PROGRAM_CODES | Capability.BAUD_SWITCH | Capability.RECORD
                      | Capability.FAILSAFE | Capability.PROFILE))
 #: a one-chip bridge (``sim+emu://?bridge=1``): one chip select, no SELECT op (nor
-#: WAIT_STATUS: firmware 1.0's capabilities)
-ONE_CHIP_INFO = HelloInfo(firmware=EMU_FIRMWARE, chip_selects=1)
+#: WAIT_STATUS): firmware 1.0's capabilities, so it reports 1.0.0
+ONE_CHIP_INFO = HelloInfo(firmware=(1, 0, 0), chip_selects=1)
 
 
 class _NoChip:
@@ -135,18 +136,29 @@ _NO_CHIP = _NoChip()
 @dataclass
 class BridgeEmulator:
     """The far end of the link: frames in, frames out, programs run on ``model`` (one chip,
-    or a :class:`~lm629_host.sim.model.ChipBus` whose chips sit on chip selects 0, 1, ...)."""
+    or a :class:`~lm629_host.sim.model.ChipBus` whose chips sit on chip selects 0, 1, ...,
+    or on the chip selects ``selects`` names, one per chip: a board may leave a select
+    without a chip between two that have one)."""
 
     model: ChipModel | ChipBus
     info: HelloInfo = field(default_factory=lambda: MULTI_AXIS_INFO)
     stats: EmuStats = field(default_factory=EmuStats)
     #: ``wiring=``: the data lines between the bridge's pins and the chips (None: correct)
     wiring: Miswiring | None = None
+    #: the chip select of each chip of ``model``, in order (None: 0, 1, ...)
+    selects: Sequence[int] | None = None
 
     def __post_init__(self) -> None:
-        self._chips = chips_of(self.model)
+        chips = chips_of(self.model)
         if self.wiring is not None:  # the bus is shared: every chip behind the same wires
-            self._chips = [BentChip(c, self.wiring) for c in self._chips]  # type: ignore[misc]  # BentChip has a chip's strobes
+            chips = [BentChip(c, self.wiring) for c in chips]  # type: ignore[misc]  # BentChip has a chip's strobes
+        selects = list(range(len(chips))) if self.selects is None else list(self.selects)
+        if len(selects) != len(chips) or len(set(selects)) != len(selects) \
+                or not all(0 <= k < self.info.chip_selects for k in selects):
+            raise ValueError(f"selects={self.selects}: one distinct chip select of "
+                             f"0..{self.info.chip_selects - 1} for each of the {len(chips)} chip(s)")
+        #: the chip behind each wired chip select (the others float)
+        self._by_cs: dict[int, ChipModel] = dict(zip(selects, chips))
         self._cs = 0
         self._reader = FrameReader()
         self._cache: tuple[int, int, bytes] | None = None  # seq, crc, encoded reply
@@ -439,7 +451,11 @@ class BridgeEmulator:
     def profile_due(self) -> float | None:
         """When the next piece of a shaped move is due (model seconds), None when none is."""
         sched = self._profile
-        return sched.start + sched.pending[0][0] * 1e-6 if sched.pending else None
+        if not sched.pending:
+            return None
+        # never sooner than PROFILE_MIN_SPACING_US after the last piece (as the firmware): a
+        # piece that went out late must not bring the next STT within 10 ms of its own
+        return max(sched.start + sched.pending[0][0] * 1e-6, sched.not_before)
 
     def _profile_frame(self, frame: Frame) -> bytes:
         """PROFILE, as the firmware takes it: every piece checked before any is scheduled
@@ -491,6 +507,7 @@ class BridgeEmulator:
         sched.late_us = max(sched.late_us, late)
         cs, self._cs = self._cs, sched.cs
         reply = self.run_ops(profile_piece_ops(velocity), FIRMWARE_BUSY_TIMEOUT_S)
+        sched.not_before = self.model.now() + PROFILE_MIN_SPACING_US * 1e-6  # after its STT
         self._cs = cs
         sched.issued += 1
         self.stats.pieces += 1
@@ -573,8 +590,7 @@ class BridgeEmulator:
         return self._chip()
 
     def _chip(self) -> ChipModel:
-        k = self._cs
-        return self._chips[k] if k < len(self._chips) else self._no_chip  # type: ignore[return-value]  # an unwired select: the floating bus
+        return self._by_cs.get(self._cs, self._no_chip)  # type: ignore[arg-type]  # an unwired select: the floating bus
 
     def _wait_not_busy(self, timeout_s: float) -> tuple[bool, int]:
         m = self.model
@@ -696,7 +712,8 @@ class _Recording:
 class _Schedule:
     """A shaped move's pieces on the bridge: its chip select, the schedule's start (model
     seconds), the pieces still to issue (us from the start, velocity word), how many went out,
-    the largest lateness of one (us) and how the schedule ended."""
+    the largest lateness of one (us), how the schedule ended, and the soonest the next piece
+    may go out."""
 
     cs: int = 0
     start: float = 0.0
@@ -704,6 +721,8 @@ class _Schedule:
     issued: int = 0
     late_us: int = 0
     result: Result = Result.OK
+    #: the next piece goes out no sooner than this (model seconds): 10 ms after the last
+    not_before: float = 0.0
 
 
 #: the far end runs on the chip model's simulated clock (the one ``sim://`` uses)

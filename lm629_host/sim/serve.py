@@ -28,6 +28,7 @@ import socket
 import threading
 import time
 import tty
+from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -53,6 +54,10 @@ log = logging.getLogger("lm629_host.sim.serve")
 
 #: how often the idle server moves the simulation forward
 IDLE_TICK_S = 0.02
+#: how often it does while the far end owes a reply it has not sent yet (a long program),
+#: and how far (simulated seconds) it runs it between two looks at the host's bytes
+OWED_TICK_S = 0.002
+OWED_SLICE_S = 0.02
 
 
 class FarEnd(abc.ABC):
@@ -76,6 +81,11 @@ class FarEnd(abc.ABC):
 
     def close(self) -> None:  # noqa: B027 - optional: a far end may hold nothing
         pass
+
+    @property
+    def owes_reply(self) -> bool:
+        """A request is still running on the far end (its reply comes later, with time)."""
+        return False
 
 
 class EmuFarEnd(FarEnd):
@@ -114,6 +124,10 @@ class PipeFarEnd(FarEnd):
 
     #: added to each per-request wait, simulated seconds
     MARGIN_S = 0.05
+    #: the longest a request's reply is waited for in one go, simulated seconds: a longer
+    #: program (a WAIT_STATUS of seconds) goes on with the wall clock, so that the bytes a
+    #: host sends meanwhile (a new client's HELLO) reach the far end at their time
+    AHEAD_S = 0.1
 
     def __init__(self, pipe, model: ChipModel | ChipBus, name: str, *, baud: int | None = None) -> None:
         self.pipe = pipe
@@ -124,6 +138,10 @@ class PipeFarEnd(FarEnd):
         self._replies = FrameReader()
         #: programs the far end keeps by code (RUN_STORE), to time a RUN_CODE's reply
         self._codes: dict[int, bytes] = {}
+        #: when each request whose reply has not come out yet stops being owed (simulated
+        #: seconds: a request lost on the line, at a rate the far end does not speak, is
+        #: never answered)
+        self._owed: deque[float] = deque()
 
     def _timeout(self, frame: Frame) -> float:
         t = self.MARGIN_S + (2 * MAX_WIRE_FRAME * 10 / self.baud if self.baud else 0.0)
@@ -163,10 +181,12 @@ class PipeFarEnd(FarEnd):
         self.pipe.write(data)
         waits = [self._timeout(f) for f in self._requests.feed(data)
                  if isinstance(f, Frame) and not f.type & 0x80]
+        now = self.pipe.clock.now()
+        self._owed.extend(now + timeout for timeout in waits)
         out = bytearray()
         for timeout in waits:
-            deadline = self.pipe.clock.now() + timeout
-            while True:
+            deadline = self.pipe.clock.now() + min(timeout, self.AHEAD_S)
+            while self._owed:
                 left = deadline - self.pipe.clock.now()
                 if left <= 0:
                     break
@@ -174,9 +194,23 @@ class PipeFarEnd(FarEnd):
                 if not chunk:
                     break
                 out += chunk
-                if any(isinstance(f, Frame) for f in self._replies.feed(chunk)):
-                    break
+                self._count_replies(chunk)
         return [bytes(out)] if out else []
+
+    def _count_replies(self, data: bytes) -> None:
+        """Settle what is owed with the frames in ``data`` (a RECORD's answer is its first
+        row; the rows after it, and a failsafe report, settle nothing that is not owed)."""
+        for f in self._replies.feed(data):
+            if isinstance(f, Frame):
+                if self._owed:
+                    self._owed.popleft()
+
+    @property
+    def owes_reply(self) -> bool:
+        owed, now = self._owed, self.pipe.clock.now()
+        while owed and owed[0] < now:
+            owed.popleft()
+        return bool(owed)
 
     def now(self) -> float:
         return self.pipe.clock.now()
@@ -189,8 +223,7 @@ class PipeFarEnd(FarEnd):
                 break
             out += data
         if out:
-            for _ in self._replies.feed(bytes(out)):
-                pass
+            self._count_replies(bytes(out))
         return bytes(out)
 
     def describe(self) -> str:
@@ -430,17 +463,15 @@ class SimServer:
         if on_ready is not None:
             on_ready()
         while not self._stop.is_set():
-            ready, _, _ = select.select(self._fds(), [], [], IDLE_TICK_S)
+            ready, _, _ = select.select(self._fds(), [], [],
+                                        OWED_TICK_S if far.owes_reply else IDLE_TICK_S)
             if self._power_cycle.is_set():
                 self._power_cycle.clear()
                 self._cycle_power()
-            stray = far.advance_to(sim0 + time.monotonic() - wall0)
-            replies = [stray] if stray else []
-            if ready:
-                data = self._read(ready)
-                if data:
-                    self.bytes_in += len(data)
-                    replies += far.receive(data)
+            now = sim0 + time.monotonic() - wall0
+            data = self._read_waiting(ready) if ready else b""
+            self.bytes_in += len(data)
+            replies = self._deliver(data, now)
             if not replies:
                 continue
             ahead = (far.now() - sim0) - (time.monotonic() - wall0)
@@ -449,6 +480,52 @@ class SimServer:
             for r in replies:
                 self._write(r)
                 self.bytes_out += len(r)
+
+    def _read_waiting(self, ready: Sequence[int | socket.socket]) -> bytes:
+        """Every byte the client has written so far (the pty or socket may hold more than one
+        read's worth after the server was paused)."""
+        data = self._read(ready)
+        while data:
+            more, _, _ = select.select(self._fds(), [], [], 0)
+            chunk = self._read(more) if more else b""
+            if not chunk:
+                break
+            data += chunk
+        return data
+
+    def _deliver(self, data: bytes, now: float) -> list[bytes]:
+        """Run the far end up to simulated time ``now`` and hand it ``data``: what it sends.
+
+        The bytes arrived at some time since the far end last ran.  A real bridge's UART and
+        timer keep running while nobody looks, so the host's bytes reached it in time; a
+        server that was itself late (a busy machine, SIGSTOP) must not judge the host silent
+        for the time it did not look.  So the frames waiting are credited across that gap,
+        evenly, the last one now (a single request is taken now, as it always was), and the
+        far end runs to each one's time before it gets it (its failsafe, rows and pieces at
+        their own times in between)."""
+        far = self.far
+        out: list[bytes] = []
+        if data:
+            # frame by frame: each ends with its 0x00 delimiter (a partial tail goes last)
+            parts = [p + b"\0" for p in data.split(b"\0")[:-1]]
+            if not data.endswith(b"\0"):
+                parts.append(data[data.rfind(b"\0") + 1:])
+            start = far.now()
+            # a far end still running a request (a long WAIT_STATUS in simavr runs slower
+            # than real time, so it falls behind) takes the bytes now, on its own clock: the
+            # firmware ends such a wait when the host sends (a new client's HELLO), which it
+            # must see before it simulates its way through the rest of the wait
+            end = start if far.owes_reply else now
+            for k, part in enumerate(parts):
+                stray = far.advance_to(start + (end - start) * (k + 1) / len(parts))
+                if stray:
+                    out.append(stray)
+                out += far.receive(part)
+        # while a request runs, in slices, so that the host's next bytes are read between them
+        stray = far.advance_to(min(now, far.now() + OWED_SLICE_S) if far.owes_reply else now)
+        if stray:
+            out.append(stray)
+        return out
 
     def power_cycle(self) -> None:
         """Cycle the chips' supply, as a bench's switch would: every chip comes back as from

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from lm629_host.wiring.uno import CHIP_SELECTS
 from lm629_host.bus.program import TraceCallback
-from lm629_host.sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, firmware_path
+from lm629_host.sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, check_firmware, firmware_path
 from lm629_host.sim.build import build_bus
 from lm629_host.sim.vcd import vcd_of
 from lm629_host.sim.wiring import wiring_of
@@ -66,6 +66,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
         baud = opts["baud"]
         if opts["firmware"]:
             firmware = Path(opts["firmware"])
+            check_firmware(firmware)  # before the build and before simavr starts
         elif baud in BUILT_BAUDS:
             firmware = firmware_path(baud)
         else:

@@ -162,7 +162,7 @@ def test_bridge_list_probes_candidates_with_hello(server, monkeypatch):
     monkeypatch.setattr(serial_mod, "_candidates", lambda: [Other(), Entry()])
     r = CliRunner().invoke(cli, ["bridge", "list"])
     assert r.exit_code == 0, r.output
-    assert f"ok {server.device}  Arduino Uno R3 [2341:0043] s/n 95530343: bridge firmware 0.9.0" \
+    assert f"ok {server.device}  Arduino Uno R3 [2341:0043] s/n 95530343: bridge firmware 1.4.0" \
         in r.output
     assert "ttyS0" not in r.output
 
@@ -245,7 +245,7 @@ def test_doctor_reports_handshake_and_round_trip(server):
     assert checks["pyserial"].ok
     c = checks[f"bridge {server.link}"]
     assert c.ok, c.message
-    assert "round trip" in c.message and "bridge firmware 0.9.0" in c.message
+    assert "round trip" in c.message and "bridge firmware 1.4.0" in c.message
     assert "low latency not supported" in c.message
 
 

@@ -36,7 +36,7 @@ def test_socket_url_reaches_a_bridge_on_a_tcp_port(tcp_server):
     with lm629_host.open(url) as chip:
         t = chip.transport
         assert isinstance(t, SerialTransport) and t.retries == 3
-        assert t.info is not None and t.info.firmware_version == "0.9.0"  # the Python bridge
+        assert t.info is not None and t.info.firmware_version == "1.4.0"  # the Python bridge: the firmware release it emulates
         three_commands_once(chip, tcp_server.model)
 
 

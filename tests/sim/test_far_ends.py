@@ -1,0 +1,233 @@
+"""The simulated far ends behave as hardware does: the firmware release both report, a board
+with chips on chip selects that are not contiguous, the STT spacing of a far-side shaped move,
+and a firmware that a wait for a status bit that never comes cannot leave deaf."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import lm629_host
+from lm629_host.bridge.protocol import (
+    FIRMWARE_VERSION,
+    Frame,
+    FrameReader,
+    FrameType,
+    encode_frame,
+)
+from lm629_host.bus.opcodes import Cmd
+from lm629_host.chip.lm629 import LM629
+from lm629_host.chip.shapes import SCurve, ShapedMove
+from lm629_host.chip.shapes import plan as plan_shape
+from lm629_host.physics.pid import sample_period_s
+from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
+from lm629_host.sim.build import build_bus
+from lm629_host.transports.link import LinkTransport
+from lm629_host.transports import open_transport
+
+
+def test_the_python_far_end_reports_the_firmware_release_it_emulates():
+    """HELLO_REPLY of the Python far end and of the compiled firmware carry the one version
+    kept in bridge/protocol.py (the docs tie FAILSAFE and PROFILE to firmware 1.4)."""
+    assert FIRMWARE_VERSION >= (1, 4, 0)
+    emu = open_transport("sim+emu://")
+    try:
+        assert emu.info is not None and emu.info.firmware == FIRMWARE_VERSION
+    finally:
+        emu.close()
+
+
+@pytest.mark.usefixtures("firmware_built")
+def test_the_firmware_reports_the_same_release():
+    avr = open_transport("sim+avr://")
+    try:
+        assert avr.info is not None and avr.info.firmware == FIRMWARE_VERSION
+    finally:
+        avr.close()
+
+
+# ---------------------------------------------------------------------------------- cs 0 and cs 2
+def _gapped_board() -> tuple[LinkTransport, BridgeEmulator, list[LM629]]:
+    """Two chips on chip selects 0 and 2 of the Python far end, nothing on 1; failsafe 0.5 s."""
+    model = build_bus("sim://?axes=2")
+    emu = BridgeEmulator(model, selects=(0, 2))
+    t = LinkTransport(EmuPipe(emu), "sim+emu://?failsafe=0.5")
+    axes = [LM629(t, axis=k) for k in (0, 2)]
+    for ax in axes:
+        ax.reset()
+        ax.load_filter(kp=20, kd=100)
+        ax.update_filter()
+    return t, emu, axes
+
+
+def test_a_trip_stops_the_chips_on_both_sides_of_an_empty_chip_select():
+    """The failsafe's scan reads every chip select's status and stops those that answer: cs 1
+    floats (FF), cs 2 still has a chip and must be stopped (the scan goes past the gap)."""
+    t, emu, axes = _gapped_board()
+    for ax in axes:  # 2 counts/sample after a 51 ms ramp
+        ax.load_trajectory(acceleration=655, velocity=131072, velocity_mode=True, start=True)
+    t.clock.sleep(0.3)
+    assert [ax.read_real_velocity() for ax in axes] == [2, 2]
+    chips = lm629_host.sim.model.chips_of(emu.model)
+    t.pipe.read(2.0)  # the host goes silent: the far end runs on alone
+    fs = emu.failsafe
+    assert fs.tripped and fs.chips == 0b101 and fs.silent_ms == 500
+    for c in chips:  # both shafts at rest, held by the PID (abrupt stop)
+        before = c.motion.real_position
+        emu.model.advance(0.05)
+        assert c.motion.real_position == before
+    t.close()
+
+
+def test_a_far_end_refuses_selects_it_cannot_wire():
+    model = build_bus("sim://?axes=2")
+    with pytest.raises(ValueError, match="selects=\\(0, 4\\)"):
+        BridgeEmulator(model, selects=(0, 4))
+    with pytest.raises(ValueError, match="selects=\\(1, 1\\)"):
+        BridgeEmulator(model, selects=(1, 1))
+
+
+# ---------------------------------------------------------------------------------- shaped moves
+def _stt_log(chip: LM629) -> list[int]:
+    """Model ticks of every STT the chip executes from now on."""
+    model = chip.transport.model
+    stts: list[int] = []
+    write = model.write_command
+
+    def logged(byte: int) -> None:
+        if byte == Cmd.STT:
+            stts.append(model.tick)
+        write(byte)
+
+    model.write_command = logged  # type: ignore[method-assign]  # a spy on the chip's command strobe
+    return stts
+
+
+@pytest.mark.parametrize("url", ["sim+emu://", "sim+emu://?baud=0"])
+def test_a_far_side_shaped_move_survives_a_host_late_past_its_first_piece(url):
+    """Pieces 50 ms apart; the host is 55 ms late (a GC pause, a busy machine) between the
+    move's STT and handing the rest to the bridge (what ``move_profile`` does, split here to
+    put the pause between), so the first piece's time has passed: it goes out 10 ms after the
+    schedule starts (never at once, nor at a negative time), the others at their times, every
+    STT at least 10 ms after the one before, and the move lands on its target."""
+    chip = lm629_host.open(url)
+    chip.reset()
+    chip.load_filter(kp=20, kd=100)
+    chip.update_filter()
+    stts = _stt_log(chip)
+    plan = plan_shape(SCurve(100000, 1e6, 3e7), 20000, sample_period_s(chip.clock_hz), 0.05)
+    move = ShapedMove(chip.move_to(20000, velocity=plan.pieces[0].velocity,
+                                   acceleration=plan.acceleration), plan, far=True)
+    chip.clock.sleep(0.055)
+    move.schedule_far(chip.axis, chip.update_interval)
+    result = move.wait()
+    assert chip.read_desired_position() == 20000 and abs(result.error) <= chip.move_rules.tolerance
+    gaps = [(b - a) / chip.transport.model.clock_hz for a, b in zip(stts, stts[1:])]
+    assert len(gaps) == len(plan.pieces) - 1 and min(gaps) >= 0.010, gaps
+    assert 0.055 + 0.010 <= gaps[0] < 0.055 + 0.010 + 0.010  # 10 ms after PROFILE came
+    assert abs(gaps[1] - (0.100 - 0.055 - 0.010)) < 1e-3  # the second at its own time
+    chip.close()
+
+
+def test_a_piece_that_went_out_late_pushes_the_next_to_10_ms_after_it():
+    """Pieces 10 ms apart (the least AN-706 4.6.2 allows) while the host polls the move: a
+    piece the bridge issues late (it was running the host's program) must not bring the next
+    STT within 10 ms of its own (the chip would abort its trajectory calculation)."""
+    chip = lm629_host.open("sim+emu://")
+    chip.reset()
+    chip.load_filter(kp=20, kd=100)
+    chip.update_filter()
+    stts = _stt_log(chip)
+    move = chip.move_profile(20000, SCurve(200000, 2e6, 1e8), piece_s=0.01)
+    assert move.far
+    move.wait()
+    gaps = [(b - a) / chip.transport.model.clock_hz for a, b in zip(stts, stts[1:])]
+    assert len(gaps) == len(move.plan.pieces) - 1
+    assert min(gaps) >= 0.010, gaps
+    assert move.far_state is not None and move.far_state.late_max_s > 0  # one did go out late
+    chip.close()
+
+
+# ---------------------------------------------------------------------------------- deaf firmware
+@pytest.mark.usefixtures("firmware_built")
+def test_a_host_byte_ends_a_wait_that_can_never_match():
+    """A RUN whose WAIT_STATUS waits 65.5 s for mask 0 (no status matches it) from a host that
+    then gave up: the next HELLO is answered at once, not after the wait (the firmware's deaf
+    spell after random frames; "is the firmware flashed?" to the next client)."""
+    from lm629_host.sim.avr import AvrPipe, AvrSim
+
+    sim = AvrSim(build_bus("sim://"))
+    pipe = AvrPipe(sim)
+    wait = bytes((0, 0, 0, 0x08, 0x00, 0xFF, 0xFF))  # cs 0, default busy timeout, WAIT_STATUS
+    pipe.write(encode_frame(FrameType.RUN, 1, wait))
+    sim.run_for(0.02)
+    assert pipe.read(0.0) == b""  # still waiting
+    t0 = sim.now
+    pipe.write(encode_frame(FrameType.HELLO, 2))
+    reader, got = FrameReader(), []
+    while sim.now - t0 < 0.1 and not any(f.type == FrameType.HELLO_REPLY for f in got):
+        got += [f for f in reader.feed(pipe.read(0.01)) if isinstance(f, Frame)]
+    assert [f.type for f in got] == [FrameType.RUN_REPLY, FrameType.HELLO_REPLY]
+    assert sim.now - t0 < 0.01
+    pipe.close()
+
+
+# ---------------------------------------------------------------------------------- sim+avr://
+_RSS_LOOP = """
+import gc
+from lm629_host.transports import open_transport
+def rss():
+    return int(open("/proc/self/statm").read().split()[1]) * 4096
+for _ in range(20):  # the allocator's pools settle
+    open_transport("sim+avr://").close()
+gc.collect()
+before = rss()
+for _ in range(300):
+    open_transport("sim+avr://").close()
+gc.collect()
+print(rss() - before)
+"""
+
+
+@pytest.mark.usefixtures("firmware_built")
+def test_300_opens_of_sim_avr_do_not_leak_the_firmware_image():
+    """The harness freed the AVR but not the sections simavr's ELF loader read for it (the
+    12 KiB flash image and more): 300 open/close cycles grew RSS by about 6 MB.  What is left
+    (0.8-1.7 MB measured) is simavr 1.6's own: valgrind finds about 1.2 KB of IRQ names and
+    pools per open that avr_terminate never frees, and the allocator's fragmentation."""
+    out = subprocess.run([sys.executable, "-c", _RSS_LOOP], capture_output=True, text=True,
+                         timeout=300, check=True).stdout
+    assert int(out) < 2 << 20, f"RSS grew by {int(out) / 1024:.0f} KiB over 300 cycles"
+
+
+def _not_avr_images(tmp_path: Path) -> list[Path]:
+    text = tmp_path / "notes.txt"
+    text.write_text("not firmware\n" * 100)
+    return [Path("/etc/passwd"), text, Path(lm629_host.__file__).parent / "data" / "lm629_bridge.hex",
+            Path(sys.executable).resolve()]  # an ELF, for this machine's CPU
+
+
+def test_sim_avr_refuses_what_is_not_an_avr_elf_before_simavr_starts(tmp_path):
+    """simavr's loader spun at 100 % CPU on a text file or the shipped .hex, deaf to Ctrl-C:
+    each is refused with a ValueError naming the file and why, before anything is built."""
+    for path in _not_avr_images(tmp_path):
+        with pytest.raises(ValueError, match=f"firmware={path}: .*give the .elf"):
+            open_transport(f"sim+avr://?firmware={path}")
+
+
+@pytest.mark.usefixtures("firmware_built")
+def test_the_command_line_refuses_a_firmware_that_is_not_an_avr_elf_in_one_line(tmp_path):
+    exe = Path(sys.executable).parent / "lm629"
+    for path in _not_avr_images(tmp_path)[1:3]:
+        started = time.monotonic()
+        p = subprocess.run([str(exe), "--port", f"sim+avr://?firmware={path}", "status"],
+                           capture_output=True, text=True, timeout=30)
+        took = time.monotonic() - started
+        assert p.returncode == 2, p.stderr
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and f"firmware={path}" in lines[0], p.stderr
+        assert took < 10, took  # an interpreter's start on a busy machine; it hung before
