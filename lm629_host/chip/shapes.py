@@ -425,7 +425,14 @@ class ShapedMove(Move):
         the first no sooner than ``update_s`` (AN-706 4.6.2) after the move's STT."""
         clock = self.chip.clock
         elapsed = clock.now() - self.t0
-        pieces = [(max(p.t - elapsed, update_s), p.velocity) for p in self.plan.pieces[1:]]
+        rest = self.plan.pieces[1:]
+        # a host late to hand them over (past the first piece's time): the chip ran the first
+        # piece's velocity meanwhile, so the whole schedule moves later by that much, keeping
+        # its spacing (the shape delayed, not squeezed: pieces squeezed together would cap a
+        # chip that is behind the plan at the plan's slow end far from its target, and the
+        # bridge refuses pieces closer than the update rule)
+        shift = max(0.0, elapsed - (rest[0].t - update_s)) if rest else 0.0
+        pieces = [(p.t - elapsed + shift, p.velocity) for p in rest]
         chip: Any = self.chip  # an LM629
         chip.transport.profile(axis, pieces, new=True)
 
