@@ -201,11 +201,15 @@ class LM629:
         """While the block runs, this thread's bus programs of this object go to
         ``runner(program)`` instead of the transport, which answers them as the chip would;
         other threads' calls still reach the bus.  A batch builds and decodes its calls
-        through here (:mod:`lm629_host.chip.batch`).  Nested: the inner runner until it ends."""
+        through here (:mod:`lm629_host.chip.batch`).  Nested: the inner runner until it ends.
+        A wraparound bit a runner's answer shows is cleared only after the block
+        (:meth:`PositionTracker.holding <lm629_host.chip.wraparound.PositionTracker.holding>`):
+        the programs it answers were built before it was seen."""
         here = self._this_thread
         before, here.runner = here.runner, runner
         try:
-            yield
+            with self.positions.holding():  # the runner answers programs built before
+                yield
         finally:
             here.runner = before
 
@@ -217,6 +221,7 @@ class LM629:
         programs on one, so that building changes nothing here."""
         twin = copy.copy(self)
         twin._this_thread = _ThisThread(runner)
+        twin.positions = self.positions.copy()  # its reads are answered with dummy words
         return twin
 
     def batch(self) -> Batch:
@@ -329,7 +334,7 @@ class LM629:
     def snapshot(self) -> Snapshot:
         """Status, signals, positions, velocities and integration sum in one bus program; the
         positions extended past the register's wraparound (:meth:`extended`)."""
-        r = self.run(self._clearing_wrap(self.snapshot_program()))
+        r = self.run(self.clearing_wrap(self.snapshot_program()))
         return self.extended(snapshot_at(r, 0, self.clock.now()))
 
     def extended(self, s: Snapshot) -> Snapshot:
@@ -339,9 +344,12 @@ class LM629:
         self.positions.saw(s.status)
         return self.positions.snapshot(s)
 
-    def _clearing_wrap(self, program: Program) -> Program:
+    def clearing_wrap(self, program: Program) -> Program:
         """``program`` with an RSTI of the wraparound bit in front when a read has seen it
-        (AN-706 6.5.2: the host notes the wrap and resets the bit), in the same exchange."""
+        (AN-706 6.5.2: the host notes the wrap and resets the bit), in the same exchange.
+        Every program that reads positions for this object goes through here (its reads, its
+        snapshots, a move's start and wait, a board's snapshots), on every transport, so
+        that one script counts the same crossings (``positions.wraps``) on all of them."""
         if not self.positions.pending:
             return program
         self.positions.pending = False
@@ -350,7 +358,7 @@ class LM629:
 
     def _read_position(self, cmd: Cmd, name: str) -> int:
         """RDDP or RDRP, extended; the status its busy checks read shows a wraparound."""
-        r = self.run(self._clearing_wrap(self.program().command(cmd).read(2)))
+        r = self.run(self.clearing_wrap(self.program().command(cmd).read(2)))
         if r.status is not None:
             self.positions.saw(r.status)
         near = "desired" if name == "real" else None
@@ -624,7 +632,7 @@ class LM629:
             register = position
         program = self.trajectory_program(acceleration, velocity, register)
         head = self.snapshot_program() if first is None else None
-        _, r = self._start_run(program, clear=MOVE_FLAGS, head=self._clearing_wrap(head)
+        _, r = self._start_run(program, clear=MOVE_FLAGS, head=self.clearing_wrap(head)
                                if head is not None else None)
         start = first if first is not None else self.extended(snapshot_at(r, 0, self.clock.now()))
         # the target extended as the chip will reach it: the short way from the start

@@ -508,8 +508,8 @@ class Board:
         axis's positions extended past the register's wraparound as its own reads are."""
         chosen = self._pick(axes)
         p = self.program()
-        for a in chosen:
-            add_snapshot(p.on(a.chip_select))
+        for a in chosen:  # each with the RSTI of a wraparound bit it saw, as its own reads
+            p.on(a.chip_select).extend(a.clearing_wrap(add_snapshot(a.program())))
         r = self.transport.execute(p)
         now = self.clock.now()
         return [a.extended(snapshot_at(r, k, now)) for k, a in enumerate(chosen)]
