@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Callable, Iterator, Sequence
+import functools
 import logging
 import math
 import threading
@@ -262,6 +263,35 @@ class Transport(abc.ABC):
     _cycle_observers: tuple[BusObserver, ...] = ()
     _trace_observer: _CycleCallback | None = None
 
+    #: True once :meth:`close` ran: every program (and recording) after it is a
+    #: :class:`TransportError` that says the port is closed, before anything is sent
+    _closed: bool = False
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """A transport's own ``close`` marks it closed once it has run, so that the rule
+        "a call on a closed port raises, saying closed" (:meth:`check_open`) holds for every
+        transport, an entry point's too, without each one keeping it."""
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("close")
+        if own is None or getattr(own, "_marks_closed", False):
+            return
+
+        @functools.wraps(own)
+        def close(self: Transport) -> None:
+            try:
+                own(self)
+            finally:
+                self._closed = True
+        close._marks_closed = True  # type: ignore[attr-defined]  # wrapped once per class
+        cls.close = close  # type: ignore[method-assign]  # the subclass's own, wrapped
+
+    def check_open(self) -> None:
+        """Raise :class:`TransportError` saying the port is closed when :meth:`close` has run
+        (:meth:`execute` asks first; a recording asks before it plans its rate)."""
+        if self._closed:
+            raise TransportError("the port is closed (close() was called): open it again "
+                                 "(lm629_host.open) to talk to the chip", port=self.url)
+
     def __init__(self, url: str, *, trace: TraceCallback | None = None) -> None:
         self.url = url
         self.trace = trace
@@ -276,6 +306,7 @@ class Transport(abc.ABC):
         Final: a transport runs the program in ``_execute``, so that the lock, the count and
         the observers cannot be left out."""
         with self.lock:
+            self.check_open()
             self.program_depth += 1
             observers = self._observers  # the ones subscribed when the program starts
             try:
@@ -412,8 +443,9 @@ class Transport(abc.ABC):
         finally:
             self.lock.release()
 
-    def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
-        """Release the port.  Idempotent."""
+    def close(self) -> None:
+        """Release the port.  Idempotent; every call after it raises (:meth:`check_open`)."""
+        self._closed = True
 
     # ------------------------------------------------------------------ the link failsafe
     # A bridge keeps a timer on its side of the link and stops every chip when the host falls
