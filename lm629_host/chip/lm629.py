@@ -30,7 +30,7 @@ from lm629_host.errors import (
     check_int,
 )
 from lm629_host.physics.limits import SoftLimits
-from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules, check_duration
+from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules, MoveTooLong, check_duration
 from lm629_host.bus.opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
@@ -638,11 +638,22 @@ class LM629:
         if self.limits is not None:  # before the first read: a refused move costs no exchange
             self.limits.check_trajectory(acceleration, velocity, None if relative
                                          else self.positions.near_register(position))
-        known = acceleration if acceleration is not None else self._move_acceleration
-        check_duration(self.move_rules, self._distance_to(position, relative), velocity, known,
-                       self.move_rules.clock_hz or self.clock_hz,
-                       f"move_to({position}{', relative=True' if relative else ''})")
+        self.check_move(position, velocity=velocity, acceleration=acceleration,
+                        relative=relative)
         return self._move_to(position, velocity, acceleration, relative)
+
+    def check_move(self, position: int, *, velocity: int, acceleration: int | None = None,
+                   relative: bool = False) -> float:
+        """The seconds the plan of :meth:`move_to` with these arguments takes, or
+        :class:`~lm629_host.chip.move.MoveTooLong` (an ``ArgumentError``) when it is longer
+        than ``move_rules.max_duration``; nothing moves either way (a read first when where the
+        move would start is not known)."""
+        check_register_position("position", position)
+        velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
+        known = acceleration if acceleration is not None else self._move_acceleration
+        return check_duration(self.move_rules, self._distance_to(position, relative), velocity,
+                              known, self.move_rules.clock_hz or self.clock_hz,
+                              f"move_to({position}{', relative=True' if relative else ''})")
 
     def _distance_to(self, position: int, relative: bool) -> int:
         """The counts a move to ``position`` (a register value, or a distance when
@@ -724,12 +735,8 @@ class LM629:
             check_length(distance)
             plan = plan_shape(shape, distance, sample_s, piece_s)
         if plan.duration > self.move_rules.max_duration:  # a user's own points
-            raise ArgumentError(
-                "max_duration", self.move_rules.max_duration,
-                f"{what}: its plan takes {plan.duration:.0f} s, longer than the limit "
-                f"max_duration={self.move_rules.max_duration:g} s; nothing was moved (allow it "
-                "with chip.move_rules = dataclasses.replace(chip.move_rules, max_duration="
-                "SECONDS))", lo=plan.duration)
+            raise MoveTooLong(what, abs(distance if not relative else position),
+                              plan.peak_velocity, plan.duration, self.move_rules.max_duration)
         if self.limits is not None:  # the fastest piece, before anything moves
             self.limits.check_velocity(plan.peak_velocity)
         # its pieces' speeds, not the first one's, set how long it takes: checked above

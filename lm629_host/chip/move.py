@@ -105,7 +105,7 @@ class MoveRules:
                                     lo=0)
 
 
-def _span(seconds: float) -> str:
+def span(seconds: float) -> str:
     """A duration as a person reads it: seconds, minutes, hours or days."""
     for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
         if seconds >= size:
@@ -113,28 +113,43 @@ def _span(seconds: float) -> str:
     return f"{seconds:.1f} s"
 
 
+#: what a refused long move says of its target (the CLI says it too)
+LONG_MOVE_HINT = ("check the target: the chip goes the short way round its position register "
+                  "(C0000000..3FFFFFFF), so near the wrap a register value on the other side "
+                  "of it is a short move and a target given past it is a long one (a relative "
+                  "move says what is meant)")
+
+
+class MoveTooLong(ArgumentError):
+    """A move whose plan takes longer than ``MoveRules.max_duration``, refused before
+    anything moved: ``distance`` (counts), ``seconds`` (planned), ``limit`` (seconds) and
+    ``what`` (the call), for a caller that says it in its own words (the CLI)."""
+
+    def __init__(self, what: str, distance: int, velocity: int, seconds: float,
+                 limit: float) -> None:
+        self.what, self.distance, self.seconds, self.limit = what, distance, seconds, limit
+        super().__init__(
+            "max_duration", limit,
+            f"{what}: {distance} counts at velocity word {velocity} takes {seconds:.0f} s "
+            f"({span(seconds)}) planned, longer than the limit max_duration={limit:g} s "
+            f"({span(limit)}); nothing was moved.  {LONG_MOVE_HINT[0].upper()}"
+            f"{LONG_MOVE_HINT[1:]}; if the move is meant, allow it: chip.move_rules = "
+            "dataclasses.replace(chip.move_rules, max_duration=SECONDS), or a profile's "
+            "max_move_s", lo=seconds)
+
+
 def check_duration(rules: MoveRules, distance: int, velocity: int, acceleration: int | None,
                    clock_hz: float, what: str = "the move") -> float:
     """The planned seconds of a move of ``distance`` counts with these words (the cruise
-    alone when the acceleration is not known here: the least it takes), or an
-    :class:`ArgumentError` (argument ``max_duration``) when that is above
-    ``rules.max_duration``: its length, its duration and how to allow it."""
+    alone when the acceleration is not known here: the least it takes), or
+    :class:`MoveTooLong` when that is above ``rules.max_duration``."""
     if acceleration:
         seconds = plan(abs(distance), velocity, acceleration).seconds(clock_hz)
     else:
         seconds = plan(abs(distance), velocity, 1 << 30).seconds(clock_hz)
     if seconds <= rules.max_duration:
         return seconds
-    raise ArgumentError(
-        "max_duration", rules.max_duration,
-        f"{what}: {abs(distance)} counts at velocity word {velocity} takes "
-        f"{seconds:.0f} s ({_span(seconds)}) planned, longer than the limit max_duration="
-        f"{rules.max_duration:g} s ({_span(rules.max_duration)}); nothing was moved.  Check "
-        "the target: the chip goes the short way round its register (C0000000..3FFFFFFF), so "
-        "near the wrap a target past it is a register value on the other side (a relative "
-        "move says what is meant); if the move is meant, allow it with chip.move_rules = "
-        "dataclasses.replace(chip.move_rules, max_duration=SECONDS) (a profile's max_move_s, "
-        "lm629 move --max-duration)", lo=seconds)
+    raise MoveTooLong(what, abs(distance), velocity, seconds, rules.max_duration)
 
 
 @dataclass(frozen=True)
@@ -326,4 +341,5 @@ class MoveWatch:
         return None
 
 
-__all__ = ["MOVE_FLAGS", "Move", "MoveResult", "MoveRules", "MoveWatch", "check_duration"]
+__all__ = ["LONG_MOVE_HINT", "MOVE_FLAGS", "Move", "MoveResult", "MoveRules", "MoveTooLong", "MoveWatch",
+           "check_duration", "span"]
