@@ -506,15 +506,19 @@ class Board:
                 a.limits.check_position(a.positions.near_register(t),
                                         f"target of axis {a.chip_select}")
         starts = {a: a.snapshot() for a in resolved}
+        # the line's length, before it is planned and before anything moves: every axis takes
+        # the path's time, held to the strictest axis's max_duration
+        check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
+        check_int("acceleration", acceleration, 1, ACCELERATION_MAX, hex_digits=8)
+        travel = [extended_target(a, starts[a], t) - starts[a].desired_position
+                  for a, t in zip(resolved, targets.values())]
+        if resolved:
+            strictest = min(resolved, key=lambda a: a.move_rules.max_duration)
+            check_duration(strictest.move_rules, round(math.hypot(*travel)), velocity,
+                           acceleration, strictest.move_rules.clock_hz or strictest.clock_hz,
+                           f"board.move_linear to {dict(zip((a.chip_select for a in resolved), targets.values()))}")
         plan = self.plan_linear(targets, velocity=velocity, acceleration=acceleration,
                                 starts=starts)
-        for ap in plan.axes:  # the line's length, before anything moves
-            a = self.axes[ap.axis]
-            if ap.distance:
-                check_duration(a.move_rules, ap.distance, ap.velocity, ap.acceleration,
-                               a.move_rules.clock_hz or a.clock_hz,
-                               f"board.move_linear: axis {a.chip_select} to "
-                               f"{a.positions.to_register(ap.target)}")
         words = {self.axes[ap.axis]: (ap.acceleration, ap.velocity, ap.target)
                  for ap in plan.axes if ap.distance}
         if not words:
