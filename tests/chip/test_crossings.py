@@ -31,9 +31,10 @@ T = 2048 / 8e6
 
 
 def _open(url: str) -> lm629_host.LM629:
+    """``url`` near the top, reset, kp=20 kd=200; the model records the commands it gets."""
     if not available(url):
         pytest.skip(f"{url}: not available here")
-    chip = lm629_host.open(with_params(url, f"reset_position={NEAR_TOP}"))
+    chip = lm629_host.open(with_params(url, f"reset_position={NEAR_TOP}&record=1"))
     chip.reset()
     chip.load_filter(kp=20, kd=200)
     chip.update_filter()
@@ -120,6 +121,7 @@ def test_a_target_past_the_wrap_as_typed_is_refused_before_anything_moves(url):
         assert e.value.argument == "max_duration" and e.value.limit == 600
         assert "1073717728 counts" in str(e.value) and "max_duration" in str(e.value)
         assert not {Cmd.LTRJ, Cmd.STT} & set(_history(chip))
+        assert Cmd.RDDP in _history(chip)  # the read that found where the move would start
         moved = chip.move_to(20000, velocity=65536, acceleration=655, relative=True).wait()
         assert moved.target == NEAR_TOP + 20000 and moved.target > TOP
         assert abs(true_real(chip) - moved.target) <= 20

@@ -14,6 +14,7 @@ import math
 import pytest
 
 import lm629_host
+from lm629_host.bus.opcodes import Cmd
 from lm629_host.chip.move import MoveTooLong
 
 from sim_urls import available
@@ -28,7 +29,7 @@ def _board(url: str) -> lm629_host.Board:
     if not available(url):
         pytest.skip(f"{url}: not available here")
     sep = "&" if "?" in url else "?"
-    board = lm629_host.open_board(f"{url}{sep}axes=2&reset_position={NEAR_TOP}")
+    board = lm629_host.open_board(f"{url}{sep}axes=2&reset_position={NEAR_TOP}&record=1")
     board.reset()
     for a in board.axes:
         a.load_filter(kp=20, kd=200)
@@ -80,6 +81,7 @@ def test_a_board_move_planned_too_long_is_refused_before_anything_moves():
         assert e.value.distance == 1073717728
         with pytest.raises(MoveTooLong):
             board.move_linear({x: 20000, y: NEAR_TOP + 10}, velocity=65536, acceleration=655)
-        assert all(c not in (0x1F, 0x01) for m in board.transport.models for c, _ in m.history)
+        sent = [c for m in board.transport.models for c, _ in m.history]
+        assert Cmd.RDSIGS in sent and not {Cmd.LTRJ, Cmd.STT} & set(sent)  # read, never moved
     finally:
         board.close()
