@@ -78,9 +78,9 @@ class Budget:
 
 #: (url, CI budget); the long profile multiplies both
 LINKS = (
-    ("sim://", Budget(14, 24)),
-    ("sim+emu://?baud=1000000", Budget(8, 18)),
-    ("sim+avr://?baud=1000000", Budget(3, 12)),
+    ("sim://", Budget(40, 30)),
+    ("sim+emu://?baud=1000000", Budget(20, 25)),
+    ("sim+avr://?baud=1000000", Budget(8, 20)),
 )
 
 VELOCITIES = st.sampled_from([2 * 65536, 4 * 65536, 12 * 65536])
@@ -350,7 +350,7 @@ class ApiMachine(RuleBasedStateMachine):
             "velocity": lambda: axis.move_to(0, velocity=0),
             "kp": lambda: axis.load_filter(kp=-1),
             "flags": lambda: axis.reset_interrupts(0x100),
-            "shape": lambda: axis.move_profile(100, "s-curve", relative=True),  # type: ignore[arg-type]
+            "shape": lambda: axis.move_profile(100, "s-curve", relative=True),  # type: ignore[arg-type]  # a wrong shape on purpose
         }
         exc = self._refused_before_a_bus_cycle(calls[what])
         assert isinstance(exc, ArgumentError) and exc.argument in (what, "flags")
@@ -466,11 +466,13 @@ class ApiMachine(RuleBasedStateMachine):
     @precondition(lambda self: not self.cycled)
     @rule(k=AXES, seconds=st.sampled_from([0.001, 0.05, 1.0]))
     def sleep(self, k: int, seconds: float) -> None:
-        """Simulated time passes at rest: nothing moves."""
+        """Simulated time passes at rest: the trajectory holds, the shaft stays within the
+        loop's dead band of it (a new filter may still be settling it)."""
         self._count()
-        before = (self.truth[k].real, self.truth[k].desired)
+        desired = self.truth[k].desired
         self.board.axes[k].clock.sleep(seconds)
-        assert (self.truth[k].real, self.truth[k].desired) == before
+        assert self.truth[k].desired == desired
+        assert abs(self.truth[k].real - desired) <= self.board.axes[k].move_rules.tolerance
 
     # ------------------------------------------------------------------ rules: threads
     @precondition(lambda self: not self.cycled)
