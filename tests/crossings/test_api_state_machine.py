@@ -507,9 +507,9 @@ class ApiMachine(RuleBasedStateMachine):
             t = threading.Thread(target=work, name="machine-second-thread")
             t.start()
             seen = []
-            while t.is_alive():
+            while t.is_alive():  # simulated time passes for both threads, never the wall's
                 seen.append(other.read_real_position())
-                time.sleep(0.001)
+                other.clock.sleep(0.005)
             t.join()
         assert not errors, errors
         self._note_turns()
