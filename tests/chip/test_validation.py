@@ -54,6 +54,8 @@ BAD_CALLS = [
     ("move_to", (1000,), {"velocity": 65536, "acceleration": 0}, ["acceleration=0"]),
     ("move_to", (1000,), {"velocity": float("inf")}, ["velocity=inf"]),
     ("move_to", (0x40000000,), {"velocity": 65536}, ["position=1073741824"]),
+    ("check_move", (0x40000000,), {"velocity": 65536}, ["position=1073741824"]),
+    ("check_move", (1000,), {"velocity": 0}, ["velocity=0", "1..1073741823"]),
     ("move_profile", (0x40000000, SCurve(1e4, 1e5, 1e6)), {}, ["position=1073741824",
                                                                "0xC0000000..0x3FFFFFFF"]),
     ("move_profile", (1000, "s-curve"), {}, ["shape='s-curve'", "SCurve"]),
