@@ -519,7 +519,14 @@ class LM629:
             acceleration, velocity, position, acceleration_relative=acceleration_relative,
             velocity_relative=velocity_relative, position_relative=position_relative,
             velocity_mode=velocity_mode, forward=forward, stop=stop)
-        if start:
+        if start and velocity_mode and not self.positions.knows("desired"):
+            # a run may cross the register's wrap before its first read: the snapshot it
+            # starts from, in the same program, is where its extended positions go on from
+            _, r = self._start_run(p, update=stop is None,
+                                   head=self.clearing_wrap(self.snapshot_program()))
+            self.extended(snapshot_at(r, 0, self.clock.now()))
+            self._rest_desired = None  # read before the STT: the run goes on now
+        elif start:
             self._start_run(p, update=stop is None)
         else:
             self.run(p)

@@ -86,6 +86,11 @@ class PositionTracker:
         self._last[name] = (raw, value)
         return value
 
+    def knows(self, name: str) -> bool:
+        """True when register ``name`` was read since the last restart: the next read of it
+        extends from there (without, a read after a crossing starts on the far side)."""
+        return name in self._last
+
     def to_register(self, position: int) -> int:
         """The register value an extended position reads as."""
         return short_way(position)

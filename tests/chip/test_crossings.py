@@ -100,6 +100,24 @@ def test_one_script_counts_the_same_crossings_on_every_link(url):
         chip.close()
 
 
+@pytest.mark.parametrize("url", LINKS)
+def test_a_velocity_run_whose_first_read_is_past_the_wrap(url):
+    """Found by the machine: reset 4096 counts below the top, 4 counts/sample for 0.3 s (1170
+    samples, ~4500 counts): the run crosses before anything reads a position.  The run's start
+    reads where it starts (in its own program), so the reads after the crossing extend past
+    2^30 (c351da8: the first read took the register's value, 2^31 off)."""
+    chip = _open(url)
+    try:
+        run = chip.run_velocity(4 * 65536, 6553)
+        chip.clock.sleep(0.3)
+        rest = run.stop()
+        assert rest.desired_position > TOP and rest.real_position > TOP
+        assert abs(rest.real_position - true_real(chip)) <= 2
+        assert chip.positions.wraps == 1
+    finally:
+        chip.close()
+
+
 def _history(chip: lm629_host.LM629) -> list[int]:
     return [c for c, _ in chip.transport.models[chip.chip_select].history]
 
