@@ -117,6 +117,11 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         terminalreporter.write_sep(
             "-", f"docs examples: {ran} ran, {not_run} not run "
             "(marked so, or a tool missing here) (README.md, docs/*.md)")
+    for link, examples, steps, seconds, profile in _properties(terminalreporter, "crossings"):
+        # tests/crossings/test_api_state_machine.py's FIGURES_PROPERTY
+        terminalreporter.write_sep(
+            "-", f"crossings ({profile}): {link} {examples} examples, {steps} steps, "
+            f"{seconds:.1f} s")
     missing = _avr_missing()
     if not missing:
         return
@@ -127,6 +132,16 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         "!", f"AVR toolchain missing ({', '.join(missing)}): {n} firmware-in-the-loop tests "
         f"SKIPPED, the firmware is UNTESTED. apt-get install {avrsim.PACKAGES}, or run "
         f".ci/run as root (it installs them and sets {_REQUIRE_AVR}=1)", red=True, bold=True)
+
+
+def _properties(terminalreporter: pytest.TerminalReporter, name: str) -> list:
+    """The values of the user property ``name`` every test report of the run carries."""
+    found = []
+    for reports in terminalreporter.stats.values():
+        for r in reports:
+            if getattr(r, "when", None) == "call":
+                found += [value for key, value in getattr(r, "user_properties", ()) if key == name]
+    return found
 
 
 def _transport(request: pytest.FixtureRequest) -> str:

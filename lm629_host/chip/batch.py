@@ -23,9 +23,14 @@ out otherwise) is an error too: it never runs a program other than the one sent.
 
 Threads: the interception is per thread, so a batch captures only the calls its own thread
 queues; other threads' calls on the same chip reach the bus as usual (waiting for the lock while
-the batch's program runs).  Nesting: a batch opened inside another one's block on the same bus
-and thread is refused (RuntimeError): its programs would reach the bus before the outer
-batch's, which were queued first.  Queue the calls on the outer batch instead.
+the batch's program runs).  A batch object belongs to the thread that made it: queuing on it,
+entering it or running it from another thread is a RuntimeError at once, before anything is
+queued (its queue and its shadows are not shared safely, and a call queued while another thread
+runs the batch would be lost).  Each thread opens its own batch.
+
+Nesting: a batch opened inside another one's block on the same bus and thread is refused
+(RuntimeError): its programs would reach the bus before the outer batch's, which were queued
+first.  Queue the calls on the outer batch instead.
 
 Only calls that are one bus program can be queued (:data:`BATCHABLE`); ``reset``, waits and
 moves that read before they start are not.
@@ -195,6 +200,16 @@ class Batch:
         self._collector = _Collector()
         self._ran = False
         self._entered = False
+        #: the thread that made it: the only one that may queue, enter or run it
+        self._owner = threading.current_thread()
+
+    def _check_thread(self, what: str) -> None:
+        here = threading.current_thread()
+        if here is not self._owner:
+            raise RuntimeError(
+                f"{what}: this batch belongs to thread {self._owner.name!r} and was used from "
+                f"{here.name!r}: a batch takes the calls of the thread that made it (nothing "
+                "was queued); open a batch in this thread (chip.batch() or board.batch())")
 
     def __getattr__(self, name: str) -> Callable[..., Handle[Any]]:
         if name.startswith("_"):
@@ -216,6 +231,7 @@ class Batch:
 
     def _queue(self, chip: BatchChip, name: str, args: tuple[Any, ...],
                kwargs: dict[str, Any]) -> Handle[Any]:
+        self._check_thread(f"{name}()")
         if self._ran:
             raise RuntimeError("this batch has run already: start a new one")
         shown = [repr(a) for a in args] + [f"{k}={v!r}" for k, v in kwargs.items()]
@@ -233,6 +249,7 @@ class Batch:
     def run(self) -> None:
         """Run the queued calls as one program, then set every handle (raising the first
         call's error, which names the call)."""
+        self._check_thread("run()")
         if self._ran:
             return
         self._ran = True
@@ -291,6 +308,7 @@ class Batch:
                 call.handle._value, call.handle._done = value, True
 
     def __enter__(self) -> Batch:
+        self._check_thread("with batch")
         open_here = self._open.transports
         if any(t is self.transport for t in open_here):
             raise RuntimeError(

@@ -30,11 +30,12 @@ from lm629_host.errors import (
     check_int,
 )
 from lm629_host.physics.limits import SoftLimits
-from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules
+from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules, MoveTooLong, check_duration
 from lm629_host.bus.opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
     DERIVATIVE_INTERVAL_MAX,
+    FIXED_ONE,
     FILTER_ORDER,
     INTERRUPTS,
     NOMINAL_CLOCK_HZ,
@@ -151,6 +152,10 @@ class LM629:
         #: the extended positions (AN-706 6.5.2): every position this object reads goes
         #: through it, so that a wraparound of the register is no jump (:mod:`.wraparound`)
         self.positions = PositionTracker()
+        #: the extended desired position last read with the trajectory at rest (on target or
+        #: the motor off) and no STT since: where a move would start, known without a read
+        #: (None: not known; :meth:`move_to` reads it first)
+        self._rest_desired: int | None = None
 
     # ------------------------------------------------------------------ plumbing
     @property
@@ -207,11 +212,15 @@ class LM629:
         """While the block runs, this thread's bus programs of this object go to
         ``runner(program)`` instead of the transport, which answers them as the chip would;
         other threads' calls still reach the bus.  A batch builds and decodes its calls
-        through here (:mod:`lm629_host.chip.batch`).  Nested: the inner runner until it ends."""
+        through here (:mod:`lm629_host.chip.batch`).  Nested: the inner runner until it ends.
+        A wraparound bit a runner's answer shows is cleared only after the block
+        (:meth:`PositionTracker.holding <lm629_host.chip.wraparound.PositionTracker.holding>`):
+        the programs it answers were built before it was seen."""
         here = self._this_thread
         before, here.runner = here.runner, runner
         try:
-            yield
+            with self.positions.holding():  # the runner answers programs built before
+                yield
         finally:
             here.runner = before
 
@@ -223,6 +232,7 @@ class LM629:
         programs on one, so that building changes nothing here."""
         twin = copy.copy(self)
         twin._this_thread = _ThisThread(runner)
+        twin.positions = self.positions.copy()  # its reads are answered with dummy words
         return twin
 
     def batch(self) -> Batch:
@@ -304,6 +314,7 @@ class LM629:
         self.positions.restart()
         self.positions.pending = False  # the reset cleared the bit
         self._last_update = None  # and aborted nothing: the next update may go at once
+        self._rest_desired = None
 
     @property
     def port12_selected(self) -> bool:
@@ -335,7 +346,7 @@ class LM629:
     def snapshot(self) -> Snapshot:
         """Status, signals, positions, velocities and integration sum in one bus program; the
         positions extended past the register's wraparound (:meth:`extended`)."""
-        r = self.run(self._clearing_wrap(self.snapshot_program()))
+        r = self.run(self.clearing_wrap(self.snapshot_program()))
         return self.extended(snapshot_at(r, 0, self.clock.now()))
 
     def extended(self, s: Snapshot) -> Snapshot:
@@ -343,11 +354,17 @@ class LM629:
         wraparound (:class:`~lm629_host.chip.wraparound.PositionTracker`); a wraparound bit in its
         status is cleared by this object's next position read."""
         self.positions.saw(s.status)
-        return self.positions.snapshot(s)
+        s = self.positions.snapshot(s)
+        self._rest_desired = (s.desired_position if s.signals & (Signals.ON_TARGET
+                                                                 | Signals.MOTOR_OFF) else None)
+        return s
 
-    def _clearing_wrap(self, program: Program) -> Program:
+    def clearing_wrap(self, program: Program) -> Program:
         """``program`` with an RSTI of the wraparound bit in front when a read has seen it
-        (AN-706 6.5.2: the host notes the wrap and resets the bit), in the same exchange."""
+        (AN-706 6.5.2: the host notes the wrap and resets the bit), in the same exchange.
+        Every program that reads positions for this object goes through here (its reads, its
+        snapshots, a move's start and wait, a board's snapshots), on every transport, so
+        that one script counts the same crossings (``positions.wraps``) on all of them."""
         if not self.positions.pending:
             return program
         self.positions.pending = False
@@ -356,7 +373,7 @@ class LM629:
 
     def _read_position(self, cmd: Cmd, name: str) -> int:
         """RDDP or RDRP, extended; the status its busy checks read shows a wraparound."""
-        r = self.run(self._clearing_wrap(self.program().command(cmd).read(2)))
+        r = self.run(self.clearing_wrap(self.program().command(cmd).read(2)))
         if r.status is not None:
             self.positions.saw(r.status)
         near = "desired" if name == "real" else None
@@ -381,6 +398,7 @@ class LM629:
         """DFH: the current position becomes 0 (the extended positions restart there)."""
         self._command(Cmd.DFH)
         self.positions.restart()
+        self._rest_desired = None
 
     def set_index_position(self) -> None:
         """SIP: latch the position at the next index pulse (read it with read_index_position)."""
@@ -514,7 +532,14 @@ class LM629:
             acceleration, velocity, position, acceleration_relative=acceleration_relative,
             velocity_relative=velocity_relative, position_relative=position_relative,
             velocity_mode=velocity_mode, forward=forward, stop=stop)
-        if start:
+        if start and velocity_mode and not self.positions.knows("desired"):
+            # a run may cross the register's wrap before its first read: the snapshot it
+            # starts from, in the same program, is where its extended positions go on from
+            _, r = self._start_run(p, update=stop is None,
+                                   head=self.clearing_wrap(self.snapshot_program()))
+            self.extended(snapshot_at(r, 0, self.clock.now()))
+            self._rest_desired = None  # read before the STT: the run goes on now
+        elif start:
             self._start_run(p, update=stop is None)
         else:
             self.run(p)
@@ -532,6 +557,7 @@ class LM629:
         Every STT, this object's or a board's, goes through here (and is the last update the
         next one is spaced from: the clock now is after it)."""
         self._last_update = self.clock.now()
+        self._rest_desired = None  # the trajectory may run from here on
         if not after & Status.COMMAND_ERROR:
             self._ce_clear = True
             return False
@@ -619,7 +645,10 @@ class LM629:
         clears the flags a move reports (trajectory complete, breakpoint, position error,
         command error), loads the trajectory and starts it, so a flag left by an earlier move
         can never end this one's wait.  Arguments are checked before any bus traffic
-        (``ValueError``).
+        (``ValueError``).  A move whose plan is longer than ``move_rules.max_duration``
+        (10 minutes) is refused before anything moves (:func:`~lm629_host.chip.move.check_duration`):
+        its start is the desired position last read at rest, or read first (one exchange more)
+        when the chip may have moved since.
         """
         check_register_position("position", position)
         velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
@@ -629,6 +658,37 @@ class LM629:
         if self.limits is not None:  # before the first read: a refused move costs no exchange
             self.limits.check_trajectory(acceleration, velocity, None if relative
                                          else self.positions.near_register(position))
+        self.check_move(position, velocity=velocity, acceleration=acceleration,
+                        relative=relative)
+        return self._move_to(position, velocity, acceleration, relative)
+
+    def check_move(self, position: int, *, velocity: int, acceleration: int | None = None,
+                   relative: bool = False) -> float:
+        """The seconds the plan of :meth:`move_to` with these arguments takes, or
+        :class:`~lm629_host.chip.move.MoveTooLong` (an ``ArgumentError``) when it is longer
+        than ``move_rules.max_duration``; nothing moves either way (a read first when where the
+        move would start is not known)."""
+        check_register_position("position", position)
+        velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
+        known = acceleration if acceleration is not None else self._move_acceleration
+        return check_duration(self.move_rules, self._distance_to(position, relative), velocity,
+                              known, self.move_rules.clock_hz or self.clock_hz,
+                              f"move_to({position}{', relative=True' if relative else ''})")
+
+    def _distance_to(self, position: int, relative: bool) -> int:
+        """The counts a move to ``position`` (a register value, or a distance when
+        ``relative``) travels the short way round: from the desired position last read at
+        rest, else from the one read now (one exchange; nothing moves before it is known)."""
+        if relative:
+            return short_way(position)
+        at = self._rest_desired
+        if at is None:
+            at = self.snapshot().desired_position
+        return short_way(position - self.positions.to_register(at))
+
+    def _move_to(self, position: int, velocity: int, acceleration: int | None,
+                 relative: bool) -> Move:
+        """:meth:`move_to` once its arguments and its plan's length were checked."""
         first = self.snapshot() if relative else None
         if first is not None:
             # the target in the register's terms: the chip goes the short way round to it
@@ -637,9 +697,10 @@ class LM629:
             register = position
         program = self.trajectory_program(acceleration, velocity, register)
         head = self.snapshot_program() if first is None else None
-        _, r = self._start_run(program, clear=MOVE_FLAGS, head=self._clearing_wrap(head)
+        _, r = self._start_run(program, clear=MOVE_FLAGS, head=self.clearing_wrap(head)
                                if head is not None else None)
         start = first if first is not None else self.extended(snapshot_at(r, 0, self.clock.now()))
+        self._rest_desired = None  # read before the STT: the move runs now
         # the target extended as the chip will reach it: the short way from the start
         target = start.desired_position + short_way(register - self.positions.to_register(
             start.desired_position))
@@ -676,16 +737,31 @@ class LM629:
                                 "profile_shapes.SCurve or profile_shapes.Points")
         check_piece_s(piece_s)
         sample_s = sample_period_s(self.clock_hz)
+        clock_hz = self.move_rules.clock_hz or self.clock_hz
+        what = f"move_profile({position}{', relative=True' if relative else ''})"
+
+        def check_length(distance: int) -> None:
+            """The least the shape takes (its top speed all the way), before its pieces are
+            planned: a move too long is refused before it costs a plan of millions of pieces."""
+            if isinstance(shape, SCurve):
+                word = max(1, round(shape.velocity * sample_s * FIXED_ONE))
+                check_duration(self.move_rules, distance, word, None, clock_hz, what)
+        if relative:
+            check_length(position)
         plan = plan_shape(shape, position, sample_s, piece_s) if relative else None
         desired = self.snapshot().desired_position
         register = self.positions.to_register(desired + position) if relative else position
         if plan is None:
             distance = short_way(register - self.positions.to_register(desired))
+            check_length(distance)
             plan = plan_shape(shape, distance, sample_s, piece_s)
+        if plan.duration > self.move_rules.max_duration:  # a user's own points
+            raise MoveTooLong(what, abs(distance if not relative else position),
+                              plan.peak_velocity, plan.duration, self.move_rules.max_duration)
         if self.limits is not None:  # the fastest piece, before anything moves
             self.limits.check_velocity(plan.peak_velocity)
-        move = self.move_to(register, velocity=plan.pieces[0].velocity,
-                            acceleration=plan.acceleration)
+        # its pieces' speeds, not the first one's, set how long it takes: checked above
+        move = self._move_to(register, plan.pieces[0].velocity, plan.acceleration, False)
         # the bridge times the pieces when it holds them all, or takes them in top-ups
         far = (self.transport.far_profiles
                and (len(plan.pieces) - 1 <= self.transport.profile_capacity
@@ -814,6 +890,7 @@ class LM629:
         any traffic.  A row lost on the link is a gap (``trace.missing``), never made up.
         See :mod:`lm629_host.chip.recording`."""
         from lm629_host.chip import recording
+        self.transport.check_open()  # before the rate is judged: "closed", not "too fast"
         return recording.record(self, period_s, duration_s, full=full)
 
     def record_stream(self, period_s: float, duration_s: float | None = None, *,
@@ -821,6 +898,7 @@ class LM629:
         """The rows of :meth:`record` as they arrive (``duration_s=None``: until closed), for
         live views: ``with chip.record_stream(1e-3) as rows: for row in rows: ...``."""
         from lm629_host.chip import recording
+        self.transport.check_open()
         return recording.open_stream(self, period_s, duration_s, full=full)
 
     # ------------------------------------------------------------------ experts

@@ -27,6 +27,12 @@ The rules (:class:`MoveRules`, ``chip.move_rules``; every field settable):
   tolerance, or did not come to rest within ``settle_timeout`` seconds.
 * **timeout**: not done within ``timeout`` (default: the profile's duration at ``clock_hz``
   times 1.5, plus ``settle_timeout``, plus one second).
+* **too long**: a move whose plan takes longer than ``max_duration`` (default 10 minutes) is
+  refused before anything moves (:func:`check_duration`, an :class:`ArgumentError` naming
+  its length, its duration and ``max_duration``).  The chip reaches a target the short way
+  round its 2^31-count register (AN-706 6.5.2), so near the wrap at 3FFFFFFF a target typed
+  as the wrong one of its two register values is a move of up to 2^30 counts: 37 hours at a
+  bench's speed, the motor running away from what the user meant.
 
 All waiting is on the transport's clock (simulated time on a simulator) and every check is a
 public status read (:meth:`LM629.snapshot`).
@@ -82,17 +88,68 @@ class MoveRules:
     poll: float = 0.005  #: seconds between status reads
     clock_hz: float | None = None  #: the chip's clock for the default timeout (None: the
     #: chip's own ``clock_hz``: the simulator's, else 8 MHz)
+    #: seconds the plan of one move may take; a longer one is refused before anything moves
+    #: (``math.inf``: no limit; a profile's ``max_move_s`` sets it per axis)
+    max_duration: float = 600.0
 
     def __post_init__(self) -> None:
-        for name in ("settle_time", "settle_timeout", "stall_time", "poll"):
+        for name in ("settle_time", "settle_timeout", "stall_time", "poll", "max_duration"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if not (isinstance(v, (int, float)) and (math.isfinite(v) or name == "max_duration"
+                                                     and v == math.inf) and v > 0):
                 raise ArgumentError(name, v, f"{name}={v!r} must be a positive number of seconds")
         for name in ("tolerance", "stall_counts", "runaway_counts"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise ArgumentError(name, v, f"{name}={v!r} must be a whole number of counts >= 0",
                                     lo=0)
+
+
+def span(seconds: float) -> str:
+    """A duration as a person reads it: seconds, minutes, hours or days."""
+    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= size:
+            return f"{seconds / size:.1f} {unit}"
+    return f"{seconds:.1f} s"
+
+
+#: what a refused long move says of its target (the CLI says it too)
+LONG_MOVE_HINT = ("check the target: the chip goes the short way round its position register "
+                  "(C0000000..3FFFFFFF), so near the wrap a register value on the other side "
+                  "of it is a short move and a target given past it is a long one (a relative "
+                  "move says what is meant)")
+
+
+class MoveTooLong(ArgumentError):
+    """A move whose plan takes longer than ``MoveRules.max_duration``, refused before
+    anything moved: ``distance`` (counts), ``seconds`` (planned), ``limit`` (seconds) and
+    ``what`` (the call), for a caller that says it in its own words (the CLI)."""
+
+    def __init__(self, what: str, distance: int, velocity: int, seconds: float,
+                 limit: float) -> None:
+        self.what, self.distance, self.seconds, self.limit = what, distance, seconds, limit
+        super().__init__(
+            "max_duration", limit,
+            f"{what}: {distance} counts at velocity word {velocity} takes {seconds:.0f} s "
+            f"({span(seconds)}) planned, longer than the limit max_duration={limit:g} s "
+            f"({span(limit)}); nothing was moved.  {LONG_MOVE_HINT[0].upper()}"
+            f"{LONG_MOVE_HINT[1:]}; if the move is meant, allow it: chip.move_rules = "
+            "dataclasses.replace(chip.move_rules, max_duration=SECONDS), or a profile's "
+            "max_move_s", lo=seconds)
+
+
+def check_duration(rules: MoveRules, distance: int, velocity: int, acceleration: int | None,
+                   clock_hz: float, what: str = "the move") -> float:
+    """The planned seconds of a move of ``distance`` counts with these words (the cruise
+    alone when the acceleration is not known here: the least it takes), or
+    :class:`MoveTooLong` when that is above ``rules.max_duration``."""
+    if acceleration:
+        seconds = plan(abs(distance), velocity, acceleration).seconds(clock_hz)
+    else:
+        seconds = plan(abs(distance), velocity, 1 << 30).seconds(clock_hz)
+    if seconds <= rules.max_duration:
+        return seconds
+    raise MoveTooLong(what, abs(distance), velocity, seconds, rules.max_duration)
 
 
 @dataclass(frozen=True)
@@ -284,4 +341,5 @@ class MoveWatch:
         return None
 
 
-__all__ = ["MOVE_FLAGS", "Move", "MoveResult", "MoveRules", "MoveWatch"]
+__all__ = ["LONG_MOVE_HINT", "MOVE_FLAGS", "Move", "MoveResult", "MoveRules", "MoveTooLong", "MoveWatch",
+           "check_duration", "span"]

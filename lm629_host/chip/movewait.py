@@ -50,6 +50,8 @@ SETTLE_SNAPSHOTS_MAX = 12
 class FarWaitChip(Protocol):
     def program(self) -> Program: ...
 
+    def clearing_wrap(self, program: Program) -> Program: ...
+
     def run(self, program: Program) -> ProgramResult: ...
 
     def extended(self, s: Snapshot) -> Snapshot: ...
@@ -68,7 +70,8 @@ def wait_far(move: Move, watch: MoveWatch,
     coarse = False  # the last settle check found the gap to the one before it too wide
     while True:
         if watch.complete_at is None or not settle:
-            p = chip.program().wait_status(int(END_MASK), chunk_ms)
+            # a wraparound bit seen is cleared as the polling loop's snapshots clear it
+            p = chip.clearing_wrap(chip.program()).wait_status(int(END_MASK), chunk_ms)
             r = chip.run(add_snapshot(p))
             snaps = [chip.extended(snapshot_at(r, 0, clock.now(), status_at=1))]
             first_of_check = False
@@ -79,7 +82,7 @@ def wait_far(move: Move, watch: MoveWatch,
             since = watch.prev.time if watch.quiet_since is None else watch.quiet_since
             left = rules.settle_time - (watch.prev.time - since)
             k_n = n if coarse else max(1, min(n, math.ceil(left / rules.poll - 1e-9)))
-            p = chip.program().wait(poll_us)
+            p = chip.clearing_wrap(chip.program()).wait(poll_us)
             add_snapshot(p)
             for _ in range(k_n - 1):
                 add_snapshot(p.wait(poll_us))

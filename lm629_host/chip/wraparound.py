@@ -22,6 +22,9 @@ extended positions restart from the register's values.
 
 from __future__ import annotations
 
+import contextlib
+import copy
+from collections.abc import Iterator
 from dataclasses import replace
 
 from lm629_host.errors import ArgumentError
@@ -67,6 +70,9 @@ class PositionTracker:
         self.wraps = 0
         #: the bit was seen set and not cleared since: the owner's next read clears it (RSTI)
         self.pending = False
+        #: :meth:`holding` blocks open, and a bit seen inside them (pending once they end)
+        self._holds = 0
+        self._held = False
 
     def restart(self) -> None:
         """The registers were zeroed (reset, DFH): extend from their new values."""
@@ -79,6 +85,11 @@ class PositionTracker:
         value = self.near_register(raw, name if name in self._last or near is None else near)
         self._last[name] = (raw, value)
         return value
+
+    def knows(self, name: str) -> bool:
+        """True when register ``name`` was read since the last restart: the next read of it
+        extends from there (without, a read after a crossing starts on the far side)."""
+        return name in self._last
 
     def to_register(self, position: int) -> int:
         """The register value an extended position reads as."""
@@ -94,10 +105,37 @@ class PositionTracker:
     def saw(self, status: int) -> None:
         """Note a status byte: a WRAPAROUND bit not seen since it was last cleared is a new
         crossing (``wraps``), and ``pending`` until the owner clears it with RSTI (a
-        recording's rows all show the bit until then: one crossing, not one per row)."""
-        if status & _WRAP_BIT and not self.pending:
+        recording's rows all show the bit until then: one crossing, not one per row).
+        Inside :meth:`holding` it becomes pending only when the block ends."""
+        if status & _WRAP_BIT and not self.pending and not self._held:
             self.wraps += 1
-            self.pending = True
+            if self._holds:
+                self._held = True
+            else:
+                self.pending = True
+
+    @contextlib.contextmanager
+    def holding(self) -> Iterator[None]:
+        """A bit seen inside the block is counted but made ``pending`` (so cleared by the
+        next read) only when the block ends.  A batch decodes its calls inside one: the
+        programs it sent were built before any of their results were known, so none of them
+        can carry an RSTI that a result inside the batch asks for (its calls would come out
+        otherwise than the programs sent)."""
+        self._holds += 1
+        try:
+            yield
+        finally:
+            self._holds -= 1
+            if not self._holds and self._held:
+                self._held = False
+                self.pending = True
+
+    def copy(self) -> PositionTracker:
+        """An independent tracker with this one's history (a batch's shadow chip builds on
+        one, so that the dummy answers it is given never reach this one)."""
+        twin = copy.copy(self)
+        twin._last = dict(self._last)
+        return twin
 
     def snapshot(self, s: Snapshot) -> Snapshot:
         """``s`` with its positions extended (the desired one first)."""

@@ -3,11 +3,14 @@
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+
 import click
 
 from lm629_host.errors import MotionError, MotionFault
 from lm629_host.chip.lm629 import LM629, Snapshot
-from lm629_host.chip.move import Move, MoveRules
+from lm629_host.chip.move import LONG_MOVE_HINT, Move, MoveRules, MoveTooLong, span
 from lm629_host.bus.opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.chip.shapes import SCurve
@@ -113,16 +116,23 @@ def _tolerance(s: Session, tolerance: float | None, raw: bool) -> int | None:
                                       "(AN-706 4.5.3); --vel and --acc are its limits.")
 @click.option("--jerk", type=FINITE, default=None,
               help="With --shape s-curve: rev/s^3 with --lines, else counts/s^3 (required).")
+@click.option("--max-duration", "max_duration", type=FINITE, default=None,
+              help=f"Refuse a move whose plan takes longer than this many seconds (default "
+                   f"{MoveRules().max_duration:g}, or the profile's max_move_s), before it "
+                   "starts.")
 def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | None,
          acc: float | None, raw: bool, tolerance: float | None, no_wait: bool,
-         timeout: float | None, shape: str, jerk: float | None) -> None:
+         timeout: float | None, shape: str, jerk: float | None,
+         max_duration: float | None) -> None:
     """Move to TARGET (counts; revolutions with --lines; negative as typed: move -5000) and
     wait until the shaft rests on it.  A move that does not end on target is a motion fault:
-    the motor is stopped and the exit code is 9."""
+    the motor is stopped and the exit code is 9.  A move planned longer than --max-duration
+    (10 minutes) is refused before it starts (exit 2)."""
     s = _session()
     v, a = _motion_words(s, vel, acc, raw)
     tol = _tolerance(s, tolerance, raw)
     positive("--timeout", timeout)
+    positive("--max-duration", max_duration)
     curve = _s_curve(s, shape, jerk, v, a, raw)
     if curve is not None and (len(targets) > 1 or linear or no_wait):
         raise click.UsageError("--shape s-curve moves one axis to one target and waits (the "
@@ -135,6 +145,9 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
             raise click.UsageError("--relative moves one axis")
         goals = [_position(s, t, "TARGET", raw) for t in targets]
         axes.check_targets(s, goals)
+        if max_duration is not None:
+            for ax in axes.board(s).axes:
+                ax.move_rules = replace(ax.move_rules, max_duration=max_duration)
         with stop_on_error(axes.board(s).axes[0]):
             axes.move_many(s, goals, v, a, linear, tol, timeout, no_wait)
         return
@@ -149,6 +162,9 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
         chip.trajectory_program(position=chip.positions.to_register(
             chip.read_desired_position() + counts))
     acceleration = _acceleration_unless_moving(chip, a, acc is not None)
+    if max_duration is not None:
+        chip.move_rules = replace(chip.move_rules, max_duration=max_duration)
+    _check_length(s, chip, counts, v, acceleration, relative)
     scale = None if raw else s.scale
     with stop_on_error(chip):
         m: Move
@@ -181,6 +197,23 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     click.echo(f"done: at {_show_position(s, r.position)}, {r.error:+d} counts from the target "
                f"{m.target} (tolerance {tol if tol is not None else chip.move_rules.tolerance}), "
                f"at rest {r.duration:.3f} s after the start")
+
+
+def _check_length(s: Session, chip: LM629, counts: int, velocity: int,
+                  acceleration: int | None, relative: bool) -> None:
+    """Refuse, before anything moves, a move planned longer than the chip's
+    ``move_rules.max_duration``, in the command line's words (an S-curve takes at least what
+    its top speed, the --vel word, takes)."""
+    try:
+        chip.check_move(counts, velocity=velocity, acceleration=acceleration, relative=relative)
+    except MoveTooLong as exc:
+        raise click.BadParameter(
+            f"{_show_position(s, counts)}{' from here' if relative else ''} is a move of "
+            f"{exc.distance} counts, planned to take {exc.seconds:.0f} s ({span(exc.seconds)}), "
+            f"longer than --max-duration {exc.limit:g} s; nothing moved.  {LONG_MOVE_HINT[0].upper()}"
+            f"{LONG_MOVE_HINT[1:]}; if it is meant, give --max-duration "
+            f"{math.ceil(exc.seconds)} (or max_move_s in the profile)",
+            param_hint="TARGET") from None
 
 
 def _no_gains(m: Move, exc: MotionError) -> MotionError | None:

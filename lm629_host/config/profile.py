@@ -102,6 +102,8 @@ AXIS_KEYS: dict[str, Key] = {
     "max_acceleration": Key("number", 0, 1e15, help="counts/s^2"),
     "following_error": Key("int", 0, COEFFICIENT_MAX,
                            help="counts: LPES, the motor stops beyond it"),
+    "max_move_s": Key("number", 1, 1e9, help="seconds: a move planned longer is refused "
+                                             "before it starts (default 600)"),
     "index_velocity": Key("number", -1e9, 1e9,
                           help="counts/s of `index --search` (the sign: towards max or min)"),
     "note": Key("str", help="free text"),
@@ -147,6 +149,7 @@ class AxisProfile:
     max_acceleration: float | None = None
     following_error: int | None = None
     index_velocity: float | None = None
+    max_move_s: float | None = None
     note: str = ""
     key_lines: dict[str, int] = field(default_factory=dict)  #: key -> line in the file
     #: ``[axis.NAME.plant]`` checked against :data:`PLANT_KEYS`, None when the file has none
@@ -404,6 +407,9 @@ def attach(chip: Any, profile: Profile, axis: AxisProfile) -> None:
     """Give ``chip`` (an :class:`LM629`) the axis's soft limits and chip variant; nothing is
     sent."""
     chip.limits = profile.limits(axis)
+    if axis.max_move_s is not None:  # MoveRules.max_duration: the longest plan a move may have
+        from dataclasses import replace
+        chip.move_rules = replace(chip.move_rules, max_duration=float(axis.max_move_s))
     chip.variant = axis.chip
     chip.profile_axis = axis.name
 

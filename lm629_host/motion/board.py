@@ -32,7 +32,8 @@ from typing import TYPE_CHECKING, Any
 
 from lm629_host.errors import ArgumentError, AxisError, CommandError, MotionError
 from lm629_host.chip.lm629 import LM629, Snapshot, check_int, reset_chips
-from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules
+from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules, check_duration
+from lm629_host.chip.wraparound import short_way
 from lm629_host.bus.opcodes import (
     FIXED_ONE,
     ACCELERATION_MAX,
@@ -122,14 +123,22 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
     keep the ratio of two long ramps better than a few per mille
     (``python3 tools/bench_linear.py`` measures both).
 
-    Raises ValueError (before any bus traffic) for words out of range, targets out of range,
-    or an axis whose share of the acceleration is below the chip's resolution of one word.
+    The starts and targets are extended counts (:mod:`lm629_host.chip.wraparound`): a line
+    may cross the register's wrap, but no axis travels half the register's circle or more
+    (the chip would go the other way round).
+
+    Raises ValueError (before any bus traffic) for words out of range, an axis's travel out of
+    range, or an axis whose share of the acceleration is below the chip's resolution of one word.
     """
     velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
     acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX, hex_digits=8)
     for axis, (start, target) in moves.items():
-        check_int(f"target of axis {axis}", target, POSITION_MIN, POSITION_MAX, hex_digits=8)
-        check_int(f"start of axis {axis}", start, POSITION_MIN, POSITION_MAX, hex_digits=8)
+        for name, value in (("target", target), ("start", start)):
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ArgumentError(f"{name} of axis {axis}", value, f"{name} of axis {axis}="
+                                    f"{value!r}: expected a whole number of counts")
+        check_int(f"travel of axis {axis}", target - start, POSITION_MIN, POSITION_MAX,
+                  hex_digits=8)
     dist = {axis: abs(t - s) for axis, (s, t) in moves.items()}
     length = math.sqrt(sum(d * d for d in dist.values()))
     if not length:
@@ -204,6 +213,14 @@ def plan_linear(moves: Mapping[int, tuple[int, int]], velocity: int,
         plans.append(AxisPlan(axis, start, target, min(vel, VELOCITY_MAX), acc,
                               plan(dist[axis], vel, acc).samples))
     return LinearPlan(tuple(plans), total)
+
+
+def extended_target(chip: LM629, start: Snapshot, target: int) -> int:
+    """The extended position a target (a register value, or already extended) stands for on
+    ``chip`` moving from ``start``: the short way round the register from its desired
+    position, as the chip goes (AN-706 6.5.2)."""
+    return start.desired_position + short_way(
+        chip.positions.to_register(target) - chip.positions.to_register(start.desired_position))
 
 
 # ---------------------------------------------------------------------------- the board
@@ -420,11 +437,14 @@ class Board:
         """Load (acceleration, velocity, target) on each axis and start them together, flags
         a move reports cleared in the same program (as :meth:`LM629.move_to` does)."""
         loads = self.program()
-        for a, (acc, vel, target) in words.items():
-            loads.on(a.chip_select).extend(a.trajectory_program(acc, vel, target))
+        for a, (acc, vel, target) in words.items():  # the register value of each target
+            loads.on(a.chip_select).extend(a.trajectory_program(acc, vel,
+                                                                a.positions.to_register(target)))
         self.start(*words, prefix=loads, clear=MOVE_FLAGS)
         t0 = self.clock.now()
-        return BoardMove(self, [Move(a, target, vel, acc, starts[a], t0)
+        # each move's target extended as its chip reaches it: the short way from its start
+        return BoardMove(self, [Move(a, extended_target(a, starts[a], target), vel, acc,
+                                     starts[a], t0)
                                 for a, (acc, vel, target) in words.items()], plan)
 
     def move(self, targets: Mapping[LM629 | int | str, int], *,
@@ -449,8 +469,13 @@ class Board:
                  for a, t in resolved.items()}
         for a, (acc, vel, target) in words.items():  # before any read (soft limits)
             if a.limits is not None:
-                a.limits.check_trajectory(acc, vel, target)
+                a.limits.check_trajectory(acc, vel, a.positions.near_register(target))
         starts = {a: a.snapshot() for a in words}
+        for a, (acc, vel, target) in words.items():  # the length of each, before any moves
+            check_duration(a.move_rules, extended_target(a, starts[a], target)
+                           - starts[a].desired_position, vel, acc,
+                           a.move_rules.clock_hz or a.clock_hz,
+                           f"board.move: axis {a.chip_select} to {target}")
         return self._launch(words, None, starts)
 
     def plan_linear(self, targets: Mapping[LM629 | int | str, int], *, velocity: int,
@@ -464,8 +489,11 @@ class Board:
         check_int("acceleration", acceleration, 1, ACCELERATION_MAX, hex_digits=8)
         if starts is None:
             starts = {a: a.snapshot() for a in resolved}
-        return plan_linear({a.chip_select: (starts[a].desired_position, t) for a, t in resolved.items()},
-                           velocity, acceleration)
+        # the targets are register values, reached the short way round (as LM629.move_to's):
+        # planned as extended counts from the starts (a line across the wrap is short)
+        return plan_linear({a.chip_select: (starts[a].desired_position,
+                                             extended_target(a, starts[a], t))
+                            for a, t in resolved.items()}, velocity, acceleration)
 
     def move_linear(self, targets: Mapping[LM629 | int | str, int], *, velocity: int,
                     acceleration: int) -> BoardMove:
@@ -475,8 +503,20 @@ class Board:
         resolved = [self.axis(k) for k in targets]
         for a, t in zip(resolved, targets.values()):  # before any read (soft limits); the
             if a.limits is not None:                  # words are checked as they are loaded
-                a.limits.check_position(t, f"target of axis {a.chip_select}")
+                a.limits.check_position(a.positions.near_register(t),
+                                        f"target of axis {a.chip_select}")
         starts = {a: a.snapshot() for a in resolved}
+        # the line's length, before it is planned and before anything moves: every axis takes
+        # the path's time, held to the strictest axis's max_duration
+        check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
+        check_int("acceleration", acceleration, 1, ACCELERATION_MAX, hex_digits=8)
+        travel = [extended_target(a, starts[a], t) - starts[a].desired_position
+                  for a, t in zip(resolved, targets.values())]
+        if resolved:
+            strictest = min(resolved, key=lambda a: a.move_rules.max_duration)
+            check_duration(strictest.move_rules, round(math.hypot(*travel)), velocity,
+                           acceleration, strictest.move_rules.clock_hz or strictest.clock_hz,
+                           f"board.move_linear to {dict(zip((a.chip_select for a in resolved), targets.values()))}")
         plan = self.plan_linear(targets, velocity=velocity, acceleration=acceleration,
                                 starts=starts)
         words = {self.axes[ap.axis]: (ap.acceleration, ap.velocity, ap.target)
@@ -508,8 +548,8 @@ class Board:
         axis's positions extended past the register's wraparound as its own reads are."""
         chosen = self._pick(axes)
         p = self.program()
-        for a in chosen:
-            add_snapshot(p.on(a.chip_select))
+        for a in chosen:  # each with the RSTI of a wraparound bit it saw, as its own reads
+            p.on(a.chip_select).extend(a.clearing_wrap(add_snapshot(a.program())))
         r = self.transport.execute(p)
         now = self.clock.now()
         return [a.extended(snapshot_at(r, k, now)) for k, a in enumerate(chosen)]

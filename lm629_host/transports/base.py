@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Callable, Iterator, Sequence
+import functools
 import logging
 import threading
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, final
+from typing import TYPE_CHECKING, Any, final
 
 from lm629_host.clock import Clock, WallClock
 from lm629_host.transports.keepalive import FeedingClock, KeepAlive
@@ -234,6 +235,35 @@ class Transport(abc.ABC):
     _cycle_observers: tuple[BusObserver, ...] = ()
     _trace_observer: _CycleCallback | None = None
 
+    #: True once :meth:`close` ran: every program (and recording) after it is a
+    #: :class:`TransportError` that says the port is closed, before anything is sent
+    _closed: bool = False
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """A transport's own ``close`` marks it closed once it has run, so that the rule
+        "a call on a closed port raises, saying closed" (:meth:`check_open`) holds for every
+        transport, an entry point's too, without each one keeping it."""
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("close")
+        if own is None or getattr(own, "_marks_closed", False):
+            return
+
+        @functools.wraps(own)
+        def close(self: Transport) -> None:
+            try:
+                own(self)
+            finally:
+                self._closed = True
+        close._marks_closed = True  # type: ignore[attr-defined]  # wrapped once per class
+        cls.close = close  # type: ignore[method-assign]  # the subclass's own, wrapped
+
+    def check_open(self) -> None:
+        """Raise :class:`TransportError` saying the port is closed when :meth:`close` has run
+        (:meth:`execute` asks first; a recording asks before it plans its rate)."""
+        if self._closed:
+            raise TransportError("the port is closed (close() was called): open it again "
+                                 "(lm629_host.open) to talk to the chip", port=self.url)
+
     def __init__(self, url: str | PortURL, *, trace: TraceCallback | None = None) -> None:
         #: the port as the user wrote it (messages quote it); the options the CLI or a profile
         #: added beside it are in :attr:`port_url`
@@ -251,6 +281,7 @@ class Transport(abc.ABC):
         Final: a transport runs the program in ``_execute``, so that the lock, the count and
         the observers cannot be left out."""
         with self.lock:
+            self.check_open()
             self.program_depth += 1
             observers = self._observers  # the ones subscribed when the program starts
             try:
@@ -389,8 +420,9 @@ class Transport(abc.ABC):
         """Tell the far side's watchdog the host is alive (a bridge's failsafe with
         ``failsafe_feed=script``); nothing where there is none."""
 
-    def close(self) -> None:  # noqa: B027 - optional: a transport may hold nothing to release
-        """Release the port.  Idempotent."""
+    def close(self) -> None:
+        """Release the port.  Idempotent; every call after it raises (:meth:`check_open`)."""
+        self._closed = True
 
     # ------------------------------------------------------------------ the link failsafe
     # A bridge keeps a timer on its side of the link and stops every chip when the host falls

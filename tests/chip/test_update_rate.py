@@ -87,8 +87,9 @@ def test_the_model_aborts_when_the_rule_is_broken_through_raw():
         chip.clock.sleep(2e-3)
         chip.load_trajectory(velocity=3 * 65536, velocity_mode=True)
         m = model.motion
-        # line up just before the next sample, then send STT
-        chip.clock.sleep(T)
+        # line up just before the next sample (50 us: a status read and a command byte
+        # take a few), then send STT
+        chip.clock.sleep((model.next_sample - model.tick) / model.clock_hz - 50e-6)
         out = m.output
         chip.raw(Cmd.STT)
         assert len(model.violations) == 1

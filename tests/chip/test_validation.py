@@ -54,6 +54,8 @@ BAD_CALLS = [
     ("move_to", (1000,), {"velocity": 65536, "acceleration": 0}, ["acceleration=0"]),
     ("move_to", (1000,), {"velocity": float("inf")}, ["velocity=inf"]),
     ("move_to", (0x40000000,), {"velocity": 65536}, ["position=1073741824"]),
+    ("check_move", (0x40000000,), {"velocity": 65536}, ["position=1073741824"]),
+    ("check_move", (1000,), {"velocity": 0}, ["velocity=0", "1..1073741823"]),
     ("move_profile", (0x40000000, SCurve(1e4, 1e5, 1e6)), {}, ["position=1073741824",
                                                                "0xC0000000..0x3FFFFFFF"]),
     ("move_profile", (1000, "s-curve"), {}, ["shape='s-curve'", "SCurve"]),
@@ -111,9 +113,10 @@ def test_every_method_has_a_validated_argument_or_none():
         name for name, fn in inspect.getmembers(LM629, inspect.isfunction)
         if not name.startswith("_") and len(inspect.signature(fn).parameters) > 1
         # run, intercept and shadow take a program or a runner; start_checked the status
-        # bytes a board's STT program read; extended a snapshot this chip read
+        # bytes a board's STT program read; extended a snapshot this chip read;
+        # clearing_wrap a program this chip built
         and name not in ("run", "intercept", "shadow", "filter_program", "trajectory_program",
-                         "start", "start_checked", "extended")
+                         "start", "start_checked", "extended", "clearing_wrap")
     }
     assert takes_args - covered == set()
 

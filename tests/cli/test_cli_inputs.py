@@ -94,7 +94,7 @@ def test_empty_port_is_an_error_not_the_simulator(run, opened):
 def test_negative_numbers_as_typed(run, opened):
     r = run("--port", "sim://?record=1", "move", "-500")
     assert r.exit_code == 0, r.stderr
-    assert opened[-1].read_desired_position() == -500
+    assert opened[-1].transport.model.motion.desired_position == -500  # the port is closed
     r = run("--port", "sim://", "breakpoint", "-100")
     assert r.exit_code == 0 and "breakpoint -100 counts set" in r.output
     r = run("--port", "sim://", "--lines", "500", "move", "-0.25")  # -500 counts

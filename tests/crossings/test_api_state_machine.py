@@ -1,0 +1,574 @@
+"""A machine drives the whole public API, one random sequence at a time, against the
+simulator's truth (hypothesis's RuleBasedStateMachine), on the three kinds of link.
+
+Why: each capability is tested alone, and the bugs sit where two of them meet (a batch read
+across the register's wrap, a board target typed past it, a batch shared by threads...).
+Nobody writes every sequence down; a machine can.
+
+The oracle is the simulator's own state, read beside the driver and never through it: each
+chip model's unwrapped real position (encoder counts from where the last reset put the
+register), its desired position (the real one plus the model's following error), its
+trajectory and its motor.  What it checks, after every rule:
+
+* every position the API returns agrees with the model (exactly at rest, within what the
+  shaft travels during the read while it moves);
+* every legal move ends on its target, the short way round the register, where the model
+  says it is; no MotionError on a legal sequence (it would fail the run);
+* every illegal call is refused before a bus cycle (no program ran; a move too long may read
+  where it would start, and never loads or starts a trajectory);
+* the wrap count of every axis equals the crossings of the 3FFFFFFF boundary the model's
+  desired position made.
+
+How a new capability joins: a rule here that uses it the way a user would, and the oracle's
+expectation of it (docs/testing.md, "The crossings machine").
+
+CI runs a fixed budget, derandomized (the same sequences every run): figures per link in the
+terminal summary ("crossings: ...").  ``LM629_CROSSINGS=long`` runs the long profile, random
+and many times longer (docs/testing.md); a failure prints the shrunk sequence as code, ready
+to become a plain regression test (tests/chip/test_crossings.py holds those found so far).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from dataclasses import dataclass
+
+import pytest
+from hypothesis import HealthCheck, settings
+from hypothesis import strategies as st
+from hypothesis.stateful import (
+    RuleBasedStateMachine,
+    initialize,
+    invariant,
+    precondition,
+    rule,
+    run_state_machine_as_test,
+)
+
+import lm629_host
+from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, wrap_counts
+from lm629_host.chip.move import MoveTooLong
+from lm629_host.chip.shapes import SCurve
+from lm629_host.config.profile import ensure_applied, name_axes, parse_profile
+from lm629_host.errors import ArgumentError
+
+from sim_urls import available
+
+#: 4096 counts below the top of the register: the machine starts there or at 0
+NEAR_TOP = 0x3FFFF000
+SPAN = 1 << 31  #: counts round the register's circle
+#: the user property the figures travel in (tests/conftest.py prints them)
+FIGURES_PROPERTY = "crossings"
+
+LONG = os.environ.get("LM629_CROSSINGS", "") == "long"
+#: the longest a legal move of the machine takes is 30000 counts at 2 counts/sample, 3.9 s:
+#: a wait bounded by this ends (a MotionError: a finding) where a move went the long way
+WAIT_S = 20.0
+
+
+@dataclass(frozen=True)
+class Budget:
+    """One link's share of the CI minutes (sim+avr:// runs the firmware: fewer examples)."""
+
+    examples: int
+    steps: int
+
+
+#: (url, CI budget); the long profile multiplies both
+LINKS = (
+    ("sim://", Budget(150, 30)),
+    ("sim+emu://?baud=1000000", Budget(60, 25)),
+    ("sim+avr://?baud=1000000", Budget(25, 20)),
+)
+
+VELOCITIES = st.sampled_from([2 * 65536, 4 * 65536, 12 * 65536])
+ACCELERATIONS = st.sampled_from([3277, 6553, 13107])
+AXES = st.sampled_from([0, 1])
+#: distances of a move, counts: short, and long enough to cross from NEAR_TOP
+DISTANCES = st.one_of(st.integers(-6000, 6000), st.sampled_from([-30000, -9000, 9000, 30000]))
+
+
+def circle(extended: int) -> int:
+    """Which turn of the register's circle an extended position is on (0: the register's
+    own range C0000000..3FFFFFFF)."""
+    return (extended - POSITION_MIN) // SPAN
+
+
+class Truth:
+    """One chip model, read beside the driver: its unwrapped positions and trajectory."""
+
+    def __init__(self, model) -> None:
+        self.model = model
+
+    @property
+    def real(self) -> int:
+        """Encoder counts since the last reset, from where the reset put the register."""
+        m = self.model.motion
+        return m.encoder_count - m.home_count
+
+    @property
+    def desired(self) -> int:
+        m = self.model.motion
+        return self.real + wrap_counts(m.desired_position - m.real_position)
+
+    @property
+    def at_rest(self) -> bool:
+        m = self.model.motion
+        return m.traj.done and m.motor.speed == 0.0 and m.real_velocity == 0
+
+
+class ApiMachine(RuleBasedStateMachine):
+    """The public API of a two-axis board and its chips on one link (see the module doc)."""
+
+    url = "sim://"
+    #: figures of the current test run: examples and steps
+    examples = 0
+    steps = 0
+
+    def __init__(self) -> None:
+        super().__init__()
+        type(self).examples += 1
+        self.board: lm629_host.Board | None = None
+
+    # ------------------------------------------------------------------ set-up
+    @initialize(start=st.sampled_from([NEAR_TOP, 0, -NEAR_TOP]))
+    def open(self, start: int) -> None:
+        sep = "&" if "?" in self.url else "?"
+        self.board = lm629_host.open_board(f"{self.url}{sep}axes=2&reset_position={start}")
+        self.truth = [Truth(m) for m in self.board.transport.models]
+        self.board.reset()
+        self.tuned = [False, False]
+        self.crossings = [0, 0]
+        self.turn = [circle(t.desired) for t in self.truth]
+        self.profile = None
+        self.cycled = False  # powered off and on behind the driver's back: recover first
+        for k in (0, 1):
+            self._tune(k, 20, 200)
+
+    def teardown(self) -> None:
+        if self.board is not None:
+            self.board.close()
+
+    # ------------------------------------------------------------------ helpers
+    def _tune(self, k: int, kp: int, kd: int) -> None:
+        axis = self.board.axes[k]
+        axis.load_filter(kp=kp, kd=kd)
+        axis.update_filter()
+        self.tuned[k] = True
+
+    def _count(self) -> None:
+        type(self).steps += 1
+
+    def _note_turns(self) -> None:
+        """The oracle's crossings: the turns the model's desired position made since the last
+        rule (each rule moves far less than half the circle)."""
+        for k, t in enumerate(self.truth):
+            now = circle(t.desired)
+            self.crossings[k] += abs(now - self.turn[k])
+            self.turn[k] = now
+
+    def _rebase(self) -> None:
+        """A reset or power-up put the registers back: no crossing, a new origin."""
+        self.turn = [circle(t.desired) for t in self.truth]
+
+    def _register_target(self, k: int, distance: int) -> int:
+        """The register value ``distance`` counts from where axis ``k``'s trajectory is: what
+        a user reading the chip's own numbers would type (past the wrap: the other side)."""
+        return wrap_counts(self.truth[k].desired + distance)
+
+    def _refused_before_a_bus_cycle(self, call, *, reads: bool = False) -> BaseException:
+        """``call`` raises a ValueError; no program ran (``reads``: a read may have, nothing
+        was loaded or started)."""
+        t = self.board.transport
+        programs = t.stats.programs
+        before = [(m.motion.traj.done, m.motion.traj.target, m.motion.desired_position)
+                  for m in t.models]
+        with pytest.raises(ValueError) as e:
+            call()
+        if not reads:
+            assert t.stats.programs == programs, f"{e.value}: refused after a program ran"
+        after = [(m.motion.traj.done, m.motion.traj.target, m.motion.desired_position)
+                 for m in t.models]
+        assert after == before, f"{e.value}: a trajectory was loaded or started"
+        return e.value
+
+    def _landed(self, k: int, target: int, result) -> None:
+        """A move of axis ``k`` to the extended ``target`` ended there, by the model too."""
+        assert result.target == target, (result.target, target)
+        assert abs(result.error) <= self.board.axes[k].move_rules.tolerance
+        t = self.truth[k]
+        assert t.desired == target, (t.desired, target)
+        assert abs(t.real - result.position) <= 2 and abs(t.real - target) <= 20
+
+    def _agree(self, k: int, real: int | None = None, desired: int | None = None) -> None:
+        """Positions the API returned for axis ``k`` agree with the model's (at rest)."""
+        t = self.truth[k]
+        if desired is not None:
+            assert desired == t.desired, (desired, t.desired)
+        if real is not None:
+            assert abs(real - t.real) <= 2, (real, t.real)
+
+    def _can_move(self, k: int) -> bool:
+        return self.tuned[k]
+
+    # ------------------------------------------------------------------ rules: set-up
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, kp=st.sampled_from([20, 40]), kd=st.sampled_from([100, 200]),
+          batched=st.booleans())
+    def filter(self, k: int, kp: int, kd: int, batched: bool) -> None:
+        self._count()
+        if batched:
+            with self.board.axes[k].batch() as b:
+                b.load_filter(kp=kp, kd=kd)
+                b.update_filter()
+            self.tuned[k] = True
+        else:
+            self._tune(k, kp, kd)
+
+    @precondition(lambda self: not self.cycled)
+    @rule(which=st.sampled_from(["board", 0, 1]))
+    def reset(self, which) -> None:
+        """A reset: the board's (one /RST), or one axis's (the RESET command)."""
+        self._count()
+        self._note_turns()
+        if which == "board":
+            self.board.reset()
+            self.tuned = [False, False]
+        else:
+            self.board.axes[which].reset()
+            self.tuned[which] = False
+        self._rebase()
+        for k in (0, 1):
+            if not self.tuned[k]:
+                self._tune(k, 20, 200)
+
+    @precondition(lambda self: not self.cycled)
+    @rule()
+    def power_cycle(self) -> None:
+        """The chips' supply off and on behind the driver's back (``lm629 sim serve``'s
+        SIGUSR1): every register as from power-on; the next rule recovers."""
+        self._count()
+        self._note_turns()
+        t = self.board.transport
+        with t.lock:
+            t.model.reset_pulse()
+        self.board.clock.sleep(0.002)
+        self._rebase()
+        self.cycled = True
+        self.tuned = [False, False]
+
+    @precondition(lambda self: self.cycled)
+    @rule(with_profile=st.booleans())
+    def recover(self, with_profile: bool) -> None:
+        """After a power cycle: the profile applied again where it was lost (it reads the
+        signals), or a reset."""
+        self._count()
+        if with_profile and self.profile is not None:
+            named = name_axes(self.board, self.profile)
+            assert sorted(ensure_applied(named, self.profile, lambda text: None)) == ["x", "y"]
+            self.tuned = [True, True]
+        else:
+            self.board.reset()
+            self._rebase()
+            for k in (0, 1):
+                self._tune(k, 20, 200)
+        self.cycled = False
+        # the driver's positions agree with the chip powered up again
+        for k, snap in enumerate(self.board.snapshots()):
+            self._agree(k, snap.real_position, snap.desired_position)
+
+    @precondition(lambda self: not self.cycled)
+    @rule(margin=st.sampled_from([2000, 40000]))
+    def soft_limits_from_a_profile(self, margin: int) -> None:
+        """Soft limits ``margin`` counts either side of where each axis is, from a profile
+        (where they fit the register's range), or none."""
+        self._count()
+        lines = [f'[board]\nport = "{self.url}"\n']
+        for name, k in (("x", 0), ("y", 1)):
+            at = self.truth[k].desired
+            lines.append(f"[axis.{name}]\ncs = {k}\nkp = 20\nkd = 200")
+            if POSITION_MIN < at - margin and at + margin < POSITION_MAX:
+                lines.append(f"min = {at - margin}\nmax = {at + margin}")
+        self.profile = parse_profile("\n".join(lines) + "\n", "machine.toml")
+        name_axes(self.board, self.profile)
+        self.margin = margin
+
+    @precondition(lambda self: not self.cycled and self.profile is not None)
+    @rule()
+    def no_soft_limits(self) -> None:
+        self._count()
+        for a in self.board.axes:
+            a.limits = None
+
+    # ------------------------------------------------------------------ rules: moves
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, distance=DISTANCES, velocity=VELOCITIES, acceleration=ACCELERATIONS,
+          relative=st.booleans())
+    def move(self, k: int, distance: int, velocity: int, acceleration: int,
+             relative: bool) -> None:
+        """``move_to`` a register value (across the wrap when it is near) or a distance."""
+        self._count()
+        axis = self.board.axes[k]
+        start = self.truth[k].desired
+        target = start + distance
+        position = distance if relative else self._register_target(k, distance)
+        lim = axis.limits
+        if lim is not None and lim.min is not None and not lim.min <= target <= lim.max:
+            self._refused_before_a_bus_cycle(lambda: axis.move_to(
+                position, velocity=velocity, acceleration=acceleration, relative=relative),
+                reads=relative)
+            return
+        result = axis.move_to(position, velocity=velocity, acceleration=acceleration,
+                              relative=relative).wait(timeout=WAIT_S)
+        self._note_turns()
+        self._landed(k, target, result)
+
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, velocity=VELOCITIES)
+    def move_too_long(self, k: int, velocity: int) -> None:
+        """A register value half the circle away: the chip would go 2^30 counts the short
+        way round (hours); refused, naming its length, before anything moves."""
+        self._count()
+        axis = self.board.axes[k]
+        position = self._register_target(k, (1 << 30) - 5000)
+        if axis.limits is not None and axis.limits.min is not None:
+            return  # the soft limits refuse it first (the move rule covers them)
+        exc = self._refused_before_a_bus_cycle(
+            lambda: axis.move_to(position, velocity=velocity, acceleration=6553), reads=True)
+        assert isinstance(exc, MoveTooLong) and exc.distance == (1 << 30) - 5000
+
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, what=st.sampled_from(["position", "velocity", "kp", "flags", "shape"]))
+    def bad_argument(self, k: int, what: str) -> None:
+        """Illegal arguments: refused before any bus cycle, naming the argument."""
+        self._count()
+        axis = self.board.axes[k]
+        calls = {
+            "position": lambda: axis.move_to(POSITION_MAX + 1, velocity=65536),
+            "velocity": lambda: axis.move_to(0, velocity=0),
+            "kp": lambda: axis.load_filter(kp=-1),
+            "flags": lambda: axis.reset_interrupts(0x100),
+            "shape": lambda: axis.move_profile(100, "s-curve", relative=True),  # type: ignore[arg-type]  # a wrong shape on purpose
+        }
+        exc = self._refused_before_a_bus_cycle(calls[what])
+        assert isinstance(exc, ArgumentError) and exc.argument in (what, "flags")
+
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, distance=st.sampled_from([-20000, -3000, 3000, 20000]))
+    def shaped_move(self, k: int, distance: int) -> None:
+        """An S-curve move from where the axis is (pieces timed by the bridge or the host)."""
+        self._count()
+        axis = self.board.axes[k]
+        target = self.truth[k].desired + distance
+        lim = axis.limits
+        curve = SCurve(velocity=30000, acceleration=400000, jerk=8e6)
+        if lim is not None and lim.min is not None and not lim.min <= target <= lim.max:
+            self._refused_before_a_bus_cycle(
+                lambda: axis.move_profile(distance, curve, relative=True), reads=True)
+            return
+        result = axis.move_profile(distance, curve, relative=True).wait(timeout=WAIT_S)
+        self._note_turns()
+        self._landed(k, target, result)
+
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, velocity=VELOCITIES, forward=st.booleans(),
+          seconds=st.sampled_from([0.05, 0.3]))
+    def velocity_run(self, k: int, velocity: int, forward: bool, seconds: float) -> None:
+        """Velocity mode for a while (the simulated clock), then a smooth stop to rest."""
+        self._count()
+        axis = self.board.axes[k]
+        if axis.limits is not None:
+            self._refused_before_a_bus_cycle(
+                lambda: axis.run_velocity(velocity if forward else -velocity, 6553))
+            return
+        run = axis.run_velocity(velocity if forward else -velocity, 6553)
+        axis.clock.sleep(seconds)
+        snap = run.check()
+        self._note_turns()
+        assert (snap.desired_velocity > 0) == forward
+        rest = run.stop()
+        self._note_turns()
+        self._agree(k, rest.real_position, rest.desired_position)
+
+    @precondition(lambda self: not self.cycled)
+    @rule(d0=DISTANCES, d1=DISTANCES, velocity=VELOCITIES, linear=st.booleans())
+    def board_line(self, d0: int, d1: int, velocity: int, linear: bool) -> None:
+        """Both axes to register values (across the wrap when near), in a straight line or
+        each at its own pace, started together."""
+        self._count()
+        targets = [self.truth[0].desired + d0, self.truth[1].desired + d1]
+        goal = {0: self._register_target(0, d0), 1: self._register_target(1, d1)}
+        outside = any(a.limits is not None and a.limits.min is not None
+                      and not a.limits.min <= t <= a.limits.max
+                      for a, t in zip(self.board.axes, targets))
+        if linear:
+            def go():
+                return self.board.move_linear(goal, velocity=velocity, acceleration=6553)
+        else:
+            def go():
+                return self.board.move(goal, velocity=velocity, acceleration=6553)
+        if outside:
+            self._refused_before_a_bus_cycle(go, reads=True)
+            return
+        if linear and 0 < min(abs(d0), abs(d1)) and 6553 * min(abs(d0), abs(d1)) / (
+                (d0 * d0 + d1 * d1) ** 0.5) < 0.5:
+            return  # one axis's share of the acceleration is below one word: a ValueError
+        results = go().wait(timeout=WAIT_S)
+        self._note_turns()
+        # a line leaves out an axis that does not move; board.move starts every axis named
+        moved = [k for k, d in ((0, d0), (1, d1)) if d or not linear]
+        assert [r.target for r in results] == [targets[k] for k in moved]
+        for k, r in zip(moved, results):
+            self._landed(k, targets[k], r)
+
+    # ------------------------------------------------------------------ rules: reads
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, how=st.sampled_from(["direct", "snapshot", "batch1", "batch2", "board",
+                                       "board_batch", "record"]))
+    def read(self, k: int, how: str) -> None:
+        """The positions, read every way the API has, agree with the model; so does the
+        number of crossings each axis counted."""
+        self._count()
+        axis = self.board.axes[k]
+        if how == "direct":
+            self._agree(k, axis.read_real_position(), axis.read_desired_position())
+        elif how == "snapshot":
+            s = axis.snapshot()
+            self._agree(k, s.real_position, s.desired_position)
+        elif how == "batch1":
+            with axis.batch() as b:
+                r = b.read_real_position()
+            self._agree(k, r.value)
+        elif how == "batch2":
+            with axis.batch() as b:
+                r, d, s = b.read_real_position(), b.read_desired_position(), b.snapshot()
+            self._agree(k, r.value, d.value)
+            self._agree(k, s.value.real_position, s.value.desired_position)
+        elif how == "board":
+            for j, s in enumerate(self.board.snapshots()):
+                self._agree(j, s.real_position, s.desired_position)
+        elif how == "board_batch":
+            with self.board.batch() as b:
+                h = [(b[j].read_real_position(), b[j].read_desired_position()) for j in (0, 1)]
+            for j, (r, d) in enumerate(h):
+                self._agree(j, r.value, d.value)
+        else:
+            trace = axis.record(1e-3, 0.02)
+            assert len(trace) >= 18, (len(trace), trace.missing)
+            tolerance = axis.move_rules.tolerance
+            for row in trace:  # the trajectory holds; the shaft within the loop's dead band
+                self._agree(k, desired=row.desired)
+                assert abs(row.real - row.desired) <= tolerance, (row.real, row.desired)
+            assert abs(trace.rows[-1].real - self.truth[k].real) <= 2 + tolerance // 4
+        self._note_turns()
+        for j in ((0, 1) if how in ("board", "board_batch") else (k,)):
+            assert self.board.axes[j].positions.wraps == self.crossings[j], \
+                (j, self.board.axes[j].positions.wraps, self.crossings[j])
+
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, seconds=st.sampled_from([0.001, 0.05, 1.0]))
+    def sleep(self, k: int, seconds: float) -> None:
+        """Simulated time passes at rest: the trajectory holds, the shaft stays within the
+        loop's dead band of it (a new filter may still be settling it)."""
+        self._count()
+        desired = self.truth[k].desired
+        self.board.axes[k].clock.sleep(seconds)
+        assert self.truth[k].desired == desired
+        assert abs(self.truth[k].real - desired) <= self.board.axes[k].move_rules.tolerance
+
+    # ------------------------------------------------------------------ rules: threads
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, distance=st.integers(-5000, 5000))
+    def second_thread(self, k: int, distance: int) -> None:
+        """A move waited on by another thread on one axis while this one reads the other;
+        both agree with the model when the thread is done.  A batch of this thread is
+        refused to the other one at once."""
+        self._count()
+        axis, other = self.board.axes[k], self.board.axes[1 - k]
+        lim = axis.limits
+        target = self.truth[k].desired + distance
+        if lim is not None and lim.min is not None and not lim.min <= target <= lim.max:
+            return
+        results: list = []
+        errors: list[BaseException] = []
+        with other.batch() as mine:
+            queued = mine.read_desired_position()
+
+            def work() -> None:
+                try:
+                    try:
+                        mine.read_status()
+                    except RuntimeError as exc:
+                        assert "belongs to thread" in str(exc)
+                    else:
+                        raise AssertionError("a batch took another thread's call")
+                    results.append(axis.move_to(distance, velocity=4 * 65536,
+                                                acceleration=6553, relative=True).wait(timeout=WAIT_S))
+                except BaseException as exc:  # noqa: BLE001 - reported below
+                    errors.append(exc)
+            t = threading.Thread(target=work, name="machine-second-thread")
+            t.start()
+            # reads of the other axis between the thread's programs; no sleep here: the
+            # simulated clock is shared, and this thread's sleeps would pass the mover's time
+            seen = [other.read_real_position() for _ in range(20)]
+            t.join()
+        assert not errors, errors
+        self._note_turns()
+        self._landed(k, target, results[0])
+        self._agree(1 - k, desired=queued.value)
+        assert all(abs(p - self.truth[1 - k].real) <= 2 for p in seen)
+
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, distance=st.integers(-5000, 5000))
+    def held_lock(self, k: int, distance: int) -> None:
+        """A user sequence under the transport's lock (load, start, wait: atomic for other
+        threads)."""
+        self._count()
+        axis = self.board.axes[k]
+        lim = axis.limits
+        target = self.truth[k].desired + distance
+        if lim is not None and lim.min is not None and not lim.min <= target <= lim.max:
+            return
+        with axis.transport.lock:
+            result = axis.move_to(distance, velocity=4 * 65536, acceleration=6553,
+                                  relative=True).wait(timeout=WAIT_S)
+            snap = axis.snapshot()
+        self._note_turns()
+        self._landed(k, target, result)
+        self._agree(k, snap.real_position, snap.desired_position)
+
+    # ------------------------------------------------------------------ invariants
+    @invariant()
+    def at_rest_where_the_driver_thinks(self) -> None:
+        """Every rule ends with both axes at rest (a run is stopped, a move waited on)."""
+        if self.board is None or self.cycled:
+            return
+        for k, t in enumerate(self.truth):
+            assert t.model.motion.traj.done, f"axis {k}: its trajectory still runs"
+
+
+def _settings(budget: Budget) -> settings:
+    scale = 20 if LONG else 1
+    return settings(max_examples=budget.examples * scale,
+                    stateful_step_count=budget.steps * (3 if LONG else 1),
+                    deadline=None, derandomize=not LONG, database=None if not LONG else
+                    settings.default.database, print_blob=True,
+                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+
+
+@pytest.mark.parametrize("url,budget", LINKS, ids=[u.split("?")[0] for u, _ in LINKS])
+def test_the_api_agrees_with_the_simulator(url: str, budget: Budget, record_property) -> None:
+    if not available(url):
+        pytest.skip(f"{url}: not available here")
+    machine = type(f"ApiMachine_{url.split(':')[0]}", (ApiMachine,), {"url": url,
+                                                                       "examples": 0,
+                                                                       "steps": 0})
+    t0 = time.monotonic()
+    try:
+        run_state_machine_as_test(machine, settings=_settings(budget))
+    finally:
+        record_property(FIGURES_PROPERTY, (url.split("?")[0], machine.examples, machine.steps,
+                                           time.monotonic() - t0, "long" if LONG else "ci"))
+
