@@ -326,3 +326,33 @@ def test_twin_check_on_a_served_bench_behind_usb(tuned, tmp_path):
                   timeout=120)
         assert p.returncode == 0, p.stdout + p.stderr
         assert p.stdout.splitlines()[-1] == "matches"
+
+
+def _side(settle_s, lo=None, hi=None):
+    from lm629_host.physics.metrics import MoveMetrics
+    m = MoveMetrics(distance=1000, final_error=0, overshoot=0, settle_s=settle_s, rise_s=None,
+                    peak_following_error=0)
+    return Side(metrics=m, segments=[], settle_range=(lo, hi))
+
+
+@pytest.mark.parametrize("a, b, close", [
+    # spans 40-50 ms and 100-120 ms: 50 ms apart, more than 10 % of 120 ms: not close, whichever
+    # side is the bench (the rule is symmetric: each side's span is checked against the other's)
+    ((0.045, 0.040, 0.050), (0.110, 0.100, 0.120), False),
+    ((0.110, 0.100, 0.120), (0.045, 0.040, 0.050), False),
+    # 100-120 and 125-130: 5 ms apart, within 10 % of 130 ms
+    ((0.110, 0.100, 0.120), (0.128, 0.125, 0.130), True),
+    ((0.128, 0.125, 0.130), (0.110, 0.100, 0.120), True),
+    # overlapping spans
+    ((0.050, 0.040, 0.060), (0.055, 0.050, 0.070), True),
+    # one side never settles: not close either way; neither: close
+    ((None, None, None), (0.050, 0.040, 0.060), False),
+    ((0.050, 0.040, 0.060), (None, None, None), False),
+    ((None, None, None), (None, None, None), True),
+])
+def test_settle_close_is_judged_both_ways(a, b, close):
+    """MATCH_SETTLE (5 ms or 10 % of the later span's end) between the two sides' settle spans,
+    with the spans swapped too: a rule that looked one way only would call a twin that
+    settles far earlier than its bench a match."""
+    assert settle_close(_side(*a), _side(*b)) is close
+    assert settle_close(_side(*b), _side(*a)) is close
