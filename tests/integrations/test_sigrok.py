@@ -284,3 +284,23 @@ def test_only_sigrok_bug_1671_abort_is_forgiven(tmp_path):
     assert failed(1, BUG_1671)
     with pytest.raises(SigrokError):
         decode(vcd, decoders=tmp_path)  # no lm629 decoder there: sigrok-cli fails
+
+
+def test_each_data_word_needs_its_own_busy_check(tmp_path):
+    """A status read clears the way for one transfer only: LFIL's control word written after a
+    status read, then its kp word with no status read between, is a word written without a
+    busy check (a decoder that kept the last status for every later transfer would pass it)."""
+    vcd = tmp_path / "bus.vcd"
+    with lm629_host.open(_url("sim://?strict=0", vcd)) as chip:
+        chip.reset()
+        t = chip.transport
+        chip.clock.sleep(200e-6)
+        assert not t._read_status() & Status.BUSY
+        t._write_command(Cmd.LFIL)
+        chip.clock.sleep(200e-6)
+        assert not t._read_status() & Status.BUSY
+        t._write_word(0x0008)  # control word: kp follows
+        chip.clock.sleep(200e-6)  # busy long over, but nothing read it
+        t._write_word(20)
+    got = warnings(decode(vcd))
+    assert len(got) == 1 and got[0].startswith("data word without a busy check before it"), got
