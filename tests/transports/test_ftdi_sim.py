@@ -340,3 +340,25 @@ def test_program_result_reports_the_hi_line(open_chip):
     chip.wait_for(Status.BREAKPOINT, timeout=0.01)
     assert chip.run(Program().status()).hi is True
     assert chip.transport.model.hi
+
+
+def test_a_raised_wait_comes_back_to_the_calibrated_one_never_below(open_chip):
+    """Busy held 55 us: the calibrated wait is about 57 us; a repeat doubles it to at most the
+    documented 100 us cap (not 114 us), and once the extra waiting pays for a repeat the wait
+    halves, to 50 us by the arithmetic, but never below the calibrated wait (a wait under the
+    chip's busy time makes every check a repeat)."""
+    import math
+
+    from lm629_host.transports.ftdi import REPEAT_COST_S
+    chip = open_chip("sim+ftdi://?busy_s=55e-6&record=1&strict=0")
+    chip.reset()
+    t, device = chip.transport, chip.transport.device
+    floor = t.calibrated_wait_s
+    assert 55e-6 <= floor < 60e-6 and t.busy_s == pytest.approx(floor)
+    device.stretch_busy(1, 80e-6, skip=2)
+    load_ltrj(chip)
+    assert t.stats.retries == 1 and t.busy_s == pytest.approx(100e-6)  # the cap, not 2 x floor
+    for _ in range(math.ceil(REPEAT_COST_S / (8 * (100e-6 - floor))) + 1):
+        load_ltrj(chip)
+    assert t.busy_s == pytest.approx(floor)  # halved from 100 us would be 50 us: the floor holds
+    assert t.stats.retries == 1  # and no check saw busy after it
