@@ -214,9 +214,12 @@ def test_a_stop_or_a_new_move_takes_the_chip_from_the_pieces():
         chip.clock.sleep(0.3)
         move = chip.move_to(1000, velocity=200000)  # the acceleration loaded: it is moving
         assert shaped.dropped
+        # a cap falling due may still go out before the new move's own start read: not after
+        caps = len(shaped.words)
+        assert caps <= 2
         result = move.wait()
         assert result.target == 1000 and chip.read_desired_position() == 1000
-        assert len(shaped.words) == 1
+        assert len(shaped.words) == caps
 
 
 # ---------------------------------------------------------------------------------- a real stall
