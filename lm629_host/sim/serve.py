@@ -469,6 +469,11 @@ class SimServer:
                 self._power_cycle.clear()
                 self._cycle_power()
             now = sim0 + time.monotonic() - wall0
+            if not ready:
+                # the time is taken first, then what is waiting read: a server paused between
+                # its select and the clock (SIGSTOP, a busy machine) still gets every byte the
+                # host sent before ``now``, never a silent host it did not look at
+                ready, _, _ = select.select(self._fds(), [], [], 0)
             data = self._read_waiting(ready) if ready else b""
             self.bytes_in += len(data)
             replies = self._deliver(data, now)
