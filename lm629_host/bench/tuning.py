@@ -508,6 +508,7 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
         seen = ""
         headed: tuple[int, float] | None = None  # (direction, counts/s) of a shaft heading away
         turned = False  # a coast found the shaft already coming back (see below)
+        prev_resting = True  # the shaft stood still when this step came (the origin held)
         for sign in (1, -1):
             start = last.real_position
 
@@ -546,14 +547,16 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
                 # round by the loop before the drive went off (a late host, a shaft that was
                 # falling when the step came): the loop pulls the right way, and what pulled
                 # the shaft away is a load, as below
-                if early > 0 and (late < 0.5 * early or late <= 0):
+                if early > 0 and (late < 0.5 * early or late <= 0) and prev_resting:
                     raise ses.fault(MotionError.RUNAWAY,
                                     f"phasing: {seen}: it headed away from the target and "
                                     "slowed down once the drive was off: the loop pushes the "
                                     "wrong way. Swap the motor leads (or the encoder's A and B "
                                     "channels)", last)
-                if early <= 0:
-                    # turned round by the loop: no verdict from this coast (see below)
+                if early <= 0 or not prev_resting:
+                    # turned round by the loop, or still moving from the step before when this
+                    # one came (it never came to rest there: its momentum, not the loop, took
+                    # it away): no verdict from this coast (see below)
                     turned, headed = True, None
                     last = rec.rows[-1]
                     break
@@ -563,8 +566,12 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
                 continue
             if sign * moved[sign] >= step // 2:
                 # followed: let it come to rest there, so that the next step starts from a
-                # shaft at rest (a shaft still coasting up would seem to refuse a step down)
-                last, _still = ses.settle(rec, time_s)
+                # shaft at rest (a shaft still coasting up would seem to refuse a step down);
+                # a slow one (a load, inertia) gets longer, as the steps' own settle does
+                last, resting = ses.settle(rec, time_s)
+                if not resting:
+                    last, resting = ses.settle(rec, 1.0)
+                prev_resting = resting
             elif not (sign * moved[sign] >= 2 and kp * step >= U_FULL_SCALE):
                 break  # hardly moved: more drive
         seen = ", then ".join(f"the desired position went {sign * step:+d} counts and the shaft "
