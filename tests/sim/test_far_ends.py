@@ -107,13 +107,10 @@ def _stt_log(chip: LM629) -> list[int]:
     return stts
 
 
-@pytest.mark.parametrize("url", ["sim+emu://", "sim+emu://?baud=0"])
-def test_a_far_side_shaped_move_survives_a_host_late_past_its_first_piece(url):
-    """Pieces 50 ms apart; the host is 55 ms late (a GC pause, a busy machine) between the
-    move's STT and handing the rest to the bridge (what ``move_profile`` does, split here to
-    put the pause between), so the first piece's time has passed: it goes out 10 ms after the
-    schedule starts (never at once, nor at a negative time), the others at their times, every
-    STT at least 10 ms after the one before, and the move lands on its target."""
+def _far_shaped_move_handed_over_late(url: str, late_s: float):
+    """A 20000-count S-curve in 50 ms pieces whose STT went out, the host then ``late_s`` late
+    before it hands the rest to the bridge (what ``move_profile`` does, split here to put the
+    pause between): (chip, plan, move, the chip's STT ticks)."""
     chip = lm629_host.open(url)
     chip.reset()
     chip.load_filter(kp=20, kd=100)
@@ -122,8 +119,19 @@ def test_a_far_side_shaped_move_survives_a_host_late_past_its_first_piece(url):
     plan = plan_shape(SCurve(100000, 1e6, 3e7), 20000, sample_period_s(chip.clock_hz), 0.05)
     move = ShapedMove(chip.move_to(20000, velocity=plan.pieces[0].velocity,
                                    acceleration=plan.acceleration), plan, far=True)
-    chip.clock.sleep(0.055)
+    chip.clock.sleep(late_s)
     move.schedule_far(chip.axis, chip.update_interval)
+    return chip, plan, move, stts
+
+
+@pytest.mark.parametrize("url", ["sim+emu://", "sim+emu://?baud=0"])
+def test_a_far_side_shaped_move_survives_a_host_late_past_its_first_piece(url):
+    """Pieces 50 ms apart; the host is 55 ms late (a GC pause, a busy machine) between the
+    move's STT and handing the rest to the bridge (what ``move_profile`` does, split here to
+    put the pause between), so the first piece's time has passed: it goes out 10 ms after the
+    schedule starts (never at once, nor at a negative time), the others at their times, every
+    STT at least 10 ms after the one before, and the move lands on its target."""
+    chip, plan, move, stts = _far_shaped_move_handed_over_late(url, 0.055)
     result = move.wait()
     assert chip.read_desired_position() == 20000 and abs(result.error) <= chip.move_rules.tolerance
     gaps = [(b - a) / chip.transport.model.clock_hz for a, b in zip(stts, stts[1:])]
@@ -141,16 +149,7 @@ def test_a_far_side_shaped_move_survives_a_host_late_past_several_pieces(late_s)
     spacing, never several at the same time (the bridge refuses pieces closer than 10 ms:
     BAD_PROFILE) nor the plan's slow end while the chip is still far from its target (a
     crawl that never lands in time); the move lands."""
-    chip = lm629_host.open("sim+emu://")
-    chip.reset()
-    chip.load_filter(kp=20, kd=100)
-    chip.update_filter()
-    stts = _stt_log(chip)
-    plan = plan_shape(SCurve(100000, 1e6, 3e7), 20000, sample_period_s(chip.clock_hz), 0.05)
-    move = ShapedMove(chip.move_to(20000, velocity=plan.pieces[0].velocity,
-                                   acceleration=plan.acceleration), plan, far=True)
-    chip.clock.sleep(late_s)
-    move.schedule_far(chip.axis, chip.update_interval)
+    chip, plan, move, stts = _far_shaped_move_handed_over_late("sim+emu://", late_s)
     result = move.wait()
     assert chip.read_desired_position() == 20000 and abs(result.error) <= chip.move_rules.tolerance
     gaps = [(b - a) / chip.transport.model.clock_hz for a, b in zip(stts, stts[1:])]
