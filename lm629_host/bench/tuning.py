@@ -547,16 +547,17 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
                 # round by the loop before the drive went off (a late host, a shaft that was
                 # falling when the step came): the loop pulls the right way, and what pulled
                 # the shaft away is a load, as below
-                if early > 0 and (late < 0.5 * early or late <= 0) and prev_resting:
+                slowed = early > 0 and (late < 0.5 * early or late <= 0)
+                if slowed and prev_resting:
                     raise ses.fault(MotionError.RUNAWAY,
                                     f"phasing: {seen}: it headed away from the target and "
                                     "slowed down once the drive was off: the loop pushes the "
                                     "wrong way. Swap the motor leads (or the encoder's A and B "
                                     "channels)", last)
-                if early <= 0 or not prev_resting:
-                    # turned round by the loop, or still moving from the step before when this
-                    # one came (it never came to rest there: its momentum, not the loop, took
-                    # it away): no verdict from this coast (see below)
+                if early <= 0 or slowed:
+                    # turned round by the loop, or (slowed, the shaft not at rest when this
+                    # step came) still moving from the step before: its momentum, not the loop,
+                    # took it away; no verdict from this coast (see below)
                     turned, headed = True, None
                     last = rec.rows[-1]
                     break
@@ -568,10 +569,7 @@ def _phasing(ses: _Session, step: int, time_s: float) -> Phasing:
                 # followed: let it come to rest there, so that the next step starts from a
                 # shaft at rest (a shaft still coasting up would seem to refuse a step down);
                 # a slow one (a load, inertia) gets longer, as the steps' own settle does
-                last, resting = ses.settle(rec, time_s)
-                if not resting:
-                    last, resting = ses.settle(rec, 1.0)
-                prev_resting = resting
+                last, prev_resting = ses.settle(rec, time_s)
             elif not (sign * moved[sign] >= 2 and kp * step >= U_FULL_SCALE):
                 break  # hardly moved: more drive
         seen = ", then ".join(f"the desired position went {sign * step:+d} counts and the shaft "

@@ -487,9 +487,7 @@ def test_a_tuned_loaded_axis_finishes_a_lab_scripts_move(load):
     lab.update_filter()
     for target in (4000, 0, 4000):
         done = lab.move_to(target, velocity=0x40000, acceleration=0x2000).wait()
-        # wait() returns at the first rest within the tolerance, the integral still pulling
-        # the last counts in (the loop hunts 2 counts peak to peak there): a few counts
-        assert abs(done.error) <= 3
+        assert abs(done.error) <= 2
     lab.clock.sleep(0.5)
     assert abs(lab.read_real_position() - 4000) <= 1
     lab.close()
