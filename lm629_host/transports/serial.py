@@ -198,13 +198,39 @@ class SerialPipe:
             self._fd = None
         if self._fd is not None:
             port.timeout = 0  # non-blocking reads; waiting is done with select below
+        #: writes go to the descriptor itself only on a plain device (a URL handler such as
+        #: spy:// does its own work in write())
+        self._write_raw = self._fd is not None and type(port).__module__ == "serial.serialposix"
+
+    #: how long a write may find the port full before the link is given up as lost
+    WRITE_STUCK_S = 2.0
 
     def write(self, data: bytes) -> None:
         try:
-            self.port.write(data)
+            if self._write_raw:
+                self._write_fd(data)
+            else:
+                self.port.write(data)
         except Exception as exc:
             raise TransportError(f"write failed ({exc}): {_lost_hint(self.port.port)}",
                                  port=self.port.port) from exc
+
+    def _write_fd(self, data: bytes) -> None:
+        """All of ``data`` to the port's descriptor (non-blocking, as pyserial opens it),
+        failing only when the port stays full for :attr:`WRITE_STUCK_S`.  Not pyserial's
+        ``write(timeout)``: it judges its deadline after each write, so a host paused in the
+        middle of one (SIGSTOP, a busy machine) got "Write timeout" for bytes that had gone."""
+        fd = self._fd
+        assert fd is not None  # write() takes this path only with a descriptor
+        view = memoryview(data)
+        while view:
+            try:
+                n = os.write(fd, view)
+            except BlockingIOError:
+                n = 0
+            view = view[n:]
+            if view and not select.select([], [fd], [], self.WRITE_STUCK_S)[1]:
+                raise TimeoutError(f"the port took nothing for {self.WRITE_STUCK_S:g} s")
 
     def read(self, timeout_s: float) -> bytes:
         port = self.port
