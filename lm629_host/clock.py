@@ -7,6 +7,11 @@ from __future__ import annotations
 import abc
 import time
 
+#: how early a time still counts as reached: a clock's own rounding of a sleep to its due
+#: time (a simulated clock counts whole chip clocks) must not put a due thing off, nor make
+#: it "too soon"
+ROUNDING_S = 1e-6
+
 
 class Clock(abc.ABC):
     """A time base: ``now()`` in seconds and ``sleep(seconds)``."""
@@ -29,4 +34,4 @@ class WallClock(Clock):
             time.sleep(seconds)
 
 
-__all__ = ["Clock", "WallClock"]
+__all__ = ["Clock", "ROUNDING_S", "WallClock"]

@@ -19,7 +19,7 @@ import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
-from lm629_host.clock import Clock, WallClock
+from lm629_host.clock import ROUNDING_S, Clock, WallClock
 from lm629_host.errors import (
     ArgumentError,
     AxisError,
@@ -588,7 +588,7 @@ class LM629:
         if self.update_rule not in ("wait", "raise"):
             raise ValueError(f"update_rule={self.update_rule!r} must be 'wait' or 'raise'")
         due = self.update_due()
-        if due <= 0:
+        if due <= ROUNDING_S:  # a clock's rounding of a sleep to the due time is on time
             return
         if self.update_rule == "raise":
             assert self._last_update is not None

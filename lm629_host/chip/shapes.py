@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
+from lm629_host.clock import ROUNDING_S
 from lm629_host.errors import ArgumentError
 from lm629_host.chip.move import Move, MoveResult, MoveWatch
 from lm629_host.bus.opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX, Cmd, Status
@@ -330,9 +331,6 @@ def plan(shape: Shape, distance: int, sample_s: float,
 #: commands after which a host-timed shaped move no longer owns the chip's trajectory: the
 #: user's own LTRJ or STT (a new move, a stop) or a reset; its remaining pieces are dropped
 _TAKEOVER = frozenset({int(Cmd.LTRJ), int(Cmd.STT), int(Cmd.RESET)})
-#: how early a cap still counts as due: a clock's own rounding of a sleep to its due time
-#: (a simulated clock counts whole chip clocks) must not put it off to the next look
-_TICK_S = 1e-6
 
 
 def takes_over(program: Program) -> bool:
@@ -463,7 +461,7 @@ class ShapedMove(Move):
         clock, plan = chip.clock, self.plan
         now = clock.now()
         due = self.next_due
-        if now < due - _TICK_S:
+        if now < due - ROUNDING_S:
             return
         t = self._next
         # late by a whole piece: the host missed one (a host late by less every time, a slow

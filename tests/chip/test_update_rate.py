@@ -117,3 +117,14 @@ def test_update_s_0_turns_the_model_rule_off():
         chip.raw(Cmd.STT)
         assert not chip.transport.model.violations
         assert chip.transport.model.motion.velocity_mode  # the chip is still in velocity mode
+
+
+def test_an_update_after_sleeping_what_update_due_said_is_never_too_soon():
+    """A script that sleeps ``update_due()`` and then updates under ``update_rule = "raise"``
+    is on time: the clock's float sums (1e-17 s short) are no "10.00 ms after the last STT"."""
+    with _running("sim://?strict=1") as chip:
+        chip.update_rule = "raise"
+        for i in range(60):
+            chip.clock.sleep(chip.update_due())
+            chip.load_trajectory(velocity=(3 + i % 5) * 65536, velocity_mode=True, start=True)
+        assert not chip.transport.model.violations
