@@ -73,6 +73,9 @@ SIMULATED_FEED_FRACTION = 0.75
 SIMULATED_FEED = encode_frame(FrameType.PING, 0)
 #: a feed falls due this much before its period is up (clocks that round)
 _DUE_SLACK_S = 1e-6
+#: a trip the keep-alive heard goes to the log when no program has raised it this long after
+#: (a host busy in its own code); a host that calls the chip is told once, by the error
+UNTOLD_LOG_S = 1.0
 
 
 class FailsafeOptions(NamedTuple):
@@ -111,6 +114,9 @@ class LinkFailsafe:
         self.report: FailsafeState | None = None
         #: a trip heard and not told yet: the next program raises it (once)
         self.news: FailsafeState | None = None
+        #: when :attr:`news` was heard (link clock), and whether it went to the log already
+        self._news_at = 0.0
+        self._news_logged = False
         #: a quiet link is fed after this long (0: the failsafe is not armed)
         self.feed_period_s = 0.0
         self.keepalive: KeepAlive | None = None
@@ -186,6 +192,7 @@ class LinkFailsafe:
             return
         if self.on_turn is not None:
             self.on_turn()
+        self._log_untold()
         if link.clock.now() - link._last_tx < self.feed_period_s - _DUE_SLACK_S:
             return
         if self.recording:
@@ -236,11 +243,26 @@ class LinkFailsafe:
         """The answer to a simulated link's feed (a PING with seq 0): nothing to do."""
 
     def _heard(self, state: FailsafeState) -> None:
+        """A trip is news: the next program raises it.  It goes to the log only if nobody is
+        told by an error soon (:meth:`_log_untold`): a host that is busy in its own code
+        still hears of it, and a command line says it once, not a notice and then the error."""
         if self.report != state:
             self.report = state
             self.news = state
-            log.warning("%s: %s; acknowledge it (lm629 clear, or clear_failsafe()) before "
-                        "moving again", self.link.url, state.describe())
+            self._news_at = self.link.clock.now()
+            self._news_logged = False
+
+    def _log_untold(self, now: bool = False) -> None:
+        """Log a trip heard :data:`UNTOLD_LOG_S` ago (``now``: at once) that no program has
+        raised yet: nobody is calling the chip to be told."""
+        news = self.news
+        if news is None or self._news_logged:
+            return
+        if not now and self.link.clock.now() - self._news_at < UNTOLD_LOG_S:
+            return
+        self._news_logged = True
+        log.warning("%s: %s; acknowledge it (lm629 clear, or clear_failsafe()) before "
+                    "moving again", self.link.url, news.describe())
 
     def check(self) -> None:
         """Before a program: raise a trip heard and not told yet (:class:`FailsafeTripped`,
@@ -329,9 +351,10 @@ class LinkFailsafe:
 
     def close(self) -> None:
         """Stop the keep-alive and disarm the bridge's failsafe (a clean close: an axis left
-        moving on purpose keeps moving)."""
+        moving on purpose keeps moving).  A trip heard and never told goes to the log."""
         if self.keepalive is not None:
             self.keepalive.stop()
+        self._log_untold(now=True)
         if self.feed_period_s:
             try:
                 with self.link.lock:

@@ -52,6 +52,29 @@ def test_a_client_killed_mid_move_on_a_one_chip_bench_trips_and_the_server_lives
         assert b.server.poll() is None
 
 
+@pytest.mark.parametrize("far_end", FAR_ENDS[:2])
+def test_a_command_paused_mid_move_says_the_trip_in_one_line(tmp_path, far_end):
+    """`lm629 move` stopped (SIGSTOP) for 1.5 s mid-move: the bridge stops the axis after
+    0.5 s of silence, and the command, woken, says so once: one line naming the stop, exit 3
+    (the keep-alive that heard it first leaves the telling to the error)."""
+    with serve(tmp_path, far_end) as b:
+        b.ready()
+        mover = subprocess.Popen(b.argv("move", "2000000"), stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True, env=_env())
+        assert mover.stdout is not None
+        line = mover.stdout.readline()
+        assert line.startswith("moving to"), line + mover.communicate()[1]
+        time.sleep(0.3)
+        mover.send_signal(signal.SIGSTOP)
+        time.sleep(1.5)
+        mover.send_signal(signal.SIGCONT)
+        out, err = mover.communicate(timeout=60)
+        assert mover.returncode == 3, out + err
+        said = [ln for ln in (out + err).splitlines() if "the bridge stopped cs 0" in ln]
+        assert len(said) == 1, out + err
+        assert said[0].startswith("lm629: error:") and "paused" in said[0], said
+
+
 _IDLE_CLIENT = """
 import sys, lm629_host
 with lm629_host.open(sys.argv[1]) as chip:

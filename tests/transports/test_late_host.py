@@ -62,6 +62,29 @@ def test_an_unsolicited_failsafe_report_between_request_and_answer_is_an_event()
     assert chip.read_real_position() == 0  # told once; reads go on
 
 
+def test_a_trip_the_keep_alive_hears_is_said_once(caplog):
+    """A trip report the keep-alive reads while nobody calls the chip: a host that calls within
+    a second is told by the error alone (a command line prints one line, not a notice and then
+    the error); a host busy in its own code for longer hears it in the log, once."""
+    caplog.set_level("WARNING")
+    for busy_s, logged in ((0.5, 0), (3.0, 1)):
+        caplog.clear()
+        t = open_emulated("sim://")
+        chip = lm629_host.LM629(t)
+        chip.reset()
+        _queue_to_host(t, encode_frame(FrameType.FAILSAFE_REPLY, 0, TRIP.encode()))
+        chip.clock.sleep(busy_s)  # the simulated clock's keep-alive feeds and reads meanwhile
+        assert t.failsafe_report == TRIP
+        said = [r for r in caplog.records if "the bridge stopped cs 0" in r.getMessage()]
+        assert len(said) == logged, (busy_s, caplog.text)
+        with pytest.raises(FailsafeTripped, match="the bridge stopped cs 0"):
+            chip.read_real_position()
+        chip.clock.sleep(3.0)
+        t.close()
+        said = [r for r in caplog.records if "the bridge stopped cs 0" in r.getMessage()]
+        assert len(said) == logged, (busy_s, caplog.text)
+
+
 def test_a_report_without_a_trip_and_a_feeds_pong_change_nothing():
     t = open_emulated("sim://")
     chip = lm629_host.LM629(t)
