@@ -17,11 +17,12 @@ from lm629_host.sim.model import chips_of
 from lm629_host.sim.model.chip import SAMPLE_CLOCKS
 from lm629_host.bus.opcodes import Status
 
+from sim_urls import with_params
+
 
 
 def open2(url: str, **kw) -> lm629_host.Board:
-    sep = "&" if "?" in url else "?"
-    return lm629_host.open_board(url + sep + "axes=2", **kw)
+    return lm629_host.open_board(with_params(url, "axes=2"), **kw)
 
 
 def chips(board):

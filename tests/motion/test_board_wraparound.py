@@ -17,7 +17,7 @@ import lm629_host
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.chip.move import MoveTooLong
 
-from sim_urls import available
+from sim_urls import available, with_params
 
 NEAR_TOP = 0x3FFFF000
 TOP = 1 << 30
@@ -28,8 +28,7 @@ T = 2048 / 8e6
 def _board(url: str) -> lm629_host.Board:
     if not available(url):
         pytest.skip(f"{url}: not available here")
-    sep = "&" if "?" in url else "?"
-    board = lm629_host.open_board(f"{url}{sep}axes=2&reset_position={NEAR_TOP}&record=1")
+    board = lm629_host.open_board(with_params(url, f"axes=2&reset_position={NEAR_TOP}&record=1"))
     board.reset()
     for a in board.axes:
         a.load_filter(kp=20, kd=200)

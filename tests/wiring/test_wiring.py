@@ -28,6 +28,7 @@ from lm629_host.transports.base import Transport
 from lm629_host.bench.wiring_check import check_wiring, diagnose, run_experiments, suspects_of_data_bus
 from lm629_host.wiring.reference import READINGS, WHAT
 from lm629_host.bench.wiring_draw import render
+from sim_urls import with_params
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -132,9 +133,8 @@ def test_the_fault_list_on_the_bridges(url):
     if url.startswith("sim+avr://") and toolchain_missing():
         pytest.skip("AVR toolchain missing")
     wrong = {}
-    sep = "&" if "?" in url else "?"
     for fault in REQUIRED:
-        report = _check(f"{url}{sep}wiring={fault}")
+        report = _check(with_params(url, f"wiring={fault}"))
         if {s.line for s in report.suspects} != _lines(fault) or not all(
                 f"Uno {UNO[s.line]}" in s.message for s in report.suspects):
             wrong[fault] = report.lines()
