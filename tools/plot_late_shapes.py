@@ -24,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import lm629_host
 from lm629_host.chip.shapes import SCurve
 from lm629_host.physics.pid import sample_period_s
+from generated import save_figure
 
 D = 30000
 CURVE = SCurve(20000.0, 150000.0, 3e6)
@@ -97,10 +98,7 @@ def main() -> int:
     ax.legend(loc="lower center", fontsize=8)
     ax.set_title(f"{D} counts, S-curve 20000 counts/s, 150000 counts/s^2, 3e6 counts/s^3, "
                  "20 ms pieces timed from the host")
-    fig.tight_layout()
-    fig.savefig(args.png, dpi=80)
-    print(f"wrote {args.png}")
-    return 0
+    return save_figure(fig, args.png)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ import lm629_host
 from lm629_host.errors import MotionError
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.chip.shapes import SCurve, plan
+from generated import save_figure
 
 D, V, A, J = 20000, 20000.0, 150000.0, 3e6
 KD = 800
@@ -95,10 +96,7 @@ def main() -> int:
             ax.legend(loc="upper right", fontsize=8)
     fig.suptitle(f"{D} counts at {V:g} counts/s, kp 20 kd {KD}: trapezoid vs S-curve "
                  f"({A:g} counts/s^2, {J:g} counts/s^3, 20 ms pieces), same planned duration")
-    fig.tight_layout()
-    fig.savefig(args.png, dpi=80)
-    print(f"wrote {args.png}")
-    return 0
+    return save_figure(fig, args.png)
 
 
 if __name__ == "__main__":

@@ -30,6 +30,7 @@ from lm629_host.bench.tuning import measure_move
 from lm629_host.physics.axis import Gains
 from lm629_host.physics.predict import MoveProfile
 from lm629_host.bench.twin import SETTLE_BAND, Plant, twin_profile
+from generated import save_figure
 from bench_tune import fresh
 
 BENCH = "sim+emu://?usb=uno&fast_baud=1000000&inertia=4e-5&load_torque=0.004"
@@ -88,9 +89,7 @@ def main() -> None:
     bottom.set_xlabel("ms after the profile's end")
     bottom.set_ylabel("counts from the target")
     bottom.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(args.out, dpi=90)
-    print(f"wrote {args.out}")
+    save_figure(fig, args.out, dpi=90)
 
 
 if __name__ == "__main__":
