@@ -41,9 +41,7 @@ USER_TEST = textwrap.dedent("""\
 
     @pytest.mark.lm629_motion
     def test_the_table_moves_by_name_inside_its_limits(lm629_board):
-        table = lm629_board["table"]
-        table.load_filter(kp=20, kd=100)
-        table.update_filter()
+        table = lm629_board["table"]  # the fixture applied the profile: the tuned gains
         assert abs(table.move_to(500, velocity=4 * 65536, acceleration=3277).wait().error) <= 20
         with pytest.raises(ValueError, match="soft limit max = 6000"):
             table.move_to(7000, velocity=65536)
