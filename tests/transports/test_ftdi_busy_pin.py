@@ -191,9 +191,9 @@ def test_the_first_program_checks_that_d0_and_gpiol1_show_busy_during_a_held_rea
     t = chip.transport
     programs, trips = t.stats.programs, t.stats.round_trips
     chip.read_status()
-    assert not t._check_pin  # done before that first program
+    assert not t.busy.due  # done before that first program
     assert (t.stats.programs - programs, t.stats.round_trips - trips) == (1, 1)
-    assert t.check_busy_pin() is True  # and again by hand: D0 and GPIOL1 busy, then clear
+    assert t.busy.check_pin() is True  # and again by hand: D0 and GPIOL1 busy, then clear
 
 
 def test_a_chip_that_latches_its_status_at_rd_falling_is_refused(open_chip):
