@@ -80,7 +80,7 @@ Every transfer then lands after the chip took the one before, whatever its busy 
 cut before actions is needed and LTRJ + STT is one exchange.  It rests on what the data sheet
 does not say: that D0 follows busy while /RD stays low (docs/ftdi.md lists what to measure).
 The wait has no timeout: a chip that never clears busy stops the engine; the read gives up
-after the program's busy timeout, and :meth:`FtdiTransport._recover` purges the FT232H, leaves
+after the program's busy timeout, and :meth:`.ftdi_resync.Resync.after_stall` purges the FT232H, leaves
 and re-enters MPSSE with the lines idle, and raises BusyTimeout for the operation whose check
 never came (nothing from it on reached the chip).  A check that shows busy after the wait
 means the pin does not follow D0: a TransportError, never a repeat (an STT may follow in the
@@ -117,7 +117,6 @@ from typing import Any
 
 from lm629_host.wiring import ft232h as pins
 from lm629_host.clock import Clock, WallClock
-from lm629_host.errors import BusyTimeout, TransportError
 from lm629_host.bus.opcodes import BUSY_BIT
 from lm629_host.bus.program import BusCycle, Op, Program, ProgramResult, TraceCallback
 from lm629_host.urls import PortURL
@@ -152,10 +151,10 @@ from lm629_host.transports.ftdi_open import (  # noqa: F401 - the transport's op
     options_of,
     pyftdi_url,
     find_adapters,
-    reenter_mpsse,
     translate_open_error,
     usb_errno,
 )
+from lm629_host.transports.ftdi_resync import Resync
 from lm629_host.transports.keepalive import KeepAlive
 from lm629_host.transports.mpsse import (DEFAULT_BUSY_US, DEFAULT_TCK_HZ, Stream, StreamCompiler,
                                         chips_of_units, streams_of)
@@ -170,11 +169,11 @@ class FtdiTransport(Transport):
     """Bus programs as MPSSE streams on an opened pyftdi ``Ftdi`` (see the module docstring).
 
     Composed of the parts that share a stream's state: the compiler (``compiler``: the
-    stream's bytes, with the wait and the heartbeat's level in it), the exchange (``wire``:
-    one stream out, its answer back, the wait owed from one stream to the next) and the busy
-    wait fitted to the chip (``busy``: measured at open, raised after a repeat, brought back).
-    What stays here is the loop that runs a program's streams and judges their checks, the
-    recovery after a stall on the busy pin, and the heartbeat."""
+    stream's bytes, with the wait and the heartbeat's level in them), the exchange (``wire``:
+    a stream out, its answer back, the wait owed from one stream to the next), the busy wait
+    fitted to the chip (``busy``: measured at open, raised after a repeat, brought back) and
+    the short exchanges after a check that saw busy or a stall (``resync``).  What stays here
+    is the loop that runs a program's streams and judges their checks, and the heartbeat."""
 
     scheme = "ftdi"
     has_reset_line = True
@@ -200,7 +199,6 @@ class FtdiTransport(Transport):
             raise ValueError(f"busy_pin={busy_pin!r}: expected one of "
                              f"{', '.join(pins.BUSY_PINS)} (or none)")
         self.busy_pin = busy_pin
-        self.tck_hz = tck_hz
         self.compiler = StreamCompiler(tck_hz, DEFAULT_BUSY_US * 1e-6 if busy_s is None else busy_s,
                                        busy_pin=busy_pin is not None)
         self.wire = StreamExchange(ftdi, self.url, self.clock, self.stats, latency_ms)
@@ -208,7 +206,7 @@ class FtdiTransport(Transport):
         # what the pin relies on is checked instead (BusyWait.check_pin)
         self.busy = BusyWait(self.compiler, self.wire, pin=busy_pin,
                              measure=busy_s is None and busy_pin is None)
-        self.stalls = 0  #: streams that stopped at a wait on the busy pin and were purged
+        self.resync = Resync(self.wire, self.compiler, self._emit, busy_pin)
         self.heartbeat = heartbeat
         #: the heartbeat's half period (0: none): the feeder toggles after this long idle
         self.feed_period_s = 0.0
@@ -300,23 +298,6 @@ class FtdiTransport(Transport):
             else:
                 self._emit(BusCycle(kind, value))
 
-    def _poll_until_clear(self, program: Program, index: int, deadline: float,
-                          words: list[int]) -> int:
-        """Status reads, one short exchange each, until busy is clear; BusyTimeout at
-        ``deadline``."""
-        chip = chips_of_units(program.ops).get(index, 0)
-        poll = self.compiler.status_stream(chip, "status", index)
-        while True:
-            status = self.wire.run(poll)[0]
-            self.stats.busy_polls += 1
-            self._emit(BusCycle("status", status))
-            if not status & _BUSY:
-                self.wire.owed = {k: v for k, v in self.wire.owed.items() if k != chip}
-                return status
-            if self.clock.now() >= deadline:
-                raise BusyTimeout(program.ops[index].describe(), program.busy_timeout_s, status,
-                                  index, words)
-
     def _execute(self, program: Program) -> ProgramResult:
         ops = program.ops
         if self.busy.due:
@@ -351,7 +332,7 @@ class FtdiTransport(Transport):
                 try:
                     answer = wire.run(stream, program.busy_timeout_s)
                 except Stalled as stall:
-                    raise self._recover(program, stream, stall.answer, reads) from None
+                    raise self.resync.after_stall(program, stream, stall.answer, reads) from None
                 wire.owed = owed_after
                 self._emit_stream(stream, answer)
                 hi = None if wired else bool(answer[-1] & pins.HI)
@@ -365,7 +346,7 @@ class FtdiTransport(Transport):
                         if failed is None and slot.kind == "check":
                             failed = (unit_of[slot.op], slot.op)
                 if failed is not None and wired:
-                    raise self._unwired(ops[failed[1]].describe())
+                    raise self.resync.unwired(ops[failed[1]].describe())
                 ok_end = failed[0] if failed else stop
                 # on a multi-chip stream, the units after the failed one on other chips whose
                 # every check passed were taken: they are recorded now and left out of the
@@ -382,7 +363,7 @@ class FtdiTransport(Transport):
                 for slot, byte in zip(stream.slots, answer):
                     if slot.kind == "sync" and slot.op < ok_end and byte & _BUSY:
                         words = [reads[k] for k in sorted(reads)]
-                        statuses[slot.op] = last_status = self._poll_until_clear(
+                        statuses[slot.op] = last_status = self.resync.poll_until_clear(
                             program, slot.op, t0 + program.busy_timeout_s, words)
                 if failed is None:
                     self.busy.relax(sum(1 for sl in stream.slots if sl.kind == "check"))
@@ -403,50 +384,12 @@ class FtdiTransport(Transport):
                             f" (leaving out {len(taken)} unit(s) other chips took)" if taken
                             else "")
                 words = [reads[j] for j in sorted(reads) if j < unit_start]
-                last_status = self._poll_until_clear(program, op_index,
+                last_status = self.resync.poll_until_clear(program, op_index,
                                                      first + program.busy_timeout_s, words)
                 self.busy.learn()
                 pos = unit_start
         return ProgramResult(tuple(reads[k] for k in sorted(reads)),
                              tuple(statuses[k] for k in sorted(statuses)), last_status, hi)
-
-    def _recover(self, program: Program, stream: Stream, answer: bytes,
-                 reads: dict[int, int]) -> BusyTimeout:
-        """A stream stopped at a wait on the busy pin (MPSSE waits for ever; the read gave up):
-        purge the FT232H and enter MPSSE again with the lines idle
-        (:func:`.ftdi_open.reenter_mpsse`: the held status read ends), read the status once.
-        The operation whose check never came is the one the chip did not take; those before
-        it were taken.  Returns the BusyTimeout to raise."""
-        self.stalls += 1
-        index = stream.slots[len(answer)].op if len(answer) < len(stream.slots) else -1
-        log.warning("%s: busy never cleared during the wait on %s before %s: purging the "
-                    "FT232H and setting its lines idle again", self.url, self.busy_pin,
-                    program.ops[index].describe() if index >= 0 else "the end")
-        try:
-            reenter_mpsse(self.wire.ftdi, self.tck_hz)
-            chip = chips_of_units(program.ops).get(index, 0)
-            status: int | None = self.wire.run(
-                self.compiler.status_stream(chip, "status", index))[0]
-        except TransportError:
-            raise
-        except Exception as exc:  # pyftdi raises FtdiError, UsbToolsError, USBError...
-            raise TransportError(
-                f"the FT232H stalled on the busy pin and could not be reset ({exc}); unplug "
-                "and replug it: a command may or may not have reached the chip",
-                port=self.url) from exc
-        self.wire.last_end = self.clock.now()
-        words = [reads[k] for k in sorted(reads)]
-        return BusyTimeout(program.ops[index].describe() if index >= 0 else "the end of the "
-                           "program", program.busy_timeout_s, status, index, words)
-
-    def _unwired(self, what: str) -> TransportError:
-        return TransportError(
-            f"busy_pin={self.busy_pin}: the status read after the wait on the pin still showed "
-            f"busy before {what}, so the pin did not follow D0: check the wire from D0 (C0) to "
-            "ADBUS5 and that HI is no longer on ADBUS5 (docs/ftdi.md, 'Waiting on the busy "
-            "bit'). The transfers after it in the same exchange may have been ignored by the "
-            "chip: read back what matters (a move may have started) before going on, or open "
-            "the port without busy_pin", port=self.url)
 
     @staticmethod
     def _record(stream: Stream, answer: bytes, ok_end: int, taken: set[int],
