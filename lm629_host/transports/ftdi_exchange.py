@@ -2,10 +2,11 @@
 busy wait each chip is still owed when it ends (:mod:`.ftdi` has the busy discipline).
 
 Apart from the transport because three parts of it exchange streams: the programs
-(:mod:`.ftdi`), the busy-time measure before the first program (:mod:`.ftdi_busy`) and the
-recovery after a stall.  Each stream starts with whatever is left of the wait the previous one
-owed its chips, so that wait and the time the last answer came back live here, with the
-exchange that ends them, not in any one of those parts.
+(:mod:`.ftdi`), the busy-time measure before the first program (:mod:`.ftdi_busy`), and the
+status polls and the recovery after a stall (:mod:`.ftdi_resync`).  Each stream starts with
+whatever is left of the wait the previous one owed its chips, so that wait and the time the
+last answer came back live here, with the exchange that ends them, not in any one of those
+parts.
 """
 
 from __future__ import annotations
