@@ -129,6 +129,7 @@ from lm629_host.transports.ftdi_busy import (  # noqa: F401 - the wait's figures
     COMMAND_S,
     REPEAT_COST_S,
     BusyWait,
+    busy_bounds,
 )
 from lm629_host.transports.ftdi_exchange import Stalled, StreamExchange
 from lm629_host.transports.ftdi_open import (  # noqa: F401 - the transport's open, re-exported
