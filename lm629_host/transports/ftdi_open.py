@@ -6,11 +6,12 @@ a bench (the transport that runs programs over it is :mod:`.ftdi`).
 from __future__ import annotations
 
 import errno as _errno
+import os
 from typing import Any
 
 from lm629_host import data
 from lm629_host.errors import TransportError
-from lm629_host.transports.base import PortInfo
+from lm629_host.transports.base import Check, PortInfo
 from lm629_host.transports.mpsse import DEFAULT_TCK_HZ
 from lm629_host.urls import Option, PortURL, parse_options, port_url
 from lm629_host.wiring import ft232h as pins
@@ -23,6 +24,13 @@ FTDI_VID = 0x0403
 FT232H_PID = 0x6014
 
 DEFAULT_LATENCY_MS = 1  #: the FTDI default is 16 ms, the floor of every short read
+UDEV_RULE = f"{data.UDEV_RULES_DIR}/{data.UDEV_RULE}"  #: where the installed rule lives
+
+#: the clock modes another tool may have left on switched off, then every line idle: one 0x80
+#: sets the control lines' levels and directions together, one 0x82 releases D0-D7 (sent
+#: when MPSSE is entered: :func:`open_mpsse`, :func:`reenter_mpsse`)
+IDLE_LINES = bytes((DISABLE_CLK_ADAPTIVE, DISABLE_CLK_3PHASE,
+                    SET_LOW, pins.CTRL_IDLE, pins.CTRL_DIRECTION, SET_HIGH, 0, pins.DATA_IN))
 
 
 #: the URL options of the FT232H transport (``busy_us`` none, or ``auto``: measured;
@@ -132,6 +140,45 @@ def find_adapters() -> list[PortInfo]:
     return ports
 
 
+def adapter_checks() -> list[Check]:
+    """What ``lm629 doctor`` reports about FT232H support on this machine: pyftdi, libusb,
+    the adapters found, the udev rule, the ftdi_sio driver."""
+    checks: list[Check] = []
+    try:
+        import pyftdi
+        checks.append(Check("pyftdi", True, f"pyftdi {pyftdi.__version__}"))
+    except ImportError:
+        # optional: only an FT232H needs it, so its absence is a note, not a problem
+        return [Check("pyftdi", True, "not installed, optional: only ftdi:// needs it "
+                                      "(pip install 'lm629-host[ftdi]')")]
+    try:
+        from pyftdi.usbtools import UsbTools
+        UsbTools.find_backend()
+        checks.append(Check("libusb", True, "pyusb found a libusb backend"))
+    except ValueError:
+        checks.append(Check("libusb", False, ADVICE_NO_BACKEND))
+        return checks
+    ports = find_adapters()
+    usable = [p for p in ports if p.usable]
+    if usable:
+        checks.append(Check("FT232H", True, ", ".join(p.url for p in usable)))
+    elif ports:
+        checks.append(Check("FT232H", False, ports[0].problem))
+    else:
+        # like a serial bridge not found: nothing is wrong on a bench that uses another adapter
+        checks.append(Check("FT232H", True, "none on the USB bus (0403:6014)"))
+    rule = os.path.exists(UDEV_RULE)
+    checks.append(Check("udev rule", rule or os.geteuid() == 0,
+                        f"{UDEV_RULE} installed" if rule else
+                        ("not installed (not needed as root)" if os.geteuid() == 0 else
+                         "not installed: " + ADVICE_ACCESS.split("\n", 1)[1].strip())))
+    if os.path.isdir("/sys/module/ftdi_sio"):
+        checks.append(Check("ftdi_sio", True, "the ftdi_sio driver is loaded: pyftdi detaches it "
+                                              "from the adapter when it opens it; if that fails, "
+                                              "see the 'device busy' advice"))
+    return checks
+
+
 def translate_open_error(url: str | PortURL, exc: BaseException) -> TransportError:
     """The exceptions pyftdi and pyusb raise when opening, as errors that say what to do."""
     url = str(url)
@@ -187,9 +234,7 @@ def open_mpsse(url: str | PortURL, latency_ms: int = DEFAULT_LATENCY_MS,
         else:
             ftdi.open_mpsse_from_device(device, 1, direction=0, initial=initial,
                                         frequency=frequency, latency=latency_ms)
-        ftdi.write_data(bytes((DISABLE_CLK_ADAPTIVE, DISABLE_CLK_3PHASE,
-                               SET_LOW, pins.CTRL_IDLE, pins.CTRL_DIRECTION,
-                               SET_HIGH, 0, pins.DATA_IN)))
+        ftdi.write_data(IDLE_LINES)
     except TransportError:
         raise
     except Exception as exc:  # pyftdi raises ValueError, IOError, UsbToolsError, FtdiError...
@@ -202,6 +247,22 @@ def open_mpsse(url: str | PortURL, latency_ms: int = DEFAULT_LATENCY_MS,
     return ftdi
 
 
+def reenter_mpsse(ftdi: Any, frequency: float) -> None:
+    """Purge both buffers of an opened ``ftdi``, leave MPSSE and enter it again (the engine
+    drops the command it waits at: a wait on the busy pin that never ends), TCK ``frequency``,
+    every line idle as at open.  For that moment the FT232H is in UART mode: /RD and /PS
+    driven high by RTS# and DTR#, the other lines inputs held high by the pull-ups (see
+    :mod:`lm629_host.wiring.ft232h`), so a held status read ends.  Raises
+    what pyftdi raises."""
+    from pyftdi.ftdi import Ftdi
+    ftdi.purge_buffers()
+    ftdi.set_bitmode(0, Ftdi.BitMode.RESET)
+    ftdi.set_bitmode(0, Ftdi.BitMode.MPSSE)
+    ftdi.set_frequency(frequency)
+    ftdi.write_data(IDLE_LINES)
+
+
 __all__ = ["ADVICE_ACCESS", "ADVICE_BUSY", "ADVICE_NO_BACKEND", "DEFAULT_LATENCY_MS", "FT232H_PID",
            "FTDI_VID", "OPTIONS", "busy_pin_of", "heartbeat_pin", "open_mpsse", "options_of",
-           "pyftdi_url", "translate_open_error", "usb_errno", "find_adapters"]
+           "pyftdi_url", "translate_open_error", "usb_errno", "find_adapters", "IDLE_LINES",
+           "reenter_mpsse", "adapter_checks", "UDEV_RULE"]

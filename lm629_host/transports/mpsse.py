@@ -274,7 +274,7 @@ class StreamCompiler:
         half done), on chip 0.  Also returns, for each poll, what runs from RDSIGS's /WR
         rising edge to the poll's /RD falling edge: (seconds of idle clocks, MPSSE
         commands).  The idle clocks last exactly that on the TCK; what a command costs is the
-        adapter's, and :func:`busy_bounds` finds it from polls at two paddings or more."""
+        adapter's, and :func:`.ftdi_busy.busy_bounds` finds it from polls at two paddings or more."""
         times = []
         for cost in (0.0, 1.0):  # a poll's stream time is linear in what a command costs
             c = StreamCompiler(self.tck_hz, self.busy_s, cost, self.busy_pin)
@@ -431,52 +431,6 @@ class StreamCompiler:
         self.owed_after = ({k: max(0.0, v - (st.t - st.owed_from.get(k, 0.0)))
                             for k, v in st.owed.items()} if self.command_s else st.owed)
         return s
-
-
-#: the step at which :func:`busy_bounds` tries the cost of an MPSSE command, s
-COMMAND_STEP_S = 1e-9
-
-
-def busy_bounds(observations: Sequence[tuple[Sequence[tuple[float, int]], int | None]],
-                command_max_s: float) -> tuple[float, float, float] | None:
-    """What calibration polls tell of the chip's busy time and of the adapter's MPSSE command
-    cost, neither known alone: ``observations`` holds, for each calibration stream, its
-    polls' (idle seconds, commands) (:meth:`StreamCompiler.calibration_stream`) and the index
-    of the first poll that saw busy clear (None: none did; at least 1: the one before saw
-    it set).  For a command cost ``c`` a poll's /RD falls ``idle + commands * c`` after the
-    transfer, so each stream bounds the busy time from below (the last poll that saw busy)
-    and above (the first that saw it clear).  Streams with different idle paddings agree
-    only for some costs: those are the costs the adapter may have, from 0 up to
-    ``command_max_s`` (the most a command is taken to cost; a slower adapter shows up as a
-    check that sees busy, which the transport repeats and learns from).
-
-    Returns (the longest busy time any such cost allows, the lowest such cost, the shortest
-    busy time any allows), or None when
-    no cost makes the streams agree (the chip's busy time changed between them).  A wait of
-    the first, shortened by the commands run before a check counted at the second, lasts at
-    least the busy time on any adapter the polls allow: a command costs at least that."""
-    busy_hi: float | None = None
-    busy_lo = math.inf
-    lowest: float | None = None
-    for k in range(int(round(command_max_s / COMMAND_STEP_S)) + 1):
-        c = k * COMMAND_STEP_S
-        lo, hi = 0.0, math.inf
-        for times, clear in observations:
-            if clear is None:  # busy through the last poll
-                idle, n = times[-1]
-                lo = max(lo, idle + n * c)
-                continue
-            idle, n = times[clear - 1]
-            lo = max(lo, idle + n * c)
-            idle, n = times[clear]
-            hi = min(hi, idle + n * c)
-        if lo < hi:
-            lowest = c if lowest is None else lowest
-            busy_hi = hi if busy_hi is None else max(busy_hi, hi)
-            busy_lo = min(busy_lo, lo)
-    if busy_hi is None or lowest is None or math.isinf(busy_hi):
-        return None
-    return busy_hi, lowest, busy_lo
 
 
 def units_of(ops: Sequence[BusOp]) -> list[tuple[int, int]]:

@@ -143,11 +143,11 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
 
     def _execute(self, program: Program) -> ProgramResult:
         violations = self.model.violations
-        mark, tmark, hits = len(violations), len(self.device.timing_violations), self.busy_hits
+        mark, tmark, hits = len(violations), len(self.device.timing_violations), self.busy.hits
         try:
             return super()._execute(program)
         finally:
-            new = violations[mark:] if self.busy_hits == hits else []
+            new = violations[mark:] if self.busy.hits == hits else []
             self._violations += new
             if self._strict:
                 timing = self.device.timing_violations[tmark:]

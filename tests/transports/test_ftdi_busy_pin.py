@@ -119,7 +119,7 @@ def test_busy_that_never_clears_stops_the_stream_which_the_transport_purges(open
     waited = chip.clock.now() - t0
     assert err.value.operation.startswith("command 0A") and err.value.index == 0
     assert err.value.status is not None and err.value.status & 0x01
-    assert t.stalls == 1
+    assert t.resync.stalls == 1
     # the read's patience: 3 + 5 ms / 1 ms latency periods, then the purge and one poll
     assert 5e-3 < waited < 12e-3
     assert device.waiting is None and not device._pending
@@ -138,7 +138,7 @@ def test_a_stall_before_stt_leaves_stt_untaken(open_chip):
     device.stretch_busy(1, 50e-3, skip=2)
     with pytest.raises(BusyTimeout) as err:
         load_ltrj(chip, start=True)
-    assert err.value.index == 3 and t.stalls == 1  # the check of the third data word
+    assert err.value.index == 3 and t.resync.stalls == 1  # the check of the third data word
     # LTRJ never completed (its command byte and two words only), STT never written
     assert (Cmd.LTRJ, LTRJ_WORDS) not in model.history
     assert [c for c, _ in model.history].count(Cmd.STT) == 0
@@ -191,9 +191,9 @@ def test_the_first_program_checks_that_d0_and_gpiol1_show_busy_during_a_held_rea
     t = chip.transport
     programs, trips = t.stats.programs, t.stats.round_trips
     chip.read_status()
-    assert not t._check_pin  # done before that first program
+    assert not t.busy.due  # done before that first program
     assert (t.stats.programs - programs, t.stats.round_trips - trips) == (1, 1)
-    assert t.check_busy_pin() is True  # and again by hand: D0 and GPIOL1 busy, then clear
+    assert t.busy.check_pin() is True  # and again by hand: D0 and GPIOL1 busy, then clear
 
 
 def test_a_chip_that_latches_its_status_at_rd_falling_is_refused(open_chip):
@@ -204,7 +204,7 @@ def test_a_chip_that_latches_its_status_at_rd_falling_is_refused(open_chip):
     with pytest.raises(lm629_host.TransportError, match="without busy_pin") as err:
         chip.read_status()
     assert "still showed busy 100 us later" in str(err.value)
-    assert chip.transport.stalls == 0
+    assert chip.transport.resync.stalls == 0
 
 
 @pytest.fixture
@@ -251,4 +251,4 @@ def test_gpiol1_wired_to_hi_as_by_default_is_refused(usb_bus):
     with lm629_host.open("ftdi://ftdi:232h:FT5LM629/1?busy_pin=gpiol1") as chip:
         with pytest.raises(lm629_host.TransportError, match="GPIOL1 does not follow D0"):
             chip.read_status()
-        assert chip.transport.stalls == 0
+        assert chip.transport.resync.stalls == 0

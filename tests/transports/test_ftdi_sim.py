@@ -85,10 +85,10 @@ def test_the_busy_wait_is_the_chips_own_measured_before_the_first_program(open_c
     times + about 27 us of MPSSE commands, within 1.3 x the limit of two microframes + chip."""
     chip = open_chip(f"sim+ftdi://?busy_s={busy_us}e-6")
     t = chip.transport
-    assert t.calibrated_busy_s is None  # opening touched nothing
+    assert t.busy.calibrated_s is None  # opening touched nothing
     chip.reset()
-    assert busy_us * 1e-6 <= t.calibrated_busy_s <= busy_us * 1e-6 + 3.5e-6
-    assert t.busy_s == pytest.approx(t.calibrated_busy_s)
+    assert busy_us * 1e-6 <= t.busy.calibrated_s <= busy_us * 1e-6 + 3.5e-6
+    assert t.busy.wait_s == pytest.approx(t.busy.calibrated_s)
     t.stats.reset()
     chip.load_trajectory(stop="off", start=True)
     t0 = chip.clock.now()
@@ -96,11 +96,11 @@ def test_the_busy_wait_is_the_chips_own_measured_before_the_first_program(open_c
     dt = chip.clock.now() - t0
     # each wait is shortened by the commands before its check (about 6) counted at the least
     # cost the calibration allows, not at the emulator's 0.5 us: that much longer at most
-    slack = 2 * 8 * (COMMAND_S - t.command_s)
-    assert 2 * 125e-6 + 2 * busy_us * 1e-6 <= dt <= 2 * 125e-6 + 2 * t.busy_s + 30e-6 + slack
+    slack = 2 * 8 * (COMMAND_S - t.busy.command_s)
+    assert 2 * 125e-6 + 2 * busy_us * 1e-6 <= dt <= 2 * 125e-6 + 2 * t.busy.wait_s + 30e-6 + slack
     if busy_us == 20:
         assert dt <= 1.3 * 253e-6
-    assert t.stats.retries == 0 and t.busy_hits == 0
+    assert t.stats.retries == 0 and t.busy.hits == 0
 
 
 def test_a_chip_slower_than_measured_is_repeated_and_the_wait_learns(open_chip, caplog):
@@ -109,18 +109,18 @@ def test_a_chip_slower_than_measured_is_repeated_and_the_wait_learns(open_chip, 
     seen again."""
     chip = _long_busy_chip(open_chip)
     model, device, t = chip.transport.model, chip.transport.device, chip.transport
-    assert t.busy_s < 25e-6
+    assert t.busy.wait_s < 25e-6
     device.stretch_busy(1, 35e-6, skip=2)
     with caplog.at_level(logging.WARNING, logger="lm629_host.ftdi"):
         load_ltrj(chip)
     assert model.history.count((Cmd.LTRJ, LTRJ_WORDS)) == 1 and model.history[-1] == \
         (Cmd.LTRJ, LTRJ_WORDS)
     assert t.stats.retries == 1 and "longer than measured" in caplog.text
-    assert 35e-6 <= t.busy_s <= 2 * t.calibrated_wait_s  # doubled: 22.2 -> 44.3 us, not the cap
-    hits = t.busy_hits
+    assert 35e-6 <= t.busy.wait_s <= 2 * t.busy.floor_s  # doubled: 22.2 -> 44.3 us, not the cap
+    hits = t.busy.hits
     for _ in range(3):
         load_ltrj(chip)
-    assert t.busy_hits == hits and t.stats.retries == 1
+    assert t.busy.hits == hits and t.stats.retries == 1
 
 
 def test_one_retry_at_most_doubles_the_wait_and_retry_free_commands_bring_it_back(open_chip):
@@ -139,17 +139,17 @@ def test_one_retry_at_most_doubles_the_wait_and_retry_free_commands_bring_it_bac
     chip = open_chip("sim+ftdi://?busy_s=10e-6&record=1&strict=0")
     chip.reset()
     t, device = chip.transport, chip.transport.device
-    before = t.busy_s
-    assert 10e-6 <= t.calibrated_busy_s <= 13.5e-6 and before == pytest.approx(t.calibrated_wait_s)
+    before = t.busy.wait_s
+    assert 10e-6 <= t.busy.calibrated_s <= 13.5e-6 and before == pytest.approx(t.busy.floor_s)
     device.stretch_busy(1, 25e-6, skip=2)
     load_ltrj(chip)
     assert t.stats.retries == 1
-    assert t.busy_s == pytest.approx(2 * before) and t.busy_s < 100e-6
+    assert t.busy.wait_s == pytest.approx(2 * before) and t.busy.wait_s < 100e-6
     back_at = math.ceil(REPEAT_COST_S / (8 * before))  # loads, the repeated one included
     assert back_at == 6
     for n in range(2, back_at + 1):
         load_ltrj(chip)
-        assert t.busy_s == pytest.approx(before if n == back_at else 2 * before), n
+        assert t.busy.wait_s == pytest.approx(before if n == back_at else 2 * before), n
     assert t.stats.retries == 1
     hist = t.model.history
     assert hist[-1] == (Cmd.LTRJ, LTRJ_WORDS) and hist.count((Cmd.LTRJ, LTRJ_WORDS)) == back_at
@@ -166,15 +166,15 @@ def test_an_adapter_whose_commands_take_no_time_waits_the_busy_seen_plus_a_poll(
     chip = open_chip("sim+ftdi://?busy_s=10e-6&command_ns=0&record=1")
     chip.reset()
     t, device = chip.transport, chip.transport.device
-    assert t.command_s < 50e-9
-    assert 10e-6 <= t.calibrated_busy_s < 12.5e-6 and t.busy_s == pytest.approx(t.calibrated_busy_s)
+    assert t.busy.command_s < 50e-9
+    assert 10e-6 <= t.busy.calibrated_s < 12.5e-6 and t.busy.wait_s == pytest.approx(t.busy.calibrated_s)
     for _ in range(5):
         load_ltrj(chip)
         chip.read_real_position()
-    assert t.stats.retries == 0 and t.busy_hits == 0
+    assert t.stats.retries == 0 and t.busy.hits == 0
     device.stretch_busy(1, 15e-6, skip=2)
     load_ltrj(chip)
-    assert t.stats.retries == 1 and t.busy_s < 25e-6
+    assert t.stats.retries == 1 and t.busy.wait_s < 25e-6
     assert t.model.history[-1] == (Cmd.LTRJ, LTRJ_WORDS)
 
 
@@ -187,13 +187,13 @@ def test_the_calibrated_wait_holds_whatever_a_command_costs(open_chip, command_n
     chip = open_chip(f"sim+ftdi://?busy_s={busy_us}e-6&command_ns={command_ns}&record=1")
     chip.reset()
     t = chip.transport
-    assert busy_us * 1e-6 <= t.calibrated_busy_s <= busy_us * 1e-6 + 5e-6
-    assert t.command_s <= command_ns * 1e-9
+    assert busy_us * 1e-6 <= t.busy.calibrated_s <= busy_us * 1e-6 + 5e-6
+    assert t.busy.command_s <= command_ns * 1e-9
     for _ in range(3):
         load_ltrj(chip)
         chip.read_real_position()
         chip.load_filter(kp=1, ki=2, kd=3, il=4)
-    assert t.stats.retries == 0 and t.busy_hits == 0
+    assert t.stats.retries == 0 and t.busy.hits == 0
 
 
 def test_a_bus_that_never_shows_busy_keeps_the_default_and_says_why(open_chip):
@@ -206,13 +206,13 @@ def test_a_bus_that_never_shows_busy_keeps_the_default_and_says_why(open_chip):
     chip = open_chip("sim+ftdi://?wiring=d0-low")
     t = chip.transport
     chip.read_status()
-    assert t.calibrated_busy_s is None and t.busy_s == pytest.approx(100e-6)
-    assert "no status read after RDSIGS showed busy" in t.calibration_note
+    assert t.busy.calibrated_s is None and t.busy.wait_s == pytest.approx(100e-6)
+    assert "no status read after RDSIGS showed busy" in t.busy.note
     assert [c.ok for c in t.port_checks()] == [False]
     exchanges = t.stats.round_trips
     chip.read_status()  # measured again first: its exchanges are counted apart
-    assert t.calibration_exchanges == 2 and t.stats.round_trips == exchanges + 1
-    assert t.calibrated_busy_s is None and t.busy_s == pytest.approx(100e-6)
+    assert t.busy.exchanges == 2 and t.stats.round_trips == exchanges + 1
+    assert t.busy.calibrated_s is None and t.busy.wait_s == pytest.approx(100e-6)
     r = CliRunner().invoke(main, ["--port", "sim+ftdi://?wiring=d0-low", "doctor"])
     assert r.exit_code == 1
     assert "busy wait: not measured: no status read after RDSIGS showed busy" in r.output
@@ -327,7 +327,7 @@ def test_the_busy_wait_is_kept_across_streams_even_with_instant_usb(open_chip):
         chip.read_real_position()
         chip.mask_interrupts(0)
     assert chip.transport.stats.retries == 0
-    assert chip.transport.busy_hits == 0
+    assert chip.transport.busy.hits == 0
 
 
 def test_program_result_reports_the_hi_line(open_chip):
@@ -353,12 +353,12 @@ def test_a_raised_wait_comes_back_to_the_calibrated_one_never_below(open_chip):
     chip = open_chip("sim+ftdi://?busy_s=55e-6&record=1&strict=0")
     chip.reset()
     t, device = chip.transport, chip.transport.device
-    floor = t.calibrated_wait_s
-    assert 55e-6 <= floor < 60e-6 and t.busy_s == pytest.approx(floor)
+    floor = t.busy.floor_s
+    assert 55e-6 <= floor < 60e-6 and t.busy.wait_s == pytest.approx(floor)
     device.stretch_busy(1, 80e-6, skip=2)
     load_ltrj(chip)
-    assert t.stats.retries == 1 and t.busy_s == pytest.approx(100e-6)  # the cap, not 2 x floor
+    assert t.stats.retries == 1 and t.busy.wait_s == pytest.approx(100e-6)  # the cap, not 2 x floor
     for _ in range(math.ceil(REPEAT_COST_S / (8 * (100e-6 - floor))) + 1):
         load_ltrj(chip)
-    assert t.busy_s == pytest.approx(floor)  # halved from 100 us would be 50 us: the floor holds
+    assert t.busy.wait_s == pytest.approx(floor)  # halved from 100 us would be 50 us: the floor holds
     assert t.stats.retries == 1  # and no check saw busy after it
