@@ -12,8 +12,10 @@ the default tolerance of 20 counts.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -180,3 +182,17 @@ def test_a_move_on_a_chip_without_gains_says_so(tmp_path):
         b.ready()  # kp = 20: the same move then ends on its target
         p = b.run("move", "2000")
         assert p.returncode == 0, p.stderr
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="only root may raise a process's priority")
+def test_the_served_bench_runs_ahead_of_the_host_s_load(tmp_path):
+    """The served far end stands for the bridge's own microcontroller, which CPU hogs on the
+    host PC do not slow: every thread of `lm629 sim serve` runs at nice -10 (where allowed),
+    so the load makes the host late, not the board."""
+    from lm629_host.cli.sim import SERVER_NICE
+
+    with serve(tmp_path, "firmware") as b:
+        b.ready()
+        tasks = list(Path(f"/proc/{b.server.pid}/task").iterdir())
+        nice = {int(Path(t, "stat").read_text().rsplit(")", 1)[1].split()[16]) for t in tasks}
+        assert nice == {SERVER_NICE}, nice
