@@ -166,7 +166,9 @@ def run_motor(base: str, name: str, params: str, grid: list[tuple[int, int, int]
 # ------------------------------------------------------------------------ rows <-> JSON
 def rows_to_json(rows: list[MotorRow], grid: list[tuple[int, int, int]], date: str) -> str:
     """The measured rows, the grid and the run's date, for ``--rows`` to render again."""
-    return json.dumps({"date": date, "grid": grid, "rows": [asdict(r) for r in rows]}, indent=1)
+    return "\n".join(["{", f' "date": {json.dumps(date)},', f' "grid": {json.dumps(grid)},',
+                      ' "rows": [', ",\n".join(f"  {json.dumps(asdict(r))}" for r in rows), " ]",
+                      "}"])
 
 
 def _measured(d: list[dict] | None) -> Measured:
@@ -228,12 +230,13 @@ def table_rows(r: MotorRow, points: int) -> list[str]:
 WORDS = ("no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten")
 
 
-def _count(n: int, of: int) -> str:
-    """``on every motor``, ``on five motors``, ``on one motor``: n of the ``of`` motors."""
-    if n == of and n > 1:
+def _where(names: list[str], of: int) -> str:
+    """``on every motor``, ``on five motors`` (most of them), else the motors by name."""
+    if len(names) == of > 1:
         return "on every motor"
-    word = WORDS[n] if n < len(WORDS) else str(n)
-    return f"on {word} motor{'' if n == 1 else 's'}"
+    if len(names) > of // 2 and of > 2:
+        return f"on {WORDS[len(names)] if len(names) < len(WORDS) else len(names)} motors"
+    return f"on {_and(names)}"
 
 
 def _and(items: list[str]) -> str:
@@ -258,20 +261,22 @@ def _compare(rows: list[MotorRow], figure: str, which: int, smaller: str, larger
     every motor where they are not (as much, or ``larger``: both figures)."""
     pairs = [(r.name, getattr(_m(r.tuned, which), figure), getattr(_m(r.best, which), figure))
              for r in rows]
-    better = sum(t < b for _, t, b in pairs)
+    better = [n for n, t, b in pairs if t < b]
     same = [n for n, t, b in pairs if t == b]
     worse = [f"{n} ({t} against {b})" for n, t, b in pairs if t > b]
-    parts = [f"{smaller} {_count(better, len(pairs))}"] if better else []
+    parts = [f"{smaller} {_where(better, len(pairs))}"] if better else []
     if same:
         parts.append(f"as {'much' if figure == 'overshoot' else 'well'} on {_and(same)}")
     if worse:
         parts.append(f"{larger} on {_and(worse)}")
-    return (f"{_span([t for _, t, _ in pairs])} {unit} against "
+    tuned = _span([t for _, t, _ in pairs])
+    return (f"{tuned} {unit[:-1] if tuned == '1' else unit} against "
             f"{_span([b for _, _, b in pairs])}: {', '.join(parts)}")
 
 
 def _settle(rows: list[MotorRow], which: int, what: str) -> str:
-    """Which settles sooner on ``what`` (0: the step, 1: the move), by how much, where."""
+    """A sentence (without its full stop): which settles sooner on ``what`` (``which`` 0: the
+    step, 1: the move), by how much, on which motors; those that never settle."""
     never = [f"{who} on {r.name}" for r in rows for who, side in (("the tuned gains", r.tuned),
              ("the grid's best", r.best)) if _ms(_m(side, which)) is None]
     timed = [(r.name, _ms(_m(r.tuned, which)), _ms(_m(r.best, which))) for r in rows]
@@ -283,8 +288,7 @@ def _settle(rows: list[MotorRow], which: int, what: str) -> str:
                ((n, t, b) for n, t, b in pairs if keep(t, b))]
         if won:
             pct = [round(p) for _, p in won]
-            where = _count(len(won), len(rows)) if len(won) > len(rows) // 2 else \
-                f"on {_and([n for n, _ in won])}"
+            where = _where([n for n, _ in won], len(rows))
             parts.append(f"{label} settle{'s' if label.endswith('best') else ''} "
                          f"{_span(pct)} % sooner {where}")
     same = [n for n, t, b in pairs if t == b]
@@ -292,7 +296,7 @@ def _settle(rows: list[MotorRow], which: int, what: str) -> str:
         parts.append(f"both as soon on {_and(same)}")
     if never:
         parts.append(f"never within +/-{TOLERANCE} counts in {DURATION:g} s: {_and(never)}")
-    return f"on {what} " + "; ".join(parts) if parts else ""
+    return f"On {what} " + "; ".join(parts)  # every motor is in one of the parts
 
 
 def summary(rows: list[MotorRow]) -> str:
@@ -301,14 +305,17 @@ def summary(rows: list[MotorRow]) -> str:
     sides = [(r.name, who, side) for r in rows
              for who, side in (("tuned", r.tuned), ("grid-best", r.best))]
     faults = [f"the {who} gains on {name}" for name, who, side in sides if side.measured is None]
-    out = [f"the {who} {what} on {name} ({m.final_error:+d})" for name, who, side in sides
-           if side.measured is not None
-           for what, m in zip(("step", "move"), side.measured) if abs(m.final_error) > TOLERANCE]
+    ends = [(f"the {who} {what} on {name}", m.final_error) for name, who, side in sides
+            if side.measured is not None for what, m in zip(("step", "move"), side.measured)]
+    out = [f"{what} ({error:+d})" for what, error in ends if abs(error) > TOLERANCE]
     text = []
     if not faults and not out:
-        worst = max(abs(_m(side, i).final_error) for _, _, side in sides for i in (0, 1))
+        worst = max(abs(error) for _, error in ends)
+        edge = [what for what, error in ends if abs(error) == TOLERANCE] if TOLERANCE else []
         text.append(f"Every tuned and grid-best move ended within the tolerance of "
-                    f"{TOLERANCE} counts (at most {worst} off), inside the band.")
+                    f"{TOLERANCE} counts, inside the band" + (
+                        f"; at its edge ({TOLERANCE} off): {_and(edge)}." if edge else
+                        f" (at most {worst} off)." if worst else " (every one on target)."))
     if out:
         text.append(f"Ended outside the tolerance of {TOLERANCE} counts: {_and(out)}.")
     if faults:
@@ -327,10 +334,8 @@ def summary(rows: list[MotorRow]) -> str:
                     f"No trapezoid move overshoots more than {OVERSHOOT_LIMIT} counts "
                     f"({OVERSHOOT_LIMIT * 100 // DISTANCE} % of the move, the tuner's "
                     f"acceptance).")
-        settles = [x for x in (_settle(both, 1, "the move (after the profile)"),
-                               _settle(both, 0, "the step")) if x]
-        text += [said[0].upper() + said[1:] + "." for said in settles]
-        text.append(f"On the step the tuned gains overshoot "
+        text.append(_settle(both, 1, "the move (after the profile)") + ".")
+        text.append(_settle(both, 0, "the step") + "; the tuned gains overshoot "
                     f"{_compare(both, 'overshoot', 0, 'less', 'more', 'counts')}.")
     hunters = [(r.name, who, side) for r in rows for who, side in (("tuned gains", r.tuned),
                                                                     ("grid's best", r.best))
@@ -338,7 +343,7 @@ def summary(rows: list[MotorRow]) -> str:
     if hunters:
         said = [f"the {who} on {name} ({max(_m(side, i).hunt for i in (0, 1))})"
                 for name, who, side in hunters]
-        why = " (all with integral action, ki > 0)" if all(
+        why = ", all with integral action (ki > 0)" if all(
             side.gains.ki for *_, side in hunters) else ""
         text.append(f"Hunting at rest, counts peak to peak over the last "
                     f"{DURATION / 4:g} s: {_and(said)}{why}; none elsewhere.")

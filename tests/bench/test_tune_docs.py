@@ -66,16 +66,15 @@ def test_the_tuned_gains_better_everywhere():
             _row("B", (_m(0, 8, 540), _m(-1, 10, 5)), (_m(0, 16, 412), _m(0, 15, 21)))]
     text = " ".join(bt.summary(rows).split())
     assert text.startswith("Every tuned and grid-best move ended within the tolerance of 2 "
-                           "counts (at most 1 off), inside the band.")
+                           "counts, inside the band (at most 1 off).")
     assert "The tuned trapezoid moves overshoot 7-10 counts against 12-15: less on every " \
            "motor." in text
     assert "No trapezoid move overshoots more than 20 counts (1 % of the move" in text
     # the move: as soon on A (7 and 7), the tuned gains (21 - 5) / 21 = 76 % sooner on B
     assert "On the move (after the profile) the tuned gains settle 76 % sooner on B; both as " \
            "soon on A." in text
-    assert "On the step the grid's best settles 10-24 % sooner on every motor." in text
-    assert "On the step the tuned gains overshoot 1-8 counts against 4-16: less on every " \
-           "motor." in text
+    assert "On the step the grid's best settles 10-24 % sooner on every motor; the tuned gains " \
+           "overshoot 1-8 counts against 4-16: less on every motor." in text
     assert text.endswith("Neither the tuned gains nor the grid's best hunt at rest on any "
                          "motor.")
 
@@ -118,10 +117,36 @@ def test_hunting_with_integral_action_is_said_so():
     rows = [_row("A", (_m(0, 52, 202, hunt=2), _m(1, 7, 5, hunt=2)),
                  (_m(0, 100, 202), _m(0, 87, 92)), ki)]
     text = " ".join(bt.summary(rows).split())
-    assert "the tuned gains on A (2) (all with integral action, ki > 0); none elsewhere." in text
+    assert "the tuned gains on A (2), all with integral action (ki > 0); none elsewhere." in text
+    # the tuned move ended 1 count off, none 2: nothing at the tolerance's edge
+    assert "inside the band (at most 1 off)." in text
     # step settle 202 and 202: as soon; the grid's move overshoot 87 is over the 20 counts
-    assert "On the step both as soon on A." in text
+    assert "On the step both as soon on A; the tuned gains overshoot 52 counts against 100: " \
+           "less on A." in text
     assert "the tuner's acceptance): the grid's best on A (87)." in text
+
+
+def test_a_move_at_the_edge_of_the_tolerance_is_named():
+    # B's tuned step and move end 2 counts off, the tolerance: within it, but named
+    rows = [_row("A", (_m(0, 1, 200), _m(1, 7, 7)), (_m(0, 4, 180), _m(1, 12, 7))),
+            _row("B", (_m(2, 0, 375), _m(-2, 7, 53)), (_m(1, 14, 248), _m(1, 19, 24)))]
+    text = " ".join(bt.summary(rows).split())
+    assert text.startswith("Every tuned and grid-best move ended within the tolerance of 2 "
+                           "counts, inside the band; at its edge (2 off): the tuned step on B "
+                           "and the tuned move on B.")
+    # the move: (53 - 24) / 53 = 55 % sooner for the grid on B, as soon (7) on A
+    assert "On the move (after the profile) the grid's best settles 55 % sooner on B; both as " \
+           "soon on A." in text
+
+
+def test_one_motor_on_target():
+    # one motor, every final error 0; the step's overshoot 1 count against 4
+    rows = [_row("A", (_m(0, 1, 200), _m(0, 9, 7)), (_m(0, 4, 380), _m(0, 26, 7)))]
+    text = " ".join(bt.summary(rows).split())
+    assert "inside the band (every one on target)." in text
+    # the step: (380 - 200) / 380 = 47 % sooner for the tuned gains
+    assert "On the step the tuned gains settle 47 % sooner on A; the tuned gains overshoot " \
+           "1 count against 4: less on A." in text
 
 
 def test_write_docs_replaces_only_the_block(tmp_path, monkeypatch):
