@@ -72,10 +72,11 @@ POLL = 0.002
 OVERSHOOT_LIMIT = DISTANCE // 100
 
 
-#: the grid the docs quote (kp x ki x kd; il 4000 where ki > 0, ds 1)
+#: the grid the docs quote (kp x ki x kd; il GRID_IL where ki > 0, ds 1)
 FULL_GRID = list(itertools.product((25, 50, 100, 200, 400, 800), (0, 4, 16, 64),
                                    (0, 300, 1000, 3000, 10000, 30000)))
 QUICK_GRID = list(itertools.product((25, 100, 400), (0, 16), (0, 1000, 4000, 16000)))
+GRID_IL = 4000  #: the integration limit of the grid's points with ki > 0
 ROOT = Path(__file__).resolve().parent.parent
 CLI_DOC = ROOT / "docs" / "cli.md"
 COMMAND = "python3 tools/bench_tune.py --write-docs"
@@ -153,7 +154,7 @@ def run_motor(base: str, name: str, params: str, grid: list[tuple[int, int, int]
     faults = 0
     t = time.perf_counter()
     for kp, ki, kd in grid:
-        g = Gains(kp, ki, kd, 4000 if ki else 0)
+        g = Gains(kp, ki, kd, GRID_IL if ki else 0)
         m = measure(url, g, result.profile)
         faults += m is None
         if best is None or cost(m) < cost(best[1]):
@@ -203,7 +204,7 @@ def describe_grid(grid: list[tuple[int, int, int]]) -> str:
     """``144-point grid (kp 25-800 x ki 0-64 x kd 0-30000, ...)``: from the points."""
     kp, ki, kd = ([p[i] for p in grid] for i in range(3))
     return (f"{len(grid)}-point grid (kp {_span(kp)} x ki {_span(ki)} x kd {_span(kd)}, "
-            f"il 4000 where ki > 0, derivative interval 1)")
+            f"il {GRID_IL} where ki > 0, derivative interval 1)")
 
 
 def _figures(m: MoveMetrics) -> str:
@@ -254,43 +255,38 @@ def _m(side: Side, which: int) -> MoveMetrics:
     return side.measured[which]
 
 
-def _compare(rows: list[MotorRow], figure: str, which: int, smaller: str, larger: str,
-             unit: str) -> str:
-    """Tuned against the grid's best, motor by motor, on one whole-number figure (smaller is
-    better): the range of each, then on how many motors the tuned gains are ``smaller``, and
-    every motor where they are not (as much, or ``larger``: both figures)."""
-    pairs = [(r.name, getattr(_m(r.tuned, which), figure), getattr(_m(r.best, which), figure))
-             for r in rows]
-    better = [n for n, t, b in pairs if t < b]
+def _overshoot(rows: list[MotorRow], which: int) -> str:
+    """The tuned gains' overshoot on the step (``which`` 0) or the move (1) against the grid's
+    best: the range of each, on which motors the tuned gains overshoot less, and every motor
+    where they do not (as much, or more: both figures)."""
+    pairs = [(r.name, _m(r.tuned, which).overshoot, _m(r.best, which).overshoot) for r in rows]
+    less = [n for n, t, b in pairs if t < b]
     same = [n for n, t, b in pairs if t == b]
-    worse = [f"{n} ({t} against {b})" for n, t, b in pairs if t > b]
-    parts = [f"{smaller} {_where(better, len(pairs))}"] if better else []
+    more = [f"{n} ({t} against {b})" for n, t, b in pairs if t > b]
+    parts = [f"less {_where(less, len(pairs))}"] if less else []
     if same:
-        parts.append(f"as {'much' if figure == 'overshoot' else 'well'} on {_and(same)}")
-    if worse:
-        parts.append(f"{larger} on {_and(worse)}")
+        parts.append(f"as much on {_and(same)}")
+    if more:
+        parts.append(f"more on {_and(more)}")
     tuned = _span([t for _, t, _ in pairs])
-    return (f"{tuned} {unit[:-1] if tuned == '1' else unit} against "
+    return (f"{tuned} count{'' if tuned == '1' else 's'} against "
             f"{_span([b for _, _, b in pairs])}: {', '.join(parts)}")
 
 
 def _settle(rows: list[MotorRow], which: int, what: str) -> str:
     """A sentence (without its full stop): which settles sooner on ``what`` (``which`` 0: the
-    step, 1: the move), by how much, on which motors; those that never settle."""
+    step, 1: the move), by how much of the slower time, on which motors; those that never
+    settle.  The times as the table shows them (whole ms)."""
     never = [f"{who} on {r.name}" for r in rows for who, side in (("the tuned gains", r.tuned),
              ("the grid's best", r.best)) if _ms(_m(side, which)) is None]
     timed = [(r.name, _ms(_m(r.tuned, which)), _ms(_m(r.best, which))) for r in rows]
     pairs = [(n, t, b) for n, t, b in timed if t is not None and b is not None]
     parts = []
-    for label, keep, faster, slower in (("the grid's best", lambda t, b: b < t, 1, 0),
-                                        ("the tuned gains", lambda t, b: t < b, 0, 1)):
-        won = [(n, (x[slower] - x[faster]) / x[slower] * 100) for n, *x in
-               ((n, t, b) for n, t, b in pairs if keep(t, b))]
+    for label, won in (("the grid's best settles", [(n, (t - b) / t) for n, t, b in pairs if b < t]),
+                       ("the tuned gains settle", [(n, (b - t) / b) for n, t, b in pairs if t < b])):
         if won:
-            pct = [round(p) for _, p in won]
-            where = _where([n for n, _ in won], len(rows))
-            parts.append(f"{label} settle{'s' if label.endswith('best') else ''} "
-                         f"{_span(pct)} % sooner {where}")
+            pct = [round(x * 100) for _, x in won]
+            parts.append(f"{label} {_span(pct)} % sooner {_where([n for n, _ in won], len(rows))}")
     same = [n for n, t, b in pairs if t == b]
     if same:
         parts.append(f"both as soon on {_and(same)}")
@@ -323,7 +319,7 @@ def summary(rows: list[MotorRow]) -> str:
     both = [r for r in rows if r.tuned.measured is not None and r.best.measured is not None]
     if both:
         text.append(f"The tuned trapezoid moves overshoot "
-                    f"{_compare(both, 'overshoot', 1, 'less', 'more', 'counts')}.")
+                    f"{_overshoot(both, 1)}.")
         large = [f"{who} on {r.name} ({_m(side, 1).overshoot})"
                  for r in both for who, side in (("the tuned move", r.tuned),
                                                  ("the grid's best", r.best))
@@ -336,7 +332,7 @@ def summary(rows: list[MotorRow]) -> str:
                     f"acceptance).")
         text.append(_settle(both, 1, "the move (after the profile)") + ".")
         text.append(_settle(both, 0, "the step") + "; the tuned gains overshoot "
-                    f"{_compare(both, 'overshoot', 0, 'less', 'more', 'counts')}.")
+                    f"{_overshoot(both, 0)}.")
     hunters = [(r.name, who, side) for r in rows for who, side in (("tuned gains", r.tuned),
                                                                     ("grid's best", r.best))
                if side.measured is not None and max(m.hunt for m in side.measured)]
