@@ -19,9 +19,8 @@ import pytest
 from lm629_host.physics.axis import Gains
 from lm629_host.physics.metrics import MoveMetrics
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "tools"))
-import bench_tune as bt  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
+import bench_tune as bt
 
 GRID = [(25, 0, 0), (800, 0, 10000)]
 
