@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import importlib
 
+import lm629_host
+
 from lm629_host.transports import SCHEMES
 
 #: the FT232H waiting on the busy bit in the adapter (D0 wired to GPIOL1) instead of timing it
@@ -52,3 +54,17 @@ def with_params(url: str, params: str) -> str:
     if not params:
         return url
     return f"{url}{'&' if '?' in url else '?'}{params}"
+
+
+def ready_chip(url: str, params: str = "", *, kp: int = 20, kd: int = 100) -> lm629_host.LM629:
+    """``url`` (with ``params`` added) opened, reset and holding at ``kp``/``kd`` (applied): the
+    start of most end-to-end tests.  Skipped where this machine cannot run the far end."""
+    import pytest
+
+    if not available(url):
+        pytest.skip(f"{url}: not available here")
+    chip = lm629_host.open(with_params(url, params))
+    chip.reset()
+    chip.load_filter(kp=kp, kd=kd)
+    chip.update_filter()
+    return chip

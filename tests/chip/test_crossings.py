@@ -19,7 +19,7 @@ from lm629_host.errors import TransportError
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.physics.plan import plan
 
-from sim_urls import SIM_URLS, available, with_params
+from sim_urls import SIM_URLS, available, ready_chip
 
 #: 4096 counts below the top of the register
 NEAR_TOP = 0x3FFFF000
@@ -32,13 +32,7 @@ T = 2048 / 8e6
 
 def _open(url: str) -> lm629_host.LM629:
     """``url`` near the top, reset, kp=20 kd=200; the model records the commands it gets."""
-    if not available(url):
-        pytest.skip(f"{url}: not available here")
-    chip = lm629_host.open(with_params(url, f"reset_position={NEAR_TOP}&record=1"))
-    chip.reset()
-    chip.load_filter(kp=20, kd=200)
-    chip.update_filter()
-    return chip
+    return ready_chip(url, f"reset_position={NEAR_TOP}&record=1", kd=200)
 
 
 def true_real(chip: lm629_host.LM629) -> int:

@@ -24,7 +24,7 @@ from lm629_host.clock import ROUNDING_S
 from lm629_host.chip.shapes import SCurve, ShapedMove
 from lm629_host.transports.base import Transport
 
-from sim_urls import UNO, available
+from sim_urls import UNO, ready_chip
 
 CURVE = SCurve(20000.0, 150000.0, 3e6)
 URLS = ["sim://", "sim+ftdi://", f"sim+avr://?{UNO}", f"sim+emu://?{UNO}"]
@@ -34,13 +34,7 @@ LATE = ["wait 50 ms late", "0.3 s recording first", "0.2 s stall mid-move"]
 
 
 def _chip(url: str) -> lm629_host.LM629:
-    if not available(url):
-        pytest.skip(f"{url}: not available here")
-    chip = lm629_host.open(url)
-    chip.reset()
-    chip.load_filter(kp=20, kd=100)
-    chip.update_filter()
-    return chip
+    return ready_chip(url)
 
 
 def _stall_at(chip: lm629_host.LM629, move: ShapedMove, at_s: float, stall_s: float,

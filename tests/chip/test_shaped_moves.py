@@ -18,7 +18,7 @@ from lm629_host.errors import ArgumentError
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.chip.shapes import Points, SCurve, ShapedMove, plan
 
-from sim_urls import UNO, available
+from sim_urls import UNO, available, ready_chip
 
 T = sample_period_s(8e6)
 #: 20000 counts at up to 20000 counts/s, 150000 counts/s^2, 3e6 counts/s^3
@@ -112,11 +112,7 @@ UNO_EMU = f"sim+emu://?{UNO}"
 
 
 def _chip(url: str) -> lm629_host.LM629:
-    chip = lm629_host.open(url)
-    chip.reset()
-    chip.load_filter(kp=20, kd=100)
-    chip.update_filter()
-    return chip
+    return ready_chip(url)
 
 
 @pytest.mark.parametrize("url", [UNO_EMU, f"sim+avr://?{UNO}"])

@@ -18,7 +18,7 @@ from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Status
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.chip.wraparound import PositionTracker, short_way
 
-from sim_urls import UNO, available, with_params
+from sim_urls import UNO, ready_chip
 
 #: 2000 counts below the top of the register
 NEAR_TOP = POSITION_MAX - 2000
@@ -30,13 +30,7 @@ WRAP_URLS = ("sim://", "sim+avr://?baud=1000000", f"sim+emu://?{UNO}")
 
 
 def _open(url: str) -> lm629_host.LM629:
-    if not available(url):
-        pytest.skip(f"{url}: not available here")
-    chip = lm629_host.open(with_params(url, f"reset_position={NEAR_TOP}"))
-    chip.reset()
-    chip.load_filter(kp=20, kd=100)
-    chip.update_filter()
-    return chip
+    return ready_chip(url, f"reset_position={NEAR_TOP}")
 
 
 def _leg(chip: lm629_host.LM629, forward: bool, beyond: int, seen: list[int]) -> None:
