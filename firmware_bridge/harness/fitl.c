@@ -692,6 +692,24 @@ uint32_t fitl_memory(fitl_t *h, int which, uint8_t *buf, uint32_t max)
     return mem ? size : 0;
 }
 
+/* ... and a byte of one of them changed (which, address as fitl_memory), as a firmware that
+ * wrote its flash or EEPROM would; 0, or -1 outside it. */
+int fitl_poke(fitl_t *h, int which, uint32_t address, uint8_t value)
+{
+    avr_t *avr = h->avr;
+    uint8_t *mem = which == 0 ? avr->data : which == 1 ? avr->flash : NULL;
+    uint32_t size = which == 0 ? avr->ramend + 1u : which == 1 ? avr->flashend + 1u : avr->e2end + 1u;
+    if (which == 2) {
+        avr_eeprom_desc_t ee = { .ee = NULL, .offset = 0, .size = size };
+        avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &ee);
+        mem = ee.ee;
+    }
+    if (!mem || address >= size)
+        return -1;
+    mem[address] = value;
+    return 0;
+}
+
 /* ... and each of simavr's IRQs: its level and flags (two words; a freed slot 0xFFFFFFFF twice),
  * as many as fit in `max` words; returns the number of IRQ slots. */
 uint32_t fitl_irq_state(fitl_t *h, uint32_t *out, uint32_t max)

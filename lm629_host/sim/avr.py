@@ -163,6 +163,8 @@ def load_library(path: Path = LIBRARY) -> ctypes.CDLL:
     lib.fitl_restart.argtypes, lib.fitl_restart.restype = [p, _CALLBACK], ctypes.c_int
     lib.fitl_memory.argtypes = [p, ctypes.c_int, u8p, ctypes.c_uint32]
     lib.fitl_memory.restype = ctypes.c_uint32
+    lib.fitl_poke.argtypes = [p, ctypes.c_int, ctypes.c_uint32, ctypes.c_uint8]
+    lib.fitl_poke.restype = ctypes.c_int
     lib.fitl_irq_state.argtypes = [p, ctypes.POINTER(ctypes.c_uint32), ctypes.c_uint32]
     lib.fitl_irq_state.restype = ctypes.c_uint32
     lib.fitl_write.argtypes, lib.fitl_write.restype = [p, u8p, ctypes.c_uint32], ctypes.c_int
@@ -201,7 +203,7 @@ class _IdleAvrs:
     make and free a simavr AVR each time: simavr 1.6 never frees part of what ``avr_init``
     makes (about 5 KB of IRQ names and pools an AVR, valgrind), and 300 opens grew a process by
     about 1.2 MB.  Freeing those from the harness would walk simavr's private lists; a reset is
-    simavr's own job (the reset pin and the watchdog use it).
+    what simavr does itself for a watchdog reset.
 
     An AVR in use is never here: two sims open at once have two AVRs.  At most ``size`` wait
     here (the oldest is freed first); at interpreter exit they go with the process."""
@@ -219,7 +221,7 @@ class _IdleAvrs:
                     return self._idle.pop(i)[1]
         return None
 
-    def give(self, key: tuple[object, ...], handle: int, lib: ctypes.CDLL) -> None:
+    def give(self, key: tuple[object, ...], handle: int) -> None:
         """Keep a closed sim's AVR for the next open of ``key``, freeing the oldest beyond
         ``size``."""
         with self._lock:
@@ -227,7 +229,14 @@ class _IdleAvrs:
             spill = self._idle[:-self.size] if self.size else self._idle[:]
             del self._idle[:len(spill)]
         for _, h in spill:
-            lib.fitl_free(h)
+            load_library().fitl_free(h)
+
+    def clear(self) -> None:
+        """Free every idle AVR (the next open makes a new one)."""
+        with self._lock:
+            idle, self._idle = self._idle, []
+        for _, h in idle:
+            load_library().fitl_free(h)
 
     def __len__(self) -> int:
         with self._lock:
@@ -438,6 +447,12 @@ class AvrSim:
         n = self._lib.fitl_memory(self._h, index, buf, len(buf))
         return bytes(buf[:n])
 
+    def poke(self, which: str, address: int, value: int) -> None:
+        """Change a byte of the AVR's ``data`` space, ``flash`` or ``eeprom``, as a firmware that
+        wrote them would: for the same tests."""
+        if self._lib.fitl_poke(self._h, ("data", "flash", "eeprom").index(which), address, value):
+            raise ValueError(f"{which} address {address:#x} is outside the AVR's {which}")
+
     def irq_state(self) -> list[tuple[int, int]]:
         """(level, flags) of each of simavr's IRQs, in the order simavr made them: for the same
         tests."""
@@ -472,7 +487,7 @@ class AvrSim:
             if self.vcd is not None:
                 self._drain_pins()
                 self.vcd.close(self.cycle * 1e9 / CPU_HZ)
-            IDLE_AVRS.give(self._key, self._h, self._lib)
+            IDLE_AVRS.give(self._key, self._h)
             self._h = None
 
     def __del__(self) -> None:  # pragma: no cover - best effort
