@@ -446,8 +446,15 @@ static int power_on(fitl_t *h, fitl_bus_cb cb, const char *what)
     for (int k = 0; k < (int)CHIP_SELECTS; k++)
         if (h->hi_pins[k])
             avr_raise_irq(h->hi_pins[k], 0);
-    while (avr->cycle < 1000000 && !(avr->data[0xC1] & (1 << 4)))
-        avr_run(avr);
+    int st = cpu_Running;
+    while (avr->cycle < 1000000 && !(avr->data[0xC1] & (1 << 4)) && st != cpu_Crashed && st != cpu_Done)
+        st = avr_run(avr); /* a crashed AVR's cycle count stands still: it must end the loop */
+    if (st == cpu_Crashed || st == cpu_Done) {
+        snprintf(last_error, sizeof last_error, "the firmware in %s %s at AVR cycle %llu, before it "
+                 "enabled its UART receiver", what, st == cpu_Done ? "went to sleep for good" : "crashed",
+                 (unsigned long long)avr->cycle);
+        return -1;
+    }
     if (!(avr->data[0xC1] & (1 << 4))) {
         snprintf(last_error, sizeof last_error, "the firmware in %s never enabled its UART receiver", what);
         return -1;
