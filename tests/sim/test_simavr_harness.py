@@ -399,3 +399,31 @@ def test_sims_open_together_have_their_own_avrs_and_another_image_is_another_avr
     h = sim("sim://", firmware=copy)
     assert h.reused
     h.close()
+
+
+def test_an_avr_used_again_has_the_eeprom_its_image_says(tmp_path):
+    """An image with EEPROM data (an .eeprom section, as avr-gcc makes for EEMEM): a firmware
+    that wrote its EEPROM finds it, at the next power-on, as the image says, not as it left it."""
+    import shutil
+    import subprocess
+
+    from lm629_host.sim.avr import firmware_path
+
+    if shutil.which("avr-objcopy") is None:
+        pytest.skip("no avr-objcopy")
+    image = b"EEPROM of the image"
+    (tmp_path / "ee.bin").write_bytes(image)
+    elf = tmp_path / "with_eeprom.elf"
+    subprocess.run(["avr-objcopy", "--add-section", f".eeprom={tmp_path / 'ee.bin'}",
+                    "--set-section-flags", ".eeprom=contents,alloc,load,data",
+                    "--change-section-address", ".eeprom=0x810000", str(firmware_path()), str(elf)],
+                   check=True, capture_output=True)
+    want = image + b"\xff" * (1024 - len(image))  # the ATmega328P's 1 KiB, erased where unset
+    s = sim("sim://", firmware=elf)
+    assert s.memory("eeprom") == want
+    for address in (0, 5, len(image), 1023):
+        s.poke("eeprom", address, 0x42)
+    s.close()
+    s = sim("sim://", firmware=elf)
+    assert s.reused and s.memory("eeprom") == want
+    s.close()
