@@ -682,35 +682,38 @@ uint32_t fitl_pin_log_take(fitl_t *h, uint64_t *cycles, uint32_t *levels, uint32
     return n;
 }
 
-/* For the tests that an AVR powered on again (fitl_restart) is as a new one: a copy of up to
- * `max` bytes of its data space (which 0), flash (1) or EEPROM (2); returns the size of it. */
-uint32_t fitl_memory(fitl_t *h, int which, uint8_t *buf, uint32_t max)
+/* For the tests that an AVR powered on again (fitl_restart) is as a new one: its data space
+ * (which 0: registers, I/O, RAM), flash (1) or EEPROM (2), and its size; NULL for another. */
+static uint8_t *memory_of(fitl_t *h, int which, uint32_t *size)
 {
     avr_t *avr = h->avr;
-    uint8_t *mem = which == 0 ? avr->data : which == 1 ? avr->flash : NULL;
-    uint32_t size = which == 0 ? avr->ramend + 1u : which == 1 ? avr->flashend + 1u : avr->e2end + 1u;
     if (which == 2) {
-        avr_eeprom_desc_t ee = { .ee = NULL, .offset = 0, .size = size };
+        avr_eeprom_desc_t ee = { .ee = NULL, .offset = 0, .size = avr->e2end + 1u };
         avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &ee);
-        mem = ee.ee;
+        *size = avr->e2end + 1u;
+        return ee.ee;
     }
-    if (mem)
-        memcpy(buf, mem, size < max ? size : max);
-    return mem ? size : 0;
+    *size = which == 0 ? avr->ramend + 1u : avr->flashend + 1u;
+    return which == 0 ? avr->data : which == 1 ? avr->flash : NULL;
 }
 
-/* ... and a byte of one of them changed (which, address as fitl_memory), as a firmware that
- * wrote its flash or EEPROM would; 0, or -1 outside it. */
+/* ... a copy of up to `max` bytes of one of them; returns its size (0: no such memory) */
+uint32_t fitl_memory(fitl_t *h, int which, uint8_t *buf, uint32_t max)
+{
+    uint32_t size;
+    uint8_t *mem = memory_of(h, which, &size);
+    if (!mem)
+        return 0;
+    memcpy(buf, mem, size < max ? size : max);
+    return size;
+}
+
+/* ... a byte of one of them changed, as a firmware that wrote its flash or EEPROM would; 0, or
+ * -1 outside it */
 int fitl_poke(fitl_t *h, int which, uint32_t address, uint8_t value)
 {
-    avr_t *avr = h->avr;
-    uint8_t *mem = which == 0 ? avr->data : which == 1 ? avr->flash : NULL;
-    uint32_t size = which == 0 ? avr->ramend + 1u : which == 1 ? avr->flashend + 1u : avr->e2end + 1u;
-    if (which == 2) {
-        avr_eeprom_desc_t ee = { .ee = NULL, .offset = 0, .size = size };
-        avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &ee);
-        mem = ee.ee;
-    }
+    uint32_t size;
+    uint8_t *mem = memory_of(h, which, &size);
     if (!mem || address >= size)
         return -1;
     mem[address] = value;

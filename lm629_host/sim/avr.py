@@ -483,16 +483,25 @@ class AvrSim:
         self._lib.fitl_set_access_cycles(self._h, cycles)
 
     def close(self) -> None:
+        """End the session; the AVR waits in :data:`IDLE_AVRS` for the next open of this image."""
+        self._close(keep=True)
+
+    def _close(self, keep: bool) -> None:
         if self._h:
             if self.vcd is not None:
                 self._drain_pins()
                 self.vcd.close(self.cycle * 1e9 / CPU_HZ)
-            IDLE_AVRS.give(self._key, self._h)
-            self._h = None
+            h, self._h = self._h, None
+            if keep:
+                IDLE_AVRS.give(self._key, h)
+            else:
+                self._lib.fitl_free(h)
 
     def __del__(self) -> None:  # pragma: no cover - best effort
+        # a sim never closed is found by the garbage collector (its callback holds it in a
+        # cycle), which runs at any allocation, also inside IDLE_AVRS's lock: freed, not kept
         try:
-            self.close()
+            self._close(keep=False)
         except Exception:  # noqa: BLE001 - at interpreter exit anything may be gone already
             pass
 

@@ -4,6 +4,7 @@ the bus timing the harness checks, /RST, WAIT, busy timeout, HI, resynchronisati
 
 from __future__ import annotations
 
+import gc
 import os
 from pathlib import Path
 
@@ -373,7 +374,9 @@ def test_the_next_open_after_a_tripped_session_is_a_fresh_bridge():
 
 def test_sims_open_together_have_their_own_avrs_and_another_image_is_another_avr(tmp_path):
     """Two sims open at once never share an AVR; an AVR is used again only for the same image
-    file, unchanged: a copy elsewhere, or the same path rewritten, gets a new one."""
+    file, unchanged: a copy elsewhere, or the same path rewritten, gets a new one; only a
+    closed sim's AVR is kept (one the garbage collector finds is freed: the collector may run
+    while the idle list's lock is held)."""
     from lm629_host.sim.avr import firmware_path
 
     IDLE_AVRS.clear()
@@ -399,6 +402,11 @@ def test_sims_open_together_have_their_own_avrs_and_another_image_is_another_avr
     h = sim("sim://", firmware=copy)
     assert h.reused
     h.close()
+    IDLE_AVRS.clear()
+    lost = sim("sim://")  # never closed: the garbage collector frees its AVR, keeps none
+    del lost
+    gc.collect()
+    assert len(IDLE_AVRS) == 0
 
 
 def test_an_avr_used_again_has_the_eeprom_its_image_says(tmp_path):
