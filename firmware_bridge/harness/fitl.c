@@ -1,5 +1,5 @@
 /* Firmware in the loop: the compiled bridge firmware in libsimavr, its LM629 bus wired to a
- * chip model in Python (lm629_host/avrsim.py, through ctypes).
+ * chip model in Python (lm629_host/sim/avr.py, through ctypes).
  *
  * The port hooks decode /CS /PS /RD /WR /RST edges here in C and call Python once per bus
  * cycle (a status read, a command, a data byte written or read, a /RST pulse).  A read strobe
@@ -14,6 +14,11 @@
  * carries it (kind | chip << 4), and its answer carries every chip's HI (bit 8 + chip), which is
  * driven onto the HI pins of HI_*_MASKS_INIT.  Two chips selected during a strobe is a
  * violation; a strobe with no /CS low reaches no chip.
+ *
+ * Life: fitl_new makes an AVR and boots the firmware; fitl_restart powers the same AVR on again
+ * for a new session, as new (RAM, flash, EEPROM, IRQs, cycle count, harness state); fitl_free
+ * ends it.  Python keeps closed sessions' AVRs for the next open (simavr 1.6 leaks part of each
+ * AVR it makes and frees).
  *
  * Pin log (for a VCD of the bus, lm629_host/sim/vcd.py): when switched on, every change of a bus
  * line's level is kept as (AVR cycle, levels) until Python takes it; off, it costs one test per

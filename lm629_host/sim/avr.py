@@ -15,6 +15,10 @@ The model's time follows the AVR's: before each strobe it is advanced to
 ``avr_cycle * clock_hz // 16 MHz``.  The HI line the firmware reads is the model's HI as of the
 last bus cycle (the firmware reads HI right after its program's last strobe).
 
+An AVR outlives its :class:`AvrSim`: a closed sim's waits in :data:`IDLE_AVRS` and the next
+open of the same image powers it on again (``fitl_restart``), as new in every way the firmware
+or a test can see; simavr 1.6 leaks part of every AVR it makes and frees (:class:`_IdleAvrs`).
+
 Several chips: ``model`` may be a :class:`~lm629_host.sim.model.ChipBus`; the harness names the
 chip whose /CS was low with each cycle (the firmware's chip-select pins, from the pin map) and
 the bus routes the strobe to it; /RST reaches all of them; every chip's HI goes back to its pin.
