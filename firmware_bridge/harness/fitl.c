@@ -1,5 +1,5 @@
 /* Firmware in the loop: the compiled bridge firmware in libsimavr, its LM629 bus wired to a
- * chip model in Python (lm629_host/avrsim.py, through ctypes).
+ * chip model in Python (lm629_host/sim/avr.py, through ctypes).
  *
  * The port hooks decode /CS /PS /RD /WR /RST edges here in C and call Python once per bus
  * cycle (a status read, a command, a data byte written or read, a /RST pulse).  A read strobe
@@ -15,6 +15,11 @@
  * driven onto the HI pins of HI_*_MASKS_INIT.  Two chips selected during a strobe is a
  * violation; a strobe with no /CS low reaches no chip.
  *
+ * Life: fitl_new makes an AVR and boots the firmware; fitl_restart powers the same AVR on again
+ * for a new session, as new (RAM, flash, EEPROM, IRQs, cycle count, harness state); fitl_free
+ * ends it.  Python keeps closed sessions' AVRs for the next open (simavr 1.6 leaks part of each
+ * AVR it makes and frees).
+ *
  * Pin log (for a VCD of the bus, lm629_host/sim/vcd.py): when switched on, every change of a bus
  * line's level is kept as (AVR cycle, levels) until Python takes it; off, it costs one test per
  * port hook.  Levels: bits 0-7 D0-D7 (the AVR's where it drives them, the chip's while it
@@ -22,6 +27,7 @@
  * 16-19 HI of chips 0-3. */
 #include <stdarg.h>
 #include <stdint.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -32,6 +38,7 @@
 #include <simavr/avr_ioport.h>
 #include <simavr/avr_uart.h>
 #include <simavr/avr_extint.h>
+#include <simavr/avr_eeprom.h>
 #include "../lm629_tables.h"
 
 /* bus cycle kinds passed to the Python callback */
@@ -50,11 +57,15 @@ typedef int (*fitl_bus_cb)(int kind, int value, uint64_t cycle);
 #define QSIZE 8192u
 
 typedef struct {
+    /* what lives as long as the simulated AVR: kept when it is powered on again (fitl_restart) */
     avr_t *avr;
-    fitl_bus_cb cb;
+    uint8_t *image_flash, *image_eeprom;  /* the firmware image's flash and EEPROM, as the ELF says */
+    uint32_t image_flashsize, image_flashbase, image_datasize, image_eesize;
     avr_irq_t *uart_in;
     avr_irq_t *data_lo_pin[8], *data_hi_pin[8], *hi_pin;
     avr_irq_t *hi_pins[CHIP_SELECTS];    /* HI of each chip (NULL: no line) */
+    /* from here to the end: one session's state, zeroed at every power-on (power_on) */
+    fitl_bus_cb cb;
     int chip;                            /* the chip whose /CS is low, -1 none, -2 several */
     uint8_t ctrl;                       /* last control port value */
     uint8_t lo_port, hi_port;           /* last data port values */
@@ -103,6 +114,7 @@ static void violation(fitl_t *h, const char *what)
 }
 
 static void log_pins(fitl_t *h);
+void fitl_free(fitl_t *h);
 
 static void drive_data(fitl_t *h, uint8_t b)
 {
@@ -382,7 +394,8 @@ static void out_hook(avr_irq_t *irq, uint32_t value, void *param)
 }
 
 /* elf_read_firmware mallocs the image's sections (12 KiB of flash and more per open) and
- * avr_load_firmware copies them: without this every open/close leaked them */
+ * avr_load_firmware copies them: the flash and EEPROM images are kept (fitl_restart loads them
+ * again), the rest is freed at once */
 static void release_firmware(elf_firmware_t *fw)
 {
     free(fw->flash);
@@ -396,6 +409,62 @@ static void release_firmware(elf_firmware_t *fw)
     }
     fw->flash = fw->eeprom = fw->fuse = fw->lockbits = NULL;
     fw->symbol = NULL;
+}
+
+/* the bus callback while the AVR is reset, between two sessions: nobody listens */
+static int no_bus(int kind, int value, uint64_t cycle)
+{
+    (void)kind; (void)value; (void)cycle;
+    return 0;
+}
+
+/* What the harness sets in simavr after the firmware is loaded: a reset (avr_reset) puts some of
+ * it back to simavr's defaults, so it is set again at every power-on. */
+static void configure(avr_t *avr)
+{
+    avr->frequency = CPU_HZ;
+    avr->log = 0;
+    avr->sleep = no_sleep;
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+    avr_extint_set_strict_lvl_trig(avr, 0, 0);
+    avr_extint_set_strict_lvl_trig(avr, 1, 0);
+}
+
+/* One session from power-on: the harness's state as new (every field from `cb` on), the HI lines
+ * low, then the firmware boots until its receiver is on (bytes raised before that are dropped by
+ * simavr).  0, or -1 when the receiver never came on (fitl_error says so). */
+static int power_on(fitl_t *h, fitl_bus_cb cb, const char *what)
+{
+    avr_t *avr = h->avr;
+    free(h->log_cycle);
+    free(h->log_levels);
+    memset(&h->cb, 0, sizeof *h - offsetof(fitl_t, cb));
+    h->cb = cb;
+    h->access_cycles = 4; /* 180 ns = 2.9 cycles, rounded up, + 1 for the PINx synchroniser */
+    h->ctrl = 0xFF;
+    h->xon = 1;
+    h->chip = -1;
+    h->hi_port = 0; /* reset values: port and direction 0, the /CS lines pulled up */
+    h->hi_ddr = 0;
+    avr_raise_irq(h->hi_pin, 0);
+    for (int k = 0; k < (int)CHIP_SELECTS; k++)
+        if (h->hi_pins[k])
+            avr_raise_irq(h->hi_pins[k], 0);
+    int st = cpu_Running;
+    while (avr->cycle < 1000000 && !(avr->data[0xC1] & (1 << 4)) && st != cpu_Crashed && st != cpu_Done)
+        st = avr_run(avr); /* a crashed AVR's cycle count stands still: it must end the loop */
+    if (st == cpu_Crashed || st == cpu_Done) {
+        snprintf(last_error, sizeof last_error, "the firmware in %s %s at AVR cycle %llu, before it "
+                 "enabled its UART receiver", what, st == cpu_Done ? "went to sleep for good" : "crashed",
+                 (unsigned long long)avr->cycle);
+        return -1;
+    }
+    if (!(avr->data[0xC1] & (1 << 4))) {
+        snprintf(last_error, sizeof last_error, "the firmware in %s never enabled its UART receiver", what);
+        return -1;
+    }
+    return 0;
 }
 
 fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
@@ -417,21 +486,19 @@ fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
     avr->frequency = CPU_HZ;
     avr->log = 0;
     avr_load_firmware(avr, &fw);
-    release_firmware(&fw); /* copied into the AVR: the loader's buffers are ours to free */
-    avr->frequency = CPU_HZ;
-    avr->sleep = no_sleep;
-    uint32_t flags = 0;
-    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
-    avr_extint_set_strict_lvl_trig(avr, 0, 0);
-    avr_extint_set_strict_lvl_trig(avr, 1, 0);
-
     fitl_t *h = calloc(1, sizeof *h);
     h->avr = avr;
-    h->cb = cb;
-    h->access_cycles = 4; /* 180 ns = 2.9 cycles, rounded up, + 1 for the PINx synchroniser */
-    h->ctrl = 0xFF;
-    h->xon = 1;
-    h->strobe_rise = h->wr_rise = 0;
+    /* copied into the AVR; the flash and EEPROM images are kept for fitl_restart */
+    h->image_flash = fw.flash;
+    h->image_flashsize = fw.flashsize;
+    h->image_flashbase = fw.flashbase;
+    h->image_datasize = fw.datasize;
+    h->image_eeprom = fw.eeprom;
+    h->image_eesize = fw.eeprom ? fw.eesize : 0;
+    fw.flash = fw.eeprom = NULL;
+    release_firmware(&fw);
+    configure(avr);
+
     avr_irq_t *c = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(CTRL_PORT_LETTER), IOPORT_IRQ_REG_PORT);
     avr_irq_register_notify(c, ctrl_hook, h);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(DATA_LO_PORT_LETTER), IOPORT_IRQ_REG_PORT), lo_port_hook, h);
@@ -446,10 +513,6 @@ fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
     while (hi_bit < 8 && (1u << hi_bit) != PIN_HI)
         hi_bit++;
     h->hi_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(CTRL_PORT_LETTER), hi_bit);
-    avr_raise_irq(h->hi_pin, 0);
-    h->chip = -1;
-    h->hi_port = 0; /* reset values: port and direction 0, the /CS lines pulled up */
-    h->hi_ddr = 0;
     for (int k = 0; k < (int)CHIP_SELECTS; k++) {
         uint8_t m = hi_ctrl[k] ? hi_ctrl[k] : hi_dhi[k];
         int bit = 0;
@@ -457,34 +520,67 @@ fitl_t *fitl_new(const char *elf_path, fitl_bus_cb cb)
             bit++;
         h->hi_pins[k] = !m ? NULL : avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(
             hi_ctrl[k] ? CTRL_PORT_LETTER : DATA_HI_PORT_LETTER), bit);
-        if (h->hi_pins[k])
-            avr_raise_irq(h->hi_pins[k], 0);
     }
     h->uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), out_hook, h);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), xon_hook, h);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), xoff_hook, h);
-    /* boot until the receiver is on: bytes raised before that are dropped by simavr */
-    while (avr->cycle < 1000000 && !(avr->data[0xC1] & (1 << 4)))
-        avr_run(avr);
-    if (!(avr->data[0xC1] & (1 << 4))) {
-        snprintf(last_error, sizeof last_error, "the firmware in %s never enabled its UART receiver", elf_path);
-        avr_terminate(avr);
-        free(avr);
-        free(h);
+    if (power_on(h, cb, elf_path)) {
+        fitl_free(h);
         return NULL;
     }
     return h;
+}
+
+/* Power the same simulated AVR on again, for a new session with `cb`, as avr_init and
+ * avr_load_firmware left it in fitl_new: RAM and registers zero, the flash and the EEPROM as the
+ * image says, every IRQ's level as when it was made (0, not yet raised), the cycle count 0, then
+ * simavr's own reset of the core and the peripherals and the harness's settings and boot.  Why
+ * not a new AVR: simavr 1.6 never frees part of what avr_init makes (IRQ names, pools, about
+ * 5 KB in some 100 blocks an AVR), so an open/close leaked that each time.  0, or -1 when the
+ * firmware did not boot (the AVR is then unusable: fitl_free it). */
+int fitl_restart(fitl_t *h, fitl_bus_cb cb)
+{
+    avr_t *avr = h->avr;
+    h->cb = no_bus; /* the hooks may run during the reset: never into a closed session's model */
+    memset(avr->data, 0, avr->ramend + 1);
+    memset(avr->flash, 0xff, avr->flashend + 1);
+    if (h->image_flash)
+        memcpy(avr->flash + h->image_flashbase, h->image_flash, h->image_flashsize);
+    avr->codeend = h->image_flashsize + h->image_flashbase - h->image_datasize;
+    avr_eeprom_desc_t ee = { .ee = NULL, .offset = 0, .size = avr->e2end + 1 };
+    avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &ee);
+    if (ee.ee)
+        memset(ee.ee, 0xff, avr->e2end + 1);
+    if (h->image_eeprom && h->image_eesize) {
+        avr_eeprom_desc_t d = { .ee = h->image_eeprom, .offset = 0, .size = h->image_eesize };
+        avr_ioctl(avr, AVR_IOCTL_EEPROM_SET, &d);
+    }
+    for (int i = 0; i < avr->irq_pool.count; i++) {
+        avr_irq_t *irq = avr->irq_pool.irq[i];
+        if (irq) {
+            irq->value = 0;
+            irq->flags = (irq->flags & ~IRQ_FLAG_FLOATING) | IRQ_FLAG_INIT;
+        }
+    }
+    avr->cycle = 0;
+    avr_reset(avr);
+    avr_regbit_set(avr, avr->reset_flags.porf); /* as avr_init: a power-on reset */
+    configure(avr);
+    return power_on(h, cb, "the firmware image");
 }
 
 void fitl_free(fitl_t *h)
 {
     if (!h)
         return;
+    h->cb = no_bus; /* a closed session's callback may be gone */
     avr_terminate(h->avr);
     free(h->avr);
     free(h->log_cycle);
     free(h->log_levels);
+    free(h->image_flash);
+    free(h->image_eeprom);
     free(h);
 }
 
@@ -589,4 +685,55 @@ uint32_t fitl_pin_log_take(fitl_t *h, uint64_t *cycles, uint32_t *levels, uint32
     memmove(h->log_levels, h->log_levels + n, (h->log_len - n) * sizeof *levels);
     h->log_len -= n;
     return n;
+}
+
+/* For the tests that an AVR powered on again (fitl_restart) is as a new one: its data space
+ * (which 0: registers, I/O, RAM), flash (1) or EEPROM (2), and its size; NULL for another. */
+static uint8_t *memory_of(fitl_t *h, int which, uint32_t *size)
+{
+    avr_t *avr = h->avr;
+    if (which == 2) {
+        avr_eeprom_desc_t ee = { .ee = NULL, .offset = 0, .size = avr->e2end + 1u };
+        avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &ee);
+        *size = avr->e2end + 1u;
+        return ee.ee;
+    }
+    *size = which == 0 ? avr->ramend + 1u : avr->flashend + 1u;
+    return which == 0 ? avr->data : which == 1 ? avr->flash : NULL;
+}
+
+/* ... a copy of up to `max` bytes of one of them; returns its size (0: no such memory) */
+uint32_t fitl_memory(fitl_t *h, int which, uint8_t *buf, uint32_t max)
+{
+    uint32_t size;
+    uint8_t *mem = memory_of(h, which, &size);
+    if (!mem)
+        return 0;
+    memcpy(buf, mem, size < max ? size : max);
+    return size;
+}
+
+/* ... a byte of one of them changed, as a firmware that wrote its flash or EEPROM would; 0, or
+ * -1 outside it */
+int fitl_poke(fitl_t *h, int which, uint32_t address, uint8_t value)
+{
+    uint32_t size;
+    uint8_t *mem = memory_of(h, which, &size);
+    if (!mem || address >= size)
+        return -1;
+    mem[address] = value;
+    return 0;
+}
+
+/* ... and each of simavr's IRQs: its level and flags (two words; a freed slot 0xFFFFFFFF twice),
+ * as many as fit in `max` words; returns the number of IRQ slots. */
+uint32_t fitl_irq_state(fitl_t *h, uint32_t *out, uint32_t max)
+{
+    avr_irq_pool_t *pool = &h->avr->irq_pool;
+    for (int i = 0; i < pool->count && 2u * i + 1 < max; i++) {
+        avr_irq_t *irq = pool->irq[i];
+        out[2 * i] = irq ? irq->value : 0xFFFFFFFFu;
+        out[2 * i + 1] = irq ? irq->flags : 0xFFFFFFFFu;
+    }
+    return (uint32_t)pool->count;
 }

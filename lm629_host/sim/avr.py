@@ -15,6 +15,10 @@ The model's time follows the AVR's: before each strobe it is advanced to
 ``avr_cycle * clock_hz // 16 MHz``.  The HI line the firmware reads is the model's HI as of the
 last bus cycle (the firmware reads HI right after its program's last strobe).
 
+An AVR outlives its :class:`AvrSim`: a closed sim's waits in :data:`IDLE_AVRS` and the next
+open of the same image powers it on again (``fitl_restart``), as new in every way the firmware
+or a test can see; simavr 1.6 leaks part of every AVR it makes and frees (:class:`_IdleAvrs`).
+
 Several chips: ``model`` may be a :class:`~lm629_host.sim.model.ChipBus`; the harness names the
 chip whose /CS was low with each cycle (the firmware's chip-select pins, from the pin map) and
 the bus routes the strobe to it; /RST reaches all of them; every chip's HI goes back to its pin.
@@ -27,6 +31,7 @@ import math
 import shutil
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 from lm629_host.bridge.protocol import CODE_BYTES, CODE_SLOTS, PROFILE_MAX_SCHEDULE
@@ -159,6 +164,13 @@ def load_library(path: Path = LIBRARY) -> ctypes.CDLL:
     lib.fitl_new.argtypes, lib.fitl_new.restype = [ctypes.c_char_p, _CALLBACK], p
     lib.fitl_error.argtypes, lib.fitl_error.restype = [], ctypes.c_char_p
     lib.fitl_free.argtypes, lib.fitl_free.restype = [p], None
+    lib.fitl_restart.argtypes, lib.fitl_restart.restype = [p, _CALLBACK], ctypes.c_int
+    lib.fitl_memory.argtypes = [p, ctypes.c_int, u8p, ctypes.c_uint32]
+    lib.fitl_memory.restype = ctypes.c_uint32
+    lib.fitl_poke.argtypes = [p, ctypes.c_int, ctypes.c_uint32, ctypes.c_uint8]
+    lib.fitl_poke.restype = ctypes.c_int
+    lib.fitl_irq_state.argtypes = [p, ctypes.POINTER(ctypes.c_uint32), ctypes.c_uint32]
+    lib.fitl_irq_state.restype = ctypes.c_uint32
     lib.fitl_write.argtypes, lib.fitl_write.restype = [p, u8p, ctypes.c_uint32], ctypes.c_int
     lib.fitl_run.argtypes, lib.fitl_run.restype = [p, ctypes.c_uint64, ctypes.c_int], ctypes.c_int
     lib.fitl_read.argtypes, lib.fitl_read.restype = [p, u8p, ctypes.c_uint32], ctypes.c_uint32
@@ -178,6 +190,66 @@ def load_library(path: Path = LIBRARY) -> ctypes.CDLL:
     lib.fitl_pin_log_take.restype = ctypes.c_uint32
     _lib = lib
     return lib
+
+
+def _image_key(firmware: Path) -> tuple[object, ...]:
+    """What makes two opens run the same AVR: the same image file, unchanged since (a rebuilt
+    or replaced file is another key).  The MCU (ATmega328P) and its clock (``CPU_HZ``) are the
+    harness's own, the same for every AVR it makes."""
+    st = firmware.stat()
+    return (str(firmware.resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+class _IdleAvrs:
+    """Simulated AVRs of closed :class:`AvrSim` s, kept to be powered on again by the next open
+    of the same image (``fitl_restart``: RAM, flash, EEPROM, every IRQ's level, the cycle count,
+    the peripherals and the harness's state as a new AVR's), so that an open/close does not
+    make and free a simavr AVR each time: simavr 1.6 never frees part of what ``avr_init``
+    makes (about 5 KB of IRQ names and pools an AVR, valgrind), and 300 opens grew a process by
+    about 1.2 MB.  Freeing those from the harness would walk simavr's private lists; a reset is
+    what simavr does itself for a watchdog reset.
+
+    An AVR in use is never here: two sims open at once have two AVRs.  At most ``size`` wait
+    here (the oldest is freed first); at interpreter exit they go with the process."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._lock = threading.Lock()
+        self._idle: list[tuple[tuple[object, ...], int]] = []
+
+    def take(self, key: tuple[object, ...]) -> int | None:
+        """An idle AVR of ``key`` (removed from here), or None."""
+        with self._lock:
+            for i in range(len(self._idle) - 1, -1, -1):
+                if self._idle[i][0] == key:
+                    return self._idle.pop(i)[1]
+        return None
+
+    def give(self, key: tuple[object, ...], handle: int) -> None:
+        """Keep a closed sim's AVR for the next open of ``key``, freeing the oldest beyond
+        ``size``."""
+        with self._lock:
+            self._idle.append((key, handle))
+            spill = self._idle[:-self.size] if self.size else self._idle[:]
+            del self._idle[:len(spill)]
+        for _, h in spill:
+            load_library().fitl_free(h)
+
+    def clear(self) -> None:
+        """Free every idle AVR (the next open makes a new one)."""
+        with self._lock:
+            idle, self._idle = self._idle, []
+        for _, h in idle:
+            load_library().fitl_free(h)
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._idle)
+
+
+#: the idle AVRs of this process (a few: one per image is what a loop of opens needs, a board
+#: test opening several at once gets several back)
+IDLE_AVRS = _IdleAvrs(4)
 
 
 class AvrSim:
@@ -201,7 +273,15 @@ class AvrSim:
         self.strict = model.params.strict if strict is None else strict
         self._error: BaseException | None = None
         self._cb = _CALLBACK(self._on_bus)  # referenced for as long as the simulation lives
-        self._h = self._lib.fitl_new(str(self.firmware).encode(), self._cb)
+        self._key = _image_key(self.firmware)
+        self._h = IDLE_AVRS.take(self._key)
+        if self._h and self._lib.fitl_restart(self._h, self._cb):
+            self._lib.fitl_free(self._h)  # it did not boot again: a new one says why, if so
+            self._h = None
+        #: this sim's AVR was a closed sim's, powered on again (:class:`_IdleAvrs`)
+        self.reused = bool(self._h)
+        if not self._h:
+            self._h = self._lib.fitl_new(str(self.firmware).encode(), self._cb)
         if not self._h:
             raise HarnessError(f"simavr cannot run {self.firmware}: "
                                f"{self._lib.fitl_error().decode()}")
@@ -363,6 +443,27 @@ class AvrSim:
         """A byte of the AVR's data space (registers, I/O, RAM): for tests and profiling."""
         return int(self._lib.fitl_peek(self._h, address))
 
+    def memory(self, which: str) -> bytes:
+        """A copy of the AVR's ``data`` space, ``flash`` or ``eeprom``: for the tests that a
+        reused AVR is as a new one."""
+        index = ("data", "flash", "eeprom").index(which)
+        buf = (ctypes.c_uint8 * 65536)()
+        n = self._lib.fitl_memory(self._h, index, buf, len(buf))
+        return bytes(buf[:n])
+
+    def poke(self, which: str, address: int, value: int) -> None:
+        """Change a byte of the AVR's ``data`` space, ``flash`` or ``eeprom``, as a firmware that
+        wrote them would: for the same tests."""
+        if self._lib.fitl_poke(self._h, ("data", "flash", "eeprom").index(which), address, value):
+            raise ValueError(f"{which} address {address:#x} is outside the AVR's {which}")
+
+    def irq_state(self) -> list[tuple[int, int]]:
+        """(level, flags) of each of simavr's IRQs, in the order simavr made them: for the same
+        tests."""
+        buf = (ctypes.c_uint32 * 8192)()
+        n = self._lib.fitl_irq_state(self._h, buf, len(buf))
+        return [(buf[2 * i], buf[2 * i + 1]) for i in range(min(n, len(buf) // 2))]
+
     def link_counters(self) -> LinkCounters | None:
         """The firmware's own link counters (frames, bad frames, programs run, cache hits), read
         from its RAM; None when ``avr-nm`` is missing or ``link_t`` changed its layout."""
@@ -386,16 +487,25 @@ class AvrSim:
         self._lib.fitl_set_access_cycles(self._h, cycles)
 
     def close(self) -> None:
+        """End the session; the AVR waits in :data:`IDLE_AVRS` for the next open of this image."""
+        self._close(keep=True)
+
+    def _close(self, keep: bool) -> None:
         if self._h:
             if self.vcd is not None:
                 self._drain_pins()
                 self.vcd.close(self.cycle * 1e9 / CPU_HZ)
-            self._lib.fitl_free(self._h)
-            self._h = None
+            h, self._h = self._h, None
+            if keep:
+                IDLE_AVRS.give(self._key, h)
+            else:
+                self._lib.fitl_free(h)
 
     def __del__(self) -> None:  # pragma: no cover - best effort
+        # a sim never closed is found by the garbage collector (its callback holds it in a
+        # cycle), which runs at any allocation, also inside IDLE_AVRS's lock: freed, not kept
         try:
-            self.close()
+            self._close(keep=False)
         except Exception:  # noqa: BLE001 - at interpreter exit anything may be gone already
             pass
 

@@ -4,12 +4,16 @@ the bus timing the harness checks, /RST, WAIT, busy timeout, HI, resynchronisati
 
 from __future__ import annotations
 
+import gc
+import os
 from pathlib import Path
 
 import pytest
 
+import lm629_host
+
 from lm629_host import LM629, BusyTimeout
-from lm629_host.sim.avr import CPU_HZ, STATUS, AvrPipe, AvrSim
+from lm629_host.sim.avr import CPU_HZ, IDLE_AVRS, STATUS, AvrPipe, AvrSim
 from lm629_host.bridge.protocol import FrameReader, FrameType, Result, RunReply, encode_frame
 from lm629_host.transports.link import LinkTransport
 from lm629_host.bus.opcodes import Cmd, Status
@@ -281,3 +285,153 @@ def test_the_firmwares_own_counters_can_be_read():
     chip.read_real_position()
     assert (counters.frames, counters.runs, counters.bad_frames) == (2, 2, 0)
     t.close()
+
+
+# ------------------------------------------------------------------ an AVR used again
+def _power_on_state(s: AvrSim) -> dict[str, object]:
+    """All a new AVR's state the harness can see: the cycle count, RAM and registers, flash,
+    EEPROM, every IRQ's level and flags, and what the harness queued or counted."""
+    return {"cycle": s.cycle, "data": s.memory("data"), "flash": s.memory("flash"),
+            "eeprom": s.memory("eeprom"), "irqs": s.irq_state(), "output": s.take_output(),
+            "pending input": s._lib.fitl_pending_input(s._h), "bus cycles": s.bus_cycles,
+            "uart": s.uart_counts(), "violations": s.violations()}
+
+
+def _leave_a_mess(url: str) -> None:
+    """A session that leaves the bridge far from power-on: switched to 1 Mbaud, programs in
+    its RUN_CODE cache, an axis moving, its failsafe tripped by a silent host, bytes left in
+    both directions; and the AVR's RAM, flash and EEPROM scribbled on (as a firmware that
+    wrote them would)."""
+    chip = lm629_host.open(url)
+    t = chip.transport
+    chip.reset()
+    chip.load_filter(kp=20, kd=100)
+    chip.update_filter()
+    chip.load_trajectory(acceleration=100, velocity=60000, velocity_mode=True, start=True)
+    chip.clock.sleep(0.2)
+    assert chip.read_real_position() > 0
+    end = t.clock.now() + 0.2
+    while t.clock.now() < end:
+        t.pipe.read(0.01)
+    assert t.failsafe_state().tripped
+    s = t.sim
+    s.write(bytes(range(1, 40)))  # half a frame into the UART, never answered
+    s.run_for(0.001)
+    for which, address in (("data", 0x100), ("data", 0x8FF), ("flash", 0x10), ("flash", 0x7FFF),
+                           ("eeprom", 0), ("eeprom", 0x3FF)):
+        s.poke(which, address, s.memory(which)[address] ^ 0x5A)
+    chip.transport.close()
+
+
+def test_a_closed_sims_avr_powers_on_again_as_a_new_one():
+    """An open/close no longer makes and frees a simavr AVR (simavr 1.6 leaks part of each):
+    the next open of the same image takes the closed one and powers it on again.  After a
+    session that left it mid-move, tripped, at 1 Mbaud, with bytes half-sent and its memories
+    scribbled on, it is the same as an AVR made new beside it: RAM, registers, flash and
+    EEPROM as the image says, every IRQ as made, the cycle count, the harness's queues and
+    counters; and the same frames then give the same bytes at the same cycles and the same
+    bus cycles on the chip."""
+    IDLE_AVRS.clear()
+    _leave_a_mess("sim+avr://?failsafe=0.1&fast_baud=1000000")
+    used, new = sim("sim://"), sim("sim://")
+    assert used.reused and not new.reused
+    got, want = _power_on_state(used), _power_on_state(new)
+    for name in want:
+        assert got[name] == want[name], f"{name} differs from a new AVR's"
+    g = golden()
+    for s in (used, new):
+        s.bus_log = []
+    for name in ("hello", "run_an693_filter", "ping"):
+        assert exchange(used, g[name]) == exchange(new, g[name])
+        assert used.cycle == new.cycle
+    assert used.bus_log == new.bus_log and used.bus_log
+    used.close()
+    new.close()
+
+
+def test_the_next_open_after_a_tripped_session_is_a_fresh_bridge():
+    """Through ``sim+avr://``: the bridge after a tripped session answers HELLO as a new one,
+    its failsafe back at the default and not tripped, its clock at the same time as a new
+    one's, the position 0, nothing stale in the link."""
+    IDLE_AVRS.clear()
+    fresh = lm629_host.open("sim+avr://")
+    t = fresh.transport
+    want = (t.info, t.failsafe_state(), t.sim.cycle, t.sim.uart_counts())
+    fresh.close()
+    _leave_a_mess("sim+avr://?failsafe=0.1")
+    chip = lm629_host.open("sim+avr://")
+    t = chip.transport
+    assert t.sim.reused
+    assert (t.info, t.failsafe_state(), t.sim.cycle, t.sim.uart_counts()) == want
+    assert not t.failsafe_state().tripped
+    chip.reset()
+    assert chip.read_real_position() == 0 and t.stats.retries == 0
+    counters = t.sim.link_counters()
+    if counters is not None:
+        assert counters.bad_frames == 0
+    chip.close()
+
+
+def test_sims_open_together_have_their_own_avrs_and_another_image_is_another_avr(tmp_path):
+    """Two sims open at once never share an AVR; an AVR is used again only for the same image
+    file, unchanged: a copy elsewhere, or the same path rewritten, gets a new one; only a
+    closed sim's AVR is kept (one the garbage collector finds is freed: the collector may run
+    while the idle list's lock is held)."""
+    from lm629_host.sim.avr import firmware_path
+
+    IDLE_AVRS.clear()
+    a, b = sim("sim://"), sim("sim://")
+    assert a._h != b._h and not a.reused and not b.reused
+    a.close()
+    b.close()
+    assert len(IDLE_AVRS) == 2
+    c, d, e = sim("sim://"), sim("sim://"), sim("sim://")
+    assert [c.reused, d.reused, e.reused] == [True, True, False]
+    assert len({c._h, d._h, e._h}) == 3 and len(IDLE_AVRS) == 0
+    for s in (c, d, e):
+        s.close()
+    copy = tmp_path / "bridge.elf"
+    copy.write_bytes(firmware_path().read_bytes())
+    f = sim("sim://", firmware=copy)
+    assert not f.reused
+    f.close()
+    os.utime(copy, ns=(0, 0))  # rewritten (or rebuilt) where it was
+    g = sim("sim://", firmware=copy)
+    assert not g.reused
+    g.close()
+    h = sim("sim://", firmware=copy)
+    assert h.reused
+    h.close()
+    IDLE_AVRS.clear()
+    lost = sim("sim://")  # never closed: the garbage collector frees its AVR, keeps none
+    del lost
+    gc.collect()
+    assert len(IDLE_AVRS) == 0
+
+
+def test_an_avr_used_again_has_the_eeprom_its_image_says(tmp_path):
+    """An image with EEPROM data (an .eeprom section, as avr-gcc makes for EEMEM): a firmware
+    that wrote its EEPROM finds it, at the next power-on, as the image says, not as it left it."""
+    import shutil
+    import subprocess
+
+    from lm629_host.sim.avr import firmware_path
+
+    if shutil.which("avr-objcopy") is None:
+        pytest.skip("no avr-objcopy")
+    image = b"EEPROM of the image"
+    (tmp_path / "ee.bin").write_bytes(image)
+    elf = tmp_path / "with_eeprom.elf"
+    subprocess.run(["avr-objcopy", "--add-section", f".eeprom={tmp_path / 'ee.bin'}",
+                    "--set-section-flags", ".eeprom=contents,alloc,load,data",
+                    "--change-section-address", ".eeprom=0x810000", str(firmware_path()), str(elf)],
+                   check=True, capture_output=True)
+    want = image + b"\xff" * (1024 - len(image))  # the ATmega328P's 1 KiB, erased where unset
+    s = sim("sim://", firmware=elf)
+    assert s.memory("eeprom") == want
+    for address in (0, 5, len(image), 1023):
+        s.poke("eeprom", address, 0x42)
+    s.close()
+    s = sim("sim://", firmware=elf)
+    assert s.reused and s.memory("eeprom") == want
+    s.close()
