@@ -4,6 +4,7 @@ tests/integrations and the others that start a served bench)."""
 
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import shutil
@@ -145,10 +146,22 @@ SERVED_MODULES = frozenset({"test_served_bench", "test_served_bench_failsafe",
 def is_served(item: pytest.Item, served_docs: set[Path]) -> bool:
     """Whether ``item`` runs against a ``lm629 sim serve`` far end in real time (the
     ``served`` marker: the busy-machine pass runs these with CPU hogs beside them)."""
-    if item.path.stem in SERVED_MODULES or "served" in item.name:
+    if item.path.stem in SERVED_MODULES or "served" in item.name or _starts_a_server(item):
         return True
     block = getattr(item, "callspec", None) and item.callspec.params.get("block")
     return block is not None and getattr(block, "doc", None) in served_docs
+
+
+def _starts_a_server(item: pytest.Item) -> bool:
+    """Whether the test's own body starts a served bench (:func:`serve`, :func:`_sim_serve`)."""
+    func = getattr(item, "function", None)
+    if func is None:
+        return False
+    try:
+        source = inspect.getsource(func)
+    except (OSError, TypeError):
+        return False
+    return "with serve(" in source or "_sim_serve()" in source
 
 
 def served_docs(items: list[pytest.Item]) -> set[Path]:
