@@ -715,6 +715,9 @@ def run(chip: LM629, options: Options,
                      "path": options.profile_path}, options.motion)
     model = reference(options)
     ls = Lockstep(chip, model)
+    # the core's and the clock's velocity runs drive nothing (gains 0): an axis's soft limits
+    # (a profile's min/max) are lifted for them, and hold again for --motion's run
+    limits, chip.limits = chip.limits, None
     try:
         # the core runs trajectories with the drive on (gains 0), --motion turns the motor:
         # whatever ends the script (an error, Ctrl-C) stops the motor first
@@ -729,6 +732,7 @@ def run(chip: LM629, options: Options,
             progress("busy: after each command byte")
             _busy(ls)
             report.faults += _selects(chip, options.selects or (chip.chip_select,), ls.out)
+            chip.limits = limits
             if options.motion:
                 progress("motion: the encoder and the index")
                 report.faults += _motion(ls, options.lines, options.gains)
@@ -741,6 +745,7 @@ def run(chip: LM629, options: Options,
     except LM629Error as exc:
         report.error = f"{type(exc).__name__}: {exc}"
     finally:
+        chip.limits = limits
         report.measurements = ls.out
         model.close()
     return report

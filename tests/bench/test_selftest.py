@@ -22,6 +22,7 @@ import lm629_host
 from lm629_host.bench import selftest as st
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.bus.program import Program
+from lm629_host.physics.limits import SoftLimits
 from lm629_host.sim.avr import toolchain_missing
 from lm629_host.transports.base import BusObserver, Transport
 
@@ -172,6 +173,21 @@ def test_a_chip_whose_positions_are_not_the_models_differs_and_does_not_hang():
     # the chip read about 4 ms (16 samples) after its STT; the model was run no further than
     # 2 x 16 + PLATEAU_SAMPLES (64) samples: 6 counts at 1/16 count a sample
     assert measured - 0x3FFFF000 <= 2 and 0 <= expected <= (2 * 20 + st.PLATEAU_SAMPLES) // 16
+
+
+def test_an_axis_with_soft_limits_passes_and_keeps_them():
+    """A profile's soft limits (min/max) refuse velocity mode; the core's and the clock's
+    velocity runs drive nothing (gains 0), so they run with the limits lifted (the selftest
+    of an axis with limits was a ValueError out of run(): "velocity mode runs until it is
+    stopped, past any soft limit"); the limits hold again afterwards."""
+    limits = SoftLimits(min=-1000, max=1000)
+    with lm629_host.open("sim://") as chip:
+        chip.limits = limits
+        r = st.run(chip, st.Options(8e6))
+        assert chip.limits is limits
+        with pytest.raises(ValueError, match="soft limit"):
+            chip.run_velocity(65536, 6553)
+    assert (r.verdict, r.error, r.faults, r.differences) == ("PASS", None, [], [])
 
 
 def test_compare_a_report_with_todays_model(tmp_path):
