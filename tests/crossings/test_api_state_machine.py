@@ -130,6 +130,13 @@ class Truth:
         return self.real + wrap_counts(m.desired_position - m.real_position)
 
     @property
+    def still(self) -> bool:
+        """The shaft does not turn (a drive that a reset turned off leaves it coasting; the
+        desired position follows the real one while the motor is off)."""
+        m = self.model.motion
+        return m.motor.speed == 0.0 and m.real_velocity == 0
+
+    @property
     def at_rest(self) -> bool:
         m = self.model.motion
         return m.traj.done and m.motor.speed == 0.0 and m.real_velocity == 0
@@ -257,6 +264,15 @@ class ApiMachine(RuleBasedStateMachine):
             clock.sleep(min(FEED_EVERY_S, end - clock.now()))
             self.board.transport.feed()
 
+    def _settle(self) -> None:
+        """After a reset (the motor off): time passes until every shaft is still, so that
+        the rules after it find the axes at rest (up to a second: a finding if longer)."""
+        for _ in range(100):
+            if all(t.still for t in self.truth):
+                return
+            self._idle(0.01)
+        raise AssertionError("a shaft still turns a second after the reset turned its motor off")
+
     def _dear(self, name: str) -> bool:
         """Whether the dear rule ``name`` may run again in this sequence."""
         return self.dear.get(name, 0) < DEAR_RULES_PER_SEQUENCE
@@ -295,6 +311,7 @@ class ApiMachine(RuleBasedStateMachine):
         else:
             self.board.axes[which].reset()
             self.tuned[which] = False
+        self._settle()
         self._rebase()
         for k in (0, 1):
             if not self.tuned[k]:
@@ -311,6 +328,7 @@ class ApiMachine(RuleBasedStateMachine):
         with t.lock:
             t.model.reset_pulse()
         self.board.clock.sleep(0.002)
+        self._settle()
         self._rebase()
         self.cycled = True
         self.tuned = [False, False]
@@ -327,6 +345,7 @@ class ApiMachine(RuleBasedStateMachine):
             self.tuned = [True, True]
         else:
             self.board.reset()
+            self._settle()
             self._rebase()
             for k in (0, 1):
                 self._tune(k, 20, 200)
@@ -717,6 +736,7 @@ class ApiMachine(RuleBasedStateMachine):
             assert self.truth[k].model.status & 0x80  # the motor left off
             axis.reset()  # what a user does after a selftest that did not pass
         assert self._untouched(1 - k) == other
+        self._settle()
         self._rebase()
         self.tuned[k] = False
         self._idle(FAILSAFE_S + 0.1)  # the failsafe still fed: the next command is not refused
