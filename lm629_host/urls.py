@@ -229,6 +229,8 @@ class Option:
     #: a text option with its own grammar (``wiring=d5-low,d2-d3``): text -> value, ValueError
     #: saying what is allowed; the message gets the URL and the option's name in front
     parse: Callable[[str], Any] | None = None
+    #: a number taken outside the range that turns the option off (``failsafe=0``)
+    off: float | None = None
 
     def convert(self, text: str, url: str | PortURL) -> Any:
         """``text`` as this option's value; ValueError naming ``url`` and the option."""
@@ -259,13 +261,16 @@ class Option:
             if self.kind == "int" and _is_float(text):
                 what = "a whole number"
             raise ValueError(f"{url}: {name}={text!r} is not {what}") from None
+        if value == self.off:
+            return value
         if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
             raise ValueError(f"{url}: {name}={text} is outside {self.range()}")
         return value
 
     def range(self) -> str:
         unit = f" {self.unit}" if self.unit else ""
-        return f"{_fmt(self.lo)}..{_fmt(self.hi)}{unit}"
+        off = f"{_fmt(self.off)} (off) or " if self.off is not None else ""
+        return f"{off}{_fmt(self.lo)}..{_fmt(self.hi)}{unit}"
 
     def describe(self) -> str:
         """``name`` with its unit or choices, for the list of known options."""

@@ -76,6 +76,13 @@ CRUISE_TO = 40
 #: how many samples of one whole count of the desired position the model is searched for the
 #: chip's reads (four of the 16-sample counts, or as long after the end of a move)
 PLATEAU_SAMPLES = 64
+#: how many times the profile's sample rate a chip may run at when the model is run to the
+#: chip's desired position: a chip clocked up to twice the profile's (a 6 MHz profile on an
+#: 8 MHz chip is 1.33) is still caught up with; a desired position further on than that
+#: since the STT is not where the model's time leads (the chip's differs), and the model is
+#: compared where that time left it instead of being run to it (2^30 counts at 1/16 count a
+#: sample would be hours of model time)
+CHIP_RATE_MAX = 2.0
 #: the verdicts and their exit codes
 EXIT = {"PASS": 0, "DIFFERS": 1, "FAIL": 2}
 _READ_SIGNED16 = (Cmd.RDRV, Cmd.RDSUM)
@@ -307,6 +314,7 @@ class Lockstep:
         self.replay = replay or {}
         self.out: list[Measurement] = []
         self._stt_sample = 0
+        self._stt_time = 0.0  #: the chip's clock at the last STT
 
     def sides(self) -> list[LM629]:
         return [self.model] if self.chip is None else [self.chip, self.model]
@@ -338,6 +346,8 @@ class Lockstep:
     def started(self) -> None:
         """An STT just went to both: the model's samples count from here."""
         self._stt_sample = self._samples()
+        if self.chip is not None:
+            self._stt_time = self.chip.clock.now()
 
     def _samples(self) -> int:
         return int(self.model.clock.now() * self.model.clock_hz) // SAMPLE_CLOCKS
@@ -355,16 +365,18 @@ class Lockstep:
         raise LM629Error("the desired position changed within every one of 8 bracketed reads: "
                          "the time base is not slow enough for this adapter")
 
-    def _run_model_to(self, at: int, per_sample: float) -> None:
+    def _run_model_to(self, at: int, per_sample: float, most: float) -> None:
         """Run the model to the first sample at which its desired position reads ``at``: in
         strides that end at least a count short (at most ``per_sample`` counts a sample),
-        then a sample at a time."""
+        then a sample at a time; no further than ``most`` samples since the STT (where the
+        chip could have got by then: a chip that reads further on differs)."""
         period = SAMPLE_CLOCKS / self.model.clock_hz
         for _ in range(100_000):
             gap = at - self.model.read_desired_position()
-            if gap <= 0:
+            left = most - (self._samples() - self._stt_sample)
+            if gap <= 0 or left < 1:
                 return
-            stride = int((gap - 1) / per_sample)
+            stride = min(int((gap - 1) / per_sample), int(left))
             if stride > 1:
                 self.model.clock.sleep(stride * period)
             else:
@@ -388,15 +400,19 @@ class Lockstep:
         _unused, labels = _program(self.model, items)
         got: list[int] | None = None
         chip_hi: bool | None = None
+        period = SAMPLE_CLOCKS / self.model.clock_hz
+        most = math.inf
         if self.chip is not None:
             at, got, chip_hi = self._bracketed(self.chip, items)
+            most = (self.chip.clock.now() - self._stt_time) / period * CHIP_RATE_MAX
         else:
             saved = self.replay.get(f"{name}: RDDP")
             at = saved.at if saved is not None and saved.at is not None else 0
+            if saved is not None and saved.sample is not None:
+                most = saved.sample
             kept = [self.replay.get(f"{name}: {label}") for label, _ in labels]
             got = [m.measured for m in kept if m is not None] if all(kept) else None
-        self._run_model_to(at, per_sample)
-        period = SAMPLE_CLOCKS / self.model.clock_hz
+        self._run_model_to(at, per_sample, most + PLATEAU_SAMPLES)
         plateau: list[tuple[int, list[int], bool | None, int]] = []
         for _ in range(PLATEAU_SAMPLES):
             at_model, want, model_hi = self._bracketed(self.model, items)
@@ -699,6 +715,9 @@ def run(chip: LM629, options: Options,
                      "path": options.profile_path}, options.motion)
     model = reference(options)
     ls = Lockstep(chip, model)
+    # the core's and the clock's velocity runs drive nothing (gains 0): an axis's soft limits
+    # (a profile's min/max) are lifted for them, and hold again for --motion's run
+    limits, chip.limits = chip.limits, None
     try:
         # the core runs trajectories with the drive on (gains 0), --motion turns the motor:
         # whatever ends the script (an error, Ctrl-C) stops the motor first
@@ -713,6 +732,7 @@ def run(chip: LM629, options: Options,
             progress("busy: after each command byte")
             _busy(ls)
             report.faults += _selects(chip, options.selects or (chip.chip_select,), ls.out)
+            chip.limits = limits
             if options.motion:
                 progress("motion: the encoder and the index")
                 report.faults += _motion(ls, options.lines, options.gains)
@@ -725,6 +745,7 @@ def run(chip: LM629, options: Options,
     except LM629Error as exc:
         report.error = f"{type(exc).__name__}: {exc}"
     finally:
+        chip.limits = limits
         report.measurements = ls.out
         model.close()
     return report

@@ -51,7 +51,8 @@ log = logging.getLogger("lm629_host.bridge.protocol")
 FAILSAFE_DEFAULT_S = 0.5
 FEED_MODES = ("process", "script")
 FAILSAFE_OPTIONS = (
-    Option("failsafe", "float", FAILSAFE_DEFAULT_S, 0, FAILSAFE_MAX_MS / 1e3, "s"),
+    Option("failsafe", "float", FAILSAFE_DEFAULT_S, FAILSAFE_MIN_MS / 1e3, FAILSAFE_MAX_MS / 1e3,
+           "s", off=0),
     Option("failsafe_action", "str", "abrupt", choices=tuple(a.name.lower() for a in FailsafeAction)),
     Option("failsafe_feed", "str", FEED_MODES[0], choices=FEED_MODES))
 FAILSAFE_OPTION_NAMES = frozenset(o.name for o in FAILSAFE_OPTIONS)
@@ -92,11 +93,7 @@ def failsafe_options(url: str | PortURL) -> FailsafeOptions:
     other options are not looked at)."""
     opts = parse_options(url, FAILSAFE_OPTIONS,
                          ignore=set(query_params(url)) - FAILSAFE_OPTION_NAMES)
-    seconds = opts["failsafe"]
-    if seconds and round(seconds * 1e3) < FAILSAFE_MIN_MS:
-        raise ValueError(f"{url}: failsafe={seconds:g} is outside 0 (off) or "
-                         f"{FAILSAFE_MIN_MS / 1e3:g}..{FAILSAFE_MAX_MS / 1e3:g} s")
-    return FailsafeOptions(seconds, FailsafeAction[opts["failsafe_action"].upper()],
+    return FailsafeOptions(opts["failsafe"], FailsafeAction[opts["failsafe_action"].upper()],
                            opts["failsafe_feed"])
 
 

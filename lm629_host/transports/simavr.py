@@ -29,7 +29,12 @@ from lm629_host.sim.model import chips_of
 from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import wrap_usb
 from lm629_host.urls import Option, PortURL, parse_options, query_params
-from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
+from lm629_host.transports.link import (
+    DEFAULT_RETRIES,
+    FAILSAFE_OPTION_NAMES,
+    LinkTransport,
+    failsafe_options,
+)
 from lm629_host.transports.sim import ModelChips
 
 #: URL options of this transport (the others are the chip model's)
@@ -63,6 +68,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimAvrTransport:
         opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - {o.name for o in OPTIONS})
+        failsafe_options(url)  # checked before simavr starts, as a real port's before it opens
         baud = opts["baud"]
         if opts["firmware"]:
             firmware = Path(opts["firmware"])

@@ -14,7 +14,12 @@ from lm629_host.sim.model import ChipBus, ChipModel, chips_of
 from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import wrap_usb
 from lm629_host.urls import Option, PortURL, parse_options, query_params
-from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTION_NAMES, LinkTransport
+from lm629_host.transports.link import (
+    DEFAULT_RETRIES,
+    FAILSAFE_OPTION_NAMES,
+    LinkTransport,
+    failsafe_options,
+)
 from lm629_host.transports.sim import ModelChips
 
 
@@ -61,6 +66,7 @@ def open_emulated(url: str | PortURL = "sim://", *, baud: int | None = None,
            Option("max_baud", "int", 0, 0, 4_000_000, "baud (0: any)"))
     names = {"baud", "bridge", "fast_baud", "max_baud"} | USB_OPTIONS | FAILSAFE_OPTION_NAMES
     opts = parse_options(url, own, ignore=set(query_params(url)) - {o.name for o in own})
+    failsafe_options(url)  # checked before the far end is built, as a real port's before it opens
     if baud is None:
         baud = opts["baud"]
     # bridge=1: a one-chip bridge (firmware 1.0: no chip selects); else the multi-axis HELLO

@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import json
 import random
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -19,6 +22,7 @@ import lm629_host
 from lm629_host.bench import selftest as st
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.bus.program import Program
+from lm629_host.physics.limits import SoftLimits
 from lm629_host.sim.avr import toolchain_missing
 from lm629_host.transports.base import BusObserver, Transport
 
@@ -137,6 +141,53 @@ def test_a_late_host_makes_no_false_difference(url):
         r = st.run(chip, st.Options(8e6))
     assert late.count > 50
     assert (r.verdict, r.faults, r.differences) == ("PASS", [], [])
+
+
+def test_a_chip_whose_positions_are_not_the_models_differs_and_does_not_hang():
+    """A chip whose registers read 3FFFF000 after its reset (the simulator's reset_position,
+    model choice 33) where the model's read 0: its velocity run is 1/16 count a sample from
+    there, so the model would need 2^30 x 16 samples (76 h of model time) to reach the
+    chip's desired position.  The model is run no further than the chip's own time since the
+    STT allows (twice the profile's sample rate): the selftest ends, within seconds, and names
+    the difference; the chip's motor is left off.  (In a process of its own: a model run
+    for hours holds the interpreter.)"""
+    script = textwrap.dedent("""
+        import json, lm629_host
+        from lm629_host.bench import selftest as st
+        with lm629_host.open("sim://?reset_position=0x3FFFF000") as chip:
+            r = st.run(chip, st.Options(8e6))
+            off = bool(chip.read_status() & 0x80)
+        print(json.dumps([r.verdict, off, [[m.name, m.measured, m.expected]
+                                           for m in r.differences]]))
+    """)
+    try:
+        out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                             timeout=60, check=True).stdout
+    except subprocess.TimeoutExpired:
+        pytest.fail("the selftest did not end within 60 s")
+    verdict, motor_off, differences = json.loads(out)
+    assert verdict != "PASS" and motor_off
+    differs = {name: (measured, expected) for name, measured, expected in differences}
+    assert differs["after reset: RDDP"] == (0x3FFFF000, 0)
+    measured, expected = differs["velocity before the breakpoint: RDDP"]
+    # the chip read about 4 ms (16 samples) after its STT; the model was run no further than
+    # 2 x 16 + PLATEAU_SAMPLES (64) samples: 6 counts at 1/16 count a sample
+    assert measured - 0x3FFFF000 <= 2 and 0 <= expected <= (2 * 20 + st.PLATEAU_SAMPLES) // 16
+
+
+def test_an_axis_with_soft_limits_passes_and_keeps_them():
+    """A profile's soft limits (min/max) refuse velocity mode; the core's and the clock's
+    velocity runs drive nothing (gains 0), so they run with the limits lifted (the selftest
+    of an axis with limits was a ValueError out of run(): "velocity mode runs until it is
+    stopped, past any soft limit"); the limits hold again afterwards."""
+    limits = SoftLimits(min=-1000, max=1000)
+    with lm629_host.open("sim://") as chip:
+        chip.limits = limits
+        r = st.run(chip, st.Options(8e6))
+        assert chip.limits is limits
+        with pytest.raises(ValueError, match="soft limit"):
+            chip.run_velocity(65536, 6553)
+    assert (r.verdict, r.error, r.faults, r.differences) == ("PASS", None, [], [])
 
 
 def test_compare_a_report_with_todays_model(tmp_path):

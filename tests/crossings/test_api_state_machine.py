@@ -33,7 +33,7 @@ from __future__ import annotations
 import os
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -48,11 +48,14 @@ from hypothesis.stateful import (
 )
 
 import lm629_host
-from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, wrap_counts
-from lm629_host.chip.move import MoveTooLong
+from lm629_host.bench import selftest
+from lm629_host.bridge.protocol import PROFILE_MAX_SCHEDULE
+from lm629_host.bus.opcodes import FIXED_ONE, POSITION_MAX, POSITION_MIN, SAMPLE_CLOCKS, wrap_counts
+from lm629_host.chip.move import MoveRules, MoveTooLong
 from lm629_host.chip.shapes import SCurve
 from lm629_host.config.profile import ensure_applied, name_axes, parse_profile
-from lm629_host.errors import ArgumentError
+from lm629_host.errors import ArgumentError, FailsafeTripped
+from lm629_host.urls import PortURL
 
 from sim_urls import available
 
@@ -66,6 +69,19 @@ LONG = os.environ.get("LM629_CROSSINGS", "") == "long"
 #: the longest a legal move of the machine takes is 30000 counts at 2 counts/sample, 3.9 s:
 #: a wait bounded by this ends (a MotionError: a finding) where a move went the long way
 WAIT_S = 20.0
+#: the bridge's failsafe on the link far ends (the URL's default, docs/python.md)
+FAILSAFE_S = 0.5
+#: a script in failsafe_feed=script mode that idles feeds at least this often
+FEED_EVERY_S = 0.2
+SAMPLE_S = SAMPLE_CLOCKS / 8e6  #: one sample of the default 8 MHz chip
+#: a shaped move longer than the bridge holds: 30000 counts at 20000 counts/s (1.5 s), in
+#: pieces 20 ms apart: about 80 of them, the bridge takes 64 at a time (PROFILE top-ups)
+LONG_SHAPE = SCurve(velocity=20000, acceleration=400000, jerk=8e6)
+LONG_DISTANCE = 30000
+#: the rules that cost seconds of simulated time (a selftest, a long shaped move, a held
+#: lock or a silent script past the failsafe) run at most this often in one sequence: the
+#: machine still tries each against every other, within CI's minutes
+DEAR_RULES_PER_SEQUENCE = 3 if LONG else 1
 
 
 @dataclass(frozen=True)
@@ -80,7 +96,7 @@ class Budget:
 LINKS = (
     ("sim://", Budget(150, 30)),
     ("sim+emu://?baud=1000000", Budget(60, 25)),
-    ("sim+avr://?baud=1000000", Budget(25, 20)),
+    ("sim+avr://?baud=1000000", Budget(18, 20)),
 )
 
 VELOCITIES = st.sampled_from([2 * 65536, 4 * 65536, 12 * 65536])
@@ -114,6 +130,13 @@ class Truth:
         return self.real + wrap_counts(m.desired_position - m.real_position)
 
     @property
+    def still(self) -> bool:
+        """The shaft does not turn (a drive that a reset turned off leaves it coasting; the
+        desired position follows the real one while the motor is off)."""
+        m = self.model.motion
+        return m.motor.speed == 0.0 and m.real_velocity == 0
+
+    @property
     def at_rest(self) -> bool:
         m = self.model.motion
         return m.traj.done and m.motor.speed == 0.0 and m.real_velocity == 0
@@ -133,13 +156,28 @@ class ApiMachine(RuleBasedStateMachine):
         self.board: lm629_host.Board | None = None
 
     # ------------------------------------------------------------------ set-up
-    @initialize(start=st.sampled_from([NEAR_TOP, 0, -NEAR_TOP]))
-    def open(self, start: int) -> None:
-        sep = "&" if "?" in self.url else "?"
-        self.board = lm629_host.open_board(f"{self.url}{sep}axes=2&reset_position={start}")
+    @initialize(start=st.sampled_from([NEAR_TOP, 0, -NEAR_TOP]),
+                feed=st.sampled_from(["process", "script"]),
+                action=st.sampled_from(["abrupt", "smooth"]), parsed=st.booleans())
+    def open(self, start: int, feed: str, action: str, parsed: bool) -> None:
+        """The board's options added beside the user's URL (``PortURL.with_options``, as the
+        CLI and a profile do), opened as the parsed URL or as its text; on a link, who feeds
+        the failsafe (the keep-alive, or the script itself) and how the bridge stops."""
+        self.link = self.url.startswith("sim+")
+        self.script = self.link and feed == "script"
+        self.action = action if self.link else "abrupt"
+        self.start = start
+        options = {"axes": "2", "reset_position": str(start)}
+        if self.link:
+            options |= {"failsafe_feed": feed, "failsafe_action": action}
+        url = PortURL.parse(self.url).with_options(options)
+        assert str(url) == self.url  # what the user wrote, whatever was added
+        self.board = lm629_host.open_board(url if parsed else url.text)
+        assert self.board.transport.url == (self.url if parsed else url.text)
         self.truth = [Truth(m) for m in self.board.transport.models]
         self.board.reset()
         self.tuned = [False, False]
+        self.dear: dict[str, int] = {}  # the dear rules run so far in this sequence
         self.crossings = [0, 0]
         self.turn = [circle(t.desired) for t in self.truth]
         self.profile = None
@@ -213,6 +251,40 @@ class ApiMachine(RuleBasedStateMachine):
     def _can_move(self, k: int) -> bool:
         return self.tuned[k]
 
+    def _idle(self, seconds: float) -> None:
+        """Simulated time passes as a script lets it: with ``failsafe_feed=script`` the script
+        feeds the bridge between slices of its sleep (docs/python.md: more often than the
+        timeout), else the keep-alive does."""
+        clock = self.board.clock
+        if not self.script:
+            clock.sleep(seconds)
+            return
+        end = clock.now() + seconds
+        while clock.now() < end:
+            clock.sleep(min(FEED_EVERY_S, end - clock.now()))
+            self.board.transport.feed()
+
+    def _settle(self) -> None:
+        """After a reset (the motor off): time passes until every shaft is still, so that
+        the rules after it find the axes at rest (up to a second: a finding if longer)."""
+        for _ in range(100):
+            if all(t.still for t in self.truth):
+                return
+            self._idle(0.01)
+        raise AssertionError("a shaft still turns a second after the reset turned its motor off")
+
+    def _dear(self, name: str) -> bool:
+        """Whether the dear rule ``name`` may run again in this sequence."""
+        return self.dear.get(name, 0) < DEAR_RULES_PER_SEQUENCE
+
+    def _spend(self, name: str) -> None:
+        self.dear[name] = self.dear.get(name, 0) + 1
+
+    def _untouched(self, k: int):
+        """What the model shows of axis ``k`` that another axis's rule must leave as it is."""
+        m = self.truth[k].model.motion
+        return m.traj.done, m.traj.target, self.truth[k].desired
+
     # ------------------------------------------------------------------ rules: set-up
     @precondition(lambda self: not self.cycled)
     @rule(k=AXES, kp=st.sampled_from([20, 40]), kd=st.sampled_from([100, 200]),
@@ -239,6 +311,7 @@ class ApiMachine(RuleBasedStateMachine):
         else:
             self.board.axes[which].reset()
             self.tuned[which] = False
+        self._settle()
         self._rebase()
         for k in (0, 1):
             if not self.tuned[k]:
@@ -255,6 +328,7 @@ class ApiMachine(RuleBasedStateMachine):
         with t.lock:
             t.model.reset_pulse()
         self.board.clock.sleep(0.002)
+        self._settle()
         self._rebase()
         self.cycled = True
         self.tuned = [False, False]
@@ -271,6 +345,7 @@ class ApiMachine(RuleBasedStateMachine):
             self.tuned = [True, True]
         else:
             self.board.reset()
+            self._settle()
             self._rebase()
             for k in (0, 1):
                 self._tune(k, 20, 200)
@@ -474,7 +549,7 @@ class ApiMachine(RuleBasedStateMachine):
         loop's dead band of it (a new filter may still be settling it)."""
         self._count()
         desired = self.truth[k].desired
-        self.board.axes[k].clock.sleep(seconds)
+        self._idle(seconds)
         assert self.truth[k].desired == desired
         assert abs(self.truth[k].real - desired) <= self.board.axes[k].move_rules.tolerance
 
@@ -538,6 +613,211 @@ class ApiMachine(RuleBasedStateMachine):
         self._note_turns()
         self._landed(k, target, result)
         self._agree(k, snap.real_position, snap.desired_position)
+
+    # ------------------------------------------------------------------ rules: the port URL
+    @precondition(lambda self: not self.cycled)
+    @rule(what=st.sampled_from(["twice", "axis", "empty", "host", "failsafe"]))
+    def bad_port_url(self, what: str) -> None:
+        """A second port named wrongly beside the open one (an option given twice, a misspelt
+        one, an empty value, a host on a simulator, a failsafe between off and its shortest):
+        refused in one line that quotes the URL as typed and names the option, before
+        anything opens (no thread, no descriptor, no program on the open board)."""
+        self._count()
+        sep = "&" if "?" in self.url else "?"
+        text, names = {
+            "twice": (f"{self.url}{sep}axes=2&axes=1", "axes"),
+            "axis": (f"{self.url}{sep}axis=2", "axis"),
+            "empty": (f"{self.url}{sep}vcd=", "vcd"),
+            "host": (self.url.replace("://", "://bench", 1), "host"),
+            "failsafe": (f"{self.url}{sep}failsafe=0.01", "failsafe"),
+        }[what]
+        threads, fds = threading.active_count(), sorted(os.listdir("/proc/self/fd"))
+        exc = self._refused_before_a_bus_cycle(lambda: lm629_host.open_board(text))
+        msg = str(exc)
+        assert "\n" not in msg and text in msg and names in msg, msg
+        assert threading.active_count() == threads
+        assert sorted(os.listdir("/proc/self/fd")) == fds, msg
+
+    # ------------------------------------------------------------------ rules: the keep-alive
+    @precondition(lambda self: not self.cycled and self._dear("lock"))
+    @rule(k=AXES, velocity=VELOCITIES, seconds=st.sampled_from([0.3, 0.7]))
+    def lock_held_while_fed(self, k: int, velocity: int, seconds: float) -> None:
+        """A user sequence under ``transport.lock`` that outlasts the failsafe (a velocity run,
+        time passing, a check, a stop): the keep-alive (or, with failsafe_feed=script, the
+        script's own feeds) keeps the bridge fed, so the run is never stopped behind the
+        user's back: the chip's trajectory still runs at the velocity asked for."""
+        self._count()
+        self._spend("lock")
+        axis = self.board.axes[k]
+        if axis.limits is not None:
+            return  # velocity mode with soft limits is refused (velocity_run covers it)
+        other = self._untouched(1 - k)
+        with axis.transport.lock:
+            run = axis.run_velocity(velocity, 6553)
+            self._idle(seconds)
+            snap = run.check()
+            m = self.truth[k].model.motion
+            assert not m.traj.done and snap.desired_velocity == velocity, (snap, m.traj.done)
+            self._note_turns()
+            rest = run.stop()
+        self._note_turns()
+        self._agree(k, rest.real_position, rest.desired_position)
+        assert self._untouched(1 - k) == other
+
+    @precondition(lambda self: not self.cycled and self.script and self._dear("trip"))
+    @rule(k=AXES, moving=st.booleans(), late=st.sampled_from([0.1, 0.4]))
+    def script_stops_feeding(self, k: int, moving: bool, late: float) -> None:
+        """failsafe_feed=script: the script stops calling and feeding (axis ``k`` in a
+        velocity run, or every axis at rest) for the timeout and ``late`` more.  The bridge
+        stops every axis (the model's trajectories end) and the next command says so, once,
+        in one line: which axes, how, how long this host was silent, that nothing of the
+        command ran; later reads run, a move is refused by the bridge until the trip is
+        acknowledged (clear_failsafe), and nothing starts meanwhile."""
+        self._count()
+        self._spend("trip")
+        axis = self.board.axes[k]
+        if moving and axis.limits is None:
+            axis.run_velocity(4 * 65536, 6553)
+        clock = self.board.clock
+        t0 = clock.now()
+        clock.sleep(FAILSAFE_S + late)
+        self._note_turns()
+        for j, t in enumerate(self.truth):  # stopped by the bridge, on the model's word
+            assert t.model.motion.traj.done, f"axis {j} still runs after the trip"
+        with pytest.raises(FailsafeTripped) as told:
+            self.board.axes[1 - k].read_real_position()
+        e = told.value
+        msg = str(e)
+        assert "\n" not in msg and "failsafe_feed=script" in msg and "nothing of" in msg, msg
+        for lie in ("COULD NOT STOP", "reflash", "cable"):
+            assert lie not in msg, msg
+        assert tuple(e.stopped) == (0, 1) and e.action == self.action, (e.stopped, e.action)
+        # silent since its last frame: sent before the sleep, at most a far-side wait earlier
+        silent = clock.now() - t0
+        assert silent - 0.01 <= e.host_late_s <= silent + FAILSAFE_S / 2, (e.host_late_s, silent)
+        for j, a in enumerate(self.board.axes):  # told once: reads run and agree
+            self._agree(j, a.read_real_position(), a.read_desired_position())
+        before = [self._untouched(j) for j in (0, 1)]
+        with pytest.raises(FailsafeTripped):
+            axis.move_to(100, velocity=65536, acceleration=6553, relative=True)
+        assert [self._untouched(j) for j in (0, 1)] == before  # nothing started
+        trip = self.board.clear_failsafe()
+        assert trip is not None and trip.tripped and trip.chips == 0b11, trip
+        assert self.board.clear_failsafe() is None  # acknowledged once
+        # the shaft of an abrupt stop may still swing back into the loop's dead band
+        self.board.clock.sleep(0.05)
+        self.board.transport.feed()
+
+    # ------------------------------------------------------------------ rules: selftest
+    @precondition(lambda self: not self.cycled and self._dear("selftest"))
+    @rule(k=AXES)
+    def selftest_mid_session(self, k: int) -> None:
+        """``lm629_host.bench.selftest.run`` on one axis in the middle of a session.  The
+        model resets its registers to 0 as a real chip does: on a chip reset to 0 it is a
+        PASS; a simulated chip reset elsewhere (reset_position) differs from the first read
+        after the reset on, and ends (a finding when it did not).  After it: the chip as a
+        reset leaves it (trajectory done, no interrupt flag, motor off; the docstring's
+        "reset at the end"), the other axis untouched, the failsafe still fed."""
+        self._count()
+        self._spend("selftest")
+        self._note_turns()
+        axis = self.board.axes[k]
+        other = self._untouched(1 - k)
+        report = selftest.run(axis, selftest.Options(profile_hz=8e6))
+        differs = {m.name: (m.measured, m.expected) for m in report.differences}
+        if self.start == 0:
+            assert (report.verdict, report.error, report.faults, differs) == \
+                ("PASS", None, [], {}), (report.verdict, report.error, differs)
+            status = self.truth[k].model.status
+            assert status & 0x80 and not status & 0x3F, hex(status)  # motor off, no flag
+            assert self.truth[k].model.motion.traj.done
+        else:
+            assert report.verdict != "PASS"
+            measured, expected = differs["after reset: RDDP"]  # where the shaft is: near it
+            assert expected == 0 and abs(measured - self.start) <= 20, differs
+            assert self.truth[k].model.status & 0x80  # the motor left off
+            axis.reset()  # what a user does after a selftest that did not pass
+        assert self._untouched(1 - k) == other
+        self._settle()
+        self._rebase()
+        self.tuned[k] = False
+        self._idle(FAILSAFE_S + 0.1)  # the failsafe still fed: the next command is not refused
+        self._tune(k, 20, 200)
+        self._agree(k, axis.read_real_position(), axis.read_desired_position())
+
+    # ------------------------------------------------------------------ rules: max_duration
+    @precondition(lambda self: not self.cycled)
+    @rule(k=AXES, limit=st.sampled_from([0.3, 1.0]), distance=DISTANCES,
+          velocity=VELOCITIES, acceleration=ACCELERATIONS)
+    def move_longer_than_allowed(self, k: int, limit: float, distance: int, velocity: int,
+                                 acceleration: int) -> None:
+        """``move_rules.max_duration`` lowered: a move whose trapezoid takes longer (AN-706:
+        v/a samples up and down, the rest at v; 2 sqrt(d/a) when it never reaches v) is
+        refused before a bus cycle (MoveTooLong: its length, its duration, the limit); a
+        shorter one lands; a shaped move refused the same way."""
+        self._count()
+        axis = self.board.axes[k]
+        target = self.truth[k].desired + distance
+        lim = axis.limits
+        if lim is not None and lim.min is not None and not lim.min <= target <= lim.max:
+            return  # the soft limits refuse it first (the move rule covers them)
+        v, a, d = velocity / FIXED_ONE, acceleration / FIXED_ONE, abs(distance)
+        samples = d / v + v / a if d >= v * v / a else 2 * (d / a) ** 0.5
+        seconds = samples * SAMPLE_S
+        axis.move_rules = replace(axis.move_rules, max_duration=limit)
+        try:
+            if seconds > limit * 1.02:
+                exc = self._refused_before_a_bus_cycle(lambda: axis.move_to(
+                    distance, velocity=velocity, acceleration=acceleration, relative=True),
+                    reads=True)
+                assert isinstance(exc, MoveTooLong), exc
+                assert exc.distance == d and exc.limit == limit, (exc.distance, exc.limit)
+                assert exc.seconds == pytest.approx(seconds, rel=0.02, abs=2 * SAMPLE_S)
+            elif seconds < limit * 0.98:
+                result = axis.move_to(distance, velocity=velocity, acceleration=acceleration,
+                                      relative=True).wait(timeout=WAIT_S)
+                self._note_turns()
+                self._landed(k, target, result)
+            curve = SCurve(velocity=30000, acceleration=400000, jerk=8e6)
+            if d / 30000 > limit:  # at its top speed all the way it is still too long
+                exc = self._refused_before_a_bus_cycle(
+                    lambda: axis.move_profile(distance, curve, relative=True), reads=True)
+                assert isinstance(exc, MoveTooLong) and exc.limit == limit, exc
+        finally:
+            axis.move_rules = replace(axis.move_rules, max_duration=MoveRules.max_duration)
+
+    # ------------------------------------------------------------------ rules: PROFILE top-ups
+    @precondition(lambda self: not self.cycled and self.link and self._dear("profile"))
+    @rule(k=AXES, forward=st.booleans(), held=st.sampled_from([0.0, 0.6]))
+    def long_shaped_move(self, k: int, forward: bool, held: float) -> None:
+        """A shaped move of more pieces than the bridge holds: streamed to it in top-ups and
+        timed by its own timer (far), while the script waits, or first holds the lock and
+        lets ``held`` seconds pass (the keep-alive, or the script's feeds, hand the bridge the
+        rest).  It lands on its target; every piece was issued by the bridge within its
+        timer's tick, none left with the host or the bridge."""
+        self._count()
+        self._spend("profile")
+        axis = self.board.axes[k]
+        distance = LONG_DISTANCE if forward else -LONG_DISTANCE
+        target = self.truth[k].desired + distance
+        lim = axis.limits
+        if lim is not None and lim.min is not None and not lim.min <= target <= lim.max:
+            return
+        t = self.board.transport
+        with t.lock:
+            move = axis.move_profile(distance, LONG_SHAPE, relative=True)
+            assert move.far and len(move.plan.pieces) - 1 > PROFILE_MAX_SCHEDULE
+            assert t.profiles.streaming
+            self._idle(held)
+        result = move.wait(timeout=WAIT_S)
+        self._note_turns()
+        self._landed(k, target, result)
+        state = move.far_state
+        assert state is not None and not t.profiles.streaming
+        assert (state.queued, state.pending, state.cancelled) == (0, 0, False), state
+        assert state.issued == len(move.plan.pieces) - 1, (state, len(move.plan.pieces))
+        assert state.late_max_s < 0.011, state
+        assert result.duration < move.plan.duration + 0.5, (result.duration, move.plan.duration)
 
     # ------------------------------------------------------------------ invariants
     @invariant()

@@ -11,11 +11,15 @@ at the same speed (tools/bench_failsafe.py, reference_stop_s), so the bound is f
 
 from __future__ import annotations
 
+import os
+import pty
 import sys
+import termios
 from pathlib import Path
 
 import pytest
 
+import lm629_host
 from lm629_host import TransportError
 from lm629_host.motion.board import Board
 from lm629_host.bridge.protocol import FAILSAFE_FEED, FailsafeAction, Result
@@ -184,10 +188,30 @@ def test_failsafe_zero_disarms_and_bad_values_fail_before_any_traffic():
     _run(b)
     assert t.emulator.failsafe.timeout_ms == 0 and t.feed_period_s == 0
     for bad, words in [("failsafe=0.01", "0 (off) or 0.05..10 s"),
-                       ("failsafe=11", "outside 0..10 s"),
+                       ("failsafe=11", "outside 0 (off) or 0.05..10 s"),
                        ("failsafe_action=brake", "expected one of abrupt, smooth, off")]:
         with pytest.raises(ValueError, match=words.replace("(", r"\(").replace(")", r"\)")):
             open_emulated(f"sim+emu://?{bad}")
+
+
+@pytest.mark.parametrize("bad", ["failsafe=0.01", "failsafe=11", "failsafe_feed=never"])
+def test_a_bad_failsafe_option_is_refused_before_the_serial_port_opens(bad):
+    """A timeout between 0 (off) and 0.05 s was refused only once the link was made, after
+    the port had opened (an Uno resets when its port opens) and was never closed: the port's
+    file descriptors stayed open.  Now every failsafe option is checked with the port's own,
+    before it opens."""
+    master, slave = pty.openpty()
+    try:
+        before = sorted(os.listdir("/proc/self/fd")), termios.tcgetattr(slave)
+        with pytest.raises(ValueError, match=bad.split("=")[0]) as refused:
+            lm629_host.open(f"serial://{os.ttyname(slave)}?{bad}")
+        # no descriptor open while the error is held, and the line never set up (pyserial
+        # puts it in raw mode at 115200 baud when it opens it)
+        assert (sorted(os.listdir("/proc/self/fd")), termios.tcgetattr(slave)) == before
+        assert "\n" not in str(refused.value)
+    finally:
+        os.close(master)
+        os.close(slave)
 
 
 def test_the_bridge_refuses_a_timeout_outside_its_range():
