@@ -259,6 +259,16 @@ BLOCKS = _collect()
 @pytest.fixture(scope="module", autouse=True)
 def _teardown(request):
     yield
+    # what the examples left open (as a script may: its process would end here) is closed
+    # while its bench still runs, so no keep-alive thread outlives the bench into later tests
+    for namespace in _NAMESPACES.values():
+        for value in list(namespace.values()):
+            if hasattr(value, "transport") and callable(getattr(value, "close", None)):
+                try:
+                    value.close()
+                except Exception:  # noqa: BLE001 - a far end already gone: nothing to close
+                    pass
+    _NAMESPACES.clear()
     for st in _STATES.values():
         st.close()
 
