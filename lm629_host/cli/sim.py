@@ -23,17 +23,14 @@ def sim() -> None:
 SERVER_NICE = -10
 
 
-def _far_end_priority() -> int:
+def _far_end_priority() -> None:
     """Ask for :data:`SERVER_NICE` before any thread starts (a Linux thread takes its nice
-    value from the thread that made it); where that is not allowed, keep the nice value as
-    it is.  Returns the nice value the server runs at."""
+    value from the thread that made it); where that is not allowed, keep the nice value."""
     try:
-        now = os.getpriority(os.PRIO_PROCESS, 0)
-        if now > SERVER_NICE:
+        if os.getpriority(os.PRIO_PROCESS, 0) > SERVER_NICE:
             os.setpriority(os.PRIO_PROCESS, 0, SERVER_NICE)
-        return os.getpriority(os.PRIO_PROCESS, 0)
     except (OSError, AttributeError):  # not allowed here, or no such call on this OS
-        return os.getpriority(os.PRIO_PROCESS, 0) if hasattr(os, "getpriority") else 0
+        pass
 
 
 def _tcp_address(text: str) -> tuple[str, int]:

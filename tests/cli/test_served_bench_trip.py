@@ -52,7 +52,7 @@ def test_a_client_killed_mid_move_on_a_one_chip_bench_trips_and_the_server_lives
         assert b.server.poll() is None
 
 
-@pytest.mark.parametrize("far_end", FAR_ENDS[:2])
+@pytest.mark.parametrize("far_end", FAR_ENDS)
 def test_a_command_paused_mid_move_says_the_trip_in_one_line(tmp_path, far_end):
     """`lm629 move` stopped (SIGSTOP) for 1.5 s mid-move: the bridge stops the axis after
     0.5 s of silence, and the command, woken, says so once: one line naming the stop, exit 3
