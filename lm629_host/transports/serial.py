@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import errno
 import logging
-from urllib.parse import urlencode
+from urllib.parse import parse_qsl, urlencode
 import os
 import select
 import statistics
@@ -272,6 +272,36 @@ class SerialPipe:
             pass
 
 
+#: how long pyserial's write may block on a port before it gives up
+WRITE_TIMEOUT_S = 2.0
+#: values of ``ign_set_control=`` that mean "wait for the server's answer after all"
+_NO = ("0", "no", "false", "off")
+
+
+def _scheme(device: str) -> str:
+    return device.split("://", 1)[0].lower() if "://" in device else ""
+
+
+def rfc2217_url(device: str) -> str:
+    """``device`` with pyserial's ``ign_set_control`` option added when it is an
+    ``rfc2217://`` URL that does not say otherwise.  ser2net in front of a pseudo-terminal (or
+    any line without modem-control wires) does not answer RFC 2217's SET-CONTROL, and without
+    the option pyserial's open waits 3 s for that answer and fails ("timeout while waiting for
+    option 'control'").  The bridge uses no modem-control line, so nothing is lost by not
+    waiting.  ``ign_set_control=0`` (or no/false/off) drops the option: the answer is awaited.
+    Other schemes are returned as they are."""
+    if _scheme(device) != "rfc2217":
+        return device
+    base, _, query = device.partition("?")
+    pairs = parse_qsl(query, keep_blank_values=True)
+    given = [v for k, v in pairs if k == "ign_set_control"]
+    if given and given[0].strip().lower() in _NO:
+        pairs = [(k, v) for k, v in pairs if k != "ign_set_control"]
+    elif not given:
+        pairs.append(("ign_set_control", ""))
+    return base + ("?" + urlencode(pairs, safe=":/") if pairs else "")
+
+
 def open_port(device: str, baud: int):
     """Open ``device`` with pyserial (8N1, exclusive) or raise a :class:`TransportError` that
     says what to do.  ``device`` may be any pyserial URL (``serial_for_url``): a bridge on
@@ -279,9 +309,13 @@ def open_port(device: str, baud: int):
     ``spy://PORT?file=...`` to hex-dump the traffic."""
     import serial
 
+    device = rfc2217_url(device)
+    # pyserial's RFC 2217 client refuses a write_timeout (NotImplementedError); its writes are
+    # bounded by its socket's own timeout instead (5 s, set when it connects)
+    bounded = {} if _scheme(device) == "rfc2217" else {"write_timeout": WRITE_TIMEOUT_S}
     try:
         # exclusive: a lock on a local port (spy:// included); network handlers ignore it
-        return serial.serial_for_url(device, baud, timeout=0, write_timeout=2.0, exclusive=True)
+        return serial.serial_for_url(device, baud, timeout=0, exclusive=True, **bounded)
     except serial.SerialException as exc:
         code = getattr(exc, "errno", None)
         text = str(exc)
