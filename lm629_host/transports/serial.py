@@ -198,10 +198,22 @@ class SerialPipe:
             self._fd = None
         if self._fd is not None:
             port.timeout = 0  # non-blocking reads; waiting is done with select below
+        else:
+            # set once: a URL handler may do real work on each change of a setting
+            # (pyserial's RFC 2217 client renegotiates every port setting with the server,
+            # 50-150 ms, when its timeout is set), so a wait is cut into reads of this slice
+            port.timeout = self.READ_SLICE_S
+        #: whether a change of rate reaches the line: not through raw TCP (``socket://``),
+        #: which carries bytes only, so that the far UART (ser2net's) keeps its rate; RFC 2217
+        #: sends it to the far UART as SET-BAUDRATE and waits for the server's answer
+        self.sets_line_rate = _scheme(str(getattr(port, "port", "") or "")) != "socket"
         #: writes go to the descriptor itself only on a plain device (a URL handler such as
         #: spy:// does its own work in write())
         self._write_raw = self._fd is not None and type(port).__module__ == "serial.serialposix"
 
+    #: the longest a read on a port without a descriptor waits at once: how far a wait on
+    #: such a port may overrun the time asked (data ends a read at once, whatever this is)
+    READ_SLICE_S = 0.005
     #: how long a write may find the port full before the link is given up as lost
     WRITE_STUCK_S = 2.0
 
@@ -241,15 +253,26 @@ class SerialPipe:
                     return b""
                 data = port.read(max(1, port.in_waiting))
                 return bytes(data)
-            if port.timeout != timeout_s:
-                port.timeout = max(0.0, timeout_s)
-            data = port.read(1)
-            if data:
-                data += port.read(port.in_waiting)
-            return bytes(data)
+            return self._read_sliced(timeout_s)
         except Exception as exc:
             raise TransportError(f"read failed ({exc}): {_lost_hint(port.port)}",
                                  port=port.port) from exc
+
+    def _read_sliced(self, timeout_s: float) -> bytes:
+        """What arrives within ``timeout_s`` on a port without a descriptor, in reads of
+        :attr:`READ_SLICE_S` (the port's fixed timeout): the first bytes end the wait."""
+        port = self.port
+        if port.in_waiting:
+            return bytes(port.read(port.in_waiting))
+        if timeout_s <= 0:
+            return b""
+        deadline = self.clock.now() + max(0.0, timeout_s)
+        while True:
+            data = port.read(1)
+            if data:
+                return bytes(data) + bytes(port.read(port.in_waiting) if port.in_waiting else b"")
+            if self.clock.now() >= deadline:
+                return b""
 
     def set_baud(self, baud: int) -> None:
         """Run the port at ``baud`` (what was written is sent first)."""
@@ -371,12 +394,19 @@ class SerialTransport(LinkTransport):
         self.low_latency = low_latency
         self.rtt_s: float | None = None
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs, arm=False)
-        if fast and fast != baud:
-            try:
-                self.switch_baud(fast)  # a bridge that cannot: a notice, and the link stays
+        #: why the line runs at :attr:`baud` (``status`` says it)
+        self.rate_note = "the handshake rate" + ("" if fast else " (fast_baud=0)")
+        if fast and fast != baud and not getattr(pipe, "sets_line_rate", True):
+            self.rate_note = (f"the handshake rate: raw TCP cannot set the far UART's rate, so "
+                              f"fast_baud={fast} is not asked for (rfc2217:// can)")
+        elif fast and fast != baud:
+            try:  # a bridge or a port that cannot: a warning, and the link stays
+                switched = self.switch_baud(fast)
             except BaseException:
                 self.close()
                 raise
+            self.rate_note = (f"switched from {baud} baud after the handshake" if switched else
+                              f"the handshake rate: the switch to {fast} baud did not take")
             self.stats.reset()
         if measure_rtt:
             try:
@@ -417,6 +447,10 @@ class SerialTransport(LinkTransport):
     def measure_rtt(self, n: int = RTT_PINGS) -> float:
         """Median round trip of ``n`` empty PINGs, seconds."""
         return statistics.median(self.ping() for _ in range(n))
+
+    def line_rate(self) -> tuple[int, str]:
+        """The rate the line runs at and why (``lm629 status``'s ``link`` line)."""
+        return self.baud or 0, self.rate_note
 
     def describe(self) -> str:
         rtt = f", round trip {self.rtt_s * 1e3:.2f} ms" if self.rtt_s is not None else ""
