@@ -30,6 +30,7 @@ import os
 import select
 import statistics
 import sys
+import threading
 from dataclasses import dataclass
 
 try:  # POSIX only; imported early so that the advice works even where modules can't load
@@ -158,12 +159,80 @@ def options_of(url: str | PortURL) -> SerialOptions:
                          fast=opts["fast_baud"])
 
 
-def _lost_hint(device: str | None) -> str:
-    """What a link that failed mid-use most likely means on this kind of port."""
-    if device and device.split("://", 1)[0] in ("socket", "rfc2217"):
+def _lost_hint(device: str | None, heard: bytes = b"") -> str:
+    """What a link that failed mid-use most likely means on this kind of port; ``heard``: the
+    last bytes the server sent (ser2net says why it refuses a client in words)."""
+    if device and _scheme(device) in ("socket", "rfc2217"):
+        said = _words(heard)
+        if said:
+            return _refused(device, said)
         return ("the server closed the connection: a served bench (`lm629 sim serve --tcp`) "
                 "and ser2net take one client at a time; is another one connected?")
     return "was the board unplugged?"
+
+
+def _words(data: bytes) -> str:
+    """The text at the end of ``data`` when it is a line of words (``Port already in use``),
+    else ''."""
+    if not data.endswith(b"\n"):
+        return ""
+    line = data.rstrip(b"\r\n\0").rpartition(b"\n")[2].strip()
+    if len(line) >= 6 and all(32 <= b < 127 for b in line) and any(65 <= b <= 122 for b in line):
+        return line.decode("ascii")
+    return ""
+
+
+def _refused(device: str, said: str) -> str:
+    """The one line for a server that refused this client with ``said``."""
+    hostport = device.split("://", 1)[1].split("?", 1)[0]
+    if "in use" in said.lower():
+        port = hostport.rpartition(":")[2]
+        return (f"the server at {hostport} answered {said!r}: another client holds this bench "
+                "(ser2net serves one at a time; on its machine `ss -tn state established "
+                f"sport = :{port}` shows who; in a lab, the place's lock says)")
+    return f"the server at {hostport} answered {said!r} and closed the connection"
+
+
+def _server_says(device: str, wait_s: float = 1.0) -> str:
+    """What the TCP server of a ``socket://`` or ``rfc2217://`` URL says to a new connection
+    before anything is sent (ser2net: "Port already in use" to a second client), or ''.
+    Asked only after an open failed, to say why."""
+    import socket
+    import time
+
+    hostport = device.split("://", 1)[1].split("?", 1)[0].split("/", 1)[0]
+    host, _, port = hostport.rpartition(":")
+    heard = b""
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=wait_s) as sock:
+            deadline = time.monotonic() + wait_s
+            while (left := deadline - time.monotonic()) > 0:
+                sock.settimeout(left)
+                chunk = sock.recv(256)
+                if not chunk:
+                    break
+                heard += chunk.replace(b"\xff\xff", b"")
+                if _words(_no_telnet(heard)):
+                    break
+    except (OSError, ValueError):
+        pass
+    return _words(_no_telnet(heard))
+
+
+def _no_telnet(data: bytes) -> bytes:
+    """``data`` without its telnet commands (IAC sequences: ser2net's RFC 2217 greeting)."""
+    out, i = bytearray(), 0
+    while i < len(data):
+        b = data[i]
+        if b != 0xFF:
+            out.append(b)
+            i += 1
+        elif i + 1 < len(data) and data[i + 1] == 0xFA:  # SB ... IAC SE
+            end = data.find(b"\xff\xf0", i + 2)
+            i = len(data) if end < 0 else end + 2
+        else:
+            i += 3 if i + 1 < len(data) and 0xFB <= data[i + 1] <= 0xFE else 2
+    return bytes(out)
 
 
 def line_advice_of(device: str | None) -> str | None:
@@ -192,6 +261,7 @@ class SerialPipe:
         self.port = port
         self.line_advice = line_advice_of(getattr(port, "port", None))
         self.clock = clock or WallClock()
+        self._heard = b""
         try:
             self._fd: int | None = port.fileno()
         except Exception:  # noqa: BLE001 - Windows ports and URL handlers have no fd
@@ -214,6 +284,9 @@ class SerialPipe:
     #: the longest a read on a port without a descriptor waits at once: how far a wait on
     #: such a port may overrun the time asked (data ends a read at once, whatever this is)
     READ_SLICE_S = 0.005
+    #: the last bytes read are kept, this many: a server that refuses a client says why in
+    #: words before it closes (ser2net: "Port already in use"), and a lost link quotes them
+    HEARD = 80
     #: how long a write may find the port full before the link is given up as lost
     WRITE_STUCK_S = 2.0
 
@@ -224,7 +297,7 @@ class SerialPipe:
             else:
                 self.port.write(data)
         except Exception as exc:
-            raise TransportError(f"write failed ({exc}): {_lost_hint(self.port.port)}",
+            raise TransportError(f"write failed ({exc}): {_lost_hint(self.port.port, self._heard)}",
                                  port=self.port.port) from exc
 
     def _write_fd(self, data: bytes) -> None:
@@ -245,6 +318,12 @@ class SerialPipe:
                 raise TimeoutError(f"the port took nothing for {self.WRITE_STUCK_S:g} s")
 
     def read(self, timeout_s: float) -> bytes:
+        data = self._read(timeout_s)
+        if data:
+            self._heard = (self._heard + data)[-self.HEARD:]
+        return data
+
+    def _read(self, timeout_s: float) -> bytes:
         port = self.port
         try:
             if self._fd is not None:
@@ -255,7 +334,7 @@ class SerialPipe:
                 return bytes(data)
             return self._read_sliced(timeout_s)
         except Exception as exc:
-            raise TransportError(f"read failed ({exc}): {_lost_hint(port.port)}",
+            raise TransportError(f"read failed ({exc}): {_lost_hint(port.port, self._heard)}",
                                  port=port.port) from exc
 
     def _read_sliced(self, timeout_s: float) -> bytes:
@@ -325,6 +404,32 @@ def rfc2217_url(device: str) -> str:
     return base + ("?" + urlencode(pairs, safe=":/") if pairs else "")
 
 
+#: the name pyserial gives its RFC 2217 client's reader thread (serial/rfc2217.py)
+_RFC2217_READER = "pySerial RFC 2217 reader thread"
+
+
+def _quiet_rfc2217_reader() -> None:
+    """pyserial's RFC 2217 client answers telnet options from its reader thread without a
+    guard: a server that closes at once (ser2net refusing a second client, or killed) ends
+    that thread with a traceback on stderr, while the open or the link reports the same
+    failure in its own one line.  Such an end goes to the debug log instead; every other
+    thread's exception still goes to the hook that was there."""
+    previous = threading.excepthook
+    if getattr(previous, "lm629_quiet", False):
+        return
+
+    def hook(args) -> None:  # threading.ExceptHookArgs
+        thread = args.thread
+        if thread is not None and thread.name.startswith(_RFC2217_READER) and \
+                issubclass(args.exc_type, OSError):
+            log.debug("%s ended: %s", thread.name, args.exc_value)
+            return
+        previous(args)
+
+    hook.lm629_quiet = True  # type: ignore[attr-defined]
+    threading.excepthook = hook
+
+
 def open_port(device: str, baud: int):
     """Open ``device`` with pyserial (8N1, exclusive) or raise a :class:`TransportError` that
     says what to do.  ``device`` may be any pyserial URL (``serial_for_url``): a bridge on
@@ -332,16 +437,22 @@ def open_port(device: str, baud: int):
     ``spy://PORT?file=...`` to hex-dump the traffic."""
     import serial
 
-    device = rfc2217_url(device)
+    scheme = _scheme(device)
+    if scheme == "rfc2217":
+        _quiet_rfc2217_reader()
     # pyserial's RFC 2217 client refuses a write_timeout (NotImplementedError); its writes are
     # bounded by its socket's own timeout instead (5 s, set when it connects)
-    bounded = {} if _scheme(device) == "rfc2217" else {"write_timeout": WRITE_TIMEOUT_S}
+    bounded = {} if scheme == "rfc2217" else {"write_timeout": WRITE_TIMEOUT_S}
     try:
         # exclusive: a lock on a local port (spy:// included); network handlers ignore it
-        return serial.serial_for_url(device, baud, timeout=0, exclusive=True, **bounded)
-    except serial.SerialException as exc:
+        return serial.serial_for_url(rfc2217_url(device), baud, timeout=0, exclusive=True,
+                                     **bounded)
+    except (serial.SerialException, OSError) as exc:  # OSError: a network handler's socket
         code = getattr(exc, "errno", None)
         text = str(exc)
+        if scheme in ("socket", "rfc2217") and (said := _server_says(device)):
+            raise TransportError(f"cannot open {device}: {_refused(device, said)}",
+                                 port=device) from None
         if is_handler_url(device):
             raise TransportError(
                 f"cannot open {device}: {text}. For socket:// and rfc2217://: is the bridge's "
