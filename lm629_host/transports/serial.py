@@ -166,8 +166,9 @@ def _lost_hint(device: str | None, heard: bytes = b"") -> str:
         said = _words(heard)
         if said:
             return _refused(device, said)
-        return ("the server closed the connection: a served bench (`lm629 sim serve --tcp`) "
-                "and ser2net take one client at a time; is another one connected?")
+        return ("the server closed the connection: is it still running (ser2net, "
+                "`lm629 sim serve --tcp`) and the network path up? (Both take one client at a "
+                "time: is another one connected?)")
     return "was the board unplugged?"
 
 
@@ -257,9 +258,13 @@ class SerialPipe:
     """A :class:`~lm629_host.bridge.protocol.Pipe` over an open pyserial port, in real time.
     ``line_advice``: what to check when the line fails, where it is no USB cable."""
 
-    def __init__(self, port, clock: Clock | None = None) -> None:  # port: serial.Serial
+    def __init__(self, port, clock: Clock | None = None,
+                 device: str | None = None) -> None:  # port: serial.Serial
         self.port = port
-        self.line_advice = line_advice_of(getattr(port, "port", None))
+        #: the port as the user gave it (messages quote it; pyserial's may carry an option
+        #: :func:`open_port` added)
+        self.device: str = device or getattr(port, "port", None) or "?"
+        self.line_advice = line_advice_of(self.device)
         self.clock = clock or WallClock()
         self._heard = b""
         try:
@@ -276,7 +281,7 @@ class SerialPipe:
         #: whether a change of rate reaches the line: not through raw TCP (``socket://``),
         #: which carries bytes only, so that the far UART (ser2net's) keeps its rate; RFC 2217
         #: sends it to the far UART as SET-BAUDRATE and waits for the server's answer
-        self.sets_line_rate = _scheme(str(getattr(port, "port", "") or "")) != "socket"
+        self.sets_line_rate = _scheme(self.device) != "socket"
         #: writes go to the descriptor itself only on a plain device (a URL handler such as
         #: spy:// does its own work in write())
         self._write_raw = self._fd is not None and type(port).__module__ == "serial.serialposix"
@@ -297,8 +302,8 @@ class SerialPipe:
             else:
                 self.port.write(data)
         except Exception as exc:
-            raise TransportError(f"write failed ({exc}): {_lost_hint(self.port.port, self._heard)}",
-                                 port=self.port.port) from exc
+            raise TransportError(f"write failed ({exc}): {_lost_hint(self.device, self._heard)}",
+                                 port=self.device) from exc
 
     def _write_fd(self, data: bytes) -> None:
         """All of ``data`` to the port's descriptor (non-blocking, as pyserial opens it),
@@ -334,8 +339,8 @@ class SerialPipe:
                 return bytes(data)
             return self._read_sliced(timeout_s)
         except Exception as exc:
-            raise TransportError(f"read failed ({exc}): {_lost_hint(port.port, self._heard)}",
-                                 port=port.port) from exc
+            raise TransportError(f"read failed ({exc}): {_lost_hint(self.device, self._heard)}",
+                                 port=self.device) from exc
 
     def _read_sliced(self, timeout_s: float) -> bytes:
         """What arrives within ``timeout_s`` on a port without a descriptor, in reads of
@@ -359,7 +364,7 @@ class SerialPipe:
             self.port.flush()
             self.port.baudrate = baud
         except Exception as exc:
-            raise TransportError(f"cannot set {baud} baud ({exc})", port=self.port.port) from exc
+            raise TransportError(f"cannot set {baud} baud ({exc})", port=self.device) from exc
 
     def reset_input(self) -> None:
         try:
@@ -541,7 +546,7 @@ class SerialTransport(LinkTransport):
         low = "off (low_latency=0)"
         if opts.low_latency:
             done, low = set_low_latency(port)
-        pipe = SerialPipe(port)
+        pipe = SerialPipe(port, device=opts.device)
         pipe.reset_input()
         return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
                    boot_s=opts.boot_s, low_latency=low, fast=opts.fast)

@@ -23,7 +23,7 @@ import time
 import pytest
 
 import lm629_host
-from lm629_host import SCurve, Status
+from lm629_host import SCurve, Status, TransportError
 from served import _env, serve
 from ser2net_fixture import ser2net, ser2net_version
 
@@ -36,6 +36,8 @@ PROTOCOLS = ["rfc2217", "raw"]
 #: (tests/transports/test_late_host.py)
 FULL_BOARD = {"python": "sim://", "firmware": "sim://?axes=4"}
 VELOCITY, ACCELERATION = 131072, 655
+#: 2 counts a sample of 256 us
+COUNTS_PER_S = 2 / 256e-6
 
 
 def lm629(url: str, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
@@ -125,3 +127,53 @@ def test_a_second_client_is_refused_in_one_line(tmp_path, protocol):
             assert first.read_status() & Status.MOTOR_OFF  # the first client's link still works
         p = lm629(s2n.url, "status")  # once the first has gone, the next one is served
         assert p.returncode == 0, p.stderr
+
+
+@pytest.mark.parametrize("protocol", PROTOCOLS)
+@pytest.mark.parametrize("far_end", FAR)
+def test_ser2net_killed_mid_move_the_bridge_stops_the_axis_and_the_next_open_is_told(
+        tmp_path, far_end, protocol):
+    """ser2net dies (SIGKILL) 0.3 s into a 100000-count move: the host's next command fails in
+    one line naming the network path; the bridge, silent for its failsafe (0.2 s here), stops
+    the axis short of the target (about 3000 counts in); the next open through a restarted
+    ser2net is told of the trip and acknowledges it, and the shaft is at rest."""
+    with serve(tmp_path, far_end, FULL_BOARD[far_end]) as bench, \
+            ser2net(bench.link, tmp_path, protocol) as s2n:
+        chip = lm629_host.open(f"{s2n.url}?failsafe=0.2")
+        try:
+            chip.reset()
+            chip.load_filter(kp=20, kd=100)
+            chip.update_filter()
+            t_move = time.monotonic()
+            chip.move_to(100_000, velocity=VELOCITY, acceleration=ACCELERATION)
+            time.sleep(0.3)
+            s2n.kill()
+            ran_s = time.monotonic() - t_move + 0.2  # the longest it could run: + the failsafe
+            with pytest.raises(TransportError) as e:
+                for _ in range(50):  # the keep-alive or this read finds the link gone
+                    chip.read_real_position()
+                    time.sleep(0.02)
+            msg = str(e.value)
+            assert "\n" not in msg and "is it still running" in msg, msg
+            assert "ign_set_control" not in msg  # the port as the user gave it
+        finally:
+            t0 = time.monotonic()
+            chip.close()  # a link already gone closes without a hang
+            assert time.monotonic() - t0 < 2.0
+        s2n.start()
+        p = lm629(s2n.url, "status", "--json")
+        assert p.returncode == 0, p.stderr
+        first = json.loads(p.stdout)
+        trip = first["failsafe"]["trip"]
+        assert trip is not None and 0 in trip["cs"], first
+        assert trip["silent_s"] == pytest.approx(0.2, abs=0.01)
+        assert "after the host was silent for 0.20 s" in trip["text"]
+        p = lm629(s2n.url, "status", "--json")
+        again = json.loads(p.stdout)
+        assert again["failsafe"]["trip"] is None  # acknowledged by the first open
+        # stopped short of the target where the bridge stopped it (+ 0.25 s for the
+        # abrupt stop and the far end's real-time steps), at rest
+        assert 0 < first["real_position"] < COUNTS_PER_S * (ran_s + 0.25), (first, ran_s)
+        assert first["desired_velocity"] == 0
+        assert again["desired_velocity"] == 0 and \
+            abs(again["real_position"] - first["real_position"]) <= 20, (first, again)
