@@ -60,9 +60,10 @@ from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, P
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.chip.shapes import Points, SCurve, Shape, ShapedMove, check_piece_s
 from lm629_host.chip.shapes import plan as plan_shape
-from lm629_host.chip.safety import stop_on_error
+from lm629_host.chip.safety import stop_at_exit, stop_if_moving, stop_on_error
 from lm629_host.bus.snapshot import Snapshot, add_snapshot, snapshot_at
 from lm629_host.chip.wraparound import PositionTracker, check_register_position, short_way
+from lm629_host.transports import exiting
 from lm629_host.transports.base import Transport
 
 if TYPE_CHECKING:
@@ -156,6 +157,9 @@ class LM629:
         #: the motor off) and no STT since: where a move would start, known without a read
         #: (None: not known; :meth:`move_to` reads it first)
         self._rest_desired: int | None = None
+        # a script that ends without close(): its normal exit stops this chip if it moves
+        # before the link closes (lm629_host/transports/exiting.py)
+        exiting.stop_at_exit(transport, self.chip_select, lambda: stop_at_exit(self))
 
     # ------------------------------------------------------------------ plumbing
     @property
@@ -262,7 +266,6 @@ class LM629:
         """Left by an exception: stop the axis if it moves (abrupt stop, the PID holding)
         before the link closes; left normally: the axis stays as the block left it."""
         if exc_type is not None:
-            from lm629_host.chip.safety import stop_if_moving
             stop_if_moving(self)
         self.close()
 
