@@ -26,22 +26,28 @@ import logging
 import os
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-if TYPE_CHECKING:
-    from lm629_host.transports.base import Transport
+
+class OpenLink(Protocol):
+    """What this module needs of a transport (:class:`~lm629_host.transports.base.Transport`:
+    that module registers here, so this one does not import it back)."""
+
+    url: str
+
+    def close(self) -> None: ...
 
 log = logging.getLogger("lm629_host.transports")
 
 #: every transport open in this process, with what to do before it closes at exit (per key:
 #: a chip select, so that the last object made for a chip is the one that stops it)
-_OPEN: dict[Transport, dict[object, Callable[[], object]]] = {}
+_OPEN: dict[OpenLink, dict[object, Callable[[], object]]] = {}
 _LOCK = threading.Lock()
 _PID = os.getpid()
 _registered = False
 
 
-def track(transport: Transport) -> None:
+def track(transport: OpenLink) -> None:
     """Count ``transport`` as open (called by every transport as it is made)."""
     global _registered
     with _LOCK:
@@ -51,13 +57,13 @@ def track(transport: Transport) -> None:
             _registered = True
 
 
-def forget(transport: Transport) -> None:
+def forget(transport: OpenLink) -> None:
     """``transport`` closed: nothing to do for it at exit."""
     with _LOCK:
         _OPEN.pop(transport, None)
 
 
-def stop_at_exit(transport: Transport, key: object, action: Callable[[], object]) -> None:
+def stop_at_exit(transport: OpenLink, key: object, action: Callable[[], object]) -> None:
     """Run ``action`` (stop a chip if it moves) before ``transport`` is closed at exit; a later
     action with the same ``key`` replaces the earlier one.  An action that returns False (the
     chip may still move) keeps the link from a clean close: the far side's failsafe, left
@@ -67,7 +73,7 @@ def stop_at_exit(transport: Transport, key: object, action: Callable[[], object]
             _OPEN[transport][key] = action
 
 
-def left_open() -> list[Transport]:
+def left_open() -> list[OpenLink]:
     """The transports open now, in the order they were made."""
     with _LOCK:
         return list(_OPEN)
