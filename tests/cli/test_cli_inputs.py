@@ -199,6 +199,57 @@ def test_the_readme_exit_code_table_lists_every_code_of_the_cli():
     assert codes == set(cli_app.EXIT_CODES)
 
 
+def test_docs_cli_exit_code_table_lists_every_code_of_the_cli():
+    """docs/cli.md's exit-code table names the codes of ``EXIT_CODES`` too (a row may name
+    several: ``3 / 4 / 5``)."""
+    import re
+    from pathlib import Path
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "cli.md").read_text()
+    table = doc[doc.index("**Exit codes**"):]
+    table = table[table.index("\n  |"):].strip()
+    table = table[:table.index("\n\n")]
+    codes = {int(c) for row in table.splitlines()[2:] for c in re.findall(r"\d+", row.split("|")[1])}
+    assert codes == set(cli_app.EXIT_CODES)
+
+
+def test_no_two_meanings_share_an_exit_code():
+    """One table, one meaning per code: every exit code a command gives (the error classes',
+    the selftest's verdicts, a check's "found a problem", a prompt answered no, the stop
+    signals) is grouped by what it means, and no two meanings share a code (a selftest FAIL
+    was 2, bad usage's; a declined prompt 1, a check's), each code a row of EXIT_CODES."""
+    import signal
+
+    from lm629_host.bench import selftest
+    from lm629_host.cli import tune, twin
+    from lm629_host.errors import (BusyTimeout, CommandError, LM629Error, MotionError,
+                                   ResetError, TransportError, WaitTimeout)
+    error_code = dict(cli_app._ERROR_EXITS)
+    meanings: dict[str, set[int]] = {
+        "success": {0, selftest.EXIT["PASS"]},
+        "a check found a problem": {selftest.EXIT["DIFFERS"], tune.EXIT_NOT_MET,
+                                    twin.EXIT_DIFFERS},
+        "bad usage or value": {2, error_code[ValueError]},
+        "transport error": {error_code[TransportError]},
+        "busy timeout": {error_code[BusyTimeout]},
+        "reset failure": {error_code[ResetError]},
+        "command error": {error_code[CommandError]},
+        "wait timeout": {error_code[WaitTimeout]},
+        "other driver error": {error_code[LM629Error]},
+        "motion fault": {error_code[MotionError]},
+        "the selftest could not finish": {selftest.EXIT["FAIL"]},
+        "interrupted, or a prompt answered no": {cli_app.EXIT_DECLINED, 128 + signal.SIGINT},
+        "hang-up": {128 + signal.SIGHUP},
+        "terminated": {128 + signal.SIGTERM},
+        "output closed": {141},
+    }
+    assert {m: len(c) for m, c in meanings.items()} == {m: 1 for m in meanings}
+    codes = [c for cs in meanings.values() for c in cs]
+    assert len(codes) == len(set(codes)), meanings
+    assert set(codes) == set(cli_app.EXIT_CODES)
+    assert "selftest FAIL" in cli_app.EXIT_CODES[selftest.EXIT["FAIL"]]
+    assert "selftest DIFFERS" in cli_app.EXIT_CODES[selftest.EXIT["DIFFERS"]]
+
+
 def test_status_into_a_closed_pipe_exits_141_as_the_docs_say():
     """docs/cli.md: stdout closed (`lm629 status | head -3`) is 141, output lost, as any Unix
     tool that SIGPIPE ends.  The pipe's read end is closed before the command starts, so its

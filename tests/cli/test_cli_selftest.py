@@ -59,8 +59,54 @@ def test_hi_not_wired_names_the_line(tmp_path):
 
 
 def test_motion_asks_first_and_moves_nothing_on_no():
+    """A prompt answered no is the table's 130 (cli.EXIT_CODES), not 1 (a check's verdict)."""
     r = _run("--port", "sim://?record=1", "selftest", "--motion", stdin="n\n")
-    assert r.exit_code == 1 and "nothing moved" in r.output
+    assert r.exit_code == 130 and "nothing moved" in r.output
+    assert "a prompt before the motor turns answered no" in cli.EXIT_CODES[130]
+
+
+def test_a_selftest_that_cannot_finish_exits_with_its_own_code():
+    """FAIL (a chip that never leaves reset) is 10, its own row of the table, not 2 (bad
+    usage) nor 5 (the reset failure of a command that stops there: the selftest reports)."""
+    r = _run("--port", "sim://?fault=reset", "selftest")
+    assert r.exit_code == 10 and "verdict: FAIL" in r.output, r.output
+    assert cli.EXIT_CODES[10].startswith("selftest FAIL")
+
+
+PROFILE_XY = """\
+[board]
+chip = "lm629"
+clock = "8MHz"
+
+[axis.x]
+cs = 0
+kp = 20
+
+[axis.y]
+cs = 1
+kp = 30
+"""
+
+
+def test_a_profiles_several_axes_are_each_tested(tmp_path: Path):
+    """A profile with axes x and y: both tested, in turn, each with its own report
+    (bench-x.json, bench-y.json); exit the worst verdict.  --axis y: y alone."""
+    profile = tmp_path / "bench.toml"
+    profile.write_text(PROFILE_XY)
+    path = tmp_path / "bench.json"
+    r = _run("--port", "sim://?axes=2", "--profile", str(profile), "selftest", "--report",
+             str(path))
+    assert r.exit_code == 0, r.output
+    assert "selftest of axis x (cs 0)" in r.output and "selftest of axis y (cs 1)" in r.output
+    assert r.output.count("verdict: PASS") == 2
+    for name, cs in (("x", 0), ("y", 1)):
+        data = json.loads((tmp_path / f"bench-{name}.json").read_text())
+        assert validate(data) == [] and data["profile"]["cs"] == cs
+    one = _run("--port", "sim://?axes=2", "--profile", str(profile), "--axis", "y", "selftest")
+    assert one.exit_code == 0 and "axis y (cs 1)" in one.output and "axis x" not in one.output
+    # chips that never leave reset: a FAIL on each axis, and the exit code of the whole
+    bad = _run("--port", "sim://?axes=2&fault=reset", "--profile", str(profile), "selftest")
+    assert bad.exit_code == 10 and bad.output.count("verdict: FAIL") == 2
 
 
 def test_no_index_with_motion_names_the_index():
