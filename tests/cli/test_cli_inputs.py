@@ -49,6 +49,8 @@ BAD = [
     (["move", "100", "--timeout", "0"], "--timeout"),
     (["move", "100", "--tolerance", "-1"], "--tolerance"),
     (["move", str(1 << 30)], "outside -1073741824..1073741823"),
+    (["move", "2000000000"], "TARGET: 2000000000 counts, outside"),  # as typed, not 2e+09
+    (["move", "0x7FFFFFFF"], "TARGET: 0x7FFFFFFF (2147483647 counts), outside"),
     (["move", "--vell", "5"], "--vell"),
     (["--lines", "500", "move", "1e9"], "outside"),
     (["--lines", "500", "move", "1", "--vel", "1e9"], "--vel"),
@@ -83,6 +85,20 @@ def test_bad_input_is_one_line_and_moves_nothing(run, opened, args, words):
     assert len(err_lines(r)) == 1 and words in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert not _moved(opened)
+
+
+@pytest.mark.parametrize("scheme", ["sim", "sim+emu", "sim+ftdi"])
+@pytest.mark.parametrize("path, why", [("/proc/x.vcd", "cannot create it"),
+                                       ("/proc", "that is a directory")])
+def test_an_unwritable_vcd_path_is_one_line_before_anything_opens(run, opened, scheme, path,
+                                                                   why):
+    """vcd= naming a file that cannot be made (/proc takes no new file, even for root) was a
+    39-line traceback, "internal error (FileNotFoundError)", exit 8, from the writer: it is
+    bad usage, said in one line before the simulator is built."""
+    r = run("--port", f"{scheme}://?vcd={path}", "status")
+    assert r.exit_code == 2, r.output
+    assert len(err_lines(r)) == 1 and f"vcd={path}: {why}" in r.stderr, r.stderr
+    assert opened == []
 
 
 def test_empty_port_is_an_error_not_the_simulator(run, opened):
