@@ -138,3 +138,23 @@ def test_a_served_6mhz_bench_with_an_8mhz_profile_names_the_measured_clock(tmp_p
     assert p.returncode == 1, p.stdout + p.stderr
     assert "clock: the chip's clock measures 6.00 MHz" in p.stdout
     assert "the profile says 8 MHz" in p.stdout and "verdict: DIFFERS" in p.stdout
+
+
+@pytest.mark.slow
+def test_a_served_bench_parked_on_its_index_passes_and_compares_clean(tmp_path: Path):
+    """The issue's bench: `lm629 sim serve`, `filter --kp 3415 --kd 26219`, `move 1000` (the
+    default encoder's index is 2 x 500 counts from power-up: the shaft rests on it), then
+    `selftest --report`, each a process of its own: PASS (it was DIFFERS, "home: status: chip
+    000C, model 0004 after DFH"), and the report compares clean."""
+    import subprocess
+    report = tmp_path / "r.json"
+    with serve(tmp_path, "python") as bench:
+        for args in (("filter", "--kp", "3415", "--kd", "26219"), ("move", "1000"),
+                     ("selftest", "--report", str(report))):
+            p = subprocess.run(bench.argv(*args), capture_output=True, text=True,
+                               timeout=120, env=_env())
+            assert p.returncode == 0, (args, p.stdout + p.stderr)
+    assert "[--] index    the shaft rests on the index" in p.stdout
+    assert "verdict: PASS" in p.stdout
+    c = _run("selftest", "--compare", str(report))
+    assert c.exit_code == 0 and c.output.rstrip().endswith("no differences"), c.output
