@@ -24,7 +24,10 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from lm629_host.errors import ArgumentError, AxisError, CommandError, MotionError
-from lm629_host.chip.lm629 import LM629, Snapshot, check_int, reset_chips
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bus.snapshot import Snapshot
+from lm629_host.errors import check_int
+from lm629_host.chip.reset import reset_chips
 from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules, check_duration
 from lm629_host.chip.wraparound import short_way
 from lm629_host.bus.opcodes import (
@@ -222,7 +225,7 @@ class Board:
     def reset(self) -> list[Status]:
         """One /RST for every chip (the line is shared), then AN-706 4.4.1's check on each:
         00 at once, 84/C4 after 1.5 ms, 80/C0 after MSKI/RSTI 0000.  Two programs in all
-        (:func:`~lm629_host.chip.lm629.reset_chips`, which :meth:`LM629.reset` runs for one chip).
+        (:func:`~lm629_host.chip.reset.reset_chips`, which :meth:`LM629.reset` runs for one chip).
         Retries ``reset_attempts`` times, then raises :class:`ResetError` naming the first
         axis that failed, with its status bytes."""
         return reset_chips(self.axes, pulse=self.transport.has_reset_line,
