@@ -112,7 +112,8 @@ def _step_answer(path: str, worker: Any, cs: int) -> Callable[[Outcome], Outcome
         t = [float(r["t_s"]) for r in rows]
         desired = [int(r["desired_position"]) for r in rows]
         actual = [int(r["real_position"]) for r in rows]
-        prediction = predict(worker, cs, t, desired, actual[0] if actual else 0)
+        before = [a for x, a in zip(t, actual) if x <= 0]  # where the shaft was at the STT
+        prediction = predict(worker, cs, t, desired, (before or actual or [0])[-1])
         text = outcome.text.strip().splitlines()
         text = [ln for ln in text if not ln.startswith("wrote ")]
         outcome.text = "\n".join(text)
@@ -137,14 +138,16 @@ def predict(worker: Any, cs: int, t: list[float], desired: list[int], x0: int) -
     gains = Gains(known.get("kp", 0), known.get("ki", 0), known.get("kd", 0), known.get("il", 0),
                   known.get("ds", 1))
     sample_s = worker.sample_s
+    # from the STT (t = 0): the desired position at each sample is the row's at or after it
+    # (exact for a step, which jumps at the STT; at most a row early on a ramp)
     n = max(1, math.ceil(t[-1] / sample_s) + 1)
     per_sample, j = [], 0
-    for k in range(n):  # the desired position at each sample: the last row at or before it
-        while j + 1 < len(t) and t[j + 1] <= k * sample_s + 1e-12:
+    for k in range(n):
+        while j + 1 < len(t) and t[j] < k * sample_s - 1e-12:
             j += 1
         per_sample.append(desired[j])
     counts, _ = simulate(model, gains, per_sample, x0=x0 + 0.5)
-    predicted = [counts[min(n - 1, round(x / sample_s))] for x in t]
+    predicted = [x0 if x < 0 else counts[min(n - 1, round(x / sample_s))] for x in t]
     return {"predicted": predicted, "model": whence}
 
 

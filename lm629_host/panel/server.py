@@ -41,7 +41,9 @@ LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]")
 
 
 def is_loopback(host: str) -> bool:
-    return host in ("127.0.0.1", "localhost", "::1", "[::1]") or host.startswith("127.")
+    """The addresses served without --expose: this machine's usual loopback names only (any
+    other, even 127.0.0.2, counts as elsewhere: a token in the address, an explicit flag)."""
+    return host in ("127.0.0.1", "localhost", "::1", "[::1]")
 
 
 def _static(name: str) -> bytes:
