@@ -209,9 +209,17 @@ class Lab:
             assert time.monotonic() < deadline, out
             time.sleep(0.1)
 
-    def add_place(self, place: str, match: str) -> None:
-        self.client("-p", place, "create")
-        self.client("-p", place, "add-match", match)
+    def add_places(self, matches: dict[str, str]) -> None:
+        """Create each place and add its match (place -> pattern), the places at once."""
+        for step in (("create",), ("add-match",)):
+            procs = {place: subprocess.Popen(
+                [str(self.bin / "labgrid-client"), "-p", place, *step,
+                 *((matches[place],) if step == ("add-match",) else ())],
+                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=self.env())
+                for place in matches}
+            for place, proc in procs.items():
+                out, _ = proc.communicate(timeout=60)
+                assert proc.returncode == 0, f"{place} {step}: {out}"
 
     def holder(self, place: str) -> str | None:
         """Who holds ``place`` ("host/user"), None when nobody does."""
