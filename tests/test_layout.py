@@ -419,8 +419,8 @@ def test_no_issue_number_in_a_comment_or_docstring():
 
 
 #: the layers, bottom first: a module imports only from its own layer and those below it.
-#: The foundations (errors, clock, urls) are top-level modules every layer uses; ``units`` and
-#: ``tuning`` are the two kept module paths (re-exports) and the package root is the top.
+#: The foundations (errors, clock, urls) are top-level modules every layer uses; the package
+#: root is the top.
 LAYERS: list[tuple[str, ...]] = [
     ("errors", "clock", "urls", "data"),
     ("bus",),  # the chip's bus: opcodes, pins, bus programs, the snapshot
@@ -435,7 +435,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("bench",),  # bring-up, tuning, capture, scope, wiring check and drawing
     # the doors, the sigrok decoder (loaded by libsigrokdecode, imports nothing of ours), and
     # the root
-    ("cli", "integrations", "sigrok", "units", "tuning", "__main__", ""),
+    ("cli", "integrations", "sigrok", "__main__", ""),
 ]
 
 
@@ -463,8 +463,8 @@ def test_the_layer_rule_sees_an_upward_import():
 
 
 def test_at_most_eight_modules_at_the_top():
-    """The package's top level holds its subpackages, ``__init__``/``__main__``, the
-    foundations and the two kept module paths: a new module goes in the layer it belongs to."""
+    """The package's top level holds its subpackages, ``__init__``/``__main__`` and the
+    foundations: a new module goes in the layer it belongs to."""
     top = sorted(p.stem for p in PKG.glob("*.py") if p.stem not in ("__init__", "__main__"))
     assert len(top) <= 8, top
 

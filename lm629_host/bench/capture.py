@@ -16,7 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from lm629_host.errors import MotionError
-from lm629_host.chip.lm629 import LM629, Snapshot, check_int
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bus.snapshot import Snapshot
+from lm629_host.errors import check_int
 from lm629_host.chip.move import MoveResult
 from lm629_host.physics.pid import STEP_ACCELERATION, STEP_VELOCITY
 from lm629_host.chip.recording import far_snapshots

@@ -172,6 +172,7 @@ def _client(tmp_path, bench, scenario: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.under_load
 @pytest.mark.parametrize("far_end", FAR_ENDS[:2])
 def test_a_host_holding_the_lock_for_2_s_is_not_tripped(tmp_path, far_end):
     """The keep-alive sends between programs under the link's own lock, not the user's."""
@@ -197,6 +198,7 @@ def cpu_hogs(request):
             h.wait()
 
 
+@pytest.mark.under_load
 @pytest.mark.parametrize("far_end", FAR_ENDS[:2])
 def test_an_idle_host_beside_two_cpu_hogs_is_not_tripped(tmp_path, far_end, cpu_hogs):
     with serve(tmp_path, far_end) as bench:
@@ -223,6 +225,7 @@ def _pause(p: subprocess.Popen, seconds: float) -> None:
 FULL_BOARD = {"python": "sim://", "firmware": "sim://?axes=4"}
 
 
+@pytest.mark.under_load
 @pytest.mark.parametrize("far_end", FAR_ENDS[:2])
 def test_a_host_paused_2_s_mid_move_is_told_the_truth(tmp_path, far_end):
     """SIGSTOP for 2 s mid-move: the bridge stops the axis after 0.5 s of silence; the host,
@@ -246,6 +249,7 @@ def test_a_host_paused_2_s_mid_move_is_told_the_truth(tmp_path, far_end):
         assert bench.status()["failsafe"]["tripped"] is False  # the next open acknowledged it
 
 
+@pytest.mark.under_load
 @pytest.mark.parametrize("far_end", FAR_ENDS[:2])
 def test_a_host_paused_0_2_s_mid_move_finishes_it(tmp_path, far_end):
     with serve(tmp_path, far_end) as bench:
