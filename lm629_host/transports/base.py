@@ -26,7 +26,7 @@ import threading
 from typing import TYPE_CHECKING, Any, final
 
 from lm629_host.clock import Clock, WallClock
-from lm629_host.transports.reports import (  # handed on: the records a transport reports
+from lm629_host.transports.reports import (
     HOST_POLLED_NOTE,
     Check,
     PortInfo,
