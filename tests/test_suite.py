@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from selection import shared_fixture_group, what_runs
+from selection import what_runs
+from xdist_groups import shared_fixture_group
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -61,13 +62,13 @@ def test_ci_runs_every_test_once_and_only_the_under_load_ones_beside_the_hogs(su
 
 
 def test_both_workers_share_the_long_tests(suite):
-    """One test at a time (--dist loadgroup, no file kept whole): the crossings machine's links
+    """One test at a time (-n auto, pyproject's --dist loadgroup; no file kept whole): the crossings machine's links
     run as separate tests, free to go to separate workers; a group only where tests share a
     fixture wider than a test, and a docs page's blocks together, in order."""
     addopts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"][
         "ini_options"]["addopts"]
-    assert "--dist loadgroup" in addopts and "-n auto" in addopts
-    assert not [line for line in _ci_pytest_lines() if "--dist" in line or " -n " in line]
+    assert "--dist loadgroup" in addopts
+    assert all(" -n auto " in line and "--dist" not in line for line in _ci_pytest_lines())
     links = [t for t in suite if "test_api_state_machine.py::" in t["id"]]
     assert len(links) == 3 and not [t for t in links if t["group"]]
     docs = {}
@@ -122,3 +123,48 @@ def test_a_plain_pytest_says_what_it_runs():
     assert "-m 'not slow'" in line and ".ci/run" in line
     assert "beside 2 CPU hogs" in what_runs("under_load", False, 2)
     assert "-m 'under_load'" in what_runs("under_load", False, 2)
+
+
+def test_a_shared_fixture_s_tests_run_on_one_worker(pytester, monkeypatch):
+    """The scheduling itself, two workers: a module fixture's tests (each parameter), and a
+    document's blocks (their own mark), each on one worker, in order; the rest spread.
+    xdist 3.8's own loadgroup spreads them on pytest 9.2 (pytest-xdist issue 1386)."""
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))
+    pytester.makepyfile(test_groups="""
+        import os, time
+        import pytest
+
+        def log(*what):
+            with open("ran.txt", "a") as f:
+                print(*what, os.environ["PYTEST_XDIST_WORKER"], file=f)
+
+        @pytest.fixture(scope="module", params=["a", "b"])
+        def bench(request):
+            return request.param
+
+        @pytest.mark.parametrize("i", range(4))
+        def test_shared(bench, i):
+            time.sleep(0.05)
+            log("RAN", bench)
+
+        @pytest.mark.parametrize("i", [pytest.param(i, marks=pytest.mark.xdist_group("page"))
+                                       for i in range(4)])
+        def test_page(i):
+            time.sleep(0.05)
+            log("RAN page")
+
+        @pytest.mark.parametrize("i", range(8))
+        def test_free(i):
+            time.sleep(0.05)
+            log("RAN free")
+    """)
+    r = pytester.runpytest_subprocess("-p", "xdist_groups", "-n", "2", "--dist", "loadgroup",
+                                      "-p", "no:cacheprovider")
+    r.assert_outcomes(passed=20)
+    ran: dict[str, set[str]] = {}
+    for line in (pytester.path / "ran.txt").read_text().splitlines():
+        if line.startswith("RAN "):
+            _, what, worker = line.split()
+            ran.setdefault(what, set()).add(worker)
+    assert len(ran["a"]) == len(ran["b"]) == len(ran["page"]) == 1, ran
+    assert len(ran["free"]) == 2, ran
