@@ -159,6 +159,11 @@ class Transport(abc.ABC):
     #: the longest far-side wait one exchange may hold, seconds (None: no limit): a bridge
     #: whose failsafe is armed counts a wait as the host alive only up to its timeout
     far_wait_limit_s: float | None = None
+    #: how much later than the far-side wait of a ``command; wait; status`` program its status
+    #: read may land, us (the far side's own time between the two, and the wait's own
+    #: rounding): a busy time measured that way (``lm629 selftest``) is short of the chip's
+    #: by up to this.  A cycle-at-a-time transport: one bus cycle (0.5 us simulated)
+    busy_probe_us: float = 1.0
     #: True when the far side issues a shaped move's pieces on its own timer
     #: (:meth:`profile`); otherwise the host times them on ``clock``
     far_profiles: bool = False
