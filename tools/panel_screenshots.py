@@ -53,6 +53,7 @@ def main() -> int:
     driver = webdriver.Chrome(service=Service(shutil.which("chromedriver") or "/usr/bin/chromedriver"),
                               options=options)
     try:
+        assert server.stdout is not None
         url = server.stdout.readline().strip()
         driver.get(url)
 
@@ -60,7 +61,7 @@ def main() -> int:
             return driver.find_element("id", i)
 
         def last(k: int):
-            return driver.execute_script("return (window.panelState.axes['0'].last || [])[%d]" % k)
+            return driver.execute_script(f"return (window.panelState.axes['0'].last || [])[{k}]")
 
         def fill(i: str, text: str) -> None:
             el(i).clear()

@@ -150,7 +150,7 @@ $("step").onclick = async () => {
   if (!r.ok || !r.data) return;
   const d = r.data;
   const data = [d.t, d.desired, d.actual, d.predicted || d.t.map(() => null)];
-  $("step-note").textContent = "prediction: " + d.model;
+  $("step-note").textContent = "prediction: " + d.basis;
   if (stepPlot) { stepPlot.setData(data); return; }
   stepPlot = new uPlot({title: "step: measured and predicted", width: 360, height: 200,
     scales: {x: {time: false}}, axes: [{label: "s"}, {size: 60}],
