@@ -16,7 +16,8 @@ real time.  On hardware the pace is the link's own.
 A stop pressed while a command waits (a shaped move, a step test) is raised in the worker
 after the bus program under way (the transport's ``after_program`` hook, as Ctrl-C is on the
 command line): the command's own :func:`~lm629_host.chip.safety.stop_on_error` stops the
-motor (abrupt stop, then motor off).
+motor (abrupt stop, then motor off), and the stop asked for runs next, so that the axis ends
+as the button's mode says (holding, or off).
 """
 
 from __future__ import annotations
@@ -259,14 +260,7 @@ class BenchWorker:
                 outcome = Outcome(code, message)
             with self._lock:
                 self._busy = None
-                interrupted = self._stop_asked
                 self._stop_asked = False
-                if interrupted and self._jobs and self._jobs[0].stop:
-                    # the command's own stop_on_error has stopped the motor (abrupt, then
-                    # off): a stop sent now would start the servo again
-                    stop = self._jobs.popleft()
-                    stop.outcome = Outcome(0, "stopped the command under way: " + outcome.text)
-                    stop.done.set()
             job.outcome = outcome
             job.done.set()
             self.publish({"type": "log", "argv": job.argv, "axis": self._name(job.cs),
