@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from panel_helpers import command, events, panel
+from panel_helpers import Panel, command, events, request
 from served import _console_script, _env
 
 PROFILE = """\
@@ -37,7 +37,6 @@ def profiled(tmp_path_factory):
     argv = [_console_script(), "--profile", str(path), "panel", "--listen", "127.0.0.1:0"]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=_env())
-    from panel_helpers import Panel
     p = Panel(proc, proc.stdout.readline().strip())
     assert p.url.startswith("http://"), p.url + proc.stderr.read()
     try:
@@ -59,7 +58,6 @@ def _rows_until(stream, seconds: float) -> list:
 
 def test_profile_axes_named_and_its_soft_limit_is_the_command_lines(profiled):
     p, token, path = profiled
-    from panel_helpers import request
     status, page = request(p, "GET", "/")
     assert '"axes": ["x", "y"]' in page
     cli = subprocess.run([_console_script(), "--profile", str(path), "--axis", "y", "move",
