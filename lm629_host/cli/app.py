@@ -415,6 +415,10 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
               help="sim://, serial://PATH or a device path, socket://HOST:PORT (ser2net, "
                    "`lm629 sim serve --tcp`), ftdi://..., sim+emu://, sim+avr://, sim+ftdi:// "
                    "(env LM629_PORT; default sim://).")
+@click.option("--place", "place", default=None, metavar="NAME",
+              help="A labgrid place instead of --port: acquired (locked) from the coordinator "
+                   "(LG_COORDINATOR), its serial port opened as rfc2217://, released at exit; "
+                   "NAME?fast_baud=... adds port URL options (docs/testing.md).")
 @click.option("--chip", "chip_name", type=click.Choice(["lm628", "lm629"]), default="lm629",
               show_default=True, help="Which chip is on the board (a simulator URL's chip= "
                                       "is used when --chip is not given; both must agree).")
@@ -440,14 +444,21 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
                                    "soft limits, gains re-applied after a power cycle.")
 @click.version_option(lm629_host.__version__, prog_name="lm629")
 @click.pass_context
-def main(ctx: click.Context, port: str | PortURL | None, chip_name: str, clock: str,
+def main(ctx: click.Context, port: str | PortURL | None, place: str | None, chip_name: str, clock: str,
          lines: int | None, verbose: int, trace: bool, stats: bool, vcd_path: str | None, axis_text: str | None,
          profile_path: str | None) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
     profile = None
+    signals = StopSignals()
+    if place is not None and ctx.get_parameter_source("port") == click.core.ParameterSource.COMMANDLINE:
+        raise click.BadParameter("--port and --place both name a bench: give one",
+                                 param_hint="--place")
     if profile_path is not None:
         profile, port, chip_name, clock, lines, axis_text = profile_options(
             ctx, profile_path, port, chip_name, clock, lines, axis_text)
+    if place is not None:  # the lab's bench (not a profile's port): locked until the context closes
+        from lm629_host.cli.lab import open_place
+        port = open_place(ctx, place, signals)
     try:
         clock_hz = _check_clock(parse_hz(clock), "--clock")
     except ValueError:
@@ -489,7 +500,7 @@ def main(ctx: click.Context, port: str | PortURL | None, chip_name: str, clock: 
                                  "'lm629-host[vcd]'", param_hint="--vcd" if vcd_path else "--port")
     _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
     session = Session(url, port is not None, chip_name, clock_hz,
-                      lines, verbose, trace, stats, spec)
+                      lines, verbose, trace, stats, spec, signals=signals)
     if axis_text is not None:
         session.axis_spec = parse_axes(axis_text)
     session.profile = profile

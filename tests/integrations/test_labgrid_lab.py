@@ -1,0 +1,203 @@
+"""A real labgrid lab on loopback (tests/integrations/labgrid_lab.py): a coordinator, two
+exporters (two benches: the Python far end and the firmware in simavr, each a ``lm629 sim
+serve --pty`` behind its exporter's ser2net), places made and locked with ``labgrid-client``.
+
+What runs through it: the project's labgrid example against a ``RemotePlace`` (coordinator,
+exporter, ser2net, RFC 2217), the driver's URL options passed through, ``lm629 --place NAME``
+(acquired, opened as rfc2217://, released however the command ends), a place someone else
+holds refused with labgrid's reason naming the holder, and ``lm629 lab selftest PATTERN`` over
+every bench.  One lab for the module; at its end nothing it started may still run.
+
+labgrid runs from its own venv (``LM629_LABGRID_PYTHON``, built by .ci/run); without it, or
+without ser2net (Debian's, installed by .ci/run), the module is skipped and says why.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from labgrid_lab import listening, running_lab
+from lm629_host.integrations.labgrid_place import parse_env_ports
+from served import _console_script
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "examples" / "labgrid"
+PYTHON = os.environ.get("LM629_LABGRID_PYTHON", "")
+#: someone else in the lab (labgrid names a user HOST/USER; LG_HOSTNAME, LG_USERNAME)
+ALICE = "otherpc/alice"
+#: place -> the exporter (bench) it matches; "lm629-spare" matches nothing exported
+PLACES = {"lm629-py": "bench-py", "lm629-fw": "bench-fw", "lm629-spare": "bench-none"}
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    if not PYTHON or not Path(PYTHON).exists():
+        pytest.skip("labgrid lab not run: LM629_LABGRID_PYTHON does not name the python of a "
+                    "labgrid venv (.ci/run builds .venv-labgrid)")
+    if shutil.which("ser2net") is None and not Path("/usr/sbin/ser2net").exists():
+        pytest.skip("labgrid lab not run: ser2net is not installed (apt-get install ser2net; "
+                    ".ci/run does)")
+    tmp = tmp_path_factory.mktemp("lab")
+    with running_lab(tmp, Path(PYTHON).parent,
+                     {"bench-py": "python", "bench-fw": "firmware"}) as lab:
+        lab.add_places({p: f"{e}/lm629-bench/*" for p, e in PLACES.items()})
+        yield lab
+
+
+def lm629(lab, *args: str, **kw) -> subprocess.CompletedProcess[str]:
+    """The installed ``lm629`` in this lab (LG_COORDINATOR set), labgrid-client on PATH."""
+    env = lab.env(PATH=f"{lab.bin}:{os.environ['PATH']}")
+    return subprocess.run([_console_script(), *args], capture_output=True, text=True,
+                          timeout=120, env=env, **kw)
+
+
+def err_lines(p: subprocess.CompletedProcess[str]) -> list[str]:
+    return [ln for ln in p.stderr.splitlines() if ln.strip()]
+
+
+def test_ser2net_serves_a_locked_place_on_loopback_only(lab):
+    """The exporter starts ser2net when the place is acquired (the wrapper keeps it on
+    127.0.0.1; unwrapped it listens on every interface) and stops it on release."""
+    assert not any(lab.ser2nets().values())  # nobody holds a place: no ser2net
+    lab.client("-p", "lm629-py", "lock")
+    try:
+        ports = parse_env_ports(lab.client("-p", "lm629-py", "env").stdout)
+        assert len(ports) == 1 and ports[0].host == "127.0.0.1" and ports[0].speed == 115200
+        assert ports[0].protocol == "rfc2217"
+        assert listening(ports[0].port) == ["0100007F"]  # 127.0.0.1, and nothing else
+        running = lab.ser2nets()
+        assert len(running["bench-py"]) == 1 and running["bench-fw"] == []
+        exp = lab.exporters["bench-py"]
+        show = lab.client("-p", "lm629-py", "show").stdout
+        assert f"'path': '{exp.device}'" in show and exp.device.startswith("/dev/pts/")
+    finally:
+        lab.client("-p", "lm629-py", "unlock")
+    deadline = time.monotonic() + 10
+    while listening(ports[0].port) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert listening(ports[0].port) == []
+
+
+OPTIONS_TEST = '''
+def test_options_reach_the_link(target):
+    drv = target.get_driver("LM629Driver")
+    assert drv.url.startswith("rfc2217://127.0.0.1:")
+    assert "failsafe=0.3" in drv.url
+    assert drv.chip().transport.failsafe_state().timeout_ms == 300
+'''
+
+
+@pytest.mark.parametrize("place", ["lm629-py", "lm629-fw"])
+def test_the_example_runs_on_a_remote_place(lab, place, tmp_path):
+    """examples/labgrid/ through labgrid's pytest plugin: RemotePlace -> coordinator ->
+    exporter -> ser2net -> RFC 2217 -> the bench; the driver's options: passed through."""
+    shutil.copy(EXAMPLE / "test_lab_bench.py", tmp_path)
+    env_yaml = (EXAMPLE / "env-remote.yaml").read_text()
+    assert "name: lm629-bench" in env_yaml
+    (tmp_path / "env.yaml").write_text(env_yaml.replace("name: lm629-bench", f"name: {place}"))
+    (tmp_path / "env-options.yaml").write_text(env_yaml.replace(
+        "name: lm629-bench", f"name: {place}").replace(
+        "LM629Driver: {}", "LM629Driver: {options: {failsafe: 0.3}}"))
+    (tmp_path / "test_options.py").write_text(OPTIONS_TEST)
+    lab.client("-p", place, "lock")
+    try:
+        for env_file, test in (("env.yaml", "test_lab_bench.py"),
+                               ("env-options.yaml", "test_options.py")):
+            p = subprocess.run([PYTHON, "-m", "pytest", "-p", "no:cacheprovider", "-q",
+                                "--lg-env", env_file, test], cwd=tmp_path, capture_output=True,
+                               text=True, timeout=300, env=lab.env())
+            assert p.returncode == 0, p.stdout + p.stderr
+            assert re.search(rf"\b{2 if test == 'test_lab_bench.py' else 1} passed\b", p.stdout)
+    finally:
+        lab.client("-p", place, "unlock")
+    assert lab.holder(place) is None
+
+
+def test_a_place_someone_else_holds_is_refused_naming_them(lab, tmp_path):
+    lab.client("-p", "lm629-fw", "lock", user=ALICE)
+    try:
+        mine = lab.client("-p", "lm629-fw", "lock", check=False)
+        assert mine.returncode != 0 and f"already acquired by {ALICE}" in mine.stderr
+        p = lm629(lab, "--place", "lm629-fw", "status")
+        assert p.returncode == 3, p.stdout + p.stderr  # EXIT_CODES: busy is a transport error
+        assert p.stdout == ""
+        assert len(err_lines(p)) == 1, p.stderr
+        assert f"Place lm629-fw is already acquired by {ALICE}" in p.stderr
+        # labgrid's own pytest plugin on that place: refused, labgrid's reason
+        (tmp_path / "env.yaml").write_text((EXAMPLE / "env-remote.yaml").read_text().replace(
+            "name: lm629-bench", "name: lm629-fw"))
+        shutil.copy(EXAMPLE / "test_lab_bench.py", tmp_path)
+        q = subprocess.run([PYTHON, "-m", "pytest", "-p", "no:cacheprovider", "-q", "--lg-env",
+                            "env.yaml", "test_lab_bench.py"], cwd=tmp_path, capture_output=True,
+                           text=True, timeout=300, env=lab.env())
+        assert q.returncode != 0
+        assert re.search(r"not acquired|acquired by", q.stdout + q.stderr), q.stdout + q.stderr
+        assert lab.holder("lm629-fw") == ALICE  # the refused user's exit left it alone
+    finally:
+        lab.client("-p", "lm629-fw", "unlock", user=ALICE)
+
+
+def test_the_cli_on_a_place_releases_it_however_it_ends(lab):
+    # a command that ends well; the place's options as a URL's
+    p = lm629(lab, "--place", "lm629-py?failsafe=0.4", "status", "--json")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["failsafe"]["armed_s"] == 0.4
+    assert lab.holder("lm629-py") is None
+    # an error after the place was acquired: a bad URL option, refused before anything moves
+    p = lm629(lab, "--place", "lm629-py?fast_baud=fast", "status")
+    assert p.returncode == 2, p.stdout + p.stderr
+    assert "fast_baud" in p.stderr and len(err_lines(p)) == 1
+    assert lab.holder("lm629-py") is None
+    # Ctrl-C (and SIGTERM) in a command that runs until stopped
+    for sig, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
+        env = lab.env(PATH=f"{lab.bin}:{os.environ['PATH']}")
+        proc = subprocess.Popen([_console_script(), "--place", "lm629-py", "watch"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env=env)
+        first = proc.stdout.readline()  # watching: the port is open, the place held
+        assert first, proc.stderr.read()
+        assert lab.holder("lm629-py") is not None
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == code, err
+        assert lab.holder("lm629-py") is None
+
+
+def test_a_place_with_labgrid_missing_is_one_line(lab):
+    env = lab.env(PATH="/usr/bin:/bin")
+    p = subprocess.run([_console_script(), "--place", "lm629-py", "status"], capture_output=True,
+                       text=True, timeout=60, env=env)
+    assert p.returncode == 3 and len(err_lines(p)) == 1, p.stderr
+    assert "labgrid is not installed" in p.stderr
+    assert lab.holder("lm629-py") is None
+
+
+def test_lab_selftest_over_every_bench(lab, tmp_path):
+    """Both benches tested at once, one report each, one table; a place someone else holds
+    is named in the table, not tested, and the run's exit says a bench was not passed."""
+    lab.client("-p", "lm629-spare", "lock", user=ALICE)
+    try:
+        p = lm629(lab, "lab", "selftest", "lm629-*", "--reports", str(tmp_path / "reports"))
+    finally:
+        lab.client("-p", "lm629-spare", "unlock", user=ALICE)
+    assert p.returncode == 1, p.stdout + p.stderr
+    rows = {ln.split()[0]: ln for ln in p.stdout.splitlines() if ln.startswith("lm629-")}
+    assert sorted(rows) == ["lm629-fw", "lm629-py", "lm629-spare"], p.stdout
+    for place in ("lm629-fw", "lm629-py"):
+        assert re.fullmatch(rf"{place}\s+LM629\s+PASS\s+0", rows[place]), p.stdout
+        report = json.loads((tmp_path / "reports" / f"{place}.json").read_text())
+        assert report["verdict"] == "PASS" and report["transport"]["url"].startswith("rfc2217://")
+        assert (tmp_path / "reports" / f"{place}.md").read_text().startswith("## lm629 selftest")
+        assert lab.holder(place) is None
+    assert re.match(r"lm629-spare\s+-\s+NOT RUN\s+.*already acquired by " + ALICE,
+                    rows["lm629-spare"]), p.stdout
+    assert re.search(r"^place\s+chip\s+verdict\s+differences$", p.stdout, re.M), p.stdout
