@@ -68,6 +68,8 @@ def build(body: dict[str, Any], worker: Any) -> PanelJob:
         if mode not in STOP_MODES:
             raise PanelRequestError(f"stop mode {mode!r}: one of {', '.join(STOP_MODES)}")
         return PanelJob(["stop", f"--{mode}"], cs, stop=True)
+    if cmd == "clear":
+        return PanelJob(["clear"], cs)
     if cmd == "move":
         shape = _text(body, "shape") or "trapezoid"
         argv = ["move", *_options(body, [("vel", "--vel"), ("acc", "--acc")])]
@@ -90,7 +92,7 @@ def build(body: dict[str, Any], worker: Any) -> PanelJob:
                 f"--csv={path}", "--no-png", "--", _text(body, "distance") or "200"]
         remember = _remember(worker, cs, gains)
         return PanelJob(argv, cs, then=lambda o: _step_answer(path, worker, cs)(remember(o)))
-    raise PanelRequestError(f"unknown command {cmd!r}: move, stop, filter or step")
+    raise PanelRequestError(f"unknown command {cmd!r}: move, stop, filter, step or clear")
 
 
 def _remember(worker: Any, cs: int, gains: dict[str, str]) -> Callable[[Outcome], Outcome]:
