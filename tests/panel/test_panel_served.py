@@ -35,8 +35,11 @@ def _at_rest_short_of_target(bench, before: int) -> dict:
     return st
 
 
-def test_stop_button_stops_a_served_bench_mid_move(tmp_path, driver):
-    with serve(tmp_path, "python") as bench:
+@pytest.mark.parametrize("far_end", ["python", "firmware+uno"])
+def test_stop_button_stops_a_served_bench_mid_move(tmp_path, driver, far_end):
+    """The Python far end, and the compiled firmware in simavr behind an Uno's USB chip (its
+    4.096 ms flush tick between the panel and the bridge)."""
+    with serve(tmp_path, far_end) as bench:
         bench.ready()
         with panel(f"serial://{bench.link}") as p:
             driver.get(p.url)
