@@ -45,8 +45,14 @@ def switch_baud(link: LinkSession, baud: int) -> bool:
         result = frame.payload[0] if frame.payload else -1
     except TransportError:
         result = None  # the bridge may or may not have switched: wait its window out
+    moved, why = False, ""
     if result == Result.OK:
-        set_baud(baud)
+        try:  # the host's end: a local UART, or the far UART of ser2net (RFC 2217 SET-BAUDRATE)
+            set_baud(baud)
+            moved = True
+        except TransportError as exc:  # the bridge moved, the line did not: its window ends it
+            why = f"the port cannot run at {baud} baud ({exc})"
+    if moved:
         link.baud = baud
         # three HELLOs at the new rate, all within the bridge's window
         tries = 3
@@ -62,20 +68,23 @@ def switch_baud(link: LinkSession, baud: int) -> bool:
             log.info("%s: the link runs at %d baud", link.url, baud)
             return True
         why = f"no answer at {baud} baud (can the USB serial adapter do it?)"
+    elif result == Result.OK:
+        pass  # why: the port's refusal, above
     elif result is None:
         why = "no answer to SET_BAUD"
     else:
         why = f"the bridge cannot make {baud} baud (result {result})"
     # back to the old rate; the bridge goes back too once its window has passed
-    set_baud(old)
-    link.baud = old
+    if moved:
+        set_baud(old)
+        link.baud = old
     if result is None or result == Result.OK:  # else the bridge never left the old rate
         link.clock.sleep(BAUD_WINDOW_MS * 1e-3 * 1.2)
     link._need_resync = True  # HELLO at the old rate before anything else
     try:
         link._resync()
     except TransportError:
-        if result != Result.OK:
+        if not moved:
             raise
         # its answer to our HELLO at the new rate may have been lost, so that it stayed
         set_baud(baud)
