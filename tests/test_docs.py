@@ -292,7 +292,10 @@ def _python(st: DocState, block: Block, namespace: dict) -> None:
 _NAMESPACES: dict[Path, dict] = {}
 
 
-@pytest.mark.parametrize("block", BLOCKS, ids=[b.id for b in BLOCKS])
+#: a document's blocks share its bench and namespace, in order: one xdist group per document
+#: (``--dist loadgroup``), the documents spread over the workers
+@pytest.mark.parametrize("block", [
+    pytest.param(b, id=b.id, marks=pytest.mark.xdist_group(f"docs:{b.doc.name}")) for b in BLOCKS])
 def test_doc_block(block: Block, tmp_path_factory, request: pytest.FixtureRequest) -> None:
     st = _state(block.doc, tmp_path_factory)
     counts = [0, 0]  # examples run, not run

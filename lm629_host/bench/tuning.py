@@ -48,7 +48,9 @@ from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field, replace
 
 from lm629_host.bus.opcodes import ACCELERATION_MAX, COEFFICIENT_MAX, VELOCITY_MAX, Signals, Status
-from lm629_host.chip.lm629 import LM629, Snapshot, check_int
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bus.snapshot import Snapshot
+from lm629_host.errors import check_int
 from lm629_host.chip.recording import far_snapshots, sample_program
 from lm629_host.chip.safety import motion_fault, stop_on_error
 from lm629_host.errors import LM629Error, MotionError, MotionFault

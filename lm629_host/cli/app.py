@@ -241,6 +241,13 @@ class Session:
         self.prepare = prepare
         return self.board().axis(axes[0])
 
+    def select_axis(self, cs: int) -> None:
+        """Make chip select ``cs`` the axis the single-axis commands drive from now on (the
+        board stays open): ``lm629 panel`` runs each command on the axis its form names."""
+        self.axis_spec = (cs,)
+        if self._board is not None:
+            self._chip = None
+
     def close(self) -> None:
         if self._board is not None:
             if self.stats:
@@ -344,11 +351,9 @@ class LM629Group(click.Group):
             result = super().invoke(ctx)
             sys.stdout.flush()  # a closed pipe shows here, not in Python's flush at exit
             return result
-        except click.UsageError as exc:  # bad usage or value: one line, exit 2
-            sub = exc.ctx.command_path if exc.ctx is not None else "lm629"
-            _fail(ctx, f"{exc.format_message()} (see `{sub} --help`)", exc, 2)
-        except click.ClickException as exc:  # a command's own refusal: the same one line
-            _fail(ctx, exc.format_message(), exc, exc.exit_code)
+        except click.ClickException as exc:  # bad usage or value; a command's own refusal
+            message, code = error_line(exc)
+            _fail(ctx, message, exc, code)
         except (click.exceptions.Exit, click.exceptions.Abort):
             raise
         except KeyboardInterrupt as exc:
@@ -365,12 +370,31 @@ class LM629Group(click.Group):
             # after a move or in a command that moves nothing: the motor is as the command
             # left it (holding at the target); silent, as a tool ended by SIGPIPE
             ctx.exit(141)
-        except Exception as exc:  # noqa: BLE001 - mapped to exit codes below
-            code = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), None)
-            if code is None:
-                _fail(ctx, f"internal error ({type(exc).__name__}): {exc}", exc, 8, always_tb=True)
-            kind = "bad value" if isinstance(exc, ValueError) else "error"
-            _fail(ctx, f"{kind}: {exc}", exc, code)
+        except Exception as exc:  # noqa: BLE001 - mapped to exit codes by error_line
+            message, code = error_line(exc)
+            _fail(ctx, message, exc, code,
+                  always_tb=not any(isinstance(exc, cls) for cls, _c in _ERROR_EXITS))
+
+
+def error_line(exc: Exception) -> tuple[str, int]:
+    """The one line (without ``lm629: `` and the stop note) and the exit code a command's
+    exception ends it with: the one rule, shared by the command line and ``lm629 panel``."""
+    if isinstance(exc, click.UsageError):  # bad usage or value: exit 2
+        sub = exc.ctx.command_path if exc.ctx is not None else "lm629"
+        return f"{exc.format_message()} (see `{sub} --help`)", 2
+    if isinstance(exc, click.ClickException):  # a command's own refusal: the same one line
+        return exc.format_message(), exc.exit_code
+    code = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), None)
+    if code is None:
+        return f"internal error ({type(exc).__name__}): {exc}", 8
+    kind = "bad value" if isinstance(exc, ValueError) else "error"
+    return f"{kind}: {exc}", code
+
+
+def stop_note_of(exc: BaseException, message: str) -> str:
+    """``message`` with how the motor was left, when the exception stopped one."""
+    note = getattr(exc, STOP_NOTE, None)
+    return message + (f" -- {note}" if note and note not in message else "")
 
 
 def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
@@ -378,10 +402,8 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
     session = ctx.obj if isinstance(ctx.obj, Session) else None
     if always_tb or (session is not None and session.verbose):
         traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
-    note = getattr(exc, STOP_NOTE, None)
     try:  # stderr may be closed too (a dropped ssh session): the exit code still tells
-        click.echo(f"lm629: {message}" + (f" -- {note}" if note and note not in message
-                                          else ""), err=True)
+        click.echo(f"lm629: {stop_note_of(exc, message)}", err=True)
     except (OSError, ValueError):
         pass
     ctx.exit(code)

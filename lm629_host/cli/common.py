@@ -10,7 +10,8 @@ from typing import Any
 
 import click
 
-from lm629_host.chip.lm629 import LM629, Snapshot
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bus.snapshot import Snapshot
 from lm629_host.errors import ArgumentError
 from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Signals, Status
 from lm629_host.physics.units import FIXED_ONE, Scale

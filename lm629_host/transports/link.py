@@ -194,7 +194,9 @@ class LinkTransport(LinkSession):
         timeout = max(self.hello_interval_s,
                       self.reply_timeout(wire_size(4), wire_size(4 + HelloInfo.SIZE)))
         retries = max(0, round(self.hello_total_s / timeout) - 1)
-        frame = self._exchange(FrameType.HELLO, b"", timeout, "HELLO (handshake)", retries)
+        frame = self.request(FrameType.HELLO, b"", "HELLO (handshake)",
+                             wire_size(4 + HelloInfo.SIZE), retries=retries, resync=False,
+                             timeout_s=timeout)
         try:
             info = HelloInfo.decode(frame.payload)
         except FrameError as exc:
@@ -227,7 +229,6 @@ class LinkTransport(LinkSession):
         self.profile_streams = self.far_profiles
         # a WAIT_STATUS may stand anywhere in a program (Move.wait's one-exchange end check)
         self.far_waits = self.has_wait_status
-        self._bridge_forgot()  # HELLO empties the bridge's codes
         return info
 
     def switch_baud(self, baud: int) -> bool:
@@ -291,7 +292,7 @@ class LinkTransport(LinkSession):
         if self.profiles.streaming:
             self.profiles.refill()
         timeout_us = busy_timeout_us(program)
-        self._resync()
+        self.resync()
         words: list[int] = []
         statuses: list[int] = []
         status: int | None = None

@@ -431,7 +431,7 @@ def _quiet_rfc2217_reader() -> None:
             return
         previous(args)
 
-    hook.lm629_quiet = True  # type: ignore[attr-defined]
+    hook.lm629_quiet = True  # type: ignore[attr-defined]  # a mark on our own hook, so it is installed once
     threading.excepthook = hook
 
 

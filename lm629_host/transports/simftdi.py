@@ -96,8 +96,7 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
                 latency_ms=latency, busy_pin=busy_pin, heartbeat=opts["heartbeat"],
                 heartbeat_hz=opts["heartbeat_hz"])
-        t.model, t.device, t._strict, t._violations = model, device, strict, []
-        t.models = chips_of(model)
+        t.attach(model, device, strict)
         return t
 
     model: ChipModel | ChipBus
@@ -107,6 +106,11 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
     _strict: bool
     #: the violations strict mode counts (those of a program that saw no busy), not yet taken
     _violations: list[Violation]
+
+    def attach(self, model: ChipModel | ChipBus, device: EmulatedFT232H, strict: bool) -> None:
+        """The chip model behind the emulated adapter, the adapter, and strict mode's start."""
+        self.model, self.device, self.models = model, device, chips_of(model)
+        self._strict, self._violations = strict, []
 
     @property
     def strict(self) -> bool:
