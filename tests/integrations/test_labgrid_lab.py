@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pytest
 
-from labgrid_lab import listening, running_lab
+from labgrid_lab import SER2NET, listening, running_lab
 from lm629_host.integrations.labgrid_place import parse_env_ports
 from served import _console_script
 
@@ -44,7 +44,7 @@ def lab(tmp_path_factory):
     if not PYTHON or not Path(PYTHON).exists():
         pytest.skip("labgrid lab not run: LM629_LABGRID_PYTHON does not name the python of a "
                     "labgrid venv (.ci/run builds .venv-labgrid)")
-    if shutil.which("ser2net") is None and not Path("/usr/sbin/ser2net").exists():
+    if not Path(SER2NET).exists():
         pytest.skip("labgrid lab not run: ser2net is not installed (apt-get install ser2net; "
                     ".ci/run does)")
     tmp = tmp_path_factory.mktemp("lab")

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -31,15 +30,17 @@ from pathlib import Path
 
 from served import Bench, serve
 
+#: Debian's ser2net (the wrapper below execs it)
+SER2NET = "/usr/sbin/ser2net"
 #: the ``ser2net`` an exporter finds first on its PATH: loopback only, then the real one
+#: (docs/testing.md shows this very file: tests/integrations/test_labgrid_lab.py checks)
 SER2NET_LOOPBACK = r"""#!/bin/sh
 # labgrid's exporter asks ser2net for "...,tcp,PORT" (every interface): keep it on loopback
-real="$LM629_REAL_SER2NET"
 for a in "$@"; do
   shift
   set -- "$@" "$(printf '%s' "$a" | sed -E 's/,tcp,([0-9]+)/,tcp,127.0.0.1,\1/g')"
 done
-exec "$real" "$@"
+exec /usr/sbin/ser2net "$@"
 """
 
 #: how long a lab part may take to say it is ready (a busy 2-core machine)
@@ -179,8 +180,7 @@ class Lab:
         (where / "exporter.yaml").write_text("".join(
             f"{g}:\n  RawSerialPort:\n    port: {d}\n    speed: 115200\n"
             for g, d in {group: device, **(more or {})}.items()))
-        real = shutil.which("ser2net") or "/usr/sbin/ser2net"
-        env = self.env(PATH=f"{wrappers}:{os.environ.get('PATH', '')}", LM629_REAL_SER2NET=real)
+        env = self.env(PATH=f"{wrappers}:{os.environ.get('PATH', '')}")
         proc, log = self._spawn(
             [str(self.bin / "labgrid-exporter"), "-c", self.coordinator, "--hostname",
              "127.0.0.1", "-n", name, "exporter.yaml"], where, env)
