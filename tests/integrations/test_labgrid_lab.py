@@ -192,14 +192,6 @@ def test_the_cli_on_a_place_releases_it_however_it_ends(lab):
     assert lab.held() == {}
 
 
-def test_a_place_with_labgrid_missing_is_one_line(lab):
-    env = lab.env(PATH="/usr/bin:/bin")
-    p = subprocess.run([_console_script(), "--place", "lm629-py", "status"], capture_output=True,
-                       text=True, timeout=60, env=env)
-    assert p.returncode == 3 and len(err_lines(p)) == 1, p.stderr
-    assert "labgrid is not installed" in p.stderr
-
-
 def test_lab_selftest_over_every_bench(lab, tmp_path):
     """Both benches tested at once, one report each, one table; a place someone else holds
     is named in the table, not tested, and the run's exit says a bench was not passed."""
