@@ -26,7 +26,7 @@ import threading
 from typing import TYPE_CHECKING, Any, final
 
 from lm629_host.clock import Clock, WallClock
-from lm629_host.transports.reports import (  # handed on: the records a transport reports
+from lm629_host.transports.reports import (
     HOST_POLLED_NOTE,
     Check,
     PortInfo,
@@ -35,6 +35,7 @@ from lm629_host.transports.reports import (  # handed on: the records a transpor
     Stats,
 )
 from lm629_host.transports.keepalive import FeedingClock, KeepAlive
+from lm629_host.transports import exiting
 from lm629_host.urls import PortURL, port_url
 from lm629_host.errors import AxisError, TransportError
 from lm629_host.bus.program import (
@@ -197,6 +198,7 @@ class Transport(abc.ABC):
                 own(self)
             finally:
                 self._closed = True
+                exiting.forget(self)
         _MARKING_CLOSE.add(close)  # wrapped once per class
         cls.close = close  # type: ignore[method-assign]  # the subclass's own, wrapped
 
@@ -215,6 +217,7 @@ class Transport(abc.ABC):
         self.trace = trace
         self.stats = Stats()
         self.clock = WallClock()
+        exiting.track(self)  # a normal exit closes it if the script does not (.exiting)
 
     @final
     def execute(self, program: Program) -> ProgramResult:
@@ -377,6 +380,7 @@ class Transport(abc.ABC):
     def close(self) -> None:
         """Release the port.  Idempotent; every call after it raises (:meth:`check_open`)."""
         self._closed = True
+        exiting.forget(self)
 
     # ------------------------------------------------------------------ the link failsafe
     # A bridge keeps a timer on its side of the link and stops every chip when the host falls
