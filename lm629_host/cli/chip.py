@@ -10,7 +10,7 @@ from typing import Any
 import click
 
 from lm629_host.errors import ArgumentError, CommandError
-from lm629_host.chip.lm629 import check_int
+from lm629_host.errors import check_int
 from lm629_host.bus.opcodes import VELOCITY_MAX, Status
 from lm629_host.chip.supervise import search_index
 from lm629_host.physics.units import FIXED_ONE

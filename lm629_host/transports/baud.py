@@ -37,11 +37,9 @@ def switch_baud(link: LinkSession, baud: int) -> bool:
             or baud == link.baud):
         return False
     old = link.baud
-    link._resync()
     try:
-        frame = link._exchange(
-            FrameType.SET_BAUD, baud.to_bytes(4, "big"),
-            link.reply_timeout(wire_size(8), wire_size(9)), f"SET_BAUD {baud}", link.retries)
+        frame = link.request(FrameType.SET_BAUD, baud.to_bytes(4, "big"), f"SET_BAUD {baud}",
+                             wire_size(9))
         result = frame.payload[0] if frame.payload else -1
     except TransportError:
         result = None  # the bridge may or may not have switched: wait its window out
@@ -59,12 +57,12 @@ def switch_baud(link: LinkSession, baud: int) -> bool:
         hello_s = max(link.reply_timeout(wire_size(4), wire_size(4 + HelloInfo.SIZE)),
                       BAUD_WINDOW_MS * 1e-3 * 0.6 / tries)
         try:
-            link._exchange(FrameType.HELLO, b"", hello_s, f"HELLO at {baud} baud",
-                           tries - 1)
+            link.request(FrameType.HELLO, b"", f"HELLO at {baud} baud",
+                         wire_size(4 + HelloInfo.SIZE), retries=tries - 1, resync=False,
+                         timeout_s=hello_s)
         except TransportError:
             pass
         else:
-            link._bridge_forgot()
             log.info("%s: the link runs at %d baud", link.url, baud)
             return True
         why = f"no answer at {baud} baud (can the USB serial adapter do it?)"
@@ -80,17 +78,17 @@ def switch_baud(link: LinkSession, baud: int) -> bool:
         link.baud = old
     if result is None or result == Result.OK:  # else the bridge never left the old rate
         link.clock.sleep(BAUD_WINDOW_MS * 1e-3 * 1.2)
-    link._need_resync = True  # HELLO at the old rate before anything else
+    link.invalidate()  # HELLO at the old rate before anything else
     try:
-        link._resync()
+        link.resync()
     except TransportError:
         if not moved:
             raise
         # its answer to our HELLO at the new rate may have been lost, so that it stayed
         set_baud(baud)
         link.baud = baud
-        link._need_resync = True
-        link._resync()
+        link.invalidate()
+        link.resync()
         log.info("%s: the link runs at %d baud", link.url, baud)
         return True
     log.warning("%s: staying at %d baud: %s", link.url, old, why)
