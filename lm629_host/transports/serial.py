@@ -458,6 +458,14 @@ def _rfc2217_class():
     class RFC2217Port(Serial):
         _sent: tuple | None = None  # the settings the server last acknowledged
 
+        def open(self) -> None:
+            """pyserial's open; then the write deadline every other port has
+            (:data:`WRITE_TIMEOUT_S`), as the socket's timeout: pyserial refuses a
+            ``write_timeout`` here, and its socket's own (5 s) bounded a write before."""
+            super().open()
+            if self._socket is not None:
+                self._socket.settimeout(WRITE_TIMEOUT_S)
+
         def _settings(self) -> tuple:
             return (self._baudrate, self._bytesize, self._parity, self._stopbits,
                     self._rtscts, self._xonxoff, self._write_timeout)
@@ -491,7 +499,7 @@ def open_port(device: str, baud: int):
     if scheme == "rfc2217":
         _quiet_rfc2217_reader()
     # pyserial's RFC 2217 client refuses a write_timeout (NotImplementedError): it gets none
-    # below, and its writes are bounded by its socket's own timeout (5 s, set when it connects)
+    # below, its writes bounded by its socket's timeout instead (RFC2217Port.open)
     bounded = {"write_timeout": WRITE_TIMEOUT_S}
     try:
         if scheme == "rfc2217":  # pyserial's client, its settings sent only when they change
