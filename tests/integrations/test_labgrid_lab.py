@@ -26,6 +26,7 @@ from pathlib import Path
 import pytest
 
 from labgrid_lab import SER2NET, listening, running_lab
+from lm629_host.bench.selftest import Report
 from lm629_host.integrations.labgrid_place import parse_env_ports
 from served import _console_script
 
@@ -48,8 +49,10 @@ def lab(tmp_path_factory):
         pytest.skip("labgrid lab not run: ser2net is not installed (apt-get install ser2net; "
                     ".ci/run does)")
     tmp = tmp_path_factory.mktemp("lab")
-    with running_lab(tmp, Path(PYTHON).parent,
-                     {"bench-py": "python", "bench-fw": "firmware"}) as lab:
+    # the Python bench's chip runs at 6 MHz, the firmware bench's at 8: a lab selftest that
+    # expects 6 MHz passes one and finds the other's clock wrong
+    with running_lab(tmp, Path(PYTHON).parent, {"bench-py": ("python", "sim://?clock=6MHz"),
+                                                "bench-fw": ("firmware", "sim://")}) as lab:
         lab.add_places(PLACES)
         yield lab
 
@@ -193,22 +196,35 @@ def test_the_cli_on_a_place_releases_it_however_it_ends(lab):
 
 
 def test_lab_selftest_over_every_bench(lab, tmp_path):
-    """Both benches tested at once, one report each, one table; a place someone else holds
-    is named in the table, not tested, and the run's exit says a bench was not passed."""
+    """Both benches tested at once, as boards whose chips run at 6 MHz (--clock, handed to
+    each bench's selftest), one report each, one table: the Python bench (6 MHz) passes, the
+    firmware bench's 8 MHz chip differs (its clock, measured 8 MHz: 2048 / 8e6 s a sample,
+    not 2048 / 6e6), the place someone else holds is named, not tested; the run's exit says a
+    bench did not pass."""
     lab.client("-p", "lm629-spare", "lock", user=ALICE)
     try:
-        p = ended(lm629(lab, "lab", "selftest", "lm629-*", "--reports", str(tmp_path / "r")))
+        p = ended(lm629(lab, "--clock", "6MHz", "lab", "selftest", "lm629-*", "--reports",
+                        str(tmp_path / "r")))
         assert lab.held() == {"lm629-spare": ALICE}
     finally:
         lab.client("-p", "lm629-spare", "unlock", user=ALICE)
     assert p.returncode == 1, p.stdout + p.stderr
     rows = {ln.split()[0]: ln for ln in p.stdout.splitlines() if ln.startswith("lm629-")}
     assert sorted(rows) == ["lm629-fw", "lm629-py", "lm629-spare"], p.stdout
-    for place in ("lm629-fw", "lm629-py"):
-        assert re.fullmatch(rf"{place}\s+LM629\s+PASS\s+0", rows[place]), p.stdout
-        report = json.loads((tmp_path / "r" / f"{place}.json").read_text())
-        assert report["verdict"] == "PASS" and report["transport"]["url"].startswith("rfc2217://")
+    reports = {place: json.loads((tmp_path / "r" / f"{place}.json").read_text())
+               for place in ("lm629-fw", "lm629-py")}
+    for place, report in reports.items():
+        assert report["transport"]["url"].startswith("rfc2217://127.0.0.1:")
+        assert report["profile"]["clock_hz"] == 6e6
         assert (tmp_path / "r" / f"{place}.md").read_text().startswith("## lm629 selftest")
+    assert reports["lm629-py"]["verdict"] == "PASS", (tmp_path / "r" / "lm629-py.txt").read_text()
+    assert re.fullmatch(r"lm629-py\s+LM629\s+PASS\s+0", rows["lm629-py"]), p.stdout
+    fw = Report.from_json(reports["lm629-fw"])
+    clock = [m for m in fw.measurements if m.check == "clock"]
+    assert len(clock) == 1 and abs(clock[0].measured - 8.0) < 0.08  # MHz: the chip's own
+    assert fw.verdict == "DIFFERS" and [f.line for f in fw.faults] == ["clock"]
+    assert [m.check for m in fw.differences] == ["clock"]  # the fault's own measurement
+    assert re.fullmatch(r"lm629-fw\s+LM629\s+DIFFERS\s+1 \(clock\)", rows["lm629-fw"]), p.stdout
     assert re.match(r"lm629-spare\s+-\s+NOT RUN\s+.*already acquired by " + ALICE,
                     rows["lm629-spare"]), p.stdout
     assert re.search(r"^place\s+chip\s+verdict\s+differences$", p.stdout, re.M), p.stdout
