@@ -10,6 +10,11 @@ every bench.  One lab for the module; at its end nothing it started may still ru
 
 labgrid runs from its own venv (``LM629_LABGRID_PYTHON``, built by .ci/run); without it, or
 without ser2net (Debian's, installed by .ci/run), the module is skipped and says why.
+
+Why each test takes over 10 s: every ``labgrid-client`` call is a Python start and a gRPC
+round trip (about 0.6 s here), every acquire starts the exporter's ser2net (it waits 0.5 s to
+see it live) and every release stops it; the tests run what a lab's users would do at once
+(both benches, two users) so that these waits overlap.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from pathlib import Path
 
 import pytest
 
-from labgrid_lab import SER2NET, listening, running_lab
+from labgrid_lab import SER2NET, cmdline, listening, running_lab
 from lm629_host.bench.selftest import Report
 from lm629_host.integrations.labgrid_place import parse_env_ports
 from served import _console_script
@@ -81,29 +86,6 @@ def err_lines(p: subprocess.CompletedProcess[str]) -> list[str]:
     return [ln for ln in p.stderr.splitlines() if ln.strip()]
 
 
-def test_ser2net_serves_a_locked_place_on_loopback_only(lab):
-    """The exporter starts ser2net when the place is acquired (the wrapper keeps it on
-    127.0.0.1; unwrapped it listens on every interface) and stops it on release."""
-    assert not any(lab.ser2nets().values())  # nobody holds a place: no ser2net
-    lab.client("-p", "lm629-py", "lock")
-    try:
-        ports = parse_env_ports(lab.client("-p", "lm629-py", "env").stdout)
-        assert len(ports) == 1 and ports[0].host == "127.0.0.1" and ports[0].speed == 115200
-        assert ports[0].protocol == "rfc2217"
-        assert listening(ports[0].port) == ["0100007F"]  # 127.0.0.1, and nothing else
-        running = lab.ser2nets()
-        assert len(running["bench-py"]) == 1 and running["bench-fw"] == []
-        exp = lab.exporters["bench-py"]
-        show = lab.client("-p", "lm629-py", "show").stdout
-        assert f"'path': '{exp.device}'" in show and exp.device.startswith("/dev/pts/")
-    finally:
-        lab.client("-p", "lm629-py", "unlock")
-    deadline = time.monotonic() + 10
-    while listening(ports[0].port) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert listening(ports[0].port) == []
-
-
 OPTIONS_TEST = '''
 def test_options_reach_the_link(target):
     drv = target.get_driver("LM629Driver")
@@ -113,16 +95,30 @@ def test_options_reach_the_link(target):
 '''
 
 
-def test_the_example_runs_on_a_remote_place(lab, tmp_path):
+def test_the_example_runs_on_remote_places_through_ser2net_on_loopback(lab, tmp_path):
     """examples/labgrid/ through labgrid's pytest plugin on both benches at once: RemotePlace
     -> coordinator -> exporter -> ser2net -> RFC 2217 -> the bench; on the firmware bench
-    the driver's ``options:`` too (passed through to the port URL)."""
+    the driver's ``options:`` too (passed through to the port URL).  The exporter starts each
+    bench's ser2net when its place is acquired, on 127.0.0.1 only (the wrapper; unwrapped it
+    listens on every interface), and stops it on release."""
+    assert not any(lab.ser2nets().values())  # nobody holds a place: no ser2net
     env_yaml = (EXAMPLE / "env-remote.yaml").read_text()
     assert "name: lm629-bench" in env_yaml and "LM629Driver: {}" in env_yaml
-    runs = {}
+    runs, ports = {}, {}
     lab.client("-p", "lm629-py", "lock")
     lab.client("-p", "lm629-fw", "lock")
     try:
+        running = lab.ser2nets()
+        assert [len(running[e]) for e in ("bench-py", "bench-fw")] == [1, 1], running
+        for place, bench in (("lm629-py", "bench-py"), ("lm629-fw", "bench-fw")):
+            env_ports = parse_env_ports(lab.client("-p", place, "env").stdout)
+            assert len(env_ports) == 1, env_ports
+            port = ports[place] = env_ports[0]
+            assert (port.host, port.speed, port.protocol) == ("127.0.0.1", 115200, "rfc2217")
+            assert listening(port.port) == ["0100007F"]  # 127.0.0.1, and nothing else
+            assert f",tcp,127.0.0.1,{port.port}" in cmdline(running[bench][0])
+            assert f",{lab.exporters[bench].device}," in cmdline(running[bench][0])
+            assert lab.exporters[bench].device.startswith("/dev/pts/")
         for place in ("lm629-py", "lm629-fw"):
             where = tmp_path / place
             where.mkdir()
@@ -143,6 +139,10 @@ def test_the_example_runs_on_a_remote_place(lab, tmp_path):
         for place in ("lm629-py", "lm629-fw"):
             lab.client("-p", place, "unlock")
     assert lab.held() == {}
+    deadline = time.monotonic() + 10
+    while any(listening(p.port) for p in ports.values()) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert [listening(p.port) for p in ports.values()] == [[], []]
 
 
 def test_a_place_someone_else_holds_is_refused_naming_them(lab, tmp_path):
