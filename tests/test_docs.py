@@ -238,13 +238,16 @@ def run_command(st: DocState, cmd: Command) -> None:
             return  # still serving from an earlier block, as in the reader's shell
         _start_job(st, cmd, text)
         return
-    if re.search(r"\bsim serve\b", text):  # serves until Ctrl-C: its banner, then Ctrl-C
+    serves = cmd.expected[:1] and cmd.expected[0].startswith("http://127.0.0.1:")  # lm629 panel
+    if re.search(r"\bsim serve\b", text) or serves:  # serves until Ctrl-C: its banner (the
+        # panel's: its address), then Ctrl-C
         job = subprocess.Popen(argv, cwd=st.tmp, env=st.env, stdout=subprocess.PIPE,
                                stderr=subprocess.STDOUT, text=True, start_new_session=True)
         banner = job.stdout.readline()
         os.killpg(job.pid, signal.SIGINT)
         rest, _ = job.communicate(timeout=20)
-        out, code = banner + rest, 0 if banner.startswith("serving ") else job.returncode
+        served = banner.startswith(("serving ", "http://127.0.0.1:"))
+        out, code = banner + rest, 0 if served else job.returncode
     else:
         p = subprocess.run(argv, cwd=st.tmp, env=st.env, input="y\n" * 8, capture_output=True,
                            text=True, timeout=120)
