@@ -262,10 +262,10 @@ class Lab:
 def running_lab(tmp: Path, labgrid_bin: Path,
                 far_ends: dict[str, tuple[str, str]]) -> Iterator[Lab]:
     """A lab with one exporter per ``far_ends`` item (exporter name -> ("python" or
-    "firmware", the served chip's URL: ``sim://?chip=lm628``)), each exporting its bench as ``NAME/lm629-bench/*``; the first also exports
-    ``NAME/lm629-spare/*``, a pseudo-terminal with nothing behind it (a bench whose board is
-    off); stopped at the end, and the process list checked: nothing it started is left
-    running."""
+    "firmware", the served chip's URL: ``sim://?clock=6MHz``)), each exporting its bench as
+    ``NAME/lm629-bench/*``; the first also exports ``NAME/lm629-spare/*``, a pseudo-terminal
+    with nothing behind it (a bench whose board is off); stopped at the end, and the process
+    list checked: nothing it started is left running."""
     lab = Lab(tmp, labgrid_bin)
     spare = os.openpty()
     with contextlib.ExitStack() as stack:
