@@ -306,9 +306,9 @@ def move_steps(chip: LM629, o: BringupOptions, clock_hz: float,
             return
         final = target - (exc.position if exc.position is not None else s.real_position)
         yield StepResult("settle", False,
-                         f"did not settle within +/-{o.dead_band} counts in "
-                         f"{o.settle_timeout_s:g} s (error now {final:+d}, largest following "
-                         f"error {worst:+d}): add kd for damping, or lower kp",
+                         f"did not settle in {o.settle_timeout_s:g} s (error now {final:+d}, "
+                         f"dead band +/-{o.dead_band}, largest following error {worst:+d}; "
+                         "what was still wrong below): add kd for damping, or lower kp",
                          [getattr(exc, STOP_NOTE, None) or exc.detail],
                          {"max_following_error": worst, "final_error": final,
                           "dead_band": o.dead_band, "settle_s": None, "reason": str(exc.reason)})

@@ -133,7 +133,7 @@ def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
             if s.time >= end:
                 break
         if check:
-            profile = move.profile_s(move._clock_hz(chip.move_rules)) or 0.0
+            profile = move.profile_s(move.clock_hz_for(chip.move_rules)) or 0.0
             try:
                 cap.result = move.wait(timeout=duration_s + 1.5 * profile
                                        + chip.move_rules.settle_timeout + 1.0,

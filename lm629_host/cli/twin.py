@@ -19,7 +19,7 @@ from lm629_host.bench.identify import identify
 from lm629_host.physics.axis import Gains
 from lm629_host.bench.twin import Plant, check_twin, plant_record, twin_profile
 from lm629_host.urls import query_params, with_query
-from lm629_host.cli.app import axes_of, main, _session, Session
+from lm629_host.cli.app import EXIT_DECLINED, axes_of, main, _session, Session
 from lm629_host.cli.motion import _motion_words
 from lm629_host.cli.types import FINITE
 
@@ -39,7 +39,7 @@ def _confirm(yes: bool, travel: int) -> None:
                                      "from here. Is the axis free to move that far?",
                                      default=False):
         click.echo("nothing moved")
-        click.get_current_context().exit(1)
+        click.get_current_context().exit(EXIT_DECLINED)
 
 
 def _profile_gains(ax: AxisProfile | None) -> Gains | None:

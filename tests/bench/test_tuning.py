@@ -211,6 +211,8 @@ def test_reversed_leads_runaway_stops_the_motor_inside_the_band(base):
 HOLDING_LOAD = "load_torque=0.005"
 
 
+# up to 10 s on an idle machine (sim+avr://): a whole tune (phasing, identification, the gain
+# search's test moves) through the compiled firmware at 115200 baud, the slowest link
 @pytest.mark.parametrize("travel", [2000, TRAVEL])
 @pytest.mark.parametrize("base", ["sim://", "sim+emu://?baud=115200", "sim+avr://?baud=115200"])
 def test_a_holding_load_is_not_reversed_leads(base, travel):
@@ -457,6 +459,7 @@ def test_a_coast_is_judged_on_its_own_rows_whatever_the_host_stamps(late_s):
     chip.close()
 
 
+# about 10 s on an idle machine: the identification runs twice (the late one, then again)
 @pytest.mark.parametrize("travel", [2000, TRAVEL])
 def test_a_host_paused_during_identification_still_tunes(travel):
     """A host paused for 0.2 s as it asks for the identification's first recording: the
@@ -487,6 +490,8 @@ def test_a_host_paused_during_identification_still_tunes(travel):
 
 
 # ---------------------------------------------------------------------------------- a holding load
+# over 10 s on an idle machine (10x inertia): the tuner's test moves on a slow axis, each
+# simulated at the chip's 2 kHz sample rate, and the script's three moves after it
 @pytest.mark.parametrize("load", ["load_torque=0.003", "load_torque=0.002&inertia=4e-5"])
 def test_a_tuned_loaded_axis_finishes_a_lab_scripts_move(load):
     """A holding load of 5.1 output codes (0.003 N m at 5.86e-4 N m per code; 0.34 codes
@@ -529,6 +534,8 @@ with lm629_host.open_board(profile=sys.argv[1]) as board:
 """
 
 
+# over 10 s on an idle machine: a tune of a 10x-inertia axis in real time (the served bench
+# is the subject: the same tune in simulated time is the test above)
 def test_a_served_loaded_axis_tunes_and_a_lab_script_finishes_its_moves(tmp_path):
     """A served bench in real time (`lm629 sim serve`, its own process) with a holding load
     and 10x the inertia: `tune --save` into a profile, then a lab script, a process of its

@@ -219,6 +219,8 @@ def _matches(bench: Side, twin: Side) -> None:
                                        twin.settle_range)
 
 
+# about 10 s on an idle machine, once per run (a module fixture: its tests share one xdist
+# group, tests/selection.py): a whole `tune --save` of the hidden bench
 @pytest.fixture(scope="module")
 def tuned(tmp_path_factory) -> Path:
     """A profile tuned with `tune --save` on the hidden bench (sim://)."""
