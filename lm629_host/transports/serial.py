@@ -28,7 +28,6 @@ import logging
 from urllib.parse import parse_qsl, urlencode
 import os
 import select
-import statistics
 import sys
 import threading
 from dataclasses import dataclass
@@ -53,8 +52,6 @@ log = logging.getLogger("lm629_host.serial")
 DEFAULT_BAUD = 115200
 #: seconds to keep asking HELLO after opening (boot time of an Uno after its DTR reset)
 DEFAULT_BOOT_S = 2.5
-#: PINGs timed after the handshake; the median is the reported round-trip time
-RTT_PINGS = 5
 
 #: USB ids of the boards and adapters a bridge is usually built on: (vid, pid) -> name
 KNOWN_USB_IDS: dict[tuple[int, int], str] = {
@@ -498,7 +495,8 @@ def latency_timer_ms(device: str) -> int | None:
 
 
 class SerialTransport(LinkTransport):
-    """The bridge over a serial port.  ``rtt_s`` is the measured PING round trip."""
+    """The bridge over a serial port: the link's open sequence (:meth:`LinkTransport.open_link`)
+    after the port is open; ``rtt_s`` is the measured PING round trip."""
 
     scheme = "serial"
     hello_interval_s = 0.25
@@ -510,36 +508,8 @@ class SerialTransport(LinkTransport):
         self.boot_s = boot_s
         self.hello_total_s = max(boot_s, self.hello_interval_s)
         self.low_latency = low_latency
-        self.rtt_s: float | None = None
-        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs, arm=False)
-        #: why the line runs at :attr:`baud` (``status`` says it)
-        self.rate_note = "the handshake rate" + ("" if fast else " (fast_baud=0)")
-        if fast and fast != baud and not getattr(pipe, "sets_line_rate", True):
-            self.rate_note = (f"the handshake rate: raw TCP cannot set the far UART's rate, so "
-                              f"fast_baud={fast} is not asked for (rfc2217:// can)")
-        elif fast and fast != baud:
-            try:  # a bridge or a port that cannot: a warning, and the link stays
-                switched = self.switch_baud(fast)
-            except BaseException:
-                self.close()
-                raise
-            self.rate_note = (f"switched from {baud} baud after the handshake" if switched else
-                              f"the handshake rate: the switch to {fast} baud did not take")
-            self.stats.reset()
-        if measure_rtt:
-            try:
-                self.rtt_s = self.measure_rtt()
-            except BaseException:
-                self.close()
-                raise
-            self.stats.reset()
-            log.info("%s: round trip %.2f ms, low latency %s", url, self.rtt_s * 1e3,
-                     low_latency or "n/a")
-        try:  # last: the switch of rate and the PINGs above are not timed by the failsafe
-            self.failsafe.open()
-        except BaseException:
-            self.close()
-            raise
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs,
+                         fast_baud=fast, measure_rtt=measure_rtt)
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SerialTransport:
@@ -561,18 +531,6 @@ class SerialTransport(LinkTransport):
             f"--port {dev})? An Uno/Nano resets when the port opens and needs ~2 s to boot "
             f"(raise ?boot=5 if it is slower); does ?baud= match the firmware's? Is it the "
             "right port (lm629 bridge list)?", port=self.url)
-
-    def measure_rtt(self, n: int = RTT_PINGS) -> float:
-        """Median round trip of ``n`` empty PINGs, seconds."""
-        return statistics.median(self.ping() for _ in range(n))
-
-    def line_rate(self) -> tuple[int, str]:
-        """The rate the line runs at and why (``lm629 status``'s ``link`` line)."""
-        return self.baud or 0, self.rate_note
-
-    def describe(self) -> str:
-        rtt = f", round trip {self.rtt_s * 1e3:.2f} ms" if self.rtt_s is not None else ""
-        return super().describe() + rtt
 
     @classmethod
     def list_ports(cls, probe: bool = True, boot_s: float = DEFAULT_BOOT_S) -> list[PortInfo]:
