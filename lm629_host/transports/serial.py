@@ -37,6 +37,11 @@ try:  # POSIX only; imported early so that the advice works even where modules c
 except ImportError:  # pragma: no cover - Windows
     grp = None  # type: ignore[assignment]  # Windows has no grp module
 
+try:  # POSIX only: pyserial's reset_input_buffer on a tty lets termios.error through
+    from termios import error as _TermiosError
+except ImportError:  # pragma: no cover - Windows
+    _TermiosError = OSError  # type: ignore[assignment,misc]  # nothing else to catch there
+
 from lm629_host.bridge.protocol import FAST_BAUD
 from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import TransportError
@@ -48,6 +53,13 @@ from lm629_host.transports.link import LinkTransport
 from lm629_host.transports.session import DEFAULT_RETRIES
 
 log = logging.getLogger("lm629_host.serial")
+
+#: what a port that went away (or never was a tty) raises from pyserial or the descriptor:
+#: SerialException and its PortNotOpenError are OSError (so are a socket's errors and the
+#: stuck write's TimeoutError); ValueError for a descriptor closed under a select; termios's
+#: own error for a tty call on something that is no tty.  A TypeError or an AttributeError is
+#: a bug, never "was the board unplugged?"
+PORT_ERRORS: tuple[type[Exception], ...] = (OSError, ValueError, _TermiosError)
 
 DEFAULT_BAUD = 115200
 #: seconds to keep asking HELLO after opening (boot time of an Uno after its DTR reset)
@@ -268,7 +280,7 @@ class SerialPipe:
         self._heard = b""
         try:
             self._fd: int | None = port.fileno()
-        except Exception:  # noqa: BLE001 - Windows ports and URL handlers have no fd
+        except OSError:  # io.UnsupportedOperation: Windows ports and URL handlers have no fd
             self._fd = None
         if self._fd is not None:
             port.timeout = 0  # non-blocking reads; waiting is done with select below
@@ -300,7 +312,7 @@ class SerialPipe:
                 self._write_fd(data)
             else:
                 self.port.write(data)
-        except Exception as exc:
+        except PORT_ERRORS as exc:
             raise TransportError(f"write failed ({exc}): {_lost_hint(self.device, self._heard)}",
                                  port=self.device) from exc
 
@@ -337,7 +349,7 @@ class SerialPipe:
                 data = port.read(max(1, port.in_waiting))
                 return bytes(data)
             return self._read_sliced(timeout_s)
-        except Exception as exc:
+        except PORT_ERRORS as exc:
             raise TransportError(f"read failed ({exc}): {_lost_hint(self.device, self._heard)}",
                                  port=self.device) from exc
 
@@ -362,19 +374,19 @@ class SerialPipe:
         try:
             self.port.flush()
             self.port.baudrate = baud
-        except Exception as exc:
+        except PORT_ERRORS as exc:  # ValueError: a rate this port's driver cannot make
             raise TransportError(f"cannot set {baud} baud ({exc})", port=self.device) from exc
 
     def reset_input(self) -> None:
         try:
             self.port.reset_input_buffer()
-        except Exception:  # noqa: BLE001 - a pty or a vanished port: nothing to drop
+        except PORT_ERRORS:  # a pty or a vanished port: nothing to drop
             pass
 
     def close(self) -> None:
         try:
             self.port.close()
-        except Exception:  # noqa: BLE001 - closing a vanished port must not raise
+        except PORT_ERRORS:  # closing a vanished port must not raise
             pass
 
 
