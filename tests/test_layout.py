@@ -435,7 +435,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("bench",),  # bring-up, tuning, capture, scope, wiring check and drawing
     # the doors, the sigrok decoder (loaded by libsigrokdecode, imports nothing of ours), and
     # the root
-    ("cli", "integrations", "sigrok", "__main__", ""),
+    ("cli", "panel", "integrations", "sigrok", "__main__", ""),
 ]
 
 

@@ -16,7 +16,8 @@ real time.  On hardware the pace is the link's own.
 A stop pressed while a command waits (a shaped move, a step test) is raised in the worker
 after the bus program under way (the transport's ``after_program`` hook, as Ctrl-C is on the
 command line): the command's own :func:`~lm629_host.chip.safety.stop_on_error` stops the
-motor (abrupt stop, then motor off).
+motor (abrupt stop, then motor off), and the stop asked for runs next, so that the axis ends
+as the button's mode says (holding, or off).
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ from lm629_host.bus.opcodes import Signals, Status
 from lm629_host.bus.snapshot import Snapshot
 from lm629_host.clock import WallClock
 from lm629_host.physics.pid import sample_period_s
+from lm629_host.cli.app import error_line
+from lm629_host.errors import FailsafeTripped
 from lm629_host.physics.units import FIXED_ONE
 
 log = logging.getLogger("lm629_host.panel")
@@ -194,18 +197,12 @@ class BenchWorker:
         last_failsafe = time.monotonic() if self.failsafe["armed"] is not None else math.inf
         try:
             while not self._quit:
-                rows: Iterator[list[Snapshot]] = feed(board, cs, self.sample_hz)
                 try:
-                    for snaps in rows:
-                        self._add(snaps)
-                        self._pace(snaps[0].time)
-                        if self._jobs or self._quit or \
-                                time.monotonic() - last_failsafe >= FAILSAFE_POLL_S:
-                            break
-                finally:
-                    close = getattr(rows, "close", None)
-                    if close is not None:
-                        close()  # ends the far side's recording
+                    self._sample(board, cs, last_failsafe)
+                except FailsafeTripped as exc:  # a host paused past the failsafe: the bridge
+                    # stopped the chips; said on the page, and the rows go on
+                    self._failsafe_news({"armed": True, "tripped": True,
+                                         "text": error_line(exc)[0]})
                 if time.monotonic() - last_failsafe >= FAILSAFE_POLL_S:
                     last_failsafe = time.monotonic()
                     self._poll_failsafe()
@@ -216,8 +213,22 @@ class BenchWorker:
         finally:
             self._end(board)
 
+    def _sample(self, board: Any, cs: list[int], last_failsafe: float) -> None:
+        """Rows until a job is queued, the panel ends or the failsafe is due a read."""
+        rows: Iterator[list[Snapshot]] = feed(board, cs, self.sample_hz)
+        try:
+            for snaps in rows:
+                self._add(snaps)
+                self._pace(snaps[0].time)
+                if self._jobs or self._quit or \
+                        time.monotonic() - last_failsafe >= FAILSAFE_POLL_S:
+                    break
+        finally:
+            close = getattr(rows, "close", None)
+            if close is not None:
+                close()  # ends the far side's recording
+
     def _fault(self, exc: Exception) -> None:
-        from lm629_host.cli.app import error_line
         self.exception = exc
         self.error = error_line(exc)[0]
 
@@ -254,21 +265,15 @@ class BenchWorker:
                 if job.then is not None and outcome.ok:
                     outcome = job.then(outcome)
             except Exception as exc:  # noqa: BLE001 - a command's fault is its answer
-                from lm629_host.cli.app import error_line
                 message, code = error_line(exc)
                 outcome = Outcome(code, message)
             with self._lock:
                 self._busy = None
-                interrupted = self._stop_asked
                 self._stop_asked = False
-                if interrupted and self._jobs and self._jobs[0].stop:
-                    # the command's own stop_on_error has stopped the motor (abrupt, then
-                    # off): a stop sent now would start the servo again
-                    stop = self._jobs.popleft()
-                    stop.outcome = Outcome(0, "stopped the command under way: " + outcome.text)
-                    stop.done.set()
             job.outcome = outcome
             job.done.set()
+            if self.failsafe["armed"] is not None:  # a trip a command met, a clear
+                self._poll_failsafe()
             self.publish({"type": "log", "argv": job.argv, "axis": self._name(job.cs),
                           **outcome.as_dict(), "data": None})
             self._rebase()
@@ -311,7 +316,9 @@ class BenchWorker:
                     round(s.real_velocity / self.sample_s, 1), int(s.status), int(s.signals)]
         self._rows.append(row)
         now = time.monotonic()
-        if now - self._published >= 1.0 / PUBLISH_HZ:
+        # every other row at 50 rows/s: half a row's slack, so that a row a little early does
+        # not wait for the next one (which would make it 1 in 3)
+        if now - self._published >= 1.0 / PUBLISH_HZ - 0.5 / self.sample_hz:
             self._published = now
             rows, self._rows = self._rows, []
             self.publish({"type": "rows", "rows": rows})
@@ -335,7 +342,9 @@ class BenchWorker:
         armed = state.timeout_ms > 0
         text = (state.describe(names) if state.tripped else
                 f"armed: {state.timeout_ms} ms" if armed else "disarmed")
-        new = {"armed": armed, "tripped": bool(state.tripped), "text": text}
+        self._failsafe_news({"armed": armed, "tripped": bool(state.tripped), "text": text})
+
+    def _failsafe_news(self, new: dict[str, Any]) -> None:
         if new != self.failsafe:
             self.failsafe = new
             self.publish({"type": "failsafe", **new})

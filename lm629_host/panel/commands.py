@@ -68,6 +68,8 @@ def build(body: dict[str, Any], worker: Any) -> PanelJob:
         if mode not in STOP_MODES:
             raise PanelRequestError(f"stop mode {mode!r}: one of {', '.join(STOP_MODES)}")
         return PanelJob(["stop", f"--{mode}"], cs, stop=True)
+    if cmd == "clear":
+        return PanelJob(["clear"], cs)
     if cmd == "move":
         shape = _text(body, "shape") or "trapezoid"
         argv = ["move", *_options(body, [("vel", "--vel"), ("acc", "--acc")])]
@@ -90,7 +92,7 @@ def build(body: dict[str, Any], worker: Any) -> PanelJob:
                 f"--csv={path}", "--no-png", "--", _text(body, "distance") or "200"]
         remember = _remember(worker, cs, gains)
         return PanelJob(argv, cs, then=lambda o: _step_answer(path, worker, cs)(remember(o)))
-    raise PanelRequestError(f"unknown command {cmd!r}: move, stop, filter or step")
+    raise PanelRequestError(f"unknown command {cmd!r}: move, stop, filter, step or clear")
 
 
 def _remember(worker: Any, cs: int, gains: dict[str, str]) -> Callable[[Outcome], Outcome]:
@@ -124,15 +126,15 @@ def _step_answer(path: str, worker: Any, cs: int) -> Callable[[Outcome], Outcome
 
 def predict(worker: Any, cs: int, t: list[float], desired: list[int], x0: int) -> dict[str, Any]:
     """The tuner's model's answer to the recorded desired positions from ``x0``, on the chip's
-    samples: {"predicted": positions at ``t``, "model": where the model came from}, or
-    {"predicted": None, "model": why there is none}."""
+    samples: {"predicted": positions at ``t``, "basis": where the model came from}, or
+    {"predicted": None, "basis": why there is none}."""
     from lm629_host.physics.predict import simulate
     model, whence = plant_model(worker.session, cs, worker.sample_s)
     if model is None or not t:
-        return {"predicted": None, "model": whence}
+        return {"predicted": None, "basis": whence}
     known = worker.gains.get(cs)
     if not known:
-        return {"predicted": None, "model": "the loaded gains are unknown (no register reads "
+        return {"predicted": None, "basis": "the loaded gains are unknown (no register reads "
                                             "them back): apply gains from the panel first"}
     from lm629_host.physics.axis import Gains
     gains = Gains(known.get("kp", 0), known.get("ki", 0), known.get("kd", 0), known.get("il", 0),
@@ -148,7 +150,7 @@ def predict(worker: Any, cs: int, t: list[float], desired: list[int], x0: int) -
         per_sample.append(desired[j])
     counts, _ = simulate(model, gains, per_sample, x0=x0 + 0.5)
     predicted = [x0 if x < 0 else counts[min(n - 1, round(x / sample_s))] for x in t]
-    return {"predicted": predicted, "model": whence}
+    return {"predicted": predicted, "basis": whence}
 
 
 def plant_model(session: Any, cs: int, sample_s: float) -> tuple[Any, str]:
@@ -159,13 +161,8 @@ def plant_model(session: Any, cs: int, sample_s: float) -> tuple[Any, str]:
     if ax is not None and ax.plant:
         return Plant.from_values(ax.plant).model(sample_s), f"the twin: [axis.{ax.name}.plant]"
     if session.is_sim:
-        from lm629_host.sim.model.params import MotorParams
-        m = MotorParams()
-        full = m.amp_volts * m.torque_constant / m.resistance  # N m at full-scale output
-        per_rad = 4 * m.lines / (2 * math.pi)
-        plant = Plant(accel=full / m.inertia * per_rad,
-                      tau=m.inertia / (m.torque_constant ** 2 / m.resistance + m.friction),
-                      dry=m.coulomb / full)
+        from lm629_host.cli.sim import simulated_plant
+        plant = simulated_plant()
         return plant.model(sample_s), "the simulated motor's numbers"
     return None, "no plant in the profile: `lm629 identify` or `lm629 tune --save` records one"
 

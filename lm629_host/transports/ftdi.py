@@ -157,6 +157,9 @@ class FtdiTransport(Transport):
 
     scheme = "ftdi"
     has_reset_line = True
+    #: a WAIT is idle clocks (1/6 us each at the default clock); the status read behind it
+    #: sets the lines up in about five MPSSE commands (ftdi_busy.COMMAND_S, 0.5 us, each)
+    busy_probe_us = 3.0
     #: /CS lines of the wiring (ftdi_pins.CHIP_SELECTS): two axes
     chip_selects = len(pins.CHIP_SELECTS)
 

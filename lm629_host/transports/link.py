@@ -90,6 +90,10 @@ class LinkTransport(LinkSession):
     """
 
     scheme = "link"
+    #: the bridge firmware's WAIT counts 4 us timer ticks from wherever in a tick it starts,
+    #: and decodes the next op before the status strobe: up to 15 us after the wait asked,
+    #: measured cycle-exact on the firmware in simavr (RDDP's 20 us busy reads 5 us)
+    busy_probe_us = 16.0
     #: how long :meth:`hello` keeps asking before "no answer" (an Uno boots in ~1-2 s after the
     #: port opens; subclasses for real ports raise it)
     hello_total_s: float = 0.5

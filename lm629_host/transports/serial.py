@@ -442,7 +442,7 @@ def _quiet_rfc2217_reader() -> None:
             return
         previous(args)
 
-    hook.lm629_quiet = True  # type: ignore[attr-defined]  # a mark on our own hook, so it is installed once
+    hook.lm629_quiet = True  # type: ignore[attr-defined]  # a mark on the function: installed once
     threading.excepthook = hook
 
 

@@ -5,6 +5,7 @@ at rest short of the target.  One browser for the module."""
 
 from __future__ import annotations
 
+import signal
 import time
 
 import pytest
@@ -34,8 +35,11 @@ def _at_rest_short_of_target(bench, before: int) -> dict:
     return st
 
 
-def test_stop_button_stops_a_served_bench_mid_move(tmp_path, driver):
-    with serve(tmp_path, "python") as bench:
+@pytest.mark.parametrize("far_end", ["python", "firmware+uno"])
+def test_stop_button_stops_a_served_bench_mid_move(tmp_path, driver, far_end):
+    """The Python far end, and the compiled firmware in simavr behind an Uno's USB chip (its
+    4.096 ms flush tick between the panel and the bridge)."""
+    with serve(tmp_path, far_end) as bench:
         bench.ready()
         with panel(f"serial://{bench.link}") as p:
             driver.get(p.url)
@@ -79,3 +83,44 @@ def test_panel_ended_mid_move_stops_the_served_axis(tmp_path):
             code, err = p.end()
         assert code == 143 and err.strip().splitlines()[-1] == "lm629: terminated (SIGTERM)", err
         _at_rest_short_of_target(bench, 2000)
+
+
+def test_a_trip_shows_at_once_and_is_acknowledged_from_the_page(tmp_path, driver):
+    """The panel's process paused (SIGSTOP, a host that stalls) 1.5 s mid-move, past the
+    served link's 0.5 s failsafe: the bridge stops the axis; woken, the page shows the trip
+    (the failsafe box red, a bar over the page) and its Acknowledge button runs `lm629 clear`;
+    the panel itself runs on."""
+    with serve(tmp_path, "python") as bench:
+        bench.ready()
+        with panel(f"serial://{bench.link}") as p:
+            driver.get(p.url)
+            wait_for(lambda: driver.find_element("id", "failsafe").text == "armed: 500 ms",
+                     what="the armed failsafe")
+            box = driver.find_element("id", "move-target")
+            box.clear()
+            box.send_keys(str(FAR))
+            driver.find_element("id", "move").click()
+            wait_for(lambda: last_row(driver)[1] > 1000, what="the axis under way")
+            p.proc.send_signal(signal.SIGSTOP)
+            time.sleep(1.5)
+            p.proc.send_signal(signal.SIGCONT)
+            woke = time.monotonic()
+            wait_for(lambda: "tripped" in driver.find_element("id", "failsafe").get_attribute("class"),
+                     what="the trip shown")
+            shown = time.monotonic() - woke
+            text = driver.find_element("id", "failsafe").text
+            assert text.startswith("the bridge stopped axis 0 (cs 0)"), text
+            bar = driver.find_element("id", "fault")
+            assert bar.is_displayed() and bar.text == "failsafe trip: " + text
+            wait_for(lambda: last_row(driver)[3] == 0, what="the axis stopped by the bridge")
+            driver.find_element("id", "clear").click()
+            wait_for(lambda: message(driver).startswith("acknowledged: "), what="the clear")
+            wait_for(lambda: driver.find_element("id", "failsafe").text == "armed: 500 ms",
+                     what="the failsafe armed again")
+            assert not driver.find_element("id", "fault").is_displayed()
+            assert not driver.find_element("id", "clear").is_displayed()
+            assert p.proc.poll() is None
+            print(f"trip shown {shown:.2f} s after the panel woke")
+        st = bench.status()
+        assert st["failsafe"]["trip"] is None
+        assert st["real_position"] < FAR // 2

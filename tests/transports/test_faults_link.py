@@ -114,7 +114,11 @@ SOAK = dict(delay_s=0.01)
 
 
 @pytest.mark.parametrize("far", ["emu", "avr"])
-@pytest.mark.parametrize("rate,n,min_ok", [(0.01, 5000, None), (0.0025, 3000, 0.999)])
+@pytest.mark.parametrize("rate,n,min_ok", [
+    (0.01, 5000, None), (0.0025, 3000, 0.999),
+    # the release run (pytest --long): ten times longer, the same seeds and bounds
+    pytest.param(0.01, 50_000, None, marks=pytest.mark.long),
+    pytest.param(0.0025, 30_000, 0.999, marks=pytest.mark.long)])
 def test_soak_at_issue16_rates(far, rate, n, min_ok):
     rates = dict(drop=rate, corrupt=rate, duplicate=rate, delay=rate, **SOAK)
     chip, model, fp, far_stats = open_faulty(far, rates, 0, baud=1_000_000)

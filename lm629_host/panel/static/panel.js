@@ -57,6 +57,8 @@ function showFailsafe(f) {
   const el = $("failsafe");
   el.textContent = f.text;
   el.className = f.tripped ? "tripped" : "";
+  $("clear").hidden = !f.tripped;
+  if (!f.tripped && $("fault").textContent.startsWith("failsafe trip")) $("fault").hidden = true;
 }
 
 function light(el, on) { el.classList.toggle("on", on); el.classList.toggle("bad", BAD.has(el.dataset.name)); }
@@ -141,6 +143,7 @@ document.addEventListener("keydown", (e) => { if (e.key === "Escape") { e.preven
 $("move").onclick = () => command({cmd: "move", target: val("move-target"), shape: val("move-shape"),
   vel: val("move-vel"), acc: val("move-acc"), jerk: val("move-jerk"), relative: $("move-relative").checked});
 const gains = () => ({kp: val("gain-kp"), ki: val("gain-ki"), kd: val("gain-kd"), il: val("gain-il"), ds: val("gain-ds")});
+$("clear").onclick = () => command({cmd: "clear"});
 $("apply").onclick = () => command({cmd: "filter", ...gains()});
 
 let stepPlot = null;
@@ -150,7 +153,7 @@ $("step").onclick = async () => {
   if (!r.ok || !r.data) return;
   const d = r.data;
   const data = [d.t, d.desired, d.actual, d.predicted || d.t.map(() => null)];
-  $("step-note").textContent = "prediction: " + d.model;
+  $("step-note").textContent = "prediction: " + d.basis;
   if (stepPlot) { stepPlot.setData(data); return; }
   stepPlot = new uPlot({title: "step: measured and predicted", width: 360, height: 200,
     scales: {x: {time: false}}, axes: [{label: "s"}, {size: 60}],
