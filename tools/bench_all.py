@@ -459,7 +459,6 @@ def probe_after() -> dict:
     from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
     from lm629_host.transports.simemu import EmuLinkTransport
     from lm629_host.bridge.protocol import HelloInfo
-    from lm629_host.transports.link import LinkTransport
     from lm629_host.sim.build import build_model
 
     out: dict = {}
@@ -473,9 +472,7 @@ def probe_after() -> dict:
         lm.WAIT_STATUS_MAX_MS = saved
     model = build_model("sim://")
     emu = BridgeEmulator(model, info=HelloInfo(capabilities=0x07))  # no WAIT_STATUS
-    t = EmuLinkTransport.__new__(EmuLinkTransport)
-    t.model, t.emulator = model, emu
-    LinkTransport.__init__(t, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
+    t = EmuLinkTransport(emu, model, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
     out["wait_emu_old_bridge"] = _link_wait("", transport=t)
     out["wait_ftdi"] = _link_wait("sim+ftdi://")  # no far-side wait: the host polls
     # the FT232H waiting on the busy bit in the adapter: no "before"
