@@ -32,14 +32,15 @@ def is_slow(item: pytest.Item, served: bool) -> bool:
             or any(item.get_closest_marker(m) for m in ("under_load", "long")))
 
 
-def what_runs(markexpr: str, long: bool, hogs: int) -> str:
+def what_runs(markexpr: str, long: bool, hogs: int, workers: object = None) -> str:
     """One line for pytest's header: the tests selected, what is left out, how to run it."""
-    out = [f"lm629-host: {f'-m {markexpr!r}' if markexpr else 'every test'}"]
+    out = [f"lm629-host: {f'-m {markexpr!r}' if markexpr else 'every test'}"
+           + (f" on {workers} workers" if workers else " in one process (-n auto: every core)")]
     if long:
         out.append("with the long mode's tests and budgets (--long: the release run)")
     else:
         out.append("not the long mode's (pytest --long, before a release)")
     out.append(f"beside {hogs} CPU hogs" if hogs else
                "under_load tests without CPU hogs (CI runs them beside two)")
-    out.append("quick loop: pytest -m 'not slow'; the whole CI: bash .ci/run")
+    out.append("quick loop: pytest -n auto -m 'not slow'; the whole CI: bash .ci/run")
     return "; ".join(out)

@@ -119,8 +119,9 @@ def test_a_module_fixture_keeps_its_tests_together_per_parameter(pytester):
 
 def test_a_plain_pytest_says_what_it_runs():
     line = what_runs("", False, 0)
-    assert line.startswith("lm629-host: every test") and "pytest --long" in line
+    assert line.startswith("lm629-host: every test in one process (-n auto") and "--long" in line
     assert "-m 'not slow'" in line and ".ci/run" in line
+    assert "on 2 workers" in what_runs("", False, 0, 2)
     assert "beside 2 CPU hogs" in what_runs("under_load", False, 2)
     assert "-m 'under_load'" in what_runs("under_load", False, 2)
 
