@@ -129,7 +129,7 @@ def test_a_plain_pytest_says_what_it_runs():
 def test_a_shared_fixture_s_tests_run_on_one_worker(pytester, monkeypatch):
     """The scheduling itself, two workers: a module fixture's tests (each parameter), and a
     document's blocks (their own mark), each on one worker, in order; the rest spread.
-    xdist 3.8's own loadgroup spreads them on pytest 9.2 (pytest-xdist issue 1386)."""
+    xdist 3.8's own loadgroup spreads them on pytest 9.2 (xdist_groups.py says why)."""
     monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))
     pytester.makepyfile(test_groups="""
         import os, time
