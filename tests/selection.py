@@ -14,7 +14,7 @@ import pytest
 #: quick loop)
 SLOW_MODULES = frozenset({
     "test_served_bench", "test_served_bench_profile", "test_bench", "test_bench_profile",
-    "test_pytest_plugin", "test_labgrid", "test_wheel", "test_ci_guard", "test_tuning",
+    "test_pytest_plugin", "test_labgrid", "test_labgrid_lab", "test_wheel", "test_ci_guard", "test_tuning",
     "test_firmware_build", "test_firmware_bundle", "test_sigrok", "test_journey", "test_docs",
     "test_bench_failsafe", "test_twin", "test_faults_link", "test_api_state_machine",
     "test_suite"})

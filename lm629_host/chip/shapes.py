@@ -37,7 +37,7 @@ from lm629_host.chip.move import Move, MoveResult, MoveWatch
 from lm629_host.bus.opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX, Cmd, Status
 from lm629_host.bus.program import Op, Program
 from lm629_host.bus.snapshot import Snapshot
-from lm629_host.transports.base import ProfileState
+from lm629_host.transports.reports import ProfileState
 
 #: 16.16 fixed point of the trajectory words
 _ONE = 1 << 16
@@ -378,6 +378,10 @@ class ShapedMove(Move):
         #: ``far_state`` is what it reported at the end (its pieces' lateness on its clock)
         self.far = far
         self.far_state: ProfileState | None = None
+        #: a far schedule: its last piece's time from the STT as handed over; the landing caps
+        #: the host issued after it (plan time from the STT, word)
+        self.far_end: float | None = None
+        self.landings: list[tuple[float, int]] = []
         self.piece_times: list[float] = [0.0]
         self.words: list[int] = [plan.pieces[0].velocity]
         self.dues: list[float] = [0.0]  #: when each cap was due, seconds from the STT
@@ -395,7 +399,7 @@ class ShapedMove(Move):
         chip: Any = self.chip  # an LM629
         #: the chip's time of its last STT as this move left it: any other STT (a board's, a
         #: batch's) or a reset changes it, and this move's caps stop
-        self._mark: float | None = getattr(chip, "_last_update", None)
+        self._mark: float | None = chip.last_update
         if self.issuing:  # its programs pass by here first
             chip.before_program = self._before_program
 
@@ -415,7 +419,7 @@ class ShapedMove(Move):
         went out late does not bring the next one closer than that)."""
         chip: Any = self.chip  # an LM629
         due = self.t0 + self.lag + self._next
-        last = getattr(chip, "_last_update", None)
+        last = chip.last_update
         return due if last is None else max(due, last + chip.update_interval)
 
     def schedule_far(self, axis: int | None, update_s: float) -> None:
@@ -433,6 +437,33 @@ class ShapedMove(Move):
         pieces = [(p.t - elapsed + shift, p.velocity) for p in rest]
         chip: Any = self.chip  # an LM629
         chip.transport.profile(axis, pieces, new=True)
+        self.far_end = (rest[-1].t + shift) if rest else 0.0
+
+    def land(self, s: Snapshot) -> None:
+        """A far schedule's end, as the host-timed path's: once the bridge has issued its last
+        piece (a piece after its time, and the bridge holding none), a chip still short of
+        the target under the tail's slow cap (the pieces' ramps and rounding leave a few
+        counts: at the last piece's mean velocity, a few counts per second, seconds of crawl)
+        gets a cap that covers the rest within a piece, at most once a piece; the chip's own
+        deceleration lands it.  The pieces before stay timed by the bridge."""
+        plan = self.plan
+        chip: Any = self.chip  # an LM629
+        if self.far_end is None or s.status & Status.TRAJECTORY_COMPLETE:
+            return
+        t = s.time - self.t0
+        last = self.landings[-1][0] if self.landings else self.far_end
+        if t < last + plan.piece_s:
+            return
+        left = abs(self.target - s.desired_position)
+        speed = abs(s.desired_velocity) / _ONE / plan.sample_s  # counts/s
+        if left <= speed * plan.piece_s:
+            return  # the chip covers the rest within a piece as it goes
+        state = chip.transport.profile(chip.axis, [], new=False)
+        if state.pending or state.queued:
+            return  # the bridge is still issuing (its clock started when the pieces arrived)
+        word = min(plan.peak_velocity, math.ceil(left / plan.piece_s * plan.sample_s * _ONE))
+        chip.load_trajectory(velocity=word, start=True)
+        self.landings.append((t, word))
 
     def _before_program(self, program: Program) -> None:
         """The chip's hook: drop the pieces when ``program`` takes the trajectory over, else
@@ -491,12 +522,12 @@ class ShapedMove(Move):
             floor = left / max(plan.piece_s, plan.duration - t) * plan.sample_s * _ONE
             word = min(plan.peak_velocity, max(word, math.ceil(floor)))
         with chip.transport.lock:  # a stop from another thread goes after this cap, or drops it
-            if getattr(chip, "_last_update", None) != self._mark:
+            if chip.last_update != self._mark:
                 self._end(dropped=True)  # another STT, or a reset, came since this move's last
             if not self.issuing:
                 return
             chip.load_trajectory(velocity=word, start=True)
-            self._mark = getattr(chip, "_last_update", None)
+            self._mark = chip.last_update
         self.piece_times.append(clock.now() - self.t0)
         self.words.append(word)
         self.dues.append(due - self.t0)
@@ -526,8 +557,12 @@ def _wait_pieces(move: Move, watch: MoveWatch,
     chip: Any = move.chip  # an LM629
     clock = chip.clock
     if move.far:
-        done = (move.inner(move, watch, progress) if move.inner is not None
-                else move.poll(watch, progress))
+        def landing(s: Snapshot) -> None:
+            if progress is not None:
+                progress(s)
+            move.land(s)
+        done = (move.inner(move, watch, landing) if move.inner is not None
+                else move.poll(watch, landing))
         move.far_state = chip.transport.profile(chip.axis, [], new=False)
         return done
     timeout = watch.deadline - move.t0

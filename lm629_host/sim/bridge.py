@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -147,6 +147,13 @@ class BridgeEmulator:
     wiring: Miswiring | None = None
     #: the chip select of each chip of ``model``, in order (None: 0, 1, ...)
     selects: Sequence[int] | None = None
+    #: where a program's WAIT_STATUS learns of the host's next byte, as the firmware's does
+    #: (it ends the wait: a host waits for the reply before it sends again, so a byte now is
+    #: one that gave up, a new client's HELLO): ``host_byte_at(t)`` is the model time the
+    #: first byte not yet received arrived at, if one had by model time ``t``, else None; a
+    #: caller that learns of bytes as they come (a served bench, in real time) may wait there
+    #: until ``t``.  None: no byte comes while a program runs (programs run straight through)
+    host_byte_at: Callable[[float], float | None] | None = None
 
     def __post_init__(self) -> None:
         chips = chips_of(self.model)
@@ -616,19 +623,24 @@ class BridgeEmulator:
         if not capped and due is not None and due < end:
             # the wait counts as the host alive only up to the failsafe's timeout
             status = self._wait_status(mask, max(0.0, due - m.now()), capped=True)
-            if not status & mask:
+            if not status & mask and m.now() >= due:  # not ended by a host byte
                 self.failsafe_trip()
             return status
+        heard = self.host_byte_at
         while True:
             status = self._strobe().read_status()
             t = m.now()
             if status & mask or t >= end:
                 return status
+            if heard is not None and heard(t) is not None:
+                return status  # a byte from the host ends the wait (read after this status)
             # a piece of a shaped move falls due while the bridge waits: issued at its time
             due = self.profile_due
             stop = end if due is None else min(end, due)
-            clock.advance_until_status(mask, stop)
-            if due is not None and m.now() >= stop and due <= end:
+            # and the host's bytes are looked for at least every HOST_LOOK_S
+            look = stop if heard is None else min(stop, t + HOST_LOOK_S)
+            clock.advance_until_status(mask, look)
+            if due is not None and m.now() >= look and look >= due and due <= end:
                 clock.advance_to(due)
                 self.profile_step()
                 continue
@@ -687,6 +699,10 @@ class BridgeEmulator:
         return RunReply(Result.OK, 0xFF, last, int(self._chip().hi), tuple(statuses),
                         tuple(words))
 
+
+#: the longest a WAIT_STATUS runs on the model before it looks for the host's bytes (a served
+#: bench's far end waits there in real time: a byte is heard within this)
+HOST_LOOK_S = 0.005
 
 #: the busy timeout of a sample program (the firmware's default)
 FIRMWARE_BUSY_TIMEOUT_S = 5e-3

@@ -312,6 +312,11 @@ class SimServer:
         self._thread: threading.Thread | None = None
         self.bytes_in = 0
         self.bytes_out = 0
+        #: the model and wall clocks' origins while serving, and the frames of the last read
+        #: still to hand over (the Python far end's waits look at them: _host_byte_at)
+        self._sim0 = 0.0
+        self._wall0 = 0.0
+        self._parts_left = 0
 
     @property
     def client_url(self) -> str:
@@ -458,8 +463,10 @@ class SimServer:
         if not self._opened:
             self.open()
         far = self.far
-        wall0 = time.monotonic()
-        sim0 = far.now()
+        wall0 = self._wall0 = time.monotonic()
+        sim0 = self._sim0 = far.now()
+        if isinstance(far, EmuFarEnd):  # its waits hear the host's bytes as the firmware's do
+            far.emulator.host_byte_at = self._host_byte_at
         if on_ready is not None:
             on_ready()
         while not self._stop.is_set():
@@ -485,6 +492,30 @@ class SimServer:
             for r in replies:
                 self._write(r)
                 self.bytes_out += len(r)
+
+    def _host_byte_at(self, t: float) -> float | None:
+        """:attr:`BridgeEmulator.host_byte_at` on this bench: a frame of the last read still to
+        hand over arrived already; else the far end waits, in real time, until model time
+        ``t`` or a byte from the client, whichever comes first (so that the Python far end,
+        in a long WAIT_STATUS, hears a new client's HELLO as the firmware does).  A server
+        told to stop ends the wait too."""
+        if self._parts_left or self._stop.is_set():
+            return self.far.now()
+        ahead = (t - self._sim0) - (time.monotonic() - self._wall0)
+        fds: list[int | socket.socket] = (
+            [self.master] if self._listener is None and self.master is not None
+            else [self._client] if self._client is not None else [])
+        ready = select.select(fds, [], [], max(0.0, ahead))[0] if fds else []
+        if ready and self._client is not None and self._client in ready:
+            with contextlib.suppress(OSError):
+                if not self._client.recv(1, socket.MSG_PEEK):  # gone, not a byte
+                    ready = []
+        if ready:
+            return min(t, self._sim0 + time.monotonic() - self._wall0)
+        left = (t - self._sim0) - (time.monotonic() - self._wall0)
+        if left > 0:  # no client to hear (or one that left): the wait still takes its time
+            time.sleep(left)
+        return None
 
     def _read_waiting(self, ready: Sequence[int | socket.socket]) -> bytes:
         """Every byte the client has written so far (the pty or socket may hold more than one
@@ -525,7 +556,9 @@ class SimServer:
                 stray = far.advance_to(start + (end - start) * (k + 1) / len(parts))
                 if stray:
                     out.append(stray)
+                self._parts_left = len(parts) - 1 - k  # arrived already: they end a wait
                 out += far.receive(part)
+            self._parts_left = 0
         # while a request runs, in slices, so that the host's next bytes are read between them
         stray = far.advance_to(min(now, far.now() + OWED_SLICE_S) if far.owes_reply else now)
         if stray:

@@ -19,7 +19,7 @@ from lm629_host.bridge.protocol import (
     wire_size,
 )
 from lm629_host.errors import TransportError
-from lm629_host.transports.base import ProfileState
+from lm629_host.transports.reports import ProfileState
 
 if TYPE_CHECKING:
     from lm629_host.transports.failsafe import LinkFailsafe
@@ -37,7 +37,9 @@ class _Stream:
     host keeps the rest and tops the bridge's schedule up as its pieces fall due."""
 
     cs: int
-    start: float  #: host clock when the first frame went out (the pieces' times count from it)
+    #: host clock when the bridge's schedule started (the pieces' times count from it): the
+    #: NEW frame's reply, by when the bridge had started its clock at the latest
+    start: float
     times: list[tuple[int, int]]  #: every piece: (us from the start, velocity word)
     sent: int = 0  #: pieces handed to the bridge so far
     last: float = 0.0  #: host clock of the last top-up
@@ -59,6 +61,8 @@ class ProfileScheduler:
         self.failsafe = failsafe
         self.cs = cs  #: the chip select of the transport's own chip
         self._streams: dict[int, _Stream] = {}
+        #: host clock of the last NEW frame's reply (a stream's start)
+        self._started = 0.0
 
     @property
     def streaming(self) -> bool:
@@ -99,7 +103,7 @@ class ProfileScheduler:
                 self._top_up(stream)
 
     def _top_up(self, stream: _Stream) -> ProfileState:
-        with self.link._rx_lock:  # the keep-alive's thread tops up too
+        with self.link.request_lock:  # the keep-alive's thread tops up too
             return self._top_up_locked(stream)
 
     def _top_up_locked(self, stream: _Stream) -> ProfileState:
@@ -107,9 +111,15 @@ class ProfileScheduler:
         stream.last = now
         elapsed_us = (now - stream.start) * 1e6
         held = stream.sent - min(stream.sent, stream.due_by(elapsed_us))
-        room = PROFILE_MAX_SCHEDULE - held - 1  # one to spare: the two clocks' offset
+        # one to spare: the start is the NEW reply's arrival, when the bridge's clock had run
+        # for that reply's wire time already, so it holds no more than ``held``; the spare
+        # covers a piece it issues between reading its clock and taking the frame
+        room = PROFILE_MAX_SCHEDULE - held - 1
         batch = stream.times[stream.sent:stream.sent + max(0, room)]
-        state = self._frames(stream.cs, batch, new=stream.sent == 0)
+        new = stream.sent == 0
+        state = self._frames(stream.cs, batch, new=new)
+        if new:
+            stream.start = self._started
         if batch and state.cancelled:
             self._streams.pop(stream.cs, None)  # a stop dropped the schedule: so is the rest
             return state
@@ -130,10 +140,8 @@ class ProfileScheduler:
         state = ProfileState(0, 0, 0.0)
         for k, chunk in enumerate(chunks):
             payload = profile_payload(new and k == 0, cs, chunk)
-            frame = link._exchange(FrameType.PROFILE, payload,
-                                   link.reply_timeout(wire_size(len(payload) + 4),
-                                                      wire_size(PROFILE_REPLY_PAYLOAD.size + 4)),
-                                   f"PROFILE of {len(chunk)} piece(s)", link.retries)
+            frame = link.request(FrameType.PROFILE, payload, f"PROFILE of {len(chunk)} piece(s)",
+                                 wire_size(PROFILE_REPLY_PAYLOAD.size + 4), resync=False)
             if len(frame.payload) != PROFILE_REPLY_PAYLOAD.size:
                 raise TransportError("the bridge's PROFILE_REPLY has the wrong length: reflash "
                                      "the firmware that matches this host", port=link.url)
@@ -149,6 +157,13 @@ class ProfileScheduler:
                     "or more pieces than it holds; nothing was scheduled", port=link.url)
             state = ProfileState(issued, pending, late_us * 1e-6,
                                  result == Result.PROFILE_CANCELLED)
+            if new and k == 0:
+                # the bridge starts the schedule's clock when this frame arrives, which is
+                # after it went out by its wire time (a full frame at 115200 baud: 22 ms, more
+                # than a 20 ms piece): counting the pieces from when it went out would have
+                # the host think the bridge issued pieces it had not, and top up past the
+                # PROFILE_MAX_SCHEDULE it holds (refused: BAD_PROFILE)
+                self._started = link.clock.now()
         return state
 
 

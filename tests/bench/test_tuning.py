@@ -401,7 +401,7 @@ def test_a_shaft_that_never_rests_is_a_timeout():
     """kp = 30000 P-only against a load with no friction to damp it: the loop limit-cycles
     around the hold position and never stands still for 10 polls; the test move waits at
     most 3 s for rest before it starts, then stops the motor and says so."""
-    from lm629_host.bench.tuning import measure_move
+    from lm629_host.bench.tuning_session import measure_move
     w = Watched("sim://?coulomb=0&friction=0&load_torque=0.001")
     with pytest.raises(MotionError) as err:
         measure_move(w.chip, Gains(kp=30000), distance=1000, travel=2000)
@@ -443,15 +443,16 @@ def test_a_coast_is_judged_on_its_own_rows_whatever_the_host_stamps(late_s):
     the time constant is 25 ms) whatever the host's stamps of the recording say.
     With the rows stamped ``late_s`` early, picking them by comparison with the previous
     recording's time left none, read as a coast at 0 counts/s: "swap the motor leads"."""
-    from lm629_host.bench.tuning import Record, _coast, _Session
+    from lm629_host.bench.phasing import coast
+    from lm629_host.bench.tuning_session import Record, TuningSession
     chip = lm629_host.open(f"sim://?{HOLDING_LOAD}")
     chip.reset()
     chip.clock.sleep(0.01)  # the shaft starts falling (reset leaves the drive off)
     LateRecordings(chip, late_s)
-    ses = _Session(chip, TRAVEL, 0.002, lambda text: None)
+    ses = TuningSession(chip, TRAVEL, 0.002, lambda text: None)
     rec = Record("coast", None)
     rec.rows.append(ses.snap())
-    early, late = _coast(ses, rec, 0.06, -1)  # it falls: away from a step up
+    early, late = coast(ses, rec, 0.06, -1)  # it falls: away from a step up
     # the phasing's rule for reversed leads is late < early / 2 or late <= 0: not here (it
     # falls faster, or at its top speed once a long pause let it reach it)
     assert early > 0 and late >= 0.9 * early

@@ -313,3 +313,33 @@ def test_a_second_thread_reading_the_chip_issues_no_piece_twice():
         assert chip.read_desired_position() == 30000 and abs(result.error) <= 20
         assert all(b - a >= 0.01 - ROUNDING_S for a, b in zip(move.piece_times, move.piece_times[1:]))
         assert len(move.plan.pieces) - 1 <= len(move.words) <= len(move.plan.pieces) + 1
+
+
+# ------------------------------------------------------------- a long move the bridge streams
+@pytest.mark.parametrize("url, recording", [("sim+avr://", True), (f"sim+avr://?{UNO}", True),
+                                            (f"sim+avr://?{UNO}", False), ("sim+emu://", True)])
+def test_a_recording_in_a_long_streamed_move_lands_it_bridge_timed(url, recording):
+    """100,000 counts: 260 pieces of 20 ms, streamed to a PROFILE bridge in top-ups, and a
+    0.3 s recording at 5 ms in the middle (issue 47).  At 115200 baud the NEW frame of 30
+    pieces takes 22 ms on the wire, more than a piece: a host that counted the pieces from when
+    it sent that frame topped the bridge up past the 64 it holds (BAD_PROFILE, the rest of the
+    move dropped); and the last piece's cap (the S-curve's tail, a few counts/s) left a chip a
+    few counts short crawling there for seconds.  Now: every piece issued by the bridge on its
+    own timer, none refused, the chip on its target without a crawl."""
+    with _chip(url) as chip:
+        move = chip.move_profile(100000, CURVE)
+        assert move.far and len(move.plan.pieces) == 260
+        if recording:
+            trace = chip.record(0.005, 0.3)
+            assert len(trace) == 60
+        result = move.wait()
+        assert chip.read_desired_position() == 100000
+        assert abs(result.error) <= 20 and result.target == 100000
+        state = move.far_state
+        assert state is not None and state.pending == 0 and state.queued == 0
+        assert state.issued == len(move.plan.pieces) - 1 and not state.cancelled
+        assert state.late_max_s < 5e-3  # the bridge's own lateness, on its clock
+        # at most a landing cap a piece after the bridge's last piece, over the last counts
+        assert result.duration < move.plan.duration + 0.15  # no crawl
+        assert len(move.landings) <= 2
+        assert all(t >= (move.far_end or 0.0) for t, _ in move.landings)

@@ -29,6 +29,8 @@ from lm629_host.sim.build import build_bus
 from lm629_host.transports.link import LinkTransport
 from lm629_host.transports import open_transport
 
+from served import serve
+
 
 def test_the_python_far_end_reports_the_firmware_release_it_emulates():
     """HELLO_REPLY of the Python far end and of the compiled firmware carry the one version
@@ -201,6 +203,38 @@ def test_a_host_byte_ends_a_wait_that_can_never_match():
     assert [f.type for f in got] == [FrameType.RUN_REPLY, FrameType.HELLO_REPLY]
     assert sim.now - t0 < 0.01
     pipe.close()
+
+
+@pytest.mark.parametrize("far_end", ["python", "firmware"])
+def test_a_host_byte_ends_a_long_wait_on_a_served_far_end(tmp_path, far_end):
+    """Served (``lm629 sim serve --pty``, in real time), both far ends: a client's RUN waits
+    65.5 s for mask 0 and the client gives up; 0.3 s later the next client's HELLO ends the
+    wait and is answered at once (the RUN's reply first), as the firmware does (PROTOCOL.md,
+    WAIT_STATUS).  The Python far end used to run the whole wait before it read a byte."""
+    import serial
+
+    wait = bytes((0, 0, 0, 0x08, 0x00, 0xFF, 0xFF))  # cs 0, default busy timeout, WAIT_STATUS
+    with serve(tmp_path, far_end) as bench, serial.Serial(str(bench.link), 115200,
+                                                          timeout=0.05) as port:
+        port.write(encode_frame(FrameType.HELLO, 1))  # a far end up and answering first
+        reader, got = FrameReader(), []
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not got:
+            got += [f for f in reader.feed(port.read(64)) if isinstance(f, Frame)]
+        assert [f.type for f in got] == [FrameType.HELLO_REPLY]
+        port.write(encode_frame(FrameType.RUN, 2, wait))
+        time.sleep(0.3)
+        assert port.read(64) == b""  # still waiting
+        t0 = time.monotonic()
+        port.write(encode_frame(FrameType.HELLO, 3))
+        got = []
+        while time.monotonic() - t0 < 10 and len(got) < 2:
+            got += [f for f in reader.feed(port.read(64)) if isinstance(f, Frame)]
+        heard_s = time.monotonic() - t0
+        assert [(f.type, f.seq) for f in got] == [(FrameType.RUN_REPLY, 2),
+                                                  (FrameType.HELLO_REPLY, 3)]
+        # answered within the far end's look at the line and the round trip, not 65 s later
+        assert heard_s < 2.0
 
 
 # ---------------------------------------------------------------------------------- sim+avr://

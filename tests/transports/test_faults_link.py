@@ -209,7 +209,7 @@ def test_seq_wrap_after_a_give_up_cannot_hit_the_cache():
     from the cache and never run (a lost command reported as done).  After a give-up the host
     says HELLO (which empties the cache) before sending anything, and while that HELLO is
     unanswered it sends nothing: those failures say so (``may_have_run`` False)."""
-    from lm629_host.transports.link import LinkError
+    from lm629_host.errors import LinkError
 
     # the cable is out for seconds: the failsafe would (rightly) stop the chip, and this test
     # reads the chip's record for the cache alone
@@ -267,7 +267,7 @@ def test_request_arriving_after_the_host_gave_up_runs_once_and_in_order():
     reaches the bridge before anything sent after it (a serial line keeps order), runs once
     (its retries are answered from the cache), its late replies are ignored as stale, and the
     next command runs after it and returns its own answer."""
-    from lm629_host.transports.link import LinkError
+    from lm629_host.errors import LinkError
 
     # a line this slow is silent past the failsafe's timeout (which would rightly stop the
     # chip): this test reads the chip's record for the order alone
@@ -329,7 +329,7 @@ def test_a_refusal_caused_by_an_undetected_corruption_is_sent_again_once(far):
     """BAD_PROGRAM means nothing ran, so the host sends the program once more (a new
     exchange): the call succeeds and the chip's record holds it exactly once.  Refused twice,
     it is a typed error that says nothing ran (``may_have_run`` False) and names the fix."""
-    from lm629_host.transports.link import LinkError
+    from lm629_host.errors import LinkError
     chip, model, _fp, _far = open_faulty(far, {}, seed=3, baud=1_000_000)
     t = chip.transport
     t.pipe = DamageFirstByte(t.pipe, times=1)
