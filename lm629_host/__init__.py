@@ -48,7 +48,8 @@ from lm629_host.physics.units import Scale
 
 __version__ = "0.1.0"
 
-from lm629_host.motion.board import Board, BoardMove, LinearPlan, open_board, plan_linear
+from lm629_host.motion.board import Board, BoardMove, open_board
+from lm629_host.physics.linear import LinearPlan, plan_linear
 
 if _typing.TYPE_CHECKING:
     from lm629_host.bench.tuning import TuneResult, autotune

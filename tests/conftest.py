@@ -21,14 +21,16 @@ import lm629_host
 from lm629_host.sim import avr as avrsim
 from lm629_host.bus.program import BusCycle
 
+from selection import is_slow, what_runs
 from served import CPU_HOGS_ENV, cpu_hogs, is_served, served_docs
 from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
 
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"
 
 #: the ``firmware_built`` fixture, for every test module that asks for it by name; pytester
-#: runs the lm629 pytest plugin (tests/integrations/test_pytest_plugin.py)
-pytest_plugins = ("firmware_helpers", "pytester")
+#: runs the lm629 pytest plugin (tests/integrations/test_pytest_plugin.py); xdist_groups keeps
+#: the tests that share a fixture on one worker (``-n``)
+pytest_plugins = ("firmware_helpers", "pytester", "xdist_groups")
 
 
 def _avr_missing() -> list[str]:
@@ -42,7 +44,20 @@ _HOGS: list = []
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--cpu-hogs", type=int, default=int(os.environ.get(CPU_HOGS_ENV) or 0),
                      metavar="N", help="run N CPU-burning processes beside the whole run (also "
-                     f"{CPU_HOGS_ENV}=N); with -m served: the busy-machine pass")
+                     f"{CPU_HOGS_ENV}=N); with -m under_load: the busy-machine pass")
+    parser.addoption("--long", action="store_true", default=bool(os.environ.get(LONG_ENV)),
+                     help="the release run (docs/testing.md): the tests marked long as well, "
+                     f"and the crossings machine at its long budget (also {LONG_ENV}=1)")
+
+
+#: the long mode's switch (``pytest --long``): what does not fit in CI's four minutes
+LONG_ENV = "LM629_LONG"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if config.getoption("--long"):
+        # tests/crossings/test_api_state_machine.py reads its budget at import, after this
+        os.environ.setdefault("LM629_CROSSINGS", "long")
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
@@ -64,17 +79,6 @@ def pytest_sessionstart(session: pytest.Session) -> None:
             pass
 
 
-#: test modules that start processes (a served bench, the installed script, a wheel, sigrok-cli,
-#: labgrid) or tune a motor: ``-m "not slow"`` leaves them out (docs/testing.md, the quick loop)
-SLOW_MODULES = frozenset({
-    "test_served_bench", "test_served_bench_profile", "test_bench", "test_bench_profile",
-    "test_pytest_plugin", "test_labgrid", "test_wheel", "test_ci_guard", "test_tuning",
-    "test_firmware_build", "test_firmware_bundle", "test_sigrok", "test_journey", "test_docs",
-    "test_bench_failsafe", "test_twin", "test_faults_link"})
-#: parameters that run the compiled firmware in simavr, or wait on a USB adapter in real time
-SLOW_PARAMS = ("sim+avr", "firmware", "usb=")
-
-
 def pytest_sessionfinish(session: pytest.Session) -> None:
     while _HOGS:
         _HOGS.pop().__exit__(None, None, None)
@@ -86,22 +90,36 @@ def cpu_hogs_beside():
     return cpu_hogs
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's, which reads the xdist_group marks
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     docs = served_docs(items)
     for item in items:
-        if item.path.stem in SLOW_MODULES or any(p in item.nodeid for p in SLOW_PARAMS):
-            item.add_marker(pytest.mark.slow)
-        if is_served(item, docs):
+        served = is_served(item, docs)
+        if served:
             item.add_marker(pytest.mark.served)
+        if is_slow(item, served):
+            item.add_marker(pytest.mark.slow)
+    if not config.getoption("--long"):
+        kept = [i for i in items if i.get_closest_marker("long") is None]
+        if len(kept) < len(items):
+            config.hook.pytest_deselected(items=[i for i in items if i not in kept])
+            items[:] = kept
+    if hasattr(config, "workerinput"):
+        # an xdist worker: the slow tests first (a stable sort: each module's order is kept);
+        # xdist hands out the rest one test at a time (xdist_groups.py), and a run that ends
+        # on quick tests ends with both workers busy
+        items.sort(key=lambda i: i.get_closest_marker("slow") is None)
 
 
-
-def pytest_report_header(config: pytest.Config) -> str | None:
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    """What this run runs, in words a newcomer's plain ``pytest`` prints first."""
+    lines = [what_runs(config.getoption("markexpr"), config.getoption("--long"),
+                       config.getoption("--cpu-hogs"))]
     missing = _avr_missing()
     if missing:
-        return (f"!!! AVR toolchain missing ({', '.join(missing)}): the firmware-in-the-loop "
-                f"tests will be SKIPPED (apt-get install {avrsim.PACKAGES})")
-    return None
+        lines.append(f"!!! AVR toolchain missing ({', '.join(missing)}): the firmware-in-the-loop "
+                     f"tests will be SKIPPED (apt-get install {avrsim.PACKAGES})")
+    return lines
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:

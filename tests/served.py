@@ -153,7 +153,8 @@ def is_served(item: pytest.Item, served_docs: set[Path]) -> bool:
 
 
 def _starts_a_server(item: pytest.Item) -> bool:
-    """Whether the test's own body starts a served bench (:func:`serve`, :func:`_sim_serve`)."""
+    """Whether the test's own body starts a served bench (:func:`serve`, :func:`_sim_serve`,
+    or ``lm629 sim serve`` as an argv of its own)."""
     func = getattr(item, "function", None)
     if func is None:
         return False
@@ -161,7 +162,7 @@ def _starts_a_server(item: pytest.Item) -> bool:
         source = inspect.getsource(func)
     except (OSError, TypeError):
         return False
-    return "with serve(" in source or "_sim_serve()" in source
+    return any(w in source for w in ("with serve(", "_sim_serve()", '"sim", "serve"'))
 
 
 def served_docs(items: list[pytest.Item]) -> set[Path]:

@@ -16,7 +16,7 @@ def _pytest(env_extra: dict[str, str]) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k != "LM629_REQUIRE_AVR"}
     env["PATH"] = str(Path(sys.executable).parent)
     env.update(env_extra)
-    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider",
                            "tests/sim/test_soak_checker.py"], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=120)
 

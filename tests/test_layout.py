@@ -257,6 +257,65 @@ def _private_reach(tree: ast.Module) -> list[int]:
     return lines
 
 
+#: names with a leading underscore that are public API of the standard library
+_STDLIB_UNDERSCORED = frozenset({"_replace", "_asdict", "_fields", "_make", "_field_defaults",
+                                 "_exit", "_getframe"})
+
+
+def _own_names(tree: ast.Module) -> set[str]:
+    """Every name a module defines: its functions, classes, module and local names, imported
+    names, and the fields its classes set on ``self`` or ``cls``."""
+    names: set[str] = set()
+    for n in ast.walk(tree):
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(n.name)
+        elif isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store) and _is_self(n.value):
+            names.add(n.attr)
+        elif isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store):
+            names.add(n.id)
+        elif isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name):
+            names.add(n.target.id)
+        elif isinstance(n, (ast.Import, ast.ImportFrom)):
+            names.update((a.asname or a.name).split(".")[0] for a in n.names)
+    return names
+
+
+def _foreign_private(tree: ast.Module) -> list[tuple[int, str]]:
+    """``obj._name`` where ``obj`` is not ``self``, ``cls`` or ``super()`` and no class or
+    function of this module defines ``_name``: a read or write of another module's object's
+    private state (a module's own private name used on a copy of its own object, or a nested
+    private class, stays that module's business)."""
+    own = _own_names(tree)
+    out = []
+    for n in ast.walk(tree):
+        if not (isinstance(n, ast.Attribute) and n.attr.startswith("_")
+                and not n.attr.endswith("__") and n.attr not in _STDLIB_UNDERSCORED
+                and n.attr not in own):
+            continue
+        v = n.value
+        if _is_self(v) or (isinstance(v, ast.Call) and isinstance(v.func, ast.Name)
+                           and v.func.id == "super"):
+            continue
+        out.append((n.lineno, ast.unparse(n)))
+    return out
+
+
+def test_the_foreign_private_rule_finds_a_reach_in():
+    tree = ast.parse("class A:\n    def __init__(self):\n        self._own = 1\n"
+                     "    def f(self, other, link):\n        other._own = 2\n"
+                     "        link._resync()\n        self._x()\n        super()._y()\n"
+                     "        return t._replace(a=1), os._exit, link.__class__\n")
+    assert _foreign_private(tree) == [(6, "link._resync")]
+
+
+def test_no_module_reaches_into_another_modules_objects_private_state():
+    """Parts talk through public interfaces: no ``obj._name`` on another module's object
+    (the link's parts use its session's public interface, the chip layer the transport's)."""
+    found = [f"{path.relative_to(ROOT)}:{line}: {text}" for path, tree in _trees().values()
+             for line, text in _foreign_private(tree)]
+    assert found == []
+
+
 def _execute_assigned(tree: ast.Module) -> list[int]:
     """Lines that replace a transport's ``execute`` (an assignment, or setattr by name)."""
     lines = []
@@ -360,8 +419,8 @@ def test_no_issue_number_in_a_comment_or_docstring():
 
 
 #: the layers, bottom first: a module imports only from its own layer and those below it.
-#: The foundations (errors, clock, urls) are top-level modules every layer uses; ``units`` and
-#: ``tuning`` are the two kept module paths (re-exports) and the package root is the top.
+#: The foundations (errors, clock, urls) are top-level modules every layer uses; the package
+#: root is the top.
 LAYERS: list[tuple[str, ...]] = [
     ("errors", "clock", "urls", "data"),
     ("bus",),  # the chip's bus: opcodes, pins, bus programs, the snapshot
@@ -376,7 +435,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("bench",),  # bring-up, tuning, capture, scope, wiring check and drawing
     # the doors, the sigrok decoder (loaded by libsigrokdecode, imports nothing of ours), and
     # the root
-    ("cli", "integrations", "sigrok", "units", "tuning", "__main__", ""),
+    ("cli", "panel", "integrations", "sigrok", "__main__", ""),
 ]
 
 
@@ -404,8 +463,8 @@ def test_the_layer_rule_sees_an_upward_import():
 
 
 def test_at_most_eight_modules_at_the_top():
-    """The package's top level holds its subpackages, ``__init__``/``__main__``, the
-    foundations and the two kept module paths: a new module goes in the layer it belongs to."""
+    """The package's top level holds its subpackages, ``__init__``/``__main__`` and the
+    foundations: a new module goes in the layer it belongs to."""
     top = sorted(p.stem for p in PKG.glob("*.py") if p.stem not in ("__init__", "__main__"))
     assert len(top) <= 8, top
 

@@ -494,7 +494,7 @@ def write_failsafe(block: str) -> None:
 def probe_after() -> dict:
     """The figures only measured now: the other transports, the variants of waiting."""
     import lm629_host
-    import lm629_host.chip.lm629 as lm
+    import lm629_host.chip.waiting as lm
     from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
     from lm629_host.transports.simemu import EmuLinkTransport
     from lm629_host.bridge.protocol import HelloInfo

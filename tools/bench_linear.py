@@ -3,7 +3,7 @@
 trajectory generator (the model's integer arithmetic, sample by sample, no motor).
 
 For seeded random two-axis moves (distances up to 20000 counts, path velocities 1/16 to 3
-counts/sample, accelerations 50 to 5000 words) it plans with :func:`lm629_host.motion.board.plan_linear`,
+counts/sample, accelerations 50 to 5000 words) it plans with :func:`lm629_host.physics.linear.plan_linear`,
 runs each axis's LTRJ words through the generator and reports: the difference between the
 samples at which the axes finish, and the largest distance of the desired point (whole counts,
 as RDDP reads) from the straight line.
@@ -18,7 +18,7 @@ import argparse
 import math
 import random
 
-from lm629_host.motion.board import plan_linear
+from lm629_host.physics.linear import plan_linear
 from lm629_host.sim.model.trajectory import Trajectory
 
 

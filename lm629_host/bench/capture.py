@@ -16,7 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from lm629_host.errors import MotionError
-from lm629_host.chip.lm629 import LM629, Snapshot, check_int
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bus.snapshot import Snapshot
+from lm629_host.errors import check_int
 from lm629_host.chip.move import MoveResult
 from lm629_host.physics.pid import STEP_ACCELERATION, STEP_VELOCITY
 from lm629_host.chip.recording import far_snapshots
@@ -131,7 +133,7 @@ def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
             if s.time >= end:
                 break
         if check:
-            profile = move.profile_s(move._clock_hz(chip.move_rules)) or 0.0
+            profile = move.profile_s(move.clock_hz_for(chip.move_rules)) or 0.0
             try:
                 cap.result = move.wait(timeout=duration_s + 1.5 * profile
                                        + chip.move_rules.settle_timeout + 1.0,

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lm629_host.bench.capture import Capture, PlotUnavailable
-from lm629_host.chip.lm629 import Snapshot
+from lm629_host.bus.snapshot import Snapshot
 from lm629_host.physics.pid import derivative_term, filter_sum, full_scale, output_code, sat16
 from lm629_host.physics.axis import Gains
 from lm629_host.physics.metrics import MoveMetrics, step_metrics

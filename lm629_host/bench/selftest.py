@@ -33,7 +33,7 @@ import math
 import platform
 import statistics
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 from lm629_host.bus.opcodes import (
@@ -54,8 +54,9 @@ from lm629_host.chip.supervise import search_index
 from lm629_host.errors import AxisError, LM629Error, ResetError, WaitTimeout
 from lm629_host.transports import open_transport
 
-#: the version of the report's JSON form (:data:`SCHEMA`)
-SCHEMA_VERSION = 1
+#: the version of the report's JSON form (:data:`SCHEMA`); 2 added ``busy_resolution_us``
+#: (a version 1 report is still read: its busy times are then shown, never compared)
+SCHEMA_VERSION = 2
 #: the clock run: long enough that a 6 MHz chip (25 % off 8 MHz) is unmistakable and a host
 #: paused for part of it moves the median of the slopes by nothing
 CLOCK_RUN_S = 0.5
@@ -83,8 +84,10 @@ PLATEAU_SAMPLES = 64
 #: compared where that time left it instead of being run to it (2^30 counts at 1/16 count a
 #: sample would be hours of model time)
 CHIP_RATE_MAX = 2.0
-#: the verdicts and their exit codes
-EXIT = {"PASS": 0, "DIFFERS": 1, "FAIL": 2}
+#: the verdicts and their exit codes (rows of the CLI's one table, ``lm629_host.cli.EXIT_CODES``:
+#: 1 is every check's "found a problem", 10 the selftest's own "could not finish"; 2 is bad
+#: usage, never a verdict)
+EXIT = {"PASS": 0, "DIFFERS": 1, "FAIL": 10}
 _READ_SIGNED16 = (Cmd.RDRV, Cmd.RDSUM)
 
 
@@ -147,6 +150,11 @@ class Report:
     #: why the script could not run to its end (None: it did)
     error: str | None = None
     schema: int = SCHEMA_VERSION
+    #: the busy instrument's resolution, us: a busy time measured as ``command; wait;
+    #: status`` is the shortest wait that reads busy clear, and the transport's own time
+    #: between the wait and the status read (``Transport.busy_probe_us``) is in it, so the
+    #: chip's busy time lies within [measured - 1, measured + this] (None: not stated)
+    busy_resolution_us: int | None = None
 
     @property
     def differences(self) -> list[Measurement]:
@@ -175,12 +183,19 @@ class Report:
             raise ValueError("not a selftest report: " + "; ".join(problems[:5]))
         return cls(data["versions"], data["transport"], data["profile"], data["motion"],
                    [Measurement(**m) for m in data["measurements"]],
-                   [Fault(**f) for f in data["faults"]], data["error"], data["schema"])
+                   [Fault(**f) for f in data["faults"]], data["error"], data["schema"],
+                   data.get("busy_resolution_us"))
 
     def busy_option(self) -> str:
         """The measured busy times as ``sim://?busy=`` takes them ("": none seen)."""
         seen = [m for m in self.measurements if m.check == "busy" and m.measured is not None]
         return ",".join(f"{m.name.split(': ')[1]}:{m.measured:g}" for m in seen)
+
+
+def worst(verdicts: Sequence[str]) -> str:
+    """The verdict of several selftests (a profile's axes): FAIL before DIFFERS before PASS."""
+    order = ["PASS", "DIFFERS", "FAIL"]
+    return max(verdicts, key=order.index, default="PASS")
 
 
 #: the report's JSON form: every key, its type, and for the lists the keys of an item (types:
@@ -193,11 +208,14 @@ SCHEMA: dict[str, Any] = {
     "profile": "dict",  # chip, clock_hz, cs, lines, path
     "motion": "bool",
     "error": "str|null",
+    "busy_resolution_us": "int|null",  # us (schema 2 on; a version 1 report has none)
     "faults": [{"line": "str", "message": "str", "fix": "str"}],
     "measurements": [{"check": "str", "name": "str", "command": "str", "measured": "any",
                       "expected": "any", "at": "int|null", "sample": "int|null",
                       "judged": "bool", "unit": "str"}],
 }
+#: the keys a version 1 report does not have
+_ADDED_IN_2 = ("busy_resolution_us",)
 _TYPES: dict[str, tuple[type, ...]] = {"str": (str,), "int": (int,), "bool": (bool,),
                                        "dict": (dict,), "null": (type(None),)}
 
@@ -213,7 +231,8 @@ def validate(data: Any) -> list[str]:
     """What in ``data`` does not fit :data:`SCHEMA` (empty: a valid report)."""
     if not isinstance(data, dict):
         return ["the report is not a JSON object"]
-    problems = [f"missing key {k!r}" for k in SCHEMA if k not in data]
+    optional = _ADDED_IN_2 if data.get("schema") == 1 else ()
+    problems = [f"missing key {k!r}" for k in SCHEMA if k not in data and k not in optional]
     problems += [f"unknown key {k!r}" for k in data if k not in SCHEMA]
     for key, kind in SCHEMA.items():
         if key not in data:
@@ -230,8 +249,8 @@ def validate(data: Any) -> list[str]:
                              if not _fits(item[k], t)]
         elif not _fits(data[key], kind):
             problems.append(f"{key} is not {kind}")
-    if not problems and data["schema"] != SCHEMA_VERSION:
-        problems.append(f"schema {data['schema']}: this version reads {SCHEMA_VERSION}")
+    if not problems and data["schema"] not in (1, SCHEMA_VERSION):
+        problems.append(f"schema {data['schema']}: this version reads 1 and {SCHEMA_VERSION}")
     if not problems and data["verdict"] not in EXIT:
         problems.append(f"verdict {data['verdict']!r} is not one of {', '.join(EXIT)}")
     return problems
@@ -439,8 +458,10 @@ class Lockstep:
 
 
 # ---------------------------------------------------------------------- the script
-def _core(ls: Lockstep) -> None:
-    """The digital core, motor off (filter gains 0: the trajectory runs, nothing drives)."""
+def _core(ls: Lockstep) -> Fault | None:
+    """The digital core, motor off (filter gains 0: the trajectory runs, nothing drives).
+    Returns the fault that stopped it early (positions that are not the model's after a
+    reset: no timed read could be matched), else None."""
     for side in ls.sides():
         side.reset()
     ls.out.append(Measurement("core", "reset: status", "/RST (or RESET); MSKI; RSTI",
@@ -449,6 +470,9 @@ def _core(ls: Lockstep) -> None:
     every = [("r", c) for c in (Cmd.RDSIGS, Cmd.RDDP, Cmd.RDRP, Cmd.RDDV, Cmd.RDRV, Cmd.RDSUM,
                                 Cmd.RDIP)]
     ls.step("after reset", [("s",), *every])
+    fault = _positions_fault(ls)
+    if fault is not None:
+        return fault
     ls.step("masks", [("w", Cmd.MSKI, int(Status.BREAKPOINT)), ("w", Cmd.LPEI, 0x7FFF),
                       ("w", Cmd.SBPA, 0, BREAKPOINT_AT), ("w", Cmd.RSTI, 0), ("s",),
                       ("r", Cmd.RDSIGS)])
@@ -492,12 +516,51 @@ def _core(ls: Lockstep) -> None:
     ls.step("position done", [("s",), ("r", Cmd.RDSIGS), ("r", Cmd.RDDP), ("r", Cmd.RDDV)])
     ls.step("index armed", [("w", Cmd.SIP), ("s",), ("r", Cmd.RDSIGS), ("r", Cmd.RDIP)])
     ls.step("home", [("w", Cmd.DFH), ("s",), ("r", Cmd.RDDP), ("r", Cmd.RDRP)])
-    if ls.model.variant == "lm628":  # an LM629 refuses PORT12: a correct host never sends it
-        ls.step("12-bit port", [("w", Cmd.PORT12), ("s",), ("r", Cmd.RDSIGS), ("w", Cmd.PORT8),
-                                ("s",), ("r", Cmd.RDSIGS)])
     ls.pause(0.012)
     ls.step("motor off", [("p", lambda c: c.trajectory_program(stop="off")), ("w", Cmd.STT),
                           ("s",), ("r", Cmd.RDSIGS)])
+    # the one command an LM628 takes and an LM629 refuses (its command-error bit): sent on
+    # either profile, motor off, so that an LM628 on an LM629 profile (or the other way
+    # round) is named; PORT8 and an RSTI after it leave the chip as before
+    ls.step("12-bit port", [("w", Cmd.RSTI, 0), ("w", Cmd.PORT12), ("s",), ("r", Cmd.RDSIGS)])
+    ls.step("8-bit port", [("w", Cmd.PORT8), ("w", Cmd.RSTI, 0), ("s",), ("r", Cmd.RDSIGS)])
+    return None
+
+
+def _positions_fault(ls: Lockstep) -> Fault | None:
+    """The chip's positions after its reset where the model's are 0 (a chip reset by
+    something else, a simulator's ``reset_position``): every timed read of the core is taken
+    at the chip's desired position, which the model would have to be run to from 0 (hours of
+    model time, or never): the core stops, saying so."""
+    read = {m.name: m.measured for m in ls.out[-8:] if m.measured is not None}
+    want = {m.name: m.expected for m in ls.out[-8:]}
+    names = ("after reset: RDDP", "after reset: RDRP")
+    if not all(n in read for n in names) or all(read[n] == want[n] for n in names):
+        return None
+    dp, rp = (read[n] for n in names)
+    return Fault("positions", f"the chip's desired and real positions read {dp} and {rp} after "
+                              f"its reset, where a reset leaves {want[names[0]]} and "
+                              f"{want[names[1]]}: its positions are not the model's, so no "
+                              "timed read can be matched (the core stopped there)",
+                 "check that the reset reaches this chip (/RST, pin 27; or the RESET command "
+                 "on a bridge without the line) and that nothing else drives it; a simulator's "
+                 "reset_position= makes exactly this")
+
+
+def _variant_fault(ls: Lockstep) -> Fault | None:
+    """An LM628 where the profile says LM629, or the other way round: PORT12's command-error
+    bit (status bit 1) on the chip is not the model's."""
+    m = next((m for m in ls.out if m.name == "12-bit port: status"), None)
+    if m is None or m.measured is None or not (m.measured ^ m.expected) & Status.COMMAND_ERROR:
+        return None
+    profile = ls.model.variant.upper()
+    chip = "LM628" if profile == "LM629" else "LM629"
+    took = "took PORT12 (the 12-bit DAC port) without" if chip == "LM628" else \
+        "refused PORT12 (the 12-bit DAC port) with"
+    return Fault("chip", f"the chip {took} a command error: it is an {chip}, the profile says "
+                         f"{profile}",
+                 f"set the profile's chip to \"{chip.lower()}\" (or --chip {chip.lower()}) if "
+                 f"that is the part on the board (an LM628 drives a DAC, an LM629 PWM)")
 
 
 def _hi_fault(ls: Lockstep) -> Fault | None:
@@ -684,13 +747,38 @@ class Options:
     lines: int = 500
     gains: dict[str, int] = field(default_factory=lambda: {"kp": 20})
     profile_path: str | None = None
+    #: the shaft rests on the index (:func:`index_at_rest`): the model's is put under its
+    #: shaft too
+    index_at_rest: bool = False
 
 
 def reference(options: Options) -> LM629:
-    """A fresh chip model with the profile's chip and clock: what the chip is compared with."""
+    """A fresh chip model with the profile's chip and clock: what the chip is compared with
+    (its index under the shaft when the chip's is, model choice 20's ``index_offset``)."""
     hz = round(options.profile_hz)
     url = f"sim://?chip={options.chip}&clock={hz}&lines={options.lines}"
+    if options.index_at_rest:
+        url += "&index_offset=0"
     return LM629(open_transport(url), chip=options.chip, clock_hz=hz)
+
+
+#: the samples a SIP is given, motor off, to latch an index under the shaft
+INDEX_PROBE_SAMPLES = 3
+#: the name of the index probe's measurement (shown, never judged: where a shaft rests is
+#: the bench's business)
+INDEX_AT_REST = "index: under the shaft at rest"
+
+
+def index_at_rest(chip: LM629) -> bool:
+    """True when the shaft rests on the encoder's index: after a reset (motor off) a SIP
+    latches the index within :data:`INDEX_PROBE_SAMPLES` samples with nothing turning.  The
+    model's index is half a turn from its shaft (model choice 20), so a bench parked on its
+    index would read INDEX_PULSE after SIP and DFH where the model does not: the model is
+    built with its index under its shaft instead."""
+    chip.reset()
+    chip.run(chip.program().command(Cmd.SIP))
+    chip.clock.sleep(INDEX_PROBE_SAMPLES * SAMPLE_CLOCKS / chip.clock_hz)
+    return bool(chip.read_status() & Status.INDEX_PULSE)
 
 
 def _versions() -> dict[str, str]:
@@ -712,9 +800,10 @@ def run(chip: LM629, options: Options,
                                   "describe": chip.transport.describe()},
                     {"chip": options.chip, "clock_hz": options.profile_hz,
                      "cs": chip.chip_select, "lines": options.lines,
-                     "path": options.profile_path}, options.motion)
-    model = reference(options)
-    ls = Lockstep(chip, model)
+                     "path": options.profile_path}, options.motion,
+                    busy_resolution_us=math.ceil(chip.transport.busy_probe_us))
+    out: list[Measurement] = []
+    model: LM629 | None = None
     # the core's and the clock's velocity runs drive nothing (gains 0): an axis's soft limits
     # (a profile's min/max) are lifted for them, and hold again for --motion's run
     limits, chip.limits = chip.limits, None
@@ -722,10 +811,18 @@ def run(chip: LM629, options: Options,
         # the core runs trajectories with the drive on (gains 0), --motion turns the motor:
         # whatever ends the script (an error, Ctrl-C) stops the motor first
         with stop_on_error(chip):
+            rests = index_at_rest(chip)
+            out.append(Measurement("wiring", INDEX_AT_REST, "RESET; SIP; "
+                                   f"{INDEX_PROBE_SAMPLES} samples; RDSTAT", rests, rests,
+                                   judged=False))
+            model = reference(replace(options, index_at_rest=rests))
+            ls = Lockstep(chip, model)
+            ls.out = out
             progress("core: the chip and the model, command by command")
-            _core(ls)
-            fault = _hi_fault(ls)
-            report.faults += [fault] if fault else []
+            stopped = _core(ls)
+            report.faults += [stopped] if stopped else []
+            for fault in (_hi_fault(ls), _variant_fault(ls)):
+                report.faults += [fault] if fault else []
             progress("clock: the sample period")
             fault = _clock(ls, options.profile_hz)
             report.faults += [fault] if fault else []
@@ -746,8 +843,9 @@ def run(chip: LM629, options: Options,
         report.error = f"{type(exc).__name__}: {exc}"
     finally:
         chip.limits = limits
-        report.measurements = ls.out
-        model.close()
+        report.measurements = out
+        if model is not None:
+            model.close()
     return report
 
 
@@ -756,7 +854,9 @@ def compare(saved: Report) -> list[str]:
     report's chip times.  Returns one line per value that differs (empty: no differences):
     a measurement whose chip value or expected value is not what today's model gives."""
     p = saved.profile
-    options = Options(float(p["clock_hz"]), p["chip"], (), saved.motion, int(p["lines"] or 500))
+    rests = next((m.measured for m in saved.measurements if m.name == INDEX_AT_REST), False)
+    options = Options(float(p["clock_hz"]), p["chip"], (), saved.motion, int(p["lines"] or 500),
+                      index_at_rest=bool(rests))
     model = reference(options)
     ls = Lockstep(None, model, {m.name: m for m in saved.measurements})
     try:
@@ -778,11 +878,28 @@ def compare(saved: Report) -> list[str]:
         if m.expected != now.expected:
             lines.append(f"{m.name}: the report's model expected {m.show(m.expected)}, today's "
                          f"model gives {m.show(now.expected)} ({m.command})")
-        if check.differs or (not m.judged and m.measured is not None
-                             and m.measured != now.expected):
+        if m.check == "busy":
+            line = _busy_differs(m, now.expected, saved.busy_resolution_us)
+            lines += [line] if line else []
+        elif check.differs:
             lines.append(f"{m.name}: the chip read {m.show(m.measured)}, today's model gives "
                          f"{m.show(now.expected)} ({m.command})")
     return lines
+
+
+def _busy_differs(m: Measurement, model_us: int | None, resolution: int | None) -> str | None:
+    """A busy time that today's model's lies outside of, given the instrument's resolution
+    (None: the report states none, a version 1 report: shown, not compared).  The probe
+    read busy at a wait 1 us shorter than the one it read clear at, and its status read lands
+    up to ``resolution`` us after the wait: the chip's busy time is in [measured - 1,
+    measured + resolution]."""
+    if m.measured is None or model_us is None or resolution is None:
+        return None
+    if m.measured - 1 <= model_us <= m.measured + resolution:
+        return None
+    return (f"{m.name}: the chip read {m.show(m.measured)} (its busy time {m.measured - 1} to "
+            f"{m.measured + resolution} us, the instrument's resolution), today's model gives "
+            f"{m.show(model_us)} ({m.command})")
 
 
 def summary_markdown(report: Report) -> str:
@@ -803,7 +920,9 @@ def summary_markdown(report: Report) -> str:
                 for m in report.differences[:20]]
     busy = report.busy_option()
     if busy:
-        out += ["", f"The model with this chip's busy times: `sim://?busy={busy}`"]
+        within = ("" if report.busy_resolution_us is None else
+                  f" (each -1 to +{report.busy_resolution_us} us: this transport's resolution)")
+        out += ["", f"The model with this chip's busy times{within}: `sim://?busy={busy}`"]
     return "\n".join(out) + "\n"
 
 
@@ -831,6 +950,7 @@ def load_report(path: str) -> Report:
         raise ValueError(f"{path}: {exc}") from None
 
 
-__all__ = ["BUSY_COMMANDS", "CLOCK_TOLERANCE", "EXIT", "Fault", "Lockstep", "Measurement",
-           "Options", "Report", "SCHEMA", "SCHEMA_VERSION", "compare", "load_report",
-           "reference", "run", "summary_markdown", "validate", "write_report"]
+__all__ = ["BUSY_COMMANDS", "CLOCK_TOLERANCE", "EXIT", "Fault", "INDEX_AT_REST", "Lockstep",
+           "Measurement", "Options", "Report", "SCHEMA", "SCHEMA_VERSION", "compare",
+           "index_at_rest", "load_report", "reference", "run", "summary_markdown", "validate",
+           "worst", "write_report"]

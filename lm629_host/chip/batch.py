@@ -81,6 +81,10 @@ class Handle(Generic[T]):
         self._done = False
         self._value: Any = None
 
+    def resolve(self, value: Any) -> None:
+        """The batch ran this call: ``value`` is its result."""
+        self._value, self._done = value, True
+
     @property
     def value(self) -> T:
         if not self._done:
@@ -171,7 +175,7 @@ class _Queue:
         batch, chip = self._batch, self._chip
 
         def queue(*args: Any, **kwargs: Any) -> Handle[Any]:
-            return batch._queue(chip, name, args, kwargs)
+            return batch.queue_call(chip, name, args, kwargs)
         return queue
 
 
@@ -229,8 +233,9 @@ class Batch:
             raise ValueError(f"{axis!r} is not on this batch's bus ({self.transport.describe()})")
         return _Queue(self, chip)
 
-    def _queue(self, chip: BatchChip, name: str, args: tuple[Any, ...],
-               kwargs: dict[str, Any]) -> Handle[Any]:
+    def queue_call(self, chip: BatchChip, name: str, args: tuple[Any, ...],
+                   kwargs: dict[str, Any]) -> Handle[Any]:
+        """Queue ``chip.name(*args, **kwargs)`` in this batch; its handle."""
         self._check_thread(f"{name}()")
         if self._ran:
             raise RuntimeError("this batch has run already: start a new one")
@@ -305,7 +310,7 @@ class Batch:
                                        "came out otherwise from the results of the calls "
                                        "before it (the program sent was the first one); run "
                                        "it outside a batch")
-                call.handle._value, call.handle._done = value, True
+                call.handle.resolve(value)
 
     def __enter__(self) -> Batch:
         self._check_thread("with batch")

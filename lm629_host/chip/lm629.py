@@ -13,56 +13,44 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import logging
-import math
 import threading
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator
 from typing import TYPE_CHECKING
 
-from lm629_host.clock import ROUNDING_S, Clock, WallClock
-from lm629_host.errors import (
-    ArgumentError,
-    AxisError,
-    CommandError,
-    ResetError,
-    UpdateTooSoon,
-    WaitTimeout,
-    check_int,
-)
-from lm629_host.physics.limits import SoftLimits
-from lm629_host.chip.move import MOVE_FLAGS, Move, MoveResult, MoveRules, MoveTooLong, check_duration
 from lm629_host.bus.opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
     DERIVATIVE_INTERVAL_MAX,
-    FIXED_ONE,
     FILTER_ORDER,
     INTERRUPTS,
     NOMINAL_CLOCK_HZ,
     POSITION_MAX,
     POSITION_MIN,
-    RESET_CLEARED_STATUSES,
-    RESET_DONE_STATUSES,
-    RESET_WAIT_S,
     UPDATE_INTERVAL_S,
     VELOCITY_MAX,
     Cmd,
-    FilterFlags,
     Signals,
     Status,
     TrajectoryFlags,
-    s16,
     lfil_control,
     lfil_interval,
+    s16,
     s32_words,
 )
-from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, WAIT_STATUS_MAX_MS, Program, ProgramResult
-from lm629_host.physics.pid import sample_period_s
-from lm629_host.chip.shapes import Points, SCurve, Shape, ShapedMove, check_piece_s
-from lm629_host.chip.shapes import plan as plan_shape
-from lm629_host.chip.safety import stop_on_error
+from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, Program, ProgramResult
 from lm629_host.bus.snapshot import Snapshot, add_snapshot, snapshot_at
-from lm629_host.chip.wraparound import PositionTracker, check_register_position, short_way
+from lm629_host.chip import waiting
+from lm629_host.chip.move import Move, MoveRules
+from lm629_host.chip.mover import Mover
+from lm629_host.chip.pacing import UpdatePacing
+from lm629_host.chip.reset import reset_chips
+from lm629_host.chip.shapes import Shape, ShapedMove
+from lm629_host.chip.wraparound import PositionTracker, check_register_position
+from lm629_host.clock import Clock
+from lm629_host.errors import ArgumentError, AxisError, check_int
+from lm629_host.physics.limits import SoftLimits
+from lm629_host.transports import exiting
+from lm629_host.chip.safety import stop_at_exit, stop_if_moving
 from lm629_host.transports.base import Transport
 
 if TYPE_CHECKING:
@@ -70,8 +58,6 @@ if TYPE_CHECKING:
     from lm629_host.chip.batch import Batch
     from lm629_host.chip.recording import RecordStream, Trace
     from lm629_host.chip.supervise import VelocityRun
-
-log = logging.getLogger("lm629_host")
 
 #: busy timeout bounds: "well above" the chip's 100 us worst case; 65.535 ms is the largest a
 #: bridge RUN request carries (PROTOCOL.md, busy_timeout_us)
@@ -120,8 +106,6 @@ class LM629:
     #: transport's clock (the simulated one on ``sim://``), or ``"raise"`` :class:`UpdateTooSoon`
     #: before any bus cycle.  A stop (LTRJ stop bits) is never held back
     update_rule: str = "wait"
-    #: the transport clock just after this object's last STT went out (None: none yet)
-    _last_update: float | None = None
 
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
                  busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None,
@@ -144,18 +128,15 @@ class LM629:
         self._clock_hz = clock_hz  # the clock said by the caller (a URL's clock=, --clock)
         self._ds = 1  # derivative interval, samples, re-sent with every LFIL (AN-706 4.5.1)
         self._port12 = False  # re-issued after every reset (LM628 with a 12-bit DAC)
-        # True while the command-error flag is known to be clear (after reset(), after a good
-        # STT); otherwise start() clears it first, so that it can tell whether its own STT was
-        # refused instead of missing it behind a stale flag.
-        self._ce_clear = False
         self._this_thread = _ThisThread()
         #: the extended positions (AN-706 6.5.2): every position this object reads goes
         #: through it, so that a wraparound of the register is no jump (:mod:`.wraparound`)
         self.positions = PositionTracker()
-        #: the extended desired position last read with the trajectory at rest (on target or
-        #: the motor off) and no STT since: where a move would start, known without a read
-        #: (None: not known; :meth:`move_to` reads it first)
-        self._rest_desired: int | None = None
+        self._pacing = UpdatePacing(self)  # its STTs: spaced, checked (:mod:`.pacing`)
+        self._mover = Mover(self, self._pacing)  # its moves started (:mod:`.mover`)
+        # a script that ends without close(): its normal exit stops this chip if it moves
+        # before the link closes (lm629_host/transports/exiting.py)
+        exiting.stop_at_exit(transport, self.chip_select, lambda: stop_at_exit(self))
 
     # ------------------------------------------------------------------ plumbing
     @property
@@ -233,6 +214,8 @@ class LM629:
         twin = copy.copy(self)
         twin._this_thread = _ThisThread(runner)
         twin.positions = self.positions.copy()  # its reads are answered with dummy words
+        twin._pacing = self._pacing.bound_to(twin)
+        twin._mover = self._mover.bound_to(twin, twin._pacing)
         return twin
 
     def batch(self) -> Batch:
@@ -262,7 +245,6 @@ class LM629:
         """Left by an exception: stop the axis if it moves (abrupt stop, the PID holding)
         before the link closes; left normally: the axis stays as the block left it."""
         if exc_type is not None:
-            from lm629_host.chip.safety import stop_if_moving
             stop_if_moving(self)
         self.close()
 
@@ -310,11 +292,10 @@ class LM629:
         """What a reset (this object's or a board's) leaves: the derivative interval back to
         one sample, the command-error flag clear."""
         self._ds = 1
-        self._ce_clear = True
+        self._pacing.reset_done()
         self.positions.restart()
         self.positions.pending = False  # the reset cleared the bit
-        self._last_update = None  # and aborted nothing: the next update may go at once
-        self._rest_desired = None
+        self._mover.rest_desired = None
 
     @property
     def port12_selected(self) -> bool:
@@ -355,8 +336,8 @@ class LM629:
         status is cleared by this object's next position read."""
         self.positions.saw(s.status)
         s = self.positions.snapshot(s)
-        self._rest_desired = (s.desired_position if s.signals & (Signals.ON_TARGET
-                                                                 | Signals.MOTOR_OFF) else None)
+        self._mover.rest_desired = (s.desired_position if s.signals & (Signals.ON_TARGET
+                                                                       | Signals.MOTOR_OFF) else None)
         return s
 
     def clearing_wrap(self, program: Program) -> Program:
@@ -391,14 +372,14 @@ class LM629:
         value = _check_flags("flags", flags)
         self.run(self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~value)))
         if value & Status.COMMAND_ERROR:
-            self._ce_clear = True
+            self._pacing.ce_clear = True
 
     # ------------------------------------------------------------------ homing, index, limits
     def define_home(self) -> None:
         """DFH: the current position becomes 0 (the extended positions restart there)."""
         self._command(Cmd.DFH)
         self.positions.restart()
-        self._rest_desired = None
+        self._mover.rest_desired = None
 
     def set_index_position(self) -> None:
         """SIP: latch the position at the next index pulse (read it with read_index_position)."""
@@ -535,86 +516,42 @@ class LM629:
         if start and velocity_mode and not self.positions.knows("desired"):
             # a run may cross the register's wrap before its first read: the snapshot it
             # starts from, in the same program, is where its extended positions go on from
-            _, r = self._start_run(p, update=stop is None,
-                                   head=self.clearing_wrap(self.snapshot_program()))
+            _, r = self._pacing.start(p, update=stop is None,
+                                      head=self.clearing_wrap(self.snapshot_program()))
             self.extended(snapshot_at(r, 0, self.clock.now()))
-            self._rest_desired = None  # read before the STT: the run goes on now
+            self._mover.rest_desired = None  # read before the STT: the run goes on now
         elif start:
-            self._start_run(p, update=stop is None)
+            self._pacing.start(p, update=stop is None)
         else:
             self.run(p)
 
     def start_flags(self, clear: Status | int = 0) -> Status:
         """The flags a program must clear (RSTI) before its STT on this chip: ``clear``, and
-        the command-error flag unless it is known to be clear, so that a refusal of this STT
-        is never hidden by a stale flag."""
-        clear = _check_flags("clear", clear)
-        return clear if self._ce_clear else clear | Status.COMMAND_ERROR
+        the command-error flag unless it is known to be clear (:mod:`.pacing`)."""
+        return self._pacing.flags(_check_flags("clear", clear))
 
     def start_checked(self, before: int, after: int) -> bool:
         """Take the status read just before this chip's STT (busy clear) and the one after it;
         return True when the chip refused that STT (the caller raises :class:`CommandError`).
-        Every STT, this object's or a board's, goes through here (and is the last update the
-        next one is spaced from: the clock now is after it)."""
-        self._last_update = self.clock.now()
-        self._rest_desired = None  # the trajectory may run from here on
-        if not after & Status.COMMAND_ERROR:
-            self._ce_clear = True
-            return False
-        self._ce_clear = False
-        if not before & Status.COMMAND_ERROR:
-            return True
-        # the flag was set again inside this program, before the STT: only a transport that
-        # had to repeat a damaged transfer does that (it says so in its stats and log)
-        log.warning("command-error flag set before STT in the same program (status %02X): "
-                    "cannot tell whether STT was refused; check transport.stats.retries", before)
-        return False
+        Every STT, this object's or a board's, goes through here."""
+        self._mover.rest_desired = None  # the trajectory may run from here on
+        return self._pacing.checked(before, after)
 
-    def _start(self, program: Program, clear: Status | int = 0,
-               head: Program | None = None) -> Status:
-        return self._start_run(program, clear, head)[0]
+    @property
+    def last_update(self) -> float | None:
+        """The transport clock just after this chip's last STT (None: none since the reset)."""
+        return self._pacing.last_update
 
     def update_due(self) -> float:
         """Seconds until the next trajectory update may go out (``update_interval`` after the
         last STT), 0 when it may now."""
-        if self._last_update is None or self.update_interval <= 0:
-            return 0.0
-        return max(0.0, self._last_update + self.update_interval - self.clock.now())
+        return self._pacing.due()
 
     def hold_update(self) -> None:
         """Hold a trajectory update back to ``update_interval`` after the last STT (AN-706
         4.6.2), or raise :class:`UpdateTooSoon` under ``update_rule = "raise"``.  Every STT
         that is an update passes here: this chip's own, and a board's (:meth:`Board.start`)."""
-        if self.update_rule not in ("wait", "raise"):
-            raise ValueError(f"update_rule={self.update_rule!r} must be 'wait' or 'raise'")
-        due = self.update_due()
-        if due <= ROUNDING_S:  # a clock's rounding of a sleep to the due time is on time
-            return
-        if self.update_rule == "raise":
-            assert self._last_update is not None
-            raise UpdateTooSoon(self.clock.now() - self._last_update, self.update_interval)
-        self.clock.sleep(due)
-
-    def _start_run(self, program: Program, clear: Status | int = 0,
-                   head: Program | None = None, *,
-                   update: bool = True) -> tuple[Status, ProgramResult]:
-        """:meth:`_start` that also returns the program's result; ``head`` runs first, in the
-        same program (move_to's snapshot: one exchange).  ``update``: the STT is a trajectory
-        update, spaced by ``update_interval`` (a stop is not: it goes out at once)."""
-        if update:
-            self.hold_update()
-        flags = self.start_flags(clear)
-        if flags:  # RSTI: a 0 bit clears
-            program = self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~flags)) \
-                .extend(program)
-        if head is not None:
-            program = head.extend(program)
-        program.sync().command(Cmd.STT).sync()
-        result = self.run(program)
-        before, after = result.statuses[-2:]
-        if self.start_checked(before, after):
-            raise CommandError("STT", after)
-        return Status(after), result
+        self._pacing.hold()
 
     def start(self) -> Status:
         """STT: trajectory input buffers -> working registers; the move begins.
@@ -630,8 +567,9 @@ class LM629:
         Spaced ``update_interval`` (10 ms) after the last STT (AN-706 4.6.2): it waits on the
         transport's clock, or raises :class:`UpdateTooSoon` under ``update_rule = "raise"``.
         """
-        return self._start(self.program())
+        return self._pacing.start(self.program())[0]
 
+    # ------------------------------------------------------------------ moves
     def move_to(self, position: int, *, velocity: int, acceleration: int | None = None,
                 relative: bool = False) -> Move:
         """Start a move to ``position`` (counts) and return a :class:`Move`; ``move.wait()``
@@ -641,26 +579,11 @@ class LM629:
         keeps the one loaded (the chip refuses a new acceleration while the motor moves with
         the drive on: leave it out to change a running move).  ``relative=True``: ``position``
         counts from the desired position now (one more round trip, a snapshot first).  One
-        bus program (one round trip on a bridge) reads the snapshot the move starts from,
-        clears the flags a move reports (trajectory complete, breakpoint, position error,
-        command error), loads the trajectory and starts it, so a flag left by an earlier move
-        can never end this one's wait.  Arguments are checked before any bus traffic
-        (``ValueError``).  A move whose plan is longer than ``move_rules.max_duration``
-        (10 minutes) is refused before anything moves (:func:`~lm629_host.chip.move.check_duration`):
-        its start is the desired position last read at rest, or read first (one exchange more)
-        when the chip may have moved since.
+        bus program starts it, the flags a move reports cleared first; arguments and the
+        plan's length (``move_rules.max_duration``) are checked before anything moves
+        (``ValueError``): :mod:`lm629_host.chip.mover`.
         """
-        check_register_position("position", position)
-        velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
-        if acceleration is not None:
-            acceleration = check_int("acceleration", acceleration, 1, ACCELERATION_MAX,
-                                     hex_digits=8)
-        if self.limits is not None:  # before the first read: a refused move costs no exchange
-            self.limits.check_trajectory(acceleration, velocity, None if relative
-                                         else self.positions.near_register(position))
-        self.check_move(position, velocity=velocity, acceleration=acceleration,
-                        relative=relative)
-        return self._move_to(position, velocity, acceleration, relative)
+        return self._mover.move_to(position, velocity, acceleration, relative)
 
     def check_move(self, position: int, *, velocity: int, acceleration: int | None = None,
                    relative: bool = False) -> float:
@@ -668,54 +591,7 @@ class LM629:
         :class:`~lm629_host.chip.move.MoveTooLong` (an ``ArgumentError``) when it is longer
         than ``move_rules.max_duration``; nothing moves either way (a read first when where the
         move would start is not known)."""
-        check_register_position("position", position)
-        velocity = check_int("velocity", velocity, 1, VELOCITY_MAX, hex_digits=8)
-        known = acceleration if acceleration is not None else self._move_acceleration
-        return check_duration(self.move_rules, self._distance_to(position, relative), velocity,
-                              known, self.move_rules.clock_hz or self.clock_hz,
-                              f"move_to({position}{', relative=True' if relative else ''})")
-
-    def _distance_to(self, position: int, relative: bool) -> int:
-        """The counts a move to ``position`` (a register value, or a distance when
-        ``relative``) travels the short way round: from the desired position last read at
-        rest, else from the one read now (one exchange; nothing moves before it is known)."""
-        if relative:
-            return short_way(position)
-        at = self._rest_desired
-        if at is None:
-            at = self.snapshot().desired_position
-        return short_way(position - self.positions.to_register(at))
-
-    def _move_to(self, position: int, velocity: int, acceleration: int | None,
-                 relative: bool) -> Move:
-        """:meth:`move_to` once its arguments and its plan's length were checked."""
-        first = self.snapshot() if relative else None
-        if first is not None:
-            # the target in the register's terms: the chip goes the short way round to it
-            register = self.positions.to_register(first.desired_position + position)
-        else:
-            register = position
-        program = self.trajectory_program(acceleration, velocity, register)
-        head = self.snapshot_program() if first is None else None
-        _, r = self._start_run(program, clear=MOVE_FLAGS, head=self.clearing_wrap(head)
-                               if head is not None else None)
-        start = first if first is not None else self.extended(snapshot_at(r, 0, self.clock.now()))
-        self._rest_desired = None  # read before the STT: the move runs now
-        # the target extended as the chip will reach it: the short way from the start
-        target = start.desired_position + short_way(register - self.positions.to_register(
-            start.desired_position))
-        if acceleration is not None:
-            self._move_acceleration = acceleration
-        move = Move(self, target, velocity,
-                    acceleration if acceleration is not None else self._move_acceleration,
-                    start, self.clock.now())
-        if self.transport.far_waits:  # the end seen on the far side (WAIT_STATUS)
-            from lm629_host.chip.movewait import wait_far
-            move.waiter = wait_far
-        return move
-
-    #: the last acceleration word move_to loaded (for the default timeout)
-    _move_acceleration: int | None = None
+        return self._mover.check_move(position, velocity, acceleration, relative)
 
     def move_profile(self, position: int, shape: Shape, *, relative: bool = False,
                      piece_s: float = 2 * UPDATE_INTERVAL_S) -> ShapedMove:
@@ -731,47 +607,7 @@ class LM629:
         :meth:`Move.wait` does; the chip's own deceleration lands it exactly on the target.
         Reads a snapshot first (the distance sets the plan); the plan is checked
         (``ArgumentError``) before anything moves."""
-        check_register_position("position", position)
-        if not isinstance(shape, (SCurve, Points)):
-            raise ArgumentError("shape", shape, f"shape={shape!r}: expected "
-                                "profile_shapes.SCurve or profile_shapes.Points")
-        check_piece_s(piece_s)
-        sample_s = sample_period_s(self.clock_hz)
-        clock_hz = self.move_rules.clock_hz or self.clock_hz
-        what = f"move_profile({position}{', relative=True' if relative else ''})"
-
-        def check_length(distance: int) -> None:
-            """The least the shape takes (its top speed all the way), before its pieces are
-            planned: a move too long is refused before it costs a plan of millions of pieces."""
-            if isinstance(shape, SCurve):
-                word = max(1, round(shape.velocity * sample_s * FIXED_ONE))
-                check_duration(self.move_rules, distance, word, None, clock_hz, what)
-        if relative:
-            check_length(position)
-        plan = plan_shape(shape, position, sample_s, piece_s) if relative else None
-        desired = self.snapshot().desired_position
-        register = self.positions.to_register(desired + position) if relative else position
-        if plan is None:
-            distance = short_way(register - self.positions.to_register(desired))
-            check_length(distance)
-            plan = plan_shape(shape, distance, sample_s, piece_s)
-        if plan.duration > self.move_rules.max_duration:  # a user's own points
-            raise MoveTooLong(what, abs(distance if not relative else position),
-                              plan.peak_velocity, plan.duration, self.move_rules.max_duration)
-        if self.limits is not None:  # the fastest piece, before anything moves
-            self.limits.check_velocity(plan.peak_velocity)
-        # its pieces' speeds, not the first one's, set how long it takes: checked above
-        move = self._move_to(register, plan.pieces[0].velocity, plan.acceleration, False)
-        # the bridge times the pieces when it holds them all, or takes them in top-ups
-        far = (self.transport.far_profiles
-               and (len(plan.pieces) - 1 <= self.transport.profile_capacity
-                    or self.transport.profile_streams))
-        shaped = ShapedMove(move, plan, far=far)
-        if far:  # the bridge's timer issues the rest; the next update waits for the last
-            with stop_on_error(self):
-                shaped.schedule_far(self.axis, self.update_interval)
-            self._last_update = shaped.t0 + max(plan.pieces[-1].t, self.update_interval)
-        return shaped
+        return self._mover.move_profile(position, shape, relative, piece_s)
 
     # ------------------------------------------------------------------ output port
     def port8(self) -> None:
@@ -820,9 +656,10 @@ class LM629:
                  poll: float | None = None, *, what: str | None = None) -> Status:
         """Wait until any of ``flags`` is set in the status byte; return the status.
 
-        Waits on the transport's clock (simulated time on ``sim://``).  Raises
-        :class:`WaitTimeout` after ``timeout`` seconds (its ``what``: ``what`` when given, the
-        words a person reads, else the flags' names).
+        Waits on the transport's clock (simulated time on ``sim://``), on the far side where
+        the transport can (:mod:`lm629_host.chip.waiting`).  Raises :class:`WaitTimeout` after
+        ``timeout`` seconds (its ``what``: ``what`` when given, the words a person reads, else
+        the flags' names); ``poll``: the host's poll period where it polls.
 
         A flag raised *earlier* satisfies it at once: the chip keeps its flags until RSTI
         clears them.  After a first move, ``load_trajectory(..., start=True)`` then
@@ -830,42 +667,8 @@ class LM629:
         runs.  Clear the flag first (:meth:`reset_interrupts`), or better, move with
         :meth:`move_to` and ``Move.wait()``, which clear the move's flags in the program that
         starts it and wait until the shaft is at rest on the target.
-
-        Where the transport runs the wait on its far side (``Op.WAIT_STATUS``: the simulators,
-        a bridge whose HELLO says so), the wait is one exchange: up to 65 s at a time on a
-        simulator, which goes straight to the status change and reads it for real; 0.25 s at a
-        time on hardware, so that Ctrl-C (held while a program runs) still stops a motor
-        promptly.  Otherwise the host polls: every ``poll`` seconds when given, else at a rate
-        set by the wait itself (:func:`_poll_interval`), not a fixed 1 ms across the link.
         """
-        value = Status(check_int("flags", int(flags), 1, 0xFF))
-        if not timeout > 0:
-            raise ArgumentError("timeout", timeout, f"timeout={timeout} must be positive (seconds)")
-        if poll is not None and not poll > 0:
-            raise ArgumentError("poll", poll, f"poll={poll} must be positive (seconds)")
-        clock = self.clock
-        start = clock.now()
-        deadline = start + timeout
-        far = self.transport.has_wait_status
-        chunk_ms = (WAIT_STATUS_WALL_CHUNK_MS if isinstance(clock, WallClock)
-                    else WAIT_STATUS_MAX_MS)
-        limit = self.transport.far_wait_limit_s
-        if limit is not None:  # a bridge's failsafe: each wait shorter than its timeout
-            chunk_ms = min(chunk_ms, max(1, int(limit * 1e3)))
-        while True:
-            if far:
-                ms = min(chunk_ms, max(0, math.ceil((deadline - clock.now()) * 1e3)))
-                status = Status(self.run(self.program().wait_status(int(value), ms)).statuses[-1])
-            else:
-                status = self.read_status()
-            if status & value:
-                return status
-            now = clock.now()
-            if now >= deadline:
-                raise WaitTimeout(value, timeout, int(status), what=what)
-            if not far:
-                step = poll if poll is not None else _poll_interval(now - start)
-                clock.sleep(min(step, deadline - now))
+        return waiting.wait_for(self, flags, timeout, poll, what)
 
     # ------------------------------------------------------------------ recording
     def run_velocity(self, velocity: int, acceleration: int | None = None) -> VelocityRun:
@@ -912,7 +715,7 @@ class LM629:
         p = self.program().command(command)
         for w in words:
             p.write(w)
-        self._ce_clear = False  # any byte may provoke a command error
+        self._pacing.ce_clear = False  # any byte may provoke a command error
         return self.run(p.read(read)).words
 
 
@@ -924,86 +727,4 @@ class _ThisThread(threading.local):
         self.runner = runner
 
 
-def reset_chips(chips: Sequence[LM629], *, pulse: bool,
-                attempts: int) -> tuple[list[Status], dict[int, list[int]]]:
-    """The AN-706 3.7 / 4.4.1 initialisation of one chip or of every chip of a board, in two
-    programs per attempt: /RST once (``pulse``; the line is shared) or the RESET command on
-    each chip, each chip's status (00 expected at once after /RST), 1.5 ms, each status (84 or
-    C4); then, only once every chip checked out, so that nothing is ever written into a chip
-    still in reset, MSKI 0000 and RSTI 0000 on each, its status once busy is clear (80 or C0),
-    and PORT12 where it was selected.  ``attempts`` in all, then :class:`ResetError` naming
-    the first chip that failed (its axis on a board of several) with its status bytes.
-
-    Returns each chip's status after the reset and every status byte read, per chip select.
-    """
-    transport = chips[0].transport
-    seen: dict[int, list[int]] = {c.chip_select: [] for c in chips}
-    failed = chips[0]
-
-    def program() -> tuple[Program, Callable[[LM629], Program]]:
-        p = Program(busy_timeout_s=chips[0].busy_timeout)
-        at = [0]  # a program starts on chip select 0
-
-        def on(chip: LM629) -> Program:
-            if chip.chip_select != at[0]:
-                p.select(chip.chip_select)
-                at[0] = chip.chip_select
-            return p
-        return p, on
-
-    for _ in range(attempts):
-        p, on = program()
-        if pulse:
-            p.reset()
-        else:
-            for c in chips:
-                on(c).command(Cmd.RESET)
-        for c in chips:
-            on(c).status()
-        p.wait(round(RESET_WAIT_S * 1e6))
-        for c in chips:
-            on(c).status()
-        st = transport.execute(p).statuses
-        n = len(chips)
-        bad = None
-        for k, c in enumerate(chips):
-            first, done = st[k], st[n + k]
-            seen[c.chip_select] += (first, done)
-            if bad is None and ((pulse and first != 0) or done not in RESET_DONE_STATUSES):
-                bad = c
-        if bad is not None:
-            failed = bad
-            continue
-        q, on = program()
-        for c in chips:
-            on(c).command(Cmd.MSKI).write(0).command(Cmd.RSTI).write(0).sync()
-            if c.port12_selected:
-                q.command(Cmd.PORT12)
-        cleared = transport.execute(q).statuses
-        for c, s in zip(chips, cleared):
-            seen[c.chip_select].append(s)
-        bad = next((c for c, s in zip(chips, cleared) if s not in RESET_CLEARED_STATUSES), None)
-        if bad is None:
-            for c in chips:
-                c.reset_done()
-            return [Status(s) for s in cleared], seen
-        failed = bad
-    expected = ("00 at once, 84 or C4 after 1.5 ms, 80 or C0 after MSKI/RSTI 0000" if pulse
-                else "84 or C4 after the RESET command, 80 or C0 after MSKI/RSTI 0000")
-    raise ResetError(seen[failed.chip_select], expected, attempts,
-                     axis=failed.chip_select if len(chips) > 1 else None)
-
-
-#: the longest far-side wait per exchange on a wall clock (Ctrl-C is held while a program runs)
-WAIT_STATUS_WALL_CHUNK_MS = 250
-#: host polling of a wait: from 1 ms, then this fraction of the time waited so far, at most
-#: POLL_MAX_S: a change is seen at most ~5 % late, and a 10 s wait costs ~280 reads, not 10,000
-POLL_MIN_S, POLL_FRACTION, POLL_MAX_S = 1e-3, 0.05, 0.05
-
-
-def _poll_interval(waited_s: float) -> float:
-    """The host's status poll period after ``waited_s`` of a wait (no far-side wait)."""
-    return min(POLL_MAX_S, max(POLL_MIN_S, waited_s * POLL_FRACTION))
-
-
-__all__ = ["LM629", "Snapshot", "FilterFlags", "check_int", "Move", "MoveResult", "MoveRules"]
+__all__ = ["LM629"]

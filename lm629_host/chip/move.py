@@ -189,7 +189,8 @@ class Move:
         return plan(self.target - self.start.desired_position, self.velocity,
                     self.acceleration).seconds(clock_hz)
 
-    def _clock_hz(self, rules: MoveRules) -> float:
+    def clock_hz_for(self, rules: MoveRules) -> float:
+        """The chip's clock for timing this move: the rules' (a profile's), else the chip's."""
         if rules.clock_hz:
             return rules.clock_hz
         return self.chip.clock_hz
@@ -235,14 +236,16 @@ class Move:
         if tolerance is not None:
             r = replace(r, tolerance=tolerance)
         if timeout is None:
-            profile = self.profile_s(self._clock_hz(r))
+            profile = self.profile_s(self.clock_hz_for(r))
             timeout = (1.5 * profile if profile is not None else 60.0) + r.settle_timeout + 1.0
         if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
             raise ArgumentError("timeout", timeout,
                                 f"timeout={timeout!r} must be a positive number of seconds")
         return MoveWatch(self, r, timeout)
 
-    def _fault(self, reason: MotionFault, s: Snapshot, message: str) -> NoReturn:
+    def fault(self, reason: MotionFault, s: Snapshot, message: str) -> NoReturn:
+        """End the move with :class:`MotionError` ``reason`` at snapshot ``s`` (its watch's
+        verdict)."""
         raise motion_fault(self.chip, reason, message, position=s.real_position,
                            error=self.target - s.real_position)
 
@@ -275,11 +278,11 @@ class MoveWatch:
         target = m.target
         err = target - s.real_position
         if s.status & Status.POSITION_ERROR:
-            m._fault(MotionError.POSITION_ERROR, s,
+            m.fault(MotionError.POSITION_ERROR, s,
                      "the chip raised its position-error flag (following error above "
                      "the LPEI/LPES limit)")
         if s.status & Status.MOTOR_OFF or s.signals & Signals.MOTOR_OFF:
-            m._fault(MotionError.MOTOR_OFF, s, "the drive was found off during the move")
+            m.fault(MotionError.MOTOR_OFF, s, "the drive was found off during the move")
         # shaft progress (stall) and motion away from the desired position (runaway)
         if abs(s.real_position - self.progress_pos) >= r.stall_counts:
             self.progress_at, self.progress_pos = s.time, s.real_position
@@ -296,7 +299,7 @@ class MoveWatch:
         # per-sample velocity 0 or 1, too coarse to tell alone)
         if (self.away >= r.runaway_counts and abs(fe) >= r.runaway_counts
                 and abs(s.real_velocity) >= self.away_v0):
-            m._fault(MotionError.RUNAWAY, s,
+            m.fault(MotionError.RUNAWAY, s,
                      f"the shaft ran {self.away} counts away from the desired position "
                      f"(following error {fe:+d}): swap the motor leads or the encoder's "
                      "A and B channels")
@@ -305,7 +308,7 @@ class MoveWatch:
             self.complete_at = s.time
         if self.complete_at is None and abs(fe) > r.tolerance \
                 and s.time - self.progress_at >= r.stall_time:
-            m._fault(MotionError.STALL, s,
+            m.fault(MotionError.STALL, s,
                      f"the desired position moved {s.desired_position - m.start.desired_position:+d} "
                      f"counts, the shaft {s.real_position - m.start.real_position:+d} "
                      f"(no progress for {s.time - self.progress_at:.2f} s): check the "
@@ -321,24 +324,40 @@ class MoveWatch:
                     m.result = MoveResult(target, s.real_position, err, s.time - m.t0)
                     return m.result
                 if abs(s.real_position - m.start.real_position) < r.stall_counts:
-                    m._fault(MotionError.STALL, s,
+                    m.fault(MotionError.STALL, s,
                              f"the desired position went to the target, the shaft did "
                              f"not move ({err:+d} counts from the target): check the "
                              "amplifier, its supply, the motor and the encoder")
-                m._fault(MotionError.FOLLOWING_ERROR, s,
+                m.fault(MotionError.FOLLOWING_ERROR, s,
                          f"the shaft came to rest {err:+d} counts from the target "
                          f"(tolerance {r.tolerance}): add ki, raise kp, or check the load")
             if s.time - self.complete_at >= r.settle_timeout:
-                m._fault(MotionError.FOLLOWING_ERROR, s,
-                         f"the shaft did not settle within {r.tolerance} counts in "
-                         f"{r.settle_timeout:g} s after the trajectory ended (error "
-                         f"{err:+d}): add kd for damping, or lower kp")
+                m.fault(MotionError.FOLLOWING_ERROR, s, self._unsettled(s, prev, err))
         if s.time >= self.deadline:
-            m._fault(MotionError.TIMEOUT, s,
+            m.fault(MotionError.TIMEOUT, s,
                      f"not on target after {self.timeout:g} s (desired {s.desired_position}, "
                      f"target {target}, shaft {s.real_position})")
         self.prev = s
         return None
+
+    def _unsettled(self, s: Snapshot, prev: Snapshot, err: int) -> str:
+        """What was still wrong when the settle timeout ran out: the shaft outside the
+        tolerance, or inside it and still moving (the settle rule asks both: inside, and at
+        rest for ``settle_time``), or at rest too briefly."""
+        r = self.rules
+        where = (f"{err:+d} counts from the target "
+                 f"({'inside' if abs(err) <= r.tolerance else 'outside'} the tolerance "
+                 f"{r.tolerance})")
+        if self.quiet_since is None:
+            moved, dt = s.real_position - prev.real_position, s.time - prev.time
+            still = (f"still moving ({moved:+d} counts in the last {dt:.3f} s, about "
+                     f"{moved / dt:+.0f} counts/s)" if moved and dt > 0 else
+                     f"still moving (real velocity {s.real_velocity:+d} counts/sample)")
+        else:
+            still = (f"at rest for {s.time - self.quiet_since:.3f} s of the "
+                     f"{r.settle_time:g} s the settle rule asks")
+        return (f"the shaft did not settle in the {r.settle_timeout:g} s after the trajectory "
+                f"ended: {where}, {still}: add kd for damping, or lower kp")
 
 
 __all__ = ["LONG_MOVE_HINT", "MOVE_FLAGS", "Move", "MoveResult", "MoveRules", "MoveTooLong", "MoveWatch",

@@ -37,7 +37,7 @@ from lm629_host.chip.move import Move, MoveResult, MoveWatch
 from lm629_host.bus.opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX, Cmd, Status
 from lm629_host.bus.program import Op, Program
 from lm629_host.bus.snapshot import Snapshot
-from lm629_host.transports.base import ProfileState
+from lm629_host.transports.reports import ProfileState
 
 #: 16.16 fixed point of the trajectory words
 _ONE = 1 << 16
@@ -399,7 +399,7 @@ class ShapedMove(Move):
         chip: Any = self.chip  # an LM629
         #: the chip's time of its last STT as this move left it: any other STT (a board's, a
         #: batch's) or a reset changes it, and this move's caps stop
-        self._mark: float | None = getattr(chip, "_last_update", None)
+        self._mark: float | None = chip.last_update
         if self.issuing:  # its programs pass by here first
             chip.before_program = self._before_program
 
@@ -419,7 +419,7 @@ class ShapedMove(Move):
         went out late does not bring the next one closer than that)."""
         chip: Any = self.chip  # an LM629
         due = self.t0 + self.lag + self._next
-        last = getattr(chip, "_last_update", None)
+        last = chip.last_update
         return due if last is None else max(due, last + chip.update_interval)
 
     def schedule_far(self, axis: int | None, update_s: float) -> None:
@@ -522,12 +522,12 @@ class ShapedMove(Move):
             floor = left / max(plan.piece_s, plan.duration - t) * plan.sample_s * _ONE
             word = min(plan.peak_velocity, max(word, math.ceil(floor)))
         with chip.transport.lock:  # a stop from another thread goes after this cap, or drops it
-            if getattr(chip, "_last_update", None) != self._mark:
+            if chip.last_update != self._mark:
                 self._end(dropped=True)  # another STT, or a reset, came since this move's last
             if not self.issuing:
                 return
             chip.load_trajectory(velocity=word, start=True)
-            self._mark = getattr(chip, "_last_update", None)
+            self._mark = chip.last_update
         self.piece_times.append(clock.now() - self.t0)
         self.words.append(word)
         self.dues.append(due - self.t0)

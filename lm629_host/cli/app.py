@@ -59,10 +59,12 @@ from lm629_host.cli.profile_session import profile_opened, profile_options
 
 log = logging.getLogger("lm629_host.cli")
 
-#: exit code -> meaning (one place: the handler and ``--help`` both read it)
+#: exit code -> meaning (one place: the handler and ``--help`` both read it; one meaning per
+#: code: tests/cli/test_cli_inputs.py holds every code a command gives to its row)
 EXIT_CODES: dict[int, str] = {
     0: "success",
-    1: "a check failed (bringup verdict, doctor found problems)",
+    1: "a check found a problem (bringup verdict, doctor, selftest DIFFERS, twin check, tune "
+       "goal not met)",
     2: "bad usage or bad value (nothing was sent that moves the motor)",
     3: "transport error (port missing, busy, no permission, no answer)",
     4: "busy timeout (the chip held its busy bit)",
@@ -72,11 +74,16 @@ EXIT_CODES: dict[int, str] = {
     8: "other driver error",
     9: "motion fault: the shaft did not end where it was sent (stall, runaway, position "
        "error, following error, motor off, move timeout); the motor was stopped",
+    10: "selftest FAIL: the selftest could not finish (its report says why)",
     129: "hang-up (SIGHUP); a moving motor was stopped first",
-    130: "interrupted (Ctrl-C, or the prompt aborted); a moving motor was stopped first",
+    130: "interrupted (Ctrl-C), or a prompt before the motor turns answered no or aborted; "
+         "a moving motor was stopped first",
     141: "output closed (broken pipe): output was lost; a moving motor was stopped first",
     143: "terminated (SIGTERM); a moving motor was stopped first",
 }
+
+#: a prompt before the motor turns answered no (or aborted): nothing moved
+EXIT_DECLINED = 130
 
 _ERROR_EXITS: tuple[tuple[type[BaseException], int], ...] = (
     (ValueError, 2), (TransportError, 3), (BusyTimeout, 4), (ResetError, 5),
@@ -237,9 +244,17 @@ class Session:
             names = ", ".join(axis_name(self, k) for k in axes)
             raise click.UsageError(f"axes {names} are chosen (by --axis, or the profile's "
                                    "axes): this command drives one: give --axis NAME (status, "
-                                   "watch, move with several targets and bringup take several)")
+                                   "watch, move with several targets, bringup and selftest take "
+                                   "several)")
         self.prepare = prepare
         return self.board().axis(axes[0])
+
+    def select_axis(self, cs: int) -> None:
+        """Make chip select ``cs`` the axis the single-axis commands drive from now on (the
+        board stays open): ``lm629 panel`` runs each command on the axis its form names."""
+        self.axis_spec = (cs,)
+        if self._board is not None:
+            self._chip = None
 
     def close(self) -> None:
         if self._board is not None:
@@ -344,11 +359,9 @@ class LM629Group(click.Group):
             result = super().invoke(ctx)
             sys.stdout.flush()  # a closed pipe shows here, not in Python's flush at exit
             return result
-        except click.UsageError as exc:  # bad usage or value: one line, exit 2
-            sub = exc.ctx.command_path if exc.ctx is not None else "lm629"
-            _fail(ctx, f"{exc.format_message()} (see `{sub} --help`)", exc, 2)
-        except click.ClickException as exc:  # a command's own refusal: the same one line
-            _fail(ctx, exc.format_message(), exc, exc.exit_code)
+        except click.ClickException as exc:  # bad usage or value; a command's own refusal
+            message, code = error_line(exc)
+            _fail(ctx, message, exc, code)
         except (click.exceptions.Exit, click.exceptions.Abort):
             raise
         except KeyboardInterrupt as exc:
@@ -365,12 +378,31 @@ class LM629Group(click.Group):
             # after a move or in a command that moves nothing: the motor is as the command
             # left it (holding at the target); silent, as a tool ended by SIGPIPE
             ctx.exit(141)
-        except Exception as exc:  # noqa: BLE001 - mapped to exit codes below
-            code = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), None)
-            if code is None:
-                _fail(ctx, f"internal error ({type(exc).__name__}): {exc}", exc, 8, always_tb=True)
-            kind = "bad value" if isinstance(exc, ValueError) else "error"
-            _fail(ctx, f"{kind}: {exc}", exc, code)
+        except Exception as exc:  # noqa: BLE001 - mapped to exit codes by error_line
+            message, code = error_line(exc)
+            _fail(ctx, message, exc, code,
+                  always_tb=not any(isinstance(exc, cls) for cls, _c in _ERROR_EXITS))
+
+
+def error_line(exc: Exception) -> tuple[str, int]:
+    """The one line (without ``lm629: `` and the stop note) and the exit code a command's
+    exception ends it with: the one rule, shared by the command line and ``lm629 panel``."""
+    if isinstance(exc, click.UsageError):  # bad usage or value: exit 2
+        sub = exc.ctx.command_path if exc.ctx is not None else "lm629"
+        return f"{exc.format_message()} (see `{sub} --help`)", 2
+    if isinstance(exc, click.ClickException):  # a command's own refusal: the same one line
+        return exc.format_message(), exc.exit_code
+    code = next((c for cls, c in _ERROR_EXITS if isinstance(exc, cls)), None)
+    if code is None:
+        return f"internal error ({type(exc).__name__}): {exc}", 8
+    kind = "bad value" if isinstance(exc, ValueError) else "error"
+    return f"{kind}: {exc}", code
+
+
+def stop_note_of(exc: BaseException, message: str) -> str:
+    """``message`` with how the motor was left, when the exception stopped one."""
+    note = getattr(exc, STOP_NOTE, None)
+    return message + (f" -- {note}" if note and note not in message else "")
 
 
 def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
@@ -378,10 +410,8 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
     session = ctx.obj if isinstance(ctx.obj, Session) else None
     if always_tb or (session is not None and session.verbose):
         traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
-    note = getattr(exc, STOP_NOTE, None)
     try:  # stderr may be closed too (a dropped ssh session): the exit code still tells
-        click.echo(f"lm629: {message}" + (f" -- {note}" if note and note not in message
-                                          else ""), err=True)
+        click.echo(f"lm629: {stop_note_of(exc, message)}", err=True)
     except (OSError, ValueError):
         pass
     ctx.exit(code)
@@ -393,6 +423,10 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
               help="sim://, serial://PATH or a device path, socket://HOST:PORT (ser2net, "
                    "`lm629 sim serve --tcp`), ftdi://..., sim+emu://, sim+avr://, sim+ftdi:// "
                    "(env LM629_PORT; default sim://).")
+@click.option("--place", "place", default=None, metavar="NAME",
+              help="A labgrid place instead of --port: acquired (locked) from the coordinator "
+                   "(LG_COORDINATOR), its serial port opened as rfc2217://, released at exit; "
+                   "NAME?fast_baud=... adds port URL options (docs/testing.md).")
 @click.option("--chip", "chip_name", type=click.Choice(["lm628", "lm629"]), default="lm629",
               show_default=True, help="Which chip is on the board (a simulator URL's chip= "
                                       "is used when --chip is not given; both must agree).")
@@ -418,14 +452,21 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
                                    "soft limits, gains re-applied after a power cycle.")
 @click.version_option(lm629_host.__version__, prog_name="lm629")
 @click.pass_context
-def main(ctx: click.Context, port: str | PortURL | None, chip_name: str, clock: str,
+def main(ctx: click.Context, port: str | PortURL | None, place: str | None, chip_name: str, clock: str,
          lines: int | None, verbose: int, trace: bool, stats: bool, vcd_path: str | None, axis_text: str | None,
          profile_path: str | None) -> None:
     """Bench bring-up and tuning of an LM628/LM629 motion controller."""
     profile = None
+    signals = StopSignals()
+    if place is not None and ctx.get_parameter_source("port") == click.core.ParameterSource.COMMANDLINE:
+        raise click.BadParameter("--port and --place both name a bench: give one",
+                                 param_hint="--place")
     if profile_path is not None:
         profile, port, chip_name, clock, lines, axis_text = profile_options(
             ctx, profile_path, port, chip_name, clock, lines, axis_text)
+    if place is not None:  # the lab's bench (not a profile's port): locked until the context closes
+        from lm629_host.cli.place import open_place
+        port = open_place(ctx, place, signals)
     try:
         clock_hz = _check_clock(parse_hz(clock), "--clock")
     except ValueError:
@@ -467,7 +508,7 @@ def main(ctx: click.Context, port: str | PortURL | None, chip_name: str, clock: 
                                  "'lm629-host[vcd]'", param_hint="--vcd" if vcd_path else "--port")
     _log_to_stderr({0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG))
     session = Session(url, port is not None, chip_name, clock_hz,
-                      lines, verbose, trace, stats, spec)
+                      lines, verbose, trace, stats, spec, signals=signals)
     if axis_text is not None:
         session.axis_spec = parse_axes(axis_text)
     session.profile = profile

@@ -11,7 +11,8 @@ import lm629_host
 
 from lm629_host.bench.bringup import BringupOptions, StepResult, run_bringup
 from lm629_host.errors import BusyTimeout, LM629Error, ResetError
-from lm629_host.chip.lm629 import LM629, check_int
+from lm629_host.chip.lm629 import LM629
+from lm629_host.errors import check_int
 from lm629_host.bus.opcodes import Status
 from lm629_host.cli.app import axis_name, log, main, Session, _session
 from lm629_host.cli.common import _abort_is_interrupt, _flags, _position

@@ -10,7 +10,7 @@ from typing import Any
 import click
 
 from lm629_host.errors import ArgumentError, CommandError
-from lm629_host.chip.lm629 import check_int
+from lm629_host.errors import check_int
 from lm629_host.bus.opcodes import VELOCITY_MAX, Status
 from lm629_host.chip.supervise import search_index
 from lm629_host.physics.units import FIXED_ONE
@@ -41,6 +41,9 @@ def status(as_json: bool) -> None:
     name = axes.axis_name(s, chip.chip_select) if s.profile is not None else None
     fs, fs_line = failsafe_info(chip.transport)
     d["failsafe"] = fs
+    rate = getattr(chip.transport, "line_rate", None)  # a serial bridge's line: rate and why
+    if rate is not None:
+        d["link"] = dict(zip(("baud", "why"), rate()))
     if as_json:
         click.echo(json.dumps(d if name is None else {"axis": chip.chip_select, "name": name, **d},
                               indent=2))
@@ -58,6 +61,8 @@ def status(as_json: bool) -> None:
                    f"{d['real_velocity_rpm']:.1f} rpm (desired {d['desired_velocity_rpm']:.1f})")
     click.echo(f"integration sum {snap.integration_sum}")
     click.echo(f"failsafe {fs_line}")
+    if "link" in d:
+        click.echo(f"link     {d['link']['baud']} baud, {d['link']['why']}")
 
 
 @main.command()

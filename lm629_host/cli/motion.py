@@ -9,7 +9,8 @@ from dataclasses import replace
 import click
 
 from lm629_host.errors import MotionError, MotionFault
-from lm629_host.chip.lm629 import LM629, Snapshot
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bus.snapshot import Snapshot
 from lm629_host.chip.move import LONG_MOVE_HINT, Move, MoveRules, MoveTooLong, span
 from lm629_host.bus.opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status
 from lm629_host.physics.pid import sample_period_s

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import signal
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -97,3 +98,17 @@ def serve_cmd(pty_path: Path | None, tcp: str | None, firmware: bool, url: str) 
     finally:
         server.close()
         click.echo(f"stopped ({server.bytes_in} bytes in, {server.bytes_out} bytes out)")
+
+
+def simulated_plant() -> Any:
+    """The bundled simulator's motor (its default parameters) as the tuner sees a plant
+    (:class:`lm629_host.bench.twin.Plant`): what ``lm629 panel`` predicts a step on
+    ``sim://`` with, when no profile gives the axis a plant.  From the model's own numbers
+    (:class:`lm629_host.sim.model.motor.Motor`), so that the two cannot drift apart."""
+    from lm629_host.bench.twin import Plant
+    from lm629_host.sim.model.motor import Motor
+    from lm629_host.sim.model.params import MotorParams
+    m = Motor(MotorParams(), 1.0)
+    full = m.accel_per_volt * m.params.amp_volts
+    return Plant(accel=full, tau=1.0 / m.rate, dry=m.coulomb_accel / full,
+                 load=m.load_accel / full, reversed=m.params.reversed)

@@ -23,8 +23,10 @@ and in a test run by labgrid's pytest plugin (``pytest --lg-env env.yaml``)::
 The driver opens the bridge through lm629-host's own serial transport (the bridge protocol,
 its handshake and its faster rate), so it binds the port resource, not labgrid's
 ``SerialDriver`` (two drivers cannot own one port).  A ``NetworkSerialPort`` is reached as
-``serial://rfc2217://HOST:PORT`` (an exporter's ser2net) or, with ``protocol: raw``,
-``serial://socket://HOST:PORT`` (ser2net raw, or ``lm629 sim serve --tcp``).  Deactivating the
+``rfc2217://HOST:PORT`` (an exporter's ser2net) or, with ``protocol: raw``,
+``socket://HOST:PORT`` (ser2net raw, or ``lm629 sim serve --tcp``)
+(:func:`lm629_host.integrations.labgrid_place.network_port_url`).  ``options:`` are the port
+URL's options (``{fast_baud: 115200, failsafe: 0.5}``), passed through.  Deactivating the
 driver stops every axis that still moves (abrupt stop, then motor off) and closes the port.
 
 labgrid installs its own fork of pyserial (pyserial-labgrid): keep this extra in a virtual
@@ -32,6 +34,8 @@ environment of its own (docs/testing.md).
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import attr
 from labgrid.driver.common import Driver
@@ -41,22 +45,25 @@ from labgrid.util.proxy import proxymanager
 
 import lm629_host
 from lm629_host.errors import LM629Error
+from lm629_host.integrations.labgrid_place import network_port_url
+from lm629_host.urls import PortURL
 from lm629_host.chip.safety import emergency_stop
 
 
-def port_url(port: Resource, fast_baud: int | None = None) -> str:
+def port_url(port: Resource, options: Mapping[str, object] | None = None) -> str:
     """The lm629-host URL of a labgrid ``SerialPort`` / ``RawSerialPort`` / ``USBSerialPort``
-    or ``NetworkSerialPort`` (through labgrid's proxy manager, so ``LG_PROXY`` works)."""
-    extra = f"&fast_baud={fast_baud}" if fast_baud is not None else ""
+    or ``NetworkSerialPort`` (through labgrid's proxy manager, so ``LG_PROXY`` works), with
+    ``options``: any option a port URL takes, passed through as they are."""
     if type(port).__name__ == "NetworkSerialPort" or hasattr(port, "protocol"):
         host, number = proxymanager.get_host_and_port(port)
-        protocol = getattr(port, "protocol", "rfc2217")
-        if protocol == "raw":
-            return f"serial://socket://{host}:{number}" + (f"?{extra[1:]}" if extra else "")
-        if protocol == "rfc2217":
-            return f"serial://rfc2217://{host}:{number}?baud={port.speed}{extra}"
-        raise ValueError(f"LM629Driver: NetworkSerialPort protocol {protocol!r}: expected raw or rfc2217")
-    return f"serial://{port.port}?baud={port.speed}{extra}"
+        return network_port_url(host, number, port.speed, getattr(port, "protocol", "rfc2217"),
+                                options).text
+    return PortURL.parse(f"serial://{port.port}").with_options(
+        {"baud": str(port.speed), **{k: _text(v) for k, v in (options or {}).items()}}).text
+
+
+def _text(value: object) -> str:
+    return ("1" if value else "0") if isinstance(value, bool) else str(value)
 
 
 @target_factory.reg_driver
@@ -67,15 +74,16 @@ class LM629Driver(Driver):
     Args:
         chip_variant (str): "lm629" or "lm628"
         axes (int): how many chips the board has (default: what the bridge reports)
-        fast_baud (int): the link rate after the handshake (default: lm629-host's)
+        options (dict): port URL options, passed through as the URL's query (``fast_baud``,
+            ``failsafe``, ``retries``, ...: whatever ``lm629 --port URL?...`` takes, checked
+            by the transport that reads them when the driver activates)
     """
 
     bindings = {"port": {"SerialPort", "NetworkSerialPort"}}
 
     chip_variant = attr.ib(default="lm629", validator=attr.validators.instance_of(str))
     axes = attr.ib(default=None, validator=attr.validators.optional(attr.validators.instance_of(int)))
-    fast_baud = attr.ib(default=None,
-                        validator=attr.validators.optional(attr.validators.instance_of(int)))
+    options = attr.ib(factory=dict, validator=attr.validators.instance_of(dict))
 
     def __attrs_post_init__(self) -> None:
         super().__attrs_post_init__()
@@ -83,7 +91,7 @@ class LM629Driver(Driver):
 
     @property
     def url(self) -> str:
-        return port_url(self.port, self.fast_baud)
+        return port_url(self.port, self.options)
 
     def on_activate(self) -> None:
         self.board = lm629_host.open_board(self.url, axes=self.axes, chip=self.chip_variant)

@@ -26,7 +26,7 @@ import threading
 from typing import TYPE_CHECKING, Any, final
 
 from lm629_host.clock import Clock, WallClock
-from lm629_host.transports.reports import (  # handed on: the records a transport reports
+from lm629_host.transports.reports import (
     HOST_POLLED_NOTE,
     Check,
     PortInfo,
@@ -35,6 +35,7 @@ from lm629_host.transports.reports import (  # handed on: the records a transpor
     Stats,
 )
 from lm629_host.transports.keepalive import FeedingClock, KeepAlive
+from lm629_host.transports import exiting
 from lm629_host.urls import PortURL, port_url
 from lm629_host.errors import AxisError, TransportError
 from lm629_host.bus.program import (
@@ -50,6 +51,11 @@ if TYPE_CHECKING:
 log = logging.getLogger("lm629_host.bus")
 
 
+#: the ``close`` wrappers :meth:`Transport.__init_subclass__` made (a subclass that inherits one
+#: is not wrapped again)
+_MARKING_CLOSE: set[Callable[..., None]] = set()
+
+
 class LockedClock(Clock):
     """A simulated clock whose ``sleep`` runs the simulation forward under the transport's
     lock, so that a thread waiting on it never advances the chip model in the middle of
@@ -59,6 +65,11 @@ class LockedClock(Clock):
         self._clock = clock
         self._lock = lock
         self.now = clock.now  # type: ignore[method-assign]  # no wrapper on the hot path
+
+    @property
+    def inner(self) -> Clock:
+        """The clock this one wraps."""
+        return self._clock
 
     def now(self) -> float:
         return self._clock.now()
@@ -148,6 +159,11 @@ class Transport(abc.ABC):
     #: the longest far-side wait one exchange may hold, seconds (None: no limit): a bridge
     #: whose failsafe is armed counts a wait as the host alive only up to its timeout
     far_wait_limit_s: float | None = None
+    #: how much later than the far-side wait of a ``command; wait; status`` program its status
+    #: read may land, us (the far side's own time between the two, and the wait's own
+    #: rounding): a busy time measured that way (``lm629 selftest``) is short of the chip's
+    #: by up to this.  A cycle-at-a-time transport: one bus cycle (0.5 us simulated)
+    busy_probe_us: float = 1.0
     #: True when the far side issues a shaped move's pieces on its own timer
     #: (:meth:`profile`); otherwise the host times them on ``clock``
     far_profiles: bool = False
@@ -173,7 +189,7 @@ class Transport(abc.ABC):
         transport, an entry point's too, without each one keeping it."""
         super().__init_subclass__(**kwargs)
         own = cls.__dict__.get("close")
-        if own is None or getattr(own, "_marks_closed", False):
+        if own is None or own in _MARKING_CLOSE:
             return
 
         @functools.wraps(own)
@@ -182,7 +198,8 @@ class Transport(abc.ABC):
                 own(self)
             finally:
                 self._closed = True
-        close._marks_closed = True  # type: ignore[attr-defined]  # wrapped once per class
+                exiting.forget(self)
+        _MARKING_CLOSE.add(close)  # wrapped once per class
         cls.close = close  # type: ignore[method-assign]  # the subclass's own, wrapped
 
     def check_open(self) -> None:
@@ -200,6 +217,7 @@ class Transport(abc.ABC):
         self.trace = trace
         self.stats = Stats()
         self.clock = WallClock()
+        exiting.track(self)  # a normal exit closes it if the script does not (.exiting)
 
     @final
     def execute(self, program: Program) -> ProgramResult:
@@ -292,12 +310,23 @@ class Transport(abc.ABC):
     def clock(self, clock: Clock) -> None:
         inner = clock
         while isinstance(inner, (LockedClock, FeedingClock)):  # the time base under wrappers
-            inner = inner._clock
+            inner = inner.inner
         if not isinstance(clock, (WallClock, LockedClock)):
             clock = LockedClock(clock, self.lock)
         self._clock = clock
         #: the clock itself, for code that already holds the lock (inside ``execute``)
         self._inner_clock = inner
+
+    @property
+    def on_wall_clock(self) -> bool:
+        """True when the transport's time base is the wall clock (hardware), False on a
+        simulated one (under any wrapper)."""
+        return isinstance(self._inner_clock, WallClock)
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` ran."""
+        return self._closed
 
     def run_keep_alive(self, keepalive: KeepAlive) -> None:
         """Keep the far side's watchdog fed from now on: a thread on the wall clock, the
@@ -351,6 +380,7 @@ class Transport(abc.ABC):
     def close(self) -> None:
         """Release the port.  Idempotent; every call after it raises (:meth:`check_open`)."""
         self._closed = True
+        exiting.forget(self)
 
     # ------------------------------------------------------------------ the link failsafe
     # A bridge keeps a timer on its side of the link and stops every chip when the host falls

@@ -37,51 +37,58 @@ def switch_baud(link: LinkSession, baud: int) -> bool:
             or baud == link.baud):
         return False
     old = link.baud
-    link._resync()
     try:
-        frame = link._exchange(
-            FrameType.SET_BAUD, baud.to_bytes(4, "big"),
-            link.reply_timeout(wire_size(8), wire_size(9)), f"SET_BAUD {baud}", link.retries)
+        frame = link.request(FrameType.SET_BAUD, baud.to_bytes(4, "big"), f"SET_BAUD {baud}",
+                             wire_size(9))
         result = frame.payload[0] if frame.payload else -1
     except TransportError:
         result = None  # the bridge may or may not have switched: wait its window out
+    moved, why = False, ""
     if result == Result.OK:
-        set_baud(baud)
+        try:  # the host's end: a local UART, or the far UART of ser2net (RFC 2217 SET-BAUDRATE)
+            set_baud(baud)
+            moved = True
+        except TransportError as exc:  # the bridge moved, the line did not: its window ends it
+            why = f"the port cannot run at {baud} baud ({exc})"
+    if moved:
         link.baud = baud
         # three HELLOs at the new rate, all within the bridge's window
         tries = 3
         hello_s = max(link.reply_timeout(wire_size(4), wire_size(4 + HelloInfo.SIZE)),
                       BAUD_WINDOW_MS * 1e-3 * 0.6 / tries)
         try:
-            link._exchange(FrameType.HELLO, b"", hello_s, f"HELLO at {baud} baud",
-                           tries - 1)
+            link.request(FrameType.HELLO, b"", f"HELLO at {baud} baud",
+                         wire_size(4 + HelloInfo.SIZE), retries=tries - 1, resync=False,
+                         timeout_s=hello_s)
         except TransportError:
             pass
         else:
-            link._bridge_forgot()
             log.info("%s: the link runs at %d baud", link.url, baud)
             return True
         why = f"no answer at {baud} baud (can the USB serial adapter do it?)"
+    elif result == Result.OK:
+        pass  # why: the port's refusal, above
     elif result is None:
         why = "no answer to SET_BAUD"
     else:
         why = f"the bridge cannot make {baud} baud (result {result})"
     # back to the old rate; the bridge goes back too once its window has passed
-    set_baud(old)
-    link.baud = old
+    if moved:
+        set_baud(old)
+        link.baud = old
     if result is None or result == Result.OK:  # else the bridge never left the old rate
         link.clock.sleep(BAUD_WINDOW_MS * 1e-3 * 1.2)
-    link._need_resync = True  # HELLO at the old rate before anything else
+    link.invalidate()  # HELLO at the old rate before anything else
     try:
-        link._resync()
+        link.resync()
     except TransportError:
-        if result != Result.OK:
+        if not moved:
             raise
         # its answer to our HELLO at the new rate may have been lost, so that it stayed
         set_baud(baud)
         link.baud = baud
-        link._need_resync = True
-        link._resync()
+        link.invalidate()
+        link.resync()
         log.info("%s: the link runs at %d baud", link.url, baud)
         return True
     log.warning("%s: staying at %d baud: %s", link.url, old, why)

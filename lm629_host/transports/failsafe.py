@@ -37,7 +37,6 @@ from lm629_host.bridge.protocol import (
     encode_frame,
     wire_size,
 )
-from lm629_host.clock import WallClock
 from lm629_host.errors import FailsafeTripped, TransportError
 from lm629_host.transports.keepalive import KeepAlive
 from lm629_host.urls import Option, PortURL, parse_options, query_params
@@ -123,15 +122,13 @@ class LinkFailsafe:
         self.on_turn: Callable[[], None] | None = None
         #: what a quiet link is fed with (set when armed: FAILSAFE_FEED on the wall clock)
         self._feed_frame = FAILSAFE_FEED
-        link._events[FrameType.FAILSAFE_REPLY] = self._on_report
-        link._events[FrameType.PONG] = self._on_pong
+        link.on_event(FrameType.FAILSAFE_REPLY, self._on_report)
+        link.on_event(FrameType.PONG, self._on_pong)
 
     def request(self, payload: bytes, what: str, retries: int | None = None) -> FailsafeState:
         """One FAILSAFE exchange; its reply's state (TransportError when it is refused)."""
-        self.link._resync()
-        frame = self.link._exchange(FrameType.FAILSAFE, payload, self.link.reply_timeout(
-            wire_size(4 + len(payload)), wire_size(4 + FailsafeState.SIZE)), what,
-            self.link.retries if retries is None else retries)
+        frame = self.link.request(FrameType.FAILSAFE, payload, what,
+                                  wire_size(4 + FailsafeState.SIZE), retries=retries)
         try:
             state = FailsafeState.decode(frame.payload)
         except FrameError as exc:
@@ -163,7 +160,7 @@ class LinkFailsafe:
         ms = round(self.timeout_s * 1e3)
         self.request(bytes((FailsafeCmd.ARM,)) + ms.to_bytes(2, "big")
                        + bytes((self.action,)), f"FAILSAFE (arm {ms} ms)")
-        wall = isinstance(self.link._inner_clock, WallClock)
+        wall = self.link.on_wall_clock
         self.feed_period_s = self.timeout_s * (FEED_FRACTION if wall else SIMULATED_FEED_FRACTION)
         self._feed_frame = FAILSAFE_FEED if wall else SIMULATED_FEED
         # a far-side wait feeds only when it ends: each one shorter than the timeout
@@ -175,7 +172,7 @@ class LinkFailsafe:
 
     def due_at(self) -> float:
         """When a quiet link next needs a feed, on the link's clock."""
-        return self.link._last_tx + self.feed_period_s
+        return self.link.last_sent + self.feed_period_s
 
     def feed_if_due(self) -> None:
         """The keep-alive's feed: FAILSAFE_FEED once the link has been quiet for
@@ -185,44 +182,38 @@ class LinkFailsafe:
         and what is already waiting on the pipe is read (the answer to the last feed: a trip
         is heard here)."""
         link = self.link
-        if not self.feed_period_s or link._closed:
+        if not self.feed_period_s or link.closed:
             return
         if self.on_turn is not None:
             self.on_turn()
         self._log_untold()
-        if link.clock.now() - link._last_tx < self.feed_period_s - _DUE_SLACK_S:
+        if link.idle_s() < self.feed_period_s - _DUE_SLACK_S:
             return
         if self.recording:
             self._feed_recording()
             return
-        if not link._rx_lock.acquire(blocking=False):
+        if not link.request_lock.acquire(blocking=False):
             return
         try:
             if not self.recording:
                 link.send_unsolicited(self._feed_frame)
                 link.poll_events()
         finally:
-            link._rx_lock.release()
+            link.request_lock.release()
 
     def _feed_recording(self) -> None:
-        link = self.link
-        with link._tx_lock:
-            if not self.recording:
-                return
-            link._last_tx = link.clock.now()
-            link.pipe.write(FAILSAFE_FEED)
-        link.stats.bytes_out += len(FAILSAFE_FEED)
+        self.link.send_unsolicited(FAILSAFE_FEED, when=lambda: self.recording)
 
     def feed(self) -> None:
         """Feed now (the script's own keep-alive, ``failsafe_feed=script``): one FAILSAFE_FEED,
         after any request under way in another thread has its answer."""
         link = self.link
-        if not self.feed_period_s or link._closed:
+        if not self.feed_period_s or link.closed:
             return
         if self.recording:
             self._feed_recording()
             return
-        with link._rx_lock:
+        with link.request_lock:
             link.send_unsolicited(self._feed_frame)
             link.poll_events()
 
@@ -269,7 +260,7 @@ class LinkFailsafe:
         link = self.link
         if not self.feed_period_s:
             return
-        silent = link.clock.now() - link._last_tx
+        silent = link.idle_s()
         if self.news is None and silent >= self.timeout_s:
             state = self.request(b"", "FAILSAFE (report)")
             if state.tripped:

@@ -97,6 +97,11 @@ class FeedingClock(Clock):
         self.keepalive = keepalive
         self.now = clock.now  # type: ignore[method-assign]  # no wrapper on the hot path
 
+    @property
+    def inner(self) -> Clock:
+        """The clock this one wraps."""
+        return self._clock
+
     def now(self) -> float:
         return self._clock.now()
 

@@ -279,12 +279,12 @@ class StreamCompiler:
         for cost in (0.0, 1.0):  # a poll's stream time is linear in what a command costs
             c = StreamCompiler(self.tck_hz, self.busy_s, cost, self.busy_pin)
             c.keep, c.keep_level = self.keep, self.keep_level
-            s, at = c._calibration(polls, pad_s, lead_s, first_s)
+            s, at = c.calibration_polls(polls, pad_s, lead_s, first_s)
             times.append(at)
         return s, [(idle, round(both - idle)) for idle, both in zip(*times)]
 
-    def _calibration(self, polls: int, pad_s: float, lead_s: float,
-                     first_s: float) -> tuple[Stream, list[float]]:
+    def calibration_polls(self, polls: int, pad_s: float, lead_s: float,
+                          first_s: float) -> tuple[Stream, list[float]]:
         s = self.begin(0)
         self.delay(s, lead_s)
         self.status(s, "check", 0)

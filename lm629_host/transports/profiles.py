@@ -19,7 +19,7 @@ from lm629_host.bridge.protocol import (
     wire_size,
 )
 from lm629_host.errors import TransportError
-from lm629_host.transports.base import ProfileState
+from lm629_host.transports.reports import ProfileState
 
 if TYPE_CHECKING:
     from lm629_host.transports.failsafe import LinkFailsafe
@@ -103,7 +103,7 @@ class ProfileScheduler:
                 self._top_up(stream)
 
     def _top_up(self, stream: _Stream) -> ProfileState:
-        with self.link._rx_lock:  # the keep-alive's thread tops up too
+        with self.link.request_lock:  # the keep-alive's thread tops up too
             return self._top_up_locked(stream)
 
     def _top_up_locked(self, stream: _Stream) -> ProfileState:
@@ -140,10 +140,8 @@ class ProfileScheduler:
         state = ProfileState(0, 0, 0.0)
         for k, chunk in enumerate(chunks):
             payload = profile_payload(new and k == 0, cs, chunk)
-            frame = link._exchange(FrameType.PROFILE, payload,
-                                   link.reply_timeout(wire_size(len(payload) + 4),
-                                                      wire_size(PROFILE_REPLY_PAYLOAD.size + 4)),
-                                   f"PROFILE of {len(chunk)} piece(s)", link.retries)
+            frame = link.request(FrameType.PROFILE, payload, f"PROFILE of {len(chunk)} piece(s)",
+                                 wire_size(PROFILE_REPLY_PAYLOAD.size + 4), resync=False)
             if len(frame.payload) != PROFILE_REPLY_PAYLOAD.size:
                 raise TransportError("the bridge's PROFILE_REPLY has the wrong length: reflash "
                                      "the firmware that matches this host", port=link.url)

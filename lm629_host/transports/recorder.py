@@ -21,7 +21,6 @@ from lm629_host.bridge.protocol import (
     FrameError,
     FrameType,
     Result,
-    RunReply,
     check_record_program,
     decode_short_reply,
     record_payload,
@@ -30,7 +29,7 @@ from lm629_host.bridge.protocol import (
 )
 from lm629_host.bus.program import BusOp, Op, Program
 from lm629_host.errors import BusyTimeout, LinkError, TransportError
-from lm629_host.transports.base import RawRow
+from lm629_host.transports.reports import RawRow
 
 if TYPE_CHECKING:
     from lm629_host.transports.failsafe import LinkFailsafe
@@ -78,7 +77,7 @@ class LinkRecorder:
         only reads, so a recording started twice changes nothing on the chip).  A row lost on
         the line is missing from what is yielded (its index is the gap).  Closing the iterator
         early stops the bridge (any byte from the host ends a recording)."""
-        if self.link._closed:
+        if self.link.closed:
             raise TransportError("the port is closed", port=self.link.url)
         _, read = self._check_sample(program)
         ticks = max(1, round(period_s * 1e6 / RECORD_TICK_US))
@@ -93,14 +92,13 @@ class LinkRecorder:
         clock = self.link.clock
         stats = self.link.stats
         with self.link.lock:
-            self.link._resync()
+            self.link.resync()
             stats.programs += 1
             pending: deque[Frame] = deque()
-            first = self.link._exchange(
-                FrameType.RECORD, payload,
-                period + self.link.reply_timeout(wire_size(len(payload) + 4), row_wire, ops,
-                                            FIRMWARE_DEFAULT_BUSY_TIMEOUT_US * 1e-6),
-                "RECORD", self.link.retries, pending=pending)
+            first = self.link.request(
+                FrameType.RECORD, payload, "RECORD", row_wire, ops=ops,
+                busy_timeout_s=FIRMWARE_DEFAULT_BUSY_TIMEOUT_US * 1e-6, extra_s=period,
+                pending=pending, resync=False)
             seq = first.seq
             ended = False
             self.failsafe.recording = True  # from now on the feeds are FAILSAFE_FEED
@@ -115,7 +113,7 @@ class LinkRecorder:
                     if frame is None:
                         if end_at is None:
                             raise LinkError(f"no row from the bridge for {silence:g} s during "
-                                            f"a recording: {self.link._quality()}", port=self.link.url,
+                                            f"a recording: {self.link.quality()}", port=self.link.url,
                                             may_have_run=True)
                         return  # the last rows (and the end) were lost: they are gaps
                     if frame.type == FrameType.RECORD_END:
@@ -130,8 +128,7 @@ class LinkRecorder:
                                 if last_index >= 0 else idx16
                             t_us = stamp if last_us is None else t_us + ((stamp - last_us) & 0xFFFFFFFF)
                             last_index, last_us = index, stamp
-                            self.link._account(ops, RunReply())  # the row's bus cycles, as a RUN's
-                            self.link._emit_cycles(ops, words, statuses)
+                            self.link.count_cycles(ops, words, statuses)  # as a RUN's
                             yield RawRow(index, t_us * 1e-6, words, statuses)
                             if rows and index >= rows - 1:
                                 # the end follows at once: take it, or leave it to be ignored
@@ -148,7 +145,7 @@ class LinkRecorder:
                         wait = max(wait, end_at - clock.now() + silence)
                     frame = self._next_frame(seq, clock.now() + wait, pending)
             finally:
-                with self.link._tx_lock:
+                with self.link.write_lock:  # no feed of the recording after it
                     self.failsafe.recording = False
                 if not ended:
                     self._stop_recording(seq, pending, period)
@@ -159,9 +156,9 @@ class LinkRecorder:
         the host feeds it while it waits (a recording counts as alive only while it sends)."""
         fs = self.failsafe
         feeding = fs.recording and fs.feed_period_s
-        return self.link._await(seq, deadline, pending, bad_ends_wait=False,
-                                tick=fs.feed_if_due if feeding else None,
-                                every=fs.feed_period_s)
+        return self.link.await_reply(seq, deadline, pending, bad_ends_wait=False,
+                                     tick=fs.feed_if_due if feeding else None,
+                                     every=fs.feed_period_s)
 
     def _decode_row(self, payload: bytes, ops: Sequence[BusOp]
                     ) -> tuple[int, int, tuple[int, ...], tuple[int, ...]] | None:
@@ -201,9 +198,7 @@ class LinkRecorder:
         """End a recording early: one byte stops the bridge; its RECORD_END (or a row already
         on its way) is read and dropped, so that the next request starts on a quiet line."""
         try:
-            with self.link._tx_lock:
-                self.link.pipe.write(b"\x00")
-            self.link.stats.bytes_out += 1
+            self.link.send_unsolicited(b"\x00", feeds=False)
             deadline = self.link.clock.now() + 2 * period + self.link.reply_timeout(
                 wire_size(64), wire_size(64))
             while True:

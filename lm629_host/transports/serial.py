@@ -25,11 +25,12 @@ from __future__ import annotations
 
 import errno
 import logging
-from urllib.parse import urlencode
+from urllib.parse import parse_qsl, urlencode
 import os
 import select
 import statistics
 import sys
+import threading
 from dataclasses import dataclass
 
 try:  # POSIX only; imported early so that the advice works even where modules can't load
@@ -42,8 +43,10 @@ from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import TransportError
 from lm629_host.bus.program import TraceCallback
 from lm629_host.urls import Option, PortURL, parse_options, port_url
-from lm629_host.transports.base import Check, PortInfo
-from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTIONS, LinkTransport
+from lm629_host.transports.reports import Check, PortInfo
+from lm629_host.transports.failsafe import FAILSAFE_OPTIONS
+from lm629_host.transports.link import LinkTransport
+from lm629_host.transports.session import DEFAULT_RETRIES
 
 log = logging.getLogger("lm629_host.serial")
 
@@ -158,12 +161,81 @@ def options_of(url: str | PortURL) -> SerialOptions:
                          fast=opts["fast_baud"])
 
 
-def _lost_hint(device: str | None) -> str:
-    """What a link that failed mid-use most likely means on this kind of port."""
-    if device and device.split("://", 1)[0] in ("socket", "rfc2217"):
-        return ("the server closed the connection: a served bench (`lm629 sim serve --tcp`) "
-                "and ser2net take one client at a time; is another one connected?")
+def _lost_hint(device: str | None, heard: bytes = b"") -> str:
+    """What a link that failed mid-use most likely means on this kind of port; ``heard``: the
+    last bytes the server sent (ser2net says why it refuses a client in words)."""
+    if device and _scheme(device) in ("socket", "rfc2217"):
+        said = _words(heard)
+        if said:
+            return _refused(device, said)
+        return ("the server closed the connection: is it still running (ser2net, "
+                "`lm629 sim serve --tcp`) and the network path up? (Both take one client at a "
+                "time: is another one connected?)")
     return "was the board unplugged?"
+
+
+def _words(data: bytes) -> str:
+    """The text at the end of ``data`` when it is a line of words (``Port already in use``),
+    else ''."""
+    if not data.endswith(b"\n"):
+        return ""
+    line = data.rstrip(b"\r\n\0").rpartition(b"\n")[2].strip()
+    if len(line) >= 6 and all(32 <= b < 127 for b in line) and any(65 <= b <= 122 for b in line):
+        return line.decode("ascii")
+    return ""
+
+
+def _refused(device: str, said: str) -> str:
+    """The one line for a server that refused this client with ``said``."""
+    hostport = device.split("://", 1)[1].split("?", 1)[0]
+    if "in use" in said.lower():
+        port = hostport.rpartition(":")[2]
+        return (f"the server at {hostport} answered {said!r}: another client holds this bench "
+                "(ser2net serves one at a time; on its machine `ss -tn state established "
+                f"sport = :{port}` shows who; in a lab, the place's lock says)")
+    return f"the server at {hostport} answered {said!r} and closed the connection"
+
+
+def _server_says(device: str, wait_s: float = 1.0) -> str:
+    """What the TCP server of a ``socket://`` or ``rfc2217://`` URL says to a new connection
+    before anything is sent (ser2net: "Port already in use" to a second client), or ''.
+    Asked only after an open failed, to say why."""
+    import socket
+    import time
+
+    hostport = device.split("://", 1)[1].split("?", 1)[0].split("/", 1)[0]
+    host, _, port = hostport.rpartition(":")
+    heard = b""
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=wait_s) as sock:
+            deadline = time.monotonic() + wait_s
+            while (left := deadline - time.monotonic()) > 0:
+                sock.settimeout(left)
+                chunk = sock.recv(256)
+                if not chunk:
+                    break
+                heard += chunk.replace(b"\xff\xff", b"")
+                if _words(_no_telnet(heard)):
+                    break
+    except (OSError, ValueError):
+        pass
+    return _words(_no_telnet(heard))
+
+
+def _no_telnet(data: bytes) -> bytes:
+    """``data`` without its telnet commands (IAC sequences: ser2net's RFC 2217 greeting)."""
+    out, i = bytearray(), 0
+    while i < len(data):
+        b = data[i]
+        if b != 0xFF:
+            out.append(b)
+            i += 1
+        elif i + 1 < len(data) and data[i + 1] == 0xFA:  # SB ... IAC SE
+            end = data.find(b"\xff\xf0", i + 2)
+            i = len(data) if end < 0 else end + 2
+        else:
+            i += 3 if i + 1 < len(data) and 0xFB <= data[i + 1] <= 0xFE else 2
+    return bytes(out)
 
 
 def line_advice_of(device: str | None) -> str | None:
@@ -188,20 +260,40 @@ class SerialPipe:
     """A :class:`~lm629_host.bridge.protocol.Pipe` over an open pyserial port, in real time.
     ``line_advice``: what to check when the line fails, where it is no USB cable."""
 
-    def __init__(self, port, clock: Clock | None = None) -> None:  # port: serial.Serial
+    def __init__(self, port, clock: Clock | None = None,
+                 device: str | None = None) -> None:  # port: serial.Serial
         self.port = port
-        self.line_advice = line_advice_of(getattr(port, "port", None))
+        #: the port as the user gave it (messages quote it; pyserial's may carry an option
+        #: :func:`open_port` added)
+        self.device: str = device or getattr(port, "port", None) or "?"
+        self.line_advice = line_advice_of(self.device)
         self.clock = clock or WallClock()
+        self._heard = b""
         try:
             self._fd: int | None = port.fileno()
         except Exception:  # noqa: BLE001 - Windows ports and URL handlers have no fd
             self._fd = None
         if self._fd is not None:
             port.timeout = 0  # non-blocking reads; waiting is done with select below
+        else:
+            # set once: a URL handler may do real work on each change of a setting
+            # (pyserial's RFC 2217 client renegotiates every port setting with the server,
+            # 50-150 ms, when its timeout is set), so a wait is cut into reads of this slice
+            port.timeout = self.READ_SLICE_S
+        #: whether a change of rate reaches the line: not through raw TCP (``socket://``),
+        #: which carries bytes only, so that the far UART (ser2net's) keeps its rate; RFC 2217
+        #: sends it to the far UART as SET-BAUDRATE and waits for the server's answer
+        self.sets_line_rate = _scheme(self.device) != "socket"
         #: writes go to the descriptor itself only on a plain device (a URL handler such as
         #: spy:// does its own work in write())
         self._write_raw = self._fd is not None and type(port).__module__ == "serial.serialposix"
 
+    #: the longest a read on a port without a descriptor waits at once: how far a wait on
+    #: such a port may overrun the time asked (data ends a read at once, whatever this is)
+    READ_SLICE_S = 0.005
+    #: the last bytes read are kept, this many: a server that refuses a client says why in
+    #: words before it closes (ser2net: "Port already in use"), and a lost link quotes them
+    HEARD = 80
     #: how long a write may find the port full before the link is given up as lost
     WRITE_STUCK_S = 2.0
 
@@ -212,8 +304,8 @@ class SerialPipe:
             else:
                 self.port.write(data)
         except Exception as exc:
-            raise TransportError(f"write failed ({exc}): {_lost_hint(self.port.port)}",
-                                 port=self.port.port) from exc
+            raise TransportError(f"write failed ({exc}): {_lost_hint(self.device, self._heard)}",
+                                 port=self.device) from exc
 
     def _write_fd(self, data: bytes) -> None:
         """All of ``data`` to the port's descriptor (non-blocking, as pyserial opens it),
@@ -233,6 +325,12 @@ class SerialPipe:
                 raise TimeoutError(f"the port took nothing for {self.WRITE_STUCK_S:g} s")
 
     def read(self, timeout_s: float) -> bytes:
+        data = self._read(timeout_s)
+        if data:
+            self._heard = (self._heard + data)[-self.HEARD:]
+        return data
+
+    def _read(self, timeout_s: float) -> bytes:
         port = self.port
         try:
             if self._fd is not None:
@@ -241,15 +339,26 @@ class SerialPipe:
                     return b""
                 data = port.read(max(1, port.in_waiting))
                 return bytes(data)
-            if port.timeout != timeout_s:
-                port.timeout = max(0.0, timeout_s)
+            return self._read_sliced(timeout_s)
+        except Exception as exc:
+            raise TransportError(f"read failed ({exc}): {_lost_hint(self.device, self._heard)}",
+                                 port=self.device) from exc
+
+    def _read_sliced(self, timeout_s: float) -> bytes:
+        """What arrives within ``timeout_s`` on a port without a descriptor, in reads of
+        :attr:`READ_SLICE_S` (the port's fixed timeout): the first bytes end the wait."""
+        port = self.port
+        if port.in_waiting:
+            return bytes(port.read(port.in_waiting))
+        if timeout_s <= 0:
+            return b""
+        deadline = self.clock.now() + max(0.0, timeout_s)
+        while True:
             data = port.read(1)
             if data:
-                data += port.read(port.in_waiting)
-            return bytes(data)
-        except Exception as exc:
-            raise TransportError(f"read failed ({exc}): {_lost_hint(port.port)}",
-                                 port=port.port) from exc
+                return bytes(data) + bytes(port.read(port.in_waiting) if port.in_waiting else b"")
+            if self.clock.now() >= deadline:
+                return b""
 
     def set_baud(self, baud: int) -> None:
         """Run the port at ``baud`` (what was written is sent first)."""
@@ -257,7 +366,7 @@ class SerialPipe:
             self.port.flush()
             self.port.baudrate = baud
         except Exception as exc:
-            raise TransportError(f"cannot set {baud} baud ({exc})", port=self.port.port) from exc
+            raise TransportError(f"cannot set {baud} baud ({exc})", port=self.device) from exc
 
     def reset_input(self) -> None:
         try:
@@ -272,6 +381,62 @@ class SerialPipe:
             pass
 
 
+#: how long pyserial's write may block on a port before it gives up
+WRITE_TIMEOUT_S = 2.0
+#: values of ``ign_set_control=`` that mean "wait for the server's answer after all"
+_NO = ("0", "no", "false", "off")
+
+
+def _scheme(device: str) -> str:
+    return device.split("://", 1)[0].lower() if "://" in device else ""
+
+
+def rfc2217_url(device: str) -> str:
+    """``device`` with pyserial's ``ign_set_control`` option added when it is an
+    ``rfc2217://`` URL that does not say otherwise.  ser2net in front of a pseudo-terminal (or
+    any line without modem-control wires) does not answer RFC 2217's SET-CONTROL, and without
+    the option pyserial's open waits 3 s for that answer and fails ("timeout while waiting for
+    option 'control'").  The bridge uses no modem-control line, so nothing is lost by not
+    waiting.  ``ign_set_control=0`` (or no/false/off) drops the option: the answer is awaited.
+    Other schemes are returned as they are."""
+    if _scheme(device) != "rfc2217":
+        return device
+    base, _, query = device.partition("?")
+    pairs = parse_qsl(query, keep_blank_values=True)
+    given = [v for k, v in pairs if k == "ign_set_control"]
+    if given and given[0].strip().lower() in _NO:
+        pairs = [(k, v) for k, v in pairs if k != "ign_set_control"]
+    elif not given:
+        pairs.append(("ign_set_control", ""))
+    return base + ("?" + urlencode(pairs, safe=":/") if pairs else "")
+
+
+#: the name pyserial gives its RFC 2217 client's reader thread (serial/rfc2217.py)
+_RFC2217_READER = "pySerial RFC 2217 reader thread"
+
+
+def _quiet_rfc2217_reader() -> None:
+    """pyserial's RFC 2217 client answers telnet options from its reader thread without a
+    guard: a server that closes at once (ser2net refusing a second client, or killed) ends
+    that thread with a traceback on stderr, while the open or the link reports the same
+    failure in its own one line.  Such an end goes to the debug log instead; every other
+    thread's exception still goes to the hook that was there."""
+    previous = threading.excepthook
+    if getattr(previous, "lm629_quiet", False):
+        return
+
+    def hook(args) -> None:  # threading.ExceptHookArgs
+        thread = args.thread
+        if thread is not None and thread.name.startswith(_RFC2217_READER) and \
+                issubclass(args.exc_type, OSError):
+            log.debug("%s ended: %s", thread.name, args.exc_value)
+            return
+        previous(args)
+
+    hook.lm629_quiet = True  # type: ignore[attr-defined]  # a mark on the function: installed once
+    threading.excepthook = hook
+
+
 def open_port(device: str, baud: int):
     """Open ``device`` with pyserial (8N1, exclusive) or raise a :class:`TransportError` that
     says what to do.  ``device`` may be any pyserial URL (``serial_for_url``): a bridge on
@@ -279,12 +444,22 @@ def open_port(device: str, baud: int):
     ``spy://PORT?file=...`` to hex-dump the traffic."""
     import serial
 
+    scheme = _scheme(device)
+    if scheme == "rfc2217":
+        _quiet_rfc2217_reader()
+    # pyserial's RFC 2217 client refuses a write_timeout (NotImplementedError); its writes are
+    # bounded by its socket's own timeout instead (5 s, set when it connects)
+    bounded = {} if scheme == "rfc2217" else {"write_timeout": WRITE_TIMEOUT_S}
     try:
         # exclusive: a lock on a local port (spy:// included); network handlers ignore it
-        return serial.serial_for_url(device, baud, timeout=0, write_timeout=2.0, exclusive=True)
-    except serial.SerialException as exc:
+        return serial.serial_for_url(rfc2217_url(device), baud, timeout=0, exclusive=True,
+                                     **bounded)
+    except (serial.SerialException, OSError) as exc:  # OSError: a network handler's socket
         code = getattr(exc, "errno", None)
         text = str(exc)
+        if scheme in ("socket", "rfc2217") and (said := _server_says(device)):
+            raise TransportError(f"cannot open {device}: {_refused(device, said)}",
+                                 port=device) from None
         if is_handler_url(device):
             raise TransportError(
                 f"cannot open {device}: {text}. For socket:// and rfc2217://: is the bridge's "
@@ -337,12 +512,19 @@ class SerialTransport(LinkTransport):
         self.low_latency = low_latency
         self.rtt_s: float | None = None
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs, arm=False)
-        if fast and fast != baud:
-            try:
-                self.switch_baud(fast)  # a bridge that cannot: a notice, and the link stays
+        #: why the line runs at :attr:`baud` (``status`` says it)
+        self.rate_note = "the handshake rate" + ("" if fast else " (fast_baud=0)")
+        if fast and fast != baud and not getattr(pipe, "sets_line_rate", True):
+            self.rate_note = (f"the handshake rate: raw TCP cannot set the far UART's rate, so "
+                              f"fast_baud={fast} is not asked for (rfc2217:// can)")
+        elif fast and fast != baud:
+            try:  # a bridge or a port that cannot: a warning, and the link stays
+                switched = self.switch_baud(fast)
             except BaseException:
                 self.close()
                 raise
+            self.rate_note = (f"switched from {baud} baud after the handshake" if switched else
+                              f"the handshake rate: the switch to {fast} baud did not take")
             self.stats.reset()
         if measure_rtt:
             try:
@@ -354,7 +536,7 @@ class SerialTransport(LinkTransport):
             log.info("%s: round trip %.2f ms, low latency %s", url, self.rtt_s * 1e3,
                      low_latency or "n/a")
         try:  # last: the switch of rate and the PINGs above are not timed by the failsafe
-            self._failsafe_open()
+            self.failsafe.open()
         except BaseException:
             self.close()
             raise
@@ -366,7 +548,7 @@ class SerialTransport(LinkTransport):
         low = "off (low_latency=0)"
         if opts.low_latency:
             done, low = set_low_latency(port)
-        pipe = SerialPipe(port)
+        pipe = SerialPipe(port, device=opts.device)
         pipe.reset_input()
         return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
                    boot_s=opts.boot_s, low_latency=low, fast=opts.fast)
@@ -383,6 +565,10 @@ class SerialTransport(LinkTransport):
     def measure_rtt(self, n: int = RTT_PINGS) -> float:
         """Median round trip of ``n`` empty PINGs, seconds."""
         return statistics.median(self.ping() for _ in range(n))
+
+    def line_rate(self) -> tuple[int, str]:
+        """The rate the line runs at and why (``lm629 status``'s ``link`` line)."""
+        return self.baud or 0, self.rate_note
 
     def describe(self) -> str:
         rtt = f", round trip {self.rtt_s * 1e3:.2f} ms" if self.rtt_s is not None else ""

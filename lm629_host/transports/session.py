@@ -104,7 +104,7 @@ class LinkSession(Transport):
         #: the last ERROR_WINDOW attempts, True for each that failed (bad frame or no answer)
         self._attempts: deque[bool] = deque(maxlen=ERROR_WINDOW)
         #: a request was given up: the bridge's cache may still hold its seq, so the next
-        #: request is preceded by a HELLO (which empties that cache) -- see :meth:`_resync`
+        #: request is preceded by a HELLO (which empties that cache) -- see :meth:`resync`
         self._need_resync = False
         self._since_warning = 0  #: attempts since the last link-quality warning
         self._last_tx = self.clock.now()
@@ -132,12 +132,93 @@ class LinkSession(Transport):
             self._seq = FEED_SEQ + 1
         return self._seq
 
-    def send_unsolicited(self, wire: bytes) -> None:
-        """Write a frame that asks no answer (FAILSAFE_FEED) whole, between other writes."""
+    # ------------------------------------------------------------------ the parts' interface
+    # What the link's parts (failsafe, recorder, PROFILE scheduler, baud switch) use: a
+    # request with its retries and check, events, the idle time, a raw send, invalidation.
+    def request(self, ftype: FrameType, payload: bytes, what: str, reply_wire: int, *,
+                ops: Sequence[BusOp] = (), busy_timeout_s: float = 0.0, extra_s: float = 0.0,
+                retries: int | None = None, check: Callable[[Frame], object] | None = None,
+                pending: deque[Frame] | None = None, resync: bool = True,
+                timeout_s: float | None = None) -> Frame:
+        """One request and its answer: a HELLO first when an earlier request was given up
+        (:meth:`resync`; ``resync=False``: not, for the HELLO that checks a new baud rate),
+        then ``ftype`` with ``payload`` until answered, ``retries`` times at most (None: the
+        link's).  The reply timeout is :meth:`reply_timeout` of the request and
+        ``reply_wire`` (the answer's size on the wire) with ``ops`` and ``busy_timeout_s``,
+        plus ``extra_s`` (a recording's first period); ``timeout_s`` replaces all that (a
+        HELLO's own wait).  ``check`` and ``pending``: as :meth:`_exchange` says."""
+        if resync:
+            self.resync()
+        timeout = timeout_s if timeout_s is not None else extra_s + self.reply_timeout(
+            wire_size(len(payload) + 4), reply_wire, ops, busy_timeout_s)
+        return self._exchange(ftype, payload, timeout, what,
+                              self.retries if retries is None else retries, check, pending)
+
+    def on_event(self, ftype: FrameType, handler: Callable[[Frame], None]) -> None:
+        """Hand every ``ftype`` frame the host did not ask for to ``handler`` (the failsafe's
+        reports and the answers to its feeds)."""
+        self._events[ftype] = handler
+
+    @property
+    def last_sent(self) -> float:
+        """When the host last wrote to the bridge, on the link's clock: every frame feeds the
+        bridge's failsafe, so this is when the bridge last heard the host."""
+        return self._last_tx
+
+    def idle_s(self) -> float:
+        """How long the host has written nothing to the bridge (on the link's clock)."""
+        return self.clock.now() - self._last_tx
+
+    def send_unsolicited(self, wire: bytes, when: Callable[[], bool] | None = None, *,
+                         feeds: bool = True) -> bool:
+        """Write a frame that asks no answer (FAILSAFE_FEED, the byte that ends a recording)
+        whole, between other writes; with ``when``, only if it still says so once no other
+        write is under way.  ``feeds``: it is a whole frame, so the bridge heard the host
+        (:attr:`last_sent`; a lone delimiter is none).  True when it was written."""
         with self._tx_lock:
-            self._last_tx = self.clock.now()
+            if when is not None and not when():
+                return False
+            if feeds:
+                self._last_tx = self.clock.now()
             self.pipe.write(wire)
         self.stats.bytes_out += len(wire)
+        return True
+
+    @property
+    def request_lock(self) -> threading.RLock:
+        """Held around a request and its answer (whoever holds it reads the pipe); not the
+        user-visible :attr:`lock`: a keep-alive takes it (without waiting) between programs
+        while a user thread holds that one around a sequence."""
+        return self._rx_lock
+
+    @property
+    def write_lock(self) -> threading.Lock:
+        """Held around each write, so that no frame is cut by another thread's."""
+        return self._tx_lock
+
+    def invalidate(self) -> None:
+        """The bridge may hold a stale answer in its cache (a request was given up, a baud
+        switch failed): the next request is preceded by a HELLO (:meth:`resync`)."""
+        self._need_resync = True
+
+    def await_reply(self, seq: int, deadline: float, pending: deque[Frame] | None = None, *,
+                    bad_ends_wait: bool = True, tick: Callable[[], None] | None = None,
+                    every: float = 0.0) -> Frame | None:
+        """The next frame with ``seq`` (a recording's next row), or None at ``deadline``
+        (:meth:`_await`)."""
+        return self._await(seq, deadline, pending, bad_ends_wait=bad_ends_wait, tick=tick,
+                           every=every)
+
+    def count_cycles(self, ops: Sequence[BusOp], words: Sequence[int],
+                     statuses: Sequence[int]) -> None:
+        """Count and trace the bus cycles of ``ops`` run on the far side (a recording's row,
+        as a RUN's)."""
+        self._account(ops, RunReply())
+        self._emit_cycles(ops, words, statuses)
+
+    def quality(self) -> str:
+        """One sentence on the measured link quality and what to check."""
+        return self._quality()
 
     def poll_events(self) -> None:
         """Read what is already waiting on the pipe (without waiting) and hand each frame the
@@ -299,6 +380,8 @@ class LinkSession(Transport):
                               what, exc)
                     continue
             self._attempt(False)
+            if ftype is FrameType.HELLO:
+                self._bridge_forgot()  # HELLO empties the bridge's codes and cache
             return frame
         late = self.host_late_s
         if ftype is not FrameType.HELLO:
@@ -388,7 +471,7 @@ class LinkSession(Transport):
             if bad and bad_ends_wait:
                 return None
 
-    def _resync(self) -> None:
+    def resync(self) -> None:
         """After a request was given up, HELLO before the next one.
 
         The bridge answers a RUN whose seq and CRC equal its cached ones from the cache.  The
@@ -399,18 +482,17 @@ class LinkSession(Transport):
         answered, no request is sent at all (so those failures are certain: nothing ran)."""
         if not self._need_resync:
             return
-        timeout = max(self.hello_interval_s,
-                      self.reply_timeout(wire_size(4), wire_size(4 + HelloInfo.SIZE)))
         try:
-            self._exchange(FrameType.HELLO, b"", timeout, "HELLO (resynchronising after a "
-                           "failed exchange)", self.retries)
+            self.request(FrameType.HELLO, b"", "HELLO (resynchronising after a failed "
+                         "exchange)", wire_size(4 + HelloInfo.SIZE), resync=False,
+                         timeout_s=max(self.hello_interval_s, self.reply_timeout(
+                             wire_size(4), wire_size(4 + HelloInfo.SIZE))))
         except TransportError:
             raise LinkError(
                 "no answer from the bridge since the last failed exchange (HELLO unanswered "
                 f"{self.retries + 1} times): nothing was sent to the chip; {self._quality()}.",
                 port=self.url, may_have_run=False) from None
         self._need_resync = False
-        self._bridge_forgot()  # HELLO emptied the bridge's codes and cache
 
     # ------------------------------------------------------------------ accounting
     def _account(self, ops: Sequence[BusOp], reply: RunReply) -> None:
@@ -439,12 +521,10 @@ class LinkSession(Transport):
         """PING with ``data`` echoed; returns the round-trip time on the pipe's clock."""
         if len(data) > MAX_PING:
             raise ValueError(f"ping payload of {len(data)} bytes is longer than {MAX_PING}")
-        self._resync()
+        self.resync()
         t0 = self.clock.now()
-        n = 4 + len(data)
-        frame = self._exchange(FrameType.PING, data,
-                               self.reply_timeout(wire_size(n), wire_size(n)), "PING",
-                               self.retries)
+        frame = self.request(FrameType.PING, data, "PING", wire_size(4 + len(data)),
+                             resync=False)
         if frame.payload != data:
             raise TransportError("PONG does not echo the PING payload: the link corrupts data "
                                  "that passes its CRC; check the baud rate", port=self.url)

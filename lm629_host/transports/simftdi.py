@@ -34,9 +34,10 @@ from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
 from lm629_host.sim.model import ChipBus, ChipModel, Violation, chips_of
 from lm629_host.urls import Option, PortURL, parse_options, query_params
-from lm629_host.transports.base import Check, PortInfo
-from lm629_host.transports.ftdi import FT232H_PID, FTDI_VID, FtdiTransport, busy_pin_of, open_mpsse
-from lm629_host.transports.ftdi import OPTIONS as FTDI_OPTIONS
+from lm629_host.transports.reports import Check, PortInfo
+from lm629_host.transports.ftdi import FtdiTransport
+from lm629_host.transports.ftdi_open import FT232H_PID, FTDI_VID, busy_pin_of, open_mpsse
+from lm629_host.transports.ftdi_open import OPTIONS as FTDI_OPTIONS
 from lm629_host.transports.sim import ModelChips
 
 #: URL options that belong to this transport rather than to the chip model: the FT232H
@@ -96,8 +97,7 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
                 latency_ms=latency, busy_pin=busy_pin, heartbeat=opts["heartbeat"],
                 heartbeat_hz=opts["heartbeat_hz"])
-        t.model, t.device, t._strict, t._violations = model, device, strict, []
-        t.models = chips_of(model)
+        t.attach(model, device, strict)
         return t
 
     model: ChipModel | ChipBus
@@ -107,6 +107,11 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
     _strict: bool
     #: the violations strict mode counts (those of a program that saw no busy), not yet taken
     _violations: list[Violation]
+
+    def attach(self, model: ChipModel | ChipBus, device: EmulatedFT232H, strict: bool) -> None:
+        """The chip model behind the emulated adapter, the adapter, and strict mode's start."""
+        self.model, self.device, self.models = model, device, chips_of(model)
+        self._strict, self._violations = strict, []
 
     @property
     def strict(self) -> bool:

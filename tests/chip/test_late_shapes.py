@@ -218,6 +218,7 @@ def test_a_stop_or_a_new_move_takes_the_chip_from_the_pieces():
 
 
 # ---------------------------------------------------------------------------------- a real stall
+@pytest.mark.under_load
 @pytest.mark.parametrize("far_end", ["python", "firmware"])
 def test_a_wall_clock_stall_on_a_served_bench(tmp_path, far_end):
     """``lm629 sim serve`` in its own process, in real time (the bridge keeps its own clock

@@ -25,7 +25,7 @@ from lm629_host.transports.simemu import EmuLinkTransport
 from lm629_host.errors import BusyTimeout, WaitTimeout
 from lm629_host.bridge.protocol import Capability, HelloInfo
 from lm629_host.transports.link import LinkTransport
-from lm629_host.chip.lm629 import POLL_MAX_S, _poll_interval
+from lm629_host.chip.waiting import POLL_MAX_S, poll_interval
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.bus.program import WAIT_STATUS_POLL_US, Program
 from lm629_host.sim.clock import SimClock
@@ -195,7 +195,7 @@ def test_old_bridge_without_wait_status_is_polled_at_a_rate_set_by_the_wait():
     # the most reads the poll rate allows (each read also costs its round trip, so fewer)
     waited, bound = 0.0, 1
     while waited < 10:
-        waited += _poll_interval(waited)
+        waited += poll_interval(waited)
         bound += 1
     polls = t.stats.round_trips - before
     assert 10 / POLL_MAX_S <= bound and polls <= bound and polls < 10 / 1e-3 / 20

@@ -11,7 +11,7 @@ import pytest
 
 import lm629_host
 from lm629_host import AxisError, ResetError
-from lm629_host.motion.board import plan_linear
+from lm629_host.physics.linear import plan_linear
 from lm629_host.physics.plan import plan as plan_move
 from lm629_host.sim.model import chips_of
 from lm629_host.sim.model.chip import SAMPLE_CLOCKS

@@ -21,7 +21,8 @@ import pytest
 
 import lm629_host
 from lm629_host import FailsafeTripped
-from lm629_host.bridge.protocol import FailsafeState, FrameType, encode_frame
+from lm629_host.bridge.protocol import FAILSAFE_FEED, FailsafeState, FrameType, encode_frame
+from lm629_host.transports.failsafe import SIMULATED_FEED
 from lm629_host.transports.simemu import open_emulated
 from served import FAR_ENDS, serve
 
@@ -171,6 +172,7 @@ def _client(tmp_path, bench, scenario: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.under_load
 @pytest.mark.parametrize("far_end", FAR_ENDS[:2])
 def test_a_host_holding_the_lock_for_2_s_is_not_tripped(tmp_path, far_end):
     """The keep-alive sends between programs under the link's own lock, not the user's."""
@@ -196,6 +198,7 @@ def cpu_hogs(request):
             h.wait()
 
 
+@pytest.mark.under_load
 @pytest.mark.parametrize("far_end", FAR_ENDS[:2])
 def test_an_idle_host_beside_two_cpu_hogs_is_not_tripped(tmp_path, far_end, cpu_hogs):
     with serve(tmp_path, far_end) as bench:
@@ -222,6 +225,7 @@ def _pause(p: subprocess.Popen, seconds: float) -> None:
 FULL_BOARD = {"python": "sim://", "firmware": "sim://?axes=4"}
 
 
+@pytest.mark.under_load
 @pytest.mark.parametrize("far_end", FAR_ENDS[:2])
 def test_a_host_paused_2_s_mid_move_is_told_the_truth(tmp_path, far_end):
     """SIGSTOP for 2 s mid-move: the bridge stops the axis after 0.5 s of silence; the host,
@@ -245,6 +249,7 @@ def test_a_host_paused_2_s_mid_move_is_told_the_truth(tmp_path, far_end):
         assert bench.status()["failsafe"]["tripped"] is False  # the next open acknowledged it
 
 
+@pytest.mark.under_load
 @pytest.mark.parametrize("far_end", FAR_ENDS[:2])
 def test_a_host_paused_0_2_s_mid_move_finishes_it(tmp_path, far_end):
     with serve(tmp_path, far_end) as bench:
@@ -364,3 +369,71 @@ def test_a_recording_during_a_stream_is_not_cut_by_a_top_up():
     chip.read_status()
     chip.clock.sleep(1.5)
     assert t.profile(None, [], new=False).issued == 100
+
+
+# ---------------------------------------------------------------------- which trip message
+class _FeedsLost:
+    """A line that loses every keep-alive feed (and nothing else): the host's keep-alive keeps
+    turning, the bridge hears nothing between programs."""
+
+    def __init__(self, pipe) -> None:
+        self.pipe = pipe
+        self.clock = pipe.clock
+
+    def write(self, data: bytes) -> None:
+        if data not in (FAILSAFE_FEED, SIMULATED_FEED):
+            self.pipe.write(data)
+
+    def __getattr__(self, name: str):
+        return getattr(self.pipe, name)
+
+
+def test_a_trip_while_the_keep_alive_kept_turning_blames_the_line():
+    """The keep-alive turned at every step of the sleep (no stall), but its feeds were lost:
+    the trip message says it kept turning, not that the host was held up."""
+    t = open_emulated("sim://", wrap=_FeedsLost)
+    chip = lm629_host.LM629(t)
+    chip.reset()
+    chip.load_filter(kp=20, kd=100)
+    chip.update_filter()
+    chip.clock.sleep(1.0)  # 2x the failsafe: fed (and lost) every 0.375 s
+    assert t.emulator.failsafe.tripped
+    with pytest.raises(FailsafeTripped) as e:  # a trajectory command: the bridge refuses it
+        chip.move_to(1000, velocity=131072, acceleration=655)
+    msg = str(e.value)
+    assert "keep-alive kept turning" in msg and "lost on the line" in msg, msg
+    assert "held up" not in msg and "sent nothing" not in msg, msg
+    t.close()
+
+
+def test_a_trip_while_the_keep_alive_was_held_up_says_so(tmp_path):
+    """The keep-alive's thread held off the interpreter for 1.2 s (the main thread keeps the
+    GIL: a switch interval of 5 s), the host's commands quiet meanwhile: the bridge trips
+    after 0.5 s; the keep-alive, let run again, feeds before the next program, so the host
+    was not silent at that program: the message says the keep-alive was held up (for ~1.2 s,
+    more than half the timeout), not that it kept turning."""
+    with serve(tmp_path, "python") as bench:
+        chip = lm629_host.open(f"serial://{bench.link}")
+        try:
+            chip.reset()
+            chip.load_filter(kp=20, kd=100)
+            chip.update_filter()
+            old = sys.getswitchinterval()
+            sys.setswitchinterval(5.0)
+            try:
+                end = time.monotonic() + 1.2
+                while time.monotonic() < end:
+                    pass
+            finally:
+                sys.setswitchinterval(old)
+            time.sleep(0.2)  # the keep-alive's turn: it feeds (the silence is over)
+            with pytest.raises(FailsafeTripped) as e:
+                chip.move_to(1000, velocity=131072, acceleration=655)
+            msg = str(e.value)
+            assert "keep-alive was held up for" in msg, msg
+            held = float(msg.split("held up for ")[1].split(" s")[0])
+            assert 1.0 <= held <= 2.0, msg
+            assert "kept turning" not in msg, msg
+        finally:
+            chip.transport.clear_failsafe()
+            chip.close()

@@ -1,0 +1,111 @@
+"""``lm629 panel``'s commands as the page sends them (plain HTTP: the browser tests show the
+page; these the crossings): a profile's named axes and soft limits, a stop during an S-curve
+move the panel waits on, errors that are the command line's own lines."""
+
+from __future__ import annotations
+
+import subprocess
+import threading
+import time
+
+import pytest
+
+from panel_helpers import Panel, command, events, request
+from served import _console_script, _env
+
+PROFILE = """\
+[board]
+port = "sim://?axes=2"
+
+[axis.x]
+cs = 0
+kp = 20
+ds = 1
+
+[axis.y]
+cs = 1
+kp = 20
+ds = 1
+max = 5000
+"""
+
+
+@pytest.fixture(scope="module")
+def profiled(tmp_path_factory):
+    path = tmp_path_factory.mktemp("panel") / "bench.toml"
+    path.write_text(PROFILE)
+    argv = [_console_script(), "--profile", str(path), "panel", "--listen", "127.0.0.1:0"]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=_env())
+    p = Panel(proc, proc.stdout.readline().strip())
+    assert p.url.startswith("http://"), p.url + proc.stderr.read()
+    try:
+        yield p, p.page_token(), path
+    finally:
+        p.end()
+
+
+def _rows_until(stream, seconds: float) -> list:
+    end = time.monotonic() + seconds
+    rows: list = []
+    for m in stream:
+        if m["type"] == "rows":
+            rows += m["rows"]
+        if time.monotonic() > end and rows:
+            return rows
+    raise AssertionError("the event stream ended")
+
+
+def test_profile_axes_named_and_its_soft_limit_is_the_command_lines(profiled):
+    p, token, path = profiled
+    status, page = request(p, "GET", "/")
+    assert '"axes": ["x", "y"]' in page
+    cli = subprocess.run([_console_script(), "--profile", str(path), "--axis", "y", "move",
+                          "6000"], capture_output=True, text=True, timeout=60, env=_env())
+    assert cli.returncode == 2
+    with events(p, token) as stream:
+        hello = next(stream)
+        status, answer = command(p, token, {"cmd": "move", "axis": "y", "target": "6000",
+                                            "client": hello["client"]})
+        assert (answer["ok"], answer["code"]) == (False, cli.returncode)
+        assert "lm629: " + answer["text"] == cli.stderr.strip().splitlines()[-1]
+        assert "5000" in answer["text"]  # the soft limit named
+        status, answer = command(p, token, {"cmd": "move", "axis": "z", "target": "1",
+                                            "client": hello["client"]})
+        assert answer["text"] == "no axis 'z' on this bench (axes: x, y)"
+        status, answer = command(p, token, {"cmd": "move", "axis": "y", "target": "3000",
+                                            "client": hello["client"]})
+        assert answer["ok"] and answer["text"].startswith("moving to 3000 counts"), answer
+        rows = _rows_until(stream, 0.5)
+        assert rows[-1][1] == 0 and rows[-1][7] > 0  # x (columns 1-6) stays, y (7-12) moves
+
+
+def test_stop_during_an_s_curve_the_panel_waits_on(profiled):
+    """The S-curve (the host times its pieces) runs in the panel's worker; the stop button,
+    from another request, ends it after the bus program under way as Ctrl-C would (abrupt
+    stop, then motor off), then its own abrupt stop holds the axis where it stopped."""
+    p, token, _path = profiled
+    with events(p, token) as stream:
+        hello = next(stream)
+        start = _rows_until(stream, 0.1)[-1][1]
+        stop: dict = {}
+
+        def press() -> None:
+            time.sleep(0.8)
+            stop["answer"] = command(p, token, {"cmd": "stop", "axis": "x",
+                                                "client": hello["client"]})[1]
+        presser = threading.Thread(target=press)
+        presser.start()
+        status, answer = command(p, token, {"cmd": "move", "axis": "x", "target": str(start + 8000),
+                                            "shape": "s-curve", "jerk": "3e6",
+                                            "client": hello["client"]})
+        presser.join()
+        assert (answer["ok"], answer["code"]) == (False, 130)
+        assert answer["text"] == ("stopped from the panel -- motor stopped (abrupt stop, then "
+                                  "motor off)")
+        assert stop["answer"]["text"] == "abrupt stop sent"
+        rows = _rows_until(stream, 0.6)
+        held = rows[-1][1]
+        assert start < held < start + 8000
+        assert all(r[1] == held for r in rows[-10:])  # holding: the desired position stays
+        assert not rows[-1][5] & 0x80  # motor on (the abrupt stop's STT), not off

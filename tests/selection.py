@@ -1,0 +1,45 @@
+"""Which tests run where: the marks and xdist groups tests/conftest.py computes for every test
+(docs/testing.md, "The project's own suite").  Computed from what a test is and uses (its
+module, parameters, fixtures, the served bench its body starts), so a new test file needs no
+entry here."""
+
+from __future__ import annotations
+
+
+import pytest
+
+#: test modules that start processes (the installed script, a wheel, sigrok-cli, labgrid), tune
+#: a motor or run the crossings machine: ``-m "not slow"`` leaves them out, and every served,
+#: under_load and long test, and every test of the compiled firmware (docs/testing.md, the
+#: quick loop)
+SLOW_MODULES = frozenset({
+    "test_served_bench", "test_served_bench_profile", "test_bench", "test_bench_profile",
+    "test_pytest_plugin", "test_labgrid", "test_labgrid_lab", "test_wheel", "test_ci_guard", "test_tuning",
+    "test_firmware_build", "test_firmware_bundle", "test_sigrok", "test_journey", "test_docs",
+    "test_bench_failsafe", "test_twin", "test_faults_link", "test_api_state_machine",
+    "test_suite"})
+#: parameters that run the compiled firmware in simavr, or wait on a USB adapter in real time
+SLOW_PARAMS = ("sim+avr", "firmware", "usb=")
+#: fixtures that build or run the compiled firmware
+SLOW_FIXTURES = frozenset({"firmware_built"})
+
+
+def is_slow(item: pytest.Item, served: bool) -> bool:
+    """Whether the quick loop (``-m "not slow"``) leaves ``item`` out."""
+    return (served or item.path.stem in SLOW_MODULES
+            or any(p in item.nodeid for p in SLOW_PARAMS)
+            or not SLOW_FIXTURES.isdisjoint(getattr(item, "fixturenames", ()))
+            or any(item.get_closest_marker(m) for m in ("under_load", "long")))
+
+
+def what_runs(markexpr: str, long: bool, hogs: int) -> str:
+    """One line for pytest's header: the tests selected, what is left out, how to run it."""
+    out = [f"lm629-host: {f'-m {markexpr!r}' if markexpr else 'every test'}"]
+    if long:
+        out.append("with the long mode's tests and budgets (--long: the release run)")
+    else:
+        out.append("not the long mode's (pytest --long, before a release)")
+    out.append(f"beside {hogs} CPU hogs" if hogs else
+               "under_load tests without CPU hogs (CI runs them beside two)")
+    out.append("quick loop: pytest -m 'not slow'; the whole CI: bash .ci/run")
+    return "; ".join(out)
