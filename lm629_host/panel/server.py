@@ -282,7 +282,7 @@ class PanelHandler(BaseHTTPRequestHandler):
             why = server.clients.refusal(str(body.get("client", "")))
             if why is not None:
                 return Outcome(2, why)
-        return worker.submit(job.argv, job.cs, stop=job.stop, then=job.then)
+        return worker.submit(job.argv, job.cs, stop=job.stop, then=job.then, live=job.live)
 
 
 __all__ = ["PanelServer", "is_loopback"]

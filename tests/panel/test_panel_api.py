@@ -81,31 +81,36 @@ def test_profile_axes_named_and_its_soft_limit_is_the_command_lines(profiled):
 
 
 def test_stop_during_an_s_curve_the_panel_waits_on(profiled):
-    """The S-curve (the host times its pieces) runs in the panel's worker; the stop button,
-    from another request, ends it after the bus program under way as Ctrl-C would (abrupt
-    stop, then motor off), then its own abrupt stop holds the axis where it stopped."""
+    """The S-curve (the host times its pieces) runs in the panel's worker, and the rows go on
+    between its programs (host-polled); the stop button, from another request, ends it after
+    the bus program under way as Ctrl-C would (abrupt stop, then motor off), then its own
+    abrupt stop holds the axis where it stopped."""
     p, token, _path = profiled
     with events(p, token) as stream:
         hello = next(stream)
         start = _rows_until(stream, 0.1)[-1][1]
-        stop: dict = {}
+        moved: dict = {}
 
-        def press() -> None:
-            time.sleep(0.8)
-            stop["answer"] = command(p, token, {"cmd": "stop", "axis": "x",
-                                                "client": hello["client"]})[1]
-        presser = threading.Thread(target=press)
-        presser.start()
-        status, answer = command(p, token, {"cmd": "move", "axis": "x", "target": str(start + 8000),
-                                            "shape": "s-curve", "jerk": "3e6",
-                                            "client": hello["client"]})
-        presser.join()
+        def move() -> None:
+            moved["answer"] = command(p, token, {
+                "cmd": "move", "axis": "x", "target": str(start + 8000), "shape": "s-curve",
+                "jerk": "3e6", "client": hello["client"]})[1]
+        mover = threading.Thread(target=move)
+        mover.start()
+        # plotted during the move: the desired position on its way (2.12 s planned)
+        for m in stream:
+            if m["type"] == "rows" and start + 1000 < m["rows"][-1][1] < start + 7000:
+                break
+        assert "answer" not in moved  # still under way
+        status, stop = command(p, token, {"cmd": "stop", "axis": "x", "client": hello["client"]})
+        mover.join()
+        answer = moved["answer"]
         assert (answer["ok"], answer["code"]) == (False, 130)
         assert answer["text"] == ("stopped from the panel -- motor stopped (abrupt stop, then "
                                   "motor off)")
-        assert stop["answer"]["text"] == "abrupt stop sent"
+        assert stop["text"] == "abrupt stop sent"
         rows = _rows_until(stream, 0.6)
         held = rows[-1][1]
-        assert start < held < start + 8000
+        assert start + 1000 < held < start + 8000
         assert all(r[1] == held for r in rows[-10:])  # holding: the desired position stays
         assert not rows[-1][5] & 0x80  # motor on (the abrupt stop's STT), not off
