@@ -120,3 +120,12 @@ def test_exposed_address_carries_the_token():
         assert status == 403
         code, err = p.end()
     assert code == 143 and err.strip().endswith("lm629: terminated (SIGTERM)"), err
+
+
+def test_a_port_in_use_is_one_line_exit_3(served_panel):
+    p, _token = served_panel
+    r = _run("panel", "--listen", p.hostport)
+    assert r.returncode == 3 and r.stdout == ""
+    assert r.stderr.strip() == (f"lm629: cannot listen on {p.hostport}: Address already in use "
+                                "(another panel there? --listen 127.0.0.1:0 takes a free port); "
+                                "nothing was opened")
