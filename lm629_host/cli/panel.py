@@ -26,6 +26,12 @@ from lm629_host.panel.server import PanelServer, is_loopback
 DEFAULT_LISTEN = "127.0.0.1:8629"
 
 
+class ListenBusy(click.ClickException):
+    """The address to listen on is taken: exit 3, as a busy serial port's."""
+
+    exit_code = 3
+
+
 def parse_listen(text: str) -> tuple[str, int]:
     """``HOST:PORT`` (``[::1]:PORT`` for IPv6), else click.BadParameter."""
     host, sep, port = text.strip().rpartition(":")
@@ -93,12 +99,10 @@ def panel(listen: str, expose: bool) -> None:
     worker = BenchWorker(s, lambda argv: run_command(s, argv), axes)
     try:
         server = PanelServer((host, port), worker, title=str(s.port))
-    except OSError as exc:  # a port in use is a busy port: exit 3, as a serial port's
-        busy = click.ClickException(f"cannot listen on {listen}: {exc.strerror or exc} "
-                                    "(another panel there? --listen 127.0.0.1:0 takes a free "
-                                    "port); nothing was opened")
-        busy.exit_code = 3
-        raise busy from None
+    except OSError as exc:
+        raise ListenBusy(f"cannot listen on {listen}: {exc.strerror or exc} (another panel "
+                         "there? --listen 127.0.0.1:0 takes a free port); nothing was "
+                         "opened") from None
     # the panel's own signal handling: the worker runs every bus program, the main thread only
     # waits, so a stop signal is raised here at once and the worker stops a moving axis
     s.signals.restore()
