@@ -124,3 +124,23 @@ def test_a_trip_shows_at_once_and_is_acknowledged_from_the_page(tmp_path, driver
         st = bench.status()
         assert st["failsafe"]["trip"] is None
         assert st["real_position"] < FAR // 2
+
+
+def test_a_bench_lost_under_the_panel_ends_it_in_one_line(tmp_path):
+    """The far end gone (the served bench killed: a board unplugged): the page is told at
+    once, and the panel ends with the command line's line for it, exit 3."""
+    with serve(tmp_path, "python") as bench:
+        bench.ready()
+        with panel(f"serial://{bench.link}") as p:
+            token = p.page_token()
+            with events(p, token) as stream:
+                next(stream)
+                bench.server.send_signal(signal.SIGKILL)
+                fault = next(m for m in stream if m["type"] == "fault")
+            code = p.proc.wait(timeout=30)
+            err = p.proc.stderr.read()
+        bench.link.unlink()  # the killed server could not remove its link
+    assert code == 3, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("lm629: error: ") and "was the board unplugged?" in last, err
+    assert fault["text"] == "the bench stopped: " + last[len("lm629: "):]
