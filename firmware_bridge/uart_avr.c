@@ -16,28 +16,27 @@
 
 #define RX_SIZE 128u /* power of two */
 static volatile uint8_t rx_buf[RX_SIZE];
-static volatile uint8_t rx_head, rx_tail;
+volatile uint8_t uart_rx_head, uart_rx_tail; /* uart.h reads them inline: link_rx_pending */
 
 ISR(USART_RX_vect)
 {
     uint8_t b = UDR0;
-    uint8_t next = (uint8_t)((rx_head + 1u) & (RX_SIZE - 1u));
-    if (next != rx_tail) { /* full: drop; the frame fails its CRC and the host retries */
-        rx_buf[rx_head] = b;
-        rx_head = next;
+    uint8_t next = (uint8_t)((uart_rx_head + 1u) & (RX_SIZE - 1u));
+    if (next != uart_rx_tail) { /* full: drop; the frame fails its CRC and the host retries */
+        rx_buf[uart_rx_head] = b;
+        uart_rx_head = next;
     }
 }
 
-uint8_t link_rx_pending(void) { return rx_head != rx_tail; }
 
-uint8_t link_rx_peek(void) { return rx_buf[rx_tail]; }
+uint8_t link_rx_peek(void) { return rx_buf[uart_rx_tail]; }
 
-void link_rx_skip(void) { rx_tail = (uint8_t)((rx_tail + 1u) & (RX_SIZE - 1u)); }
+void link_rx_skip(void) { uart_rx_tail = (uint8_t)((uart_rx_tail + 1u) & (RX_SIZE - 1u)); }
 
 uint8_t uart_rx_take(void)
 {
-    uint8_t b = rx_buf[rx_tail];
-    rx_tail = (uint8_t)((rx_tail + 1u) & (RX_SIZE - 1u));
+    uint8_t b = rx_buf[uart_rx_tail];
+    uart_rx_tail = (uint8_t)((uart_rx_tail + 1u) & (RX_SIZE - 1u));
     return b;
 }
 

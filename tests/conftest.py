@@ -21,15 +21,16 @@ import lm629_host
 from lm629_host.sim import avr as avrsim
 from lm629_host.bus.program import BusCycle
 
-from selection import is_slow, shared_fixture_group, what_runs
+from selection import is_slow, what_runs
 from served import CPU_HOGS_ENV, cpu_hogs, is_served, served_docs
 from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
 
 _REQUIRE_AVR = "LM629_REQUIRE_AVR"
 
 #: the ``firmware_built`` fixture, for every test module that asks for it by name; pytester
-#: runs the lm629 pytest plugin (tests/integrations/test_pytest_plugin.py)
-pytest_plugins = ("firmware_helpers", "pytester")
+#: runs the lm629 pytest plugin (tests/integrations/test_pytest_plugin.py); xdist_groups keeps
+#: the tests that share a fixture on one worker (``-n``)
+pytest_plugins = ("firmware_helpers", "pytester", "xdist_groups")
 
 
 def _avr_missing() -> list[str]:
@@ -98,9 +99,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.served)
         if is_slow(item, served):
             item.add_marker(pytest.mark.slow)
-        group = shared_fixture_group(item, config.rootpath)
-        if group:
-            item.add_marker(pytest.mark.xdist_group(group))
     if not config.getoption("--long"):
         kept = [i for i in items if i.get_closest_marker("long") is None]
         if len(kept) < len(items):
@@ -108,8 +106,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             items[:] = kept
     if hasattr(config, "workerinput"):
         # an xdist worker: the slow tests first (a stable sort: each module's order is kept);
-        # xdist hands out the rest one test at a time, and a run that ends on quick tests ends
-        # with both workers busy
+        # xdist hands out the rest one test at a time (xdist_groups.py), and a run that ends
+        # on quick tests ends with both workers busy
         items.sort(key=lambda i: i.get_closest_marker("slow") is None)
 
 

@@ -5,7 +5,6 @@ entry here."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 
@@ -15,9 +14,10 @@ import pytest
 #: quick loop)
 SLOW_MODULES = frozenset({
     "test_served_bench", "test_served_bench_profile", "test_bench", "test_bench_profile",
-    "test_pytest_plugin", "test_labgrid", "test_wheel", "test_ci_guard", "test_tuning",
+    "test_pytest_plugin", "test_labgrid", "test_labgrid_lab", "test_wheel", "test_ci_guard", "test_tuning",
     "test_firmware_build", "test_firmware_bundle", "test_sigrok", "test_journey", "test_docs",
-    "test_bench_failsafe", "test_twin", "test_faults_link", "test_api_state_machine"})
+    "test_bench_failsafe", "test_twin", "test_faults_link", "test_api_state_machine",
+    "test_suite"})
 #: parameters that run the compiled firmware in simavr, or wait on a USB adapter in real time
 SLOW_PARAMS = ("sim+avr", "firmware", "usb=")
 #: fixtures that build or run the compiled firmware
@@ -30,27 +30,6 @@ def is_slow(item: pytest.Item, served: bool) -> bool:
             or any(p in item.nodeid for p in SLOW_PARAMS)
             or not SLOW_FIXTURES.isdisjoint(getattr(item, "fixturenames", ()))
             or any(item.get_closest_marker(m) for m in ("under_load", "long")))
-
-
-def shared_fixture_group(item: pytest.Item, root: Path) -> str | None:
-    """The xdist group of a test that shares a fixture wider than itself (module, class,
-    package scope: a served bench, a built wheel): every test of that fixture (and parameter)
-    on one worker, one after the other, so it is set up once per run (``--dist loadgroup``).
-    A test without one runs wherever a worker is free.  A test's own ``xdist_group`` mark wins
-    (the docs blocks: one group per document, tests/test_docs.py)."""
-    if item.get_closest_marker("xdist_group") is not None:
-        return None
-    # pytest has no public view of a test's fixture definitions at collection time
-    info = getattr(item, "_fixtureinfo", None)
-    params = getattr(getattr(item, "callspec", None), "params", {})
-    shared = []
-    for name in sorted(getattr(item, "fixturenames", ())):
-        defs = info.name2fixturedefs.get(name) if info is not None else None
-        if defs and defs[-1].scope in ("module", "class", "package"):
-            shared.append(f"{name}={params[name]}" if name in params else name)
-    if not shared:
-        return None
-    return f"{item.path.relative_to(root)}:{','.join(shared)}"
 
 
 def what_runs(markexpr: str, long: bool, hogs: int) -> str:

@@ -10,7 +10,12 @@ directory of the document's own.  Command lines are transcripts in ```console bl
 
 A command whose comment says ``not run by the tests: REASON`` is counted as skipped, with
 that reason; so is a block below a line ``*Not run by the tests: REASON.*``.  A ```toml block
-is a bench profile and is loaded with :func:`lm629_host.config.profile.load_profile`.
+is a bench profile and is loaded with :func:`lm629_host.config.profile.load_profile`; a
+```yaml block whose first line is ``# NAME.yaml`` (or ``##``) is written to that file for the commands
+after it (a labgrid exporter's configuration).  The lab's commands (labgrid-coordinator,
+-exporter, -client, ``lm629 --place``) run with labgrid's venv (``LM629_LABGRID_PYTHON``) last
+on PATH, an exporter's ser2net kept on loopback (tests/labgrid_lab.py), and the coordinator's
+``127.0.0.1:20408`` a free port.
 
 Ports stand in for the bench the block names: ``/dev/ttyACM0`` (and ``/dev/ttyUSB0``) is one
 ``lm629 sim serve`` for the whole document (two axes, the Python far end), ``socket://H:P`` and
@@ -29,6 +34,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,6 +43,7 @@ from sybil import Sybil
 from sybil.parsers.markdown import CodeBlockParser
 
 from lm629_host.sim.avr import toolchain_missing
+from labgrid_lab import SER2NET, SER2NET_LOOPBACK
 from served import _console_script
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,7 +87,8 @@ class DocState:
         if re.search(r"/dev/tty(ACM|USB)0", text):
             text = re.sub(r"(serial://)?/dev/tty(ACM|USB)0", self.serial(), text)
         text = re.sub(r"ftdi://ftdi:232h[^\s'\")]*", "sim+ftdi://", text)
-        text = re.sub(r"(socket://[\w.]+:|--tcp )(\d+)", lambda m: m[1] + self.tcp_port(m[2]), text)
+        text = re.sub(r"(socket://[\w.]+:|--tcp |127\.0\.0\.1:(?=20408\b))(\d+)",
+                      lambda m: m[1] + self.tcp_port(m[2]), text)
         text = text.replace("/tmp/lm629", str(self.tmp / "lm629"))
         return text.replace("/etc/udev/rules.d/", str(self.tmp / "rules.d") + "/")
 
@@ -112,8 +120,14 @@ def _state(path: Path, tmp_factory: pytest.TempPathFactory) -> DocState:
         (tmp / "rules.d").mkdir()
         for name in ("examples", "firmware_bridge"):
             (tmp / name).symlink_to(ROOT / name)
-        env = {k: v for k, v in os.environ.items() if not k.startswith(("LM629_", "PYTEST_"))}
-        env.update(PATH=f"{bin_dir}:{Path(_console_script()).parent}:{env.get('PATH', '')}",
+        if Path(SER2NET).exists():  # a labgrid exporter's ser2net, on loopback (docs/testing.md)
+            (bin_dir / "ser2net").write_text(SER2NET_LOOPBACK)
+            (bin_dir / "ser2net").chmod(0o755)
+        env = {k: v for k, v in os.environ.items()
+               if not k.startswith(("LM629_", "PYTEST_", "LG_"))}
+        lab_bin = (f":{Path(os.environ['LM629_LABGRID_PYTHON']).parent}"
+                   if os.environ.get("LM629_LABGRID_PYTHON") else "")  # after the main venv's
+        env.update(PATH=f"{bin_dir}:{Path(_console_script()).parent}:{env.get('PATH', '')}{lab_bin}",
                    EDITOR="true", HOME=str(tmp), PYTEST_ADDOPTS="-p no:cacheprovider",
                    MPLBACKEND="Agg", COLUMNS="100")
         env["LM629_DOCS_TEST"] = "1"
@@ -171,9 +185,33 @@ def _cannot_run(text: str) -> str | None:
         missing = toolchain_missing()
         if missing:
             return f"the AVR toolchain is missing ({', '.join(missing)})"
-    if "--lg-env" in text and not os.environ.get("LM629_LABGRID_PYTHON"):
+    if LAB_WORDS.search(text) and not os.environ.get("LM629_LABGRID_PYTHON"):
         return "labgrid needs its own venv (LM629_LABGRID_PYTHON, built by .ci/run)"
+    if LAB_WORDS.search(text) and not Path(SER2NET).exists():
+        return f"a labgrid exporter needs ser2net ({SER2NET}: apt-get install ser2net)"
     return None
+
+
+#: commands that need labgrid (its own venv) and a labgrid exporter's ser2net
+LAB_WORDS = re.compile(r"--lg-env|\blabgrid-|--place\b|\blab selftest\b|\bser2net\b")
+#: what a server started in the background (``&``) prints once it serves: ``lm629 sim serve``,
+#: labgrid's coordinator and exporter (once it is connected to the coordinator)
+READY = re.compile(r"^serving |Coordinator ready|connected to coordinator")
+
+
+def _start_job(st: DocState, cmd: Command, text: str) -> None:
+    """A server the next lines use, its output in a file (a labgrid exporter logs on every
+    acquire: a pipe nobody reads would fill); ready once it prints :data:`READY`."""
+    log = st.tmp / f"job{len(st.jobs)}.log"
+    with log.open("w") as out:
+        job = subprocess.Popen(["bash", "-c", "exec " + text.split("&")[0]], cwd=st.tmp,
+                               env=st.env, stdout=out, stderr=subprocess.STDOUT, text=True)
+    st.jobs.append(job)
+    deadline = time.monotonic() + 60
+    while not any(READY.search(ln) for ln in log.read_text().splitlines()):
+        assert job.poll() is None and time.monotonic() < deadline, (
+            f"{st.path.name}:{cmd.line}: {cmd.text}: not serving: {log.read_text()}")
+        time.sleep(0.05)
 
 
 def run_command(st: DocState, cmd: Command) -> None:
@@ -198,11 +236,7 @@ def run_command(st: DocState, cmd: Command) -> None:
     if text.rstrip().split("#")[0].rstrip().endswith("&"):  # a server the next lines use
         if any(job.args[-1] == "exec " + text.split("&")[0] for job in st.jobs):
             return  # still serving from an earlier block, as in the reader's shell
-        job = subprocess.Popen(["bash", "-c", "exec " + text.split("&")[0]], cwd=st.tmp, env=st.env,
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        banner = job.stdout.readline()
-        assert banner.startswith("serving "), f"{cmd.text}: {banner}{job.stdout.read()}"
-        st.jobs.append(job)
+        _start_job(st, cmd, text)
         return
     serves = cmd.expected[:1] and cmd.expected[0].startswith("http://127.0.0.1:")  # lm629 panel
     if re.search(r"\bsim serve\b", text) or serves:  # serves until Ctrl-C: its banner (the
@@ -232,7 +266,7 @@ def run_command(st: DocState, cmd: Command) -> None:
 class Block:
     doc: Path
     line: int
-    kind: str  # python | console | toml
+    kind: str  # python | console | toml | yaml
     text: str
     skip: str | None
 
@@ -243,7 +277,7 @@ class Block:
 
 def _collect() -> list[Block]:
     blocks: list[Block] = []
-    parsers = [CodeBlockParser(language=k) for k in ("python", "console", "toml")]
+    parsers = [CodeBlockParser(language=k) for k in ("python", "console", "toml", "yaml")]
     for doc in DOCS:
         document = Sybil(parsers=parsers).parse(doc)
         lines = document.text.splitlines()
@@ -252,8 +286,15 @@ def _collect() -> list[Block]:
             kind = header.strip("`").strip()
             before = next((ln for ln in reversed(lines[:example.line - 1]) if ln.strip()), "")
             m = NOT_RUN.search(before) if before.startswith("*") else None
+            if kind == "yaml" and not YAML_FILE.match(example.parsed):
+                continue  # a YAML block shown, not a file the commands below it use
             blocks.append(Block(doc, example.line + 1, kind, example.parsed, m[1] if m else None))
     return blocks
+
+
+#: a ```yaml block whose first line is ``# NAME.yaml`` (``##``: labgrid's comment) is that file in the document's directory
+#: (a labgrid exporter's configuration: its ``/dev/ttyACM0`` is the served bench's pty)
+YAML_FILE = re.compile(r"##? ([\w.-]+\.yaml)\s*\n")
 
 
 BLOCKS = _collect()
@@ -308,6 +349,12 @@ def test_doc_block(block: Block, tmp_path_factory, request: pytest.FixtureReques
         pytest.skip(f"{block.id}: {block.skip}")
     if block.kind == "python":
         _python(st, block, _NAMESPACES.setdefault(block.doc, {"__name__": "__doc_example__"}))
+        counts[0] += 1
+    elif block.kind == "yaml":
+        text = block.text
+        if "/dev/ttyACM0" in text:  # the exporter wants the pty's own path, under /dev/
+            text = text.replace("/dev/ttyACM0", os.path.realpath(st.serial().split("://")[1]))
+        (st.tmp / YAML_FILE.match(text)[1]).write_text(text)
         counts[0] += 1
     elif block.kind == "toml":
         from lm629_host.config.profile import load_profile

@@ -58,7 +58,7 @@ def main() -> None:
             assert isinstance(t, LinkTransport)
             ka = t.failsafe.keepalive
             assert ka is not None
-            print(f"failsafe {t.failsafe_s} s, fed after {t.feed_period_s} s quiet; "
+            print(f"failsafe {t.failsafe.timeout_s} s, fed after {t.failsafe.feed_period_s} s quiet; "
                   f"{args.hogs} CPU hog(s); {os.cpu_count()} CPU(s); {args.seconds:g} s a case")
             cases = {"idle": lambda: time.sleep(args.seconds),
                      "busy main thread": lambda: _burn(args.seconds)}
@@ -73,7 +73,7 @@ def main() -> None:
                 state = t.failsafe_state()
                 assert state is not None
                 print(f"{name:30s} worst keep-alive gap {ka.worst_gap_s * 1e3:6.1f} ms, "
-                      f"{ka.gaps} turn(s) later than {t.feed_period_s * 1e3:.0f} ms, "
+                      f"{ka.gaps} turn(s) later than {t.failsafe.feed_period_s * 1e3:.0f} ms, "
                       f"{'TRIPPED' if state.tripped else 'not tripped'}", flush=True)
                 if state.tripped:
                     t.clear_failsafe()

@@ -50,7 +50,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import lm629_host
 from lm629_host.errors import MotionError
-from lm629_host.bench.tuning import autotune, measure_move
+from lm629_host.bench.tuning import autotune
+from lm629_host.bench.tuning_session import measure_move
 from lm629_host.physics.axis import Gains
 from lm629_host.physics.metrics import MoveMetrics, score
 from lm629_host.physics.predict import MoveProfile

@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import lm629_host
 from lm629_host.physics.pid import STEP_ACCELERATION, STEP_VELOCITY, sample_period_s
 from lm629_host.config.profile import load_profile
-from lm629_host.bench.tuning import measure_move
+from lm629_host.bench.tuning_session import measure_move
 from lm629_host.physics.axis import Gains
 from lm629_host.bench.twin import (
     MATCH_OVERSHOOT,

@@ -26,7 +26,7 @@ from click.testing import CliRunner
 from lm629_host import cli
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.config.profile import load_profile, template
-from lm629_host.bench.tuning import measure_move
+from lm629_host.bench.tuning_session import measure_move
 from lm629_host.physics.axis import Gains
 from lm629_host.physics.predict import MoveProfile
 from lm629_host.bench.twin import SETTLE_BAND, Plant, twin_profile

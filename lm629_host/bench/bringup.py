@@ -1,7 +1,7 @@
 """The first hour with a new board, as one function: the bring-up of AN-706 2.12 and AN-868.
 
 1. reset check (AN-706 4.4.1): status 00 at once, 84/C4 after 1.5 ms, 80/C0 after MSKI/RSTI;
-2. loop phasing, the tuner's check (:func:`lm629_host.bench.tuning.check_phasing`): gentle P-only
+2. loop phasing, the tuner's check (:func:`lm629_host.bench.phasing.check_phasing`): gentle P-only
    steps up and down; the shaft must follow them.  With the motor leads (or the encoder
    channels) the wrong way round the loop is positive feedback and the shaft heads away:
    "swap the motor leads"; a load that pulls the shaft away is told apart from that by
@@ -186,11 +186,11 @@ def check_room(chip: LM629, o: BringupOptions) -> None:
 
 def phasing_step(chip: LM629, o: BringupOptions) -> StepResult:
     """2. The tuner's phasing check inside ``+/- phasing_travel`` counts
-    (:func:`lm629_host.bench.tuning.check_phasing`, the one set of phasing rules): P-only steps of
+    (:func:`lm629_host.bench.phasing.check_phasing`, the one set of phasing rules): P-only steps of
     an eighth of it up and down, from a gain whose first output is 1/8 of full scale.  Its
     fault (RUNAWAY: reversed leads; STALL: a shaft that does not turn, or a load the drive
     cannot hold) has stopped the motor already; a load it saw and held is said so."""
-    from lm629_host.bench.tuning import check_phasing  # the tuner loads on first use
+    from lm629_host.bench.phasing import check_phasing  # the tuner loads on first use
     start = chip.snapshot()
     step = max(8, o.phasing_travel // 8)
     try:
@@ -306,9 +306,9 @@ def move_steps(chip: LM629, o: BringupOptions, clock_hz: float,
             return
         final = target - (exc.position if exc.position is not None else s.real_position)
         yield StepResult("settle", False,
-                         f"did not settle within +/-{o.dead_band} counts in "
-                         f"{o.settle_timeout_s:g} s (error now {final:+d}, largest following "
-                         f"error {worst:+d}): add kd for damping, or lower kp",
+                         f"did not settle in {o.settle_timeout_s:g} s (error now {final:+d}, "
+                         f"dead band +/-{o.dead_band}, largest following error {worst:+d}; "
+                         "what was still wrong below): add kd for damping, or lower kp",
                          [getattr(exc, STOP_NOTE, None) or exc.detail],
                          {"max_following_error": worst, "final_error": final,
                           "dead_band": o.dead_band, "settle_s": None, "reason": str(exc.reason)})

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from lm629_host.bench.tuning import Progress, Record, measure_move
+from lm629_host.bench.tuning_session import Progress, Record, measure_move
 from lm629_host.chip.lm629 import LM629
 from lm629_host.physics.axis import AxisModel, Gains
 from lm629_host.physics.design import default_profile
@@ -187,7 +187,7 @@ class TwinCheck:
 
 
 def judged_side(metrics: MoveMetrics, rec: Record, band: int) -> Side:
-    """A test move's record (:func:`~lm629_host.bench.tuning.measure_move`) as one side of a
+    """A test move's record (:func:`~lm629_host.bench.tuning_session.measure_move`) as one side of a
     comparison, its settle time at ``band`` counts given a count either way."""
     segments = []
     for k in range(len(rec.steps)):
@@ -243,7 +243,7 @@ def check_twin(bench: LM629, twin: LM629, gains: Gains, *, travel: int, distance
     """A short step (``step`` counts, default a tenth of ``distance``: small enough that the
     drive does not saturate for long) and the trapezoid move (``distance``), each out and
     back inside ``+/- travel`` of where each shaft is, guarded as tuning is
-    (:func:`~lm629_host.bench.tuning.measure_move`), with ``gains`` on the bench, then on the twin,
+    (:func:`~lm629_host.bench.tuning_session.measure_move`), with ``gains`` on the bench, then on the twin,
     compared."""
     say = progress or (lambda text: None)
     step = max(10, distance // 10) if step is None else step

@@ -49,6 +49,8 @@ from lm629_host.chip.wraparound import PositionTracker, check_register_position
 from lm629_host.clock import Clock
 from lm629_host.errors import ArgumentError, AxisError, check_int
 from lm629_host.physics.limits import SoftLimits
+from lm629_host.transports import exiting
+from lm629_host.chip.safety import stop_at_exit, stop_if_moving
 from lm629_host.transports.base import Transport
 
 if TYPE_CHECKING:
@@ -132,6 +134,9 @@ class LM629:
         self.positions = PositionTracker()
         self._pacing = UpdatePacing(self)  # its STTs: spaced, checked (:mod:`.pacing`)
         self._mover = Mover(self, self._pacing)  # its moves started (:mod:`.mover`)
+        # a script that ends without close(): its normal exit stops this chip if it moves
+        # before the link closes (lm629_host/transports/exiting.py)
+        exiting.stop_at_exit(transport, self.chip_select, lambda: stop_at_exit(self))
 
     # ------------------------------------------------------------------ plumbing
     @property
@@ -240,7 +245,6 @@ class LM629:
         """Left by an exception: stop the axis if it moves (abrupt stop, the PID holding)
         before the link closes; left normally: the axis stays as the block left it."""
         if exc_type is not None:
-            from lm629_host.chip.safety import stop_if_moving
             stop_if_moving(self)
         self.close()
 

@@ -332,16 +332,32 @@ class MoveWatch:
                          f"the shaft came to rest {err:+d} counts from the target "
                          f"(tolerance {r.tolerance}): add ki, raise kp, or check the load")
             if s.time - self.complete_at >= r.settle_timeout:
-                m.fault(MotionError.FOLLOWING_ERROR, s,
-                         f"the shaft did not settle within {r.tolerance} counts in "
-                         f"{r.settle_timeout:g} s after the trajectory ended (error "
-                         f"{err:+d}): add kd for damping, or lower kp")
+                m.fault(MotionError.FOLLOWING_ERROR, s, self._unsettled(s, prev, err))
         if s.time >= self.deadline:
             m.fault(MotionError.TIMEOUT, s,
                      f"not on target after {self.timeout:g} s (desired {s.desired_position}, "
                      f"target {target}, shaft {s.real_position})")
         self.prev = s
         return None
+
+    def _unsettled(self, s: Snapshot, prev: Snapshot, err: int) -> str:
+        """What was still wrong when the settle timeout ran out: the shaft outside the
+        tolerance, or inside it and still moving (the settle rule asks both: inside, and at
+        rest for ``settle_time``), or at rest too briefly."""
+        r = self.rules
+        where = (f"{err:+d} counts from the target "
+                 f"({'inside' if abs(err) <= r.tolerance else 'outside'} the tolerance "
+                 f"{r.tolerance})")
+        if self.quiet_since is None:
+            moved, dt = s.real_position - prev.real_position, s.time - prev.time
+            still = (f"still moving ({moved:+d} counts in the last {dt:.3f} s, about "
+                     f"{moved / dt:+.0f} counts/s)" if moved and dt > 0 else
+                     f"still moving (real velocity {s.real_velocity:+d} counts/sample)")
+        else:
+            still = (f"at rest for {s.time - self.quiet_since:.3f} s of the "
+                     f"{r.settle_time:g} s the settle rule asks")
+        return (f"the shaft did not settle in the {r.settle_timeout:g} s after the trajectory "
+                f"ended: {where}, {still}: add kd for damping, or lower kp")
 
 
 __all__ = ["LONG_MOVE_HINT", "MOVE_FLAGS", "Move", "MoveResult", "MoveRules", "MoveTooLong", "MoveWatch",

@@ -27,7 +27,8 @@ from lm629_host.bus.opcodes import Cmd, Signals, Status, s32_words
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.bus.program import Program
 from lm629_host.bus.snapshot import SNAPSHOT_READS, Snapshot, add_snapshot, snapshot_of
-from lm629_host.transports.base import RawRow, Transport
+from lm629_host.transports.base import Transport
+from lm629_host.transports.reports import RawRow
 
 #: the columns of a row: the basic ones (status, RDDP, RDRP), or a whole snapshot's
 BASIC_READS = ((Cmd.RDDP, 2), (Cmd.RDRP, 2))

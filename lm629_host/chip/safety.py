@@ -115,6 +115,29 @@ def stop_if_moving(chip: Watched) -> bool:
     return True
 
 
+def stop_at_exit(chip: Watched) -> bool:
+    """A normal exit of a script that left ``chip``'s link open
+    (:mod:`lm629_host.transports.exiting`): an abrupt stop (the PID holding) when the chip
+    carries out a trajectory, and if the chip refuses it (an acceleration change pending),
+    motor off.  True when the chip is at rest or stopped, so that closing the link (which
+    disarms the bridge's failsafe) leaves nothing moving; False when that is not known (the
+    link failed, the stop failed): then the link is left to the failsafe, which stops every
+    chip and tells the next process.  Never raises."""
+    moving = int(Status.MOTOR_OFF | Status.TRAJECTORY_COMPLETE)
+    try:
+        if int(chip.read_status()) & moving:
+            return True
+        chip.load_trajectory(stop="abrupt", start=True)
+    except BaseException as exc:  # noqa: BLE001 - an exit must finish
+        if getattr(exc, "stopped", None):  # FailsafeTripped: the bridge stopped it already
+            return True
+        stopped, note = emergency_stop(chip)
+        log.warning("%r at exit: the abrupt stop failed (%s); %s", chip, exc, note)
+        return stopped
+    log.info("%r: stopped at exit (abrupt stop, holding): the script left it moving", chip)
+    return True
+
+
 @contextmanager
 def stop_on_error(chip: Stoppable) -> Iterator[None]:
     """Run a block that may leave the motor moving; on any exception (Ctrl-C included) stop

@@ -37,7 +37,7 @@ from lm629_host.chip.move import Move, MoveResult, MoveWatch
 from lm629_host.bus.opcodes import ACCELERATION_MAX, UPDATE_INTERVAL_S, VELOCITY_MAX, Cmd, Status
 from lm629_host.bus.program import Op, Program
 from lm629_host.bus.snapshot import Snapshot
-from lm629_host.transports.base import ProfileState
+from lm629_host.transports.reports import ProfileState
 
 #: 16.16 fixed point of the trajectory words
 _ONE = 1 << 16

@@ -59,10 +59,12 @@ from lm629_host.cli.profile_session import profile_opened, profile_options
 
 log = logging.getLogger("lm629_host.cli")
 
-#: exit code -> meaning (one place: the handler and ``--help`` both read it)
+#: exit code -> meaning (one place: the handler and ``--help`` both read it; one meaning per
+#: code: tests/cli/test_cli_inputs.py holds every code a command gives to its row)
 EXIT_CODES: dict[int, str] = {
     0: "success",
-    1: "a check failed (bringup verdict, doctor found problems)",
+    1: "a check found a problem (bringup verdict, doctor, selftest DIFFERS, twin check, tune "
+       "goal not met)",
     2: "bad usage or bad value (nothing was sent that moves the motor)",
     3: "transport error (port missing, busy, no permission, no answer)",
     4: "busy timeout (the chip held its busy bit)",
@@ -72,11 +74,16 @@ EXIT_CODES: dict[int, str] = {
     8: "other driver error",
     9: "motion fault: the shaft did not end where it was sent (stall, runaway, position "
        "error, following error, motor off, move timeout); the motor was stopped",
+    10: "selftest FAIL: the selftest could not finish (its report says why)",
     129: "hang-up (SIGHUP); a moving motor was stopped first",
-    130: "interrupted (Ctrl-C, or the prompt aborted); a moving motor was stopped first",
+    130: "interrupted (Ctrl-C), or a prompt before the motor turns answered no or aborted; "
+         "a moving motor was stopped first",
     141: "output closed (broken pipe): output was lost; a moving motor was stopped first",
     143: "terminated (SIGTERM); a moving motor was stopped first",
 }
+
+#: a prompt before the motor turns answered no (or aborted): nothing moved
+EXIT_DECLINED = 130
 
 _ERROR_EXITS: tuple[tuple[type[BaseException], int], ...] = (
     (ValueError, 2), (TransportError, 3), (BusyTimeout, 4), (ResetError, 5),
@@ -237,7 +244,8 @@ class Session:
             names = ", ".join(axis_name(self, k) for k in axes)
             raise click.UsageError(f"axes {names} are chosen (by --axis, or the profile's "
                                    "axes): this command drives one: give --axis NAME (status, "
-                                   "watch, move with several targets and bringup take several)")
+                                   "watch, move with several targets, bringup and selftest take "
+                                   "several)")
         self.prepare = prepare
         return self.board().axis(axes[0])
 
@@ -457,7 +465,7 @@ def main(ctx: click.Context, port: str | PortURL | None, place: str | None, chip
         profile, port, chip_name, clock, lines, axis_text = profile_options(
             ctx, profile_path, port, chip_name, clock, lines, axis_text)
     if place is not None:  # the lab's bench (not a profile's port): locked until the context closes
-        from lm629_host.cli.lab import open_place
+        from lm629_host.cli.place import open_place
         port = open_place(ctx, place, signals)
     try:
         clock_hz = _check_clock(parse_hz(clock), "--clock")

@@ -16,6 +16,7 @@ from lm629_host.errors import ArgumentError
 from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Signals, Status
 from lm629_host.physics.units import FIXED_ONE, Scale
 from lm629_host.cli.app import Session
+from lm629_host.cli.types import shown
 
 
 def _flags(status: int) -> str:
@@ -92,12 +93,15 @@ def _position(s: Session, value: float, name: str, raw: bool = False) -> int:
         counts = round(value * s.scale.counts_per_rev)
     else:
         if float(value) != int(value):
-            raise click.BadParameter(f"{value:g} must be whole counts without --lines",
+            raise click.BadParameter(f"{shown(value)} must be whole counts without --lines",
                                      param_hint=name)
         counts = int(value)
     if not POSITION_MIN <= counts <= POSITION_MAX:
-        raise click.BadParameter(f"{value:g} is {counts} counts, outside "
-                                 f"{POSITION_MIN}..{POSITION_MAX}", param_hint=name)
+        said = shown(value)  # as typed: 2000000000, not 2e+09
+        what = (f"{said} rev is {counts} counts" if s.scale is not None and not raw else
+                f"{said} counts" if said == str(counts) else f"{said} ({counts} counts)")
+        raise click.BadParameter(f"{what}, outside {POSITION_MIN}..{POSITION_MAX}",
+                                 param_hint=name)
     return counts
 
 

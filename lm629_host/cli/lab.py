@@ -29,30 +29,11 @@ from pathlib import Path
 import click
 
 from lm629_host.bench.selftest import Report
-from lm629_host.chip.safety import StopSignals
 from lm629_host.cli.app import main
 from lm629_host.integrations import labgrid_place
-from lm629_host.urls import PortURL
 
 #: the columns of ``lab selftest``'s table
 COLUMNS = ("place", "chip", "verdict", "differences")
-
-
-def open_place(ctx: click.Context, text: str, signals: StopSignals) -> PortURL:
-    """Acquire the place ``text`` names (``NAME`` or ``NAME?options``) and return its port's
-    URL; its release is tied to ``ctx``'s close, registered before anything is acquired (so a
-    Ctrl-C in between releases it too).  Stop signals are raised as exceptions from here on,
-    so that SIGTERM also ends through the release."""
-    try:
-        name, options = labgrid_place.split_place(text)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--place") from None
-    labgrid_place.client()  # labgrid missing: one line, before anything
-    signals.install()
-    ctx.call_on_close(signals.restore)
-    ctx.call_on_close(lambda: labgrid_place.release(name))
-    labgrid_place.acquire(name)
-    return labgrid_place.serial_port(name).url(options)
 
 
 @main.group()
@@ -133,4 +114,4 @@ def lab_selftest(pattern: str, report_dir: str) -> None:
         click.get_current_context().exit(1)
 
 
-__all__ = ["lab", "lab_selftest", "open_place"]
+__all__ = ["lab", "lab_selftest"]

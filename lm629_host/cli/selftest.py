@@ -3,18 +3,23 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from lm629_host.bench.selftest import (
     EXIT,
+    INDEX_AT_REST,
     Options,
     Report,
     compare,
     load_report,
     run,
+    worst,
     write_report,
 )
-from lm629_host.cli.app import _session, axis_name, log, main
+from lm629_host.chip.lm629 import LM629
+from lm629_host.cli.app import EXIT_DECLINED, Session, _session, axes_of, axis_name, board, log, main, several
 from lm629_host.cli.common import _abort_is_interrupt
 
 #: how many differences the one-screen verdict lists (the report holds them all)
@@ -35,8 +40,10 @@ def selftest(motion: bool, yes: bool, report_path: str | None,
              compare_path: str | None) -> None:
     """Is this chip and this board what the profile says: the digital core command by command
     against the model, the clock, HI, the chip selects, busy times (and with --motion the
-    encoder and the index).  Exit 0 PASS, 1 DIFFERS (a difference or a bench fault, each
-    named), 2 FAIL (it could not finish)."""
+    encoder and the index).  A profile's axes are each tested in turn (or the one --axis
+    names; --report FILE then writes FILE-NAME.json per axis).  Exit 0 PASS, 1 DIFFERS (a
+    difference or a bench fault, each named), 10 FAIL (it could not finish); several axes:
+    the worst.  --motion's prompt answered no: 130, nothing moved."""
     ctx = click.get_current_context()
     if compare_path is not None:
         if report_path is not None or motion:
@@ -51,9 +58,35 @@ def selftest(motion: bool, yes: bool, report_path: str | None,
         for line in lines:
             click.echo(f"  {line}")
         click.echo("  no differences" if not lines else f"{len(lines)} difference(s)")
-        ctx.exit(1 if lines else 0)
+        ctx.exit(EXIT["DIFFERS"] if lines else EXIT["PASS"])
     s = _session()
-    chip = s.open(prepare=False)
+    if several(s):  # a profile's (or --axis's) axes, one after the other
+        s.prepare = False
+        chips = [board(s).axis(k) for k in axes_of(s)]
+    else:
+        chips = [s.open(prepare=False)]
+    if motion and not yes and not _abort_is_interrupt(lambda: click.confirm(
+            f"--motion turns the motor{'s' if len(chips) > 1 else ''} slowly for up to two "
+            "revolutions: go?", default=False)):
+        click.echo("nothing moved")
+        ctx.exit(EXIT_DECLINED)
+    verdicts = []
+    for chip in chips:
+        path = report_path
+        if report_path is not None and len(chips) > 1:
+            path = _axis_path(report_path, axis_name(s, chip.chip_select))
+        verdicts.append(_one(s, chip, motion, path))
+    ctx.exit(EXIT[worst(verdicts)])
+
+
+def _axis_path(path: str, name: str) -> str:
+    """The report of one of several axes: ``bench.json`` -> ``bench-x.json``."""
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}-{name}{p.suffix or '.json'}"))
+
+
+def _one(s: Session, chip: LM629, motion: bool, report_path: str | None) -> str:
+    """The selftest of one axis, shown; its verdict."""
     prof = s.profile
     ax = prof.by_cs(chip.chip_select) if prof is not None else None
     gains = {k: v for k, v in (ax.gains() if ax is not None else {}).items() if v is not None}
@@ -67,16 +100,12 @@ def selftest(motion: bool, yes: bool, report_path: str | None,
     click.echo(f"selftest of {on}{s.chip_name.upper()} on {chip.transport.describe()}; "
                f"profile: {s.chip_name.upper()} at {s.clock_hz / 1e6:g} MHz"
                f"{'' if motion else '; motor off'}")
-    if motion and not yes and not _abort_is_interrupt(lambda: click.confirm(
-            "--motion turns the motor slowly for up to two revolutions: go?", default=False)):
-        click.echo("nothing moved")
-        ctx.exit(1)
     report = run(chip, options, progress=lambda text: log.info("selftest: %s", text))
     show(report)
     if report_path is not None:
         md = write_report(report, report_path)
         click.echo(f"report: {report_path} (summary to paste into an issue: {md})")
-    ctx.exit(report.exit_code)
+    return report.verdict
 
 
 def _line(ok: bool | None, name: str, text: str) -> None:
@@ -107,8 +136,12 @@ def show(report: Report) -> None:
             _line(not m.differs, what, check + ("" if m.measured else ": NO"))
     if not report.motion:
         _line(None, "motion", "encoder and index not checked (--motion turns the motor)")
+    if any(m.name == INDEX_AT_REST and m.measured for m in ms):
+        _line(None, "index", "the shaft rests on the index (the model's is put under its shaft)")
     busy = report.busy_option()
-    _line(None, "busy", f"after the command byte, us: {busy.replace(',', ' ')}" if busy
+    res = report.busy_resolution_us
+    _line(None, "busy", f"after the command byte, us: {busy.replace(',', ' ')}"
+          f"{'' if res is None else f' (each -1/+{res})'}" if busy
           else "not seen by this transport (it waits out busy itself)")
     for f in report.faults:
         click.echo(f"  {f.line}: {f.message}")

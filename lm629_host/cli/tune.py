@@ -16,7 +16,7 @@ import click
 from lm629_host.bench.capture import PlotUnavailable, capture_move, summary, write_csv
 from lm629_host.chip.safety import stop_on_error
 from lm629_host.bench.tuning import TuneResult, autotune
-from lm629_host.cli.app import _session, axis_name, main
+from lm629_host.cli.app import EXIT_DECLINED, _session, axis_name, main
 from lm629_host.cli.common import _position, check_filter_options
 from lm629_host.cli.motion import _motion_words, _tolerance
 from lm629_host.physics.axis import Gains
@@ -135,7 +135,7 @@ def tune(travel_typed: float, distance_typed: float | None, tolerance_typed: flo
                                      "from here. Is the axis free to move that far?",
                                      default=False):
         click.echo("nothing moved")
-        click.get_current_context().exit(EXIT_NOT_MET)
+        click.get_current_context().exit(EXIT_DECLINED)
     with profile.tuning(s, chip), stop_on_error(chip):
         result = autotune(chip, travel=travel, distance=distance, tolerance=tolerance,
                           before=before, poll_s=interval, clock_hz=s.clock_hz,

@@ -1,7 +1,7 @@
 """``lm629 identify`` and ``lm629 twin check``: the axis's plant kept in the profile, and the
 twin built from it checked against the bench.
 
-Thin front ends to :func:`lm629_host.bench.tuning.identify` and :func:`lm629_host.bench.twin.check_twin`
+Thin front ends to :func:`lm629_host.bench.identify.identify` and :func:`lm629_host.bench.twin.check_twin`
 (docs/twin.md); registered with ``@main.command()`` as every command is.  Both ask
 before the motor turns (unless ``--yes``); any fault stops the motor (the CLI's error handler
 gives the exit code and says how the motor was left).
@@ -15,11 +15,11 @@ import click
 
 from lm629_host.config.profile import AxisProfile, save_gains
 from lm629_host.chip.safety import stop_on_error
-from lm629_host.bench.tuning import identify
+from lm629_host.bench.identify import identify
 from lm629_host.physics.axis import Gains
 from lm629_host.bench.twin import Plant, check_twin, plant_record, twin_profile
 from lm629_host.urls import query_params, with_query
-from lm629_host.cli.app import axes_of, main, _session, Session
+from lm629_host.cli.app import EXIT_DECLINED, axes_of, main, _session, Session
 from lm629_host.cli.motion import _motion_words
 from lm629_host.cli.types import FINITE
 
@@ -39,7 +39,7 @@ def _confirm(yes: bool, travel: int) -> None:
                                      "from here. Is the axis free to move that far?",
                                      default=False):
         click.echo("nothing moved")
-        click.get_current_context().exit(1)
+        click.get_current_context().exit(EXIT_DECLINED)
 
 
 def _profile_gains(ax: AxisProfile | None) -> Gains | None:

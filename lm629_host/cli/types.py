@@ -60,6 +60,27 @@ class IntWord(click.ParamType):
         return parse_int(str(value))
 
 
+class Typed(float):
+    """A number that remembers how it was typed, so that a message quotes the user's own
+    ``2000000000`` (or ``0x100``), not ``2e+09``; arithmetic gives plain floats."""
+
+    text: str
+
+    def __new__(cls, value: float, text: str) -> Typed:
+        obj = super().__new__(cls, value)
+        obj.text = text
+        return obj
+
+
+def shown(value: float) -> str:
+    """``value`` as the user typed it (a :class:`Typed`), else whole numbers in full and
+    others in ``:g``."""
+    text = getattr(value, "text", None)
+    if isinstance(text, str):
+        return text
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
 class Finite(click.ParamType):
     """A finite float: ``inf`` and ``nan`` are refused with the option's name."""
 
@@ -79,7 +100,7 @@ class Finite(click.ParamType):
                     self.fail(f"{value!r} is not a number", param, ctx)
         if not math.isfinite(x):
             self.fail(f"{value!r} is not a finite number", param, ctx)
-        return x
+        return x if isinstance(value, (int, float)) else Typed(x, str(value).strip())
 
 
 INT = IntWord()
@@ -89,7 +110,7 @@ FINITE = Finite()
 def positive(name: str, value: float | None) -> None:
     """Seconds, rates: > 0 (None passes)."""
     if value is not None and not value > 0:
-        raise click.BadParameter(f"{value:g} must be positive", param_hint=name)
+        raise click.BadParameter(f"{shown(value)} must be positive", param_hint=name)
 
 
 def check_writable(path: str | os.PathLike, name: str) -> Path:
@@ -108,5 +129,5 @@ def check_writable(path: str | os.PathLike, name: str) -> Path:
     return p
 
 
-__all__ = ["FINITE", "INT", "SIGNED_ARGS", "Finite", "IntWord", "check_writable", "parse_int",
-           "positive"]
+__all__ = ["FINITE", "INT", "SIGNED_ARGS", "Finite", "IntWord", "Typed", "check_writable",
+           "parse_int", "positive", "shown"]

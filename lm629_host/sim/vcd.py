@@ -29,10 +29,11 @@ unless ``vcd=`` is given: the simulators' hot paths carry no probe otherwise.
 from __future__ import annotations
 
 import atexit
+import os
 import weakref
 from pathlib import Path
 from collections.abc import Sequence
-from typing import IO, Any, cast
+from typing import IO, Any, NoReturn, cast
 
 from lm629_host.urls import Option, PortURL, parse_options, query_params
 from lm629_host.sim.model import ChipBus, ChipModel
@@ -75,7 +76,30 @@ def vcd_of(url: str | PortURL) -> tuple[str, int] | None:
     if not folder.is_dir():
         raise ValueError(f"{url}: vcd={opts['vcd']}: the directory {str(folder)!r} does not "
                          "exist")
+    _check_writable(url, Path(opts["vcd"]))
     return opts["vcd"], opts["vcd_timescale"]
+
+
+def _check_writable(url: str | PortURL, path: Path) -> None:
+    """ValueError (bad usage, before the simulator is built) when ``path`` cannot be written:
+    a directory, a file or a folder without write permission, or a file system that takes
+    no new file (/proc, a read-only mount: only trying tells, so a new file is made and
+    removed again, as the writer makes it a moment later)."""
+    def refuse(why: str) -> NoReturn:
+        raise ValueError(f"{url}: vcd={path}: {why}: give a file in a folder you can write "
+                         "(vcd=bus.vcd)")
+    if path.is_dir():
+        refuse("that is a directory")
+    if path.exists():
+        if not os.access(path, os.W_OK):
+            refuse("the file is not writable")
+        return
+    try:
+        with path.open("x"):
+            pass
+        path.unlink()
+    except OSError as exc:
+        refuse(f"cannot create it ({exc.strerror or exc})")
 
 
 _open_writers: weakref.WeakSet[BusVcd] = weakref.WeakSet()

@@ -40,7 +40,8 @@ from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import SchemeError, TransportError
 from lm629_host.bus.program import TraceCallback
 from lm629_host.urls import PortURL, query_params, scheme_of, split_params
-from lm629_host.transports.base import Check, PortInfo, Stats, Transport
+from lm629_host.transports.base import Transport
+from lm629_host.transports.reports import Check, PortInfo, Stats
 from lm629_host.transports.cycle import CycleTransport
 
 log = logging.getLogger("lm629_host.transports")

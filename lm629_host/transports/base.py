@@ -26,7 +26,7 @@ import threading
 from typing import TYPE_CHECKING, Any, final
 
 from lm629_host.clock import Clock, WallClock
-from lm629_host.transports.reports import (  # handed on: the records a transport reports
+from lm629_host.transports.reports import (
     HOST_POLLED_NOTE,
     Check,
     PortInfo,
@@ -35,6 +35,7 @@ from lm629_host.transports.reports import (  # handed on: the records a transpor
     Stats,
 )
 from lm629_host.transports.keepalive import FeedingClock, KeepAlive
+from lm629_host.transports import exiting
 from lm629_host.urls import PortURL, port_url
 from lm629_host.errors import AxisError, TransportError
 from lm629_host.bus.program import (
@@ -158,6 +159,11 @@ class Transport(abc.ABC):
     #: the longest far-side wait one exchange may hold, seconds (None: no limit): a bridge
     #: whose failsafe is armed counts a wait as the host alive only up to its timeout
     far_wait_limit_s: float | None = None
+    #: how much later than the far-side wait of a ``command; wait; status`` program its status
+    #: read may land, us (the far side's own time between the two, and the wait's own
+    #: rounding): a busy time measured that way (``lm629 selftest``) is short of the chip's
+    #: by up to this.  A cycle-at-a-time transport: one bus cycle (0.5 us simulated)
+    busy_probe_us: float = 1.0
     #: True when the far side issues a shaped move's pieces on its own timer
     #: (:meth:`profile`); otherwise the host times them on ``clock``
     far_profiles: bool = False
@@ -192,6 +198,7 @@ class Transport(abc.ABC):
                 own(self)
             finally:
                 self._closed = True
+                exiting.forget(self)
         _MARKING_CLOSE.add(close)  # wrapped once per class
         cls.close = close  # type: ignore[method-assign]  # the subclass's own, wrapped
 
@@ -210,6 +217,7 @@ class Transport(abc.ABC):
         self.trace = trace
         self.stats = Stats()
         self.clock = WallClock()
+        exiting.track(self)  # a normal exit closes it if the script does not (.exiting)
 
     @final
     def execute(self, program: Program) -> ProgramResult:
@@ -372,6 +380,7 @@ class Transport(abc.ABC):
     def close(self) -> None:
         """Release the port.  Idempotent; every call after it raises (:meth:`check_open`)."""
         self._closed = True
+        exiting.forget(self)
 
     # ------------------------------------------------------------------ the link failsafe
     # A bridge keeps a timer on its side of the link and stops every chip when the host falls

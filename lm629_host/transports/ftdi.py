@@ -120,40 +120,19 @@ from lm629_host.clock import Clock, WallClock
 from lm629_host.bus.opcodes import BUSY_BIT
 from lm629_host.bus.program import BusCycle, Op, Program, ProgramResult, TraceCallback
 from lm629_host.urls import PortURL
-from lm629_host.transports.base import Check, PortInfo, Transport
-from lm629_host.transports.ftdi_busy import (  # noqa: F401 - the wait's figures, re-exported
-    CALIBRATION_IDLE_SHARE,
-    CALIBRATION_MARGIN,
-    CALIBRATION_PADS,
-    CALIBRATION_POLLS,
-    COMMAND_S,
-    REPEAT_COST_S,
-    BusyWait,
-    busy_bounds,
-)
+from lm629_host.transports.base import Transport
+from lm629_host.transports.reports import Check, PortInfo
+from lm629_host.transports.ftdi_busy import BusyWait
 from lm629_host.transports.ftdi_exchange import Stalled, StreamExchange
-from lm629_host.transports.ftdi_open import (  # noqa: F401 - the transport's open, re-exported
-    ADVICE_ACCESS,
-    ADVICE_BUSY,
-    ADVICE_NO_BACKEND,
+from lm629_host.transports.ftdi_open import (
     DEFAULT_LATENCY_MS,
-    DISABLE_CLK_3PHASE,
-    DISABLE_CLK_ADAPTIVE,
-    FT232H_PID,
-    FTDI_VID,
-    OPTIONS,
-    SET_HIGH,
     SET_LOW,
-    UDEV_RULE,
     adapter_checks,
     busy_pin_of,
-    heartbeat_pin,
+    find_adapters,
     open_mpsse,
     options_of,
     pyftdi_url,
-    find_adapters,
-    translate_open_error,
-    usb_errno,
 )
 from lm629_host.transports.ftdi_resync import Resync
 from lm629_host.transports.keepalive import KeepAlive
@@ -178,6 +157,9 @@ class FtdiTransport(Transport):
 
     scheme = "ftdi"
     has_reset_line = True
+    #: a WAIT is idle clocks (1/6 us each at the default clock); the status read behind it
+    #: sets the lines up in about five MPSSE commands (ftdi_busy.COMMAND_S, 0.5 us, each)
+    busy_probe_us = 3.0
     #: /CS lines of the wiring (ftdi_pins.CHIP_SELECTS): two axes
     chip_selects = len(pins.CHIP_SELECTS)
 
@@ -418,4 +400,4 @@ list_ports = FtdiTransport.list_ports
 doctor = FtdiTransport.doctor
 
 
-__all__ = ["FtdiTransport", "open_mpsse", "list_ports", "doctor", "options_of", "pyftdi_url"]
+__all__ = ["FtdiTransport", "doctor", "list_ports"]

@@ -15,7 +15,7 @@ from typing import Any
 
 from lm629_host.clock import Clock
 from lm629_host.errors import TransportError
-from lm629_host.transports.base import Stats
+from lm629_host.transports.reports import Stats
 from lm629_host.transports.mpsse import Stream
 
 

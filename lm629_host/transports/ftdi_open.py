@@ -11,7 +11,7 @@ from typing import Any
 
 from lm629_host import data
 from lm629_host.errors import TransportError
-from lm629_host.transports.base import Check, PortInfo
+from lm629_host.transports.reports import Check, PortInfo
 from lm629_host.transports.mpsse import DEFAULT_TCK_HZ
 from lm629_host.urls import Option, PortURL, parse_options, port_url
 from lm629_host.wiring import ft232h as pins

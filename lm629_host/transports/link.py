@@ -32,7 +32,6 @@ from lm629_host.bridge.protocol import (
     RUN_OVERHEAD,
     RUN_REPLY_OVERHEAD,
     Capability,
-    FailsafeAction,
     FailsafeState,
     Frame,
     FrameError,
@@ -57,24 +56,18 @@ from lm629_host.bus.program import (
     ProgramResult,
     TraceCallback,
 )
-from lm629_host.errors import AxisError, BusyTimeout, FailsafeTripped, LinkError, TransportError
+from lm629_host.errors import AxisError, BusyTimeout, LinkError, TransportError
 from lm629_host.urls import PortURL
 from lm629_host.transports import baud as _baud
-from lm629_host.transports.base import ProfileState, RawRow
+from lm629_host.transports.reports import ProfileState, RawRow
 from lm629_host.transports.codes import ProgramCodes
 from lm629_host.transports.failsafe import (
-    FAILSAFE_OPTION_NAMES,
-    FAILSAFE_OPTIONS,
     LinkFailsafe,
-    failsafe_options,
 )
 from lm629_host.transports.profiles import ProfileScheduler
 from lm629_host.transports.recorder import FAR_NOTE, LinkRecorder
 from lm629_host.transports.session import (
-    BAD_LINK_RATE,
     DEFAULT_RETRIES,
-    ERROR_WINDOW,
-    WARN_LINK_RATE,
     LinkSession,
 )
 
@@ -93,6 +86,10 @@ class LinkTransport(LinkSession):
     """
 
     scheme = "link"
+    #: the bridge firmware's WAIT counts 4 us timer ticks from wherever in a tick it starts,
+    #: and decodes the next op before the status strobe: up to 15 us after the wait asked,
+    #: measured cycle-exact on the firmware in simavr (RDDP's 20 us busy reads 5 us)
+    busy_probe_us = 16.0
     #: how long :meth:`hello` keeps asking before "no answer" (an Uno boots in ~1-2 s after the
     #: port opens; subclasses for real ports raise it)
     hello_total_s: float = 0.5
@@ -116,7 +113,7 @@ class LinkTransport(LinkSession):
             try:
                 self.hello()
                 if arm:  # else the subclass arms once its own opening steps are done
-                    self._failsafe_open()
+                    self.failsafe.open()
             except BaseException:
                 self.close()
                 raise
@@ -141,46 +138,11 @@ class LinkTransport(LinkSession):
         finally:
             self._rx_lock.release()
 
-    # ------------------------------------------------------------------ the parts' state, as before
-    @property
-    def _codes(self) -> dict[bytes, int]:
-        """The programs the bridge keeps by code, as far as the host knows."""
-        return self.codes.codes
-
-    @property
-    def has_record(self) -> bool:
-        """The bridge records on its own timer (RECORD, capability bit 8)."""
-        return self.recorder.available
-
-    @property
-    def has_failsafe(self) -> bool:
-        """The bridge keeps a failsafe (capability bit 9)."""
-        return self.failsafe.available
-
-    @property
-    def failsafe_s(self) -> float:
-        """The failsafe's timeout the URL asked for (0: off)."""
-        return self.failsafe.timeout_s
-
-    @property
-    def failsafe_action(self) -> FailsafeAction:
-        return self.failsafe.action
-
+    # ------------------------------------------------------------------ the failsafe
     @property
     def failsafe_report(self) -> FailsafeState | None:
         """The trip this open found latched (and acknowledged), or one the feeder saw."""
         return self.failsafe.report
-
-    @property
-    def feed_period_s(self) -> float:
-        """The feeder sends after the link was idle this long (0: no feeder)."""
-        return self.failsafe.feed_period_s
-
-    def _failsafe_open(self) -> None:
-        self.failsafe.open()
-
-    def _failsafe(self, payload: bytes, what: str, retries: int | None = None) -> FailsafeState:
-        return self.failsafe.request(payload, what, retries)
 
     def feed(self) -> None:
         """Feed the bridge's failsafe now.  With ``failsafe_feed=script`` this and the
@@ -286,8 +248,6 @@ class LinkTransport(LinkSession):
             yield first, cs, chunk
 
     def _execute(self, program: Program) -> ProgramResult:
-        if self._closed:
-            raise TransportError("the port is closed", port=self.url)
         self.failsafe.check()
         if self.profiles.streaming:
             self.profiles.refill()
@@ -451,6 +411,4 @@ class LinkTransport(LinkSession):
             self.pipe.close()
 
 
-__all__ = ["BAD_LINK_RATE", "DEFAULT_RETRIES", "ERROR_WINDOW", "FAILSAFE_OPTIONS",
-           "FAILSAFE_OPTION_NAMES", "FailsafeTripped", "LinkError", "LinkTransport", "Pipe",
-           "failsafe_options", "WARN_LINK_RATE"]
+__all__ = ["LinkTransport"]

@@ -19,7 +19,7 @@ from lm629_host.bridge.protocol import (
     wire_size,
 )
 from lm629_host.errors import TransportError
-from lm629_host.transports.base import ProfileState
+from lm629_host.transports.reports import ProfileState
 
 if TYPE_CHECKING:
     from lm629_host.transports.failsafe import LinkFailsafe

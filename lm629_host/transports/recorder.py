@@ -29,7 +29,7 @@ from lm629_host.bridge.protocol import (
 )
 from lm629_host.bus.program import BusOp, Op, Program
 from lm629_host.errors import BusyTimeout, LinkError, TransportError
-from lm629_host.transports.base import RawRow
+from lm629_host.transports.reports import RawRow
 
 if TYPE_CHECKING:
     from lm629_host.transports.failsafe import LinkFailsafe

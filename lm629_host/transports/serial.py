@@ -43,8 +43,10 @@ from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import TransportError
 from lm629_host.bus.program import TraceCallback
 from lm629_host.urls import Option, PortURL, parse_options, port_url
-from lm629_host.transports.base import Check, PortInfo
-from lm629_host.transports.link import DEFAULT_RETRIES, FAILSAFE_OPTIONS, LinkTransport
+from lm629_host.transports.reports import Check, PortInfo
+from lm629_host.transports.failsafe import FAILSAFE_OPTIONS
+from lm629_host.transports.link import LinkTransport
+from lm629_host.transports.session import DEFAULT_RETRIES
 
 log = logging.getLogger("lm629_host.serial")
 
@@ -431,7 +433,7 @@ def _quiet_rfc2217_reader() -> None:
             return
         previous(args)
 
-    hook.lm629_quiet = True  # type: ignore[attr-defined]  # a mark on our own hook, so it is installed once
+    hook.lm629_quiet = True  # type: ignore[attr-defined]  # a mark on the function: installed once
     threading.excepthook = hook
 
 
@@ -534,7 +536,7 @@ class SerialTransport(LinkTransport):
             log.info("%s: round trip %.2f ms, low latency %s", url, self.rtt_s * 1e3,
                      low_latency or "n/a")
         try:  # last: the switch of rate and the PINGs above are not timed by the failsafe
-            self._failsafe_open()
+            self.failsafe.open()
         except BaseException:
             self.close()
             raise

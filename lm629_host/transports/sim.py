@@ -23,7 +23,7 @@ from lm629_host.sim.clock import SimClock
 from lm629_host.sim.model import ChipBus, ChipModel, Violation, chips_of
 from lm629_host.sim.vcd import close_probe, probe, vcd_of
 from lm629_host.sim.wiring import BentChip, Miswiring, wiring_of
-from lm629_host.transports.base import PortInfo
+from lm629_host.transports.reports import PortInfo
 from lm629_host.transports.cycle import CycleTransport
 
 #: simulated duration of one /RD or /WR strobe cycle, recovery included

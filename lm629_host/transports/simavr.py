@@ -29,12 +29,9 @@ from lm629_host.sim.model import chips_of
 from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import wrap_usb
 from lm629_host.urls import Option, PortURL, parse_options, query_params
-from lm629_host.transports.link import (
-    DEFAULT_RETRIES,
-    FAILSAFE_OPTION_NAMES,
-    LinkTransport,
-    failsafe_options,
-)
+from lm629_host.transports.failsafe import FAILSAFE_OPTION_NAMES, failsafe_options
+from lm629_host.transports.link import LinkTransport
+from lm629_host.transports.session import DEFAULT_RETRIES
 from lm629_host.transports.sim import ModelChips
 
 #: URL options of this transport (the others are the chip model's)

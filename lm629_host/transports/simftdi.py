@@ -34,9 +34,10 @@ from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
 from lm629_host.sim.model import ChipBus, ChipModel, Violation, chips_of
 from lm629_host.urls import Option, PortURL, parse_options, query_params
-from lm629_host.transports.base import Check, PortInfo
-from lm629_host.transports.ftdi import FT232H_PID, FTDI_VID, FtdiTransport, busy_pin_of, open_mpsse
-from lm629_host.transports.ftdi import OPTIONS as FTDI_OPTIONS
+from lm629_host.transports.reports import Check, PortInfo
+from lm629_host.transports.ftdi import FtdiTransport
+from lm629_host.transports.ftdi_open import FT232H_PID, FTDI_VID, busy_pin_of, open_mpsse
+from lm629_host.transports.ftdi_open import OPTIONS as FTDI_OPTIONS
 from lm629_host.transports.sim import ModelChips
 
 #: URL options that belong to this transport rather than to the chip model: the FT232H

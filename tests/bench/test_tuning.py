@@ -211,6 +211,8 @@ def test_reversed_leads_runaway_stops_the_motor_inside_the_band(base):
 HOLDING_LOAD = "load_torque=0.005"
 
 
+# up to 10 s on an idle machine (sim+avr://): a whole tune (phasing, identification, the gain
+# search's test moves) through the compiled firmware at 115200 baud, the slowest link
 @pytest.mark.parametrize("travel", [2000, TRAVEL])
 @pytest.mark.parametrize("base", ["sim://", "sim+emu://?baud=115200", "sim+avr://?baud=115200"])
 def test_a_holding_load_is_not_reversed_leads(base, travel):
@@ -399,7 +401,7 @@ def test_a_shaft_that_never_rests_is_a_timeout():
     """kp = 30000 P-only against a load with no friction to damp it: the loop limit-cycles
     around the hold position and never stands still for 10 polls; the test move waits at
     most 3 s for rest before it starts, then stops the motor and says so."""
-    from lm629_host.bench.tuning import measure_move
+    from lm629_host.bench.tuning_session import measure_move
     w = Watched("sim://?coulomb=0&friction=0&load_torque=0.001")
     with pytest.raises(MotionError) as err:
         measure_move(w.chip, Gains(kp=30000), distance=1000, travel=2000)
@@ -441,21 +443,23 @@ def test_a_coast_is_judged_on_its_own_rows_whatever_the_host_stamps(late_s):
     the time constant is 25 ms) whatever the host's stamps of the recording say.
     With the rows stamped ``late_s`` early, picking them by comparison with the previous
     recording's time left none, read as a coast at 0 counts/s: "swap the motor leads"."""
-    from lm629_host.bench.tuning import Record, _coast, _Session
+    from lm629_host.bench.phasing import coast
+    from lm629_host.bench.tuning_session import Record, TuningSession
     chip = lm629_host.open(f"sim://?{HOLDING_LOAD}")
     chip.reset()
     chip.clock.sleep(0.01)  # the shaft starts falling (reset leaves the drive off)
     LateRecordings(chip, late_s)
-    ses = _Session(chip, TRAVEL, 0.002, lambda text: None)
+    ses = TuningSession(chip, TRAVEL, 0.002, lambda text: None)
     rec = Record("coast", None)
     rec.rows.append(ses.snap())
-    early, late = _coast(ses, rec, 0.06, -1)  # it falls: away from a step up
+    early, late = coast(ses, rec, 0.06, -1)  # it falls: away from a step up
     # the phasing's rule for reversed leads is late < early / 2 or late <= 0: not here (it
     # falls faster, or at its top speed once a long pause let it reach it)
     assert early > 0 and late >= 0.9 * early
     chip.close()
 
 
+# about 10 s on an idle machine: the identification runs twice (the late one, then again)
 @pytest.mark.parametrize("travel", [2000, TRAVEL])
 def test_a_host_paused_during_identification_still_tunes(travel):
     """A host paused for 0.2 s as it asks for the identification's first recording: the
@@ -486,6 +490,8 @@ def test_a_host_paused_during_identification_still_tunes(travel):
 
 
 # ---------------------------------------------------------------------------------- a holding load
+# over 10 s on an idle machine (10x inertia): the tuner's test moves on a slow axis, each
+# simulated at the chip's 2 kHz sample rate, and the script's three moves after it
 @pytest.mark.parametrize("load", ["load_torque=0.003", "load_torque=0.002&inertia=4e-5"])
 def test_a_tuned_loaded_axis_finishes_a_lab_scripts_move(load):
     """A holding load of 5.1 output codes (0.003 N m at 5.86e-4 N m per code; 0.34 codes
@@ -528,6 +534,8 @@ with lm629_host.open_board(profile=sys.argv[1]) as board:
 """
 
 
+# over 10 s on an idle machine: a tune of a 10x-inertia axis in real time (the served bench
+# is the subject: the same tune in simulated time is the test above)
 def test_a_served_loaded_axis_tunes_and_a_lab_script_finishes_its_moves(tmp_path):
     """A served bench in real time (`lm629 sim serve`, its own process) with a holding load
     and 10x the inertia: `tune --save` into a profile, then a lab script, a process of its

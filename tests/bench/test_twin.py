@@ -24,7 +24,7 @@ from lm629_host.physics.pid import sample_period_s
 from lm629_host.config.profile import ProfileError, load_profile, parse_profile, save_gains, template
 from lm629_host.sim.model.motor import Motor
 from lm629_host.sim.model.params import MotorParams
-from lm629_host.bench.tuning import measure_move
+from lm629_host.bench.tuning_session import measure_move
 from lm629_host.physics.axis import AxisModel, Gains
 from lm629_host.physics.predict import MoveProfile
 from lm629_host.bench.twin import (
@@ -219,6 +219,8 @@ def _matches(bench: Side, twin: Side) -> None:
                                        twin.settle_range)
 
 
+# about 10 s on an idle machine, once per run (a module fixture: its tests share one xdist
+# group, tests/selection.py): a whole `tune --save` of the hidden bench
 @pytest.fixture(scope="module")
 def tuned(tmp_path_factory) -> Path:
     """A profile tuned with `tune --save` on the hidden bench (sim://)."""
@@ -282,7 +284,7 @@ def test_twin_check_needs_a_plant(tmp_path, run):
 USER_TEST = textwrap.dedent('''
     import json, os
     import pytest
-    from lm629_host.bench.tuning import measure_move
+    from lm629_host.bench.tuning_session import measure_move
     from lm629_host.physics.predict import MoveProfile
 
     @pytest.mark.lm629_motion

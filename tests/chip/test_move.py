@@ -137,6 +137,50 @@ def test_bad_move_arguments_touch_nothing(open_chip, recorder, kw, name):
     assert recorder.cycles == []
 
 
+def test_a_settle_timeout_says_what_was_still_wrong(open_chip):
+    """kp = 3000 with no kd rings round the target for longer than the 1 s settle timeout;
+    with a tolerance of 40 the shaft is inside it, still moving: the message says so (it
+    said "did not settle within 40 counts ... (error +23)", a contradiction), with how far
+    the shaft moved in the last poll."""
+    from dataclasses import replace
+    chip = _ready(open_chip("sim://"), kp=3000)
+    chip.move_rules = replace(chip.move_rules, tolerance=40)
+    with pytest.raises(MotionError) as e:
+        chip.move_to(1000, velocity=65536, acceleration=655).wait()
+    assert e.value.reason == MotionError.FOLLOWING_ERROR
+    message = str(e.value)
+    assert "did not settle in the 1 s after the trajectory ended" in message
+    assert f"{e.value.error:+d} counts from the target (inside the tolerance 40)" in message
+    assert abs(e.value.error) <= 40 and "still moving (" in message and " counts/s)" in message
+    assert chip.read_status() & Status.MOTOR_OFF
+
+
+#: 600 s (the default max_duration) at one count a sample (velocity word 65536, the top
+#: speed reached in one sample: acceleration word 65536) of 2048 / 8 MHz = 256 us: 2343750
+#: samples, a trapezoid of d counts taking d / v + v / a = d + 1 of them
+LIMIT_COUNTS = 600 * 8_000_000 // 2048 - 1
+
+
+def test_max_duration_is_refused_at_its_boundary(open_chip, recorder):
+    """The default MoveRules refuse a move planned one sample longer than 600 s before it
+    starts (the chip's positions read, no LTRJ nor STT sent), and take one planned at
+    exactly 600 s (a doubled max_duration would take both; a halved one refuse both)."""
+    from lm629_host.chip.move import MoveTooLong, check_duration
+    rules = MoveRules()
+    assert rules.max_duration == 600.0
+    assert check_duration(rules, LIMIT_COUNTS, 65536, 65536, 8e6) == pytest.approx(600.0)
+    with pytest.raises(MoveTooLong) as e:
+        check_duration(rules, LIMIT_COUNTS + 1, 65536, 65536, 8e6)
+    assert e.value.distance == LIMIT_COUNTS + 1 and e.value.limit == 600.0
+    chip = _ready(open_chip("sim://"))
+    recorder.clear()
+    with pytest.raises(MoveTooLong, match="longer than the limit max_duration=600 s"):
+        chip.move_to(LIMIT_COUNTS + 1, velocity=65536, acceleration=65536)
+    sent = {c.value for c in recorder.cycles if c.kind == "command"}
+    assert sent and not sent & {Cmd.LTRJ, Cmd.STT}
+    assert chip.read_desired_position() == 0
+
+
 def test_move_rules_are_checked():
     with pytest.raises(ValueError, match="settle_time"):
         MoveRules(settle_time=float("nan"))

@@ -19,7 +19,7 @@ from lm629_host.bridge.protocol import Capability, FrameType, HelloInfo, Result,
 from lm629_host.bus.opcodes import Cmd, s32
 from lm629_host.sim.bridge import MULTI_AXIS_INFO
 from lm629_host.sim.faults import FaultPipe
-from lm629_host.transports.link import LinkError
+from lm629_host.errors import LinkError
 from lm629_host.transports.simemu import open_emulated
 
 #: 4 counts per sample (16.16)

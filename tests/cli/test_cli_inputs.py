@@ -49,6 +49,8 @@ BAD = [
     (["move", "100", "--timeout", "0"], "--timeout"),
     (["move", "100", "--tolerance", "-1"], "--tolerance"),
     (["move", str(1 << 30)], "outside -1073741824..1073741823"),
+    (["move", "2000000000"], "TARGET: 2000000000 counts, outside"),  # as typed, not 2e+09
+    (["move", "0x7FFFFFFF"], "TARGET: 0x7FFFFFFF (2147483647 counts), outside"),
     (["move", "--vell", "5"], "--vell"),
     (["--lines", "500", "move", "1e9"], "outside"),
     (["--lines", "500", "move", "1", "--vel", "1e9"], "--vel"),
@@ -83,6 +85,20 @@ def test_bad_input_is_one_line_and_moves_nothing(run, opened, args, words):
     assert len(err_lines(r)) == 1 and words in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert not _moved(opened)
+
+
+@pytest.mark.parametrize("scheme", ["sim", "sim+emu", "sim+ftdi"])
+@pytest.mark.parametrize("path, why", [("/proc/x.vcd", "cannot create it"),
+                                       ("/proc", "that is a directory")])
+def test_an_unwritable_vcd_path_is_one_line_before_anything_opens(run, opened, scheme, path,
+                                                                   why):
+    """vcd= naming a file that cannot be made (/proc takes no new file, even for root) was a
+    39-line traceback, "internal error (FileNotFoundError)", exit 8, from the writer: it is
+    bad usage, said in one line before the simulator is built."""
+    r = run("--port", f"{scheme}://?vcd={path}", "status")
+    assert r.exit_code == 2, r.output
+    assert len(err_lines(r)) == 1 and f"vcd={path}: {why}" in r.stderr, r.stderr
+    assert opened == []
 
 
 def test_empty_port_is_an_error_not_the_simulator(run, opened):
@@ -197,6 +213,57 @@ def test_the_readme_exit_code_table_lists_every_code_of_the_cli():
     codes = {int(c) for row in table.splitlines()[2:]
              for cell in row.split("|")[1::2] for c in re.findall(r"\d+", cell)}
     assert codes == set(cli_app.EXIT_CODES)
+
+
+def test_docs_cli_exit_code_table_lists_every_code_of_the_cli():
+    """docs/cli.md's exit-code table names the codes of ``EXIT_CODES`` too (a row may name
+    several: ``3 / 4 / 5``)."""
+    import re
+    from pathlib import Path
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "cli.md").read_text()
+    table = doc[doc.index("**Exit codes**"):]
+    table = table[table.index("\n  |"):].strip()
+    table = table[:table.index("\n\n")]
+    codes = {int(c) for row in table.splitlines()[2:] for c in re.findall(r"\d+", row.split("|")[1])}
+    assert codes == set(cli_app.EXIT_CODES)
+
+
+def test_no_two_meanings_share_an_exit_code():
+    """One table, one meaning per code: every exit code a command gives (the error classes',
+    the selftest's verdicts, a check's "found a problem", a prompt answered no, the stop
+    signals) is grouped by what it means, and no two meanings share a code (a selftest FAIL
+    was 2, bad usage's; a declined prompt 1, a check's), each code a row of EXIT_CODES."""
+    import signal
+
+    from lm629_host.bench import selftest
+    from lm629_host.cli import tune, twin
+    from lm629_host.errors import (BusyTimeout, CommandError, LM629Error, MotionError,
+                                   ResetError, TransportError, WaitTimeout)
+    error_code = dict(cli_app._ERROR_EXITS)
+    meanings: dict[str, set[int]] = {
+        "success": {0, selftest.EXIT["PASS"]},
+        "a check found a problem": {selftest.EXIT["DIFFERS"], tune.EXIT_NOT_MET,
+                                    twin.EXIT_DIFFERS},
+        "bad usage or value": {2, error_code[ValueError]},
+        "transport error": {error_code[TransportError]},
+        "busy timeout": {error_code[BusyTimeout]},
+        "reset failure": {error_code[ResetError]},
+        "command error": {error_code[CommandError]},
+        "wait timeout": {error_code[WaitTimeout]},
+        "other driver error": {error_code[LM629Error]},
+        "motion fault": {error_code[MotionError]},
+        "the selftest could not finish": {selftest.EXIT["FAIL"]},
+        "interrupted, or a prompt answered no": {cli_app.EXIT_DECLINED, 128 + signal.SIGINT},
+        "hang-up": {128 + signal.SIGHUP},
+        "terminated": {128 + signal.SIGTERM},
+        "output closed": {141},
+    }
+    assert {m: len(c) for m, c in meanings.items()} == {m: 1 for m in meanings}
+    codes = [c for cs in meanings.values() for c in cs]
+    assert len(codes) == len(set(codes)), meanings
+    assert set(codes) == set(cli_app.EXIT_CODES)
+    assert "selftest FAIL" in cli_app.EXIT_CODES[selftest.EXIT["FAIL"]]
+    assert "selftest DIFFERS" in cli_app.EXIT_CODES[selftest.EXIT["DIFFERS"]]
 
 
 def test_status_into_a_closed_pipe_exits_141_as_the_docs_say():

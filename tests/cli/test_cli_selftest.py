@@ -59,8 +59,54 @@ def test_hi_not_wired_names_the_line(tmp_path):
 
 
 def test_motion_asks_first_and_moves_nothing_on_no():
+    """A prompt answered no is the table's 130 (cli.EXIT_CODES), not 1 (a check's verdict)."""
     r = _run("--port", "sim://?record=1", "selftest", "--motion", stdin="n\n")
-    assert r.exit_code == 1 and "nothing moved" in r.output
+    assert r.exit_code == 130 and "nothing moved" in r.output
+    assert "a prompt before the motor turns answered no" in cli.EXIT_CODES[130]
+
+
+def test_a_selftest_that_cannot_finish_exits_with_its_own_code():
+    """FAIL (a chip that never leaves reset) is 10, its own row of the table, not 2 (bad
+    usage) nor 5 (the reset failure of a command that stops there: the selftest reports)."""
+    r = _run("--port", "sim://?fault=reset", "selftest")
+    assert r.exit_code == 10 and "verdict: FAIL" in r.output, r.output
+    assert cli.EXIT_CODES[10].startswith("selftest FAIL")
+
+
+PROFILE_XY = """\
+[board]
+chip = "lm629"
+clock = "8MHz"
+
+[axis.x]
+cs = 0
+kp = 20
+
+[axis.y]
+cs = 1
+kp = 30
+"""
+
+
+def test_a_profiles_several_axes_are_each_tested(tmp_path: Path):
+    """A profile with axes x and y: both tested, in turn, each with its own report
+    (bench-x.json, bench-y.json); exit the worst verdict.  --axis y: y alone."""
+    profile = tmp_path / "bench.toml"
+    profile.write_text(PROFILE_XY)
+    path = tmp_path / "bench.json"
+    r = _run("--port", "sim://?axes=2", "--profile", str(profile), "selftest", "--report",
+             str(path))
+    assert r.exit_code == 0, r.output
+    assert "selftest of axis x (cs 0)" in r.output and "selftest of axis y (cs 1)" in r.output
+    assert r.output.count("verdict: PASS") == 2
+    for name, cs in (("x", 0), ("y", 1)):
+        data = json.loads((tmp_path / f"bench-{name}.json").read_text())
+        assert validate(data) == [] and data["profile"]["cs"] == cs
+    one = _run("--port", "sim://?axes=2", "--profile", str(profile), "--axis", "y", "selftest")
+    assert one.exit_code == 0 and "axis y (cs 1)" in one.output and "axis x" not in one.output
+    # chips that never leave reset: a FAIL on each axis, and the exit code of the whole
+    bad = _run("--port", "sim://?axes=2&fault=reset", "--profile", str(profile), "selftest")
+    assert bad.exit_code == 10 and bad.output.count("verdict: FAIL") == 2
 
 
 def test_no_index_with_motion_names_the_index():
@@ -92,3 +138,23 @@ def test_a_served_6mhz_bench_with_an_8mhz_profile_names_the_measured_clock(tmp_p
     assert p.returncode == 1, p.stdout + p.stderr
     assert "clock: the chip's clock measures 6.00 MHz" in p.stdout
     assert "the profile says 8 MHz" in p.stdout and "verdict: DIFFERS" in p.stdout
+
+
+@pytest.mark.slow
+def test_a_served_bench_parked_on_its_index_passes_and_compares_clean(tmp_path: Path):
+    """The issue's bench: `lm629 sim serve`, `filter --kp 3415 --kd 26219`, `move 1000` (the
+    default encoder's index is 2 x 500 counts from power-up: the shaft rests on it), then
+    `selftest --report`, each a process of its own: PASS (it was DIFFERS, "home: status: chip
+    000C, model 0004 after DFH"), and the report compares clean."""
+    import subprocess
+    report = tmp_path / "r.json"
+    with serve(tmp_path, "python") as bench:
+        for args in (("filter", "--kp", "3415", "--kd", "26219"), ("move", "1000"),
+                     ("selftest", "--report", str(report))):
+            p = subprocess.run(bench.argv(*args), capture_output=True, text=True,
+                               timeout=120, env=_env())
+            assert p.returncode == 0, (args, p.stdout + p.stderr)
+    assert "[--] index    the shaft rests on the index" in p.stdout
+    assert "verdict: PASS" in p.stdout
+    c = _run("selftest", "--compare", str(report))
+    assert c.exit_code == 0 and c.output.rstrip().endswith("no differences"), c.output

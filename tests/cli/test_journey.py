@@ -48,6 +48,9 @@ USER_TEST = textwrap.dedent("""\
     """)
 
 
+# each journey takes 15-20 s on an idle machine: a dozen CLI processes (each imports the
+# package) on a bench in real time, a tune among them; the two far ends run on separate
+# workers (one xdist group per parameter, tests/selection.py)
 @pytest.fixture(scope="module", params=["python", "firmware+uno"])
 def bench(request, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("journey")

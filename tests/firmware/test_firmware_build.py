@@ -88,3 +88,26 @@ def test_firmware_limits_match_the_protocol_constants():
     link_h = (FW / "link.h").read_text()
     assert "#define LINK_MAX_PROGRAM (LINK_MAX_FRAME - LINK_RUN_OVERHEAD)" in link_h
     assert (MAX_FRAME - RUN_OVERHEAD, (MAX_FRAME - RUN_REPLY_OVERHEAD) // 2) == (243, 120)
+
+
+def test_the_receive_check_is_inline_and_a_read_takes_its_wire_and_chip_time(firmware_built):
+    """The main loop asks ``link_rx_pending()`` twice for every byte received.  Once
+    WAIT_STATUS asked too (firmware 1.4: a host byte ends the wait), GCC -Os made it a call
+    (1.3 us a byte): RDRP at 1 Mbaud went 298 -> 308 us, LTRJ(6)+STT 847 -> 897 us (issue 47).
+    It is always inlined again: no out-of-line copy in the image, and a kept RDRP program's
+    round trip at 1 Mbaud stays within 300 us (18 bytes on the wire: 180 us; the chip's
+    command, busy and four reads about 42 us; the firmware's own work the rest)."""
+    import lm629_host
+
+    nm = subprocess.run(["avr-nm", str(FW / "build" / "lm629_bridge_1000000.elf")],
+                        capture_output=True, text=True, check=True).stdout
+    assert "link_rx_pending" not in nm
+    with lm629_host.open("sim+avr://?baud=1000000") as chip:
+        chip.reset()
+        for _ in range(3):  # the bridge keeps a program it has seen twice (PROGRAM_CODES)
+            chip.read_real_position()
+        t0 = chip.clock.now()
+        chip.read_real_position()
+        rdrp_us = (chip.clock.now() - t0) * 1e6
+    print(f"\nRDRP at 1 Mbaud through the firmware: {rdrp_us:.1f} us (simulated)")
+    assert rdrp_us <= 300

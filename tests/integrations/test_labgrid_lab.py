@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pytest
 
-from labgrid_lab import listening, running_lab
+from labgrid_lab import SER2NET, listening, running_lab
 from lm629_host.integrations.labgrid_place import parse_env_ports
 from served import _console_script
 
@@ -34,8 +34,9 @@ EXAMPLE = ROOT / "examples" / "labgrid"
 PYTHON = os.environ.get("LM629_LABGRID_PYTHON", "")
 #: someone else in the lab (labgrid names a user HOST/USER; LG_HOSTNAME, LG_USERNAME)
 ALICE = "otherpc/alice"
-#: place -> the exporter (bench) it matches; "lm629-spare" matches nothing exported
-PLACES = {"lm629-py": "bench-py", "lm629-fw": "bench-fw", "lm629-spare": "bench-none"}
+#: place -> what it matches: the two benches, and a spare port with no board behind it
+PLACES = {"lm629-py": "bench-py/lm629-bench/*", "lm629-fw": "bench-fw/lm629-bench/*",
+          "lm629-spare": "bench-py/lm629-spare/*"}
 
 
 @pytest.fixture(scope="module")
@@ -43,21 +44,34 @@ def lab(tmp_path_factory):
     if not PYTHON or not Path(PYTHON).exists():
         pytest.skip("labgrid lab not run: LM629_LABGRID_PYTHON does not name the python of a "
                     "labgrid venv (.ci/run builds .venv-labgrid)")
-    if shutil.which("ser2net") is None and not Path("/usr/sbin/ser2net").exists():
+    if not Path(SER2NET).exists():
         pytest.skip("labgrid lab not run: ser2net is not installed (apt-get install ser2net; "
                     ".ci/run does)")
     tmp = tmp_path_factory.mktemp("lab")
     with running_lab(tmp, Path(PYTHON).parent,
                      {"bench-py": "python", "bench-fw": "firmware"}) as lab:
-        lab.add_places({p: f"{e}/lm629-bench/*" for p, e in PLACES.items()})
+        lab.add_places(PLACES)
         yield lab
 
 
-def lm629(lab, *args: str, **kw) -> subprocess.CompletedProcess[str]:
-    """The installed ``lm629`` in this lab (LG_COORDINATOR set), labgrid-client on PATH."""
+def lm629(lab, *args: str) -> subprocess.Popen[str]:
+    """The installed ``lm629`` in this lab (LG_COORDINATOR set), labgrid-client on PATH,
+    started (several run at once, as several users of a lab would)."""
     env = lab.env(PATH=f"{lab.bin}:{os.environ['PATH']}")
-    return subprocess.run([_console_script(), *args], capture_output=True, text=True,
-                          timeout=120, env=env, **kw)
+    return subprocess.Popen([_console_script(), *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+
+
+def ended(proc: subprocess.Popen[str]) -> subprocess.CompletedProcess[str]:
+    out, err = proc.communicate(timeout=120)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+def labgrid_pytest(lab, where: Path, env_file: str, *tests: str) -> subprocess.Popen[str]:
+    """labgrid's own pytest plugin (``--lg-env``), in labgrid's venv, started."""
+    return subprocess.Popen([PYTHON, "-m", "pytest", "-p", "no:cacheprovider", "-q", "--lg-env",
+                             env_file, *tests], cwd=where, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=lab.env())
 
 
 def err_lines(p: subprocess.CompletedProcess[str]) -> list[str]:
@@ -96,89 +110,86 @@ def test_options_reach_the_link(target):
 '''
 
 
-@pytest.mark.parametrize("place", ["lm629-py", "lm629-fw"])
-def test_the_example_runs_on_a_remote_place(lab, place, tmp_path):
-    """examples/labgrid/ through labgrid's pytest plugin: RemotePlace -> coordinator ->
-    exporter -> ser2net -> RFC 2217 -> the bench; the driver's options: passed through."""
-    shutil.copy(EXAMPLE / "test_lab_bench.py", tmp_path)
+def test_the_example_runs_on_a_remote_place(lab, tmp_path):
+    """examples/labgrid/ through labgrid's pytest plugin on both benches at once: RemotePlace
+    -> coordinator -> exporter -> ser2net -> RFC 2217 -> the bench; on the firmware bench
+    the driver's ``options:`` too (passed through to the port URL)."""
     env_yaml = (EXAMPLE / "env-remote.yaml").read_text()
-    assert "name: lm629-bench" in env_yaml
-    (tmp_path / "env.yaml").write_text(env_yaml.replace("name: lm629-bench", f"name: {place}"))
-    (tmp_path / "env-options.yaml").write_text(env_yaml.replace(
-        "name: lm629-bench", f"name: {place}").replace(
-        "LM629Driver: {}", "LM629Driver: {options: {failsafe: 0.3}}"))
-    (tmp_path / "test_options.py").write_text(OPTIONS_TEST)
-    lab.client("-p", place, "lock")
+    assert "name: lm629-bench" in env_yaml and "LM629Driver: {}" in env_yaml
+    runs = {}
+    lab.client("-p", "lm629-py", "lock")
+    lab.client("-p", "lm629-fw", "lock")
     try:
-        for env_file, test in (("env.yaml", "test_lab_bench.py"),
-                               ("env-options.yaml", "test_options.py")):
-            p = subprocess.run([PYTHON, "-m", "pytest", "-p", "no:cacheprovider", "-q",
-                                "--lg-env", env_file, test], cwd=tmp_path, capture_output=True,
-                               text=True, timeout=300, env=lab.env())
-            assert p.returncode == 0, p.stdout + p.stderr
-            assert re.search(rf"\b{2 if test == 'test_lab_bench.py' else 1} passed\b", p.stdout)
+        for place in ("lm629-py", "lm629-fw"):
+            where = tmp_path / place
+            where.mkdir()
+            shutil.copy(EXAMPLE / "test_lab_bench.py", where)
+            text = env_yaml.replace("name: lm629-bench", f"name: {place}")
+            tests = ["test_lab_bench.py"]
+            if place == "lm629-fw":
+                text = text.replace("LM629Driver: {}", "LM629Driver: {options: {failsafe: 0.3}}")
+                (where / "test_options.py").write_text(OPTIONS_TEST)
+                tests.append("test_options.py")
+            (where / "env.yaml").write_text(text)
+            runs[place] = (labgrid_pytest(lab, where, "env.yaml", *tests), len(tests) + 1)
+        for place, (proc, passed) in runs.items():
+            out, _ = proc.communicate(timeout=300)
+            assert proc.returncode == 0, f"{place}: {out}"
+            assert re.search(rf"\b{passed} passed\b", out), out
     finally:
-        lab.client("-p", place, "unlock")
-    assert lab.holder(place) is None
+        for place in ("lm629-py", "lm629-fw"):
+            lab.client("-p", place, "unlock")
+    assert lab.held() == {}
 
 
 def test_a_place_someone_else_holds_is_refused_naming_them(lab, tmp_path):
     lab.client("-p", "lm629-fw", "lock", user=ALICE)
     try:
+        (tmp_path / "env.yaml").write_text((EXAMPLE / "env-remote.yaml").read_text().replace(
+            "name: lm629-bench", "name: lm629-fw"))
+        shutil.copy(EXAMPLE / "test_lab_bench.py", tmp_path)
+        theirs = labgrid_pytest(lab, tmp_path, "env.yaml", "test_lab_bench.py")
+        cli = lm629(lab, "--place", "lm629-fw", "status")
         mine = lab.client("-p", "lm629-fw", "lock", check=False)
         assert mine.returncode != 0 and f"already acquired by {ALICE}" in mine.stderr
-        p = lm629(lab, "--place", "lm629-fw", "status")
+        p = ended(cli)
         assert p.returncode == 3, p.stdout + p.stderr  # EXIT_CODES: busy is a transport error
         assert p.stdout == ""
         assert len(err_lines(p)) == 1, p.stderr
         assert f"Place lm629-fw is already acquired by {ALICE}" in p.stderr
         # labgrid's own pytest plugin on that place: refused, labgrid's reason
-        (tmp_path / "env.yaml").write_text((EXAMPLE / "env-remote.yaml").read_text().replace(
-            "name: lm629-bench", "name: lm629-fw"))
-        shutil.copy(EXAMPLE / "test_lab_bench.py", tmp_path)
-        q = subprocess.run([PYTHON, "-m", "pytest", "-p", "no:cacheprovider", "-q", "--lg-env",
-                            "env.yaml", "test_lab_bench.py"], cwd=tmp_path, capture_output=True,
-                           text=True, timeout=300, env=lab.env())
-        assert q.returncode != 0
-        assert re.search(r"not acquired|acquired by", q.stdout + q.stderr), q.stdout + q.stderr
-        assert lab.holder("lm629-fw") == ALICE  # the refused user's exit left it alone
+        out, _ = theirs.communicate(timeout=300)
+        assert theirs.returncode != 0
+        assert f"not acquired by your user, acquired by {ALICE.split('/')[1]}" in out, out
+        assert lab.held() == {"lm629-fw": ALICE}  # the refused users' exits left it alone
     finally:
         lab.client("-p", "lm629-fw", "unlock", user=ALICE)
 
 
 def test_the_cli_on_a_place_releases_it_however_it_ends(lab):
-    # a command that ends well; the place's options as a URL's
-    p = lm629(lab, "--place", "lm629-py?failsafe=0.4", "status", "--json")
+    # a command that ends well, the place's options as a URL's (on one bench), and an error
+    # after the place was acquired: a bad URL option, refused before anything moves (the other)
+    good = lm629(lab, "--place", "lm629-py?failsafe=0.4", "status", "--json")
+    bad = lm629(lab, "--place", "lm629-fw?fast_baud=fast", "status")
+    p = ended(good)
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["failsafe"]["armed_s"] == 0.4
-    assert lab.holder("lm629-py") is None
-    # an error after the place was acquired: a bad URL option, refused before anything moves
-    p = lm629(lab, "--place", "lm629-py?fast_baud=fast", "status")
+    p = ended(bad)
     assert p.returncode == 2, p.stdout + p.stderr
-    assert "fast_baud" in p.stderr and len(err_lines(p)) == 1
-    assert lab.holder("lm629-py") is None
-    # Ctrl-C (and SIGTERM) in a command that runs until stopped
-    for sig, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
-        env = lab.env(PATH=f"{lab.bin}:{os.environ['PATH']}")
-        proc = subprocess.Popen([_console_script(), "--place", "lm629-py", "watch"],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                env=env)
-        first = proc.stdout.readline()  # watching: the port is open, the place held
-        assert first, proc.stderr.read()
-        assert lab.holder("lm629-py") is not None
+    assert "fast_baud" in p.stderr and len(err_lines(p)) == 1, p.stderr
+    assert lab.held() == {}
+    # Ctrl-C and SIGTERM in a command that runs until stopped (watch), once each bench
+    watching = {sig: lm629(lab, "--place", place, "watch")
+                for sig, place in ((signal.SIGINT, "lm629-py"), (signal.SIGTERM, "lm629-fw"))}
+    for proc in watching.values():
+        assert proc.stdout.readline(), proc.stderr.read()  # watching: the port open
+    assert set(lab.held()) == {"lm629-py", "lm629-fw"}
+    for sig, proc in watching.items():
         proc.send_signal(sig)
-        _, err = proc.communicate(timeout=60)
-        assert proc.returncode == code, err
-        assert lab.holder("lm629-py") is None
-
-
-def test_a_place_with_labgrid_missing_is_one_line(lab):
-    env = lab.env(PATH="/usr/bin:/bin")
-    p = subprocess.run([_console_script(), "--place", "lm629-py", "status"], capture_output=True,
-                       text=True, timeout=60, env=env)
-    assert p.returncode == 3 and len(err_lines(p)) == 1, p.stderr
-    assert "labgrid is not installed" in p.stderr
-    assert lab.holder("lm629-py") is None
+    for sig, proc in watching.items():
+        p = ended(proc)
+        assert p.returncode == 128 + sig, p.stderr
+    assert lab.held() == {}
 
 
 def test_lab_selftest_over_every_bench(lab, tmp_path):
@@ -186,7 +197,8 @@ def test_lab_selftest_over_every_bench(lab, tmp_path):
     is named in the table, not tested, and the run's exit says a bench was not passed."""
     lab.client("-p", "lm629-spare", "lock", user=ALICE)
     try:
-        p = lm629(lab, "lab", "selftest", "lm629-*", "--reports", str(tmp_path / "reports"))
+        p = ended(lm629(lab, "lab", "selftest", "lm629-*", "--reports", str(tmp_path / "r")))
+        assert lab.held() == {"lm629-spare": ALICE}
     finally:
         lab.client("-p", "lm629-spare", "unlock", user=ALICE)
     assert p.returncode == 1, p.stdout + p.stderr
@@ -194,10 +206,9 @@ def test_lab_selftest_over_every_bench(lab, tmp_path):
     assert sorted(rows) == ["lm629-fw", "lm629-py", "lm629-spare"], p.stdout
     for place in ("lm629-fw", "lm629-py"):
         assert re.fullmatch(rf"{place}\s+LM629\s+PASS\s+0", rows[place]), p.stdout
-        report = json.loads((tmp_path / "reports" / f"{place}.json").read_text())
+        report = json.loads((tmp_path / "r" / f"{place}.json").read_text())
         assert report["verdict"] == "PASS" and report["transport"]["url"].startswith("rfc2217://")
-        assert (tmp_path / "reports" / f"{place}.md").read_text().startswith("## lm629 selftest")
-        assert lab.holder(place) is None
+        assert (tmp_path / "r" / f"{place}.md").read_text().startswith("## lm629 selftest")
     assert re.match(r"lm629-spare\s+-\s+NOT RUN\s+.*already acquired by " + ALICE,
                     rows["lm629-spare"]), p.stdout
     assert re.search(r"^place\s+chip\s+verdict\s+differences$", p.stdout, re.M), p.stdout

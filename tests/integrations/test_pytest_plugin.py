@@ -367,8 +367,8 @@ def test_the_same_file_on_a_persistent_bench(user_dir):
 
 def _run(t: float, program, words=(), statuses=()):
     from lm629_host.bus.program import ProgramResult
-    from lm629_host.integrations.pytest_plugin import _Run
-    return _Run(t, tuple(program.ops), ProgramResult(tuple(words), tuple(statuses), 0x80))
+    from lm629_host.integrations.pytest_report import Run
+    return Run(t, tuple(program.ops), ProgramResult(tuple(words), tuple(statuses), 0x80))
 
 
 def test_the_report_folds_repeated_programs_and_keeps_those_that_changed_the_chip():
@@ -377,7 +377,7 @@ def test_the_report_folds_repeated_programs_and_keeps_those_that_changed_the_chi
     LFIL / LTRJ + STT that set up a move stay in view."""
     from lm629_host import Cmd
     from lm629_host.bus.program import Program
-    from lm629_host.integrations.pytest_plugin import TRACE_PROGRAMS, ProgramLog
+    from lm629_host.integrations.pytest_report import TRACE_PROGRAMS, ProgramLog
     log = ProgramLog()
     log.add(_run(0.001, Program().command(Cmd.LFIL).write(0x0008).write(30)))
     log.add(_run(0.002, Program().command(Cmd.RDRP).read(2), (0, 5)))

@@ -17,7 +17,8 @@ from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
 from lm629_host.sim.model import ChipModel
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.bus.program import Program
-from lm629_host.transports.ftdi import FT232H_PID, FTDI_VID, FtdiTransport, open_mpsse
+from lm629_host.transports.ftdi import FtdiTransport
+from lm629_host.transports.ftdi_open import FT232H_PID, FTDI_VID, open_mpsse
 from lm629_host.transports.simftdi import EmulatedClock
 
 BUS_LINES = {"/CS": pins.CS, "/RD": pins.RD, "/WR": pins.WR, "/PS": pins.PS, "/RST": pins.RST}

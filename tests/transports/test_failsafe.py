@@ -24,7 +24,8 @@ from lm629_host import TransportError
 from lm629_host.motion.board import Board
 from lm629_host.bridge.protocol import FAILSAFE_FEED, FailsafeAction, Result
 from lm629_host.bus.opcodes import Status
-from lm629_host.transports.link import FailsafeTripped, LinkTransport
+from lm629_host.errors import FailsafeTripped
+from lm629_host.transports.link import LinkTransport
 from lm629_host.transports.simemu import EmuLinkTransport, open_emulated
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
@@ -121,7 +122,7 @@ def test_an_idle_host_a_long_far_side_wait_and_a_recording_are_not_tripped():
     frames = emu.stats.frames
     b.clock.sleep(3.0)  # idle in Python: a feed after 0.375 s of silence (simulated clock)
     assert not emu.failsafe.tripped
-    assert t.feed_period_s == 0.375
+    assert t.failsafe.feed_period_s == 0.375
     assert emu.stats.frames - frames == 3.0 // 0.375  # the feeds, exactly on time
     chip = b.axes[0]
     t0 = b.clock.now()
@@ -186,7 +187,7 @@ def test_a_with_block_left_normally_leaves_the_axis_moving():
 def test_failsafe_zero_disarms_and_bad_values_fail_before_any_traffic():
     b, t = _board("sim+emu://?axes=2&failsafe=0")
     _run(b)
-    assert t.emulator.failsafe.timeout_ms == 0 and t.feed_period_s == 0
+    assert t.emulator.failsafe.timeout_ms == 0 and t.failsafe.feed_period_s == 0
     for bad, words in [("failsafe=0.01", "0 (off) or 0.05..10 s"),
                        ("failsafe=11", "outside 0 (off) or 0.05..10 s"),
                        ("failsafe_action=brake", "expected one of abrupt, smooth, off")]:
@@ -217,7 +218,7 @@ def test_a_bad_failsafe_option_is_refused_before_the_serial_port_opens(bad):
 def test_the_bridge_refuses_a_timeout_outside_its_range():
     b, t = _board()
     with pytest.raises(TransportError, match=f"result {int(Result.BAD_FAILSAFE)}"):
-        t._failsafe(bytes((1,)) + (49).to_bytes(2, "big") + b"\x00", "FAILSAFE (arm 49 ms)")
+        t.failsafe.request(bytes((1,)) + (49).to_bytes(2, "big") + b"\x00", "FAILSAFE (arm 49 ms)")
     assert t.emulator.failsafe.timeout_ms == 500  # unchanged
 
 

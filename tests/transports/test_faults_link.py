@@ -114,7 +114,11 @@ SOAK = dict(delay_s=0.01)
 
 
 @pytest.mark.parametrize("far", ["emu", "avr"])
-@pytest.mark.parametrize("rate,n,min_ok", [(0.01, 5000, None), (0.0025, 3000, 0.999)])
+@pytest.mark.parametrize("rate,n,min_ok", [
+    (0.01, 5000, None), (0.0025, 3000, 0.999),
+    # the release run (pytest --long): ten times longer, the same seeds and bounds
+    pytest.param(0.01, 50_000, None, marks=pytest.mark.long),
+    pytest.param(0.0025, 30_000, 0.999, marks=pytest.mark.long)])
 def test_soak_at_issue16_rates(far, rate, n, min_ok):
     rates = dict(drop=rate, corrupt=rate, duplicate=rate, delay=rate, **SOAK)
     chip, model, fp, far_stats = open_faulty(far, rates, 0, baud=1_000_000)
@@ -203,7 +207,7 @@ def test_seq_wrap_after_a_give_up_cannot_hit_the_cache():
     from the cache and never run (a lost command reported as done).  After a give-up the host
     says HELLO (which empties the cache) before sending anything, and while that HELLO is
     unanswered it sends nothing: those failures say so (``may_have_run`` False)."""
-    from lm629_host.transports.link import LinkError
+    from lm629_host.errors import LinkError
 
     # the cable is out for seconds: the failsafe would (rightly) stop the chip, and this test
     # reads the chip's record for the cache alone
@@ -261,7 +265,7 @@ def test_request_arriving_after_the_host_gave_up_runs_once_and_in_order():
     reaches the bridge before anything sent after it (a serial line keeps order), runs once
     (its retries are answered from the cache), its late replies are ignored as stale, and the
     next command runs after it and returns its own answer."""
-    from lm629_host.transports.link import LinkError
+    from lm629_host.errors import LinkError
 
     # a line this slow is silent past the failsafe's timeout (which would rightly stop the
     # chip): this test reads the chip's record for the order alone
@@ -323,7 +327,7 @@ def test_a_refusal_caused_by_an_undetected_corruption_is_sent_again_once(far):
     """BAD_PROGRAM means nothing ran, so the host sends the program once more (a new
     exchange): the call succeeds and the chip's record holds it exactly once.  Refused twice,
     it is a typed error that says nothing ran (``may_have_run`` False) and names the fix."""
-    from lm629_host.transports.link import LinkError
+    from lm629_host.errors import LinkError
     chip, model, _fp, _far = open_faulty(far, {}, seed=3, baud=1_000_000)
     t = chip.transport
     t.pipe = DamageFirstByte(t.pipe, times=1)

@@ -22,7 +22,7 @@ from lm629_host.cli import main as cli
 from lm629_host import TransportError
 from lm629_host.sim.ftdi import SHARED, EmulatedFT232H
 from lm629_host.sim.model import ChipModel
-from lm629_host.transports import ftdi
+from lm629_host.transports import ftdi, ftdi_open
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -58,7 +58,7 @@ def test_open_by_url_runs_programs_through_pyftdi_lookup(bus):
 
 def test_default_latency_timer_is_low(bus):
     with lm629_host.open("ftdi://ftdi:232h:FT5LM629/1"):
-        assert bus.devices[0].latency_ms == ftdi.DEFAULT_LATENCY_MS == 1
+        assert bus.devices[0].latency_ms == ftdi_open.DEFAULT_LATENCY_MS == 1
 
 
 def test_wrong_serial_lists_what_was_found(bus):
@@ -123,7 +123,7 @@ def test_udev_rule_matches_the_ft232h_and_the_documented_commands():
     assert r.output.strip() == str(data.udev_rule())
     r = CliRunner().invoke(cli, ["udev"])
     assert all(c in r.output for c in data.udev_install_commands())
-    assert ftdi.UDEV_RULE == "/etc/udev/rules.d/99-lm629-ft232h.rules"
+    assert ftdi_open.UDEV_RULE == "/etc/udev/rules.d/99-lm629-ft232h.rules"
 
 
 def test_documented_wiring_table_is_the_pin_map():

@@ -12,7 +12,7 @@ import pytest
 
 import lm629_host
 from lm629_host import BusyTimeout, Cmd, Status
-from lm629_host.transports.ftdi import COMMAND_S
+from lm629_host.transports.ftdi_busy import COMMAND_S
 
 LTRJ_WORDS = (0x002A, 0x0000, 0x1234, 0x0005, 0x6789, 0xFFFF, 0xFC18)  # acc, vel, pos -1000
 
@@ -135,7 +135,7 @@ def test_one_retry_at_most_doubles_the_wait_and_retry_free_commands_bring_it_bac
     doubled wait (5 x 85 = 427 us), the 6th brings it back."""
     import math
 
-    from lm629_host.transports.ftdi import REPEAT_COST_S
+    from lm629_host.transports.ftdi_busy import REPEAT_COST_S
     chip = open_chip("sim+ftdi://?busy_s=10e-6&record=1&strict=0")
     chip.reset()
     t, device = chip.transport, chip.transport.device
@@ -349,7 +349,7 @@ def test_a_raised_wait_comes_back_to_the_calibrated_one_never_below(open_chip):
     chip's busy time makes every check a repeat)."""
     import math
 
-    from lm629_host.transports.ftdi import REPEAT_COST_S
+    from lm629_host.transports.ftdi_busy import REPEAT_COST_S
     chip = open_chip("sim+ftdi://?busy_s=55e-6&record=1&strict=0")
     chip.reset()
     t, device = chip.transport, chip.transport.device

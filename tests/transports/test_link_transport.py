@@ -199,9 +199,9 @@ def test_hello_forgets_the_codes_on_both_sides():
     chip.reset()
     for _ in range(3):
         chip.read_real_position()
-    assert t._codes and t.emulator._codes
+    assert t.codes.codes and t.emulator._codes
     t.hello()
-    assert not t._codes and not t.emulator._codes
+    assert not t.codes.codes and not t.emulator._codes
     tap.clear()
     chip.read_real_position()
     assert len(tap.sent) == 11  # seen before: stored again under a code, not sent by one

@@ -25,7 +25,7 @@ from lm629_host.transports import (
 )
 
 PLUGIN = '''
-from lm629_host.transports.base import Check, PortInfo
+from lm629_host.transports.reports import Check, PortInfo
 from lm629_host.transports.sim import SimTransport
 from lm629_host.sim.build import build_model
 

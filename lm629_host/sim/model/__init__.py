@@ -27,7 +27,9 @@ Host interface (:mod:`.chip`)
    "Observed on real chips").  Its duration is ``ChipParams.reset_s`` (choice 6), so a host's
    busy poll after RESET must last 1.5 ms: a poll bounded by 5000 reads at 250 ns (1.25 ms)
    outlasts the model's default 1 ms but not the documented worst case.
-4. The LM629 has no 12-bit port: PORT12 sent to an LM629 is refused with a command error.
+4. The LM629 has no 12-bit port: PORT12 sent to an LM629 is refused with a command error
+   (not a host protocol violation: ``lm629 selftest`` sends it, motor off, to tell an LM628
+   from an LM629; a driver's normal operation never does).
 5. Busy time after a command byte or a word (``ChipParams.busy_s``): the datasheet says
    typically 15-25 us, never more than 100 us; the model uses the middle of the typical range.
 6. Reset time (``ChipParams.reset_s``, default 1 ms; ``sim://?reset_s=0.0015`` is the

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
-import shutil
 import signal
 import socket
 import subprocess
@@ -32,15 +30,17 @@ from pathlib import Path
 
 from served import Bench, serve
 
+#: Debian's ser2net (the wrapper below execs it)
+SER2NET = "/usr/sbin/ser2net"
 #: the ``ser2net`` an exporter finds first on its PATH: loopback only, then the real one
+#: (docs/testing.md shows this very file: tests/integrations/test_labgrid_lab.py checks)
 SER2NET_LOOPBACK = r"""#!/bin/sh
 # labgrid's exporter asks ser2net for "...,tcp,PORT" (every interface): keep it on loopback
-real="$LM629_REAL_SER2NET"
 for a in "$@"; do
   shift
   set -- "$@" "$(printf '%s' "$a" | sed -E 's/,tcp,([0-9]+)/,tcp,127.0.0.1,\1/g')"
 done
-exec "$real" "$@"
+exec /usr/sbin/ser2net "$@"
 """
 
 #: how long a lab part may take to say it is ready (a busy 2-core machine)
@@ -163,9 +163,10 @@ class Lab:
         assert self.coordinator_proc is not None
         self._wait_for(self._coordinator_log, "Coordinator ready", self.coordinator_proc)
 
-    def add_exporter(self, name: str, bench: Bench, group: str = "lm629-bench") -> Exporter:
+    def add_exporter(self, name: str, bench: Bench, group: str = "lm629-bench",
+                     more: dict[str, str] | None = None) -> Exporter:
         """An exporter named ``name`` exporting ``bench``'s pty as ``RawSerialPort`` in
-        ``group``, its ser2net on loopback."""
+        ``group`` (and ``more``: group -> device), its ser2net on loopback."""
         self.started.append(bench.server.pid)
         where = self.tmp / name
         where.mkdir(exist_ok=True)
@@ -176,10 +177,10 @@ class Lab:
             (wrappers / "ser2net").chmod(0o755)
         device = os.path.realpath(bench.link)
         assert device.startswith("/dev/"), device
-        (where / "exporter.yaml").write_text(
-            f"{group}:\n  RawSerialPort:\n    port: {device}\n    speed: 115200\n")
-        real = shutil.which("ser2net") or "/usr/sbin/ser2net"
-        env = self.env(PATH=f"{wrappers}:{os.environ.get('PATH', '')}", LM629_REAL_SER2NET=real)
+        (where / "exporter.yaml").write_text("".join(
+            f"{g}:\n  RawSerialPort:\n    port: {d}\n    speed: 115200\n"
+            for g, d in {group: device, **(more or {})}.items()))
+        env = self.env(PATH=f"{wrappers}:{os.environ.get('PATH', '')}")
         proc, log = self._spawn(
             [str(self.bin / "labgrid-exporter"), "-c", self.coordinator, "--hostname",
              "127.0.0.1", "-n", name, "exporter.yaml"], where, env)
@@ -221,10 +222,10 @@ class Lab:
                 out, _ = proc.communicate(timeout=60)
                 assert proc.returncode == 0, f"{place} {step}: {out}"
 
-    def holder(self, place: str) -> str | None:
-        """Who holds ``place`` ("host/user"), None when nobody does."""
-        m = re.search(r"acquired: (\S+)", self.client("-p", place, "show").stdout)
-        return None if m is None or m[1] == "None" else m[1]
+    def held(self) -> dict[str, str]:
+        """Every acquired place and who holds it ("host/user"), from ``labgrid-client who``."""
+        rows = [ln.split() for ln in self.client("who").stdout.splitlines()[1:] if ln.strip()]
+        return {row[2]: f"{row[1]}/{row[0]}" for row in rows}
 
     def left_running(self) -> list[str]:
         """What this lab started that still runs, and any process naming its directory."""
@@ -260,10 +261,15 @@ class Lab:
 @contextlib.contextmanager
 def running_lab(tmp: Path, labgrid_bin: Path, far_ends: dict[str, str]) -> Iterator[Lab]:
     """A lab with one exporter per ``far_ends`` item (exporter name -> "python" or
-    "firmware"), each exporting its bench as ``NAME/lm629-bench/*``; stopped at the end, and
-    the process list checked: nothing it started is left running."""
+    "firmware"), each exporting its bench as ``NAME/lm629-bench/*``; the first also exports
+    ``NAME/lm629-spare/*``, a pseudo-terminal with nothing behind it (a bench whose board is
+    off); stopped at the end, and the process list checked: nothing it started is left
+    running."""
     lab = Lab(tmp, labgrid_bin)
+    spare = os.openpty()
     with contextlib.ExitStack() as stack:
+        for fd in spare:
+            stack.callback(os.close, fd)
         try:
             lab.start_coordinator()
             benches = {}
@@ -271,8 +277,9 @@ def running_lab(tmp: Path, labgrid_bin: Path, far_ends: dict[str, str]) -> Itera
                 (tmp / name).mkdir()
                 benches[name] = stack.enter_context(serve(tmp / name, far_end))
             lab.coordinator_ready()
-            for name, bench in benches.items():
-                lab.add_exporter(name, bench)
+            for i, (name, bench) in enumerate(benches.items()):
+                lab.add_exporter(name, bench,
+                                 more={"lm629-spare": os.ttyname(spare[1])} if i == 0 else None)
             lab.wait_resources()
             yield lab
         finally:

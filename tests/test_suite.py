@@ -1,0 +1,170 @@
+"""The suite's own shape (docs/testing.md, "The project's own suite"): which tests run beside
+the CPU hogs, which stay on one worker, what the quick loop leaves out, what a plain
+``pytest`` says.  The real suite's marks are read from one collection in a child process."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from selection import what_runs
+from xdist_groups import shared_fixture_group
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_DUMP = """
+import json, sys, pytest
+class Dump:
+    def pytest_collection_finish(self, session):
+        out = [{"id": i.nodeid, "marks": sorted({m.name for m in i.iter_markers()}),
+                "group": [m.args[0] for m in i.iter_markers("xdist_group")]} for i in session.items]
+        json.dump(out, open(sys.argv[1], "w"))
+sys.exit(pytest.main(["--collect-only", "-q", "-n", "0", "-p", "no:cacheprovider",
+                      *sys.argv[2:]], plugins=[Dump()]))
+"""
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory) -> list[dict]:
+    """Every test of the suite with its marks and xdist group, as CI's run collects them."""
+    out = tmp_path_factory.mktemp("suite") / "items.json"
+    p = subprocess.run([sys.executable, "-c", _DUMP, str(out)], cwd=ROOT, capture_output=True,
+                       text=True, timeout=300)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    return json.loads(out.read_text())
+
+
+def _ci_pytest_lines() -> list[str]:
+    run = re.sub(r"\\\n\s*", "", (ROOT / ".ci" / "run").read_text())
+    return re.findall(r"python3 -m pytest [^&\n]*", run)
+
+
+def test_ci_runs_every_test_once_and_only_the_under_load_ones_beside_the_hogs(suite):
+    """The busy-machine pass holds the tests that assert timing under load (a failsafe trip, a
+    late host), not every served bench: a journey or a docs page beside two hogs proves nothing
+    more and runs three times slower."""
+    main, busy = _ci_pytest_lines()
+    assert '-m "not under_load"' in main and "--cpu-hogs" not in main
+    assert "-m under_load" in busy and "--cpu-hogs 2" in busy
+    under = [t for t in suite if "under_load" in t["marks"]]
+    served = [t for t in suite if "served" in t["marks"]]
+    assert any("test_served_bench_trip" in t["id"] for t in under)
+    assert any("test_late_host" in t["id"] for t in under)
+    assert len(under) < len(served) / 2, f"{len(under)} of {len(served)} served tests under load"
+    assert not [t["id"] for t in under if "test_journey" in t["id"] or "test_docs" in t["id"]]
+    assert all("--durations=25" in line for line in (main, busy))
+
+
+def test_both_workers_share_the_long_tests(suite):
+    """One test at a time (-n auto, pyproject's --dist loadgroup; no file kept whole): the crossings machine's links
+    run as separate tests, free to go to separate workers; a group only where tests share a
+    fixture wider than a test, and a docs page's blocks together, in order."""
+    addopts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"][
+        "ini_options"]["addopts"]
+    assert "--dist loadgroup" in addopts
+    assert all(" -n auto " in line and "--dist" not in line for line in _ci_pytest_lines())
+    links = [t for t in suite if "test_api_state_machine.py::" in t["id"]]
+    assert len(links) == 3 and not [t for t in links if t["group"]]
+    docs = {}
+    for t in suite:
+        if "test_doc_block[" in t["id"]:
+            page = t["id"].split("[", 1)[1].split(":", 1)[0]
+            docs.setdefault(t["group"][0], set()).add(page)
+    assert len(docs) > 5 and all(len(pages) == 1 for pages in docs.values()), docs
+    journey = {t["group"][0] for t in suite if "test_journey.py::" in t["id"]}
+    assert len(journey) == 2  # the python bench and the firmware bench, each on one worker
+
+
+def test_the_quick_loop_starts_no_bench_and_no_firmware(suite):
+    quick = [t["id"] for t in suite if "slow" not in t["marks"]]
+    assert len(quick) > len(suite) / 2
+    for t in suite:
+        if t["id"] in quick:
+            assert not {"served", "under_load", "long"} & set(t["marks"]), t["id"]
+            assert "sim+avr" not in t["id"] and "test_api_state_machine" not in t["id"], t["id"]
+    assert not [i for i in quick if "test_first_sim_avr_use_says_what_it_builds" in i]
+
+
+def test_a_module_fixture_keeps_its_tests_together_per_parameter(pytester):
+    items = pytester.getitems("""
+        import pytest
+
+        @pytest.fixture(scope="module", params=["python", "firmware"])
+        def bench(request):
+            return request.param
+
+        @pytest.fixture
+        def own():
+            return 1
+
+        def test_a(bench): pass
+        def test_b(bench, own): pass
+        def test_c(own): pass
+
+        @pytest.mark.xdist_group("mine")
+        def test_d(bench): pass
+    """)
+    groups = {i.name: shared_fixture_group(i, pytester.path) for i in items}
+    assert groups["test_a[python]"] == groups["test_b[python]"] != groups["test_a[firmware]"]
+    assert groups["test_a[python]"].endswith("bench=python")
+    assert groups["test_c"] is None  # a test of its own goes wherever a worker is free
+    assert groups["test_d[python]"] is None  # its own mark wins
+
+
+def test_a_plain_pytest_says_what_it_runs():
+    line = what_runs("", False, 0)
+    assert line.startswith("lm629-host: every test") and "pytest --long" in line
+    assert "-m 'not slow'" in line and ".ci/run" in line
+    assert "beside 2 CPU hogs" in what_runs("under_load", False, 2)
+    assert "-m 'under_load'" in what_runs("under_load", False, 2)
+
+
+def test_a_shared_fixture_s_tests_run_on_one_worker(pytester, monkeypatch):
+    """The scheduling itself, two workers: a module fixture's tests (each parameter), and a
+    document's blocks (their own mark), each on one worker, in order; the rest spread.
+    xdist 3.8's own loadgroup spreads them on pytest 9.2 (reported upstream to pytest-xdist)."""
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))
+    pytester.makepyfile(test_groups="""
+        import os, time
+        import pytest
+
+        def log(*what):
+            with open("ran.txt", "a") as f:
+                print(*what, os.environ["PYTEST_XDIST_WORKER"], file=f)
+
+        @pytest.fixture(scope="module", params=["a", "b"])
+        def bench(request):
+            return request.param
+
+        @pytest.mark.parametrize("i", range(4))
+        def test_shared(bench, i):
+            time.sleep(0.05)
+            log("RAN", bench)
+
+        @pytest.mark.parametrize("i", [pytest.param(i, marks=pytest.mark.xdist_group("page"))
+                                       for i in range(4)])
+        def test_page(i):
+            time.sleep(0.05)
+            log("RAN page")
+
+        @pytest.mark.parametrize("i", range(8))
+        def test_free(i):
+            time.sleep(0.05)
+            log("RAN free")
+    """)
+    r = pytester.runpytest_subprocess("-p", "xdist_groups", "-n", "2", "--dist", "loadgroup",
+                                      "-p", "no:cacheprovider")
+    r.assert_outcomes(passed=20)
+    ran: dict[str, set[str]] = {}
+    for line in (pytester.path / "ran.txt").read_text().splitlines():
+        if line.startswith("RAN "):
+            _, what, worker = line.split()
+            ran.setdefault(what, set()).add(worker)
+    assert len(ran["a"]) == len(ran["b"]) == len(ran["page"]) == 1, ran
+    assert len(ran["free"]) == 2, ran
