@@ -114,3 +114,31 @@ def test_stop_during_an_s_curve_the_panel_waits_on(profiled):
         assert start + 1000 < held < start + 8000
         assert all(r[1] == held for r in rows[-10:])  # holding: the desired position stays
         assert not rows[-1][5] & 0x80  # motor on (the abrupt stop's STT), not off
+
+
+def test_stop_modes_smooth_and_off(profiled):
+    """The selector's modes are `lm629 stop --smooth` and `--off`: a smooth stop decelerates
+    at the loaded acceleration (word 65: 1 count/sample down to 0 takes 65536/65 = 1008
+    samples, 0.26 s, about 13 rows of 20 ms), motor off sets the status's bit 7."""
+    p, token, _path = profiled
+    with events(p, token) as stream:
+        hello = next(stream)
+        start = _rows_until(stream, 0.1)[-1][7]  # axis y (columns 7-12): x holds a stop
+        status, answer = command(p, token, {"cmd": "move", "axis": "y", "target": str(start - 50000),
+                                            "acc": "65", "client": hello["client"]})
+        assert answer["ok"], answer
+        for m in stream:  # at the top speed (3906.2 counts/s)
+            if m["type"] == "rows" and m["rows"][-1][9] == -3906.2:
+                break
+        status, answer = command(p, token, {"cmd": "stop", "mode": "smooth", "axis": "y",
+                                            "client": hello["client"]})
+        assert answer["text"] == "smooth stop sent"
+        rows = _rows_until(stream, 0.6)
+        slowing = [-r[9] for r in rows if 0 < -r[9] < 3906.2]
+        assert 8 <= len(slowing) <= 16, slowing  # about 13 rows of deceleration
+        assert slowing == sorted(slowing, reverse=True)
+        assert rows[-1][9] == 0 and rows[-1][7] > start - 50000
+        status, answer = command(p, token, {"cmd": "stop", "mode": "off", "axis": "y",
+                                            "client": hello["client"]})
+        assert answer["text"] == "off stop sent"
+        assert _rows_until(stream, 0.2)[-1][11] & 0x80  # MOTOR_OFF

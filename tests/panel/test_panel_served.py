@@ -80,6 +80,11 @@ def test_panel_ended_mid_move_stops_the_served_axis(tmp_path):
                 for m in stream:
                     if m["type"] == "rows" and m["rows"][-1][2] > 2000:
                         break
+            # the panel holds the bench's port, as any client does: another command is
+            # refused (exit 3, saying why) and never ends the panel's link
+            other = bench.run("status")
+            assert other.returncode == 3 and "in use by another program" in other.stderr
+            assert p.proc.poll() is None
             code, err = p.end()
         assert code == 143 and err.strip().splitlines()[-1] == "lm629: terminated (SIGTERM)", err
         _at_rest_short_of_target(bench, 2000)
