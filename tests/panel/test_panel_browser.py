@@ -181,3 +181,21 @@ def test_through_a_port_forward(page):
         assert message(driver) == "abrupt stop sent"
         driver.close()
         driver.switch_to.window(driver.window_handles[0])
+
+
+def test_exposed_with_its_token_in_the_address(page):
+    """Beyond the loopback names (127.0.0.2 here: still this machine) with --expose: the
+    address carries the token, and the page opened from it works whole (its files, its rows,
+    its commands)."""
+    driver, _p = page
+    with panel("sim://", "--expose", listen="127.0.0.2:0") as exposed:
+        assert "/?token=" in exposed.url
+        driver.switch_to.new_window("tab")
+        driver.get(exposed.url)
+        wait_for(lambda: len(_plotted(driver, 0)) > 10, what="rows on the exposed panel")
+        assert driver.find_element("id", "role").text == "this tab commands"
+        _click(driver, "stop")
+        wait_for(lambda: message(driver), what="the stop's answer")
+        assert message(driver) == "abrupt stop sent"
+        driver.close()
+        driver.switch_to.window(driver.window_handles[0])

@@ -118,6 +118,10 @@ def test_exposed_address_carries_the_token():
         assert status == 200 and token in text
         status, text = request(p, "GET", f"/?token={token}", host="evil.example")
         assert status == 403
+        # what the page loads: the package's public files, without the token; the rows with it
+        status, text = request(p, "GET", "/static/panel.js")
+        assert status == 200 and "EventSource" in text
+        assert request(p, "GET", "/events")[0] == 403
         code, err = p.end()
     assert code == 143 and err.strip().endswith("lm629: terminated (SIGTERM)"), err
 
