@@ -55,7 +55,7 @@ def run_command(session: Session, argv: list[str]) -> Outcome:
             with cmd.make_context(name, list(args), parent=parent) as ctx:
                 cmd.invoke(ctx)
     except PanelStop as exc:
-        return Outcome(130, stop_note_of(exc, "stopped from the panel"))
+        return Outcome(130, stop_note_of(exc, str(exc) or "stopped from the panel"))
     except click.exceptions.Exit as exc:
         return Outcome(exc.exit_code, out.getvalue().strip())
     except Exception as exc:  # noqa: BLE001 - the command line's one line and exit code

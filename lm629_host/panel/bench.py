@@ -133,7 +133,10 @@ class BenchWorker:
     def close(self) -> None:
         """End the worker; an axis still moving is stopped first (the panel's process is
         ending: every way it ends stops a moving motor, as any command's)."""
-        self._quit = True
+        with self._lock:
+            self._quit = True
+            if self._busy is not None and not self._busy.stop:
+                self._stop_asked = True  # a command under way (an S-curve) ends as by Ctrl-C
         self._wake.set()
         self._thread.join(timeout=30)
 
@@ -264,7 +267,7 @@ class BenchWorker:
     def _run_jobs(self) -> None:
         while True:
             with self._lock:
-                if not self._jobs:
+                if not self._jobs or self._quit:
                     self._wake.clear()
                     return
                 job = self._jobs.popleft()
@@ -297,7 +300,7 @@ class BenchWorker:
                 return
             if self._stop_asked:
                 self._stop_asked = False
-                raise PanelStop()
+                raise PanelStop("the panel is ending" if self._quit else "stopped from the panel")
             if not self._real_time:
                 self._pace(self._transport.clock.now(), wake=False)
             if self._busy.live and not self._in_hook and \

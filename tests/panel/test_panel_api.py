@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from panel_helpers import Panel, command, events, request
+from panel_helpers import Panel, command, events, panel, request
 from served import _console_script, _env
 
 PROFILE = """\
@@ -197,3 +197,28 @@ def test_step_prediction_from_the_profiles_plant(tmp_path):
     miss = max(abs(m - other[min(n - 1, round(t / sample_s))])
                for t, m in zip(d["t"], d["actual"]) if t >= 0)
     assert miss > 20, miss
+
+
+def test_panel_ended_during_an_s_curve_stops_it():
+    """SIGTERM while the panel waits on a long S-curve (50 s planned): the move is ended as
+    Ctrl-C ends it (abrupt stop, then motor off), its answer says why, and the panel exits
+    143 at once rather than after the move."""
+
+
+    with panel("sim://") as p:
+        token = p.page_token()
+        with events(p, token) as stream:
+            hello = next(stream)
+            moved: dict = {}
+            mover = threading.Thread(target=lambda: moved.update(answer=command(p, token, {
+                "cmd": "move", "target": "200000", "shape": "s-curve", "jerk": "3e6",
+                "client": hello["client"]})[1]))
+            mover.start()
+            for m in stream:  # under way
+                if m["type"] == "rows" and m["rows"][-1][1] > 1000:
+                    break
+            code, err = p.end()
+            mover.join(timeout=30)
+    assert code == 143 and err.strip().endswith("lm629: terminated (SIGTERM)"), err
+    assert moved["answer"]["text"] == ("the panel is ending -- motor stopped (abrupt stop, "
+                                       "then motor off)")
