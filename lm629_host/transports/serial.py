@@ -475,6 +475,15 @@ def _rfc2217_class():
             if self._socket is not None:
                 self._socket.settimeout(WRITE_TIMEOUT_S)
 
+        def rfc2217_set_control(self, value: bytes) -> None:
+            """SET-CONTROL (DTR, RTS, flow control) sent; under ``ign_set_control`` no answer
+            is awaited at all (pyserial sleeps 100 ms instead, three times in each open: the
+            bridge uses no modem-control line)."""
+            if not self._ignore_set_control_answer:
+                super().rfc2217_set_control(value)
+                return
+            self._rfc2217_options["control"].set(value)
+
         def _settings(self) -> tuple:
             return (self._baudrate, self._bytesize, self._parity, self._stopbits,
                     self._rtscts, self._xonxoff, self._write_timeout)
