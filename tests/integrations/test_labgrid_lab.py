@@ -40,9 +40,10 @@ EXAMPLE = ROOT / "examples" / "labgrid"
 PYTHON = os.environ.get("LM629_LABGRID_PYTHON", "")
 #: someone else in the lab (labgrid names a user HOST/USER; LG_HOSTNAME, LG_USERNAME)
 ALICE = "otherpc/alice"
-#: place -> what it matches: the two benches, and a spare port with no board behind it
+#: place -> what it matches: the two benches, a spare port with no board behind it, and the
+#: firmware bench exported by its link outside /dev/ (which the exporter will not serve)
 PLACES = {"lm629-py": "bench-py/lm629-bench/*", "lm629-fw": "bench-fw/lm629-bench/*",
-          "lm629-spare": "bench-py/lm629-spare/*"}
+          "lm629-spare": "bench-py/lm629-spare/*", "link-fw": "bench-fw/lm629-link/*"}
 
 
 @pytest.fixture(scope="module")
@@ -143,6 +144,21 @@ def test_the_example_runs_on_remote_places_through_ser2net_on_loopback(lab, tmp_
     while any(listening(p.port) for p in ports.values()) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert [listening(p.port) for p in ports.values()] == [[], []]
+
+
+def test_a_port_outside_dev_is_not_served(lab):
+    """docs/testing.md's /dev/ rule: a RawSerialPort named by a link elsewhere (the one
+    ``sim serve --pty`` makes) cannot be acquired: the exporter's assertion marks it broken,
+    and labgrid shows it acquired by '<broken>'; ``lm629 --place`` says so in one line."""
+    cli = ended(lm629(lab, "--place", "link-fw", "status"))
+    assert cli.returncode == 3 and len(err_lines(cli)) == 1, cli.stderr
+    assert "already acquired by place '<broken>': the exporter could not serve it" in cli.stderr
+    assert "must start with /dev/" in cli.stderr
+    exporter_log = lab.exporters["bench-fw"].log.read_text()
+    assert "AssertionError" in exporter_log and "marked as broken" in exporter_log
+    again = lab.client("-p", "link-fw", "lock", check=False)
+    assert again.returncode != 0 and "already acquired by place '<broken>'" in again.stdout
+    assert lab.held() == {}
 
 
 def test_a_place_someone_else_holds_is_refused_naming_them(lab, tmp_path):
