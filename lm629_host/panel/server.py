@@ -156,7 +156,7 @@ class PanelHandler(BaseHTTPRequestHandler):
     def _token_ok(self, given: str | None) -> bool:
         return given is not None and hmac.compare_digest(given.encode(), self.server.token.encode())
 
-    def _checked(self, need_token: bool) -> dict[str, list[str]] | None:
+    def _checked(self, need_token: bool, public: bool = False) -> dict[str, list[str]] | None:
         """The query, or None once a refusal was sent (bad Host, missing token)."""
         if not self.server.host_ok(self.headers.get("Host")):
             self._refuse(403, f"refused: Host {self.headers.get('Host')!r} is not this panel's "
@@ -164,7 +164,7 @@ class PanelHandler(BaseHTTPRequestHandler):
             return None
         query = parse_qs(urlsplit(self.path).query)
         given = (query.get("token") or [""])[0] or self.headers.get("X-LM629-Token")
-        if (need_token or not self.server.loopback) and not self._token_ok(given):
+        if (need_token or not (self.server.loopback or public)) and not self._token_ok(given):
             self._refuse(403, "refused: no valid token (open the address the panel printed)")
             return None
         return query
@@ -177,7 +177,10 @@ class PanelHandler(BaseHTTPRequestHandler):
             if query is not None:
                 self._events()
             return
-        query = self._checked(need_token=False)
+        # the page carries the token (beyond loopback, only an address with it gets the page);
+        # its script, style and the plot library are the package's public files
+        public = path == "/favicon.ico" or (path.startswith("/static/") and path[8:] in STATIC)
+        query = self._checked(need_token=False, public=public)
         if query is None:
             return
         if path in ("/", "/index.html"):
@@ -282,7 +285,7 @@ class PanelHandler(BaseHTTPRequestHandler):
             why = server.clients.refusal(str(body.get("client", "")))
             if why is not None:
                 return Outcome(2, why)
-        return worker.submit(job.argv, job.cs, stop=job.stop, then=job.then)
+        return worker.submit(job.argv, job.cs, stop=job.stop, then=job.then, live=job.live)
 
 
 __all__ = ["PanelServer", "is_loopback"]
