@@ -259,12 +259,13 @@ class Lab:
 
 
 @contextlib.contextmanager
-def running_lab(tmp: Path, labgrid_bin: Path, far_ends: dict[str, str]) -> Iterator[Lab]:
-    """A lab with one exporter per ``far_ends`` item (exporter name -> "python" or
-    "firmware"), each exporting its bench as ``NAME/lm629-bench/*``; the first also exports
-    ``NAME/lm629-spare/*``, a pseudo-terminal with nothing behind it (a bench whose board is
-    off); stopped at the end, and the process list checked: nothing it started is left
-    running."""
+def running_lab(tmp: Path, labgrid_bin: Path,
+                far_ends: dict[str, tuple[str, str]]) -> Iterator[Lab]:
+    """A lab with one exporter per ``far_ends`` item (exporter name -> ("python" or
+    "firmware", the served chip's URL: ``sim://?clock=6MHz``)), each exporting its bench as
+    ``NAME/lm629-bench/*``; the first also exports ``NAME/lm629-spare/*``, a pseudo-terminal
+    with nothing behind it (a bench whose board is off); stopped at the end, and the process
+    list checked: nothing it started is left running."""
     lab = Lab(tmp, labgrid_bin)
     spare = os.openpty()
     with contextlib.ExitStack() as stack:
@@ -273,9 +274,9 @@ def running_lab(tmp: Path, labgrid_bin: Path, far_ends: dict[str, str]) -> Itera
         try:
             lab.start_coordinator()
             benches = {}
-            for name, far_end in far_ends.items():
+            for name, (far_end, url) in far_ends.items():
                 (tmp / name).mkdir()
-                benches[name] = stack.enter_context(serve(tmp / name, far_end))
+                benches[name] = stack.enter_context(serve(tmp / name, far_end, url))
             lab.coordinator_ready()
             for i, (name, bench) in enumerate(benches.items()):
                 lab.add_exporter(name, bench,

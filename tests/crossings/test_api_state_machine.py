@@ -841,7 +841,7 @@ class ApiMachine(RuleBasedStateMachine):
 
 
 def test_reads_of_an_axis_settling_under_new_gains_agree_with_the_model_at_their_time():
-    """Found by the long run on sim+avr:// (issue 47): a move leaves axis 1 held 11 counts off
+    """Found by the long run on sim+avr:// a move leaves axis 1 held 11 counts off
     its target at kp=20; kp=40 pulls it in over the next ~0.4 s, while a second thread moves
     axis 0 and this one reads axis 1.  Each read was the model's position at its time; the
     oracle compared them all with the model after the thread (8 counts on), so the oracle was

@@ -20,7 +20,8 @@ from lm629_host.bus.opcodes import Cmd
 from lm629_host.sim.serve import SimServer
 from test_serial_pty import three_commands_once
 from lm629_host.bridge.protocol import REPLY_TO, FrameReader, FrameType
-from lm629_host.transports.serial import RTT_PINGS, SerialTransport, options_of
+from lm629_host.transports.link import RTT_PINGS
+from lm629_host.transports.serial import SerialTransport, options_of
 
 
 @pytest.fixture
