@@ -49,6 +49,7 @@ from hypothesis.stateful import (
 
 import lm629_host
 from lm629_host.bench import selftest
+from lm629_host.bench.selftest.checks import INDEX_AT_REST
 from lm629_host.bridge.protocol import PROFILE_MAX_SCHEDULE
 from lm629_host.bus.opcodes import FIXED_ONE, POSITION_MAX, POSITION_MIN, SAMPLE_CLOCKS, wrap_counts
 from lm629_host.chip.move import MoveRules, MoveTooLong
@@ -747,40 +748,86 @@ class ApiMachine(RuleBasedStateMachine):
 
     # ------------------------------------------------------------------ rules: selftest
     @precondition(lambda self: not self.cycled and self._dear("selftest"))
-    @rule(k=AXES)
-    def selftest_mid_session(self, k: int) -> None:
-        """``lm629_host.bench.selftest.run`` on one axis in the middle of a session.  The
-        model resets its registers to 0 as a real chip does: on a chip reset to 0 it is a
-        PASS; a simulated chip reset elsewhere (reset_position) differs from the first read
-        after the reset on, and ends (a finding when it did not).  After it: the chip as a
-        reset leaves it (trajectory done, no interrupt flag, motor off; the docstring's
-        "reset at the end"), the other axis untouched, the failsafe still fed."""
+    @rule(which=st.sampled_from([(0,), (1,), (0, 1)]), park=st.booleans())
+    def selftest_mid_session(self, which: tuple[int, ...], park: bool) -> None:
+        """``lm629_host.bench.selftest.run`` in the middle of a session on one axis, or on
+        both in turn with both chip selects named (what ``lm629 selftest`` does for a
+        profile's axes), the first axis's shaft first parked on its encoder's index (or left
+        where it is).  The model resets its registers to 0 as a real chip does: on a chip
+        reset to 0 each report is a PASS (exit 0), every chip select named answers, and the
+        index is told under the shaft exactly when the model's shaft stands on its index count
+        (one count a revolution of 4 x lines); a simulated chip reset elsewhere
+        (reset_position) is told as such: DIFFERS (exit 1, not FAIL's 10), a "positions" fault
+        naming the desired position the reset left, the URL's reset_position.  After it: the
+        chip as a reset leaves it (trajectory done, no interrupt flag, motor off), an axis not
+        tested untouched, the failsafe still fed."""
         self._count()
         self._spend("selftest")
         self._note_turns()
-        axis = self.board.axes[k]
-        other = self._untouched(1 - k)
-        report = selftest.run(axis, selftest.Options(profile_hz=8e6))
-        differs = {m.name: (m.measured, m.expected) for m in report.differences}
-        if self.start == 0:
-            assert (report.verdict, report.error, report.faults, differs) == \
-                ("PASS", None, [], {}), (report.verdict, report.error, differs)
-            status = self.truth[k].model.status
-            assert status & 0x80 and not status & 0x3F, hex(status)  # motor off, no flag
-            assert self.truth[k].model.motion.traj.done
-        else:
-            assert report.verdict != "PASS"
-            measured, expected = differs["after reset: RDDP"]  # where the shaft is: near it
-            assert expected == 0 and abs(measured - self.start) <= 20, differs
-            assert self.truth[k].model.status & 0x80  # the motor left off
-            axis.reset()  # what a user does after a selftest that did not pass
-        assert self._untouched(1 - k) == other
+        if park and self._can_move(which[0]):
+            self._park_on_index(which[0])
+        others = {j: self._untouched(j) for j in (0, 1) if j not in which}
+        selects = which if len(which) > 1 else ()
+        for k in which:
+            axis = self.board.axes[k]
+            motor = self.truth[k].model.motion.motor
+            on_index = motor.speed == 0.0 and motor.count % motor.counts_per_rev == motor.index_k
+            report = selftest.run(axis, selftest.Options(profile_hz=8e6, selects=selects))
+            rests = {m.name: m.measured for m in report.measurements}.get(INDEX_AT_REST)
+            assert rests == on_index, (k, rests, on_index, motor.count)
+            answers = {m.name: m.measured for m in report.measurements
+                       if m.name.startswith("cs ")}
+            assert answers == {f"cs {j}: answers": True for j in selects or (k,)}, answers
+            differs = {m.name: (m.measured, m.expected) for m in report.differences}
+            if self.start == 0:
+                assert (report.verdict, report.exit_code, report.error, report.faults,
+                        differs) == ("PASS", 0, None, [], {}), (report.verdict, report.error,
+                                                                report.faults, differs)
+                status = self.truth[k].model.status
+                assert status & 0x80 and not status & 0x3F, hex(status)  # motor off, no flag
+                assert self.truth[k].model.motion.traj.done
+            else:
+                assert (report.verdict, report.exit_code, report.error) == ("DIFFERS", 1, None), \
+                    (report.verdict, report.error)
+                measured, expected = differs["after reset: RDDP"]  # where the shaft is: near it
+                assert expected == 0 and abs(measured - self.start) <= 20, differs
+                told = [f for f in report.faults if f.line == "positions"]
+                assert len(told) == 1 and f"read {measured} and " in told[0].message \
+                    and "not the model's" in told[0].message \
+                    and "reset_position" in told[0].fix, report.faults
+                assert self.truth[k].model.status & 0x80  # the motor left off
+                axis.reset()  # what a user does after a selftest that did not pass
+        assert {j: self._untouched(j) for j in others} == others
         self._settle()
         self._rebase()
-        self.tuned[k] = False
         self._idle(FAILSAFE_S + 0.1)  # the failsafe still fed: the next command is not refused
-        self._tune(k, 20, 200)
-        self._agree(k, axis.read_real_position(), axis.read_desired_position())
+        for k in which:
+            self.tuned[k] = False
+            self._tune(k, 20, 200)
+            axis = self.board.axes[k]
+            self._agree(k, axis.read_real_position(), axis.read_desired_position())
+
+    def _park_on_index(self, k: int) -> None:
+        """Park axis ``k``'s shaft on its encoder's index, as the selftest's users do: its
+        trajectory moved the short way to the nearest count the model's index is on, then
+        held stiffly (kp 400: the shaft pulled onto its desired position, not held a few counts
+        off it as at kp 20)."""
+        t = self.truth[k]
+        motor = t.model.motion.motor
+        n = motor.counts_per_rev
+        delta = (motor.index_k - (motor.count + t.desired - t.real)) % n
+        delta = delta - n if delta > n // 2 else delta
+        target = t.desired + delta
+        lim = self.board.axes[k].limits
+        if lim is not None and lim.min is not None and not lim.min <= target <= lim.max:
+            return
+        if delta:
+            result = self.board.axes[k].move_to(delta, velocity=4 * 65536, acceleration=6553,
+                                                relative=True).wait(timeout=WAIT_S)
+            self._note_turns()
+            self._landed(k, target, result)
+        self._tune(k, 400, 200)
+        self._idle(0.3)
 
     # ------------------------------------------------------------------ rules: the script's end
     @precondition(lambda self: not self.cycled and self._dear("exit")
