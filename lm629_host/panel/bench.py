@@ -157,6 +157,9 @@ class BenchWorker:
         first: it cancels the commands queued behind it and interrupts one that waits."""
         job = Job(argv, cs, stop, then, live)
         with self._lock:
+            if self._quit or not self._thread.is_alive():
+                return Outcome(3, "the panel is ending" if self._quit else
+                               f"the bench stopped: {self.error}")
             if stop:
                 for old in self._jobs:
                     old.outcome = Outcome(2, "cancelled: the stop button was pressed first")

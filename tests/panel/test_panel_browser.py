@@ -157,7 +157,8 @@ def test_second_tab_watches_escape_stops_closed_tab_stops_nothing(page):
     driver.switch_to.window(first)
     _type(driver, "move-target", str(held + 3000))
     _click(driver, "move")
-    wait_for(lambda: message(driver).startswith("moving to"), what="the move's answer")
+    wait_for(lambda: message(driver).startswith(f"moving to {held + 3000} counts"),
+             what="the move's answer")  # this move's: the tab showed the last move's before
     driver.close()
     driver.switch_to.window(second)
     wait_for(lambda: driver.find_element("id", "role").text == "this tab commands",
