@@ -32,7 +32,8 @@ from lm629_host.errors import (
     UpdateTooSoon,
     WaitTimeout,
 )
-from lm629_host.chip.lm629 import LM629, Snapshot
+from lm629_host.chip.lm629 import LM629
+from lm629_host.bus.snapshot import Snapshot
 from lm629_host.chip.move import Move, MoveResult, MoveRules
 from lm629_host.chip.shapes import Points, SCurve
 from lm629_host.bus.opcodes import Cmd, FilterFlags, Signals, Status, TrajectoryFlags

@@ -11,10 +11,7 @@ word first, positions in two's complement (spec "Bus cycles").
 
 from __future__ import annotations
 
-import contextlib
-import copy
-import threading
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING
 
 from lm629_host.bus.opcodes import (
@@ -39,12 +36,13 @@ from lm629_host.bus.opcodes import (
 )
 from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, Program, ProgramResult
 from lm629_host.bus.snapshot import Snapshot, add_snapshot, snapshot_at
-from lm629_host.chip import waiting
-from lm629_host.chip.move import Move, MoveRules
-from lm629_host.chip.mover import Mover
-from lm629_host.chip.pacing import UpdatePacing
-from lm629_host.chip.reset import reset_chips
-from lm629_host.chip.shapes import Shape, ShapedMove
+from lm629_host.chip.waiting import WaitsMixin
+from lm629_host.chip.move import MoveRules
+from lm629_host.chip.mover import Mover, MovesMixin
+from lm629_host.chip.pacing import PacingMixin, UpdatePacing, check_flags
+from lm629_host.chip.recording import RecordingMixin
+from lm629_host.chip.reset import ResetMixin
+from lm629_host.chip.routing import ProgramRouting
 from lm629_host.chip.wraparound import PositionTracker, check_register_position
 from lm629_host.clock import Clock
 from lm629_host.errors import ArgumentError, AxisError, check_int
@@ -56,8 +54,6 @@ from lm629_host.transports.base import Transport
 if TYPE_CHECKING:
     from lm629_host.bridge.protocol import FailsafeState
     from lm629_host.chip.batch import Batch
-    from lm629_host.chip.recording import RecordStream, Trace
-    from lm629_host.chip.supervise import VelocityRun
 
 #: busy timeout bounds: "well above" the chip's 100 us worst case; 65.535 ms is the largest a
 #: bridge RUN request carries (PROTOCOL.md, busy_timeout_us)
@@ -72,18 +68,7 @@ _STOPS = {
 }
 
 
-def _check_flags(name: str, flags: object) -> Status:
-    value = check_int(name, int(flags) if isinstance(flags, Status) else flags, 0, 0xFF)
-    extra = value & ~INTERRUPTS
-    if extra:
-        raise ArgumentError(
-            name, value,
-            f"{name}={value:#04x} has bits that are not interrupt conditions ({extra:#04x}); "
-            f"allowed: {INTERRUPTS!r} (status bits 1..6)")
-    return Status(value)
-
-
-class LM629:
+class LM629(ProgramRouting, ResetMixin, PacingMixin, MovesMixin, WaitsMixin, RecordingMixin):
     """One LM628 or LM629 behind a transport.  Use :func:`lm629_host.open` to make one.
 
     Threads may share one object: every bus program runs whole under the transport's lock
@@ -110,6 +95,7 @@ class LM629:
     def __init__(self, transport: Transport, *, chip: str = "lm629", reset_attempts: int = 2,
                  busy_timeout: float = DEFAULT_BUSY_TIMEOUT_S, axis: int | None = None,
                  clock_hz: float | None = None):
+        super().__init__()
         chip = chip.lower()
         if chip not in ("lm628", "lm629"):
             raise ValueError(f"chip={chip!r}: expected 'lm628' or 'lm629'")
@@ -128,7 +114,6 @@ class LM629:
         self._clock_hz = clock_hz  # the clock said by the caller (a URL's clock=, --clock)
         self._ds = 1  # derivative interval, samples, re-sent with every LFIL (AN-706 4.5.1)
         self._port12 = False  # re-issued after every reset (LM628 with a 12-bit DAC)
-        self._this_thread = _ThisThread()
         #: the extended positions (AN-706 6.5.2): every position this object reads goes
         #: through it, so that a wraparound of the register is no jump (:mod:`.wraparound`)
         self.positions = PositionTracker()
@@ -174,45 +159,13 @@ class LM629:
         default timeouts, expected move times and the sample period of tuning."""
         return self.transport.clock_hz or self._clock_hz or NOMINAL_CLOCK_HZ
 
-    def run(self, program: Program) -> ProgramResult:
-        """Run a bus program (for experts and for composite operations).  Every typed call
-        goes through here: the one point :meth:`intercept` reroutes."""
-        runner = self._this_thread.runner
-        if runner is not None:
-            return runner(program)
-        if self.before_program is not None:
-            self.before_program(program)
-        return self.transport.execute(program)
-
-    #: shown every program :meth:`run` sends to the transport, first: a host-timed shaped
-    #: move issues its pieces that are due there (:class:`~lm629_host.chip.shapes.ShapedMove`)
-    before_program: Callable[[Program], None] | None = None
-
-    @contextlib.contextmanager
-    def intercept(self, runner: Callable[[Program], ProgramResult]) -> Iterator[None]:
-        """While the block runs, this thread's bus programs of this object go to
-        ``runner(program)`` instead of the transport, which answers them as the chip would;
-        other threads' calls still reach the bus.  A batch builds and decodes its calls
-        through here (:mod:`lm629_host.chip.batch`).  Nested: the inner runner until it ends.
-        A wraparound bit a runner's answer shows is cleared only after the block
-        (:meth:`PositionTracker.holding <lm629_host.chip.wraparound.PositionTracker.holding>`):
-        the programs it answers were built before it was seen."""
-        here = self._this_thread
-        before, here.runner = here.runner, runner
-        try:
-            with self.positions.holding():  # the runner answers programs built before
-                yield
-        finally:
-            here.runner = before
-
     def shadow(self, runner: Callable[[Program], ProgramResult]) -> LM629:
         """A copy of this object whose bus programs all go to ``runner`` (never to the
         transport): the same transport, chip select and settings, and the host-side state this
         object keeps of the chip (the derivative interval last sent, whether the command-error
         flag is known clear...) as it is now, its own from then on.  A batch builds its
         programs on one, so that building changes nothing here."""
-        twin = copy.copy(self)
-        twin._this_thread = _ThisThread(runner)
+        twin = self._rerouted(runner)
         twin.positions = self.positions.copy()  # its reads are answered with dummy words
         twin._pacing = self._pacing.bound_to(twin)
         twin._mover = self._mover.bound_to(twin, twin._pacing)
@@ -264,30 +217,6 @@ class LM629:
         return self.run(self.program().command(cmd).read(words)).words
 
     # ------------------------------------------------------------------ reset
-    @property
-    def uses_reset_line(self) -> bool:
-        """True when :meth:`reset` pulses /RST.  An axis of a multi-axis board sends the
-        RESET command instead: /RST is shared and would reset every chip on the bus
-        (:meth:`Board.reset <lm629_host.motion.board.Board.reset>` pulses it for all of them)."""
-        return self.transport.has_reset_line and self.axis is None
-
-    def reset(self) -> Status:
-        """Reset the chip and check that it came back, as AN-706 4.4.1 prescribes.
-
-        Pulses /RST (or sends the RESET command when the transport has no reset line), checks
-        status 00 at once (hardware reset only: a chip that does not read 00 did not see /RST),
-        84 or C4 after 1.5 ms, then masks and clears all interrupts and checks 80 or C0.
-        Retries ``reset_attempts`` times in all, then raises :class:`ResetError` with every
-        status byte seen (:func:`reset_chips`, shared with a board's reset).
-        """
-        return self.reset_statuses()[0]
-
-    def reset_statuses(self) -> tuple[Status, list[int]]:
-        """:meth:`reset`, also returning every status byte its programs read (bring-up)."""
-        statuses, seen = reset_chips([self], pulse=self.uses_reset_line,
-                                     attempts=self.reset_attempts)
-        return statuses[0], seen[self.chip_select]
-
     def reset_done(self) -> None:
         """What a reset (this object's or a board's) leaves: the derivative interval back to
         one sample, the command-error flag clear."""
@@ -363,13 +292,13 @@ class LM629:
     # ------------------------------------------------------------------ interrupts
     def mask_interrupts(self, flags: Status | int) -> None:
         """MSKI: the interrupt conditions (status bits 1..6) that drive HI."""
-        value = _check_flags("flags", flags)
+        value = check_flags("flags", flags)
         self.run(self.program().command(Cmd.MSKI).write(int(value)))
 
     def reset_interrupts(self, flags: Status | int = INTERRUPTS) -> None:
         """RSTI: clear exactly ``flags`` (default: all six) and, with them, HI (RSTI resets the
         HI line; it rises again at once if another enabled flag is still set)."""
-        value = _check_flags("flags", flags)
+        value = check_flags("flags", flags)
         self.run(self.program().command(Cmd.RSTI).write(int(INTERRUPTS & ~value)))
         if value & Status.COMMAND_ERROR:
             self._pacing.ce_clear = True
@@ -525,89 +454,12 @@ class LM629:
         else:
             self.run(p)
 
-    def start_flags(self, clear: Status | int = 0) -> Status:
-        """The flags a program must clear (RSTI) before its STT on this chip: ``clear``, and
-        the command-error flag unless it is known to be clear (:mod:`.pacing`)."""
-        return self._pacing.flags(_check_flags("clear", clear))
-
     def start_checked(self, before: int, after: int) -> bool:
         """Take the status read just before this chip's STT (busy clear) and the one after it;
         return True when the chip refused that STT (the caller raises :class:`CommandError`).
         Every STT, this object's or a board's, goes through here."""
         self._mover.rest_desired = None  # the trajectory may run from here on
         return self._pacing.checked(before, after)
-
-    @property
-    def last_update(self) -> float | None:
-        """The transport clock just after this chip's last STT (None: none since the reset)."""
-        return self._pacing.last_update
-
-    def update_due(self) -> float:
-        """Seconds until the next trajectory update may go out (``update_interval`` after the
-        last STT), 0 when it may now."""
-        return self._pacing.due()
-
-    def hold_update(self) -> None:
-        """Hold a trajectory update back to ``update_interval`` after the last STT (AN-706
-        4.6.2), or raise :class:`UpdateTooSoon` under ``update_rule = "raise"``.  Every STT
-        that is an update passes here: this chip's own, and a board's (:meth:`Board.start`)."""
-        self._pacing.hold()
-
-    def start(self) -> Status:
-        """STT: trajectory input buffers -> working registers; the move begins.
-
-        Raises :class:`CommandError` when the chip refuses it (acceleration changed while
-        moving with the drive on, relative velocity below zero): the status after the STT is
-        checked in the same bus program, once busy has cleared after the STT (the documents do
-        not say when the chip raises the flag; the model raises it while it processes the STT,
-        i.e. before busy clears: see the model's choice list).  When the command-error flag may
-        already be set (after
-        an earlier refusal, a ``raw`` command, or on a chip not reset by this object) an RSTI
-        that clears only that flag goes first, so that a refusal is never hidden by a stale flag.
-        Spaced ``update_interval`` (10 ms) after the last STT (AN-706 4.6.2): it waits on the
-        transport's clock, or raises :class:`UpdateTooSoon` under ``update_rule = "raise"``.
-        """
-        return self._pacing.start(self.program())[0]
-
-    # ------------------------------------------------------------------ moves
-    def move_to(self, position: int, *, velocity: int, acceleration: int | None = None,
-                relative: bool = False) -> Move:
-        """Start a move to ``position`` (counts) and return a :class:`Move`; ``move.wait()``
-        returns when the shaft is at rest on the target or raises :class:`MotionError`.
-
-        ``velocity`` and ``acceleration`` are raw 16.16 words (1..); ``acceleration=None``
-        keeps the one loaded (the chip refuses a new acceleration while the motor moves with
-        the drive on: leave it out to change a running move).  ``relative=True``: ``position``
-        counts from the desired position now (one more round trip, a snapshot first).  One
-        bus program starts it, the flags a move reports cleared first; arguments and the
-        plan's length (``move_rules.max_duration``) are checked before anything moves
-        (``ValueError``): :mod:`lm629_host.chip.mover`.
-        """
-        return self._mover.move_to(position, velocity, acceleration, relative)
-
-    def check_move(self, position: int, *, velocity: int, acceleration: int | None = None,
-                   relative: bool = False) -> float:
-        """The seconds the plan of :meth:`move_to` with these arguments takes, or
-        :class:`~lm629_host.chip.move.MoveTooLong` (an ``ArgumentError``) when it is longer
-        than ``move_rules.max_duration``; nothing moves either way (a read first when where the
-        move would start is not known)."""
-        return self._mover.check_move(position, velocity, acceleration, relative)
-
-    def move_profile(self, position: int, shape: Shape, *, relative: bool = False,
-                     piece_s: float = 2 * UPDATE_INTERVAL_S) -> ShapedMove:
-        """Start a move to ``position`` (counts, a register value as for :meth:`move_to`, or
-        from the desired position with ``relative=True``) along ``shape``
-        (:class:`~lm629_host.chip.shapes.SCurve`: jerk-limited;
-        :class:`~lm629_host.chip.shapes.Points`: your own (time, velocity) list), in
-        pieces ``piece_s`` apart (AN-706 4.5.3; at least 10 ms, 4.6.2).  Returns a
-        :class:`~lm629_host.chip.shapes.ShapedMove`: on a bridge that has PROFILE its timer
-        issues the pieces (handed over at once; a move of more pieces than it holds, 64, is
-        timed from the host), elsewhere they go out on the transport's clock before the
-        chip's next bus program, ``wait()``'s or any other; ``wait()`` supervises the move as
-        :meth:`Move.wait` does; the chip's own deceleration lands it exactly on the target.
-        Reads a snapshot first (the distance sets the plan); the plan is checked
-        (``ArgumentError``) before anything moves."""
-        return self._mover.move_profile(position, shape, relative, piece_s)
 
     # ------------------------------------------------------------------ output port
     def port8(self) -> None:
@@ -651,59 +503,6 @@ class LM629:
         """RDSUM: the integration term (signed 16-bit)."""
         return s16(self._read(Cmd.RDSUM, 1)[0])
 
-    # ------------------------------------------------------------------ waiting
-    def wait_for(self, flags: Status | int, timeout: float = 10.0,
-                 poll: float | None = None, *, what: str | None = None) -> Status:
-        """Wait until any of ``flags`` is set in the status byte; return the status.
-
-        Waits on the transport's clock (simulated time on ``sim://``), on the far side where
-        the transport can (:mod:`lm629_host.chip.waiting`).  Raises :class:`WaitTimeout` after
-        ``timeout`` seconds (its ``what``: ``what`` when given, the words a person reads, else
-        the flags' names); ``poll``: the host's poll period where it polls.
-
-        A flag raised *earlier* satisfies it at once: the chip keeps its flags until RSTI
-        clears them.  After a first move, ``load_trajectory(..., start=True)`` then
-        ``wait_for(Status.TRAJECTORY_COMPLETE)`` returns immediately while the second move
-        runs.  Clear the flag first (:meth:`reset_interrupts`), or better, move with
-        :meth:`move_to` and ``Move.wait()``, which clear the move's flags in the program that
-        starts it and wait until the shaft is at rest on the target.
-        """
-        return waiting.wait_for(self, flags, timeout, poll, what)
-
-    # ------------------------------------------------------------------ recording
-    def run_velocity(self, velocity: int, acceleration: int | None = None) -> VelocityRun:
-        """Start velocity mode at ``velocity``, 16.16 counts/sample with its sign the
-        direction (negative: backwards), as :meth:`move_to` starts a move; ``acceleration``
-        (16.16 counts/sample^2) is loaded too unless None (leave it out to change the speed of
-        a running motor: the chip refuses a new one then, AN-706 4.6.1).  Returns the
-        :class:`~lm629_host.chip.supervise.VelocityRun` (``.check()`` for a stall or runaway,
-        ``.stop()`` to end it smoothly).  On an axis with soft limits it is a ValueError:
-        velocity mode runs past them."""
-        from lm629_host.chip import supervise
-        speed = check_int("velocity", velocity, -VELOCITY_MAX, VELOCITY_MAX)
-        return supervise.run_velocity(self, abs(speed), acceleration, forward=speed >= 0)
-
-    def record(self, period_s: float, duration_s: float, *, full: bool = False) -> Trace:
-        """Sample status, desired (RDDP) and real (RDRP) position every ``period_s`` for
-        ``duration_s``, timed where the chip is: the bridge's own timer (rows stamped with its
-        clock and streamed, so the link's latency changes nothing but when they arrive), the
-        simulator's clock on ``sim://``; elsewhere the host polls
-        (``transport.record_note()`` says which).  ``full``: every register of a snapshot.
-        A rate the line cannot carry is a ``ValueError`` naming the highest it can, before
-        any traffic.  A row lost on the link is a gap (``trace.missing``), never made up.
-        See :mod:`lm629_host.chip.recording`."""
-        from lm629_host.chip import recording
-        self.transport.check_open()  # before the rate is judged: "closed", not "too fast"
-        return recording.record(self, period_s, duration_s, full=full)
-
-    def record_stream(self, period_s: float, duration_s: float | None = None, *,
-                      full: bool = False) -> RecordStream:
-        """The rows of :meth:`record` as they arrive (``duration_s=None``: until closed), for
-        live views: ``with chip.record_stream(1e-3) as rows: for row in rows: ...``."""
-        from lm629_host.chip import recording
-        self.transport.check_open()
-        return recording.open_stream(self, period_s, duration_s, full=full)
-
     # ------------------------------------------------------------------ experts
     def raw(self, command: int, write: Iterable[int] = (), read: int = 0) -> tuple[int, ...]:
         """Send any command byte with data words to write, or a count of words to read."""
@@ -717,14 +516,6 @@ class LM629:
             p.write(w)
         self._pacing.ce_clear = False  # any byte may provoke a command error
         return self.run(p.read(read)).words
-
-
-class _ThisThread(threading.local):
-    """Per thread: where an LM629's bus programs go (None: its transport; see intercept).
-    ``runner`` is every thread's start (a threading.local runs ``__init__`` in each)."""
-
-    def __init__(self, runner: Callable[[Program], ProgramResult] | None = None) -> None:
-        self.runner = runner
 
 
 __all__ = ["LM629"]

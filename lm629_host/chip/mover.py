@@ -15,12 +15,13 @@ from __future__ import annotations
 import copy
 from typing import Protocol
 
-from lm629_host.bus.opcodes import ACCELERATION_MAX, FIXED_ONE, VELOCITY_MAX
+from lm629_host.bus.opcodes import ACCELERATION_MAX, FIXED_ONE, UPDATE_INTERVAL_S, VELOCITY_MAX
 from lm629_host.bus.program import Program
 from lm629_host.bus.snapshot import Snapshot, snapshot_at
 from lm629_host.chip.move import MOVE_FLAGS, Move, MovingChip, MoveTooLong, check_duration
 from lm629_host.chip.pacing import UpdatePacing
 from lm629_host.chip.safety import stop_on_error
+from lm629_host.chip.supervise import SupervisedChip, VelocityRun, run_velocity
 from lm629_host.chip.shapes import Points, SCurve, Shape, ShapedMove, check_piece_s
 from lm629_host.chip.shapes import plan as plan_shape
 from lm629_host.chip.wraparound import PositionTracker, check_register_position, short_way
@@ -181,3 +182,59 @@ class Mover:
                 shaped.schedule_far(chip.axis, chip.update_interval)
             self.pacing.last_update = shaped.t0 + max(plan.pieces[-1].t, chip.update_interval)
         return shaped
+
+
+class MovesMixin:
+    """:class:`~lm629_host.LM629`'s moves: the front doors of its :class:`Mover`."""
+
+    _mover: Mover
+
+    def move_to(self, position: int, *, velocity: int, acceleration: int | None = None,
+                relative: bool = False) -> Move:
+        """Start a move to ``position`` (counts) and return a :class:`Move`; ``move.wait()``
+        returns when the shaft is at rest on the target or raises :class:`MotionError`.
+
+        ``velocity`` and ``acceleration`` are raw 16.16 words (1..); ``acceleration=None``
+        keeps the one loaded (the chip refuses a new acceleration while the motor moves with
+        the drive on: leave it out to change a running move).  ``relative=True``: ``position``
+        counts from the desired position now (one more round trip, a snapshot first).  One
+        bus program starts it, the flags a move reports cleared first; arguments and the
+        plan's length (``move_rules.max_duration``) are checked before anything moves
+        (``ValueError``): :mod:`lm629_host.chip.mover`.
+        """
+        return self._mover.move_to(position, velocity, acceleration, relative)
+
+    def check_move(self, position: int, *, velocity: int, acceleration: int | None = None,
+                   relative: bool = False) -> float:
+        """The seconds the plan of :meth:`move_to` with these arguments takes, or
+        :class:`~lm629_host.chip.move.MoveTooLong` (an ``ArgumentError``) when it is longer
+        than ``move_rules.max_duration``; nothing moves either way (a read first when where the
+        move would start is not known)."""
+        return self._mover.check_move(position, velocity, acceleration, relative)
+
+    def move_profile(self, position: int, shape: Shape, *, relative: bool = False,
+                     piece_s: float = 2 * UPDATE_INTERVAL_S) -> ShapedMove:
+        """Start a move to ``position`` (counts, a register value as for :meth:`move_to`, or
+        from the desired position with ``relative=True``) along ``shape``
+        (:class:`~lm629_host.chip.shapes.SCurve`: jerk-limited;
+        :class:`~lm629_host.chip.shapes.Points`: your own (time, velocity) list), in
+        pieces ``piece_s`` apart (AN-706 4.5.3; at least 10 ms, 4.6.2).  Returns a
+        :class:`~lm629_host.chip.shapes.ShapedMove`: on a bridge that has PROFILE its timer
+        issues the pieces (handed over at once; a move of more pieces than it holds, 64, is
+        timed from the host), elsewhere they go out on the transport's clock before the
+        chip's next bus program, ``wait()``'s or any other; ``wait()`` supervises the move as
+        :meth:`Move.wait` does; the chip's own deceleration lands it exactly on the target.
+        Reads a snapshot first (the distance sets the plan); the plan is checked
+        (``ArgumentError``) before anything moves."""
+        return self._mover.move_profile(position, shape, relative, piece_s)
+
+    def run_velocity(self: SupervisedChip, velocity: int, acceleration: int | None = None) -> VelocityRun:
+        """Start velocity mode at ``velocity``, 16.16 counts/sample with its sign the
+        direction (negative: backwards), as :meth:`move_to` starts a move; ``acceleration``
+        (16.16 counts/sample^2) is loaded too unless None (leave it out to change the speed of
+        a running motor: the chip refuses a new one then, AN-706 4.6.1).  Returns the
+        :class:`~lm629_host.chip.supervise.VelocityRun` (``.check()`` for a stall or runaway,
+        ``.stop()`` to end it smoothly).  On an axis with soft limits it is a ValueError:
+        velocity mode runs past them."""
+        speed = check_int("velocity", velocity, -VELOCITY_MAX, VELOCITY_MAX)
+        return run_velocity(self, abs(speed), acceleration, forward=speed >= 0)

@@ -6,9 +6,13 @@ update waits until ``update_interval`` (10 ms) after the last one, on the transp
 (:class:`~lm629_host.errors.UpdateTooSoon`) under ``update_rule = "raise"``.  A stop is not an
 update: it goes out at once.
 
-The status read just before the STT (busy clear) and the one after it say whether the chip
-refused it (the command-error flag).  The flag is cleared in the same program first unless it
-is known to be clear, so that a refusal is never hidden behind a stale flag.  Every STT, a
+The status read just before the STT (busy clear) and the one after it, once busy has cleared
+after the STT, in the same bus program, say whether the chip refused it (the command-error
+flag: acceleration changed while moving with the drive on, relative velocity below zero).  The
+documents do not say when the chip raises the flag; the model raises it while it processes the
+STT, before busy clears (see the model's choice list).  The flag is cleared in the same program first unless it
+is known to be clear (after an earlier refusal, a ``raw`` command, or on a chip not reset by
+this object it may not be), so that a refusal is never hidden behind a stale flag.  Every STT, a
 chip's own or a board's (:meth:`Board.start <lm629_host.motion.board.Board.start>`), goes
 through :meth:`UpdatePacing.checked`.
 """
@@ -22,7 +26,7 @@ from typing import Protocol
 from lm629_host.bus.opcodes import INTERRUPTS, Cmd, Status
 from lm629_host.bus.program import Program, ProgramResult
 from lm629_host.clock import ROUNDING_S, Clock
-from lm629_host.errors import CommandError, UpdateTooSoon
+from lm629_host.errors import ArgumentError, CommandError, UpdateTooSoon, check_int
 
 log = logging.getLogger("lm629_host")
 
@@ -132,3 +136,54 @@ class UpdatePacing:
         if chip.start_checked(before, after):
             raise CommandError("STT", after)
         return Status(after), result
+
+
+def check_flags(name: str, flags: object) -> Status:
+    """``flags`` as interrupt conditions (status bits 1..6), what MSKI, RSTI and a start's
+    ``clear`` take, or :class:`ArgumentError` naming the bits that are not."""
+    value = check_int(name, int(flags) if isinstance(flags, Status) else flags, 0, 0xFF)
+    extra = value & ~INTERRUPTS
+    if extra:
+        raise ArgumentError(
+            name, value,
+            f"{name}={value:#04x} has bits that are not interrupt conditions ({extra:#04x}); "
+            f"allowed: {INTERRUPTS!r} (status bits 1..6)")
+    return Status(value)
+
+
+class PacingMixin:
+    """:class:`~lm629_host.LM629`'s trajectory updates: the front doors of its
+    :class:`UpdatePacing`."""
+
+    _pacing: UpdatePacing
+
+    def start_flags(self, clear: Status | int = 0) -> Status:
+        """The flags a program must clear (RSTI) before its STT on this chip: ``clear``, and
+        the command-error flag unless it is known to be clear (:mod:`.pacing`)."""
+        return self._pacing.flags(check_flags("clear", clear))
+
+    @property
+    def last_update(self) -> float | None:
+        """The transport clock just after this chip's last STT (None: none since the reset)."""
+        return self._pacing.last_update
+
+    def update_due(self) -> float:
+        """Seconds until the next trajectory update may go out (``update_interval`` after the
+        last STT), 0 when it may now."""
+        return self._pacing.due()
+
+    def hold_update(self) -> None:
+        """Hold a trajectory update back to ``update_interval`` after the last STT (AN-706
+        4.6.2), or raise :class:`UpdateTooSoon` under ``update_rule = "raise"``.  Every STT
+        that is an update passes here: this chip's own, and a board's (:meth:`Board.start`)."""
+        self._pacing.hold()
+
+    def start(self) -> Status:
+        """STT: trajectory input buffers -> working registers; the move begins.
+
+        Raises :class:`CommandError` when the chip refuses it, checked in the same bus program
+        (an RSTI of the command-error flag first unless it is known clear).  Spaced
+        ``update_interval`` (10 ms) after the last STT (AN-706 4.6.2): it waits on the
+        transport's clock, or raises :class:`UpdateTooSoon` under ``update_rule = "raise"``
+        (:mod:`lm629_host.chip.pacing`)."""
+        return self._pacing.start(self._pacing.chip.program())[0]

@@ -341,3 +341,26 @@ def record(chip: RecordingChip, period_s: float, duration_s: float, *,
 __all__ = ["BASIC_READS", "FULL_READS", "MAX_ROWS", "RecordStream", "Row", "Trace",
            "check_period", "far_snapshots", "open_stream", "record", "rows_for",
            "sample_program"]
+
+
+class RecordingMixin:
+    """:class:`~lm629_host.LM629`'s recordings: :func:`record` and :func:`open_stream`."""
+
+    def record(self: RecordingChip, period_s: float, duration_s: float, *, full: bool = False) -> Trace:
+        """Sample status, desired (RDDP) and real (RDRP) position every ``period_s`` for
+        ``duration_s``, timed where the chip is: the bridge's own timer (rows stamped with its
+        clock and streamed, so the link's latency changes nothing but when they arrive), the
+        simulator's clock on ``sim://``; elsewhere the host polls
+        (``transport.record_note()`` says which).  ``full``: every register of a snapshot.
+        A rate the line cannot carry is a ``ValueError`` naming the highest it can, before
+        any traffic.  A row lost on the link is a gap (``trace.missing``), never made up.
+        See :mod:`lm629_host.chip.recording`."""
+        self.transport.check_open()  # before the rate is judged: "closed", not "too fast"
+        return record(self, period_s, duration_s, full=full)
+
+    def record_stream(self: RecordingChip, period_s: float, duration_s: float | None = None, *,
+                      full: bool = False) -> RecordStream:
+        """The rows of :meth:`record` as they arrive (``duration_s=None``: until closed), for
+        live views: ``with chip.record_stream(1e-3) as rows: for row in rows: ...``."""
+        self.transport.check_open()
+        return open_stream(self, period_s, duration_s, full=full)

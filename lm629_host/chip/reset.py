@@ -36,6 +36,17 @@ class ResetChip(Protocol):
     def reset_done(self) -> None: ...
 
 
+class ResettableChip(ResetChip, Protocol):
+    """What :class:`ResetMixin` needs of the chip it is mixed into."""
+
+    reset_attempts: int
+
+    @property
+    def uses_reset_line(self) -> bool: ...
+
+    def reset_statuses(self) -> tuple[Status, list[int]]: ...
+
+
 def reset_chips(chips: Sequence[ResetChip], *, pulse: bool,
                 attempts: int) -> tuple[list[Status], dict[int, list[int]]]:
     """The AN-706 3.7 / 4.4.1 initialisation of one chip or of every chip of a board, in two
@@ -104,3 +115,36 @@ def reset_chips(chips: Sequence[ResetChip], *, pulse: bool,
                 else "84 or C4 after the RESET command, 80 or C0 after MSKI/RSTI 0000")
     raise ResetError(seen[failed.chip_select], expected, attempts,
                      axis=failed.chip_select if len(chips) > 1 else None)
+
+
+class ResetMixin:
+    """:class:`~lm629_host.LM629`'s reset: :func:`reset_chips` on this chip alone."""
+
+    axis: int | None
+    chip_select: int
+    reset_attempts: int
+    transport: Transport
+
+    @property
+    def uses_reset_line(self) -> bool:
+        """True when :meth:`reset` pulses /RST.  An axis of a multi-axis board sends the
+        RESET command instead: /RST is shared and would reset every chip on the bus
+        (:meth:`Board.reset <lm629_host.motion.board.Board.reset>` pulses it for all of them)."""
+        return self.transport.has_reset_line and self.axis is None
+
+    def reset(self: ResettableChip) -> Status:
+        """Reset the chip and check that it came back, as AN-706 4.4.1 prescribes.
+
+        Pulses /RST (or sends the RESET command when the transport has no reset line), checks
+        status 00 at once (hardware reset only: a chip that does not read 00 did not see /RST),
+        84 or C4 after 1.5 ms, then masks and clears all interrupts and checks 80 or C0.
+        Retries ``reset_attempts`` times in all, then raises :class:`ResetError` with every
+        status byte seen (:func:`reset_chips`, shared with a board's reset).
+        """
+        return self.reset_statuses()[0]
+
+    def reset_statuses(self: ResettableChip) -> tuple[Status, list[int]]:
+        """:meth:`reset`, also returning every status byte its programs read (bring-up)."""
+        statuses, seen = reset_chips([self], pulse=self.uses_reset_line,
+                                     attempts=self.reset_attempts)
+        return statuses[0], seen[self.chip_select]

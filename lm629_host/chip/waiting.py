@@ -80,3 +80,25 @@ def wait_for(chip: WaitingChip, flags: Status | int, timeout: float, poll: float
         if not far:
             step = poll if poll is not None else poll_interval(now - start)
             clock.sleep(min(step, deadline - now))
+
+
+class WaitsMixin:
+    """:class:`~lm629_host.LM629`'s wait for a status flag (:func:`wait_for`)."""
+
+    def wait_for(self: WaitingChip, flags: Status | int, timeout: float = 10.0,
+                 poll: float | None = None, *, what: str | None = None) -> Status:
+        """Wait until any of ``flags`` is set in the status byte; return the status.
+
+        Waits on the transport's clock (simulated time on ``sim://``), on the far side where
+        the transport can (:mod:`lm629_host.chip.waiting`).  Raises :class:`WaitTimeout` after
+        ``timeout`` seconds (its ``what``: ``what`` when given, the words a person reads, else
+        the flags' names); ``poll``: the host's poll period where it polls.
+
+        A flag raised *earlier* satisfies it at once: the chip keeps its flags until RSTI
+        clears them.  After a first move, ``load_trajectory(..., start=True)`` then
+        ``wait_for(Status.TRAJECTORY_COMPLETE)`` returns immediately while the second move
+        runs.  Clear the flag first (:meth:`reset_interrupts`), or better, move with
+        :meth:`move_to` and ``Move.wait()``, which clear the move's flags in the program that
+        starts it and wait until the shaft is at rest on the target.
+        """
+        return wait_for(self, flags, timeout, poll, what)

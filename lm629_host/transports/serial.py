@@ -282,10 +282,10 @@ class SerialPipe:
             self._fd = None
         if self._fd is not None:
             port.timeout = 0  # non-blocking reads; waiting is done with select below
-        else:
+        elif port.timeout != self.READ_SLICE_S:
             # set once: a URL handler may do real work on each change of a setting
             # (pyserial's RFC 2217 client renegotiates every port setting with the server,
-            # 50-150 ms, when its timeout is set), so a wait is cut into reads of this slice
+            # 150 ms, when its timeout is set), so a wait is cut into reads of this slice
             port.timeout = self.READ_SLICE_S
         #: whether a change of rate reaches the line: not through raw TCP (``socket://``),
         #: which carries bytes only, so that the far UART (ser2net's) keeps its rate; RFC 2217
@@ -444,6 +444,66 @@ def _quiet_rfc2217_reader() -> None:
     threading.excepthook = hook
 
 
+def _rfc2217_class():
+    """pyserial's RFC 2217 client, with its port settings sent only when they change.
+
+    pyserial sends every setting again (rate, data bits, parity, stop bits, then SET-CONTROL)
+    and waits for the answers, 50 ms a look and 100 ms more for SET-CONTROL under
+    ``ign_set_control``, whenever any attribute changes, a read timeout included: 150 ms.  The
+    bridge's switch to its faster rate must be heard at the new rate within its 250 ms window
+    (BAUD_WINDOW_MS), so that 150 ms made the switch miss on a busy machine.  Here a change
+    of the rate alone is SET-BAUDRATE alone, its answer looked for every millisecond (ser2net
+    answers with the rate it set; another rate is pyserial's ValueError, "remote rejected"),
+    a change the server does not see (a timeout) sends nothing, and anything else is
+    pyserial's own full exchange."""
+    import struct
+    import time
+
+    from serial import SerialException
+    from serial.rfc2217 import Serial
+
+    class RFC2217Port(Serial):
+        _sent: tuple | None = None  # the settings the server last acknowledged
+
+        def open(self) -> None:
+            """pyserial's open; then the write deadline every other port has
+            (:data:`WRITE_TIMEOUT_S`), as the socket's timeout: pyserial refuses a
+            ``write_timeout`` here, and its socket's own (5 s) bounded a write before."""
+            super().open()
+            if self._socket is not None:
+                self._socket.settimeout(WRITE_TIMEOUT_S)
+
+        def rfc2217_set_control(self, value: bytes) -> None:
+            """SET-CONTROL (DTR, RTS, flow control) sent; under ``ign_set_control`` no answer
+            is awaited at all (pyserial sleeps 100 ms instead, three times in each open: the
+            bridge uses no modem-control line)."""
+            if not self._ignore_set_control_answer:
+                super().rfc2217_set_control(value)
+                return
+            self._rfc2217_options["control"].set(value)
+
+        def _settings(self) -> tuple:
+            return (self._baudrate, self._bytesize, self._parity, self._stopbits,
+                    self._rtscts, self._xonxoff, self._write_timeout)
+
+        def _reconfigure_port(self) -> None:
+            sent, now = self._sent, self._settings()
+            if sent is None or self._socket is None or sent[1:] != now[1:]:
+                super()._reconfigure_port()
+            elif sent[0] != now[0]:
+                item = self._rfc2217_port_settings["baudrate"]
+                item.set(struct.pack("!I", self._baudrate))
+                deadline = time.monotonic() + self._network_timeout
+                while not item.is_ready():  # ValueError when the server set another rate
+                    if time.monotonic() > deadline:
+                        raise SerialException(f"no answer to SET-BAUDRATE {self._baudrate} "
+                                              f"within {self._network_timeout:g} s")
+                    time.sleep(0.001)
+            self._sent = now
+
+    return RFC2217Port
+
+
 def open_port(device: str, baud: int):
     """Open ``device`` with pyserial (8N1, exclusive) or raise a :class:`TransportError` that
     says what to do.  ``device`` may be any pyserial URL (``serial_for_url``): a bridge on
@@ -454,13 +514,14 @@ def open_port(device: str, baud: int):
     scheme = _scheme(device)
     if scheme == "rfc2217":
         _quiet_rfc2217_reader()
-    # pyserial's RFC 2217 client refuses a write_timeout (NotImplementedError); its writes are
-    # bounded by its socket's own timeout instead (5 s, set when it connects)
-    bounded = {} if scheme == "rfc2217" else {"write_timeout": WRITE_TIMEOUT_S}
+    # pyserial's RFC 2217 client refuses a write_timeout (NotImplementedError): it gets none
+    # below, its writes bounded by its socket's timeout instead (RFC2217Port.open)
+    bounded = {"write_timeout": WRITE_TIMEOUT_S}
     try:
+        if scheme == "rfc2217":  # pyserial's client, its settings sent only when they change
+            return _rfc2217_class()(rfc2217_url(device), baud, timeout=SerialPipe.READ_SLICE_S)
         # exclusive: a lock on a local port (spy:// included); network handlers ignore it
-        return serial.serial_for_url(rfc2217_url(device), baud, timeout=0, exclusive=True,
-                                     **bounded)
+        return serial.serial_for_url(device, baud, timeout=0, exclusive=True, **bounded)
     except (serial.SerialException, OSError) as exc:  # OSError: a network handler's socket
         code = getattr(exc, "errno", None)
         text = str(exc)
@@ -531,8 +592,18 @@ class SerialTransport(LinkTransport):
             done, low = set_low_latency(port)
         pipe = SerialPipe(port, device=opts.device)
         pipe.reset_input()
-        return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
-                   boot_s=opts.boot_s, low_latency=low, fast=opts.fast, failsafe=opts.failsafe)
+        try:
+            return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
+                       boot_s=opts.boot_s, low_latency=low, fast=opts.fast,
+                       failsafe=opts.failsafe)
+        except TransportError as exc:
+            # a server that refused this client may have said why before it closed, and the
+            # words lost with the connection (a reset drops what was unread): ask it again
+            if _scheme(opts.device) in ("socket", "rfc2217") and "answered" not in str(exc) \
+                    and (said := _server_says(opts.device)):
+                raise TransportError(f"cannot open {opts.device}: "
+                                     f"{_refused(opts.device, said)}", port=opts.device) from None
+            raise
 
     def _no_answer(self, what: str, attempts: int) -> TransportError:
         dev = device_of(self.url)  # with a socket:// URL the advice is the remote board's
