@@ -45,10 +45,10 @@ from lm629_host.bridge.protocol import FAST_BAUD
 from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import TransportError
 from lm629_host.bus.program import TraceCallback
-from lm629_host.urls import Option, PortURL, parse_options, port_url
+from lm629_host.urls import Option, PortURL, parse_options, port_url, with_defaults
 from lm629_host.transports.reports import Check, PortInfo
-from lm629_host.transports.failsafe import FAILSAFE_OPTIONS
-from lm629_host.transports.link import LinkTransport
+from lm629_host.transports.failsafe import FailsafeOptions
+from lm629_host.transports.link import LINK_OPTIONS, LinkTransport
 from lm629_host.transports.session import DEFAULT_RETRIES
 from lm629_host.transports.netport import (
     WRITE_TIMEOUT_S,
@@ -89,13 +89,10 @@ KNOWN_USB_IDS: dict[tuple[int, int], str] = {
 
 #: the URL options of a serial bridge
 OPTIONS = (
-    Option("baud", "int", DEFAULT_BAUD, 300, 4_000_000, "baud"),
-    Option("retries", "int", DEFAULT_RETRIES, 0, 20),
+    *with_defaults(LINK_OPTIONS, baud=DEFAULT_BAUD, fast_baud=FAST_BAUD),
     Option("boot", "float", DEFAULT_BOOT_S, 0.0, 30.0, "s"),
     Option("low_latency", "bool", True),
     Option("cs", "int", 0, 0, 255),
-    Option("fast_baud", "int", FAST_BAUD, 0, 4_000_000, "baud"),  # 0: stay at baud
-    *FAILSAFE_OPTIONS,  # read by LinkTransport
 )
 _OPTION_NAMES = frozenset(o.name for o in OPTIONS)
 
@@ -154,6 +151,7 @@ class SerialOptions:
     low_latency: bool = True
     cs: int = 0
     fast: int = FAST_BAUD
+    failsafe: FailsafeOptions | None = None  #: None: the link reads them from the URL
 
 
 def options_of(url: str | PortURL) -> SerialOptions:
@@ -176,7 +174,7 @@ def options_of(url: str | PortURL) -> SerialOptions:
     opts = parse_options(url, OPTIONS, what="serial", ignore=handler)
     return SerialOptions(device=device, baud=opts["baud"], retries=opts["retries"],
                          boot_s=opts["boot"], low_latency=opts["low_latency"], cs=opts["cs"],
-                         fast=opts["fast_baud"])
+                         fast=opts["fast_baud"], failsafe=FailsafeOptions.of(opts))
 
 
 def _lost_hint(device: str | None, heard: bytes = b"") -> str:
@@ -406,12 +404,13 @@ class SerialTransport(LinkTransport):
     def __init__(self, pipe: SerialPipe, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = DEFAULT_BAUD, cs: int = 0,
                  boot_s: float = DEFAULT_BOOT_S, low_latency: str = "",
-                 measure_rtt: bool = True, fast: int = 0) -> None:
+                 measure_rtt: bool = True, fast: int = 0,
+                 failsafe: FailsafeOptions | None = None) -> None:
         self.boot_s = boot_s
         self.hello_total_s = max(boot_s, self.hello_interval_s)
         self.low_latency = low_latency
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs,
-                         fast_baud=fast, measure_rtt=measure_rtt)
+                         fast_baud=fast, measure_rtt=measure_rtt, failsafe=failsafe)
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SerialTransport:
@@ -424,7 +423,8 @@ class SerialTransport(LinkTransport):
         pipe.reset_input()
         try:
             return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
-                       boot_s=opts.boot_s, low_latency=low, fast=opts.fast)
+                       boot_s=opts.boot_s, low_latency=low, fast=opts.fast,
+                       failsafe=opts.failsafe)
         except TransportError as exc:
             # a server that refused this client may have said why before it closed, and the
             # words lost with the connection (a reset drops what was unread): ask it again
