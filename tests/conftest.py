@@ -114,7 +114,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 def pytest_report_header(config: pytest.Config) -> list[str]:
     """What this run runs, in words a newcomer's plain ``pytest`` prints first."""
     lines = [what_runs(config.getoption("markexpr"), config.getoption("--long"),
-                       config.getoption("--cpu-hogs"))]
+                       config.getoption("--cpu-hogs"), config.getoption("numprocesses", None))]
     missing = _avr_missing()
     if missing:
         lines.append(f"!!! AVR toolchain missing ({', '.join(missing)}): the firmware-in-the-loop "

@@ -72,7 +72,7 @@ def compiled() -> dict[str, Any]:
     try:
         from lm629_host.transports.ftdi_busy import COMMAND_S
     except ImportError:  # commit 2728094, which wrote the golden file, has it in ftdi.py
-        from lm629_host.transports.ftdi import COMMAND_S  # type: ignore[attr-defined, no-redef]
+        from lm629_host.transports.ftdi import COMMAND_S  # type: ignore[attr-defined, no-redef]  # there at 2728094
     try:
         from lm629_host.transports.mpsse import StreamCompiler, chips_of_units, streams_of
     except ImportError:  # commit 2728094, which wrote the golden file, has them in ftdi.py

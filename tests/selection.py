@@ -5,6 +5,8 @@ entry here."""
 
 from __future__ import annotations
 
+import functools
+import inspect
 
 import pytest
 
@@ -24,22 +26,51 @@ SLOW_PARAMS = ("sim+avr", "firmware", "usb=")
 SLOW_FIXTURES = frozenset({"firmware_built"})
 
 
+#: words in a test's or its fixtures' source that start a process the test waits on: a served
+#: bench, a browser, any other program
+SLOW_SOURCE = ("subprocess.Popen(", "with serve(", "_sim_serve()", '"sim", "serve"',
+               "chromium(")
+
+
 def is_slow(item: pytest.Item, served: bool) -> bool:
     """Whether the quick loop (``-m "not slow"``) leaves ``item`` out."""
     return (served or item.path.stem in SLOW_MODULES
             or any(p in item.nodeid for p in SLOW_PARAMS)
             or not SLOW_FIXTURES.isdisjoint(getattr(item, "fixturenames", ()))
-            or any(item.get_closest_marker(m) for m in ("under_load", "long")))
+            or any(item.get_closest_marker(m) for m in ("under_load", "long"))
+            or _starts_a_process(item))
 
 
-def what_runs(markexpr: str, long: bool, hogs: int) -> str:
+def _starts_a_process(item: pytest.Item) -> bool:
+    """Whether the test, or a fixture it uses that the suite defines, starts a process."""
+    funcs = [getattr(item, "function", None)]
+    # pytest has no public view of a test's fixture definitions at collection time
+    info = getattr(item, "_fixtureinfo", None)
+    for name in getattr(item, "fixturenames", ()):
+        defs = info.name2fixturedefs.get(name) if info is not None else None
+        if defs and "site-packages" not in str(getattr(defs[-1], "baseid", "")):
+            funcs.append(defs[-1].func)
+    return any(_source_has(f, SLOW_SOURCE) for f in funcs if f is not None)
+
+
+@functools.cache
+def _source_has(func, words: tuple[str, ...]) -> bool:
+    try:
+        source = inspect.getsource(func)
+    except (OSError, TypeError):
+        return False
+    return any(w in source for w in words)
+
+
+def what_runs(markexpr: str, long: bool, hogs: int, workers: object = None) -> str:
     """One line for pytest's header: the tests selected, what is left out, how to run it."""
-    out = [f"lm629-host: {f'-m {markexpr!r}' if markexpr else 'every test'}"]
+    out = [f"lm629-host: {f'-m {markexpr!r}' if markexpr else 'every test'}"
+           + (f" on {workers} workers" if workers else " in one process (-n auto: every core)")]
     if long:
         out.append("with the long mode's tests and budgets (--long: the release run)")
     else:
         out.append("not the long mode's (pytest --long, before a release)")
     out.append(f"beside {hogs} CPU hogs" if hogs else
                "under_load tests without CPU hogs (CI runs them beside two)")
-    out.append("quick loop: pytest -m 'not slow'; the whole CI: bash .ci/run")
+    out.append("quick loop: pytest -n auto -m 'not slow'; the whole CI: bash .ci/run")
     return "; ".join(out)

@@ -337,7 +337,9 @@ _NAMESPACES: dict[Path, dict] = {}
 
 
 #: a document's blocks share its bench and namespace, in order: one xdist group per document
-#: (``--dist loadgroup``), the documents spread over the workers
+#: (``--dist loadgroup``), the documents spread over the workers.  A console block of many
+#: commands takes over 10 s on an idle machine (README.md's bench hour: 17 processes, each
+#: importing the package, a tune and a 5 s scope among them): each command is a reader's.
 @pytest.mark.parametrize("block", [
     pytest.param(b, id=b.id, marks=pytest.mark.xdist_group(f"docs:{b.doc.name}")) for b in BLOCKS])
 def test_doc_block(block: Block, tmp_path_factory, request: pytest.FixtureRequest) -> None:

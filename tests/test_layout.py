@@ -4,6 +4,7 @@ the simulated parts (lm629_host/sim/) reached by the driver only through the sim
 from __future__ import annotations
 
 import ast
+import functools
 import io
 import re
 import subprocess
@@ -63,7 +64,7 @@ def _imports(name: str, path: Path, modules: dict[str, Path], *, typing: bool = 
                     found.add(sub if sub in modules else mod)
             visit(child)
 
-    visit(ast.parse(path.read_text()))
+    visit(_parse(path))
     return {m for m in found if m in modules and m != name}
 
 
@@ -232,7 +233,7 @@ ISSUE_NUMBER = re.compile(r"\bissues?\s+#?\d+|(?<![\w&/])#\d+\b", re.IGNORECASE)
 
 
 def _trees() -> dict[str, tuple[Path, ast.Module]]:
-    return {name: (path, ast.parse(path.read_text())) for name, path in _modules().items()}
+    return {name: (path, _parse(path)) for name, path in _modules().items()}
 
 
 def _is_self(node: ast.AST) -> bool:
@@ -348,6 +349,13 @@ def _sim_opened(tree: ast.Module) -> list[int]:
             if isinstance(text, str) and SIM_URL.match(text):
                 lines.append(node.lineno)
     return lines
+
+
+@functools.cache
+def _parse(path: Path) -> ast.Module:
+    """A module's tree, parsed once per test process: a dozen rules read every module (the
+    trees are only read, never changed)."""
+    return ast.parse(path.read_text())
 
 
 def _comments_and_docstrings(path: Path) -> list[tuple[int, str]]:

@@ -69,7 +69,7 @@ def test_both_workers_share_the_long_tests(suite):
         "ini_options"]["addopts"]
     assert "--dist loadgroup" in addopts
     assert all(" -n auto " in line and "--dist" not in line for line in _ci_pytest_lines())
-    links = [t for t in suite if "test_api_state_machine.py::" in t["id"]]
+    links = [t for t in suite if "test_api_state_machine.py::test_the_api_agrees" in t["id"]]
     assert len(links) == 3 and not [t for t in links if t["group"]]
     docs = {}
     for t in suite:
@@ -119,8 +119,9 @@ def test_a_module_fixture_keeps_its_tests_together_per_parameter(pytester):
 
 def test_a_plain_pytest_says_what_it_runs():
     line = what_runs("", False, 0)
-    assert line.startswith("lm629-host: every test") and "pytest --long" in line
+    assert line.startswith("lm629-host: every test in one process (-n auto") and "--long" in line
     assert "-m 'not slow'" in line and ".ci/run" in line
+    assert "on 2 workers" in what_runs("", False, 0, 2)
     assert "beside 2 CPU hogs" in what_runs("under_load", False, 2)
     assert "-m 'under_load'" in what_runs("under_load", False, 2)
 
@@ -128,7 +129,7 @@ def test_a_plain_pytest_says_what_it_runs():
 def test_a_shared_fixture_s_tests_run_on_one_worker(pytester, monkeypatch):
     """The scheduling itself, two workers: a module fixture's tests (each parameter), and a
     document's blocks (their own mark), each on one worker, in order; the rest spread.
-    xdist 3.8's own loadgroup spreads them on pytest 9.2 (pytest-xdist issue 1386)."""
+    xdist 3.8's own loadgroup spreads them on pytest 9.2 (xdist_groups.py says why)."""
     monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))
     pytester.makepyfile(test_groups="""
         import os, time

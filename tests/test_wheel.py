@@ -139,3 +139,28 @@ def test_sigrok_install_then_sigrok_cli_decodes_the_simulators_vcd(installed, wh
     assert not failed(r.returncode, r.stderr), r.stderr
     assert r.stdout.splitlines() == ["lm629-1: MSKI 0000: enable none",
                                      "lm629-1: RSTI 0000: keep none"]
+
+
+def test_the_panel_serves_its_page_and_plot_library_from_the_wheel(installed):
+    """`lm629 panel` from the installed wheel: the page and uPlot (with its licence) come from
+    the package's files: nothing fetched, nothing built."""
+    import signal
+    import urllib.request
+
+    py, site, away = installed
+    static = site / "lm629_host" / "panel" / "static"
+    assert (static / "uPlot.LICENSE").read_text().startswith("The MIT License")
+    proc = subprocess.Popen([str(py), "-m", "lm629_host", "panel", "--listen", "127.0.0.1:0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=away,
+                            env={"PATH": "/usr/bin:/bin", "HOME": str(away)})
+    try:
+        url = proc.stdout.readline().strip()
+        assert url.startswith("http://127.0.0.1:"), url + proc.stderr.read()
+        page = urllib.request.urlopen(url, timeout=30).read().decode()
+        assert 'src="static/uPlot.iife.min.js"' in page and "cdn" not in page.lower()
+        served = urllib.request.urlopen(url + "static/uPlot.iife.min.js", timeout=30).read()
+        assert served == (ROOT / "lm629_host" / "panel" / "static" / "uPlot.iife.min.js").read_bytes()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=30)
+    assert proc.returncode == 130

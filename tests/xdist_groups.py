@@ -60,8 +60,8 @@ def write_groups(items: list[pytest.Item], where: Path, worker: str) -> None:
 def group_scheduling(config: pytest.Config, log, where: Path):
     """``--dist loadgroup`` that reads the groups from the workers' tables rather than from
     the test ids: xdist 3.8 appends ``@group`` to an item's id through a field pytest 9.2 no
-    longer reads (pytest-xdist issue 1386), and its loadgroup then spreads a group's tests
-    over the workers without a word.  The scheduling is xdist's own (one unit a time to the
+    longer reads (a known pytest-xdist bug, open upstream), and its loadgroup then spreads a
+    group's tests over the workers without a word.  The scheduling is xdist's own (one unit a time to the
     first worker with room, the largest units first); only the units come from here."""
     from xdist.scheduler import LoadScopeScheduling
 

@@ -148,6 +148,8 @@ def probe_core() -> dict:
                  .command(Cmd.STT))
 
     out["ltrj_stt_counts"] = _per_command(chip, ltrj_stt, 1000)
+    out["rdrp_bytecodes"] = _bytecodes(chip.read_real_position)
+    out["ltrj_stt_bytecodes"] = _bytecodes(ltrj_stt)
     out["wait_emu"] = _link_wait("sim+emu://?baud=115200")
 
     chip = lm629_host.open("sim://?record=1")
@@ -159,6 +161,31 @@ def probe_core() -> dict:
     out["record_mb"] = (tracemalloc.get_traced_memory()[0] - before) / 1e6
     tracemalloc.stop()
     return out
+
+
+def _bytecodes(fn, n: int = 50) -> float:
+    """Python bytecode instructions per call of ``fn`` (exact, whatever the machine's load:
+    the host cost's own figure beside the noisy microseconds; work done in C, the sample loop
+    and builtins, counts as one instruction)."""
+    import sys
+
+    count = [0]
+
+    def tracer(frame, event, arg):
+        frame.f_trace_opcodes = True
+        if event == "opcode":
+            count[0] += 1
+        return tracer
+
+    for _ in range(5):
+        fn()
+    sys.settrace(tracer)
+    try:
+        for _ in range(n):
+            fn()
+    finally:
+        sys.settrace(None)
+    return count[0] / n
 
 
 def _link_wait(url: str, transport=None, seconds: float = 10.0) -> dict:
@@ -313,6 +340,18 @@ def probe_usb() -> dict:
     return out
 
 
+def _bytecodes_cell(r: dict, before: dict | None = None) -> str:
+    """Bytecode instructions per RDRP / LTRJ+STT, with the ratio to ``before`` when both have
+    them (a baseline older than the figure has none)."""
+    if "rdrp_bytecodes" not in r:
+        return "-"
+    cell = f"{r['rdrp_bytecodes']:.0f} / {r['ltrj_stt_bytecodes']:.0f}"
+    if before is not None and "rdrp_bytecodes" in before:
+        cell += (f" ({before['rdrp_bytecodes'] / r['rdrp_bytecodes']:.1f}x / "
+                 f"{before['ltrj_stt_bytecodes'] / r['ltrj_stt_bytecodes']:.1f}x fewer)")
+    return cell
+
+
 def render_usb(usb: dict, date: str) -> str:
     """The per-adapter table (docs/performance.md, "Per USB adapter")."""
     from lm629_host.sim.usb import UNO_FLUSH_S
@@ -459,7 +498,6 @@ def probe_after() -> dict:
     from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
     from lm629_host.transports.simemu import EmuLinkTransport
     from lm629_host.bridge.protocol import HelloInfo
-    from lm629_host.transports.link import LinkTransport
     from lm629_host.sim.build import build_model
 
     out: dict = {}
@@ -473,9 +511,7 @@ def probe_after() -> dict:
         lm.WAIT_STATUS_MAX_MS = saved
     model = build_model("sim://")
     emu = BridgeEmulator(model, info=HelloInfo(capabilities=0x07))  # no WAIT_STATUS
-    t = EmuLinkTransport.__new__(EmuLinkTransport)
-    t.model, t.emulator = model, emu
-    LinkTransport.__init__(t, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
+    t = EmuLinkTransport(emu, model, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
     out["wait_emu_old_bridge"] = _link_wait("", transport=t)
     out["wait_ftdi"] = _link_wait("sim+ftdi://")  # no far-side wait: the host polls
     # the FT232H waiting on the busy bit in the adapter: no "before"
@@ -700,6 +736,8 @@ def rows(before: dict, after: dict, extra: dict, builds: dict) -> list[tuple[str
          ">= 2x better"),
         ("`sim://` per RDRP / per LTRJ+STT: bus cycles, busy polls, simulated us (must not change)",
          _counts(before), _counts(after), "identical"),
+        ("`sim://` host cost in Python bytecode instructions, RDRP / LTRJ(6)+STT (exact)",
+         _bytecodes_cell(before), _bytecodes_cell(after, before), ""),
         ("link bytes/s during a 10 s wait, `sim+emu://` 115200 baud",
          f"{before['wait_emu']['bps']:.0f} B/s ({before['wait_emu']['round_trips']} round trips)",
          f"{after['wait_emu']['bps']:.1f} B/s ({after['wait_emu']['round_trips']} round trip, "

@@ -7,8 +7,8 @@ through xdist's schedulers and prints each worker's busy time and the run's end.
 The durations are measured on whatever machine ran them (on a shared machine all of them are
 inflated alike); the figures that matter are ratios within one replay: the run's end against
 its lower bound (all the work / the workers), ``--dist loadfile`` (each file on one worker,
-the suite before issue 46) against ``--dist loadgroup`` with tests/selection.py's groups (the
-suite now).  The collection (its order, its groups and marks) is the checkout's own,
+the suite's distribution before) against ``--dist loadgroup`` with tests/xdist_groups.py's
+groups (the suite now).  The collection (its order, its groups and marks) is the checkout's own,
 collected here in a child process; tests missing from the measurement count as 0 s.
 """
 

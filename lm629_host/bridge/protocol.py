@@ -28,7 +28,7 @@ from lm629_host.bus.program import OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program
 #: version of PROTOCOL.md implemented here; HELLO_REPLY must carry the same
 PROTOCOL_VERSION = 1
 #: the bridge firmware's version (HELLO_REPLY), generated into ``lm629_tables.h`` so that the
-#: firmware and the Python far end (``lm629_host/sim/bridge.py``) report the one release they
+#: firmware and the Python far end (``lm629_host/sim/bridge/``) report the one release they
 #: both implement.  1.1: several chips (Op.SELECT, four chip selects); 1.2: the compact RUN,
 #: programs kept by code, SET_BAUD; 1.3: RECORD (rows on the bridge's timer); 1.4: the link
 #: failsafe (FAILSAFE), PROFILE (a shaped move's pieces on the bridge's timer)

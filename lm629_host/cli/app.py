@@ -465,7 +465,7 @@ def main(ctx: click.Context, port: str | PortURL | None, place: str | None, chip
         profile, port, chip_name, clock, lines, axis_text = profile_options(
             ctx, profile_path, port, chip_name, clock, lines, axis_text)
     if place is not None:  # the lab's bench (not a profile's port): locked until the context closes
-        from lm629_host.cli.lab import open_place
+        from lm629_host.cli.place import open_place
         port = open_place(ctx, place, signals)
     try:
         clock_hz = _check_clock(parse_hz(clock), "--clock")

@@ -9,9 +9,11 @@ before anything is sent.  ``NAME?fast_baud=115200&failsafe=0.5`` adds port URL o
 
 ``lm629 lab selftest PATTERN``: the production test over a lab: ``lm629 --place NAME selftest
 --report DIR/NAME.json`` on every place whose name matches the shell pattern, all at once (one
-process per bench, each holding its own place), then one table: place, chip, verdict,
-differences.  Exit 0 when every bench passed, 1 when one differs or could not be tested (each
-named in the table).
+process per bench, each holding its own place; ``--chip``, ``--clock``, ``--lines`` and
+``--profile`` given to ``lm629`` say what every bench should be), then one table: place, chip
+(what the bench should be), verdict, differences.  The exit code is the worst bench's, as ``lm629 selftest``'s: 0 every bench
+passed, 1 one differs, 10 one could not be tested to the end (FAIL, or NOT RUN: held by
+someone else, no answer; each named in the table).
 
 labgrid is driven through ``labgrid-client`` (:mod:`lm629_host.integrations.labgrid_place`):
 labgrid lives in a virtual environment of its own.
@@ -28,31 +30,12 @@ from pathlib import Path
 
 import click
 
-from lm629_host.bench.selftest import Report
-from lm629_host.chip.safety import StopSignals
+from lm629_host.bench.selftest import EXIT, Report
 from lm629_host.cli.app import main
 from lm629_host.integrations import labgrid_place
-from lm629_host.urls import PortURL
 
 #: the columns of ``lab selftest``'s table
 COLUMNS = ("place", "chip", "verdict", "differences")
-
-
-def open_place(ctx: click.Context, text: str, signals: StopSignals) -> PortURL:
-    """Acquire the place ``text`` names (``NAME`` or ``NAME?options``) and return its port's
-    URL; its release is tied to ``ctx``'s close, registered before anything is acquired (so a
-    Ctrl-C in between releases it too).  Stop signals are raised as exceptions from here on,
-    so that SIGTERM also ends through the release."""
-    try:
-        name, options = labgrid_place.split_place(text)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--place") from None
-    labgrid_place.client()  # labgrid missing: one line, before anything
-    signals.install()
-    ctx.call_on_close(signals.restore)
-    ctx.call_on_close(lambda: labgrid_place.release(name))
-    labgrid_place.acquire(name)
-    return labgrid_place.serial_port(name).url(options)
 
 
 @main.group()
@@ -73,8 +56,9 @@ class BenchRun:
         if self.report.exists():
             data = json.loads(self.report.read_text())
             rep = Report.from_json(data)
+            # a bench fault and the measurement it is judged on are one difference
             named = [f.line for f in rep.faults]
-            named += [m.name for m in rep.differences]
+            named += [m.name for m in rep.differences if m.check not in named]
             diffs = str(len(named)) + (f" ({', '.join(named[:3])}"
                                        f"{', ...' if len(named) > 3 else ''})" if named else "")
             chip = str(data.get("profile", {}).get("chip", "?")).upper()
@@ -84,9 +68,24 @@ class BenchRun:
         return self.place, "-", "NOT RUN", why
 
 
-def _run_bench(run: BenchRun) -> None:
-    argv = [sys.executable, "-m", "lm629_host", "--place", run.place, "selftest", "--report",
-            str(run.report)]
+#: the global options a lab's selftest hands to each bench's (what the benches are: their chip,
+#: clock, encoder, profile), when given on the command line (LM629_PROFILE is inherited)
+FORWARDED = (("chip_name", "--chip"), ("clock", "--clock"), ("lines", "--lines"),
+             ("profile_path", "--profile"))
+
+
+def _forwarded(ctx: click.Context) -> list[str]:
+    root = ctx.find_root()
+    out: list[str] = []
+    for name, flag in FORWARDED:
+        if root.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE:
+            out += [flag, str(root.params[name])]
+    return out
+
+
+def _run_bench(run: BenchRun, options: list[str]) -> None:
+    argv = [sys.executable, "-m", "lm629_host", *options, "--place", run.place, "selftest",
+            "--report", str(run.report)]
     p = subprocess.run(argv, capture_output=True, text=True, stdin=subprocess.DEVNULL)
     run.code, run.output = p.returncode, p.stdout + p.stderr
     run.report.with_suffix(".txt").write_text(run.output)
@@ -99,7 +98,8 @@ def _run_bench(run: BenchRun) -> None:
                                   "summary to paste) and .txt (what the selftest printed).")
 def lab_selftest(pattern: str, report_dir: str) -> None:
     """`lm629 selftest --report` on every place matching PATTERN (a shell pattern, quoted:
-    'lm629-*'), in parallel, then one table: place, chip, verdict, differences."""
+    'lm629-*'), in parallel, then one table: place, chip, verdict, differences.  --chip,
+    --clock, --lines and --profile given before `lab` say what every bench should be."""
     names = labgrid_place.places(pattern)
     if not names:
         raise click.UsageError(f"no place matches {pattern!r} on the coordinator "
@@ -112,7 +112,8 @@ def lab_selftest(pattern: str, report_dir: str) -> None:
         for suffix in (".json", ".md", ".txt"):
             r.report.with_suffix(suffix).unlink(missing_ok=True)
     click.echo(f"selftest on {len(runs)} place(s): {', '.join(names)}")
-    threads = [threading.Thread(target=_run_bench, args=(r,), daemon=True) for r in runs]
+    options = _forwarded(click.get_current_context())
+    threads = [threading.Thread(target=_run_bench, args=(r, options), daemon=True) for r in runs]
     for t in threads:
         t.start()
     try:
@@ -129,8 +130,10 @@ def lab_selftest(pattern: str, report_dir: str) -> None:
     for row in rows:
         click.echo("  ".join(c.ljust(w) for c, w in zip(row, widths)) + "  " + row[-1])
     click.echo(f"reports: {out}/PLACE.json (.md: the summary to paste)")
-    if any(row[2] != "PASS" for row in rows[1:]):
-        click.get_current_context().exit(1)
+    # the worst bench's: PASS 0, DIFFERS 1, FAIL 10; a bench not tested (NOT RUN) is a FAIL
+    code = max(EXIT.get(row[2], EXIT["FAIL"]) for row in rows[1:])
+    if code:
+        click.get_current_context().exit(code)
 
 
-__all__ = ["lab", "lab_selftest", "open_place"]
+__all__ = ["lab", "lab_selftest"]

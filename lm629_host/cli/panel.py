@@ -26,6 +26,12 @@ from lm629_host.panel.server import PanelServer, is_loopback
 DEFAULT_LISTEN = "127.0.0.1:8629"
 
 
+class ListenBusy(click.ClickException):
+    """The address to listen on is taken: exit 3, as a busy serial port's."""
+
+    exit_code = 3
+
+
 def parse_listen(text: str) -> tuple[str, int]:
     """``HOST:PORT`` (``[::1]:PORT`` for IPv6), else click.BadParameter."""
     host, sep, port = text.strip().rpartition(":")
@@ -49,7 +55,7 @@ def run_command(session: Session, argv: list[str]) -> Outcome:
             with cmd.make_context(name, list(args), parent=parent) as ctx:
                 cmd.invoke(ctx)
     except PanelStop as exc:
-        return Outcome(130, stop_note_of(exc, "stopped from the panel"))
+        return Outcome(130, stop_note_of(exc, str(exc) or "stopped from the panel"))
     except click.exceptions.Exit as exc:
         return Outcome(exc.exit_code, out.getvalue().strip())
     except Exception as exc:  # noqa: BLE001 - the command line's one line and exit code
@@ -94,8 +100,9 @@ def panel(listen: str, expose: bool) -> None:
     try:
         server = PanelServer((host, port), worker, title=str(s.port))
     except OSError as exc:
-        raise click.ClickException(f"cannot listen on {listen}: {exc.strerror or exc} (another "
-                                   "panel there? --listen 127.0.0.1:0 takes a free port)") from None
+        raise ListenBusy(f"cannot listen on {listen}: {exc.strerror or exc} (another panel "
+                         "there? --listen 127.0.0.1:0 takes a free port); nothing was "
+                         "opened") from None
     # the panel's own signal handling: the worker runs every bus program, the main thread only
     # waits, so a stop signal is raised here at once and the worker stops a moving axis
     s.signals.restore()
@@ -115,10 +122,12 @@ def panel(listen: str, expose: bool) -> None:
         while not forever.wait(0.5):
             if not worker.alive:
                 raise worker.exception or click.ClickException("the bench stopped")
-    finally:
-        server.shutdown() if serving.is_alive() else None
-        server.server_close()
+    finally:  # the worker first (a moving axis stopped, the commands answered), then the server
         worker.close()
+        if serving.is_alive():
+            server.drain(5.0)
+            server.shutdown()
+        server.server_close()
         for sig, handler in old.items():
             signal.signal(sig, handler)
 

@@ -8,6 +8,11 @@ host-polled elsewhere), and when a command is queued it closes the recording, ru
 command through the command line's own code (``run``: the same click command, validation and
 one-line error as ``lm629 ...``) and starts recording again.
 
+A command that waits on a move between bus programs of its own (an S-curve, whose pieces
+the host times) gets a host-polled row read after its programs (``after_program``), so that
+the plots go on during it; a step test's recording cannot share the link, and the test draws
+its own response.
+
 Time: an in-process simulator's clock runs only when something runs it, as fast as the model
 computes; the worker paces it to the wall clock (rows, and the bus programs of a command that
 waits, such as an S-curve move or a step test), so that the plots show a simulated axis in
@@ -79,6 +84,9 @@ class Job:
     cs: int
     stop: bool = False
     then: Callable[[Outcome], Outcome] | None = None  #: turns the outcome into the answer
+    #: a command that waits on a move between programs of its own (an S-curve): rows are
+    #: read between them (host-polled), so that the plots go on during it
+    live: bool = False
     done: threading.Event = field(default_factory=threading.Event)
     outcome: Outcome | None = None
 
@@ -104,6 +112,8 @@ class BenchWorker:
         self._subscribers: set[queue.Queue[str]] = set()
         self._rows: list[list[Any]] = []
         self._published = 0.0
+        self._sampled = 0.0  #: when the last row was taken (monotonic)
+        self._in_hook = False
         self._wall0 = self._clock0 = 0.0
         self.failsafe: dict[str, Any] = {"armed": None, "text": "none on this link"}
         self.source = ""
@@ -123,7 +133,10 @@ class BenchWorker:
     def close(self) -> None:
         """End the worker; an axis still moving is stopped first (the panel's process is
         ending: every way it ends stops a moving motor, as any command's)."""
-        self._quit = True
+        with self._lock:
+            self._quit = True
+            if self._busy is not None and not self._busy.stop:
+                self._stop_asked = True  # a command under way (an S-curve) ends as by Ctrl-C
         self._wake.set()
         self._thread.join(timeout=30)
 
@@ -138,12 +151,15 @@ class BenchWorker:
             self._subscribers.discard(q)
 
     def submit(self, argv: list[str], cs: int, *, stop: bool = False,
-               then: Callable[[Outcome], Outcome] | None = None,
+               then: Callable[[Outcome], Outcome] | None = None, live: bool = False,
                timeout: float = 600.0) -> Outcome:
         """Run ``argv`` on axis ``cs`` in the worker and wait for its outcome.  A stop goes
         first: it cancels the commands queued behind it and interrupts one that waits."""
-        job = Job(argv, cs, stop, then)
+        job = Job(argv, cs, stop, then, live)
         with self._lock:
+            if self._quit or not self._thread.is_alive():
+                return Outcome(3, "the panel is ending" if self._quit else
+                               f"the bench stopped: {self.error}")
             if stop:
                 for old in self._jobs:
                     old.outcome = Outcome(2, "cancelled: the stop button was pressed first")
@@ -178,6 +194,7 @@ class BenchWorker:
             board = self.session.board()
             transport = board.transport
             self._transport = transport
+            self._board = board
             self._real_time = isinstance(getattr(transport, "clock", None), WallClock)
             previous = transport.after_program
             transport.after_program = self._after_program(previous)
@@ -253,7 +270,7 @@ class BenchWorker:
     def _run_jobs(self) -> None:
         while True:
             with self._lock:
-                if not self._jobs:
+                if not self._jobs or self._quit:
                     self._wake.clear()
                     return
                 job = self._jobs.popleft()
@@ -286,9 +303,16 @@ class BenchWorker:
                 return
             if self._stop_asked:
                 self._stop_asked = False
-                raise PanelStop()
+                raise PanelStop("the panel is ending" if self._quit else "stopped from the panel")
             if not self._real_time:
                 self._pace(self._transport.clock.now(), wake=False)
+            if self._busy.live and not self._in_hook and \
+                    time.monotonic() - self._sampled >= 1.0 / self.sample_hz:
+                self._in_hook = True  # the snapshot's own program ends here too
+                try:
+                    self._add(self._board.snapshots([c for c, _n in self.axes]))
+                finally:
+                    self._in_hook = False
         return hook
 
     def _rebase(self) -> None:
@@ -309,6 +333,7 @@ class BenchWorker:
                 time.sleep(min(ahead, 1.0))
 
     def _add(self, snaps: list[Snapshot]) -> None:
+        self._sampled = time.monotonic()
         row: list[Any] = [round(snaps[0].time, 5)]
         for s in snaps:
             row += [s.desired_position, s.real_position,

@@ -35,6 +35,7 @@ class PanelJob:
     cs: int
     stop: bool = False
     then: Callable[[Outcome], Outcome] | None = None
+    live: bool = False  #: rows read between its programs (a move the panel waits on)
 
 
 def _text(body: dict[str, Any], key: str) -> str:
@@ -79,7 +80,7 @@ def build(body: dict[str, Any], worker: Any) -> PanelJob:
             argv += [f"--shape={shape}", *_options(body, [("jerk", "--jerk")])]
         if body.get("relative"):
             argv.append("--relative")
-        return PanelJob([*argv, "--", _text(body, "target")], cs)
+        return PanelJob([*argv, "--", _text(body, "target")], cs, live=shape != "trapezoid")
     gains = {k: _text(body, k) for k in GAIN_KEYS if _text(body, k)}
     if cmd == "filter":
         return PanelJob(["filter", *_options(body, [(k, f"--{k}") for k in GAIN_KEYS])], cs,

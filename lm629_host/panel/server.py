@@ -25,6 +25,8 @@ import queue
 import secrets
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from typing import Any
@@ -94,11 +96,31 @@ class PanelServer(ThreadingHTTPServer):
         self.token = token or secrets.token_urlsafe(24)
         self.title = title
         self.clients = Clients()
+        self._inflight = 0  #: commands whose answer is not yet written
+        self._settled = threading.Condition()
         host = address[0]
         self.loopback = is_loopback(host)
         self.hosts = {h.lower() for h in LOOPBACK_NAMES}
         if not self.loopback:
             self.hosts.add(host.lower())
+
+    @contextmanager
+    def answering(self) -> Iterator[None]:
+        """A command under way, until its answer is written (:meth:`drain` waits for it)."""
+        with self._settled:
+            self._inflight += 1
+        try:
+            yield
+        finally:
+            with self._settled:
+                self._inflight -= 1
+                self._settled.notify_all()
+
+    def drain(self, timeout: float) -> None:
+        """Wait (up to ``timeout``) until every command under way has written its answer: the
+        panel ending answers them (a stop's outcome) before the process goes."""
+        with self._settled:
+            self._settled.wait_for(lambda: self._inflight == 0, timeout)
 
     @property
     def port(self) -> int:
@@ -156,7 +178,7 @@ class PanelHandler(BaseHTTPRequestHandler):
     def _token_ok(self, given: str | None) -> bool:
         return given is not None and hmac.compare_digest(given.encode(), self.server.token.encode())
 
-    def _checked(self, need_token: bool) -> dict[str, list[str]] | None:
+    def _checked(self, need_token: bool, public: bool = False) -> dict[str, list[str]] | None:
         """The query, or None once a refusal was sent (bad Host, missing token)."""
         if not self.server.host_ok(self.headers.get("Host")):
             self._refuse(403, f"refused: Host {self.headers.get('Host')!r} is not this panel's "
@@ -164,7 +186,7 @@ class PanelHandler(BaseHTTPRequestHandler):
             return None
         query = parse_qs(urlsplit(self.path).query)
         given = (query.get("token") or [""])[0] or self.headers.get("X-LM629-Token")
-        if (need_token or not self.server.loopback) and not self._token_ok(given):
+        if (need_token or not (self.server.loopback or public)) and not self._token_ok(given):
             self._refuse(403, "refused: no valid token (open the address the panel printed)")
             return None
         return query
@@ -177,7 +199,10 @@ class PanelHandler(BaseHTTPRequestHandler):
             if query is not None:
                 self._events()
             return
-        query = self._checked(need_token=False)
+        # the page carries the token (beyond loopback, only an address with it gets the page);
+        # its script, style and the plot library are the package's public files
+        public = path == "/favicon.ico" or (path.startswith("/static/") and path[8:] in STATIC)
+        query = self._checked(need_token=False, public=public)
         if query is None:
             return
         if path in ("/", "/index.html"):
@@ -268,8 +293,9 @@ class PanelHandler(BaseHTTPRequestHandler):
         if path != "/api/command":
             self._send(404, b"not found", "text/plain")
             return
-        outcome = self._command(body)
-        self._send(200, json.dumps(outcome.as_dict()).encode(), "application/json")
+        with self.server.answering():
+            outcome = self._command(body)
+            self._send(200, json.dumps(outcome.as_dict()).encode(), "application/json")
 
     def _command(self, body: dict[str, Any]) -> Outcome:
         server = self.server
@@ -282,7 +308,7 @@ class PanelHandler(BaseHTTPRequestHandler):
             why = server.clients.refusal(str(body.get("client", "")))
             if why is not None:
                 return Outcome(2, why)
-        return worker.submit(job.argv, job.cs, stop=job.stop, then=job.then)
+        return worker.submit(job.argv, job.cs, stop=job.stop, then=job.then, live=job.live)
 
 
 __all__ = ["PanelServer", "is_loopback"]

@@ -34,7 +34,7 @@ from lm629_host.transports.reports import (
     RawRow,
     Stats,
 )
-from lm629_host.transports.keepalive import FeedingClock, KeepAlive
+from lm629_host.transports.keepalive import FeedingClock
 from lm629_host.transports import exiting
 from lm629_host.urls import PortURL, port_url
 from lm629_host.errors import AxisError, TransportError
@@ -318,6 +318,11 @@ class Transport(abc.ABC):
         self._inner_clock = inner
 
     @property
+    def time_base(self) -> Clock:
+        """The clock under any wrapper (the lock's, a keep-alive's): the time itself."""
+        return self._inner_clock
+
+    @property
     def on_wall_clock(self) -> bool:
         """True when the transport's time base is the wall clock (hardware), False on a
         simulated one (under any wrapper)."""
@@ -327,15 +332,6 @@ class Transport(abc.ABC):
     def closed(self) -> bool:
         """True once :meth:`close` ran."""
         return self._closed
-
-    def run_keep_alive(self, keepalive: KeepAlive) -> None:
-        """Keep the far side's watchdog fed from now on: a thread on the wall clock, the
-        steps of every sleep on :attr:`clock` on a simulated one (:class:`FeedingClock`).  A
-        transport keeps one; asked again, the new one replaces it."""
-        if isinstance(self._inner_clock, WallClock):
-            keepalive.start()
-        else:
-            self.clock = FeedingClock(self._inner_clock, keepalive)
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> Transport:
@@ -358,20 +354,6 @@ class Transport(abc.ABC):
         """Run ``program`` (called by :meth:`execute`, which holds the lock, counted the
         program and checked its chip selects); return its results or raise an
         :class:`~lm629_host.LM629Error` subclass that names the failing operation."""
-
-    def keep_alive(self, feed: Callable[[], None], what: str) -> None:
-        """Run ``feed`` (the failsafe's feed frame, the FT232H heartbeat's toggle) only when no
-        bus program holds the lock: a program under way shows the far side the host is alive
-        already, and a keep-alive never waits behind one.  An error is logged, never raised:
-        the thread that keeps the far side fed must not end the process."""
-        if not self.lock.acquire(blocking=False):
-            return
-        try:
-            feed()
-        except Exception as exc:  # noqa: BLE001 - a keep-alive must never kill the process
-            log.debug("%s: %s: %s", self.url, what, exc)
-        finally:
-            self.lock.release()
 
     def feed(self) -> None:  # noqa: B027 - optional: most far sides keep no watchdog
         """Tell the far side's watchdog the host is alive (a bridge's failsafe with

@@ -17,9 +17,10 @@ from lm629_host.errors import BusyTimeout
 from lm629_host.transports.base import Transport
 
 _BUSY = BUSY_BIT  # a plain int (opcodes.BUSY_BIT)
-_STATUS, _COMMAND, _WRITE, _READ = int(Op.STATUS), int(Op.COMMAND), int(Op.WRITE), int(Op.READ)
-_RESET, _WAIT, _SYNC, _WAIT_STATUS = int(Op.RESET), int(Op.WAIT), int(Op.SYNC), int(Op.WAIT_STATUS)
-_SELECT = int(Op.SELECT)
+# the operations compared by identity on the hot path (an enum member is a singleton: ``is``
+# costs no call, where ``int(o.op)`` and ``==`` on an IntEnum each do)
+_STATUS, _COMMAND, _WRITE, _READ = Op.STATUS, Op.COMMAND, Op.WRITE, Op.READ
+_RESET, _WAIT, _SYNC, _WAIT_STATUS, _SELECT = Op.RESET, Op.WAIT, Op.SYNC, Op.WAIT_STATUS, Op.SELECT
 
 
 class CycleTransport(Transport):
@@ -124,49 +125,50 @@ class CycleTransport(Transport):
         tracing = self._tracing()
         emit = self._emit
         wait_not_busy = self._wait_not_busy
+        write_command, write_word, read_word = self._write_command, self._write_word, self._read_word
         cycles = 0  # the strobes below, added to the counters once (the busy checks add theirs)
         try:
             for index, o in enumerate(program.ops):
-                op = int(o.op)
-                if op == _COMMAND or op == _WRITE or op == _READ:
+                op = o.op
+                if op is _COMMAND or op is _WRITE or op is _READ:
                     status = wait_not_busy(program, index, words, tracing)
-                    if op == _COMMAND:
+                    if op is _COMMAND:
                         cycles += 1
-                        self._write_command(o.arg)
+                        write_command(o.arg)
                         if tracing:
                             emit(BusCycle("command", o.arg))
-                    elif op == _WRITE:
+                    elif op is _WRITE:
                         cycles += 2
-                        self._write_word(o.arg)
+                        write_word(o.arg)
                         if tracing:
                             emit(BusCycle("write", o.arg))
                     else:
                         cycles += 2
-                        w = self._read_word()
+                        w = read_word()
                         words.append(w)
                         if tracing:
                             emit(BusCycle("read", w))
-                elif op == _STATUS:
+                elif op is _STATUS:
                     status = self._read_status()
                     cycles += 1
                     statuses.append(status)
                     if tracing:
                         emit(BusCycle("status", status))
-                elif op == _SYNC:
+                elif op is _SYNC:
                     status = wait_not_busy(program, index, words, tracing)
                     statuses.append(status)
-                elif op == _RESET:
+                elif op is _RESET:
                     self._pulse_reset()
                     cycles += 1
                     if tracing:
                         emit(BusCycle("reset", 0))
-                elif op == _WAIT:
+                elif op is _WAIT:
                     self._inner_clock.sleep(o.arg * 1e-6)
-                elif op == _SELECT:
+                elif op is _SELECT:
                     self._select_chip(o.arg)
                     if tracing:
                         emit(BusCycle("select", o.arg))
-                elif op == _WAIT_STATUS:
+                elif op is _WAIT_STATUS:
                     status = self._wait_status(o.arg >> 16, (o.arg & 0xFFFF) * 1e-3, tracing)
                     statuses.append(status)
                 else:  # pragma: no cover - Op is closed

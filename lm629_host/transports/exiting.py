@@ -25,7 +25,7 @@ import atexit
 import logging
 import os
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Protocol
 
 
@@ -79,13 +79,18 @@ def left_open() -> list[OpenLink]:
         return list(_OPEN)
 
 
-def close_left_open() -> int:
+def close_left_open(only: Iterable[OpenLink] | None = None) -> int:
     """Stop what moves and close every transport still open (the atexit hook).  Never
-    raises: an exit must finish.  Returns how many were closed."""
+    raises: an exit must finish.  Returns how many were closed.  ``only``: just these of
+    them, as the hook would (a test that plays one script's end in a process whose other
+    links stay open: the crossings machine)."""
     if os.getpid() != _PID:  # a forked child: the links are its parent's
         return 0
     with _LOCK:
         items = list(_OPEN.items())
+    if only is not None:
+        chosen = list(only)
+        items = [(t, a) for t, a in items if any(t is c for c in chosen)]
     for transport, actions in items:
         safe = True
         for action in list(actions.values()):

@@ -38,7 +38,7 @@ from lm629_host.bridge.protocol import (
     wire_size,
 )
 from lm629_host.errors import FailsafeTripped, TransportError
-from lm629_host.transports.keepalive import KeepAlive
+from lm629_host.transports.keepalive import KeepAlive, on_wall_clock
 from lm629_host.urls import Option, PortURL, parse_options, query_params
 
 if TYPE_CHECKING:
@@ -71,8 +71,6 @@ SIMULATED_FEED_FRACTION = 0.75
 #: and from a refused STT.  A recording is always fed with FAILSAFE_FEED (the one frame it
 #: takes without ending).
 SIMULATED_FEED = encode_frame(FrameType.PING, 0)
-#: a feed falls due this much before its period is up (clocks that round)
-_DUE_SLACK_S = 1e-6
 #: a trip the keep-alive heard goes to the log when no program has raised it this long after
 #: (a host busy in its own code); a host that calls the chip is told once, by the error
 UNTOLD_LOG_S = 1.0
@@ -160,46 +158,46 @@ class LinkFailsafe:
         ms = round(self.timeout_s * 1e3)
         self.request(bytes((FailsafeCmd.ARM,)) + ms.to_bytes(2, "big")
                        + bytes((self.action,)), f"FAILSAFE (arm {ms} ms)")
-        wall = self.link.on_wall_clock
+        wall = on_wall_clock(self.link)
         self.feed_period_s = self.timeout_s * (FEED_FRACTION if wall else SIMULATED_FEED_FRACTION)
         self._feed_frame = FAILSAFE_FEED if wall else SIMULATED_FEED
         # a far-side wait feeds only when it ends: each one shorter than the timeout
         self.link.far_wait_limit_s = self.timeout_s / 2
-        if self.feed_mode == "process" and self.keepalive is None:
-            self.keepalive = KeepAlive(self.feed_period_s, self.feed_if_due,
-                                       f"failsafe feeder {self.link.url}", self.due_at)
-            self.link.run_keep_alive(self.keepalive)
+        if self.keepalive is None:
+            # the keep-alive's protocol (when, skipped while a request is under way, which
+            # clock); this says only what to send.  With failsafe_feed=script it is not
+            # started: only a recording's wait turns it (a recording counts as alive only
+            # while it streams)
+            self.keepalive = KeepAlive(
+                self.feed_period_s, self._send_feed, f"failsafe feeder {self.link.url}",
+                last_heard=lambda: self.link.last_sent, clock=self.link.clock,
+                busy=self.link.request_lock, unlocked=lambda: self.recording,
+                before=self._before_feed)
+            if self.feed_mode == "process":
+                self.keepalive.start(self.link)
 
-    def due_at(self) -> float:
-        """When a quiet link next needs a feed, on the link's clock."""
-        return self.link.last_sent + self.feed_period_s
-
-    def feed_if_due(self) -> None:
-        """The keep-alive's feed: FAILSAFE_FEED once the link has been quiet for
-        :attr:`feed_period_s` (any frame feeds the bridge: a busy link pays nothing).  Never
-        waits: during a recording it goes out at once (the bridge takes it between rows);
-        otherwise only while no request waits for its answer (that request fed the bridge),
-        and what is already waiting on the pipe is read (the answer to the last feed: a trip
-        is heard here)."""
-        link = self.link
-        if not self.feed_period_s or link.closed:
+    def _before_feed(self) -> None:
+        """At each turn of the keep-alive: the link's PROFILE top-ups, a trip heard and not
+        told yet."""
+        if not self.feed_period_s or self.link.closed:
             return
         if self.on_turn is not None:
             self.on_turn()
         self._log_untold()
-        if link.idle_s() < self.feed_period_s - _DUE_SLACK_S:
+
+    def _send_feed(self) -> None:
+        """What the keep-alive sends: FAILSAFE_FEED (any frame feeds the bridge: a busy link
+        pays nothing), then what is already waiting on the pipe is read (the answer to the
+        last feed: a trip is heard here).  During a recording it goes out at once and nothing
+        is read (the bridge takes it between rows; the recorder reads)."""
+        link = self.link
+        if not self.feed_period_s or link.closed:
             return
         if self.recording:
             self._feed_recording()
             return
-        if not link.request_lock.acquire(blocking=False):
-            return
-        try:
-            if not self.recording:
-                link.send_unsolicited(self._feed_frame)
-                link.poll_events()
-        finally:
-            link.request_lock.release()
+        link.send_unsolicited(self._feed_frame)
+        link.poll_events()
 
     def _feed_recording(self) -> None:
         self.link.send_unsolicited(FAILSAFE_FEED, when=lambda: self.recording)
@@ -275,17 +273,21 @@ class LinkFailsafe:
         silent (as far as it knows), what did not happen, how to go on."""
         self.news = None
         what = state.describe() if state is not None else "the bridge's failsafe tripped"
-        if silent >= self.timeout_s:
+        failure = self.keepalive.failure if self.keepalive is not None else None
+        if self.feed_mode == "process" and failure is not None:
+            why = f"this host's keep-alive kept turning but its feeds failed ({failure})"
+        elif silent >= self.timeout_s:
             why = (f"this host sent nothing for {silent:.2f} s ("
                    + ("a script in failsafe_feed=script mode that neither called nor fed"
                       if self.feed_mode == "script" else
                       "paused, suspended or starved of CPU") + ")")
         elif self.feed_mode == "script":
             why = "the script neither called nor fed (failsafe_feed=script) for that long"
-        elif self.keepalive is not None and self.keepalive.last_stall_s >= self.timeout_s / 2:
+        elif self.feed_mode == "process" and self.keepalive is not None \
+                and self.keepalive.last_stall_s >= self.timeout_s / 2:
             why = (f"this host's keep-alive was held up for {self.keepalive.last_stall_s:.2f} s "
                    "(paused, suspended or starved of CPU)")
-        elif self.keepalive is not None:
+        elif self.feed_mode == "process" and self.keepalive is not None:
             # this host kept feeding as far as it can tell: say so, not that it was silent
             why = (f"this host's keep-alive kept turning (worst gap "
                    f"{self.keepalive.worst_gap_s:.2f} s), so its feeds were lost on the line "

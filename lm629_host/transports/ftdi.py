@@ -200,9 +200,12 @@ class FtdiTransport(Transport):
             self.chip_selects = 1  # its line is the second chip's /CS otherwise
             self.compiler.keep = self.compiler.keep_level = line
             self.feed_period_s = 0.5 / heartbeat_hz
-            self.keepalive = KeepAlive(self.feed_period_s, self._beat, f"heartbeat {url}",
-                                       lambda: self._last_toggle + self.feed_period_s)
-            self.run_keep_alive(self.keepalive)
+            # the keep-alive's protocol (when, skipped while a program holds the lock, which
+            # clock); the heartbeat says only what to send: a toggle
+            self.keepalive = KeepAlive(self.feed_period_s, self._toggle, f"heartbeat {url}",
+                                       last_heard=lambda: self._last_toggle, clock=self.clock,
+                                       busy=self.lock)
+            self.keepalive.start(self)
 
     # ------------------------------------------------------------------ opening
     @classmethod
@@ -227,25 +230,16 @@ class FtdiTransport(Transport):
         return adapter_checks()
 
     # ------------------------------------------------------------------ the heartbeat
-    def _feed_if_due(self) -> None:
-        """Toggle the heartbeat line when no program has run for half its period (the lines
-        are idle between programs: one set-low-byte command)."""
+    def _toggle(self) -> None:
+        """What the keep-alive sends: the heartbeat line toggled (the lines are idle between
+        programs: one set-low-byte command)."""
         ftdi = self.wire.ftdi
         if not self.feed_period_s or ftdi is None:
             return
-        now = self.clock.now()
-        if now - self._last_toggle < self.feed_period_s:
-            return
         c = self.compiler
         c.keep_level ^= c.keep
-        self._last_toggle = now
+        self._last_toggle = self.clock.now()
         ftdi.write_data(bytes((SET_LOW, c.low_byte(pins.CTRL_IDLE), pins.CTRL_DIRECTION)))
-
-    def _beat(self) -> None:
-        """The keep-alive's feed: toggle when due, only while no bus program holds the lock
-        (a program under way keeps the line where it is)."""
-        if self.wire.ftdi is not None:
-            self.keep_alive(self._feed_if_due, "heartbeat")
 
     def close(self) -> None:
         self.feed_period_s = 0.0

@@ -20,6 +20,7 @@ says so.
 from __future__ import annotations
 
 import logging
+import statistics
 from collections.abc import Iterator, Sequence
 
 from lm629_host.bridge.protocol import (
@@ -73,6 +74,9 @@ from lm629_host.transports.session import (
 
 log = logging.getLogger("lm629_host.bridge.protocol")
 
+#: PINGs timed after the handshake; the median is the reported round-trip time
+RTT_PINGS = 5
+
 #: results by which the bridge refuses a program before running any of it
 _REFUSALS = (Result.BAD_PROGRAM, Result.PROGRAM_TOO_LONG, Result.BAD_CHIP_SELECT)
 
@@ -96,7 +100,8 @@ class LinkTransport(LinkSession):
 
     def __init__(self, pipe: Pipe, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = None, cs: int = 0,
-                 handshake: bool = True, compact: bool = True, arm: bool = True) -> None:
+                 handshake: bool = True, compact: bool = True, fast_baud: int = 0,
+                 measure_rtt: bool = True) -> None:
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud)
         #: use RUN_SHORT where the bridge offers it (False: always RUN, as protocol 1 began)
         self.compact = compact
@@ -109,18 +114,51 @@ class LinkTransport(LinkSession):
         self.recorder = LinkRecorder(self, self.failsafe)
         self.profiles = ProfileScheduler(self, self.failsafe, cs)
         self.failsafe.on_turn = self._top_up_quietly
+        self.rtt_s: float | None = None  #: the measured PING round trip (s), once opened
+        #: why the line runs at :attr:`baud` (``lm629 status`` says it)
+        self.rate_note = "the handshake rate"
         if handshake:
             try:
-                self.hello()
-                if arm:  # else the subclass arms once its own opening steps are done
-                    self.failsafe.open()
+                self.open_link(fast_baud, measure_rtt)
             except BaseException:
                 self.close()
                 raise
-            # the counters start with the first program, as on every other transport (the
-            # HELLOs a booting bridge left unanswered are not the line's error rate either)
-            self.stats.reset()
-            self._attempts.clear()
+
+    def open_link(self, fast_baud: int = 0, measure_rtt: bool = True) -> None:
+        """The open sequence of every bridge port, real or simulated, in this order: HELLO
+        until answered; the faster rate (``fast_baud``, SET_BAUD) where the bridge and the
+        line can; the round trip measured (``measure_rtt``: :data:`RTT_PINGS` PINGs at the
+        rate the link keeps); the failsafe armed last, so that neither the switch nor the
+        PINGs are timed by it.  The counters start afterwards, with the first program, as on
+        every other transport (the HELLOs a booting bridge left unanswered are not the line's
+        error rate either)."""
+        self.hello()
+        baud = self.baud
+        if fast_baud and fast_baud != baud:
+            if not getattr(self.pipe, "sets_line_rate", True):
+                self.rate_note = (f"the handshake rate: raw TCP cannot set the far UART's rate, "
+                                  f"so fast_baud={fast_baud} is not asked for (rfc2217:// can)")
+            else:  # a bridge or a line that cannot: a warning, and the link stays
+                switched = self.switch_baud(fast_baud)
+                self.rate_note = (f"switched from {baud} baud after the handshake" if switched
+                                  else f"the handshake rate: the switch to {fast_baud} baud "
+                                  "did not take")
+        elif not fast_baud:
+            self.rate_note = "the handshake rate (fast_baud=0)"
+        if measure_rtt:
+            self.rtt_s = self.measure_rtt()
+            log.info("%s: round trip %.2f ms", self.url, self.rtt_s * 1e3)
+        self.failsafe.open()
+        self.stats.reset()
+        self._attempts.clear()
+
+    def measure_rtt(self, n: int = RTT_PINGS) -> float:
+        """Median round trip of ``n`` empty PINGs, seconds (on the link's clock)."""
+        return statistics.median(self.ping() for _ in range(n))
+
+    def line_rate(self) -> tuple[int, str]:
+        """The rate the line runs at and why (``lm629 status``'s ``link`` line)."""
+        return self.baud or 0, self.rate_note
 
     def _bridge_forgot(self) -> None:
         self.codes.forget()
@@ -400,7 +438,8 @@ class LinkTransport(LinkSession):
     def describe(self) -> str:
         if self.info is None:
             return self.url
-        return f"{self.url} ({self.info.describe()})"
+        rtt = f", round trip {self.rtt_s * 1e3:.2f} ms" if self.rtt_s is not None else ""
+        return f"{self.url} ({self.info.describe()}){rtt}"
 
     def close(self) -> None:
         """Disarm the failsafe (a clean close: an axis left moving on purpose keeps moving),

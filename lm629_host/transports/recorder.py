@@ -155,9 +155,9 @@ class LinkRecorder:
         does not end the wait: it was a row, and a lost row is a gap.  With the failsafe armed
         the host feeds it while it waits (a recording counts as alive only while it sends)."""
         fs = self.failsafe
-        feeding = fs.recording and fs.feed_period_s
+        ka = fs.keepalive if fs.recording and fs.feed_period_s else None
         return self.link.await_reply(seq, deadline, pending, bad_ends_wait=False,
-                                     tick=fs.feed_if_due if feeding else None,
+                                     tick=ka.turn if ka is not None else None,
                                      every=fs.feed_period_s)
 
     def _decode_row(self, payload: bytes, ops: Sequence[BusOp]

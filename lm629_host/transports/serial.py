@@ -28,7 +28,6 @@ import logging
 from urllib.parse import parse_qsl, urlencode
 import os
 import select
-import statistics
 import sys
 import threading
 from dataclasses import dataclass
@@ -37,6 +36,11 @@ try:  # POSIX only; imported early so that the advice works even where modules c
     import grp
 except ImportError:  # pragma: no cover - Windows
     grp = None  # type: ignore[assignment]  # Windows has no grp module
+
+try:  # POSIX only: pyserial's reset_input_buffer on a tty lets termios.error through
+    from termios import error as _TermiosError
+except ImportError:  # pragma: no cover - Windows
+    _TermiosError = OSError  # type: ignore[assignment,misc]  # nothing else to catch there
 
 from lm629_host.bridge.protocol import FAST_BAUD
 from lm629_host.clock import Clock, WallClock
@@ -50,11 +54,16 @@ from lm629_host.transports.session import DEFAULT_RETRIES
 
 log = logging.getLogger("lm629_host.serial")
 
+#: what a port that went away (or never was a tty) raises from pyserial or the descriptor:
+#: SerialException and its PortNotOpenError are OSError (so are a socket's errors and the
+#: stuck write's TimeoutError); ValueError for a descriptor closed under a select; termios's
+#: own error for a tty call on something that is no tty.  A TypeError or an AttributeError is
+#: a bug, never "was the board unplugged?"
+PORT_ERRORS: tuple[type[Exception], ...] = (OSError, ValueError, _TermiosError)
+
 DEFAULT_BAUD = 115200
 #: seconds to keep asking HELLO after opening (boot time of an Uno after its DTR reset)
 DEFAULT_BOOT_S = 2.5
-#: PINGs timed after the handshake; the median is the reported round-trip time
-RTT_PINGS = 5
 
 #: USB ids of the boards and adapters a bridge is usually built on: (vid, pid) -> name
 KNOWN_USB_IDS: dict[tuple[int, int], str] = {
@@ -271,14 +280,14 @@ class SerialPipe:
         self._heard = b""
         try:
             self._fd: int | None = port.fileno()
-        except Exception:  # noqa: BLE001 - Windows ports and URL handlers have no fd
+        except OSError:  # io.UnsupportedOperation: Windows ports and URL handlers have no fd
             self._fd = None
         if self._fd is not None:
             port.timeout = 0  # non-blocking reads; waiting is done with select below
-        else:
+        elif port.timeout != self.READ_SLICE_S:
             # set once: a URL handler may do real work on each change of a setting
             # (pyserial's RFC 2217 client renegotiates every port setting with the server,
-            # 50-150 ms, when its timeout is set), so a wait is cut into reads of this slice
+            # 150 ms, when its timeout is set), so a wait is cut into reads of this slice
             port.timeout = self.READ_SLICE_S
         #: whether a change of rate reaches the line: not through raw TCP (``socket://``),
         #: which carries bytes only, so that the far UART (ser2net's) keeps its rate; RFC 2217
@@ -303,7 +312,7 @@ class SerialPipe:
                 self._write_fd(data)
             else:
                 self.port.write(data)
-        except Exception as exc:
+        except PORT_ERRORS as exc:
             raise TransportError(f"write failed ({exc}): {_lost_hint(self.device, self._heard)}",
                                  port=self.device) from exc
 
@@ -340,7 +349,7 @@ class SerialPipe:
                 data = port.read(max(1, port.in_waiting))
                 return bytes(data)
             return self._read_sliced(timeout_s)
-        except Exception as exc:
+        except PORT_ERRORS as exc:
             raise TransportError(f"read failed ({exc}): {_lost_hint(self.device, self._heard)}",
                                  port=self.device) from exc
 
@@ -365,19 +374,19 @@ class SerialPipe:
         try:
             self.port.flush()
             self.port.baudrate = baud
-        except Exception as exc:
+        except PORT_ERRORS as exc:  # ValueError: a rate this port's driver cannot make
             raise TransportError(f"cannot set {baud} baud ({exc})", port=self.device) from exc
 
     def reset_input(self) -> None:
         try:
             self.port.reset_input_buffer()
-        except Exception:  # noqa: BLE001 - a pty or a vanished port: nothing to drop
+        except PORT_ERRORS:  # a pty or a vanished port: nothing to drop
             pass
 
     def close(self) -> None:
         try:
             self.port.close()
-        except Exception:  # noqa: BLE001 - closing a vanished port must not raise
+        except PORT_ERRORS:  # closing a vanished port must not raise
             pass
 
 
@@ -437,6 +446,66 @@ def _quiet_rfc2217_reader() -> None:
     threading.excepthook = hook
 
 
+def _rfc2217_class():
+    """pyserial's RFC 2217 client, with its port settings sent only when they change.
+
+    pyserial sends every setting again (rate, data bits, parity, stop bits, then SET-CONTROL)
+    and waits for the answers, 50 ms a look and 100 ms more for SET-CONTROL under
+    ``ign_set_control``, whenever any attribute changes, a read timeout included: 150 ms.  The
+    bridge's switch to its faster rate must be heard at the new rate within its 250 ms window
+    (BAUD_WINDOW_MS), so that 150 ms made the switch miss on a busy machine.  Here a change
+    of the rate alone is SET-BAUDRATE alone, its answer looked for every millisecond (ser2net
+    answers with the rate it set; another rate is pyserial's ValueError, "remote rejected"),
+    a change the server does not see (a timeout) sends nothing, and anything else is
+    pyserial's own full exchange."""
+    import struct
+    import time
+
+    from serial import SerialException
+    from serial.rfc2217 import Serial
+
+    class RFC2217Port(Serial):
+        _sent: tuple | None = None  # the settings the server last acknowledged
+
+        def open(self) -> None:
+            """pyserial's open; then the write deadline every other port has
+            (:data:`WRITE_TIMEOUT_S`), as the socket's timeout: pyserial refuses a
+            ``write_timeout`` here, and its socket's own (5 s) bounded a write before."""
+            super().open()
+            if self._socket is not None:
+                self._socket.settimeout(WRITE_TIMEOUT_S)
+
+        def rfc2217_set_control(self, value: bytes) -> None:
+            """SET-CONTROL (DTR, RTS, flow control) sent; under ``ign_set_control`` no answer
+            is awaited at all (pyserial sleeps 100 ms instead, three times in each open: the
+            bridge uses no modem-control line)."""
+            if not self._ignore_set_control_answer:
+                super().rfc2217_set_control(value)
+                return
+            self._rfc2217_options["control"].set(value)
+
+        def _settings(self) -> tuple:
+            return (self._baudrate, self._bytesize, self._parity, self._stopbits,
+                    self._rtscts, self._xonxoff, self._write_timeout)
+
+        def _reconfigure_port(self) -> None:
+            sent, now = self._sent, self._settings()
+            if sent is None or self._socket is None or sent[1:] != now[1:]:
+                super()._reconfigure_port()
+            elif sent[0] != now[0]:
+                item = self._rfc2217_port_settings["baudrate"]
+                item.set(struct.pack("!I", self._baudrate))
+                deadline = time.monotonic() + self._network_timeout
+                while not item.is_ready():  # ValueError when the server set another rate
+                    if time.monotonic() > deadline:
+                        raise SerialException(f"no answer to SET-BAUDRATE {self._baudrate} "
+                                              f"within {self._network_timeout:g} s")
+                    time.sleep(0.001)
+            self._sent = now
+
+    return RFC2217Port
+
+
 def open_port(device: str, baud: int):
     """Open ``device`` with pyserial (8N1, exclusive) or raise a :class:`TransportError` that
     says what to do.  ``device`` may be any pyserial URL (``serial_for_url``): a bridge on
@@ -447,13 +516,14 @@ def open_port(device: str, baud: int):
     scheme = _scheme(device)
     if scheme == "rfc2217":
         _quiet_rfc2217_reader()
-    # pyserial's RFC 2217 client refuses a write_timeout (NotImplementedError); its writes are
-    # bounded by its socket's own timeout instead (5 s, set when it connects)
-    bounded = {} if scheme == "rfc2217" else {"write_timeout": WRITE_TIMEOUT_S}
+    # pyserial's RFC 2217 client refuses a write_timeout (NotImplementedError): it gets none
+    # below, its writes bounded by its socket's timeout instead (RFC2217Port.open)
+    bounded = {"write_timeout": WRITE_TIMEOUT_S}
     try:
+        if scheme == "rfc2217":  # pyserial's client, its settings sent only when they change
+            return _rfc2217_class()(rfc2217_url(device), baud, timeout=SerialPipe.READ_SLICE_S)
         # exclusive: a lock on a local port (spy:// included); network handlers ignore it
-        return serial.serial_for_url(rfc2217_url(device), baud, timeout=0, exclusive=True,
-                                     **bounded)
+        return serial.serial_for_url(device, baud, timeout=0, exclusive=True, **bounded)
     except (serial.SerialException, OSError) as exc:  # OSError: a network handler's socket
         code = getattr(exc, "errno", None)
         text = str(exc)
@@ -498,7 +568,8 @@ def latency_timer_ms(device: str) -> int | None:
 
 
 class SerialTransport(LinkTransport):
-    """The bridge over a serial port.  ``rtt_s`` is the measured PING round trip."""
+    """The bridge over a serial port: the link's open sequence (:meth:`LinkTransport.open_link`)
+    after the port is open; ``rtt_s`` is the measured PING round trip."""
 
     scheme = "serial"
     hello_interval_s = 0.25
@@ -510,36 +581,8 @@ class SerialTransport(LinkTransport):
         self.boot_s = boot_s
         self.hello_total_s = max(boot_s, self.hello_interval_s)
         self.low_latency = low_latency
-        self.rtt_s: float | None = None
-        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs, arm=False)
-        #: why the line runs at :attr:`baud` (``status`` says it)
-        self.rate_note = "the handshake rate" + ("" if fast else " (fast_baud=0)")
-        if fast and fast != baud and not getattr(pipe, "sets_line_rate", True):
-            self.rate_note = (f"the handshake rate: raw TCP cannot set the far UART's rate, so "
-                              f"fast_baud={fast} is not asked for (rfc2217:// can)")
-        elif fast and fast != baud:
-            try:  # a bridge or a port that cannot: a warning, and the link stays
-                switched = self.switch_baud(fast)
-            except BaseException:
-                self.close()
-                raise
-            self.rate_note = (f"switched from {baud} baud after the handshake" if switched else
-                              f"the handshake rate: the switch to {fast} baud did not take")
-            self.stats.reset()
-        if measure_rtt:
-            try:
-                self.rtt_s = self.measure_rtt()
-            except BaseException:
-                self.close()
-                raise
-            self.stats.reset()
-            log.info("%s: round trip %.2f ms, low latency %s", url, self.rtt_s * 1e3,
-                     low_latency or "n/a")
-        try:  # last: the switch of rate and the PINGs above are not timed by the failsafe
-            self.failsafe.open()
-        except BaseException:
-            self.close()
-            raise
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs,
+                         fast_baud=fast, measure_rtt=measure_rtt)
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SerialTransport:
@@ -550,8 +593,17 @@ class SerialTransport(LinkTransport):
             done, low = set_low_latency(port)
         pipe = SerialPipe(port, device=opts.device)
         pipe.reset_input()
-        return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
-                   boot_s=opts.boot_s, low_latency=low, fast=opts.fast)
+        try:
+            return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
+                       boot_s=opts.boot_s, low_latency=low, fast=opts.fast)
+        except TransportError as exc:
+            # a server that refused this client may have said why before it closed, and the
+            # words lost with the connection (a reset drops what was unread): ask it again
+            if _scheme(opts.device) in ("socket", "rfc2217") and "answered" not in str(exc) \
+                    and (said := _server_says(opts.device)):
+                raise TransportError(f"cannot open {opts.device}: "
+                                     f"{_refused(opts.device, said)}", port=opts.device) from None
+            raise
 
     def _no_answer(self, what: str, attempts: int) -> TransportError:
         dev = device_of(self.url)  # with a socket:// URL the advice is the remote board's
@@ -561,18 +613,6 @@ class SerialTransport(LinkTransport):
             f"--port {dev})? An Uno/Nano resets when the port opens and needs ~2 s to boot "
             f"(raise ?boot=5 if it is slower); does ?baud= match the firmware's? Is it the "
             "right port (lm629 bridge list)?", port=self.url)
-
-    def measure_rtt(self, n: int = RTT_PINGS) -> float:
-        """Median round trip of ``n`` empty PINGs, seconds."""
-        return statistics.median(self.ping() for _ in range(n))
-
-    def line_rate(self) -> tuple[int, str]:
-        """The rate the line runs at and why (``lm629 status``'s ``link`` line)."""
-        return self.baud or 0, self.rate_note
-
-    def describe(self) -> str:
-        rtt = f", round trip {self.rtt_s * 1e3:.2f} ms" if self.rtt_s is not None else ""
-        return super().describe() + rtt
 
     @classmethod
     def list_ports(cls, probe: bool = True, boot_s: float = DEFAULT_BOOT_S) -> list[PortInfo]:

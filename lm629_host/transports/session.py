@@ -178,9 +178,9 @@ class LinkSession(Transport):
         with self._tx_lock:
             if when is not None and not when():
                 return False
-            if feeds:
-                self._last_tx = self.clock.now()
             self.pipe.write(wire)
+            if feeds:  # written: the bridge heard the host (a write that failed did not)
+                self._last_tx = self.clock.now()
         self.stats.bytes_out += len(wire)
         return True
 

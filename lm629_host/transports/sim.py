@@ -116,12 +116,17 @@ class SimTransport(ModelChips, CycleTransport):
         until = m.busy_deadline()
         if tracing or self.bent is not None or not self.skip_known_busy or until is None:
             return super()._wait_not_busy(program, index, words, tracing)
-        t0 = m.tick
-        skipped = self._skip_busy_polls(t0 / m.clock_hz + program.busy_timeout_s)
-        if not skipped and until > t0 + self._cycle_clocks:
-            # the full loop times out before busy ends: let it, with its own message and time
-            return super()._wait_not_busy(program, index, words, tracing)
-        m.advance_to(m.tick + self._cycle_clocks)
+        t0, c = m.tick, self._cycle_clocks
+        skipped = 0
+        if until > t0 + c:  # _skip_busy_polls, with the deadline already read
+            s = self._poll_clocks
+            skipped = -(-(until - t0 - c) // (c + s))  # reads before the deadline
+            if (t0 + skipped * c + (skipped - 1) * s) / m.clock_hz >= \
+                    t0 / m.clock_hz + program.busy_timeout_s:
+                # the full loop times out before busy ends: let it, with its own message
+                return super()._wait_not_busy(program, index, words, tracing)
+            m.advance_to(t0 + skipped * (c + s))
+        m.advance_to(m.tick + c)
         status = m.read_status()
         stats = self.stats
         stats.bus_cycles += skipped + 1

@@ -51,7 +51,8 @@ class SimAvrTransport(ModelChips, LinkTransport):
     margin_s = 0.02
 
     def __init__(self, sim: AvrSim, url: str | PortURL, *, trace: TraceCallback | None = None,
-                 retries: int = DEFAULT_RETRIES, baud: int = DEFAULT_BAUD) -> None:
+                 retries: int = DEFAULT_RETRIES, baud: int = DEFAULT_BAUD,
+                 fast_baud: int = 0) -> None:
         self.sim = sim
         self.model = sim.model
         #: the chips on the bridge's chip selects 0, 1, ... (``sim+avr://?axes=N``)
@@ -60,7 +61,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
         usb = getattr(pipe, "adapter", None)
         if usb is not None:
             self.margin_s = type(self).margin_s + usb.worst_s
-        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud)
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, fast_baud=fast_baud)
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimAvrTransport:
@@ -84,12 +85,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
         sim = AvrSim(model, firmware, wiring=wiring_of(url))
         if vcd is not None:
             sim.write_vcd(*vcd)
-        t = cls(sim, url, trace=trace, baud=baud)
-        fast_baud = opts["fast_baud"]
-        if fast_baud and fast_baud != baud:
-            t.switch_baud(fast_baud)  # SET_BAUD: the firmware switches its UART
-            t.stats.reset()
-        return t
+        return cls(sim, url, trace=trace, baud=baud, fast_baud=opts["fast_baud"])
 
     def describe(self) -> str:
         fw = self.info.firmware_version if self.info else "?"

@@ -13,6 +13,8 @@ from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.model import ChipBus, ChipModel, chips_of
 from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import wrap_usb
+from lm629_host.bridge.protocol import Pipe
+from lm629_host.bus.program import TraceCallback
 from lm629_host.urls import Option, PortURL, parse_options, query_params
 from lm629_host.transports.failsafe import FAILSAFE_OPTION_NAMES, failsafe_options
 from lm629_host.transports.link import LinkTransport
@@ -32,6 +34,16 @@ class EmuLinkTransport(ModelChips, LinkTransport):
     emulator: BridgeEmulator  #: the emulated bridge
     #: the emulated bridge answers at once: the margin only covers rounding
     margin_s = 1e-3
+
+    def __init__(self, emulator: BridgeEmulator, model: ChipModel | ChipBus, pipe: Pipe,
+                 url: str | PortURL, *, trace: TraceCallback | None = None,
+                 retries: int = DEFAULT_RETRIES, baud: int | None = None,
+                 margin_s: float = 1e-3, fast_baud: int = 0) -> None:
+        self.margin_s = margin_s
+        self.model = model
+        self.models = chips_of(model)
+        self.emulator = emulator
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, fast_baud=fast_baud)
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace=None) -> EmuLinkTransport:
@@ -75,18 +87,10 @@ def open_emulated(url: str | PortURL = "sim://", *, baud: int | None = None,
     emu = BridgeEmulator(model, info, wiring=wiring_of(url))
     pipe = EmuPipe(emu, baud=baud or None, max_baud=opts["max_baud"] or None)
     outer = wrap_usb(wrap(pipe) if wrap is not None else pipe, url)
-    t = EmuLinkTransport.__new__(EmuLinkTransport)
     usb = getattr(outer, "adapter", None)
-    t.margin_s = margin_s + (usb.worst_s if usb is not None else 0.0)
-    t.model = model
-    t.models = chips_of(model)
-    t.emulator = emu
-    LinkTransport.__init__(t, outer, url, trace=trace, retries=retries, baud=baud or None)
-    fast = opts["fast_baud"]
-    if fast and fast != baud:
-        t.switch_baud(fast)  # a line that cannot carry it (max_baud): a notice, and it stays
-        t.stats.reset()
-    return t
+    return EmuLinkTransport(emu, model, outer, url, trace=trace, retries=retries,
+                            baud=baud or None, fast_baud=opts["fast_baud"],
+                            margin_s=margin_s + (usb.worst_s if usb is not None else 0.0))
 
 
 __all__ = ["EmuLinkTransport", "open_emulated"]

@@ -320,7 +320,7 @@ def test_a_second_thread_reading_the_chip_issues_no_piece_twice():
                                             (f"sim+avr://?{UNO}", False), ("sim+emu://", True)])
 def test_a_recording_in_a_long_streamed_move_lands_it_bridge_timed(url, recording):
     """100,000 counts: 260 pieces of 20 ms, streamed to a PROFILE bridge in top-ups, and a
-    0.3 s recording at 5 ms in the middle (issue 47).  At 115200 baud the NEW frame of 30
+    0.3 s recording at 5 ms in the middle.  At 115200 baud the NEW frame of 30
     pieces takes 22 ms on the wire, more than a piece: a host that counted the pieces from when
     it sent that frame topped the bridge up past the 64 it holds (BAD_PROFILE, the rest of the
     move dropped); and the last piece's cap (the S-curve's tail, a few counts/s) left a chip a

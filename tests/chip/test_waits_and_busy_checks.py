@@ -24,7 +24,6 @@ from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
 from lm629_host.transports.simemu import EmuLinkTransport
 from lm629_host.errors import BusyTimeout, WaitTimeout
 from lm629_host.bridge.protocol import Capability, HelloInfo
-from lm629_host.transports.link import LinkTransport
 from lm629_host.chip.waiting import POLL_MAX_S, poll_interval
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.bus.program import WAIT_STATUS_POLL_US, Program
@@ -156,9 +155,7 @@ def test_wait_for_timeout_on_sim():
 def _emu(capabilities: int) -> EmuLinkTransport:
     model = build_model("sim://")
     emu = BridgeEmulator(model, info=HelloInfo(capabilities=capabilities))
-    t = EmuLinkTransport.__new__(EmuLinkTransport)
-    t.model, t.emulator = model, emu
-    LinkTransport.__init__(t, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
+    t = EmuLinkTransport(emu, model, EmuPipe(emu, baud=115200), "sim+emu://", baud=115200)
     return t
 
 

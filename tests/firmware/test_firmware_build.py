@@ -93,7 +93,7 @@ def test_firmware_limits_match_the_protocol_constants():
 def test_the_receive_check_is_inline_and_a_read_takes_its_wire_and_chip_time(firmware_built):
     """The main loop asks ``link_rx_pending()`` twice for every byte received.  Once
     WAIT_STATUS asked too (firmware 1.4: a host byte ends the wait), GCC -Os made it a call
-    (1.3 us a byte): RDRP at 1 Mbaud went 298 -> 308 us, LTRJ(6)+STT 847 -> 897 us (issue 47).
+    (1.3 us a byte): RDRP at 1 Mbaud went 298 -> 308 us, LTRJ(6)+STT 847 -> 897 us.
     It is always inlined again: no out-of-line copy in the image, and a kept RDRP program's
     round trip at 1 Mbaud stays within 300 us (18 bytes on the wire: 180 us; the chip's
     command, busy and four reads about 42 us; the firmware's own work the rest)."""

@@ -13,6 +13,7 @@ import shutil
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -184,3 +185,49 @@ def command(p: Panel, token: str, body: dict, origin: str | None = "same") -> tu
         del headers["X-LM629-Token"]
     status, text = request(p, "POST", "/api/command", body=body, headers=headers)
     return status, json.loads(text)
+
+
+@contextmanager
+def forward(p: Panel) -> Iterator[int]:
+    """A TCP forward to the panel from another loopback port, as ``ssh -L PORT:127.0.0.1:...``
+    makes one (no sshd runs here): the browser then names ``localhost:PORT``.  Yields PORT."""
+    import socket
+
+    where = urlsplit(p.url)
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(8)
+    stop = threading.Event()
+
+    def pump(a: socket.socket, b: socket.socket) -> None:
+        try:
+            while data := a.recv(65536):
+                b.sendall(data)
+        except OSError:
+            pass
+        finally:
+            for s in (a, b):
+                try:
+                    s.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+
+    def accept() -> None:
+        listener.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                client, _ = listener.accept()
+            except OSError:
+                continue
+            upstream = socket.create_connection((where.hostname, where.port))
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=pump, args=(a, b), daemon=True).start()
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    try:
+        yield listener.getsockname()[1]
+    finally:
+        stop.set()
+        thread.join()
+        listener.close()

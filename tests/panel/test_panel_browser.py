@@ -15,7 +15,7 @@ import subprocess
 import pytest
 
 from lm629_host.chip.move import MoveRules
-from panel_helpers import chromium, last_row, message, panel, wait_for
+from panel_helpers import chromium, forward, last_row, message, panel, wait_for
 from served import _console_script, _env
 
 VELOCITY_CPS = 65536 / 65536 / (2048 / 8e6)  # counts/s of the default velocity word
@@ -157,7 +157,8 @@ def test_second_tab_watches_escape_stops_closed_tab_stops_nothing(page):
     driver.switch_to.window(first)
     _type(driver, "move-target", str(held + 3000))
     _click(driver, "move")
-    wait_for(lambda: message(driver).startswith("moving to"), what="the move's answer")
+    wait_for(lambda: message(driver).startswith(f"moving to {held + 3000} counts"),
+             what="the move's answer")  # this move's: the tab showed the last move's before
     driver.close()
     driver.switch_to.window(second)
     wait_for(lambda: driver.find_element("id", "role").text == "this tab commands",
@@ -165,3 +166,37 @@ def test_second_tab_watches_escape_stops_closed_tab_stops_nothing(page):
     wait_for(lambda: abs(last_row(driver)[1] - (held + 3000)) <= MoveRules().tolerance
              and last_row(driver)[3] == 0,
              what="the closed tab's move ended on its target")
+
+
+def test_through_a_port_forward(page):
+    """Loaded through a forward from another port (what ``ssh -L 9000:127.0.0.1:8629`` gives
+    the browser): the page's relative URLs reach the panel, its Host and Origin name
+    ``localhost:PORT`` and pass, and its commands (a stop: from any tab) go through."""
+    driver, p = page
+    with forward(p) as port:
+        driver.switch_to.new_window("tab")
+        driver.get(f"http://localhost:{port}/")
+        wait_for(lambda: len(_plotted(driver, 0)) > 10, what="rows through the forward")
+        driver.find_element("tag name", "body").send_keys("\ue00c")  # Escape
+        wait_for(lambda: message(driver), what="the stop's answer")
+        assert message(driver) == "abrupt stop sent"
+        driver.close()
+        driver.switch_to.window(driver.window_handles[0])
+
+
+def test_exposed_with_its_token_in_the_address(page):
+    """Beyond the loopback names (127.0.0.2 here: still this machine) with --expose: the
+    address carries the token, and the page opened from it works whole (its files, its rows,
+    its commands)."""
+    driver, _p = page
+    with panel("sim://", "--expose", listen="127.0.0.2:0") as exposed:
+        assert "/?token=" in exposed.url
+        driver.switch_to.new_window("tab")
+        driver.get(exposed.url)
+        wait_for(lambda: len(_plotted(driver, 0)) > 10, what="rows on the exposed panel")
+        assert driver.find_element("id", "role").text == "this tab commands"
+        _click(driver, "stop")
+        wait_for(lambda: message(driver), what="the stop's answer")
+        assert message(driver) == "abrupt stop sent"
+        driver.close()
+        driver.switch_to.window(driver.window_handles[0])

@@ -118,5 +118,18 @@ def test_exposed_address_carries_the_token():
         assert status == 200 and token in text
         status, text = request(p, "GET", f"/?token={token}", host="evil.example")
         assert status == 403
+        # what the page loads: the package's public files, without the token; the rows with it
+        status, text = request(p, "GET", "/static/panel.js")
+        assert status == 200 and "EventSource" in text
+        assert request(p, "GET", "/events")[0] == 403
         code, err = p.end()
     assert code == 143 and err.strip().endswith("lm629: terminated (SIGTERM)"), err
+
+
+def test_a_port_in_use_is_one_line_exit_3(served_panel):
+    p, _token = served_panel
+    r = _run("panel", "--listen", p.hostport)
+    assert r.returncode == 3 and r.stdout == ""
+    assert r.stderr.strip() == (f"lm629: cannot listen on {p.hostport}: Address already in use "
+                                "(another panel there? --listen 127.0.0.1:0 takes a free port); "
+                                "nothing was opened")

@@ -80,6 +80,11 @@ def test_panel_ended_mid_move_stops_the_served_axis(tmp_path):
                 for m in stream:
                     if m["type"] == "rows" and m["rows"][-1][2] > 2000:
                         break
+            # the panel holds the bench's port, as any client does: another command is
+            # refused (exit 3, saying why) and never ends the panel's link
+            other = bench.run("status")
+            assert other.returncode == 3 and "in use by another program" in other.stderr
+            assert p.proc.poll() is None
             code, err = p.end()
         assert code == 143 and err.strip().splitlines()[-1] == "lm629: terminated (SIGTERM)", err
         _at_rest_short_of_target(bench, 2000)
@@ -124,3 +129,23 @@ def test_a_trip_shows_at_once_and_is_acknowledged_from_the_page(tmp_path, driver
         st = bench.status()
         assert st["failsafe"]["trip"] is None
         assert st["real_position"] < FAR // 2
+
+
+def test_a_bench_lost_under_the_panel_ends_it_in_one_line(tmp_path):
+    """The far end gone (the served bench killed: a board unplugged): the page is told at
+    once, and the panel ends with the command line's line for it, exit 3."""
+    with serve(tmp_path, "python") as bench:
+        bench.ready()
+        with panel(f"serial://{bench.link}") as p:
+            token = p.page_token()
+            with events(p, token) as stream:
+                next(stream)
+                bench.server.send_signal(signal.SIGKILL)
+                fault = next(m for m in stream if m["type"] == "fault")
+            code = p.proc.wait(timeout=30)
+            err = p.proc.stderr.read()
+        bench.link.unlink()  # the killed server could not remove its link
+    assert code == 3, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("lm629: error: ") and "was the board unplugged?" in last, err
+    assert fault["text"] == "the bench stopped: " + last[len("lm629: "):]

@@ -121,7 +121,9 @@ SOAK = dict(delay_s=0.01)
     pytest.param(0.0025, 30_000, 0.999, marks=pytest.mark.long)])
 def test_soak_at_issue16_rates(far, rate, n, min_ok):
     rates = dict(drop=rate, corrupt=rate, duplicate=rate, delay=rate, **SOAK)
-    chip, model, fp, far_stats = open_faulty(far, rates, 0, baud=1_000_000)
+    # the checker reads the chip's whole record: a long soak needs more than its default window
+    query = f"&record_window={2 * n}" if n > 5000 else ""
+    chip, model, fp, far_stats = open_faulty(far, rates, 0, baud=1_000_000, query=query)
     r = soak(chip, n)
     ran, lost = check_record(model.history, r.expected)  # exact: raises on any violation
     t = chip.transport

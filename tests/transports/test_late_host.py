@@ -437,3 +437,34 @@ def test_a_trip_while_the_keep_alive_was_held_up_says_so(tmp_path):
         finally:
             chip.transport.clear_failsafe()
             chip.close()
+
+
+class _FeedsFail(_FeedsLost):
+    """A line whose every keep-alive feed fails to be written (the adapter refuses it)."""
+
+    def write(self, data: bytes) -> None:
+        if data in (FAILSAFE_FEED, SIMULATED_FEED):
+            raise OSError(5, "Input/output error")
+        self.pipe.write(data)
+
+
+def test_a_feed_that_fails_warns_once_with_its_cause_and_the_trip_says_it(caplog):
+    """Every feed fails: the keep-alive says so once at WARNING, with the cause (not at
+    DEBUG, not once a turn), and the trip message blames that failure, not the line."""
+    caplog.set_level("DEBUG")
+    t = open_emulated("sim://", wrap=_FeedsFail)
+    chip = lm629_host.LM629(t)
+    chip.reset()
+    chip.load_filter(kp=20, kd=100)
+    chip.update_filter()
+    chip.clock.sleep(2.0)  # about five turns that feed, every one failing
+    failed = [r for r in caplog.records if "a feed failed" in r.getMessage()]
+    assert len(failed) == 1, caplog.text
+    assert failed[0].levelname == "WARNING"
+    assert "OSError: [Errno 5] Input/output error" in failed[0].getMessage()
+    with pytest.raises(FailsafeTripped) as e:
+        chip.move_to(1000, velocity=131072, acceleration=655)
+    msg = str(e.value)
+    assert "its feeds failed (OSError: [Errno 5] Input/output error)" in msg, msg
+    assert "lost on the line" not in msg, msg
+    t.close()

@@ -24,9 +24,6 @@ import pytest
 
 from served import serve
 
-#: they start a served bench and run in real time: the suite's markers
-pytestmark = [pytest.mark.served, pytest.mark.slow]
-
 #: the firmware's trip strobes all four chip selects: its bench has a chip on each
 FULL_BOARD = {"python": "sim://", "firmware": "sim://?axes=4"}
 
@@ -123,6 +120,7 @@ def two_cpu_hogs(request, cpu_hogs_beside):
         yield
 
 
+@pytest.mark.under_load  # the next process late on a busy machine
 @pytest.mark.parametrize("scenario", ["landed", "moving"])
 def test_beside_two_cpu_hogs_a_script_end_is_still_no_dead_host(tmp_path, scenario,
                                                                   two_cpu_hogs):
@@ -136,6 +134,7 @@ def test_beside_two_cpu_hogs_a_script_end_is_still_no_dead_host(tmp_path, scenar
             _at_rest_short_of(bench, st)
 
 
+@pytest.mark.under_load  # a failsafe trip: timed behaviour a busy host must keep
 @pytest.mark.parametrize("far_end,scenario", [("python", "kill"), ("firmware", "kill"),
                                               ("python", "abort")])
 def test_a_killed_or_crashed_script_still_trips_and_the_next_command_says_so(

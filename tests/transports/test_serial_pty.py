@@ -4,6 +4,7 @@ server with the Python far end.  These are the only link tests in real time (a f
 
 from __future__ import annotations
 
+import io
 import os
 import signal
 import subprocess
@@ -273,3 +274,38 @@ def test_server_keeps_the_chip_level_with_the_wall_clock(server):
         w0 = time.monotonic()
         chip.run(Program().wait(60000).wait(60000).status())  # 120 ms on the chip
         assert time.monotonic() - w0 >= 0.12
+
+
+class _HandlerPort:
+    """A pyserial URL handler's port (no descriptor) whose write raises ``error``."""
+
+    port = "rfc2217://localhost:7000"
+    timeout = 0.0
+    in_waiting = 0
+
+    def __init__(self, error: Exception) -> None:
+        self.error = error
+
+    def fileno(self) -> int:
+        raise io.UnsupportedOperation("fileno")
+
+    def write(self, data: bytes) -> int:
+        raise self.error
+
+
+def test_a_port_error_is_a_lost_link_and_a_bug_is_a_bug():
+    """A port that went away (pyserial's SerialException is an OSError) is told as the link
+    lost; a TypeError is a bug in the host and reaches the caller as it is, never "the server
+    closed the connection" or "was the board unplugged?"."""
+    import serial
+
+    from lm629_host.transports.serial import SerialPipe
+
+    lost = SerialPipe(_HandlerPort(serial.SerialException("connection reset")),
+                      device="rfc2217://localhost:7000")
+    with pytest.raises(TransportError, match="write failed .*server closed the connection"):
+        lost.write(b"\x00")
+    buggy = SerialPipe(_HandlerPort(TypeError("a bytes-like object is required")),
+                       device="rfc2217://localhost:7000")
+    with pytest.raises(TypeError, match="bytes-like"):
+        buggy.write(b"\x00")

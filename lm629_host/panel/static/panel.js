@@ -28,7 +28,7 @@ function makeAxis(name, k) {
               readout: box.querySelector(".readout")};
   const width = () => Math.max(300, $("plots").clientWidth - 12);
   const plot = (title, unit, series) => new uPlot({
-    title, width: width(), height: 150, legend: {show: true},
+    title, width: width(), height: config.axes.length > 1 ? 110 : 150, legend: {show: true},
     scales: {x: {time: false}},
     axes: [{label: "s"}, {label: unit, size: 70}],
     series: [{label: "t"}, ...series.map(([label, stroke, dash]) => ({label, stroke, width: 1.5, dash}))],
