@@ -50,8 +50,21 @@ from hypothesis.stateful import (
 import lm629_host
 from lm629_host.bench import selftest
 from lm629_host.bench.selftest.checks import INDEX_AT_REST
-from lm629_host.bridge.protocol import PROFILE_MAX_SCHEDULE
-from lm629_host.bus.opcodes import FIXED_ONE, POSITION_MAX, POSITION_MIN, SAMPLE_CLOCKS, wrap_counts
+from lm629_host.bridge.protocol import (
+    FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
+    PROFILE_MAX_SCHEDULE,
+    FrameType,
+    encode_frame,
+    run_payload,
+)
+from lm629_host.bus.opcodes import (
+    FIXED_ONE,
+    POSITION_MAX,
+    POSITION_MIN,
+    SAMPLE_CLOCKS,
+    Status,
+    wrap_counts,
+)
 from lm629_host.chip.move import MoveRules, MoveTooLong
 from lm629_host.chip.shapes import SCurve
 from lm629_host.config.profile import ensure_applied, name_axes, parse_profile
@@ -60,6 +73,7 @@ from lm629_host.motion.board import Board
 from lm629_host.sim.bridge import EmuPipe
 from lm629_host.transports import exiting
 from lm629_host.transports.sim import SimTransport
+from lm629_host.transports.simavr import SimAvrTransport
 from lm629_host.transports.simemu import EmuLinkTransport
 from lm629_host.urls import PortURL
 
@@ -736,8 +750,14 @@ class ApiMachine(RuleBasedStateMachine):
         for j, a in enumerate(self.board.axes):  # told once: reads run and agree
             self._agree(j, a.read_real_position(), a.read_desired_position())
         before = [self._untouched(j) for j in (0, 1)]
-        with pytest.raises(FailsafeTripped):
+        # refused: by the trip, or before it by soft limits the target is outside (a profile's
+        # limits stay in force across a reset that moved the axis's origin: validated first)
+        lim = axis.limits
+        target = self.truth[k].desired + 100
+        outside = lim is not None and lim.min is not None and not lim.min <= target <= lim.max
+        with pytest.raises(ValueError if outside else FailsafeTripped) as refused:
             axis.move_to(100, velocity=65536, acceleration=6553, relative=True)
+        assert not outside or "soft limit" in str(refused.value), refused.value
         assert [self._untouched(j) for j in (0, 1)] == before  # nothing started
         trip = self.board.clear_failsafe()
         assert trip is not None and trip.tripped and trip.chips == 0b11, trip
@@ -895,16 +915,65 @@ class ApiMachine(RuleBasedStateMachine):
             assert low <= gone <= high, (low, gone, high, t1 - t0, t2 - t1, t3 - t2)
         else:
             assert gone == 0, gone
-        stopped_at = [t.desired for t in self.truth]
-        self.board = Board(transport, 2)
-        assert [t.desired for t in self.truth] == stopped_at  # held there meanwhile
         if self.link:
             state = transport.failsafe_state()
             assert state is not None and not state.tripped, state
-            assert state.timeout_ms == round(FAILSAFE_S * 1000), state  # armed again
             baud = int(PortURL.parse(self.url).query()["baud"])
             assert transport.line_rate()[0] == baud == emu.rate, (transport.line_rate(), emu.rate)
-        # the new driver counts from the circle the registers read
+        self._opened_again(transport)
+        if self.link:
+            state = transport.failsafe_state()
+            assert state is not None and state.timeout_ms == round(FAILSAFE_S * 1000), state
+        self._moves_without_clearing(k)
+
+    # ------------------------------------------------------------------ rules: a killed script
+    @precondition(lambda self: not self.cycled and self.link and self._dear("killed"))
+    @rule(k=AXES)
+    def killed_during_a_far_wait(self, k: int) -> None:
+        """The script is killed (no atexit: its link is neither stopped nor closed) right
+        after its last write: the far-side wait ``wait_for`` sends (a WAIT_STATUS for a flag
+        the chip at rest never raises, the breakpoint, as long as the failsafe lets one run:
+        half its timeout).  A supervisor starts the next process at once on the same line.
+        The bridge ends its wait on the first byte of that open (the firmware looks for a host
+        byte between status reads; the Python far end does as it does), so the link's one open
+        sequence (HELLO, the rate, the round trip, the failsafe armed) and a first read end
+        well within the wait they interrupted; the dead script's reply, late, is nothing to
+        the new session; no trip (the bridge heard frames all along); every position where the
+        model says; a move lands without ``clear_failsafe``."""
+        self._count()
+        self._spend("killed")
+        self._note_turns()
+        old = self.board.transport
+        assert isinstance(old, (EmuLinkTransport, SimAvrTransport))
+        assert old.far_wait_limit_s == FAILSAFE_S / 2
+        wait_s = FAILSAFE_S / 2
+        axis = self.board.axes[k]
+        axis.reset_interrupts(int(Status.BREAKPOINT))
+        # level-held while the desired position sits on the breakpoint (0 after a reset)
+        never = not self.truth[k].model.status & Status.BREAKPOINT
+        program = axis.program().wait_status(int(Status.BREAKPOINT), round(wait_s * 1000))
+        clock = self.board.clock
+        killed_at = clock.now()
+        old.pipe.write(encode_frame(FrameType.RUN, 200, run_payload(
+            program.ops, FIRMWARE_DEFAULT_BUSY_TIMEOUT_US, k)))
+        exiting.forget(old)  # killed: no atexit runs for it
+        if isinstance(old, EmuLinkTransport):
+            transport: EmuLinkTransport | SimAvrTransport = EmuLinkTransport(
+                old.emulator, old.model, old.pipe, old.port_url, baud=old.baud)
+        else:
+            transport = SimAvrTransport(old.sim, old.port_url, baud=old.baud)
+        self._opened_again(transport)
+        took = clock.now() - killed_at
+        assert took < wait_s / 2 or not never, \
+            f"the next open took {took:.3f} s of a {wait_s} s wait it should have ended"
+        state = transport.failsafe_state()
+        assert state is not None and not state.tripped, state
+        self._moves_without_clearing(k)
+
+    def _opened_again(self, transport) -> None:
+        """The next process's board on ``transport`` (the same chips): its driver counts from
+        the circle the registers read, knows no limits, and reads what the model shows."""
+        self.board = Board(transport, 2)
         for t in self.truth:
             t.offset += circle(t.desired) * SPAN
         self._rebase()
@@ -912,12 +981,16 @@ class ApiMachine(RuleBasedStateMachine):
         self.profile = None  # the limits were the old process's
         for j, snap in enumerate(self.board.snapshots()):
             self._agree(j, snap.real_position, snap.desired_position)
+
+    def _moves_without_clearing(self, k: int) -> None:
+        """A move of axis ``k`` lands without ``clear_failsafe``; there is nothing to
+        acknowledge after it."""
         target = self.truth[k].desired + 500
         result = self.board.axes[k].move_to(500, velocity=4 * 65536, acceleration=6553,
                                             relative=True).wait(timeout=WAIT_S)
         self._note_turns()
         self._landed(k, target, result)
-        assert self.board.clear_failsafe() is None  # nothing to acknowledge
+        assert self.board.clear_failsafe() is None
 
     # ------------------------------------------------------------------ rules: max_duration
     @precondition(lambda self: not self.cycled)
@@ -1019,6 +1092,26 @@ def test_reads_of_an_axis_settling_under_new_gains_agree_with_the_model_at_their
         machine.filter(1, 40, 100, False)
         machine.second_thread(0, 3000)
         assert abs(machine.truth[1].real - settled_from) > 2  # it settled during the rule
+    finally:
+        machine.teardown()
+
+
+def test_a_trip_after_a_reset_outside_the_soft_limits_refuses_the_move_for_the_limits():
+    """Found by the long run on sim+avr:// (in two ways, below min and above max): a profile's
+    soft limits around where axis 0 was, a power cycle and a board reset that put its origin
+    at 0, then the script stops feeding.  The move the rule tries after the trip is outside
+    the limits: refused by them (validated before any bus cycle), not by the trip, and nothing
+    starts.  The rule expected the trip's refusal only."""
+    machine = type("Found", (ApiMachine,), {"url": "sim+emu://?baud=1000000"})()
+    try:
+        machine.open(0, "script", "abrupt", True)
+        machine.move(0, 6000, 12 * 65536, 13107, True)
+        machine.soft_limits_from_a_profile(2000)
+        machine.power_cycle()
+        machine.recover(False)
+        machine.reset("board")
+        machine.script_stops_feeding(0, False, 0.1)
+        assert machine.board.axes[0].limits.min == 4000
     finally:
         machine.teardown()
 

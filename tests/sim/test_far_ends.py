@@ -205,6 +205,25 @@ def test_a_host_byte_ends_a_wait_that_can_never_match():
     pipe.close()
 
 
+def test_a_host_byte_ends_a_wait_on_the_python_far_end_in_process():
+    """The same on sim+emu://'s in-process line: a RUN whose WAIT_STATUS waits 65.5 s for
+    mask 0, and a HELLO right behind it (a script killed after its far-side wait, the next
+    process opening the line): the HELLO's byte ends the wait, as the firmware's UART byte
+    does; both replies come within the two frames' wire time at 1 Mbaud, not after the wait
+    (found by the crossings machine: the next open took the whole 0.25 s wait it interrupted)."""
+    emu = BridgeEmulator(build_bus("sim://"))
+    pipe = EmuPipe(emu, baud=1_000_000)
+    wait = bytes((0, 0, 0, 0x08, 0x00, 0xFF, 0xFF))  # cs 0, default busy timeout, WAIT_STATUS
+    t0 = pipe.clock.now()
+    pipe.write(encode_frame(FrameType.RUN, 1, wait))
+    pipe.write(encode_frame(FrameType.HELLO, 2))
+    reader, got = FrameReader(), []
+    while pipe.clock.now() - t0 < 0.1 and not any(f.type == FrameType.HELLO_REPLY for f in got):
+        got += [f for f in reader.feed(pipe.read(0.01)) if isinstance(f, Frame)]
+    assert [f.type for f in got] == [FrameType.RUN_REPLY, FrameType.HELLO_REPLY]
+    assert pipe.clock.now() - t0 < 0.005, pipe.clock.now() - t0
+
+
 @pytest.mark.parametrize("far_end", ["python", "firmware"])
 def test_a_host_byte_ends_a_long_wait_on_a_served_far_end(tmp_path, far_end):
     """Served (``lm629 sim serve --pty``, in real time), both far ends: a client's RUN waits

@@ -208,7 +208,7 @@ def test_an_rfc2217_url_gets_ign_set_control_unless_it_says_otherwise():
     pyserial's open waited 3 s for it and failed, so the option that skips the wait is added
     to rfc2217:// URLs; ``ign_set_control=0`` (no, false, off) asks for the wait after all,
     and pyserial's other options pass as they are.  Other schemes are untouched."""
-    from lm629_host.transports.serial import rfc2217_url
+    from lm629_host.transports.netport import rfc2217_url
 
     assert rfc2217_url("rfc2217://bench:2000") == "rfc2217://bench:2000?ign_set_control="
     assert rfc2217_url("rfc2217://bench:2000?ign_set_control") == \

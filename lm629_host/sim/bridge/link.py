@@ -74,6 +74,10 @@ class BridgeEmulator(RunSide, FailsafeSide, RecorderSide, ProfileSide):
     #: caller that learns of bytes as they come (a served bench, in real time) may wait there
     #: until ``t``.  None: no byte comes while a program runs (programs run straight through)
     host_byte_at: Callable[[float], float | None] | None = None
+    #: a byte from the host came in the same delivery as the frame that runs now (an
+    #: in-process line hands the far end every byte that has arrived at once): a WAIT_STATUS
+    #: ends at once, as the firmware's does on a byte in its UART
+    host_byte_waiting: bool = False
 
     def __post_init__(self) -> None:
         chips = chips_of(self.model)
@@ -108,16 +112,27 @@ class BridgeEmulator(RunSide, FailsafeSide, RecorderSide, ProfileSide):
             if data:  # any other byte from the host ends a recording
                 out.append(self._end_recording(Result.OK))
                 self.stats.replies += 1
-        for item in self._reader.feed(data):
-            if isinstance(item, FrameError):
-                self.stats.bad_frames += 1  # never answered: the host's retry covers it
-                continue
-            self.stats.frames += 1
-            self._fs_last = self.model.now()  # every good frame feeds the failsafe
-            reply = self._handle(item)
-            if reply is not None:
-                self.stats.replies += 1
-                out.append(reply)
+        # a frame followed by more of these bytes runs with a host byte already arrived: its
+        # WAIT_STATUS ends at once, as the firmware's does (host_byte_waiting)
+        start = 0
+        while start < len(data):
+            end = data.find(0, start)
+            stop = len(data) if end < 0 else end + 1
+            self.host_byte_waiting = stop < len(data)
+            try:
+                for item in self._reader.feed(data[start:stop]):
+                    if isinstance(item, FrameError):
+                        self.stats.bad_frames += 1  # never answered: the host's retry covers it
+                        continue
+                    self.stats.frames += 1
+                    self._fs_last = self.model.now()  # every good frame feeds the failsafe
+                    reply = self._handle(item)
+                    if reply is not None:
+                        self.stats.replies += 1
+                        out.append(reply)
+            finally:
+                self.host_byte_waiting = False
+            start = stop
         return out
 
 

@@ -73,6 +73,7 @@ class BridgeParts:
     info: HelloInfo
     stats: EmuStats
     host_byte_at: Callable[[float], float | None] | None
+    host_byte_waiting: bool
     _cs: int  #: the chip select the bus talks to now
     _cache: tuple[int, int, bytes] | None  #: the last reply: seq, crc, encoded frame
     _fs_ms: int

@@ -147,7 +147,7 @@ class RunSide(BridgeParts):
             t = m.now()
             if status & mask or t >= end:
                 return status
-            if heard is not None and heard(t) is not None:
+            if self.host_byte_waiting or heard is not None and heard(t) is not None:
                 return status  # a byte from the host ends the wait (read after this status)
             # a piece of a shaped move falls due while the bridge waits: issued at its time
             due = self.profile_due
