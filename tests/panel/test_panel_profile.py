@@ -5,7 +5,10 @@ page's forms on the second axis speak that axis's units, as ``lm629 --profile be
 The numbers: axis y has ``lines = 500``, 4 x 500 = 2000 counts a revolution (docs/profile.md:
 "the CLI speaks revolutions and rpm"), so a 0.1-revolution step is 200 counts and a move to 2
 revolutions ends at 4000 counts; axis x has no lines and speaks counts.  y's soft limit is
-max = 20000 counts (10 revolutions)."""
+max = 20000 counts (10 revolutions).  Only y has a plant (what `tune --save` keeps): its
+step's prediction is the twin's, x's the simulated motor's numbers (sim:// builds each chip's
+motor from its axis's plant), each within 3 counts of the measured response
+(test_panel_api.py's twin test says why 3)."""
 
 from __future__ import annotations
 
@@ -29,10 +32,15 @@ ds = 1
 [axis.y]
 cs = 1
 lines = 500
-kp = 20
+kp = 30
 ds = 1
 min = -20000
 max = 20000
+
+[axis.y.plant]
+accel = 595730
+tau = 0.2676
+dry = 0.0086
 """
 
 MOTOR_OFF = 0x80
@@ -84,7 +92,10 @@ def test_the_second_axis_speaks_its_own_lines(bench):
         assert step["text"].splitlines() == [ln for ln in cli.stdout.splitlines()
                                              if not ln.startswith("wrote ")]
         assert step["text"].splitlines()[-1].startswith("in revolutions: target 0.1000")
-        assert step["data"]["desired"][-1] == 200  # the plotted step, in counts
+        d = step["data"]
+        assert d["desired"][-1] == 200  # the plotted step, in counts
+        assert d["basis"] == "the twin: [axis.y.plant]"
+        assert max(abs(m - q) for m, q in zip(d["actual"], d["predicted"])) <= 3
         status, move = command(p, token, {"cmd": "move", "axis": "y", "target": "2",
                                           "shape": "s-curve", "jerk": "300", "client": client})
         assert move["ok"], move
@@ -96,6 +107,9 @@ def test_the_second_axis_speaks_its_own_lines(bench):
                                           "time": "0.3", "client": client})
         assert step["ok"] and step["text"].startswith("target 200 counts"), step
         assert "in revolutions" not in step["text"]
+        d = step["data"]
+        assert d["basis"] == "the simulated motor's numbers"
+        assert max(abs(m - q) for m, q in zip(d["actual"], d["predicted"])) <= 3
 
 
 def test_a_step_past_the_soft_limit_leaves_the_axis_holding(bench):
