@@ -200,7 +200,9 @@ class FeedingClock(Clock):
         while True:
             ka.turn()
             now = clock.now()
-            if now >= end - ROUNDING_S:  # a float sum may stop a hair short of the end
+            if now >= end - ROUNDING_S:  # within the clock's rounding of the end: the rest,
+                if now < end:            # once (a float sum may stop a hair short), so that
+                    clock.sleep(end - now)  # the sleep ends where it was asked to end
                 return
             due = ka.due_at()
             if due > now + ROUNDING_S:

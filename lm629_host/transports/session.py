@@ -178,9 +178,14 @@ class LinkSession(Transport):
         with self._tx_lock:
             if when is not None and not when():
                 return False
-            self.pipe.write(wire)
-            if feeds:  # written: the bridge heard the host (a write that failed did not)
+            before = self._last_tx
+            if feeds:
                 self._last_tx = self.clock.now()
+            try:
+                self.pipe.write(wire)
+            except BaseException:
+                self._last_tx = before  # a write that failed fed nothing
+                raise
         self.stats.bytes_out += len(wire)
         return True
 
