@@ -19,7 +19,7 @@ from typing import Any, overload
 from urllib.parse import parse_qsl, urlencode, urlsplit
 
 __all__ = ["BOARD_OPTIONS", "Option", "PortURL", "port_url", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
-           "query_params", "scheme_of", "split_params", "with_query"]
+           "query_params", "scheme_of", "split_params", "with_defaults", "with_query"]
 
 #: the words a boolean option takes (an empty value, ``?strict``, means true)
 _TRUE = ("1", "true", "yes", "on", "")
@@ -329,6 +329,17 @@ def parse_options(url: str | PortURL, options: Iterable[Option], *, what: str = 
         elif not given_only:
             out[name] = spec.default
     return out
+
+
+def with_defaults(rows: Iterable[Option], **defaults: Any) -> tuple[Option, ...]:
+    """``rows`` (a parent's option table) with the defaults of the rows named replaced: a
+    child declares its options from its parent's, the ranges kept."""
+    rows = tuple(rows)
+    unknown = set(defaults) - {o.name for o in rows}
+    if unknown:
+        raise KeyError(f"no option(s) {', '.join(sorted(unknown))} in these rows")
+    return tuple(dataclasses.replace(o, default=defaults[o.name]) if o.name in defaults else o
+                 for o in rows)
 
 
 def dataclass_options(cls: Any, overrides: Iterable[Option] = ()) -> list[Option]:

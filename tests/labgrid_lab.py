@@ -176,7 +176,7 @@ class Lab:
             (wrappers / "ser2net").write_text(SER2NET_LOOPBACK)
             (wrappers / "ser2net").chmod(0o755)
         device = os.path.realpath(bench.link)
-        assert device.startswith("/dev/"), device
+        assert device.startswith("/dev/"), device  # the exporter serves only /dev/ paths
         (where / "exporter.yaml").write_text("".join(
             f"{g}:\n  RawSerialPort:\n    port: {d}\n    speed: 115200\n"
             for g, d in {group: device, **(more or {})}.items()))
@@ -264,8 +264,9 @@ def running_lab(tmp: Path, labgrid_bin: Path,
     """A lab with one exporter per ``far_ends`` item (exporter name -> ("python" or
     "firmware", the served chip's URL: ``sim://?clock=6MHz``)), each exporting its bench as
     ``NAME/lm629-bench/*``; the first also exports ``NAME/lm629-spare/*``, a pseudo-terminal
-    with nothing behind it (a bench whose board is off); stopped at the end, and the process
-    list checked: nothing it started is left running."""
+    with nothing behind it (a bench whose board is off), the others ``NAME/lm629-link/*``,
+    their bench by its link outside /dev/; stopped at the end, and the process list checked:
+    nothing it started is left running."""
     lab = Lab(tmp, labgrid_bin)
     spare = os.openpty()
     with contextlib.ExitStack() as stack:
@@ -279,8 +280,11 @@ def running_lab(tmp: Path, labgrid_bin: Path,
                 benches[name] = stack.enter_context(serve(tmp / name, far_end, url))
             lab.coordinator_ready()
             for i, (name, bench) in enumerate(benches.items()):
-                lab.add_exporter(name, bench,
-                                 more={"lm629-spare": os.ttyname(spare[1])} if i == 0 else None)
+                # the first exporter also a spare port; the second its bench once more, by
+                # the link sim serve made (not under /dev/: the exporter refuses to serve it)
+                more = ({"lm629-spare": os.ttyname(spare[1])} if i == 0
+                        else {"lm629-link": str(bench.link)})
+                lab.add_exporter(name, bench, more=more)
             lab.wait_resources()
             yield lab
         finally:

@@ -26,10 +26,12 @@ SLOW_PARAMS = ("sim+avr", "firmware", "usb=")
 SLOW_FIXTURES = frozenset({"firmware_built"})
 
 
-#: words in a test's or its fixtures' source that start a process the test waits on: a served
-#: bench, a browser, any other program
+#: words in a test's or its fixtures' source that start a process the test waits on (a served
+#: bench, a browser, any other program) or tune a motor
 SLOW_SOURCE = ("subprocess.Popen(", "with serve(", "_sim_serve()", '"sim", "serve"',
-               "chromium(")
+               "chromium(",
+               # a whole tune: phasing, identification, the gain search's test moves
+               "autotune(", '"tune", "--')
 
 
 def is_slow(item: pytest.Item, served: bool) -> bool:
@@ -42,7 +44,7 @@ def is_slow(item: pytest.Item, served: bool) -> bool:
 
 
 def _starts_a_process(item: pytest.Item) -> bool:
-    """Whether the test, or a fixture it uses that the suite defines, starts a process."""
+    """Whether the test, or a fixture it uses, starts a process or tunes a motor."""
     funcs = [getattr(item, "function", None)]
     # pytest has no public view of a test's fixture definitions at collection time
     info = getattr(item, "_fixtureinfo", None)

@@ -8,9 +8,9 @@ One ``lm629 sim serve --pty`` bench (its own process, real time) and, for each w
 ser2net that tests/lab/ser2net_fixture.py starts (127.0.0.1, a free port), with its default
 options and with ``chardelay: false`` (ser2net otherwise holds what the device sends for a
 few character times, hoping for more, before it goes out on TCP).  Per way: the link's rate
-after the handshake, the median PING round trip (the transport's own, 5 PINGs), and the mean
-time of ``read_real_position()`` over ``--reads`` calls, with its ratio to the pty's in this
-run.  Needs ser2net (Debian's package).
+after the handshake, the time ``lm629_host.open`` took, the median PING round trip (the
+transport's own, 5 PINGs), and the mean time of ``read_real_position()`` over ``--reads``
+calls, with its ratio to the pty's in this run.  Needs ser2net (Debian's package).
 """
 
 from __future__ import annotations
@@ -31,10 +31,12 @@ import lm629_host
 from ser2net_fixture import Ser2net, ser2net_version
 
 
-def measure(url: str, reads: int) -> tuple[int, float, float]:
+def measure(url: str, reads: int) -> tuple[int, float, float, float]:
     from lm629_host.transports.serial import SerialTransport
 
+    t_open = time.perf_counter()
     with lm629_host.open(url) as chip:
+        opened = time.perf_counter() - t_open
         t = chip.transport
         assert isinstance(t, SerialTransport), t
         chip.read_real_position()
@@ -42,7 +44,7 @@ def measure(url: str, reads: int) -> tuple[int, float, float]:
         for _ in range(reads):
             chip.read_real_position()
         per_read = (time.perf_counter() - t0) / reads
-        return t.line_rate()[0], t.rtt_s or 0.0, per_read
+        return t.line_rate()[0], t.rtt_s or 0.0, per_read, opened
 
 
 def main() -> None:
@@ -60,7 +62,7 @@ def main() -> None:
         banner = bench.stdout.readline()
         assert banner.startswith("serving "), banner + bench.stderr.read()
         print(f"ser2net {ser2net_version()}, far end {args.far}, {args.reads} reads of RDRP each")
-        print(f"{'way in':44} {'baud':>8} {'round trip':>11} {'RDRP':>9} {'x pty':>6}")
+        print(f"{'way in':44} {'baud':>8} {'open':>7} {'round trip':>11} {'RDRP':>9} {'x pty':>6}")
         rows: list[tuple[str, str | None, dict[str, str] | None]] = [
             ("serial:// on the pty (baseline)", None, None)]
         for proto in ("rfc2217", "raw"):
@@ -70,15 +72,16 @@ def main() -> None:
         base = 0.0
         for name, protocol, options in rows:
             if protocol is None:
-                baud, rtt, per = measure(f"serial://{link}", args.reads)
+                baud, rtt, per, opened = measure(f"serial://{link}", args.reads)
             else:
                 s2n = Ser2net(link, tmp, protocol, options).start()
                 try:
-                    baud, rtt, per = measure(s2n.url, args.reads)
+                    baud, rtt, per, opened = measure(s2n.url, args.reads)
                 finally:
                     s2n.stop()
             base = base or per
-            print(f"{name:44} {baud:>8} {rtt * 1e3:>8.2f} ms {per * 1e3:>6.2f} ms {per / base:>5.1f}x")
+            print(f"{name:44} {baud:>8} {opened:>5.2f} s {rtt * 1e3:>8.2f} ms {per * 1e3:>6.2f} ms "
+                  f"{per / base:>5.1f}x")
     finally:
         bench.send_signal(signal.SIGTERM)
         bench.communicate(timeout=20)

@@ -11,8 +11,9 @@ before anything is sent.  ``NAME?fast_baud=115200&failsafe=0.5`` adds port URL o
 --report DIR/NAME.json`` on every place whose name matches the shell pattern, all at once (one
 process per bench, each holding its own place; ``--chip``, ``--clock``, ``--lines`` and
 ``--profile`` given to ``lm629`` say what every bench should be), then one table: place, chip
-(what the bench should be), verdict, differences.  Exit 0 when every bench passed, 1 when one differs or could not be tested (each
-named in the table).
+(what the bench should be), verdict, differences.  The exit code is the worst bench's, as ``lm629 selftest``'s: 0 every bench
+passed, 1 one differs, 10 one could not be tested to the end (FAIL, or NOT RUN: held by
+someone else, no answer; each named in the table).
 
 labgrid is driven through ``labgrid-client`` (:mod:`lm629_host.integrations.labgrid_place`):
 labgrid lives in a virtual environment of its own.
@@ -29,7 +30,7 @@ from pathlib import Path
 
 import click
 
-from lm629_host.bench.selftest import Report
+from lm629_host.bench.selftest import EXIT, Report
 from lm629_host.cli.app import main
 from lm629_host.integrations import labgrid_place
 
@@ -129,8 +130,10 @@ def lab_selftest(pattern: str, report_dir: str) -> None:
     for row in rows:
         click.echo("  ".join(c.ljust(w) for c, w in zip(row, widths)) + "  " + row[-1])
     click.echo(f"reports: {out}/PLACE.json (.md: the summary to paste)")
-    if any(row[2] != "PASS" for row in rows[1:]):
-        click.get_current_context().exit(1)
+    # the worst bench's: PASS 0, DIFFERS 1, FAIL 10; a bench not tested (NOT RUN) is a FAIL
+    code = max(EXIT.get(row[2], EXIT["FAIL"]) for row in rows[1:])
+    if code:
+        click.get_current_context().exit(code)
 
 
 __all__ = ["lab", "lab_selftest"]

@@ -122,10 +122,12 @@ def panel(listen: str, expose: bool) -> None:
         while not forever.wait(0.5):
             if not worker.alive:
                 raise worker.exception or click.ClickException("the bench stopped")
-    finally:
-        server.shutdown() if serving.is_alive() else None
-        server.server_close()
+    finally:  # the worker first (a moving axis stopped, the commands answered), then the server
         worker.close()
+        if serving.is_alive():
+            server.drain(5.0)
+            server.shutdown()
+        server.server_close()
         for sig, handler in old.items():
             signal.signal(sig, handler)
 

@@ -94,11 +94,18 @@ def coordinator() -> str:
 
 
 def _reason(p: subprocess.CompletedProcess[str]) -> str:
-    """labgrid-client's own one-line reason (its last line that says something)."""
+    """labgrid-client's own one-line reason: the line naming who holds what (``... already
+    acquired by HOST/USER``, on stderr for a place, on stdout for a resource), else its last
+    error line."""
     lines = [ln.strip() for ln in (p.stderr + p.stdout).splitlines() if ln.strip()]
-    line = next((ln for ln in reversed(lines) if "Error" in ln or "error" in ln),
-                lines[-1] if lines else f"labgrid-client exit {p.returncode}")
-    return re.sub(r"^labgrid-client: (Error: )?", "", line)
+    line = next((ln for ln in lines if "acquired by" in ln), None) or next(
+        (ln for ln in reversed(lines) if "Error" in ln or "error" in ln),
+        lines[-1] if lines else f"labgrid-client exit {p.returncode}")
+    line = re.sub(r"^labgrid-client: (Error: )?", "", line)
+    if "'<broken>'" in line:
+        line += (": the exporter could not serve it (its log says why; a RawSerialPort's "
+                 "path must start with /dev/)")
+    return line
 
 
 def acquire(place: str) -> None:

@@ -25,6 +25,8 @@ import queue
 import secrets
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from typing import Any
@@ -94,11 +96,31 @@ class PanelServer(ThreadingHTTPServer):
         self.token = token or secrets.token_urlsafe(24)
         self.title = title
         self.clients = Clients()
+        self._inflight = 0  #: commands whose answer is not yet written
+        self._settled = threading.Condition()
         host = address[0]
         self.loopback = is_loopback(host)
         self.hosts = {h.lower() for h in LOOPBACK_NAMES}
         if not self.loopback:
             self.hosts.add(host.lower())
+
+    @contextmanager
+    def answering(self) -> Iterator[None]:
+        """A command under way, until its answer is written (:meth:`drain` waits for it)."""
+        with self._settled:
+            self._inflight += 1
+        try:
+            yield
+        finally:
+            with self._settled:
+                self._inflight -= 1
+                self._settled.notify_all()
+
+    def drain(self, timeout: float) -> None:
+        """Wait (up to ``timeout``) until every command under way has written its answer: the
+        panel ending answers them (a stop's outcome) before the process goes."""
+        with self._settled:
+            self._settled.wait_for(lambda: self._inflight == 0, timeout)
 
     @property
     def port(self) -> int:
@@ -271,8 +293,9 @@ class PanelHandler(BaseHTTPRequestHandler):
         if path != "/api/command":
             self._send(404, b"not found", "text/plain")
             return
-        outcome = self._command(body)
-        self._send(200, json.dumps(outcome.as_dict()).encode(), "application/json")
+        with self.server.answering():
+            outcome = self._command(body)
+            self._send(200, json.dumps(outcome.as_dict()).encode(), "application/json")
 
     def _command(self, body: dict[str, Any]) -> Outcome:
         server = self.server

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from lm629_host.bridge.protocol import (
     FAILSAFE_FEED,
@@ -83,24 +83,29 @@ class FailsafeOptions(NamedTuple):
     action: FailsafeAction  #: how the bridge stops the chips
     feed: str  #: who feeds: ``process`` or ``script``
 
+    @classmethod
+    def of(cls, values: dict[str, Any]) -> FailsafeOptions:
+        """From a port's parsed options (its table holds :data:`FAILSAFE_OPTIONS`)."""
+        return cls(values["failsafe"], FailsafeAction[values["failsafe_action"].upper()],
+                   values["failsafe_feed"])
+
 
 def failsafe_options(url: str | PortURL) -> FailsafeOptions:
     """``failsafe=SECONDS`` (0: off, else 0.05..10), ``failsafe_action=abrupt|smooth|off`` and
     ``failsafe_feed=process|script`` of a bridge port's URL; ValueError naming the option (the
     other options are not looked at)."""
-    opts = parse_options(url, FAILSAFE_OPTIONS,
-                         ignore=set(query_params(url)) - FAILSAFE_OPTION_NAMES)
-    return FailsafeOptions(opts["failsafe"], FailsafeAction[opts["failsafe_action"].upper()],
-                           opts["failsafe_feed"])
+    return FailsafeOptions.of(parse_options(
+        url, FAILSAFE_OPTIONS, ignore=set(query_params(url)) - FAILSAFE_OPTION_NAMES))
 
 
 class LinkFailsafe:
     """The failsafe of one link: what the URL asked for, whether the bridge has one, the trips
     heard, and the keep-alive."""
 
-    def __init__(self, link: LinkSession) -> None:
+    def __init__(self, link: LinkSession, options: FailsafeOptions | None = None) -> None:
         self.link = link
-        opts = failsafe_options(link.port_url)
+        # the port parsed them with its other options (None: a link made by hand)
+        opts = options if options is not None else failsafe_options(link.port_url)
         #: the failsafe asked for by the URL (seconds, 0: off), its action, who feeds it
         self.timeout_s, self.action, self.feed_mode = opts
         self.available = False  #: the bridge has one (HELLO's capability bit 9)

@@ -58,13 +58,11 @@ from lm629_host.bus.program import (
     TraceCallback,
 )
 from lm629_host.errors import AxisError, BusyTimeout, LinkError, TransportError
-from lm629_host.urls import PortURL
+from lm629_host.urls import Option, PortURL
 from lm629_host.transports import baud as _baud
 from lm629_host.transports.reports import ProfileState, RawRow
 from lm629_host.transports.codes import ProgramCodes
-from lm629_host.transports.failsafe import (
-    LinkFailsafe,
-)
+from lm629_host.transports.failsafe import FAILSAFE_OPTIONS, FailsafeOptions, LinkFailsafe
 from lm629_host.transports.profiles import ProfileScheduler
 from lm629_host.transports.recorder import FAR_NOTE, LinkRecorder
 from lm629_host.transports.session import (
@@ -76,6 +74,16 @@ log = logging.getLogger("lm629_host.bridge.protocol")
 
 #: PINGs timed after the handshake; the median is the reported round-trip time
 RTT_PINGS = 5
+
+#: the URL options every bridge port takes, declared once: a port's table is built from these
+#: rows (its own defaults: :func:`~lm629_host.urls.with_defaults`) and adds its own; the
+#: failsafe's rows are :data:`~lm629_host.transports.failsafe.FAILSAFE_OPTIONS`
+LINK_OPTIONS: tuple[Option, ...] = (
+    Option("baud", "int", 115200, 300, 4_000_000, "baud"),
+    Option("fast_baud", "int", 0, 300, 4_000_000, "baud", off=0),  # 0: stay at baud
+    Option("retries", "int", DEFAULT_RETRIES, 0, 20),
+    *FAILSAFE_OPTIONS,
+)
 
 #: results by which the bridge refuses a program before running any of it
 _REFUSALS = (Result.BAD_PROGRAM, Result.PROGRAM_TOO_LONG, Result.BAD_CHIP_SELECT)
@@ -101,7 +109,7 @@ class LinkTransport(LinkSession):
     def __init__(self, pipe: Pipe, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = None, cs: int = 0,
                  handshake: bool = True, compact: bool = True, fast_baud: int = 0,
-                 measure_rtt: bool = True) -> None:
+                 measure_rtt: bool = True, failsafe: FailsafeOptions | None = None) -> None:
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud)
         #: use RUN_SHORT where the bridge offers it (False: always RUN, as protocol 1 began)
         self.compact = compact
@@ -110,7 +118,7 @@ class LinkTransport(LinkSession):
         self.cs = cs
         self._has_hi = True
         self.codes = ProgramCodes()
-        self.failsafe = LinkFailsafe(self)
+        self.failsafe = LinkFailsafe(self, failsafe)
         self.recorder = LinkRecorder(self, self.failsafe)
         self.profiles = ProfileScheduler(self, self.failsafe, cs)
         self.failsafe.on_turn = self._top_up_quietly

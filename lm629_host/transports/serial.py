@@ -25,11 +25,10 @@ from __future__ import annotations
 
 import errno
 import logging
-from urllib.parse import parse_qsl, urlencode
+from urllib.parse import urlencode
 import os
 import select
 import sys
-import threading
 from dataclasses import dataclass
 
 try:  # POSIX only; imported early so that the advice works even where modules can't load
@@ -46,11 +45,21 @@ from lm629_host.bridge.protocol import FAST_BAUD
 from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import TransportError
 from lm629_host.bus.program import TraceCallback
-from lm629_host.urls import Option, PortURL, parse_options, port_url
+from lm629_host.urls import Option, PortURL, parse_options, port_url, with_defaults
 from lm629_host.transports.reports import Check, PortInfo
-from lm629_host.transports.failsafe import FAILSAFE_OPTIONS
-from lm629_host.transports.link import LinkTransport
+from lm629_host.transports.failsafe import FailsafeOptions
+from lm629_host.transports.link import LINK_OPTIONS, LinkTransport
 from lm629_host.transports.session import DEFAULT_RETRIES
+from lm629_host.transports.netport import (
+    WRITE_TIMEOUT_S,
+    quiet_rfc2217_reader,
+    refusal,
+    rfc2217_port_class,
+    rfc2217_url,
+    scheme_of,
+    server_says,
+    server_words,
+)
 
 log = logging.getLogger("lm629_host.serial")
 
@@ -80,13 +89,10 @@ KNOWN_USB_IDS: dict[tuple[int, int], str] = {
 
 #: the URL options of a serial bridge
 OPTIONS = (
-    Option("baud", "int", DEFAULT_BAUD, 300, 4_000_000, "baud"),
-    Option("retries", "int", DEFAULT_RETRIES, 0, 20),
+    *with_defaults(LINK_OPTIONS, baud=DEFAULT_BAUD, fast_baud=FAST_BAUD),
     Option("boot", "float", DEFAULT_BOOT_S, 0.0, 30.0, "s"),
     Option("low_latency", "bool", True),
     Option("cs", "int", 0, 0, 255),
-    Option("fast_baud", "int", FAST_BAUD, 0, 4_000_000, "baud"),  # 0: stay at baud
-    *FAILSAFE_OPTIONS,  # read by LinkTransport
 )
 _OPTION_NAMES = frozenset(o.name for o in OPTIONS)
 
@@ -145,6 +151,7 @@ class SerialOptions:
     low_latency: bool = True
     cs: int = 0
     fast: int = FAST_BAUD
+    failsafe: FailsafeOptions | None = None  #: None: the link reads them from the URL
 
 
 def options_of(url: str | PortURL) -> SerialOptions:
@@ -167,84 +174,20 @@ def options_of(url: str | PortURL) -> SerialOptions:
     opts = parse_options(url, OPTIONS, what="serial", ignore=handler)
     return SerialOptions(device=device, baud=opts["baud"], retries=opts["retries"],
                          boot_s=opts["boot"], low_latency=opts["low_latency"], cs=opts["cs"],
-                         fast=opts["fast_baud"])
+                         fast=opts["fast_baud"], failsafe=FailsafeOptions.of(opts))
 
 
 def _lost_hint(device: str | None, heard: bytes = b"") -> str:
     """What a link that failed mid-use most likely means on this kind of port; ``heard``: the
     last bytes the server sent (ser2net says why it refuses a client in words)."""
-    if device and _scheme(device) in ("socket", "rfc2217"):
-        said = _words(heard)
+    if device and scheme_of(device) in ("socket", "rfc2217"):
+        said = server_words(heard)
         if said:
-            return _refused(device, said)
+            return refusal(device, said)
         return ("the server closed the connection: is it still running (ser2net, "
                 "`lm629 sim serve --tcp`) and the network path up? (Both take one client at a "
                 "time: is another one connected?)")
     return "was the board unplugged?"
-
-
-def _words(data: bytes) -> str:
-    """The text at the end of ``data`` when it is a line of words (``Port already in use``),
-    else ''."""
-    if not data.endswith(b"\n"):
-        return ""
-    line = data.rstrip(b"\r\n\0").rpartition(b"\n")[2].strip()
-    if len(line) >= 6 and all(32 <= b < 127 for b in line) and any(65 <= b <= 122 for b in line):
-        return line.decode("ascii")
-    return ""
-
-
-def _refused(device: str, said: str) -> str:
-    """The one line for a server that refused this client with ``said``."""
-    hostport = device.split("://", 1)[1].split("?", 1)[0]
-    if "in use" in said.lower():
-        port = hostport.rpartition(":")[2]
-        return (f"the server at {hostport} answered {said!r}: another client holds this bench "
-                "(ser2net serves one at a time; on its machine `ss -tn state established "
-                f"sport = :{port}` shows who; in a lab, the place's lock says)")
-    return f"the server at {hostport} answered {said!r} and closed the connection"
-
-
-def _server_says(device: str, wait_s: float = 1.0) -> str:
-    """What the TCP server of a ``socket://`` or ``rfc2217://`` URL says to a new connection
-    before anything is sent (ser2net: "Port already in use" to a second client), or ''.
-    Asked only after an open failed, to say why."""
-    import socket
-    import time
-
-    hostport = device.split("://", 1)[1].split("?", 1)[0].split("/", 1)[0]
-    host, _, port = hostport.rpartition(":")
-    heard = b""
-    try:
-        with socket.create_connection((host.strip("[]"), int(port)), timeout=wait_s) as sock:
-            deadline = time.monotonic() + wait_s
-            while (left := deadline - time.monotonic()) > 0:
-                sock.settimeout(left)
-                chunk = sock.recv(256)
-                if not chunk:
-                    break
-                heard += chunk.replace(b"\xff\xff", b"")
-                if _words(_no_telnet(heard)):
-                    break
-    except (OSError, ValueError):
-        pass
-    return _words(_no_telnet(heard))
-
-
-def _no_telnet(data: bytes) -> bytes:
-    """``data`` without its telnet commands (IAC sequences: ser2net's RFC 2217 greeting)."""
-    out, i = bytearray(), 0
-    while i < len(data):
-        b = data[i]
-        if b != 0xFF:
-            out.append(b)
-            i += 1
-        elif i + 1 < len(data) and data[i + 1] == 0xFA:  # SB ... IAC SE
-            end = data.find(b"\xff\xf0", i + 2)
-            i = len(data) if end < 0 else end + 2
-        else:
-            i += 3 if i + 1 < len(data) and 0xFB <= data[i + 1] <= 0xFE else 2
-    return bytes(out)
 
 
 def line_advice_of(device: str | None) -> str | None:
@@ -292,7 +235,7 @@ class SerialPipe:
         #: whether a change of rate reaches the line: not through raw TCP (``socket://``),
         #: which carries bytes only, so that the far UART (ser2net's) keeps its rate; RFC 2217
         #: sends it to the far UART as SET-BAUDRATE and waits for the server's answer
-        self.sets_line_rate = _scheme(self.device) != "socket"
+        self.sets_line_rate = scheme_of(self.device) != "socket"
         #: writes go to the descriptor itself only on a plain device (a URL handler such as
         #: spy:// does its own work in write())
         self._write_raw = self._fd is not None and type(port).__module__ == "serial.serialposix"
@@ -390,113 +333,6 @@ class SerialPipe:
             pass
 
 
-#: how long pyserial's write may block on a port before it gives up
-WRITE_TIMEOUT_S = 2.0
-#: values of ``ign_set_control=`` that mean "wait for the server's answer after all"
-_NO = ("0", "no", "false", "off")
-
-
-def _scheme(device: str) -> str:
-    return device.split("://", 1)[0].lower() if "://" in device else ""
-
-
-def rfc2217_url(device: str) -> str:
-    """``device`` with pyserial's ``ign_set_control`` option added when it is an
-    ``rfc2217://`` URL that does not say otherwise.  ser2net in front of a pseudo-terminal (or
-    any line without modem-control wires) does not answer RFC 2217's SET-CONTROL, and without
-    the option pyserial's open waits 3 s for that answer and fails ("timeout while waiting for
-    option 'control'").  The bridge uses no modem-control line, so nothing is lost by not
-    waiting.  ``ign_set_control=0`` (or no/false/off) drops the option: the answer is awaited.
-    Other schemes are returned as they are."""
-    if _scheme(device) != "rfc2217":
-        return device
-    base, _, query = device.partition("?")
-    pairs = parse_qsl(query, keep_blank_values=True)
-    given = [v for k, v in pairs if k == "ign_set_control"]
-    if given and given[0].strip().lower() in _NO:
-        pairs = [(k, v) for k, v in pairs if k != "ign_set_control"]
-    elif not given:
-        pairs.append(("ign_set_control", ""))
-    return base + ("?" + urlencode(pairs, safe=":/") if pairs else "")
-
-
-#: the name pyserial gives its RFC 2217 client's reader thread (serial/rfc2217.py)
-_RFC2217_READER = "pySerial RFC 2217 reader thread"
-
-
-def _quiet_rfc2217_reader() -> None:
-    """pyserial's RFC 2217 client answers telnet options from its reader thread without a
-    guard: a server that closes at once (ser2net refusing a second client, or killed) ends
-    that thread with a traceback on stderr, while the open or the link reports the same
-    failure in its own one line.  Such an end goes to the debug log instead; every other
-    thread's exception still goes to the hook that was there."""
-    previous = threading.excepthook
-    if getattr(previous, "lm629_quiet", False):
-        return
-
-    def hook(args) -> None:  # threading.ExceptHookArgs
-        thread = args.thread
-        if thread is not None and thread.name.startswith(_RFC2217_READER) and \
-                issubclass(args.exc_type, OSError):
-            log.debug("%s ended: %s", thread.name, args.exc_value)
-            return
-        previous(args)
-
-    hook.lm629_quiet = True  # type: ignore[attr-defined]  # a mark on the function: installed once
-    threading.excepthook = hook
-
-
-def _rfc2217_class():
-    """pyserial's RFC 2217 client, with its port settings sent only when they change.
-
-    pyserial sends every setting again (rate, data bits, parity, stop bits, then SET-CONTROL)
-    and waits for the answers, 50 ms a look and 100 ms more for SET-CONTROL under
-    ``ign_set_control``, whenever any attribute changes, a read timeout included: 150 ms.  The
-    bridge's switch to its faster rate must be heard at the new rate within its 250 ms window
-    (BAUD_WINDOW_MS), so that 150 ms made the switch miss on a busy machine.  Here a change
-    of the rate alone is SET-BAUDRATE alone, its answer looked for every millisecond (ser2net
-    answers with the rate it set; another rate is pyserial's ValueError, "remote rejected"),
-    a change the server does not see (a timeout) sends nothing, and anything else is
-    pyserial's own full exchange."""
-    import struct
-    import time
-
-    from serial import SerialException
-    from serial.rfc2217 import Serial
-
-    class RFC2217Port(Serial):
-        _sent: tuple | None = None  # the settings the server last acknowledged
-
-        def open(self) -> None:
-            """pyserial's open; then the write deadline every other port has
-            (:data:`WRITE_TIMEOUT_S`), as the socket's timeout: pyserial refuses a
-            ``write_timeout`` here, and its socket's own (5 s) bounded a write before."""
-            super().open()
-            if self._socket is not None:
-                self._socket.settimeout(WRITE_TIMEOUT_S)
-
-        def _settings(self) -> tuple:
-            return (self._baudrate, self._bytesize, self._parity, self._stopbits,
-                    self._rtscts, self._xonxoff, self._write_timeout)
-
-        def _reconfigure_port(self) -> None:
-            sent, now = self._sent, self._settings()
-            if sent is None or self._socket is None or sent[1:] != now[1:]:
-                super()._reconfigure_port()
-            elif sent[0] != now[0]:
-                item = self._rfc2217_port_settings["baudrate"]
-                item.set(struct.pack("!I", self._baudrate))
-                deadline = time.monotonic() + self._network_timeout
-                while not item.is_ready():  # ValueError when the server set another rate
-                    if time.monotonic() > deadline:
-                        raise SerialException(f"no answer to SET-BAUDRATE {self._baudrate} "
-                                              f"within {self._network_timeout:g} s")
-                    time.sleep(0.001)
-            self._sent = now
-
-    return RFC2217Port
-
-
 def open_port(device: str, baud: int):
     """Open ``device`` with pyserial (8N1, exclusive) or raise a :class:`TransportError` that
     says what to do.  ``device`` may be any pyserial URL (``serial_for_url``): a bridge on
@@ -504,22 +340,22 @@ def open_port(device: str, baud: int):
     ``spy://PORT?file=...`` to hex-dump the traffic."""
     import serial
 
-    scheme = _scheme(device)
+    scheme = scheme_of(device)
     if scheme == "rfc2217":
-        _quiet_rfc2217_reader()
+        quiet_rfc2217_reader()
     # pyserial's RFC 2217 client refuses a write_timeout (NotImplementedError): it gets none
     # below, its writes bounded by its socket's timeout instead (RFC2217Port.open)
     bounded = {"write_timeout": WRITE_TIMEOUT_S}
     try:
         if scheme == "rfc2217":  # pyserial's client, its settings sent only when they change
-            return _rfc2217_class()(rfc2217_url(device), baud, timeout=SerialPipe.READ_SLICE_S)
+            return rfc2217_port_class()(rfc2217_url(device), baud, timeout=SerialPipe.READ_SLICE_S)
         # exclusive: a lock on a local port (spy:// included); network handlers ignore it
         return serial.serial_for_url(device, baud, timeout=0, exclusive=True, **bounded)
     except (serial.SerialException, OSError) as exc:  # OSError: a network handler's socket
         code = getattr(exc, "errno", None)
         text = str(exc)
-        if scheme in ("socket", "rfc2217") and (said := _server_says(device)):
-            raise TransportError(f"cannot open {device}: {_refused(device, said)}",
+        if scheme in ("socket", "rfc2217") and (said := server_says(device)):
+            raise TransportError(f"cannot open {device}: {refusal(device, said)}",
                                  port=device) from None
         if is_handler_url(device):
             raise TransportError(
@@ -568,12 +404,13 @@ class SerialTransport(LinkTransport):
     def __init__(self, pipe: SerialPipe, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = DEFAULT_BAUD, cs: int = 0,
                  boot_s: float = DEFAULT_BOOT_S, low_latency: str = "",
-                 measure_rtt: bool = True, fast: int = 0) -> None:
+                 measure_rtt: bool = True, fast: int = 0,
+                 failsafe: FailsafeOptions | None = None) -> None:
         self.boot_s = boot_s
         self.hello_total_s = max(boot_s, self.hello_interval_s)
         self.low_latency = low_latency
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, cs=cs,
-                         fast_baud=fast, measure_rtt=measure_rtt)
+                         fast_baud=fast, measure_rtt=measure_rtt, failsafe=failsafe)
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SerialTransport:
@@ -586,14 +423,15 @@ class SerialTransport(LinkTransport):
         pipe.reset_input()
         try:
             return cls(pipe, url, trace=trace, retries=opts.retries, baud=opts.baud, cs=opts.cs,
-                       boot_s=opts.boot_s, low_latency=low, fast=opts.fast)
+                       boot_s=opts.boot_s, low_latency=low, fast=opts.fast,
+                       failsafe=opts.failsafe)
         except TransportError as exc:
             # a server that refused this client may have said why before it closed, and the
             # words lost with the connection (a reset drops what was unread): ask it again
-            if _scheme(opts.device) in ("socket", "rfc2217") and "answered" not in str(exc) \
-                    and (said := _server_says(opts.device)):
+            if scheme_of(opts.device) in ("socket", "rfc2217") and "answered" not in str(exc) \
+                    and (said := server_says(opts.device)):
                 raise TransportError(f"cannot open {opts.device}: "
-                                     f"{_refused(opts.device, said)}", port=opts.device) from None
+                                     f"{refusal(opts.device, said)}", port=opts.device) from None
             raise
 
     def _no_answer(self, what: str, attempts: int) -> TransportError:

@@ -28,17 +28,15 @@ from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.model import chips_of
 from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import wrap_usb
-from lm629_host.urls import Option, PortURL, parse_options, query_params
-from lm629_host.transports.failsafe import FAILSAFE_OPTION_NAMES, failsafe_options
-from lm629_host.transports.link import LinkTransport
+from lm629_host.urls import Option, PortURL, parse_options, query_params, with_defaults
+from lm629_host.transports.failsafe import FailsafeOptions
+from lm629_host.transports.link import LINK_OPTIONS, LinkTransport
 from lm629_host.transports.session import DEFAULT_RETRIES
 from lm629_host.transports.sim import ModelChips
 
 #: URL options of this transport (the others are the chip model's)
-OPTIONS = (Option("baud", "int", DEFAULT_BAUD, 1, 4_000_000, "baud"),
-           Option("firmware", "str", ""),
-           Option("fast_baud", "int", 0, 0, 4_000_000, "baud"))  # 0: stay at baud
-OWN_PARAMS = frozenset(o.name for o in OPTIONS) | USB_OPTIONS | FAILSAFE_OPTION_NAMES
+OPTIONS = (*with_defaults(LINK_OPTIONS, baud=DEFAULT_BAUD), Option("firmware", "str", ""))
+OWN_PARAMS = frozenset(o.name for o in OPTIONS) | USB_OPTIONS
 
 
 class SimAvrTransport(ModelChips, LinkTransport):
@@ -52,7 +50,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
 
     def __init__(self, sim: AvrSim, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int = DEFAULT_BAUD,
-                 fast_baud: int = 0) -> None:
+                 fast_baud: int = 0, failsafe: FailsafeOptions | None = None) -> None:
         self.sim = sim
         self.model = sim.model
         #: the chips on the bridge's chip selects 0, 1, ... (``sim+avr://?axes=N``)
@@ -61,12 +59,13 @@ class SimAvrTransport(ModelChips, LinkTransport):
         usb = getattr(pipe, "adapter", None)
         if usb is not None:
             self.margin_s = type(self).margin_s + usb.worst_s
-        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, fast_baud=fast_baud)
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, fast_baud=fast_baud,
+                         failsafe=failsafe)
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimAvrTransport:
+        # checked before simavr starts, as a real port's before it opens
         opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - {o.name for o in OPTIONS})
-        failsafe_options(url)  # checked before simavr starts, as a real port's before it opens
         baud = opts["baud"]
         if opts["firmware"]:
             firmware = Path(opts["firmware"])
@@ -85,7 +84,8 @@ class SimAvrTransport(ModelChips, LinkTransport):
         sim = AvrSim(model, firmware, wiring=wiring_of(url))
         if vcd is not None:
             sim.write_vcd(*vcd)
-        return cls(sim, url, trace=trace, baud=baud, fast_baud=opts["fast_baud"])
+        return cls(sim, url, trace=trace, baud=baud, fast_baud=opts["fast_baud"],
+                   retries=opts["retries"], failsafe=FailsafeOptions.of(opts))
 
     def describe(self) -> str:
         fw = self.info.firmware_version if self.info else "?"

@@ -5,6 +5,8 @@ toolchain."""
 
 from __future__ import annotations
 
+import dataclasses
+
 from lm629_host.wiring.uno import CHIP_SELECTS
 from lm629_host.sim.bridge import BUS_CYCLE_S, MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
 from lm629_host.sim.build import build_bus
@@ -15,11 +17,22 @@ from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import wrap_usb
 from lm629_host.bridge.protocol import Pipe
 from lm629_host.bus.program import TraceCallback
-from lm629_host.urls import Option, PortURL, parse_options, query_params
-from lm629_host.transports.failsafe import FAILSAFE_OPTION_NAMES, failsafe_options
-from lm629_host.transports.link import LinkTransport
+from lm629_host.urls import Option, PortURL, parse_options, port_url, query_params
+from lm629_host.transports.failsafe import FailsafeOptions
+from lm629_host.transports.link import LINK_OPTIONS, LinkTransport
 from lm629_host.transports.session import DEFAULT_RETRIES
 from lm629_host.transports.sim import ModelChips
+
+
+#: the options of ``sim+emu://`` (the others are the chip model's and the USB adapter's): the
+#: link's, a line without wire time (``baud=0``), the far end's HELLO, a line's top rate
+OPTIONS = (
+    *(dataclasses.replace(o, default=115200, off=0, unit="baud (0: no wire time)")
+      if o.name == "baud" else o for o in LINK_OPTIONS),
+    Option("bridge", "str", "", choices=("", "1", str(len(CHIP_SELECTS)))),
+    Option("max_baud", "int", 0, 300, 4_000_000, "baud", off=0),  # 0: any
+)
+OPTION_NAMES = frozenset(o.name for o in OPTIONS)
 
 
 class EmuLinkTransport(ModelChips, LinkTransport):
@@ -38,12 +51,14 @@ class EmuLinkTransport(ModelChips, LinkTransport):
     def __init__(self, emulator: BridgeEmulator, model: ChipModel | ChipBus, pipe: Pipe,
                  url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int | None = None,
-                 margin_s: float = 1e-3, fast_baud: int = 0) -> None:
+                 margin_s: float = 1e-3, fast_baud: int = 0,
+                 failsafe: FailsafeOptions | None = None) -> None:
         self.margin_s = margin_s
         self.model = model
         self.models = chips_of(model)
         self.emulator = emulator
-        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, fast_baud=fast_baud)
+        super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, fast_baud=fast_baud,
+                         failsafe=failsafe)
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace=None) -> EmuLinkTransport:
@@ -69,18 +84,14 @@ def open_emulated(url: str | PortURL = "sim://", *, baud: int | None = None,
     :class:`~lm629_host.sim.faults.FaultPipe`).  The model is ``transport.model``, the far end
     ``transport.emulator``.
     """
-    own = (Option("baud", "int", 115200, 0, 4_000_000, "baud (0: no wire time)"),
-           Option("bridge", "str", "", choices=("", "1", str(len(CHIP_SELECTS)))),
-           Option("fast_baud", "int", 0, 0, 4_000_000, "baud (0: stay at baud)"),
-           Option("max_baud", "int", 0, 0, 4_000_000, "baud (0: any)"))
-    names = {"baud", "bridge", "fast_baud", "max_baud"} | USB_OPTIONS | FAILSAFE_OPTION_NAMES
-    opts = parse_options(url, own, ignore=set(query_params(url)) - {o.name for o in own})
-    failsafe_options(url)  # checked before the far end is built, as a real port's before it opens
+    url_of = port_url(url)
+    # checked before the far end is built, as a real port's before it opens
+    opts = parse_options(url_of, OPTIONS, ignore=set(query_params(url)) - OPTION_NAMES)
     if baud is None:
         baud = opts["baud"]
     # bridge=1: a one-chip bridge (firmware 1.0: no chip selects); else the multi-axis HELLO
     info = ONE_CHIP_INFO if opts["bridge"] == "1" else MULTI_AXIS_INFO
-    model = build_bus(url, allowed=frozenset(names), limit=info.chip_selects)
+    model = build_bus(url, allowed=OPTION_NAMES | USB_OPTIONS, limit=info.chip_selects)
     vcd = vcd_of(url)
     if vcd is not None:  # the bridge's strobes drawn into a VCD, one bus cycle each
         model = probe(model, *vcd, cycle_clocks=max(1, round(BUS_CYCLE_S * model.clock_hz)))
@@ -88,8 +99,10 @@ def open_emulated(url: str | PortURL = "sim://", *, baud: int | None = None,
     pipe = EmuPipe(emu, baud=baud or None, max_baud=opts["max_baud"] or None)
     outer = wrap_usb(wrap(pipe) if wrap is not None else pipe, url)
     usb = getattr(outer, "adapter", None)
-    return EmuLinkTransport(emu, model, outer, url, trace=trace, retries=retries,
+    return EmuLinkTransport(emu, model, outer, url, trace=trace,
+                            retries=opts["retries"] if "retries" in url_of.query() else retries,
                             baud=baud or None, fast_baud=opts["fast_baud"],
+                            failsafe=FailsafeOptions.of(opts),
                             margin_s=margin_s + (usb.worst_s if usb is not None else 0.0))
 
 

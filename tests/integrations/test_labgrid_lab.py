@@ -40,9 +40,10 @@ EXAMPLE = ROOT / "examples" / "labgrid"
 PYTHON = os.environ.get("LM629_LABGRID_PYTHON", "")
 #: someone else in the lab (labgrid names a user HOST/USER; LG_HOSTNAME, LG_USERNAME)
 ALICE = "otherpc/alice"
-#: place -> what it matches: the two benches, and a spare port with no board behind it
+#: place -> what it matches: the two benches, a spare port with no board behind it, and the
+#: firmware bench exported by its link outside /dev/ (which the exporter will not serve)
 PLACES = {"lm629-py": "bench-py/lm629-bench/*", "lm629-fw": "bench-fw/lm629-bench/*",
-          "lm629-spare": "bench-py/lm629-spare/*"}
+          "lm629-spare": "bench-py/lm629-spare/*", "link-fw": "bench-fw/lm629-link/*"}
 
 
 @pytest.fixture(scope="module")
@@ -145,6 +146,21 @@ def test_the_example_runs_on_remote_places_through_ser2net_on_loopback(lab, tmp_
     assert [listening(p.port) for p in ports.values()] == [[], []]
 
 
+def test_a_port_outside_dev_is_not_served(lab):
+    """docs/testing.md's /dev/ rule: a RawSerialPort named by a link elsewhere (the one
+    ``sim serve --pty`` makes) cannot be acquired: the exporter's assertion marks it broken,
+    and labgrid shows it acquired by '<broken>'; ``lm629 --place`` says so in one line."""
+    cli = ended(lm629(lab, "--place", "link-fw", "status"))
+    assert cli.returncode == 3 and len(err_lines(cli)) == 1, cli.stderr
+    assert "already acquired by place '<broken>': the exporter could not serve it" in cli.stderr
+    assert "must start with /dev/" in cli.stderr
+    exporter_log = lab.exporters["bench-fw"].log.read_text()
+    assert "AssertionError" in exporter_log and "marked as broken" in exporter_log
+    again = lab.client("-p", "link-fw", "lock", check=False)
+    assert again.returncode != 0 and "already acquired by place '<broken>'" in again.stdout
+    assert lab.held() == {}
+
+
 def test_a_place_someone_else_holds_is_refused_naming_them(lab, tmp_path):
     lab.client("-p", "lm629-fw", "lock", user=ALICE)
     try:
@@ -199,8 +215,8 @@ def test_lab_selftest_over_every_bench(lab, tmp_path):
     """Both benches tested at once, as boards whose chips run at 6 MHz (--clock, handed to
     each bench's selftest), one report each, one table: the Python bench (6 MHz) passes, the
     firmware bench's 8 MHz chip differs (its clock, measured 8 MHz: 2048 / 8e6 s a sample,
-    not 2048 / 6e6), the place someone else holds is named, not tested; the run's exit says a
-    bench did not pass."""
+    not 2048 / 6e6), the place someone else holds is named, not tested; the run's exit is the
+    worst bench's (one not tested: 10, selftest FAIL's)."""
     lab.client("-p", "lm629-spare", "lock", user=ALICE)
     try:
         p = ended(lm629(lab, "--clock", "6MHz", "lab", "selftest", "lm629-*", "--reports",
@@ -208,7 +224,7 @@ def test_lab_selftest_over_every_bench(lab, tmp_path):
         assert lab.held() == {"lm629-spare": ALICE}
     finally:
         lab.client("-p", "lm629-spare", "unlock", user=ALICE)
-    assert p.returncode == 1, p.stdout + p.stderr
+    assert p.returncode == 10, p.stdout + p.stderr  # EXIT_CODES: a bench not tested to the end
     rows = {ln.split()[0]: ln for ln in p.stdout.splitlines() if ln.startswith("lm629-")}
     assert sorted(rows) == ["lm629-fw", "lm629-py", "lm629-spare"], p.stdout
     reports = {place: json.loads((tmp_path / "r" / f"{place}.json").read_text())

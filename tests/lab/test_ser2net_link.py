@@ -182,7 +182,8 @@ def test_a_write_ser2net_does_not_take_fails_within_the_write_deadline(tmp_path)
     (WRITE_TIMEOUT_S, 2 s, as on every other port) is its socket's timeout instead.  ser2net
     stopped (SIGSTOP) takes nothing: once the kernel's buffers are full a write fails, 2 s
     after it started waiting (pyserial's own socket timeout was 5 s), as a TransportError."""
-    from lm629_host.transports.serial import WRITE_TIMEOUT_S, SerialPipe, open_port
+    from lm629_host.transports.netport import WRITE_TIMEOUT_S
+    from lm629_host.transports.serial import SerialPipe, open_port
 
     with serve(tmp_path, "python") as bench, ser2net(bench.link, tmp_path, "rfc2217") as s2n:
         pipe = SerialPipe(open_port(s2n.url, 115200), device=s2n.url)

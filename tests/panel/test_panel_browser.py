@@ -80,6 +80,13 @@ def test_plots_move_during_a_move(page):
     assert abs(rest - 4000) <= MoveRules().tolerance
     wait_for(lambda: last_row(driver)[1] == rest and last_row(driver)[3] == 0,
              what=f"the axis at rest on {rest}")
+    # the readout's velocity: the plotted actual velocity's last number (a row with none, the
+    # first after a command, is never shown as "null")
+    readout = driver.find_element("css selector", "#axis-0 .readout").text
+    assert re.fullmatch(rf"desired 4000\s+actual {rest}\s+error {4000 - rest}\s+velocity 0 counts/s",
+                        readout), readout
+    velocities = _plotted(driver, 2, plot=1)
+    assert None in velocities  # the first row after the move's command: nothing to measure from
     lit = [e.text for e in driver.find_elements("css selector", "#axis-0 .status .light.on")]
     assert "trajectory complete" in lit and "motor off" not in lit
     errors = _plotted(driver, 1, plot=2)
@@ -157,7 +164,8 @@ def test_second_tab_watches_escape_stops_closed_tab_stops_nothing(page):
     driver.switch_to.window(first)
     _type(driver, "move-target", str(held + 3000))
     _click(driver, "move")
-    wait_for(lambda: message(driver).startswith("moving to"), what="the move's answer")
+    wait_for(lambda: message(driver).startswith(f"moving to {held + 3000} counts"),
+             what="the move's answer")  # this move's: the tab showed the last move's before
     driver.close()
     driver.switch_to.window(second)
     wait_for(lambda: driver.find_element("id", "role").text == "this tab commands",

@@ -39,7 +39,7 @@ def test_a_command_parses_its_port_once(monkeypatch):
     ("sim://host:1/", "a simulator has no host or path ('host:1')"),
     ("sim://?vcd=", "vcd= is empty"),
     ("socket://host", "socket:// needs a host and a port number"),
-    ("sim+avr://?baud=0", "baud=0 is outside 1..4000000 baud"),
+    ("sim+avr://?baud=0", "baud=0 is outside 300..4000000 baud"),
 ])
 def test_an_ill_formed_port_is_refused_in_one_line_naming_it(url, said):
     r = _invoke("--port", url, "status")
@@ -64,3 +64,20 @@ def test_options_are_added_beside_the_users_text():
     with lm629_host.open(spec.open_url) as chip:
         assert chip.transport.url == "sim+emu://?usb=uno"
         assert chip.transport.clock_hz == 6e6
+
+
+def test_every_bridge_port_takes_the_links_options_with_one_range():
+    """serial://, sim+avr:// and sim+emu:// declare their options from the link's rows: baud,
+    fast_baud, retries and the failsafe's, each with the same range everywhere (a rate the real
+    port refuses is refused by the simulators too), only the defaults their own."""
+    from lm629_host.transports import serial, simavr, simemu
+    from lm629_host.transports.link import LINK_OPTIONS
+
+    for table in (serial.OPTIONS, simavr.OPTIONS, simemu.OPTIONS):
+        rows = {o.name: o for o in table}
+        for row in LINK_OPTIONS:
+            assert (rows[row.name].lo, rows[row.name].hi) == (row.lo, row.hi), row.name
+    for url in ("serial:///dev/null?fast_baud=100", "sim+avr://?fast_baud=100",
+                "sim+emu://?fast_baud=100"):
+        with pytest.raises(ValueError, match=r"fast_baud=100 is outside 0 \(off\) or 300..4000000"):
+            lm629_host.open(url)

@@ -201,3 +201,23 @@ def test_cli_status_on_a_socket_port_from_separate_processes():
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=10)
+
+
+def test_an_rfc2217_url_gets_ign_set_control_unless_it_says_otherwise():
+    """ser2net in front of a line without modem-control wires does not answer SET-CONTROL:
+    pyserial's open waited 3 s for it and failed, so the option that skips the wait is added
+    to rfc2217:// URLs; ``ign_set_control=0`` (no, false, off) asks for the wait after all,
+    and pyserial's other options pass as they are.  Other schemes are untouched."""
+    from lm629_host.transports.netport import rfc2217_url
+
+    assert rfc2217_url("rfc2217://bench:2000") == "rfc2217://bench:2000?ign_set_control="
+    assert rfc2217_url("rfc2217://bench:2000?ign_set_control") == \
+        "rfc2217://bench:2000?ign_set_control="
+    assert rfc2217_url("rfc2217://bench:2000?logging=debug&timeout=1") == \
+        "rfc2217://bench:2000?logging=debug&timeout=1&ign_set_control="
+    for no in ("0", "no", "False", "off"):
+        assert rfc2217_url(f"rfc2217://bench:2000?ign_set_control={no}&logging=debug") == \
+            "rfc2217://bench:2000?logging=debug"
+    assert rfc2217_url("socket://bench:2000") == "socket://bench:2000"
+    assert options_of("serial://rfc2217://bench:2000?baud=57600&ign_set_control=0").device == \
+        "rfc2217://bench:2000?ign_set_control=0"  # what the user wrote goes to open_port
