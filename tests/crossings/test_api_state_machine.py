@@ -157,14 +157,24 @@ class Truth:
     def __init__(self, model) -> None:
         self.model = model
         #: whole turns of the register's circle a driver opened afresh does not know of (it
-        #: starts counting on the circle the register reads: 0)
+        #: starts counting on the circle the register reads: 0), until the next reset (the
+        #: reset that set ``_home``: the model's origin then)
         self.offset = 0
+        self._home = 0
+
+    def forget_turns(self) -> None:
+        """A new driver on this chip: it counts from the circle the registers read now."""
+        m = self.model.motion
+        turns = self.offset if m.home_count == self._home else 0
+        self.offset = turns + circle(self.desired) * SPAN
+        self._home = m.home_count
 
     @property
     def real(self) -> int:
         """Encoder counts since the last reset, from where the reset put the register."""
         m = self.model.motion
-        return m.encoder_count - m.home_count - self.offset
+        turns = self.offset if m.home_count == self._home else 0
+        return m.encoder_count - m.home_count - turns
 
     @property
     def desired(self) -> int:
@@ -975,7 +985,7 @@ class ApiMachine(RuleBasedStateMachine):
         the circle the registers read, knows no limits, and reads what the model shows."""
         self.board = Board(transport, 2)
         for t in self.truth:
-            t.offset += circle(t.desired) * SPAN
+            t.forget_turns()
         self._rebase()
         self.crossings = [0, 0]
         self.profile = None  # the limits were the old process's
