@@ -167,7 +167,8 @@ class BenchWorker:
         self._subscribers: set[queue.Queue[str]] = set()
         self._rows: list[list[Any]] = []
         self._published = 0.0
-        self._sampled = 0.0  #: when the last row was taken (monotonic)
+        #: when the next row read between a live command's programs is due (monotonic)
+        self._row_due = 0.0
         self._in_hook = False
         self._wall0 = self._clock0 = 0.0
         self.failsafe: dict[str, Any] = {"armed": None, "text": "none on this link"}
@@ -363,14 +364,25 @@ class BenchWorker:
                 raise PanelStop("the panel is ending" if self._quit else "stopped from the panel")
             if not self._real_time:
                 self._pace(self._transport.clock.now(), wake=False)
-            if self._busy.live and not self._in_hook and \
-                    time.monotonic() - self._sampled >= 1.0 / self.sample_hz:
+            if self._busy.live and not self._in_hook and self._live_row_due():
                 self._in_hook = True  # the snapshot's own program ends here too
                 try:
                     self._add(self._board.snapshots([c for c, _n in self.axes]))
                 finally:
                     self._in_hook = False
         return hook
+
+    def _live_row_due(self) -> bool:
+        """A row between a live command's programs is due: on a schedule of ``sample_hz``
+        with half a period's slack, as the programs come (an S-curve's pieces, 20 ms apart,
+        each a little early or late against a row period of 20 ms: with no slack a row that
+        waited for the period took every other piece, 25 rows a second)."""
+        now = time.monotonic()
+        period = 1.0 / self.sample_hz
+        if now < self._row_due - 0.5 * period:
+            return False
+        self._row_due = max(self._row_due, now - 0.5 * period) + period
+        return True
 
     def _rebase(self) -> None:
         self._wall0 = time.monotonic()
@@ -390,7 +402,6 @@ class BenchWorker:
                 time.sleep(min(ahead, 1.0))
 
     def _add(self, snaps: list[Snapshot]) -> None:
-        self._sampled = time.monotonic()
         self._rows.append(self.rows.row(snaps))
         now = time.monotonic()
         # every other row at 50 rows/s: half a row's slack, so that a row a little early does

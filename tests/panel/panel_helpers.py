@@ -149,8 +149,10 @@ def message(driver) -> str:
 
 def last_row(driver, axis: str = "0") -> list:
     """The axis's last row the page plotted: [desired, actual, desired velocity, actual
-    velocity, status, signals]."""
-    return driver.execute_script(f"return window.panelState.axes[{axis!r}].last")
+    velocity, status, signals]; waits for the first (a page just loaded beside two busy test
+    workers may have none yet: it was None, and a predicate indexing it raised TypeError)."""
+    return wait_for(lambda: driver.execute_script(
+        f"return window.panelState.axes[{axis!r}].last"), what=f"a row of axis {axis}")
 
 
 @contextmanager
