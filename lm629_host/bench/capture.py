@@ -97,13 +97,16 @@ def capture_move(chip: LM629, distance: int, *, duration_s: float = 0.5,
     if chip.is_moving():
         raise ValueError("the motor is moving: a step response starts from rest (and the chip "
                          "refuses a new acceleration during a move); `lm629 stop --smooth` first")
+    # the target (from the desired position: a read, which moves nothing) checked against the
+    # soft limits before anything is sent: a refused step leaves the axis as it was, holding
+    # (checked inside stop_on_error it turned the motor off, after loading the filter)
+    first = chip.snapshot()
+    target = first.desired_position + distance
+    chip.trajectory_program(position=target)
     with stop_on_error(chip):
         if program is not None:
             chip.load_filter(**filt)
             chip.update_filter()
-        first = chip.snapshot()
-        target = first.desired_position + distance
-        chip.trajectory_program(position=target)
         cap = Capture(target, filt, velocity, acceleration)
         move = chip.move_to(target, velocity=velocity, acceleration=acceleration)
         cap.t0 = move.t0

@@ -471,7 +471,7 @@ class ShapedMove(Move):
         if self._owner == threading.get_ident():
             return
         if takes_over(program):
-            self._end(dropped=True)
+            self.end_caps(dropped=True)
             return
         self.tend()
 
@@ -503,7 +503,7 @@ class ShapedMove(Move):
             if s is None or s.time < due:
                 s = chip.snapshot()
             if s.status & Status.TRAJECTORY_COMPLETE:
-                self._end()
+                self.end_caps()
                 return
             if late:  # carry on from the plan's piece for the distance covered
                 covered = (s.desired_position - self.start.desired_position) * (
@@ -523,7 +523,7 @@ class ShapedMove(Move):
             word = min(plan.peak_velocity, max(word, math.ceil(floor)))
         with chip.transport.lock:  # a stop from another thread goes after this cap, or drops it
             if chip.last_update != self._mark:
-                self._end(dropped=True)  # another STT, or a reset, came since this move's last
+                self.end_caps(dropped=True)  # another STT, or a reset, came since this move's last
             if not self.issuing:
                 return
             chip.load_trajectory(velocity=word, start=True)
@@ -539,7 +539,7 @@ class ShapedMove(Move):
         tail's mean velocity, near 0, and hold a chip that is a little behind to a crawl)."""
         return t + 1.5 * self.plan.piece_s >= self.plan.duration
 
-    def _end(self, dropped: bool = False) -> None:
+    def end_caps(self, dropped: bool = False) -> None:
         """No more caps: the chip completed the trajectory, or (``dropped``) something else
         took it over; the chip's hook is let go."""
         self.issuing = False
@@ -578,7 +578,7 @@ def _wait_pieces(move: Move, watch: MoveWatch,
             return result
         move.seen = s
         if s.status & Status.TRAJECTORY_COMPLETE:
-            move._end()  # the chip landed on the target: no cap has anything left to do
+            move.end_caps()  # the chip landed on the target: no cap has anything left to do
     if move.inner is not None:
         return move.inner(move, watch, progress)
     return move.poll(watch, progress)

@@ -133,6 +133,9 @@ class Session:
     #: Ctrl-C, SIGTERM and SIGHUP, held during the opened chip's bus programs
     signals: StopSignals = field(default_factory=StopSignals)
     profile: Any = None  #: the bench profile (--profile), see cli.profile
+    #: --lines (or its environment variable) was given: a profile axis's ``lines`` never
+    #: replaces it (:meth:`select_axis`)
+    lines_given: bool = False
 
     @property
     def is_sim(self) -> bool:
@@ -255,6 +258,11 @@ class Session:
         self.axis_spec = (cs,)
         if self._board is not None:
             self._chip = None
+        if self.profile is not None and not self.lines_given:
+            # the axis's encoder lines, as `--profile F --axis NAME` takes them: its
+            # revolutions and rpm (an axis without lines speaks counts)
+            ax = self.profile.by_cs(cs)
+            self.lines = ax.lines if ax is not None else None
 
     def close(self) -> None:
         if self._board is not None:
@@ -461,6 +469,7 @@ def main(ctx: click.Context, port: str | PortURL | None, place: str | None, chip
     if place is not None and ctx.get_parameter_source("port") == click.core.ParameterSource.COMMANDLINE:
         raise click.BadParameter("--port and --place both name a bench: give one",
                                  param_hint="--place")
+    lines_given = lines is not None
     if profile_path is not None:
         profile, port, chip_name, clock, lines, axis_text = profile_options(
             ctx, profile_path, port, chip_name, clock, lines, axis_text)
@@ -512,6 +521,7 @@ def main(ctx: click.Context, port: str | PortURL | None, place: str | None, chip
     if axis_text is not None:
         session.axis_spec = parse_axes(axis_text)
     session.profile = profile
+    session.lines_given = lines_given
     ctx.obj = session
     ctx.call_on_close(session.close)
     session.install_signals()

@@ -39,21 +39,76 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from lm629_host.bench.scope import feed
-from lm629_host.bus.opcodes import Signals, Status
+from lm629_host.bus.opcodes import Signals, Status, wrap_counts
 from lm629_host.bus.snapshot import Snapshot
 from lm629_host.clock import WallClock
 from lm629_host.physics.pid import sample_period_s
-from lm629_host.cli.app import error_line
 from lm629_host.errors import FailsafeTripped
 from lm629_host.physics.units import FIXED_ONE
 
 log = logging.getLogger("lm629_host.panel")
+
+
+def error_line(exc: Exception) -> tuple[str, int]:
+    """The command line's one line and exit code for ``exc``
+    (:func:`lm629_host.cli.app.error_line`), imported when first needed: the command line's
+    package imports this module (``lm629 panel``), so importing it here at the top made
+    ``import lm629_host.panel.bench`` before the command line a circular import."""
+    from lm629_host.cli.app import error_line as line
+    return line(exc)
 
 #: rows a second sampled for the plots, and messages a second sent to each page
 SAMPLE_HZ = 50.0
 PUBLISH_HZ = 25.0
 #: seconds between reads of the link's failsafe (a trip the feeder sees shows at once)
 FAILSAFE_POLL_S = 1.0
+
+
+#: row periods beyond which two rows are too far apart for the velocity between them to be
+#: plotted as the axis's velocity at the second (a host paused, a long command between them)
+MAX_VELOCITY_SPAN_ROWS = 4
+
+
+class Rows:
+    """Snapshots -> the page's rows: ``[t, (desired, actual, desired velocity, actual
+    velocity, status, signals) per axis]``, positions in counts, velocities in counts/s.
+
+    Why the actual velocity is not RDRV: RDRV is the whole counts the encoder moved in the
+    last sample alone (spec: "integer counts/sample"), a one-count step of which is a whole
+    sample's worth of speed (3906 counts/s on an 8 MHz chip), and a row reads it once every
+    ~78 samples.  An axis cruising at 1 count/sample reads 0 or 2 in the odd sample (the loop's
+    drive steps between two output codes, the shaft's speed ripples a few per cent about the
+    set speed), so a row that lands there plotted a stop or a doubled speed that never
+    happened.  The actual velocity here is the real position's change since the previous row
+    over the time between them: the mean over the row's interval, quantised to one count per
+    interval (50 counts/s at 50 rows/s), never a reading the shaft did not make.  Where there
+    is no previous row to measure from (the first, one after a command ran between them, which
+    may redefine positions, one more than :data:`MAX_VELOCITY_SPAN_ROWS` periods after it) the
+    actual velocity is None: a gap the page's line spans, never a value made up.  The desired
+    velocity is RDDV, exact (16.16) at the row's sample."""
+
+    def __init__(self, sample_s: float, rate_hz: float) -> None:
+        self.sample_s = sample_s
+        self.max_span_s = MAX_VELOCITY_SPAN_ROWS / rate_hz
+        self._last: list[Snapshot] | None = None
+
+    def restart(self) -> None:
+        """The next row has no previous one to measure a velocity from (a command ran)."""
+        self._last = None
+
+    def row(self, snaps: list[Snapshot]) -> list[Any]:
+        last = self._last
+        self._last = snaps
+        dt = snaps[0].time - last[0].time if last is not None else 0.0
+        measured = last is not None and len(last) == len(snaps) and 0 < dt <= self.max_span_s
+        out: list[Any] = [round(snaps[0].time, 5)]
+        for k, s in enumerate(snaps):
+            actual = (round(wrap_counts(s.real_position - last[k].real_position) / dt, 1)
+                      if measured and last is not None else None)
+            out += [s.desired_position, s.real_position,
+                    round(s.desired_velocity / FIXED_ONE / self.sample_s, 1),
+                    actual, int(s.status), int(s.signals)]
+        return out
 
 
 class PanelStop(KeyboardInterrupt):
@@ -118,6 +173,7 @@ class BenchWorker:
         self.failsafe: dict[str, Any] = {"armed": None, "text": "none on this link"}
         self.source = ""
         self.sample_s = sample_period_s(session.clock_hz)
+        self.rows = Rows(self.sample_s, sample_hz)
         self.error: str | None = None  #: what ended the worker, as the command line's line
         self.exception: Exception | None = None
         #: the gains loaded on each axis as far as the host knows (no register reads them
@@ -278,6 +334,7 @@ class BenchWorker:
             try:
                 self.session.select_axis(job.cs)
                 self._rebase()
+                self.rows.restart()
                 outcome = self._run(job.argv)
                 if job.then is not None and outcome.ok:
                     outcome = job.then(outcome)
@@ -334,12 +391,7 @@ class BenchWorker:
 
     def _add(self, snaps: list[Snapshot]) -> None:
         self._sampled = time.monotonic()
-        row: list[Any] = [round(snaps[0].time, 5)]
-        for s in snaps:
-            row += [s.desired_position, s.real_position,
-                    round(s.desired_velocity / FIXED_ONE / self.sample_s, 1),
-                    round(s.real_velocity / self.sample_s, 1), int(s.status), int(s.signals)]
-        self._rows.append(row)
+        self._rows.append(self.rows.row(snaps))
         now = time.monotonic()
         # every other row at 50 rows/s: half a row's slack, so that a row a little early does
         # not wait for the next one (which would make it 1 in 3)
@@ -382,4 +434,5 @@ class BenchWorker:
 STATUS_BITS = [(b.name or "", int(b)) for b in Status]
 SIGNAL_BITS = [(b.name or "", int(b)) for b in Signals]
 
-__all__ = ["BenchWorker", "Outcome", "PanelStop", "SAMPLE_HZ", "SIGNAL_BITS", "STATUS_BITS"]
+__all__ = ["BenchWorker", "MAX_VELOCITY_SPAN_ROWS", "Outcome", "PanelStop", "Rows", "SAMPLE_HZ",
+           "SIGNAL_BITS", "STATUS_BITS"]

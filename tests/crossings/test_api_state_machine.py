@@ -750,8 +750,14 @@ class ApiMachine(RuleBasedStateMachine):
         for j, a in enumerate(self.board.axes):  # told once: reads run and agree
             self._agree(j, a.read_real_position(), a.read_desired_position())
         before = [self._untouched(j) for j in (0, 1)]
-        with pytest.raises(FailsafeTripped):
+        # refused: by the trip, or before it by soft limits the target is outside (a profile's
+        # limits stay in force across a reset that moved the axis's origin: validated first)
+        lim = axis.limits
+        target = self.truth[k].desired + 100
+        outside = lim is not None and lim.min is not None and not lim.min <= target <= lim.max
+        with pytest.raises(ValueError if outside else FailsafeTripped) as refused:
             axis.move_to(100, velocity=65536, acceleration=6553, relative=True)
+        assert not outside or "soft limit" in str(refused.value), refused.value
         assert [self._untouched(j) for j in (0, 1)] == before  # nothing started
         trip = self.board.clear_failsafe()
         assert trip is not None and trip.tripped and trip.chips == 0b11, trip
@@ -1086,6 +1092,26 @@ def test_reads_of_an_axis_settling_under_new_gains_agree_with_the_model_at_their
         machine.filter(1, 40, 100, False)
         machine.second_thread(0, 3000)
         assert abs(machine.truth[1].real - settled_from) > 2  # it settled during the rule
+    finally:
+        machine.teardown()
+
+
+def test_a_trip_after_a_reset_outside_the_soft_limits_refuses_the_move_for_the_limits():
+    """Found by the long run on sim+avr:// (in two ways, below min and above max): a profile's
+    soft limits around where axis 0 was, a power cycle and a board reset that put its origin
+    at 0, then the script stops feeding.  The move the rule tries after the trip is outside
+    the limits: refused by them (validated before any bus cycle), not by the trip, and nothing
+    starts.  The rule expected the trip's refusal only."""
+    machine = type("Found", (ApiMachine,), {"url": "sim+emu://?baud=1000000"})()
+    try:
+        machine.open(0, "script", "abrupt", True)
+        machine.move(0, 6000, 12 * 65536, 13107, True)
+        machine.soft_limits_from_a_profile(2000)
+        machine.power_cycle()
+        machine.recover(False)
+        machine.reset("board")
+        machine.script_stops_feeding(0, False, 0.1)
+        assert machine.board.axes[0].limits.min == 4000
     finally:
         machine.teardown()
 

@@ -80,6 +80,13 @@ def test_plots_move_during_a_move(page):
     assert abs(rest - 4000) <= MoveRules().tolerance
     wait_for(lambda: last_row(driver)[1] == rest and last_row(driver)[3] == 0,
              what=f"the axis at rest on {rest}")
+    # the readout's velocity: the plotted actual velocity's last number (a row with none, the
+    # first after a command, is never shown as "null")
+    readout = driver.find_element("css selector", "#axis-0 .readout").text
+    assert re.fullmatch(rf"desired 4000\s+actual {rest}\s+error {4000 - rest}\s+velocity 0 counts/s",
+                        readout), readout
+    velocities = _plotted(driver, 2, plot=1)
+    assert None in velocities  # the first row after the move's command: nothing to measure from
     lit = [e.text for e in driver.find_elements("css selector", "#axis-0 .status .light.on")]
     assert "trajectory complete" in lit and "motor off" not in lit
     errors = _plotted(driver, 1, plot=2)

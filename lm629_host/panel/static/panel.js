@@ -31,7 +31,9 @@ function makeAxis(name, k) {
     title, width: width(), height: config.axes.length > 1 ? 110 : 150, legend: {show: true},
     scales: {x: {time: false}},
     axes: [{label: "s"}, {label: unit, size: 70}],
-    series: [{label: "t"}, ...series.map(([label, stroke, dash]) => ({label, stroke, width: 1.5, dash}))],
+    // a null (the actual velocity of a row with no previous one to measure from) is spanned
+    series: [{label: "t"}, ...series.map(([label, stroke, dash]) => ({label, stroke, width: 1.5, dash,
+                                                                      spanGaps: true}))],
   }, [[], ...series.map(() => [])], box);
   ax.plots = [
     plot("position", "counts", [["desired", "#1e88e5", [6, 3]], ["actual", "#e53935"]]),
@@ -70,6 +72,7 @@ function addRows(rows) {
       ax.t.push(row[0]); ax.dp.push(row[o]); ax.ap.push(row[o + 1]);
       ax.dv.push(row[o + 2]); ax.av.push(row[o + 3]); ax.fe.push(row[o] - row[o + 1]);
       ax.last = row.slice(o, o + 6);
+      if (row[o + 3] !== null) ax.velocity = row[o + 3];
     });
   }
   state.rows += rows.length;
@@ -85,8 +88,8 @@ function redraw() {
     ax.plots[0].setData([ax.t, ax.dp, ax.ap]);
     ax.plots[1].setData([ax.t, ax.dv, ax.av]);
     ax.plots[2].setData([ax.t, ax.fe]);
-    const [dp, ap, dv, av, st, sig] = ax.last;
-    ax.readout.textContent = `desired ${dp}  actual ${ap}  error ${dp - ap}  velocity ${av} counts/s`;
+    const [dp, ap, , , st, sig] = ax.last;
+    ax.readout.textContent = `desired ${dp}  actual ${ap}  error ${dp - ap}  velocity ${ax.velocity ?? "--"} counts/s`;
     ax.status.forEach((el) => light(el, (st & el.dataset.bit) !== 0));
     ax.signals.forEach((el) => light(el, (sig & el.dataset.bit) !== 0));
   }
