@@ -73,7 +73,7 @@ def _lines(text: str) -> list[str]:
 
 # the firmware behind an Uno's USB chip only: the same firmware without the USB chip in between
 # proves nothing more here (no assertion on timing), and each far end costs a served bench
-# (5-8 s on an idle machine, over 10 s on a busy one: two served benches, the second a power
+# (11-14 s each with -n 2 on a busy 2-core machine: two served benches, the second a power
 # cycle, and a dozen processes that each import the package)
 @pytest.mark.parametrize("far_end", [f for f in FAR_ENDS if f != "firmware"])
 def test_profile_apply_limits_and_power_cycles(tmp_path, bench_profile, far_end):
