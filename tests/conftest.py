@@ -12,6 +12,7 @@ skip, and the run says so in a red line at its end (and at its start); with
 from __future__ import annotations
 
 import os
+import subprocess
 
 os.environ.setdefault("LM629_SIM_STRICT", "1")
 
@@ -77,6 +78,12 @@ def pytest_sessionstart(session: pytest.Session) -> None:
             avrsim.ensure_built()
         except avrsim.HarnessError:
             pass
+        # the firmware's host-side C tests too (`make test`'s two programs, ASan): run by
+        # tests/firmware/test_firmware_build.py and by docs/bridge.md's `make -C firmware_bridge
+        # test` on two workers, which would otherwise both compile them into one build/ at once
+        # (a half-written program run); a few milliseconds when they are current
+        subprocess.run(["make", "-s", "-C", str(avrsim.FIRMWARE_DIR), "build/test_link",
+                        "build/fuzz_link"], capture_output=True)  # a failure: the tests say it
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

@@ -13,6 +13,7 @@ clear), so the next command says it applied the profile again before it moves.
 
 from __future__ import annotations
 
+import difflib
 import json
 import re
 import signal
@@ -86,16 +87,39 @@ def test_a_new_users_first_hour(bench):
     assert "table" in out and "lift" in out and "axis 0" not in out
     _ok(_run(tmp, "--axis", "table", "bringup", "--yes"))
     _ok(_run(tmp, "--axis", "table", "wiring", "--check"))
+    # tune --save: the gains written into [axis.table], every comment and the edit kept, only
+    # the gain lines changed (the one served tune of the CLI tests: the profile's own seams
+    # are asserted here rather than in a second served tune, tests/cli/test_served_bench_profile.py)
+    before = (tmp / "bench.toml").read_text()
     tune = _run(tmp, "--axis", "table", "tune", "--travel", "2000", "--yes", "--save")
     _ok(tune)
-    assert "saved" in tune.stdout + tune.stderr
+    m = re.search(r"saved kp=(\d+) ki=(\d+) kd=(\d+) il=(\d+) ds=(\d+) into \[axis\.table\]",
+                  tune.stdout)
+    assert m, tune.stdout
+    kp, ki, kd, il, ds = map(int, m.groups())
+    assert f"gains: kp={kp} ki={ki} kd={kd} il={il} ds={ds - 1}" not in tune.stdout  # ds: samples
+    text = (tmp / "bench.toml").read_text()
+    for line in before.splitlines():
+        if "#" in line:
+            assert line[line.index("#"):] in text, line
+    # the lines that went (the plant's table is added beside the gains: docs/twin.md)
+    changed = {a[1:].split("=")[0].strip() for a in difflib.ndiff(before.splitlines(),
+                                                                  text.splitlines())
+               if a.startswith("- ")}
+    assert changed <= {"kp", "ki", "kd", "il", "ds"} and {"kp", "kd"} <= changed, changed
     table = load_profile(tmp / "bench.toml").axis("table")
+    assert (table.kp, table.ki, table.kd, table.il, table.ds) == (kp, ki, kd, il, ds)
     assert (table.kp, table.kd) != (20, 0) and table.max == 6000  # the tuned gains, the edit kept
+    # tuning left the profile's LPES armed: the next command applies nothing again
+    after = _run(tmp, "--axis", "table", "status")
+    assert _ok(after) and after.stderr == "" and "STOP_ON_ERROR" in after.stdout, after.stderr
 
     b.server.send_signal(signal.SIGUSR1)  # the board's supply off and on: the chips forget
     first = _run(tmp, "--axis", "table", "status", "--json")  # the first command after it
     status = json.loads(_ok(first))
     assert "axis table (cs 0) had lost its settings" in first.stderr
+    assert f"kp={kp} ki={ki} kd={kd} il={il} ds={ds}, LPES" in first.stderr  # the saved gains
+    assert "STOP_ON_ERROR" in status["signals_flags"]
     assert status["real_position"] == 0  # power-on: the counters start again
     moved = _run(tmp, "--axis", "table", "move", "1500")
     _ok(moved)

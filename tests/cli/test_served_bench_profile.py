@@ -10,7 +10,6 @@ profile is applied).  A restarted server is a chip that powered up: filter 0, LP
 from __future__ import annotations
 
 import json
-import re
 import shutil
 import subprocess
 import time
@@ -72,7 +71,11 @@ def _lines(text: str) -> list[str]:
     return [ln for ln in text.splitlines() if ln.strip()]
 
 
-@pytest.mark.parametrize("far_end", FAR_ENDS)
+# the firmware behind an Uno's USB chip only: the same firmware without the USB chip in between
+# proves nothing more here (no assertion on timing), and each far end costs a served bench
+# (11-14 s each with -n 2 on a busy 2-core machine: two served benches, the second a power
+# cycle, and a dozen processes that each import the package)
+@pytest.mark.parametrize("far_end", [f for f in FAR_ENDS if f != "firmware"])
 def test_profile_apply_limits_and_power_cycles(tmp_path, bench_profile, far_end):
     b = bench_profile
     with serve(tmp_path, far_end):
@@ -126,39 +129,9 @@ def test_profile_apply_limits_and_power_cycles(tmp_path, bench_profile, far_end)
         assert "STOP_ON_ERROR" in s["signals_flags"]
 
 
-def test_tune_save_rewrites_the_gains_keeping_comments_and_they_survive_a_power_cycle(
-        tmp_path, bench_profile):
-    b = bench_profile
-    before = b.profile.read_text()
-    with serve(tmp_path, "python"):
-        p = b.run("--axis", "x", "tune", "--travel", "2000", "--yes", "--save", timeout=120)
-        assert p.returncode == 0, p.stdout + p.stderr
-        m = re.search(r"saved kp=(\d+) ki=(\d+) kd=(\d+) il=(\d+) ds=(\d+) into \[axis\.x\]",
-                      p.stdout)
-        assert m, p.stdout
-        kp, ki, kd, il, ds = map(int, m.groups())
-        assert f"gains: kp={kp} ki={ki} kd={kd} il={il} ds={ds - 1}" not in p.stdout  # ds: samples
-        text = b.profile.read_text()
-        # every comment kept, only the gain lines changed
-        for line in before.splitlines():
-            if "#" in line:
-                comment = line[line.index("#"):]
-                assert comment in text, comment
-        prof = lm629_host.config.profile.load_profile(b.profile).axis("x")
-        assert (prof.kp, prof.ki, prof.kd, prof.il, prof.ds) == (kp, ki, kd, il, ds)
-        assert (prof.kp, prof.kd) != (20, 0)
-        changed = {a.split("=")[0].strip() for a, c in zip(before.splitlines(),
-                                                           text.splitlines()) if a != c}
-        assert changed <= {"kp", "ki", "kd", "il", "ds"} and {"kp", "kd"} <= changed
-        # tuning left the profile's LPES armed: the next command does not re-apply
-        p = b.run("--axis", "x", "status")
-        assert p.returncode == 0 and p.stderr == "" and "STOP_ON_ERROR" in p.stdout
-    with serve(tmp_path, "python"):  # another power cycle: the saved gains are applied
-        p = b.run("--axis", "x", "move", "3000")
-        assert p.returncode == 0, p.stderr
-        assert f"kp={kp} ki={ki} kd={kd} il={il} ds={ds}, LPES 2000" in p.stderr
-        s = b.status()
-        assert s["desired_position"] == 3000 and abs(3000 - s["real_position"]) <= 20
+# tune --save on the served bench (the gains written back with every comment kept, only the
+# gain lines changed, LPES left armed, the saved gains applied after a power cycle) is asserted
+# in the journey, tests/cli/test_journey.py, on both far ends: one served tune instead of two
 
 
 def test_scope_reads_a_moving_axis_and_saves_the_window(tmp_path, bench_profile):
