@@ -189,10 +189,13 @@ def test_rows_lost_at_the_end_are_missing_up_to_the_rows_asked():
     chip.reset()
     fp = FaultPipe(t.pipe, seed=1, to_bridge=False)  # a line towards the host, healthy so far
     t.pipe = fp
-    with chip.record_stream(1e-3, 0.5) as stream:
-        for row in stream:
-            if row.index == 399:
-                fp.into.rates.drop = 1.0  # the cable breaks
+    try:
+        with chip.record_stream(1e-3, 0.5) as stream:
+            for row in stream:
+                if row.index == 399:
+                    fp.into.rates.drop = 1.0  # the cable breaks
+    finally:  # closed here, not left to the interpreter's exit (which says it cannot stop it)
+        t.close()
     tr = stream.trace()
     assert tr.asked == 500
     assert [r.index for r in tr] == list(range(400))
