@@ -206,24 +206,12 @@ class LinkSession(Transport):
         switch failed): the next request is preceded by a HELLO (:meth:`resync`)."""
         self._need_resync = True
 
-    def await_reply(self, seq: int, deadline: float, pending: deque[Frame] | None = None, *,
-                    bad_ends_wait: bool = True, tick: Callable[[], None] | None = None,
-                    every: float = 0.0) -> Frame | None:
-        """The next frame with ``seq`` (a recording's next row), or None at ``deadline``
-        (:meth:`_await`)."""
-        return self._await(seq, deadline, pending, bad_ends_wait=bad_ends_wait, tick=tick,
-                           every=every)
-
     def count_cycles(self, ops: Sequence[BusOp], words: Sequence[int],
                      statuses: Sequence[int]) -> None:
         """Count and trace the bus cycles of ``ops`` run on the far side (a recording's row,
         as a RUN's)."""
         self._account(ops, RunReply())
         self._emit_cycles(ops, words, statuses)
-
-    def quality(self) -> str:
-        """One sentence on the measured link quality and what to check."""
-        return self._quality()
 
     def poll_events(self) -> None:
         """Read what is already waiting on the pipe (without waiting) and hand each frame the
@@ -295,9 +283,9 @@ class LinkSession(Transport):
         if (self._since_warning >= ERROR_WINDOW and len(self._attempts) == ERROR_WINDOW
                 and self.error_rate >= WARN_LINK_RATE):
             self._since_warning = 0
-            log.warning("%s: %s", self.url, self._quality())
+            log.warning("%s: %s", self.url, self.quality())
 
-    def _quality(self) -> str:
+    def quality(self) -> str:
         """One sentence on the measured link quality and what to check."""
         a = self._attempts
         failed, n = sum(a), len(a)
@@ -360,7 +348,7 @@ class LinkSession(Transport):
             deadline = clock.now() + timeout_s
             if pending is not None:
                 pending.clear()
-            frame = self._await(seq, deadline, pending, accept=accept)
+            frame = self.await_reply(seq, deadline, pending, accept=accept)
             if frame is None:
                 self._attempt(True)
                 continue
@@ -405,18 +393,18 @@ class LinkSession(Transport):
             raise self._no_answer(what, attempts)
         if fresh:  # the bridge answered HELLO: the line, not the firmware, is the suspect
             raise LinkError(f"no answer to {what} after {attempts} attempt(s): "
-                            f"{self._quality()}", port=self.url, may_have_run=True)
+                            f"{self.quality()}", port=self.url, may_have_run=True)
         if ftype not in RUN_TYPES:
             raise self._no_answer(what, attempts)
         raise LinkError(
             f"no valid answer to {what} after {attempts} attempt(s) "
             f"({self.bad_frames - bad_before} bad frame(s)): the program may or may not "
-            f"have run on the chip; {self._quality()}; then reset the chip (LM629.reset) "
+            f"have run on the chip; {self.quality()}; then reset the chip (LM629.reset) "
             "before going on.", port=self.url, may_have_run=True)
 
-    def _await(self, seq: int, deadline: float, pending: deque[Frame] | None = None, *,
-               bad_ends_wait: bool = True, tick: Callable[[], None] | None = None,
-               every: float = 0.0, accept: tuple[int, ...] | None = None) -> Frame | None:
+    def await_reply(self, seq: int, deadline: float, pending: deque[Frame] | None = None, *,
+                    bad_ends_wait: bool = True, tick: Callable[[], None] | None = None,
+                    every: float = 0.0, accept: tuple[int, ...] | None = None) -> Frame | None:
         """The next reply with ``seq``, or None at ``deadline`` (a timeout) or, with
         ``bad_ends_wait``, on a bad frame: the far end does not answer a request it could not
         read, so a request calls for a retry at once.  A recording's rows come several in one
@@ -495,7 +483,7 @@ class LinkSession(Transport):
         except TransportError:
             raise LinkError(
                 "no answer from the bridge since the last failed exchange (HELLO unanswered "
-                f"{self.retries + 1} times): nothing was sent to the chip; {self._quality()}.",
+                f"{self.retries + 1} times): nothing was sent to the chip; {self.quality()}.",
                 port=self.url, may_have_run=False) from None
         self._need_resync = False
 
