@@ -43,11 +43,10 @@ from lm629_host.bridge.protocol import (
 )
 from lm629_host.bus.program import Op
 from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
-from lm629_host.sim.build import build_bus
+from lm629_host.sim.build import SERVED_OPTIONS, build_bus, sim_options
 from lm629_host.sim.vcd import vcd_of
 from lm629_host.sim.wiring import Miswiring, wiring_of
 from lm629_host.sim.model import ChipBus, ChipModel, chips_of
-from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import UsbPipe, adapter_of, wrap_usb
 
 log = logging.getLogger("lm629_host.sim.serve")
@@ -245,7 +244,7 @@ class _PtyLine(EmuPipe):
 def emulator_far_end(url: str | PortURL) -> FarEnd:
     """The Python bridge over a chip model built from ``url``; with ``usb=`` behind that USB
     adapter (:mod:`.usb`)."""
-    model = build_bus(url, allowed=USB_OPTIONS)
+    model = build_bus(url, sim_options(url, SERVED_OPTIONS))
     adapter = adapter_of(url)
     wiring = wiring_of(url)
     if adapter is None:
@@ -263,7 +262,7 @@ def firmware_far_end(url: str | PortURL) -> FarEnd:
     from lm629_host.sim.avr import DEFAULT_BAUD, AvrPipe, AvrSim, HarnessError
 
     adapter = adapter_of(url)  # a bad usb= before the firmware is built
-    model = build_bus(url, allowed=USB_OPTIONS, limit=len(CHIP_SELECTS))
+    model = build_bus(url, sim_options(url, SERVED_OPTIONS), limit=len(CHIP_SELECTS))
     if isinstance(model, ChipBus):
         model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
     try:

@@ -35,13 +35,12 @@ from pathlib import Path
 from collections.abc import Sequence
 from typing import IO, Any, NoReturn, cast
 
-from lm629_host.urls import Option, PortURL, parse_options, query_params
+from lm629_host.urls import Option, PortURL, query_params, read_rows
 from lm629_host.sim.model import ChipBus, ChipModel
 
 #: the URL options (any simulated URL): the file, and the VCD's time unit in ns
 OPTIONS = (Option("vcd", "str", ""),
            Option("vcd_timescale", "int", 10, 1, 1000, "ns"))
-NAMES = frozenset(o.name for o in OPTIONS)
 #: the time units pyvcd (and the VCD format) allow: 1, 10 or 100 of a unit
 _TIMESCALES = (1, 10, 100, 1000)
 
@@ -68,7 +67,7 @@ def vcd_of(url: str | PortURL) -> tuple[str, int] | None:
         if "vcd_timescale" in q:
             raise ValueError(f"{url}: vcd_timescale= without vcd=FILE")
         return None
-    opts = parse_options(url, OPTIONS, ignore=set(q) - NAMES)
+    opts = read_rows(url, OPTIONS)
     if opts["vcd_timescale"] not in _TIMESCALES:
         raise ValueError(f"{url}: vcd_timescale={opts['vcd_timescale']}: a VCD time unit is "
                          f"1, 10, 100 or 1000 ns")
@@ -302,5 +301,5 @@ def close_probe(model: Any) -> None:
         model.close()
 
 
-__all__ = ["BusVcd", "DATA", "NAMES", "OPTIONS", "ProbedBus", "close_probe", "cs_name",
+__all__ = ["BusVcd", "DATA", "OPTIONS", "ProbedBus", "close_probe", "cs_name",
            "hi_name", "probe", "vcd_of"]

@@ -36,7 +36,7 @@ from lm629_host.transports.reports import (
 )
 from lm629_host.transports.keepalive import FeedingClock
 from lm629_host.transports import exiting
-from lm629_host.urls import PortURL, port_url
+from lm629_host.urls import Option, PortURL, port_url
 from lm629_host.errors import AxisError, TransportError
 from lm629_host.bus.program import (
     BusCycle,
@@ -140,6 +140,9 @@ class Transport(abc.ABC):
     scheme: str = ""
     #: True when the far side is simulated: no hardware, a fresh chip at every open
     simulated: bool = False
+    #: its URL options, one table (the board's rows first): what :meth:`from_url` parses the
+    #: URL against, once, and what a message about an unknown name lists
+    options: tuple[Option, ...] = ()
     #: bus programs under way (nested ones count): a signal handler that must not cut a
     #: program in half reads it (the CLI's)
     program_depth: int = 0
