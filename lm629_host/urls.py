@@ -290,7 +290,7 @@ class Option:
     def describe(self) -> str:
         """``name`` with its unit or choices, for the list of known options."""
         if self.choices:
-            return f"{self.name} ({'|'.join(self.choices)})"
+            return f"{self.name} ({'|'.join(c for c in self.choices if c)})"
         return f"{self.name} ({self.unit})" if self.unit else self.name
 
 

@@ -38,8 +38,15 @@ from typing import IO, Any, NoReturn, cast
 from lm629_host.urls import Option, PortURL, query_params, read_rows
 from lm629_host.sim.model import ChipBus, ChipModel
 
+def _vcd_file(text: str, url: Any) -> str:
+    if not text.strip():
+        raise ValueError(f"{url}: vcd= is empty: give the file to write (vcd=bus.vcd) or "
+                         "leave vcd= out")
+    return text
+
+
 #: the URL options (any simulated URL): the file, and the VCD's time unit in ns
-OPTIONS = (Option("vcd", "str", ""),
+OPTIONS = (Option("vcd", "str", "", check=_vcd_file),
            Option("vcd_timescale", "int", 10, 1, 1000, "ns"))
 #: the time units pyvcd (and the VCD format) allow: 1, 10 or 100 of a unit
 _TIMESCALES = (1, 10, 100, 1000)
@@ -60,9 +67,8 @@ def hi_name(chip: int) -> str:
 def vcd_of(url: str | PortURL) -> tuple[str, int] | None:
     """The URL's ``vcd=`` file and ``vcd_timescale=`` (None: no VCD asked for)."""
     q = query_params(url)
-    if "vcd" in q and not q["vcd"].strip():
-        raise ValueError(f"{url}: vcd= is empty: give the file to write (vcd=bus.vcd) or "
-                         "leave vcd= out")
+    if "vcd" in q:
+        _vcd_file(q["vcd"], url)
     if not q.get("vcd"):
         if "vcd_timescale" in q:
             raise ValueError(f"{url}: vcd_timescale= without vcd=FILE")
