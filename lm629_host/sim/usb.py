@@ -219,10 +219,10 @@ class Cdc(Adapter):
         return "cdc (native full-speed device)"
 
 
-def adapter_of(url: str | PortURL) -> Adapter | None:
+def adapter_of(url: str | PortURL, options: dict[str, Any] | None = None) -> Adapter | None:
     """The adapter that ``url``'s ``usb=`` names (None for ``usb=none``); ValueError for a bad
     value.  The URL's other parameters are someone else's."""
-    opts = read_rows(url, OPTIONS)
+    opts = read_rows(url, OPTIONS) if options is None else options
     kind = opts["usb"]
     if "latency_ms" in query_params(url) and kind != "ftdi":
         raise ValueError(f"{url}: latency_ms= is the FTDI latency timer: it needs usb=ftdi")
@@ -326,10 +326,10 @@ class UsbPipe:
         self.inner.close()
 
 
-def wrap_usb(pipe: Any, url: str | PortURL) -> Any:
+def wrap_usb(pipe: Any, url: str | PortURL, options: dict[str, Any] | None = None) -> Any:
     """``pipe`` behind the USB adapter that ``url``'s ``usb=`` names (``pipe`` itself for
-    ``usb=none``)."""
-    adapter = adapter_of(url)
+    ``usb=none``); ``options``: the URL as its transport parsed it."""
+    adapter = adapter_of(url, options)
     return pipe if adapter is None else UsbPipe(pipe, adapter)
 
 

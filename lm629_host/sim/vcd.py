@@ -64,8 +64,9 @@ def hi_name(chip: int) -> str:
     return "hi" if chip == 0 else f"hi{chip}"
 
 
-def vcd_of(url: str | PortURL) -> tuple[str, int] | None:
-    """The URL's ``vcd=`` file and ``vcd_timescale=`` (None: no VCD asked for)."""
+def vcd_of(url: str | PortURL, options: dict[str, Any] | None = None) -> tuple[str, int] | None:
+    """The URL's ``vcd=`` file and ``vcd_timescale=`` (None: no VCD asked for); ``options``:
+    the URL as its transport parsed it (None: these rows read from ``url``)."""
     q = query_params(url)
     if "vcd" in q:
         _vcd_file(q["vcd"], url)
@@ -73,7 +74,7 @@ def vcd_of(url: str | PortURL) -> tuple[str, int] | None:
         if "vcd_timescale" in q:
             raise ValueError(f"{url}: vcd_timescale= without vcd=FILE")
         return None
-    opts = read_rows(url, OPTIONS)
+    opts = read_rows(url, OPTIONS) if options is None else options
     if opts["vcd_timescale"] not in _TIMESCALES:
         raise ValueError(f"{url}: vcd_timescale={opts['vcd_timescale']}: a VCD time unit is "
                          f"1, 10, 100 or 1000 ns")

@@ -88,9 +88,11 @@ def _wiring(url: str | PortURL) -> tuple[Miswiring | None, frozenset[str]]:
     return value
 
 
-def wiring_of(url: str | PortURL) -> Miswiring | None:
+def wiring_of(url: str | PortURL, options: dict[str, Any] | None = None) -> Miswiring | None:
     """The URL's miswired data lines (None: a correct data bus), which every far end bends
-    its bytes with."""
+    its bytes with; ``options``: the URL as its transport parsed it."""
+    if options is not None:
+        return (options.get("wiring") or (None, frozenset()))[0]
     return _wiring(url)[0]
 
 

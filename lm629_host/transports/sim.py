@@ -166,11 +166,12 @@ class SimTransport(ModelChips, CycleTransport):
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimTransport:
-        model = build_bus(url, sim_options(url, cls.options))  # the one parse of the URL
-        vcd = vcd_of(url)
+        opts = sim_options(url, cls.options, defaults=True)  # the one parse of the URL
+        model = build_bus(url, opts)
+        vcd = vcd_of(url, opts)
         if vcd is not None:  # the bus drawn into a VCD: every busy poll made, as on a bench
             model = probe(model, *vcd, cycle_clocks=max(1, round(CYCLE_S * model.clock_hz)))
-        t = cls(model, url, trace=trace, wiring=wiring_of(url))
+        t = cls(model, url, trace=trace, wiring=wiring_of(url, opts))
         t.skip_known_busy = t.skip_known_busy and vcd is None
         return t
 

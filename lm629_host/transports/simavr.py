@@ -83,8 +83,8 @@ class SimAvrTransport(ModelChips, LinkTransport):
         model = build_bus(url, opts, limit=len(CHIP_SELECTS))
         if hasattr(model, "lines"):
             model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
-        vcd = vcd_of(url)
-        sim = AvrSim(model, firmware, wiring=wiring_of(url))
+        vcd = vcd_of(url, opts)
+        sim = AvrSim(model, firmware, wiring=wiring_of(url, opts))
         if vcd is not None:
             sim.write_vcd(*vcd)
         return cls(sim, url, trace=trace, baud=baud, fast_baud=opts["fast_baud"],

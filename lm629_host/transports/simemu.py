@@ -96,10 +96,10 @@ def open_emulated(url: str | PortURL = "sim://", *, baud: int | None = None,
     # bridge=1: a one-chip bridge (firmware 1.0: no chip selects); else the multi-axis HELLO
     info = ONE_CHIP_INFO if opts["bridge"] == "1" else MULTI_AXIS_INFO
     model = build_bus(url, opts, limit=info.chip_selects)
-    vcd = vcd_of(url)
+    vcd = vcd_of(url, opts)
     if vcd is not None:  # the bridge's strobes drawn into a VCD, one bus cycle each
         model = probe(model, *vcd, cycle_clocks=max(1, round(BUS_CYCLE_S * model.clock_hz)))
-    emu = BridgeEmulator(model, info, wiring=wiring_of(url))
+    emu = BridgeEmulator(model, info, wiring=wiring_of(url, opts))
     pipe = EmuPipe(emu, baud=baud or None, max_baud=opts["max_baud"] or None)
     outer = wrap_usb(wrap(pipe) if wrap is not None else pipe, url)
     usb = getattr(outer, "adapter", None)

@@ -82,8 +82,8 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
         live = {"auto": None, "0": False, "1": True}[str(opts["live_status"]).lower()]
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
                                 busy_pin=busy_pin is not None, live_status=live,
-                                wiring=wiring_of(url))
-        vcd = vcd_of(url)
+                                wiring=wiring_of(url, opts))
+        vcd = vcd_of(url, opts)
         if vcd is not None:
             device.write_vcd(*vcd)
         backend = EmulatedBackend([device])
