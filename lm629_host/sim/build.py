@@ -11,7 +11,7 @@ from lm629_host.errors import AxisError
 from lm629_host.bus.opcodes import BUSY_WORST_CASE_S, POSITION_MAX, POSITION_MIN, Cmd
 from typing import Any
 
-from lm629_host.bus.url_board import BOARD_ROWS
+from lm629_host.bus.url_board import BOARD, BOARD_ROWS
 from lm629_host.urls import Option, PortURL, dataclass_options, parse_options, query_params
 from lm629_host.sim.model import ChipBus, ChipModel, ChipParams, MotorParams
 from lm629_host.sim.usb import OPTIONS as USB_ROWS
@@ -131,13 +131,8 @@ MAX_AXES = 8
 
 def axes_of(url: str | PortURL, limit: int = MAX_AXES) -> int:
     """The URL's ``axes=`` (default 1), checked against ``limit`` chip selects."""
-    raw = query_params(url).get("axes", "1")
-    try:
-        n = int(raw)
-    except ValueError:
-        raise ValueError(f"{url}: axes={raw!r} is not a whole number of chips") from None
-    if n < 1:
-        raise ValueError(f"{url}: axes={n}: a bus needs at least one chip")
+    raw = query_params(url).get("axes")
+    n = 1 if raw is None else BOARD["axes"].convert(raw, url)  # the board's row: one rule
     if n > limit:
         raise AxisError(n - 1, limit, f"the simulated adapter of {url}")
     return n

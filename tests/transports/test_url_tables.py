@@ -11,7 +11,7 @@ import pytest
 
 from lm629_host.bus.url_board import BOARD, BOARD_ROWS
 from lm629_host.errors import ArgumentError
-from lm629_host.sim.build import ALIASES, MODEL_ROWS, SERVED_OPTIONS, TWIN_ROWS
+from lm629_host.sim.build import ALIASES, MODEL_ROWS, SERVED_OPTIONS, TWIN_ROWS, build_bus
 from lm629_host.sim.usb import OPTIONS as USB_ROWS
 from lm629_host.sim.vcd import OPTIONS as VCD_ROWS
 from lm629_host.sim.wiring import OPTION as WIRING
@@ -97,5 +97,8 @@ def test_the_board_s_url_values_are_checked_by_the_table_s_rows():
             resolve_port(url)
         with pytest.raises(ArgumentError) as by_transport:
             transport_class("sim://").from_url(url)
-        assert str(by_row.value) == str(by_port.value) == str(by_transport.value)
+        with pytest.raises(ArgumentError) as by_model:  # the simulator's builder alone
+            build_bus(url)
+        assert str(by_row.value) == str(by_port.value) == str(by_transport.value) == \
+            str(by_model.value)
         assert by_port.value.argument == name
