@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any, overload
 from urllib.parse import parse_qsl, urlencode, urlsplit
 
-__all__ = ["BOARD_OPTIONS", "Option", "PortURL", "port_url", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
+__all__ = ["Option", "PortURL", "port_url", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
            "query_params", "scheme_of", "read_rows", "split_params", "table_names", "with_defaults", "with_query"]
 
 #: the words a boolean option takes (an empty value, ``?strict``, means true)
@@ -298,12 +298,6 @@ def _fmt(v: float | None) -> str:
     if v is None:
         return ""
     return str(int(v)) if float(v).is_integer() and abs(v) < 1e12 else f"{v:g}"
-
-
-#: the options that describe the board, taken on any URL (their rows:
-#: :data:`lm629_host.bus.url_board.BOARD_ROWS`, in every transport's table;
-#: lm629_host.transports.ports takes them out before a hardware transport opens)
-BOARD_OPTIONS = frozenset({"chip", "clock", "axes", "cs"})
 
 
 def parse_options(url: str | PortURL, options: Iterable[Option], *, what: str = "",

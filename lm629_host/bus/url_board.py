@@ -66,6 +66,8 @@ BOARD_ROWS = (
     Option("cs", check=_whole_in_url("cs", 0, CS_WHAT)),
 )
 BOARD = {o.name: o for o in BOARD_ROWS}
+#: their names (lm629_host.transports.ports takes them out before a hardware transport opens)
+BOARD_OPTIONS = frozenset(BOARD)
 
-__all__ = ["AXES_WHAT", "BOARD", "BOARD_ROWS", "CHIPS", "CLOCK_MAX_HZ", "CLOCK_MIN_HZ",
+__all__ = ["AXES_WHAT", "BOARD", "BOARD_OPTIONS", "BOARD_ROWS", "CHIPS", "CLOCK_MAX_HZ", "CLOCK_MIN_HZ",
            "CS_WHAT", "check_clock"]

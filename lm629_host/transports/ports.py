@@ -39,8 +39,8 @@ from lm629_host.errors import ArgumentError
 from lm629_host.bus.program import TraceCallback
 from lm629_host.transports import BUILTIN, DEFAULT_URL, URL_SCHEMES, registry, transport_class
 from lm629_host.transports.base import Transport
-from lm629_host.bus.url_board import AXES_WHAT, BOARD, CHIPS, CS_WHAT, check_clock
-from lm629_host.urls import (BOARD_OPTIONS, PortURL, parse_hz, port_url, scheme_of,
+from lm629_host.bus.url_board import AXES_WHAT, BOARD, BOARD_OPTIONS, CHIPS, CS_WHAT, check_clock
+from lm629_host.urls import (PortURL, parse_hz, port_url, scheme_of,
                              split_params, with_query)
 
 @dataclass(frozen=True)
