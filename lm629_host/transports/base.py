@@ -191,6 +191,19 @@ class Transport(abc.ABC):
         "a call on a closed port raises, saying closed" (:meth:`check_open`) holds for every
         transport, an entry point's too, without each one keeping it."""
         super().__init_subclass__(**kwargs)
+        init = cls.__dict__.get("__init__")
+        if init is not None and init not in _MARKING_CLOSE:
+            # a transport whose making failed was never handed to anyone: the exit does not
+            # close it (half made, it may lack what its close needs)
+            @functools.wraps(init)
+            def made(self: Transport, *args: Any, **kw: Any) -> None:
+                try:
+                    init(self, *args, **kw)
+                except BaseException:
+                    exiting.forget(self)
+                    raise
+            _MARKING_CLOSE.add(made)
+            cls.__init__ = made  # type: ignore[method-assign]  # the subclass's own, wrapped
         own = cls.__dict__.get("close")
         if own is None or own in _MARKING_CLOSE:
             return
