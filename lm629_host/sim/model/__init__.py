@@ -3,9 +3,10 @@
 The model knows nothing of the driver: it is driven one bus cycle at a time through
 :class:`ChipModel`, by the ``sim://`` transport, the simavr harness or the emulated FT232H.
 
-Modules: :mod:`.chip` (host interface and command decoder), :mod:`.motion` (what happens at
-each sample), :mod:`.trajectory`, :mod:`.motor`, :mod:`.params` (every number), :mod:`.fastloop`
-and ``_fastloop.c`` (the same sample loop flattened, for speed).  The PID filter's arithmetic is
+Modules: :mod:`.chip` (host interface and registers), :mod:`.commands` (what a finished command
+does: LTRJ, LFIL, STT, interrupts, reads), :mod:`.motion` (what happens at each sample),
+:mod:`.trajectory`, :mod:`.motor`, :mod:`.params` (every number), :mod:`.fastloop` and
+``_fastloop.c`` (the same sample loop flattened, for speed).  The PID filter's arithmetic is
 the driver's :mod:`lm629_host.physics.pid` (the tuner and the step plot use it too).
 
 Model choices

@@ -1,4 +1,4 @@
-"""Software model of an LM628/LM629: the host interface and the command decoder.
+"""Software model of an LM628/LM629: the host interface and the registers.
 
 The model is driven one bus cycle at a time, as the pins would drive it:
 :meth:`ChipModel.read_status`, :meth:`write_command`, :meth:`write_data` and
@@ -11,7 +11,9 @@ clock.
 What happens at the sample tick (every 2048 clocks) is delegated to :class:`~.motion.Motion`:
 trajectory generator, PID filter, output stage, motor and encoder.  This module keeps the
 registers the host sees (status, signals, mask, buffers) and the events that are pure register
-logic (breakpoint, excessive position error).
+logic (breakpoint, excessive position error).  What a finished command does to them (LTRJ,
+LFIL, STT, the interrupt commands, the data-reporting reads) is :mod:`.commands`'
+:class:`~.commands.CommandDecoder`, a mixin of :class:`ChipModel`.
 
 The model knows nothing of the driver: it takes bytes and answers bytes.
 
@@ -42,25 +44,17 @@ from collections.abc import Callable
 from lm629_host.errors import ProtocolViolation
 from lm629_host.bus.opcodes import (
     wrap_counts,
-    lfil_interval,
     BUSY_BIT,
     COEFFICIENT_MAX,
     COMMANDS,
-    FILTER_ORDER,
     INTERRUPTS,
     SAMPLE_CLOCKS,
-    STOP_FLAGS,
-    VELOCITY_MAX,
     Cmd,
     Direction,
     Signals,
     Status,
-    TrajectoryFlags,
-    lfil_word_count,
-    ltrj_word_count,
-    s32,
-    s32_words,
 )
+from lm629_host.sim.model.commands import CommandDecoder
 from lm629_host.sim.model.fastloop import py_loop, run_fast
 from lm629_host.sim.model.motion import Motion
 from lm629_host.sim.model.params import ChipParams, MotorParams
@@ -73,16 +67,6 @@ _MOTOR_OFF = int(Status.MOTOR_OFF)
 _CMD_ERROR = int(Status.COMMAND_ERROR)
 _TRAJ_DONE = int(Status.TRAJECTORY_COMPLETE)
 _INTERRUPTS = int(INTERRUPTS)
-_BREAKPOINT = int(Status.BREAKPOINT)
-_MODE_BITS = int(TrajectoryFlags.VELOCITY_MODE | TrajectoryFlags.FORWARD)
-#: LTRJ's stop bits, and its words in the order they follow the control word: (bit, the
-#: bit of its relative flag, the buffer's field), as plain ints (an IntFlag's operators are
-#: Python calls: a quarter of an LTRJ's host cost on sim://)
-_STOP_BITS = int(STOP_FLAGS)
-_ACCELERATION_BIT = int(TrajectoryFlags.ACCELERATION)
-_TRAJECTORY_WORDS = tuple((int(f), int(f) >> 1, name) for f, name in (
-    (TrajectoryFlags.ACCELERATION, "acceleration"), (TrajectoryFlags.VELOCITY, "velocity"),
-    (TrajectoryFlags.POSITION, "position")))
 #: signals bits 7..1 repeat the status byte (the rest of the signals word is kept apart)
 _STATUS_IN_SIGNALS = int(INTERRUPTS | Status.MOTOR_OFF)
 
@@ -153,7 +137,7 @@ def _sample_loop(choice: str) -> Callable[[tuple, tuple], tuple] | None:
     return run
 
 
-class ChipModel:
+class ChipModel(CommandDecoder):
     """One LM628 or LM629 with its motor, as seen from its pins."""
 
     # set by _reset_registers (declared here: the sample loop reads them before, in the file)
@@ -522,161 +506,6 @@ class ChipModel:
         if not self._out:
             self._dir = Direction.NONE
         return word & 0xFF
-
-    # ------------------------------------------------------------------ command execution
-    def _accept_word(self, word: int) -> None:
-        cmd = Cmd(self._cmd)  # type: ignore[arg-type]  # a command is under way: _cmd is set
-        self._words.append(word)
-        self._words_left -= 1
-        if len(self._words) == 1 and cmd is Cmd.LFIL:
-            self._words_left += lfil_word_count(word)
-        elif len(self._words) == 1 and cmd is Cmd.LTRJ:
-            self._words_left += ltrj_word_count(word)
-        if self._words_left == 0:
-            words, self._words = self._words, []
-            self._dir = Direction.NONE
-            if self.params.record and self.history:
-                self.history[-1] = (self.history[-1][0], tuple(words))
-            self._execute(cmd, words)
-
-    def _read_words(self, cmd: Cmd) -> list[int]:
-        m = self.motion
-        if cmd is Cmd.RDSIGS:
-            return [self.signals]
-        if cmd is Cmd.RDRV:
-            return [m.real_velocity & 0xFFFF]
-        if cmd is Cmd.RDSUM:
-            return [m.integration_sum & 0xFFFF]
-        value = {
-            Cmd.RDDV: m.desired_velocity,
-            Cmd.RDDP: m.desired_position,
-            Cmd.RDIP: m.index_position,
-            Cmd.RDRP: m.real_position,
-        }[cmd] & 0xFFFFFFFF
-        return [value >> 16, value & 0xFFFF]
-
-    def _execute(self, cmd: Cmd, words: list[int]) -> None:
-        m = self.motion
-        if cmd is Cmd.STT:
-            buf = self.trajectory
-            if not m.start(buf):
-                # [model choice 13] refused and ignored: the input buffer keeps what was
-                # loaded (signals bit 14 included) for an STT that can execute it, except a
-                # value out of range, which start() dropped
-                self._command_error_silent()
-                if not buf.loaded & TrajectoryFlags.ACCELERATION:
-                    self.signals_extra &= ~Signals.ACCELERATION_LOADED
-                return
-            stop = buf.stop
-            self._update_rate(stop)
-            buf.loaded = 0
-            buf.stop = 0  # [model choice 13] a stop bit acts once
-            self.signals_extra &= ~Signals.ACCELERATION_LOADED
-            if stop & TrajectoryFlags.MOTOR_OFF:
-                self.turn_motor_off()
-            else:
-                self.motor_off = False
-        elif cmd is Cmd.DFH:
-            m.define_home()
-        elif cmd is Cmd.SIP:
-            self.signals_extra |= Signals.ACQUIRE_INDEX
-            m.arm_index()
-        elif cmd is Cmd.UDF:
-            self._udf_pending = True
-        elif cmd is Cmd.PORT8:
-            self.signals_extra |= Signals.EIGHT_BIT_OUTPUT
-        elif cmd is Cmd.PORT12:
-            if self.params.variant == "lm629":
-                # [model choice 4] the LM629 has no 12-bit port; a correct host may send it
-                # once to learn which part it talks to (lm629 selftest): no violation
-                self._command_error_silent()
-            else:
-                self.signals_extra &= ~Signals.EIGHT_BIT_OUTPUT
-        elif cmd in (Cmd.LPES, Cmd.LPEI):
-            self.position_error_threshold = words[0]
-            if cmd is Cmd.LPES:
-                self.signals_extra |= Signals.STOP_ON_ERROR
-            else:
-                self.signals_extra &= ~Signals.STOP_ON_ERROR
-        elif cmd is Cmd.MSKI:
-            self.mask = words[0] & _INTERRUPTS
-        elif cmd is Cmd.RSTI:
-            self.flags &= (words[0] & _INTERRUPTS) | ~_INTERRUPTS
-            # [model choice 19] the breakpoint condition is level-held: cleared while the
-            # desired position sits on the breakpoint, bit 6 reads 1 again at once
-            if m.desired_position == self.breakpoint:
-                self.flags |= _BREAKPOINT
-        elif cmd is Cmd.LFIL:
-            self._load_filter(words)
-        elif cmd is Cmd.LTRJ:
-            self._load_trajectory(words)
-        elif cmd in (Cmd.SBPA, Cmd.SBPR):
-            value = s32_words(words[0], words[1])
-            if cmd is Cmd.SBPR:
-                value = s32(m.target_position + value)
-            self.breakpoint = value
-
-    def _update_rate(self, stop: int) -> None:
-        """An executed STT [model choice 34]: one within ``update_s`` of the last aborts the
-        trajectory calculation in progress (the next sample keeps the output), and is a host
-        protocol violation unless it stops the motor (AN-706 4.6.2)."""
-        last, self._last_stt = self._last_stt, self.tick
-        window = round(self.params.update_s * self.clock_hz)
-        if last is None or self.tick - last >= window:
-            return
-        self.motion.abort_pending = True
-        if not stop:
-            self._violation(f"STT {(self.tick - last) / self.clock_hz * 1e3:.2f} ms after the "
-                            f"last one: the chip aborts the trajectory calculation (AN-706 4.6.2:"
-                            f" at most one update per {self.params.update_s * 1e3:g} ms)")
-
-    def _command_error_silent(self) -> None:
-        """A command error that a correct host can provoke (not a protocol violation)."""
-        self.flags |= _CMD_ERROR
-
-    def _load_filter(self, words: list[int]) -> None:
-        control, values = words[0], iter(words[1:])
-        buf = self.filter_buffer
-        buf.ds = lfil_interval(control)
-        for flag in FILTER_ORDER:
-            if control & flag:
-                setattr(buf, (flag.name or "").lower(), next(values))
-
-    def _load_trajectory(self, words: list[int]) -> None:
-        control, values = words[0], iter(words[1:])
-        buf = self.trajectory
-        out_of_range: list[str] = []
-        buf.control = control
-        # [model choice 27] an LTRJ with a stop bit only stops: its mode bits do not replace
-        # the running trajectory's; any other LTRJ sets the mode and cancels a pending stop
-        buf.stop = control & _STOP_BITS
-        if not buf.stop:
-            buf.mode = control & _MODE_BITS
-        for flag, relative, name in _TRAJECTORY_WORDS:
-            if not control & flag:
-                continue
-            word = (next(values) << 16) | next(values)
-            if name == "position" or control & relative:
-                value = s32(word)
-            else:
-                value = word
-                if word > VELOCITY_MAX:  # == ACCELERATION_MAX
-                    # [model choice 30] outside the 30-bit range (AN-706 2.7): the STT that
-                    # would execute it is refused; a correct host never sends it
-                    out_of_range.append(f"LTRJ {name} word {word:08X} is above 3FFFFFFF "
-                                        "(AN-706 2.7: 30-bit unsigned range)")
-            if control & relative and buf.loaded & flag:
-                # [model choice 29] relative to the value previously loaded (not yet started)
-                value += getattr(buf, name)
-                keep = buf.loaded & relative  # absolute + relative stays absolute
-            else:
-                keep = control & relative
-            setattr(buf, name, value)
-            buf.loaded = (buf.loaded & ~(flag | relative)) | flag | keep
-        if control & _ACCELERATION_BIT:
-            self.signals_extra |= Signals.ACCELERATION_LOADED
-        for what in out_of_range:
-            self._violation(what)
 
     # ------------------------------------------------------------------ conveniences
     def set_motor_params(self, **values: object) -> None:
