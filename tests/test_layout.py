@@ -511,9 +511,8 @@ OVERSIZE = {
     # the link's parts behind interfaces, its options declared once: being reworked
     "lm629_host/transports/serial.py": 706,
     "LinkSession": 463,
-    # one job each, long: the wire format shared with the firmware, the chip model, the
-    # emulated FT232H, the simavr harness, the served far end
-    "lm629_host/bridge/protocol.py": 834,
+    # one job each, long: the chip model, the emulated FT232H, the simavr harness, the served
+    # far end
     "lm629_host/sim/model/chip.py": 706,
     "ChipModel": 551,
     "lm629_host/sim/ftdi/device.py": 636,
