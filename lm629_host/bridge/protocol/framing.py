@@ -168,7 +168,6 @@ class FrameReader:
         self._overflow = False
 
 
-
 def wire_size(decoded: int) -> int:
     """Bytes on the wire for a decoded frame of ``decoded`` bytes (COBS overhead, delimiter).
     An upper bound: COBS adds one byte per started 254-byte block, plus the code byte."""

@@ -13,6 +13,7 @@ from lm629_host.bridge.protocol.framing import FrameError
 from lm629_host.bus.opcodes import Status
 from lm629_host.bus.program import OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program
 
+#: the status byte's busy bit: RUN_SHORT_REPLY carries HI in it (see short_reply_payload)
 _STATUS_BUSY = int(Status.BUSY)
 
 
