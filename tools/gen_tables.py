@@ -3,7 +3,7 @@
 
 Bus operation codes and their argument sizes (``lm629_host/bus/program.py``), the chip's opcodes
 and status bits (``lm629_host/bus/opcodes.py``), the link protocol constants
-(``lm629_host/bridge/protocol.py:c_defines``) and the pin map (``lm629_host/wiring/uno.py``) each have one
+(``lm629_host/bridge/protocol/tables.py:c_defines``) and the pin map (``lm629_host/wiring/uno.py``) each have one
 definition in Python; the firmware includes this generated header instead of a second copy.
 ``tests/test_firmware_tables.py`` fails when the committed header is stale.
 
@@ -20,7 +20,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from lm629_host.wiring import uno as pins  # noqa: E402 - after sys.path.insert
-from lm629_host.bridge.protocol import _CRC_TABLE, FAILSAFE_FEED, c_defines  # noqa: E402 - after sys.path.insert
+from lm629_host.bridge.protocol.failsafe import FAILSAFE_FEED  # noqa: E402 - after sys.path.insert
+from lm629_host.bridge.protocol.framing import _CRC_TABLE  # noqa: E402 - after sys.path.insert
+from lm629_host.bridge.protocol.tables import c_defines  # noqa: E402 - after sys.path.insert
 from lm629_host.bus.opcodes import Cmd, Status  # noqa: E402 - after sys.path.insert
 from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, OP_ARG_BYTES, WAIT_STATUS_POLL_US, Op  # noqa: E402 - after sys.path.insert
 from generated import write_or_check  # noqa: E402 - after sys.path.insert

@@ -52,7 +52,7 @@ from lm629_host.chip.safety import stop_at_exit, stop_if_moving
 from lm629_host.transports.base import Transport
 
 if TYPE_CHECKING:
-    from lm629_host.bridge.protocol import FailsafeState
+    from lm629_host.bridge.protocol.failsafe import FailsafeState
     from lm629_host.chip.batch import Batch
 
 #: busy timeout bounds: "well above" the chip's 100 us worst case; 65.535 ms is the largest a

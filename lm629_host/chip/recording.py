@@ -21,7 +21,7 @@ from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
-from lm629_host.bridge.protocol import FAST_BAUD
+from lm629_host.bridge.protocol.constants import FAST_BAUD
 from lm629_host.errors import ArgumentError, LM629Error, TransportError
 from lm629_host.bus.opcodes import Cmd, Signals, Status, s32_words
 from lm629_host.physics.pid import sample_period_s

@@ -51,7 +51,7 @@ from lm629_host.transports.base import Transport
 
 if TYPE_CHECKING:
     from lm629_host.chip.batch import Batch
-    from lm629_host.bridge.protocol import FailsafeState
+    from lm629_host.bridge.protocol.failsafe import FailsafeState
     from lm629_host.config.profile import Profile
 
 log = logging.getLogger("lm629_host")

@@ -34,7 +34,7 @@ import sys
 import threading
 from pathlib import Path
 
-from lm629_host.bridge.protocol import CODE_BYTES, CODE_SLOTS, PROFILE_MAX_SCHEDULE
+from lm629_host.bridge.protocol.constants import CODE_BYTES, CODE_SLOTS, PROFILE_MAX_SCHEDULE
 from lm629_host.clock import Clock
 from lm629_host.errors import ProtocolViolation, TransportError
 from lm629_host.sim.wiring import Miswiring

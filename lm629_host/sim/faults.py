@@ -15,7 +15,7 @@ import random
 from collections import deque
 from dataclasses import dataclass, field
 
-from lm629_host.bridge.protocol import Pipe
+from lm629_host.bridge.protocol.pipe import Pipe
 
 
 @dataclass

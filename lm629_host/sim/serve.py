@@ -33,14 +33,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from lm629_host.urls import PortURL
-from lm629_host.bridge.protocol import (
-    MAX_WIRE_FRAME,
-    BadProgram,
-    Frame,
-    FrameReader,
-    FrameType,
-    decode_program,
-)
+from lm629_host.bridge.protocol.constants import MAX_WIRE_FRAME, FrameType
+from lm629_host.bridge.protocol.framing import Frame, FrameReader
+from lm629_host.bridge.protocol.run import BadProgram, decode_program
 from lm629_host.bus.program import Op
 from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
 from lm629_host.sim.build import SERVED_OPTIONS, build_bus, sim_options

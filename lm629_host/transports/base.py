@@ -46,7 +46,7 @@ from lm629_host.bus.program import (
 )
 
 if TYPE_CHECKING:
-    from lm629_host.bridge.protocol import FailsafeState
+    from lm629_host.bridge.protocol.failsafe import FailsafeState
 
 log = logging.getLogger("lm629_host.bus")
 

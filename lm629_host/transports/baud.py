@@ -7,14 +7,9 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
-from lm629_host.bridge.protocol import (
-    BAUD_WINDOW_MS,
-    Capability,
-    FrameType,
-    HelloInfo,
-    Result,
-    wire_size,
-)
+from lm629_host.bridge.protocol.constants import BAUD_WINDOW_MS, Capability, FrameType, Result
+from lm629_host.bridge.protocol.framing import wire_size
+from lm629_host.bridge.protocol.hello import HelloInfo
 from lm629_host.errors import TransportError
 
 if TYPE_CHECKING:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 
-from lm629_host.bridge.protocol import CODE_SLOTS, FrameType
+from lm629_host.bridge.protocol.constants import CODE_SLOTS, FrameType
 
 
 class ProgramCodes:

@@ -23,20 +23,9 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from lm629_host.bridge.protocol import (
-    FAILSAFE_FEED,
-    FAILSAFE_MAX_MS,
-    FAILSAFE_MIN_MS,
-    FailsafeAction,
-    FailsafeCmd,
-    FailsafeState,
-    Frame,
-    FrameError,
-    FrameType,
-    Result,
-    encode_frame,
-    wire_size,
-)
+from lm629_host.bridge.protocol.constants import FAILSAFE_MAX_MS, FAILSAFE_MIN_MS, FailsafeAction, FailsafeCmd, FrameType, Result
+from lm629_host.bridge.protocol.failsafe import FAILSAFE_FEED, FailsafeState
+from lm629_host.bridge.protocol.framing import Frame, FrameError, encode_frame, wire_size
 from lm629_host.errors import FailsafeTripped, TransportError
 from lm629_host.transports.keepalive import KeepAlive, on_wall_clock
 from lm629_host.urls import Option, PortURL, read_rows

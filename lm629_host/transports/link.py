@@ -23,7 +23,7 @@ import logging
 import statistics
 from collections.abc import Iterator, Sequence
 
-from lm629_host.bridge.protocol import (
+from lm629_host.bridge.protocol.constants import (
     CODE_BYTES,
     FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
     MAX_FRAME,
@@ -33,21 +33,14 @@ from lm629_host.bridge.protocol import (
     RUN_OVERHEAD,
     RUN_REPLY_OVERHEAD,
     Capability,
-    FailsafeState,
-    Frame,
-    FrameError,
     FrameType,
-    HelloInfo,
-    Pipe,
     Result,
-    RunReply,
-    busy_timeout_us,
-    decode_short_reply,
-    encode_program,
-    reply_size,
-    run_payload,
-    wire_size,
 )
+from lm629_host.bridge.protocol.failsafe import FailsafeState
+from lm629_host.bridge.protocol.framing import Frame, FrameError, wire_size
+from lm629_host.bridge.protocol.hello import HelloInfo
+from lm629_host.bridge.protocol.pipe import Pipe
+from lm629_host.bridge.protocol.run import RunReply, busy_timeout_us, decode_short_reply, encode_program, reply_size, run_payload
 from lm629_host.bus.program import (
     OP_ARG_BYTES,
     STATUS_OPS,

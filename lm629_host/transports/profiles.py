@@ -9,15 +9,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from lm629_host.bridge.protocol import (
-    PROFILE_MAX_PIECES,
-    PROFILE_MAX_SCHEDULE,
-    PROFILE_REPLY_PAYLOAD,
-    FrameType,
-    Result,
-    profile_payload,
-    wire_size,
-)
+from lm629_host.bridge.protocol.constants import PROFILE_MAX_PIECES, PROFILE_MAX_SCHEDULE, FrameType, Result
+from lm629_host.bridge.protocol.framing import wire_size
+from lm629_host.bridge.protocol.profile import PROFILE_REPLY_PAYLOAD, profile_payload
 from lm629_host.errors import TransportError
 from lm629_host.transports.reports import ProfileState
 

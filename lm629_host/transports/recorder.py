@@ -9,24 +9,17 @@ from collections import deque
 from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING, cast
 
-from lm629_host.bridge.protocol import (
-    END_PAYLOAD,
+from lm629_host.bridge.protocol.constants import (
     FIRMWARE_DEFAULT_BUSY_TIMEOUT_US,
     NONE_BYTE,
     RECORD_MIN_PERIOD_US,
     RECORD_TICK_US,
-    ROW_HEADER,
-    BadProgram,
-    Frame,
-    FrameError,
     FrameType,
     Result,
-    check_record_program,
-    decode_short_reply,
-    record_payload,
-    row_wire_bytes,
-    wire_size,
 )
+from lm629_host.bridge.protocol.framing import Frame, FrameError, wire_size
+from lm629_host.bridge.protocol.record import END_PAYLOAD, ROW_HEADER, check_record_program, record_payload, row_wire_bytes
+from lm629_host.bridge.protocol.run import BadProgram, decode_short_reply
 from lm629_host.bus.program import BusOp, Op, Program
 from lm629_host.errors import BusyTimeout, LinkError, TransportError
 from lm629_host.transports.reports import RawRow

@@ -40,7 +40,7 @@ try:  # POSIX only: pyserial's reset_input_buffer on a tty lets termios.error th
 except ImportError:  # pragma: no cover - Windows
     _TermiosError = OSError  # type: ignore[assignment,misc]  # nothing else to catch there
 
-from lm629_host.bridge.protocol import FAST_BAUD
+from lm629_host.bridge.protocol.constants import FAST_BAUD
 from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import TransportError
 from lm629_host.bus.program import TraceCallback

@@ -14,21 +14,11 @@ import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 
-from lm629_host.bridge.protocol import (
-    ALSO_REPLY_TO,
-    REPLY_TO,
-    RUN_TYPES,
-    Frame,
-    FrameError,
-    FrameReader,
-    FrameType,
-    MAX_PING,
-    HelloInfo,
-    RunReply,
-    Pipe,
-    encode_frame,
-    wire_size,
-)
+from lm629_host.bridge.protocol.constants import ALSO_REPLY_TO, REPLY_TO, RUN_TYPES, FrameType, MAX_PING
+from lm629_host.bridge.protocol.framing import Frame, FrameError, FrameReader, encode_frame, wire_size
+from lm629_host.bridge.protocol.hello import HelloInfo
+from lm629_host.bridge.protocol.pipe import Pipe
+from lm629_host.bridge.protocol.run import RunReply
 from lm629_host.bus.program import BusOp, Op, ProgramResult, TraceCallback, cycles_of
 from lm629_host.errors import LinkError, TransportError
 from lm629_host.urls import PortURL

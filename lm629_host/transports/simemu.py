@@ -15,7 +15,7 @@ from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.model import ChipBus, ChipModel, chips_of
 from lm629_host.sim.usb import OPTIONS as USB_ROWS
 from lm629_host.sim.usb import wrap_usb
-from lm629_host.bridge.protocol import Pipe
+from lm629_host.bridge.protocol.pipe import Pipe
 from lm629_host.bus.program import TraceCallback
 from lm629_host.bus.url_board import BOARD_ROWS
 from lm629_host.urls import Option, PortURL, port_url

@@ -34,7 +34,7 @@ from served import serve
 
 def test_the_python_far_end_reports_the_firmware_release_it_emulates():
     """HELLO_REPLY of the Python far end and of the compiled firmware carry the one version
-    kept in bridge/protocol.py (the docs tie FAILSAFE and PROFILE to firmware 1.4)."""
+    kept in bridge/protocol/constants.py (the docs tie FAILSAFE and PROFILE to firmware 1.4)."""
     assert FIRMWARE_VERSION >= (1, 4, 0)
     emu = open_transport("sim+emu://")
     try:

@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 
 from lm629_host.bridge.protocol import (
-    _CRC_TABLE,
     MAX_FRAME,
     FrameError,
     FrameType,
@@ -26,6 +25,7 @@ from lm629_host.bridge.protocol import (
     decode_short_reply,
     encode_frame,
 )
+from lm629_host.bridge.protocol.framing import _CRC_TABLE
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.bus.program import BusOp, Op, Program
 

@@ -6,19 +6,17 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from lm629_host.bridge.protocol import (
-    FAILSAFE_FEED,
+from lm629_host.bridge.protocol.constants import (
     FAILSAFE_MAX_MS,
     FAILSAFE_MIN_MS,
     FAILSAFE_STOP_BITS,
     FailsafeAction,
     FailsafeCmd,
-    FailsafeState,
-    Frame,
     FrameType,
     Result,
-    encode_frame,
 )
+from lm629_host.bridge.protocol.failsafe import FAILSAFE_FEED, FailsafeState
+from lm629_host.bridge.protocol.framing import Frame, encode_frame
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.bus.program import BusOp, Op
 from lm629_host.sim.bridge.parts import BridgeParts

@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from lm629_host.wiring import uno as bridge_pins
-from lm629_host.bridge.protocol import (
+from lm629_host.bridge.protocol.constants import (
     BAUD_WINDOW_MS,
     CODE_BYTES,
     CODE_SLOTS,
@@ -17,19 +17,13 @@ from lm629_host.bridge.protocol import (
     MAX_FRAME,
     MAX_PING,
     RUN_OVERHEAD,
-    BadProgram,
     Capability,
-    Frame,
-    FrameError,
-    FrameReader,
     FrameType,
-    HelloInfo,
     Result,
-    RunReply,
-    decode_program,
-    encode_frame,
-    short_reply_payload,
 )
+from lm629_host.bridge.protocol.framing import Frame, FrameError, FrameReader, encode_frame
+from lm629_host.bridge.protocol.hello import HelloInfo
+from lm629_host.bridge.protocol.run import BadProgram, RunReply, decode_program, short_reply_payload
 from lm629_host.sim.bridge.failsafe import FailsafeSide
 from lm629_host.sim.bridge.profiles import ProfileSide
 from lm629_host.sim.bridge.recorder import RecorderSide

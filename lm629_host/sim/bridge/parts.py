@@ -10,7 +10,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from lm629_host.bridge.protocol import FailsafeAction, FailsafeState, HelloInfo, Result, RunReply
+from lm629_host.bridge.protocol.constants import FailsafeAction, Result
+from lm629_host.bridge.protocol.failsafe import FailsafeState
+from lm629_host.bridge.protocol.hello import HelloInfo
+from lm629_host.bridge.protocol.run import RunReply
 from lm629_host.bus.program import BusOp
 from lm629_host.sim.model import ChipBus, ChipModel
 

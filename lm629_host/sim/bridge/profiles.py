@@ -6,20 +6,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from lm629_host.bridge.protocol import (
+from lm629_host.bridge.protocol.constants import (
     PROFILE_HEADER,
     PROFILE_MAX_SCHEDULE,
     PROFILE_MIN_SPACING_US,
     PROFILE_NEW,
     PROFILE_PIECE,
-    PROFILE_REPLY_PAYLOAD,
-    Frame,
     FrameType,
     Result,
-    encode_frame,
-    ends_a_profile,
-    profile_piece_ops,
 )
+from lm629_host.bridge.protocol.framing import Frame, encode_frame
+from lm629_host.bridge.protocol.profile import PROFILE_REPLY_PAYLOAD, ends_a_profile, profile_piece_ops
 from lm629_host.bus.program import BusOp
 from lm629_host.sim.bridge.parts import BridgeParts, Schedule
 from lm629_host.sim.bridge.runner import FIRMWARE_BUSY_TIMEOUT_S

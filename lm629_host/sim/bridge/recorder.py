@@ -4,22 +4,10 @@ period on the bridge's clock, each run a stamped RECORD_ROW, and the RECORD_END.
 from __future__ import annotations
 
 
-from lm629_host.bridge.protocol import (
-    END_PAYLOAD,
-    NONE_BYTE,
-    RECORD_HEADER,
-    RECORD_MIN_PERIOD_US,
-    RECORD_TICK_US,
-    ROW_HEADER,
-    BadProgram,
-    Frame,
-    FrameType,
-    Result,
-    check_record_program,
-    decode_program,
-    encode_frame,
-    short_reply_payload,
-)
+from lm629_host.bridge.protocol.constants import NONE_BYTE, RECORD_MIN_PERIOD_US, RECORD_TICK_US, FrameType, Result
+from lm629_host.bridge.protocol.framing import Frame, encode_frame
+from lm629_host.bridge.protocol.record import END_PAYLOAD, RECORD_HEADER, ROW_HEADER, check_record_program
+from lm629_host.bridge.protocol.run import BadProgram, decode_program, short_reply_payload
 from lm629_host.sim.bridge.parts import BridgeParts, Recording
 from lm629_host.sim.bridge.runner import FIRMWARE_BUSY_TIMEOUT_S
 

@@ -7,15 +7,8 @@ from __future__ import annotations
 
 import math
 
-from lm629_host.bridge.protocol import (
-    MAX_FRAME,
-    RUN_REPLY_OVERHEAD,
-    BadProgram,
-    Capability,
-    Result,
-    RunReply,
-    decode_program,
-)
+from lm629_host.bridge.protocol.constants import MAX_FRAME, RUN_REPLY_OVERHEAD, Capability, Result
+from lm629_host.bridge.protocol.run import BadProgram, RunReply, decode_program
 from lm629_host.bus.opcodes import BUSY_BIT, Cmd
 from lm629_host.bus.program import STATUS_OPS, WAIT_STATUS_POLL_US, BusOp, Op
 from lm629_host.sim.bridge.parts import BridgeParts
