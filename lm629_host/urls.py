@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from typing import Any, overload
 from urllib.parse import parse_qsl, urlencode, urlsplit
 
-__all__ = ["BOARD_OPTIONS", "Option", "PortURL", "port_url", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
-           "query_params", "scheme_of", "split_params", "with_defaults", "with_query"]
+__all__ = ["Option", "PortURL", "port_url", "dataclass_options", "parse_bool", "parse_hz", "parse_options",
+           "query_params", "scheme_of", "read_rows", "split_params", "table_names", "with_defaults", "with_query"]
 
 #: the words a boolean option takes (an empty value, ``?strict``, means true)
 _TRUE = ("1", "true", "yes", "on", "")
@@ -92,6 +92,16 @@ class PortURL:
         rest = tuple((k, v) for k, v in self.params if k not in names)
         return (PortURL(self.given, self.scheme, self.netloc, self.path, rest,
                         self.added - set(names), self.base), taken)
+
+    def unwrapped(self) -> PortURL:
+        """A pyserial URL given after ``serial://`` (``serial://socket://host:2000?baud=1``) as
+        the URL inside, its options and :attr:`given` kept; any other URL as it is."""
+        inner = self.base[len("serial://"):] if self.scheme == "serial" else ""
+        if "://" not in inner or not self.base.lower().startswith("serial://"):
+            return self
+        parts = urlsplit(inner)
+        return PortURL(self.given, inner.split("://", 1)[0].lower(), parts.netloc, parts.path,
+                       self.params, self.added, inner)
 
     def __str__(self) -> str:
         return self.given
@@ -231,10 +241,15 @@ class Option:
     parse: Callable[[str], Any] | None = None
     #: a number taken outside the range that turns the option off (``failsafe=0``)
     off: float | None = None
+    #: the row's own check of the URL's text, ``(text, url) -> value``, raising its whole
+    #: message (the board's rows: an ArgumentError naming the option, as for an argument)
+    check: Callable[[str, Any], Any] | None = None
 
     def convert(self, text: str, url: str | PortURL) -> Any:
         """``text`` as this option's value; ValueError naming ``url`` and the option."""
         name = self.name
+        if self.check is not None:
+            return self.check(text, url)
         if self.optional and text.strip().lower() in ("none", *self.none_words):
             return None
         if self.kind == "bool":
@@ -275,7 +290,7 @@ class Option:
     def describe(self) -> str:
         """``name`` with its unit or choices, for the list of known options."""
         if self.choices:
-            return f"{self.name} ({'|'.join(self.choices)})"
+            return f"{self.name} ({'|'.join(c for c in self.choices if c)})"
         return f"{self.name} ({self.unit})" if self.unit else self.name
 
 
@@ -285,20 +300,17 @@ def _fmt(v: float | None) -> str:
     return str(int(v)) if float(v).is_integer() and abs(v) < 1e12 else f"{v:g}"
 
 
-#: the options that describe the board, taken on any URL (lm629_host.transports.ports takes them out
-#: before a transport sees the rest)
-BOARD_OPTIONS = frozenset({"chip", "clock", "axes", "cs"})
-
-
 def parse_options(url: str | PortURL, options: Iterable[Option], *, what: str = "",
-                  ignore: Iterable[str] = (), aliases: Mapping[str, str] | None = None,
+                  aliases: Mapping[str, str] | None = None,
                   given_only: bool = False) -> dict[str, Any]:
-    """The options of ``url``, checked and converted: ``{name: value}``.
+    """The options of ``url``, checked and converted against one table: ``{name: value}``.
 
-    Every option appears with its default unless ``given_only``.  ``ignore``: names that
-    belong to someone else (another layer of the same URL) and are skipped.  ``aliases``:
-    short URL names for option names (``chip`` -> ``variant``).  Any other name raises
-    ValueError listing the known ones, as does a value of the wrong type or outside its range.
+    ``options`` is the whole table of what the URL may say (a transport's: the board's rows,
+    the link's, its own, its simulator's); it is what the checks and the list of known names
+    in the message both use.  Every option appears with its default unless ``given_only``.
+    ``aliases``: short URL names for option names (``busy`` -> ``command_busy_s``).  Any other
+    name raises ValueError listing the known ones and the closest, as does a value of the
+    wrong type or outside its range.
     """
     specs = {o.name: o for o in options}
     aliases = dict(aliases or {})
@@ -306,14 +318,10 @@ def parse_options(url: str | PortURL, options: Iterable[Option], *, what: str = 
     raw = url.query()
     q = {aliases.get(k, k): v for k, v in raw.items()}
     said = {aliases.get(k, k): k for k in raw}  # the name as the URL spells it, for messages
-    skip = set(ignore)
-    unknown = set(q) - set(specs) - skip
-    if unknown:
-        # every name the URL may carry: this layer's, its aliases, the other layers' (skip)
-        # and the board's, so that the list is the scheme's whole list
-        others = (skip | BOARD_OPTIONS) - set(specs) - set(aliases)
-        known = sorted([*(o.describe() for o in specs.values()), *aliases, *others])
-        names = [*specs, *aliases, *others]
+    unknown = set(q) - set(specs)
+    if unknown:  # every name the table takes: the scheme's whole list
+        known = sorted([*(o.describe() for o in specs.values()), *aliases])
+        names = [*specs, *aliases]
         hints = []
         for name in sorted(unknown):
             close = difflib.get_close_matches(name, names, n=1, cutoff=0.6)
@@ -329,6 +337,21 @@ def parse_options(url: str | PortURL, options: Iterable[Option], *, what: str = 
         elif not given_only:
             out[name] = spec.default
     return out
+
+
+def read_rows(url: str | PortURL, rows: Iterable[Option]) -> dict[str, Any]:
+    """The values of ``rows`` in ``url`` (their defaults where not given), each converted by
+    its row: how a part reads its own rows of a table its transport has parsed the URL
+    against (:func:`parse_options`: the one check of every name), with no list of the
+    names that are not its own."""
+    q = port_url(url).query()
+    return {o.name: o.convert(q[o.name], url) if o.name in q else o.default for o in rows}
+
+
+def table_names(options: Iterable[Option], aliases: Mapping[str, str] | None = None
+                ) -> frozenset[str]:
+    """Every name a URL parsed against ``options`` (and ``aliases``) may carry."""
+    return frozenset(o.name for o in options) | frozenset(aliases or ())
 
 
 def with_defaults(rows: Iterable[Option], **defaults: Any) -> tuple[Option, ...]:

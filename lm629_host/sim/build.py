@@ -9,12 +9,19 @@ from dataclasses import replace
 
 from lm629_host.errors import AxisError
 from lm629_host.bus.opcodes import BUSY_WORST_CASE_S, POSITION_MAX, POSITION_MIN, Cmd
+from typing import Any
+
+from lm629_host.bus.url_board import BOARD, BOARD_ROWS
 from lm629_host.urls import Option, PortURL, dataclass_options, parse_options, query_params
 from lm629_host.sim.model import ChipBus, ChipModel, ChipParams, MotorParams
-from lm629_host.sim.vcd import NAMES as VCD_OPTIONS
-from lm629_host.sim.wiring import board_lines_of, wiring_of
+from lm629_host.sim.usb import OPTIONS as USB_ROWS
+from lm629_host.sim.vcd import OPTIONS as VCD_ROWS
+from lm629_host.sim.wiring import OPTION as WIRING, board_lines_of
 
-_ALIASES = {"chip": "variant", "clock": "clock_hz", "busy": "command_busy_s"}
+#: short names of the model's options (``busy=LTRJ:24.5``); the board's ``chip=`` and ``clock=``
+#: are its rows (bus/url_board.py), and set the model's ``variant`` and ``clock_hz``
+ALIASES = {"busy": "command_busy_s"}
+_BOARD_TO_MODEL = {"chip": "variant", "clock": "clock_hz"}
 
 #: the environment variable that makes every simulated chip strict unless its URL says
 #: ``strict=0`` (docs/model.md): how a CI run of lab scripts, or any program that starts
@@ -64,30 +71,56 @@ _CHIP_OPTIONS = dataclass_options(ChipParams, [
     Option("reset_position", "int", lo=POSITION_MIN, hi=POSITION_MAX),
     Option("update_s", "float", lo=0.0, hi=1.0, unit="s")])
 _MOTOR_OPTIONS = dataclass_options(MotorParams)
+_MODEL_NAMES = frozenset(o.name for o in (*_CHIP_OPTIONS, *_MOTOR_OPTIONS))
+#: the model's rows of a simulator's table
+MODEL_ROWS = (*_CHIP_OPTIONS, *_MOTOR_OPTIONS)
+#: the options that build a twin of a bench from its profile (:func:`build_bus`)
+TWIN_ROWS = (Option("profile", "str"), Option("axis", "str"))
+TWIN_OPTIONS = frozenset(o.name for o in TWIN_ROWS)
+#: every simulator's rows (a transport's table: the board's, then its own, then these)
+SIM_ROWS = (*MODEL_ROWS, *TWIN_ROWS, *VCD_ROWS, WIRING)
+#: the table of a bare simulator URL (``sim://``)
+SIM_OPTIONS = (*BOARD_ROWS, *SIM_ROWS)
+#: the table of a served far end's URL (``lm629 sim serve``): a simulator's and the USB
+#: adapter's in front of the bridge
+SERVED_OPTIONS = (*BOARD_ROWS, *USB_ROWS, *SIM_ROWS)
 
 
-def build_model(url: str | PortURL, *, allowed: frozenset[str] = frozenset()) -> ChipModel:
-    """A :class:`ChipModel` configured from a simulator URL's query string.
+def sim_options(url: str | PortURL, table: tuple[Option, ...] = SIM_OPTIONS, *,
+                defaults: bool = False) -> dict[str, Any]:
+    """The options ``url`` gives (with ``defaults``, every row's), checked against ``table``
+    (a simulated transport's whole table): the one parse of its URL, handed to
+    :func:`build_bus`."""
+    return parse_options(url, table, what="simulator", aliases=ALIASES,
+                         given_only=not defaults)
+
+
+def build_model(url: str | PortURL, options: dict[str, Any] | None = None) -> ChipModel:
+    """A :class:`ChipModel` configured from a simulator URL's options.
 
     Used by every simulated transport (``sim://``, ``sim+avr://``, ``sim+ftdi://``), so that
-    the same parameters mean the same thing everywhere.  Parameters in ``allowed`` belong to
-    the calling transport and are skipped here; any other unknown name is an error.
+    the same parameters mean the same thing everywhere.  ``options``: the URL parsed by the
+    transport against its whole table (:func:`sim_options`); None: ``url`` is a bare
+    simulator's, parsed here against :data:`SIM_OPTIONS`.
     """
+    if options is None:
+        options = sim_options(url)
     chip, motor = ChipParams(), MotorParams()
     # strict_default(), unless the URL says strict= (below); never where wiring= miswires the
     # bench (sim/wiring.py): a bent wire bends the host's bytes, and the chip's protocol
     # checks would blame the host for the wire
-    chip.strict = strict_default() and wiring_of(url) is None
-    values = parse_options(url, _CHIP_OPTIONS + _MOTOR_OPTIONS, what="simulator",
-                           ignore=allowed | {"wiring"} | VCD_OPTIONS, aliases=_ALIASES,
-                           given_only=True)
+    bend, board_lines = options.get("wiring") or (None, frozenset())
+    chip.strict = strict_default() and bend is None
+    said = {ALIASES.get(k, k) for k in query_params(url)}  # a table with defaults: the given
+    values = {_BOARD_TO_MODEL.get(k, k): v for k, v in options.items()
+              if k in said and (k in _MODEL_NAMES or k in _BOARD_TO_MODEL)}
     for name, value in values.items():
         if name == "clock_hz":
             value = round(value)
         elif name == "variant":
             value = value.lower()
         setattr(chip if hasattr(chip, name) else motor, name, value)
-    for name, value in board_lines_of(url).items():  # wiring=hi-open, index-open, encoder-open
+    for name, value in board_lines_of(board_lines).items():  # wiring=hi-open, ...
         setattr(chip if hasattr(chip, name) else motor, name, value)
     return ChipModel(chip, motor)
 
@@ -98,20 +131,12 @@ MAX_AXES = 8
 
 def axes_of(url: str | PortURL, limit: int = MAX_AXES) -> int:
     """The URL's ``axes=`` (default 1), checked against ``limit`` chip selects."""
-    raw = query_params(url).get("axes", "1")
-    try:
-        n = int(raw)
-    except ValueError:
-        raise ValueError(f"{url}: axes={raw!r} is not a whole number of chips") from None
-    if n < 1:
-        raise ValueError(f"{url}: axes={n}: a bus needs at least one chip")
+    raw = query_params(url).get("axes")
+    n = 1 if raw is None else BOARD["axes"].convert(raw, url)  # the board's row: one rule
     if n > limit:
         raise AxisError(n - 1, limit, f"the simulated adapter of {url}")
     return n
 
-
-#: the options that build a twin of a bench from its profile (:func:`build_bus`)
-TWIN_OPTIONS = frozenset({"profile", "axis"})
 
 #: the motor parameters that set how the shaft moves: a URL that names one gives its own
 #: motor, a bench of its own, and the profile's plants are not used (the faults and the
@@ -120,7 +145,7 @@ DYNAMICS = frozenset({"amp_volts", "resistance", "torque_constant", "inertia", "
                       "coulomb", "load_torque", "accel", "tau", "dry", "load"})
 
 
-def build_bus(url: str | PortURL, *, allowed: frozenset[str] = frozenset(),
+def build_bus(url: str | PortURL, options: dict[str, Any] | None = None, *,
               limit: int = MAX_AXES) -> ChipModel | ChipBus:
     """The chip (``axes=1``, the default) or the :class:`ChipBus` of ``axes=N`` chips, each
     with its own motor, all configured from the same URL parameters.
@@ -132,19 +157,20 @@ def build_bus(url: str | PortURL, *, allowed: frozenset[str] = frozenset(),
     names a parameter of the motor's dynamics (:data:`DYNAMICS`) keeps its own motor: the
     profile then gives only the chips, lines and clock (``--profile FILE --port
     'sim://?inertia=4e-5'`` is a bench of its own, with the profile's axes)."""
-    allowed = allowed | {"axes"} | TWIN_OPTIONS
+    if options is None:
+        options = sim_options(url)
     q = query_params(url)
     if "profile" in q:
-        return _twin(url, q["profile"], q.get("axis"), allowed, limit)
+        return _twin(url, q["profile"], q.get("axis"), options, limit)
     if "axis" in q:
         raise ValueError(f"{url}: axis= names an axis of a profile: give profile=FILE too")
     n = axes_of(url, limit)
     if n == 1:
-        return build_model(url, allowed=allowed)
-    return ChipBus([build_model(url, allowed=allowed) for _ in range(n)])
+        return build_model(url, options)
+    return ChipBus([build_model(url, options) for _ in range(n)])
 
 
-def _twin(url: str | PortURL, path: str, axis: str | None, allowed: frozenset[str],
+def _twin(url: str | PortURL, path: str, axis: str | None, options: dict[str, Any],
           limit: int) -> ChipModel | ChipBus:
     from lm629_host.config.profile import PLANT_KEYS, load_profile
     prof = load_profile(path)
@@ -161,10 +187,10 @@ def _twin(url: str | PortURL, path: str, axis: str | None, allowed: frozenset[st
         n = axes_of(url, limit)
     if n > limit:
         raise AxisError(n - 1, limit, f"the simulated adapter of {url} ({path})")
-    said = {_ALIASES.get(k, k) for k in query_params(url)}
+    said = {ALIASES.get(k, _BOARD_TO_MODEL.get(k, k)) for k in query_params(url)}
     chips = []
     for cs in range(n):
-        model = build_model(url, allowed=allowed)
+        model = build_model(url, options)
         ax = axes.get(cs)
         if ax is not None:
             if "variant" not in said:

@@ -43,11 +43,10 @@ from lm629_host.bridge.protocol import (
 )
 from lm629_host.bus.program import Op
 from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
-from lm629_host.sim.build import build_bus
+from lm629_host.sim.build import SERVED_OPTIONS, build_bus, sim_options
 from lm629_host.sim.vcd import vcd_of
 from lm629_host.sim.wiring import Miswiring, wiring_of
 from lm629_host.sim.model import ChipBus, ChipModel, chips_of
-from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
 from lm629_host.sim.usb import UsbPipe, adapter_of, wrap_usb
 
 log = logging.getLogger("lm629_host.sim.serve")
@@ -245,9 +244,9 @@ class _PtyLine(EmuPipe):
 def emulator_far_end(url: str | PortURL) -> FarEnd:
     """The Python bridge over a chip model built from ``url``; with ``usb=`` behind that USB
     adapter (:mod:`.usb`)."""
-    model = build_bus(url, allowed=USB_OPTIONS)
-    adapter = adapter_of(url)
-    wiring = wiring_of(url)
+    opts = sim_options(url, SERVED_OPTIONS, defaults=True)  # the one parse of the URL
+    model = build_bus(url, opts)
+    adapter, wiring = adapter_of(url, opts), wiring_of(url, opts)
     if adapter is None:
         return EmuFarEnd(model, wiring)
     pipe = UsbPipe(_PtyLine(BridgeEmulator(model, wiring=wiring), baud=None), adapter)
@@ -262,18 +261,19 @@ def firmware_far_end(url: str | PortURL) -> FarEnd:
     from lm629_host.wiring.uno import CHIP_SELECTS
     from lm629_host.sim.avr import DEFAULT_BAUD, AvrPipe, AvrSim, HarnessError
 
-    adapter = adapter_of(url)  # a bad usb= before the firmware is built
-    model = build_bus(url, allowed=USB_OPTIONS, limit=len(CHIP_SELECTS))
+    opts = sim_options(url, SERVED_OPTIONS, defaults=True)  # before the firmware is built
+    adapter = adapter_of(url, opts)
+    model = build_bus(url, opts, limit=len(CHIP_SELECTS))
     if isinstance(model, ChipBus):
         model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
     try:
-        sim = AvrSim(model, wiring=wiring_of(url))
+        sim = AvrSim(model, wiring=wiring_of(url, opts))
     except (HarnessError, OSError) as exc:
         raise RuntimeError(f"--firmware runs the compiled firmware in simavr: {exc}. Build it "
                            "with `make -C firmware_bridge` (needs gcc-avr, avr-libc, simavr, "
                            "libsimavr-dev), or serve the Python bridge without --firmware.") from None
     name = "bridge firmware in simavr" + (f" behind USB {adapter.describe()}" if adapter else "")
-    return PipeFarEnd(wrap_usb(AvrPipe(sim), url), model, name, baud=DEFAULT_BAUD)
+    return PipeFarEnd(wrap_usb(AvrPipe(sim), url, opts), model, name, baud=DEFAULT_BAUD)
 
 
 class SimServer:

@@ -42,7 +42,7 @@ from collections import deque
 from typing import Any
 
 from lm629_host.clock import Clock
-from lm629_host.urls import Option, PortURL, parse_options, query_params
+from lm629_host.urls import Option, PortURL, query_params, read_rows
 
 #: full-speed USB frame (USB 2.0, 8.4.3: a SOF every 1.000 ms)
 FRAME_S = 1e-3
@@ -61,7 +61,6 @@ MODELS = ("none", "uno", "ftdi", "cdc")
 OPTIONS = (Option("usb", "str", "none", choices=MODELS),
            Option("usb_seed", "int", 0, 0, 2**31 - 1),
            Option("latency_ms", "int", FTDI_DEFAULT_LATENCY_MS, 1, 255, "ms"))
-OPTION_NAMES = frozenset(o.name for o in OPTIONS)
 
 #: slack when comparing simulated times: the inner clocks round to whole cycles (62.5 ns on the
 #: AVR), so a time within 1 us of a frame start or a timer event counts as at it
@@ -220,10 +219,10 @@ class Cdc(Adapter):
         return "cdc (native full-speed device)"
 
 
-def adapter_of(url: str | PortURL) -> Adapter | None:
+def adapter_of(url: str | PortURL, options: dict[str, Any] | None = None) -> Adapter | None:
     """The adapter that ``url``'s ``usb=`` names (None for ``usb=none``); ValueError for a bad
     value.  The URL's other parameters are someone else's."""
-    opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - OPTION_NAMES)
+    opts = read_rows(url, OPTIONS) if options is None else options
     kind = opts["usb"]
     if "latency_ms" in query_params(url) and kind != "ftdi":
         raise ValueError(f"{url}: latency_ms= is the FTDI latency timer: it needs usb=ftdi")
@@ -327,13 +326,13 @@ class UsbPipe:
         self.inner.close()
 
 
-def wrap_usb(pipe: Any, url: str | PortURL) -> Any:
+def wrap_usb(pipe: Any, url: str | PortURL, options: dict[str, Any] | None = None) -> Any:
     """``pipe`` behind the USB adapter that ``url``'s ``usb=`` names (``pipe`` itself for
-    ``usb=none``)."""
-    adapter = adapter_of(url)
+    ``usb=none``); ``options``: the URL as its transport parsed it."""
+    adapter = adapter_of(url, options)
     return pipe if adapter is None else UsbPipe(pipe, adapter)
 
 
-__all__ = ["Adapter", "Cdc", "FRAME_S", "Ftdi", "MODELS", "OPTIONS", "OPTION_NAMES",
+__all__ = ["Adapter", "Cdc", "FRAME_S", "Ftdi", "MODELS", "OPTIONS",
            "UNO_FLUSH_S", "UNO_NEARLY_FULL", "Uno", "UsbClock", "UsbPipe", "adapter_of",
            "next_frame", "wrap_usb"]

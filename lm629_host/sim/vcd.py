@@ -35,13 +35,19 @@ from pathlib import Path
 from collections.abc import Sequence
 from typing import IO, Any, NoReturn, cast
 
-from lm629_host.urls import Option, PortURL, parse_options, query_params
+from lm629_host.urls import Option, PortURL, query_params, read_rows
 from lm629_host.sim.model import ChipBus, ChipModel
 
+def _vcd_file(text: str, url: Any) -> str:
+    if not text.strip():
+        raise ValueError(f"{url}: vcd= is empty: give the file to write (vcd=bus.vcd) or "
+                         "leave vcd= out")
+    return text
+
+
 #: the URL options (any simulated URL): the file, and the VCD's time unit in ns
-OPTIONS = (Option("vcd", "str", ""),
+OPTIONS = (Option("vcd", "str", "", check=_vcd_file),
            Option("vcd_timescale", "int", 10, 1, 1000, "ns"))
-NAMES = frozenset(o.name for o in OPTIONS)
 #: the time units pyvcd (and the VCD format) allow: 1, 10 or 100 of a unit
 _TIMESCALES = (1, 10, 100, 1000)
 
@@ -58,17 +64,17 @@ def hi_name(chip: int) -> str:
     return "hi" if chip == 0 else f"hi{chip}"
 
 
-def vcd_of(url: str | PortURL) -> tuple[str, int] | None:
-    """The URL's ``vcd=`` file and ``vcd_timescale=`` (None: no VCD asked for)."""
+def vcd_of(url: str | PortURL, options: dict[str, Any] | None = None) -> tuple[str, int] | None:
+    """The URL's ``vcd=`` file and ``vcd_timescale=`` (None: no VCD asked for); ``options``:
+    the URL as its transport parsed it (None: these rows read from ``url``)."""
     q = query_params(url)
-    if "vcd" in q and not q["vcd"].strip():
-        raise ValueError(f"{url}: vcd= is empty: give the file to write (vcd=bus.vcd) or "
-                         "leave vcd= out")
+    if "vcd" in q:
+        _vcd_file(q["vcd"], url)
     if not q.get("vcd"):
         if "vcd_timescale" in q:
             raise ValueError(f"{url}: vcd_timescale= without vcd=FILE")
         return None
-    opts = parse_options(url, OPTIONS, ignore=set(q) - NAMES)
+    opts = read_rows(url, OPTIONS) if options is None else options
     if opts["vcd_timescale"] not in _TIMESCALES:
         raise ValueError(f"{url}: vcd_timescale={opts['vcd_timescale']}: a VCD time unit is "
                          f"1, 10, 100 or 1000 ns")
@@ -302,5 +308,5 @@ def close_probe(model: Any) -> None:
         model.close()
 
 
-__all__ = ["BusVcd", "DATA", "NAMES", "OPTIONS", "ProbedBus", "close_probe", "cs_name",
+__all__ = ["BusVcd", "DATA", "OPTIONS", "ProbedBus", "close_probe", "cs_name",
            "hi_name", "probe", "vcd_of"]

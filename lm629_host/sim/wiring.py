@@ -45,7 +45,7 @@ from __future__ import annotations
 from typing import Any
 
 from lm629_host.wiring.faults import FORMS as DATA_FORMS, Miswiring
-from lm629_host.urls import Option, PortURL, parse_options, query_params
+from lm629_host.urls import Option, PortURL, query_params, read_rows
 
 #: the board lines a ``wiring=`` value may name besides the data lines, each with the model
 #: parameter it clears (``ChipParams.hi_wired``, ``MotorParams.index_wired`` and
@@ -84,21 +84,23 @@ OPTION = Option("wiring", "str", None, parse=_parse,
 def _wiring(url: str | PortURL) -> tuple[Miswiring | None, frozenset[str]]:
     if "wiring" not in query_params(url):
         return None, frozenset()
-    value: Any = parse_options(url, [OPTION], ignore=set(query_params(url)) - {"wiring"})
-    return value["wiring"]
+    value: Any = read_rows(url, [OPTION])["wiring"]
+    return value
 
 
-def wiring_of(url: str | PortURL) -> Miswiring | None:
+def wiring_of(url: str | PortURL, options: dict[str, Any] | None = None) -> Miswiring | None:
     """The URL's miswired data lines (None: a correct data bus), which every far end bends
-    its bytes with."""
+    its bytes with; ``options``: the URL as its transport parsed it."""
+    if options is not None:
+        return (options.get("wiring") or (None, frozenset()))[0]
     return _wiring(url)[0]
 
 
-def board_lines_of(url: str | PortURL) -> dict[str, bool]:
-    """The model parameters the URL's board-line faults set (``{"hi_wired": False}`` for
-    ``wiring=hi-open``; empty: every board line connected): :mod:`lm629_host.sim.build`
+def board_lines_of(named: frozenset[str]) -> dict[str, bool]:
+    """The model parameters the board lines ``named`` in ``wiring=`` set (``{"hi_wired":
+    False}`` for ``hi-open``; empty: every board line connected): :mod:`lm629_host.sim.build`
     applies them to the chip and its motor."""
-    return {BOARD_LINES[name]: False for name in _wiring(url)[1]}
+    return {BOARD_LINES[name]: False for name in named}
 
 
 class BentChip:

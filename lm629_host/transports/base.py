@@ -36,7 +36,7 @@ from lm629_host.transports.reports import (
 )
 from lm629_host.transports.keepalive import FeedingClock
 from lm629_host.transports import exiting
-from lm629_host.urls import PortURL, port_url
+from lm629_host.urls import Option, PortURL, port_url
 from lm629_host.errors import AxisError, TransportError
 from lm629_host.bus.program import (
     BusCycle,
@@ -140,6 +140,9 @@ class Transport(abc.ABC):
     scheme: str = ""
     #: True when the far side is simulated: no hardware, a fresh chip at every open
     simulated: bool = False
+    #: its URL options, one table (the board's rows first): what :meth:`from_url` parses the
+    #: URL against, once, and what a message about an unknown name lists
+    options: tuple[Option, ...] = ()
     #: bus programs under way (nested ones count): a signal handler that must not cut a
     #: program in half reads it (the CLI's)
     program_depth: int = 0
@@ -188,6 +191,19 @@ class Transport(abc.ABC):
         "a call on a closed port raises, saying closed" (:meth:`check_open`) holds for every
         transport, an entry point's too, without each one keeping it."""
         super().__init_subclass__(**kwargs)
+        init = cls.__dict__.get("__init__")
+        if init is not None and init not in _MARKING_CLOSE:
+            # a transport whose making failed was never handed to anyone: the exit does not
+            # close it (half made, it may lack what its close needs)
+            @functools.wraps(init)
+            def made(self: Transport, *args: Any, **kw: Any) -> None:
+                try:
+                    init(self, *args, **kw)
+                except BaseException:
+                    exiting.forget(self)
+                    raise
+            _MARKING_CLOSE.add(made)
+            cls.__init__ = made  # type: ignore[method-assign]  # the subclass's own, wrapped
         own = cls.__dict__.get("close")
         if own is None or own in _MARKING_CLOSE:
             return

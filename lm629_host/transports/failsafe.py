@@ -39,7 +39,7 @@ from lm629_host.bridge.protocol import (
 )
 from lm629_host.errors import FailsafeTripped, TransportError
 from lm629_host.transports.keepalive import KeepAlive, on_wall_clock
-from lm629_host.urls import Option, PortURL, parse_options, query_params
+from lm629_host.urls import Option, PortURL, read_rows
 
 if TYPE_CHECKING:
     from lm629_host.transports.session import LinkSession
@@ -54,7 +54,6 @@ FAILSAFE_OPTIONS = (
            "s", off=0),
     Option("failsafe_action", "str", "abrupt", choices=tuple(a.name.lower() for a in FailsafeAction)),
     Option("failsafe_feed", "str", FEED_MODES[0], choices=FEED_MODES))
-FAILSAFE_OPTION_NAMES = frozenset(o.name for o in FAILSAFE_OPTIONS)
 #: the feeder sends when the link has been idle this fraction of the failsafe's timeout: three
 #: feeds may be lost on the line, or the feeder be that late, before the bridge trips
 FEED_FRACTION = 0.25
@@ -94,8 +93,7 @@ def failsafe_options(url: str | PortURL) -> FailsafeOptions:
     """``failsafe=SECONDS`` (0: off, else 0.05..10), ``failsafe_action=abrupt|smooth|off`` and
     ``failsafe_feed=process|script`` of a bridge port's URL; ValueError naming the option (the
     other options are not looked at)."""
-    return FailsafeOptions.of(parse_options(
-        url, FAILSAFE_OPTIONS, ignore=set(query_params(url)) - FAILSAFE_OPTION_NAMES))
+    return FailsafeOptions.of(read_rows(url, FAILSAFE_OPTIONS))
 
 
 class LinkFailsafe:
@@ -359,5 +357,5 @@ class LinkFailsafe:
             self.feed_period_s = 0.0
 
 
-__all__ = ["FAILSAFE_DEFAULT_S", "FAILSAFE_OPTIONS", "FAILSAFE_OPTION_NAMES", "FEED_FRACTION",
+__all__ = ["FAILSAFE_DEFAULT_S", "FAILSAFE_OPTIONS", "FEED_FRACTION",
            "FEED_MODES", "SIMULATED_FEED_FRACTION", "FailsafeOptions", "LinkFailsafe", "failsafe_options"]

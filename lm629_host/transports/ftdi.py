@@ -119,13 +119,14 @@ from lm629_host.wiring import ft232h as pins
 from lm629_host.clock import Clock, WallClock
 from lm629_host.bus.opcodes import BUSY_BIT
 from lm629_host.bus.program import BusCycle, Op, Program, ProgramResult, TraceCallback
-from lm629_host.urls import PortURL
+from lm629_host.urls import Option, PortURL
 from lm629_host.transports.base import Transport
 from lm629_host.transports.reports import Check, PortInfo
 from lm629_host.transports.ftdi_busy import BusyWait
 from lm629_host.transports.ftdi_exchange import Stalled, StreamExchange
 from lm629_host.transports.ftdi_open import (
     DEFAULT_LATENCY_MS,
+    OPTIONS,
     SET_LOW,
     adapter_checks,
     busy_pin_of,
@@ -156,6 +157,7 @@ class FtdiTransport(Transport):
     is the loop that runs a program's streams and judges their checks, and the heartbeat."""
 
     scheme = "ftdi"
+    options: tuple[Option, ...] = OPTIONS  #: its URL options, one table (parsed once, and listed by a message)
     has_reset_line = True
     #: a WAIT is idle clocks (1/6 us each at the default clock); the status read behind it
     #: sets the lines up in about five MPSSE commands (ftdi_busy.COMMAND_S, 0.5 us, each)

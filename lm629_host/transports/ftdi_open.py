@@ -13,6 +13,7 @@ from lm629_host import data
 from lm629_host.errors import TransportError
 from lm629_host.transports.reports import Check, PortInfo
 from lm629_host.transports.mpsse import DEFAULT_TCK_HZ
+from lm629_host.bus.url_board import BOARD_ROWS
 from lm629_host.urls import Option, PortURL, parse_options, port_url
 from lm629_host.wiring import ft232h as pins
 
@@ -36,6 +37,7 @@ IDLE_LINES = bytes((DISABLE_CLK_ADAPTIVE, DISABLE_CLK_3PHASE,
 #: the URL options of the FT232H transport (``busy_us`` none, or ``auto``: measured;
 #: ``busy_pin`` none, or a line wired to D0: ``ftdi_pins.BUSY_PINS``)
 OPTIONS = (
+    *BOARD_ROWS,
     Option("latency", "int", DEFAULT_LATENCY_MS, 1, 255, "ms"),
     Option("busy_us", "float", None, 0, 65535, "us", optional=True, none_words=("auto",)),
     Option("frequency", "hz", DEFAULT_TCK_HZ, 1e5, 30e6, "Hz"),

@@ -36,18 +36,12 @@ from typing import Any
 
 from lm629_host.config.profile import Profile, ProfileError
 from lm629_host.errors import ArgumentError
-from lm629_host.bus.opcodes import NOMINAL_CLOCK_HZ
 from lm629_host.bus.program import TraceCallback
 from lm629_host.transports import BUILTIN, DEFAULT_URL, URL_SCHEMES, registry, transport_class
 from lm629_host.transports.base import Transport
-from lm629_host.urls import (BOARD_OPTIONS, PortURL, parse_hz, port_url, scheme_of,
+from lm629_host.bus.url_board import AXES_WHAT, BOARD, BOARD_OPTIONS, CHIPS, CS_WHAT, check_clock
+from lm629_host.urls import (PortURL, parse_hz, port_url, scheme_of,
                              split_params, with_query)
-
-#: the chips the driver knows
-CHIPS = ("lm628", "lm629")
-#: the chip's clock range (datasheets: 1 to 8 MHz parts)
-CLOCK_MIN_HZ, CLOCK_MAX_HZ = 1_000_000, NOMINAL_CLOCK_HZ
-
 
 @dataclass(frozen=True)
 class PortSpec:
@@ -77,24 +71,12 @@ def _hz_text(hz: float) -> str:
     return f"{hz / 1e6:g}MHz" if hz >= 1e6 else f"{hz:g}Hz"
 
 
-# each option: (the argument checked, shown as text) and (the URL's text checked): ArgumentError
+# each option given as an argument, checked (the value, and how to show it); the URL's
+# value is checked by the option's row of the transport's table (bus/url_board.py)
 def _chip_argument(value: object) -> tuple[str, str]:
     if not isinstance(value, str) or value.lower() not in CHIPS:
         raise ArgumentError("chip", value, f"chip={value!r}: expected 'lm628' or 'lm629'")
     return value.lower(), f"chip={value.lower()}"
-
-
-def _chip_in_url(text: str, url: str | PortURL) -> str:
-    if text.lower() not in CHIPS:
-        raise ArgumentError("chip", text, f"chip={text!r} in {url}: expected lm628 or lm629")
-    return text.lower()
-
-
-def _check_clock(hz: float, said: str) -> float:
-    if not CLOCK_MIN_HZ <= hz <= CLOCK_MAX_HZ:
-        raise ArgumentError("clock", hz, f"{said} is outside the chip's 1-8 MHz",
-                            lo=CLOCK_MIN_HZ, hi=CLOCK_MAX_HZ)
-    return float(hz)
 
 
 def _clock_argument(value: object) -> tuple[float, str]:
@@ -103,16 +85,7 @@ def _clock_argument(value: object) -> tuple[float, str]:
     except (TypeError, ValueError):
         raise ArgumentError("clock", value, f"clock={value!r} is not a frequency "
                                             "(8MHz, 6e6)") from None
-    return _check_clock(hz, f"clock={_hz_text(hz)}"), f"clock={_hz_text(hz)}"
-
-
-def _clock_in_url(text: str, url: str | PortURL) -> float:
-    try:
-        hz = parse_hz(text)
-    except ValueError:
-        raise ArgumentError("clock", text, f"clock={text!r} in {url} is not a frequency "
-                                           "(8MHz, 6e6)") from None
-    return _check_clock(hz, f"clock={text} in {url}")
+    return check_clock(hz, f"clock={_hz_text(hz)}"), f"clock={_hz_text(hz)}"
 
 
 def _whole_argument(name: str, lo: int, what: str) -> Callable[[object], tuple[int, str]]:
@@ -124,35 +97,21 @@ def _whole_argument(name: str, lo: int, what: str) -> Callable[[object], tuple[i
     return check
 
 
-def _whole_in_url(name: str, lo: int, what: str) -> Callable[[str, str], int]:
-    def check(text: str, url: str | PortURL) -> int:
-        try:
-            n = int(text)
-        except ValueError:
-            raise ArgumentError(name, text, f"{name}={text!r} in {url} is not {what}",
-                                lo=lo) from None
-        if n < lo:
-            raise ArgumentError(name, n, f"{name}={n} in {url}: at least {lo}", lo=lo)
-        return n
-    return check
-
-
-_AXES, _CS = "a whole number of chips", "a chip select number (0, 1, ...)"
-#: option -> (check of an argument, check of the URL's text)
-_OPTIONS: dict[str, tuple[Callable[[Any], tuple[Any, str]], Callable[[str, str], Any]]] = {
-    "chip": (_chip_argument, _chip_in_url),
-    "clock": (_clock_argument, _clock_in_url),
-    "axes": (_whole_argument("axes", 1, _AXES), _whole_in_url("axes", 1, _AXES)),
-    "cs": (_whole_argument("cs", 0, _CS), _whole_in_url("cs", 0, _CS)),
+#: option -> the check of an argument
+_ARGUMENTS: dict[str, Callable[[Any], tuple[Any, str]]] = {
+    "chip": _chip_argument,
+    "clock": _clock_argument,
+    "axes": _whole_argument("axes", 1, AXES_WHAT),
+    "cs": _whole_argument("cs", 0, CS_WHAT),
 }
 
 
 def _settle(name: str, given: object, url: str, query: dict[str, str]) -> Any:
-    """One option: the argument and the URL's value, each checked; they must agree."""
-    of_argument, of_url = _OPTIONS[name]
-    value, shown = of_argument(given) if given is not None else (None, "")
+    """One option: the argument and the URL's value (checked by its row), each checked; they
+    must agree."""
+    value, shown = _ARGUMENTS[name](given) if given is not None else (None, "")
     if name in query:
-        in_url = of_url(query[name], url)
+        in_url = BOARD[name].convert(query[name], url)
         if value is not None and value != in_url:
             raise ArgumentError(name, given, f"{shown} conflicts with {name}={query[name]} in "
                                               f"{url}: give one of them")

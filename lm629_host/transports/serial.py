@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import errno
 import logging
-from urllib.parse import urlencode
 import os
 import select
 import sys
@@ -45,7 +44,8 @@ from lm629_host.bridge.protocol import FAST_BAUD
 from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import TransportError
 from lm629_host.bus.program import TraceCallback
-from lm629_host.urls import Option, PortURL, parse_options, port_url, with_defaults
+from lm629_host.urls import Option, PortURL, parse_options, port_url, table_names, with_defaults
+from lm629_host.bus.url_board import BOARD_ROWS
 from lm629_host.transports.reports import Check, PortInfo
 from lm629_host.transports.failsafe import FailsafeOptions
 from lm629_host.transports.link import LINK_OPTIONS, LinkTransport
@@ -87,14 +87,15 @@ KNOWN_USB_IDS: dict[tuple[int, int], str] = {
     (0x10C4, 0xEA60): "Silicon Labs CP210x",
 }
 
-#: the URL options of a serial bridge
+#: the URL options of a serial bridge: the board's, the link's, the port's (a pyserial
+#: handler's own options, ``logging=``, pass through to it)
 OPTIONS = (
+    *BOARD_ROWS,
     *with_defaults(LINK_OPTIONS, baud=DEFAULT_BAUD, fast_baud=FAST_BAUD),
     Option("boot", "float", DEFAULT_BOOT_S, 0.0, 30.0, "s"),
     Option("low_latency", "bool", True),
-    Option("cs", "int", 0, 0, 255),
 )
-_OPTION_NAMES = frozenset(o.name for o in OPTIONS)
+_OPTION_NAMES = table_names(OPTIONS)
 
 
 def is_handler_url(device: str) -> bool:
@@ -130,16 +131,10 @@ def advice_missing(path: str) -> str:
 
 
 def device_of(url: str | PortURL) -> str:
-    """The device path of a ``serial://`` URL or a bare path; a pyserial URL given as it is
-    (``socket://host:port``) is its own device."""
-    if isinstance(url, PortURL):
-        url = url.base
-    if "://" not in url:
-        return url.split("?", 1)[0]
-    scheme, rest = url.split("://", 1)
-    if scheme.lower() != "serial":
-        return url.split("?", 1)[0]
-    return rest.split("?", 1)[0]
+    """The device path of a ``serial://`` URL or a bare path; a pyserial URL (``socket://
+    host:port``, or after ``serial://``) is its own device, without its options."""
+    u = port_url(url).unwrapped()
+    return u.netloc + u.path if u.scheme == "serial" else u.base
 
 
 @dataclass(frozen=True)
@@ -157,24 +152,26 @@ class SerialOptions:
 def options_of(url: str | PortURL) -> SerialOptions:
     """Parse and check a ``serial://`` URL (ValueError naming the parameter)."""
     url = port_url(url)
+    inner = url.unwrapped()
     device = device_of(url)
     if not device:
         raise ValueError(f"{url}: no device path (e.g. serial:///dev/ttyACM0)")
-    handler = {}
-    if is_handler_url(device):  # socket://, rfc2217://, spy://: the other options are its own
-        scheme, _, rest = device.partition("://")
-        if scheme.lower() in ("socket", "rfc2217"):
-            host, _, port = rest.partition("/")[0].rpartition(":")
+    ours = url
+    if inner.scheme != "serial":  # socket://, rfc2217://, spy://: the other options are its own
+        if inner.scheme in ("socket", "rfc2217"):
+            host, _, port = inner.netloc.rpartition(":")
             if not host or not port.isdigit():
-                raise ValueError(f"{url}: {scheme}:// needs a host and a port number "
-                                 f"({scheme}://HOST:PORT, e.g. {scheme}://localhost:7000)")
-        handler = {k: v for k, v in url.params if k not in _OPTION_NAMES}
-        if handler:  # pyserial's own options, handed on as the user wrote them
-            device += "?" + urlencode(list(handler.items()), safe=":/")
-    opts = parse_options(url, OPTIONS, what="serial", ignore=handler)
+                raise ValueError(f"{url}: {inner.scheme}:// needs a host and a port number "
+                                 f"({inner.scheme}://HOST:PORT, e.g. "
+                                 f"{inner.scheme}://localhost:7000)")
+        theirs = inner.without(_OPTION_NAMES)[0]
+        ours = url.without(set(url.query()) - _OPTION_NAMES)[0]
+        device = theirs.text  # pyserial's own options, handed on as the user wrote them
+    opts = parse_options(ours, OPTIONS, what="serial")
     return SerialOptions(device=device, baud=opts["baud"], retries=opts["retries"],
-                         boot_s=opts["boot"], low_latency=opts["low_latency"], cs=opts["cs"],
-                         fast=opts["fast_baud"], failsafe=FailsafeOptions.of(opts))
+                         boot_s=opts["boot"], low_latency=opts["low_latency"],
+                         cs=opts["cs"] or 0, fast=opts["fast_baud"],
+                         failsafe=FailsafeOptions.of(opts))
 
 
 def _lost_hint(device: str | None, heard: bytes = b"") -> str:
@@ -399,6 +396,7 @@ class SerialTransport(LinkTransport):
     after the port is open; ``rtt_s`` is the measured PING round trip."""
 
     scheme = "serial"
+    options = OPTIONS  #: its URL options, one table (parsed once, and listed by a message)
     hello_interval_s = 0.25
 
     def __init__(self, pipe: SerialPipe, url: str | PortURL, *, trace: TraceCallback | None = None,

@@ -18,7 +18,7 @@ from typing import cast
 
 from lm629_host.urls import PortURL
 from lm629_host.bus.program import Op, Program, TraceCallback
-from lm629_host.sim.build import build_bus
+from lm629_host.sim.build import SIM_OPTIONS, build_bus, sim_options
 from lm629_host.sim.clock import SimClock
 from lm629_host.sim.model import ChipBus, ChipModel, Violation, chips_of
 from lm629_host.sim.vcd import close_probe, probe, vcd_of
@@ -81,6 +81,9 @@ class ModelChips:
 
 class SimTransport(ModelChips, CycleTransport):
     """Bus cycles straight into an in-process :class:`ChipModel`."""
+
+    #: its URL options, one table (the board's rows and the simulator's)
+    options = SIM_OPTIONS
 
     scheme = "sim"
     simulated = True
@@ -163,11 +166,12 @@ class SimTransport(ModelChips, CycleTransport):
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimTransport:
-        model = build_bus(url)
-        vcd = vcd_of(url)
+        opts = sim_options(url, cls.options, defaults=True)  # the one parse of the URL
+        model = build_bus(url, opts)
+        vcd = vcd_of(url, opts)
         if vcd is not None:  # the bus drawn into a VCD: every busy poll made, as on a bench
             model = probe(model, *vcd, cycle_clocks=max(1, round(CYCLE_S * model.clock_hz)))
-        t = cls(model, url, trace=trace, wiring=wiring_of(url))
+        t = cls(model, url, trace=trace, wiring=wiring_of(url, opts))
         t.skip_known_busy = t.skip_known_busy and vcd is None
         return t
 

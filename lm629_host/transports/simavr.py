@@ -22,27 +22,30 @@ from pathlib import Path
 from lm629_host.wiring.uno import CHIP_SELECTS
 from lm629_host.bus.program import TraceCallback
 from lm629_host.sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, check_firmware, firmware_path
-from lm629_host.sim.build import build_bus
+from lm629_host.sim.build import SIM_ROWS, build_bus, sim_options
 from lm629_host.sim.vcd import vcd_of
 from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.model import chips_of
-from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
+from lm629_host.sim.usb import OPTIONS as USB_ROWS
 from lm629_host.sim.usb import wrap_usb
-from lm629_host.urls import Option, PortURL, parse_options, query_params, with_defaults
+from lm629_host.bus.url_board import BOARD_ROWS
+from lm629_host.urls import Option, PortURL, with_defaults
 from lm629_host.transports.failsafe import FailsafeOptions
 from lm629_host.transports.link import LINK_OPTIONS, LinkTransport
 from lm629_host.transports.session import DEFAULT_RETRIES
 from lm629_host.transports.sim import ModelChips
 
-#: URL options of this transport (the others are the chip model's)
-OPTIONS = (*with_defaults(LINK_OPTIONS, baud=DEFAULT_BAUD), Option("firmware", "str", ""))
-OWN_PARAMS = frozenset(o.name for o in OPTIONS) | USB_OPTIONS
+#: URL options of this transport: the board's, the link's, its own, the USB adapter's and the
+#: chip model's (one table, parsed once)
+OPTIONS = (*BOARD_ROWS, *with_defaults(LINK_OPTIONS, baud=DEFAULT_BAUD),
+           Option("firmware", "str", ""), *USB_ROWS, *SIM_ROWS)
 
 
 class SimAvrTransport(ModelChips, LinkTransport):
     """The link protocol to the compiled firmware in simavr, in simulated time."""
 
     scheme = "sim+avr"
+    options = OPTIONS  #: its URL options, one table (parsed once, and listed by a message)
     simulated = True
     #: the wire time estimate counts 10 bits a byte, simavr's UART takes 11: the margin covers
     #: that (10% of two 253-byte frames at 115200 baud is 4.8 ms) and the firmware's own time
@@ -65,7 +68,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimAvrTransport:
         # checked before simavr starts, as a real port's before it opens
-        opts = parse_options(url, OPTIONS, ignore=set(query_params(url)) - {o.name for o in OPTIONS})
+        opts = sim_options(url, OPTIONS, defaults=True)
         baud = opts["baud"]
         if opts["firmware"]:
             firmware = Path(opts["firmware"])
@@ -77,11 +80,11 @@ class SimAvrTransport(ModelChips, LinkTransport):
                              f"{' or '.join(map(str, BUILT_BAUDS))} baud; for another rate build "
                              f"one with `make -C firmware_bridge BAUD={baud}` and pass "
                              "firmware=firmware_bridge/build/lm629_bridge.elf")
-        model = build_bus(url, allowed=OWN_PARAMS, limit=len(CHIP_SELECTS))
+        model = build_bus(url, opts, limit=len(CHIP_SELECTS))
         if hasattr(model, "lines"):
             model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
-        vcd = vcd_of(url)
-        sim = AvrSim(model, firmware, wiring=wiring_of(url))
+        vcd = vcd_of(url, opts)
+        sim = AvrSim(model, firmware, wiring=wiring_of(url, opts))
         if vcd is not None:
             sim.write_vcd(*vcd)
         return cls(sim, url, trace=trace, baud=baud, fast_baud=opts["fast_baud"],

@@ -9,30 +9,33 @@ import dataclasses
 
 from lm629_host.wiring.uno import CHIP_SELECTS
 from lm629_host.sim.bridge import BUS_CYCLE_S, MULTI_AXIS_INFO, ONE_CHIP_INFO, BridgeEmulator, EmuPipe
-from lm629_host.sim.build import build_bus
+from lm629_host.sim.build import SIM_ROWS, build_bus, sim_options
 from lm629_host.sim.vcd import close_probe, probe, vcd_of
 from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.model import ChipBus, ChipModel, chips_of
-from lm629_host.sim.usb import OPTION_NAMES as USB_OPTIONS
+from lm629_host.sim.usb import OPTIONS as USB_ROWS
 from lm629_host.sim.usb import wrap_usb
 from lm629_host.bridge.protocol import Pipe
 from lm629_host.bus.program import TraceCallback
-from lm629_host.urls import Option, PortURL, parse_options, port_url, query_params
+from lm629_host.bus.url_board import BOARD_ROWS
+from lm629_host.urls import Option, PortURL, port_url
 from lm629_host.transports.failsafe import FailsafeOptions
 from lm629_host.transports.link import LINK_OPTIONS, LinkTransport
 from lm629_host.transports.session import DEFAULT_RETRIES
 from lm629_host.transports.sim import ModelChips
 
 
-#: the options of ``sim+emu://`` (the others are the chip model's and the USB adapter's): the
-#: link's, a line without wire time (``baud=0``), the far end's HELLO, a line's top rate
+#: the options of ``sim+emu://``, one table: the board's, the link's (a line without wire
+#: time: ``baud=0``), the far end's HELLO, a line's top rate, the USB adapter's, the chip model's
 OPTIONS = (
+    *BOARD_ROWS,
     *(dataclasses.replace(o, default=115200, off=0, unit="baud (0: no wire time)")
       if o.name == "baud" else o for o in LINK_OPTIONS),
     Option("bridge", "str", "", choices=("", "1", str(len(CHIP_SELECTS)))),
     Option("max_baud", "int", 0, 300, 4_000_000, "baud", off=0),  # 0: any
+    *USB_ROWS,
+    *SIM_ROWS,
 )
-OPTION_NAMES = frozenset(o.name for o in OPTIONS)
 
 
 class EmuLinkTransport(ModelChips, LinkTransport):
@@ -41,6 +44,7 @@ class EmuLinkTransport(ModelChips, LinkTransport):
     serial path without a pseudo-terminal or the AVR toolchain."""
 
     scheme = "sim+emu"
+    options = OPTIONS  #: its URL options, one table (parsed once, and listed by a message)
     simulated = True
     model: ChipModel | ChipBus  #: the chip (or the chips) behind the emulated bridge
     models: list[ChipModel]  #: the chips on the bridge's chip selects 0, 1, ...
@@ -86,16 +90,16 @@ def open_emulated(url: str | PortURL = "sim://", *, baud: int | None = None,
     """
     url_of = port_url(url)
     # checked before the far end is built, as a real port's before it opens
-    opts = parse_options(url_of, OPTIONS, ignore=set(query_params(url)) - OPTION_NAMES)
+    opts = sim_options(url_of, OPTIONS, defaults=True)
     if baud is None:
         baud = opts["baud"]
     # bridge=1: a one-chip bridge (firmware 1.0: no chip selects); else the multi-axis HELLO
     info = ONE_CHIP_INFO if opts["bridge"] == "1" else MULTI_AXIS_INFO
-    model = build_bus(url, allowed=OPTION_NAMES | USB_OPTIONS, limit=info.chip_selects)
-    vcd = vcd_of(url)
+    model = build_bus(url, opts, limit=info.chip_selects)
+    vcd = vcd_of(url, opts)
     if vcd is not None:  # the bridge's strobes drawn into a VCD, one bus cycle each
         model = probe(model, *vcd, cycle_clocks=max(1, round(BUS_CYCLE_S * model.clock_hz)))
-    emu = BridgeEmulator(model, info, wiring=wiring_of(url))
+    emu = BridgeEmulator(model, info, wiring=wiring_of(url, opts))
     pipe = EmuPipe(emu, baud=baud or None, max_baud=opts["max_baud"] or None)
     outer = wrap_usb(wrap(pipe) if wrap is not None else pipe, url)
     usb = getattr(outer, "adapter", None)

@@ -28,12 +28,12 @@ from lm629_host.wiring import ft232h as ftdi_pins
 from lm629_host.clock import Clock
 from lm629_host.errors import ProtocolViolation
 from lm629_host.bus.program import Program, ProgramResult, TraceCallback
-from lm629_host.sim.build import build_bus
+from lm629_host.sim.build import SIM_ROWS, build_bus, sim_options
 from lm629_host.sim.vcd import vcd_of
 from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.ftdi import EmulatedBackend, EmulatedFT232H
 from lm629_host.sim.model import ChipBus, ChipModel, Violation, chips_of
-from lm629_host.urls import Option, PortURL, parse_options, query_params
+from lm629_host.urls import Option, PortURL
 from lm629_host.transports.reports import Check, PortInfo
 from lm629_host.transports.ftdi import FtdiTransport
 from lm629_host.transports.ftdi_open import FT232H_PID, FTDI_VID, busy_pin_of, open_mpsse
@@ -47,8 +47,8 @@ OPTIONS = (*FTDI_OPTIONS,
            Option("command_ns", "float", 500, 0, 1e6, "ns"),
            # whether the emulated chip shows its status live while /RD is held low (the
            # unknown a busy pin relies on: docs/ftdi.md); default: live with busy_pin
-           Option("live_status", "str", "auto", choices=("auto", "0", "1")))
-OWN_PARAMS = frozenset(o.name for o in OPTIONS)
+           Option("live_status", "str", "auto", choices=("auto", "0", "1")),
+           *SIM_ROWS)
 
 
 class EmulatedClock(Clock):
@@ -66,14 +66,13 @@ class EmulatedClock(Clock):
 
 class SimFtdiTransport(ModelChips, FtdiTransport):
     scheme = "sim+ftdi"
+    options = OPTIONS  #: its URL options, one table (parsed once, and listed by a message)
     simulated = True
 
     @classmethod
     def from_url(cls, url: str | PortURL, *, trace: TraceCallback | None = None) -> SimFtdiTransport:
-        model = build_bus(url, allowed=OWN_PARAMS, limit=len(ftdi_pins.CHIP_SELECTS))
-        # build_bus checked every other option: they are the chip model's
-        opts = parse_options(url, OPTIONS,
-                             ignore=set(query_params(url)) - OWN_PARAMS)
+        opts = sim_options(url, OPTIONS, defaults=True)  # the one parse of the URL
+        model = build_bus(url, opts, limit=len(ftdi_pins.CHIP_SELECTS))
         latency, busy_us, frequency = opts["latency"], opts["busy_us"], opts["frequency"]
         usb_us, command_ns = opts["usb_us"], opts["command_ns"]
         strict = model.params.strict
@@ -83,8 +82,8 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
         live = {"auto": None, "0": False, "1": True}[str(opts["live_status"]).lower()]
         device = EmulatedFT232H(model, usb_ns=round(usb_us * 1000), command_ns=round(command_ns),
                                 busy_pin=busy_pin is not None, live_status=live,
-                                wiring=wiring_of(url))
-        vcd = vcd_of(url)
+                                wiring=wiring_of(url, opts))
+        vcd = vcd_of(url, opts)
         if vcd is not None:
             device.write_vcd(*vcd)
         backend = EmulatedBackend([device])

@@ -76,6 +76,21 @@ def panel(port: str = "sim://", *extra: str, listen: str = "127.0.0.1:0") -> Ite
             p.end()
 
 
+@contextmanager
+def profile_panel(path) -> Iterator[Panel]:
+    """``lm629 --profile PATH panel --listen 127.0.0.1:0`` as a process (the strict simulator
+    of the tests' environment); ready once it printed its address."""
+    argv = [_console_script(), "--profile", str(path), "panel", "--listen", "127.0.0.1:0"]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=_env())
+    p = Panel(proc, proc.stdout.readline().strip())
+    assert p.url.startswith("http://"), p.url + proc.stderr.read()
+    try:
+        yield p
+    finally:
+        p.end()
+
+
 def request(p: Panel, method: str, path: str, *, body: dict | None = None,
             headers: dict[str, str] | None = None, host: str | None = None) -> tuple[int, str]:
     """One HTTP request to the panel, the Host header as given (default: the address's)."""

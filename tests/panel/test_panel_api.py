@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from panel_helpers import Panel, command, events, panel, request
+from panel_helpers import command, events, panel, profile_panel, request
 from served import _console_script, _env
 
 PROFILE = """\
@@ -34,15 +34,8 @@ max = 5000
 def profiled(tmp_path_factory):
     path = tmp_path_factory.mktemp("panel") / "bench.toml"
     path.write_text(PROFILE)
-    argv = [_console_script(), "--profile", str(path), "panel", "--listen", "127.0.0.1:0"]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=_env())
-    p = Panel(proc, proc.stdout.readline().strip())
-    assert p.url.startswith("http://"), p.url + proc.stderr.read()
-    try:
+    with profile_panel(path) as p:
         yield p, p.page_token(), path
-    finally:
-        p.end()
 
 
 def _rows_until(stream, seconds: float) -> list:
@@ -171,19 +164,12 @@ def test_step_prediction_from_the_profiles_plant(tmp_path):
 
     path = tmp_path / "twin.toml"
     path.write_text(TWIN)
-    argv = [_console_script(), "--profile", str(path), "panel", "--listen", "127.0.0.1:0"]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=_env())
-    p = Panel(proc, proc.stdout.readline().strip())
-    assert p.url.startswith("http://"), p.url + proc.stderr.read()
-    try:
+    with profile_panel(path) as p:
         token = p.page_token()
         with events(p, token) as stream:
             hello = next(stream)
             status, answer = command(p, token, {"cmd": "step", "distance": "300", "time": "0.3",
                                                 "client": hello["client"]})
-    finally:
-        p.end()
     assert answer["ok"], answer
     d = answer["data"]
     assert d["basis"] == "the twin: [axis.x.plant]"

@@ -19,7 +19,7 @@ import time
 import pytest
 
 from lm629_host.panel.bench import SAMPLE_HZ
-from panel_helpers import Panel, command, events
+from panel_helpers import command, events, profile_panel
 from served import _console_script, _env
 
 PROFILE = """\
@@ -54,15 +54,8 @@ MOTOR_OFF = 0x80
 def bench(tmp_path_factory):
     path = tmp_path_factory.mktemp("panel-profile") / "bench.toml"
     path.write_text(PROFILE)
-    argv = [_console_script(), "--profile", str(path), "panel", "--listen", "127.0.0.1:0"]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=_env())
-    p = Panel(proc, proc.stdout.readline().strip())
-    assert p.url.startswith("http://"), p.url + proc.stderr.read()
-    try:
+    with profile_panel(path) as p:
         yield p, p.page_token(), path
-    finally:
-        p.end()
 
 
 def _cli(path, *argv: str) -> subprocess.CompletedProcess:

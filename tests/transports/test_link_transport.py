@@ -387,3 +387,14 @@ def test_refused_programs_are_typed_errors_and_nothing_ran():
     with pytest.raises(TransportError, match="PROGRAM_TOO_LONG; nothing of it ran"):
         t.execute(Program().command(Cmd.SBPA).write(0).write(1))
     assert t.model.history == [] and t.stats.bus_cycles == 0
+
+
+def test_a_transport_whose_making_failed_is_not_closed_at_exit():
+    """A link refused while it was being made (here ``retries=-1``, refused before its failsafe
+    exists) was never handed to anyone: the interpreter's exit leaves it alone (it used to try
+    to close it there and log "could not close at exit: ... no attribute 'failsafe'")."""
+    from lm629_host.transports import exiting
+    before = exiting.left_open()
+    with pytest.raises(ValueError, match="retries=-1"):
+        LinkTransport(EmuPipe(BridgeEmulator(build_model("sim://"))), "x", retries=-1)
+    assert exiting.left_open() == before

@@ -37,7 +37,7 @@ def test_a_command_parses_its_port_once(monkeypatch):
     ("sim://?chip=lm629&chip=lm628", "chip= is given twice ('lm629' and 'lm628')"),
     ("sim:///x", "a simulator has no host or path ('/x')"),
     ("sim://host:1/", "a simulator has no host or path ('host:1')"),
-    ("sim://?vcd=", "vcd= is empty"),
+    ("sim://?vcd=", "vcd= is empty: give the file to write"),
     ("socket://host", "socket:// needs a host and a port number"),
     ("sim+avr://?baud=0", "baud=0 is outside 300..4000000 baud"),
 ])

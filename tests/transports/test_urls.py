@@ -31,8 +31,8 @@ def test_types_units_and_defaults():
     ("x://?clock=nan", "clock='nan' is not a frequency (8MHz, 6e6)"),
     ("x://?strict=maybe", "strict='maybe': expected a boolean (1/0), got 'maybe'"),
     ("x://?fault=smoke", "fault='smoke': expected one of reset, busy"),
-    ("x://?speed=9600", "unknown demo parameter(s) speed; known: axes, baud (baud), boot (s), "
-                        "chip, clock (Hz), cs, fault (reset|busy), strict"),  # + the board's
+    ("x://?speed=9600", "unknown demo parameter(s) speed; known: baud (baud), boot (s), "
+                        "clock (Hz), fault (reset|busy), strict"),  # the table's, no other
 ])
 def test_errors_name_the_url_the_option_and_what_is_allowed(url, message):
     with pytest.raises(ValueError) as info:
@@ -40,8 +40,8 @@ def test_errors_name_the_url_the_option_and_what_is_allowed(url, message):
     assert str(info.value) == f"{url}: {message}"
 
 
-def test_ignored_and_aliased_names():
-    assert parse_options("x://?rate=9&b=300", OPTS, ignore={"rate"}, aliases={"b": "baud"},
+def test_aliased_names():
+    assert parse_options("x://?b=300", OPTS, aliases={"b": "baud"},
                          given_only=True) == {"baud": 300}
     with pytest.raises(ValueError, match="b='x' is not a number"):  # the URL's own spelling
         parse_options("x://?b=x", OPTS, aliases={"b": "baud"})
