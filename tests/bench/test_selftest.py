@@ -197,6 +197,93 @@ def test_a_shaft_resting_on_the_index_is_no_difference():
     assert next(m for m in r.measurements if m.name == "home: status").measured == 0x04
 
 
+class _LateAtSIP(BusObserver):
+    """A host late by ``late_s`` before each program that sends SIP: the SIP lands at another
+    point of the chip's sample period than of the model's (a wait's end, a late host or a
+    slow adapter does this on a bench)."""
+
+    def __init__(self, late_s: float) -> None:
+        self.late_s, self.seen = late_s, 0
+
+    def program_starting(self, transport: Transport, program: Program) -> None:
+        if any(o.op.name == "COMMAND" and o.arg == Cmd.SIP for o in program.ops):
+            self.seen += 1
+            transport.clock.sleep(self.late_s)
+
+
+def _parked(url: str, sixteenths: int, chip_fault=None) -> st.Report:
+    """The selftest of a shaft resting at angle 1000.61 (on the index count 1000, 2 x 500
+    lines from power-up: model choice 20), the SIP late by ``sixteenths`` of a sample."""
+    with lm629_host.open(f"{url}{'&' if '?' in url else '?'}start_position=1000.61") as chip:
+        if chip_fault is not None:
+            chip_fault(chip.transport.model)
+        late = _LateAtSIP(sixteenths / 16 * 2048 / 8e6)
+        chip.transport.add_observer(late)
+        r = st.run(chip, st.Options(8e6))
+    assert late.seen == 2  # the probe's SIP and the core's
+    return r
+
+
+@pytest.mark.parametrize("url,sixteenths", [("sim://", k) for k in range(16)]
+                         + [("sim+emu://", k) for k in (0, 5, 11)])
+def test_a_shaft_resting_on_the_index_is_no_difference_wherever_the_sip_lands(url, sixteenths):
+    """The crossings machine's finding (shaft parked at angle 1000.61 with kp 400): SIP
+    latches an index under a shaft at rest at the first sample after it, so a status read
+    right after SIP (or after the DFH that follows) saw the latch or not by where in its
+    sample period the SIP landed, on the chip and on the model alike but not at the same
+    point: "home: status" chip 04, model 0C (on sim+emu://, "index armed: status" chip 0C,
+    model 04).  The fraction of the count the shaft rests at (0.61, the model's 0.0) plays no
+    part.  The reads after SIP wait INDEX_PROBE_SAMPLES samples: 0C on both, at every point
+    of the sample period."""
+    r = _parked(url, sixteenths)
+    assert (r.verdict, r.faults, r.differences) == ("PASS", [], [])
+    seen = {m.name: (m.measured, m.expected) for m in r.measurements}
+    assert seen[st.INDEX_AT_REST] == (True, True)
+    # latched (bit 3) on both; signals bit 0 (SIP armed) cleared by the latch at 0000
+    assert seen["index armed: status"] == seen["home: status"] == (0x0C, 0x0C)
+    assert not seen["index armed: RDSIGS"][0] & 1 and seen["index armed: RDIP"] == (0, 0)
+    wait = next(m for m in r.measurements if m.name == "index armed: status").command
+    assert wait == f"SIP; wait {st.latch_wait_us(8e6)} us" == "SIP; wait 768 us"
+    assert st.compare(st.Report.from_json(r.to_json())) == []
+
+
+def _dfh_clears_the_index_flag(model) -> None:
+    """A chip that mis-handles the index: DFH clears the latched INDEX_PULSE (status bit 3),
+    which only RSTI may clear."""
+    execute = model._execute
+
+    def faulty(cmd, words):
+        execute(cmd, words)
+        if cmd is Cmd.DFH:
+            model.flags &= ~0x08
+
+    model._execute = faulty
+
+
+@pytest.mark.parametrize("sixteenths", [0, 4, 8, 12])
+def test_a_chip_that_mishandles_a_latched_index_still_differs_wherever_the_sip_lands(
+        sixteenths):
+    """The wait after SIP judges every index bit where the model can tell it: a chip whose
+    DFH clears the latched index bit reads 04 after DFH where the model reads 0C, the same
+    three differences at every point of the sample period.  (Read right after SIP, where the
+    latch fell decided it: at half a sample late the chip latched after its DFH, so its fault
+    did not show at all, and the one difference told was the model's earlier latch.)"""
+    r = _parked("sim://", sixteenths, _dfh_clears_the_index_flag)
+    assert (r.verdict, r.exit_code, r.faults) == ("DIFFERS", 1, [])
+    assert {m.name: (m.measured, m.expected) for m in r.differences} == {
+        "home: status": (0x04, 0x0C), "motor off: status": (0x84, 0x8C),
+        "motor off: RDSIGS": (0x584, 0x58C)}  # signals' low byte: the status's flags
+
+
+def test_an_index_that_never_latches_under_a_parked_shaft_is_named_with_motion():
+    """The index not wired, the shaft resting where the index would be: the probe sees no
+    index (the model's stays half a turn away, so the core agrees), and --motion's run, whose
+    move crosses the index count twice in 2.5 turns, names the index."""
+    r = _run("sim://?wiring=index-open&start_position=1000.61", motion=True)
+    assert next(m for m in r.measurements if m.name == st.INDEX_AT_REST).measured is False
+    assert (r.verdict, r.exit_code, [f.line for f in r.faults]) == ("DIFFERS", 1, ["index"])
+
+
 @pytest.mark.parametrize("url,profile,found", [("sim://?chip=lm628", "lm629", "LM628"),
                                                ("sim+emu://?chip=lm628", "lm629", "LM628"),
                                                ("sim://", "lm628", "LM629")])

@@ -39,6 +39,7 @@ from lm629_host.bench.selftest.checks import (
     INDEX_AT_REST,
     INDEX_PROBE_SAMPLES,
     index_at_rest,
+    latch_wait_us,
 )
 from lm629_host.bench.selftest.lockstep import CHIP_RATE_MAX, PLATEAU_SAMPLES, SLOW, Item, Lockstep
 from lm629_host.bench.selftest.report import (
@@ -60,5 +61,5 @@ from lm629_host.bench.selftest.runner import Options, compare, reference, run
 __all__ = ["BREAKPOINT_AT", "BUSY_COMMANDS", "CHIP_RATE_MAX", "CLOCK_ROWS", "CLOCK_RUN_S",
            "CLOCK_TOLERANCE", "CRUISE_TO", "EXIT", "Fault", "INDEX_AT_REST", "INDEX_PROBE_SAMPLES",
            "Item", "Lockstep", "Measurement", "Options", "PLATEAU_SAMPLES", "Report", "SCHEMA",
-           "SCHEMA_VERSION", "SLOW", "compare", "index_at_rest", "load_report", "reference", "run",
-           "summary_markdown", "validate", "worst", "write_report"]
+           "SCHEMA_VERSION", "SLOW", "compare", "index_at_rest", "latch_wait_us", "load_report",
+           "reference", "run", "summary_markdown", "validate", "worst", "write_report"]

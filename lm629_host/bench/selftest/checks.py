@@ -10,6 +10,7 @@ two sides are kept in step is :mod:`.lockstep`'s, what becomes of the findings
 
 from __future__ import annotations
 
+import math
 import statistics
 from collections.abc import Sequence
 
@@ -58,6 +59,13 @@ INDEX_PROBE_SAMPLES = 3
 #: the name of the index probe's measurement (shown, never judged: where a shaft rests is
 #: the bench's business)
 INDEX_AT_REST = "index: under the shaft at rest"
+
+
+def latch_wait_us(clock_hz: float) -> int:
+    """The wait after SIP by which an index under a shaft at rest has surely latched:
+    :data:`INDEX_PROBE_SAMPLES` samples at ``clock_hz`` (a chip clocked up to 3 times slower
+    than that still runs a whole sample in it)."""
+    return math.ceil(INDEX_PROBE_SAMPLES * SAMPLE_CLOCKS / clock_hz * 1e6)
 
 
 def index_at_rest(chip: LM629) -> bool:
@@ -128,7 +136,12 @@ def check_core(ls: Lockstep) -> Fault | None:
         side.wait_for(Status.TRAJECTORY_COMPLETE, timeout=2 * CRUISE_TO * 16 * SAMPLE_CLOCKS
                       / ls.model.clock_hz + 1.0, what="the position-mode move to complete")
     ls.step("position done", [("s",), ("r", Cmd.RDSIGS), ("r", Cmd.RDDP), ("r", Cmd.RDDV)])
-    ls.step("index armed", [("w", Cmd.SIP), ("s",), ("r", Cmd.RDSIGS), ("r", Cmd.RDIP)])
+    # SIP latches an index under a shaft at rest at the first sample after it; whether that
+    # sample falls before a read right after SIP (or after DFH) depends on where in its
+    # sample period the SIP landed, which nothing makes the same on the chip and the model
+    # (a wait's end, a late host, a slow adapter): the reads wait until the latch is decided
+    ls.step("index armed", [("w", Cmd.SIP), ("t", latch_wait_us(ls.model.clock_hz)), ("s",),
+                            ("r", Cmd.RDSIGS), ("r", Cmd.RDIP)])
     ls.step("home", [("w", Cmd.DFH), ("s",), ("r", Cmd.RDDP), ("r", Cmd.RDRP)])
     ls.pause(0.012)
     ls.step("motor off", [("p", lambda c: c.trajectory_program(stop="off")), ("w", Cmd.STT),
@@ -351,5 +364,5 @@ def check_motion(ls: Lockstep, lines: int, gains: dict[str, int]) -> list[Fault]
 
 __all__ = ["BREAKPOINT_AT", "BUSY_COMMANDS", "CLOCK_ROWS", "CLOCK_RUN_S", "CRUISE_TO",
            "INDEX_AT_REST", "INDEX_PROBE_SAMPLES", "check_busy", "check_clock", "check_core",
-           "check_motion", "check_selects", "hi_fault", "index_at_rest", "positions_fault",
-           "variant_fault"]
+           "check_motion", "check_selects", "hi_fault", "index_at_rest", "latch_wait_us",
+           "positions_fault", "variant_fault"]

@@ -49,7 +49,8 @@ _READ_SIGNED16 = (Cmd.RDRV, Cmd.RDSUM)
 
 
 #: a step's items: ("w", Cmd, *words) a command with its words; ("r", Cmd) a read command;
-#: ("s",) the status once busy is clear; ("p", builder) a program piece built from the chip
+#: ("s",) the status once busy is clear; ("t", us) a far-side wait of at least ``us``
+#: microseconds; ("p", builder) a program piece built from the chip
 Item = tuple[Any, ...]
 
 
@@ -76,6 +77,9 @@ def _program(chip: LM629, items: Sequence[Item]) -> tuple[Program, list[tuple[st
         elif kind == "s":
             p.sync()
             labels.append(("status", "; ".join(said) or "RDSTAT"))
+        elif kind == "t":
+            p.wait(item[1])
+            said.append(f"wait {item[1]} us")
         else:
             piece: Program = item[1](chip)
             p.extend(piece)
