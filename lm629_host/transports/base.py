@@ -51,9 +51,9 @@ if TYPE_CHECKING:
 log = logging.getLogger("lm629_host.bus")
 
 
-#: the ``close`` wrappers :meth:`Transport.__init_subclass__` made (a subclass that inherits one
-#: is not wrapped again)
-_MARKING_CLOSE: set[Callable[..., None]] = set()
+#: the ``__init__`` and ``close`` wrappers :meth:`Transport.__init_subclass__` made (a subclass
+#: that inherits one is not wrapped again)
+_WRAPPERS: set[Callable[..., None]] = set()
 
 
 class LockedClock(Clock):
@@ -192,7 +192,7 @@ class Transport(abc.ABC):
         transport, an entry point's too, without each one keeping it."""
         super().__init_subclass__(**kwargs)
         init = cls.__dict__.get("__init__")
-        if init is not None and init not in _MARKING_CLOSE:
+        if init is not None and init not in _WRAPPERS:
             # a transport whose making failed was never handed to anyone: the exit does not
             # close it (half made, it may lack what its close needs)
             @functools.wraps(init)
@@ -202,10 +202,10 @@ class Transport(abc.ABC):
                 except BaseException:
                     exiting.forget(self)
                     raise
-            _MARKING_CLOSE.add(made)
+            _WRAPPERS.add(made)
             cls.__init__ = made  # type: ignore[method-assign]  # the subclass's own, wrapped
         own = cls.__dict__.get("close")
-        if own is None or own in _MARKING_CLOSE:
+        if own is None or own in _WRAPPERS:
             return
 
         @functools.wraps(own)
@@ -215,7 +215,7 @@ class Transport(abc.ABC):
             finally:
                 self._closed = True
                 exiting.forget(self)
-        _MARKING_CLOSE.add(close)  # wrapped once per class
+        _WRAPPERS.add(close)  # wrapped once per class
         cls.close = close  # type: ignore[method-assign]  # the subclass's own, wrapped
 
     def check_open(self) -> None:
