@@ -17,6 +17,8 @@ import logging
 import threading
 from urllib.parse import parse_qsl, urlencode
 
+from lm629_host.urls import scheme_of
+
 log = logging.getLogger("lm629_host.serial")
 
 #: how long a write may block on a port before it gives up (pyserial's ``write_timeout``;
@@ -26,11 +28,6 @@ WRITE_TIMEOUT_S = 2.0
 
 #: values of ``ign_set_control=`` that mean "wait for the server's answer after all"
 _NO = ("0", "no", "false", "off")
-
-
-def scheme_of(device: str) -> str:
-    """The scheme of a port URL in lower case ('' for a device path)."""
-    return device.split("://", 1)[0].lower() if "://" in device else ""
 
 
 def rfc2217_url(device: str) -> str:
@@ -205,4 +202,4 @@ def no_telnet(data: bytes) -> bytes:
 
 
 __all__ = ["WRITE_TIMEOUT_S", "no_telnet", "quiet_rfc2217_reader", "refusal", "rfc2217_port_class",
-           "rfc2217_url", "scheme_of", "server_says", "server_words"]
+           "rfc2217_url", "server_says", "server_words"]

@@ -44,7 +44,7 @@ from lm629_host.bridge.protocol.constants import FAST_BAUD
 from lm629_host.clock import Clock, WallClock
 from lm629_host.errors import TransportError
 from lm629_host.bus.program import TraceCallback
-from lm629_host.urls import Option, PortURL, parse_options, port_url, table_names, with_defaults
+from lm629_host.urls import Option, PortURL, parse_options, port_url, scheme_of, table_names, with_defaults
 from lm629_host.bus.url_board import BOARD_ROWS
 from lm629_host.transports.reports import Check, PortInfo
 from lm629_host.transports.failsafe import FailsafeOptions
@@ -56,7 +56,6 @@ from lm629_host.transports.netport import (
     refusal,
     rfc2217_port_class,
     rfc2217_url,
-    scheme_of,
     server_says,
     server_words,
 )
@@ -192,7 +191,7 @@ def line_advice_of(device: str | None) -> str | None:
     pseudo-terminal, a network socket); None for a real serial device."""
     if not device:
         return None
-    scheme = device.split("://", 1)[0] if "://" in device else ""
+    scheme = scheme_of(device) if "://" in device else ""
     if scheme in ("socket", "rfc2217"):
         return ("Check the network path to the server and that the server (ser2net, "
                 "`lm629 sim serve --tcp`) is running and keeps up")
