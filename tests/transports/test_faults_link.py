@@ -236,14 +236,18 @@ def test_too_noisy_link_says_so_in_one_line():
     chip, model, fp, far_stats = open_faulty("emu", {}, 3, baud=1_000_000)
     chip.transport.retries = 2
     fp.out.rates.drop = fp.into.rates.drop = 0.3
-    with pytest.raises(TransportError) as e:
-        for _ in range(200):
-            chip.read_real_position()
+    try:
+        with pytest.raises(TransportError) as e:
+            for _ in range(200):
+                chip.read_real_position()
+        rate = chip.transport.error_rate  # as the message measured it, before the close
+    finally:  # the line healed and the link closed here, not left to the interpreter's exit
+        fp.out.rates.drop = fp.into.rates.drop = 0.0
+        chip.close()
     msg = str(e.value)
     assert "\n" not in msg
     assert "too noisy to use" in msg
     assert "cable" in msg and "ground" in msg and "baud" in msg
-    rate = chip.transport.error_rate
     assert f"({100 * rate:.0f} %" in msg and rate > 0.2
 
 
