@@ -312,7 +312,13 @@ def test_a_second_thread_reading_the_chip_issues_no_piece_twice():
         assert not errors
         assert chip.read_desired_position() == 30000 and abs(result.error) <= 20
         assert all(b - a >= 0.01 - ROUNDING_S for a, b in zip(move.piece_times, move.piece_times[1:]))
-        assert len(move.plan.pieces) - 1 <= len(move.words) <= len(move.plan.pieces) + 1
+        # each cap due later than the one before: no piece of the plan went out twice.  How
+        # many went out is not this test's subject: the logger's reads take the simulated
+        # bus's time too, so a host thread the OS held back is late on the chip's clock, and a
+        # late host skips the pieces the chip has passed, or raises the slowing caps to what
+        # the chip has left and lands a piece or two early (CI saw 83 of 85)
+        assert all(b > a for a, b in zip(move.dues, move.dues[1:]))
+        assert len(move.words) <= len(move.plan.pieces) + 1
 
 
 # ------------------------------------------------------------- a long move the bridge streams
