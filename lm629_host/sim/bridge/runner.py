@@ -107,16 +107,47 @@ class RunSide(BridgeParts):
     def _chip(self) -> ChipModel:
         return self._by_cs.get(self._cs, self._no_chip)  # type: ignore[arg-type]  # an unwired select: the floating bus
 
+    #: False: make every busy poll (the reference the skip is tested against,
+    #: tests/sim/test_emulator_busy_skip.py)
+    skip_known_busy = True
+
     def _wait_not_busy(self, timeout_s: float) -> tuple[bool, int]:
+        """The firmware's busy loop: a status read per strobe until busy is clear or
+        ``timeout_s`` has passed.  The reads the chip's busy deadline already answers are
+        counted, not made (:meth:`_skip_known_busy`)."""
         m = self.model
         deadline = m.tick + math.ceil(timeout_s * m.clock_hz)
         while True:
+            self._skip_known_busy(deadline)
             status = self._strobe().read_status()
             self.stats.busy_polls += 1
             if not status & _BUSY:
                 return True, status
             if m.tick >= deadline:
                 return False, status
+
+    def _skip_known_busy(self, deadline: int) -> None:
+        """Skip the busy polls the selected chip's busy deadline already answers.
+
+        The loop reads the status at ``t0 + k c`` (``c`` the strobe's clocks, k = 1, 2, ...);
+        every read before the chip's busy deadline reads busy, and the loop ends at the first
+        read at or past ``deadline``.  The reads before both are skipped: the model is
+        advanced to the same tick (the same samples, in fewer steps) and they are counted as
+        made; the next read is made for real.  Never through miswired lines, nor on an
+        unwired select, nor when busy has no known end (``fault=busy``)."""
+        chip = self._chip()
+        if not self.skip_known_busy or self.wiring is not None or not isinstance(chip, ChipModel):
+            return
+        until = chip.busy_deadline()
+        m, c = self.model, self._cycle_ticks
+        t0 = m.tick
+        if until is None or until <= t0 + c:
+            return
+        k = min(-(-(until - t0) // c), -(-(deadline - t0) // c)) - 1
+        if k > 0:
+            m.advance_to(t0 + k * c)
+            self.stats.bus_cycles += k
+            self.stats.busy_polls += k
 
     def _wait_status(self, mask: int, timeout_s: float, capped: bool = False) -> int:
         """Op.WAIT_STATUS as the firmware runs it: a status read every WAIT_STATUS_POLL_US
