@@ -254,7 +254,8 @@ def firmware_far_end(url: str | PortURL) -> FarEnd:
     adapter).  Raises RuntimeError saying what is missing when the firmware or the harness
     cannot run."""
     from lm629_host.wiring.uno import CHIP_SELECTS
-    from lm629_host.sim.avr import DEFAULT_BAUD, AvrPipe, AvrSim, HarnessError
+    from lm629_host.sim.avr import AvrPipe, AvrSim
+    from lm629_host.sim.harness import DEFAULT_BAUD, HarnessError
 
     opts = sim_options(url, SERVED_OPTIONS, defaults=True)  # before the firmware is built
     adapter = adapter_of(url, opts)

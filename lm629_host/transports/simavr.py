@@ -21,7 +21,8 @@ from pathlib import Path
 
 from lm629_host.wiring.uno import CHIP_SELECTS
 from lm629_host.bus.program import TraceCallback
-from lm629_host.sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, check_firmware, firmware_path
+from lm629_host.sim.avr import AvrPipe, AvrSim
+from lm629_host.sim.harness import BUILT_BAUDS, DEFAULT_BAUD, check_firmware, firmware_path
 from lm629_host.sim.build import SIM_ROWS, build_bus, sim_options
 from lm629_host.sim.vcd import vcd_of
 from lm629_host.sim.wiring import wiring_of

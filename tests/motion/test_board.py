@@ -352,7 +352,7 @@ def test_the_firmware_built_for_one_chip_under_this_host():
     """The compiled firmware reporting one chip select (build/lm629_bridge_1chip.elf) in
     simavr: HELLO says 1, the host drives its chip, axis 1 is one clear error before any
     traffic, and a board of two is refused at open."""
-    from lm629_host.sim.avr import BUILD_DIR, ensure_built
+    from lm629_host.sim.harness import BUILD_DIR, ensure_built
     ensure_built()
     fw = BUILD_DIR / "lm629_bridge_1chip.elf"
     url = f"sim+avr://?baud=1000000&firmware={fw}"
