@@ -511,8 +511,6 @@ OVERSIZE = {
     # the link's session: the public interface its parts use (request, events, idle time, a
     # raw send, invalidation) beside the exchange itself; a few lines over, not a second job
     "LinkSession": 456,
-    # one job each, long: the emulated FT232H, the simavr harness, the served far end
-    "lm629_host/sim/serve.py": 604,
 }
 
 
