@@ -241,7 +241,7 @@ def firmware_far_end(url: str | PortURL) -> FarEnd:
                            "with `make -C firmware_bridge` (needs gcc-avr, avr-libc, simavr, "
                            "libsimavr-dev), or serve the Python bridge without --firmware.") from None
     name = "bridge firmware in simavr" + (f" behind USB {adapter.describe()}" if adapter else "")
-    return PipeFarEnd(wrap_usb(AvrPipe(sim), url, opts), model, name, baud=DEFAULT_BAUD)
+    return PipeFarEnd(wrap_usb(AvrPipe(sim), adapter), model, name, baud=DEFAULT_BAUD)
 
 
 __all__ = ["EmuFarEnd", "FarEnd", "PipeFarEnd", "emulator_far_end", "firmware_far_end"]
