@@ -507,11 +507,7 @@ MODULE_LINES_MAX = 600
 CLASS_LINES_MAX = 450
 #: rooms still past them, each at most its size when this guard came in (none may grow), and
 #: why; a room leaves this list when it is split by job
-OVERSIZE = {
-    # the link's session: the public interface its parts use (request, events, idle time, a
-    # raw send, invalidation) beside the exchange itself; a few lines over, not a second job
-    "LinkSession": 456,
-}
+OVERSIZE: dict[str, int] = {}
 
 
 def _oversize() -> list[str]:
