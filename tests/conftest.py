@@ -19,7 +19,7 @@ os.environ.setdefault("LM629_SIM_STRICT", "1")
 import pytest
 
 import lm629_host
-from lm629_host.sim import avr as avrsim
+from lm629_host.sim import harness
 from lm629_host.bus.program import BusCycle
 
 from selection import is_slow, what_runs
@@ -35,7 +35,7 @@ pytest_plugins = ("firmware_helpers", "pytester", "xdist_groups")
 
 
 def _avr_missing() -> list[str]:
-    return avrsim.toolchain_missing()
+    return harness.toolchain_missing()
 
 
 #: the CPU hogs of ``--cpu-hogs`` while the session runs
@@ -69,20 +69,20 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     missing = _avr_missing()
     if missing and os.environ.get(_REQUIRE_AVR) == "1":
         pytest.exit(f"{_REQUIRE_AVR}=1 but the AVR toolchain is missing ({', '.join(missing)}):"
-                    f" apt-get install {avrsim.PACKAGES}", returncode=1)
+                    f" apt-get install {harness.PACKAGES}", returncode=1)
     # the firmware and the simavr harness are built once, by the process that starts the run,
     # before any xdist worker exists: two workers running make in one build directory could
     # load a half-written image (a failed build is reported by the tests that need it)
     if not missing and not hasattr(session.config, "workerinput"):
         try:
-            avrsim.ensure_built()
-        except avrsim.HarnessError:
+            harness.ensure_built()
+        except harness.HarnessError:
             pass
         # the firmware's host-side C tests too (`make test`'s two programs, ASan): run by
         # tests/firmware/test_firmware_build.py and by docs/bridge.md's `make -C firmware_bridge
         # test` on two workers, which would otherwise both compile them into one build/ at once
         # (a half-written program run); a few milliseconds when they are current
-        subprocess.run(["make", "-s", "-C", str(avrsim.FIRMWARE_DIR), "build/test_link",
+        subprocess.run(["make", "-s", "-C", str(harness.FIRMWARE_DIR), "build/test_link",
                         "build/fuzz_link"], capture_output=True)  # a failure: the tests say it
 
 
@@ -125,7 +125,7 @@ def pytest_report_header(config: pytest.Config) -> list[str]:
     missing = _avr_missing()
     if missing:
         lines.append(f"!!! AVR toolchain missing ({', '.join(missing)}): the firmware-in-the-loop "
-                     f"tests will be SKIPPED (apt-get install {avrsim.PACKAGES})")
+                     f"tests will be SKIPPED (apt-get install {harness.PACKAGES})")
     return lines
 
 
@@ -155,7 +155,7 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
             or "sim+avr" in str(getattr(r, "longrepr", "")))
     terminalreporter.write_sep(
         "!", f"AVR toolchain missing ({', '.join(missing)}): {n} firmware-in-the-loop tests "
-        f"SKIPPED, the firmware is UNTESTED. apt-get install {avrsim.PACKAGES}, or run "
+        f"SKIPPED, the firmware is UNTESTED. apt-get install {harness.PACKAGES}, or run "
         f".ci/run as root (it installs them and sets {_REQUIRE_AVR}=1)", red=True, bold=True)
 
 

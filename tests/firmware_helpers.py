@@ -12,7 +12,7 @@ import os
 
 import pytest
 
-from lm629_host.sim import avr as avrsim
+from lm629_host.sim import harness
 
 #: set by .ci/run: a missing toolchain fails the firmware tests instead of skipping them
 REQUIRE_ENV = "LM629_REQUIRE_AVR"
@@ -20,14 +20,14 @@ REQUIRE_ENV = "LM629_REQUIRE_AVR"
 
 def require_firmware() -> None:
     """Build the firmware and harness (incremental), or skip/fail as described above."""
-    missing = avrsim.toolchain_missing()
-    if missing and not (avrsim.LIBRARY.exists() and avrsim.firmware_path().exists()):
+    missing = harness.toolchain_missing()
+    if missing and not (harness.LIBRARY.exists() and harness.firmware_path().exists()):
         why = (f"AVR toolchain missing ({', '.join(missing)}): apt-get install "
-               f"{avrsim.PACKAGES} (or run .ci/run as root)")
+               f"{harness.PACKAGES} (or run .ci/run as root)")
         if os.environ.get(REQUIRE_ENV) == "1":
             pytest.fail(f"{REQUIRE_ENV}=1 and {why}")
         pytest.skip(why)
-    avrsim.ensure_built()  # HarnessError (the build failed): the test fails with make's output
+    harness.ensure_built()  # HarnessError (the build failed): the test fails with make's output
 
 
 @pytest.fixture(scope="session")

@@ -134,7 +134,7 @@ def transported() -> dict[str, Any]:
                                  start=True)
             chip.read_real_position()
             chip.snapshot()
-            dev.stretch_busy(1, 300e-6, skip=2)  # a busy repeat and polls
+            dev.chip_pins.stretch_busy(1, 300e-6, skip=2)  # a busy repeat and polls
             chip.load_trajectory(acceleration=0x1234, velocity=0x56789, position=4000)
             chip.read_status()
             out[url] = [_small(_enc(b)) for b in sent]

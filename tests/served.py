@@ -16,7 +16,7 @@ import pytest
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from lm629_host.sim.avr import toolchain_missing
+from lm629_host.sim.harness import toolchain_missing
 
 
 @contextmanager

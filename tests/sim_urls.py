@@ -43,7 +43,7 @@ def available(url: str) -> bool:
     except ImportError:
         return False
     if url.startswith("sim+avr"):
-        from lm629_host.sim.avr import toolchain_missing
+        from lm629_host.sim.harness import toolchain_missing
 
         return not toolchain_missing()
     return True

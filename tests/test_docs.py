@@ -42,7 +42,7 @@ import pytest
 from sybil import Sybil
 from sybil.parsers.markdown import CodeBlockParser
 
-from lm629_host.sim.avr import toolchain_missing
+from lm629_host.sim.harness import toolchain_missing
 from labgrid_lab import SER2NET, SER2NET_LOOPBACK
 from served import _console_script
 

@@ -507,16 +507,7 @@ MODULE_LINES_MAX = 600
 CLASS_LINES_MAX = 450
 #: rooms still past them, each at most its size when this guard came in (none may grow), and
 #: why; a room leaves this list when it is split by job
-OVERSIZE = {
-    # the link's session: the public interface its parts use (request, events, idle time, a
-    # raw send, invalidation) beside the exchange itself; a few lines over, not a second job
-    "LinkSession": 456,
-    # one job each, long: the emulated FT232H, the simavr harness, the served far end
-    "lm629_host/sim/ftdi/device.py": 636,
-    "EmulatedFT232H": 498,
-    "lm629_host/sim/avr.py": 613,
-    "lm629_host/sim/serve.py": 604,
-}
+OVERSIZE: dict[str, int] = {}
 
 
 def _oversize() -> list[str]:

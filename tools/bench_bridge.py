@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import lm629_host  # noqa: E402 - after sys.path.insert
-from lm629_host.sim.avr import ensure_built  # noqa: E402 - after sys.path.insert
+from lm629_host.sim.harness import ensure_built  # noqa: E402 - after sys.path.insert
 
 #: the rate the AVR's UART really runs at: 16 MHz / 8 / (UBRR + 1) with U2X
 REAL_BAUD = {115200: 16e6 / 8 / 17, 1_000_000: 16e6 / 8 / 2}

@@ -42,7 +42,7 @@ from collections import deque
 from typing import Any
 
 from lm629_host.clock import Clock
-from lm629_host.urls import Option, PortURL, query_params, read_rows
+from lm629_host.urls import Option, PortURL, query_params
 
 #: full-speed USB frame (USB 2.0, 8.4.3: a SOF every 1.000 ms)
 FRAME_S = 1e-3
@@ -219,10 +219,10 @@ class Cdc(Adapter):
         return "cdc (native full-speed device)"
 
 
-def adapter_of(url: str | PortURL, options: dict[str, Any] | None = None) -> Adapter | None:
-    """The adapter that ``url``'s ``usb=`` names (None for ``usb=none``); ValueError for a bad
-    value.  The URL's other parameters are someone else's."""
-    opts = read_rows(url, OPTIONS) if options is None else options
+def adapter_of(url: str | PortURL, opts: dict[str, Any]) -> Adapter | None:
+    """The adapter that ``url``'s ``usb=`` names (None for ``usb=none``), from ``opts``: the
+    URL as its transport parsed it, once, against a table with these :data:`OPTIONS` (with
+    their defaults); ``url`` only says which of them it gave, and names itself in a message."""
     kind = opts["usb"]
     if "latency_ms" in query_params(url) and kind != "ftdi":
         raise ValueError(f"{url}: latency_ms= is the FTDI latency timer: it needs usb=ftdi")
@@ -326,10 +326,8 @@ class UsbPipe:
         self.inner.close()
 
 
-def wrap_usb(pipe: Any, url: str | PortURL, options: dict[str, Any] | None = None) -> Any:
-    """``pipe`` behind the USB adapter that ``url``'s ``usb=`` names (``pipe`` itself for
-    ``usb=none``); ``options``: the URL as its transport parsed it."""
-    adapter = adapter_of(url, options)
+def wrap_usb(pipe: Any, adapter: Adapter | None) -> Any:
+    """``pipe`` behind ``adapter`` (:func:`adapter_of`; ``pipe`` itself for None: ``usb=none``)."""
     return pipe if adapter is None else UsbPipe(pipe, adapter)
 
 

@@ -151,7 +151,7 @@ class LinkTransport(LinkSession):
             log.info("%s: round trip %.2f ms", self.url, self.rtt_s * 1e3)
         self.failsafe.open()
         self.stats.reset()
-        self._attempts.clear()
+        self.attempts.clear()
 
     def measure_rtt(self, n: int = RTT_PINGS) -> float:
         """Median round trip of ``n`` empty PINGs, seconds (on the link's clock)."""

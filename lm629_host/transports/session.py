@@ -56,6 +56,43 @@ USB_ADVICE = ("Check the USB cable (short, shielded, away from motor and amplifi
 _DELIMITED = frozenset({FrameType.HELLO, FrameType.RECORD})
 
 
+class AttemptWindow:
+    """The last :data:`ERROR_WINDOW` attempts of a link, True for each that failed (a bad
+    frame, or no usable answer in time): the line's health as the host sees it, and when it
+    is bad enough to say so (once a window, before it costs a command)."""
+
+    def __init__(self) -> None:
+        self._attempts: deque[bool] = deque(maxlen=ERROR_WINDOW)
+        self._since_warning = 0  #: attempts since the last link-quality warning
+
+    @property
+    def rate(self) -> float:
+        """Fraction of the attempts in the window that failed."""
+        a = self._attempts
+        return sum(a) / len(a) if a else 0.0
+
+    @property
+    def failed(self) -> int:
+        return sum(self._attempts)
+
+    def __len__(self) -> int:
+        return len(self._attempts)
+
+    def count(self, failed: bool) -> bool:
+        """Count one attempt; True when the line is bad enough to warn (once per window)."""
+        self._attempts.append(failed)
+        self._since_warning += 1
+        if (self._since_warning >= ERROR_WINDOW and len(self._attempts) == ERROR_WINDOW
+                and self.rate >= WARN_LINK_RATE):
+            self._since_warning = 0
+            return True
+        return False
+
+    def clear(self) -> None:
+        """Forget the attempts (a new open: the line may be another)."""
+        self._attempts.clear()
+
+
 class LinkSession(Transport):
     """Requests and answers over a :class:`Pipe` to a bridge speaking PROTOCOL.md.
 
@@ -91,12 +128,10 @@ class LinkSession(Transport):
         self.bad_frames = 0
         self.stale_replies = 0
         self.timeouts = 0  #: attempts that got no (usable) answer in time
-        #: the last ERROR_WINDOW attempts, True for each that failed (bad frame or no answer)
-        self._attempts: deque[bool] = deque(maxlen=ERROR_WINDOW)
+        self.attempts = AttemptWindow()  #: the last ERROR_WINDOW attempts (:attr:`error_rate`)
         #: a request was given up: the bridge's cache may still hold its seq, so the next
         #: request is preceded by a HELLO (which empties that cache) -- see :meth:`resync`
         self._need_resync = False
-        self._since_warning = 0  #: attempts since the last link-quality warning
         self._last_tx = self.clock.now()
         #: the pipe's two directions: ``_tx_lock`` around each write (a frame is never cut by
         #: another thread's), ``_rx_lock`` around a request and its answer (whoever holds it
@@ -262,24 +297,17 @@ class LinkSession(Transport):
     def error_rate(self) -> float:
         """Fraction of the last :data:`ERROR_WINDOW` attempts that failed (a bad frame, or no
         usable answer in time): the line's health as the host sees it."""
-        a = self._attempts
-        return sum(a) / len(a) if a else 0.0
+        return self.attempts.rate
 
     def _attempt(self, failed: bool) -> None:
         """Count one attempt; warn (once per window) when the line is bad, before it costs a
         command."""
-        self._attempts.append(failed)
-        self._since_warning += 1
-        if (self._since_warning >= ERROR_WINDOW and len(self._attempts) == ERROR_WINDOW
-                and self.error_rate >= WARN_LINK_RATE):
-            self._since_warning = 0
+        if self.attempts.count(failed):
             log.warning("%s: %s", self.url, self.quality())
 
     def quality(self) -> str:
         """One sentence on the measured link quality and what to check."""
-        a = self._attempts
-        failed, n = sum(a), len(a)
-        rate = failed / n if n else 0.0
+        failed, n, rate = self.attempts.failed, len(self.attempts), self.attempts.rate
         verdict = ("the link is too noisy to use: " if rate >= BAD_LINK_RATE
                    else "link quality: ")
         return (f"{verdict}{failed} of the last {n} exchanges failed ({100 * rate:.0f} %; "
@@ -514,4 +542,4 @@ class LinkSession(Transport):
         return self.clock.now() - t0
 
 
-__all__ = ["BAD_LINK_RATE", "DEFAULT_RETRIES", "ERROR_WINDOW", "LinkSession", "WARN_LINK_RATE"]
+__all__ = ["AttemptWindow", "BAD_LINK_RATE", "DEFAULT_RETRIES", "ERROR_WINDOW", "LinkSession", "WARN_LINK_RATE"]

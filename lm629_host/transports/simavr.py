@@ -21,13 +21,14 @@ from pathlib import Path
 
 from lm629_host.wiring.uno import CHIP_SELECTS
 from lm629_host.bus.program import TraceCallback
-from lm629_host.sim.avr import BUILT_BAUDS, DEFAULT_BAUD, AvrPipe, AvrSim, check_firmware, firmware_path
+from lm629_host.sim.avr import AvrPipe, AvrSim
+from lm629_host.sim.harness import BUILT_BAUDS, DEFAULT_BAUD, check_firmware, firmware_path
 from lm629_host.sim.build import SIM_ROWS, build_bus, sim_options
 from lm629_host.sim.vcd import vcd_of
 from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.model import chips_of
 from lm629_host.sim.usb import OPTIONS as USB_ROWS
-from lm629_host.sim.usb import wrap_usb
+from lm629_host.sim.usb import Adapter, adapter_of, wrap_usb
 from lm629_host.bus.url_board import BOARD_ROWS
 from lm629_host.urls import Option, PortURL, with_defaults
 from lm629_host.transports.failsafe import FailsafeOptions
@@ -53,13 +54,15 @@ class SimAvrTransport(ModelChips, LinkTransport):
 
     def __init__(self, sim: AvrSim, url: str | PortURL, *, trace: TraceCallback | None = None,
                  retries: int = DEFAULT_RETRIES, baud: int = DEFAULT_BAUD,
-                 fast_baud: int = 0, failsafe: FailsafeOptions | None = None) -> None:
+                 fast_baud: int = 0, failsafe: FailsafeOptions | None = None,
+                 usb: Adapter | None = None) -> None:
+        """``usb``: the USB adapter between host and bridge (:meth:`from_url` makes it from the
+        URL's ``usb=`` rows, parsed with the rest of the URL); None: none."""
         self.sim = sim
         self.model = sim.model
         #: the chips on the bridge's chip selects 0, 1, ... (``sim+avr://?axes=N``)
         self.models = chips_of(sim.model)
-        pipe = wrap_usb(AvrPipe(sim), url)
-        usb = getattr(pipe, "adapter", None)
+        pipe = wrap_usb(AvrPipe(sim), usb)
         if usb is not None:
             self.margin_s = type(self).margin_s + usb.worst_s
         super().__init__(pipe, url, trace=trace, retries=retries, baud=baud, fast_baud=fast_baud,
@@ -80,6 +83,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
                              f"{' or '.join(map(str, BUILT_BAUDS))} baud; for another rate build "
                              f"one with `make -C firmware_bridge BAUD={baud}` and pass "
                              "firmware=firmware_bridge/build/lm629_bridge.elf")
+        usb = adapter_of(url, opts)  # before simavr starts too
         model = build_bus(url, opts, limit=len(CHIP_SELECTS))
         if hasattr(model, "lines"):
             model.lines = len(CHIP_SELECTS)  # the firmware's four /CS, chips on the first N
@@ -88,7 +92,7 @@ class SimAvrTransport(ModelChips, LinkTransport):
         if vcd is not None:
             sim.write_vcd(*vcd)
         return cls(sim, url, trace=trace, baud=baud, fast_baud=opts["fast_baud"],
-                   retries=opts["retries"], failsafe=FailsafeOptions.of(opts))
+                   retries=opts["retries"], failsafe=FailsafeOptions.of(opts), usb=usb)
 
     def describe(self) -> str:
         fw = self.info.firmware_version if self.info else "?"

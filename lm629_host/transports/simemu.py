@@ -14,7 +14,7 @@ from lm629_host.sim.vcd import close_probe, probe, vcd_of
 from lm629_host.sim.wiring import wiring_of
 from lm629_host.sim.model import ChipBus, ChipModel, chips_of
 from lm629_host.sim.usb import OPTIONS as USB_ROWS
-from lm629_host.sim.usb import wrap_usb
+from lm629_host.sim.usb import adapter_of, wrap_usb
 from lm629_host.bridge.protocol.pipe import Pipe
 from lm629_host.bus.program import TraceCallback
 from lm629_host.bus.url_board import BOARD_ROWS
@@ -101,8 +101,8 @@ def open_emulated(url: str | PortURL = "sim://", *, baud: int | None = None,
         model = probe(model, *vcd, cycle_clocks=max(1, round(BUS_CYCLE_S * model.clock_hz)))
     emu = BridgeEmulator(model, info, wiring=wiring_of(url, opts))
     pipe = EmuPipe(emu, baud=baud or None, max_baud=opts["max_baud"] or None)
-    outer = wrap_usb(wrap(pipe) if wrap is not None else pipe, url)
-    usb = getattr(outer, "adapter", None)
+    usb = adapter_of(url_of, opts)
+    outer = wrap_usb(wrap(pipe) if wrap is not None else pipe, usb)
     return EmuLinkTransport(emu, model, outer, url, trace=trace,
                             retries=opts["retries"] if "retries" in url_of.query() else retries,
                             baud=baud or None, fast_baud=opts["fast_baud"],

@@ -85,13 +85,13 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
                                 wiring=wiring_of(url, opts))
         vcd = vcd_of(url, opts)
         if vcd is not None:
-            device.write_vcd(*vcd)
+            device.chip_pins.write_vcd(*vcd)
         backend = EmulatedBackend([device])
         usb_dev = usb.core.find(backend=backend, idVendor=FTDI_VID, idProduct=FT232H_PID)
         ftdi = open_mpsse(url, latency, frequency, device=usb_dev)
         # busy_us None: measured at open on the chip model, through the emulated adapter
         if opts["heartbeat"] is not None:  # ADBUS7 is the heartbeat, not a second /CS
-            device.chip_select_lines = ftdi_pins.CHIP_SELECTS[:1]
+            device.chip_pins.chip_select_lines = ftdi_pins.CHIP_SELECTS[:1]
         t = cls(ftdi, url, trace=trace, clock=EmulatedClock(device),
                 busy_s=None if busy_us is None else busy_us * 1e-6, tck_hz=frequency,
                 latency_ms=latency, busy_pin=busy_pin, heartbeat=opts["heartbeat"],
@@ -139,22 +139,22 @@ class SimFtdiTransport(ModelChips, FtdiTransport):
 
     def close(self) -> None:
         super().close()
-        self.device.close_vcd()
+        self.device.chip_pins.close_vcd()
 
     def describe(self) -> str:
         chips = self.models[0].describe(len(self.models))
         return f"{self.url} (FT232H transport on an emulated FT232H, {chips})"
 
     def _execute(self, program: Program) -> ProgramResult:
-        violations = self.model.violations
-        mark, tmark, hits = len(violations), len(self.device.timing_violations), self.busy.hits
+        violations, timing_seen = self.model.violations, self.device.chip_pins.timing_violations
+        mark, tmark, hits = len(violations), len(timing_seen), self.busy.hits
         try:
             return super()._execute(program)
         finally:
             new = violations[mark:] if self.busy.hits == hits else []
             self._violations += new
             if self._strict:
-                timing = self.device.timing_violations[tmark:]
+                timing = timing_seen[tmark:]
                 if timing:
                     raise ProtocolViolation("FT232H stream broke the chip's bus timing: "
                                             + "; ".join(timing))

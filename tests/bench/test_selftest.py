@@ -21,7 +21,7 @@ from lm629_host.bench import selftest as st
 from lm629_host.bus.opcodes import Cmd
 from lm629_host.bus.program import Program
 from lm629_host.physics.limits import SoftLimits
-from lm629_host.sim.avr import toolchain_missing
+from lm629_host.sim.harness import toolchain_missing
 from lm629_host.transports.base import BusObserver, Transport
 
 SIMULATORS = ["sim://", "sim+emu://", "sim+emu://?usb=uno&fast_baud=1000000", "sim+ftdi://",

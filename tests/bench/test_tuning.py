@@ -219,7 +219,7 @@ def test_a_holding_load_is_not_reversed_leads(base, travel):
     """The load pulls the shaft down whichever way phasing steps it; that is a load,
     not reversed leads: the tuner raises the gain and tunes the axis."""
     if base.startswith("sim+avr"):
-        from lm629_host.sim.avr import toolchain_missing
+        from lm629_host.sim.harness import toolchain_missing
         if toolchain_missing():
             pytest.skip("AVR toolchain missing")
     w = Watched(with_params(base, HOLDING_LOAD))
@@ -280,7 +280,7 @@ def test_bad_arguments_touch_nothing(open_chip, recorder, kw):
 
 @pytest.mark.parametrize("url", ["sim+avr://", UNO_AVR])
 def test_autotune_through_the_bridge_firmware(url):
-    from lm629_host.sim.avr import toolchain_missing
+    from lm629_host.sim.harness import toolchain_missing
     if toolchain_missing():
         pytest.skip("AVR toolchain missing")
     w = Watched(url)

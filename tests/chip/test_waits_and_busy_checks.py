@@ -267,16 +267,16 @@ def test_first_sim_avr_use_says_what_it_builds(tmp_path, monkeypatch, capsys):
     silent."""
     import shutil
 
-    from lm629_host.sim import avr as avrsim
+    from lm629_host.sim import harness
 
     fw = tmp_path / "firmware_bridge"
-    shutil.copytree(avrsim.FIRMWARE_DIR, fw, ignore=shutil.ignore_patterns("build"))
-    monkeypatch.setattr(avrsim, "FIRMWARE_DIR", fw)
-    monkeypatch.setattr(avrsim, "_built", False)
-    avrsim.ensure_built()
+    shutil.copytree(harness.FIRMWARE_DIR, fw, ignore=shutil.ignore_patterns("build"))
+    monkeypatch.setattr(harness, "FIRMWARE_DIR", fw)
+    monkeypatch.setattr(harness, "_built", False)
+    harness.ensure_built()
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "building the bridge firmware" in err[0] and str(fw) in err[0]
     assert (fw / "build" / "lm629_bridge.hex").exists() and (fw / "build" / "libfitl.so").exists()
-    monkeypatch.setattr(avrsim, "_built", False)
-    avrsim.ensure_built()
+    monkeypatch.setattr(harness, "_built", False)
+    harness.ensure_built()
     assert capsys.readouterr().err == ""

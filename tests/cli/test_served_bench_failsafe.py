@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from lm629_host.sim.avr import toolchain_missing
+from lm629_host.sim.harness import toolchain_missing
 from served import _env
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))

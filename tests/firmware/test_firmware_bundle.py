@@ -8,7 +8,7 @@ from pathlib import Path
 
 from click.testing import CliRunner
 
-from lm629_host.sim import avr as avrsim
+from lm629_host.sim import harness
 from lm629_host import data
 from lm629_host.cli import main as cli
 
@@ -17,7 +17,7 @@ def test_the_shipped_image_is_the_firmware_of_this_commit(tmp_path):
     from firmware_helpers import require_firmware
 
     require_firmware()  # skips only without the toolchain; a broken build fails
-    r = subprocess.run(["make", "-s", "-C", str(avrsim.FIRMWARE_DIR), f"B={tmp_path}",
+    r = subprocess.run(["make", "-s", "-C", str(harness.FIRMWARE_DIR), f"B={tmp_path}",
                         "BAUD=115200", f"{tmp_path}/lm629_bridge.hex"],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr

@@ -273,7 +273,7 @@ def _load_both_and_stretch_chip0_busy(board):
         a.load_trajectory(acceleration=1500, velocity=2 * 65536, position=800)
     for c in chips(board):
         c.record_clear()
-    board.transport.device.stretch_busy(1, 300e-6)
+    board.transport.device.chip_pins.stretch_busy(1, 300e-6)
 
 
 def test_ftdi_repeat_after_busy_never_runs_another_chips_stt_twice():
@@ -303,7 +303,7 @@ def test_ftdi_busy_pin_waits_out_one_chips_long_busy_in_a_synchronized_start():
         board.start(clear=Status.TRAJECTORY_COMPLETE)
         assert board.transport.stats.retries == 0
         assert board.transport.stats.round_trips - trips == 1
-        assert board.transport.device.busy_stretched == 1
+        assert board.transport.device.chip_pins.busy_stretched == 1
         for c in chips(board):
             assert [cmd for cmd, _ in c.history] == [0x1D, 0x01], c.history  # RSTI, STT
             assert not c.violations
@@ -352,7 +352,7 @@ def test_the_firmware_built_for_one_chip_under_this_host():
     """The compiled firmware reporting one chip select (build/lm629_bridge_1chip.elf) in
     simavr: HELLO says 1, the host drives its chip, axis 1 is one clear error before any
     traffic, and a board of two is refused at open."""
-    from lm629_host.sim.avr import BUILD_DIR, ensure_built
+    from lm629_host.sim.harness import BUILD_DIR, ensure_built
     ensure_built()
     fw = BUILD_DIR / "lm629_bridge_1chip.elf"
     url = f"sim+avr://?baud=1000000&firmware={fw}"

@@ -305,7 +305,7 @@ def test_sim_avr_refuses_what_is_not_an_avr_elf_before_simavr_starts(tmp_path):
 def _crashing_image(tmp_path: Path) -> Path:
     """The bridge's ELF with every instruction 0xFFFF (SBRS r31, 7): the AVR runs off the end
     of its flash, which simavr calls a crash, before the UART is ever on."""
-    from lm629_host.sim.avr import firmware_path
+    from lm629_host.sim.harness import firmware_path
 
     elf = bytearray(firmware_path().read_bytes())
     shoff = int.from_bytes(elf[0x20:0x24], "little")

@@ -31,7 +31,7 @@ def usb_device(device: EmulatedFT232H):
 
 def falls(device: EmulatedFT232H) -> list[tuple[str, int]]:
     """(line, ns) for every time a bus control line was low."""
-    return [(name, ns) for ns, level in device.ctrl_log for name, bit in BUS_LINES.items()
+    return [(name, ns) for ns, level in device.chip_pins.ctrl_log for name, bit in BUS_LINES.items()
             if not level & bit]
 
 
@@ -62,8 +62,8 @@ def test_transport_open_drives_no_bus_line_low():
     ftdi = open_mpsse("ftdi://emulated", device=usb_device(device))
     assert falls(device) == []
     # the lines do end up driven high (not left floating on the pull-ups)
-    assert device._low_dir == pins.CTRL_DIRECTION
-    assert device._ctrl & pins.CTRL_IDLE == pins.CTRL_IDLE
+    assert device.chip_pins.low_dir == pins.CTRL_DIRECTION
+    assert device.chip_pins.ctrl & pins.CTRL_IDLE == pins.CTRL_IDLE
     t = FtdiTransport(ftdi, "ftdi://emulated", clock=EmulatedClock(device))
     chip = lm629_host.LM629(t)
     chip.read_status()
@@ -85,12 +85,12 @@ def test_close_returns_the_ft232h_to_uart_mode():
     chip = lm629_host.open("sim+ftdi://")
     chip.read_status()
     device = chip.transport.device
-    n = len(device.ctrl_log)
+    n = len(device.chip_pins.ctrl_log)
     chip.close()
     assert UART_OUTPUTS == pins.TCK | pins.RD | pins.PS
-    assert device._low_dir == UART_OUTPUTS and device._high_dir == 0
-    assert device._ctrl == 0xFF  # /RD, /PS driven high; /CS, /WR, /RST pulled up
-    assert all(level & pins.CTRL_IDLE == pins.CTRL_IDLE for _, level in device.ctrl_log[n:])
+    assert device.chip_pins.low_dir == UART_OUTPUTS and device.chip_pins.high_dir == 0
+    assert device.chip_pins.ctrl == 0xFF  # /RD, /PS driven high; /CS, /WR, /RST pulled up
+    assert all(level & pins.CTRL_IDLE == pins.CTRL_IDLE for _, level in device.chip_pins.ctrl_log[n:])
 
 
 # ------------------------------------------------------------------ clock modes
@@ -181,10 +181,10 @@ def test_a_busy_repeat_in_a_later_stream_starts_at_its_command():
     with lm629_host.open("sim+ftdi://") as chip:
         chip.reset()
         dev = chip.transport.device
-        dev.stretch_busy(1, 400e-6, skip=700)
+        dev.chip_pins.stretch_busy(1, 400e-6, skip=700)
         p = Program()
         for _ in range(550):
             p.command(Cmd.RDRP).read(2)
         r = chip.run(p)
         assert r.words == (0,) * 1100
-        assert dev.busy_stretched == 1 and chip.transport.stats.retries == 1
+        assert dev.chip_pins.busy_stretched == 1 and chip.transport.stats.retries == 1

@@ -15,7 +15,8 @@ import pytest
 import lm629_host
 
 from lm629_host import LM629, BusyTimeout
-from lm629_host.sim.avr import CPU_HZ, IDLE_AVRS, STATUS, AvrPipe, AvrSim
+from lm629_host.sim.avr import CPU_HZ, STATUS, AvrPipe, AvrSim
+from lm629_host.sim.harness import IDLE_AVRS
 from lm629_host.bridge.protocol import FrameReader, FrameType, Result, RunReply, encode_frame
 from lm629_host.transports.link import LinkTransport
 from lm629_host.bus.opcodes import Cmd, Status
@@ -271,7 +272,7 @@ def test_firmware_switches_its_uart_on_set_baud_and_goes_back_when_nothing_comes
 
 def test_the_firmwares_own_counters_can_be_read():
     """The fault tests check the far end's counters only when they can be read (avr-nm finds
-    ``link`` with the layout avrsim.py expects): a layout change must not skip those checks
+    ``link`` with the layout avr.py expects): a layout change must not skip those checks
     silently."""
     import shutil
 
@@ -279,7 +280,7 @@ def test_the_firmwares_own_counters_can_be_read():
         pytest.skip("no avr-nm")
     t = open_transport("sim+avr://?baud=1000000")
     counters = t.sim.link_counters()
-    assert counters is not None, "link_t's layout differs from avrsim._LINK_T_SIZE"
+    assert counters is not None, "link_t's layout differs from avr._LINK_T_SIZE"
     chip = LM629(t)
     chip.reset()
     counters.reset()
@@ -381,7 +382,7 @@ def test_sims_open_together_have_their_own_avrs_and_another_image_is_another_avr
     file, unchanged: a copy elsewhere, or the same path rewritten, gets a new one; only a
     closed sim's AVR is kept (one the garbage collector finds is freed: the collector may run
     while the idle list's lock is held)."""
-    from lm629_host.sim.avr import firmware_path
+    from lm629_host.sim.harness import firmware_path
 
     IDLE_AVRS.clear()
     a, b = sim("sim://"), sim("sim://")
@@ -419,7 +420,7 @@ def test_an_avr_used_again_has_the_eeprom_its_image_says(tmp_path):
     import shutil
     import subprocess
 
-    from lm629_host.sim.avr import firmware_path
+    from lm629_host.sim.harness import firmware_path
 
     if shutil.which("avr-objcopy") is None:
         pytest.skip("no avr-objcopy")

@@ -17,6 +17,8 @@ import statistics
 import pytest
 
 import lm629_host
+from lm629_host.sim.build import sim_options
+from lm629_host.transports import simemu
 from lm629_host.sim.usb import (
     FRAME_S,
     FTDI_PACKET_DATA,
@@ -149,7 +151,8 @@ def test_usb_none_is_no_adapter(link):
     # later); an adapter would add a 1 ms frame at least
     assert none == pytest.approx(_rdrp_times(f"{link}?fast_baud=1000000", n=10), abs=5e-6)
     assert all(0.2e-3 <= t < 0.4e-3 for t in none), none
-    assert adapter_of("sim+emu://?usb=none") is None and adapter_of("sim+emu://") is None
+    for url in ("sim+emu://?usb=none", "sim+emu://"):  # the URL as its transport parses it
+        assert adapter_of(url, sim_options(url, simemu.OPTIONS, defaults=True)) is None
 
 
 @pytest.mark.parametrize("url, message", [

@@ -93,11 +93,11 @@ def test_a_slow_chip_is_waited_for_not_repeated(open_chip, caplog, skip):
     chip.reset()
     t, model, device = chip.transport, chip.transport.model, chip.transport.device
     model.record_clear()
-    device.stretch_busy(1, 300e-6, skip=skip)
+    device.chip_pins.stretch_busy(1, 300e-6, skip=skip)
     before, w0 = t.stats.round_trips, device.wait_ns
     with caplog.at_level(logging.WARNING, logger="lm629_host.ftdi"):
         load_ltrj(chip, start=True)
-    assert device.busy_stretched == 1
+    assert device.chip_pins.busy_stretched == 1
     assert model.history == [(Cmd.LTRJ, LTRJ_WORDS), (Cmd.STT, ())]
     assert not model.violations and t.stats.retries == 0 and not caplog.text
     assert t.stats.round_trips - before == 1
@@ -123,7 +123,7 @@ def test_busy_that_never_clears_stops_the_stream_which_the_transport_purges(open
     # the read's patience: 3 + 5 ms / 1 ms latency periods, then the purge and one poll
     assert 5e-3 < waited < 12e-3
     assert device.waiting is None and not device._pending
-    assert device._ctrl & pins.CTRL_IDLE == pins.CTRL_IDLE  # /CS, /RD, /WR, /RST high again
+    assert device.chip_pins.ctrl & pins.CTRL_IDLE == pins.CTRL_IDLE  # /CS, /RD, /WR, /RST high again
     assert chip.read_status() & 0x01  # the adapter answers again
 
 
@@ -135,7 +135,7 @@ def test_a_stall_before_stt_leaves_stt_untaken(open_chip):
     chip.reset()
     t, model, device = chip.transport, chip.transport.model, chip.transport.device
     model.record_clear()
-    device.stretch_busy(1, 50e-3, skip=2)
+    device.chip_pins.stretch_busy(1, 50e-3, skip=2)
     with pytest.raises(BusyTimeout) as err:
         load_ltrj(chip, start=True)
     assert err.value.index == 3 and t.resync.stalls == 1  # the check of the third data word

@@ -19,7 +19,7 @@ from lm629_host.bus.opcodes import Status
 def _edges(device, since_ns: int) -> list[int]:
     """When ADBUS7 changed level, from ``since_ns`` on (the device's control-line log)."""
     out, prev = [], None
-    for ns, level in device.ctrl_log:
+    for ns, level in device.chip_pins.ctrl_log:
         bit = bool(level & CS1)
         if prev is not None and bit != prev and ns >= since_ns:
             out.append(ns)

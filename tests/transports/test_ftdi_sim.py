@@ -110,7 +110,7 @@ def test_a_chip_slower_than_measured_is_repeated_and_the_wait_learns(open_chip, 
     chip = _long_busy_chip(open_chip)
     model, device, t = chip.transport.model, chip.transport.device, chip.transport
     assert t.busy.wait_s < 25e-6
-    device.stretch_busy(1, 35e-6, skip=2)
+    device.chip_pins.stretch_busy(1, 35e-6, skip=2)
     with caplog.at_level(logging.WARNING, logger="lm629_host.ftdi"):
         load_ltrj(chip)
     assert model.history.count((Cmd.LTRJ, LTRJ_WORDS)) == 1 and model.history[-1] == \
@@ -141,7 +141,7 @@ def test_one_retry_at_most_doubles_the_wait_and_retry_free_commands_bring_it_bac
     t, device = chip.transport, chip.transport.device
     before = t.busy.wait_s
     assert 10e-6 <= t.busy.calibrated_s <= 13.5e-6 and before == pytest.approx(t.busy.floor_s)
-    device.stretch_busy(1, 25e-6, skip=2)
+    device.chip_pins.stretch_busy(1, 25e-6, skip=2)
     load_ltrj(chip)
     assert t.stats.retries == 1
     assert t.busy.wait_s == pytest.approx(2 * before) and t.busy.wait_s < 100e-6
@@ -172,7 +172,7 @@ def test_an_adapter_whose_commands_take_no_time_waits_the_busy_seen_plus_a_poll(
         load_ltrj(chip)
         chip.read_real_position()
     assert t.stats.retries == 0 and t.busy.hits == 0
-    device.stretch_busy(1, 15e-6, skip=2)
+    device.chip_pins.stretch_busy(1, 15e-6, skip=2)
     load_ltrj(chip)
     assert t.stats.retries == 1 and t.busy.wait_s < 25e-6
     assert t.model.history[-1] == (Cmd.LTRJ, LTRJ_WORDS)
@@ -237,10 +237,10 @@ def test_long_busy_on_any_ltrj_transfer_never_loses_or_doubles_a_write(open_chip
     LTRJ."""
     chip = _long_busy_chip(open_chip)
     model, device = chip.transport.model, chip.transport.device
-    device.stretch_busy(1, 300e-6, skip=skip)
+    device.chip_pins.stretch_busy(1, 300e-6, skip=skip)
     with caplog.at_level(logging.WARNING, logger="lm629_host.ftdi"):
         load_ltrj(chip, start=True)
-    assert device.busy_stretched == 1
+    assert device.chip_pins.busy_stretched == 1
     history = model.history
     # exactly one complete, correct LTRJ, then exactly one STT, and nothing after it
     assert history.count((Cmd.LTRJ, LTRJ_WORDS)) == 1
@@ -263,7 +263,7 @@ def test_long_busy_on_any_ltrj_transfer_never_loses_or_doubles_a_write(open_chip
 def test_long_busy_for_several_transfers_still_lands_everything(open_chip):
     chip = _long_busy_chip(open_chip)
     model, device = chip.transport.model, chip.transport.device
-    device.stretch_busy(4, 400e-6, skip=2)
+    device.chip_pins.stretch_busy(4, 400e-6, skip=2)
     chip.load_filter(kp=10, ki=20, kd=30, il=40)
     chip.mask_interrupts(Status.BREAKPOINT)
     lfil = (Cmd.LFIL, (0x000F, 10, 20, 30, 40))
@@ -280,7 +280,7 @@ def test_long_busy_on_a_read_gives_the_fresh_word_not_the_stale_one(open_chip):
     chip = _long_busy_chip(open_chip)
     load_ltrj(chip)  # leaves FC18 in the chip's I/O register: what a stale read returns
     model, device = chip.transport.model, chip.transport.device
-    device.stretch_busy(1, 300e-6)  # the RDSIGS command byte
+    device.chip_pins.stretch_busy(1, 300e-6)  # the RDSIGS command byte
     signals = chip.read_signals()
     assert int(signals) == model.signals
     assert int(signals) != 0xFC18
@@ -289,7 +289,7 @@ def test_long_busy_on_a_read_gives_the_fresh_word_not_the_stale_one(open_chip):
 
 def test_trace_shows_the_busy_status_and_the_repeat(open_chip, recorder):
     chip = _long_busy_chip(open_chip)
-    chip.transport.device.stretch_busy(1, 300e-6)  # the MSKI command byte
+    chip.transport.device.chip_pins.stretch_busy(1, 300e-6)  # the MSKI command byte
     recorder.clear()
     chip.mask_interrupts(Status.BREAKPOINT)
     kinds = [(c.kind, c.value) for c in recorder.cycles]
@@ -355,7 +355,7 @@ def test_a_raised_wait_comes_back_to_the_calibrated_one_never_below(open_chip):
     t, device = chip.transport, chip.transport.device
     floor = t.busy.floor_s
     assert 55e-6 <= floor < 60e-6 and t.busy.wait_s == pytest.approx(floor)
-    device.stretch_busy(1, 80e-6, skip=2)
+    device.chip_pins.stretch_busy(1, 80e-6, skip=2)
     load_ltrj(chip)
     assert t.stats.retries == 1 and t.busy.wait_s == pytest.approx(100e-6)  # the cap, not 2 x floor
     for _ in range(math.ceil(REPEAT_COST_S / (8 * (100e-6 - floor))) + 1):

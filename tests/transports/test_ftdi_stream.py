@@ -95,7 +95,7 @@ def test_bus_timing_is_met_by_idle_clocks_alone(open_chip):
     chip.update_filter()
     chip.load_trajectory(acceleration=0x1234, velocity=0x56789, position=-1000, start=True)
     chip.snapshot()
-    assert chip.transport.device.timing_violations == []
+    assert chip.transport.device.chip_pins.timing_violations == []
 
 
 def test_the_timing_checker_catches_a_too_fast_tck():

@@ -66,8 +66,8 @@ def _opened_serial(tmp_path) -> list[int]:
 def test_the_serial_port_and_both_simulated_bridges_open_alike(tmp_path, monkeypatch):
     line: list[_Sent] = []  # the simulated line of the port being opened
     for module in (simavr, simemu):
-        def spy(pipe, url, inner=module.wrap_usb):
-            line.append(_Sent(inner(pipe, url)))
+        def spy(pipe, adapter, inner=module.wrap_usb):
+            line.append(_Sent(inner(pipe, adapter)))
             return line[-1]
         monkeypatch.setattr(module, "wrap_usb", spy)
     opened = {"serial": _opened_serial(tmp_path),

@@ -212,7 +212,7 @@ def test_pipe_far_end_serves_any_simulated_pipe(tmp_path):
     """The adapter that serves the firmware (``--firmware``) works on any simulated pipe: here
     the Python bridge behind an EmuPipe at 115200 baud stands in for the simavr UART."""
     from lm629_host.sim.bridge import BridgeEmulator, EmuPipe
-    from lm629_host.sim.serve import PipeFarEnd
+    from lm629_host.sim.far_ends import PipeFarEnd
     from lm629_host.sim.build import build_model
 
     model = build_model("sim://?record=1")

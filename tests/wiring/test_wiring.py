@@ -23,7 +23,7 @@ from lm629_host.errors import BusyTimeout, TransportError
 from lm629_host.wiring.connections import adapter_pin, connections, markdown
 from lm629_host.wiring.faults import Miswiring
 from lm629_host.bus.opcodes import Cmd
-from lm629_host.sim.avr import toolchain_missing
+from lm629_host.sim.harness import toolchain_missing
 from lm629_host.transports.base import Transport
 from lm629_host.bench.wiring_check import check_wiring, diagnose, run_experiments, suspects_of_data_bus
 from lm629_host.wiring.reference import READINGS, WHAT

@@ -5,16 +5,13 @@ pyftdi sends, with the bytes of a bulk OUT transfer (the MPSSE command stream), 
 answers on bulk IN (two modem-status bytes, then the bytes the read commands produced).  The
 pyusb side of it (descriptors, endpoints) is :mod:`.backend`.
 
-Pins.  ADBUS and ACBUS are wired to an LM628/LM629 :class:`~lm629_host.sim.model.ChipModel` with the
-pin map of :mod:`lm629_host.wiring.ft232h`; every edge that matters is turned into one model call,
-strobe by strobe, as the chip's pins would see it: /WR rising with /CS low latches D0-D7 into
-``write_command`` or ``write_data`` (by /PS); /RD falling with /CS low makes the chip drive the
-bus with ``read_status`` or ``read_data``; /RST rising is ``reset_pulse``.  The emulator also
-checks the chip's timing minimums (spec "Bus cycles") at each edge and records every miss in
-``timing_violations``, and records bus contention (both sides driving D0-D7) there too.
+The pins.  ADBUS and ACBUS, and the LM628/LM629 wired to them, are :mod:`.chip_pins`
+(:attr:`EmulatedFT232H.chip_pins`): the chip's strobes, its timing checks, the VCD of its bus
+lines and the busy-stretch test hook.  This module is the adapter's side: USB, its buffers and
+the MPSSE engine that drives those pins.
 
-Time.  The device owns the emulated time (integer nanoseconds) and runs the model's clock with
-it (``model.advance_to``) before every edge.  What things cost (emulation choices, with why):
+Time.  The emulated time (integer nanoseconds) is the pins' (the chip runs on it); the device
+charges what its work costs there (emulation choices, with why):
 
 * each MPSSE command costs ``command_ns`` to fetch and execute, default 500 ns: pyftdi's own
   figure for the delay between two SET_BITS commands (``Ftdi.mpsse_bit_delay``, measured on an
@@ -55,20 +52,6 @@ gives up and purges (a purge of the host->chip buffer, or leaving MPSSE, drops t
 command).  The engine runs no further ahead than the host's clock allows: waits are resolved
 while a bulk IN is pending, up to that request's latency timer, so a host whose read times
 out sees exactly what it would see on the real chip.
-
-A status read held low.  Whether D0-D7 follow the status while /RD stays low is not in the
-data sheet (it gives the access time from /RD falling, no hold-low maximum; AN-706 3.6 calls
-the status a hardware register); the emulation choice is that they do (the status
-byte is the register's current value whenever it is sampled), which is what a held read on
-a busy pin relies on and what a bench must measure (docs/ftdi.md).  It is on with the busy
-pin wired (``live_status``, default ``busy_pin``); in the default wiring the byte stays the
-one latched at /RD falling, the behaviour the transport's busy calibration and every figure
-of the timed-wait streams were measured with (a status read there lasts 0.8 us, so the two
-choices differ by at most one calibration poll).  Data reads stay latched at /RD falling, as
-the chip's I/O buffer is.
-
-A test hook, :meth:`EmulatedFT232H.stretch_busy`, makes the chip hold busy far longer than its
-documented 100 us after the next N transfers, to prove that the transport detects it.
 """
 
 from __future__ import annotations
@@ -76,9 +59,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from lm629_host.wiring import ft232h as pins
+from lm629_host.sim.ftdi.chip_pins import ChipPins
 from lm629_host.sim.wiring import Miswiring
-from lm629_host.sim.model import ChipBus, ChipModel, chips_of
-from lm629_host.sim.vcd import BusVcd, cs_name
+from lm629_host.sim.model import ChipBus, ChipModel
 
 # FTDI vendor requests (the ones pyftdi sends; FTDI AN_232B-series numbering)
 REQ_RESET = 0x00
@@ -115,14 +98,6 @@ class BufferFull(Exception):
 MODEM_STATUS = bytes((0x31, 0x60))
 PACKET_SIZE = 512  #: high-speed bulk packet size of the FT232H
 
-#: timing minimums of the chip's host interface (spec "Bus cycles", 6 MHz table), ns
-WR_PULSE_NS = 100
-WR_SETUP_NS = 50
-WR_HOLD_NS = 120
-RD_ACCESS_NS = 180
-RECOVERY_NS = 120
-PS_SETUP_NS = 30
-
 
 @dataclass
 class Counters:
@@ -137,7 +112,7 @@ class Counters:
 
 
 class EmulatedFT232H:
-    """One FT232H, its MPSSE engine and the chip on its pins."""
+    """One FT232H: its USB side, its buffers and its MPSSE engine, driving :attr:`chip_pins`."""
 
     vendor_id = 0x0403
     product_id = 0x6014
@@ -148,12 +123,10 @@ class EmulatedFT232H:
                  adaptive: bool = False, three_phase: bool = False,
                  busy_pin: bool = False, live_status: bool | None = None,
                  wiring: Miswiring | None = None) -> None:
+        #: the pins and the chip on them; the emulated time is theirs (:meth:`advance_ns`)
+        self.chip_pins = ChipPins(model, busy_pin=busy_pin, live_status=live_status,
+                                  wiring=wiring)
         self.model = model
-        #: the /CS lines wired (a heartbeat on ADBUS7 leaves the first alone)
-        self.chip_select_lines: tuple[int, ...] = pins.CHIP_SELECTS
-        #: ``wiring=``: the wires between ACBUS0-7 and the chip's D0-D7 (None: correct); a
-        #: byte is bent where the chip latches it and where it drives the bus
-        self.wiring = wiring
         self.serial = serial
         self.manufacturer = "FTDI"
         self.product = "Single RS232-HS"
@@ -161,8 +134,6 @@ class EmulatedFT232H:
         self.address = address
         self.usb_ns = usb_ns
         self.command_ns = command_ns
-        self.ns = 0  #: emulated time, nanoseconds since the device was created
-        self._sync_model_epoch()
         self.counters = Counters()
         self.latency_ms = 16
         self.bitmode = BITMODE_RESET
@@ -171,50 +142,25 @@ class EmulatedFT232H:
         self.adaptive = adaptive  #: adaptive clocking on (0x96): idle clocks wait for RTCK
         self.three_phase = three_phase  #: 3-phase clocking on (0x8C): 1.5 periods a clock
         self.stalled = False  #: the engine waits (answer buffer full, or RTCK never comes)
-        #: D0 wired to GPIOL1 (ADBUS5) and HI to nothing (``busy_pin=gpiol1``)
-        self.busy_pin = busy_pin
-        #: a status read held low shows the status as it is now, not as at /RD falling
-        self.live_status = busy_pin if live_status is None else live_status
         #: the wait-on-I/O command the engine is stopped at (0x88/0x89), or None
         self.waiting: int | None = None
         self.wait_ns = 0  #: total time the engine spent in wait-on-I/O commands
-        #: (ns, level of the ADBUS control lines) at every change, from power-on
-        self.ctrl_log: list[tuple[int, int]] = [(0, 0xFF)]
-        self.timing_violations: list[str] = []
         self.unknown_commands: list[int] = []
         self._rx = bytearray()  #: bytes waiting for the host (bulk IN)
         self._flushed = 0  #: how many of them a send-immediate released
         self._pending = bytearray()  #: an incomplete command at the end of a bulk OUT
-        # pin state: values and directions of both bytes; inputs float high (pull-ups)
-        self._low_val, self._low_dir = 0xFF, 0x00
-        self._high_val, self._high_dir = 0xFF, 0x00
-        self._ctrl = 0xFF  #: the level on the ADBUS control lines (as the chip sees them)
-        self._drive: int | None = None  #: the byte the chip drives on D0-D7 while /RD is low
-        self._edge_ns: dict[str, int] = {}  #: time of the last edge of each line
-        self._data_changed_ns = 0
-        self._stretch_left = 0
-        self._stretch_skip = 0
-        self._stretch_clocks = 0
-        self.busy_stretched = 0  #: transfers whose busy the hook stretched
-        #: the VCD the pins go to (:meth:`write_vcd`); None: no pin is logged
-        self.vcd: BusVcd | None = None
 
     # ------------------------------------------------------------------ time
-    def _sync_model_epoch(self) -> None:
-        """The device's time zero is the model's current tick."""
-        self._epoch_tick = self.model.tick
+    @property
+    def ns(self) -> int:
+        """Emulated time, nanoseconds since the device was created."""
+        return self.chip_pins.ns
 
     def now(self) -> float:
         return self.ns * 1e-9
 
     def advance_ns(self, ns: int) -> None:
-        if ns > 0:
-            self.ns += ns
-            self._run_model()
-
-    def _run_model(self) -> None:
-        m = self.model
-        m.advance_to(self._epoch_tick + self.ns * m.clock_hz // 1_000_000_000)
+        self.chip_pins.advance_ns(ns)
 
     @property
     def tck_hz(self) -> float:
@@ -223,65 +169,6 @@ class EmulatedFT232H:
 
     def _clocks_ns(self, clocks: int) -> int:
         return round(clocks * (1.5 if self.three_phase else 1.0) * 1e9 / self.tck_hz)
-
-    # ------------------------------------------------------------------ the pins as a VCD
-    def write_vcd(self, path: str, timescale_ns: int = 10) -> None:
-        """From now on, every level the chip's bus lines take goes to the VCD ``path`` on the
-        emulated clock: D0-D7 (ACBUS as driven, the chip's byte while it answers a read, else
-        the pull-ups), /CS of each chip, /RD, /WR, /PS, /RST and HI (ADBUS)."""
-        chips = len(chips_of(self.model))
-        self.vcd = BusVcd(path, chips=chips, his=1, timescale_ns=timescale_ns,
-                          comment="lm629-host: the emulated FT232H's pins")
-        self._log_pins()
-
-    def _log_pins(self) -> None:
-        vcd = self.vcd
-        if vcd is None:
-            return
-        out = self._high_dir
-        chip = self._drive if self._drive is not None else 0xFF
-        data = (self._high_val & out) | (chip & ~out & 0xFF)
-        ctrl = self._ctrl
-        lines = {"rd": int(bool(ctrl & pins.RD)), "wr": int(bool(ctrl & pins.WR)),
-                 "ps": int(bool(ctrl & pins.PS)), "rst": int(bool(ctrl & pins.RST)),
-                 "hi": int(chips_of(self.model)[0].hi)}
-        for k in range(len(chips_of(self.model))):
-            lines[cs_name(k)] = int(bool(ctrl & pins.CHIP_SELECTS[k]))
-        vcd.data(self.ns, data)
-        vcd.set(self.ns, lines)
-
-    def close_vcd(self) -> None:
-        if self.vcd is not None:
-            self._log_pins()
-            self.vcd.close(self.ns)
-
-    # ------------------------------------------------------------------ test hook
-    def stretch_busy(self, transfers: int, seconds: float, skip: int = 0) -> None:
-        """Hold busy for ``seconds`` (instead of the model's ``busy_s``) after each of the
-        ``transfers`` transfers the chip accepts after the next ``skip`` ones: a chip out of
-        its documented 100 us."""
-        self._stretch_skip = skip
-        self._stretch_left = transfers
-        self._stretch_clocks = max(1, round(seconds * self.model.clock_hz))
-
-    def _strobe(self, fn, *args):
-        m = self.model
-        if not self._stretch_left:
-            return fn(*args)
-        skipping = self._stretch_skip > 0
-        saved, was_busy = m.busy_clocks, m.busy
-        if not skipping:
-            m.busy_clocks = self._stretch_clocks
-        try:
-            return fn(*args)
-        finally:
-            m.busy_clocks = saved
-            if not was_busy and m.busy:  # the chip accepted a transfer
-                if skipping:
-                    self._stretch_skip -= 1
-                else:
-                    self._stretch_left -= 1
-                    self.busy_stretched += 1
 
     # ------------------------------------------------------------------ USB: control
     def control_out(self, request: int, value: int, index: int, data: bytes) -> int:
@@ -314,7 +201,7 @@ class EmulatedFT232H:
         if request == REQ_GET_LATENCY_TIMER:
             return bytes((self.latency_ms,))[:length]
         if request == REQ_READ_PINS:
-            return bytes((self._read_low(),))[:length]
+            return bytes((self.chip_pins.read_low(),))[:length]
         if request == REQ_READ_EEPROM:
             return b"\xff\xff"[:length]  # a blank EEPROM
         return bytes(length)
@@ -330,17 +217,17 @@ class EmulatedFT232H:
             # (ADBUS0/2/4, which carry TCK, /RD and /PS here) are the UART's outputs, driven
             # high (idle, deasserted: nothing here asserts them); every other line an input,
             # pulled up.  So the chip sees /RD and /PS high, as when the lines were idle
-            self._set_low(0xFF, UART_OUTPUTS)
-            self._set_high(0xFF, 0x00)
+            self.chip_pins.set_low(0xFF, UART_OUTPUTS)
+            self.chip_pins.set_high(0xFF, 0x00)
         elif mode != BITMODE_MPSSE:
             # another bit-bang mode (not used here): every line released, pulled up
-            self._set_low(0xFF, 0x00)
-            self._set_high(0xFF, 0x00)
+            self.chip_pins.set_low(0xFF, 0x00)
+            self.chip_pins.set_high(0xFF, 0x00)
         else:
             # entering MPSSE: the mask's lines become outputs at once, driving the low-byte
             # latch, which starts at 0; the high byte stays input until a 0x82
-            self._set_low(0x00, mask)
-            self._set_high(0x00, 0x00)
+            self.chip_pins.set_low(0x00, mask)
+            self.chip_pins.set_high(0x00, 0x00)
 
     # ------------------------------------------------------------------ USB: bulk
     def bulk_out(self, data: bytes) -> int:
@@ -396,25 +283,6 @@ class EmulatedFT232H:
         return MODEM_STATUS + payload
 
     # ------------------------------------------------------------------ MPSSE engine
-    def _gpiol1(self) -> bool:
-        """The level on ADBUS5 as the engine's wait-on-I/O sees it."""
-        return bool(self._read_low() & pins.GPIOL1)
-
-    def _gpiol1_at(self, want: bool) -> int | None:
-        """When (ns) GPIOL1 will read ``want`` with nothing else changing, or None: never.
-        Only D0 of a held status read changes by itself (busy clears, ``busy_deadline``);
-        nothing sets busy without a strobe, and HI and undriven lines do not change here."""
-        if self._gpiol1() == want:
-            return self.ns
-        if not self.busy_pin or want or not self._status_held():
-            return None
-        chip = self._selected_chip()
-        deadline = None if chip is None else chip.busy_deadline()
-        if deadline is None:
-            return None
-        clock = self.model.clock_hz
-        return max(self.ns, -(-(deadline - self._epoch_tick) * 1_000_000_000 // clock))
-
     def _run_mpsse(self, until_ns: int | None = None) -> None:
         """Run the pending commands.  A wait-on-I/O whose condition comes by ``until_ns`` (None:
         now; a bulk IN passes its latency timer's expiry) moves the emulated time to it, else
@@ -426,7 +294,7 @@ class EmulatedFT232H:
         while i < len(buf):
             op = buf[i]
             if op in (pins.WAIT_HIGH, pins.WAIT_LOW):
-                at = self._gpiol1_at(op == pins.WAIT_HIGH)
+                at = self.chip_pins.gpiol1_at(op == pins.WAIT_HIGH)
                 if at is None or at > (self.ns if until_ns is None else until_ns):
                     self.waiting = op
                     self.stalled = True
@@ -454,11 +322,11 @@ class EmulatedFT232H:
             i += need
             self.advance_ns(self.command_ns)
             if op == pins.SET_LOW:
-                self._set_low(arg[0], arg[1])
+                self.chip_pins.set_low(arg[0], arg[1])
             elif op == pins.SET_HIGH:
-                self._set_high(arg[0], arg[1])
+                self.chip_pins.set_high(arg[0], arg[1])
             elif op == pins.GET_LOW or op == pins.GET_HIGH:
-                self._rx.append(self._read_low() if op == pins.GET_LOW else self._read_high())
+                self._rx.append(self.chip_pins.read_low() if op == pins.GET_LOW else self.chip_pins.read_high())
                 self.counters.most_unread = max(self.counters.most_unread, len(self._rx))
             elif op == pins.SEND_IMMEDIATE:
                 self._flushed = len(self._rx)
@@ -488,149 +356,3 @@ class EmulatedFT232H:
                 self._rx += bytes((0xFA, op))
         del buf[:i]
 
-    # ------------------------------------------------------------------ pins
-    def _read_low(self) -> int:
-        value = (self._low_val & self._low_dir) | (~self._low_dir & 0xFF & ~pins.GPIOL1)
-        if self.busy_pin:  # ADBUS5 wired to D0
-            if self._read_high(check=False) & 0x01:
-                value |= pins.GPIOL1
-        elif chips_of(self.model)[0].hi:  # HI is chip 0's line (chip 1 has none)
-            value |= pins.HI
-        return value & 0xFF
-
-    def _selected_chip(self) -> ChipModel | None:
-        """The chip whose /CS is low (one only), or None."""
-        low = [k for k, cs in enumerate(self.chip_select_lines) if not self._ctrl & cs]
-        chips = chips_of(self.model)
-        if len(low) != 1 or low[0] >= len(chips) or (len(chips) == 1 and low[0] != 0):
-            return None
-        return chips[low[0]]
-
-    def _status_held(self) -> bool:
-        """A status read is going on: /CS of one chip, /PS and /RD low."""
-        return (self._drive is not None and not self._ctrl & (pins.PS | pins.RD)
-                and self._selected_chip() is not None)
-
-    def _read_high(self, check: bool = True) -> int:
-        if self._drive is not None:
-            if self.live_status and self._status_held():
-                # [emulation choice] the status register drives D0-D7 with its current
-                # value for as long as /RD is low (see the module docstring)
-                self._run_model()
-                self._drive = self.model.read_status()
-                if self.wiring is not None:
-                    self._drive = self.wiring.to_host(self._drive)
-                if self.vcd is not None:
-                    self._log_pins()
-            if not check:
-                return self._drive
-            rd_fell = self._edge_ns.get("RD_fall", 0)
-            if self.ns - rd_fell < RD_ACCESS_NS:
-                self._timing(f"data sampled {self.ns - rd_fell} ns after /RD fell "
-                             f"(access time {RD_ACCESS_NS} ns)")
-            if self._high_dir:
-                self._timing("D0-D7 read while the adapter drives them (contention)")
-            return self._drive
-        return (self._high_val & self._high_dir) | (~self._high_dir & 0xFF)
-
-    def _timing(self, what: str) -> None:
-        self.timing_violations.append(f"at {self.ns / 1000:.3f} us: {what}")
-
-    def _set_high(self, value: int, direction: int) -> None:
-        before = (self._high_val & self._high_dir, self._high_dir)
-        self._high_val, self._high_dir = value & 0xFF, direction & 0xFF
-        if (self._high_val & self._high_dir, self._high_dir) != before:
-            self._data_changed_ns = self.ns
-            if self._high_dir and self._drive is not None:
-                self._timing("adapter drives D0-D7 while the chip drives them (contention)")
-            wr_rose = self._edge_ns.get("WR_rise")
-            if wr_rose is not None and self.ns - wr_rose < WR_HOLD_NS and before[1]:
-                self._timing(f"data changed {self.ns - wr_rose} ns after /WR rose "
-                             f"(hold {WR_HOLD_NS} ns)")
-            if self.vcd is not None:
-                self._log_pins()
-
-    def _set_low(self, value: int, direction: int) -> None:
-        try:
-            self._set_low_lines(value, direction)
-        finally:
-            if self.vcd is not None:
-                self._log_pins()
-
-    def _set_low_lines(self, value: int, direction: int) -> None:
-        self._low_val, self._low_dir = value & 0xFF, direction & 0xFF
-        level = (self._low_val & self._low_dir) | (~self._low_dir & 0xFF)  # inputs pulled up
-        old, self._ctrl = self._ctrl, level
-        changed = old ^ level
-        if changed:
-            self.ctrl_log.append((self.ns, level))
-        if not changed & (pins.CS_ALL | pins.RD | pins.WR | pins.PS | pins.RST):
-            return
-        self._run_model()
-        now = self.ns
-        for name, bit in (("CS", pins.CS), ("RD", pins.RD), ("WR", pins.WR), ("PS", pins.PS),
-                          ("RST", pins.RST), ("CS1", pins.CS1)):
-            if changed & bit:
-                self._edge_ns[name + ("_rise" if level & bit else "_fall")] = now
-        low = [k for k, cs in enumerate(self.chip_select_lines) if not level & cs]
-        selected = len(low) == 1
-        if len(low) > 1 and changed & (pins.RD | pins.WR) and not level & (pins.RD | pins.WR):
-            self._timing("two chips selected during a strobe")
-        if selected and isinstance(self.model, ChipBus):
-            if low[0] >= len(self.model.chips):
-                selected = False  # a /CS line with no chip on it
-            else:
-                self.model.select(low[0])
-        elif selected and low[0] != 0:
-            selected = False  # one chip, wired to /CS of chip 0
-        # /RST
-        if changed & pins.RST:
-            if level & pins.RST:
-                low_ns = now - self._edge_ns.get("RST_fall", 0)
-                need = 8 * 1e9 / self.model.clock_hz
-                if low_ns < need:
-                    self._timing(f"/RST low for {low_ns} ns (8 chip clocks = {need:.0f} ns)")
-                self.model.reset_pulse()
-            return
-        # strobes: check recovery and /PS setup at each falling edge
-        for strobe in (pins.RD, pins.WR):
-            if changed & strobe and not level & strobe and selected:
-                last = max(self._edge_ns.get("RD_rise", -10**9), self._edge_ns.get("WR_rise", -10**9))
-                if now - last < RECOVERY_NS:
-                    self._timing(f"strobe {now - last} ns after the previous one "
-                                 f"(recovery {RECOVERY_NS} ns)")
-                ps_edge = max(self._edge_ns.get("PS_rise", -10**9),
-                              self._edge_ns.get("PS_fall", -10**9))
-                if now - ps_edge < PS_SETUP_NS:
-                    self._timing(f"/PS changed {now - ps_edge} ns before a strobe "
-                                 f"(setup {PS_SETUP_NS} ns)")
-        if changed & pins.RD:
-            if not level & pins.RD and selected:
-                # /RD fell: the chip puts the status byte or a data byte on D0-D7
-                m = self.model
-                self._drive = (m.read_status() if not level & pins.PS
-                               else self._strobe(m.read_data))
-                if self.wiring is not None:
-                    self._drive = self.wiring.to_host(self._drive)
-                if self._high_dir:
-                    self._timing("/RD low while the adapter drives D0-D7 (contention)")
-            elif level & pins.RD:
-                self._drive = None
-        if changed & pins.WR and level & pins.WR and not old & pins.WR and selected:
-            # /WR rose: the chip latches D0-D7
-            width = now - self._edge_ns.get("WR_fall", 0)
-            if width < WR_PULSE_NS:
-                self._timing(f"/WR pulse {width} ns (minimum {WR_PULSE_NS} ns)")
-            if now - self._data_changed_ns < WR_SETUP_NS:
-                self._timing(f"data set up {now - self._data_changed_ns} ns before /WR rose "
-                             f"(setup {WR_SETUP_NS} ns)")
-            if self._high_dir != 0xFF:
-                self._timing("/WR strobed with D0-D7 not driven by the adapter")
-            byte = self._high_val
-            if self.wiring is not None:
-                byte = self.wiring.to_chip(byte)
-            m = self.model
-            if level & pins.PS:
-                self._strobe(m.write_data, byte)
-            else:
-                self._strobe(m.write_command, byte)
