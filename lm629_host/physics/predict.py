@@ -194,10 +194,10 @@ def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
         if words is not None and profile is None:
             desired = ramp(start, target, words, horizon)
         else:
-            desired = [start + sign * abs(d) for d in path][:horizon]
+            desired = [start + sign * abs(d) for d in path[:horizon]]
             desired += [target] * (horizon - len(desired))
         counts, _ = simulate(model, g, desired, x0=x, state=state)
-        times = [(k + 1 - len(path)) for k in range(horizon)]
+        times = list(range(1 - len(path), horizon + 1 - len(path)))  # samples after the path's end
         m = as_move(step_metrics(times, counts, desired, start, target, tolerance, rest),
                     profile)
         worst = m if worst is None else worst.worst(m)
