@@ -1,11 +1,19 @@
-"""Build hook for the one compiled part: the chip model's sample loop in C (optional).
+"""Build hook for the two compiled parts, both optional: the chip model's sample loop in C and
+the tuner's predictor loop in C.
 
 Everything else is in pyproject.toml.  If no C compiler is at hand the build goes on without
-it and the model uses the same loop in Python (lm629_host/sim/model/fastloop.py), only slower.
+them and the same loops run in Python (lm629_host/sim/model/fastloop.py,
+lm629_host/physics/predict.py), only slower.  -ffp-contract=off: no fused multiply-add, so
+that the C loops compute float for float what the Python ones do.
 """
 
 from setuptools import Extension, setup
 
-setup(ext_modules=[Extension(
-    "lm629_host.sim.model._fastloop", ["lm629_host/sim/model/_fastloop.c"],
-    extra_compile_args=["-O2", "-ffp-contract=off"], optional=True)])
+FLAGS = ["-O2", "-ffp-contract=off"]
+
+setup(ext_modules=[
+    Extension("lm629_host.sim.model._fastloop", ["lm629_host/sim/model/_fastloop.c"],
+              extra_compile_args=FLAGS, optional=True),
+    Extension("lm629_host.physics._predict", ["lm629_host/physics/_predict.c"],
+              extra_compile_args=FLAGS, optional=True),
+])

@@ -687,6 +687,7 @@ OTHERS = [
     ["bench_bridge.py", "--n", "10"],
     ["bench_ftdi.py", "--repeat", "5"],
     ["bench_cli.py", "--repeats", "1"],
+    ["bench_predict.py", "--motors", "default"],
     ["fault_soak.py", "--runs", "1", "--n", "200"],
 ]
 

@@ -93,7 +93,8 @@ def step_metrics(times: Sequence[float], positions: Sequence[int], desired: Sequ
     if t10 is not None and t90 is not None:
         rise = t90 - t10
     pfe = max((dsr - p for dsr, p in zip(desired, positions)), key=abs, default=0)
-    tail = [p for t, p in zip(times, positions) if t >= 0.75 * times[-1]] if times else []
+    late = 0.75 * times[-1] if times else 0.0
+    tail = [p for t, p in zip(times, positions) if t >= late]
     hunt = max(tail) - min(tail) if tail else 0
     return MoveMetrics(dist, target - positions[-1] if positions else dist, overshoot, settle,
                        rise, pfe, hunt, rest, rest_time(times, positions, desired, target,

@@ -5,7 +5,9 @@ with it.  Three parts of the package need it and use this module: the chip model
 sample loop (``sim/model/motion.py``), the tuner's predictor (:func:`lm629_host.physics.predict.simulate`)
 and the step plot's rebuilt output (:func:`lm629_host.bench.plot.rebuilt_output`).  The model's two
 flattened fast loops (``sim/model/fastloop.py`` and ``_fastloop.c``) write the same arithmetic
-inline for speed; ``tests/physics/test_pid.py`` checks them against this module bit for bit.  Nothing
+inline for speed; ``tests/physics/test_pid.py`` checks them against this module bit for bit.  So
+does the predictor's C loop (``physics/_predict.c``), checked against the Python predictor that
+calls this module by ``tests/physics/test_predict_fast.py``.  Nothing
 here imports the simulator: the driver uses this module on a real board too.
 
 u(n) = kp e(n) + ki sum(e) + kd [e(n') - e(n'-1)], computed as the chip computes it:

@@ -15,7 +15,9 @@ The units are the caller's: the tuner's model runs in counts and samples (``dt =
 chip model's motor in counts and seconds.  Knowing nothing of the driver or of the chip model,
 this is the one place the step is written in Python; the chip model's flattened sample loops
 (``sim/model/fastloop.py`` and ``_fastloop.c``) write it inline for speed, and
-``tests/physics/test_plant.py`` checks them against :func:`motor_step` bit for bit.
+``tests/physics/test_plant.py`` checks them against :func:`motor_step` bit for bit; so does the
+tuner's predictor in C (``_predict.c``, checked against the Python predictor that calls
+:func:`motor_step` by ``tests/physics/test_predict_fast.py``).
 """
 
 from __future__ import annotations

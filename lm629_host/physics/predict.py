@@ -20,10 +20,61 @@ from lm629_host.physics.pid import PIDState, holds, output_shift, pid_step, sat1
 from lm629_host.physics.plan import plan
 from lm629_host.physics.plant import decay_and_gain, motor_step
 
+try:  # the same loop in C (setup.py builds it when a compiler is at hand)
+    from lm629_host.physics._predict import run as _c_run
+except ImportError:
+    _c_run = None
+
+#: False: :func:`simulate` runs the Python loop even where the C one is built (benchmarks)
+FAST = True
+
 
 def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: float,
              w0: float = 0.0, state: PIDState | None = None,
              skip_ahead: bool = True) -> tuple[list[int], list[int]]:
+    """Predict ``len(desired)`` samples: (encoder counts, output codes) at each sample.
+
+    :func:`py_simulate` says what is computed; this runs the same loop in C
+    (``_predict.c``, :func:`c_simulate`) when the package was built with it, and in Python
+    otherwise or when the C loop declines the arguments.  The tuner spends most of its time
+    here (about 2 million samples for one tuning)."""
+    if _c_run is not None and FAST:
+        result = c_simulate(model, gains, desired, x0=x0, w0=w0, state=state,
+                            skip_ahead=skip_ahead)
+        if result is not None:
+            return result
+    return py_simulate(model, gains, desired, x0=x0, w0=w0, state=state, skip_ahead=skip_ahead)
+
+
+def c_simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: float,
+               w0: float = 0.0, state: PIDState | None = None,
+               skip_ahead: bool = True) -> tuple[list[int], list[int]] | None:
+    """:func:`py_simulate` in C, the same result bit for bit and float for float (and
+    ``state`` left the same); None, with ``state`` untouched, when the C loop is not built or
+    an argument lies outside what its 64-bit integers and doubles reproduce exactly (see
+    ``_predict.c``): then only the Python loop gives Python's answer."""
+    if _c_run is None:
+        return None
+    floats = (model.coulomb, model.load, max(model.rate, 1e-12), x0, w0)
+    if any(float(v) != v for v in floats):  # an int no double holds, or NaN: Python's case
+        return None
+    c, d, a, x, w = (float(v) for v in floats)
+    st = state or PIDState()
+    decay, gain = decay_and_gain(a, 1.0)
+    ints = (gains.kp, gains.ki, gains.kd, gains.il, gains.ds, output_shift(model.twelve_bit),
+            1 if skip_ahead else 0, st.error_sum, st.last_error, st.derivative, st.countdown,
+            st.integral, st.output)
+    result = _c_run(desired, ints, (model.accel / model.full_scale, d, c, a, decay, gain, x, w))
+    if result is None:
+        return None
+    counts, outs, (st.error_sum, st.last_error, st.derivative, st.countdown, st.integral,
+                   st.output) = result
+    return counts, outs
+
+
+def py_simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: float,
+                w0: float = 0.0, state: PIDState | None = None,
+                skip_ahead: bool = True) -> tuple[list[int], list[int]]:
     """Predict ``len(desired)`` samples: (encoder counts, output codes) at each sample.
 
     Each sample in the chip's order: the motor runs one sample on the output held since the
@@ -33,6 +84,8 @@ def simulate(model: AxisModel, gains: Gains, desired: Sequence[int], *, x0: floa
     and held, 16-bit sum, top 8 or 12 bits out).  ``tests/bench/test_tuning.py`` checks this
     arithmetic against the chip model's filter.  ``skip_ahead``: while the shaft is stuck and
     nothing in the filter can change, jump to the next change of the desired position.
+
+    The readable loop; :func:`simulate` runs it in C when it can (the same numbers).
     """
     st = state or PIDState()
     kp, ki, kd, il, ds = gains.kp, gains.ki, gains.kd, gains.il, gains.ds
@@ -141,10 +194,10 @@ def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
         if words is not None and profile is None:
             desired = ramp(start, target, words, horizon)
         else:
-            desired = [start + sign * abs(d) for d in path][:horizon]
+            desired = [start + sign * abs(d) for d in path[:horizon]]
             desired += [target] * (horizon - len(desired))
         counts, _ = simulate(model, g, desired, x0=x, state=state)
-        times = [(k + 1 - len(path)) for k in range(horizon)]
+        times = list(range(1 - len(path), horizon + 1 - len(path)))  # samples after the path's end
         m = as_move(step_metrics(times, counts, desired, start, target, tolerance, rest),
                     profile)
         worst = m if worst is None else worst.worst(m)
@@ -152,5 +205,5 @@ def predict_move(model: AxisModel, g: Gains, distance: int, horizon: int,
     return worst
 
 
-__all__ = ["MOVE_ACCELERATION", "MOVE_VELOCITY", "MoveProfile", "predict_move", "ramp",
-           "simulate"]
+__all__ = ["MOVE_ACCELERATION", "MOVE_VELOCITY", "MoveProfile", "c_simulate", "predict_move",
+           "py_simulate", "ramp", "simulate"]
