@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+from collections.abc import Iterator
 
 os.environ.setdefault("LM629_SIM_STRICT", "1")
 
@@ -22,6 +23,7 @@ import lm629_host
 from lm629_host.sim import harness
 from lm629_host.bus.program import BusCycle
 
+import hogs
 from selection import is_slow, what_runs
 from served import CPU_HOGS_ENV, cpu_hogs, is_served, served_docs
 from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
@@ -38,14 +40,14 @@ def _avr_missing() -> list[str]:
     return harness.toolchain_missing()
 
 
-#: the CPU hogs of ``--cpu-hogs`` while the session runs
-_HOGS: list = []
+#: the CPU hogs of ``--cpu-hogs``, stopped but while an under_load test runs (tests/hogs.py)
+_HOGS: list[hogs.Hogs] = []
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--cpu-hogs", type=int, default=int(os.environ.get(CPU_HOGS_ENV) or 0),
-                     metavar="N", help="run N CPU-burning processes beside the whole run (also "
-                     f"{CPU_HOGS_ENV}=N); with -m under_load: the busy-machine pass")
+                     metavar="N", help="N CPU-burning processes beside each test marked under_load "
+                     f"(also {CPU_HOGS_ENV}=N; CI: 2); the other tests run without them")
     parser.addoption("--long", action="store_true", default=bool(os.environ.get(LONG_ENV)),
                      help="the release run (docs/testing.md): the tests marked long as well, "
                      f"and the crossings machine at its long budget (also {LONG_ENV}=1)")
@@ -62,10 +64,9 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    hogs = session.config.getoption("--cpu-hogs")
-    if hogs and not hasattr(session.config, "workerinput"):  # once, not per xdist worker
-        _HOGS.append(cpu_hogs(hogs))
-        _HOGS[-1].__enter__()
+    n_hogs = session.config.getoption("--cpu-hogs")
+    if n_hogs and not hasattr(session.config, "workerinput"):  # once, before any xdist worker
+        _HOGS.append(hogs.Hogs(n_hogs))
     missing = _avr_missing()
     if missing and os.environ.get(_REQUIRE_AVR) == "1":
         pytest.exit(f"{_REQUIRE_AVR}=1 but the AVR toolchain is missing ({', '.join(missing)}):"
@@ -88,7 +89,26 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
     while _HOGS:
-        _HOGS.pop().__exit__(None, None, None)
+        _HOGS.pop().close()
+
+
+@pytest.fixture(autouse=True)
+def _under_load_beside_the_hogs(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A test marked under_load runs beside the run's CPU hogs (``--cpu-hogs N``): they burn
+    from before its own fixtures are made until after they are finalized."""
+    if request.node.get_closest_marker("under_load") is None:
+        yield
+        return
+    with hogs.beside():
+        yield
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto``: two workers per core.  Half of a worker's time in this suite is spent
+    waiting in real time (a served bench's moves, a failsafe's timeout, a browser, ser2net),
+    so two workers on two cores left a third of the CPU idle (measured: 355 CPU-s in 258 s),
+    four kept it 93 % busy (tools/suite_plan.py; docs/testing.md)."""
+    return 2 * len(os.sched_getaffinity(0))
 
 
 @pytest.fixture
@@ -112,10 +132,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             config.hook.pytest_deselected(items=[i for i in items if i not in kept])
             items[:] = kept
     if hasattr(config, "workerinput"):
-        # an xdist worker: the slow tests first (a stable sort: each module's order is kept);
-        # xdist hands out the rest one test at a time (xdist_groups.py), and a run that ends
-        # on quick tests ends with both workers busy
-        items.sort(key=lambda i: i.get_closest_marker("slow") is None)
+        # an xdist worker: the under_load tests first, so that they overlap on the workers
+        # and share the hogs' minutes (tests/hogs.py), then the slow ones (a stable sort:
+        # each module's order is kept); xdist hands out the rest one test at a time
+        # (xdist_groups.py), and a run that ends on quick tests ends with every worker busy
+        items.sort(key=lambda i: (i.get_closest_marker("under_load") is None,
+                                  i.get_closest_marker("slow") is None))
 
 
 def pytest_report_header(config: pytest.Config) -> list[str]:

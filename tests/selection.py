@@ -67,12 +67,12 @@ def _source_has(func, words: tuple[str, ...]) -> bool:
 def what_runs(markexpr: str, long: bool, hogs: int, workers: object = None) -> str:
     """One line for pytest's header: the tests selected, what is left out, how to run it."""
     out = [f"lm629-host: {f'-m {markexpr!r}' if markexpr else 'every test'}"
-           + (f" on {workers} workers" if workers else " in one process (-n auto: every core)")]
+           + (f" on {workers} workers" if workers else " in one process (-n auto: two workers a core)")]
     if long:
         out.append("with the long mode's tests and budgets (--long: the release run)")
     else:
         out.append("not the long mode's (pytest --long, before a release)")
-    out.append(f"beside {hogs} CPU hogs" if hogs else
-               "under_load tests without CPU hogs (CI runs them beside two)")
+    out.append(f"the under_load tests first, each beside {hogs} CPU hogs" if hogs else
+               "under_load tests without CPU hogs (CI runs each beside two: --cpu-hogs 2)")
     out.append("quick loop: pytest -n auto -m 'not slow'; the whole CI: bash .ci/run")
     return "; ".join(out)

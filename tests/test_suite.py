@@ -46,19 +46,61 @@ def _ci_pytest_lines() -> list[str]:
 
 
 def test_ci_runs_every_test_once_and_only_the_under_load_ones_beside_the_hogs(suite):
-    """The busy-machine pass holds the tests that assert timing under load (a failsafe trip, a
-    late host), not every served bench: a journey or a docs page beside two hogs proves nothing
-    more and runs three times slower."""
-    main, busy = _ci_pytest_lines()
-    assert '-m "not under_load"' in main and "--cpu-hogs" not in main
-    assert "-m under_load" in busy and "--cpu-hogs 2" in busy
+    """One run, every test once; the hogs burn beside the tests that assert timing under load
+    (a failsafe trip, a late host), not beside every served bench: a journey or a docs page
+    beside two hogs proves nothing more and runs three times slower."""
+    (line,) = _ci_pytest_lines()
+    assert " -m " not in line.removeprefix("python3 -m pytest") and "--cpu-hogs 2" in line
     under = [t for t in suite if "under_load" in t["marks"]]
     served = [t for t in suite if "served" in t["marks"]]
     assert any("test_served_bench_trip" in t["id"] for t in under)
     assert any("test_late_host" in t["id"] for t in under)
     assert len(under) < len(served) / 2, f"{len(under)} of {len(served)} served tests under load"
     assert not [t["id"] for t in under if "test_journey" in t["id"] or "test_docs" in t["id"]]
-    assert all("--durations=25" in line for line in (main, busy))
+
+
+def test_the_hogs_burn_only_while_an_under_load_test_runs(pytester, monkeypatch):
+    """Two workers, the hogs shared (tests/hogs.py): burning while either worker runs an
+    under_load test, stopped again once none does; the other tests run without them."""
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))
+    pytester.makeconftest("""
+        import hogs, pytest
+        pytest_plugins = []
+        _H = []
+        def pytest_sessionstart(session):
+            if not hasattr(session.config, "workerinput"):
+                _H.append(hogs.Hogs(2))
+        def pytest_sessionfinish(session):
+            while _H:
+                _H.pop().close()
+        @pytest.fixture(autouse=True)
+        def _beside(request):
+            if request.node.get_closest_marker("under_load") is None:
+                yield
+                return
+            with hogs.beside():
+                yield
+    """)
+    pytester.makepyfile(test_h="""
+        import os, time, hogs, pytest
+        from pathlib import Path
+
+        def _count():
+            return int(Path(os.environ[hogs.COUNT_ENV]).read_text())
+
+        @pytest.mark.parametrize("k", range(2))
+        @pytest.mark.under_load
+        def test_loaded(k):
+            time.sleep(0.05)  # the hogs' state settles after SIGCONT
+            assert hogs.running() == [True, True] and _count() >= 1
+
+        def test_plain():
+            time.sleep(1.0)  # after both loaded tests
+            assert hogs.running() == [False, False] and _count() == 0
+    """)
+    r = pytester.runpytest_subprocess("-p", "no:randomly", "-n", "2", "--dist", "load",
+                                      "-o", "addopts=", "-m", "under_load or not under_load")
+    r.assert_outcomes(passed=3)
 
 
 def test_both_workers_share_the_long_tests(suite):
