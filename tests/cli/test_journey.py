@@ -73,6 +73,9 @@ def _ok(p: subprocess.CompletedProcess) -> str:
     return p.stdout
 
 
+# over 10 s on an idle machine: a dozen `lm629` processes in a row (profile, bringup, wiring,
+# tune, moves by name, scope) against one served bench in real time, the firmware behind an
+# Uno's USB in one parameter: the crossings of the features, as a user makes them, are the subject
 def test_a_new_users_first_hour(bench):
     b, tmp = bench
     port = f"serial://{b.link}"

@@ -1157,6 +1157,9 @@ def _settings(budget: Budget) -> settings:
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 
 
+# over 10 s on an idle machine (sim:// and sim+emu://): the CI budget of LINKS, a few thousand
+# API calls in derandomized sequences; each link is its own test, so they run on separate
+# workers
 @pytest.mark.parametrize("url,budget", LINKS, ids=[u.split("?")[0] for u, _ in LINKS])
 def test_the_api_agrees_with_the_simulator(url: str, budget: Budget, record_property) -> None:
     if not available(url):

@@ -327,6 +327,9 @@ def _status(url: str) -> dict:
     return json.loads(p.stdout)
 
 
+# over 10 s on an idle machine: a lab's test file run twice by pytest in its own process
+# against one `lm629 sim serve` in real time (a 60000-count move among them): the persistent
+# bench between two processes is the subject
 def test_the_same_file_on_a_persistent_bench(user_dir):
     user_dir.makepyfile(test_stop=STOP_FILE)
     with _sim_serve() as url:
