@@ -11,8 +11,11 @@ skip, and the run says so in a red line at its end (and at its start); with
 
 from __future__ import annotations
 
+import compileall
 import os
 import subprocess
+import sys
+from pathlib import Path
 from collections.abc import Iterator
 
 os.environ.setdefault("LM629_SIM_STRICT", "1")
@@ -64,6 +67,13 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
+    if not sys.dont_write_bytecode and session.config.getoption("numprocesses", None) \
+            and not hasattr(session.config, "workerinput"):
+        # the package compiled once, on every core, before the workers start: in a fresh
+        # clone each worker would compile all of it at once (a few CPU-seconds each); a
+        # current cache costs a look at the files' times
+        compileall.compile_dir(str(Path(lm629_host.__file__).parent), quiet=1,
+                               workers=len(os.sched_getaffinity(0)))
     n_hogs = session.config.getoption("--cpu-hogs")
     if n_hogs and not hasattr(session.config, "workerinput"):  # once, before any xdist worker
         _HOGS.append(hogs.Hogs(n_hogs))

@@ -264,6 +264,14 @@ class MoveWatch:
         self.complete_at: float | None = None
         self.quiet_since: float | None = None
 
+    def restart_rest(self, s: Snapshot) -> None:
+        """Count the shaft's rest from snapshot ``s`` on, forgetting the rest seen before it
+        (a far-side wait whose snapshots come in checks too far apart to judge across: a
+        shaft still at the top of an overshoot at the end of one check and a few counts on at
+        the next was not at rest in between)."""
+        self.prev = s
+        self.quiet_since = None
+
     def look(self, chip: MovingChip, progress: Callable[[Snapshot], None] | None
              ) -> tuple[Snapshot, MoveResult | None]:
         """One step of a host-polled wait: a snapshot of ``chip``, shown to ``progress``, then

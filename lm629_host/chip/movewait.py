@@ -99,7 +99,7 @@ def wait_far(move: Move, watch: MoveWatch,
             first_of_check = coarse
         for i, s in enumerate(snaps):
             if first_of_check and i == 0:
-                watch.prev = s  # rest counted from this snapshot on, not across exchanges
+                watch.restart_rest(s)  # rest counted from this snapshot on, not across exchanges
             if progress is not None:
                 progress(s)
             result = watch.check(s)

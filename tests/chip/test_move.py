@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import pytest
 
+import lm629_host
+
 from lm629_host import Cmd, MotionError, MoveRules, Status
 from lm629_host.errors import MotionFault
 from lm629_host.chip.move import MOVE_FLAGS
@@ -222,3 +224,37 @@ def test_velocity_mode_is_a_method_with_a_signed_speed():
         run.stop()
         with pytest.raises(ValueError):
             chip.run_velocity(2**30)
+
+
+def test_rest_is_not_counted_across_far_checks_too_far_apart():
+    """A far-side wait on a late link (ser2net beside two CPU hogs: CI saw it) reads its
+    snapshots in checks too far apart to judge rest across them.  The shaft overshot 64 counts
+    and read the same count twice at the top of the overshoot (RDRV 0: under a count a
+    sample), then 48 ms later, in the next check, 55 counts over and coming back: that is not
+    a shaft at rest, and no "came to rest -55 counts" fault.  A shaft that then stays at one
+    count for the settle time is at rest, and the fault is the truth."""
+    from lm629_host.bus.snapshot import Snapshot
+    from lm629_host.chip.move import MoveWatch
+
+    chip = lm629_host.open("sim://")
+    with chip:
+        chip.reset()
+        chip.load_filter(kp=20, kd=100)
+        chip.update_filter()
+        move = chip.move_to(6000, velocity=1 << 16, acceleration=1 << 8)
+        watch = MoveWatch(move, MoveRules(), timeout=10)
+        t0, done = move.t0, Status.TRAJECTORY_COMPLETE | Status.BREAKPOINT
+
+        def snap(t: float, rp: int, status: Status = Status.BREAKPOINT) -> Snapshot:
+            return Snapshot(status, chip.read_signals(), 6000 if status & done else 5999, rp,
+                            0, 0, 0, t0 + t)
+
+        assert watch.check(snap(0.3251, 6064)) is None
+        assert watch.check(snap(0.3287, 6064, done)) is None  # the top of the overshoot
+        assert watch.quiet_since == t0 + 0.3251
+        later = snap(0.3770, 6055, done)  # the next check, 48 ms on: coming back
+        watch.restart_rest(later)
+        assert watch.check(later) is None and watch.quiet_since == later.time
+        assert watch.check(snap(0.3820, 6055, done)) is None  # 5 ms at rest: not yet
+        with pytest.raises(MotionError, match="came to rest -55 counts"):
+            watch.check(snap(0.3980, 6055, done))  # 21 ms at one count: at rest, 55 off
