@@ -45,7 +45,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import NoReturn, Protocol
 
-from lm629_host.clock import Clock
+from lm629_host.clock import ROUNDING_S, Clock
 from lm629_host.errors import ArgumentError, MotionError, MotionFault
 from lm629_host.bus.opcodes import Signals, Status
 from lm629_host.physics.plan import plan
@@ -327,7 +327,10 @@ class MoveWatch:
                 self.quiet_since = prev.time if self.quiet_since is None else self.quiet_since
             else:
                 self.quiet_since = None
-            if self.quiet_since is not None and s.time - self.quiet_since >= r.settle_time:
+            # (a far check's snapshots are its poll apart by construction: four polls make
+            # the settle time, give or take a float's rounding)
+            if self.quiet_since is not None \
+                    and s.time - self.quiet_since >= r.settle_time - ROUNDING_S:
                 if abs(err) <= r.tolerance:
                     m.result = MoveResult(target, s.real_position, err, s.time - m.t0)
                     return m.result

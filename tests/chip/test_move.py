@@ -243,18 +243,26 @@ def test_rest_is_not_counted_across_far_checks_too_far_apart():
         chip.update_filter()
         move = chip.move_to(6000, velocity=1 << 16, acceleration=1 << 8)
         watch = MoveWatch(move, MoveRules(), timeout=10)
-        t0, done = move.t0, Status.TRAJECTORY_COMPLETE | Status.BREAKPOINT
+        done = Status.TRAJECTORY_COMPLETE | Status.BREAKPOINT
 
         def snap(t: float, rp: int, status: Status = Status.BREAKPOINT) -> Snapshot:
+            """At ``t`` seconds on the transport's clock."""
             return Snapshot(status, chip.read_signals(), 6000 if status & done else 5999, rp,
-                            0, 0, 0, t0 + t)
+                            0, 0, 0, t)
 
-        assert watch.check(snap(0.3251, 6064)) is None
-        assert watch.check(snap(0.3287, 6064, done)) is None  # the top of the overshoot
-        assert watch.quiet_since == t0 + 0.3251
-        later = snap(0.3770, 6055, done)  # the next check, 48 ms on: coming back
-        watch.restart_rest(later)
-        assert watch.check(later) is None and watch.quiet_since == later.time
-        assert watch.check(snap(0.3820, 6055, done)) is None  # 5 ms at rest: not yet
+        # one check ends at the top of the overshoot, 64 over, read twice (0.0036 s apart)
+        assert watch.check(snap(4.9481, 6064)) is None
+        assert watch.check(snap(4.9517, 6064, done)) is None
+        assert watch.quiet_since == 4.9481
+        # the next check, 28 ms on: coming back; its five snapshots stamped as wait_far does,
+        # a poll apart back from the reply's time, 5.0 (0.02 s in all but a float's rounding:
+        # 5.0 - 0.02 rounds to more than 0.02 before 5.0); at rest for the settle time, 55
+        # counts off: that fault is the truth
+        assert 5.0 - (5.0 - 4 * 0.005) < 0.02
+        checks = [snap(5.0 - (4 - k) * 0.005, 6055, done) for k in range(5)]
+        watch.restart_rest(checks[0])
+        assert watch.check(checks[0]) is None and watch.quiet_since == checks[0].time
+        for s in checks[1:4]:
+            assert watch.check(s) is None  # 5, 10, 15 ms at rest: not yet
         with pytest.raises(MotionError, match="came to rest -55 counts"):
-            watch.check(snap(0.3980, 6055, done))  # 21 ms at one count: at rest, 55 off
+            watch.check(checks[4])
