@@ -94,6 +94,13 @@ def beside() -> Iterator[int]:
         _add(-1)
 
 
+def count() -> int:
+    """How many under_load tests run now, on every worker (read under the count's lock)."""
+    with open(os.environ[COUNT_ENV]) as f:
+        fcntl.flock(f, fcntl.LOCK_SH)
+        return int(f.read() or 0)
+
+
 def running() -> list[bool]:
     """Whether each hog is burning now (its state in /proc: R, not T), for the suite's test."""
     out = []

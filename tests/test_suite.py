@@ -82,21 +82,17 @@ def test_the_hogs_burn_only_while_an_under_load_test_runs(pytester, monkeypatch)
                 yield
     """)
     pytester.makepyfile(test_h="""
-        import os, time, hogs, pytest
-        from pathlib import Path
-
-        def _count():
-            return int(Path(os.environ[hogs.COUNT_ENV]).read_text())
+        import time, hogs, pytest
 
         @pytest.mark.parametrize("k", range(2))
         @pytest.mark.under_load
         def test_loaded(k):
             time.sleep(0.05)  # the hogs' state settles after SIGCONT
-            assert hogs.running() == [True, True] and _count() >= 1
+            assert hogs.running() == [True, True] and hogs.count() >= 1
 
         def test_plain():
             time.sleep(1.0)  # after both loaded tests
-            assert hogs.running() == [False, False] and _count() == 0
+            assert hogs.running() == [False, False] and hogs.count() == 0
     """)
     r = pytester.runpytest_subprocess("-p", "no:randomly", "-n", "2", "--dist", "load",
                                       "-o", "addopts=", "-m", "under_load or not under_load")
