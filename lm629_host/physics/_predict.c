@@ -17,6 +17,8 @@
 #include <math.h>
 #include <stdint.h>
 
+#include "motor_step.h"
+
 typedef int64_t i64;
 
 #define U_MAX 32767
@@ -98,30 +100,8 @@ static PyObject *run(PyObject *self, PyObject *args) {
         i64 target = want[i];
         /* motor_step(x, w, out * g - d, c, a, decay, gain, 1.0) */
         int was_still = w == 0.0;
-        double drive = (double)out * g - d;
-        int moving = 1;
-        double force = 0.0;
-        if (w == 0.0) {
-            if (-c <= drive && drive <= c) moving = 0;
-            else force = drive > 0 ? drive - c : drive + c;
-        } else {
-            force = w > 0 ? drive - c : drive + c;
-        }
-        if (moving) {
-            double w_inf = force / a;
-            double w1 = w_inf + (w - w_inf) * decay;
-            if (w != 0.0 && ((w1 > 0) != (w > 0))) {
-                double den = w - w_inf;
-                if (den == 0.0) goto fallback;  /* Python: ZeroDivisionError */
-                double q = -w_inf / den;
-                if (q <= 0.0) goto fallback;    /* Python: math domain error */
-                x = x + (w_inf * (-log(q) / a) + w / a);
-                w = 0.0;
-            } else {
-                x = x + (w_inf * 1.0 + (w - w_inf) * gain);
-                w = w1;
-            }
-        }
+        if (motor_step(&x, &w, (double)out * g - d, c, a, decay, gain, 1.0) != 0)
+            goto fallback;  /* Python: ZeroDivisionError or a math domain error */
         int stuck = was_still && w == 0.0;
         if (!(x > -(double)POS && x < (double)POS)) goto fallback;  /* NaN, inf, far away */
         i64 n = (i64)floor(x);

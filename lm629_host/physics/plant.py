@@ -13,11 +13,12 @@ sticks there.
 
 The units are the caller's: the tuner's model runs in counts and samples (``dt = 1``), the
 chip model's motor in counts and seconds.  Knowing nothing of the driver or of the chip model,
-this is the one place the step is written in Python; the chip model's flattened sample loops
-(``sim/model/fastloop.py`` and ``_fastloop.c``) write it inline for speed, and
-``tests/physics/test_plant.py`` checks them against :func:`motor_step` bit for bit; so does the
-tuner's predictor in C (``_predict.c``, checked against the Python predictor that calls
-:func:`motor_step` by ``tests/physics/test_predict_fast.py``).
+this is the one place the step is written in Python, and ``motor_step.h`` the one place in C,
+for both compiled loops (the chip model's ``_fastloop.c`` and the tuner's predictor
+``_predict.c``); the chip model's flattened Python loop (``sim/model/fastloop.py``) writes it
+inline for speed.  ``tests/physics/test_plant.py`` checks the chip model's loops against
+:func:`motor_step` bit for bit, ``tests/physics/test_predict_fast.py`` the C predictor against
+the Python one that calls it.
 """
 
 from __future__ import annotations

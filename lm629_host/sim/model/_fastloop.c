@@ -10,6 +10,8 @@
 #include <math.h>
 #include <stdint.h>
 
+#include "../../physics/motor_step.h"
+
 typedef int64_t i64;
 
 #define HALF ((i64)1 << 46)
@@ -60,26 +62,9 @@ static PyObject *run(PyObject *self, PyObject *args) {
         if (stall) {
             speed = 0.0;
         } else {
-            double drive = (double)out * vpc * apv - load, force = 0.0;
-            int moving = 1;
-            if (speed == 0.0) {
-                if (-coul <= drive && drive <= coul) moving = 0;
-                else force = drive > 0 ? drive - coul : drive + coul;
-            } else {
-                force = speed > 0 ? drive - coul : drive + coul;
-            }
-            if (moving) {
-                double w_inf = force / rate;
-                double w1 = w_inf + (speed - w_inf) * decay;
-                if (speed != 0.0 && ((w1 > 0) != (speed > 0))) {
-                    double t0 = -log(-w_inf / (speed - w_inf)) / rate;
-                    angle += w_inf * t0 + speed / rate;
-                    speed = 0.0;
-                } else {
-                    angle += w_inf * ts + (speed - w_inf) * gain;
-                    speed = w1;
-                }
-            }
+            /* never -1 here (motor_step.h says why) */
+            (void)motor_step(&angle, &speed, (double)out * vpc * apv - load, coul, rate, decay,
+                             gain, ts);
         }
         /* encoder */
         i64 c1 = (i64)floor(angle);
