@@ -3,8 +3,8 @@ module per family (:mod:`.bench`, :mod:`.chip`, :mod:`.motion`, :mod:`.tune`, :m
 :mod:`.types` holds the parameter types and checks they share.
 
 A new command is a function in its family's module decorated with ``@main.command()``, and a
-row in :data:`.app.COMMANDS` (command name -> family), the one list of what ``lm629`` has:
-``main`` imports a family when one of its commands is asked for, not at startup.  So
+row in :data:`.families.COMMAND_FAMILIES` (command name -> family), the one list of what
+``lm629`` has: ``main`` imports a family when one of its commands is asked for, not at startup.  So
 ``main.commands`` holds only the families loaded so far; ``main.list_commands(ctx)`` and
 ``main.get_command(ctx, name)`` see every command.
 """

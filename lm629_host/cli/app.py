@@ -22,7 +22,6 @@ commands run ``lm629 sim serve --pty /tmp/lm629`` and use ``--port /tmp/lm629``.
 from __future__ import annotations
 
 import contextlib
-import importlib
 import importlib.util
 import logging
 import os
@@ -56,6 +55,7 @@ from lm629_host.bus.program import BusCycle
 from lm629_host.chip.safety import STOP_NOTE, StopSignals
 from lm629_host.physics.units import Scale
 from lm629_host.urls import PortURL, parse_hz, port_url
+from lm629_host.cli.families import COMMAND_FAMILIES, LazyGroup
 from lm629_host.cli.profile_session import profile_opened, profile_options
 
 log = logging.getLogger("lm629_host.cli")
@@ -338,68 +338,9 @@ _NO_ARGS: tuple[type[Exception], ...] = tuple(
     c for c in (getattr(click.exceptions, "NoArgsIsHelpError", None),) if c is not None)
 
 
-#: command (or group) name -> the family module of :mod:`lm629_host.cli` whose import registers
-#: it (``@main.command()``): the one table of what ``lm629`` has.  A family is imported when one
-#: of its commands runs (or ``--help`` lists them), never at startup: ``lm629 status`` does not
-#: load the panel's web server or the tuner (tests/cli/test_cli_lazy.py holds the table to
-#: what the families register)
-COMMANDS: dict[str, str] = {
-    "bringup": "bench", "list": "bench", "doctor": "bench", "udev": "bench",
-    "bridge": "bridge",
-    "calc": "calc",
-    "status": "chip", "clear": "chip", "reset": "chip", "filter": "chip", "index": "chip",
-    "breakpoint": "chip", "limit": "chip", "watch": "chip", "raw": "chip",
-    "lab": "lab",
-    "move": "motion", "velocity": "motion", "stop": "motion", "home": "motion",
-    "panel": "panel",
-    "profile": "profile",
-    "scope": "scope",
-    "selftest": "selftest",
-    "shell": "shell",
-    "sigrok": "sigrok",
-    "sim": "sim",
-    "tune": "tune", "step": "tune",
-    "identify": "twin", "twin": "twin",
-    "wiring": "wiring",
-}
-
-#: click >= 8.4 raises this for an unknown command, with its "Did you mean" suggestions
-_NO_SUCH_COMMAND: tuple[type[Exception], ...] = tuple(
-    c for c in (getattr(click.exceptions, "NoSuchCommand", None),) if c is not None)
-
-
-class LM629Group(click.Group):
-    """A click group that turns exceptions into one stderr line and an exit code, and loads
-    its commands lazily: ``lazy_commands`` (name -> family module of this package, as
-    :data:`COMMANDS`) is what it lists; a family is imported when one of its names is asked
-    for (click's "lazily loading subcommands")."""
-
-    def __init__(self, *args: Any, lazy_commands: dict[str, str] | None = None,
-                 **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.lazy_commands = dict(lazy_commands or {})
-
-    def list_commands(self, ctx: click.Context) -> list[str]:
-        return sorted({*self.commands, *self.lazy_commands})
-
-    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
-        family = self.lazy_commands.get(cmd_name)
-        if family is not None and cmd_name not in self.commands:
-            importlib.import_module(f"{__package__}.{family}")  # registers its commands
-            if cmd_name not in self.commands:
-                raise RuntimeError(f"lm629_host.cli.{family} registers no command {cmd_name!r} "
-                                   "(the table COMMANDS in lm629_host/cli/app.py says it does)")
-        return super().get_command(ctx, cmd_name)
-
-    def resolve_command(self, ctx: click.Context,
-                        args: list[str]) -> tuple[str | None, click.Command | None, list[str]]:
-        """click suggests a near name ("Did you mean 'status'?") from the commands loaded so
-        far: here from every command, loaded or not."""
-        try:
-            return super().resolve_command(ctx, args)
-        except _NO_SUCH_COMMAND as exc:
-            raise type(exc)(exc.command_name, possibilities=self.list_commands(ctx),  # type: ignore[attr-defined]
-                            ctx=ctx) from None
+class LM629Group(LazyGroup):
+    """A click group that turns exceptions into one stderr line and an exit code (its commands
+    load lazily: :class:`~lm629_host.cli.families.LazyGroup`)."""
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         """Each command's first sentence whole (click cuts it at 45 characters with "..."):
@@ -486,7 +427,7 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
     ctx.exit(code)
 
 
-@click.group(cls=LM629Group, epilog=_help_epilog(), lazy_commands=COMMANDS,
+@click.group(cls=LM629Group, epilog=_help_epilog(), lazy_commands=COMMAND_FAMILIES,
              context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--port", "-p", envvar="LM629_PORT", default=None, metavar="URL",
               help="sim://, serial://PATH or a device path, socket://HOST:PORT (ser2net, "
