@@ -1,20 +1,16 @@
-"""``lm629``: the bench command line (the ``main`` group, :mod:`.app`), its commands in one
-module per family: :mod:`.bench` (bringup, list, doctor, udev), :mod:`.chip` (status, reset,
-filter, index, breakpoint, limit, watch, raw), :mod:`.motion` (move, velocity, stop, home),
-:mod:`.tune` (step, tune), :mod:`.twin` (identify, twin check), :mod:`.wiring` (wiring,
-wiring --check), :mod:`.calc`, :mod:`.bridge` (bridge list|flash), :mod:`.sim` (sim serve),
-:mod:`.sigrok` (sigrok install), :mod:`.lab` (--place, lab selftest), :mod:`.profile` (--profile,
-profile init|apply|show), :mod:`.scope`, :mod:`.panel`, :mod:`.shell`; :mod:`.types` holds the parameter
-types and checks they share.
+"""``lm629``: the bench command line: the ``main`` group (:mod:`.app`) and its commands, one
+module per family (:mod:`.bench`, :mod:`.chip`, :mod:`.motion`, :mod:`.tune`, :mod:`.twin`...);
+:mod:`.types` holds the parameter types and checks they share.
 
-A new command is a function in its family's module decorated with ``@main.command()``.
+A new command is a function in its family's module decorated with ``@main.command()``, and a
+row in :data:`.families.COMMAND_FAMILIES` (command name -> family), the one list of what
+``lm629`` has: ``main`` imports a family when one of its commands is asked for, not at startup.  So
+``main.commands`` holds only the families loaded so far; ``main.list_commands(ctx)`` and
+``main.get_command(ctx, name)`` see every command.
 """
 
 from __future__ import annotations
 
-from lm629_host.cli import (  # noqa: F401 - importing a family registers its commands
-    bench, bridge, calc, chip, lab, motion, panel, profile, scope, selftest, shell, sigrok, sim,
-    tune, twin, wiring)
 from lm629_host.chip.safety import Terminated
 from lm629_host.cli.app import EXIT_CODES, Session, main
 from lm629_host.cli.common import snapshot_dict

@@ -55,6 +55,7 @@ from lm629_host.bus.program import BusCycle
 from lm629_host.chip.safety import STOP_NOTE, StopSignals
 from lm629_host.physics.units import Scale
 from lm629_host.urls import PortURL, parse_hz, port_url
+from lm629_host.cli.families import COMMAND_FAMILIES, LazyGroup
 from lm629_host.cli.profile_session import profile_opened, profile_options
 
 log = logging.getLogger("lm629_host.cli")
@@ -337,8 +338,9 @@ _NO_ARGS: tuple[type[Exception], ...] = tuple(
     c for c in (getattr(click.exceptions, "NoArgsIsHelpError", None),) if c is not None)
 
 
-class LM629Group(click.Group):
-    """A click group that turns exceptions into one stderr line and an exit code."""
+class LM629Group(LazyGroup):
+    """A click group that turns exceptions into one stderr line and an exit code (its commands
+    load lazily: :class:`~lm629_host.cli.families.LazyGroup`)."""
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         """Each command's first sentence whole (click cuts it at 45 characters with "..."):
@@ -425,7 +427,7 @@ def _fail(ctx: click.Context, message: str, exc: BaseException, code: int,
     ctx.exit(code)
 
 
-@click.group(cls=LM629Group, epilog=_help_epilog(),
+@click.group(cls=LM629Group, epilog=_help_epilog(), lazy_commands=COMMAND_FAMILIES,
              context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--port", "-p", envvar="LM629_PORT", default=None, metavar="URL",
               help="sim://, serial://PATH or a device path, socket://HOST:PORT (ser2net, "

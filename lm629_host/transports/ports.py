@@ -136,7 +136,8 @@ def _transport(url: PortURL) -> tuple[str, type[Transport], PortURL]:
     the serial transport, ``serial://`` in front, for any other scheme pyserial has a handler
     for (``hwgrep://``, ``alt://``...)."""
     scheme = scheme_of(url)
-    if scheme not in registry() and scheme not in URL_SCHEMES and _pyserial_knows(scheme):
+    if (scheme not in BUILTIN and scheme not in URL_SCHEMES and scheme not in registry()
+            and _pyserial_knows(scheme)):
         return "serial", transport_class("serial://"), PortURL.parse("serial://" + url.given)
     cls = transport_class(url)  # SchemeError for an unknown scheme
     return cls.scheme or scheme, cls, url

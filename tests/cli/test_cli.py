@@ -478,8 +478,12 @@ def test_doctor_without_the_optional_pyftdi_or_an_ft232h_finds_no_problem(run, m
 
 
 def _commands(group, path=()):
+    """Every command under ``group``, loaded (``main`` loads its families lazily: its
+    ``commands`` holds only those loaded so far)."""
     import click
-    for name, cmd in group.commands.items():
+    ctx = click.Context(group, info_name=path[-1] if path else "lm629")
+    for name in group.list_commands(ctx):
+        cmd = group.get_command(ctx, name)
         yield (*path, name), cmd
         if isinstance(cmd, click.Group):
             yield from _commands(cmd, (*path, name))
