@@ -75,5 +75,5 @@ class LazyGroup(click.Group):
             return super().resolve_command(ctx, args)
         except _NO_SUCH_COMMAND as exc:
             name = getattr(exc, "command_name", args[0])
-            raise type(exc)(name, possibilities=self.list_commands(ctx),  # type: ignore[call-arg]
+            raise type(exc)(name, possibilities=self.list_commands(ctx),  # type: ignore[call-arg]  # NoSuchCommand, typed as Exception
                             ctx=ctx) from None
