@@ -145,7 +145,7 @@ SERVED_MODULES = frozenset({"test_served_bench", "test_served_bench_failsafe",
 
 def is_served(item: pytest.Item, served_docs: set[Path]) -> bool:
     """Whether ``item`` runs against a ``lm629 sim serve`` far end in real time (the
-    ``served`` marker: the busy-machine pass runs these with CPU hogs beside them)."""
+    ``served`` marker; only those also marked ``under_load`` run beside CPU hogs)."""
     if item.path.stem in SERVED_MODULES or "served" in item.name or _starts_a_server(item):
         return True
     block = getattr(item, "callspec", None) and item.callspec.params.get("block")

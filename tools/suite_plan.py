@@ -2,7 +2,7 @@
 through xdist's schedulers and prints each worker's busy time and the run's end.
 
     python3 -m pytest -q --durations=0 [-m ...] > run.txt     # or --junitxml=run.xml
-    python3 tools/suite_plan.py run.txt [-m "not under_load"] [--workers 2]
+    python3 tools/suite_plan.py run.txt [-m "not slow"] [--workers 4]
 
 The durations are measured on whatever machine ran them (on a shared machine all of them are
 inflated alike); the figures that matter are ratios within one replay: the run's end against
@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import heapq
 import json
+import os
 import re
 import subprocess
 import sys
@@ -96,7 +97,8 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("measured", type=Path, help="junit XML, or pytest output with --durations=0")
     ap.add_argument("-m", dest="markexpr", default="", help="the run's marker expression")
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2 * len(os.sched_getaffinity(0)),
+                    help="as -n auto: two workers a core (tests/conftest.py)")
     a = ap.parse_args(argv)
     seconds = durations(a.measured)
     items = collect(["-m", a.markexpr] if a.markexpr else [])
