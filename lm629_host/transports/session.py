@@ -24,6 +24,12 @@ from lm629_host.errors import LinkError, TransportError
 from lm629_host.urls import PortURL
 from lm629_host.transports.base import Transport
 
+#: the answers to the protocol's requests: one with the awaited seq but answering another kind
+#: of request is stale, not a firmware that speaks another protocol (a client killed in a
+#: long WAIT_STATUS leaves its RUN_REPLY to come when the next client's first byte ends the
+#: wait; the next client's HELLO may have drawn the same seq); ERROR_REPLY is an answer to all
+_OTHER_ANSWERS = frozenset(REPLY_TO.values()) | frozenset(ALSO_REPLY_TO.values())
+
 log = logging.getLogger("lm629_host.bridge.protocol")
 
 #: retries of one request (same ``seq``, same bytes) before the host gives up.  Seven: at 1 % of
@@ -473,7 +479,8 @@ class LinkSession(Transport):
                     bad = True
                 elif (item.seq == seq and item.type & 0x80
                       and (accept is None or item.type in accept
-                           or item.type not in self._events)):
+                           or item.type not in self._events
+                           and item.type not in _OTHER_ANSWERS)):
                     queue.append(item)  # the answer (or a wrong one: the caller says so)
                 else:
                     self._dispatch(item, seq)

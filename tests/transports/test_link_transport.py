@@ -349,6 +349,26 @@ def test_stale_replies_are_ignored():
     assert t.stale_replies == 1 and t.stats.retries == 0
 
 
+def test_a_stale_answer_to_another_request_with_the_same_seq_is_ignored():
+    """A client killed in a long WAIT_STATUS leaves its RUN_REPLY to come when the next
+    client's first byte ends the wait; the next client's HELLO drew the same seq (1 in 255:
+    seen in CI as "the bridge answered HELLO with frame type 82 ... reflash the firmware").
+    An answer to another kind of request is stale: the HELLO gets its own answer."""
+    t, tap = tapped()
+    chip = LM629(t)
+    chip.reset()
+    nxt = (t._seq + 1) & 0xFF
+    _queue = t.pipe.inner
+    now = t.clock.now()
+    for b in encode_frame(FrameType.RUN_REPLY, nxt,
+                          bytes((Result.OK, 0xFF, 0x80, 0, 0)) + b"\x7f\xff\xff\xff"):
+        _queue._to_host.append((now, b, _queue.rate))
+    info = t.hello()
+    assert info.chip_selects >= 1
+    assert t.stale_replies == 1 and t.stats.retries == 0
+    assert chip.read_real_position() == 0
+
+
 def test_error_reply_is_a_typed_error():
     t, _ = tapped()
     with pytest.raises(TransportError, match="ERROR_REPLY"):
