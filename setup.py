@@ -10,12 +10,13 @@ that the C loops compute float for float what the Python ones do.
 from setuptools import Extension, setup
 
 FLAGS = ["-O2", "-ffp-contract=off"]
-#: the DC motor's sample, one C home for both loops (physics/plant.py's motor_step in C)
-MOTOR_STEP = "lm629_host/physics/motor_step.h"
+#: one sample's filter and motor, one C home for both loops (pid.py's pid_step and plant.py's
+#: motor_step in C)
+SAMPLE_C = "lm629_host/physics/sample_c.h"
 
 setup(ext_modules=[
     Extension("lm629_host.sim.model._fastloop", ["lm629_host/sim/model/_fastloop.c"],
-              depends=[MOTOR_STEP], extra_compile_args=FLAGS, optional=True),
+              depends=[SAMPLE_C], extra_compile_args=FLAGS, optional=True),
     Extension("lm629_host.physics._predict", ["lm629_host/physics/_predict.c"],
-              depends=[MOTOR_STEP], extra_compile_args=FLAGS, optional=True),
+              depends=[SAMPLE_C], extra_compile_args=FLAGS, optional=True),
 ])

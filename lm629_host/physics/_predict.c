@@ -1,5 +1,6 @@
 /* The tuner's predictor loop in C: a line-by-line transcription of py_simulate() in predict.py
- * (with pid.py's pid_step, holds and skip_held and plant.py's motor_step written inline), which
+ * (with pid.py's holds and skip_held written inline; its pid_step and plant.py's motor_step
+ * are sample_c.h's, shared with the chip model's loop), which
  * stays the readable source of truth; tests/physics/test_predict_fast.py runs both side by side.
  *
  * Integers are int64.  run() first checks that every integer it is handed lies where no sum or
@@ -17,32 +18,17 @@
 #include <math.h>
 #include <stdint.h>
 
-#include "motor_step.h"
+#include "sample_c.h"
 
-typedef int64_t i64;
-
-#define U_MAX 32767
-#define U_MIN (-32768)
-#define SUM_MAX (((i64)1 << 23) - 1)
-#define SUM_MIN (-((i64)1 << 23))
 #define BIG ((i64)1 << 40)   /* gains, il, ds and the filter's memory: |v| < BIG */
 #define GAIN ((i64)1 << 22)  /* ki, kd: |v| < GAIN (ki * (sum >> 8) < 2^62) */
 #define POS ((i64)1 << 61)   /* desired positions and encoder counts: |v| < POS */
-
-static i64 sat16(i64 x) { return x > U_MAX ? U_MAX : (x < U_MIN ? U_MIN : x); }
-
-/* Python's a >> s for s >= 0: a floor, also for negative a */
-static i64 shr(i64 a, int s) {
-    return a >= 0 ? a >> s : -((-a - 1) >> s) - 1;
-}
 
 /* Python's a % m (m != 0): the result takes the sign of m */
 static i64 pymod(i64 a, i64 m) {
     i64 r = a % m;
     return (r != 0 && ((r < 0) != (m < 0))) ? r + m : r;
 }
-
-static i64 iabs(i64 a) { return a < 0 ? -a : a; }
 
 static int within(i64 v, i64 limit) { return v > -limit && v < limit; }
 
@@ -108,21 +94,7 @@ static PyObject *run(PyObject *self, PyObject *args) {
         /* the filter: pid_step(st, sat16(target - n), kp, ki, kd, il, ds) */
         i64 e = sat16(target - n);
         i64 held_out = out;
-        i64 total = esum + e;
-        total = total > SUM_MAX ? SUM_MAX : (total < SUM_MIN ? SUM_MIN : total);
-        i64 held = ki * shr(esum, 8);
-        if ((held >= il || held <= -il) && iabs(total) > iabs(esum)) total = esum;
-        esum = total;
-        i64 term = ki * shr(total, 8);
-        iterm = term > il ? il : (term < -il ? -il : term);
-        if (countdown == 0) {
-            dterm = sat16(kd * sat16(e - elast));
-            elast = e;
-            countdown = ds - 1;
-        } else {
-            countdown -= 1;
-        }
-        u = sat16(sat16(kp * e) + iterm + dterm);
+        u = pid_step(&esum, &elast, &dterm, &countdown, &iterm, e, kp, ki, kd, il, ds);
         out = shr(u, shift);
 
         PyObject *n_obj = PyLong_FromLongLong(n);

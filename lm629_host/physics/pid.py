@@ -3,11 +3,12 @@
 The one home of the filter's arithmetic (AN-706 5.2.3 - 5.2.5) and of the constants that go
 with it.  Three parts of the package need it and use this module: the chip model's readable
 sample loop (``sim/model/motion.py``), the tuner's predictor (:func:`lm629_host.physics.predict.simulate`)
-and the step plot's rebuilt output (:func:`lm629_host.bench.plot.rebuilt_output`).  The model's two
-flattened fast loops (``sim/model/fastloop.py`` and ``_fastloop.c``) write the same arithmetic
-inline for speed; ``tests/physics/test_pid.py`` checks them against this module bit for bit.  So
-does the predictor's C loop (``physics/_predict.c``), checked against the Python predictor that
-calls this module by ``tests/physics/test_predict_fast.py``.  Nothing
+and the step plot's rebuilt output (:func:`lm629_host.bench.plot.rebuilt_output`).  The model's
+flattened Python loop (``sim/model/fastloop.py``) writes the same arithmetic inline for speed,
+and ``physics/sample_c.h`` is its one home in C, for the model's ``_fastloop.c`` and the
+predictor's ``_predict.c``; ``tests/physics/test_pid.py`` checks the model's loops against this
+module bit for bit, ``tests/physics/test_predict_fast.py`` the C predictor against the Python
+one that calls it.  Nothing
 here imports the simulator: the driver uses this module on a real board too.
 
 u(n) = kp e(n) + ki sum(e) + kd [e(n') - e(n'-1)], computed as the chip computes it:

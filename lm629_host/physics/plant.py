@@ -13,7 +13,7 @@ sticks there.
 
 The units are the caller's: the tuner's model runs in counts and samples (``dt = 1``), the
 chip model's motor in counts and seconds.  Knowing nothing of the driver or of the chip model,
-this is the one place the step is written in Python, and ``motor_step.h`` the one place in C,
+this is the one place the step is written in Python, and ``sample_c.h`` the one place in C,
 for both compiled loops (the chip model's ``_fastloop.c`` and the tuner's predictor
 ``_predict.c``); the chip model's flattened Python loop (``sim/model/fastloop.py``) writes it
 inline for speed.  ``tests/physics/test_plant.py`` checks the chip model's loops against

@@ -10,14 +10,11 @@
 #include <math.h>
 #include <stdint.h>
 
-#include "../../physics/motor_step.h"
+#include "../../physics/sample_c.h"
 
-typedef int64_t i64;
 
 #define HALF ((i64)1 << 46)
 #define SPAN ((i64)1 << 47)
-#define SUM_MAX (((i64)1 << 23) - 1)
-#define SUM_MIN (-((i64)1 << 23))
 
 /* The status bits the loop raises.  Their one definition is lm629_host/bus/opcodes.py (Status);
  * PyInit__fastloop reads them from there, so this file holds no copy of them. */
@@ -25,7 +22,6 @@ static i64 B_COMPLETE, B_INDEX, B_WRAP, B_PERR, B_BP;
 
 static i64 pymod(i64 a, i64 m) { i64 r = a % m; return r < 0 ? r + m : r; }
 static i64 wrap31(i64 x) { return ((x + 0x40000000) & 0x7FFFFFFF) - 0x40000000; }
-static i64 sat16(i64 x) { return x > 32767 ? 32767 : (x < -32768 ? -32768 : x); }
 
 static i64 stop_distance(i64 v, i64 a) {
     if (v <= a) return 0;
@@ -62,7 +58,7 @@ static PyObject *run(PyObject *self, PyObject *args) {
         if (stall) {
             speed = 0.0;
         } else {
-            /* never -1 here (motor_step.h says why) */
+            /* never -1 here (sample_c.h says why) */
             (void)motor_step(&angle, &speed, (double)out * vpc * apv - load, coul, rate, decay,
                              gain, ts);
         }
@@ -122,21 +118,7 @@ static PyObject *run(PyObject *self, PyObject *args) {
             }
             /* PID */
             e = sat16(wrap31((p >> 16) - rp));
-            i64 total = esum + e;
-            total = total > SUM_MAX ? SUM_MAX : (total < SUM_MIN ? SUM_MIN : total);
-            i64 held = ki * (esum >> 8);
-            if ((held >= il || held <= -il) && llabs(total) > llabs(esum)) total = esum;
-            i64 term = ki * (total >> 8);
-            esum = total;
-            iterm = term > il ? il : (term < -il ? -il : term);
-            if (countdown == 0) {
-                dterm = sat16(kd * sat16(e - elast));
-                elast = e;
-                countdown = ds - 1;
-            } else {
-                countdown--;
-            }
-            u = sat16(sat16(kp * e) + iterm + dterm);
+            u = pid_step(&esum, &elast, &dterm, &countdown, &iterm, e, kp, ki, kd, il, ds);
             out = u >> shift;
         }
         i64 after = p >> 16;
