@@ -392,7 +392,7 @@ def test_watch_and_step_record_on_the_far_side(tmp_path):
 def test_record_over_a_pty_to_sim_serve(tmp_path, firmware, request):
     """``lm629 sim serve`` (real time, pyserial on a pty): the rows run at their times on the
     served bridge (the Python one, or the compiled firmware) and reach the host in bunches, as
-    behind a USB adapter; their stamps are the bridge's, exactly a period apart."""
+    behind a USB adapter; their stamps are the bridge's, due an exact period apart."""
     from lm629_host.sim.serve import SimServer
 
     if firmware:
@@ -404,7 +404,13 @@ def test_record_over_a_pty_to_sim_serve(tmp_path, firmware, request):
             assert chip.transport.records_on_far_side
             tr = chip.record(2e-3, 0.2)
             assert len(tr) == 100 and not tr.missing
-            assert all(abs(b - a - 2e-3) <= 4e-6 for a, b in zip(tr.t, tr.t[1:]))
+            # the due times never drift (an exact multiple of the period from the first row);
+            # a row's stamp is when its sampling started: on the firmware a 4 us tick or two
+            # after its due time when a UART interrupt (a feed from the host, the last row
+            # going out) held its loop just then (CI saw a step off by more than one tick,
+            # beside two CPU hogs)
+            late_us = [round((t - tr.t[0] - k * 2e-3) * 1e6, 1) for k, t in enumerate(tr.t)]
+            assert all(0 <= x <= 12 for x in late_us), late_us
             assert chip.read_real_position() == 0  # a quiet line after it
 
 
