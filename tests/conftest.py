@@ -34,7 +34,7 @@ from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
 # The suite starts some 600 Python processes (xdist workers, `lm629`, `lm629 sim serve`,
 # pytest): with PYTHONDONTWRITEBYTECODE set (some machines' environments set it, this one's
 # does) none keeps its compiled modules, and each compiles the package and rewrites the tests
-# from source again, every run (the quick loop 38 s instead of 25).  The suite writes its
+# from source again, every run (a second quick loop 32 s instead of 27).  The suite writes its
 # caches in the checkout, as pytest writes .pytest_cache.
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 sys.dont_write_bytecode = False
