@@ -17,6 +17,7 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from dataclasses import dataclass
 from urllib.parse import urlsplit
 
@@ -89,6 +90,17 @@ def profile_panel(path) -> Iterator[Panel]:
         yield p
     finally:
         p.end()
+
+
+@contextmanager
+def panel_on_profile(folder: Path, text: str, name: str = "bench.toml"
+                     ) -> Iterator[tuple[Panel, str, Path]]:
+    """The profile ``text`` written to ``folder/name`` and :func:`profile_panel` on it:
+    (the panel, its page's token, the profile's path)."""
+    path = folder / name
+    path.write_text(text)
+    with profile_panel(path) as p:
+        yield p, p.page_token(), path
 
 
 def request(p: Panel, method: str, path: str, *, body: dict | None = None,

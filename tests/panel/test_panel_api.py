@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from panel_helpers import command, events, panel, profile_panel, request
+from panel_helpers import command, events, panel, panel_on_profile, request
 from served import _console_script, _env
 
 PROFILE = """\
@@ -32,10 +32,8 @@ max = 5000
 
 @pytest.fixture(scope="module")
 def profiled(tmp_path_factory):
-    path = tmp_path_factory.mktemp("panel") / "bench.toml"
-    path.write_text(PROFILE)
-    with profile_panel(path) as p:
-        yield p, p.page_token(), path
+    with panel_on_profile(tmp_path_factory.mktemp("panel"), PROFILE) as bench:
+        yield bench
 
 
 def _rows_until(stream, seconds: float) -> list:
@@ -162,10 +160,7 @@ def test_step_prediction_from_the_profiles_plant(tmp_path):
     from lm629_host.physics.axis import Gains
     from lm629_host.physics.predict import simulate
 
-    path = tmp_path / "twin.toml"
-    path.write_text(TWIN)
-    with profile_panel(path) as p:
-        token = p.page_token()
+    with panel_on_profile(tmp_path, TWIN, "twin.toml") as (p, token, path):
         with events(p, token) as stream:
             hello = next(stream)
             status, answer = command(p, token, {"cmd": "step", "distance": "300", "time": "0.3",

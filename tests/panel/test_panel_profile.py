@@ -19,7 +19,7 @@ import time
 import pytest
 
 from lm629_host.panel.bench import SAMPLE_HZ
-from panel_helpers import command, events, profile_panel
+from panel_helpers import command, events, panel_on_profile
 from served import _console_script, _env
 
 PROFILE = """\
@@ -52,10 +52,8 @@ MOTOR_OFF = 0x80
 
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):
-    path = tmp_path_factory.mktemp("panel-profile") / "bench.toml"
-    path.write_text(PROFILE)
-    with profile_panel(path) as p:
-        yield p, p.page_token(), path
+    with panel_on_profile(tmp_path_factory.mktemp("panel-profile"), PROFILE) as bench:
+        yield bench
 
 
 def _cli(path, *argv: str) -> subprocess.CompletedProcess:
