@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, Protocol
 
-from lm629_host.errors import MotionError, MotionFault
+from lm629_host.errors import ArgumentError, MotionError, MotionFault
 from lm629_host.bus.opcodes import Status
 
 
@@ -139,11 +139,20 @@ def stop_at_exit(chip: Watched) -> bool:
 
 
 @contextmanager
-def stop_on_error(chip: Stoppable) -> Iterator[None]:
+def stop_on_error(chip: Watched) -> Iterator[None]:
     """Run a block that may leave the motor moving; on any exception (Ctrl-C included) stop
-    the motor first, note how on the exception (attribute ``lm629_stop_note``), re-raise."""
+    the motor first, note how on the exception (attribute ``lm629_stop_note``), re-raise.
+
+    An :class:`~lm629_host.errors.ArgumentError` is a value refused before its bus cycles:
+    bad input touches nothing, so a holding axis is left holding (it turned the motor off, and
+    said so, for a move refused as too long); only an axis an earlier step of the block left
+    moving is stopped (:func:`stop_if_moving`, the PID holding)."""
     try:
         yield
+    except ArgumentError as exc:
+        if getattr(exc, STOP_NOTE, None) is None and stop_if_moving(chip):
+            setattr(exc, STOP_NOTE, "motor stopped (abrupt stop, holding)")
+        raise
     except BaseException as exc:
         if getattr(exc, STOP_NOTE, None) is None:
             _ok, note = emergency_stop(chip)

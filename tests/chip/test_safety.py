@@ -109,3 +109,33 @@ def test_installing_outside_the_main_thread_changes_no_handler():
     t.start()
     t.join()
     assert not guard.installed and signal.getsignal(signal.SIGTERM) is before
+
+
+@pytest.mark.parametrize("url", ["sim://", "sim+emu://?usb=uno"])
+def test_a_refused_value_leaves_a_holding_axis_holding_and_stops_a_moving_one(url):
+    """Bad input touches nothing: a move refused (an S-curve of 400 s, more pieces than a plan
+    holds) on an axis holding at rest leaves it holding, motor on, with no note of a stop (it
+    turned the motor off and said "motor stopped (abrupt stop, then motor off)"); the same
+    refusal after an earlier step of the block left the axis moving stops it, the PID
+    holding, and says so."""
+    from lm629_host import SCurve
+    from lm629_host.chip.safety import STOP_NOTE, stop_on_error
+    from lm629_host.errors import ArgumentError
+
+    with lm629_host.open(url) as chip:
+        chip.reset()
+        chip.load_filter(kp=20, kd=100)
+        chip.update_filter()
+        chip.move_to(1000, velocity=1 << 17, acceleration=1 << 9).wait()
+        with pytest.raises(ArgumentError) as e, stop_on_error(chip):
+            chip.move_profile(6000 * 2000, SCurve(velocity=30000, acceleration=400, jerk=8000))
+        assert getattr(e.value, STOP_NOTE, None) is None
+        s = chip.snapshot()
+        assert not s.status & Status.MOTOR_OFF and s.desired_position == 1000
+    with _moving_chip(url) as chip:
+        with pytest.raises(ArgumentError) as e, stop_on_error(chip):
+            chip.move_profile(6000 * 2000, SCurve(velocity=30000, acceleration=400, jerk=8000))
+        assert getattr(e.value, STOP_NOTE, None) == "motor stopped (abrupt stop, holding)"
+        chip.clock.sleep(0.01)
+        s = chip.snapshot()
+        assert not s.status & Status.MOTOR_OFF and s.desired_velocity == 0
