@@ -29,13 +29,27 @@ PIDS_ENV = "LM629_HOG_PIDS"
 COUNT_ENV = "LM629_HOG_COUNT"
 
 
+def spawn(n: int) -> list[subprocess.Popen]:
+    """``n`` processes that each burn a CPU (``while True: pass``: two on a 2-core machine leave
+    every other process waiting for a core)."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+            for _ in range(max(0, n))]
+
+
+def end(procs: list[subprocess.Popen]) -> None:
+    """Kill and reap hogs from :func:`spawn`."""
+    for p in procs:
+        p.kill()
+    for p in procs:
+        p.wait()
+
+
 class Hogs:
     """``n`` hog processes, stopped until a test asks for them (:func:`beside`)."""
 
     def __init__(self, n: int) -> None:
-        self.procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"],
-                                       stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
-                      for _ in range(max(0, n))]
+        self.procs = spawn(n)
         for p in self.procs:
             os.kill(p.pid, signal.SIGSTOP)
         fd, path = tempfile.mkstemp(prefix="lm629-hogs-")
@@ -46,10 +60,7 @@ class Hogs:
         os.environ[COUNT_ENV] = path
 
     def close(self) -> None:
-        for p in self.procs:
-            p.kill()
-        for p in self.procs:
-            p.wait()
+        end(self.procs)
         self.count.unlink(missing_ok=True)
         os.environ.pop(PIDS_ENV, None)
         os.environ.pop(COUNT_ENV, None)

@@ -11,11 +11,12 @@ import shutil
 import signal
 import subprocess
 import re
-import sys
 import pytest
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+import hogs
 from lm629_host.sim.harness import toolchain_missing
 
 
@@ -120,19 +121,12 @@ CPU_HOGS_ENV = "LM629_CPU_HOGS"
 
 @contextmanager
 def cpu_hogs(n: int) -> Iterator[list[subprocess.Popen]]:
-    """``n`` processes that each burn a CPU (``while True: pass``, as two on a 2-core machine
-    leave every other process waiting for a core) for the duration of the block; each is
-    ended by its own pid."""
-    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"],
-                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
-             for _ in range(max(0, n))]
+    """``n`` CPU-burning processes (:func:`hogs.spawn`) for the duration of the block."""
+    procs = hogs.spawn(n)
     try:
         yield procs
     finally:
-        for p in procs:
-            p.kill()
-        for p in procs:
-            p.wait()
+        hogs.end(procs)
 
 
 #: documents whose blocks run against the served bench (tests/test_docs.py starts one per
