@@ -68,6 +68,12 @@ class PositionTracker:
         self._last: dict[str, tuple[int, int]] = {}
         #: register crossings seen through the status byte's WRAPAROUND bit
         self.wraps = 0
+        #: a position has been extended: the tracker's origin.  A bit seen before (or with)
+        #: the first position read was latched by a crossing before it (a script that ended
+        #: mid-move across the wrap, leaving the bit set for the next process): the extended
+        #: positions start from the register's values after that crossing, so it is not one
+        #: of this tracker's; it is still cleared, so that the next crossing shows
+        self._origin = False
         #: the bit was seen set and not cleared since: the owner's next read clears it (RSTI)
         self.pending = False
         #: :meth:`holding` blocks open, and a bit seen inside them (pending once they end)
@@ -84,6 +90,7 @@ class PositionTracker:
         desired one: their difference is the following error, never half the circle)."""
         value = self.near_register(raw, name if name in self._last or near is None else near)
         self._last[name] = (raw, value)
+        self._origin = True
         return value
 
     def knows(self, name: str) -> bool:
@@ -106,9 +113,12 @@ class PositionTracker:
         """Note a status byte: a WRAPAROUND bit not seen since it was last cleared is a new
         crossing (``wraps``), and ``pending`` until the owner clears it with RSTI (a
         recording's rows all show the bit until then: one crossing, not one per row).
-        Inside :meth:`holding` it becomes pending only when the block ends."""
+        Inside :meth:`holding` it becomes pending only when the block ends.  A bit seen
+        before the tracker's first position read is a crossing before its origin: cleared,
+        not counted."""
         if status & _WRAP_BIT and not self.pending and not self._held:
-            self.wraps += 1
+            if self._origin:
+                self.wraps += 1
             if self._holds:
                 self._held = True
             else:

@@ -16,7 +16,8 @@ import pytest
 import lm629_host
 from lm629_host.chip.move import MoveTooLong
 from lm629_host.errors import TransportError
-from lm629_host.bus.opcodes import Cmd
+from lm629_host.bus.opcodes import Cmd, Status
+from lm629_host.chip.lm629 import LM629
 from lm629_host.physics.plan import plan
 
 from sim_urls import SIM_URLS, available, ready_chip
@@ -90,6 +91,30 @@ def test_one_script_counts_the_same_crossings_on_every_link(url):
         chip.read_real_position()
         assert chip.positions.wraps == 3
         assert abs(chip.read_real_position() - true_real(chip)) <= 40
+    finally:
+        chip.close()
+
+
+@pytest.mark.parametrize("url", LINKS)
+def test_a_crossing_a_script_left_latched_is_not_the_next_drivers(url):
+    """Found by the machine's long run on sim:// (a script ended mid-move across the wrap,
+    the next process on the same far end): the first driver starts 8000 counts forward from
+    4096 below the top and reads nothing after; the chip latches the wraparound bit at the
+    crossing.  The next driver's positions start from the register's values (3904 past the
+    bottom: it cannot know the turn before it), so that crossing is not one of its own: it
+    counts 0, clears the bit, and counts the next crossing (back under the top) as its 1st.
+    (It counted the latched bit: 1 wrap at its first read, 2 after one crossing of its own.)"""
+    chip = _open(url)
+    try:
+        chip.move_to(8000, velocity=4 * 65536, acceleration=6553, relative=True)
+        chip.clock.sleep(1.0)  # the move (2000 samples at 4 counts/sample: 0.5 s) has ended
+        assert chip.transport.models[0].status & Status.WRAPAROUND
+        nxt = LM629(chip.transport)  # the next process's driver on the same chip
+        assert nxt.read_real_position() == pytest.approx(-TOP + 3904, abs=20)
+        assert nxt.positions.wraps == 0
+        nxt.move_to(-8000, velocity=4 * 65536, acceleration=6553, relative=True).wait()
+        assert nxt.positions.wraps == 1
+        assert nxt.read_real_position() == pytest.approx(-TOP - 4096, abs=20)
     finally:
         chip.close()
 
