@@ -113,7 +113,8 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
 @pytest.fixture(autouse=True)
 def _under_load_beside_the_hogs(request: pytest.FixtureRequest) -> Iterator[None]:
     """A test marked under_load runs beside the run's CPU hogs (``--cpu-hogs N``): they burn
-    from before its own fixtures are made until after they are finalized."""
+    from before its own (function-scoped) fixtures are made until after they are finalized; a
+    bench its module shares is started before, outside the load."""
     if request.node.get_closest_marker("under_load") is None:
         yield
         return
