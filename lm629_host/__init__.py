@@ -83,11 +83,19 @@ _LAZY = {name: module for module, names in _HOMES.items() for name in names}
 
 
 def __getattr__(name: str) -> _typing.Any:
-    """A public name (:data:`_HOMES`): its module is imported when the name is first asked for."""
+    """A public name (:data:`_HOMES`): its module is imported when the name is first asked for.
+    A submodule too (``lm629_host.urls.port_url`` after ``import lm629_host``, as when this
+    package imported them all)."""
     if name in _LAZY:
         value = getattr(_importlib.import_module(_LAZY[name], __name__), name)
         globals()[name] = value
         return value
+    if not name.startswith("_"):
+        try:
+            return _importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":  # the submodule is there, an import in it failed
+                raise
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
