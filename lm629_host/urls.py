@@ -12,7 +12,6 @@ for a bad value and for an unknown name alike.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, overload
@@ -323,6 +322,8 @@ def parse_options(url: str | PortURL, options: Iterable[Option], *, what: str = 
         known = sorted([*(o.describe() for o in specs.values()), *aliases])
         names = [*specs, *aliases]
         hints = []
+        import difflib  # here: only a mistake needs it, and every port's options pass by
+
         for name in sorted(unknown):
             close = difflib.get_close_matches(name, names, n=1, cutoff=0.6)
             hints.append(f"{name} (did you mean {close[0]}?)" if close else name)

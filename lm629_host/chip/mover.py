@@ -13,7 +13,7 @@ have moved since.  What a move returns and how it ends: :mod:`lm629_host.chip.mo
 from __future__ import annotations
 
 import copy
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from lm629_host.bus.opcodes import ACCELERATION_MAX, FIXED_ONE, UPDATE_INTERVAL_S, VELOCITY_MAX
 from lm629_host.bus.program import Program
@@ -22,13 +22,14 @@ from lm629_host.chip.move import MOVE_FLAGS, Move, MovingChip, MoveTooLong, chec
 from lm629_host.chip.pacing import UpdatePacing
 from lm629_host.chip.safety import stop_on_error
 from lm629_host.chip.supervise import SupervisedChip, VelocityRun, run_velocity
-from lm629_host.chip.shapes import Points, SCurve, Shape, ShapedMove, check_piece_s
-from lm629_host.chip.shapes import plan as plan_shape
 from lm629_host.chip.wraparound import PositionTracker, check_register_position, short_way
 from lm629_host.errors import ArgumentError, check_int
 from lm629_host.physics.limits import SoftLimits
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.transports.base import Transport
+
+if TYPE_CHECKING:
+    from lm629_host.chip.shapes import Shape, ShapedMove
 
 
 class MoverChip(MovingChip, Protocol):
@@ -141,6 +142,10 @@ class Mover:
                      piece_s: float) -> ShapedMove:
         """:meth:`LM629.move_profile <lm629_host.LM629.move_profile>`: the plan checked,
         then its first piece started as a move and the rest handed to whoever times them."""
+        # here: the shapes and their planner are imported by the scripts that shape a move
+        from lm629_host.chip.shapes import Points, SCurve, ShapedMove, check_piece_s
+        from lm629_host.chip.shapes import plan as plan_shape
+
         chip = self.chip
         check_register_position("position", position)
         if not isinstance(shape, (SCurve, Points)):

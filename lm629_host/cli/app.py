@@ -30,13 +30,12 @@ import sys
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import click
 
 import lm629_host
 
-from lm629_host.motion.board import Board
 from lm629_host.errors import (
     AxisError,
     BusyTimeout,
@@ -47,16 +46,19 @@ from lm629_host.errors import (
     TransportError,
     WaitTimeout,
 )
-from lm629_host.chip.lm629 import LM629
-from lm629_host.chip.move import MoveRules
 from lm629_host.physics.pid import sample_period_s
 from lm629_host.transports.ports import PortSpec, resolve_port
-from lm629_host.bus.program import BusCycle
 from lm629_host.chip.safety import STOP_NOTE, StopSignals
-from lm629_host.physics.units import Scale
 from lm629_host.urls import PortURL, parse_hz, port_url
 from lm629_host.cli.families import COMMAND_FAMILIES, LazyGroup
-from lm629_host.cli.profile_session import profile_opened, profile_options
+
+if TYPE_CHECKING:
+    # the driver is imported when a command opens a chip (Session.open, Session.board), the
+    # profile's code when --profile is given: every ``lm629`` start imports this module
+    from lm629_host.bus.program import BusCycle
+    from lm629_host.chip.lm629 import LM629
+    from lm629_host.motion.board import Board
+    from lm629_host.physics.units import Scale
 
 log = logging.getLogger("lm629_host.cli")
 
@@ -144,7 +146,10 @@ class Session:
 
     @property
     def scale(self) -> Scale | None:
-        return Scale(self.lines, self.clock_hz) if self.lines else None
+        if not self.lines:
+            return None
+        from lm629_host.physics.units import Scale  # here: only --lines speaks in units
+        return Scale(self.lines, self.clock_hz)
 
     @property
     def sample_s(self) -> float:
@@ -189,6 +194,7 @@ class Session:
 
     def open(self, *, prepare: bool = True) -> LM629:
         """The chip.  On an in-process simulator: reset it and load kp = 20 (``prepare``)."""
+        from lm629_host.chip.move import MoveRules  # the driver's, loaded with the chip
         if self._chip is None and (self.axis_spec is not None or self.spec.axes is not None):
             self._chip = self._open_axis(prepare)
             return self._chip
@@ -213,6 +219,7 @@ class Session:
     def board(self) -> Board:
         """The board behind the port, with at least the axes named (opened once; on a
         simulator every axis is reset and given kp = 20, as a single simulated chip is)."""
+        from lm629_host.chip.move import MoveRules  # the driver's, loaded with the board
         if self._board is None:
             spec = self.axis_spec
             want = max(spec) + 1 if isinstance(spec, tuple) else None
@@ -238,6 +245,7 @@ class Session:
                     a.sync()
             self._board = b
             if self.profile is not None:
+                from lm629_host.cli.profile_session import profile_opened
                 profile_opened(self, b)
         return self._board
 
@@ -473,6 +481,7 @@ def main(ctx: click.Context, port: str | PortURL | None, place: str | None, chip
                                  param_hint="--place")
     lines_given = lines is not None
     if profile_path is not None:
+        from lm629_host.cli.profile_session import profile_options
         profile, port, chip_name, clock, lines, axis_text = profile_options(
             ctx, profile_path, port, chip_name, clock, lines, axis_text)
     if place is not None:  # the lab's bench (not a profile's port): locked until the context closes

@@ -13,7 +13,6 @@ board).
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import click
@@ -36,6 +35,7 @@ def status(s: Session, as_json: bool, snapshot_dict: Any) -> None:
     from lm629_host.cli.common import failsafe_info
     fs, fs_line = failsafe_info(b.transport)
     if as_json:
+        import json  # here: a status is text unless asked (this module loads with every status)
         click.echo(json.dumps({"axes": rows, "failsafe": fs}, indent=2))
         return
     for k, snap, d in zip(axes, snaps, rows):

@@ -4,16 +4,14 @@
 from __future__ import annotations
 
 import contextlib
-import json
 from typing import Any
 
 import click
 
 from lm629_host.errors import ArgumentError, CommandError
 from lm629_host.errors import check_int
-from lm629_host.bus.opcodes import VELOCITY_MAX, Status
+from lm629_host.bus.opcodes import FIXED_ONE, VELOCITY_MAX, Status
 from lm629_host.chip.supervise import search_index
-from lm629_host.physics.units import FIXED_ONE
 from lm629_host.cli.app import _session, axis_name, main
 from lm629_host.cli.common import (
     _flags,
@@ -45,6 +43,7 @@ def status(as_json: bool) -> None:
     if rate is not None:
         d["link"] = dict(zip(("baud", "why"), rate()))
     if as_json:
+        import json  # here: a status is text unless asked (json costs every start ~1 ms)
         click.echo(json.dumps(d if name is None else {"axis": chip.chip_select, "name": name, **d},
                               indent=2))
         return
@@ -83,9 +82,8 @@ def clear() -> None:
 @main.command()
 def reset() -> None:
     """Reset the chip and check it came back (AN-706 4.4.1)."""
-    from lm629_host.bench.bringup import reset_with_statuses
     chip = _session().open(prepare=False)
-    st, seen = reset_with_statuses(chip)
+    st, seen = chip.reset_statuses()
     click.echo(f"reset ok: status bytes {' '.join(f'{x:02X}' for x in seen)}, now {int(st):02X}")
 
 

@@ -6,17 +6,19 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
-from lm629_host.chip.lm629 import LM629
 from lm629_host.bus.snapshot import Snapshot
 from lm629_host.errors import ArgumentError
-from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Signals, Status
-from lm629_host.physics.units import FIXED_ONE, Scale
+from lm629_host.bus.opcodes import FIXED_ONE, POSITION_MAX, POSITION_MIN, Signals, Status
 from lm629_host.cli.app import Session
 from lm629_host.cli.types import shown
+
+if TYPE_CHECKING:  # the driver loads when a command opens a chip, the units with --lines
+    from lm629_host.chip.lm629 import LM629
+    from lm629_host.physics.units import Scale
 
 
 def _flags(status: int) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import click
 
@@ -12,15 +13,16 @@ from lm629_host.errors import MotionError, MotionFault
 from lm629_host.chip.lm629 import LM629
 from lm629_host.bus.snapshot import Snapshot
 from lm629_host.chip.move import LONG_MOVE_HINT, Move, MoveRules, MoveTooLong, span
-from lm629_host.bus.opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status
+from lm629_host.bus.opcodes import ACCELERATION_MAX, FIXED_ONE, VELOCITY_MAX, Status
 from lm629_host.physics.pid import sample_period_s
-from lm629_host.chip.shapes import SCurve
 from lm629_host.chip.safety import stop_on_error
 from lm629_host.chip.supervise import run_velocity
-from lm629_host.physics.units import FIXED_ONE
 from lm629_host.cli.app import Session, _session, main
 from lm629_host.cli.common import _isatty, _live, _position, _progress_line, _show_position
 from lm629_host.cli.types import FINITE, SIGNED_ARGS, positive
+
+if TYPE_CHECKING:
+    from lm629_host.chip.shapes import SCurve
 
 
 def _motion_words(s: Session, velocity: float | None, acceleration: float | None,
@@ -63,6 +65,7 @@ def _s_curve(s: Session, shape: str, jerk: float | None, velocity: int, accelera
     if jerk is None:
         raise click.BadParameter("--shape s-curve needs --jerk", param_hint="--jerk")
     positive("--jerk", jerk)
+    from lm629_host.chip.shapes import SCurve  # here: a trapezoid (most moves) needs no shapes
     sample_s = s.scale.sample_period if s.scale is not None else sample_period_s(
         s.open().clock_hz)
     per_count = 1.0 if raw or s.scale is None else s.scale.counts_per_rev
@@ -138,9 +141,11 @@ def move(targets: tuple[float, ...], linear: bool, relative: bool, vel: float | 
     if curve is not None and (len(targets) > 1 or linear or no_wait):
         raise click.UsageError("--shape s-curve moves one axis to one target and waits (the "
                                "host times its pieces): no --linear, --no-wait or more targets")
-    from lm629_host.cli import axes, profile
-    profile.check_move(s, [_position(s, t, "TARGET", raw) for t in targets], v, a, relative,
-                       linear)
+    from lm629_host.cli import axes
+    if s.profile is not None:  # its soft limits (the profile's code loads with a profile)
+        from lm629_host.cli import profile
+        profile.check_move(s, [_position(s, t, "TARGET", raw) for t in targets], v, a, relative,
+                           linear)
     if len(targets) > 1 or linear or axes.several(s):
         if relative:
             raise click.UsageError("--relative moves one axis")
@@ -248,8 +253,9 @@ def velocity(speed: float, acc: float | None, reverse: bool, raw: bool,
                                  param_hint="SPEED")
     v, a = _motion_words(s, speed, acc, raw)
     positive("--time", run_s)
-    from lm629_host.cli import profile
-    profile.check_velocity_mode(s, v, a)
+    if s.profile is not None:  # its soft limits (the profile's code loads with a profile)
+        from lm629_host.cli import profile
+        profile.check_velocity_mode(s, v, a)
     scale = None if raw else s.scale
 
     def speed_text(word: int) -> str:

@@ -46,7 +46,6 @@ import math
 import os
 import re
 import sys
-import tempfile
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -516,6 +515,8 @@ def save_gains(path: str | os.PathLike[str], axis: str, gains: Mapping[str, int]
     the one there, keeping everything else, comments included (tomlkit), by writing a new
     file beside it and renaming it over the old one.  The result is checked before it replaces
     the file (ProfileError: the file is left as it was)."""
+    import tempfile  # here, as tomlkit: only a save writes (every profile's reader loads this module)
+
     import tomlkit
 
     p = Path(path)

@@ -39,7 +39,6 @@ from lm629_host.bus.opcodes import (
     Cmd,
     Status,
 )
-from lm629_host.physics.linear import LinearPlan, plan_linear
 from lm629_host.bus.program import DEFAULT_BUSY_TIMEOUT_S, Op, Program
 from lm629_host.chip.safety import emergency_stop, stop_if_moving
 from lm629_host.bus.snapshot import add_snapshot, snapshot_at
@@ -53,6 +52,7 @@ if TYPE_CHECKING:
     from lm629_host.chip.batch import Batch
     from lm629_host.bridge.protocol.failsafe import FailsafeState
     from lm629_host.config.profile import Profile
+    from lm629_host.physics.linear import LinearPlan
 
 log = logging.getLogger("lm629_host")
 
@@ -323,6 +323,8 @@ class Board:
                     acceleration: int, starts: Mapping[LM629, Snapshot] | None = None
                     ) -> LinearPlan:
         """:func:`plan_linear` from where the axes are now (their desired positions)."""
+        from lm629_host.physics.linear import plan_linear  # here: straight lines only
+
         resolved = {self.axis(k): v for k, v in targets.items()}
         for a, t in resolved.items():
             check_int(f"target of axis {a.chip_select}", t, POSITION_MIN, POSITION_MAX, hex_digits=8)

@@ -22,9 +22,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from lm629_host.bus.opcodes import NOMINAL_CLOCK_HZ
+from lm629_host.bus.opcodes import FIXED_ONE, NOMINAL_CLOCK_HZ
 from lm629_host.physics.pid import sample_period_s
-from lm629_host.physics.units import FIXED_ONE
 
 
 @dataclass(frozen=True)

@@ -32,9 +32,8 @@ from __future__ import annotations
 import importlib.util
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from lm629_host.config.profile import Profile, ProfileError
 from lm629_host.errors import ArgumentError
 from lm629_host.bus.program import TraceCallback
 from lm629_host.transports import BUILTIN, DEFAULT_URL, URL_SCHEMES, registry, transport_class
@@ -42,6 +41,10 @@ from lm629_host.transports.base import Transport
 from lm629_host.bus.url_board import AXES_WHAT, BOARD, BOARD_OPTIONS, CHIPS, CS_WHAT, check_clock
 from lm629_host.urls import (PortURL, parse_hz, port_url, scheme_of,
                              split_params, with_query)
+
+if TYPE_CHECKING:  # a profile's port is settled here, but only a profile's user reads one
+    from lm629_host.config.profile import Profile
+
 
 @dataclass(frozen=True)
 class PortSpec:
@@ -202,6 +205,8 @@ def profile_port(profile: Profile) -> PortURL:
     chip select) said in the URL, settled by :func:`resolve_port`, the one place a port meets
     ``chip=``/``clock=``/``axes=``: a URL that says otherwise
     than ``[board]`` is a ProfileError naming both.  ValueError when it names no port."""
+    from lm629_host.config.profile import ProfileError  # loaded already, with the Profile
+
     if not profile.port:
         raise ProfileError(f"{profile.path}: [board] has no port = \"...\": give --port or "
                            "write the port URL into the profile")
