@@ -15,11 +15,13 @@ from typing import TYPE_CHECKING
 
 from lm629_host.bus.opcodes import (
     lfil_interval,
+    COMMANDS,
     FILTER_ORDER,
     INTERRUPTS,
     STOP_FLAGS,
     VELOCITY_MAX,
     Cmd,
+    CommandInfo,
     Direction,
     Signals,
     Status,
@@ -48,6 +50,18 @@ _ACCELERATION_BIT = int(TrajectoryFlags.ACCELERATION)
 _TRAJECTORY_WORDS = tuple((int(f), int(f) >> 1, name) for f, name in (
     (TrajectoryFlags.ACCELERATION, "acceleration"), (TrajectoryFlags.VELOCITY, "velocity"),
     (TrajectoryFlags.POSITION, "position")))
+
+#: opcode byte -> (its command, its :class:`CommandInfo`), built once from the one table
+#: (:data:`~lm629_host.bus.opcodes.COMMANDS`): a dict look-up where ``Cmd(byte)`` costs an
+#: enum call, on every command strobe of ``sim://``
+OPCODES: dict[int, tuple[Cmd, CommandInfo]] = {int(c): (c, info) for c, info in COMMANDS.items()}
+#: the 32-bit registers the two-word reads report (the Motion attribute each reads)
+_REGISTER_READS = {Cmd.RDDV: "desired_velocity", Cmd.RDDP: "desired_position",
+                   Cmd.RDIP: "index_position", Cmd.RDRP: "real_position"}
+# the commands compared on the per-command path, as module names (``Cmd.X`` looked up on
+# the class is a descriptor call)
+_LFIL, _LTRJ, _RDSIGS, _RDRV, _RDSUM = Cmd.LFIL, Cmd.LTRJ, Cmd.RDSIGS, Cmd.RDRV, Cmd.RDSUM
+_NONE = Direction.NONE
 
 
 class CommandDecoder:
@@ -82,34 +96,29 @@ class CommandDecoder:
         def _violation(self, what: str) -> None: ...
 
     def _accept_word(self, word: int) -> None:
-        cmd = Cmd(self._cmd)  # type: ignore[arg-type]  # a command is under way: _cmd is set
+        cmd = OPCODES[self._cmd][0]  # type: ignore[index]  # a command is under way: _cmd is set
         self._words.append(word)
         self._words_left -= 1
-        if len(self._words) == 1 and cmd is Cmd.LFIL:
+        if len(self._words) == 1 and cmd is _LFIL:
             self._words_left += lfil_word_count(word)
-        elif len(self._words) == 1 and cmd is Cmd.LTRJ:
+        elif len(self._words) == 1 and cmd is _LTRJ:
             self._words_left += ltrj_word_count(word)
         if self._words_left == 0:
             words, self._words = self._words, []
-            self._dir = Direction.NONE
+            self._dir = _NONE
             if self.params.record and self.history:
                 self.history[-1] = (self.history[-1][0], tuple(words))
             self._execute(cmd, words)
 
     def _read_words(self, cmd: Cmd) -> list[int]:
         m = self.motion
-        if cmd is Cmd.RDSIGS:
+        if cmd is _RDSIGS:
             return [self.signals]
-        if cmd is Cmd.RDRV:
+        if cmd is _RDRV:
             return [m.real_velocity & 0xFFFF]
-        if cmd is Cmd.RDSUM:
+        if cmd is _RDSUM:
             return [m.integration_sum & 0xFFFF]
-        value = {
-            Cmd.RDDV: m.desired_velocity,
-            Cmd.RDDP: m.desired_position,
-            Cmd.RDIP: m.index_position,
-            Cmd.RDRP: m.real_position,
-        }[cmd] & 0xFFFFFFFF
+        value = getattr(m, _REGISTER_READS[cmd]) & 0xFFFFFFFF
         return [value >> 16, value & 0xFFFF]
 
     def _execute(self, cmd: Cmd, words: list[int]) -> None:
