@@ -85,8 +85,18 @@ class ChipBus:
         self.advance_to(self.tick + max(0, round(seconds * self.clock_hz)))
 
     def advance_to(self, tick: int) -> None:
-        for c in self.chips:
-            c.advance_to(tick)
+        """Every chip up to clock ``tick``.  Before every chip's next sample or reset end
+        (:attr:`ChipModel.next_event <.chip.ChipModel.next_event>`: the case of nearly every
+        strobe) the chips' clocks are only counts, set here without a call per chip."""
+        chips = self.chips
+        for c in chips:
+            if tick >= c.next_event:
+                for c in chips:
+                    c.advance_to(tick)
+                return
+        for c in chips:
+            if tick > c.tick:
+                c.tick = tick
 
     # ------------------------------------------------------------------ strobes: one chip
     def read_status(self) -> int:

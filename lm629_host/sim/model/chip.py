@@ -188,6 +188,12 @@ class ChipModel(CommandDecoder):
         if self.params.fault == "reset":
             self._in_hw_reset = True
             self._reset_done_at = None
+        #: the first clock at which :meth:`advance_to` has more to do than count: the next
+        #: sample, or the end of the reset in progress when sooner.  Below it a chip's clock
+        #: is only a count, which is how a :class:`~.bus.ChipBus` moves its chips' ``tick``
+        #: between two events without a call per chip (kept by :meth:`_events_changed`)
+        self.next_event = self.next_sample
+        self._events_changed()
 
     # ------------------------------------------------------------------ time
     @property
@@ -209,7 +215,7 @@ class ChipModel(CommandDecoder):
 
     def advance_to(self, tick: int) -> None:
         """Run the chip up to clock ``tick``: reset completion and samples, in time order."""
-        if tick < self.next_sample and self._reset_done_at is None:
+        if tick < self.next_event:
             # nothing happens before ``tick`` but time: the case of nearly every bus strobe
             # (hundreds of strobes fit in one sample), taken without the event loop below
             if tick > self.tick:
@@ -233,6 +239,12 @@ class ChipModel(CommandDecoder):
                 break
             self._run_samples(n)
         self.tick = tick
+        self._events_changed()
+
+    def _events_changed(self) -> None:
+        """Keep :attr:`next_event` after a sample ran or a reset was started or ended."""
+        done = self._reset_done_at
+        self.next_event = self.next_sample if done is None else min(done, self.next_sample)
 
     def _run_samples(self, n: int) -> None:
         """Run ``n`` consecutive samples, the first at ``self.next_sample``."""
@@ -338,7 +350,7 @@ class ChipModel(CommandDecoder):
         self._read_phase_low = False
 
     def _complete_reset(self) -> None:
-        self._reset_done_at = None
+        self._reset_done_at = None  # (advance_to, which completes it, updates next_event)
         self._in_hw_reset = False
         self._reset_registers()
         self.flags |= _TRAJ_DONE  # 84 / C4 once reset has finished
@@ -354,6 +366,7 @@ class ChipModel(CommandDecoder):
         self.motion.output = 0  # [model choice 31] zero drive from /RST on
         self._busy_until = 0
         self._reset_done_at = None if self.params.fault == "reset" else self.tick + self.reset_clocks
+        self._events_changed()
 
     # ------------------------------------------------------------------ registers
     @property
@@ -471,6 +484,7 @@ class ChipModel(CommandDecoder):
             self.motion.output = 0  # [model choice 31] zero drive while the chip resets
             self._set_busy(self.reset_clocks)
             self._reset_done_at = None if self.params.fault == "reset" else self.tick + self.reset_clocks
+            self._events_changed()
             return
         self._busy_until = self.tick + self.command_busy_clocks.get(byte, self.busy_clocks)
         if direction is _READ:
