@@ -73,6 +73,7 @@ _ON_TARGET = int(Signals.ON_TARGET)
 _VELOCITY_MODE = int(Signals.VELOCITY_MODE)
 _FORWARD = int(Signals.FORWARD)
 _FILTER_UPDATED = int(Signals.FILTER_UPDATED)
+_STOP_ON_ERROR = int(Signals.STOP_ON_ERROR)
 # the transfer directions and RESET as module names: an enum member looked up on its class
 # (``Direction.READ``) is a descriptor call, and the strobe handlers run for every bus cycle
 _NONE, _READ, _WRITE = Direction.NONE, Direction.READ, Direction.WRITE
@@ -312,7 +313,7 @@ class ChipModel(CommandDecoder):
             error = motion.position_error()
             if abs(error) > self.position_error_threshold:
                 events |= Status.POSITION_ERROR
-                if self.signals_extra & Signals.STOP_ON_ERROR:
+                if self.signals_extra & _STOP_ON_ERROR:
                     self.turn_motor_off()
         if self.motor_off and not was_off:
             events |= Status.TRAJECTORY_COMPLETE

@@ -47,6 +47,12 @@ _MODE_BITS = int(TrajectoryFlags.VELOCITY_MODE | TrajectoryFlags.FORWARD)
 #: Python calls: a quarter of an LTRJ's host cost on sim://)
 _STOP_BITS = int(STOP_FLAGS)
 _ACCELERATION_BIT = int(TrajectoryFlags.ACCELERATION)
+# the signals bits the commands set and clear (``signals_extra`` stays a plain int: an
+# IntFlag in it would make every test of it in the sample loop an enum call)
+_ACQUIRE_INDEX = int(Signals.ACQUIRE_INDEX)
+_EIGHT_BIT_OUTPUT = int(Signals.EIGHT_BIT_OUTPUT)
+_STOP_ON_ERROR = int(Signals.STOP_ON_ERROR)
+_ACCELERATION_LOADED = int(Signals.ACCELERATION_LOADED)
 _TRAJECTORY_WORDS = tuple((int(f), int(f) >> 1, name) for f, name in (
     (TrajectoryFlags.ACCELERATION, "acceleration"), (TrajectoryFlags.VELOCITY, "velocity"),
     (TrajectoryFlags.POSITION, "position")))
@@ -131,13 +137,13 @@ class CommandDecoder:
                 # value out of range, which start() dropped
                 self._command_error_silent()
                 if not buf.loaded & TrajectoryFlags.ACCELERATION:
-                    self.signals_extra &= ~Signals.ACCELERATION_LOADED
+                    self.signals_extra &= ~_ACCELERATION_LOADED
                 return
             stop = buf.stop
             self._update_rate(stop)
             buf.loaded = 0
             buf.stop = 0  # [model choice 13] a stop bit acts once
-            self.signals_extra &= ~Signals.ACCELERATION_LOADED
+            self.signals_extra &= ~_ACCELERATION_LOADED
             if stop & TrajectoryFlags.MOTOR_OFF:
                 self.turn_motor_off()
             else:
@@ -145,25 +151,25 @@ class CommandDecoder:
         elif cmd is Cmd.DFH:
             m.define_home()
         elif cmd is Cmd.SIP:
-            self.signals_extra |= Signals.ACQUIRE_INDEX
+            self.signals_extra |= _ACQUIRE_INDEX
             m.arm_index()
         elif cmd is Cmd.UDF:
             self._udf_pending = True
         elif cmd is Cmd.PORT8:
-            self.signals_extra |= Signals.EIGHT_BIT_OUTPUT
+            self.signals_extra |= _EIGHT_BIT_OUTPUT
         elif cmd is Cmd.PORT12:
             if self.params.variant == "lm629":
                 # [model choice 4] the LM629 has no 12-bit port; a correct host may send it
                 # once to learn which part it talks to (lm629 selftest): no violation
                 self._command_error_silent()
             else:
-                self.signals_extra &= ~Signals.EIGHT_BIT_OUTPUT
+                self.signals_extra &= ~_EIGHT_BIT_OUTPUT
         elif cmd in (Cmd.LPES, Cmd.LPEI):
             self.position_error_threshold = words[0]
             if cmd is Cmd.LPES:
-                self.signals_extra |= Signals.STOP_ON_ERROR
+                self.signals_extra |= _STOP_ON_ERROR
             else:
-                self.signals_extra &= ~Signals.STOP_ON_ERROR
+                self.signals_extra &= ~_STOP_ON_ERROR
         elif cmd is Cmd.MSKI:
             self.mask = words[0] & _INTERRUPTS
         elif cmd is Cmd.RSTI:
@@ -240,6 +246,6 @@ class CommandDecoder:
             setattr(buf, name, value)
             buf.loaded = (buf.loaded & ~(flag | relative)) | flag | keep
         if control & _ACCELERATION_BIT:
-            self.signals_extra |= Signals.ACCELERATION_LOADED
+            self.signals_extra |= _ACCELERATION_LOADED
         for what in out_of_range:
             self._violation(what)
