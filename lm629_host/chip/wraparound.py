@@ -107,7 +107,7 @@ class PositionTracker:
         crossing (``wraps``), and ``pending`` until the owner clears it with RSTI (a
         recording's rows all show the bit until then: one crossing, not one per row).
         Inside :meth:`holding` it becomes pending only when the block ends."""
-        if status & _WRAP_BIT and not self.pending and not self._held:
+        if int(status) & _WRAP_BIT and not self.pending and not self._held:
             self.wraps += 1
             if self._holds:
                 self._held = True
