@@ -385,15 +385,17 @@ class ChipModel(CommandDecoder):
             return None
         return 0 if self._in_hw_reset else self._busy_until
 
-    @property
-    def status(self) -> int:
-        """The status byte as RDSTAT would read it now."""
+    def read_status(self) -> int:
+        """/PS low, /RD strobe: the status byte.  Valid at any time, and it changes nothing:
+        :attr:`status` is this same function (a busy poll costs one call, not two)."""
         if self._in_hw_reset:
             return _BUSY if self.params.fault == "busy" else 0
         s = self.flags | (_MOTOR_OFF if self.motor_off else 0)
         if self.tick < self._busy_until or self.params.fault == "busy":
             s |= _BUSY
         return s
+
+    status = property(read_status, doc="The status byte as RDSTAT would read it now.")
 
     @property
     def interrupt(self) -> bool:
@@ -450,9 +452,7 @@ class ChipModel(CommandDecoder):
         self.flags |= _CMD_ERROR
         self._violation(why)
 
-    def read_status(self) -> int:
-        """/PS low, /RD strobe: the status byte.  Valid at any time."""
-        return self.status
+    # (the status strobe, read_status, is with the status register above)
 
     # The three strobes below test in one expression whether the chip takes the cycle (no /RST
     # window, not busy, the transfer expected) and hand any other case to a ``_refuse_*``
