@@ -48,10 +48,15 @@ def add_snapshot(p: P, reads: Sequence[tuple[Cmd, int]] = SNAPSHOT_READS) -> P:
     return p
 
 
+#: every status byte as its Status (the flags a snapshot carries), made once: ``Status(byte)``
+#: is an enum call, on every snapshot a wait polls
+_STATUSES = tuple(Status(b) for b in range(256))
+
+
 def snapshot_of(status: int, w: Sequence[int], time: float) -> Snapshot:
     """A :class:`Snapshot` from its status byte and the words of :data:`SNAPSHOT_READS`."""
-    return Snapshot(Status(status), Signals(w[0]), s32_words(w[1], w[2]), s32_words(w[3], w[4]),
-                    s32_words(w[5], w[6]), s16(w[7]), s16(w[8]), time)
+    return Snapshot(_STATUSES[status], Signals(w[0]), s32_words(w[1], w[2]),
+                    s32_words(w[3], w[4]), s32_words(w[5], w[6]), s16(w[7]), s16(w[8]), time)
 
 
 def snapshot_at(result: ProgramResult, k: int, time: float, status_at: int | None = None

@@ -60,6 +60,10 @@ if TYPE_CHECKING:
 BUSY_TIMEOUT_MIN_S = 200e-6
 BUSY_TIMEOUT_MAX_S = 65.535e-3
 
+#: signals bits 10 and 7: the shaft is meant to rest where the desired position is (a snapshot
+#: then tells a later move where it starts), as a plain int (every snapshot tests it)
+_RESTING = int(Signals.ON_TARGET | Signals.MOTOR_OFF)
+
 _STOPS = {
     None: TrajectoryFlags(0),
     "smooth": TrajectoryFlags.STOP_SMOOTH,
@@ -265,8 +269,7 @@ class LM629(ProgramRouting, ResetMixin, PacingMixin, MovesMixin, WaitsMixin, Rec
         status is cleared by this object's next position read."""
         self.positions.saw(s.status)
         s = self.positions.snapshot(s)
-        self._mover.rest_desired = (s.desired_position if s.signals & (Signals.ON_TARGET
-                                                                       | Signals.MOTOR_OFF) else None)
+        self._mover.rest_desired = s.desired_position if int(s.signals) & _RESTING else None
         return s
 
     def clearing_wrap(self, program: Program) -> Program:

@@ -73,6 +73,12 @@ class MovingChip(Stoppable, Protocol):
 
 #: the flags a move reports, cleared in the program that starts it
 MOVE_FLAGS = Status.TRAJECTORY_COMPLETE | Status.BREAKPOINT | Status.POSITION_ERROR
+# the bits :meth:`MoveWatch.check` tests on every snapshot of a wait, as plain ints (an
+# IntFlag's ``&`` is a Python call)
+_POSITION_ERROR = int(Status.POSITION_ERROR)
+_STATUS_MOTOR_OFF = int(Status.MOTOR_OFF)
+_SIGNALS_MOTOR_OFF = int(Signals.MOTOR_OFF)
+_TRAJECTORY_COMPLETE = int(Status.TRAJECTORY_COMPLETE)
 
 
 @dataclass(frozen=True)
@@ -285,11 +291,12 @@ class MoveWatch:
         m, r, prev = self.move, self.rules, self.prev
         target = m.target
         err = target - s.real_position
-        if s.status & Status.POSITION_ERROR:
+        status = int(s.status)
+        if status & _POSITION_ERROR:
             m.fault(MotionError.POSITION_ERROR, s,
                      "the chip raised its position-error flag (following error above "
                      "the LPEI/LPES limit)")
-        if s.status & Status.MOTOR_OFF or s.signals & Signals.MOTOR_OFF:
+        if status & _STATUS_MOTOR_OFF or int(s.signals) & _SIGNALS_MOTOR_OFF:
             m.fault(MotionError.MOTOR_OFF, s, "the drive was found off during the move")
         # shaft progress (stall) and motion away from the desired position (runaway)
         if abs(s.real_position - self.progress_pos) >= r.stall_counts:
@@ -311,7 +318,7 @@ class MoveWatch:
                      f"the shaft ran {self.away} counts away from the desired position "
                      f"(following error {fe:+d}): swap the motor leads or the encoder's "
                      "A and B channels")
-        if self.complete_at is None and s.status & Status.TRAJECTORY_COMPLETE \
+        if self.complete_at is None and status & _TRAJECTORY_COMPLETE \
                 and s.desired_position == target:
             self.complete_at = s.time
         if self.complete_at is None and abs(fe) > r.tolerance \

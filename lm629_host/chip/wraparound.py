@@ -116,7 +116,7 @@ class PositionTracker:
         Inside :meth:`holding` it becomes pending only when the block ends.  A bit seen
         before the tracker's first position read is a crossing before its origin: cleared,
         not counted."""
-        if status & _WRAP_BIT and not self.pending and not self._held:
+        if int(status) & _WRAP_BIT and not self.pending and not self._held:
             if self._origin:
                 self.wraps += 1
             if self._holds:

@@ -100,12 +100,19 @@ class SimTransport(ModelChips, CycleTransport):
         self.models = chips_of(model)
         self.chip_selects = len(self.models)
         self.clock = SimClock(model)
-        self._cycle_clocks = max(1, round(CYCLE_S * model.clock_hz))
+        self._hz = model.clock_hz
+        self._cycle_clocks = max(1, round(CYCLE_S * self._hz))
         #: the busy loop's sleep between two polls, in the model's clocks
-        self._poll_clocks = max(0, round(self.poll_interval_s * model.clock_hz))
+        self._poll_clocks = max(0, round(self.poll_interval_s * self._hz))
         #: False: make every busy poll (the reference the skip is tested against); never
         #: skipped through miswired lines (the skip reads the chip's own busy, not the pins')
         self.skip_known_busy = self.bent is None
+        #: a chip of the model, whose clock count is the model's (the chips of a bus share one
+        #: oscillator): read per strobe as a plain attribute (``ChipBus.tick`` is a property)
+        self._counter = self.models[0]
+        #: what the strobes reach (:meth:`_select_chip`): the chip whose /CS is low
+        self._target: ChipModel | ChipBus | BentChip = model
+        self._select_chip(0)
 
     def _wait_not_busy(self, program: Program, index: int, words: list[int],
                        tracing: bool = True) -> int:
@@ -115,27 +122,32 @@ class SimTransport(ModelChips, CycleTransport):
         the same ticks and the same counters as the full poll loop, which runs instead with
         a trace (every poll shown), through miswired lines, or when a poll still finds the
         chip busy (tests/chip/test_waits_and_busy_checks.py compares the two)."""
-        m = self.model
-        until = m.busy_deadline()
-        if tracing or self.bent is not None or not self.skip_known_busy or until is None:
+        if tracing or self.bent is not None or not self.skip_known_busy:
             return super()._wait_not_busy(program, index, words, tracing)
-        t0, c = m.tick, self._cycle_clocks
+        until = self._target.busy_deadline()
+        if until is None:
+            return super()._wait_not_busy(program, index, words, tracing)
+        c = self._cycle_clocks
+        t0 = self._counter.tick
+        at = t0 + c  # the first poll's read
         skipped = 0
-        if until > t0 + c:  # _skip_busy_polls, with the deadline already read
+        if until > at:  # _skip_busy_polls, with the deadline already read
             s = self._poll_clocks
-            skipped = -(-(until - t0 - c) // (c + s))  # reads before the deadline
-            if (t0 + skipped * c + (skipped - 1) * s) / m.clock_hz >= \
-                    t0 / m.clock_hz + program.busy_timeout_s:
+            skipped = -(-(until - at) // (c + s))  # reads before the deadline
+            hz = self._hz
+            if (t0 + skipped * c + (skipped - 1) * s) / hz >= t0 / hz + program.busy_timeout_s:
                 # the full loop times out before busy ends: let it, with its own message
                 return super()._wait_not_busy(program, index, words, tracing)
-            m.advance_to(t0 + skipped * (c + s))
-        m.advance_to(m.tick + c)
-        status = m.read_status()
+            at += skipped * (c + s)
+        # one advance over the skipped polls and the read's cycle: the model runs the same
+        # samples whatever steps it is advanced in (see _skip_busy_polls)
+        self.model.advance_to(at)
+        status = self._target.read_status()
         stats = self.stats
         stats.bus_cycles += skipped + 1
         stats.busy_polls += skipped + 1
         if status & 1:  # busy after all (a reset moved its end): the full loop goes on
-            m.advance_to(m.tick + self._poll_clocks)
+            self.model.advance_to(at + self._poll_clocks)
             return super()._wait_not_busy(program, index, words, tracing)
         return status
 
@@ -186,42 +198,40 @@ class SimTransport(ModelChips, CycleTransport):
         return f"{self.url} ({self.models[0].describe(len(self.models))})"
 
     def _select_chip(self, chip: int) -> None:
-        if isinstance(self.model, ChipBus):
-            self.model.select(chip)
+        """/CS of ``chip``: the strobes that follow go straight to that chip (to the bus itself
+        on a select with no chip, where a read finds FF; through the miswired lines when
+        ``wiring=`` bends them), with no routing per strobe."""
+        m = self.model
+        picked: ChipModel | None = m.select(chip) if isinstance(m, ChipBus) else m
+        if self.bent is not None:
+            self._target = self.bent
         else:
-            super()._select_chip(chip)
+            self._target = m if picked is None else picked
 
-    def _strobe(self) -> ChipModel | ChipBus:
-        m = self.model
-        m.advance_to(m.tick + self._cycle_clocks)
-        return m if self.bent is None else self.bent  # type: ignore[return-value]  # BentChip has the strobes of a chip
-
-    # the strobes: the model's clock one bus cycle on, then the byte (through miswired lines
-    # when ``wiring=`` bends them); written out per strobe, the host cost of every command
+    # the strobes: the model's clock one bus cycle on, then the byte; written out per strobe,
+    # the host cost of every command
     def _read_status(self) -> int:
-        m = self.model
-        m.advance_to(m.tick + self._cycle_clocks)
-        return (self.bent or m).read_status()
+        self.model.advance_to(self._counter.tick + self._cycle_clocks)
+        return self._target.read_status()
 
     def _write_command(self, byte: int) -> None:
-        m = self.model
-        m.advance_to(m.tick + self._cycle_clocks)
-        (self.bent or m).write_command(byte)
+        self.model.advance_to(self._counter.tick + self._cycle_clocks)
+        self._target.write_command(byte)
 
     def _write_word(self, word: int) -> None:
-        m, c = self.model, self._cycle_clocks
-        chip = self.bent or m
-        m.advance_to(m.tick + c)
+        advance, chip, c = self.model.advance_to, self._target, self._cycle_clocks
+        at = self._counter.tick + c
+        advance(at)
         chip.write_data(word >> 8)
-        m.advance_to(m.tick + c)
+        advance(at + c)
         chip.write_data(word & 0xFF)
 
     def _read_word(self) -> int:
-        m, c = self.model, self._cycle_clocks
-        chip = self.bent or m
-        m.advance_to(m.tick + c)
+        advance, chip, c = self.model.advance_to, self._target, self._cycle_clocks
+        at = self._counter.tick + c
+        advance(at)
         hi = chip.read_data()
-        m.advance_to(m.tick + c)
+        advance(at + c)
         return (hi << 8) | chip.read_data()
 
     def _pulse_reset(self) -> None:

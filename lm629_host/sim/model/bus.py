@@ -85,6 +85,18 @@ class ChipBus:
         self.advance_to(self.tick + max(0, round(seconds * self.clock_hz)))
 
     def advance_to(self, tick: int) -> None:
+        """Every chip up to clock ``tick``.  Before every chip's next sample or reset end
+        (:attr:`ChipModel.next_event <.chip.ChipModel.next_event>`: the case of nearly every
+        strobe) the chips' clocks are only counts, set here without a call per chip; from the
+        first chip with an event due, every chip runs its own advance (one already counted to
+        ``tick`` has nothing left to do)."""
+        for c in self.chips:
+            if tick >= c.next_event:
+                break
+            if tick > c.tick:
+                c.tick = tick
+        else:
+            return
         for c in self.chips:
             c.advance_to(tick)
 

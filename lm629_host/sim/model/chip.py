@@ -46,7 +46,6 @@ from lm629_host.bus.opcodes import (
     wrap_counts,
     BUSY_BIT,
     COEFFICIENT_MAX,
-    COMMANDS,
     INTERRUPTS,
     SAMPLE_CLOCKS,
     Cmd,
@@ -54,7 +53,7 @@ from lm629_host.bus.opcodes import (
     Signals,
     Status,
 )
-from lm629_host.sim.model.commands import CommandDecoder
+from lm629_host.sim.model.commands import OPCODES, CommandDecoder
 from lm629_host.sim.model.fastloop import py_loop, run_fast
 from lm629_host.sim.model.motion import Motion
 from lm629_host.sim.model.params import ChipParams, MotorParams
@@ -69,6 +68,16 @@ _TRAJ_DONE = int(Status.TRAJECTORY_COMPLETE)
 _INTERRUPTS = int(INTERRUPTS)
 #: signals bits 7..1 repeat the status byte (the rest of the signals word is kept apart)
 _STATUS_IN_SIGNALS = int(INTERRUPTS | Status.MOTOR_OFF)
+_HOST_INTERRUPT = int(Signals.HOST_INTERRUPT)
+_ON_TARGET = int(Signals.ON_TARGET)
+_VELOCITY_MODE = int(Signals.VELOCITY_MODE)
+_FORWARD = int(Signals.FORWARD)
+_FILTER_UPDATED = int(Signals.FILTER_UPDATED)
+_STOP_ON_ERROR = int(Signals.STOP_ON_ERROR)
+# the transfer directions and RESET as module names: an enum member looked up on its class
+# (``Direction.READ``) is a descriptor call, and the strobe handlers run for every bus cycle
+_NONE, _READ, _WRITE = Direction.NONE, Direction.READ, Direction.WRITE
+_RESET = Cmd.RESET
 
 
 class Violation(str):
@@ -180,6 +189,12 @@ class ChipModel(CommandDecoder):
         if self.params.fault == "reset":
             self._in_hw_reset = True
             self._reset_done_at = None
+        #: the first clock at which :meth:`advance_to` has more to do than count: the next
+        #: sample, or the end of the reset in progress when sooner.  Below it a chip's clock
+        #: is only a count, which is how a :class:`~.bus.ChipBus` moves its chips' ``tick``
+        #: between two events without a call per chip (kept by :meth:`_events_changed`)
+        self.next_event = self.next_sample
+        self._events_changed()
 
     # ------------------------------------------------------------------ time
     @property
@@ -201,6 +216,12 @@ class ChipModel(CommandDecoder):
 
     def advance_to(self, tick: int) -> None:
         """Run the chip up to clock ``tick``: reset completion and samples, in time order."""
+        if tick < self.next_event:
+            # nothing happens before ``tick`` but time: the case of nearly every bus strobe
+            # (hundreds of strobes fit in one sample), taken without the event loop below
+            if tick > self.tick:
+                self.tick = tick
+            return
         if tick <= self.tick:
             return
         while True:
@@ -219,6 +240,12 @@ class ChipModel(CommandDecoder):
                 break
             self._run_samples(n)
         self.tick = tick
+        self._events_changed()
+
+    def _events_changed(self) -> None:
+        """Keep :attr:`next_event` after a sample ran or a reset was started or ended."""
+        done = self._reset_done_at
+        self.next_event = self.next_sample if done is None else min(done, self.next_sample)
 
     def _run_samples(self, n: int) -> None:
         """Run ``n`` consecutive samples, the first at ``self.next_sample``."""
@@ -226,7 +253,7 @@ class ChipModel(CommandDecoder):
         while n > 0:
             if self.fast and not (self._in_hw_reset or self._reset_done_at is not None
                                   or self._udf_pending or motion.abort_pending
-                                  or self.signals_extra & Signals.FILTER_UPDATED):
+                                  or self.signals_extra & _FILTER_UPDATED):
                 ran = run_fast(self, n, self.fast)
                 n -= ran
                 self.samples += ran
@@ -269,9 +296,9 @@ class ChipModel(CommandDecoder):
             self.filter = self.filter_buffer.copy()
             self._udf_pending = False
             motion.filter_changed()
-            sig |= Signals.FILTER_UPDATED
+            sig |= _FILTER_UPDATED
         else:
-            sig &= ~Signals.FILTER_UPDATED
+            sig &= ~_FILTER_UPDATED
         self.signals_extra = sig
         before = motion.desired_position
         was_off = self.motor_off
@@ -286,7 +313,7 @@ class ChipModel(CommandDecoder):
             error = motion.position_error()
             if abs(error) > self.position_error_threshold:
                 events |= Status.POSITION_ERROR
-                if self.signals_extra & Signals.STOP_ON_ERROR:
+                if self.signals_extra & _STOP_ON_ERROR:
                     self.turn_motor_off()
         if self.motor_off and not was_off:
             events |= Status.TRAJECTORY_COMPLETE
@@ -316,7 +343,7 @@ class ChipModel(CommandDecoder):
 
     def _abort_transfer(self) -> None:
         self._cmd: int | None = None
-        self._dir = Direction.NONE
+        self._dir = _NONE
         self._words_left = 0
         self._words: list[int] = []
         self._hi_byte: int | None = None
@@ -324,7 +351,7 @@ class ChipModel(CommandDecoder):
         self._read_phase_low = False
 
     def _complete_reset(self) -> None:
-        self._reset_done_at = None
+        self._reset_done_at = None  # (advance_to, which completes it, updates next_event)
         self._in_hw_reset = False
         self._reset_registers()
         self.flags |= _TRAJ_DONE  # 84 / C4 once reset has finished
@@ -340,6 +367,7 @@ class ChipModel(CommandDecoder):
         self.motion.output = 0  # [model choice 31] zero drive from /RST on
         self._busy_until = 0
         self._reset_done_at = None if self.params.fault == "reset" else self.tick + self.reset_clocks
+        self._events_changed()
 
     # ------------------------------------------------------------------ registers
     @property
@@ -357,15 +385,17 @@ class ChipModel(CommandDecoder):
             return None
         return 0 if self._in_hw_reset else self._busy_until
 
-    @property
-    def status(self) -> int:
-        """The status byte as RDSTAT would read it now."""
+    def read_status(self) -> int:
+        """/PS low, /RD strobe: the status byte.  Valid at any time, and it changes nothing:
+        :attr:`status` is this same function (a busy poll costs one call, not two)."""
         if self._in_hw_reset:
             return _BUSY if self.params.fault == "busy" else 0
         s = self.flags | (_MOTOR_OFF if self.motor_off else 0)
         if self.tick < self._busy_until or self.params.fault == "busy":
             s |= _BUSY
         return s
+
+    status = property(read_status, doc="The status byte as RDSTAT would read it now.")
 
     @property
     def interrupt(self) -> bool:
@@ -382,16 +412,16 @@ class ChipModel(CommandDecoder):
     @property
     def signals(self) -> int:
         m = self.motion
-        s = (self.signals_extra & ~_STATUS_IN_SIGNALS) | (self.status & _STATUS_IN_SIGNALS)
+        s = (int(self.signals_extra) & ~_STATUS_IN_SIGNALS) | (self.status & _STATUS_IN_SIGNALS)
         if self.interrupt:
-            s |= Signals.HOST_INTERRUPT
+            s |= _HOST_INTERRUPT
         if m.on_target:
-            s |= Signals.ON_TARGET
+            s |= _ON_TARGET
         if m.velocity_mode:
-            s |= Signals.VELOCITY_MODE
+            s |= _VELOCITY_MODE
             if m.forward:
-                s |= Signals.FORWARD
-        return int(s)
+                s |= _FORWARD
+        return s
 
     def turn_motor_off(self) -> None:
         """Drive off (LTRJ bit 8 or LPES); trajectory complete is motor off OR on target."""
@@ -422,56 +452,53 @@ class ChipModel(CommandDecoder):
         self.flags |= _CMD_ERROR
         self._violation(why)
 
-    def read_status(self) -> int:
-        """/PS low, /RD strobe: the status byte.  Valid at any time."""
-        return self.status
+    # (the status strobe, read_status, is with the status register above)
+
+    # The three strobes below test in one expression whether the chip takes the cycle (no /RST
+    # window, not busy, the transfer expected) and hand any other case to a ``_refuse_*``
+    # method, which checks the causes one by one in the chip's order and says which: the
+    # common case costs no call, no enum and no message formatted (every bus cycle of
+    # ``sim://`` comes here).
 
     def write_command(self, byte: int) -> None:
         """/PS low, /WR strobe: a command byte."""
         byte &= 0xFF
-        if not self._check_cycle(f"command {byte:02X}"):
+        if self._in_hw_reset or self.tick < self._busy_until or self.params.fault == "busy":
+            self._refuse(f"command {byte:02X}", "written while busy (ignored)")
             return
-        if self.busy:
-            self._violation(f"command {byte:02X} written while busy (ignored)")
-            return
-        if self._dir is not Direction.NONE and (self._words_left or self._hi_byte is not None):
+        if self._dir is not _NONE and (self._words_left or self._hi_byte is not None):
             self._violation(f"command {byte:02X} aborts command {self._cmd:02X} with "
                             f"{self._words_left} word(s) still expected")
         self._abort_transfer()
         if self.params.record:
             self.history.append((byte, ()))
-        try:
-            cmd = Cmd(byte)
-        except ValueError:
+        known = OPCODES.get(byte)
+        if known is None:
             self._set_busy()
             self._command_error(f"unknown command {byte:02X}")
             return
-        info = COMMANDS[cmd]
+        cmd, info = known
         self._cmd = byte
-        self._dir = info.direction
+        self._dir = direction = info.direction
         self._words_left = info.words
-        if cmd is Cmd.RESET:
+        if cmd is _RESET:
             self.motion.output = 0  # [model choice 31] zero drive while the chip resets
             self._set_busy(self.reset_clocks)
             self._reset_done_at = None if self.params.fault == "reset" else self.tick + self.reset_clocks
+            self._events_changed()
             return
-        self._set_busy(self.command_busy_clocks.get(byte))
-        if info.direction is Direction.READ:
+        self._busy_until = self.tick + self.command_busy_clocks.get(byte, self.busy_clocks)
+        if direction is _READ:
             self._out = self._read_words(cmd)
-        elif info.direction is Direction.NONE:
+        elif direction is _NONE:
             self._execute(cmd, [])
 
     def write_data(self, byte: int) -> None:
         """/PS high, /WR strobe: one byte of a data word (high byte first)."""
         byte &= 0xFF
-        if not self._check_cycle(f"data byte {byte:02X}"):
-            return
-        if self.busy:
-            self._violation(f"data byte {byte:02X} written while busy (ignored)")
-            return
-        if self._dir is not Direction.WRITE or self._words_left == 0:
-            what = ("a read command" if self._dir is Direction.READ else "no command expecting data")
-            self._command_error(f"data byte {byte:02X} written with {what}")
+        if (self._in_hw_reset or self.tick < self._busy_until or self.params.fault == "busy"
+                or self._dir is not _WRITE or self._words_left == 0):
+            self._refuse_write(byte)
             return
         if self._hi_byte is None:
             self._hi_byte = byte
@@ -479,33 +506,52 @@ class ChipModel(CommandDecoder):
         word = (self._hi_byte << 8) | byte
         self._hi_byte = None
         self._io_word = word
-        self._set_busy()
+        self._busy_until = self.tick + self.busy_clocks
         self._accept_word(word)
 
     def read_data(self) -> int:
         """/PS high, /RD strobe: one byte of a data word (high byte first)."""
-        stale = (self._io_word & 0xFF) if self._read_phase_low else (self._io_word >> 8)
-        if not self._check_cycle("data read"):
-            return stale
-        if self.busy:
-            self._violation("data read while busy (stale byte returned)")
-            return stale
-        if self._dir is not Direction.READ or not self._out:
-            what = "a write command" if self._dir is Direction.WRITE else "no command to read"
-            self._command_error(f"data read with {what}")
-            return stale
-        word = self._out[0]
+        out = self._out
+        if (self._in_hw_reset or self.tick < self._busy_until or self.params.fault == "busy"
+                or self._dir is not _READ or not out):
+            return self._refuse_read()
+        word = out[0]
         self._io_word = word
         if not self._read_phase_low:
             self._read_phase_low = True
             return word >> 8
         self._read_phase_low = False
-        self._out.pop(0)
+        del out[0]
         self._words_left -= 1
-        self._set_busy()
-        if not self._out:
-            self._dir = Direction.NONE
+        self._busy_until = self.tick + self.busy_clocks
+        if not out:
+            self._dir = _NONE
         return word & 0xFF
+
+    def _refuse(self, what: str, while_busy: str) -> None:
+        """A strobe the chip does not take: during the /RST window or while busy."""
+        if self._check_cycle(what) and self.busy:
+            self._violation(f"{what} {while_busy}")
+
+    def _refuse_write(self, byte: int) -> None:
+        """A data byte the chip does not take (see :meth:`write_data`): why, in order."""
+        what = f"data byte {byte:02X}"
+        if self._in_hw_reset or self.busy:
+            self._refuse(what, "written while busy (ignored)")
+            return
+        expected = "a read command" if self._dir is _READ else "no command expecting data"
+        self._command_error(f"{what} written with {expected}")
+
+    def _refuse_read(self) -> int:
+        """A data read the chip does not answer (see :meth:`read_data`): why, in order; the
+        I/O register's stale byte is what the host reads."""
+        stale = (self._io_word & 0xFF) if self._read_phase_low else (self._io_word >> 8)
+        if self._in_hw_reset or self.busy:
+            self._refuse("data read", "while busy (stale byte returned)")
+            return stale
+        what = "a write command" if self._dir is _WRITE else "no command to read"
+        self._command_error(f"data read with {what}")
+        return stale
 
     # ------------------------------------------------------------------ conveniences
     def set_motor_params(self, **values: object) -> None:

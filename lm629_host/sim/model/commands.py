@@ -15,11 +15,13 @@ from typing import TYPE_CHECKING
 
 from lm629_host.bus.opcodes import (
     lfil_interval,
+    COMMANDS,
     FILTER_ORDER,
     INTERRUPTS,
     STOP_FLAGS,
     VELOCITY_MAX,
     Cmd,
+    CommandInfo,
     Direction,
     Signals,
     Status,
@@ -45,9 +47,27 @@ _MODE_BITS = int(TrajectoryFlags.VELOCITY_MODE | TrajectoryFlags.FORWARD)
 #: Python calls: a quarter of an LTRJ's host cost on sim://)
 _STOP_BITS = int(STOP_FLAGS)
 _ACCELERATION_BIT = int(TrajectoryFlags.ACCELERATION)
+# the signals bits the commands set and clear (``signals_extra`` stays a plain int: an
+# IntFlag in it would make every test of it in the sample loop an enum call)
+_ACQUIRE_INDEX = int(Signals.ACQUIRE_INDEX)
+_EIGHT_BIT_OUTPUT = int(Signals.EIGHT_BIT_OUTPUT)
+_STOP_ON_ERROR = int(Signals.STOP_ON_ERROR)
+_ACCELERATION_LOADED = int(Signals.ACCELERATION_LOADED)
 _TRAJECTORY_WORDS = tuple((int(f), int(f) >> 1, name) for f, name in (
     (TrajectoryFlags.ACCELERATION, "acceleration"), (TrajectoryFlags.VELOCITY, "velocity"),
     (TrajectoryFlags.POSITION, "position")))
+
+#: opcode byte -> (its command, its :class:`CommandInfo`), built once from the one table
+#: (:data:`~lm629_host.bus.opcodes.COMMANDS`): a dict look-up where ``Cmd(byte)`` costs an
+#: enum call, on every command strobe of ``sim://``
+OPCODES: dict[int, tuple[Cmd, CommandInfo]] = {int(c): (c, info) for c, info in COMMANDS.items()}
+#: the 32-bit registers the two-word reads report (the Motion attribute each reads)
+_REGISTER_READS = {Cmd.RDDV: "desired_velocity", Cmd.RDDP: "desired_position",
+                   Cmd.RDIP: "index_position", Cmd.RDRP: "real_position"}
+# the commands compared on the per-command path, as module names (``Cmd.X`` looked up on
+# the class is a descriptor call)
+_LFIL, _LTRJ, _RDSIGS, _RDRV, _RDSUM = Cmd.LFIL, Cmd.LTRJ, Cmd.RDSIGS, Cmd.RDRV, Cmd.RDSUM
+_NONE = Direction.NONE
 
 
 class CommandDecoder:
@@ -82,34 +102,29 @@ class CommandDecoder:
         def _violation(self, what: str) -> None: ...
 
     def _accept_word(self, word: int) -> None:
-        cmd = Cmd(self._cmd)  # type: ignore[arg-type]  # a command is under way: _cmd is set
+        cmd = OPCODES[self._cmd][0]  # type: ignore[index]  # a command is under way: _cmd is set
         self._words.append(word)
         self._words_left -= 1
-        if len(self._words) == 1 and cmd is Cmd.LFIL:
+        if len(self._words) == 1 and cmd is _LFIL:
             self._words_left += lfil_word_count(word)
-        elif len(self._words) == 1 and cmd is Cmd.LTRJ:
+        elif len(self._words) == 1 and cmd is _LTRJ:
             self._words_left += ltrj_word_count(word)
         if self._words_left == 0:
             words, self._words = self._words, []
-            self._dir = Direction.NONE
+            self._dir = _NONE
             if self.params.record and self.history:
                 self.history[-1] = (self.history[-1][0], tuple(words))
             self._execute(cmd, words)
 
     def _read_words(self, cmd: Cmd) -> list[int]:
         m = self.motion
-        if cmd is Cmd.RDSIGS:
+        if cmd is _RDSIGS:
             return [self.signals]
-        if cmd is Cmd.RDRV:
+        if cmd is _RDRV:
             return [m.real_velocity & 0xFFFF]
-        if cmd is Cmd.RDSUM:
+        if cmd is _RDSUM:
             return [m.integration_sum & 0xFFFF]
-        value = {
-            Cmd.RDDV: m.desired_velocity,
-            Cmd.RDDP: m.desired_position,
-            Cmd.RDIP: m.index_position,
-            Cmd.RDRP: m.real_position,
-        }[cmd] & 0xFFFFFFFF
+        value = getattr(m, _REGISTER_READS[cmd]) & 0xFFFFFFFF
         return [value >> 16, value & 0xFFFF]
 
     def _execute(self, cmd: Cmd, words: list[int]) -> None:
@@ -122,13 +137,13 @@ class CommandDecoder:
                 # value out of range, which start() dropped
                 self._command_error_silent()
                 if not buf.loaded & TrajectoryFlags.ACCELERATION:
-                    self.signals_extra &= ~Signals.ACCELERATION_LOADED
+                    self.signals_extra &= ~_ACCELERATION_LOADED
                 return
             stop = buf.stop
             self._update_rate(stop)
             buf.loaded = 0
             buf.stop = 0  # [model choice 13] a stop bit acts once
-            self.signals_extra &= ~Signals.ACCELERATION_LOADED
+            self.signals_extra &= ~_ACCELERATION_LOADED
             if stop & TrajectoryFlags.MOTOR_OFF:
                 self.turn_motor_off()
             else:
@@ -136,25 +151,25 @@ class CommandDecoder:
         elif cmd is Cmd.DFH:
             m.define_home()
         elif cmd is Cmd.SIP:
-            self.signals_extra |= Signals.ACQUIRE_INDEX
+            self.signals_extra |= _ACQUIRE_INDEX
             m.arm_index()
         elif cmd is Cmd.UDF:
             self._udf_pending = True
         elif cmd is Cmd.PORT8:
-            self.signals_extra |= Signals.EIGHT_BIT_OUTPUT
+            self.signals_extra |= _EIGHT_BIT_OUTPUT
         elif cmd is Cmd.PORT12:
             if self.params.variant == "lm629":
                 # [model choice 4] the LM629 has no 12-bit port; a correct host may send it
                 # once to learn which part it talks to (lm629 selftest): no violation
                 self._command_error_silent()
             else:
-                self.signals_extra &= ~Signals.EIGHT_BIT_OUTPUT
+                self.signals_extra &= ~_EIGHT_BIT_OUTPUT
         elif cmd in (Cmd.LPES, Cmd.LPEI):
             self.position_error_threshold = words[0]
             if cmd is Cmd.LPES:
-                self.signals_extra |= Signals.STOP_ON_ERROR
+                self.signals_extra |= _STOP_ON_ERROR
             else:
-                self.signals_extra &= ~Signals.STOP_ON_ERROR
+                self.signals_extra &= ~_STOP_ON_ERROR
         elif cmd is Cmd.MSKI:
             self.mask = words[0] & _INTERRUPTS
         elif cmd is Cmd.RSTI:
@@ -231,6 +246,6 @@ class CommandDecoder:
             setattr(buf, name, value)
             buf.loaded = (buf.loaded & ~(flag | relative)) | flag | keep
         if control & _ACCELERATION_BIT:
-            self.signals_extra |= Signals.ACCELERATION_LOADED
+            self.signals_extra |= _ACCELERATION_LOADED
         for what in out_of_range:
             self._violation(what)

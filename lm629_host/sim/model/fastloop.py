@@ -32,6 +32,10 @@ _BP = int(Status.BREAKPOINT)
 _ACQUIRE_INDEX = int(Signals.ACQUIRE_INDEX)
 _EIGHT_BIT = int(Signals.EIGHT_BIT_OUTPUT)
 _STOP_ON_ERROR = int(Signals.STOP_ON_ERROR)
+#: the output stage's shift and full-scale code, by 12-bit mode (pid's, looked up once: a call
+#: each per sample was a tenth of this wrapper's cost)
+_SHIFT = {twelve: output_shift(twelve) for twelve in (False, True)}
+_FULL_SCALE = {twelve: full_scale(twelve) for twelve in (False, True)}
 
 
 INT_ARGS = ("n kp ki kd il ds shift stall cpr index_k count home out p v a vmax target done "
@@ -51,15 +55,16 @@ def run_fast(chip: ChipState, n: int, loop: Callable[..., tuple] | None = None) 
     signals = int(chip.signals_extra)
     twelve = not signals & _EIGHT_BIT
     cpr = motor.counts_per_rev
-    ints = (n, f.kp, f.ki, f.kd, f.il, f.ds, output_shift(twelve), int(mp.stall), cpr,
+    # (the model's own bools go in as they are: a bool is an int to both loops)
+    ints = (n, f.kp, f.ki, f.kd, f.il, f.ds, _SHIFT[twelve], int(mp.stall), cpr,
             motor.index_k, m.encoder_count, m.home_count, m.output,
-            t.position, t.velocity, t.acceleration, t.max_velocity, t.target, int(t.done),
-            int(t.velocity_mode), int(t.forward), int(t.stopping),
+            t.position, t.velocity, t.acceleration, t.max_velocity, t.target, t.done,
+            t.velocity_mode, t.forward, t.stopping,
             pid.error_sum, pid.last_error, pid.derivative, pid.countdown, pid.integral, pid.output,
-            int(chip.motor_off), chip.breakpoint, chip.position_error_threshold,
+            chip.motor_off, chip.breakpoint, chip.position_error_threshold,
             signals & _STOP_ON_ERROR, int(chip.flags), signals & _ACQUIRE_INDEX,
             m.real_position, m.real_velocity)
-    floats = (mp.amp_volts / full_scale(twelve), motor.accel_per_volt, motor.load_accel,
+    floats = (mp.amp_volts / _FULL_SCALE[twelve], motor.accel_per_volt, motor.load_accel,
               motor.coulomb_accel, motor.rate, motor.decay, motor.gain, motor.sample_s,
               motor.angle, motor.speed)
     (ran, lpes_trip, index_hit, index_pos, m.encoder_count, m.output, t.position, t.velocity, done,

@@ -54,12 +54,21 @@ from lm629_host.sim.model.trajectory import Trajectory
 if TYPE_CHECKING:
     from lm629_host.sim.model.params import MotorParams
 
-_ACC = TrajectoryFlags.ACCELERATION
-_ACC_REL = TrajectoryFlags.ACCELERATION_RELATIVE
-_VEL = TrajectoryFlags.VELOCITY
-_VEL_REL = TrajectoryFlags.VELOCITY_RELATIVE
-_POS = TrajectoryFlags.POSITION
-_POS_REL = TrajectoryFlags.POSITION_RELATIVE
+# plain ints of the opcodes.py bits (an IntFlag's operators are Python calls, and STT, the
+# quiescence test and the index watch run per command or per sample)
+_ACC = int(TrajectoryFlags.ACCELERATION)
+_ACC_REL = int(TrajectoryFlags.ACCELERATION_RELATIVE)
+_VEL = int(TrajectoryFlags.VELOCITY)
+_VEL_REL = int(TrajectoryFlags.VELOCITY_RELATIVE)
+_POS = int(TrajectoryFlags.POSITION)
+_POS_REL = int(TrajectoryFlags.POSITION_RELATIVE)
+_MOTOR_OFF = int(TrajectoryFlags.MOTOR_OFF)
+_STOP_ABRUPT = int(TrajectoryFlags.STOP_ABRUPT)
+_STOP_SMOOTH = int(TrajectoryFlags.STOP_SMOOTH)
+_VELOCITY_MODE = int(TrajectoryFlags.VELOCITY_MODE)
+_FORWARD = int(TrajectoryFlags.FORWARD)
+_EIGHT_BIT_OUTPUT = int(Signals.EIGHT_BIT_OUTPUT)
+_ACQUIRE_INDEX = int(Signals.ACQUIRE_INDEX)
 
 
 class Motion:
@@ -123,7 +132,7 @@ class Motion:
 
     @property
     def twelve_bit(self) -> bool:
-        return not self.chip.signals_extra & Signals.EIGHT_BIT_OUTPUT
+        return not self.chip.signals_extra & _EIGHT_BIT_OUTPUT
 
     @property
     def dac_code(self) -> int:
@@ -143,7 +152,7 @@ class Motion:
         loaded, stop, mode = trajectory.loaded, trajectory.stop, trajectory.mode
         moving = not t.done or t.velocity != 0
         drive_on = not self.chip.motor_off
-        if loaded & _ACC and moving and drive_on and not stop & TrajectoryFlags.MOTOR_OFF:
+        if loaded & _ACC and moving and drive_on and not stop & _MOTOR_OFF:
             return False  # AN-706 3.3: not until completed or the drive is off [model choice 28]
         acceleration, velocity = t.acceleration, t.max_velocity
         if loaded & _ACC:
@@ -174,13 +183,13 @@ class Motion:
         if loaded & _POS:
             t.target = wrap_counts(t.target + trajectory.position if loaded & _POS_REL
                                    else trajectory.position)
-        if stop & TrajectoryFlags.MOTOR_OFF:
+        if stop & _MOTOR_OFF:
             self._resume = self._resume or not t.done
             return True  # the chip turns the drive off
-        if stop & TrajectoryFlags.STOP_ABRUPT:
+        if stop & _STOP_ABRUPT:
             t.stop_abruptly()
             return True
-        if stop & TrajectoryFlags.STOP_SMOOTH:
+        if stop & _STOP_SMOOTH:
             t.stop_smoothly()
             return True
         if self.chip.motor_off:
@@ -189,8 +198,8 @@ class Motion:
             t.velocity = 0
         # the mode of the last LTRJ without a stop bit: after a stop, the interrupted
         # trajectory's mode and direction (AN-706 6.3.1, 6.3.3) [model choice 27]
-        t.velocity_mode = bool(mode & TrajectoryFlags.VELOCITY_MODE)
-        t.forward = bool(mode & TrajectoryFlags.FORWARD)
+        t.velocity_mode = bool(mode & _VELOCITY_MODE)
+        t.forward = bool(mode & _FORWARD)
         t.stopping = False
         t.done = False
         self._resume = False
@@ -227,11 +236,11 @@ class Motion:
         self.encoder_count = c1
         self.real_velocity = c1 - c0
         self.real_position = wrap_counts(c1 - self.home_count)
-        if chip.signals_extra & Signals.ACQUIRE_INDEX:
+        if chip.signals_extra & _ACQUIRE_INDEX:
             k = motor.index_between(c0, c1)
             if k is not None:
                 self.index_position = wrap_counts(k - self.home_count)
-                chip.signals_extra &= ~Signals.ACQUIRE_INDEX
+                chip.signals_extra &= ~_ACQUIRE_INDEX
                 events |= Status.INDEX_PULSE
         t = self.traj
         if chip.motor_off:
