@@ -487,6 +487,10 @@ def ensure_applied(chips: Mapping[str, Any], profile: Profile,
             say(f"axis {name} (cs {ax.cs}) reads signals {int(sig):04X} (LPES not armed) but is "
                 f"moving: {profile.path} not applied (`lm629 profile apply` once it rests)")
             continue
+        # reset or powered up behind the driver's back: its registers count from the reset,
+        # and the driver's own record of them (the turns of the position register it
+        # extended, the derivative interval) is forgotten as after its own reset
+        chip.reset_done()
         what = apply_axis(chip, ax)
         say(f"axis {name} (cs {ax.cs}) had lost its settings (signals {int(sig):04X}: reset or "
             f"powered up since): applied {profile.path} ({what}); positions count from where "

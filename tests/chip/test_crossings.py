@@ -15,6 +15,7 @@ import pytest
 
 import lm629_host
 from lm629_host.chip.move import MoveTooLong
+from lm629_host.config.profile import ensure_applied, parse_profile
 from lm629_host.errors import TransportError
 from lm629_host.bus.opcodes import Cmd, Status
 from lm629_host.chip.lm629 import LM629
@@ -115,6 +116,34 @@ def test_a_crossing_a_script_left_latched_is_not_the_next_drivers(url):
         nxt.move_to(-8000, velocity=4 * 65536, acceleration=6553, relative=True).wait()
         assert nxt.positions.wraps == 1
         assert nxt.read_real_position() == pytest.approx(-TOP - 4096, abs=20)
+    finally:
+        chip.close()
+
+
+@pytest.mark.parametrize("url", LINKS)
+def test_a_board_powered_up_behind_the_driver_counts_from_its_reset_once_the_profile_is_back(url):
+    """Found by the machine's long run on sim://: a driver whose positions began past the top
+    (the next process after a script that crossed: 3904 counts past the bottom, no turn), the
+    board's power off and on behind it (every register as from power-on: 4096 below the top
+    again), the profile applied again where it was lost (``ensure_applied``, as ``lm629
+    --profile`` does).  Its message says positions count from the reset, yet the driver took
+    the reset's register value the short way from its old one: one turn down, 2^31 counts
+    off (-TOP - 4096 for NEAR_TOP; 1073745920 for -1073737728 on the bottom in the machine)."""
+    chip = _open(url)
+    try:
+        chip.move_to(8000, velocity=4 * 65536, acceleration=6553, relative=True).wait()
+        nxt = LM629(chip.transport)  # the next process's driver on the same chip
+        assert nxt.read_real_position() == pytest.approx(-TOP + 3904, abs=20)
+        with chip.transport.lock:  # the supply off and on (lm629 sim serve's SIGUSR1)
+            chip.transport.models[0].reset_pulse()
+        nxt.clock.sleep(0.002)
+        profile = parse_profile("[board]\n[axis.x]\ncs = 0\nkp = 20\nkd = 200\n", "bench.toml")
+        said: list[str] = []
+        assert ensure_applied({"x": nxt}, profile, said.append) == ["x"]
+        assert "positions count from where the shaft was at the reset" in said[0]
+        assert nxt.read_desired_position() == NEAR_TOP
+        assert nxt.read_real_position() == pytest.approx(NEAR_TOP, abs=2)
+        assert nxt.positions.wraps == 0
     finally:
         chip.close()
 
