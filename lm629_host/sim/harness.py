@@ -14,6 +14,7 @@ again (``fitl_restart``); simavr 1.6 leaks part of every AVR it makes and frees
 from __future__ import annotations
 
 import ctypes
+import os
 import shutil
 import subprocess
 import sys
@@ -108,7 +109,9 @@ def ensure_built() -> None:
         raise HarnessError(f"the simavr harness and firmware are not built and the toolchain is "
                            f"missing ({', '.join(toolchain_missing())}): apt-get install {PACKAGES}, "
                            "then `make -C firmware_bridge`")
-    cmd = ["make", "-s", "-C", str(FIRMWARE_DIR), "firmware", "harness"]
+    # each image and the harness are one compiler run of their own: built side by side
+    cmd = ["make", "-s", f"-j{len(os.sched_getaffinity(0))}", "-C", str(FIRMWARE_DIR),
+           "firmware", "harness"]
     # `make -q`: exit 0 when everything is up to date; otherwise say once what is built (a cold
     # build takes a few seconds, which should not pass in silence)
     files = ["build/lm629_bridge.hex", "build/lm629_bridge_1000000.hex", "build/libfitl.so"]
