@@ -107,30 +107,17 @@ DEAR_RULES_PER_SEQUENCE = 3 if LONG else 1
 
 @dataclass(frozen=True)
 class Budget:
-    """One link's share of the minutes: sequences (examples) of at most ``steps`` rules, in
-    CI and in the long profile (sim+avr:// runs the firmware: fewer)."""
+    """One link's share of the CI minutes (sim+avr:// runs the firmware: fewer examples)."""
 
     examples: int
     steps: int
-    long_examples: int
-    long_steps: int
 
 
-#: (url, budget).  CI's is the smallest that still finds every bug the machine found in the
-#: rounds before (each put back by hand on the code of the day, the machine run at budget
-#: after budget, derandomized: a velocity run 2^31 off after a crossing before its first
-#: read, 9e54169; a selftest refusing its own runs under soft limits, 9c21553; a selftest
-#: hang, bc691df; the Python far end running a whole WAIT_STATUS past a host byte, ffe8f73;
-#: a selftest of a shaft parked on its index, d358efb), with a margin: sim:// 50 x 15 and
-#: sim+emu:// 5 x 20 were the smallest, sim+avr:// 10 x 20.  A smaller budget runs other
-#: sequences, not the first of a bigger one, and a new rule re-rolls them all: after adding
-#: one, put those bugs back and check again (docs/testing.md, "The crossings machine").
-#: The long profile keeps the sequences of the CI budget before (130 x 30, 35 x 25,
-#: 12 x 20) twenty times over, three times longer.
+#: (url, CI budget); the long profile multiplies both
 LINKS = (
-    ("sim://", Budget(65, 15, 2600, 90)),
-    ("sim+emu://?baud=1000000", Budget(12, 20, 700, 75)),
-    ("sim+avr://?baud=1000000", Budget(12, 20, 240, 60)),
+    ("sim://", Budget(130, 30)),
+    ("sim+emu://?baud=1000000", Budget(35, 25)),
+    ("sim+avr://?baud=1000000", Budget(12, 20)),
 )
 
 VELOCITIES = st.sampled_from([2 * 65536, 4 * 65536, 12 * 65536])
@@ -1162,15 +1149,17 @@ def test_a_selftest_of_a_shaft_parked_on_its_index_passes_wherever_in_the_count_
 
 
 def _settings(budget: Budget) -> settings:
-    return settings(max_examples=budget.long_examples if LONG else budget.examples,
-                    stateful_step_count=budget.long_steps if LONG else budget.steps,
+    scale = 20 if LONG else 1
+    return settings(max_examples=budget.examples * scale,
+                    stateful_step_count=budget.steps * (3 if LONG else 1),
                     deadline=None, derandomize=not LONG, database=None if not LONG else
                     settings.default.database, print_blob=True,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 
 
-# each link is its own test, so they run on separate workers (sim+avr:// over 10 s beside the
-# suite's load: the firmware in simavr, LINKS's budget)
+# over 10 s on an idle machine (sim:// and sim+emu://): the CI budget of LINKS, a few thousand
+# API calls in derandomized sequences; each link is its own test, so they run on separate
+# workers
 @pytest.mark.parametrize("url,budget", LINKS, ids=[u.split("?")[0] for u, _ in LINKS])
 def test_the_api_agrees_with_the_simulator(url: str, budget: Budget, record_property) -> None:
     if not available(url):
