@@ -33,6 +33,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import pytest
@@ -1148,6 +1149,36 @@ def test_a_selftest_of_a_shaft_parked_on_its_index_passes_wherever_in_the_count_
         machine.teardown()
 
 
+@contextmanager
+def sequences_from_the_seed_alone():
+    """Hypothesis draws about one choice in twenty from the literals of the project's own
+    modules that the process has imported ("local constants",
+    hypothesis.internal.conjecture.providers, hypothesis 6.131 and later).  A derandomized
+    run's sequences then depended on what earlier tests in the same worker had imported, and
+    on every literal anywhere in lm629_host: in a whole-suite worker sim:// ran 85 sequences
+    where alone it ran 73, and the budget proven alone did not find a bug there.  CI's budget
+    is proven on its sequences (docs/testing.md), so in CI they come from the seed and the
+    rules alone: the pool of local constants is empty while the machine runs.  The long
+    profile keeps the pool (random runs, where the literals are one more source of edges).
+
+    Hypothesis has no setting for this; the names patched are checked here, so that a
+    hypothesis that renames them fails this test instead of silently drawing otherwise
+    (pyproject pins hypothesis for the same reason)."""
+    from hypothesis.internal import constants_ast
+    from hypothesis.internal.conjecture import providers
+
+    cache = providers.CONSTANTS_CACHE.cache
+    saved = providers._get_local_constants
+    none = constants_ast.Constants()
+    providers._get_local_constants = lambda: none
+    cache.clear()  # built from the pool: what earlier tests drew with must not carry over
+    try:
+        yield
+    finally:
+        providers._get_local_constants = saved
+        cache.clear()
+
+
 def _settings(budget: Budget) -> settings:
     scale = 20 if LONG else 1
     return settings(max_examples=budget.examples * scale,
@@ -1169,7 +1200,11 @@ def test_the_api_agrees_with_the_simulator(url: str, budget: Budget, record_prop
                                                                        "steps": 0})
     t0 = time.monotonic()
     try:
-        run_state_machine_as_test(machine, settings=_settings(budget))
+        if LONG:
+            run_state_machine_as_test(machine, settings=_settings(budget))
+        else:
+            with sequences_from_the_seed_alone():
+                run_state_machine_as_test(machine, settings=_settings(budget))
     finally:
         record_property(FIGURES_PROPERTY, (url.split("?")[0], machine.examples, machine.steps,
                                            time.monotonic() - t0, "long" if LONG else "ci"))
