@@ -191,8 +191,8 @@ def judged_side(metrics: MoveMetrics, rec: Record, band: int) -> Side:
     comparison, its settle time at ``band`` counts given a count either way."""
     segments = []
     for k in range(len(rec.steps)):
-        t, real, _des, start, _target = rec.segment(k)
-        segments.append((t, [p - start for p in real]))
+        t, real, des, start, _target = rec.segment(k)
+        segments.append((since_command(t, des, start), [p - start for p in real]))
     spans = []
     for b in (band + 1, max(0, band - 1)):
         worst: float | None = 0.0
@@ -204,12 +204,23 @@ def judged_side(metrics: MoveMetrics, rec: Record, band: int) -> Side:
     return Side(metrics, segments, (spans[0], spans[1]))
 
 
+def since_command(t: list[float], des: list[int], start: int) -> list[float]:
+    """A step's row times counted from its first row whose desired position has left
+    ``start``: on each side that row comes within one row of the chip's STT, on the far
+    side's clock where it records, so the two sides line up however late the host stamped its
+    STT (a busy host's stamp was late by more than :func:`rms_difference`'s search: 34 counts
+    rms between a bench and its own twin).  Unchanged when the desired position never moved."""
+    first = next((t[j] for j, d in enumerate(des) if d != start), None)
+    return t if first is None else [x - first for x in t]
+
+
 def rms_difference(a: Side, b: Side, shift_s: float = 10e-3, step_s: float = 2.5e-4) -> float:
     """The rms difference of ``b``'s positions from ``a``'s at ``a``'s times (``b``'s
     interpolated), each step at the best relative time shift within ``+/- shift_s``: each
-    recording's offset from its STT is the host's, uncertain by up to a reply's trip (behind
-    an Uno's USB a 4.096 ms flush tick, a served bench's round trip besides), and that is not
-    a difference between bench and twin."""
+    step's times count from its first row with the desired position moved
+    (:func:`since_command`), which is up to a row after the STT on either side (a
+    millisecond's far-side row, a host poll), and that is not a difference between bench and
+    twin."""
     total, n = 0.0, 0
     for (ta, pa), (tb, pb) in zip(a.segments, b.segments):
         if not ta or not tb:
@@ -269,4 +280,5 @@ def twin_profile(plant: Plant, sample_s: float, velocity: int | None = None,
 
 
 __all__ = ["MATCH_OVERSHOOT", "MATCH_RMS", "MATCH_SETTLE", "SETTLE_BAND", "Compared", "Plant", "Side",
-           "TwinCheck", "check_twin", "close", "judged_side", "plant_record", "settle_close", "rms_difference", "twin_profile"]
+           "TwinCheck", "check_twin", "close", "judged_side", "plant_record", "since_command",
+           "settle_close", "rms_difference", "twin_profile"]

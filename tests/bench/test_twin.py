@@ -9,6 +9,7 @@ within 2 counts or 10 % of the bench's, its settle time within 5 ms or 10 %
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
@@ -29,12 +30,14 @@ from lm629_host.physics.axis import AxisModel, Gains
 from lm629_host.physics.predict import MoveProfile
 from lm629_host.bench.twin import (
     MATCH_OVERSHOOT,
+    MATCH_RMS,
     MATCH_SETTLE,
     SETTLE_BAND,
     Plant,
     Side,
     close,
     judged_side,
+    rms_difference,
     settle_close,
     twin_profile,
 )
@@ -328,6 +331,28 @@ def test_twin_check_on_a_served_bench_behind_usb(tuned, tmp_path):
                   timeout=120)
         assert p.returncode == 0, p.stdout + p.stderr
         assert p.stdout.splitlines()[-1] == "matches"
+
+
+@pytest.mark.parametrize("late_s", [0.004, 0.015, 0.040])
+@pytest.mark.parametrize("trapezoid", [True, False], ids=["trapezoid", "step"])
+def test_a_host_that_stamped_its_stt_late_compares_the_same_move(late_s, trapezoid):
+    """Found by CI (docs/twin.md's `twin check` on a busy machine): a bench and its own twin
+    differed by 34 counts rms in the trapezoid, their settle times alike (5.2 and 5.0 ms).
+    A host that stamps an STT late (paused between sending it and reading its clock, or
+    behind a flush tick) shifts that step's row times by the delay; past rms_difference's
+    10 ms search the comparison saw a delay that no shaft had.  The same recorded move, its
+    STTs stamped ``late_s`` later, compares as itself: each step counts from its first row
+    with the desired position moved."""
+    move = MoveProfile(velocity=0x40000, acceleration=0x2000) if trapezoid else None
+    with _fresh("sim://") as chip:
+        m, rec = measure_move(chip, None, distance=DISTANCE, travel=TRAVEL, duration_s=0.3,
+                              tolerance=SETTLE_BAND, profile=move)
+    late = dataclasses.replace(rec, steps=[(t + late_s, target) for t, target in rec.steps])
+    on_time, stamped_late = judged_side(m, rec, SETTLE_BAND), judged_side(m, late, SETTLE_BAND)
+    # the recorded move itself: 2000 counts out and back, hundreds of rows each way
+    assert [len(t) > 100 and max(abs(p) for p in real) >= DISTANCE - SETTLE_BAND
+            for t, real in on_time.segments] == [True, True]
+    assert rms_difference(on_time, stamped_late) <= MATCH_RMS[0]
 
 
 def _side(settle_s, lo=None, hi=None):
