@@ -37,7 +37,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import pytest
-from hypothesis import HealthCheck, settings
+from hypothesis import HealthCheck, Phase, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import (
     RuleBasedStateMachine,
@@ -88,6 +88,10 @@ SPAN = 1 << 31  #: counts round the register's circle
 FIGURES_PROPERTY = "crossings"
 
 LONG = os.environ.get("LM629_CROSSINGS", "") == "long"
+#: tools/crossings_budget.py's mode: CI's sequences at the budget it names
+#: (``LM629_CROSSINGS_BUDGET=50x30``), stopped at the first failure, each sequence's number
+#: on stderr, a sequence that does not end within ``LM629_CROSSINGS_STALL`` seconds a hang
+PROVE = os.environ.get("LM629_CROSSINGS", "") == "prove"
 #: the longest a legal move of the machine takes is 30000 counts at 2 counts/sample, 3.9 s:
 #: a wait bounded by this ends (a MotionError: a finding) where a move went the long way
 WAIT_S = 20.0
@@ -125,6 +129,9 @@ LINKS = (
     ("sim+emu://?baud=1000000", Budget(12, 25)),
     ("sim+avr://?baud=1000000", Budget(12, 20)),
 )
+if PROVE and os.environ.get("LM629_CROSSINGS_BUDGET"):
+    _examples, _steps = (int(n) for n in os.environ["LM629_CROSSINGS_BUDGET"].split("x"))
+    LINKS = tuple((url, Budget(_examples, _steps)) for url, _ in LINKS)
 
 VELOCITIES = st.sampled_from([2 * 65536, 4 * 65536, 12 * 65536])
 ACCELERATIONS = st.sampled_from([3277, 6553, 13107])
@@ -211,6 +218,8 @@ class ApiMachine(RuleBasedStateMachine):
     def __init__(self) -> None:
         super().__init__()
         type(self).examples += 1
+        if PROVE:
+            _sequence_starts(type(self).examples)
         self.board: lm629_host.Board | None = None
 
     # ------------------------------------------------------------------ set-up
@@ -1184,7 +1193,25 @@ def sequences_from_the_seed_alone():
         cache.clear()
 
 
+def _sequence_starts(n: int) -> None:
+    """tools/crossings_budget.py reads which sequence failed or hung from these lines."""
+    import faulthandler
+    import sys
+
+    print(f"[crossings] sequence {n}", file=sys.stderr, flush=True)
+    # a C-level timer: it fires while a hang holds the GIL, dumps the stacks and exits
+    faulthandler.dump_traceback_later(float(os.environ.get("LM629_CROSSINGS_STALL", "25")),
+                                      exit=True)
+
+
 def _settings(budget: Budget) -> settings:
+    if PROVE:  # CI's sequences, up to the first failure: no shrinking, no second bug
+        return settings(_settings_ci(budget), phases=[Phase.explicit, Phase.generate],
+                        report_multiple_bugs=False)
+    return _settings_ci(budget)
+
+
+def _settings_ci(budget: Budget) -> settings:
     scale = 20 if LONG else 1
     return settings(max_examples=budget.examples * scale,
                     stateful_step_count=budget.steps * (3 if LONG else 1),
@@ -1193,9 +1220,8 @@ def _settings(budget: Budget) -> settings:
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 
 
-# over 10 s on an idle machine (sim:// and sim+emu://): the CI budget of LINKS, a few thousand
-# API calls in derandomized sequences; each link is its own test, so they run on separate
-# workers
+# 4-7 s each on an idle machine: the CI budget of LINKS, a few thousand API calls in
+# derandomized sequences; each link is its own test, so they run on separate workers
 @pytest.mark.parametrize("url,budget", LINKS, ids=[u.split("?")[0] for u, _ in LINKS])
 def test_the_api_agrees_with_the_simulator(url: str, budget: Budget, record_property) -> None:
     if not available(url):
@@ -1211,6 +1237,10 @@ def test_the_api_agrees_with_the_simulator(url: str, budget: Budget, record_prop
             with sequences_from_the_seed_alone():
                 run_state_machine_as_test(machine, settings=_settings(budget))
     finally:
+        if PROVE:
+            import faulthandler
+            faulthandler.cancel_dump_traceback_later()
         record_property(FIGURES_PROPERTY, (url.split("?")[0], machine.examples, machine.steps,
-                                           time.monotonic() - t0, "long" if LONG else "ci"))
+                                           time.monotonic() - t0,
+                                           "long" if LONG else "prove" if PROVE else "ci"))
 
