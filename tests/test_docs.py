@@ -93,9 +93,14 @@ class DocState:
         return text.replace("/etc/udev/rules.d/", str(self.tmp / "rules.d") + "/")
 
     def close(self) -> None:
-        for p in [*self.jobs, *([self.bench] if self.bench else [])]:
+        """Every process told first, then each waited for: a labgrid exporter takes seconds
+        to stop its ser2net ("about a second to react", labgrid's own comment), and the
+        page's other servers stop meanwhile instead of after it."""
+        procs = [*self.jobs, *([self.bench] if self.bench else [])]
+        for p in procs:
             if p.poll() is None:
                 p.send_signal(signal.SIGTERM)
+        for p in procs:
             try:
                 p.communicate(timeout=20)
             except subprocess.TimeoutExpired:
