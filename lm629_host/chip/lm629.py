@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING
 
+from lm629_host.bus.bits import SIGNALS_MOTOR_OFF, SIGNALS_ON_TARGET
 from lm629_host.bus.opcodes import (
     ACCELERATION_MAX,
     COEFFICIENT_MAX,
@@ -62,7 +63,7 @@ BUSY_TIMEOUT_MAX_S = 65.535e-3
 
 #: signals bits 10 and 7: the shaft is meant to rest where the desired position is (a snapshot
 #: then tells a later move where it starts), as a plain int (every snapshot tests it)
-_RESTING = int(Signals.ON_TARGET | Signals.MOTOR_OFF)
+_RESTING = SIGNALS_ON_TARGET | SIGNALS_MOTOR_OFF
 
 _STOPS = {
     None: TrajectoryFlags(0),

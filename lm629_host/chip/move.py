@@ -47,7 +47,15 @@ from typing import NoReturn, Protocol
 
 from lm629_host.clock import ROUNDING_S, Clock
 from lm629_host.errors import ArgumentError, MotionError, MotionFault
-from lm629_host.bus.opcodes import Signals, Status
+# the bits MoveWatch.check tests on every snapshot of a wait, as plain ints (an IntFlag's
+# ``&`` is a Python call)
+from lm629_host.bus.bits import (
+    SIGNALS_MOTOR_OFF as _SIGNALS_MOTOR_OFF,
+    STATUS_MOTOR_OFF as _STATUS_MOTOR_OFF,
+    STATUS_POSITION_ERROR as _POSITION_ERROR,
+    STATUS_TRAJECTORY_COMPLETE as _TRAJECTORY_COMPLETE,
+)
+from lm629_host.bus.opcodes import Status
 from lm629_host.physics.plan import plan
 from lm629_host.chip.safety import STOP_NOTE, Stoppable, emergency_stop, motion_fault
 from lm629_host.bus.snapshot import Snapshot
@@ -73,12 +81,6 @@ class MovingChip(Stoppable, Protocol):
 
 #: the flags a move reports, cleared in the program that starts it
 MOVE_FLAGS = Status.TRAJECTORY_COMPLETE | Status.BREAKPOINT | Status.POSITION_ERROR
-# the bits :meth:`MoveWatch.check` tests on every snapshot of a wait, as plain ints (an
-# IntFlag's ``&`` is a Python call)
-_POSITION_ERROR = int(Status.POSITION_ERROR)
-_STATUS_MOTOR_OFF = int(Status.MOTOR_OFF)
-_SIGNALS_MOTOR_OFF = int(Signals.MOTOR_OFF)
-_TRAJECTORY_COMPLETE = int(Status.TRAJECTORY_COMPLETE)
 
 
 @dataclass(frozen=True)

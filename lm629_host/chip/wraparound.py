@@ -28,12 +28,11 @@ from collections.abc import Iterator
 from dataclasses import replace
 
 from lm629_host.errors import ArgumentError
-from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, Status, wrap_counts
+# the status byte's wraparound bit as a plain int: every position read tests it, and an
+# IntFlag operation costs a Python-level call each time
+from lm629_host.bus.bits import STATUS_WRAPAROUND as _WRAP_BIT
+from lm629_host.bus.opcodes import POSITION_MAX, POSITION_MIN, wrap_counts
 from lm629_host.bus.snapshot import Snapshot
-
-#: the status byte's wraparound bit as a plain int: every position read tests it, and an
-#: IntFlag operation costs a Python-level call each time
-_WRAP_BIT = int(Status.WRAPAROUND)
 
 #: counts round the register's circle (C0000000..3FFFFFFF)
 REGISTER_SPAN = POSITION_MAX - POSITION_MIN + 1

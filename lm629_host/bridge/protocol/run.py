@@ -10,11 +10,9 @@ from dataclasses import dataclass
 
 from lm629_host.bridge.protocol.constants import NONE_BYTE, RUN_REPLY_OVERHEAD, Result
 from lm629_host.bridge.protocol.framing import FrameError
-from lm629_host.bus.opcodes import Status
 from lm629_host.bus.program import OP_ARG_BYTES, STATUS_OPS, BusOp, Op, Program
-
-#: the status byte's busy bit: RUN_SHORT_REPLY carries HI in it (see short_reply_payload)
-_STATUS_BUSY = int(Status.BUSY)
+# the status byte's busy bit: RUN_SHORT_REPLY carries HI in it (see short_reply_payload)
+from lm629_host.bus.bits import STATUS_BUSY as _STATUS_BUSY
 
 
 def encode_program(ops: Sequence[BusOp]) -> bytes:

@@ -42,11 +42,22 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from lm629_host.errors import ProtocolViolation
+from lm629_host.bus.bits import (
+    STATUS_BUSY as _BUSY,
+    STATUS_COMMAND_ERROR as _CMD_ERROR,
+    STATUS_INTERRUPTS as _INTERRUPTS,
+    STATUS_MOTOR_OFF as _MOTOR_OFF,
+    STATUS_TRAJECTORY_COMPLETE as _TRAJ_DONE,
+    SIGNALS_FILTER_UPDATED as _FILTER_UPDATED,
+    SIGNALS_FORWARD as _FORWARD,
+    SIGNALS_HOST_INTERRUPT as _HOST_INTERRUPT,
+    SIGNALS_ON_TARGET as _ON_TARGET,
+    SIGNALS_STOP_ON_ERROR as _STOP_ON_ERROR,
+    SIGNALS_VELOCITY_MODE as _VELOCITY_MODE,
+)
 from lm629_host.bus.opcodes import (
     wrap_counts,
-    BUSY_BIT,
     COEFFICIENT_MAX,
-    INTERRUPTS,
     SAMPLE_CLOCKS,
     Cmd,
     Direction,
@@ -59,21 +70,10 @@ from lm629_host.sim.model.motion import Motion
 from lm629_host.sim.model.params import ChipParams, MotorParams
 from lm629_host.sim.model.registers import FilterRegisters, TrajectoryBuffer
 
-# Plain ints of the status bits: IntFlag arithmetic costs microseconds per operation and the
-# status byte is computed for every busy poll, so ``flags`` is always kept as a plain int.
-_BUSY = BUSY_BIT
-_MOTOR_OFF = int(Status.MOTOR_OFF)
-_CMD_ERROR = int(Status.COMMAND_ERROR)
-_TRAJ_DONE = int(Status.TRAJECTORY_COMPLETE)
-_INTERRUPTS = int(INTERRUPTS)
+# The status bits are plain ints here (lm629_host.bus.bits): the status byte is computed for
+# every busy poll, so ``flags`` is always kept as a plain int.
 #: signals bits 7..1 repeat the status byte (the rest of the signals word is kept apart)
-_STATUS_IN_SIGNALS = int(INTERRUPTS | Status.MOTOR_OFF)
-_HOST_INTERRUPT = int(Signals.HOST_INTERRUPT)
-_ON_TARGET = int(Signals.ON_TARGET)
-_VELOCITY_MODE = int(Signals.VELOCITY_MODE)
-_FORWARD = int(Signals.FORWARD)
-_FILTER_UPDATED = int(Signals.FILTER_UPDATED)
-_STOP_ON_ERROR = int(Signals.STOP_ON_ERROR)
+_STATUS_IN_SIGNALS = _INTERRUPTS | _MOTOR_OFF
 # the transfer directions and RESET as module names: an enum member looked up on its class
 # (``Direction.READ``) is a descriptor call, and the strobe handlers run for every bus cycle
 _NONE, _READ, _WRITE = Direction.NONE, Direction.READ, Direction.WRITE
@@ -328,7 +328,7 @@ class ChipModel(CommandDecoder):
         """What any reset sets (spec: "What reset sets")."""
         self.flags = 0  # latched interrupt bits 1..6
         self.motor_off = True
-        self.mask = int(INTERRUPTS & ~Status.BREAKPOINT)  # 003E-equivalent
+        self.mask = _INTERRUPTS & ~int(Status.BREAKPOINT)  # 003E-equivalent
         self.signals_extra = int(Signals.EIGHT_BIT_OUTPUT)  # bits 8..15 and 0 not derived elsewhere
         self.breakpoint = 0
         self.filter = FilterRegisters()

@@ -13,18 +13,27 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from lm629_host.bus.bits import (
+    STATUS_BREAKPOINT as _BREAKPOINT,
+    STATUS_COMMAND_ERROR as _CMD_ERROR,
+    STATUS_INTERRUPTS as _INTERRUPTS,
+    SIGNALS_ACCELERATION_LOADED as _ACCELERATION_LOADED,
+    SIGNALS_ACQUIRE_INDEX as _ACQUIRE_INDEX,
+    SIGNALS_EIGHT_BIT_OUTPUT as _EIGHT_BIT_OUTPUT,
+    SIGNALS_STOP_ON_ERROR as _STOP_ON_ERROR,
+    TRAJ_ACCELERATION as _ACCELERATION_BIT,
+    TRAJ_FORWARD,
+    TRAJ_STOP_FLAGS as _STOP_BITS,
+    TRAJ_VELOCITY_MODE,
+)
 from lm629_host.bus.opcodes import (
     lfil_interval,
     COMMANDS,
     FILTER_ORDER,
-    INTERRUPTS,
-    STOP_FLAGS,
     VELOCITY_MAX,
     Cmd,
     CommandInfo,
     Direction,
-    Signals,
-    Status,
     TrajectoryFlags,
     lfil_word_count,
     ltrj_word_count,
@@ -37,22 +46,12 @@ if TYPE_CHECKING:
     from lm629_host.sim.model.params import ChipParams
     from lm629_host.sim.model.registers import FilterRegisters, TrajectoryBuffer
 
-# Plain ints of the status bits (IntFlag arithmetic costs microseconds per operation)
-_CMD_ERROR = int(Status.COMMAND_ERROR)
-_INTERRUPTS = int(INTERRUPTS)
-_BREAKPOINT = int(Status.BREAKPOINT)
-_MODE_BITS = int(TrajectoryFlags.VELOCITY_MODE | TrajectoryFlags.FORWARD)
-#: LTRJ's stop bits, and its words in the order they follow the control word: (bit, the
-#: bit of its relative flag, the buffer's field), as plain ints (an IntFlag's operators are
-#: Python calls: a quarter of an LTRJ's host cost on sim://)
-_STOP_BITS = int(STOP_FLAGS)
-_ACCELERATION_BIT = int(TrajectoryFlags.ACCELERATION)
-# the signals bits the commands set and clear (``signals_extra`` stays a plain int: an
-# IntFlag in it would make every test of it in the sample loop an enum call)
-_ACQUIRE_INDEX = int(Signals.ACQUIRE_INDEX)
-_EIGHT_BIT_OUTPUT = int(Signals.EIGHT_BIT_OUTPUT)
-_STOP_ON_ERROR = int(Signals.STOP_ON_ERROR)
-_ACCELERATION_LOADED = int(Signals.ACCELERATION_LOADED)
+# The bits are plain ints here (lm629_host.bus.bits: an IntFlag's operators are Python calls,
+# a quarter of an LTRJ's host cost on sim://); ``signals_extra`` stays a plain int (an IntFlag
+# in it would make every test of it in the sample loop an enum call).
+_MODE_BITS = TRAJ_VELOCITY_MODE | TRAJ_FORWARD
+#: LTRJ's words in the order they follow the control word: (bit, the bit of its relative
+#: flag, the buffer's field)
 _TRAJECTORY_WORDS = tuple((int(f), int(f) >> 1, name) for f, name in (
     (TrajectoryFlags.ACCELERATION, "acceleration"), (TrajectoryFlags.VELOCITY, "velocity"),
     (TrajectoryFlags.POSITION, "position")))

@@ -17,21 +17,22 @@ from __future__ import annotations
 from collections.abc import Callable
 from math import floor, log
 
-from lm629_host.bus.opcodes import Signals, Status
+# plain ints of the opcodes.py bits (IntFlag arithmetic is slow); _fastloop.c reads the same
+# Status bits from lm629_host.bus.opcodes when it is imported
+from lm629_host.bus.bits import (
+    STATUS_TRAJECTORY_COMPLETE as _COMPLETE,
+    STATUS_INDEX_PULSE as _INDEX,
+    STATUS_WRAPAROUND as _WRAP,
+    STATUS_POSITION_ERROR as _PERR,
+    STATUS_BREAKPOINT as _BP,
+    SIGNALS_ACQUIRE_INDEX as _ACQUIRE_INDEX,
+    SIGNALS_EIGHT_BIT_OUTPUT as _EIGHT_BIT,
+    SIGNALS_STOP_ON_ERROR as _STOP_ON_ERROR,
+)
 from lm629_host.physics.pid import SUM_MAX, SUM_MIN, full_scale, output_shift
 from lm629_host.sim.model.registers import ChipState
 from lm629_host.sim.model.trajectory import HALF, SPAN, landing_velocity, stop_distance
 
-# plain ints of the opcodes.py bits (IntFlag arithmetic is slow); _fastloop.c reads the same
-# Status bits from lm629_host.bus.opcodes when it is imported
-_COMPLETE = int(Status.TRAJECTORY_COMPLETE)
-_INDEX = int(Status.INDEX_PULSE)
-_WRAP = int(Status.WRAPAROUND)
-_PERR = int(Status.POSITION_ERROR)
-_BP = int(Status.BREAKPOINT)
-_ACQUIRE_INDEX = int(Signals.ACQUIRE_INDEX)
-_EIGHT_BIT = int(Signals.EIGHT_BIT_OUTPUT)
-_STOP_ON_ERROR = int(Signals.STOP_ON_ERROR)
 #: the output stage's shift and full-scale code, by 12-bit mode (pid's, looked up once: a call
 #: each per sample was a tenth of this wrapper's cost)
 _SHIFT = {twelve: output_shift(twelve) for twelve in (False, True)}

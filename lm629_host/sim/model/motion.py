@@ -35,7 +35,24 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from lm629_host.bus.opcodes import ACCELERATION_MAX, VELOCITY_MAX, Signals, Status, TrajectoryFlags, wrap_counts
+# plain ints of the opcodes.py bits (an IntFlag's operators are Python calls, and STT, the
+# quiescence test and the index watch run per command or per sample)
+from lm629_host.bus.bits import (
+    TRAJ_ACCELERATION as _ACC,
+    TRAJ_ACCELERATION_RELATIVE as _ACC_REL,
+    TRAJ_VELOCITY as _VEL,
+    TRAJ_VELOCITY_RELATIVE as _VEL_REL,
+    TRAJ_POSITION as _POS,
+    TRAJ_POSITION_RELATIVE as _POS_REL,
+    TRAJ_MOTOR_OFF as _MOTOR_OFF,
+    TRAJ_STOP_ABRUPT as _STOP_ABRUPT,
+    TRAJ_STOP_SMOOTH as _STOP_SMOOTH,
+    TRAJ_VELOCITY_MODE as _VELOCITY_MODE,
+    TRAJ_FORWARD as _FORWARD,
+    SIGNALS_EIGHT_BIT_OUTPUT as _EIGHT_BIT_OUTPUT,
+    SIGNALS_ACQUIRE_INDEX as _ACQUIRE_INDEX,
+)
+from lm629_host.bus.opcodes import ACCELERATION_MAX, VELOCITY_MAX, Status, wrap_counts
 from lm629_host.sim.model.motor import Motor
 from lm629_host.physics.pid import (
     PIDState,
@@ -53,22 +70,6 @@ from lm629_host.sim.model.trajectory import Trajectory
 
 if TYPE_CHECKING:
     from lm629_host.sim.model.params import MotorParams
-
-# plain ints of the opcodes.py bits (an IntFlag's operators are Python calls, and STT, the
-# quiescence test and the index watch run per command or per sample)
-_ACC = int(TrajectoryFlags.ACCELERATION)
-_ACC_REL = int(TrajectoryFlags.ACCELERATION_RELATIVE)
-_VEL = int(TrajectoryFlags.VELOCITY)
-_VEL_REL = int(TrajectoryFlags.VELOCITY_RELATIVE)
-_POS = int(TrajectoryFlags.POSITION)
-_POS_REL = int(TrajectoryFlags.POSITION_RELATIVE)
-_MOTOR_OFF = int(TrajectoryFlags.MOTOR_OFF)
-_STOP_ABRUPT = int(TrajectoryFlags.STOP_ABRUPT)
-_STOP_SMOOTH = int(TrajectoryFlags.STOP_SMOOTH)
-_VELOCITY_MODE = int(TrajectoryFlags.VELOCITY_MODE)
-_FORWARD = int(TrajectoryFlags.FORWARD)
-_EIGHT_BIT_OUTPUT = int(Signals.EIGHT_BIT_OUTPUT)
-_ACQUIRE_INDEX = int(Signals.ACQUIRE_INDEX)
 
 
 class Motion:
