@@ -122,9 +122,8 @@ class SimTransport(ModelChips, CycleTransport):
         the same ticks and the same counters as the full poll loop, which runs instead with
         a trace (every poll shown), through miswired lines, or when a poll still finds the
         chip busy (tests/chip/test_waits_and_busy_checks.py compares the two)."""
-        if tracing or self.bent is not None or not self.skip_known_busy:
-            return super()._wait_not_busy(program, index, words, tracing)
-        until = self._target.busy_deadline()
+        skip = not tracing and self.bent is None and self.skip_known_busy
+        until = self._target.busy_deadline() if skip else None
         if until is None:
             return super()._wait_not_busy(program, index, words, tracing)
         c = self._cycle_clocks

@@ -30,10 +30,12 @@ to become a plain regression test (tests/chip/test_crossings.py holds those foun
 
 from __future__ import annotations
 
+import faulthandler
 import os
+import sys
 import threading
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, replace
 
 import pytest
@@ -1175,9 +1177,9 @@ def sequences_from_the_seed_alone():
     rules alone: the pool of local constants is empty while the machine runs.  The long
     profile keeps the pool (random runs, where the literals are one more source of edges).
 
-    Hypothesis has no setting for this; the names patched are checked here, so that a
-    hypothesis that renames them fails this test instead of silently drawing otherwise
-    (pyproject pins hypothesis for the same reason)."""
+    Hypothesis has no setting for this, so its function is patched: a hypothesis that renames
+    it fails here (AttributeError), and one that stops using it fails
+    tests/crossings/test_seed_alone.py (pyproject pins hypothesis besides)."""
     from hypothesis.internal import constants_ast
     from hypothesis.internal.conjecture import providers
 
@@ -1195,9 +1197,6 @@ def sequences_from_the_seed_alone():
 
 def _sequence_starts(n: int) -> None:
     """tools/crossings_budget.py reads which sequence failed or hung from these lines."""
-    import faulthandler
-    import sys
-
     print(f"[crossings] sequence {n}", file=sys.stderr, flush=True)
     # a C-level timer: it fires while a hang holds the GIL, dumps the stacks and exits
     faulthandler.dump_traceback_later(float(os.environ.get("LM629_CROSSINGS_STALL", "25")),
@@ -1231,14 +1230,10 @@ def test_the_api_agrees_with_the_simulator(url: str, budget: Budget, record_prop
                                                                        "steps": 0})
     t0 = time.monotonic()
     try:
-        if LONG:
+        with nullcontext() if LONG else sequences_from_the_seed_alone():
             run_state_machine_as_test(machine, settings=_settings(budget))
-        else:
-            with sequences_from_the_seed_alone():
-                run_state_machine_as_test(machine, settings=_settings(budget))
     finally:
         if PROVE:
-            import faulthandler
             faulthandler.cancel_dump_traceback_later()
         record_property(FIGURES_PROPERTY, (url.split("?")[0], machine.examples, machine.steps,
                                            time.monotonic() - t0,
