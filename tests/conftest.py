@@ -27,7 +27,7 @@ from lm629_host.sim import harness
 from lm629_host.bus.program import BusCycle
 
 import hogs
-from selection import is_slow, what_runs
+from selection import auto_workers, is_slow, what_runs
 from served import CPU_HOGS_ENV, cpu_hogs, is_served, served_docs
 from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
 
@@ -126,11 +126,9 @@ def _under_load_beside_the_hogs(request: pytest.FixtureRequest) -> Iterator[None
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
-    """``-n auto``: two workers per core.  Half of a worker's time in this suite is spent
-    waiting in real time (a served bench's moves, a failsafe's timeout, a browser, ser2net),
-    so two workers on two cores left a third of the CPU idle (measured: 355 CPU-s in 258 s),
-    four kept it 93 % busy (tools/suite_plan.py; docs/testing.md)."""
-    return 2 * len(os.sched_getaffinity(0))
+    """``-n auto``: three workers a core, two for the quick loop (tests/selection.py's
+    ``auto_workers``: half of a whole run's time is spent waiting in real time)."""
+    return auto_workers(config.getoption("markexpr"), len(os.sched_getaffinity(0)))
 
 
 @pytest.fixture

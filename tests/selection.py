@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import re
 
 import pytest
 
@@ -64,10 +65,28 @@ def _source_has(func, words: tuple[str, ...]) -> bool:
     return any(w in source for w in words)
 
 
+#: ``-n auto``'s workers a core: a worker of the whole suite waits in real time about half of
+#: its time (a served bench's moves, a failsafe's timeout, a browser, ser2net, the
+#: ``under_load`` tests beside the hogs), so three a core keep two cores busy to the end
+#: (measured on a 2-core machine, CI's pytest: 4 workers 142 s, 5 139 s, 6 130-132 s, 8 131 s,
+#: in one clone, one after the other; docs/testing.md).  The six overlap the ``under_load``
+#: tests six at a time, so the hogs burn for a shorter window
+WORKERS_PER_CORE = 3
+#: ... and the quick loop's (``-m "not slow"``): it neither serves a bench nor waits, so a
+#: third worker a core only adds its start (measured: 24 s on 4 workers, 26 s on 6)
+QUICK_WORKERS_PER_CORE = 2
+
+
+def auto_workers(markexpr: str, cores: int) -> int:
+    """How many xdist workers ``-n auto`` starts for a run selected by ``markexpr``."""
+    quick = re.search(r"\bnot\s+slow\b", markexpr or "") is not None
+    return (QUICK_WORKERS_PER_CORE if quick else WORKERS_PER_CORE) * cores
+
+
 def what_runs(markexpr: str, long: bool, hogs: int, workers: object = None) -> str:
     """One line for pytest's header: the tests selected, what is left out, how to run it."""
     out = [f"lm629-host: {f'-m {markexpr!r}' if markexpr else 'every test'}"
-           + (f" on {workers} workers" if workers else " in one process (-n auto: two workers a core)")]
+           + (f" on {workers} workers" if workers else f" in one process (-n auto: {WORKERS_PER_CORE} workers a core)")]
     if long:
         out.append("with the long mode's tests and budgets (--long: the release run)")
     else:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from selection import what_runs
+from selection import auto_workers, what_runs
 from xdist_groups import shared_fixture_group
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -162,6 +162,16 @@ def test_a_plain_pytest_says_what_it_runs():
     assert "on 2 workers" in what_runs("", False, 0, 2)
     assert "beside 2 CPU hogs" in what_runs("under_load", False, 2)
     assert "-m 'under_load'" in what_runs("under_load", False, 2)
+
+
+def test_n_auto_starts_three_workers_a_core_and_two_for_the_quick_loop():
+    """-n auto: the whole suite waits in real time half of its time, the quick loop never."""
+    assert auto_workers("", 2) == 6 and auto_workers("", 1) == 3
+    assert auto_workers("served", 2) == 6 and auto_workers("under_load", 2) == 6
+    assert auto_workers("not slow", 2) == 4
+    assert auto_workers("not  slow and not avr", 2) == 4
+    assert auto_workers("slow", 2) == 6 and auto_workers("not slowest", 2) == 6
+    assert "3 workers a core" in what_runs("", False, 0)
 
 
 def test_a_shared_fixture_s_tests_run_on_one_worker(pytester, monkeypatch):

@@ -26,6 +26,8 @@ from pathlib import Path
 from xml.etree import ElementTree
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from selection import auto_workers  # noqa: E402  (-n auto's rule, in one home)
 
 _DUMP = """
 import json, sys, pytest
@@ -97,9 +99,11 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("measured", type=Path, help="junit XML, or pytest output with --durations=0")
     ap.add_argument("-m", dest="markexpr", default="", help="the run's marker expression")
-    ap.add_argument("--workers", type=int, default=2 * len(os.sched_getaffinity(0)),
-                    help="as -n auto: two workers a core (tests/conftest.py)")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="default: as -n auto for the run's -m (tests/selection.py)")
     a = ap.parse_args(argv)
+    if a.workers is None:
+        a.workers = auto_workers(a.markexpr, len(os.sched_getaffinity(0)))
     seconds = durations(a.measured)
     items = collect(["-m", a.markexpr] if a.markexpr else [])
     known = [it for it in items if it["id"].split("@")[0] in seconds]
