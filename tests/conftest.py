@@ -11,7 +11,6 @@ skip, and the run says so in a red line at its end (and at its start); with
 
 from __future__ import annotations
 
-import compileall
 import os
 import subprocess
 import sys
@@ -27,6 +26,7 @@ from lm629_host.sim import harness
 from lm629_host.bus.program import BusCycle
 
 import hogs
+import warm
 from selection import auto_workers, is_slow, what_runs
 from served import CPU_HOGS_ENV, cpu_hogs, is_served, served_docs
 from sim_urls import BEHIND_USB_URLS, FAST_LINK_URLS, SIM_URLS, available
@@ -75,15 +75,18 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    if not sys.dont_write_bytecode and session.config.getoption("numprocesses", None) \
-            and not hasattr(session.config, "workerinput"):
-        # the package compiled once, on every core, before the workers start: in a fresh
-        # clone each worker would compile all of it at once (a few CPU-seconds each); a
-        # current cache costs a look at the files' times
-        compileall.compile_dir(str(Path(lm629_host.__file__).parent), quiet=1,
-                               workers=len(os.sched_getaffinity(0)))
+    if warm.warming():  # the warm-up's own collection (tests/warm.py): it builds nothing
+        return
+    controller = not hasattr(session.config, "workerinput")
+    collection = None
+    if controller and session.config.getoption("numprocesses", None):
+        # before the workers start: the package compiled, then the test files rewritten by one
+        # collection beside the firmware's build (tests/warm.py; a current cache costs a look
+        # at the files' times)
+        warm.compile_package(Path(lm629_host.__file__).parent)
+        collection = warm.start_collection(session.config.rootpath, Path(__file__).parent)
     n_hogs = session.config.getoption("--cpu-hogs")
-    if n_hogs and not hasattr(session.config, "workerinput"):  # once, before any xdist worker
+    if n_hogs and controller:  # once, before any xdist worker
         _HOGS.append(hogs.Hogs(n_hogs))
     missing = _avr_missing()
     if missing and os.environ.get(_REQUIRE_AVR) == "1":
@@ -92,7 +95,7 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     # the firmware and the simavr harness are built once, by the process that starts the run,
     # before any xdist worker exists: two workers running make in one build directory could
     # load a half-written image (a failed build is reported by the tests that need it)
-    if not missing and not hasattr(session.config, "workerinput"):
+    if not missing and controller:
         # the firmware's host-side C tests too (`make test`'s two programs, ASan): run by
         # tests/firmware/test_firmware_build.py and by docs/bridge.md's `make -C firmware_bridge
         # test` on two workers, which would otherwise both compile them into one build/ at once
@@ -106,6 +109,8 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         except harness.HarnessError:
             pass
         tests_built.wait()  # a failure: the tests say it
+    if collection is not None:
+        collection.wait()  # a failure: each worker's own collection says it
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

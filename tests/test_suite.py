@@ -5,6 +5,7 @@ the CPU hogs, which stay on one worker, what the quick loop leaves out, what a p
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from selection import auto_workers, what_runs
+from warm import rewritten_copy, rewritten_current, start_collection
 from xdist_groups import shared_fixture_group
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -172,6 +174,27 @@ def test_n_auto_starts_three_workers_a_core_and_two_for_the_quick_loop():
     assert auto_workers("not  slow and not avr", 2) == 4
     assert auto_workers("slow", 2) == 6 and auto_workers("not slowest", 2) == 6
     assert "3 workers a core" in what_runs("", False, 0)
+
+
+def test_the_warm_up_writes_the_rewritten_copies_a_worker_finds(pytester):
+    """tests/warm.py's collection before the workers: it writes a rewritten copy of each test
+    file and conftest where pytest looks for it (the name it expects is pytest's own: a real
+    collection made it), and a run whose copies are current starts none."""
+    pytester.makeconftest("")
+    pytester.makepyfile(test_a="def test_a():\n    assert 1\n")
+    (pytester.path / "sub").mkdir()
+    (pytester.path / "sub" / "test_b.py").write_text("def test_b():\n    assert 2\n")
+    assert not rewritten_current(pytester.path)
+    proc = start_collection(pytester.path, pytester.path)
+    assert proc is not None and proc.wait(timeout=60) == 0
+    for name in ("conftest.py", "test_a.py", "sub/test_b.py"):
+        assert rewritten_copy(pytester.path / name).is_file(), name
+    assert rewritten_current(pytester.path)
+    assert start_collection(pytester.path, pytester.path) is None  # nothing to do
+    src = pytester.path / "sub" / "test_b.py"
+    newer = rewritten_copy(src).stat().st_mtime + 5
+    os.utime(src, (newer, newer))  # edited after its copy was written
+    assert not rewritten_current(pytester.path)
 
 
 def test_a_shared_fixture_s_tests_run_on_one_worker(pytester, monkeypatch):
