@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from selection import auto_workers, what_runs
-from warm import rewritten_copy, rewritten_current, start_collection
+from warm import rewritten_copy, stale, start_collection
 from xdist_groups import shared_fixture_group
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -184,17 +184,19 @@ def test_the_warm_up_writes_the_rewritten_copies_a_worker_finds(pytester):
     pytester.makepyfile(test_a="def test_a():\n    assert 1\n")
     (pytester.path / "sub").mkdir()
     (pytester.path / "sub" / "test_b.py").write_text("def test_b():\n    assert 2\n")
-    assert not rewritten_current(pytester.path)
+    assert len(stale(pytester.path)) == 3
     proc = start_collection(pytester.path, pytester.path)
     assert proc is not None and proc.wait(timeout=60) == 0
     for name in ("conftest.py", "test_a.py", "sub/test_b.py"):
         assert rewritten_copy(pytester.path / name).is_file(), name
-    assert rewritten_current(pytester.path)
+    assert stale(pytester.path) == []
     assert start_collection(pytester.path, pytester.path) is None  # nothing to do
     src = pytester.path / "sub" / "test_b.py"
     newer = rewritten_copy(src).stat().st_mtime + 5
     os.utime(src, (newer, newer))  # edited after its copy was written
-    assert not rewritten_current(pytester.path)
+    assert stale(pytester.path) == [src]
+    assert start_collection(pytester.path, pytester.path).wait(timeout=60) == 0
+    assert stale(pytester.path) == []
 
 
 def test_a_shared_fixture_s_tests_run_on_one_worker(pytester, monkeypatch):

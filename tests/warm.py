@@ -41,30 +41,33 @@ def rewritten_copy(test_file: Path) -> Path:
     return test_file.parent / "__pycache__" / f"{test_file.stem}.{tag}.pyc"
 
 
-def rewritten_current(tests_dir: Path) -> bool:
-    """Whether every test module and conftest under ``tests_dir`` has a rewritten copy newer
-    than its source.  Should pytest name its copies otherwise, this says no and the run pays
-    one collection more (tests/test_suite.py checks the name against a real collection)."""
-    for src in tests_dir.rglob("*.py"):
+def stale(tests_dir: Path) -> list[Path]:
+    """The test modules and conftests under ``tests_dir`` without a rewritten copy newer than
+    their source.  Should pytest name its copies otherwise, every file is stale and the run
+    pays one collection more (tests/test_suite.py checks the name against a real collection)."""
+    out = []
+    for src in sorted(tests_dir.rglob("*.py")):
         if not (src.name.startswith("test_") or src.name == "conftest.py"):
             continue
-        copy = rewritten_copy(src)
         try:
-            if copy.stat().st_mtime < src.stat().st_mtime:
-                return False
+            if rewritten_copy(src).stat().st_mtime >= src.stat().st_mtime:
+                continue
         except FileNotFoundError:
-            return False
-    return True
+            pass
+        out.append(src)
+    return out
 
 
 def start_collection(root: Path, tests_dir: Path) -> subprocess.Popen | None:
-    """One ``pytest --collect-only`` of ``tests_dir`` in a child process, which writes every
-    rewritten copy; None when they are current.  The caller waits for it before the workers
-    start (a worker that found half-written copies would only rewrite them again)."""
-    if rewritten_current(tests_dir):
+    """One ``pytest --collect-only`` in a child process of what is stale (:func:`stale`: every
+    file in a fresh clone, the one a developer edited otherwise; a conftest by its directory),
+    which writes their rewritten copies; None when nothing is.  The caller waits for it before
+    the workers start (a worker that found half-written copies would only rewrite them)."""
+    todo = sorted({str(f.parent if f.name == "conftest.py" else f) for f in stale(tests_dir)})
+    if not todo:
         return None
     return subprocess.Popen(
         [sys.executable, "-m", "pytest", "--collect-only", "-q", "-n", "0",
-         "-p", "no:cacheprovider", "--rootdir", str(root), str(tests_dir)],
+         "-p", "no:cacheprovider", "--rootdir", str(root), *todo],
         cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         env={**os.environ, ENV: "1"})
