@@ -192,8 +192,9 @@ def test_the_warm_up_writes_the_rewritten_copies_a_worker_finds(pytester):
     assert stale(pytester.path) == []
     assert start_collection(pytester.path, pytester.path) is None  # nothing to do
     src = pytester.path / "sub" / "test_b.py"
-    newer = rewritten_copy(src).stat().st_mtime + 5
-    os.utime(src, (newer, newer))  # edited after its copy was written
+    then = rewritten_copy(src).stat().st_mtime - 10
+    os.utime(rewritten_copy(src), (then, then))
+    os.utime(src, (then + 5, then + 5))  # edited after its copy was written
     assert stale(pytester.path) == [src]
     assert start_collection(pytester.path, pytester.path).wait(timeout=60) == 0
     assert stale(pytester.path) == []
