@@ -1220,7 +1220,9 @@ def _settings_ci(budget: Budget) -> settings:
 
 
 # 4-7 s each on an idle machine: the CI budget of LINKS, a few thousand API calls in
-# derandomized sequences; each link is its own test, so they run on separate workers
+# derandomized sequences; each link is its own test, so they run on separate workers.  In
+# CI's run 10-21 s: all CPU in the worker's own process (sim+avr:// runs the firmware in
+# simavr there), sharing two cores with five other workers
 @pytest.mark.parametrize("url,budget", LINKS, ids=[u.split("?")[0] for u, _ in LINKS])
 def test_the_api_agrees_with_the_simulator(url: str, budget: Budget, record_property) -> None:
     if not available(url):
