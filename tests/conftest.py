@@ -81,8 +81,8 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     collection = None
     if controller and session.config.getoption("numprocesses", None):
         # before the workers start: the package compiled, then the test files rewritten by one
-        # collection beside the firmware's build (tests/warm.py; a current cache costs a look
-        # at the files' times)
+        # collection beside the firmware's build (tests/warm.py; current caches cost a look at
+        # the files' times and the copies' headers)
         warm.compile_package(Path(lm629_host.__file__).parent)
         collection = warm.start_collection(session.config.rootpath, Path(__file__).parent)
     n_hogs = session.config.getoption("--cpu-hogs")

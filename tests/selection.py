@@ -86,7 +86,8 @@ def auto_workers(markexpr: str, cores: int) -> int:
 def what_runs(markexpr: str, long: bool, hogs: int, workers: object = None) -> str:
     """One line for pytest's header: the tests selected, what is left out, how to run it."""
     out = [f"lm629-host: {f'-m {markexpr!r}' if markexpr else 'every test'}"
-           + (f" on {workers} workers" if workers else f" in one process (-n auto: {WORKERS_PER_CORE} workers a core)")]
+           + (f" on {workers} workers" if workers else f" in one process (-n auto: {WORKERS_PER_CORE} workers a core,"
+                f" {QUICK_WORKERS_PER_CORE} for -m 'not slow')")]
     if long:
         out.append("with the long mode's tests and budgets (--long: the release run)")
     else:
