@@ -109,8 +109,12 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         except harness.HarnessError:
             pass
         tests_built.wait()  # a failure: the tests say it
-    if collection is not None:
-        collection.wait()  # a failure: each worker's own collection says it
+    if collection is not None:  # a failure: each worker's own collection says it
+        try:
+            collection.wait(timeout=warm.WAIT_S)
+        except subprocess.TimeoutExpired:  # a module hangs at import: the workers will say so
+            collection.kill()
+            collection.wait()
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

@@ -20,6 +20,10 @@ from pathlib import Path
 
 import pytest
 
+#: how long the run waits for the warm-up's collection (1.5-6.5 s here) before it goes on
+#: without it: a test module that hangs at import is then reported by the workers' own collection
+WAIT_S = 120.0
+
 #: set in the collection :func:`start_collection` starts: its conftest must not build the
 #: firmware beside the run's own build, nor start the run's hogs
 ENV = "LM629_WARMING"
