@@ -84,7 +84,10 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         # collection beside the firmware's build (tests/warm.py; current caches cost a look at
         # the files' times and the copies' headers)
         warm.compile_package(Path(lm629_host.__file__).parent)
-        collection = warm.start_collection(session.config.rootpath, Path(__file__).parent)
+        config = session.config
+        collection = warm.start_collection(
+            config.rootpath, Path(__file__).parent,
+            [(config.invocation_params.dir / a.split("::")[0]).resolve() for a in config.args])
     n_hogs = session.config.getoption("--cpu-hogs")
     if n_hogs and controller:  # once, before any xdist worker
         _HOGS.append(hogs.Hogs(n_hogs))

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from selection import auto_workers, what_runs
-from warm import rewritten_copy, stale, start_collection
+from warm import MIN_STALE, rewritten_copy, stale, start_collection
 from xdist_groups import shared_fixture_group
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -178,26 +178,31 @@ def test_n_auto_starts_three_workers_a_core_and_two_for_the_quick_loop():
 
 def test_the_warm_up_writes_the_rewritten_copies_a_worker_finds(pytester):
     """tests/warm.py's collection before the workers: it writes a rewritten copy of each test
-    file and conftest where pytest looks for it (the name it expects is pytest's own: a real
-    collection made it), and a run whose copies are current starts none."""
+    file the run collects, and of the conftest above them, where pytest looks for it (the name
+    and header it expects are pytest's own: a real collection made them); a touched file is
+    current, an edited one stale; a run with fewer than MIN_STALE stale files starts none."""
+    root = pytester.path
     pytester.makeconftest("")
-    pytester.makepyfile(test_a="def test_a():\n    assert 1\n")
-    (pytester.path / "sub").mkdir()
-    (pytester.path / "sub" / "test_b.py").write_text("def test_b():\n    assert 2\n")
-    assert len(stale(pytester.path)) == 3
-    proc = start_collection(pytester.path, pytester.path)
+    for d in ("sub", "other"):
+        (root / d).mkdir()
+        for i in range(MIN_STALE):
+            (root / d / f"test_{d}{i}.py").write_text(f"def test_{i}():\n    assert {i} >= 0\n")
+    assert len(stale(root)) == 2 * MIN_STALE + 1
+    proc = start_collection(root, root, [root / "sub"])  # `pytest -n 6 sub`
     assert proc is not None and proc.wait(timeout=60) == 0
-    for name in ("conftest.py", "test_a.py", "sub/test_b.py"):
-        assert rewritten_copy(pytester.path / name).is_file(), name
-    assert stale(pytester.path) == []
-    assert start_collection(pytester.path, pytester.path) is None  # nothing to do
-    src = pytester.path / "sub" / "test_b.py"
+    assert stale(root) == sorted((root / "other").glob("test_*.py"))  # not this run's
+    for f in [root / "conftest.py", *(root / "sub").glob("test_*.py")]:
+        assert rewritten_copy(f).is_file(), f
+    proc = start_collection(root, root)  # `pytest -n 6`: the rest
+    assert proc is not None and proc.wait(timeout=60) == 0
+    assert stale(root) == []
+    assert start_collection(root, root) is None  # nothing to do
+    src = root / "sub" / "test_sub0.py"
     os.utime(src)  # touched (a checkout): the copy is still of its source
-    assert stale(pytester.path) == []
-    src.write_text("def test_b():\n    assert 3\n")  # edited
-    assert stale(pytester.path) == [src]
-    assert start_collection(pytester.path, pytester.path).wait(timeout=60) == 0
-    assert stale(pytester.path) == []
+    assert stale(root) == []
+    src.write_text("def test_0():\n    assert 3\n")  # edited
+    assert stale(root) == [src]
+    assert start_collection(root, root) is None  # one file: the workers rewrite it sooner
 
 
 def test_a_shared_fixture_s_tests_run_on_one_worker(pytester, monkeypatch):
