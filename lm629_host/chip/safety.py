@@ -26,7 +26,7 @@ from contextlib import contextmanager
 from typing import Any, Protocol
 
 from lm629_host.errors import ArgumentError, MotionError, MotionFault
-from lm629_host.bus.opcodes import Status
+from lm629_host.bus.bits import STATUS_MOTOR_OFF, STATUS_TRAJECTORY_COMPLETE
 
 
 class Stoppable(Protocol):
@@ -96,6 +96,10 @@ def motion_fault(chip: Stoppable, reason: MotionFault, detail: str, *,
     return exc
 
 
+#: status bits of which either says the chip carries out no trajectory (motor off, or the
+#: trajectory complete)
+_AT_REST = STATUS_MOTOR_OFF | STATUS_TRAJECTORY_COMPLETE
+
 def stop_if_moving(chip: Watched) -> bool:
     """Abrupt stop (the PID holds where it stopped) when the status says the chip is carrying
     out a trajectory (motor on, trajectory not complete); returns True when it stopped one.
@@ -103,9 +107,8 @@ def stop_if_moving(chip: Watched) -> bool:
     before the link closes: a clean close disarms the bridge's failsafe, so nothing else would
     stop a velocity-mode move the script's error cut short.  Never raises: the block's own
     exception is the one to see (a stop that fails is logged)."""
-    moving = int(Status.MOTOR_OFF | Status.TRAJECTORY_COMPLETE)
     try:
-        if int(chip.read_status()) & moving:
+        if int(chip.read_status()) & _AT_REST:
             return False
         chip.load_trajectory(stop="abrupt", start=True)
     except BaseException as exc:  # noqa: BLE001 - the link may be what failed
@@ -123,9 +126,8 @@ def stop_at_exit(chip: Watched) -> bool:
     disarms the bridge's failsafe) leaves nothing moving; False when that is not known (the
     link failed, the stop failed): then the link is left to the failsafe, which stops every
     chip and tells the next process.  Never raises."""
-    moving = int(Status.MOTOR_OFF | Status.TRAJECTORY_COMPLETE)
     try:
-        if int(chip.read_status()) & moving:
+        if int(chip.read_status()) & _AT_REST:
             return True
         chip.load_trajectory(stop="abrupt", start=True)
     except BaseException as exc:  # noqa: BLE001 - an exit must finish

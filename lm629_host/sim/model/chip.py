@@ -43,11 +43,14 @@ from collections.abc import Callable
 
 from lm629_host.errors import ProtocolViolation
 from lm629_host.bus.bits import (
+    STATUS_BREAKPOINT as _BREAKPOINT,
     STATUS_BUSY as _BUSY,
     STATUS_COMMAND_ERROR as _CMD_ERROR,
     STATUS_INTERRUPTS as _INTERRUPTS,
     STATUS_MOTOR_OFF as _MOTOR_OFF,
+    STATUS_POSITION_ERROR as _POSITION_ERROR,
     STATUS_TRAJECTORY_COMPLETE as _TRAJ_DONE,
+    SIGNALS_EIGHT_BIT_OUTPUT as _EIGHT_BIT_OUTPUT,
     SIGNALS_FILTER_UPDATED as _FILTER_UPDATED,
     SIGNALS_FORWARD as _FORWARD,
     SIGNALS_HOST_INTERRUPT as _HOST_INTERRUPT,
@@ -61,8 +64,6 @@ from lm629_host.bus.opcodes import (
     SAMPLE_CLOCKS,
     Cmd,
     Direction,
-    Signals,
-    Status,
 )
 from lm629_host.sim.model.commands import OPCODES, CommandDecoder
 from lm629_host.sim.model.fastloop import py_loop, run_fast
@@ -308,15 +309,15 @@ class ChipModel(CommandDecoder):
         step = wrap_counts(after - before)
         to_bp = wrap_counts(self.breakpoint - before)
         if 0 <= to_bp <= step or step <= to_bp <= 0:
-            events |= Status.BREAKPOINT
+            events |= _BREAKPOINT
         if not self.motor_off:
             error = motion.position_error()
             if abs(error) > self.position_error_threshold:
-                events |= Status.POSITION_ERROR
+                events |= _POSITION_ERROR
                 if self.signals_extra & _STOP_ON_ERROR:
                     self.turn_motor_off()
         if self.motor_off and not was_off:
-            events |= Status.TRAJECTORY_COMPLETE
+            events |= _TRAJ_DONE
         self.flags |= int(events) & _INTERRUPTS
 
     # ------------------------------------------------------------------ reset
@@ -328,8 +329,8 @@ class ChipModel(CommandDecoder):
         """What any reset sets (spec: "What reset sets")."""
         self.flags = 0  # latched interrupt bits 1..6
         self.motor_off = True
-        self.mask = _INTERRUPTS & ~int(Status.BREAKPOINT)  # 003E-equivalent
-        self.signals_extra = int(Signals.EIGHT_BIT_OUTPUT)  # bits 8..15 and 0 not derived elsewhere
+        self.mask = _INTERRUPTS & ~_BREAKPOINT  # 003E-equivalent
+        self.signals_extra = _EIGHT_BIT_OUTPUT  # bits 8..15 and 0 not derived elsewhere
         self.breakpoint = 0
         self.filter = FilterRegisters()
         self.filter_buffer = FilterRegisters()
